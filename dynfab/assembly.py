@@ -1,0 +1,86 @@
+"""The whole model's energy, gradient and banded Hessian for one yarn (MODEL.md 2-4).
+
+Reads as the list of terms: each call below is one term of
+V = E_stretch + E_bend + sum_j E_contact,j - W_load - W_gravity (+ sum_j H_j),
+taken only when the yarn has it. `P` is the end load [N] (0 under
+displacement control, where the load term is absent); `anchors` and
+`friction_limit` (F_T, frozen) are per crossing.
+"""
+
+import numba
+import numpy as np
+
+from dynfab.terms import bending, contact, friction, gravity, load, stretch
+
+STRETCH, BENDING, CONTACT, FRICTION, GRAVITY, LOAD = range(6)
+"""Indices of the energy vector, in the order of `dynfab.model.TERMS`."""
+
+
+@numba.njit(cache=True)
+def energies(pos, yarn, P, anchors, friction_limit, out):
+    """Each term's energy [J] into out (6,); a term the yarn lacks is 0."""
+    out[:] = 0.0
+    out[STRETCH] = stretch.energy(pos, yarn.rest_length, yarn.stretch_stiffness)
+    out[BENDING] = bending.energy(pos, yarn.bend_stiffness, yarn.rest_angle)
+    if yarn.crossing_node.size > 0:
+        out[CONTACT] = contact.energy(pos, yarn.crossing_node, yarn.crossing_side,
+                                      yarn.gap_offset, yarn.contact_law)
+    if yarn.has_friction:
+        out[FRICTION] = friction.energy(pos, yarn.crossing_node, anchors, friction_limit,
+                                        yarn.stick_stiffness)
+    if yarn.has_gravity:
+        out[GRAVITY] = gravity.energy(pos, yarn.rest_position, yarn.mass, yarn.gravity)
+    out[LOAD] = load.energy(pos, yarn.rest_position, P)
+
+
+@numba.njit(cache=True)
+def gradient(pos, yarn, P, anchors, friction_limit, grad):
+    """grad = dV/dr (N+1, 2) [N], F_T frozen."""
+    grad[:, :] = 0.0
+    stretch.add_gradient(pos, yarn.rest_length, yarn.stretch_stiffness, grad)
+    bending.add_gradient(pos, yarn.bend_stiffness, yarn.rest_angle, grad)
+    if yarn.crossing_node.size > 0:
+        contact.add_gradient(pos, yarn.crossing_node, yarn.crossing_side, yarn.gap_offset,
+                             yarn.contact_law, grad)
+    if yarn.has_friction:
+        friction.add_gradient(pos, yarn.crossing_node, anchors, friction_limit,
+                              yarn.stick_stiffness, grad)
+    if yarn.has_gravity:
+        gravity.add_gradient(yarn.mass, yarn.gravity, grad)
+    load.add_gradient(P, grad)
+
+
+@numba.njit(cache=True)
+def hessian(pos, yarn, anchors, friction_limit, contact_tangent, coupled, band):
+    """band = d2V/dr2 [N/m], banded (`dynfab.banded`), F_T frozen.
+
+    With `coupled`, adds the derivative of F_T through the contact force on
+    sliding crossings (`friction.add_limit_coupling`): the Jacobian of the
+    coupled friction problem, no longer symmetric.
+    """
+    band[:, :] = 0.0
+    stretch.add_hessian(pos, yarn.rest_length, yarn.stretch_stiffness, band)
+    bending.add_hessian(pos, yarn.bend_stiffness, yarn.rest_angle, band)
+    if yarn.crossing_node.size > 0:
+        contact.add_hessian(pos, yarn.crossing_node, yarn.crossing_side, yarn.gap_offset,
+                            yarn.contact_law, band)
+    if yarn.has_friction:
+        friction.add_hessian(pos, yarn.crossing_node, anchors, friction_limit,
+                             yarn.stick_stiffness, band)
+        if coupled:
+            friction.add_limit_coupling(pos, yarn.crossing_node, yarn.crossing_side, anchors,
+                                        friction_limit, yarn.stick_stiffness, yarn.friction_alpha,
+                                        contact_tangent, band)
+
+
+@numba.njit(cache=True)
+def contact_state(pos, yarn, contact_force, friction_limit, contact_tangent):
+    """R_j [N], F_T,j [N] (Gralen, 0 without friction) and dR/dg [N/m] of every crossing."""
+    for j in range(yarn.crossing_node.size):
+        g = contact.closure(pos, yarn.crossing_node[j], yarn.crossing_side[j], yarn.gap_offset[j])
+        R = contact.force_from_closure(g, yarn.contact_law)
+        contact_force[j] = R
+        contact_tangent[j] = contact.tangent(R, yarn.contact_law) if g > 0.0 else 0.0
+        friction_limit[j] = 0.0
+        if yarn.has_friction:
+            friction_limit[j] = friction.limit(R, yarn.friction_alpha, yarn.friction_constant)

@@ -1,0 +1,104 @@
+"""Bending springs on exact turning angles (MODEL.md section 2; paper eqs. 13, 16).
+
+E_bend = sum_{i=1}^{N-1} 1/2 (EI / lbar_i) (phi_i - phi0_i)^2, phi_i the signed
+turning angle from segment a = r_i - r_{i-1} to b = r_{i+1} - r_i,
+phi_i = theta(b) - theta(a) with theta(v) = atan2(v_z, v_x), so
+
+    dtheta/dv = (-v_z, v_x) / |v|^2,
+    d2theta/dv2 = [[2 v_x v_z, v_z^2 - v_x^2], [v_z^2 - v_x^2, -2 v_x v_z]] / |v|^4.
+"""
+
+import numba
+import numpy as np
+
+from dynfab.banded import band_add
+
+
+@numba.njit(cache=True)
+def turning_angle(pos, i):
+    """phi_i [rad] = atan2(a x b, a . b)."""
+    ax, az = pos[i, 0] - pos[i - 1, 0], pos[i, 1] - pos[i - 1, 1]
+    bx, bz = pos[i + 1, 0] - pos[i, 0], pos[i + 1, 1] - pos[i, 1]
+    return np.arctan2(ax * bz - az * bx, ax * bx + az * bz)
+
+
+@numba.njit(cache=True)
+def energy(pos, stiffness, rest_angle):
+    """E_bend [J]; `stiffness` = EI / lbar_i per node [N m] (0 at the end nodes)."""
+    total = 0.0
+    for i in range(1, pos.shape[0] - 1):
+        d = turning_angle(pos, i) - rest_angle[i]
+        total += 0.5 * stiffness[i] * d * d
+    return total
+
+
+@numba.njit(cache=True)
+def _angle_gradient(pos, i, out):
+    """dphi_i / d(r_{i-1}, r_i, r_{i+1}) into out (6,)."""
+    ax, az = pos[i, 0] - pos[i - 1, 0], pos[i, 1] - pos[i - 1, 1]
+    bx, bz = pos[i + 1, 0] - pos[i, 0], pos[i + 1, 1] - pos[i, 1]
+    na, nb = ax * ax + az * az, bx * bx + bz * bz
+    gax, gaz = az / na, -ax / na      # dphi/da = -dtheta(a)/da
+    gbx, gbz = -bz / nb, bx / nb      # dphi/db = dtheta(b)/db
+    out[0], out[1] = -gax, -gaz
+    out[2], out[3] = gax - gbx, gaz - gbz
+    out[4], out[5] = gbx, gbz
+
+
+@numba.njit(cache=True)
+def add_gradient(pos, stiffness, rest_angle, grad):
+    """grad += k (phi - phi0) dphi/dr."""
+    g = np.empty(6)
+    for i in range(1, pos.shape[0] - 1):
+        moment = stiffness[i] * (turning_angle(pos, i) - rest_angle[i])
+        _angle_gradient(pos, i, g)
+        for m in range(3):
+            grad[i - 1 + m, 0] += moment * g[2 * m]
+            grad[i - 1 + m, 1] += moment * g[2 * m + 1]
+
+
+@numba.njit(cache=True)
+def _theta_hessian(vx, vz, sign, out, offset_p, offset_q):
+    """Add sign x d2theta/dv2 into the 2x2 block (offset_p, offset_q) of out (6, 6)."""
+    n2 = (vx * vx + vz * vz) ** 2
+    hxx, hxz = 2.0 * vx * vz / n2, (vz * vz - vx * vx) / n2
+    out[offset_p, offset_q] += sign * hxx
+    out[offset_p, offset_q + 1] += sign * hxz
+    out[offset_p + 1, offset_q] += sign * hxz
+    out[offset_p + 1, offset_q + 1] -= sign * hxx
+
+
+@numba.njit(cache=True)
+def _angle_hessian(pos, i, out):
+    """d2phi_i / dr2 (6, 6) over (r_{i-1}, r_i, r_{i+1}).
+
+    a = r_i - r_{i-1} enters with selector (-1, +1, 0) and phi with -theta(a);
+    b = r_{i+1} - r_i with (0, -1, +1) and +theta(b).
+    """
+    out[:, :] = 0.0
+    ax, az = pos[i, 0] - pos[i - 1, 0], pos[i, 1] - pos[i - 1, 1]
+    bx, bz = pos[i + 1, 0] - pos[i, 0], pos[i + 1, 1] - pos[i, 1]
+    sel_a = (-1.0, 1.0, 0.0)
+    sel_b = (0.0, -1.0, 1.0)
+    for p in range(3):
+        for q in range(3):
+            if sel_a[p] * sel_a[q] != 0.0:
+                _theta_hessian(ax, az, -sel_a[p] * sel_a[q], out, 2 * p, 2 * q)
+            if sel_b[p] * sel_b[q] != 0.0:
+                _theta_hessian(bx, bz, sel_b[p] * sel_b[q], out, 2 * p, 2 * q)
+
+
+@numba.njit(cache=True)
+def add_hessian(pos, stiffness, rest_angle, band):
+    """band += k dphi dphi^T + k (phi - phi0) d2phi."""
+    g = np.empty(6)
+    h = np.empty((6, 6))
+    for i in range(1, pos.shape[0] - 1):
+        k = stiffness[i]
+        moment = k * (turning_angle(pos, i) - rest_angle[i])
+        _angle_gradient(pos, i, g)
+        _angle_hessian(pos, i, h)
+        base = 2 * (i - 1)
+        for p in range(6):
+            for q in range(6):
+                band_add(band, base + p, base + q, k * g[p] * g[q] + moment * h[p, q])

@@ -1,0 +1,115 @@
+"""Gralen friction as stick-slip, in the incremental Huber form (MODEL.md 4; eqs. 20-27).
+
+Friction limit (Gralen, eq. 20): F_T,j = alpha R_j + beta ell r_f if R_j > 0, else 0.
+
+Within a load step the anchors xi_j stay put and each crossing adds the convex
+Huber potential of its slip s = x_{n_j} - xi_j:
+
+    H(s) = 1/2 k_t s^2                 for |s| <= F_T / k_t   (sticking)
+         = F_T |s| - F_T^2 / (2 k_t)   otherwise               (sliding),
+
+whose force on the warp is -k_t s or -F_T sign(s). After the step the anchors
+are return-mapped, xi = x - sign(s) F_T / k_t where k_t |s| > F_T, and the
+energy lost is F_T |delta xi|.
+"""
+
+import numba
+import numpy as np
+
+from dynfab.banded import band_add
+
+
+@numba.njit(cache=True)
+def limit(R, alpha, constant):
+    """F_T [N] from Gralen's law; `constant` = beta ell r_f [N]."""
+    return alpha * R + constant if R > 0.0 else 0.0
+
+
+@numba.njit(cache=True)
+def limits(contact_force, alpha, constant, out):
+    """F_T,j [N] of every crossing."""
+    for j in range(contact_force.size):
+        out[j] = limit(contact_force[j], alpha, constant)
+
+
+@numba.njit(cache=True)
+def is_sliding(slip, friction_limit, stick_stiffness):
+    """True where the trial force k_t |s| exceeds F_T."""
+    return stick_stiffness * abs(slip) > friction_limit
+
+
+@numba.njit(cache=True)
+def huber(slip, friction_limit, stick_stiffness):
+    """H(s) [J]."""
+    if not is_sliding(slip, friction_limit, stick_stiffness):
+        return 0.5 * stick_stiffness * slip * slip
+    return friction_limit * abs(slip) - friction_limit * friction_limit / (2.0 * stick_stiffness)
+
+
+@numba.njit(cache=True)
+def huber_derivative(slip, friction_limit, stick_stiffness):
+    """dH/ds [N]: minus the friction force on the warp."""
+    if not is_sliding(slip, friction_limit, stick_stiffness):
+        return stick_stiffness * slip
+    return friction_limit * np.sign(slip)
+
+
+@numba.njit(cache=True)
+def energy(pos, nodes, anchors, friction_limit, stick_stiffness):
+    """sum_j H(x_{n_j} - xi_j) [J] with F_T frozen."""
+    total = 0.0
+    for j in range(nodes.size):
+        total += huber(pos[nodes[j], 0] - anchors[j], friction_limit[j], stick_stiffness)
+    return total
+
+
+@numba.njit(cache=True)
+def add_gradient(pos, nodes, anchors, friction_limit, stick_stiffness, grad):
+    """grad_x += dH/ds."""
+    for j in range(nodes.size):
+        grad[nodes[j], 0] += huber_derivative(pos[nodes[j], 0] - anchors[j], friction_limit[j],
+                                              stick_stiffness)
+
+
+@numba.njit(cache=True)
+def add_hessian(pos, nodes, anchors, friction_limit, stick_stiffness, band):
+    """band_xx += k_t on sticking crossings (0 on sliding ones), F_T frozen."""
+    for j in range(nodes.size):
+        if not is_sliding(pos[nodes[j], 0] - anchors[j], friction_limit[j], stick_stiffness):
+            band_add(band, 2 * nodes[j], 2 * nodes[j], stick_stiffness)
+
+
+@numba.njit(cache=True)
+def add_limit_coupling(pos, nodes, sides, anchors, friction_limit, stick_stiffness, alpha,
+                       contact_tangent, band):
+    """band_xz += d(dH/ds)/dz = sign(s) alpha dR/dg dg/dz on sliding, closed crossings.
+
+    The derivative of F_T through R(g), g = c - s_j z: what makes Newton on the
+    coupled (non-symmetric) problem quadratic. `contact_tangent` is dR/dg per
+    crossing (0 where open).
+    """
+    for j in range(nodes.size):
+        slip = pos[nodes[j], 0] - anchors[j]
+        if contact_tangent[j] > 0.0 and is_sliding(slip, friction_limit[j], stick_stiffness):
+            band_add(band, 2 * nodes[j], 2 * nodes[j] + 1,
+                     np.sign(slip) * alpha * contact_tangent[j] * (-sides[j]))
+
+
+@numba.njit(cache=True)
+def return_map(pos, nodes, anchors, friction_limit, stick_stiffness, sliding, friction_force):
+    """Move the anchors of sliding crossings onto the slip surface; return the energy lost [J].
+
+    xi = x - sign(x - xi) F_T / k_t where k_t |x - xi| > F_T; dissipation F_T |delta xi|.
+    Fills `sliding` (bool) and the signed friction force on the warp [N], -k_t (x - xi).
+    """
+    lost = 0.0
+    for j in range(nodes.size):
+        x = pos[nodes[j], 0]
+        slip = x - anchors[j]
+        sliding[j] = is_sliding(slip, friction_limit[j], stick_stiffness)
+        if sliding[j]:
+            moved = x - np.sign(slip) * friction_limit[j] / stick_stiffness
+            lost += friction_limit[j] * abs(moved - anchors[j])
+            anchors[j] = moved
+        friction_force[j] = -stick_stiffness * (x - anchors[j])
+    return lost

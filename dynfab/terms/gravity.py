@@ -1,0 +1,23 @@
+"""Gravity along -z on the physical masses (MODEL.md section 2).
+
+E_gravity = -W_gravity = sum_i m_i g (z_i - z0_i),  m_i = rho_l lbar_i.
+Linear in the positions: no Hessian.
+"""
+
+import numba
+
+
+@numba.njit(cache=True)
+def energy(pos, rest_pos, mass, g):
+    """sum_i m_i g (z_i - z0_i) [J]."""
+    total = 0.0
+    for i in range(mass.size):
+        total += mass[i] * g * (pos[i, 1] - rest_pos[i, 1])
+    return total
+
+
+@numba.njit(cache=True)
+def add_gradient(mass, g, grad):
+    """grad_z += m_i g (the weight -m_i g on each node)."""
+    for i in range(mass.size):
+        grad[i, 1] += mass[i] * g

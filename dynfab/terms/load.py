@@ -1,0 +1,20 @@
+"""The traction load at the end node (MODEL.md section 2).
+
+Force control: E_load = -W_load = -P (x_N - x0_N).  Displacement control
+prescribes x_N = x0_N + u instead; the reaction P = dV/dx_N is reported.
+Linear in the positions: no Hessian.
+"""
+
+import numba
+
+
+@numba.njit(cache=True)
+def energy(pos, rest_pos, P):
+    """-P (x_N - x0_N) [J]."""
+    return -P * (pos[-1, 0] - rest_pos[-1, 0])
+
+
+@numba.njit(cache=True)
+def add_gradient(P, grad):
+    """grad_{x_N} -= P."""
+    grad[grad.shape[0] - 1, 0] -= P
