@@ -1,0 +1,771 @@
+"""Scene files: TOML in SI units, parsed once at the boundary into frozen dataclasses.
+
+The keys are a contract (README, docs/model.md): scripts and users rely on
+them. Every field documents its unit. Validation happens here and only here;
+a user's mistake raises `SceneError` with one line naming the key, the value
+and what is allowed.
+
+Public: `load_scene`, `parse_scene_text`, `validate_scene` (for a Scene built
+in Python), `with_key`, `expand_sweep`, `yarn_count`. Choices made here:
+
+- a scene without crossings (a plain rod) refuses a [weft] or [friction] table
+  and a non-zero geometry.amplitude, rather than ignoring them;
+- [dynamic] keys that the chosen mode or damping would ignore (duration and
+  output_interval outside "transient", damping_coefficient without viscous
+  damping) are refused too;
+- integer keys refuse floats, even 16.0; real keys accept integers;
+- load.max must be non-zero (a path at zero load is `values = [0.0]`);
+- a [sweep] key may be quoted ("warp.EA" = [...]) or bare (warp.EA = [...]),
+  and may be left out of its table, which then takes the first entry;
+  weft.count is not sweepable (an integer; sweeps hold reals).
+"""
+
+from __future__ import annotations
+
+import datetime
+import difflib
+import json
+import math
+import numbers
+import tomllib
+from dataclasses import MISSING, dataclass, field, fields, replace
+from pathlib import Path
+
+from dynfab.errors import SceneError
+
+
+@dataclass(frozen=True, kw_only=True)
+class Geometry:
+    """The warp yarn's geometry (MODEL.md section 1)."""
+
+    length: float
+    """L, projected warp length [m]."""
+    segments: int
+    """N, segments per warp yarn; a multiple of 2 x crossings."""
+    crossings: int
+    """N_we, weft crossings per warp yarn; 0 is a plain straight rod."""
+    amplitude: float
+    """A_wa, as-woven warp crimp amplitude [m]; 0 is a straight yarn."""
+    reference: str = "as_woven"
+    """Stress-free state: "as_woven" or "prestressed" (MODEL.md section 3)."""
+    yarns: int = 1
+    """Adjacent warp yarns simulated, yarn k with phase s_k = (-1)^(k-1)."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class Warp:
+    """Warp yarn material (MODEL.md sections 2-3)."""
+
+    EA: float
+    """Extensional stiffness [N]."""
+    EI: float
+    """Bending stiffness [N m^2]."""
+    kawabata_C: float
+    """Kawabata C_wa, limit compression [m]."""
+    kawabata_K: float
+    """Kawabata K_wa, compliance parameter [m/N]."""
+    linear_density: float = 3e-5
+    """rho_l, mass per unit length [kg/m]."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class Weft:
+    """The weft at a crossing: a beam spring in series with Kawabata (MODEL.md 3)."""
+
+    EI: float
+    """Weft bending stiffness [N m^2]."""
+    length: float
+    """L_we, projected weft length [m]."""
+    count: int
+    """N_wa, warp yarns crossing one weft."""
+    amplitude: float
+    """A_we, weft crimp amplitude [m]."""
+    kawabata_C: float
+    """Kawabata C_we [m]."""
+    kawabata_K: float
+    """Kawabata K_we [m/N]."""
+    tension: float = 0.0
+    """P_we, weft tension [N]; negative is compression, above -pi^2 EI/L_we^2."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class Friction:
+    """Gralen friction with stick-slip regularisation (MODEL.md section 4)."""
+
+    alpha: float
+    """Gralen alpha [-]."""
+    beta: float
+    """Gralen beta [N/m^2]."""
+    contact_length: float
+    """ell, effective contact length [m]."""
+    fiber_radius: float
+    """r_f, fibre radius [m]."""
+    stick_stiffness: float | None = None
+    """k_t [N/m]; None means EA / (L/N) of each yarn."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class Gravity:
+    """Gravity along -z, acting on the physical masses (MODEL.md section 2)."""
+
+    g: float = 9.81
+    """Gravitational acceleration [m/s^2]."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class Load:
+    """The load path (MODEL.md section 4: exactly these values, no zero step)."""
+
+    control: str = "force"
+    """"force": values are P per warp yarn [N]; "displacement": end displacement [m]."""
+    values: tuple[float, ...]
+    """The load steps, in order [N or m]."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class Static:
+    """Options of the static Newton reference solver (MODEL.md section 6)."""
+
+    tolerance: float = 1e-11
+    """Force residual to reach [N] (or the rounding floor, where higher)."""
+    max_iterations: int = 200
+    """Newton iterations per load step before the step is declared failed."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class Dynamic:
+    """Options of the dynamic (Warp) solver (MODEL.md section 5)."""
+
+    mode: str = "quasi_static"
+    """"quasi_static" (relax each load step) or "transient"."""
+    method: str = "explicit"
+    """"explicit" (symplectic Euler) or "semi_implicit" (linearly implicit Euler)."""
+    damping: str | None = None
+    """"kinetic", "viscous" or "fire"; None: kinetic (quasi-static), viscous (transient)."""
+    damping_coefficient: float | None = None
+    """Viscous c [1/s]; None: adaptive (quasi-static) or 0 (transient)."""
+    masses: str | None = None
+    """"fictitious" or "physical"; None: fictitious (quasi-static), physical (transient)."""
+    dt: float | None = None
+    """Time step [s]; None: safety x the stability bound."""
+    safety: float = 0.9
+    """Fraction of the predicted stable time step used [-]."""
+    tolerance: float | None = None
+    """Force residual [N]; None: 1e-8 (float64), 1e-4 (float32)."""
+    max_steps: int = 1_000_000
+    """Time steps allowed per load step."""
+    precision: str = "float64"
+    """"float64" or "float32"."""
+    duration: float | None = None
+    """Transient: simulated time [s]."""
+    output_interval: float | None = None
+    """Transient: time between frames [s]."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class Scene:
+    """A whole scene: what is simulated, how it is loaded, and solver options."""
+
+    title: str = ""
+    geometry: Geometry
+    warp: Warp
+    weft: Weft | None = None
+    """Absent exactly when geometry.crossings == 0."""
+    friction: Friction | None = None
+    gravity: Gravity | None = None
+    load: Load
+    sweep: tuple[tuple[str, tuple[float, ...]], ...] = ()
+    """Zipped lists ("table.key", values), one batched yarn per entry."""
+    static: Static = field(default_factory=Static)
+    dynamic: Dynamic = field(default_factory=Dynamic)
+    text: str = ""
+    """The TOML source, stored in every result file."""
+
+
+# --------------------------------------------------------------------------
+# Schema: how each TOML key is read and checked.
+
+
+@dataclass(frozen=True)
+class _Key:
+    """How one scene key is read: its kind, unit, range rule and choices."""
+
+    kind: str
+    """"float", "int", "str" or "floats" (a non-empty list of numbers)."""
+    unit: str = ""
+    rule: str = ""
+    """"", "positive", "nonnegative" or "nonzero"."""
+    choices: tuple[str, ...] = ()
+
+
+_POS, _NONNEG = "positive", "nonnegative"
+
+
+def _real(unit: str, rule: str = "") -> _Key:
+    """A real-valued key."""
+    return _Key("float", unit, rule)
+
+
+def _choice(*choices: str) -> _Key:
+    """A string key restricted to choices."""
+    return _Key("str", choices=choices)
+
+
+_SCHEMA: dict[str, tuple[type, dict[str, _Key]]] = {
+    "geometry": (Geometry, {
+        "length": _real("m", _POS),
+        "segments": _Key("int", rule=_POS),
+        "crossings": _Key("int", rule=_NONNEG),
+        "amplitude": _real("m", _NONNEG),
+        "reference": _choice("as_woven", "prestressed"),
+        "yarns": _Key("int", rule=_POS),
+    }),
+    "warp": (Warp, {
+        "EA": _real("N", _POS),
+        "EI": _real("N m^2", _POS),
+        "kawabata_C": _real("m", _POS),
+        "kawabata_K": _real("m/N", _POS),
+        "linear_density": _real("kg/m", _POS),
+    }),
+    "weft": (Weft, {
+        "EI": _real("N m^2", _POS),
+        "length": _real("m", _POS),
+        "count": _Key("int", rule=_POS),
+        "amplitude": _real("m", _NONNEG),
+        "kawabata_C": _real("m", _POS),
+        "kawabata_K": _real("m/N", _POS),
+        "tension": _real("N"),
+    }),
+    "friction": (Friction, {
+        "alpha": _real("-", _NONNEG),
+        "beta": _real("N/m^2", _NONNEG),
+        "contact_length": _real("m", _NONNEG),
+        "fiber_radius": _real("m", _NONNEG),
+        "stick_stiffness": _real("N/m", _POS),
+    }),
+    "gravity": (Gravity, {"g": _real("m/s^2")}),
+    "load": (Load, {
+        "control": _choice("force", "displacement"),
+        "values": _Key("floats", "N or m"),
+    }),
+    "static": (Static, {
+        "tolerance": _real("N", _POS),
+        "max_iterations": _Key("int", rule=_POS),
+    }),
+    "dynamic": (Dynamic, {
+        "mode": _choice("quasi_static", "transient"),
+        "method": _choice("explicit", "semi_implicit"),
+        "damping": _choice("kinetic", "viscous", "fire"),
+        "damping_coefficient": _real("1/s", _NONNEG),
+        "masses": _choice("fictitious", "physical"),
+        "dt": _real("s", _POS),
+        "safety": _real("-", _POS),
+        "tolerance": _real("N", _POS),
+        "max_steps": _Key("int", rule=_POS),
+        "precision": _choice("float64", "float32"),
+        "duration": _real("s", _POS),
+        "output_interval": _real("s", _POS),
+    }),
+}
+"""Table -> (dataclass, keys). The TOML key set is a contract: never rename."""
+
+_LOAD_PATH = {"max": _real("N or m", "nonzero"), "steps": _Key("int", rule=_POS)}
+"""The other way to write a load path: values = max k / steps, k = 1..steps."""
+
+_TOP_KEYS = ("title", *_SCHEMA, "sweep")
+_REQUIRED_TABLES = ("geometry", "warp", "load")
+_FIELD_KEYS = tuple(f"{t}.{k}" for t, (_, keys) in _SCHEMA.items() for k in keys)
+_ALL_KEYS = _FIELD_KEYS + tuple(f"load.{k}" for k in _LOAD_PATH)
+_SWEEPABLE = ("geometry.amplitude",) + tuple(
+    f"{t}.{k}" for t in ("warp", "weft", "friction", "gravity")
+    for k, key in _SCHEMA[t][1].items() if key.kind == "float")
+"""Keys a [sweep] may vary: real-valued, changing no array shape (MODEL.md 1)."""
+
+
+# --------------------------------------------------------------------------
+# Public functions.
+
+
+def load_scene(path) -> Scene:
+    """Read and validate the TOML scene file at `path` (SceneError if it cannot)."""
+    path = Path(path)
+    try:
+        text = path.read_bytes().decode("utf-8")
+    except FileNotFoundError:
+        raise SceneError(f"scene file '{path}' not found") from None
+    except UnicodeDecodeError:
+        raise SceneError(f"scene file '{path}' is not UTF-8 text") from None
+    except OSError as exc:
+        raise SceneError(f"cannot read scene file '{path}': {exc.strerror}") from None
+    return parse_scene_text(text, source=str(path))
+
+
+def parse_scene_text(text: str, source: str = "<string>") -> Scene:
+    """Parse and validate TOML scene text; `source` names it in a syntax error."""
+    try:
+        raw = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        message = " ".join(str(exc).split())
+        raise SceneError(f"{source}: not valid TOML: {message}") from None
+    return validate_scene(_build_scene(raw, text))
+
+
+def validate_scene(scene: Scene) -> Scene:
+    """Check every value and every combination of a Scene; return it unchanged.
+
+    Runs on parsed scenes and on scenes built in Python alike.
+    """
+    _check_tables_present(scene)
+    _check_fields(scene)
+    _check_segments(scene.geometry)
+    if scene.weft is not None:
+        _check_weft_tension(scene.weft)
+    _check_dynamic(scene.dynamic)
+    _check_sweep(scene)
+    return scene
+
+
+def with_key(scene: Scene, dotted_key: str, value) -> Scene:
+    """A copy of `scene` with one key (e.g. "warp.kawabata_K") set, re-validated.
+
+    Any field of a table may be set (not only sweepable ones), but derived
+    defaults resolved at parse time do not follow: setting geometry.length
+    leaves weft.length, and geometry.crossings leaves weft.count, as they were.
+    """
+    return _with_keys(scene, ((dotted_key, value),))
+
+
+def expand_sweep(scene: Scene) -> list[Scene]:
+    """One validated Scene per [sweep] entry, its keys applied and sweep=().
+
+    Without a sweep, `[scene]`. Each entry keeps the whole scene's `text`.
+    """
+    if not scene.sweep:
+        return [scene]
+    base = replace(scene, sweep=())
+    return [_with_keys(base, [(key, values[i]) for key, values in scene.sweep])
+            for i in range(yarn_count(scene))]
+
+
+def yarn_count(scene: Scene) -> int:
+    """Yarns simulated together: the sweep's entries, else geometry.yarns."""
+    if scene.sweep:
+        return len(scene.sweep[0][1])
+    return scene.geometry.yarns
+
+
+# --------------------------------------------------------------------------
+# Messages.
+
+
+def _show(value) -> str:
+    """A value as the user wrote it in TOML, on one short line."""
+    if isinstance(value, bool):
+        text = "true" if value else "false"
+    elif isinstance(value, str):
+        text = json.dumps(value)
+    elif isinstance(value, dict):
+        text = "{...}"
+    elif isinstance(value, (list, tuple)):
+        text = "[" + ", ".join(_show(v) for v in value) + "]"
+    else:
+        text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _type_name(value) -> str:
+    """What a wrong value is, for a message."""
+    names = {bool: "a boolean", str: "a string", dict: "a table", list: "a list",
+             int: "an integer", float: "a number", datetime.date: "a date",
+             datetime.time: "a time"}
+    for kind, name in names.items():
+        if isinstance(value, kind):
+            return name
+    return f"a {type(value).__name__}"
+
+
+def _bad(label: str, value, what: str) -> SceneError:
+    """The one-line error `label = value: what`."""
+    return SceneError(f"{label} = {_show(value)}: {what}")
+
+
+def _unknown(label: str, candidates, allowed) -> SceneError:
+    """Error for an unknown key, suggesting the closest candidate."""
+    match = difflib.get_close_matches(label, list(candidates), n=1)
+    hint = f"did you mean '{match[0]}'?" if match else "allowed: " + ", ".join(allowed)
+    return SceneError(f"unknown key '{label}'; {hint}")
+
+
+def _unknown_top(name: str) -> SceneError:
+    """Error for an unknown top-level key or table; a field name points to its table."""
+    if not difflib.get_close_matches(name, _TOP_KEYS, n=1):
+        by_field = {}
+        for dotted in _ALL_KEYS:
+            by_field.setdefault(dotted.split(".")[1], dotted)
+        match = difflib.get_close_matches(name, list(by_field), n=1)
+        if match:
+            dotted = by_field[match[0]]
+            return SceneError(f"unknown key '{name}'; did you mean '{dotted}' "
+                              f"({match[0]} under [{dotted.split('.')[0]}])?")
+    return _unknown(name, _TOP_KEYS, _TOP_KEYS)
+
+
+# --------------------------------------------------------------------------
+# Single values.
+
+
+def _convert(label: str, value, key: _Key):
+    """Check one value's type and range; return it as stored (ints as float for reals)."""
+    if key.kind == "floats":
+        return _convert_list(label, value, key)
+    if key.kind == "str":
+        return _convert_str(label, value, key)
+    number = _number(label, value, key)
+    _check_range(label, value, key)
+    return number
+
+
+def _units(key: _Key) -> str:
+    """" [unit]" or ""."""
+    return f" [{key.unit}]" if key.unit else ""
+
+
+def _number(label: str, value, key: _Key):
+    """A finite number (an integer for int keys); bools and strings refused."""
+    what = "an integer" if key.kind == "int" else "a number"
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise _bad(label, value, f"must be {what}{_units(key)}, not {_type_name(value)}")
+    if not math.isfinite(value):
+        raise _bad(label, value, f"must be a finite number{_units(key)}")
+    if key.kind == "float":
+        return float(value)
+    if not isinstance(value, numbers.Integral):
+        raise _bad(label, value, "must be an integer (write it without a decimal point)")
+    return int(value)
+
+
+def _check_range(label: str, value, key: _Key) -> None:
+    """Apply the key's rule to a finite number: positive, non-negative or non-zero."""
+    noun = "integer" if key.kind == "int" else "number"
+    failed = {"positive": value <= 0, "nonnegative": value < 0,
+              "nonzero": value == 0}.get(key.rule, False)
+    if failed:
+        adjective = {"positive": "a positive", "nonnegative": "a non-negative",
+                     "nonzero": "a non-zero"}[key.rule]
+        raise _bad(label, value, f"must be {adjective} {noun}{_units(key)}")
+
+
+def _convert_str(label: str, value, key: _Key) -> str:
+    """A string, one of key.choices when given."""
+    if not isinstance(value, str):
+        raise _bad(label, value, f"must be a string, not {_type_name(value)}")
+    if key.choices and value not in key.choices:
+        allowed = ", ".join(json.dumps(c) for c in key.choices)
+        match = difflib.get_close_matches(value, key.choices, n=1)
+        hint = f"; did you mean {json.dumps(match[0])}?" if match else ""
+        raise _bad(label, value, f"must be one of {allowed}{hint}")
+    return value
+
+
+def _convert_list(label: str, value, key: _Key) -> tuple[float, ...]:
+    """A non-empty list of finite numbers, as a tuple of floats."""
+    if not isinstance(value, (list, tuple)) or not value:
+        raise _bad(label, value, f"must be a non-empty list of numbers{_units(key)}")
+    item = _Key("float", key.unit)
+    return tuple(_number(f"{label}[{i}]", v, item) for i, v in enumerate(value))
+
+
+# --------------------------------------------------------------------------
+# From the TOML dictionary to a Scene.
+
+
+def _build_scene(raw: dict, text: str) -> Scene:
+    """Structure, types and defaults: the raw TOML dictionary to a Scene."""
+    for name in raw:
+        if name not in _TOP_KEYS:
+            raise _unknown_top(name)
+    tables = {name: _table(raw, name) for name in (*_SCHEMA, "sweep")}
+    sweep = _parse_sweep(tables["sweep"]) if tables["sweep"] is not None else ()
+    _fill_swept(tables, sweep)
+    geometry = _build_table("geometry", tables["geometry"])
+    return Scene(
+        title=_convert("title", raw.get("title", ""), _Key("str")),
+        geometry=geometry,
+        warp=_build_table("warp", tables["warp"]),
+        weft=_build_weft(tables["weft"], geometry),
+        friction=_build_optional("friction", tables["friction"]),
+        gravity=_build_optional("gravity", tables["gravity"]),
+        load=_build_load(tables["load"]),
+        sweep=sweep,
+        static=_build_optional("static", tables["static"]) or Static(),
+        dynamic=_build_optional("dynamic", tables["dynamic"]) or Dynamic(),
+        text=text,
+    )
+
+
+def _table(raw: dict, name: str) -> dict | None:
+    """The raw [name] table, None if absent; refuse a value that is not a table."""
+    value = raw.get(name)
+    if value is not None and not isinstance(value, dict):
+        raise _bad(name, value, f"must be a table [{name}], not {_type_name(value)}")
+    if value is None and name in _REQUIRED_TABLES:
+        raise SceneError(f"missing required table [{name}]")
+    return value
+
+
+def _check_keys(name: str, table: dict, allowed) -> None:
+    """Refuse keys of [name] not in allowed, suggesting the closest valid one."""
+    for key in table:
+        if key not in allowed:
+            raise _unknown(f"{name}.{key}", _ALL_KEYS, allowed)
+
+
+def _build_table(name: str, table: dict, defaults: dict | None = None):
+    """The dataclass of [name] from its raw table; missing keys take defaults."""
+    cls, keys = _SCHEMA[name]
+    _check_keys(name, table, keys)
+    values = {}
+    for key, spec in keys.items():
+        if key in table:
+            values[key] = _convert(f"{name}.{key}", table[key], spec)
+        elif defaults and key in defaults:
+            values[key] = defaults[key]
+        elif _is_required(cls, key):
+            raise SceneError(f"missing required key {name}.{key}{_units(spec)}")
+    return cls(**values)
+
+
+def _is_required(cls: type, name: str) -> bool:
+    """Whether the dataclass field has no default."""
+    found = next(f for f in fields(cls) if f.name == name)
+    return found.default is MISSING and found.default_factory is MISSING
+
+
+def _build_optional(name: str, table: dict | None):
+    """An optional table's dataclass, None when the table is absent."""
+    return None if table is None else _build_table(name, table)
+
+
+def _rod_table_error(name: str) -> SceneError:
+    """A [weft] or [friction] table given to a plain rod (crossings = 0)."""
+    return SceneError(f"[{name}] given but geometry.crossings = 0: a plain rod has "
+                      f"no crossings; remove the [{name}] table or set crossings > 0")
+
+
+def _build_weft(table: dict | None, geometry: Geometry) -> Weft | None:
+    """The weft; length defaults to geometry.length, count to geometry.crossings."""
+    if table is None:
+        return None
+    defaults = {"length": geometry.length, "count": geometry.crossings}
+    return _build_table("weft", table, defaults)
+
+
+def _build_load(table: dict) -> Load:
+    """The load path: `values`, or `max` and `steps` (values = max k / steps)."""
+    keys = _SCHEMA["load"][1]
+    _check_keys("load", table, (*keys, *_LOAD_PATH))
+    control = _convert("load.control", table.get("control", "force"), keys["control"])
+    has_path = [k for k in _LOAD_PATH if k in table]
+    if "values" in table and has_path:
+        raise SceneError(f"load.values and load.{has_path[0]} both given: "
+                         "write the load path either as values or as max and steps")
+    if "values" in table:
+        return Load(control=control, values=_convert("load.values", table["values"],
+                                                      keys["values"]))
+    if not has_path:
+        raise SceneError("missing required key load.values (or load.max and load.steps)")
+    for key in _LOAD_PATH:
+        if key not in table:
+            raise SceneError(f"missing required key load.{key} (given with load.{has_path[0]})")
+    top = _convert("load.max", table["max"], _LOAD_PATH["max"])
+    steps = _convert("load.steps", table["steps"], _LOAD_PATH["steps"])
+    return Load(control=control, values=tuple(top * k / steps for k in range(1, steps + 1)))
+
+
+def _parse_sweep(table: dict) -> tuple[tuple[str, tuple[float, ...]], ...]:
+    """[sweep] as (dotted key, values) pairs; quoted or bare dotted keys alike."""
+    flat = _flatten(table)
+    if not flat:
+        raise SceneError('[sweep] is empty: give at least one key, e.g. '
+                         '"warp.kawabata_K" = [0.02, 0.2, 1.0], or remove the table')
+    entries = []
+    for key, values in flat.items():
+        _check_sweep_key(key)
+        table_name, name = key.split(".")
+        unit = _SCHEMA[table_name][1][name].unit
+        entries.append((key, _convert(f'sweep."{key}"', values, _Key("floats", unit))))
+    return tuple(entries)
+
+
+def _flatten(table: dict, prefix: str = "") -> dict:
+    """{"warp": {"EA": [...]}} and {"warp.EA": [...]} both to {"warp.EA": [...]}."""
+    flat = {}
+    for key, value in table.items():
+        if isinstance(value, dict):
+            flat.update(_flatten(value, f"{prefix}{key}."))
+        else:
+            flat[f"{prefix}{key}"] = value
+    return flat
+
+
+def _fill_swept(tables: dict, sweep) -> None:
+    """A swept key may be left out of its (present) table: it takes entry 0."""
+    for key, values in sweep:
+        table_name, name = key.split(".")
+        table = tables.get(table_name)
+        if table is not None and name not in table:
+            tables[table_name] = {**table, name: values[0]}
+
+
+# --------------------------------------------------------------------------
+# Checks on a Scene.
+
+
+def _check_tables_present(scene: Scene) -> None:
+    """Tables that must be there, and the ones a plain rod must not have."""
+    if scene.geometry.crossings > 0 and scene.weft is None:
+        raise SceneError(f"missing required table [weft] (geometry.crossings = "
+                         f"{scene.geometry.crossings} > 0)")
+    if scene.geometry.crossings == 0:
+        for name in ("weft", "friction"):
+            if getattr(scene, name) is not None:
+                raise _rod_table_error(name)
+
+
+def _check_fields(scene: Scene) -> None:
+    """Every field's type and range, as if read from TOML."""
+    _convert("title", scene.title, _Key("str"))
+    for name, (_, keys) in _SCHEMA.items():
+        table = getattr(scene, name)
+        if table is None:
+            continue
+        for key, spec in keys.items():
+            value = getattr(table, key)
+            if value is not None:
+                _convert(f"{name}.{key}", value, spec)
+
+
+def _check_segments(geometry: Geometry) -> None:
+    """segments a multiple of 2 x crossings; a plain rod is straight, segments >= 2."""
+    n, crossings = geometry.segments, geometry.crossings
+    if crossings == 0:
+        if n < 2:
+            raise _bad("geometry.segments", n, "a plain rod (geometry.crossings = 0) "
+                       "needs at least 2 segments")
+        if geometry.amplitude != 0:
+            raise _bad("geometry.amplitude", geometry.amplitude, "a plain rod "
+                       "(geometry.crossings = 0) is straight; amplitude must be 0")
+        return
+    step = 2 * crossings
+    if n % step:
+        nearest = max(step, round(n / step) * step)
+        raise _bad("geometry.segments", n, f"must be a positive multiple of 2 x "
+                   f"geometry.crossings = {step} (crossings = {crossings}); "
+                   f"nearest valid: {nearest}")
+
+
+def _check_weft_tension(weft: Weft) -> None:
+    """P_we > -Pcr_we = -pi^2 EI_we / L_we^2: the weft must not buckle (MODEL.md 3)."""
+    limit = -math.pi**2 * weft.EI / weft.length**2
+    if weft.tension <= limit:
+        raise _bad("weft.tension", weft.tension, f"must be > {limit:.6g} N = -pi^2 weft.EI / "
+                   "weft.length^2, where the weft buckles (MODEL.md section 3)")
+
+
+def _check_dynamic(dynamic: Dynamic) -> None:
+    """Refuse [dynamic] combinations that cannot work or would be ignored."""
+    if dynamic.mode == "transient":
+        _check_transient(dynamic)
+    else:
+        for key in ("duration", "output_interval"):
+            value = getattr(dynamic, key)
+            if value is not None:
+                raise _bad(f"dynamic.{key}", value,
+                           'only used with dynamic.mode = "transient"')
+    damping = dynamic.damping or ("viscous" if dynamic.mode == "transient" else "kinetic")
+    if dynamic.damping_coefficient is not None and damping != "viscous":
+        raise _bad("dynamic.damping_coefficient", dynamic.damping_coefficient,
+                   f'only used with dynamic.damping = "viscous" (damping is "{damping}")')
+
+
+def _check_transient(dynamic: Dynamic) -> None:
+    """Transient: physical masses, viscous damping, duration >= output_interval > 0."""
+    if dynamic.masses == "fictitious":
+        raise _bad("dynamic.masses", dynamic.masses, 'not allowed with dynamic.mode = '
+                   '"transient", which uses the physical masses')
+    if dynamic.damping in ("kinetic", "fire"):
+        raise _bad("dynamic.damping", dynamic.damping, 'not allowed with dynamic.mode = '
+                   '"transient"; use "viscous" (the default)')
+    for key in ("duration", "output_interval"):
+        if getattr(dynamic, key) is None:
+            raise SceneError(f'missing required key dynamic.{key} [s] '
+                             '(needed with dynamic.mode = "transient")')
+    if dynamic.output_interval > dynamic.duration:
+        raise _bad("dynamic.output_interval", dynamic.output_interval,
+                   f"must be <= dynamic.duration = {dynamic.duration!r} [s]")
+
+
+def _check_sweep_key(key: str) -> None:
+    """Refuse an unknown or unsweepable [sweep] key."""
+    if key in _SWEEPABLE:
+        return
+    if key in _ALL_KEYS:
+        raise SceneError(f'sweep."{key}": this key cannot be swept; sweepable are '
+                         "geometry.amplitude and the real-valued keys of [warp], "
+                         "[weft], [friction] and [gravity]")
+    match = difflib.get_close_matches(key, _SWEEPABLE, n=1)
+    hint = f"; did you mean 'sweep.\"{match[0]}\"'?" if match else ""
+    raise SceneError(f"unknown key 'sweep.\"{key}\"'{hint}")
+
+
+def _check_sweep(scene: Scene) -> None:
+    """[sweep]: yarns = 1, sweepable keys of present tables, equal lengths, valid entries."""
+    if not scene.sweep:
+        return
+    if scene.geometry.yarns != 1:
+        raise _bad("geometry.yarns", scene.geometry.yarns, "a scene with a [sweep] "
+                   "simulates one yarn per entry; remove yarns or the sweep")
+    first_key, first = scene.sweep[0]
+    for key, values in scene.sweep:
+        _check_sweep_key(key)
+        _convert(f'sweep."{key}"', values, _Key("floats"))
+        table = key.split(".")[0]
+        if getattr(scene, table) is None:
+            raise SceneError(f'sweep."{key}": the scene has no [{table}] table; '
+                             f"add one to sweep its keys")
+        if len(values) != len(first):
+            raise SceneError(f'sweep."{key}" has {len(values)} entries but sweep.'
+                             f'"{first_key}" has {len(first)}: all sweep lists must '
+                             "have the same length")
+    _check_sweep_entries(scene)
+
+
+def _check_sweep_entries(scene: Scene) -> None:
+    """Each entry validated exactly as if its values were written in their tables."""
+    base = replace(scene, sweep=())
+    for i in range(yarn_count(scene)):
+        try:
+            _with_keys(base, [(key, values[i]) for key, values in scene.sweep])
+        except SceneError as exc:
+            raise SceneError(f"sweep entry {i}: {exc}") from None
+
+
+def _with_keys(scene: Scene, items) -> Scene:
+    """Set several dotted keys at once, then validate the whole scene once."""
+    changes = {}
+    for dotted, value in items:
+        table_name, name, key = _field_of(dotted)
+        table = changes.get(table_name) or getattr(scene, table_name)
+        if table is None:
+            raise SceneError(f"{dotted}: the scene has no [{table_name}] table")
+        changes[table_name] = replace(table, **{name: _convert(dotted, value, key)})
+    return validate_scene(replace(scene, **changes))
+
+
+def _field_of(dotted: str) -> tuple[str, str, _Key]:
+    """(table, field, key spec) of a dotted key such as "warp.EA"."""
+    table_name, _, name = dotted.partition(".")
+    keys = _SCHEMA.get(table_name, (None, {}))[1]
+    if name not in keys:
+        raise _unknown(dotted, _FIELD_KEYS, _FIELD_KEYS)
+    return table_name, name, keys[name]
