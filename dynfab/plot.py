@@ -1,0 +1,272 @@
+"""Figures from a result file (`dynfab.results` layout): PNGs for a report.
+
+`plot_results` draws, with one line per yarn labelled by the root attribute
+``yarn_labels``:
+
+* ``traction.png``: force per unit width against strain, and P against end
+  displacement, with markers at the computed load steps;
+* ``contact_force.png``: largest (solid) and mean (dashed) contact force per
+  yarn against end displacement (skipped without crossings);
+* ``shape.png``: the first yarn's shape at about four loads, z exaggerated;
+* ``friction.png``: open / sticking / sliding state of each crossing of the
+  first yarn at each load step (only if the file has friction).
+
+Matplotlib figures are built with `matplotlib.figure.Figure`, so the global
+pyplot state and backend are never touched; PNGs are written with Agg.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+from matplotlib import colormaps
+from matplotlib.colors import BoundaryNorm, ListedColormap
+from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
+from matplotlib.patches import Patch
+
+from dynfab.errors import SceneError
+from dynfab.results import Results, read_results
+
+DPI = 200
+"""Resolution of the PNGs [dots per inch]."""
+FONT_SIZE = 9
+"""Font size [pt], readable on a printed page at the figure sizes used."""
+FRICTION_STATES = (("open", "#d9d9d9"), ("sticking", "#1f77b4"), ("sliding", "#d62728"))
+"""Categories of `friction_states`, in code order, with their colours."""
+
+
+def plot_results(path: str | os.PathLike, out_dir: str | os.PathLike) -> list[Path]:
+    """Write the figures of the result file ``path`` into ``out_dir`` (created if needed).
+
+    Returns the paths of the PNGs written. Raises SceneError for a missing
+    file, a file that is not a dynfab result, or one without a load step.
+    """
+    results = read_results(path)
+    if results.step_count == 0:
+        raise SceneError(f"result file '{path}' has no finished load step to plot")
+    for key in ("end_force", "end_displacement", "positions"):
+        if key not in results.steps:
+            raise SceneError(f"result file '{path}' lacks dataset steps/{key}")
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    written = [_save(plot_traction(results, path), out / "traction.png")]
+    if crossing_count(results) > 0 and "contact_force" in results.steps:
+        written.append(_save(plot_contact_force(results), out / "contact_force.png"))
+    written.append(_save(plot_shape(results, path), out / "shape.png"))
+    if has_friction(results):
+        written.append(_save(plot_friction(results), out / "friction.png"))
+    return written
+
+
+def _save(fig: Figure, path: Path) -> Path:
+    """Save ``fig`` as a PNG at ``path`` and return the path."""
+    fig.savefig(path, dpi=DPI)
+    return path
+
+
+def _figure(width: float, height: float) -> Figure:
+    """A new figure of the given size [in] with the report font size."""
+    fig = Figure(figsize=(width, height), layout="constrained")
+    fig.set_dpi(DPI)
+    return fig
+
+
+def _style(ax) -> None:
+    """Apply the common axis style (font sizes, grid)."""
+    ax.tick_params(labelsize=FONT_SIZE)
+    ax.xaxis.label.set_size(FONT_SIZE)
+    ax.yaxis.label.set_size(FONT_SIZE)
+    ax.title.set_size(FONT_SIZE + 1)
+    ax.grid(True, alpha=0.3)
+
+
+def _legend(ax, **kwargs) -> None:
+    """A legend in the report font size, if anything is labelled."""
+    if ax.get_legend_handles_labels()[0] or kwargs.get("handles"):
+        ax.legend(fontsize=FONT_SIZE - 1, **kwargs)
+
+
+def yarn_labels(results: Results) -> list[str]:
+    """One label per yarn: the ``yarn_labels`` attribute, else "yarn 1", "yarn 2", ..."""
+    count = results.steps["end_force"].reshape(results.step_count, -1).shape[1]
+    labels = results.attrs.get("yarn_labels")
+    if isinstance(labels, str):
+        labels = [labels]
+    if not labels or len(labels) != count:
+        return [f"yarn {k + 1}" for k in range(count)]
+    return [str(label) for label in labels]
+
+
+def _per_yarn(results: Results, name: str) -> np.ndarray:
+    """A ``steps/<name>`` dataset as a (steps, yarns) array."""
+    return np.asarray(results.steps[name], dtype=float).reshape(results.step_count, -1)
+
+
+def _attr(results: Results, name: str, path) -> float:
+    """A positive float root attribute; SceneError naming it if absent or not positive."""
+    value = results.attrs.get(name)
+    if not isinstance(value, (int, float)) or isinstance(value, bool) or not value > 0:
+        raise SceneError(f"result file '{path}' lacks a positive root attribute {name!r}")
+    return float(value)
+
+
+def crossing_count(results: Results) -> int:
+    """Crossings per yarn (0 for a plain rod)."""
+    nodes = results.reference.get("crossing_nodes")
+    if nodes is not None:
+        return int(np.size(nodes))
+    contact = results.steps.get("contact_force")
+    return 0 if contact is None else int(contact.shape[-1])
+
+
+def has_friction(results: Results) -> bool:
+    """True if the file has crossings with a non-zero friction limit at some step."""
+    limit = results.steps.get("friction_limit")
+    return crossing_count(results) > 0 and limit is not None and bool(np.any(limit != 0))
+
+
+def plot_traction(results: Results, path="") -> Figure:
+    """Force per unit width [N/m] vs strain [%], and P [N] vs end displacement [mm]."""
+    length = _attr(results, "projected_length", path)
+    width = _attr(results, "width_per_yarn", path)
+    force = _per_yarn(results, "end_force")
+    displacement = _per_yarn(results, "end_displacement")
+    fig = _figure(7.0, 3.0)
+    left, right = fig.subplots(1, 2)
+    for k, label in enumerate(yarn_labels(results)):
+        left.plot(100 * displacement[:, k] / length, force[:, k] / width, "o-", ms=3, label=label)
+        right.plot(1e3 * displacement[:, k], force[:, k], "o-", ms=3, label=label)
+    left.set(xlabel="strain (%)", ylabel="force per unit width (N/m)")
+    right.set(xlabel="end displacement (mm)", ylabel="end force P (N)")
+    for ax in (left, right):
+        _style(ax)
+        _legend(ax)
+    _suptitle(fig, results, "traction")
+    return fig
+
+
+def plot_contact_force(results: Results) -> Figure:
+    """Largest (solid) and mean (dashed) contact force over the crossings vs end displacement."""
+    contact = np.asarray(results.steps["contact_force"], dtype=float)
+    contact = contact.reshape(results.step_count, -1, contact.shape[-1])
+    displacement = 1e3 * _per_yarn(results, "end_displacement")
+    fig = _figure(5.0, 3.5)
+    ax = fig.subplots()
+    for k, label in enumerate(yarn_labels(results)):
+        (line,) = ax.plot(displacement[:, k], contact[:, k].max(axis=1), "o-", ms=3, label=label)
+        ax.plot(displacement[:, k], contact[:, k].mean(axis=1), "--", color=line.get_color())
+    ax.set(xlabel="end displacement (mm)", ylabel="contact force (N)")
+    _style(ax)
+    handles = ax.get_legend_handles_labels()[0] + [
+        Line2D([], [], color="k", ls="-", label="max over crossings"),
+        Line2D([], [], color="k", ls="--", label="mean over crossings"),
+    ]
+    _legend(ax, handles=handles)
+    _suptitle(fig, results, "contact force at the crossings")
+    return fig
+
+
+def shape_steps(step_count: int) -> list[int]:
+    """About four step indices to draw: first, 1/3, 2/3 and last (no repeats)."""
+    return sorted(set(np.round(np.linspace(0, step_count - 1, 4)).astype(int).tolist()))
+
+
+def plot_shape(results: Results, path="") -> Figure:
+    """The first yarn's z [mm] against x [mm] at about four loads, z exaggerated."""
+    positions = np.asarray(results.steps["positions"], dtype=float)
+    positions = positions.reshape(results.step_count, -1, *positions.shape[-2:])
+    nodes = np.asarray(results.reference.get("crossing_nodes", []), dtype=int).ravel()
+    sliding = results.steps.get("sliding")
+    fig = _figure(7.0, 3.2)
+    ax = fig.subplots()
+    reference = results.reference.get("positions")
+    if reference is not None:
+        ref = np.asarray(reference, dtype=float).reshape(-1, *positions.shape[-2:])[0]
+        ax.plot(1e3 * ref[:, 0], 1e3 * ref[:, 1], "--", color="0.5", lw=1, label="reference")
+    load = _per_yarn(results, "load") if "load" in results.steps else None
+    load_units = results.units.get("steps/load", "")
+    cmap = colormaps["viridis"]
+    steps = shape_steps(results.step_count)
+    for n, step in enumerate(steps):
+        color = cmap(n / max(len(steps) - 1, 1) * 0.85)
+        xz = 1e3 * positions[step, 0]
+        label = f"step {step + 1}"
+        if load is not None:
+            label += f": load {load[step, 0]:.4g} {load_units}"
+        ax.plot(xz[:, 0], xz[:, 1], "-", color=color, lw=1.2, label=label)
+        if nodes.size:
+            slide = np.zeros(nodes.size, bool)
+            if sliding is not None:
+                slide = np.asarray(sliding).reshape(results.step_count, -1, nodes.size)[step, 0]
+                slide = slide.astype(bool)
+            ax.plot(xz[nodes[~slide], 0], xz[nodes[~slide], 1], "o", color=color, ms=4)
+            ax.plot(xz[nodes[slide], 0], xz[nodes[slide], 1], "o", mfc="white", mec=color,
+                    mew=1.2, ms=6)
+    handles = ax.get_legend_handles_labels()[0]
+    if nodes.size:
+        handles.append(Line2D([], [], marker="o", ls="", color="k", ms=4, label="crossing"))
+        if sliding is not None:
+            handles.append(Line2D([], [], marker="o", ls="", mfc="white", mec="k", ms=6,
+                                  label="sliding crossing"))
+    ax.set(xlabel="x (mm)", ylabel="z (mm, exaggerated)")
+    ax.set_aspect("auto")
+    _style(ax)
+    _legend(ax, handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
+    labels = yarn_labels(results)
+    _suptitle(fig, results, f"shape of {labels[0]} (z exaggerated)")
+    return fig
+
+
+def friction_states(results: Results) -> np.ndarray:
+    """(steps, crossings) state codes of the first yarn: 0 open, 1 sticking, 2 sliding.
+
+    A crossing is open when its contact force is zero (or, without contact
+    forces in the file, its friction limit is zero).
+    """
+    count = crossing_count(results)
+    source = results.steps.get("contact_force", results.steps.get("friction_limit"))
+    force = np.asarray(source, dtype=float).reshape(results.step_count, -1, count)[:, 0]
+    states = np.where(force > 0, 1, 0)
+    sliding = results.steps.get("sliding")
+    if sliding is not None:
+        slide = np.asarray(sliding).reshape(results.step_count, -1, count)[:, 0].astype(bool)
+        states = np.where(slide & (force > 0), 2, states)
+    return states
+
+
+def plot_friction(results: Results) -> Figure:
+    """Categorical image of the first yarn's friction state: crossing index vs load step."""
+    states = friction_states(results)
+    steps, count = states.shape
+    fig = _figure(6.0, 3.5)
+    ax = fig.subplots()
+    cmap = ListedColormap([color for _, color in FRICTION_STATES])
+    norm = BoundaryNorm(np.arange(len(FRICTION_STATES) + 1) - 0.5, cmap.N)
+    ax.imshow(
+        states.T,
+        cmap=cmap,
+        norm=norm,
+        origin="lower",
+        aspect="auto",
+        interpolation="nearest",
+        extent=(0.5, steps + 0.5, -0.5, count - 0.5),
+    )
+    ax.set(xlabel="load step", ylabel="crossing index")
+    ax.xaxis.get_major_locator().set_params(integer=True)
+    ax.yaxis.get_major_locator().set_params(integer=True)
+    _style(ax)
+    ax.grid(False)
+    handles = [Patch(facecolor=color, edgecolor="k", label=name) for name, color in FRICTION_STATES]
+    ax.legend(handles=handles, fontsize=FONT_SIZE - 1, loc="upper left",
+              bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
+    _suptitle(fig, results, f"friction state of {yarn_labels(results)[0]}")
+    return fig
+
+
+def _suptitle(fig: Figure, results: Results, what: str) -> None:
+    """Figure title: the run's ``title`` attribute (if any) and what is shown."""
+    title = str(results.attrs.get("title", "") or "")
+    fig.suptitle(f"{title}: {what}" if title else what, fontsize=FONT_SIZE + 1)

@@ -1,0 +1,133 @@
+"""Figures from a synthetic result file: the PNGs exist, are real images, and errors are SceneErrors."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+from matplotlib.image import imread
+
+from dynfab.errors import SceneError
+from dynfab.plot import friction_states, plot_results, shape_steps
+from dynfab.results import ResultFile, read_results
+
+LENGTH, SEGMENTS, AMPLITUDE = 0.01, 32, 1e-4
+
+
+def write_synthetic(path: Path, *, yarns=2, steps=3, crossings=4, friction=True) -> Path:
+    """A result file for sine-shaped yarns straightening under load, some crossings sliding."""
+    x = np.linspace(0.0, LENGTH, SEGMENTS + 1)
+    nodes = (np.arange(crossings) * 2 + 1) * SEGMENTS // (2 * crossings) if crossings else np.zeros(0, int)
+    phase = np.array([(-1) ** k for k in range(yarns)])[:, None]
+    z = AMPLITUDE * np.sin(np.pi * x / LENGTH * crossings) if crossings else 0 * x
+    reference = np.stack([np.broadcast_to(x, (yarns, x.size)), phase * z], axis=-1)
+    out = ResultFile.create(
+        path,
+        attrs={
+            "scene": "title = 'synthetic'\n",
+            "solver": "static",
+            "load_control": "force",
+            "projected_length": LENGTH,
+            "width_per_yarn": 5e-4,
+            "reference_state": "as_woven",
+            "title": "synthetic",
+            "yarn_labels": [f"warp.kawabata_K={0.02 * (k + 1):g}" for k in range(yarns)],
+        },
+        reference={"positions": reference, "crossing_nodes": nodes},
+    )
+    for n in range(steps):
+        load = 0.5 * (n + 1) * np.ones(yarns)
+        strain = 0.01 * (n + 1) * (1 + 0.2 * np.arange(yarns))
+        positions = reference.copy()
+        positions[..., 0] *= 1 + strain[:, None]
+        positions[..., 1] *= 1 - 0.25 * (n + 1) / steps
+        contact = np.outer(load, 1 + 0.1 * np.arange(crossings)) * 0.3
+        if crossings and n == steps - 1:
+            contact[:, 0] = 0.0  # the first crossing opens at the last step
+        sliding = np.zeros((yarns, crossings), bool)
+        sliding[:, crossings // 2 :] = n >= 1
+        step = {
+            "load": load,
+            "end_force": load,
+            "end_displacement": strain * LENGTH,
+            "positions": positions,
+            "energy/stretch": 1e-5 * (n + 1) * np.ones(yarns),
+            "wall_time": 0.1,
+        }
+        if crossings:
+            step |= {
+                "contact_force": contact,
+                "friction_limit": (0.3 if friction else 0.0) * contact,
+                "friction_force": 0.2 * contact,
+                "sliding": sliding,
+            }
+        out.append_step(step)
+    return path
+
+
+def assert_image(path: Path) -> None:
+    """``path`` is a non-empty PNG of reasonable size that is not a single colour."""
+    assert path.is_file() and path.stat().st_size > 0
+    image = imread(path)
+    assert image.ndim == 3 and image.shape[0] > 300 and image.shape[1] > 500
+    pixels = image.reshape(-1, image.shape[-1])
+    assert np.ptp(pixels, axis=0).max() > 0.5, f"{path.name} is a single colour"
+
+
+def test_all_figures(tmp_path):
+    source = write_synthetic(tmp_path / "run.h5")
+    written = plot_results(source, tmp_path / "figures")
+    assert [p.name for p in written] == ["traction.png", "contact_force.png", "shape.png", "friction.png"]
+    for path in written:
+        assert path.parent == tmp_path / "figures"
+        assert_image(path)
+
+
+def test_one_step(tmp_path):
+    source = write_synthetic(tmp_path / "one.h5", steps=1)
+    written = plot_results(str(source), str(tmp_path))
+    assert {p.name for p in written} == {"traction.png", "contact_force.png", "shape.png", "friction.png"}
+    for path in written:
+        assert_image(path)
+
+
+def test_plain_rod_skips_contact_and_friction(tmp_path):
+    source = write_synthetic(tmp_path / "rod.h5", yarns=1, crossings=0)
+    written = plot_results(source, tmp_path)
+    assert [p.name for p in written] == ["traction.png", "shape.png"]
+    for path in written:
+        assert_image(path)
+
+
+def test_no_friction_figure_without_friction(tmp_path):
+    source = write_synthetic(tmp_path / "smooth.h5", friction=False)
+    names = [p.name for p in plot_results(source, tmp_path)]
+    assert names == ["traction.png", "contact_force.png", "shape.png"]
+
+
+def test_friction_states_are_open_sticking_sliding(tmp_path):
+    states = friction_states(read_results(write_synthetic(tmp_path / "run.h5")))
+    np.testing.assert_array_equal(states, [[1, 1, 1, 1], [1, 1, 2, 2], [0, 1, 2, 2]])
+
+
+def test_shape_steps():
+    assert shape_steps(1) == [0]
+    assert shape_steps(3) == [0, 1, 2]
+    assert shape_steps(10) == [0, 3, 6, 9]
+
+
+def test_missing_or_foreign_file_is_a_scene_error(tmp_path):
+    with pytest.raises(SceneError, match="does not exist"):
+        plot_results(tmp_path / "missing.h5", tmp_path)
+    foreign = tmp_path / "foreign.h5"
+    with h5py.File(foreign, "w") as h5:
+        h5["x"] = np.arange(3)
+    with pytest.raises(SceneError, match="not a dynfab result"):
+        plot_results(foreign, tmp_path)
+    empty = tmp_path / "empty.h5"
+    write_synthetic(empty, steps=0)
+    with pytest.raises(SceneError, match="no finished load step"):
+        plot_results(empty, tmp_path)
+    assert not list(tmp_path.glob("*.png"))
