@@ -86,7 +86,8 @@ def _style(ax) -> None:
 def _legend(ax, **kwargs) -> None:
     """A legend in the report font size, if anything is labelled."""
     if ax.get_legend_handles_labels()[0] or kwargs.get("handles"):
-        ax.legend(fontsize=FONT_SIZE - 1, **kwargs)
+        kwargs.setdefault("loc", "best")
+        ax.legend(fontsize=FONT_SIZE - 2, **kwargs)
 
 
 def yarn_labels(results: Results) -> list[str]:
@@ -129,9 +130,13 @@ def has_friction(results: Results) -> bool:
 
 
 def plot_traction(results: Results, path="") -> Figure:
-    """Force per unit width [N/m] vs strain [%], and P [N] vs end displacement [mm]."""
+    """Force per unit width [N/m] vs strain [%], and P [N] vs end displacement [mm].
+
+    A plain rod (no weft, no `width_per_yarn` attribute) shows P against strain instead.
+    """
     length = _attr(results, "projected_length", path)
-    width = _attr(results, "width_per_yarn", path)
+    rod = "width_per_yarn" not in results.attrs
+    width = 1.0 if rod else _attr(results, "width_per_yarn", path)
     force = _per_yarn(results, "end_force")
     displacement = _per_yarn(results, "end_displacement")
     fig = _figure(7.0, 3.0)
@@ -139,7 +144,7 @@ def plot_traction(results: Results, path="") -> Figure:
     for k, label in enumerate(yarn_labels(results)):
         left.plot(100 * displacement[:, k] / length, force[:, k] / width, "o-", ms=3, label=label)
         right.plot(1e3 * displacement[:, k], force[:, k], "o-", ms=3, label=label)
-    left.set(xlabel="strain (%)", ylabel="force per unit width (N/m)")
+    left.set(xlabel="strain (%)", ylabel="end force P (N)" if rod else "force per unit width (N/m)")
     right.set(xlabel="end displacement (mm)", ylabel="end force P (N)")
     for ax in (left, right):
         _style(ax)
@@ -269,4 +274,4 @@ def plot_friction(results: Results) -> Figure:
 def _suptitle(fig: Figure, results: Results, what: str) -> None:
     """Figure title: the run's ``title`` attribute (if any) and what is shown."""
     title = str(results.attrs.get("title", "") or "")
-    fig.suptitle(f"{title}: {what}" if title else what, fontsize=FONT_SIZE + 1)
+    fig.suptitle(f"{title}\n{what}" if title else what, fontsize=FONT_SIZE + 1)

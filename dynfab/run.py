@@ -1,0 +1,167 @@
+"""Running a scene's load path with a solver, writing each finished step at once.
+
+`run(scene, solver=...)` is the Python API behind `dynfab run`: it builds the
+model, solves the load steps in order from the as-woven state (or from the
+last step of the file with `resume=True`), appends every finished step to the
+crash-safe result file, and returns the same arrays as `read_results` would.
+A solver failure keeps every finished step on disk and re-raises the
+`SolverError` with the load step named.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from dynfab.errors import SceneError, SolverError
+from dynfab.model import Model, State, build_model, initial_state, width_per_yarn
+from dynfab.results import ResultFile, Results, dynfab_version, read_results
+from dynfab.scene import Scene, expand_sweep
+
+SOLVERS = ("static", "dynamic")
+
+
+def make_solver(model: Model, solver: str, **options):
+    """The solver object named `solver`, built for `model`."""
+    if solver == "static":
+        from dynfab.static import StaticSolver
+        return StaticSolver(model, **options)
+    if solver == "dynamic":
+        from dynfab.dynamic import DynamicSolver
+        return DynamicSolver(model, **options)
+    raise SceneError(f"solver = {solver!r}: must be one of {', '.join(SOLVERS)}")
+
+
+def run(scene: Scene, solver: str = "static", out: str | Path | None = None, *,
+        overwrite: bool = False, resume: bool = False,
+        progress: Callable[[str], None] | None = None, **solver_options) -> Results:
+    """Solve the scene's load path; write `out` (HDF5) if given; return the results.
+
+    `progress` receives one line per finished load step (None: silent).
+    """
+    model = build_model(scene)
+    engine = make_solver(model, solver, **solver_options)
+    sink = _open_sink(model, engine, out, overwrite=overwrite, resume=resume)
+    state = _start_state(model, sink)
+    values = model.load_values
+    unit = "N" if model.control == "force" else "m"
+    for index in range(sink.step_count, values.size):
+        started = time.perf_counter()
+        try:
+            state, record = engine.step(state, float(values[index]))
+        except SolverError as error:
+            raise SolverError(f"load step {index + 1}/{values.size} (load {values[index]:.6g} {unit}): "
+                              f"{error}; the {index} finished steps are kept") from error
+        record["wall_time"] = time.perf_counter() - started
+        sink.append_step(record)
+        if progress is not None:
+            progress(_progress_line(index, values.size, record, unit))
+    return sink.results() if isinstance(sink, _MemorySink) else read_results(sink.path)
+
+
+def _open_sink(model: Model, engine, out, *, overwrite: bool, resume: bool):
+    """The result file (created, overwritten or resumed), or an in-memory sink without `out`."""
+    if overwrite and resume:
+        raise SceneError("--overwrite and --resume exclude each other: pick one")
+    if out is None:
+        return _MemorySink(_root_attrs(model, engine), _reference(model))
+    if resume:
+        sink = ResultFile.resume(out)
+        if sink.attrs.get("scene") != model.scene.text:
+            raise SceneError(f"cannot resume '{out}': it was written from a different scene")
+        if sink.attrs.get("solver") != engine.name:
+            raise SceneError(f"cannot resume '{out}': it was written by the "
+                             f"{sink.attrs.get('solver')!r} solver, not {engine.name!r}")
+        return sink
+    return ResultFile.create(out, attrs=_root_attrs(model, engine), reference=_reference(model),
+                             overwrite=overwrite)
+
+
+def _start_state(model: Model, sink) -> State:
+    """The as-woven start, or the last finished step of a resumed file."""
+    if sink.step_count == 0:
+        return initial_state(model)
+    last = sink.last_step()
+    return State(positions=np.array(last["positions"]), anchors=np.array(last["anchors"]),
+                 dissipated=np.array(last["dissipated"]), load=np.array(last["load"]))
+
+
+def _root_attrs(model: Model, engine) -> dict:
+    """Root attributes of the result file (HDF5 layout in dynfab/results.py)."""
+    scene = model.scene
+    attrs = {"scene": scene.text, "solver": engine.name, "dynfab_version": dynfab_version(),
+             "title": scene.title, "load_control": model.control,
+             "projected_length": scene.geometry.length,
+             "reference_state": scene.geometry.reference, "yarn_labels": yarn_labels(scene),
+             "terms": list(model.terms)}
+    width = width_per_yarn(scene)
+    if width is not None:
+        attrs["width_per_yarn"] = width
+    attrs.update(engine.attrs())
+    return attrs
+
+
+def _reference(model: Model) -> dict:
+    return {"positions": model.stacked("rest_position"),
+            "crossing_nodes": model.yarns[0].crossing_node}
+
+
+def yarn_labels(scene: Scene) -> list[str]:
+    """One label per simulated yarn: its sweep entry, or its index and phase s_k."""
+    if scene.sweep:
+        return [", ".join(f"{key}={values[i]:g}" for key, values in scene.sweep)
+                for i in range(len(expand_sweep(scene)))]
+    return [f"yarn {k + 1} (s={'+' if k % 2 == 0 else '-'}1)" for k in range(scene.geometry.yarns)]
+
+
+def _progress_line(index: int, total: int, record: dict, unit: str) -> str:
+    """One line per finished load step: load, worst residual, iterations, time."""
+    steps = record.get("time_steps", record["iterations"])
+    what = "time steps" if "time_steps" in record else "iterations"
+    return (f"[{index + 1:>{len(str(total))}}/{total}] load {record['load'][0]:.6g} {unit}  "
+            f"end displacement {1e3 * record['end_displacement'].max():.4f} mm  "
+            f"residual {record['residual'].max():.2e} N  {what} {int(np.max(steps))}  "
+            f"{record['wall_time']:.3f} s")
+
+
+class _MemorySink:
+    """Collects steps in memory for `run(..., out=None)`."""
+
+    def __init__(self, attrs: dict, reference: dict):
+        self.attrs, self.reference, self.steps = attrs, reference, []
+
+    @property
+    def step_count(self) -> int:
+        return len(self.steps)
+
+    def append_step(self, record: dict) -> None:
+        self.steps.append({k: np.asarray(v) for k, v in record.items()})
+
+    def results(self) -> Results:
+        names = self.steps[0].keys() if self.steps else ()
+        stacked = {name: np.stack([s[name] for s in self.steps]) for name in names}
+        return Results(attrs=self.attrs, reference=self.reference, steps=stacked)
+
+
+def print_summary(results: Results, file=sys.stdout) -> None:
+    """The summary table: load, end displacement, end force, largest contact force, residual, time."""
+    steps = results.steps
+    unit = "N" if results.attrs.get("load_control") == "force" else "m"
+    labels = results.attrs.get("yarn_labels") or []
+    header = (f"{'step':>4} {'yarn':>4} {'load [' + unit + ']':>12} {'u_end [mm]':>11} "
+              f"{'P [N]':>11} {'max R [N]':>11} {'residual [N]':>12} {'time [s]':>9}")
+    print(header, file=file)
+    contact = steps.get("contact_force")
+    for i in range(results.step_count):
+        for k in range(steps["load"].shape[1]):
+            largest = float(contact[i, k].max()) if contact is not None and contact.shape[-1] else 0.0
+            print(f"{i + 1:>4} {k + 1:>4} {steps['load'][i, k]:>12.6g} "
+                  f"{1e3 * steps['end_displacement'][i, k]:>11.5f} {steps['end_force'][i, k]:>11.5g} "
+                  f"{largest:>11.5g} {steps['residual'][i, k]:>12.3e} {steps['wall_time'][i]:>9.4f}",
+                  file=file)
+    for k, label in enumerate(labels):
+        print(f"yarn {k + 1}: {label}", file=file)

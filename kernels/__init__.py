@@ -1,0 +1,1 @@
+"""Warp kernels of dynfab (installed as `dynfab.kernels`): nodal forces and time integrators."""
