@@ -390,8 +390,9 @@ def _bad(label: str, value, what: str) -> SceneError:
 
 
 def _unknown(label: str, candidates, allowed) -> SceneError:
-    """Error for an unknown key, suggesting the closest candidate."""
-    match = difflib.get_close_matches(label, list(candidates), n=1)
+    """Error for an unknown key, suggesting the candidate equal but for case, else the closest."""
+    same_but_case = [c for c in candidates if c.lower() == label.lower()]
+    match = same_but_case or difflib.get_close_matches(label, list(candidates), n=1)
     hint = f"did you mean '{match[0]}'?" if match else "allowed: " + ", ".join(allowed)
     return SceneError(f"unknown key '{label}'; {hint}")
 
