@@ -54,10 +54,11 @@ def _shifted_direction(band, work, grad, fixed, direction):
     for i in range(n):
         max_diag = max(max_diag, abs(band[i, BANDWIDTH]))
     shift = 0.0
+    flat = grad.ravel()
     for _ in range(40):
         work[:, :] = band
         for i in range(n):
-            direction[i] = -grad.ravel()[i]
+            direction[i] = -flat[i]
             if not fixed[i]:
                 work[i, BANDWIDTH] += shift
         constrain(work, direction, fixed)
