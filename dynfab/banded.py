@@ -63,18 +63,22 @@ def lu_factor(band):
 
     Returns the index of the first pivot that is not positive, or -1 when all
     pivots are positive (for a symmetric matrix: it is positive definite).
+    Row i = k + o of the band holds A[i, k] at column BANDWIDTH - o and
+    A[i, k + m] at column BANDWIDTH + m - o.
     """
     n = band.shape[0]
     for k in range(n):
         pivot = band[k, BANDWIDTH]
         if not pivot > 0.0:
             return k
-        for i in range(k + 1, min(n, k + BANDWIDTH + 1)):
-            factor = band[i, k - i + BANDWIDTH] / pivot
-            band[i, k - i + BANDWIDTH] = factor
+        reach = min(BANDWIDTH, n - 1 - k)
+        for o in range(1, reach + 1):
+            row = band[k + o]
+            factor = row[BANDWIDTH - o] / pivot
+            row[BANDWIDTH - o] = factor
             if factor != 0.0:
-                for j in range(k + 1, min(n, k + BANDWIDTH + 1)):
-                    band[i, j - i + BANDWIDTH] -= factor * band[k, j - k + BANDWIDTH]
+                for m in range(1, reach + 1):
+                    row[BANDWIDTH + m - o] -= factor * band[k, BANDWIDTH + m]
     return -1
 
 

@@ -84,6 +84,11 @@ class Model:
     def yarn_count(self) -> int:
         return len(self.yarns)
 
+    @property
+    def rest_end_x(self) -> np.ndarray:
+        """x0_N of every yarn (yarns,) [m]."""
+        return np.array([y.rest_position[-1, 0] for y in self.yarns])
+
     def stacked(self, field: str) -> np.ndarray:
         """A Yarn field stacked over yarns, shape (yarns, ...)."""
         return np.stack([np.asarray(getattr(y, field)) for y in self.yarns])

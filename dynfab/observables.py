@@ -8,6 +8,7 @@ displacement, crimp.
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 from dynfab import assembly
@@ -20,50 +21,62 @@ ENERGY_TERMS = {"stretch": assembly.STRETCH, "bending": assembly.BENDING,
 load's potential -P (x_N - x0_N); friction reports its stick springs as `energy/stick` instead."""
 
 
-def end_force(model: Model, positions: np.ndarray, load_value: float) -> np.ndarray:
-    """P per yarn [N]: the applied load, or under displacement control the reaction dV/dx_N."""
-    if model.control == "force":
-        return np.full(model.yarn_count, load_value)
-    grad = np.zeros_like(positions[0])
-    reaction = np.empty(model.yarn_count)
-    for k, yarn in enumerate(model.yarns):
-        c = yarn.crossing_node.size
-        assembly.gradient(positions[k], yarn, 0.0, np.zeros(c), np.zeros(c), grad)
-        reaction[k] = grad[-1, 0]
-    return reaction
+@numba.njit(cache=True)
+def observe_yarn(pos, yarn, P, anchors, contact_force, friction_limit, friction_force, sliding,
+                 terms):
+    """One yarn's finished step, in one call: contact state, return mapping, energies.
+
+    Fills R, F_T, the friction force and sliding flags, and the energy vector
+    (`dynfab.assembly` order) after the anchors are return-mapped in place.
+    Returns (energy dissipated in this step [J], stick-spring energy [J],
+    end reaction dV/dx_N [N], the load term and friction excluded).
+    """
+    c = yarn.crossing_node.size
+    assembly.contact_state(pos, yarn, contact_force, friction_limit, np.zeros(c))
+    lost, stick = 0.0, 0.0
+    if yarn.has_friction:
+        lost = friction.return_map(pos, yarn.crossing_node, anchors, friction_limit,
+                                   yarn.stick_stiffness, sliding, friction_force)
+        for j in range(c):
+            slip = pos[yarn.crossing_node[j], 0] - anchors[j]
+            stick += 0.5 * yarn.stick_stiffness * slip * slip
+    assembly.energies(pos, yarn, P, anchors, friction_limit, terms)
+    grad = np.zeros_like(pos)
+    assembly.gradient(pos, yarn, 0.0, anchors, np.zeros(c), grad)
+    return lost, stick, grad[-1, 0]
 
 
 def finish_step(model: Model, state: State, positions: np.ndarray, load_value: float,
                 residual: np.ndarray, iterations: np.ndarray) -> tuple[State, dict]:
-    """The new state (anchors return-mapped) and the step's record for the result file."""
+    """The new state (anchors return-mapped) and the step's record for the result file.
+
+    The end force is the applied P under force control, else the reaction dV/dx_N.
+    """
     yarns, c = model.yarn_count, model.crossings
     anchors, dissipated = state.anchors.copy(), state.dissipated.copy()
     record = {name: np.zeros((yarns, c)) for name in
-              ("contact_force", "friction_force", "friction_limit", "anchors")}
+              ("contact_force", "friction_force", "friction_limit")}
     record["sliding"] = np.zeros((yarns, c), dtype=np.bool_)
     energies = {name: np.zeros(yarns) for name in _reported_terms(model)}
-    tangent, terms = np.zeros(c), np.zeros(6)
+    reaction, terms = np.zeros(yarns), np.zeros(6)
     P = load_value if model.control == "force" else 0.0
     for k, yarn in enumerate(model.yarns):
-        assembly.contact_state(positions[k], yarn, record["contact_force"][k],
-                               record["friction_limit"][k], tangent)
-        if yarn.has_friction:
-            dissipated[k] += friction.return_map(positions[k], yarn.crossing_node, anchors[k],
-                                                 record["friction_limit"][k], yarn.stick_stiffness,
-                                                 record["sliding"][k], record["friction_force"][k])
-            slip = positions[k, yarn.crossing_node, 0] - anchors[k]
-            energies["stick"][k] = 0.5 * yarn.stick_stiffness * np.sum(slip ** 2)
-        assembly.energies(positions[k], yarn, P, anchors[k], record["friction_limit"][k], terms)
-        for name, index in ENERGY_TERMS.items():
+        lost, stick, reaction[k] = observe_yarn(
+            positions[k], yarn, P, anchors[k], record["contact_force"][k],
+            record["friction_limit"][k], record["friction_force"][k], record["sliding"][k], terms)
+        dissipated[k] += lost
+        for name, value in zip(ENERGY_TERMS, terms[list(ENERGY_TERMS.values())]):
             if name in energies:
-                energies[name][k] = terms[index]
-    record["anchors"] = anchors
-    rest_x_end = model.stacked("rest_position")[:, -1, 0]
+                energies[name][k] = value
+        if "stick" in energies:
+            energies["stick"][k] = stick
+    loads = np.full(yarns, float(load_value))
     record.update({
-        "load": np.full(yarns, float(load_value)),
-        "end_force": end_force(model, positions, load_value),
-        "end_displacement": positions[:, -1, 0] - rest_x_end,
+        "load": loads,
+        "end_force": loads if model.control == "force" else reaction,
+        "end_displacement": positions[:, -1, 0] - model.rest_end_x,
         "positions": positions.copy(),
+        "anchors": anchors,
         "dissipated": dissipated,
         "crimp": crimp(positions),
         "residual": np.asarray(residual, float),
@@ -71,7 +84,7 @@ def finish_step(model: Model, state: State, positions: np.ndarray, load_value: f
     })
     record.update({f"energy/{name}": value for name, value in energies.items()})
     new_state = State(positions=positions.copy(), anchors=anchors, dissipated=dissipated,
-                      load=np.full(yarns, float(load_value)))
+                      load=loads.copy())
     return new_state, record
 
 

@@ -6,12 +6,15 @@ phi_i = theta(b) - theta(a) with theta(v) = atan2(v_z, v_x), so
 
     dtheta/dv = (-v_z, v_x) / |v|^2,
     d2theta/dv2 = [[2 v_x v_z, v_z^2 - v_x^2], [v_z^2 - v_x^2, -2 v_x v_z]] / |v|^4.
+
+The node pair (i-1, i+1) is 4 dofs apart at most (5 = BANDWIDTH), so every
+entry of the 6 x 6 local Hessian lies in the band.
 """
 
 import numba
 import numpy as np
 
-from dynfab.banded import band_add
+from dynfab.banded import BANDWIDTH
 
 
 @numba.njit(cache=True)
@@ -58,34 +61,36 @@ def add_gradient(pos, stiffness, rest_angle, grad):
 
 
 @numba.njit(cache=True)
-def _theta_hessian(vx, vz, sign, out, offset_p, offset_q):
-    """Add sign x d2theta/dv2 into the 2x2 block (offset_p, offset_q) of out (6, 6)."""
-    n2 = (vx * vx + vz * vz) ** 2
-    hxx, hxz = 2.0 * vx * vz / n2, (vz * vz - vx * vx) / n2
-    out[offset_p, offset_q] += sign * hxx
-    out[offset_p, offset_q + 1] += sign * hxz
-    out[offset_p + 1, offset_q] += sign * hxz
-    out[offset_p + 1, offset_q + 1] -= sign * hxx
+def _put_block(out, p, q, sign, hxx, hxz):
+    """out[2p:2p+2, 2q:2q+2] = sign x [[hxx, hxz], [hxz, -hxx]] (a d2theta/dv2 block)."""
+    out[2 * p, 2 * q] = sign * hxx
+    out[2 * p, 2 * q + 1] = sign * hxz
+    out[2 * p + 1, 2 * q] = sign * hxz
+    out[2 * p + 1, 2 * q + 1] = -sign * hxx
 
 
 @numba.njit(cache=True)
 def _angle_hessian(pos, i, out):
     """d2phi_i / dr2 (6, 6) over (r_{i-1}, r_i, r_{i+1}).
 
-    a = r_i - r_{i-1} enters with selector (-1, +1, 0) and phi with -theta(a);
-    b = r_{i+1} - r_i with (0, -1, +1) and +theta(b).
+    phi = theta(b) - theta(a), a = r_i - r_{i-1}, b = r_{i+1} - r_i, so with the
+    2x2 blocks Ha = d2theta/da2, Hb = d2theta/db2 the node blocks are
+    [[-Ha, Ha, 0], [Ha, Hb - Ha, -Hb], [0, -Hb, Hb]].
     """
-    out[:, :] = 0.0
     ax, az = pos[i, 0] - pos[i - 1, 0], pos[i, 1] - pos[i - 1, 1]
     bx, bz = pos[i + 1, 0] - pos[i, 0], pos[i + 1, 1] - pos[i, 1]
-    sel_a = (-1.0, 1.0, 0.0)
-    sel_b = (0.0, -1.0, 1.0)
-    for p in range(3):
-        for q in range(3):
-            if sel_a[p] * sel_a[q] != 0.0:
-                _theta_hessian(ax, az, -sel_a[p] * sel_a[q], out, 2 * p, 2 * q)
-            if sel_b[p] * sel_b[q] != 0.0:
-                _theta_hessian(bx, bz, sel_b[p] * sel_b[q], out, 2 * p, 2 * q)
+    na2, nb2 = (ax * ax + az * az) ** 2, (bx * bx + bz * bz) ** 2
+    axx, axz = 2.0 * ax * az / na2, (az * az - ax * ax) / na2
+    bxx, bxz = 2.0 * bx * bz / nb2, (bz * bz - bx * bx) / nb2
+    _put_block(out, 0, 0, -1.0, axx, axz)
+    _put_block(out, 0, 1, 1.0, axx, axz)
+    _put_block(out, 1, 0, 1.0, axx, axz)
+    _put_block(out, 1, 1, 1.0, bxx - axx, bxz - axz)
+    _put_block(out, 1, 2, -1.0, bxx, bxz)
+    _put_block(out, 2, 1, -1.0, bxx, bxz)
+    _put_block(out, 2, 2, 1.0, bxx, bxz)
+    _put_block(out, 0, 2, 0.0, 0.0, 0.0)
+    _put_block(out, 2, 0, 0.0, 0.0, 0.0)
 
 
 @numba.njit(cache=True)
@@ -100,5 +105,5 @@ def add_hessian(pos, stiffness, rest_angle, band):
         _angle_hessian(pos, i, h)
         base = 2 * (i - 1)
         for p in range(6):
-            for q in range(6):
-                band_add(band, base + p, base + q, k * g[p] * g[q] + moment * h[p, q])
+            for q in range(max(0, p - BANDWIDTH), 6):
+                band[base + p, q - p + BANDWIDTH] += k * g[p] * g[q] + moment * h[p, q]
