@@ -65,6 +65,7 @@ UNITS: dict[str, str] = {
     "steps/crimp": "-",  # (steps, yarns)
     "steps/residual": "N",  # (steps, yarns) force residual reached
     "steps/iterations": "-",  # Newton iterations
+    "steps/rounding_floor": "-",  # (steps, yarns) bool: residual stopped falling above tolerance
     "steps/wall_time": "s",  # (steps,)
     "steps/time_steps": "-",  # dynamic solver: time steps taken
     "steps/force_evaluations": "-",  # dynamic solver

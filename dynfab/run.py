@@ -122,10 +122,13 @@ def _progress_line(index: int, total: int, record: dict, unit: str) -> str:
     """One line per finished load step: load, worst residual, iterations, time."""
     steps = record.get("time_steps", record["iterations"])
     what = "time steps" if "time_steps" in record else "iterations"
+    floor = record.get("rounding_floor")
+    note = ("  (rounding floor: the residual stopped falling above the tolerance)"
+            if floor is not None and floor.any() else "")
     return (f"[{index + 1:>{len(str(total))}}/{total}] load {record['load'][0]:.6g} {unit}  "
             f"end displacement {1e3 * record['end_displacement'].max():.4f} mm  "
             f"residual {record['residual'].max():.2e} N  {what} {int(np.max(steps))}  "
-            f"{record['wall_time']:.3f} s")
+            f"{record['wall_time']:.3f} s{note}")
 
 
 class _MemorySink:

@@ -135,7 +135,7 @@ def newton(pos, yarn, P, fixed, anchors, tolerance, max_iterations, info):
                 info[STATUS], info[DETAIL] = CYCLING, j
                 return
         assembly.hessian(pos, yarn, anchors, friction_limit, tangent, True, band)
-        floor = 16.0 * EPS * np.abs(band[:, BANDWIDTH]).max() * np.abs(pos).max()
+        floor = 4.0 * EPS * np.abs(band[:, BANDWIDTH]).max() * np.abs(pos).max()
         if residual <= floor and residual > 0.5 * previous:
             info[STATUS] = ROUNDING_FLOOR
             return
@@ -180,12 +180,17 @@ class StaticSolver:
         info = np.zeros(4)
         residual = np.zeros(self.model.yarn_count)
         iterations = np.zeros(self.model.yarn_count, np.int64)
+        at_floor = np.zeros(self.model.yarn_count, np.bool_)
         for k, yarn in enumerate(self.model.yarns):
             newton(positions[k], yarn, P, self.fixed, state.anchors[k], self.tolerance,
                    self.max_iterations, info)
             _raise_on_failure(info, k, yarn, self.tolerance)
             residual[k], iterations[k] = info[RESIDUAL], int(info[ITERATIONS])
-        return finish_step(self.model, state, positions, load_value, residual, iterations)
+            at_floor[k] = info[STATUS] == ROUNDING_FLOOR
+        new_state, record = finish_step(self.model, state, positions, load_value, residual,
+                                        iterations)
+        record["rounding_floor"] = at_floor
+        return new_state, record
 
 
 def prescribe_load(model, state, load_value: float) -> np.ndarray:

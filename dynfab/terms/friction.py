@@ -100,7 +100,9 @@ def return_map(pos, nodes, anchors, friction_limit, stick_stiffness, sliding, fr
     """Move the anchors of sliding crossings onto the slip surface; return the energy lost [J].
 
     xi = x - sign(x - xi) F_T / k_t where k_t |x - xi| > F_T; dissipation F_T |delta xi|.
-    Fills `sliding` (bool) and the signed friction force on the warp [N], -k_t (x - xi).
+    Fills `sliding` (bool) and the signed friction force on the warp [N]: -k_t (x - xi)
+    while sticking, exactly -sign(s) F_T while sliding (not -k_t (x - xi), whose
+    rounding grows with k_t).
     """
     lost = 0.0
     for j in range(nodes.size):
@@ -111,5 +113,7 @@ def return_map(pos, nodes, anchors, friction_limit, stick_stiffness, sliding, fr
             moved = x - np.sign(slip) * friction_limit[j] / stick_stiffness
             lost += friction_limit[j] * abs(moved - anchors[j])
             anchors[j] = moved
-        friction_force[j] = -stick_stiffness * (x - anchors[j])
+            friction_force[j] = -np.sign(slip) * friction_limit[j]
+        else:
+            friction_force[j] = -stick_stiffness * slip
     return lost
