@@ -13,52 +13,26 @@ Contact forces used for Gralen's law are solved here from the positions
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import numpy as np
 import pytest
-from scipy.optimize import brentq, minimize
-from scipy.special import ellipe
+from scipy.optimize import minimize
 
 from dynfab import assembly
 from dynfab.banded import BANDWIDTH
-from dynfab.model import build_model, initial_state
-from dynfab.scene import expand_sweep, load_scene, parse_scene_text
-from dynfab.static import StaticSolver
+from dynfab.model import initial_state
+from dynfab.scene import expand_sweep, load_scene
+from independent import (EPS, PAPER_FRICTION, PAPER_WARP, PAPER_WEFT, contact_forces, dense,
+                         make_scene, pull, run)
 
 RUNS = Path(__file__).resolve().parent.parent / "runs"
-EPS = np.finfo(float).eps
 GRALEN_TOLERANCE = 1e-12
 """MODEL.md 4: at the solution every F_T equals Gralen's law at the solution's R to 1e-12 N."""
-
-PAPER_WARP = {"EA": 13.72, "EI": 1.47e-7, "kawabata_C": 0.2e-3, "kawabata_K": 0.2}
-PAPER_WEFT = {"EI": 1.47e-7, "amplitude": 0.5e-3, "kawabata_C": 0.2e-3, "kawabata_K": 0.2}
-PAPER_FRICTION = {"alpha": 0.2, "beta": 1e3, "contact_length": 2e-3, "fiber_radius": 1e-3}
 
 
 # --------------------------------------------------------------------------
 # Scenes, runs and independent evaluations.
-
-
-def _toml(value) -> str:
-    if isinstance(value, str):
-        return f'"{value}"'
-    if isinstance(value, (list, tuple, np.ndarray)):
-        return "[" + ", ".join(_toml(v) for v in value) + "]"
-    return repr(float(value)) if isinstance(value, float | np.floating) else repr(value)
-
-
-def make_scene(sweep=None, **tables):
-    """A Scene from {table: {key: value}} (and an optional [sweep]), through the TOML parser."""
-    lines = []
-    for name, table in tables.items():
-        lines.append(f"[{name}]")
-        lines += [f"{key} = {_toml(value)}" for key, value in table.items()]
-    if sweep:
-        lines.append("[sweep]")
-        lines += [f'"{key}" = {_toml(values)}' for key, values in sweep.items()]
-    return parse_scene_text("\n".join(lines))
 
 
 def paper_yarn(segments, crossings, load, friction=None, gravity=False, yarns=1, sweep=None):
@@ -75,26 +49,6 @@ def paper_yarn(segments, crossings, load, friction=None, gravity=False, yarns=1,
     return make_scene(sweep=sweep, **tables)
 
 
-def run(scene):
-    """Solve the scene's load path from the as-woven state; (model, records)."""
-    model = build_model(scene)
-    state, solver, records = initial_state(model), StaticSolver(model), []
-    for value in model.load_values:
-        state, record = solver.step(state, value)
-        records.append(record)
-    return model, records
-
-
-def dense(band):
-    """The dense matrix of a banded one (dynfab.banded layout)."""
-    n = band.shape[0]
-    matrix = np.zeros((n, n))
-    for i in range(n):
-        for j in range(max(0, i - BANDWIDTH), min(n, i + BANDWIDTH + 1)):
-            matrix[i, j] = band[i, j - i + BANDWIDTH]
-    return matrix
-
-
 def jacobian(yarn, positions, anchors, coupled=True):
     """Dense d(grad V)/dr of the model at `positions` (Huber anchors `anchors`) [N/m]."""
     c = yarn.crossing_node.size
@@ -103,50 +57,6 @@ def jacobian(yarn, positions, anchors, coupled=True):
     band = np.zeros((positions.size, 2 * BANDWIDTH + 1))
     assembly.hessian(positions, yarn, anchors, limit, tangent, coupled, band)
     return dense(band)
-
-
-def series_law(scene):
-    """(k_we, C_wa, a_wa, C_we, a_we) from the scene's parameters (MODEL.md 3, eqs. 4, 6-8);
-    Lc of z = A sin(pi x / p) over a half-wave is (2 p / pi) E(-(A pi / p)^2)."""
-    geo, weft = scene.geometry, scene.weft
-    pcr = math.pi ** 2 * weft.EI / weft.length ** 2
-    lp = weft.length / weft.count
-    k_we = (math.pi ** 4 / 2) * weft.EI / lp ** 3 * (1 + (weft.tension / pcr) / weft.count ** 2)
-
-    def arc(p, a):
-        return 2 * p / math.pi * ellipe(-(a * math.pi / p) ** 2)
-
-    return (k_we, scene.warp.kawabata_C, scene.warp.kawabata_K / arc(geo.length / geo.crossings,
-                                                                     geo.amplitude),
-            weft.kawabata_C, weft.kawabata_K / arc(weft.length / weft.count, weft.amplitude))
-
-
-def contact_forces(scene, positions, phase=1.0):
-    """R_j [N] from node positions: R/k + sum_m C_m (1 - exp(-a_m R)) = g_j > 0 (MODEL.md 3),
-    g_j = c_j - s_j z_{n_j}; brentq to rtol 4.5 eps."""
-    geo = scene.geometry
-    k, cwa, awa, cwe, awe = series_law(scene)
-    j = np.arange(1, geo.crossings + 1)
-    nodes = (2 * j - 1) * geo.segments // (2 * geo.crossings)
-    sides = phase * (-1.0) ** (j + 1)
-    x0 = nodes * geo.length / geo.segments
-    z0 = phase * geo.amplitude * np.sin(geo.crossings * math.pi * x0 / geo.length)
-    offset = (np.full(j.size, geo.amplitude + scene.weft.amplitude)
-              if geo.reference == "prestressed" else sides * z0)
-    forces = np.zeros(j.size)
-    for i, g in enumerate(offset - sides * positions[nodes, 1]):
-        if g > 0:
-            law = lambda R, g=g: R / k - cwa * math.expm1(-awa * R) - cwe * math.expm1(-awe * R) - g
-            forces[i] = brentq(law, 0.0, k * g, xtol=1e-300, rtol=4.5 * EPS, maxiter=500)
-    return forces
-
-
-def pull(yarn, positions):
-    """-dV/dx at each crossing node without the friction term [N] (F_T = 0 zeroes it)."""
-    c = yarn.crossing_node.size
-    grad = np.zeros_like(positions)
-    assembly.gradient(positions, yarn, 0.0, np.zeros(c), np.zeros(c), grad)
-    return -grad[yarn.crossing_node, 0]
 
 
 # --------------------------------------------------------------------------

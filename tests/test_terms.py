@@ -29,10 +29,11 @@ from scipy.optimize import brentq
 from scipy.special import ellipe
 
 from dynfab import assembly, geometry
-from dynfab.banded import BANDWIDTH, zeros_band
+from dynfab.banded import zeros_band
 from dynfab.model import build_model
 from dynfab.scene import with_key
 from dynfab.terms import bending, contact, friction, gravity, load, stretch
+from independent import dense
 
 EPS = np.finfo(float).eps
 
@@ -213,16 +214,6 @@ def fd_jacobian(gradient, r, h):
         minus[k] -= h
         out[:, k] = (gradient(plus.reshape(r.shape)) - gradient(minus.reshape(r.shape))).ravel() \
             / (plus[k] - minus[k])
-    return out
-
-
-def dense(band):
-    """The full matrix A[i, j] = band[i, j - i + BANDWIDTH] of a banded one."""
-    n = band.shape[0]
-    out = np.zeros((n, n))
-    for i in range(n):
-        for j in range(max(0, i - BANDWIDTH), min(n, i + BANDWIDTH + 1)):
-            out[i, j] = band[i, j - i + BANDWIDTH]
     return out
 
 

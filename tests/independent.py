@@ -1,0 +1,155 @@
+"""Independent helpers shared by the verification tests (plain functions, not fixtures).
+
+Scene building through the TOML parser (as a user's scene file), a load-path
+driver, the dense matrix of a banded one, and the series contact law of
+MODEL.md 3 solved here with scipy (brentq on g(R), arc lengths from ellipe),
+independently of dynfab.terms.contact. Import with `from independent import ...`
+(pytest puts tests/ on sys.path).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+from scipy.optimize import brentq
+from scipy.special import ellipe
+
+from dynfab import assembly
+from dynfab.banded import BANDWIDTH
+from dynfab.model import build_model, initial_state
+from dynfab.scene import Scene, parse_scene_text
+from dynfab.static import StaticSolver
+
+EPS = np.finfo(float).eps
+
+PAPER_WARP = {"EA": 13.72, "EI": 1.47e-7, "kawabata_C": 0.2e-3, "kawabata_K": 0.2}
+PAPER_WEFT = {"EI": 1.47e-7, "amplitude": 0.5e-3, "kawabata_C": 0.2e-3, "kawabata_K": 0.2}
+PAPER_FRICTION = {"alpha": 0.2, "beta": 1e3, "contact_length": 2e-3, "fiber_radius": 1e-3}
+
+
+# --------------------------------------------------------------------------
+# Scenes (MODEL.md 1).
+
+
+def _toml_value(value) -> str:
+    """A number, string, bool or list (or numpy array) of them as TOML."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return json.dumps(value)
+    if isinstance(value, (list, tuple, np.ndarray)):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    if isinstance(value, np.floating):
+        return repr(float(value))
+    if isinstance(value, np.integer):
+        return repr(int(value))
+    return repr(value)
+
+
+def scene_toml(tables: dict) -> str:
+    """TOML text of a scene given as {table: {key: value}} (flat tables only)."""
+    lines = []
+    for name, table in tables.items():
+        lines.append(f"[{name}]")
+        lines.extend(f"{key} = {_toml_value(value)}" for key, value in table.items())
+        lines.append("")
+    return "\n".join(lines)
+
+
+def make_scene(sweep=None, **tables) -> Scene:
+    """A Scene from {table: {key: value}} (and an optional [sweep]), through the TOML parser.
+
+    Sweep keys are dotted parameter names ("warp.kawabata_K"), written quoted.
+    """
+    text = scene_toml(tables)
+    if sweep:
+        text += "\n".join(["[sweep]"] + [f"{json.dumps(key)} = {_toml_value(values)}"
+                                         for key, values in sweep.items()])
+    return parse_scene_text(text)
+
+
+def run(scene):
+    """Solve the scene's load path from the as-woven state; (model, records)."""
+    model = build_model(scene)
+    state, solver, records = initial_state(model), StaticSolver(model), []
+    for value in model.load_values:
+        state, record = solver.step(state, value)
+        records.append(record)
+    return model, records
+
+
+# --------------------------------------------------------------------------
+# Matrices (dynfab.banded layout).
+
+
+def dense(band):
+    """The full matrix A[i, j] = band[i, j - i + BANDWIDTH] of a banded one."""
+    n = band.shape[0]
+    matrix = np.zeros((n, n))
+    for i in range(n):
+        for j in range(max(0, i - BANDWIDTH), min(n, i + BANDWIDTH + 1)):
+            matrix[i, j] = band[i, j - i + BANDWIDTH]
+    return matrix
+
+
+# --------------------------------------------------------------------------
+# The series contact law, solved independently (MODEL.md 3, 4).
+
+
+def series_law(scene):
+    """(k_we, C_wa, a_wa, C_we, a_we) from the scene's parameters (MODEL.md 3, eqs. 4, 6-8).
+
+    Lc of the half-wave z = A sin(pi x / p) is (2 p / pi) E(-(A pi / p)^2) with E
+    the complete elliptic integral of the second kind (scipy's parameter m).
+    """
+    geo, weft = scene.geometry, scene.weft
+    pcr = math.pi ** 2 * weft.EI / weft.length ** 2
+    lp = weft.length / weft.count
+    k_we = (math.pi ** 4 / 2) * weft.EI / lp ** 3 * (1 + (weft.tension / pcr) / weft.count ** 2)
+
+    def arc(p, a):
+        return 2 * p / math.pi * ellipe(-(a * math.pi / p) ** 2)
+
+    lc_wa = arc(geo.length / geo.crossings, geo.amplitude)
+    lc_we = arc(weft.length / weft.count, weft.amplitude)
+    return (k_we, scene.warp.kawabata_C, scene.warp.kawabata_K / lc_wa,
+            weft.kawabata_C, weft.kawabata_K / lc_we)
+
+
+def contact_forces(scene, positions, phase=1.0):
+    """R_j [N] of every crossing from node positions (N+1, 2), solved here with brentq.
+
+    g_j = c_j - s_j z_{n_j}, s_j = s_k (-1)^(j+1), c_j = s_j z0_{n_j} (as woven) or
+    A_wa + A_we (prestressed); R solves R/k + sum_m C_m (1 - exp(-a_m R)) = g for g > 0.
+    brentq to rtol 4.5 eps: R is then exact to ~1e-15 relative.
+    """
+    geo = scene.geometry
+    k, cwa, awa, cwe, awe = series_law(scene)
+    j = np.arange(1, geo.crossings + 1)
+    nodes = (2 * j - 1) * geo.segments // (2 * geo.crossings)
+    sides = phase * (-1.0) ** (j + 1)
+    x0 = nodes * geo.length / geo.segments
+    z0 = phase * geo.amplitude * np.sin(geo.crossings * math.pi * x0 / geo.length)
+    offset = (np.full(j.size, geo.amplitude + scene.weft.amplitude)
+              if geo.reference == "prestressed" else sides * z0)
+    forces = np.zeros(j.size)
+    for i, g in enumerate(offset - sides * positions[nodes, 1]):
+        if g > 0:
+            law = lambda R, g=g: R / k - cwa * math.expm1(-awa * R) - cwe * math.expm1(-awe * R) - g
+            forces[i] = brentq(law, 0.0, k * g, xtol=1e-300, rtol=4.5 * EPS, maxiter=500)
+    return forces
+
+
+def pull(yarn, positions):
+    """Force in x that the yarn, contacts and load exert on each crossing node [N], friction excluded.
+
+    -dV/dx_{n_j} with V the model's energy without the friction term (F_T = 0
+    makes the Huber term's derivative vanish). At equilibrium pull + friction = 0
+    up to the Newton residual.
+    """
+    c = yarn.crossing_node.size
+    grad = np.zeros_like(positions)
+    assembly.gradient(positions, yarn, 0.0, np.zeros(c), np.zeros(c), grad)
+    return -grad[yarn.crossing_node, 0]
