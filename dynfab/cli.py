@@ -45,6 +45,14 @@ def _parser() -> argparse.ArgumentParser:
     plot = commands.add_parser("plot", help="draw the PNG figures of a result file")
     plot.add_argument("results", type=Path, help="result file (HDF5)")
     plot.add_argument("--out", type=Path, required=True, help="folder for the PNG files")
+    convergence = commands.add_parser(
+        "convergence", help="mesh, load-increment and stick-stiffness convergence of the paper "
+                            "scenes (CSV, JSON, markdown and PNG files)")
+    convergence.add_argument("--out", type=Path, required=True,
+                             help="folder for the report's files")
+    convergence.add_argument("--quick", action="store_true",
+                             help="a reduced yarn (4 crossings) that runs in seconds")
+    convergence.add_argument("--quiet", action="store_true", help="no progress lines")
     return parser
 
 
@@ -94,11 +102,23 @@ def _command_plot(args) -> None:
         print(f"wrote {path}")
 
 
+def _command_convergence(args) -> None:
+    from dynfab.reports.convergence import run_convergence
+
+    report = None if args.quiet else (lambda line: print(line, file=sys.stderr, flush=True))
+    summary = run_convergence(args.out, quick=args.quick, progress=report)
+    for path in summary["files"]:
+        print(f"wrote {path}")
+    if not args.quiet:
+        print(f"convergence report: {summary['wall_time_s']:.1f} s", file=sys.stderr)
+
+
 def main(argv: list[str] | None = None) -> None:
     """Entry point of the `dynfab` console script."""
     args = _parser().parse_args(argv)
     try:
-        {"run": _command_run, "plot": _command_plot}[args.command](args)
+        {"run": _command_run, "plot": _command_plot,
+         "convergence": _command_convergence}[args.command](args)
     except DynfabError as error:
         print(f"dynfab: error: {error}", file=sys.stderr)
         raise SystemExit(error.exit_status)
