@@ -51,12 +51,13 @@ def gradient(pos, yarn, P, anchors, friction_limit, grad):
 
 
 @numba.njit(cache=True)
-def hessian(pos, yarn, anchors, friction_limit, contact_tangent, coupled, band):
+def hessian(pos, yarn, anchors, friction_limit, contact_tangent, coupled, band, secant=False):
     """band = d2V/dr2 [N/m], banded (`dynfab.banded`), F_T frozen.
 
     With `coupled`, adds the derivative of F_T through the contact force on
     sliding crossings (`friction.add_limit_coupling`): the Jacobian of the
-    coupled friction problem, no longer symmetric.
+    coupled friction problem, no longer symmetric. With `secant`, sliding
+    crossings get the secant stiffness F_T / |s| (`friction.add_hessian`).
     """
     band[:, :] = 0.0
     stretch.add_hessian(pos, yarn.rest_length, yarn.stretch_stiffness, band)
@@ -66,7 +67,7 @@ def hessian(pos, yarn, anchors, friction_limit, contact_tangent, coupled, band):
                             yarn.contact_law, band)
     if yarn.has_friction:
         friction.add_hessian(pos, yarn.crossing_node, anchors, friction_limit,
-                             yarn.stick_stiffness, band)
+                             yarn.stick_stiffness, band, secant)
         if coupled:
             friction.add_limit_coupling(pos, yarn.crossing_node, yarn.crossing_side, anchors,
                                         friction_limit, yarn.stick_stiffness, yarn.friction_alpha,

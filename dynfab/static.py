@@ -115,6 +115,7 @@ def newton(pos, yarn, P, fixed, anchors, tolerance, max_iterations, info):
     contact_force, friction_limit, tangent = np.zeros(c), np.zeros(c), np.zeros(c)
     was_closed, flips = np.zeros(c, np.bool_), np.zeros(c, np.int64)
     previous = np.inf
+    cut = False  # the last step was shortened: use the secant friction stiffness
     info[STATUS], info[DETAIL] = MAX_ITERATIONS, 0.0
     for iteration in range(max_iterations + 1):
         assembly.contact_state(pos, yarn, contact_force, friction_limit, tangent)
@@ -134,7 +135,7 @@ def newton(pos, yarn, P, fixed, anchors, tolerance, max_iterations, info):
             if yarn.has_friction and flips[j] > MAX_FLIPS:
                 info[STATUS], info[DETAIL] = CYCLING, j
                 return
-        assembly.hessian(pos, yarn, anchors, friction_limit, tangent, True, band)
+        assembly.hessian(pos, yarn, anchors, friction_limit, tangent, True, band, cut)
         floor = 4.0 * EPS * np.abs(band[:, BANDWIDTH]).max() * np.abs(pos).max()
         if residual <= floor and residual > 0.5 * previous:
             info[STATUS] = ROUNDING_FLOOR
@@ -143,7 +144,7 @@ def newton(pos, yarn, P, fixed, anchors, tolerance, max_iterations, info):
         info[DETAIL] = _shifted_direction(band, work, grad, fixed, direction)
         slope = np.dot(grad.ravel(), direction)
         if not slope < 0.0:  # the coupling made it uphill for the frozen energy: drop it
-            assembly.hessian(pos, yarn, anchors, friction_limit, tangent, False, band)
+            assembly.hessian(pos, yarn, anchors, friction_limit, tangent, False, band, cut)
             info[DETAIL] = _shifted_direction(band, work, grad, fixed, direction)
             slope = np.dot(grad.ravel(), direction)
         t = _line_search(pos, direction, slope, residual, yarn, P, anchors, friction_limit,
@@ -152,6 +153,7 @@ def newton(pos, yarn, P, fixed, anchors, tolerance, max_iterations, info):
             info[STATUS] = ROUNDING_FLOOR if residual <= floor else STALLED
             return
         pos[:, :] = trial
+        cut = t < 1.0
 
 
 class StaticSolver:

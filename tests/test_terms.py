@@ -562,3 +562,28 @@ def test_eq4_is_eq2_at_the_crossings(alpha_we):
         rounding = 4 * EPS * np.sum(np.abs(terms * mode)) / abs(double_sum)
         w = 2 * l_we ** 3 / (math.pi ** 4 * ei) * double_sum
         assert 1 / abs(w) == pytest.approx(k_we, rel=rounding)
+
+
+def test_secant_friction_stiffness_majorises_the_huber_potential():
+    """Newton uses F_T/|s0| on a sliding crossing after a shortened step (dynfab/static.py).
+
+    Claim (friction.add_hessian): q(s) = H(s0) + H'(s0)(s - s0) + 1/2 (F_T/|s0|)(s - s0)^2
+    lies above H(s) for every s, because |s| <= s^2/(2|s0|) + |s0|/2 and the Huber
+    potential is the stick-clipped |s|. Checked on a grid to rounding (16 eps of the scale).
+    """
+    from dynfab.banded import zeros_band
+
+    k_t, F_T = 3.07e4, 6e-3
+    rng = np.random.default_rng(27)
+    for s0 in np.concatenate([rng.uniform(1.01, 50, 20), -rng.uniform(1.01, 50, 20)]) * F_T / k_t:
+        pos = np.array([[s0, 0.0], [0.0, 0.0]])
+        band = zeros_band(4)
+        friction.add_hessian(pos, np.array([0]), np.zeros(1), np.array([F_T]), k_t, band, True)
+        curvature = band[0, 5]
+        assert curvature == pytest.approx(F_T / abs(s0), rel=1e-15)
+        s = np.linspace(-3 * abs(s0), 3 * abs(s0), 2001)
+        h0 = friction.huber(s0, F_T, k_t)
+        slope = friction.huber_derivative(s0, F_T, k_t)
+        model = h0 + slope * (s - s0) + 0.5 * curvature * (s - s0) ** 2
+        exact = np.array([friction.huber(v, F_T, k_t) for v in s])
+        assert np.all(model >= exact - 16 * EPS * (F_T * abs(s0) * 3))

@@ -69,10 +69,6 @@ RUNS = Path(__file__).resolve().parents[2] / "runs"
 NOISE = 1e-9
 """Relative difference [-] below which two solves count as equal (solver precision)."""
 
-STICK_MAX_ITERATIONS = 2000
-"""Newton iterations allowed per load step in the stick-stiffness study. At k_t >= 300 x
-the default, the first load step needs about 225 (Newton finds which crossings stick
-on a Huber kink only F_T / k_t ~ 1e-10 m wide); the scene default of 200 stops it."""
 
 CSV_COLUMNS = ("study", "scene", "parameter", "parameter_value", "parameter_units",
                "load", "load_units", "quantity", "value", "units")
@@ -364,7 +360,6 @@ def load_step_study(plan: Plan, scene: Scene, solver: _Solver) -> list[dict]:
 def stick_study(plan: Plan, scene: Scene, solver: _Solver) -> list[dict]:
     """The friction scene with k_t = factor x EA / (L / N)."""
     base = with_path(scene, plan.max_displacement, plan.steps)
-    base = with_key(base, "static.max_iterations", STICK_MAX_ITERATIONS)
     default = default_stick_stiffness(base)
     rows = []
     for factor in plan.stick_factors:

@@ -72,11 +72,20 @@ def add_gradient(pos, nodes, anchors, friction_limit, stick_stiffness, grad):
 
 
 @numba.njit(cache=True)
-def add_hessian(pos, nodes, anchors, friction_limit, stick_stiffness, band):
-    """band_xx += k_t on sticking crossings (0 on sliding ones), F_T frozen."""
+def add_hessian(pos, nodes, anchors, friction_limit, stick_stiffness, band, secant=False):
+    """band_xx += k_t on sticking crossings, 0 on sliding ones (F_T frozen).
+
+    With `secant`, a sliding crossing gets F_T / |s| instead of 0: the curvature
+    of the quadratic that touches H at s and lies above it everywhere
+    (|s| <= s^2 / (2 |s0|) + |s0| / 2), so a Newton step on that model cannot
+    overshoot a crossing that is about to stick again.
+    """
     for j in range(nodes.size):
-        if not is_sliding(pos[nodes[j], 0] - anchors[j], friction_limit[j], stick_stiffness):
+        slip = pos[nodes[j], 0] - anchors[j]
+        if not is_sliding(slip, friction_limit[j], stick_stiffness):
             band_add(band, 2 * nodes[j], 2 * nodes[j], stick_stiffness)
+        elif secant:
+            band_add(band, 2 * nodes[j], 2 * nodes[j], friction_limit[j] / abs(slip))
 
 
 @numba.njit(cache=True)
