@@ -1,1 +1,23 @@
-"""Warp kernels of dynfab (installed as `dynfab.kernels`): nodal forces and time integrators."""
+"""Warp kernels of the dynamic solver (MODEL.md section 5), installed as `dynfab.kernels`.
+
+One module per concept, mirroring `dynfab.terms` for the physics:
+
+- `precision`: the scalar types (float64 by default, float32 on request);
+- `yarn_arrays`, `motion`, `settings`: the Warp structs a kernel reads (a batch
+  of yarns' Model arrays; the per-yarn time-integration state; the options);
+- `stretch`, `bending`, `contact`, `friction`, `gravity`, `load`: each term's
+  nodal force and banded tangent stiffness (`wp.func`s);
+- `forces`: the sum of the active terms, chosen with `wp.static`;
+- `banded`: one yarn's banded matrix and its O(N) LU factorisation;
+- `stability`: Gershgorin masses and stable time step;
+- `relaxation`: start and convergence checks shared by the relaxation kernels;
+- `kinetic_damping`, `viscous_damping`, `fire`: the explicit integrator's dampings;
+- `explicit`, `semi_implicit`, `transient`: the time-stepping kernels, one
+  thread per yarn with the time loop inside the kernel;
+- `configuration`: what selects a kernel variant, and the per-process cache;
+- `status`: the per-yarn outcome codes the kernels write;
+- `diagnostics`: one term's force and stiffness alone, for tests.
+
+Every `wp.func` is built per scalar type by a cached factory `functions(scalar, ...)`,
+because Warp refuses to mix float32 literals with float64 values.
+"""

@@ -1,0 +1,261 @@
+"""The dynamic solver: dynamic relaxation of each load step with Warp kernels (MODEL.md section 5).
+
+Each load step starts from the previous state (under displacement control with
+`dynfab.static.prescribe_load`), integrates the equations of motion of every
+yarn (one Warp thread per yarn, the time loop inside the kernel, a bounded
+chunk of steps per launch) until the residual, the largest free force
+component including friction, is below the tolerance, then finishes the step
+with `dynfab.observables.finish_step` (return mapping of the friction anchors,
+the step record) exactly as the static reference does.
+
+Integrators (`dynfab.kernels`): `explicit` symplectic Euler with kinetic
+damping (Barnes), viscous damping (given c, or adaptive after Underwood) or
+FIRE 2.0; `semi_implicit` linearly implicit backward Euler with its own time
+step rule (viscous c if one is given; its steps undo themselves instead of
+being damped). Masses fictitious (Gershgorin, dt = 1 s) or physical (dt from
+the Gershgorin bound times `safety`).
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import warp as wp
+
+from dynfab.errors import SceneError, SolverError
+from dynfab.kernels import explicit, fire, motion as motion_module, semi_implicit
+from dynfab.kernels import settings as settings_module, transient
+from dynfab.kernels import status, yarn_arrays
+from dynfab.kernels.configuration import Configuration
+from dynfab.kernels.precision import DEFAULT_TOLERANCE, SCALARS
+from dynfab.model import State
+from dynfab.observables import finish_step
+from dynfab.scene import Dynamic
+from dynfab.static import prescribe_load
+
+STEPS_PER_LAUNCH = 2000
+"""Time steps a launch may take before Python regains control (progress, Ctrl-C)."""
+
+
+class DynamicSolver:
+    """Relaxes a model's load steps one after another with Warp kernels (MODEL.md 5)."""
+
+    name = "dynamic"
+
+    def __init__(self, model, options: Dynamic | None = None, device: str = "cpu", progress=None):
+        self.model = model
+        self.options = model.scene.dynamic if options is None else options
+        self.device = device
+        self.progress = progress
+        is_transient = self.options.mode == "transient"
+        self.damping = self.options.damping or ("viscous" if is_transient else "kinetic")
+        self.masses = self.options.masses or ("physical" if is_transient else "fictitious")
+        self.tolerance = self.options.tolerance or DEFAULT_TOLERANCE[self.options.precision]
+        self.scalar = SCALARS[self.options.precision]
+        explicit_method = self.options.method == "explicit"
+        if not explicit_method and self.damping == "fire":
+            raise SceneError('dynamic.damping = "fire": not available with dynamic.method = '
+                             '"semi_implicit" (FIRE drives an explicit integrator); use "viscous" '
+                             'or leave damping unset')
+        self.configuration = Configuration(
+            precision=self.options.precision, friction="friction" in model.terms,
+            gravity="gravity" in model.terms, control=model.control, method=self.options.method,
+            damping=self.damping if explicit_method else None, mode=self.options.mode)
+        wp.init()
+        self._kernel = (explicit.relaxation_kernel if self.options.method == "explicit"
+                        else semi_implicit.relaxation_kernel)
+        self.yarn = yarn_arrays.upload(model, self.scalar, device)
+        self.motion = motion_module.allocate(self.scalar, model.yarn_count, model.segments + 1,
+                                             model.crossings, device)
+
+    def attrs(self) -> dict:
+        """Root attributes describing the solver, for the result file."""
+        return {"solver": self.name, "dynamic_mode": self.options.mode,
+                "dynamic_method": self.options.method, "dynamic_damping": self.damping,
+                "dynamic_masses": self.masses,
+                "dynamic_dt": "auto" if self.options.dt is None else self.options.dt,
+                "dynamic_safety": self.options.safety, "dynamic_tolerance": self.tolerance,
+                "dynamic_max_steps": self.options.max_steps,
+                "dynamic_precision": self.options.precision}
+
+    def predicted_stable_dt(self, state, load_value: float = 0.0) -> np.ndarray:
+        """Gershgorin's stable time step [s] per yarn at the start of a load step (of a
+        transient run: at t = 0, zero load), for this solver's masses (MODEL.md 5):
+        2 min_i sqrt(m_i / sum_j |K_ij|)."""
+        if self.options.mode == "transient":
+            self._start_transient(state)
+        else:
+            self._launch(state, load_value, steps=0)
+        return self.motion.stable_dt.numpy().astype(float)
+
+    def step(self, state, load_value: float):
+        """Relax every yarn under `load_value`; returns (new state, record) or raises SolverError."""
+        if self.options.mode == "transient":
+            raise SceneError('dynamic.mode = "transient" runs by time, not by load step: '
+                             "use DynamicSolver.transient(state), which yields frames")
+        codes = self._launch(state, load_value, steps=STEPS_PER_LAUNCH)
+        while (codes == status.RUNNING).any():
+            codes = self._launch(None, load_value, steps=STEPS_PER_LAUNCH)
+        self._raise_on_failure(codes)
+        self._warn_at_rounding_floor(codes)
+        steps = self.motion.steps.numpy().astype(np.int64)
+        new_state, record = finish_step(self.model, state, self._positions(), load_value,
+                                        self.motion.residual.numpy().astype(float), steps)
+        record["time_steps"] = steps
+        record["force_evaluations"] = self.motion.force_evaluations.numpy().astype(np.int64)
+        record["dt"] = self.motion.dt.numpy().astype(float)
+        return new_state, record
+
+    def transient(self, state):
+        """Run the transient (dynamic.mode = "transient", MODEL.md 5) from `state`; yield frames.
+
+        Physical masses, viscous c (default 0), anchors return-mapped every time step,
+        the load ramped piecewise-linearly from 0 at t = 0 through the load values evenly
+        spaced over `duration`. One frame (`frames/*` of the result file) at t = 0 and
+        every `output_interval`, the last at `duration`; the time step, at most the
+        Gershgorin dt (or dynamic.dt), is shortened to land on every frame time.
+        """
+        options = self.options
+        kernel, load_path = self._start_transient(state)
+        largest_dt = float(self.motion.dt.numpy().min())
+        yield self._frame(0.0)
+        times = np.append(np.arange(0.0, options.duration, options.output_interval),
+                          options.duration)
+        for start, end in zip(times[:-1], times[1:]):
+            steps = int(np.ceil((end - start) / largest_dt * (1 - 1e-12)))
+            dt = (end - start) / steps
+            for done in range(0, steps, STEPS_PER_LAUNCH):
+                self._advance(kernel, load_path, time=start + done * dt, dt=dt,
+                              steps=min(STEPS_PER_LAUNCH, steps - done))
+            yield self._frame(end)
+
+    def _start_transient(self, state):
+        """Load `state` and let the transient kernel choose masses and dt; (kernel, load path)."""
+        kernel = transient.transient_kernel(self.configuration)
+        load_path = wp.array(self.model.load_values, dtype=self.scalar, device=self.device)
+        motion_module.start_load_step(self.motion, state.positions, state.anchors, self.scalar,
+                                      self.device)
+        self._advance(kernel, load_path, time=0.0, dt=self.options.dt or 0.0, steps=0)
+        return kernel, load_path
+
+    def _advance(self, kernel, load_path, time: float, dt: float, steps: int) -> None:
+        """One launch of the transient kernel: `steps` time steps of `dt` [s] from `time` [s]."""
+        settings = settings_module.fill(
+            self.scalar, tolerance=0.0, safety=self.options.safety, fixed_dt=dt,
+            fictitious=0, damping_coefficient=self.options.damping_coefficient or 0.0,
+            max_steps=0, chunk=steps, time=time, duration=self.options.duration)
+        wp.launch(kernel, dim=self.model.yarn_count, inputs=[self.yarn, self.motion, settings,
+                                                              load_path], device=self.device)
+        codes = self.motion.status.numpy()
+        self._report(codes)
+        self._raise_on_failure(codes, allowed=(status.RUNNING,))
+
+    def _frame(self, time: float) -> dict:
+        """One transient frame: time, positions, velocities, contact forces, anchors and the
+        energy of every term (as `finish_step` reports them) plus the kinetic energy [J]."""
+        positions = self._positions()
+        velocities = self.motion.velocity.numpy().astype(np.float64)
+        load = np.interp(time, np.linspace(0.0, self.options.duration, self.model.load_values.size + 1),
+                         np.append(0.0, self.model.load_values))
+        yarns = self.model.yarn_count
+        state = State(positions=positions, anchors=self.motion.anchors.numpy().astype(np.float64),
+                      dissipated=np.zeros(yarns), load=np.full(yarns, load))
+        _, record = finish_step(self.model, state, positions, load, np.zeros(yarns),
+                                np.zeros(yarns, np.int64))
+        frame = {"time": time, "positions": positions, "velocities": velocities,
+                 "contact_force": record["contact_force"], "anchors": record["anchors"]}
+        frame.update({name: value for name, value in record.items() if name.startswith("energy/")})
+        masses = self.model.stacked("mass")
+        frame["energy/kinetic"] = 0.5 * np.sum(masses[:, :, None] * velocities ** 2, axis=(1, 2))
+        return frame
+
+    def _launch(self, state, load_value: float, steps: int) -> np.ndarray:
+        """Run up to `steps` time steps of every running yarn; a `state` starts a new load step.
+
+        Returns the status code of every yarn (`dynfab.kernels.status`).
+        """
+        if state is not None:
+            positions = prescribe_load(self.model, state, load_value)
+            motion_module.start_load_step(self.motion, positions, state.anchors, self.scalar,
+                                          self.device)
+        wp.launch(self._kernel(self.configuration), dim=self.model.yarn_count,
+                  inputs=[self.yarn, self.motion, self._settings(load_value, steps)],
+                  device=self.device)
+        codes = self.motion.status.numpy()
+        self._report(codes)
+        return codes
+
+    def _settings(self, load_value: float, steps: int):
+        """The kernel's Settings for one launch of `steps` time steps."""
+        coefficient = self.options.damping_coefficient
+        return settings_module.fill(
+            self.scalar, end_load=load_value if self.model.control == "force" else 0.0,
+            tolerance=self.tolerance, safety=self.options.safety,
+            fixed_dt=self.options.dt or 0.0, fictitious=int(self.masses == "fictitious"),
+            damping_coefficient=-1.0 if coefficient is None else coefficient,
+            max_steps=self.options.max_steps, chunk=steps)
+
+    def _positions(self) -> np.ndarray:
+        """Node positions (yarns, N+1, 2) [m] as float64."""
+        return self.motion.position.numpy().astype(np.float64)
+
+    def _report(self, codes: np.ndarray) -> None:
+        """One progress line per launch, if a progress callback was given."""
+        if self.progress is None:
+            return
+        steps, residual = self.motion.steps.numpy(), self.motion.residual.numpy()
+        running = int((codes == status.RUNNING).sum())
+        self.progress(f"dynamic: {steps.max()} time steps, residual {residual.max():.3g} N "
+                      f"(tolerance {self.tolerance:.3g} N), {running} of {codes.size} yarns running")
+
+    def _raise_on_failure(self, codes: np.ndarray, allowed=status.SUCCESS) -> None:
+        """SolverError with one line naming the first failed yarn, unless every code is allowed."""
+        for k, code in enumerate(codes):
+            if code not in allowed:
+                raise SolverError(self._failure_message(k, int(code)))
+
+    def _warn_at_rounding_floor(self, codes: np.ndarray) -> None:
+        """Say so when a yarn met a tolerance below its rounding floor by stalling (MODEL.md 5)."""
+        residual = self.motion.residual.numpy()
+        for k in np.flatnonzero(codes == status.ROUNDING_FLOOR):
+            warnings.warn(f"yarn {k}: the residual stopped falling at {residual[k]:.3g} N, the "
+                          f"{self.options.precision} rounding floor, above the tolerance "
+                          f"{self.tolerance:.3g} N", RuntimeWarning, stacklevel=3)
+
+    def _failure_message(self, k: int, code: int) -> str:
+        """What went wrong with yarn k, the numbers behind it, and the likely cause."""
+        steps = int(self.motion.steps.numpy()[k])
+        residual = float(self.motion.residual.numpy()[k])
+        start = float(self.motion.start_residual.numpy()[k])
+        dt, bound = float(self.motion.dt.numpy()[k]), float(self.motion.stable_dt.numpy()[k])
+        where = f"yarn {k}"
+        if code in (status.DIVERGED, status.NON_FINITE):
+            cause = ("the time step is above the stability bound: lower dynamic.dt or leave it unset"
+                     if dt > bound else
+                     "a stiffness the bound did not foresee (large strain, a contact closing): "
+                     "lower dynamic.safety")
+            growth = ("the state became non-finite" if code == status.NON_FINITE else
+                      f"the residual grew to {residual:.3g} N from {start:.3g} N")
+            return (f"{where}: the {self.options.method} integration diverged after {steps} time "
+                    f"steps ({growth}); dt = {dt:.3g} s against the predicted stable dt = "
+                    f"{bound:.3g} s (Gershgorin); likely cause: {cause}")
+        if code == status.STALLED:
+            return (f"{where}: FIRE stalled after {steps} time steps (the power stayed negative "
+                    f"for {fire.MAX_NEGATIVE_STEPS} steps); residual {residual:.3g} N")
+        if code == status.NOT_POSITIVE_DEFINITE:
+            return (f"{where}: the semi_implicit matrix had a pivot that is not positive at every "
+                    f"time step tried after {steps} steps; residual {residual:.3g} N")
+        return (f"{where}: no convergence in {steps} time steps (dynamic.max_steps); residual "
+                f"{residual:.3g} N, tolerance {self.tolerance:.3g} N{self._open_crossing_hint(k)}")
+
+    def _open_crossing_hint(self, k: int) -> str:
+        """With friction, name the crossing of yarn k nearest g = 0, where F_T jumps (MODEL.md 4)."""
+        if not self.configuration.friction or self.model.crossings == 0:
+            return ""
+        yarn, positions = self.model.yarns[k], self._positions()[k]
+        closure = yarn.gap_offset - yarn.crossing_side * positions[yarn.crossing_node, 1]
+        j = int(np.argmin(np.abs(closure)))
+        return (f"; crossing {j + 1} (node {yarn.crossing_node[j]}) is nearest to opening "
+                f"(g = {closure[j]:.3g} m), where Gralen's limit jumps by beta*ell*r_f = "
+                f"{yarn.friction_constant:.3g} N")

@@ -1,0 +1,23 @@
+"""Scalar types of the Warp kernels (MODEL.md section 5: float64 default, float32 on request)."""
+
+import numpy as np
+import warp as wp
+
+SCALARS = {"float64": wp.float64, "float32": wp.float32}
+"""Precision name -> Warp scalar type."""
+
+VECTORS = {wp.float64: wp.vec2d, wp.float32: wp.vec2f}
+"""Warp scalar type -> its (x, z) vector type."""
+
+DEFAULT_TOLERANCE = {"float64": 1e-8, "float32": 1e-4}
+"""Default force residual [N] per precision (MODEL.md 5: float32's rounding floor is about 1e-4 N)."""
+
+
+def numpy_dtype(scalar) -> type:
+    """The numpy dtype of a Warp scalar type."""
+    return np.float64 if scalar is wp.float64 else np.float32
+
+
+def epsilon(scalar) -> float:
+    """Machine epsilon of a Warp scalar type."""
+    return float(np.finfo(numpy_dtype(scalar)).eps)

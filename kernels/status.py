@@ -1,0 +1,28 @@
+"""Per-yarn outcome codes that the time-stepping kernels write (`Motion.status`)."""
+
+RUNNING = 0
+"""Still relaxing: the next launch continues it."""
+CONVERGED = 1
+"""Residual at or below the tolerance."""
+ROUNDING_FLOOR = 2
+"""The residual stopped falling within the rounding floor, above the tolerance (MODEL.md 5)."""
+MAX_STEPS = 3
+"""The load step used `max_steps` time steps."""
+DIVERGED = 4
+"""The residual grew beyond `DIVERGENCE_FACTOR` x its value at the start of the load step."""
+NON_FINITE = 5
+"""A force or the kinetic energy became NaN or infinite."""
+STALLED = 6
+"""FIRE: the power stayed negative for `fire.MAX_NEGATIVE_STEPS` steps in a row."""
+NOT_POSITIVE_DEFINITE = 7
+"""semi_implicit: no time step gave the LU factorisation positive pivots."""
+
+SUCCESS = (CONVERGED, ROUNDING_FLOOR)
+"""The codes of a load step that ended well."""
+
+DIVERGENCE_FACTOR = 1e6
+"""A residual this many times the load step's starting residual (or the tolerance,
+if larger) means unstable motion. A stable damped relaxation stays within about
+sqrt(cond(M^-1 K)) of its start (a few thousand on the paper's yarns); an unstable
+explicit mode (omega dt > 2) multiplies the residual by about (omega dt)^2 - 2 per
+step, so at 10x the stable time step it crosses the bound within a handful of steps."""

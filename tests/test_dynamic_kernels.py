@@ -1,0 +1,185 @@
+"""Stage 1 of the dynamic solver: the Warp force and stiffness kernels (MODEL.md 2-4).
+
+Each term's Warp force and banded tangent stiffness against its numba twin in
+`dynfab.terms` at random states, the total force against `dynfab.assembly.gradient`
+with F_T from `dynfab.assembly.contact_state`, to float64 rounding; and the
+kernel variants: a variant without a term compiles none of its code, and asking
+twice for a configuration returns the same kernel.
+"""
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+import warp as wp
+
+from dynfab import assembly
+from dynfab.banded import zeros_band
+from dynfab.dynamic import DynamicSolver
+from dynfab.kernels import diagnostics, explicit, yarn_arrays
+from dynfab.kernels.configuration import Configuration, built_variants
+from dynfab.model import build_model, initial_state
+from dynfab.scene import Gravity, load_scene, validate_scene, with_key
+from dynfab.terms import bending, contact, friction, gravity, load, stretch
+
+RUNS = Path(__file__).resolve().parent.parent / "runs"
+EPS = np.finfo(np.float64).eps
+LOAD = 0.3
+"""End load P [N] of the force-controlled test scene."""
+CONFIGURATION = Configuration(friction=True, gravity=True, control="force")
+"""The variant with every term: friction, gravity and the end load."""
+
+
+@pytest.fixture(scope="module")
+def model():
+    """The Fig. 5 scene (friction on and off) with gravity added, under force control."""
+    scene = load_scene(RUNS / "paper_fig5.toml")
+    scene = validate_scene(replace(scene, gravity=Gravity()))
+    return build_model(with_key(scene, "load.control", "force"))
+
+
+@pytest.fixture(scope="module")
+def random_state(model):
+    """Positions 20 um around the as-woven ones (strains of a few %, every contact closed,
+    prestressed) and anchors 2 um around the crossing nodes (some crossings stick, some slide)."""
+    rng = np.random.default_rng(2007)
+    positions = initial_state(model).positions + rng.normal(0.0, 2e-5, (model.yarn_count,
+                                                                        model.segments + 1, 2))
+    nodes = model.yarns[0].crossing_node
+    anchors = positions[:, nodes, 0] + rng.normal(0.0, 2e-6, (model.yarn_count, model.crossings))
+    return positions, anchors
+
+
+def warp_term(model, positions, anchors, term):
+    """Warp's force (yarns, N+1, 2) [N], band (yarns, 2 (N+1), 11) [N/m] and (R, dR/dg, F_T)
+    of one term."""
+    yarns, nodes, crossings = model.yarn_count, model.segments + 1, model.crossings
+    force = wp.zeros((yarns, nodes), dtype=wp.vec2d)
+    band = wp.zeros((yarns, 2 * nodes, 11), dtype=wp.float64)
+    contact_state = [wp.zeros((yarns, crossings), dtype=wp.float64) for _ in range(3)]
+    wp.launch(diagnostics.term_kernel(CONFIGURATION), dim=yarns,
+              inputs=[yarn_arrays.upload(model, wp.float64, "cpu"), wp.array(positions, dtype=wp.vec2d),
+                      wp.array(anchors, dtype=wp.float64), LOAD, term, force, band, *contact_state])
+    return force.numpy(), band.numpy(), [a.numpy() for a in contact_state]
+
+
+def numba_contact_state(yarn, pos):
+    """(R [N], F_T [N], dR/dg [N/m]) per crossing from `dynfab.assembly.contact_state`."""
+    state = [np.zeros(yarn.crossing_node.size) for _ in range(3)]
+    assembly.contact_state(pos, yarn, *state)
+    return state
+
+
+def numba_term(yarn, pos, anchors, term):
+    """dV_term/dr (N+1, 2) [N] and its banded Hessian [N/m] from `dynfab.terms`, F_T from R."""
+    R, limit, _ = numba_contact_state(yarn, pos)
+    grad, band = np.zeros_like(pos), zeros_band(pos.size)
+    nodes, sides, offsets, law = (yarn.crossing_node, yarn.crossing_side, yarn.gap_offset,
+                                  yarn.contact_law)
+    if term == diagnostics.STRETCH:
+        stretch.add_gradient(pos, yarn.rest_length, yarn.stretch_stiffness, grad)
+        stretch.add_hessian(pos, yarn.rest_length, yarn.stretch_stiffness, band)
+    elif term == diagnostics.BENDING:
+        bending.add_gradient(pos, yarn.bend_stiffness, yarn.rest_angle, grad)
+        bending.add_hessian(pos, yarn.bend_stiffness, yarn.rest_angle, band)
+    elif term == diagnostics.CONTACT:
+        contact.add_gradient(pos, nodes, sides, offsets, law, grad)
+        contact.add_hessian(pos, nodes, sides, offsets, law, band)
+    elif term == diagnostics.FRICTION:
+        friction.add_gradient(pos, nodes, anchors, limit, yarn.stick_stiffness, grad)
+        friction.add_hessian(pos, nodes, anchors, limit, yarn.stick_stiffness, band)
+    elif term == diagnostics.GRAVITY:
+        gravity.add_gradient(yarn.mass, yarn.gravity, grad)
+    elif term == diagnostics.LOAD:
+        load.add_gradient(LOAD, grad)
+    return grad, band
+
+
+def rounding_scale(yarn, pos, anchors, term):
+    """The largest magnitude a term's force components are computed from [N].
+
+    float64 rounds each operation to eps of its operands: the stretch force k (l - l0)
+    carries the rounding of l, k l; the bending force the moment's k |phi| (<= k pi)
+    over a segment length; friction k_t x (the slip x - xi cancels); contact R; gravity
+    m g; the load P.
+    """
+    lengths = np.hypot(*np.diff(pos, axis=0).T)
+    if term == diagnostics.STRETCH:
+        return np.max(yarn.stretch_stiffness * lengths)
+    if term == diagnostics.BENDING:
+        return np.max(yarn.bend_stiffness) * np.pi / lengths.min()
+    if term == diagnostics.CONTACT:
+        return numba_contact_state(yarn, pos)[0].max()
+    if term == diagnostics.FRICTION:
+        return yarn.stick_stiffness * np.abs(pos[:, 0]).max()
+    if term == diagnostics.GRAVITY:
+        return yarn.mass.max() * yarn.gravity
+    return LOAD
+
+
+TERMS = [diagnostics.STRETCH, diagnostics.BENDING, diagnostics.CONTACT, diagnostics.FRICTION,
+         diagnostics.GRAVITY, diagnostics.LOAD]
+
+
+@pytest.mark.parametrize("term", TERMS, ids=["stretch", "bending", "contact", "friction",
+                                             "gravity", "load"])
+def test_term_force_and_stiffness_match_numba(model, random_state, term):
+    positions, anchors = random_state
+    force, band, _ = warp_term(model, positions, anchors, term)
+    for k, yarn in enumerate(model.yarns):
+        grad, hessian = numba_term(yarn, positions[k], anchors[k], term)
+        scale = rounding_scale(yarn, positions[k], anchors[k], term)
+        # float64 rounding: a few ulps of the largest operand, summed over <= 3 elements per node.
+        assert np.abs(force[k] + grad).max() <= 16 * EPS * scale
+        # Each band entry sums <= 3 element blocks, each rounded to eps of the largest entry.
+        assert np.abs(band[k] - hessian).max() <= 16 * EPS * max(np.abs(hessian).max(), 1.0)
+
+
+def test_total_force_matches_assembly_gradient(model, random_state):
+    positions, anchors = random_state
+    force, band, (contact_force, tangent, limit) = warp_term(model, positions, anchors,
+                                                             diagnostics.ALL_TERMS)
+    fixed = model.fixed_dofs()
+    for k, yarn in enumerate(model.yarns):
+        R, F_T, dR_dg = numba_contact_state(yarn, positions[k])
+        grad, hessian = np.zeros_like(positions[k]), zeros_band(positions[k].size)
+        assembly.gradient(positions[k], yarn, LOAD, anchors[k], F_T, grad)
+        assembly.hessian(positions[k], yarn, anchors[k], F_T, dR_dg, False, hessian)
+        # The Newton inversion of the contact law stops within 4e-16 R (dynfab.terms.contact).
+        assert np.abs(contact_force[k] - R).max() <= 16 * EPS * R.max()
+        assert np.abs(limit[k] - F_T).max() <= 16 * EPS * max(F_T.max(), 1e-300)
+        assert np.abs(tangent[k] - dR_dg).max() <= 16 * EPS * dR_dg.max()
+        expected = np.where(fixed.reshape(-1, 2), 0.0, -grad)
+        scale = max(rounding_scale(yarn, positions[k], anchors[k], t) for t in TERMS)
+        assert np.abs(force[k] - expected).max() <= 16 * EPS * scale
+        assert np.abs(band[k] - hessian).max() <= 16 * EPS * np.abs(hessian).max()
+
+
+def generated_source(kernel) -> str:
+    """The C++ Warp generated for a kernel's module, read from the kernel cache after a launch
+    (the launch's own module hash names the cache folder)."""
+    (loaded,) = kernel.module.execs.values()
+    identifier = f"wp_{kernel.module.name}_{loaded.module_hash.hex()[:7]}"
+    return (Path(wp.config.kernel_cache_dir) / identifier / f"{identifier}.cpp").read_text()
+
+
+def test_variant_without_friction_compiles_no_friction_code(model, random_state):
+    warp_term(model, *random_state, diagnostics.ALL_TERMS)
+    fig3 = build_model(with_key(load_scene(RUNS / "paper_fig3.toml"), "load.values", [0.001]))
+    solver = DynamicSolver(fig3)
+    solver.predicted_stable_dt(initial_state(fig3), 0.001)  # one launch, no time step
+    with_friction = generated_source(diagnostics.term_kernel(CONFIGURATION))
+    without = generated_source(explicit.relaxation_kernel(solver.configuration))
+    for name in ("huber_derivative", "is_sliding"):
+        assert name in with_friction
+        assert name not in without
+    assert "gravity_ops" in with_friction and "gravity_ops" not in without
+
+
+def test_each_configuration_builds_once():
+    configuration = Configuration(friction=True, gravity=True, control="force")
+    first = diagnostics.term_kernel(configuration)
+    assert diagnostics.term_kernel(Configuration(friction=True, gravity=True, control="force")) is first
+    keys = built_variants()
+    assert len(keys) == len(set(keys))
