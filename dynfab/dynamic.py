@@ -26,7 +26,7 @@ import warp as wp
 from dynfab.errors import SceneError, SolverError
 from dynfab.kernels import explicit, fire, motion as motion_module, semi_implicit
 from dynfab.kernels import settings as settings_module, transient
-from dynfab.kernels import status, yarn_arrays
+from dynfab.kernels import runtime, status, yarn_arrays
 from dynfab.kernels.configuration import Configuration
 from dynfab.kernels.precision import DEFAULT_TOLERANCE, SCALARS
 from dynfab.model import State
@@ -62,7 +62,7 @@ class DynamicSolver:
             precision=self.options.precision, friction="friction" in model.terms,
             gravity="gravity" in model.terms, control=model.control, method=self.options.method,
             damping=self.damping if explicit_method else None, mode=self.options.mode)
-        wp.init()
+        runtime.initialize(device)
         self._kernel = (explicit.relaxation_kernel if self.options.method == "explicit"
                         else semi_implicit.relaxation_kernel)
         self.yarn = yarn_arrays.upload(model, self.scalar, device)
@@ -107,7 +107,7 @@ class DynamicSolver:
         record["dt"] = self.motion.dt.numpy().astype(float)
         return new_state, record
 
-    def transient(self, state):
+    def transient(self, state, resume_from: dict | None = None):
         """Run the transient (dynamic.mode = "transient", MODEL.md 5) from `state`; yield frames.
 
         Physical masses, viscous c (default 0), anchors return-mapped every time step,
@@ -115,14 +115,24 @@ class DynamicSolver:
         spaced over `duration`. One frame (`frames/*` of the result file) at t = 0 and
         every `output_interval`, the last at `duration`; the time step, at most the
         Gershgorin dt (or dynamic.dt), is shortened to land on every frame time.
+
+        `resume_from`, a frame this run wrote, continues from it: the masses and time
+        step are still chosen from `state` (the run's state at t = 0) and the frame's
+        positions, velocities and anchors replace the kernel's, so a resumed run takes
+        the very same steps as an uninterrupted one.
         """
         options = self.options
         kernel, load_path = self._start_transient(state)
         largest_dt = float(self.motion.dt.numpy().min())
-        yield self._frame(0.0)
         times = np.append(np.arange(0.0, options.duration, options.output_interval),
                           options.duration)
-        for start, end in zip(times[:-1], times[1:]):
+        first = 0
+        if resume_from is None:
+            yield self._frame(0.0)
+        else:
+            first = int(np.argmin(np.abs(times - float(resume_from["time"]))))
+            motion_module.restore(self.motion, resume_from, self.scalar, self.device)
+        for start, end in zip(times[first:-1], times[first + 1:]):
             steps = int(np.ceil((end - start) / largest_dt * (1 - 1e-12)))
             dt = (end - start) / steps
             for done in range(0, steps, STEPS_PER_LAUNCH):
@@ -152,8 +162,9 @@ class DynamicSolver:
         self._raise_on_failure(codes, allowed=(status.RUNNING,))
 
     def _frame(self, time: float) -> dict:
-        """One transient frame: time, positions, velocities, contact forces, anchors and the
-        energy of every term (as `finish_step` reports them) plus the kinetic energy [J]."""
+        """One transient frame: time, positions, velocities, nodal forces, contact forces,
+        anchors and the energy of every term (as `finish_step` reports them) plus the
+        kinetic energy [J]."""
         positions = self._positions()
         velocities = self.motion.velocity.numpy().astype(np.float64)
         load = np.interp(time, np.linspace(0.0, self.options.duration, self.model.load_values.size + 1),
@@ -164,6 +175,7 @@ class DynamicSolver:
         _, record = finish_step(self.model, state, positions, load, np.zeros(yarns),
                                 np.zeros(yarns, np.int64))
         frame = {"time": time, "positions": positions, "velocities": velocities,
+                 "force": self.motion.force.numpy().astype(np.float64),
                  "contact_force": record["contact_force"], "anchors": record["anchors"]}
         frame.update({name: value for name, value in record.items() if name.startswith("energy/")})
         masses = self.model.stacked("mass")

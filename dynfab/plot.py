@@ -45,6 +45,8 @@ def plot_results(path: str | os.PathLike, out_dir: str | os.PathLike) -> list[Pa
     file, a file that is not a dynfab result, or one without a load step.
     """
     results = read_results(path)
+    if results.step_count == 0 and results.frame_count > 0:
+        return _plot_transient(results, Path(out_dir))
     if results.step_count == 0:
         raise SceneError(f"result file '{path}' has no finished load step to plot")
     for key in ("end_force", "end_displacement", "positions"):
@@ -92,7 +94,10 @@ def _legend(ax, **kwargs) -> None:
 
 def yarn_labels(results: Results) -> list[str]:
     """One label per yarn: the ``yarn_labels`` attribute, else "yarn 1", "yarn 2", ..."""
-    count = results.steps["end_force"].reshape(results.step_count, -1).shape[1]
+    if results.step_count:
+        count = results.steps["end_force"].reshape(results.step_count, -1).shape[1]
+    else:
+        count = np.asarray(results.frames["positions"]).shape[1]
     labels = results.attrs.get("yarn_labels")
     if isinstance(labels, str):
         labels = [labels]
@@ -177,6 +182,52 @@ def plot_contact_force(results: Results) -> Figure:
 def shape_steps(step_count: int) -> list[int]:
     """About four step indices to draw: first, 1/3, 2/3 and last (no repeats)."""
     return sorted(set(np.round(np.linspace(0, step_count - 1, 4)).astype(int).tolist()))
+
+
+def _plot_transient(results: Results, out: Path) -> list[Path]:
+    """A transient run's figures: energies against time, shapes at a few frames."""
+    out.mkdir(parents=True, exist_ok=True)
+    return [_save(plot_energy_history(results), out / "energy.png"),
+            _save(plot_frame_shapes(results), out / "shape.png")]
+
+
+def plot_energy_history(results: Results) -> Figure:
+    """Every frames/energy/<term> [J] of the first yarn against time [ms]."""
+    time_ms = 1e3 * np.asarray(results.frames["time"], dtype=float)
+    fig = _figure(6.0, 3.2)
+    ax = fig.subplots()
+    for name, value in results.frames.items():
+        if name.startswith("energy/"):
+            energy = np.asarray(value, dtype=float).reshape(time_ms.size, -1)[:, 0]
+            ax.plot(time_ms, energy, label=name.split("/", 1)[1])
+    ax.set(xlabel="time (ms)", ylabel="energy (J)")
+    _style(ax)
+    _legend(ax)
+    _suptitle(fig, results, f"energies of {yarn_labels(results)[0]}")
+    return fig
+
+
+def plot_frame_shapes(results: Results) -> Figure:
+    """The first yarn's z [mm] against x [mm] at about four frames, z exaggerated."""
+    time_ms = 1e3 * np.asarray(results.frames["time"], dtype=float)
+    positions = np.asarray(results.frames["positions"], dtype=float)
+    nodes = np.asarray(results.reference.get("crossing_nodes", []), dtype=int).ravel()
+    fig = _figure(7.0, 3.2)
+    ax = fig.subplots()
+    ref = np.asarray(results.reference["positions"], dtype=float)[0]
+    ax.plot(1e3 * ref[:, 0], 1e3 * ref[:, 1], "--", color="0.5", lw=1, label="as woven")
+    frames = shape_steps(time_ms.size)
+    for n, frame in enumerate(frames):
+        color = colormaps["viridis"](n / max(len(frames) - 1, 1) * 0.85)
+        xz = 1e3 * positions[frame, 0]
+        ax.plot(xz[:, 0], xz[:, 1], "-", color=color, lw=1.2, label=f"t = {time_ms[frame]:.3g} ms")
+        if nodes.size:
+            ax.plot(xz[nodes, 0], xz[nodes, 1], "o", color=color, ms=4)
+    ax.set(xlabel="x (mm)", ylabel="z (mm, exaggerated)")
+    _style(ax)
+    _legend(ax, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
+    _suptitle(fig, results, f"shape of {yarn_labels(results)[0]} (z exaggerated; dots: crossings)")
+    return fig
 
 
 def plot_shape(results: Results, path="") -> Figure:

@@ -74,6 +74,7 @@ UNITS: dict[str, str] = {
     "frames/time": "s",  # (frames,)
     "frames/positions": "m",  # (frames, yarns, N+1, 2)
     "frames/velocities": "m/s",  # (frames, yarns, N+1, 2)
+    "frames/force": "N",  # (frames, yarns, N+1, 2) nodal force the next time step uses (resume)
     "frames/contact_force": "N",  # (frames, yarns, crossings)
     "frames/anchors": "m",
     f"frames/energy/{ENERGY_TERM}": "J",  # (frames, yarns)

@@ -46,6 +46,9 @@ def run(scene: Scene, solver: str = "static", out: str | Path | None = None, *,
     model = build_model(scene)
     engine = make_solver(model, solver, **solver_options)
     sink = _open_sink(model, engine, out, overwrite=overwrite, resume=resume)
+    if solver == "dynamic" and scene.dynamic.mode == "transient":
+        _run_transient(model, engine, sink, progress)
+        return sink.results() if isinstance(sink, _MemorySink) else read_results(sink.path)
     state = _start_state(model, sink)
     values = model.load_values
     unit = "N" if model.control == "force" else "m"
@@ -61,6 +64,17 @@ def run(scene: Scene, solver: str = "static", out: str | Path | None = None, *,
         if progress is not None:
             progress(_progress_line(index, values.size, record, unit))
     return sink.results() if isinstance(sink, _MemorySink) else read_results(sink.path)
+
+
+def _run_transient(model: Model, engine, sink, progress) -> None:
+    """A transient run (MODEL.md 5): append every frame as it comes; resume from the last one."""
+    resume_from = sink.last_frame() if sink.frame_count else None
+    duration = model.scene.dynamic.duration
+    for frame in engine.transient(initial_state(model), resume_from):
+        sink.append_frame(frame)
+        if progress is not None:
+            kinetic = np.max(frame["energy/kinetic"])
+            progress(f"t = {frame['time']:.6g} s of {duration:g} s  kinetic energy {kinetic:.4g} J")
 
 
 def _open_sink(model: Model, engine, out, *, overwrite: bool, resume: bool):
@@ -135,24 +149,39 @@ class _MemorySink:
     """Collects steps in memory for `run(..., out=None)`."""
 
     def __init__(self, attrs: dict, reference: dict):
-        self.attrs, self.reference, self.steps = attrs, reference, []
+        self.attrs, self.reference, self.steps, self.frames = attrs, reference, [], []
 
     @property
     def step_count(self) -> int:
         return len(self.steps)
 
+    @property
+    def frame_count(self) -> int:
+        return len(self.frames)
+
     def append_step(self, record: dict) -> None:
         self.steps.append({k: np.asarray(v) for k, v in record.items()})
 
+    def append_frame(self, frame: dict) -> None:
+        self.frames.append({k: np.asarray(v) for k, v in frame.items()})
+
     def results(self) -> Results:
-        names = self.steps[0].keys() if self.steps else ()
-        stacked = {name: np.stack([s[name] for s in self.steps]) for name in names}
-        return Results(attrs=self.attrs, reference=self.reference, steps=stacked)
+        return Results(attrs=self.attrs, reference=self.reference, steps=_stack(self.steps),
+                       frames=_stack(self.frames))
+
+
+def _stack(records: list[dict]) -> dict:
+    """Records of equal keys stacked along a new first axis."""
+    names = records[0].keys() if records else ()
+    return {name: np.stack([r[name] for r in records]) for name in names}
 
 
 def print_summary(results: Results, file=sys.stdout) -> None:
     """The summary table: load, end displacement, end force, largest contact force, residual, time."""
     steps = results.steps
+    if results.step_count == 0:
+        _print_frames_summary(results, file)
+        return
     unit = "N" if results.attrs.get("load_control") == "force" else "m"
     labels = results.attrs.get("yarn_labels") or []
     header = (f"{'step':>4} {'yarn':>4} {'load [' + unit + ']':>12} {'u_end [mm]':>11} "
@@ -168,3 +197,14 @@ def print_summary(results: Results, file=sys.stdout) -> None:
                   file=file)
     for k, label in enumerate(labels):
         print(f"yarn {k + 1}: {label}", file=file)
+
+
+def _print_frames_summary(results: Results, file) -> None:
+    """A transient run's table: per frame, time, kinetic energy and largest contact force."""
+    frames = results.frames
+    print(f"{'frame':>5} {'time [s]':>11} {'kinetic [J]':>12} {'max R [N]':>11}", file=file)
+    contact = frames.get("contact_force")
+    for i, time_s in enumerate(frames.get("time", [])):
+        largest = float(contact[i].max()) if contact is not None and contact[i].size else 0.0
+        print(f"{i:>5} {time_s:>11.6g} {frames['energy/kinetic'][i].max():>12.4g} {largest:>11.5g}",
+              file=file)

@@ -141,13 +141,16 @@ class Dynamic:
     method: str = "explicit"
     """"explicit" (symplectic Euler) or "semi_implicit" (linearly implicit Euler)."""
     damping: str | None = None
-    """"kinetic", "viscous" or "fire"; None: kinetic (quasi-static), viscous (transient)."""
+    """"kinetic", "viscous" or "fire"; None: kinetic (quasi-static), viscous (transient).
+    `semi_implicit` takes no kinetic damping (its steps are undone instead) and no FIRE;
+    it uses a viscous c only when one is given."""
     damping_coefficient: float | None = None
     """Viscous c [1/s]; None: adaptive (quasi-static) or 0 (transient)."""
     masses: str | None = None
     """"fictitious" or "physical"; None: fictitious (quasi-static), physical (transient)."""
     dt: float | None = None
-    """Time step [s]; None: safety x the stability bound."""
+    """Time step [s]; None: 1 s with fictitious masses (Gershgorin chooses the masses),
+    safety x the Gershgorin stability bound with physical masses."""
     safety: float = 0.9
     """Fraction of the predicted stable time step used [-]."""
     tolerance: float | None = None
@@ -683,6 +686,10 @@ def _check_dynamic(dynamic: Dynamic) -> None:
             if value is not None:
                 raise _bad(f"dynamic.{key}", value,
                            'only used with dynamic.mode = "transient"')
+    if dynamic.method == "semi_implicit" and dynamic.damping == "fire":
+        raise _bad("dynamic.damping", dynamic.damping, 'not available with dynamic.method = '
+                   '"semi_implicit" (FIRE drives an explicit integrator); use "viscous" or '
+                   'leave damping unset')
     damping = dynamic.damping or ("viscous" if dynamic.mode == "transient" else "kinetic")
     if dynamic.damping_coefficient is not None and damping != "viscous":
         raise _bad("dynamic.damping_coefficient", dynamic.damping_coefficient,

@@ -119,3 +119,13 @@ def start_load_step(motion, positions: np.ndarray, anchors: np.ndarray, scalar, 
     motion.anchors.assign(wp.array(anchors, dtype=scalar, device=device))
     for name in ("velocity", "steps", "force_evaluations", "status"):
         getattr(motion, name).zero_()
+
+
+def restore(motion, frame: dict, scalar, device: str) -> None:
+    """Put a saved transient frame back: positions, velocities and nodal forces (yarns, N+1, 2)
+    [m, m/s, N] and anchors (yarns, C) [m]; the masses and time step already in `motion` are
+    kept. The force is the one the next time step uses, stored rather than re-evaluated so
+    that a resumed run repeats the uninterrupted one bit for bit."""
+    for name, field in (("positions", "position"), ("velocities", "velocity"), ("force", "force")):
+        getattr(motion, field).assign(wp.array(frame[name], dtype=VECTORS[scalar], device=device))
+    motion.anchors.assign(wp.array(frame["anchors"], dtype=scalar, device=device))

@@ -1,0 +1,110 @@
+"""`dynfab run --solver dynamic`: transient frames survive kill -9 and resume exactly;
+a divergence or a step limit exits with status 3 and one line, keeping the finished steps.
+"""
+
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+import dynfab
+from test_cli import dynfab_cli
+
+ROOT = Path(__file__).resolve().parents[1]
+RELAX = ROOT / "runs" / "relax.toml"
+
+SMALL = '''
+[geometry]
+length = 0.025
+segments = 56
+crossings = 4
+amplitude = 0.5e-3
+reference = "prestressed"
+[warp]
+EA = 13.72
+EI = 1.47e-7
+kawabata_C = 0.2e-3
+kawabata_K = 0.2
+[weft]
+EI = 1.47e-7
+length = 0.1
+count = 16
+amplitude = 0.5e-3
+kawabata_C = 0.2e-3
+kawabata_K = 0.2
+[load]
+control = "force"
+values = [0.3, 0.31, 0.0]
+'''
+"""A quarter paper yarn (same spacing, weft and contact law): loaded, then let go, which
+takes the relaxation more time steps than the two loading steps."""
+
+
+def frame_count(path: Path) -> int:
+    """Frames in a result file being written (0 if it is not there yet)."""
+    try:
+        with h5py.File(path, "r") as f:
+            return f["frames/time"].shape[0] if "frames/time" in f else 0
+    except (OSError, KeyError):
+        return 0
+
+
+def test_transient_resume_after_kill_equals_the_uninterrupted_run(tmp_path):
+    full = tmp_path / "full.h5"
+    done = dynfab_cli("run", RELAX, "--solver", "dynamic", "--out", full, "--quiet")
+    assert done.returncode == 0, done.stderr
+    expected = dynfab.read_results(full).frames
+    out = tmp_path / "killed.h5"
+    child = subprocess.Popen([sys.executable, "-m", "dynfab.cli", "run", str(RELAX), "--solver",
+                              "dynamic", "--out", str(out), "--quiet"],
+                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 120
+    while frame_count(out) < 30 and child.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.01)
+    child.send_signal(signal.SIGKILL)
+    child.wait()
+    kept = frame_count(out)
+    assert 30 <= kept < expected["time"].shape[0], "the kill must land mid-run"
+    resumed = dynfab_cli("run", RELAX, "--solver", "dynamic", "--out", out, "--resume", "--quiet")
+    assert resumed.returncode == 0, resumed.stderr
+    frames = dynfab.read_results(out).frames
+    for name, value in expected.items():  # the same steps from the same state: exact
+        np.testing.assert_array_equal(frames[name], value, err_msg=name)
+
+
+def test_divergence_exits_3_with_the_time_step_against_the_bound(tmp_path):
+    scene = tmp_path / "small.toml"
+    scene.write_text(SMALL)
+    out = tmp_path / "diverged.h5"
+    # Physical masses: the bound is about 2 sqrt(m / k) ~ 7e-7 s; 1e-5 s is over 10 x it.
+    done = dynfab_cli("run", scene, "--solver", "dynamic", "--masses", "physical", "--dt", "1e-5",
+                      "--out", out, "--quiet")
+    assert done.returncode == 3, done.stderr
+    message = done.stderr.strip()
+    assert len(message.splitlines()) == 1 and "Traceback" not in message
+    assert "load step 1/3" in message and "diverged" in message and "stable dt" in message
+    assert dynfab.read_results(out).step_count == 0
+
+
+def test_step_limit_exits_3_and_keeps_the_finished_steps(tmp_path):
+    scene = tmp_path / "small.toml"
+    scene.write_text(SMALL)
+    out = tmp_path / "limited.h5"
+    static = dynfab.run(dynfab.load_scene(scene), solver="static")
+    needed = dynfab.run(dynfab.load_scene(scene), solver="dynamic").steps["time_steps"][:, 0]
+    assert needed[2] > needed[:2].max(), "the scene must make the last step the longest"
+    limit = (needed[:2].max() + needed[2]) // 2  # enough for steps 1-2, not for step 3
+    done = dynfab_cli("run", scene, "--solver", "dynamic", "--max-steps", limit, "--out", out,
+                      "--quiet")
+    assert done.returncode == 3, done.stderr
+    assert "load step 3/3" in done.stderr and "dynamic.max_steps" in done.stderr
+    kept = dynfab.read_results(out)
+    assert kept.step_count == 2
+    # The kept steps are relaxed to 1e-8 N: their end displacement is the static one within
+    # residual x ||K^-1|| (about 1e-8 N / 0.1 N/m here; test_dynamic_relaxation bounds it exactly).
+    np.testing.assert_allclose(kept.steps["end_displacement"],
+                               static.steps["end_displacement"][:2], atol=1e-6)
