@@ -45,15 +45,25 @@ def _parser() -> argparse.ArgumentParser:
     plot = commands.add_parser("plot", help="draw the PNG figures of a result file")
     plot.add_argument("results", type=Path, help="result file (HDF5)")
     plot.add_argument("--out", type=Path, required=True, help="folder for the PNG files")
-    convergence = commands.add_parser(
-        "convergence", help="mesh, load-increment and stick-stiffness convergence of the paper "
-                            "scenes (CSV, JSON, markdown and PNG files)")
-    convergence.add_argument("--out", type=Path, required=True,
-                             help="folder for the report's files")
-    convergence.add_argument("--quick", action="store_true",
-                             help="a reduced yarn (4 crossings) that runs in seconds")
-    convergence.add_argument("--quiet", action="store_true", help="no progress lines")
+    for name, text in REPORTS.items():
+        report = commands.add_parser(name, help=text)
+        if name == "precision":
+            report.add_argument("scene", type=Path, nargs="?",
+                                help="scene file (default: the paper scene, with and without friction)")
+        report.add_argument("--out", type=Path, required=True, help="folder for the report's files")
+        report.add_argument("--quick", action="store_true",
+                            help="a reduced scene and few settings, that runs in seconds")
+        report.add_argument("--quiet", action="store_true", help="no progress lines")
     return parser
+
+
+REPORTS = {
+    "precision": "error against run time of every dynamic method, against the static reference",
+    "stability": "stiff and extreme cases against every method: stable time step, convergence",
+    "figures": "the paper's Fig. 3a, 3b and 5, static and dynamic, with shapes and friction states",
+    "convergence": "mesh, load-increment and stick-stiffness convergence of the paper scenes",
+}
+"""The report subcommands (dynfab/reports/<name>.py, each with run_<name>(out, quick=, progress=))."""
 
 
 def _scene_with_options(args):
@@ -102,23 +112,27 @@ def _command_plot(args) -> None:
         print(f"wrote {path}")
 
 
-def _command_convergence(args) -> None:
-    from dynfab.reports.convergence import run_convergence
+def _command_report(args) -> None:
+    """Run the report `args.command` (dynfab/reports/<name>.py) and list the files it wrote."""
+    import importlib
 
+    module = importlib.import_module(f"dynfab.reports.{args.command}")
     report = None if args.quiet else (lambda line: print(line, file=sys.stderr, flush=True))
-    summary = run_convergence(args.out, quick=args.quick, progress=report)
+    options = {"scene": args.scene} if getattr(args, "scene", None) is not None else {}
+    summary = getattr(module, f"run_{args.command}")(args.out, quick=args.quick, progress=report,
+                                                      **options)
     for path in summary["files"]:
         print(f"wrote {path}")
     if not args.quiet:
-        print(f"convergence report: {summary['wall_time_s']:.1f} s", file=sys.stderr)
+        print(f"{args.command} report: {summary['wall_time_s']:.1f} s", file=sys.stderr)
 
 
 def main(argv: list[str] | None = None) -> None:
     """Entry point of the `dynfab` console script."""
     args = _parser().parse_args(argv)
     try:
-        {"run": _command_run, "plot": _command_plot,
-         "convergence": _command_convergence}[args.command](args)
+        commands = {"run": _command_run, "plot": _command_plot}
+        commands.get(args.command, _command_report)(args)
     except DynfabError as error:
         print(f"dynfab: error: {error}", file=sys.stderr)
         raise SystemExit(error.exit_status)
