@@ -1,0 +1,953 @@
+"""Figures report (issue 5, part 3): the paper's Fig. 3a, 3b and 5, static and dynamic.
+
+`run_figures(out_dir, quick=False)` solves the paper scenes ``runs/paper_fig3.toml`` (Kawabata
+K = 0.02, 0.2, 1.0 m/N on both yarns, frictionless) and ``runs/paper_fig5.toml`` (Gralen
+friction on and off, K = 0.2 m/N), both prestressed, end displacement to 10 mm in 40 steps,
+with the static Newton reference and with the dynamic solver at its default quasi-static
+settings (`run(scene, solver="dynamic")`: explicit, kinetic damping, fictitious masses,
+residual 1e-8 N). Into `out_dir` it writes:
+
+* the four standard dynfab result files ``fig3_static.h5``, ``fig3_dynamic.h5``,
+  ``fig5_static.h5``, ``fig5_dynamic.h5`` (`dynfab.results` layout, so ``dynfab plot``
+  draws its standard figures from each). A file is solved again only when it is missing
+  or stale (unreadable, written from another scene text, by another solver or dynfab
+  version, or with fewer load steps than the scene has);
+* the report's figures, drawn by `draw_figures` from those four files alone:
+  ``fig3a_traction.png``, ``fig3b_contact_force.png``, ``fig5_friction.png``,
+  ``shapes.png`` and ``friction_states.png``, static solutions as lines and dynamic
+  ones as markers;
+* ``trends.json``: the machine, the solve times, the paper's trends (MODEL.md 8) checked
+  on the data of each solver (`check_trends`), and the static-vs-dynamic differences
+  against their bound (`compare_solvers`); both read only the files too.
+
+The static-vs-dynamic bound. Each solver stops at a residual r (largest free force
+component). Linearising the step's residual map g at the static solution,
+x_dyn - x_static = J^-1 (g(x_dyn) - g(x_static)), with J the Jacobian of the step's problem
+on the free dofs (the Hessian; with friction the coupled friction Jacobian, at the anchors
+the step started from, i.e. the previous step's). With friction the two solvers also start
+a step from slightly different anchors xi: a sticking crossing's force -k_t (x - xi) then
+differs by k_t |delta xi| (a sliding one carries F_T whatever its anchor). So
+
+    |x_dyn - x_static|_inf <= ||J^-1||_inf (r_dyn + r_static + k_t max_sticking |delta xi|),
+    |P_dyn - P_static|     <= ||J_e J^-1||_1 (the same bracket),
+
+J_e the row of the end node's x (the reaction P = dV/dx_N). ||J^-1||_inf is computed
+exactly (numpy, dense inverse) at every load step and yarn.
+
+``quick=True`` cuts both yarns to 4 crossings at the same spacing (L = 25 mm, N = 56, the
+same weft), end displacement to 2.5 mm (the same 10 % strain) in 20 steps: the same Warp
+kernel variants as the paper scenes (kinetic damping, displacement control, with and
+without friction), and a few seconds. Errors for user mistakes are `SceneError`s.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import platform
+import re
+import time
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numba
+import numpy as np
+from matplotlib import colormaps
+from matplotlib.colors import BoundaryNorm, ListedColormap
+from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
+from matplotlib.patches import Patch
+
+from dynfab import assembly
+from dynfab.banded import BANDWIDTH, constrain, lu_factor, lu_solve, zeros_band
+from dynfab.errors import SceneError
+from dynfab.model import build_model
+from dynfab.plot import DPI, FRICTION_STATES
+from dynfab.results import Results, dynfab_version, read_results
+from dynfab.run import run
+from dynfab.scene import Scene, expand_sweep, load_scene, parse_scene_text
+
+RUNS = Path(__file__).resolve().parents[2] / "runs"
+"""The paper scene files of the source tree."""
+
+FIGURES = {"fig3": "paper_fig3.toml", "fig5": "paper_fig5.toml"}
+"""The report's scenes: name -> scene file in `RUNS`."""
+
+SOLVERS = ("static", "dynamic")
+
+FONT = 8.5
+"""Smallest font size [pt] of the report's figures (legends, ticks); labels are 9 pt."""
+
+STRAIN_STAGE = 0.05
+"""The paper's end of the first stage of Fig. 5: 5 mm on the 0.1 m yarn, 5 % strain."""
+
+# Thresholds of the trend checks (see `check_trends` for the reasons).
+SATURATION_SHARE = 0.10
+"""Largest share of the contact force's growth allowed in the last quarter of the path."""
+SHRINK_SHARE = 0.25
+"""Largest K spread at the end of the path, as a share of its largest value along it."""
+GAP_GROWTH = 1.10
+"""Smallest ratio gap(5 % strain) / gap(first step) for 'the gap grows'."""
+GAP_FLAT = 0.10
+"""Largest relative change of the gap between 5 % strain and the end: 'nearly constant'."""
+GAP_HALF_SUM = 0.05
+"""Largest relative deviation of the end gap from half the summed friction limits."""
+
+
+@dataclass(frozen=True)
+class Plan:
+    """The size of the scenes the report solves."""
+
+    name: str
+    crossings: int
+    segments: int
+    max_displacement: float
+    """Final end displacement [m]."""
+    steps: int
+    """Load steps to `max_displacement`."""
+
+
+FULL = Plan("full", crossings=16, segments=224, max_displacement=10e-3, steps=40)
+QUICK = Plan("quick", crossings=4, segments=56, max_displacement=2.5e-3, steps=20)
+
+
+def run_figures(out_dir, *, quick: bool = False,
+                progress: Callable[[str], None] | None = None) -> dict:
+    """Solve what is missing or stale, draw the figures and check the trends; return the summary.
+
+    The summary (also written as ``trends.json``) has "files" (every path written) and
+    "wall_time_s". `progress` receives one line per solve and one per trend (None: silent).
+    """
+    started = time.perf_counter()
+    out = _output_folder(out_dir)
+    plan = QUICK if quick else FULL
+    solves = []
+    for name, scene in paper_scenes(plan).items():
+        for solver in SOLVERS:
+            solves.append(ensure_result(scene, solver, out / result_name(name, solver),
+                                        progress))
+    data = read_figure_data(out)
+    figures = draw_figures(out, data)
+    comparison = compare_solvers(data)
+    trends = check_trends(data, comparison)
+    summary = {
+        "report": "figures",
+        "plan": plan.name,
+        "quick": quick,
+        "machine": machine(),
+        "reference_state": sorted({str(r.attrs.get("reference_state")) for r in data.values()}),
+        "solves": solves,
+        "trends": trends,
+        "static_vs_dynamic": comparison,
+    }
+    if progress is not None:
+        for line in trend_lines(summary):
+            progress(line)
+    summary["all_trends_hold"] = all(t["passed"] for t in trends.values())
+    summary["files"] = [str(out / result_name(n, s)) for n in FIGURES for s in SOLVERS]
+    summary["files"] += [str(p) for p in figures] + [str(out / "trends.json")]
+    summary["wall_time_s"] = time.perf_counter() - started
+    (out / "trends.json").write_text(json.dumps(_plain(summary), indent=1) + "\n")
+    return summary
+
+
+# --------------------------------------------------------------------------
+# Scenes and solves.
+
+
+def result_name(figure: str, solver: str) -> str:
+    """The result file of one scene and solver, e.g. ``fig3_dynamic.h5``."""
+    return f"{figure}_{solver}.h5"
+
+
+def paper_scenes(plan: Plan) -> dict[str, Scene]:
+    """The report's scenes: the paper files as they are (FULL) or cut to `plan` (QUICK).
+
+    A cut scene is written as TOML text and parsed, so the ``scene`` attribute of its
+    result file describes exactly what was solved.
+    """
+    scenes = {}
+    for name, file in FIGURES.items():
+        path = RUNS / file
+        if not path.is_file():
+            raise SceneError(f"paper scene '{path}' not found: the figures report reads the "
+                             "runs/ folder of a dynfab source tree")
+        scene = load_scene(path)
+        if plan is not FULL:
+            scene = parse_scene_text(cut_scene_text(scene, plan), source=f"{file} ({plan.name})")
+        scenes[name] = scene
+    return scenes
+
+
+def cut_scene_text(scene: Scene, plan: Plan) -> str:
+    """TOML of `scene` with `plan.crossings` crossings at the same spacing and mesh density
+    (L and N scaled), the same weft (its length and count written out, since they default
+    to the warp's), and the end displacement to `plan.max_displacement` in `plan.steps`."""
+    raw = tomllib.loads(scene.text)
+    geometry = scene.geometry
+    scale = plan.crossings / geometry.crossings
+    raw["geometry"].update(crossings=plan.crossings, segments=plan.segments,
+                           length=geometry.length * scale)
+    raw["weft"].update(length=scene.weft.length, count=scene.weft.count)
+    raw["load"] = {"control": "displacement", "max": plan.max_displacement, "steps": plan.steps}
+    raw["title"] = (f"{raw.get('title', '')} [{plan.name}: {plan.crossings} crossings, "
+                    f"N = {plan.segments}, {1e3 * plan.max_displacement:g} mm "
+                    f"in {plan.steps} steps]")
+    header = (f"# {plan.name} cut of the paper scene: {plan.crossings} of its "
+              f"{geometry.crossings} crossings at the same spacing, the same weft.\n")
+    return header + toml_text(raw)
+
+
+def toml_text(raw: dict) -> str:
+    """TOML text of a scene dictionary: top-level values, then one level of tables."""
+    lines = [f"{_toml_key(k)} = {_toml_value(v)}" for k, v in raw.items()
+             if not isinstance(v, dict)]
+    for name, table in raw.items():
+        if isinstance(table, dict):
+            lines += ["", f"[{name}]"]
+            lines += [f"{_toml_key(k)} = {_toml_value(v)}" for k, v in table.items()]
+    return "\n".join(lines) + "\n"
+
+
+def _toml_key(key: str) -> str:
+    return key if re.fullmatch(r"[A-Za-z0-9_-]+", key) else json.dumps(key)
+
+
+def _toml_value(value) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (int, float)):
+        return repr(value)
+    if isinstance(value, str):
+        return json.dumps(value)
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    raise TypeError(f"cannot write {value!r} as TOML")
+
+
+def stale_reason(path: Path, scene: Scene, solver: str) -> str | None:
+    """Why the result file at `path` cannot be reused for (scene, solver); None if it can."""
+    if not path.exists():
+        return "missing"
+    try:
+        results = read_results(path)
+    except SceneError as error:
+        return f"unreadable ({error})"
+    if results.attrs.get("scene") != scene.text:
+        return "written from another scene text"
+    if results.attrs.get("solver") != solver:
+        return f"written by the {results.attrs.get('solver')!r} solver"
+    if results.attrs.get("dynfab_version") != dynfab_version():
+        return f"written by dynfab {results.attrs.get('dynfab_version')}"
+    if results.step_count != len(scene.load.values):
+        return f"{results.step_count} of {len(scene.load.values)} load steps"
+    return None
+
+
+def ensure_result(scene: Scene, solver: str, path: Path,
+                  progress: Callable[[str], None] | None = None) -> dict:
+    """Solve (scene, solver) into `path` unless a current result is there; the solve's log."""
+    reason = stale_reason(path, scene, solver)
+    elapsed = None
+    if reason is not None:
+        started = time.perf_counter()
+        run(scene, solver=solver, out=path, overwrite=True)
+        elapsed = time.perf_counter() - started
+    steps = read_results(path).steps
+    entry = {"file": path.name, "solver": solver, "solved": reason is not None,
+             "reason": reason or "current", "solve_wall_time_s": elapsed,
+             "recorded_step_time_s": float(steps["wall_time"].sum()),
+             "load_steps": int(steps["load"].shape[0]),
+             "yarns": int(steps["load"].shape[1]),
+             "max_residual_N": float(steps["residual"].max())}
+    if "time_steps" in steps:
+        entry["time_steps"] = int(steps["time_steps"].sum(axis=0).max())
+    else:
+        entry["newton_iterations"] = int(steps["iterations"].sum())
+    if progress is not None:
+        what = (f"solved in {elapsed:.2f} s ({reason})" if elapsed is not None
+                else "current, reused")
+        progress(f"{path.name}: {entry['load_steps']} load steps x {entry['yarns']} yarns, "
+                 f"residual <= {entry['max_residual_N']:.1e} N, {what}")
+    return entry
+
+
+def read_figure_data(folder) -> dict[tuple[str, str], Results]:
+    """The four result files of the report folder, by (figure, solver)."""
+    folder = Path(folder)
+    return {(name, solver): read_results(folder / result_name(name, solver))
+            for name in FIGURES for solver in SOLVERS}
+
+
+# --------------------------------------------------------------------------
+# Quantities read from a result file.
+
+
+def scene_of(results: Results) -> Scene:
+    """The scene a result file was written from (its ``scene`` attribute)."""
+    return parse_scene_text(results.attrs["scene"], source="the result file's scene attribute")
+
+
+def width(results: Results) -> float:
+    """Fabric width per warp yarn [m] (force per unit width = P / width)."""
+    return float(results.attrs["width_per_yarn"])
+
+
+def length(results: Results) -> float:
+    return float(results.attrs["projected_length"])
+
+
+def strain_percent(results: Results) -> np.ndarray:
+    """(steps, yarns) end displacement / L [%]."""
+    return 100 * results.steps["end_displacement"] / length(results)
+
+
+def force_per_width(results: Results) -> np.ndarray:
+    """(steps, yarns) P / width [N/m]."""
+    return results.steps["end_force"] / width(results)
+
+
+def mean_contact_force(results: Results) -> np.ndarray:
+    """(steps, yarns) contact force averaged over the crossings [N]."""
+    return results.steps["contact_force"].mean(axis=-1)
+
+
+def kawabata_K(results: Results) -> np.ndarray:
+    """Warp K [m/N] of each yarn (sweep entry)."""
+    return np.array([s.warp.kawabata_K for s in expand_sweep(scene_of(results))])
+
+
+def friction_on(results: Results) -> np.ndarray:
+    """(yarns,) True where the yarn has a non-zero Gralen law."""
+    return np.array([s.friction is not None and (s.friction.alpha > 0 or s.friction.beta > 0)
+                     for s in expand_sweep(scene_of(results))])
+
+
+def _pair(data, figure):
+    return data[(figure, "static")], data[(figure, "dynamic")]
+
+
+def _at_strain(results: Results, values: np.ndarray, strain: float) -> float:
+    """`values` (steps,) of yarn 0's path, linearly interpolated at `strain` [-]."""
+    return float(np.interp(100 * strain, strain_percent(results)[:, 0], values))
+
+
+# --------------------------------------------------------------------------
+# Static against dynamic.
+
+
+def jacobian_norms(yarn, positions, anchors, fixed) -> tuple[float, float]:
+    """(||J^-1||_inf [m/N], ||J_e J^-1||_1 [-]) of one yarn: J the Hessian on the free dofs
+    (with friction the coupled friction Jacobian) at `positions` with the step's `anchors`,
+    J_e the row of the end node's x dof (the end reaction's sensitivity) on the free dofs.
+
+    Exact: J^-1 column by column from the banded LU (O(n^2) per yarn); a dense numpy
+    inverse where the LU meets a pivot that is not positive."""
+    c = yarn.crossing_node.size
+    force, limit, tangent = np.zeros(c), np.zeros(c), np.zeros(c)
+    assembly.contact_state(positions, yarn, force, limit, tangent)
+    band = zeros_band(positions.size)
+    assembly.hessian(positions, yarn, anchors, limit, tangent, bool(yarn.has_friction), band)
+    n = band.shape[0]
+    end = n - 2  # x of the end node
+    end_row = np.zeros(n)
+    for j in range(max(0, end - BANDWIDTH), n):
+        end_row[j] = band[end, j - end + BANDWIDTH]
+    end_row[fixed] = 0.0
+    factors = band.copy()
+    constrain(factors, np.zeros(n), fixed)
+    if lu_factor(factors) < 0:
+        return _inverse_norms(factors, fixed, end_row)
+    dense = np.zeros((n, n))
+    for i in range(n):
+        lo, hi = max(0, i - BANDWIDTH), min(n, i + BANDWIDTH + 1)
+        dense[i, lo:hi] = band[i, lo - i + BANDWIDTH:hi - i + BANDWIDTH]
+    free = ~fixed
+    inverse = np.linalg.inv(dense[np.ix_(free, free)])
+    return float(np.abs(inverse).sum(axis=1).max()), float(np.abs(end_row[free] @ inverse).sum())
+
+
+@numba.njit(cache=True)
+def _inverse_norms(factors, fixed, end_row):
+    """Max free row sum of |J^-1| and sum_j |end_row . J^-1 e_j| over free columns j, from
+    the LU factors of J with the fixed dofs constrained to the identity."""
+    n = factors.shape[0]
+    rows = np.zeros(n)
+    force = 0.0
+    column = np.zeros(n)
+    for j in range(n):
+        if fixed[j]:
+            continue
+        column[:] = 0.0
+        column[j] = 1.0
+        lu_solve(factors, column)
+        for i in range(n):
+            if not fixed[i]:
+                rows[i] += abs(column[i])
+        force += abs(np.dot(end_row, column))
+    return rows.max(), force
+
+
+def compare_solvers(data) -> dict:
+    """Largest static-vs-dynamic differences of each figure's files, and their bound."""
+    return {figure: compare_pair(*_pair(data, figure)) for figure in FIGURES}
+
+
+def compare_pair(static: Results, dynamic: Results) -> dict:
+    """End force and positions, static against dynamic, at every step and yarn, with the
+    bound of the module docstring; friction states compared crossing by crossing."""
+    model = build_model(scene_of(static))
+    fixed = model.fixed_dofs()
+    s, d = static.steps, dynamic.steps
+    steps, yarns = s["load"].shape
+    nodes = np.asarray(static.reference["crossing_nodes"], int)
+    start = np.asarray(static.reference["positions"])[:, nodes, 0]  # the as-woven anchors
+    dx = np.abs(s["positions"] - d["positions"]).max(axis=(2, 3))
+    dP = np.abs(s["end_force"] - d["end_force"])
+    inv_norm, force_norm, bracket = (np.zeros((steps, yarns)) for _ in range(3))
+    for i in range(steps):
+        anchors = start if i == 0 else s["anchors"][i - 1]
+        other = start if i == 0 else d["anchors"][i - 1]
+        for k, yarn in enumerate(model.yarns):
+            inv_norm[i, k], force_norm[i, k] = jacobian_norms(yarn, s["positions"][i, k],
+                                                      np.ascontiguousarray(anchors[k]), fixed)
+            anchor_term = 0.0
+            if yarn.has_friction:
+                sticking = ~s["sliding"][i, k].astype(bool)
+                if sticking.any():
+                    anchor_term = yarn.stick_stiffness * float(
+                        np.abs(anchors[k] - other[k])[sticking].max())
+            bracket[i, k] = s["residual"][i, k] + d["residual"][i, k] + anchor_term
+    x_bound, P_bound = inv_norm * bracket, force_norm * bracket
+    worst_x = np.unravel_index(np.argmax(dx / x_bound), dx.shape)
+    worst_P = np.unravel_index(np.argmax(dP / P_bound), dP.shape)
+    states = [np.stack([_states(r, k) for k in range(yarns)], axis=1) for r in (static, dynamic)]
+    return {
+        "max_end_force_difference_N": float(dP.max()),
+        "max_force_per_width_difference_N_per_m": float(dP.max() / width(static)),
+        "max_relative_end_force_difference": float((dP / np.abs(s["end_force"]).max()).max()),
+        "max_position_difference_m": float(dx.max()),
+        "max_residual_static_N": float(s["residual"].max()),
+        "max_residual_dynamic_N": float(d["residual"].max()),
+        "inverse_stiffness_norm_m_per_N": {"min": float(inv_norm.min()),
+                                           "max": float(inv_norm.max())},
+        "max_position_bound_m": float(x_bound.max()),
+        "max_position_over_bound": float((dx / x_bound).max()),
+        "position_at_worst": {"step": int(worst_x[0]) + 1, "yarn": int(worst_x[1]),
+                              "difference_m": float(dx[worst_x]),
+                              "bound_m": float(x_bound[worst_x])},
+        "max_end_force_bound_N": float(P_bound.max()),
+        "max_end_force_over_bound": float((dP / P_bound).max()),
+        "end_force_at_worst": {"step": int(worst_P[0]) + 1, "yarn": int(worst_P[1]),
+                               "difference_N": float(dP[worst_P]),
+                               "bound_N": float(P_bound[worst_P])},
+        "max_anchor_term_N": float((bracket - s["residual"] - d["residual"]).max()),
+        "friction_state_mismatches": int((states[0] != states[1]).sum()),
+        "within_bound": bool((dx <= x_bound).all() and (dP <= P_bound).all()),
+    }
+
+
+def _states(results: Results, yarn: int) -> np.ndarray:
+    """(steps, crossings) friction state codes of one yarn (`dynfab.plot.friction_states`)."""
+    force = results.steps["contact_force"][:, yarn]
+    codes = np.where(force > 0, 1, 0)
+    sliding = results.steps.get("sliding")
+    if sliding is not None:
+        codes = np.where(sliding[:, yarn].astype(bool) & (force > 0), 2, codes)
+    return codes
+
+
+# --------------------------------------------------------------------------
+# The paper's trends (MODEL.md 8), checked on the data of each solver.
+
+
+def check_trends(data, comparison: dict | None = None) -> dict:
+    """Each trend of MODEL.md 8 on the static and on the dynamic data: numbers and verdict.
+
+    Thresholds and why:
+
+    * K ordering (Fig. 3a) and friction stiffening (Fig. 5): the curves must be ordered at
+      every load step by more than the largest static-vs-dynamic end-force difference, so
+      that the ordering is not solver noise;
+    * the K effect shrinks (the paper: "the effect of yarn compression decreases with the
+      ongoing loss of undulation"): the spread between K = 0.02 and 1.0 at the end is at
+      most `SHRINK_SHARE` of its largest value along the path;
+    * contact force grows and saturates (Fig. 3b): it rises at every step, and at most
+      `SATURATION_SHARE` (10 %) of its growth from the first step to the end happens in the
+      last quarter of the displacement; a growth linear in the displacement puts 25 % there;
+    * the friction gap (Fig. 5) grows during the first stage: gap(5 % strain) >=
+      `GAP_GROWTH` x gap(first step) (a 10 % rise, visible on the figure and far above the
+      solver's 1e-6 relative precision); then stays nearly constant: it changes by at most
+      `GAP_FLAT` (10 %) of its value between 5 % strain and the end ("nearly parallel");
+    * once every crossing slides, the gap is set by the friction limits: with the same mean
+      tension (displacement control) the end force exceeds it by sum_j F_T x_j / L, half the
+      summed F_T for crossings symmetric about the middle; the end gap must be within
+      `GAP_HALF_SUM` (5 %) of that (crimp and stretch make it inexact).
+    """
+    comparison = comparison if comparison is not None else compare_solvers(data)
+    noise = {figure: comparison[figure]["max_end_force_difference_N"] for figure in FIGURES}
+    return {
+        "fig3a_smaller_K_stiffer": _per_solver(data, "fig3", _k_ordering, noise["fig3"]),
+        "fig3a_K_effect_shrinks": _per_solver(data, "fig3", _k_effect_shrinks),
+        "fig3b_contact_force_grows_and_saturates": _per_solver(data, "fig3", _saturation),
+        "fig3b_smaller_K_larger_contact_force": _per_solver(data, "fig3", _contact_ordering),
+        "fig5_friction_stiffens": _per_solver(data, "fig5", _friction_stiffens, noise["fig5"]),
+        "fig5_gap_grows_then_nearly_constant": _per_solver(data, "fig5", _gap_shape),
+        "fig5_gap_is_half_the_friction_limits": _per_solver(data, "fig5", _gap_half_sum),
+    }
+
+
+def _per_solver(data, figure, check, *args) -> dict:
+    results = {solver: check(data[(figure, solver)], *args) for solver in SOLVERS}
+    return {"passed": all(r["passed"] for r in results.values()), **results}
+
+
+def _k_order(results: Results) -> np.ndarray:
+    return np.argsort(kawabata_K(results))
+
+
+def _k_ordering(results: Results, noise_N: float) -> dict:
+    """Force per width ordered K = 0.02 > 0.2 > 1.0 at every step, beyond solver noise."""
+    order = _k_order(results)
+    q = force_per_width(results)[:, order]
+    gaps = q[:, :-1] - q[:, 1:]
+    margin = noise_N / width(results)
+    i = np.unravel_index(np.argmin(gaps), gaps.shape)
+    return {"K_m_per_N": kawabata_K(results)[order].tolist(),
+            "smallest_gap_N_per_m": float(gaps.min()),
+            "at_strain_percent": float(strain_percent(results)[i[0], 0]),
+            "margin_N_per_m": margin,
+            "end_force_per_width_N_per_m": q[-1].tolist(),
+            "passed": bool(gaps.min() > margin)}
+
+
+def _k_effect_shrinks(results: Results) -> dict:
+    order = _k_order(results)
+    q = force_per_width(results)[:, order]
+    spread = q[:, 0] - q[:, -1]
+    peak = int(np.argmax(spread))
+    strain = strain_percent(results)[:, 0]
+    return {"largest_spread_N_per_m": float(spread[peak]),
+            "at_strain_percent": float(strain[peak]),
+            "end_spread_N_per_m": float(spread[-1]),
+            "end_spread_relative_to_force": float(spread[-1] / q[-1, 1]),
+            "end_over_largest": float(spread[-1] / spread[peak]),
+            "threshold": SHRINK_SHARE,
+            "passed": bool(spread[-1] <= SHRINK_SHARE * spread[peak])}
+
+
+def _saturation(results: Results) -> dict:
+    order = _k_order(results)
+    R = mean_contact_force(results)[:, order]
+    u = results.steps["end_displacement"][:, 0]
+    three_quarters = np.array([np.interp(0.75 * u[-1], u, R[:, k]) for k in range(R.shape[1])])
+    growth = R[-1] - R[0]
+    share = (R[-1] - three_quarters) / growth
+    rising = np.diff(R, axis=0)
+    return {"K_m_per_N": kawabata_K(results)[order].tolist(),
+            "first_step_N": R[0].tolist(), "end_N": R[-1].tolist(),
+            "smallest_increment_N": float(rising.min()),
+            "last_quarter_share_of_growth": share.tolist(),
+            "threshold": SATURATION_SHARE,
+            "passed": bool(rising.min() > 0 and (share <= SATURATION_SHARE).all())}
+
+
+def _contact_ordering(results: Results) -> dict:
+    R = mean_contact_force(results)[:, _k_order(results)]
+    gaps = R[:, :-1] - R[:, 1:]
+    return {"smallest_gap_N": float(gaps.min()), "end_N": R[-1].tolist(),
+            "passed": bool(gaps.min() > 0)}
+
+
+def _friction_split(results: Results) -> tuple[int, int]:
+    on = friction_on(results)
+    return int(np.flatnonzero(on)[0]), int(np.flatnonzero(~on)[0])
+
+
+def _gap(results: Results) -> np.ndarray:
+    on, off = _friction_split(results)
+    q = force_per_width(results)
+    return q[:, on] - q[:, off]
+
+
+def _friction_stiffens(results: Results, noise_N: float) -> dict:
+    gap = _gap(results)
+    margin = noise_N / width(results)
+    return {"smallest_gap_N_per_m": float(gap.min()), "margin_N_per_m": margin,
+            "passed": bool(gap.min() > margin)}
+
+
+def _gap_shape(results: Results) -> dict:
+    gap = _gap(results)
+    on, _ = _friction_split(results)
+    strain = strain_percent(results)[:, 0]
+    at_stage = _at_strain(results, gap, STRAIN_STAGE)
+    growth = at_stage / gap[0]
+    change = abs(gap[-1] - at_stage) / at_stage
+    knee = strain[np.argmax(gap >= 0.9 * gap[-1])]
+    codes = _states(results, on)
+    all_sliding = np.flatnonzero((codes == 2).all(axis=1))
+    return {"first_step_strain_percent": float(strain[0]),
+            "gap_first_step_N_per_m": float(gap[0]),
+            "gap_at_5_percent_N_per_m": at_stage,
+            "gap_end_N_per_m": float(gap[-1]),
+            "growth_first_step_to_5_percent": growth, "growth_threshold": GAP_GROWTH,
+            "relative_change_5_percent_to_end": change, "flat_threshold": GAP_FLAT,
+            "strain_percent_at_90_percent_of_end_gap": float(knee),
+            "strain_percent_when_every_crossing_slides":
+                float(strain[all_sliding[0]]) if all_sliding.size else None,
+            "passed": bool(growth >= GAP_GROWTH and change <= GAP_FLAT)}
+
+
+def _gap_half_sum(results: Results) -> dict:
+    gap = _gap(results)
+    on, _ = _friction_split(results)
+    half_sum = 0.5 * results.steps["friction_limit"][-1, on].sum() / width(results)
+    deviation = abs(gap[-1] - half_sum) / half_sum
+    return {"gap_end_N_per_m": float(gap[-1]), "half_sum_F_T_N_per_m": float(half_sum),
+            "relative_deviation": float(deviation), "threshold": GAP_HALF_SUM,
+            "passed": bool(deviation <= GAP_HALF_SUM)}
+
+
+def trend_lines(summary: dict) -> list[str]:
+    """One line per trend and per figure's static-vs-dynamic comparison, for the terminal."""
+    lines = []
+    for name, trend in summary["trends"].items():
+        lines.append(f"{name}: {'holds' if trend['passed'] else 'FAILS'}")
+    for figure, c in summary["static_vs_dynamic"].items():
+        lines.append(f"{figure} static vs dynamic: end force "
+                     f"{c['max_end_force_difference_N']:.2e} N "
+                     f"(<= {c['max_end_force_over_bound']:.2f} x its bound), positions "
+                     f"{c['max_position_difference_m']:.2e} m "
+                     f"(<= {c['max_position_over_bound']:.2f} x the bound "
+                     f"||J^-1|| (r_dyn + r_static + ...), at most "
+                     f"{c['max_position_bound_m']:.2e} m)")
+    return lines
+
+
+# --------------------------------------------------------------------------
+# Figures, drawn from the result files alone.
+
+
+def draw_figures(out_dir, data=None) -> list[Path]:
+    """Write the report's PNGs into `out_dir` from its four result files; their paths."""
+    out = Path(out_dir)
+    data = read_figure_data(out) if data is None else data
+    figures = {"fig3a_traction.png": plot_fig3a(data), "fig3b_contact_force.png": plot_fig3b(data),
+               "fig5_friction.png": plot_fig5(data), "shapes.png": plot_shapes(data),
+               "friction_states.png": plot_friction_states(data)}
+    written = []
+    for name, fig in figures.items():
+        fig.savefig(out / name, dpi=DPI)
+        written.append(out / name)
+    return written
+
+
+def _figure(width_in: float, height_in: float) -> Figure:
+    fig = Figure(figsize=(width_in, height_in), layout="constrained")
+    fig.set_dpi(DPI)
+    return fig
+
+
+def _style(ax) -> None:
+    ax.tick_params(labelsize=FONT)
+    ax.xaxis.label.set_size(9)
+    ax.yaxis.label.set_size(9)
+    ax.title.set_size(9)
+    ax.grid(True, alpha=0.3)
+
+
+def _title(fig: Figure, results: Results, what: str) -> None:
+    """Suptitle: what is shown, the reference state, and the scene's size."""
+    scene = scene_of(results)
+    reference = results.attrs.get("reference_state", scene.geometry.reference)
+    fig.suptitle(f"{what}\nreference state: {reference}; {scene.geometry.crossings} crossings, "
+                 f"N = {scene.geometry.segments}, L = {1e3 * scene.geometry.length:g} mm",
+                 fontsize=9)
+
+
+def _solver_handles() -> list:
+    return [Line2D([], [], color="k", ls="-", label="static (Newton)"),
+            Line2D([], [], color="k", ls="", marker="o", mfc="none", ms=4,
+                   label="dynamic (relaxation)")]
+
+
+def _overlay(ax, x_static, y_static, x_dynamic, y_dynamic, color, label, marker="o"):
+    """Static as a line, dynamic as hollow markers of the same colour."""
+    ax.plot(x_static, y_static, "-", color=color, lw=1.3, label=label)
+    every = max(1, len(x_dynamic) // 20)
+    ax.plot(x_dynamic, y_dynamic, ls="", marker=marker, mfc="none", mec=color, ms=4, mew=0.9,
+            markevery=every)
+
+
+def _k_colors(count: int) -> list:
+    return [colormaps["viridis"](v) for v in np.linspace(0.0, 0.8, count)]
+
+
+def plot_fig3a(data) -> Figure:
+    """Fig. 3a: force per unit width [N/m] against strain [%] for each K (left), and each
+    curve minus the K = 0.2 m/N one (right), where the small K effect is visible."""
+    static, dynamic = _pair(data, "fig3")
+    order = _k_order(static)
+    K = kawabata_K(static)
+    middle = order[len(order) // 2]
+    fig = _figure(7.0, 3.2)
+    left, right = fig.subplots(1, 2)
+    colors = _k_colors(len(order))
+    es, ed = strain_percent(static), strain_percent(dynamic)
+    qs, qd = force_per_width(static), force_per_width(dynamic)
+    for color, k in zip(colors, order):
+        label = f"K = {K[k]:g} m/N"
+        _overlay(left, es[:, k], qs[:, k], ed[:, k], qd[:, k], color, label)
+        _overlay(right, es[:, k], qs[:, k] - qs[:, middle], ed[:, k], qd[:, k] - qd[:, middle],
+                 color, label)
+    left.set(xlabel="strain (%)", ylabel="force per unit width (N/m)",
+             title="(a) traction curve")
+    right.set(xlabel="strain (%)", ylabel=f"difference from K = {K[middle]:g} m/N (N/m)",
+              title="(a') the K effect")
+    for ax in (left, right):
+        _style(ax)
+    handles = left.get_legend_handles_labels()[0] + _solver_handles()
+    fig.legend(handles=handles, fontsize=FONT, loc="outside lower center", ncol=len(handles),
+               frameon=False, handletextpad=0.4, columnspacing=1.2)
+    _title(fig, static, "Fig. 3a: uniaxial traction, Kawabata K swept on warp and weft")
+    return fig
+
+
+def plot_fig3b(data) -> Figure:
+    """Fig. 3b: contact force (mean over the crossings) against end displacement, each K."""
+    static, dynamic = _pair(data, "fig3")
+    order, K = _k_order(static), kawabata_K(static)
+    fig = _figure(3.5, 3.9)
+    ax = fig.subplots()
+    us, ud = 1e3 * static.steps["end_displacement"], 1e3 * dynamic.steps["end_displacement"]
+    Rs, Rd = mean_contact_force(static), mean_contact_force(dynamic)
+    for color, k in zip(_k_colors(len(order)), order):
+        _overlay(ax, us[:, k], 1e3 * Rs[:, k], ud[:, k], 1e3 * Rd[:, k], color, f"K = {K[k]:g} m/N")
+    ax.set(xlabel="extension: end displacement (mm)",
+           ylabel="contact force R (mN)\n(mean over the crossings)")
+    _style(ax)
+    ax.legend(handles=ax.get_legend_handles_labels()[0] + _solver_handles(), fontsize=FONT,
+              loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=2, frameon=False,
+              columnspacing=1.0, handletextpad=0.4)
+    scene = scene_of(static)
+    fig.suptitle(f"Fig. 3b: contact force at the crossings\nreference state: "
+                 f"{static.attrs.get('reference_state')}; {scene.geometry.crossings} crossings",
+                 fontsize=9)
+    return fig
+
+
+def plot_fig5(data) -> Figure:
+    """Fig. 5: traction with and without friction (left); the gap between them (right),
+    with the stick-slip stage shaded, the paper's 5 mm (5 % strain) and half the summed
+    friction limits."""
+    static, dynamic = _pair(data, "fig5")
+    on, off = _friction_split(static)
+    fig = _figure(7.0, 3.0)
+    left, right = fig.subplots(1, 2)
+    es, ed = strain_percent(static), strain_percent(dynamic)
+    qs, qd = force_per_width(static), force_per_width(dynamic)
+    for k, color, label in ((on, "C3", "with friction (Gralen)"), (off, "C0", "without friction")):
+        _overlay(left, es[:, k], qs[:, k], ed[:, k], qd[:, k], color, label)
+    _overlay(right, es[:, on], _gap(static), ed[:, on], _gap(dynamic), "C3",
+             "with - without friction")
+    half = 0.5 * static.steps["friction_limit"][:, on].sum(axis=1) / width(static)
+    right.plot(es[:, on], half, ":", color="k", lw=1.2, label="½ Σ F_T per unit width")
+    codes = _states(static, on)
+    sticking = np.flatnonzero((codes == 1).any(axis=1))
+    if sticking.size:
+        right.axvspan(0, es[sticking[-1], on], color="0.85", zorder=0,
+                      label="some crossings stick")
+    right.axvline(100 * STRAIN_STAGE, color="0.4", ls="--", lw=1)
+    right.text(100 * STRAIN_STAGE, 0.45, " paper: first stage\n ends at 5 mm (5 %)",
+               fontsize=FONT, transform=right.get_xaxis_transform(), va="bottom")
+    right.set_ylim(0, 1.15 * max(_gap(static).max(), half.max()))
+    left.set(xlabel="strain (%)", ylabel="force per unit width (N/m)", title="(a) traction curve")
+    right.set(xlabel="strain (%)", ylabel="gap in force per unit width (N/m)",
+              title="(b) the friction gap")
+    for ax in (left, right):
+        _style(ax)
+    left.legend(handles=left.get_legend_handles_labels()[0] + _solver_handles(), fontsize=FONT,
+                loc="upper left")
+    right.legend(fontsize=FONT, loc="lower right")
+    _title(fig, static, "Fig. 5: uniaxial traction with and without yarn-yarn friction "
+                        f"(K = {kawabata_K(static)[on]:g} m/N)")
+    return fig
+
+
+def shape_steps(results: Results, yarn: int = 0) -> list[int]:
+    """Steps nearest a quarter, half and all of the final end displacement, and the step
+    with the most sticking crossings if some stick (no repeats)."""
+    u = results.steps["end_displacement"][:, yarn]
+    steps = {int(np.argmin(np.abs(u - f * u[-1]))) for f in (0.25, 0.5, 1.0)}
+    sticking = (_states(results, yarn) == 1).sum(axis=1)
+    if sticking.max() > 0:
+        steps.add(int(np.argmax(sticking)))
+    return sorted(steps)
+
+
+SNAPSHOT_HEIGHT = 0.62
+"""Height [in] per snapshot in `plot_shapes`: sets the z exaggeration."""
+
+STATE_MARKERS = {1: dict(color="C0", mfc="C0"), 2: dict(color="C3", mfc="white"),
+                 0: dict(color="0.5", mfc="0.5")}
+"""Crossing markers of `plot_shapes` by state code (`dynfab.plot.friction_states` order)."""
+
+
+def plot_shapes(data) -> Figure:
+    """The friction yarn of Fig. 5 at its as-woven start (in a prestressed scene not an
+    equilibrium: the first load step relaxes it) and at three loads, one above the other,
+    z exaggerated (about `SNAPSHOT_HEIGHT` inches a snapshot); crossings marked by state
+    (static), dynamic crossings as crosses."""
+    static, dynamic = _pair(data, "fig5")
+    on, _ = _friction_split(static)
+    nodes = np.asarray(static.reference["crossing_nodes"], int)
+    amplitude = 1e3 * scene_of(static).geometry.amplitude  # mm
+    spacing = 3.2 * amplitude  # mm between the snapshots' axes
+    snapshots = [(None, np.asarray(static.reference["positions"])[on], None)]
+    snapshots += [(i, static.steps["positions"][i, on], dynamic.steps["positions"][i, on])
+                  for i in shape_steps(static, on)]
+    codes = _states(static, on)
+    L = 1e3 * length(static)
+    u_max = 1e3 * static.steps["end_displacement"][-1, on]
+    xlim = (-0.02 * L, L + u_max + 0.16 * L)
+    ylim = (-(len(snapshots) - 1) * spacing - 1.6 * amplitude, 1.6 * amplitude)
+    axes_width = 6.1  # in: 7 in less the tick labels
+    exaggeration = _round_1(SNAPSHOT_HEIGHT * len(snapshots) * (xlim[1] - xlim[0])
+                            / (axes_width * (ylim[1] - ylim[0])))
+    axes_height = (ylim[1] - ylim[0]) * exaggeration * axes_width / (xlim[1] - xlim[0])
+    fig = _figure(7.0, axes_height + 1.25)
+    ax = fig.subplots()
+    offsets, labels, shown = [], [], set()
+    for n, (step, xz, xz_dynamic) in enumerate(snapshots):
+        offset = -n * spacing
+        xz = 1e3 * np.asarray(xz)
+        ax.axhline(offset, color="0.85", lw=0.6, zorder=0)
+        ax.plot(xz[:, 0], xz[:, 1] + offset, "-", color="k", lw=1.0)
+        if step is None:
+            ax.plot(xz[nodes, 0], xz[nodes, 1] + offset, "o", color="k", ms=3.5, ls="")
+        else:
+            for code, style in STATE_MARKERS.items():
+                pick = nodes[codes[step] == code]
+                if pick.size:
+                    shown.add(code)
+                    ax.plot(xz[pick, 0], xz[pick, 1] + offset, "o", ms=4, mew=1.2, ls="",
+                            **style)
+        if xz_dynamic is not None:
+            xzd = 1e3 * np.asarray(xz_dynamic)
+            ax.plot(xzd[nodes, 0], xzd[nodes, 1] + offset, "+", color="k", ms=5, mew=0.8)
+        offsets.append(offset)
+        labels.append("u = 0: as-woven\nstart (not in\nequilibrium)" if step is None else
+                      f"u = {1e3 * static.steps['end_displacement'][step, on]:.3g} mm")
+    ax.set_yticks(offsets, labels)
+    ax.set_xlim(*xlim)
+    ax.set_ylim(*ylim)
+    ax.set_aspect(exaggeration)
+    ax.set_xlabel("x (mm)", fontsize=9)
+    ax.tick_params(labelsize=FONT)
+    ax.tick_params(axis="y", length=0)
+    bar_x = L + u_max + 0.05 * L
+    ax.plot([bar_x, bar_x], [-amplitude, amplitude], "k-", lw=2)
+    ax.text(bar_x + 0.01 * L, 0.0, f"{2 * amplitude:g} mm\nin z", fontsize=FONT, va="center")
+    names = {1: "crossing sticking", 2: "crossing sliding", 0: "crossing open"}
+    handles = [Line2D([], [], color="k", lw=1, label="yarn (static)"),
+               Line2D([], [], ls="", marker="o", color="k", ms=3.5, label="crossing as woven")]
+    handles += [Line2D([], [], ls="", marker="o", ms=4, mew=1.2, label=names[code],
+                       **STATE_MARKERS[code]) for code in (1, 2, 0) if code in shown]
+    handles.append(Line2D([], [], ls="", marker="+", color="k", ms=5, label="crossing, dynamic"))
+    fig.legend(handles=handles, fontsize=FONT, loc="outside lower center", ncol=len(handles),
+               frameon=False, handletextpad=0.3, columnspacing=1.0)
+    _title(fig, static, f"Shape of the friction yarn of Fig. 5 along the path; z exaggerated "
+                        f"{exaggeration:g}x, snapshots offset in z")
+    return fig
+
+
+def _round_1(value: float) -> float:
+    """`value` rounded to one significant digit."""
+    power = 10 ** math.floor(math.log10(value))
+    return round(value / power) * power
+
+
+def plot_friction_states(data) -> Figure:
+    """Open / sticking / sliding state of each crossing of Fig. 5's friction yarn at each
+    load step against end displacement: the whole path (static, left) and a zoom on the
+    first steps (right), where each cell's dot is the dynamic solver's state."""
+    static, dynamic = _pair(data, "fig5")
+    on, _ = _friction_split(static)
+    codes, dynamic_codes = _states(static, on), _states(dynamic, on)
+    mismatches = int((codes != dynamic_codes).sum())
+    u = 1e3 * static.steps["end_displacement"][:, on]
+    du = u[0]
+    crossings = codes.shape[1]
+    fig = _figure(7.0, 3.0)
+    whole, zoom = fig.subplots(1, 2, sharey=True, width_ratios=(1.0, 1.0))
+    cmap = ListedColormap([color for _, color in FRICTION_STATES])
+    norm = BoundaryNorm(np.arange(len(FRICTION_STATES) + 1) - 0.5, cmap.N)
+    for ax in (whole, zoom):
+        ax.imshow(codes.T, cmap=cmap, norm=norm, origin="lower", aspect="auto",
+                  interpolation="nearest",
+                  extent=(u[0] - du / 2, u[-1] + du / 2, 0.5, crossings + 0.5))
+        _style(ax)
+        ax.grid(False)
+        ax.set_xlabel("end displacement (mm)")
+    settled = np.flatnonzero((codes == 2).all(axis=1))
+    last = min(codes.shape[0], (settled[0] if settled.size else codes.shape[0]) + 3)
+    zoom.set_xlim(u[0] - du / 2, u[last - 1] + du / 2)
+    steps, rows = np.meshgrid(np.arange(last), np.arange(crossings), indexing="ij")
+    zoom.scatter(u[steps.ravel()], rows.ravel() + 1, c=dynamic_codes[:last].ravel(), cmap=cmap,
+                 norm=norm, s=14, edgecolors="k", linewidths=0.6, zorder=3)
+    whole.set_title("static, whole path", fontsize=9)
+    zoom.set_title(f"first {last} steps; dots: dynamic", fontsize=9)
+    whole.set_ylabel("crossing (1 = fixed end)")
+    whole.yaxis.get_major_locator().set_params(integer=True)
+    handles = [Patch(facecolor=color, edgecolor="k", label=name) for name, color in FRICTION_STATES]
+    handles.append(Line2D([], [], ls="", marker="o", mfc="w", mec="k", ms=4,
+                          label="dynamic: dot\nin its state's\ncolour"))
+    zoom.legend(handles=handles, fontsize=FONT, loc="upper left", bbox_to_anchor=(1.02, 1.0),
+                borderaxespad=0)
+    agreement = ("static and dynamic agree at every crossing and step" if mismatches == 0 else
+                 f"static and dynamic differ at {mismatches} crossing-steps")
+    _title(fig, static, f"Friction state along the friction yarn of Fig. 5 ({agreement})")
+    return fig
+
+
+# --------------------------------------------------------------------------
+# Files and machine.
+
+
+def _output_folder(out_dir) -> Path:
+    """`out_dir` as an existing folder (created if needed); SceneError if it cannot be."""
+    if out_dir is None or str(out_dir) == "":
+        raise SceneError("--out: give a folder for the report's files")
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise SceneError(f"--out '{out}' is a file, not a folder")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise SceneError(f"cannot create the folder '{out}': {exc.strerror}") from None
+    if not os.access(out, os.W_OK):
+        raise SceneError(f"cannot write into the folder '{out}'")
+    return out
+
+
+def machine() -> dict:
+    """What the report ran on: `uname -m`, `nproc`, the Python version."""
+    return {"machine": platform.machine(), "cpus": os.cpu_count(),
+            "python": platform.python_version(), "platform": platform.platform()}
+
+
+def _plain(value):
+    """JSON-ready: numpy scalars to Python, non-finite floats to None."""
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
