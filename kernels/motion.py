@@ -13,6 +13,7 @@ import warp as wp
 
 from dynfab.banded import BANDWIDTH
 from dynfab.kernels.precision import VECTORS
+from dynfab.kernels.yarn_arrays import rows
 
 
 @functools.cache
@@ -88,25 +89,47 @@ def struct(scalar):
     return Motion
 
 
+VECTOR_FIELDS = ("position", "velocity", "force", "previous_force", "previous_position",
+                 "start_position")
+"""Fields of shape (yarns, N+1) of vectors."""
+CROSSING_FIELDS = ("anchors", "contact_force", "contact_tangent", "friction_limit")
+"""Fields of shape (yarns, C)."""
+SCALAR_FIELDS = ("dt", "stable_dt", "kinetic_energy", "damping_coefficient", "fire_alpha",
+                 "dissipated", "residual", "start_residual", "best_residual", "rounding_floor")
+"""Fields of shape (yarns,) of scalars."""
+COUNTER_FIELDS = ("fire_positive_steps", "fire_negative_steps", "steps_since_best", "steps",
+                  "force_evaluations", "status")
+"""Fields of shape (yarns,) of int32."""
+FIELDS = (*VECTOR_FIELDS, "mass", "band", "solution", *CROSSING_FIELDS, *SCALAR_FIELDS,
+          *COUNTER_FIELDS)
+"""Every field; each has one row per yarn."""
+
+
 def allocate(scalar, yarns: int, nodes: int, crossings: int, device: str):
     """A zeroed Motion for `yarns` yarns of `nodes` nodes and `crossings` crossings."""
     vec = VECTORS[scalar]
     motion = struct(scalar)()
-    for name in ("position", "velocity", "force", "previous_force", "previous_position",
-                 "start_position"):
+    for name in VECTOR_FIELDS:
         setattr(motion, name, wp.zeros((yarns, nodes), dtype=vec, device=device))
     motion.mass = wp.zeros((yarns, nodes), dtype=scalar, device=device)
     motion.band = wp.zeros((yarns, 2 * nodes, 2 * BANDWIDTH + 1), dtype=scalar, device=device)
     motion.solution = wp.zeros((yarns, 2 * nodes), dtype=scalar, device=device)
-    for name in ("anchors", "contact_force", "contact_tangent", "friction_limit"):
+    for name in CROSSING_FIELDS:
         setattr(motion, name, wp.zeros((yarns, crossings), dtype=scalar, device=device))
-    for name in ("dt", "stable_dt", "kinetic_energy", "damping_coefficient", "fire_alpha",
-                 "dissipated", "residual", "start_residual", "best_residual", "rounding_floor"):
+    for name in SCALAR_FIELDS:
         setattr(motion, name, wp.zeros(yarns, dtype=scalar, device=device))
-    for name in ("fire_positive_steps", "fire_negative_steps", "steps_since_best", "steps",
-                 "force_evaluations", "status"):
+    for name in COUNTER_FIELDS:
         setattr(motion, name, wp.zeros(yarns, dtype=wp.int32, device=device))
     return motion
+
+
+def view(motion, first: int, stop: int):
+    """The Motion of yarns first..stop-1 of `motion`, as views of its memory (no copy): what
+    a kernel launched on the view writes is what `motion` then holds for those yarns."""
+    part = struct(motion.mass.dtype)()
+    for name in FIELDS:
+        setattr(part, name, rows(getattr(motion, name), first, stop))
+    return part
 
 
 def start_load_step(motion, positions: np.ndarray, anchors: np.ndarray, scalar, device: str) -> None:

@@ -53,6 +53,12 @@ def struct(scalar):
     return YarnArrays
 
 
+PER_YARN_FIELDS = ("rest_position", "rest_length", "stretch_stiffness", "bend_stiffness",
+                   "rest_angle", "mass", "crossing_side", "gap_offset", "contact_law",
+                   "friction_alpha", "friction_constant", "stick_stiffness", "gravity")
+"""The fields with one row per yarn (crossing_node is shared by all yarns)."""
+
+
 def upload(model, scalar, device: str):
     """The YarnArrays of a `dynfab.model.Model` on `device`, in precision `scalar`."""
     dtype = numpy_dtype(scalar)
@@ -60,11 +66,30 @@ def upload(model, scalar, device: str):
     vec = VECTORS[scalar]
     arrays.rest_position = wp.array(model.stacked("rest_position").astype(dtype), dtype=vec,
                                     device=device)
-    for field in ("rest_length", "stretch_stiffness", "bend_stiffness", "rest_angle", "mass",
-                  "crossing_side", "gap_offset", "contact_law", "friction_alpha",
-                  "friction_constant", "stick_stiffness", "gravity"):
+    for field in PER_YARN_FIELDS[1:]:  # every per-yarn field but rest_position: scalars
         setattr(arrays, field, wp.array(model.stacked(field).astype(dtype), dtype=scalar,
                                         device=device))
     arrays.crossing_node = wp.array(np.asarray(model.yarns[0].crossing_node, np.int32),
                                     dtype=wp.int32, device=device)
     return arrays
+
+
+def rows(array, first: int, stop: int):
+    """Rows first..stop-1 of a Warp array, as a view of its memory. An array without elements
+    (no crossings: shape (yarns, 0)) cannot be sliced by Warp and has no memory to share:
+    an empty array of the rows' shape stands in."""
+    if array.size == 0:
+        return wp.empty((stop - first, *array.shape[1:]), dtype=array.dtype, device=array.device)
+    return array[first:stop]
+
+
+def view(arrays, first: int, stop: int):
+    """The YarnArrays of yarns first..stop-1 of `arrays`, as views of its memory (no copy):
+    row y of each view is row first + y of `arrays`, so a kernel launched on the view with
+    dim = stop - first computes exactly what it computes for those yarns in a launch on
+    `arrays` (thread y reads and writes only row y)."""
+    part = struct(arrays.rest_length.dtype)()
+    for field in PER_YARN_FIELDS:
+        setattr(part, field, rows(getattr(arrays, field), first, stop))
+    part.crossing_node = arrays.crossing_node
+    return part
