@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import sys
+import warnings
 from pathlib import Path
 
 from dynfab.errors import DynfabError
@@ -127,9 +128,15 @@ def _command_report(args) -> None:
         print(f"{args.command} report: {summary['wall_time_s']:.1f} s", file=sys.stderr)
 
 
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """Warnings (a dt above the bound, a rounding floor) as one line each, without source."""
+    print(f"dynfab: warning: {message}", file=sys.stderr, flush=True)
+
+
 def main(argv: list[str] | None = None) -> None:
     """Entry point of the `dynfab` console script."""
     args = _parser().parse_args(argv)
+    warnings.showwarning = _show_warning
     try:
         commands = {"run": _command_run, "plot": _command_plot}
         commands.get(args.command, _command_report)(args)

@@ -100,6 +100,7 @@ class DynamicSolver:
         self.options = model.scene.dynamic if options is None else options
         self.device = device
         self.progress = progress
+        self._dt_warned = False
         is_transient = self.options.mode == "transient"
         self.damping = self.options.damping or ("viscous" if is_transient else "kinetic")
         self.masses = self.options.masses or ("physical" if is_transient else "fictitious")
@@ -166,6 +167,7 @@ class DynamicSolver:
             raise SceneError('dynamic.mode = "transient" runs by time, not by load step: '
                              "use DynamicSolver.transient(state), which yields frames")
         codes = self._launch(state, load_value, steps=STEPS_PER_LAUNCH)
+        self._warn_if_dt_above_bound()
         while (codes == status.RUNNING).any():
             codes = self._launch(None, load_value, steps=STEPS_PER_LAUNCH)
         self._raise_on_failure(codes)
@@ -323,6 +325,19 @@ class DynamicSolver:
         for k, code in enumerate(codes):
             if code not in allowed:
                 raise SolverError(self._failure_message(k, int(code)))
+
+    def _warn_if_dt_above_bound(self) -> None:
+        """A given dt above the predicted stable dt is allowed (Gershgorin is conservative),
+        with a warning, once per solver (MODEL.md 5). Fictitious masses scale with dt: no bound."""
+        if self.options.dt is None or self.masses == "fictitious" or self._dt_warned:
+            return
+        bound = float(self.motion.stable_dt.numpy().min())
+        if self.options.dt > bound:
+            self._dt_warned = True
+            warnings.warn(f"dynamic.dt = {self.options.dt:.3g} s is above the predicted stable "
+                          f"time step {bound:.3g} s (Gershgorin, conservative): allowed, but the "
+                          f"run may diverge (it then stops with exit status 3)",
+                          RuntimeWarning, stacklevel=3)
 
     def _warn_at_rounding_floor(self, codes: np.ndarray) -> None:
         """Say so when a yarn met a tolerance below its rounding floor by stalling (MODEL.md 5)."""
