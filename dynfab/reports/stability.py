@@ -1,0 +1,1002 @@
+"""Stability report (issue 5, part 2): stiff and extreme cases against every dynamic method.
+
+`run_stability(out_dir, quick=False)` takes the paper's yarn (``runs/paper_fig3.toml``
+entry K = 0.2 m/N, prestressed, displacement control; the friction cases take Gralen's
+law from ``runs/paper_fig5.toml`` entry 0) and changes one thing per case: the Kawabata
+law, EA, the mesh, the weft tension, the load (up to 50 % strain, force or displacement
+control), friction (alpha 0 to 2, stick stiffness up to 1000 x the default) or the
+reference state. Each case is one load step from the as-woven state. For each case:
+
+* the static reference (MODEL.md 6) of the load step, or its SolverError text; a scene
+  the model must refuse (a weft tension at or beyond buckling) records its SceneError
+  text as the verdict;
+* the largest stable time step of symplectic Euler with the physical masses, found by
+  bisection exactly as ``tests/test_dynamic_relaxation.py`` defines it: from the relaxed
+  (static) state perturbed by N(0, (1e-9 m)^2) on the inner nodes, `BISECTION_STEPS`
+  undamped steps (viscous c = 0, tolerance 1e-300) must keep the residual, hence the
+  energy, within `status.DIVERGENCE_FACTOR` of its start (the kernel's own divergence
+  check); bisected geometrically to a bracket ratio of `BISECTION_RATIO`. Against it:
+  the step the solver predicts (`DynamicSolver.predicted_stable_dt`: Gershgorin on the
+  stiffest tangent of the load step, every contact at its bound k_we and every crossing
+  sticking), Gershgorin's bound on the actual tangent at the relaxed state, and the
+  exact linear limit 2 / omega_max of that tangent (its largest eigenvalue);
+* every method (explicit kinetic, viscous, FIRE; semi_implicit) on the load step, with
+  `max_steps` bounded per case so that the run ends: its time steps and wall time and
+  the largest position error against the static reference relative to A_wa, next to
+  the bound ||K^-1||_inf (r + r_static) / A_wa that the residuals allow (derivation in
+  ``tests/test_dynamic_relaxation.py``); or the SolverError text (a divergence names
+  the time step it was caught at, and the state before the load step is kept).
+
+Explicit methods on meshes finer than `EXTRAPOLATE_ABOVE` segments are not run: their
+step count is extrapolated from the measured ones at N = 224, 448, 896 with the fitted
+exponent and judged against max_steps.
+
+Files written into `out_dir`: ``stability.md`` (the table), ``stability.csv`` (one row
+per case and method, with units), ``summary.json`` (everything, with the machine and
+the wall time) and ``map.png`` (measured against predicted stable step, log-log, with
+y = x). ``quick=True`` takes the paper yarn cut to 4 crossings (N = 56, the same
+crossing spacing, weft and mesh density; loads as the same strains) and one case per
+family, with only the kernel variants the dynamic tests compile (`QUICK_METHODS`).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+import platform
+import time
+import warnings
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
+
+from dynfab import assembly
+from dynfab.banded import BANDWIDTH, zeros_band
+from dynfab.dynamic import DynamicSolver
+from dynfab.errors import SceneError, SolverError
+from dynfab.kernels import status
+from dynfab.model import build_model, initial_state
+from dynfab.plot import DPI, FONT_SIZE
+from dynfab.scene import Dynamic, Load, Scene, expand_sweep, load_scene, validate_scene, with_key
+from dynfab.static import StaticSolver
+
+RUNS = Path(__file__).resolve().parents[2] / "runs"
+"""The paper scene files of the source tree."""
+
+PERTURBATION = 1e-9
+"""Standard deviation [m] of the random displacement of the inner nodes before a bisection
+trial (as the dynamic tests): excites every mode, well inside the linear range."""
+BISECTION_STEPS = 3000
+"""Undamped time steps of one bisection trial (as the dynamic tests). A mode at a fraction e
+above its stability limit grows by about exp(2 sqrt(2 e)) a step, so 3000 steps expose
+e >= 3e-6: the finite trial biases the result by far less than the bracket."""
+BISECTION_RATIO = 1.02
+"""Bisection stops when unstable / stable dt is below this [-] (as the dynamic tests)."""
+BISECTION_RANGE = (0.5, 4.0)
+"""First bracket, as multiples of the predicted dt; widened by 4 (or halved) while needed."""
+MAX_WIDENINGS = 10
+"""Times the first bracket may be widened before the bisection gives up (a stated verdict)."""
+EXTRAPOLATE_ABOVE = 896
+"""Explicit methods on finer meshes are extrapolated from N = 224, 448, 896, not run."""
+EXPLICIT_MAX_STEPS = 200_000
+"""max_steps of the explicit methods in every case: about 2 s at N = 224 and 8 s at N = 896."""
+SEMI_IMPLICIT_MAX_STEPS = 2_000
+"""max_steps of semi_implicit (about 12 to 600 steps where it converges)."""
+
+METHODS = {
+    "kinetic": Dynamic(damping="kinetic"),
+    "viscous": Dynamic(damping="viscous"),
+    "fire": Dynamic(damping="fire"),
+    "semi_implicit": Dynamic(method="semi_implicit"),
+}
+"""The methods compared: explicit (fictitious masses) with each damping, and semi_implicit."""
+EXPLICIT = ("kinetic", "viscous", "fire")
+
+QUICK_METHODS = {("displacement", False): ("kinetic", "viscous", "fire", "semi_implicit"),
+                 ("displacement", True): ("kinetic", "semi_implicit")}
+"""--quick: (control, friction) -> the methods whose kernel variants the dynamic tests
+compile (test_dynamic_relaxation, test_dynamic_semi_implicit), so that the quick report
+compiles nothing new. The undamped (viscous c = 0) variant of the bisection is the
+frictionless one; with friction the quick bisection uses kinetic damping instead, which
+measures the linear instability only (`measure_stable_dt`)."""
+
+CSV_COLUMNS = ("case", "family", "label", "segments", "control", "load", "load_units",
+               "reference", "friction", "predicted_dt_s", "measured_dt_s",
+               "measured_over_predicted", "gershgorin_actual_dt_s", "linear_dt_s",
+               "dt_measured_with", "method", "verdict", "time_steps", "wall_time_s",
+               "residual_N", "error_over_A_wa", "bound_over_A_wa", "message")
+
+
+@dataclass(frozen=True)
+class Case:
+    """One stiff or extreme variant of the paper yarn, solved as one load step."""
+
+    name: str
+    """Short unique id (a row of the table)."""
+    family: str
+    """"baseline", "kawabata", "stretch", "mesh", "weft", "load", "friction" or "reference"."""
+    label: str
+    """What is extreme about it, for the table."""
+    changes: tuple = ()
+    """(key, value) pairs applied to the paper yarn; see `case_scene` for the keys."""
+    friction: bool = False
+    """Gralen friction (paper_fig5.toml entry 0) on."""
+    control: str = "displacement"
+    strain: float = 0.01
+    """End displacement / L [-]; under force control P is the static reaction at that
+    displacement (of the same yarn under displacement control)."""
+
+
+@dataclass(frozen=True)
+class Plan:
+    """The yarn's size and the cases of a full or quick report."""
+
+    name: str
+    crossings: int
+    """Crossings of the yarn: the paper's 16, or fewer at the same spacing."""
+    segments: int
+    """N at the paper's mesh density."""
+    cases: tuple[Case, ...]
+
+
+def _kawabata(value: float) -> str:
+    return f"{value:g}"
+
+
+FULL_CASES = (
+    Case("baseline", "baseline", "paper yarn, K = 0.2 m/N, u = 1 % of L"),
+    *(Case(f"K={_kawabata(k)}", "kawabata", f"Kawabata K = {k:g} m/N (both yarns)",
+           (("kawabata_K", k),)) for k in (1e-4, 1e-3, 1e-2, 1.0, 10.0)),
+    Case("C=2e-6", "kawabata", "Kawabata C = 2e-6 m (1 % of the paper's), K = 2 m/N: "
+         "the compression saturates", (("kawabata_C", 2e-6), ("kawabata_K", 2.0))),
+    Case("EAx1000", "stretch", "EA x 1000", (("EA_factor", 1000.0),)),
+    *(Case(f"N={n}", "mesh", f"N = {n} segments", (("geometry.segments", n),))
+      for n in (448, 896, 1792, 3584)),
+    Case("k_we x1000", "weft", "weft tension P_we making k_we 1000 x stiffer",
+         (("k_we_factor", 1000.0),)),
+    Case("alpha_we=-0.99", "weft", "compressive weft tension, alpha_we = -0.99 (short of "
+         "buckling)", (("alpha_we", -0.99),)),
+    Case("alpha_we=-1", "weft", "weft tension at the buckling load, alpha_we = -1",
+         (("alpha_we", -1.0),)),
+    Case("alpha_we=-1.01", "weft", "weft tension beyond buckling, alpha_we = -1.01",
+         (("alpha_we", -1.01),)),
+    Case("u=10%", "load", "displacement control, u = 10 % of L", strain=0.10),
+    Case("u=50%", "load", "displacement control, u = 50 % of L", strain=0.50),
+    *(Case(f"P({round(100 * e)}%)", "load", f"force control, P = the reaction at "
+           f"u = {100 * e:g} % of L", control="force", strain=e) for e in (0.01, 0.10, 0.50)),
+    *(Case(f"alpha={a:g}, k_t x{f:g}", "friction", f"friction alpha = {a:g}, "
+           f"k_t = {f:g} x EA/(L/N)", (("friction.alpha", a), ("stick_factor", f)), friction=True)
+      for f in (1.0, 1000.0) for a in (0.0, 0.2, 2.0)),
+    Case("as_woven", "reference", "as-woven reference state", (("geometry.reference",
+                                                                "as_woven"),)),
+    Case("as_woven, alpha=0.2", "reference", "as-woven reference, friction alpha = 0.2",
+         (("geometry.reference", "as_woven"),), friction=True),
+    Case("as_woven, alpha=2, k_t x1000", "reference", "as-woven reference, friction "
+         "alpha = 2, k_t = 1000 x EA/(L/N)", (("geometry.reference", "as_woven"),
+                                              ("friction.alpha", 2.0), ("stick_factor", 1000.0)),
+         friction=True),
+)
+
+QUICK_CASES = (
+    Case("K=1e-4", "kawabata", "Kawabata K = 1e-4 m/N (both yarns)", (("kawabata_K", 1e-4),)),
+    Case("EAx1000", "stretch", "EA x 1000", (("EA_factor", 1000.0),)),
+    Case("alpha_we=-1.01", "weft", "weft tension beyond buckling, alpha_we = -1.01",
+         (("alpha_we", -1.01),)),
+    Case("u=50%", "load", "displacement control, u = 50 % of L", strain=0.50),
+    Case("alpha=2, k_t x1000", "friction", "friction alpha = 2, k_t = 1000 x EA/(L/N)",
+         (("friction.alpha", 2.0), ("stick_factor", 1000.0)), friction=True),
+)
+
+FULL = Plan(name="full", crossings=16, segments=224, cases=FULL_CASES)
+QUICK = Plan(name="quick", crossings=4, segments=56, cases=QUICK_CASES)
+
+
+def run_stability(out_dir, *, quick: bool = False,
+                  progress: Callable[[str], None] | None = None) -> dict:
+    """Run every case of the plan, write the table, CSV, JSON and map; return the summary.
+
+    `progress` receives one line per solve (None: silent). Raises SceneError when
+    `out_dir` cannot be a folder or the paper scenes are missing; a case's own
+    failures are verdicts, never exceptions.
+    """
+    out = _output_folder(out_dir)
+    plan = QUICK if quick else FULL
+    started = time.perf_counter()
+    bases = paper_yarns(plan)
+    runner = _Runner(plan, quick, progress)
+    cases = [runner.run(case, bases) for case in plan.cases]
+    mesh_fit = extrapolate_mesh(cases)
+    summary = {
+        "report": "stability",
+        "plan": plan.name,
+        "quick": quick,
+        "machine": machine(),
+        "settings": {"perturbation_m": PERTURBATION, "bisection_steps": BISECTION_STEPS,
+                     "bisection_ratio": BISECTION_RATIO, "explicit_max_steps": EXPLICIT_MAX_STEPS,
+                     "semi_implicit_max_steps": SEMI_IMPLICIT_MAX_STEPS,
+                     "extrapolate_above_segments": EXTRAPOLATE_ABOVE},
+        "kernel_variants": sorted(runner.variants),
+        "mesh_fit": mesh_fit,
+        "cases": cases,
+    }
+    files = [_write_csv(out / "stability.csv", cases),
+             _write_text(out / "stability.md", stability_markdown(summary)),
+             _save(plot_map(cases, plan), out / "map.png")]
+    summary["wall_time_s"] = time.perf_counter() - started
+    summary["files"] = [str(path) for path in files] + [str(out / "summary.json")]
+    (out / "summary.json").write_text(json.dumps(_plain(summary), indent=1) + "\n")
+    return summary
+
+
+# --------------------------------------------------------------------------
+# Scenes.
+
+
+def paper_yarns(plan: Plan) -> dict[bool, Scene]:
+    """{friction: scene}: the paper yarn (K = 0.2 m/N) without and with Gralen friction,
+    cut to `plan.crossings` at the same spacing (weft unchanged), `plan.segments`."""
+    fig3, fig5 = (_paper_file(name) for name in ("paper_fig3.toml", "paper_fig5.toml"))
+    frictionless = next(s for s in expand_sweep(fig3) if s.warp.kawabata_K == 0.2)
+    friction = next(s for s in expand_sweep(fig5) if s.friction and s.friction.alpha > 0)
+    return {False: _cut(frictionless, plan), True: _cut(friction, plan)}
+
+
+def _paper_file(name: str) -> Scene:
+    path = RUNS / name
+    if not path.is_file():
+        raise SceneError(f"paper scene '{path}' not found: the stability report reads the "
+                         "runs/ folder of a dynfab source tree")
+    return load_scene(path)
+
+
+def _cut(scene: Scene, plan: Plan) -> Scene:
+    """The same yarn with `plan.crossings` crossings at the same spacing, `plan.segments`."""
+    geometry = scene.geometry
+    scene = with_key(scene, "geometry.crossings", plan.crossings)
+    scene = with_key(scene, "geometry.segments", plan.segments)
+    return with_key(scene, "geometry.length", geometry.length * plan.crossings / geometry.crossings)
+
+
+def case_scene(case: Case, base: Scene, load: float) -> Scene:
+    """The case's scene: `base` with the case's changes and one load step `load`.
+
+    Keys: any dotted scene key; "kawabata_K" / "kawabata_C" set both yarns; "EA_factor"
+    multiplies warp.EA; "stick_factor" sets k_t to that multiple of the default
+    EA / (L / N); "alpha_we" sets P_we = alpha_we Pcr_we; "k_we_factor" sets P_we so
+    that k_we (prop. to 1 + alpha_we / N_wa^2, MODEL.md 3) is that many times its
+    P_we = 0 value. Raises SceneError for a scene the model refuses.
+    """
+    scene = base
+    for key, value in case.changes:
+        if key in ("kawabata_K", "kawabata_C"):
+            scene = with_key(with_key(scene, f"warp.{key}", value), f"weft.{key}", value)
+        elif key == "EA_factor":
+            scene = with_key(scene, "warp.EA", scene.warp.EA * value)
+        elif key == "stick_factor":
+            default = scene.warp.EA * scene.geometry.segments / scene.geometry.length
+            scene = with_key(scene, "friction.stick_stiffness", value * default)
+        elif key == "alpha_we":
+            scene = with_key(scene, "weft.tension", value * buckling_load(scene))
+        elif key == "k_we_factor":
+            alpha = (value - 1.0) * scene.weft.count ** 2
+            scene = with_key(scene, "weft.tension", alpha * buckling_load(scene))
+        else:
+            scene = with_key(scene, key, value)
+    return validate_scene(replace(scene, load=Load(control=case.control, values=(load,))))
+
+
+def buckling_load(scene: Scene) -> float:
+    """Pcr_we = pi^2 EI_we / L_we^2 [N] (MODEL.md 3)."""
+    return math.pi ** 2 * scene.weft.EI / scene.weft.length ** 2
+
+
+# --------------------------------------------------------------------------
+# One case.
+
+
+class _Runner:
+    """Runs the cases one by one; keeps the kernel variants used and writes progress."""
+
+    def __init__(self, plan: Plan, quick: bool, progress):
+        self.plan, self.quick, self.progress = plan, quick, progress
+        self.variants: set[str] = set()
+        self.done = 0
+
+    def say(self, text: str) -> None:
+        if self.progress is not None:
+            self.progress(text)
+
+    def run(self, case: Case, bases: dict[bool, Scene]) -> dict:
+        """Every result of one case (a JSON-ready dict); failures are recorded, not raised."""
+        self.done += 1
+        where = f"[{self.done:>2}/{len(self.plan.cases)}] {case.name}"
+        base = bases[case.friction]
+        record = {"case": case.name, "family": case.family, "label": case.label,
+                  "control": case.control, "strain": case.strain, "friction": case.friction,
+                  "segments": base.geometry.segments, "load": None, "refused": None,
+                  "static": None, "stability": None, "methods": {}}
+        displacement = case.strain * base.geometry.length
+        try:
+            scene = case_scene(replace(case, control="displacement"), base, displacement)
+            if case.control == "force":
+                scene = case_scene(case, base, self._reaction(scene, displacement))
+        except SceneError as error:
+            record["refused"] = str(error)
+            self.say(f"{where}: refused: {error}")
+            return record
+        except SolverError as error:  # the static solve that gives the force failed
+            record["static"] = {"failed": str(error)}
+            self.say(f"{where}: no reaction force for force control: {error}")
+            return record
+        model = build_model(scene)
+        load = float(model.load_values[0])
+        record.update(segments=scene.geometry.segments, load=load,
+                      load_units="N" if case.control == "force" else "m",
+                      reference=scene.geometry.reference, amplitude=scene.geometry.amplitude,
+                      contact_law=model.yarns[0].contact_law.tolist(),
+                      stick_stiffness=model.yarns[0].stick_stiffness or None,
+                      stretch_stiffness_max=float(model.yarns[0].stretch_stiffness.max()),
+                      weft_tension=scene.weft.tension)
+        start = initial_state(model)
+        static_state, static_record = self._static(model, start, load, record, where)
+        states = {}
+        for name in METHODS:
+            result, state = self._method(name, model, start, load, static_state,
+                                         static_record, record["static"], case, where)
+            record["methods"][name] = result
+            if state is not None:
+                states[name] = state
+        relaxed = static_state if static_state is not None else next(iter(states.values()), None)
+        record["stability"] = self._stability(model, relaxed, load, case, where)
+        return record
+
+    @staticmethod
+    def _reaction(scene: Scene, displacement: float) -> float:
+        """P [N]: the static reaction of `scene` (displacement control) at `displacement`."""
+        model = build_model(scene)
+        _, record = StaticSolver(model).step(initial_state(model), displacement)
+        return float(record["end_force"][0])
+
+    def _static(self, model, start, load: float, record: dict, where: str):
+        """The static reference of the load step; (state, step record) or (None, None)."""
+        started = time.perf_counter()
+        try:
+            state, step = StaticSolver(model).step(start, load)
+        except SolverError as error:
+            record["static"] = {"failed": str(error)}
+            self.say(f"{where}: static reference failed: {error}")
+            return None, None
+        elapsed = time.perf_counter() - started
+        law = model.yarns[0].contact_law
+        R = step["contact_force"][0]
+        norm = inverse_stiffness_norm(model, state.positions[0], step["anchors"][0],
+                                      coupled=model.yarns[0].has_friction)
+        record["static"] = {
+            "iterations": int(step["iterations"][0]), "residual_N": float(step["residual"][0]),
+            "rounding_floor": bool(step["rounding_floor"][0]), "wall_time_s": elapsed,
+            "end_force_N": float(step["end_force"][0]),
+            "end_displacement_m": float(step["end_displacement"][0]),
+            "max_contact_force_N": float(R.max()) if R.size else 0.0,
+            "closed_crossings": int((R > 0).sum()),
+            "sliding_crossings": int(step["sliding"][0].sum()),
+            # delta_m / C_m = 1 - exp(-a_m R) at the largest contact force (MODEL.md 3)
+            "compression_saturation": [float(1 - np.exp(-law[2] * R.max())),
+                                       float(1 - np.exp(-law[4] * R.max()))] if R.size else None,
+            "inverse_stiffness_norm_m_per_N": norm,
+        }
+        self.say(f"{where}: static reference: {record['static']['iterations']} Newton iterations, "
+                 f"residual {step['residual'][0]:.2g} N, P = {step['end_force'][0]:.4g} N")
+        return state, step
+
+    def _method(self, name, model, start, load, static_state, static_record, norms, case, where):
+        """One method on the load step: (result dict, final state or None)."""
+        explicit = name in EXPLICIT
+        if explicit and model.segments > EXTRAPOLATE_ABOVE:
+            return {"verdict": "extrapolated"}, None  # filled in by extrapolate_mesh
+        if self.quick and name not in QUICK_METHODS.get((case.control, case.friction), ()):
+            return {"verdict": "skipped", "message": "--quick: this method's kernel variant is not "
+                    "among those the dynamic tests compile"}, None
+        max_steps = EXPLICIT_MAX_STEPS if explicit else SEMI_IMPLICIT_MAX_STEPS
+        options = replace(METHODS[name], max_steps=max_steps)
+        solver = DynamicSolver(model, options)
+        self.variants.add(_variant(solver))
+        solver.predicted_stable_dt(start, load)  # compiles (or loads) the kernel outside the timing
+        result = {"max_steps": max_steps}
+        started = time.perf_counter()
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            try:
+                state, step = solver.step(start, load)
+            except SolverError as error:
+                elapsed = time.perf_counter() - started
+                steps = int(solver.motion.steps.numpy()[0])
+                result.update(verdict="failed", message=str(error), time_steps=steps,
+                              wall_time_s=elapsed, failed_load_step=1,
+                              last_good_state={"load_step": 0, "finite": bool(
+                                  np.isfinite(start.positions).all())})
+                self.say(f"{where}: {name}: FAILED after {steps} time steps, {elapsed:.2f} s: "
+                         f"{error}")
+                return result, None
+        elapsed = time.perf_counter() - started
+        result.update(verdict="converged", time_steps=int(step["time_steps"][0]),
+                      wall_time_s=elapsed, residual_N=float(step["residual"][0]),
+                      rounding_floor=any("rounding floor" in str(w.message) for w in caught))
+        if static_state is not None:
+            error = np.abs(state.positions - static_state.positions).max()
+            amplitude = model.scene.geometry.amplitude
+            norm = norms.get("inverse_stiffness_norm_m_per_N")
+            bound = None if norm is None else norm * (result["residual_N"]
+                                                       + float(static_record["residual"][0]))
+            result.update(error_m=float(error), error_over_A_wa=float(error / amplitude),
+                          bound_over_A_wa=float(bound / amplitude) if bound is not None else None,
+                          same_sliding=bool((step["sliding"] == static_record["sliding"]).all()))
+        self.say(f"{where}: {name}: {result['time_steps']} time steps, {elapsed:.3f} s, residual "
+                 f"{result['residual_N']:.2g} N, error/A_wa "
+                 f"{_number(result.get('error_over_A_wa'))}")
+        return result, state
+
+    def _relax_at(self, model, load: float, dt: float, where: str) -> dict:
+        """The load step relaxed from the as-woven state with the physical masses and kinetic
+        damping at a fixed `dt` [s]: does the energy-stable step also converge?"""
+        if model.segments > EXTRAPOLATE_ABOVE:
+            return {"verdict": "not run", "message": f"N > {EXTRAPOLATE_ABOVE}"}
+        options = Dynamic(damping="kinetic", masses="physical", dt=dt,
+                          max_steps=EXPLICIT_MAX_STEPS)
+        solver = DynamicSolver(model, options)
+        self.variants.add(_variant(solver))
+        started = time.perf_counter()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            try:
+                _, step = solver.step(initial_state(model), load)
+            except SolverError as error:
+                steps = int(solver.motion.steps.numpy()[0])
+                self.say(f"{where}: physical masses at the measured dt {dt:.3g} s: FAILED after "
+                         f"{steps} time steps: {error}")
+                return {"verdict": "failed", "dt_s": dt, "message": str(error),
+                        "time_steps": steps, "wall_time_s": time.perf_counter() - started}
+        return {"verdict": "converged", "dt_s": dt, "time_steps": int(step["time_steps"][0]),
+                "wall_time_s": time.perf_counter() - started}
+
+    def _stability(self, model, relaxed, load: float, case: Case, where: str) -> dict | None:
+        """Predicted and measured stable dt from the relaxed state (None without one)."""
+        if relaxed is None:
+            return {"message": "no relaxed state (the static reference and every method failed)"}
+        allowed = QUICK_METHODS.get((case.control, case.friction), ()) if self.quick else METHODS
+        damping = "viscous" if "viscous" in allowed else "kinetic"
+        started = time.perf_counter()
+        result = measure_stable_dt(model, relaxed, load, damping=damping, variants=self.variants)
+        if case.friction and damping == "viscous":  # the quick plan's kinetic fallback, checked
+            check = measure_stable_dt(model, relaxed, load, damping="kinetic", variants=self.variants)
+            result["kinetic_damping_check_dt_s"] = check.get("measured_dt_s")
+        result.update(linear_stable_dts(model, relaxed))
+        if result.get("measured_dt_s") is not None:
+            result["relaxation_at_measured_dt"] = self._relax_at(model, load,
+                                                                 result["measured_dt_s"], where)
+        result["wall_time_s"] = time.perf_counter() - started
+        if result.get("measured_dt_s") is not None:
+            result["measured_over_predicted"] = result["measured_dt_s"] / result["predicted_dt_s"]
+        self.say(f"{where}: stable dt: predicted {result['predicted_dt_s']:.3g} s, measured "
+                 f"{_number(result.get('measured_dt_s'))} s ({result['measured_with']}, "
+                 f"{result['trials']} trials), linear {result['linear_dt_s']:.3g} s; relaxation "
+                 f"at the measured dt: {result.get('relaxation_at_measured_dt', {}).get('verdict')}")
+        return result
+
+
+def _variant(solver: DynamicSolver) -> str:
+    """The kernel variant of a solver, as text (`dynfab.kernels.configuration`)."""
+    c = solver.configuration
+    return (f"{c.mode} {c.method} damping={c.damping} control={c.control} friction={c.friction} "
+            f"gravity={c.gravity} {c.precision}")
+
+
+# --------------------------------------------------------------------------
+# Stable time step.
+
+
+def measure_stable_dt(model, relaxed, load: float, *, damping: str = "viscous",
+                      steps: int = BISECTION_STEPS, seed: int = 5, variants: set | None = None) -> dict:
+    """The largest stable dt [s] of symplectic Euler with physical masses, by bisection.
+
+    A trial runs `steps` time steps of the explicit relaxation kernel at a fixed dt from
+    `relaxed` perturbed by N(0, PERTURBATION^2) on the inner nodes, with viscous c = 0
+    (`damping="viscous"`: undamped, the definition of the dynamic tests) or kinetic
+    damping (`"kinetic"`, used where the undamped variant is not to be compiled). A mode
+    that grows without bound has a kinetic energy that rises every step, never meets the
+    peak that would reset it, and is caught as when undamped: without friction both give
+    the same threshold. With friction they differ: stick/slip switching makes the motion
+    a switched system, which slowly pumps energy into an undamped motion below the linear
+    limit of each of its pieces, and kinetic damping's resets remove that energy; its
+    threshold is then higher (the full report measures both: 1.0 to 4.3 x).
+
+    A trial is unstable when the kernel reports divergence (residual beyond
+    DIVERGENCE_FACTOR x its start, or non-finite) or when the largest displacement from
+    the relaxed state has grown beyond sqrt(DIVERGENCE_FACTOR) x the perturbation's (the
+    same bound on the energy, which is quadratic in the amplitude). The second test is
+    needed on fine meshes: from N = 896 the perturbation's residual is large enough (the
+    bending forces scale as N^3) that an unstable mode saturates geometrically, the chain
+    folding at about 4e3 N, before its residual reaches DIVERGENCE_FACTOR x its start;
+    the kernel then reports only the step limit, at millimetres from the relaxed state
+    where a stable motion stays within 1e-8 m. Returns predicted, measured (largest
+    stable) and smallest unstable dt, the trial count and the method.
+    """
+    rng = np.random.default_rng(seed)
+    perturbed = relaxed.copy()
+    perturbed.positions[:, 1:-1] += rng.normal(0.0, PERTURBATION, perturbed.positions[:, 1:-1].shape)
+    options = Dynamic(damping=damping, damping_coefficient=0.0 if damping == "viscous" else None,
+                      masses="physical")
+    probe = DynamicSolver(model, options)
+    if variants is not None:
+        variants.add(_variant(probe))
+    predicted = float(probe.predicted_stable_dt(perturbed, load)[0])
+    start = np.abs(perturbed.positions - relaxed.positions).max()
+    trials, saturated = 0, []
+
+    def stable(dt: float) -> bool:
+        nonlocal trials
+        trials += 1
+        solver = DynamicSolver(model, replace(options, dt=dt, tolerance=1e-300, max_steps=steps))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            try:
+                solver.step(perturbed, load)
+            except SolverError as error:
+                if "diverged" in str(error):
+                    return False
+        moved = np.abs(solver.motion.position.numpy() - relaxed.positions).max()
+        if not moved <= math.sqrt(status.DIVERGENCE_FACTOR) * start:
+            saturated.append(dt)
+            return False
+        return True
+
+    result = {"predicted_dt_s": predicted, "measured_dt_s": None, "unstable_dt_s": None,
+              "measured_with": "undamped (viscous c = 0)" if damping == "viscous"
+              else "kinetic damping", "trials_steps": steps}
+    low, high = BISECTION_RANGE[0] * predicted, BISECTION_RANGE[1] * predicted
+    for _ in range(MAX_WIDENINGS):
+        if stable(low):
+            break
+        high, low = low, low / 4.0
+    else:
+        result.update(trials=trials, message=f"unstable even at {low / predicted:.2g} x the "
+                      "predicted dt")
+        return result
+    for _ in range(MAX_WIDENINGS):
+        if not stable(high):
+            break
+        low, high = high, high * 4.0
+    else:
+        result.update(trials=trials, measured_dt_s=low, message=f"stable up to "
+                      f"{low / predicted:.3g} x the predicted dt (bisection range exhausted)")
+        return result
+    while high / low > BISECTION_RATIO:
+        middle = math.sqrt(low * high)
+        if stable(middle):
+            low = middle
+        else:
+            high = middle
+    result.update(trials=trials, measured_dt_s=low, unstable_dt_s=high,
+                  caught_by_displacement_only=len(saturated))
+    return result
+
+
+def tangent_band(model, positions: np.ndarray, anchors: np.ndarray, coupled: bool) -> np.ndarray:
+    """The banded tangent K [N/m] of yarn 0 at `positions` (actual contact tangents, Huber
+    curvature as assembled; with `coupled`, the friction Jacobian of the static solver)."""
+    yarn = model.yarns[0]
+    contact_force, limit, tangent = (np.zeros(model.crossings) for _ in range(3))
+    positions = np.ascontiguousarray(positions)
+    assembly.contact_state(positions, yarn, contact_force, limit, tangent)
+    band = zeros_band(positions.size)
+    assembly.hessian(positions, yarn, np.ascontiguousarray(anchors), limit, tangent, coupled, band)
+    return band
+
+
+def dense(band: np.ndarray) -> np.ndarray:
+    """The full matrix of a banded one (`dynfab.banded` layout)."""
+    n = band.shape[0]
+    matrix = np.zeros((n, n))
+    for offset in range(-BANDWIDTH, BANDWIDTH + 1):
+        rows = np.arange(max(0, -offset), min(n, n - offset))
+        matrix[rows, rows + offset] = band[rows, offset + BANDWIDTH]
+    return matrix
+
+
+def linear_stable_dts(model, relaxed) -> dict:
+    """dt [s] from the tangent at the relaxed state (yarn 0, physical masses):
+    Gershgorin's 2 min_i sqrt(m_i / max row sum of the node) over every node as the solver
+    takes it but on the actual tangent, and the exact linear limit 2 / omega_max,
+    omega_max^2 the largest eigenvalue of M^-1/2 K M^-1/2 over the free dofs."""
+    band = tangent_band(model, relaxed.positions[0], relaxed.anchors[0], coupled=False)
+    mass = np.repeat(model.yarns[0].mass, 2)
+    rows = np.abs(band).sum(axis=1)
+    node_rows = np.maximum(rows[0::2], rows[1::2])
+    positive = node_rows > 0
+    gershgorin = float(2.0 * np.sqrt(model.yarns[0].mass[positive] / node_rows[positive]).min())
+    free = np.flatnonzero(~model.fixed_dofs())
+    first, last = free[0], free[-1] + 1
+    assert free.size == last - first, "the free dofs are contiguous"
+    scale = 1.0 / np.sqrt(mass[first:last])
+    scaled = band[first:last].copy()
+    for offset in range(-BANDWIDTH, BANDWIDTH + 1):
+        rows_ = np.arange(max(0, -offset), min(scaled.shape[0], scaled.shape[0] - offset))
+        scaled[rows_, offset + BANDWIDTH] *= scale[rows_] * scale[rows_ + offset]
+    largest = _largest_symmetric_eigenvalue(scaled)
+    return {"gershgorin_actual_dt_s": gershgorin,
+            "linear_dt_s": float(2.0 / math.sqrt(largest)) if largest > 0 else None}
+
+
+def _largest_symmetric_eigenvalue(band: np.ndarray) -> float:
+    """lambda_max of a symmetric banded matrix (`dynfab.banded` layout)."""
+    n = band.shape[0]
+    try:
+        from scipy.linalg import eigvals_banded
+    except ImportError:  # scipy is optional: the dense matrix (slower for large N)
+        return float(np.linalg.eigvalsh(dense(band))[-1])
+    upper = np.zeros((BANDWIDTH + 1, n))  # LAPACK upper storage: a[u + i - j, j] = A[i, j]
+    for offset in range(BANDWIDTH + 1):
+        upper[BANDWIDTH - offset, offset:] = band[:n - offset, BANDWIDTH + offset]
+    return float(eigvals_banded(upper, select="i", select_range=(n - 1, n - 1))[0])
+
+
+def inverse_stiffness_norm(model, positions: np.ndarray, anchors: np.ndarray,
+                           coupled: bool) -> float | None:
+    """||K^-1||_inf [m/N] over the free dofs of yarn 0 (coupled: the friction Jacobian),
+    as tests/test_dynamic_relaxation.py; None if K is singular."""
+    band = tangent_band(model, positions, anchors, coupled)
+    free = ~model.fixed_dofs()
+    matrix = dense(band)[np.ix_(free, free)]
+    try:
+        inverse = np.linalg.inv(matrix)
+    except np.linalg.LinAlgError:
+        return None
+    norm = float(np.abs(inverse).sum(axis=1).max())
+    return norm if math.isfinite(norm) else None
+
+
+# --------------------------------------------------------------------------
+# Explicit methods on fine meshes: extrapolated.
+
+
+def fit_power_law(segments, steps) -> tuple[float, float]:
+    """(exponent p, prefactor c) of the least-squares line log steps = log c + p log N."""
+    p, log_c = np.polyfit(np.log(np.asarray(segments, float)), np.log(np.asarray(steps, float)), 1)
+    return float(p), float(math.exp(log_c))
+
+
+def extrapolate_mesh(cases: list[dict]) -> dict:
+    """Fit steps = c N^p of each explicit method over the measured meshes (baseline and
+    mesh cases with N <= EXTRAPOLATE_ABOVE) and give every finer mesh case its verdict:
+    the predicted step count against max_steps. Returns the fits."""
+    measured = [c for c in cases if c["family"] in ("baseline", "mesh") and c["refused"] is None
+                and c["segments"] <= EXTRAPOLATE_ABOVE]
+    finer = [c for c in cases if c["family"] == "mesh" and c["segments"] > EXTRAPOLATE_ABOVE]
+    fits = {}
+    for name in EXPLICIT:
+        points = [(c["segments"], c["methods"][name]) for c in measured
+                  if c["methods"].get(name, {}).get("verdict") == "converged"]
+        if len(points) < 2:
+            continue
+        segments = [n for n, _ in points]
+        exponent, prefactor = fit_power_law(segments, [r["time_steps"] for _, r in points])
+        time_per_node_step = float(np.mean([r["wall_time_s"] / (r["time_steps"] * (n + 1))
+                                            for n, r in points]))
+        steps = [r["time_steps"] for _, r in points]
+        fits[name] = {"segments": segments, "time_steps": steps, "exponent": exponent,
+                      "prefactor": prefactor, "time_per_node_step_s": time_per_node_step,
+                      # the slope between the two finest meshes: a fit that mixes it with the
+                      # coarser, pre-asymptotic ones under-reads the growth
+                      "local_exponent": float(math.log(steps[-1] / steps[-2])
+                                              / math.log(segments[-1] / segments[-2]))}
+        for case in finer:
+            n = case["segments"]
+            predicted = prefactor * n ** exponent
+            over = predicted > EXPLICIT_MAX_STEPS
+            verdict = "extrapolated: max_steps" if over else "extrapolated: converges"
+            case["methods"][name] = {
+                "verdict": verdict, "predicted_time_steps": predicted,
+                "predicted_wall_time_s": predicted * (n + 1) * time_per_node_step,
+                "max_steps": EXPLICIT_MAX_STEPS,
+                "message": (f"not run: {predicted:.3g} time steps predicted (steps = "
+                            f"{prefactor:.3g} N^{exponent:.2f}, fitted at N = "
+                            f"{', '.join(str(s) for s in segments)}) "
+                            + (f"> max_steps = {EXPLICIT_MAX_STEPS}: would stop without "
+                               "convergence" if over else
+                               f"<= max_steps = {EXPLICIT_MAX_STEPS}: would converge in about "
+                               f"{predicted * (n + 1) * time_per_node_step:.2g} s"))}
+    return fits
+
+
+# --------------------------------------------------------------------------
+# Files.
+
+
+def _output_folder(out_dir) -> Path:
+    """`out_dir` as an existing folder (created if needed); SceneError if it cannot be."""
+    if out_dir is None or str(out_dir) == "":
+        raise SceneError("--out: give a folder for the report's files")
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise SceneError(f"--out '{out}' is a file, not a folder")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise SceneError(f"cannot create the folder '{out}': {exc.strerror}") from None
+    if not os.access(out, os.W_OK):
+        raise SceneError(f"cannot write into the folder '{out}'")
+    return out
+
+
+def machine() -> dict:
+    """What the report ran on: `uname -m`, `nproc`, the Python version."""
+    return {"machine": platform.machine(), "cpus": os.cpu_count(),
+            "python": platform.python_version(), "platform": platform.platform()}
+
+
+def _plain(value):
+    """JSON-ready: numpy scalars to Python, non-finite floats to None."""
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple, set)):
+        return [_plain(v) for v in value]
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def _finite(value):
+    """A CSV cell: '' for None or a non-finite number, repr for floats."""
+    if value is None:
+        return ""
+    if isinstance(value, (float, np.floating)):
+        return repr(float(value)) if math.isfinite(value) else ""
+    return value
+
+
+def csv_rows(cases: list[dict]) -> list[dict]:
+    """One row per (case, method); a refused case has one row per method with its message."""
+    rows = []
+    for case in cases:
+        stability = case.get("stability") or {}
+        for name in METHODS:
+            method = case["methods"].get(name, {})
+            verdict = "refused" if case["refused"] is not None else method.get("verdict", "")
+            message = case["refused"] or method.get("message", "")
+            rows.append({
+                "case": case["case"], "family": case["family"], "label": case["label"],
+                "segments": case["segments"], "control": case["control"], "load": case["load"],
+                "load_units": case.get("load_units", ""), "reference": case.get("reference", ""),
+                "friction": case["friction"],
+                "predicted_dt_s": stability.get("predicted_dt_s"),
+                "measured_dt_s": stability.get("measured_dt_s"),
+                "measured_over_predicted": stability.get("measured_over_predicted"),
+                "gershgorin_actual_dt_s": stability.get("gershgorin_actual_dt_s"),
+                "linear_dt_s": stability.get("linear_dt_s"),
+                "dt_measured_with": stability.get("measured_with", ""),
+                "method": name, "verdict": verdict,
+                "time_steps": method.get("time_steps", method.get("predicted_time_steps")),
+                "wall_time_s": method.get("wall_time_s", method.get("predicted_wall_time_s")),
+                "residual_N": method.get("residual_N"),
+                "error_over_A_wa": method.get("error_over_A_wa"),
+                "bound_over_A_wa": method.get("bound_over_A_wa"), "message": message})
+    return rows
+
+
+def _write_csv(path: Path, cases: list[dict]) -> Path:
+    with path.open("w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=CSV_COLUMNS, lineterminator="\n")
+        writer.writeheader()
+        for row in csv_rows(cases):
+            writer.writerow({k: _finite(v) for k, v in row.items()})
+    return path
+
+
+def _write_text(path: Path, text: str) -> Path:
+    path.write_text(text)
+    return path
+
+
+def _number(value, digits: int = 2) -> str:
+    """A number for the table; '-' for None."""
+    return "-" if value is None else f"{value:.{digits}g}"
+
+
+def _dt_us(value) -> str:
+    return "-" if value is None else f"{1e6 * value:.3g}"
+
+
+def _load_text(case: dict) -> str:
+    if case["load"] is None:
+        return "-"
+    if case["control"] == "force":
+        return f"P = {case['load']:.3g} N"
+    return f"u = {1e3 * case['load']:.3g} mm"
+
+
+def _note(notes: list[str], text: str) -> int:
+    """The number of note `text`, added if new."""
+    if text not in notes:
+        notes.append(text)
+    return notes.index(text) + 1
+
+
+def _relaxation_cell(stability: dict, notes: list[str]) -> str:
+    relaxation = stability.get("relaxation_at_measured_dt")
+    if not relaxation:
+        return "-"
+    if relaxation["verdict"] == "converged":
+        return f"yes, {relaxation['time_steps']} st"
+    if relaxation["verdict"] == "failed":
+        return f"**no** [{_note(notes, relaxation['message'])}]"
+    return relaxation["verdict"]
+
+
+def _cell(method: dict, notes: list[str]) -> str:
+    """One method's verdict in the table; long messages go to numbered notes."""
+    verdict = method.get("verdict")
+    if verdict == "converged":
+        error = method.get("error_over_A_wa")
+        bound = method.get("bound_over_A_wa")
+        text = f"{method['time_steps']} st, {method['wall_time_s']:.2g} s"
+        if error is not None:
+            text += f", err {error:.1e}" + (f" (bound {bound:.0e})" if bound is not None else "")
+        return text + (" (floor)" if method.get("rounding_floor") else "")
+    if verdict is None:
+        return "-"
+    number = _note(notes, method.get("message", ""))
+    label = {"failed": "**FAILED**", "skipped": "skipped",
+             "extrapolated: converges": f"~{method.get('predicted_time_steps', 0):.2g} st "
+                                        "(extrapolated)",
+             "extrapolated: max_steps": f"**~{method.get('predicted_time_steps', 0):.2g} st > "
+                                        "max_steps** (extrapolated)"}.get(verdict, verdict)
+    return f"{label} [{number}]"
+
+
+def stability_markdown(summary: dict) -> str:
+    """The table: one row per case, the stable dt and each method's verdict; then the notes."""
+    notes: list[str] = []
+    settings = summary["settings"]
+    lines = [f"## Stability of the dynamic methods ({summary['plan']} plan)", "",
+             "Stable dt [us]: *predicted* is the solver's Gershgorin bound on the stiffest tangent "
+             "of the load step (every contact at k_we, every crossing sticking); *measured* the "
+             f"largest dt whose {settings['bisection_steps']} undamped steps from the perturbed "
+             "relaxed state stay bounded (bisection to "
+             f"{100 * (settings['bisection_ratio'] - 1):g} %, physical masses); *linear* the exact "
+             "2/omega_max of the actual tangent at the relaxed state. *Relaxes at measured dt*: "
+             "the load step from the as-woven state with the physical masses, kinetic damping "
+             "and the measured dt. Methods: time steps (st) and wall time of the "
+             "load step, the largest position error against the static reference / A_wa and its "
+             f"bound ||K^-1|| (r + r_s) / A_wa. max_steps: {settings['explicit_max_steps']} "
+             f"(explicit), {settings['semi_implicit_max_steps']} (semi_implicit).", "",
+             "| case | load | stable dt: predicted | measured | measured / predicted | linear | "
+             "relaxes at measured dt | " + " | ".join(METHODS) + " |",
+             "|---|---|---|---|---|---|---|" + "---|" * len(METHODS)]
+    for case in summary["cases"]:
+        stability = case.get("stability") or {}
+        if case["refused"] is not None:
+            cells = [f"**refused** [{_note(notes, case['refused'])}]"] + ["-"] * (len(METHODS) - 1)
+            lines.append(f"| {case['case']} | - | - | - | - | - | - | " + " | ".join(cells) + " |")
+            continue
+        ratio = stability.get("measured_over_predicted")
+        kinetic_note = " (k)" if stability.get("measured_with") == "kinetic damping" else ""
+        cells = [_cell(case["methods"].get(name, {}), notes) for name in METHODS]
+        lines.append(f"| {case['case']} | {_load_text(case)} | "
+                     f"{_dt_us(stability.get('predicted_dt_s'))} | "
+                     f"{_dt_us(stability.get('measured_dt_s'))}{kinetic_note} | "
+                     f"{_number(ratio, 3)} | {_dt_us(stability.get('linear_dt_s'))} | "
+                     f"{_relaxation_cell(stability, notes)} | " + " | ".join(cells) + " |")
+    lines.append("")
+    if any((c.get("stability") or {}).get("measured_with") == "kinetic damping"
+           for c in summary["cases"]):
+        lines += ["(k): measured with kinetic damping instead of undamped (--quick: the undamped "
+                  "friction variant is not compiled). An unstable mode's kinetic energy rises "
+                  "every step and is never reset, so it is caught as when undamped; but the "
+                  "resets also remove the energy that stick/slip switching slowly pumps into an "
+                  "undamped motion, so with friction this threshold is higher than the undamped "
+                  "one (the full report measures both: 1.0 to 4.3 x).", ""]
+    if summary["mesh_fit"]:
+        lines += ["Explicit step counts against N, fitted (least squares) as steps = c N^p: "
+                  + "; ".join(
+                      f"{name} p = {fit['exponent']:.2f} (N = {', '.join(map(str, fit['segments']))}"
+                      f": {', '.join(map(str, fit['time_steps']))} steps; between the two finest "
+                      f"meshes p = {fit['local_exponent']:.2f})"
+                      for name, fit in summary["mesh_fit"].items()) + ".", ""]
+    lines += ["Notes:", ""]
+    lines += [f"{k}. {text}" for k, text in enumerate(notes, start=1)]
+    lines.append("")
+    return "\n".join(lines)
+
+
+# --------------------------------------------------------------------------
+# The stability map (matplotlib Figure + Agg, as dynfab.plot).
+
+FAMILY_STYLE = {"baseline": ("k", "*"), "kawabata": ("C0", "o"), "stretch": ("C1", "s"),
+                "mesh": ("C2", "^"), "weft": ("C4", "D"), "load": ("C3", "v"),
+                "friction": ("#8c2d04", "P"), "reference": ("C9", "X")}
+
+
+def _save(fig: Figure, path: Path) -> Path:
+    fig.savefig(path, dpi=DPI)
+    return path
+
+
+def plot_map(cases: list[dict], plan: Plan) -> Figure:
+    """Left: measured against predicted stable dt per case, log-log, with y = x (cases far
+    from the cluster named). Right: measured / predicted per case, with the solver's
+    default safety factor: a case left of 1 is one where Gershgorin is not on the safe
+    side."""
+    points = [(c, c["stability"]) for c in cases
+              if c.get("stability") and c["stability"].get("measured_dt_s") is not None]
+    fig = Figure(figsize=(11.5, 0.5 + max(4.8, 0.2 * len(points))), layout="constrained")
+    fig.set_dpi(DPI)
+    ax, ratios = fig.subplots(1, 2, width_ratios=(1.15, 1))
+    families, placed = [], []
+    for case, stability in points:
+        color, marker = FAMILY_STYLE.get(case["family"], ("0.4", "o"))
+        style = dict(ls="", marker=marker, ms=7, mew=1.6, color=color, zorder=3,
+                     mfc="white" if stability.get("measured_with") == "kinetic damping" else color)
+        x, y = stability["predicted_dt_s"], stability["measured_dt_s"]
+        ax.plot(x, y, **style)
+        if case["family"] not in families:
+            families.append(case["family"])
+        if stability["measured_over_predicted"] > 1.25 or case["family"] in ("stretch", "mesh"):
+            near = sum(abs(math.log10(x / px)) < 0.1 and abs(math.log10(y / py)) < 0.1
+                       for px, py in placed)
+            left = case["family"] == "stretch"
+            ax.annotate(case["case"], (x, y), xytext=(-7 if left else 7, -3 - 9 * near),
+                        textcoords="offset points", ha="right" if left else "left",
+                        fontsize=FONT_SIZE - 3)
+            placed.append((x, y))
+    values = [v for _, s in points for v in (s["predicted_dt_s"], s["measured_dt_s"])]
+    if values:
+        low, high = min(values) / 2, max(values) * 2
+        ax.plot([low, high], [low, high], "k-", lw=1)
+        ax.set_xlim(low, high)
+        ax.set_ylim(low, high)
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_aspect("equal")
+    ax.set(xlabel="predicted stable dt (s): Gershgorin, stiffest tangent",
+           ylabel="measured stable dt (s): bisection, physical masses")
+    handles = [Line2D([], [], ls="", marker=FAMILY_STYLE[f][1], color=FAMILY_STYLE[f][0], label=f)
+               for f in families if f in FAMILY_STYLE]
+    handles.append(Line2D([], [], color="k", lw=1, label="y = x"))
+    if any(s.get("measured_with") == "kinetic damping" for _, s in points):
+        handles.append(Line2D([], [], ls="", marker="o", color="0.3", mfc="white",
+                              label="measured with kinetic damping"))
+    ax.legend(handles=handles, fontsize=FONT_SIZE - 2, loc="lower right")
+    ax.set_title("measured against predicted: above the line, the prediction is safe",
+                 fontsize=FONT_SIZE)
+    for k, (case, stability) in enumerate(points):
+        color, marker = FAMILY_STYLE.get(case["family"], ("0.4", "o"))
+        hollow = stability.get("measured_with") == "kinetic damping"
+        ratios.plot(stability["measured_over_predicted"], -k, ls="", marker=marker, ms=6, mew=1.4,
+                    color=color, mfc="white" if hollow else color, zorder=3)
+    ratios.axvline(1.0, color="k", lw=1, label="measured = predicted")
+    ratios.axvline(Dynamic().safety, color="k", lw=1, ls="--",
+                   label=f"default safety {Dynamic().safety:g} (dt used with physical masses)")
+    ratios.set_yticks([-k for k in range(len(points))], [c["case"] for c, _ in points],
+                      fontsize=FONT_SIZE - 2)
+    ratios.set_xscale("log")
+    ratios.set_xlabel("measured / predicted stable dt (-)")
+    ratios.set_ylim(-len(points) + 0.5, 0.5)
+    ratios.legend(fontsize=FONT_SIZE - 2, loc="upper right")
+    ratios.set_title("measured / predicted per case", fontsize=FONT_SIZE)
+    for axis in (ax, ratios):
+        axis.tick_params(labelsize=FONT_SIZE)
+        axis.xaxis.label.set_size(FONT_SIZE)
+        axis.yaxis.label.set_size(FONT_SIZE)
+        axis.grid(True, which="both", alpha=0.3)
+    ratios.tick_params(axis="y", labelsize=FONT_SIZE - 2)
+    fig.suptitle(f"Stable time step of symplectic Euler with the physical masses ({plan.name} "
+                 f"plan: {plan.crossings} crossings, N = {plan.segments} unless named)",
+                 fontsize=FONT_SIZE + 1)
+    return fig
