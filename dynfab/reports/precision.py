@@ -1,0 +1,1291 @@
+"""Precision report (issue 5, part 1): error against cost of every dynamic method.
+
+`run_precision(out_dir, quick=False, scene=None)` relaxes single load steps with every
+dynamic method (MODEL.md 5) over a ladder of tolerances, times each warm, measures its
+error against the static reference converged to float64's rounding floor (MODEL.md 6)
+and writes, into `out_dir`:
+
+* ``points.csv``: tidy rows, one per (solve, quantity), with the units of each;
+* ``summary.json``: the machine, the plan, the cases, every point, the Pareto fronts
+  and the cheapest-method tables;
+* ``cheapest.json`` and ``precision.md``: which method is cheapest for a relative error
+  of 1e-3, 1e-5 and 1e-7, by warm wall time and by force evaluations;
+* ``work_precision_time.png``, ``work_precision_evaluations.png``: relative error against
+  wall time and against force evaluations, log-log, one curve per method, the static
+  Newton solve and scipy's L-BFGS-B as reference points, the Pareto front marked;
+* ``error_vs_residual.png``: the error each solve left against its force residual, with
+  the bound ||K^-1||_inf (r + r_ref).
+
+Cases. Each scene is solved along its own load path by the static solver (tolerance
+`REFERENCE_TOLERANCE`, so every step stops at the rounding floor) up to the start of
+the studied step; every solver then relaxes that one step from the same state, friction
+anchors included. The steps studied are the first (from the as-woven geometry: a
+prestressed yarn relaxes its prestress there), and those at about 22.5 % and 82.5 % of
+the path: on the paper's 40 steps to 10 mm, 0 -> 0.25, 2 -> 2.25 and 8 -> 8.25 mm.
+Default scenes: ``runs/paper_fig3.toml`` entry K = 0.2 m/N and ``runs/paper_fig5.toml``
+entry 0 (friction); a scene file given instead is studied entry by entry (its [dynamic]
+table is ignored: the report sets every option itself).
+
+Measured per solve:
+
+* relative error: the largest node position error |x - x_ref| over all nodes and both
+  coordinates [m], divided by the crimp amplitude A_wa (by L for a straight yarn);
+* end error: under displacement control the relative error of the end force (the
+  reaction P), under force control that of the end displacement;
+* residual: the largest free force component (friction included, F_T from the current
+  contact forces, the anchors of the step's start) recomputed in float64 at the returned
+  positions, so a float32 run is judged by the force its positions really leave; the
+  solver's own figure is kept as ``solver_residual``;
+* the bound ||K^-1||_inf (r + r_ref) on the position error (linearising the residual map
+  at the reference; K the Hessian over the free dofs, with friction the coupled
+  Jacobian), as tests/test_dynamic_relaxation.py uses it;
+* warm wall time: one untimed call first (it builds or loads the kernel variant), then
+  the fastest of `Plan.repeats` timed calls of `DynamicSolver.step`, from the start
+  state to the finished step record (solver construction excluded);
+* force evaluations (machine-independent): the dynamic solver's count; the static
+  Newton solve's gradient evaluations (iterations + 1, each with a banded Hessian and
+  line-search energies besides); L-BFGS-B's energy-and-gradient evaluations.
+
+Two static Newton points: the reference solve itself, timed the same way (Newton is
+deterministic, so it reproduces the reference exactly: its error is the floor of the
+comparison), and the solve at the scene's `static.tolerance` (1e-11 N by default), what
+`dynfab run` does. Errors are shown no lower than the position rounding floor
+eps max|x| / A_wa.
+scipy's L-BFGS-B (optional: ``pip install dynfab[compare]``) minimises the same energy
+(`dynfab.assembly`) over the free dofs with ``gtol`` = the tolerance; with friction,
+whose F_T depends on the contact forces (MODEL.md 4: not a pure minimisation), it
+alternates minimisations with F_T frozen and F_T updates until the residual with the
+current F_T meets the tolerance or stops falling. Without scipy its points are left out
+and the report says so.
+
+``quick=True`` solves the paper yarn cut to 4 crossings (L / 4, N = 56, the same spacing,
+weft and contact law, end displacements / 4) with few methods and 2-3 tolerances each,
+using only the kernel variants the dynamic tests already build (displacement control;
+explicit kinetic, viscous and FIRE, semi_implicit and float32 kinetic without friction;
+kinetic and semi_implicit with friction). Errors for user mistakes are `SceneError`s.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import ctypes
+import importlib.util
+import json
+import math
+import os
+import platform
+import time
+import warnings
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
+from matplotlib.ticker import NullFormatter
+
+from dynfab import assembly
+from dynfab.banded import BANDWIDTH, zeros_band
+from dynfab.dynamic import DynamicSolver
+from dynfab.errors import SceneError, SolverError
+from dynfab.model import Model, State, build_model, initial_state
+from dynfab.observables import finish_step
+from dynfab.plot import DPI, FONT_SIZE
+from dynfab.scene import Dynamic, Scene, expand_sweep, load_scene, with_key
+from dynfab.static import StaticSolver, max_free, prescribe_load
+
+RUNS = Path(__file__).resolve().parents[2] / "runs"
+"""The paper scene files of the source tree."""
+
+REFERENCE_TOLERANCE = 1e-13
+"""Static tolerance of the start states and references [N]: below float64's floor at
+N = 224 (about 6e-13 N), so Newton stops where the residual stops falling (MODEL.md 6)."""
+
+TARGETS = (1e-3, 1e-5, 1e-7)
+"""Relative errors for which the cheapest method is reported [-]."""
+
+STEP_FRACTIONS = (0.0, 0.225, 0.825)
+"""Studied load steps, as fractions of the load path (step max(1, round(f n)) of n)."""
+
+MAX_DENSE_DOFS = 8000
+"""Largest free-dof count for which the dense ||K^-1||_inf and lowest mode are computed."""
+
+EPS = float(np.finfo(np.float64).eps)
+
+CSV_COLUMNS = ("case", "scene", "start_load", "load", "load_units", "solver", "method", "label",
+               "precision", "masses", "damping", "damping_coefficient", "damping_coefficient_units",
+               "safety", "tolerance", "tolerance_units", "status", "quantity", "value", "units")
+
+QUANTITIES = {
+    # name: (units, point key)
+    "wall_time": ("s", "wall_time_s"),
+    "force_evaluations": ("-", "force_evaluations"),
+    "iterations": ("-", "iterations"),
+    "position_error": ("m", "position_error_m"),
+    "relative_error": ("-", "relative_error"),
+    "end_error": ("-", "end_error"),
+    "end_error_absolute": (None, "end_error_absolute"),  # N or m: the end quantity's units
+    "residual": ("N", "residual_N"),
+    "solver_residual": ("N", "solver_residual_N"),
+    "error_bound": ("m", "bound_m"),
+}
+
+
+@dataclass(frozen=True)
+class Method:
+    """One curve of the study: a dynamic solver configuration, swept over tolerances."""
+
+    key: str
+    label: str
+    options: Dynamic
+    critical_factor: float | None = None
+    """Viscous c = this x the critical damping of the lowest mode (None: options' c)."""
+    style: tuple[str, str, str] = ("C0", "o", "-")
+    """(colour, marker, line style) in the figures."""
+
+
+METHODS = {m.key: m for m in (
+    Method("kinetic", "explicit, kinetic", Dynamic(damping="kinetic"), style=("#1f77b4", "o", "-")),
+    Method("kinetic_safety_0.5", "explicit, kinetic, safety 0.5",
+           Dynamic(damping="kinetic", safety=0.5), style=("#6baed6", "o", "--")),
+    Method("kinetic_safety_0.99", "explicit, kinetic, safety 0.99",
+           Dynamic(damping="kinetic", safety=0.99), style=("#08306b", "o", "-.")),
+    Method("kinetic_physical", "explicit, kinetic, physical masses",
+           Dynamic(damping="kinetic", masses="physical"), style=("#17becf", "o", ":")),
+    Method("viscous", "explicit, viscous (adaptive c)", Dynamic(damping="viscous"),
+           style=("#ff7f0e", "s", "-")),
+    Method("viscous_physical", "explicit, viscous (adaptive c), physical masses",
+           Dynamic(damping="viscous", masses="physical"), style=("#fdae6b", "s", ":")),
+    Method("viscous_c0.5", "explicit, viscous, c = 0.5 c_crit", Dynamic(damping="viscous"),
+           critical_factor=0.5, style=("#8c564b", "v", "--")),
+    Method("viscous_c1", "explicit, viscous, c = c_crit", Dynamic(damping="viscous"),
+           critical_factor=1.0, style=("#d62728", "v", "-")),
+    Method("viscous_c2", "explicit, viscous, c = 2 c_crit", Dynamic(damping="viscous"),
+           critical_factor=2.0, style=("#e377c2", "v", "-.")),
+    Method("fire", "explicit, FIRE 2.0", Dynamic(damping="fire"), style=("#2ca02c", "^", "-")),
+    Method("fire_physical", "explicit, FIRE 2.0, physical masses",
+           Dynamic(damping="fire", masses="physical"), style=("#98df8a", "^", ":")),
+    Method("semi_implicit", "semi_implicit", Dynamic(method="semi_implicit"),
+           style=("#9467bd", "D", "-")),
+    Method("semi_implicit_physical", "semi_implicit, physical masses",
+           Dynamic(method="semi_implicit", masses="physical"), style=("#c5b0d5", "D", ":")),
+    Method("kinetic_float32", "explicit, kinetic, float32",
+           Dynamic(damping="kinetic", precision="float32"), style=("#1f77b4", "o", (0, (1, 3)))),
+    Method("viscous_float32", "explicit, viscous (adaptive c), float32",
+           Dynamic(damping="viscous", precision="float32"), style=("#ff7f0e", "s", (0, (1, 3)))),
+    Method("fire_float32", "explicit, FIRE 2.0, float32",
+           Dynamic(damping="fire", precision="float32"), style=("#2ca02c", "^", (0, (1, 3)))),
+    Method("semi_implicit_float32", "semi_implicit, float32",
+           Dynamic(method="semi_implicit", precision="float32"),
+           style=("#9467bd", "D", (0, (1, 3)))),
+)}
+"""Every method of the full report, in legend order."""
+
+STATIC_STYLES = {"static_reference": ("k", "*", ""), "static_newton": ("k", "X", "")}
+LBFGS_STYLE = ("0.35", "P", ":")
+
+
+@dataclass(frozen=True)
+class Plan:
+    """What a report solves: scene size, methods, tolerances, repeats."""
+
+    name: str
+    crossings: int | None
+    """Cut the paper yarn to this many crossings (same spacing; None: as in the file)."""
+    segments: int | None
+    """N of the cut paper yarn (None: as in the file)."""
+    tolerances: tuple[float, ...]
+    """Tolerances of the float64 methods and of L-BFGS-B's gtol [N]."""
+    float32_tolerances: tuple[float, ...]
+    """Tolerances of the float32 methods [N] (below about 1e-4 N they stall at the floor)."""
+    methods: tuple[str, ...]
+    """Methods solved on frictionless scenes (keys of METHODS)."""
+    friction_methods: tuple[str, ...]
+    """Methods solved on scenes with friction."""
+    step_fractions: tuple[float, ...] = STEP_FRACTIONS
+    paper_scenes: tuple[str, ...] = ("frictionless", "friction")
+    """The default paper scenes solved (when no scene file is given)."""
+    repeats: int = 1
+    """Timed calls per point after the untimed one, at least; the fastest counts."""
+    min_timed: float = 0.0
+    """Timed calls continue until they add up to this [s] (at most MAX_REPEATS)."""
+    lbfgs_repeats: int = 1
+    max_steps: int = 300_000
+    """dynamic.max_steps of every dynamic solve (a slower one is recorded as failed)."""
+
+
+FULL = Plan(name="full", crossings=None, segments=None,
+            tolerances=tuple(10.0 ** -k for k in range(4, 12)),
+            float32_tolerances=(1e-3, 1e-4, 1e-5, 1e-6),
+            methods=tuple(METHODS), friction_methods=tuple(METHODS), repeats=5, min_timed=0.02,
+            lbfgs_repeats=2)
+QUICK = Plan(name="quick", crossings=4, segments=56, tolerances=(1e-4, 1e-7, 1e-10),
+             float32_tolerances=(1e-4, 1e-6),
+             methods=("kinetic", "viscous", "viscous_c1", "fire", "semi_implicit",
+                      "kinetic_float32"),
+             friction_methods=("kinetic", "semi_implicit"), repeats=3, lbfgs_repeats=1,
+             max_steps=100_000)
+
+
+def scipy_available() -> bool:
+    """scipy (for L-BFGS-B) can be imported: the optional `dynfab[compare]` extra."""
+    return importlib.util.find_spec("scipy") is not None
+
+
+SCIPY_MISSING = ("scipy is not installed, so the L-BFGS-B reference points are left out "
+                 "(install it with `pip install dynfab[compare]`)")
+
+
+def run_precision(out_dir, *, quick: bool = False, progress: Callable[[str], None] | None = None,
+                  scene=None, plan: Plan | None = None) -> dict:
+    """Run the study, write the CSV, JSON, markdown and PNGs; return the summary.
+
+    `scene`: a scene file to study instead of the paper scenes. `plan`: overrides the
+    quick/full plan (tests). `progress` receives one line per (case, method).
+    """
+    started = time.perf_counter()
+    out = _output_folder(out_dir)
+    plan = plan or (QUICK if quick else FULL)
+    with_scipy = scipy_available()
+    scenes = _scenes(scene, plan)
+    cases = [case for label, s in scenes.items() for case in build_cases(label, s, plan)]
+    study = _Study(plan, progress, with_scipy)
+    points = [point for case in cases for point in study.solve_case(case)]
+    fronts = {case.key: pareto_fronts([p for p in points if p["case"] == case.key], case.floor)
+              for case in cases}
+    for point in points:
+        point["pareto_time"] = point["id"] in fronts[point["case"]]["wall_time_s"]
+        point["pareto_evaluations"] = point["id"] in fronts[point["case"]]["force_evaluations"]
+    summary = {
+        "report": "precision",
+        "plan": _plan_dict(plan),
+        "quick": quick,
+        "scene_file": None if scene is None else str(scene),
+        "machine": machine(),
+        "scipy": {"available": with_scipy, "note": "" if with_scipy else SCIPY_MISSING},
+        "targets": list(TARGETS),
+        "cases": [case.describe() for case in cases],
+        "kernel_variants": sorted({p["kernel"] for p in points if p.get("kernel")}
+                                  | {case.info["probe_kernel"] for case in cases
+                                     if "probe_kernel" in case.info}),
+        "failures": [{k: p[k] for k in ("case", "method", "tolerance", "message")}
+                     for p in points if p["status"] == "failed"],
+        "cheapest": cheapest_table(points, cases),
+        "one_setting": one_setting_table(points, cases),
+        "points": points,
+        "solve_time_s": study.solve_time,
+    }
+    files = [_write_csv(out / "points.csv", points, cases)]
+    cheapest = {key: summary[key] for key in ("targets", "cheapest", "one_setting", "scipy")}
+    files.append(_write_json(out / "cheapest.json", cheapest))
+    files.append(_write_text(out / "precision.md", precision_markdown(summary)))
+    files.append(_save(plot_work_precision(summary, "wall_time_s"),
+                       out / "work_precision_time.png"))
+    files.append(_save(plot_work_precision(summary, "force_evaluations"),
+                       out / "work_precision_evaluations.png"))
+    files.append(_save(plot_error_vs_residual(summary), out / "error_vs_residual.png"))
+    summary["wall_time_s"] = time.perf_counter() - started
+    summary["files"] = [str(path) for path in files] + [str(out / "summary.json")]
+    _write_json(out / "summary.json", summary)
+    return summary
+
+
+# --------------------------------------------------------------------------
+# Scenes and cases.
+
+
+def _scenes(path, plan: Plan) -> dict[str, Scene]:
+    """The scenes to study, by label: a scene file's entries, or the paper scenes."""
+    if path is not None:
+        entries = expand_sweep(load_scene(path))
+        stem = Path(path).stem
+        if len(entries) == 1:
+            return {stem: entries[0]}
+        return {f"{stem} entry {k}": entry for k, entry in enumerate(entries)}
+    fig3, fig5 = (_paper_file(name) for name in ("paper_fig3.toml", "paper_fig5.toml"))
+    paper = {"frictionless": next(s for s in expand_sweep(fig3) if s.warp.kawabata_K == 0.2),
+             "friction": next(s for s in expand_sweep(fig5) if s.friction and s.friction.alpha > 0)}
+    return {label: _cut(paper[label], plan) for label in plan.paper_scenes}
+
+
+def _paper_file(name: str) -> Scene:
+    path = RUNS / name
+    if not path.is_file():
+        raise SceneError(f"paper scene '{path}' not found: without a scene argument the precision "
+                         "report reads the runs/ folder of a dynfab source tree")
+    return load_scene(path)
+
+
+def _cut(scene: Scene, plan: Plan) -> Scene:
+    """The paper yarn with `plan.crossings` crossings at the same spacing, N = `plan.segments`,
+    its end displacements scaled with its length (the same strains)."""
+    geometry = scene.geometry
+    if plan.crossings is None or plan.crossings == geometry.crossings:
+        return scene if plan.segments is None else with_key(scene, "geometry.segments",
+                                                            plan.segments)
+    ratio = plan.crossings / geometry.crossings
+    scene = with_key(scene, "geometry.crossings", plan.crossings)
+    scene = with_key(scene, "geometry.segments", plan.segments or geometry.segments)
+    scene = with_key(scene, "geometry.length", geometry.length * ratio)
+    return with_key(scene, "load.values", [v * ratio for v in scene.load.values])
+
+
+@dataclass
+class Case:
+    """One load step of one scene, relaxed by every solver from the same start state."""
+
+    key: str
+    scene_label: str
+    model: Model
+    step: int
+    """The studied load step, 1-based."""
+    start_load: float
+    load: float
+    start: State
+    reference: State
+    reference_record: dict
+    reference_residual: np.ndarray
+    """Float64 residual of the reference, per yarn [N]."""
+    scale: float
+    """A_wa (L for a straight yarn) [m]: position errors are divided by it."""
+    floor: float
+    """Position rounding floor eps max|x_ref| / scale [-]."""
+    inverse_norm: np.ndarray | None
+    """||K^-1||_inf per yarn at the reference [m/N] (None above MAX_DENSE_DOFS)."""
+    critical_damping: float | None
+    """Twice the lowest circular frequency with the fictitious masses [1/s]."""
+    info: dict = field(default_factory=dict)
+
+    @property
+    def control(self) -> str:
+        return self.model.control
+
+    @property
+    def end_quantity(self) -> str:
+        """The end quantity the solver does not prescribe: its error is reported."""
+        return "end_force" if self.control == "displacement" else "end_displacement"
+
+    @property
+    def load_units(self) -> str:
+        return "m" if self.control == "displacement" else "N"
+
+    @property
+    def scale_name(self) -> str:
+        return "A_wa" if self.model.scene.geometry.amplitude > 0 else "L"
+
+    @property
+    def title(self) -> str:
+        return f"{self.scene_label}, {_load_text(self.start_load, self.load, self.control)}"
+
+    def describe(self) -> dict:
+        record = self.reference_record
+        return {"case": self.key, "title": self.title, "scene": self.scene_label,
+                "step": self.step, "start_load": self.start_load, "load": self.load,
+                "load_units": self.load_units, "control": self.control,
+                "segments": self.model.segments, "crossings": self.model.crossings,
+                "yarns": self.model.yarn_count, "friction": "friction" in self.model.terms,
+                "end_quantity": self.end_quantity,
+                "end_value": float(np.abs(record[self.end_quantity]).max()),
+                "scale_m": self.scale, "scale_name": self.scale_name,
+                "rounding_floor_relative": self.floor,
+                "reference_tolerance_N": REFERENCE_TOLERANCE,
+                "reference_residual_N": float(self.reference_residual.max()),
+                "reference_at_rounding_floor": bool(record["rounding_floor"].all()),
+                "reference_iterations": int(record["iterations"].sum()),
+                "inverse_stiffness_norm_m_per_N": None if self.inverse_norm is None
+                else float(self.inverse_norm.max()),
+                "critical_damping_per_s": self.critical_damping,
+                "sliding_crossings": int(record["sliding"].sum()),
+                "closed_crossings": int((record["contact_force"] > 0).sum()), **self.info}
+
+
+def _load_text(start: float, end: float, control: str) -> str:
+    if control == "displacement":
+        return f"u = {1e3 * start:g} -> {1e3 * end:g} mm"
+    return f"P = {start:g} -> {end:g} N"
+
+
+def studied_steps(count: int, fractions) -> list[int]:
+    """The 1-based load steps studied on a path of `count` steps."""
+    return sorted({min(count, max(1, round(f * count))) for f in fractions})
+
+
+def build_cases(label: str, scene: Scene, plan: Plan) -> list[Case]:
+    """The studied steps of one scene, each with its start state and static reference."""
+    model = build_model(scene)
+    solver = StaticSolver(model, tolerance=REFERENCE_TOLERANCE)
+    steps = studied_steps(model.load_values.size, plan.step_fractions)
+    state = initial_state(model)
+    done, cases = 0, []
+    for step in steps:
+        for value in model.load_values[done:step - 1]:
+            state, _ = solver.step(state, value)
+        done = step - 1
+        load = float(model.load_values[step - 1])
+        reference, record = solver.step(state, load)
+        residual = float_residuals(model, reference.positions, state.anchors, load)
+        scale = scene.geometry.amplitude if scene.geometry.amplitude > 0 else scene.geometry.length
+        key = f"{label.replace(' ', '_')}_step{step}"
+        case = Case(key=key, scene_label=label, model=model, step=step,
+                    start_load=float(state.load.max()), load=load, start=state.copy(),
+                    reference=reference, reference_record=record, reference_residual=residual,
+                    scale=scale, floor=EPS * float(np.abs(reference.positions).max()) / scale,
+                    inverse_norm=None, critical_damping=None)
+        case.inverse_norm, case.critical_damping = stiffness_measures(case)
+        cases.append(case)
+    return cases
+
+
+# --------------------------------------------------------------------------
+# Linear algebra at the reference.
+
+
+def dense_hessian(model: Model, positions, anchors, k: int, coupled: bool) -> np.ndarray:
+    """Yarn k's Hessian of V plus the Huber terms (coupled: the friction Jacobian) over its
+    free dofs, dense [N/m]; anchors of the step's start, F_T from the contact forces."""
+    yarn, c = model.yarns[k], model.crossings
+    pos = np.ascontiguousarray(positions[k], dtype=np.float64)
+    force, limit, tangent = np.zeros(c), np.zeros(c), np.zeros(c)
+    assembly.contact_state(pos, yarn, force, limit, tangent)
+    band = zeros_band(pos.size)
+    assembly.hessian(pos, yarn, np.ascontiguousarray(anchors[k], dtype=np.float64), limit, tangent,
+                     coupled, band)
+    n = pos.size
+    rows = np.repeat(np.arange(n), 2 * BANDWIDTH + 1)
+    cols = rows + np.tile(np.arange(-BANDWIDTH, BANDWIDTH + 1), n)
+    inside = (cols >= 0) & (cols < n)
+    dense = np.zeros((n, n))
+    dense[rows[inside], cols[inside]] = band.reshape(-1)[inside]
+    free = ~model.fixed_dofs()
+    return dense[np.ix_(free, free)]
+
+
+def stiffness_measures(case: Case) -> tuple[np.ndarray | None, float | None]:
+    """(||K^-1||_inf per yarn [m/N], critical viscous c of the lowest mode [1/s]).
+
+    c_crit = 2 omega_min, omega_min^2 the lowest eigenvalue of M^-1 K with the fictitious
+    masses the explicit solver chooses at the step's start (K symmetric: without the
+    friction coupling). Both None above MAX_DENSE_DOFS free dofs.
+    """
+    model = case.model
+    if (~model.fixed_dofs()).sum() > MAX_DENSE_DOFS:
+        return None, None
+    positions, anchors = case.reference.positions, case.start.anchors
+    coupled = "friction" in model.terms
+    norms = np.array([np.abs(np.linalg.inv(dense_hessian(model, positions, anchors, k, coupled)))
+                      .sum(axis=1).max() for k in range(model.yarn_count)])
+    probe = DynamicSolver(model, Dynamic(damping="kinetic"))  # the masses of every damping
+    probe.predicted_stable_dt(case.start, case.load)
+    case.info["probe_kernel"] = _kernel_name(probe.configuration)
+    masses = probe.motion.mass.numpy().astype(np.float64)
+    free = ~model.fixed_dofs()
+    lowest = []
+    for k in range(model.yarn_count):
+        stiffness = dense_hessian(model, positions, anchors, k, False)
+        root = 1.0 / np.sqrt(np.repeat(masses[k], 2)[free])
+        lowest.append(np.linalg.eigvalsh(root[:, None] * stiffness * root[None, :])[0])
+    omega2 = min(lowest)
+    return norms, (2.0 * math.sqrt(omega2) if omega2 > 0 else None)
+
+
+def float_residuals(model: Model, positions, anchors, load: float) -> np.ndarray:
+    """The residual per yarn [N], in float64 at `positions`: the largest free component of
+    the force, friction with F_T from the contact forces and the step's start anchors."""
+    P = load if model.control == "force" else 0.0
+    fixed, c = model.fixed_dofs(), model.crossings
+    out = np.zeros(model.yarn_count)
+    for k, yarn in enumerate(model.yarns):
+        pos = np.ascontiguousarray(positions[k], dtype=np.float64)
+        force, limit, tangent = np.zeros(c), np.zeros(c), np.zeros(c)
+        assembly.contact_state(pos, yarn, force, limit, tangent)
+        grad = np.zeros_like(pos)
+        assembly.gradient(pos, yarn, P, np.ascontiguousarray(anchors[k], dtype=np.float64), limit,
+                          grad)
+        out[k] = max_free(grad, fixed)
+    return out
+
+
+# --------------------------------------------------------------------------
+# Solves.
+
+
+class _Study:
+    """Solves every point of a case, one progress line per (case, method)."""
+
+    def __init__(self, plan: Plan, progress, with_scipy: bool):
+        self.plan, self.progress, self.with_scipy = plan, progress, with_scipy
+        self.solve_time = 0.0
+        self.count = 0
+
+    def _say(self, case: Case, label: str, points: list[dict], elapsed: float) -> None:
+        if self.progress is None:
+            return
+        done = [p for p in points if p["status"] != "failed"]
+        errors = [p["relative_error"] for p in done]
+        failed = len(points) - len(done)
+        text = (f"errors {max(errors):.1e} .. {min(errors):.1e}" if errors else "no result")
+        self.progress(f"{case.title}: {label}: {len(points)} solve(s), {text}"
+                      f"{f', {failed} failed' if failed else ''}, {elapsed:.2f} s")
+
+    def solve_case(self, case: Case) -> list[dict]:
+        friction = "friction" in case.model.terms
+        keys = self.plan.friction_methods if friction else self.plan.methods
+        points = []
+        started = time.perf_counter()
+        points.append(self._point(case, static_point(case, self.plan, reference=True)))
+        points.append(self._point(case, static_point(case, self.plan, reference=False)))
+        self._say(case, "static Newton", points[-2:], time.perf_counter() - started)
+        for key in keys:
+            method = METHODS[key]
+            started = time.perf_counter()
+            tolerances = (self.plan.float32_tolerances if method.options.precision == "float32"
+                          else self.plan.tolerances)
+            curve = [self._point(case, dynamic_point(case, method, tolerance, self.plan))
+                     for tolerance in tolerances]
+            points += curve
+            self._say(case, method.label, curve, time.perf_counter() - started)
+        if self.with_scipy:
+            started = time.perf_counter()
+            curve = [self._point(case, lbfgs_point(case, tolerance, self.plan))
+                     for tolerance in self.plan.tolerances]
+            points += curve
+            self._say(case, "scipy L-BFGS-B", curve, time.perf_counter() - started)
+        return points
+
+    def _point(self, case: Case, point: dict) -> dict:
+        self.count += 1
+        self.solve_time += point.pop("_elapsed", 0.0)
+        point.update({"id": self.count, "case": case.key, "scene": case.scene_label,
+                      "start_load": case.start_load, "load": case.load,
+                      "load_units": case.load_units, "end_quantity": case.end_quantity})
+        return point
+
+
+MAX_REPEATS = 200
+"""Timed calls of one point at most, however short a call (see `_best_time`)."""
+
+
+def _best_time(call, repeats: int, min_total: float = 0.0) -> float:
+    """The fastest of at least `repeats` timed calls [s], more (up to MAX_REPEATS) until
+    they add up to `min_total` [s]: a sub-millisecond solve gets enough tries that one
+    of them runs while no other process holds the CPU."""
+    best, total, count = math.inf, 0.0, 0
+    while count < repeats or (total < min_total and count < MAX_REPEATS):
+        began = time.perf_counter()
+        call()
+        elapsed = time.perf_counter() - began
+        best, total, count = min(best, elapsed), total + elapsed, count + 1
+    return best
+
+
+def _base_point(solver: str, method: str, label: str, tolerance: float, **options) -> dict:
+    point = {"solver": solver, "method": method, "label": label, "tolerance": tolerance,
+             "precision": "float64", "masses": "", "damping": "", "damping_coefficient": "",
+             "safety": "", "kernel": "", "status": "converged", "message": ""}
+    point.update(options)
+    return point
+
+
+def measure(case: Case, positions: np.ndarray, record: dict) -> dict:
+    """Errors against the reference, the float64 residual and its position-error bound."""
+    model, ref = case.model, case.reference
+    positions = np.asarray(positions, dtype=np.float64)
+    per_yarn = np.abs(positions - ref.positions).max(axis=(1, 2))
+    residual = float_residuals(model, positions, case.start.anchors, case.load)
+    quantity = case.end_quantity
+    reference_end = np.asarray(case.reference_record[quantity], dtype=np.float64)
+    end_error = np.abs(np.asarray(record[quantity], dtype=np.float64) - reference_end)
+    result = {"position_error_m": float(per_yarn.max()),
+              "relative_error": float(per_yarn.max() / case.scale),
+              "end_error_absolute": float(end_error.max()),
+              "end_error": float((end_error / np.maximum(np.abs(reference_end), 1e-300)).max()),
+              "residual_N": float(residual.max()),
+              "solver_residual_N": float(np.max(record["residual"])),
+              "bound_m": None, "within_bound": None}
+    if case.inverse_norm is not None:
+        bound = case.inverse_norm * (residual + case.reference_residual)
+        result["bound_m"] = float(bound.max())
+        result["within_bound"] = bool((per_yarn <= bound).all())
+    return result
+
+
+def static_point(case: Case, plan: Plan, reference: bool) -> dict:
+    """A static Newton solve, timed: the reference (to the rounding floor; Newton is
+    deterministic, so it reproduces the reference and its error is the floor), or the
+    solve at the scene's static.tolerance."""
+    tolerance = REFERENCE_TOLERANCE if reference else case.model.scene.static.tolerance
+    solver = StaticSolver(case.model, tolerance=tolerance)
+    began = time.perf_counter()
+    state, record = solver.step(case.start, case.load)
+    wall = _best_time(lambda: solver.step(case.start, case.load), plan.repeats, plan.min_timed)
+    iterations = int(record["iterations"].sum())
+    key = "static_reference" if reference else "static_newton"
+    point = _base_point("static", key, _label_of(key).replace("\n", " "), tolerance,
+                        status="rounding_floor" if record["rounding_floor"].any() else "converged")
+    point.update(measure(case, state.positions, record))
+    point.update({"wall_time_s": wall, "iterations": iterations,
+                  "force_evaluations": iterations + case.model.yarn_count,
+                  "_elapsed": time.perf_counter() - began})
+    return point
+
+
+def dynamic_point(case: Case, method: Method, tolerance: float, plan: Plan) -> dict:
+    """One dynamic solve of the case: untimed, then the fastest of `plan.repeats` timed."""
+    options = replace(method.options, tolerance=tolerance, max_steps=plan.max_steps)
+    coefficient = None
+    if method.critical_factor is not None:
+        if case.critical_damping is None:
+            point = _base_point("dynamic", method.key, method.label, tolerance,
+                                precision=options.precision)
+            return _mark_failed(point, "no critical damping (the lowest mode was not computed)")
+        coefficient = method.critical_factor * case.critical_damping
+        options = replace(options, damping_coefficient=coefficient)
+    began = time.perf_counter()
+    solver = DynamicSolver(case.model, options)
+    attrs = solver.attrs()
+    damping = attrs["dynamic_damping"] if options.method == "explicit" else ""
+    shown_coefficient = (coefficient if coefficient is not None
+                         else "adaptive" if damping == "viscous" else "")
+    point = _base_point("dynamic", method.key, method.label, tolerance,
+                        precision=options.precision, masses=attrs["dynamic_masses"],
+                        damping=damping, damping_coefficient=shown_coefficient,
+                        safety=options.safety, kernel=_kernel_name(solver.configuration))
+    point["dynamic_method"] = options.method
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # the floor is read from the record
+            state, record = solver.step(case.start, case.load)
+            wall = _best_time(lambda: solver.step(case.start, case.load), plan.repeats,
+                              plan.min_timed)
+    except SolverError as error:
+        point = _mark_failed(point, str(error))
+        point["_elapsed"] = time.perf_counter() - began
+        return point
+    if float(np.max(record["residual"])) > tolerance:
+        point["status"] = "rounding_floor"
+    point.update(measure(case, state.positions, record))
+    point.update({"wall_time_s": wall, "iterations": int(record["time_steps"].sum()),
+                  "force_evaluations": int(record["force_evaluations"].sum()),
+                  "_elapsed": time.perf_counter() - began})
+    return point
+
+
+def _mark_failed(point: dict, message: str) -> dict:
+    """A solve that raised: its message kept, no measurements (left out of figures, tables)."""
+    point.update({"status": "failed", "message": message})
+    point.update({name: None for name in ("wall_time_s", "iterations", "force_evaluations",
+                                          "position_error_m", "relative_error", "end_error",
+                                          "end_error_absolute", "residual_N",
+                                          "solver_residual_N", "bound_m", "within_bound")})
+    return point
+
+
+def _kernel_name(configuration) -> str:
+    """A kernel variant as one string: method/damping/precision/control/terms."""
+    terms = "+".join(t for t, on in (("friction", configuration.friction),
+                                     ("gravity", configuration.gravity)) if on) or "no friction"
+    damping = configuration.damping or "-"
+    return (f"{configuration.method}/{damping}/{configuration.precision}/"
+            f"{configuration.control} control/{terms}")
+
+
+MAX_FRICTION_ROUNDS = 30
+"""L-BFGS-B with friction: alternations of a minimisation with F_T frozen and an F_T update."""
+
+
+def lbfgs_solve(model: Model, state: State, load: float, tolerance: float):
+    """scipy's L-BFGS-B on V (+ Huber terms) over the free dofs of each yarn, gtol = tolerance.
+
+    With friction, F_T is frozen during a minimisation and then updated from the contact
+    forces, until the residual with the current F_T meets the tolerance or stops falling.
+    Returns (positions, residual per yarn [N], evaluations).
+    """
+    from scipy.optimize import minimize
+
+    positions = prescribe_load(model, state, load)
+    P = load if model.control == "force" else 0.0
+    fixed = model.fixed_dofs()
+    free = ~fixed
+    c = model.crossings
+    residuals, evaluations = np.zeros(model.yarn_count), 0
+    for k, yarn in enumerate(model.yarns):
+        pos = positions[k]
+        flat = pos.reshape(-1)
+        anchors = np.ascontiguousarray(state.anchors[k], dtype=np.float64)
+        force, limit, tangent = np.zeros(c), np.zeros(c), np.zeros(c)
+        terms, grad = np.zeros(6), np.zeros_like(pos)
+
+        def energy(q):
+            flat[free] = q
+            assembly.energies(pos, yarn, P, anchors, limit, terms)
+            return terms.sum()
+
+        def gradient(q):
+            flat[free] = q
+            assembly.gradient(pos, yarn, P, anchors, limit, grad)
+            return grad.reshape(-1)[free].copy()
+
+        best = math.inf
+        for _ in range(MAX_FRICTION_ROUNDS):
+            assembly.contact_state(pos, yarn, force, limit, tangent)
+            result = minimize(energy, flat[free].copy(), jac=gradient, method="L-BFGS-B",
+                              options={"maxiter": 200_000, "maxfun": 400_000, "maxcor": 20,
+                                       "ftol": 0.0, "gtol": tolerance})
+            flat[free] = result.x
+            evaluations += int(result.nfev)
+            assembly.contact_state(pos, yarn, force, limit, tangent)
+            assembly.gradient(pos, yarn, P, anchors, limit, grad)
+            residual = max_free(grad, fixed)
+            if not yarn.has_friction or residual <= tolerance or not residual < 0.5 * best:
+                break
+            best = residual
+        residuals[k] = residual
+    return positions, residuals, evaluations
+
+
+_BLAS_THREAD_FUNCTIONS = (
+    ("openblas_get_num_threads", "openblas_set_num_threads"),
+    ("scipy_openblas_get_num_threads", "scipy_openblas_set_num_threads"),
+    ("scipy_openblas_get_num_threads64_", "scipy_openblas_set_num_threads64_"))
+"""(get, set) thread-count functions of OpenBLAS builds: plain, scipy's, numpy's 64-bit one."""
+
+
+def _loaded_openblas() -> list[str]:
+    """Paths of the OpenBLAS libraries mapped into this process (Linux; else none)."""
+    try:
+        lines = Path("/proc/self/maps").read_text().splitlines()
+    except OSError:
+        return []
+    paths = {line.split()[-1] for line in lines if "openblas" in line.rsplit("/", 1)[-1]}
+    return sorted(path for path in paths if path.startswith("/"))
+
+
+@contextlib.contextmanager
+def single_threaded_blas():
+    """OpenBLAS limited to one thread inside the block; yields whether it could be.
+
+    Every solver compared runs on one thread (the Warp CPU kernel and numba), and
+    L-BFGS-B's BLAS calls on vectors of a few hundred entries only lose by threading:
+    measured up to 30x slower with OpenBLAS's default threads while other processes
+    loaded the 2-CPU machine. Best effort, on the libraries already loaded (scipy's
+    is, once scipy.optimize is imported); the thread counts are restored after.
+    """
+    restore = []
+    for path in _loaded_openblas():
+        try:
+            library = ctypes.CDLL(path)
+        except OSError:
+            continue
+        for get_name, set_name in _BLAS_THREAD_FUNCTIONS:
+            get, put = getattr(library, get_name, None), getattr(library, set_name, None)
+            if get is not None and put is not None:
+                get.restype = ctypes.c_int
+                restore.append((put, get()))
+                put(ctypes.c_int(1))
+                break
+    try:
+        yield bool(restore)
+    finally:
+        for put, threads in restore:
+            put(ctypes.c_int(threads))
+
+
+def lbfgs_point(case: Case, tolerance: float, plan: Plan) -> dict:
+    """scipy's L-BFGS-B from the case's start state, BLAS on one thread; its stopping
+    point, timed like the rest."""
+    import scipy.optimize  # noqa: F401  (loads scipy's OpenBLAS before it is limited)
+
+    model = case.model
+    began = time.perf_counter()
+
+    def solve():
+        positions, residual, evaluations = lbfgs_solve(model, case.start, case.load, tolerance)
+        _, record = finish_step(model, case.start, positions, case.load, residual,
+                                np.zeros(model.yarn_count, np.int64))
+        return positions, record, evaluations
+
+    with single_threaded_blas() as limited:
+        positions, record, evaluations = solve()
+        wall = _best_time(solve, plan.lbfgs_repeats, plan.min_timed)
+    point = _base_point("lbfgs", "lbfgs", "scipy L-BFGS-B", tolerance)
+    point["blas_single_thread"] = limited
+    point.update(measure(case, positions, record))
+    if point["residual_N"] > tolerance:
+        point["status"] = "stalled"
+        point["message"] = ("L-BFGS-B stopped above gtol: the energy no longer decreases "
+                            "in float64")
+    point.update({"wall_time_s": wall, "iterations": evaluations, "force_evaluations": evaluations,
+                  "_elapsed": time.perf_counter() - began})
+    return point
+
+
+# --------------------------------------------------------------------------
+# Pareto fronts and the cheapest methods.
+
+
+def shown_error(point: dict, floor: float) -> float:
+    """The relative error as plotted: no lower than the position rounding floor."""
+    return max(point["relative_error"], floor)
+
+
+def _usable(points: list[dict]) -> list[dict]:
+    return [p for p in points if p["status"] != "failed"]
+
+
+def dominates(a: dict, b: dict, cost: str, floor: float) -> bool:
+    """a is at most as costly and as wrong as b, and strictly better in one of the two."""
+    ca, cb = a[cost], b[cost]
+    ea, eb = shown_error(a, floor), shown_error(b, floor)
+    return ca <= cb and ea <= eb and (ca < cb or ea < eb)
+
+
+def pareto_front(points: list[dict], cost: str, floor: float = 0.0) -> list[dict]:
+    """The dynamic points no other dynamic point dominates in `cost` and (floored)
+    relative error, sorted by cost. (The static Newton solves, reference points, are left
+    out: they are faster than nearly every dynamic solve of the same accuracy.)"""
+    dynamic = [p for p in _usable(points) if p["solver"] == "dynamic"]
+    front = [p for p in dynamic if not any(dominates(q, p, cost, floor) for q in dynamic)]
+    return sorted(front, key=lambda p: (p[cost], shown_error(p, floor)))
+
+
+def pareto_fronts(points: list[dict], floor: float) -> dict[str, set[int]]:
+    """The ids on the dynamic front of each cost, errors floored at `floor`."""
+    return {cost: {p["id"] for p in pareto_front(points, cost, floor)}
+            for cost in ("wall_time_s", "force_evaluations")}
+
+
+def cheapest(points: list[dict], target: float, cost: str) -> dict | None:
+    """The dynamic point of least `cost` (then least wall time) reaching `target`."""
+    reaching = [p for p in _usable(points) if p["solver"] == "dynamic"
+                and p["relative_error"] <= target]
+    if not reaching:
+        return None
+    return min(reaching, key=lambda p: (p[cost], p["wall_time_s"]))
+
+
+def _brief(point: dict | None) -> dict | None:
+    if point is None:
+        return None
+    return {key: point[key] for key in ("id", "method", "label", "tolerance", "wall_time_s",
+                                        "force_evaluations", "relative_error", "residual_N")}
+
+
+def cheapest_table(points: list[dict], cases: list[Case]) -> list[dict]:
+    """Per case and target: the cheapest dynamic point by wall time and by force
+    evaluations, beside the static Newton solves (at the scene's tolerance and to the
+    floor) and the cheapest L-BFGS-B point."""
+    rows = []
+    for case in cases:
+        mine = [p for p in points if p["case"] == case.key]
+        static = next(p for p in mine if p["method"] == "static_newton")
+        reference = next(p for p in mine if p["method"] == "static_reference")
+        lbfgs = [p for p in _usable(mine) if p["solver"] == "lbfgs"]
+        for target in TARGETS:
+            reaching = [p for p in lbfgs if p["relative_error"] <= target]
+            fastest = cheapest(mine, target, "wall_time_s")
+            rows.append({
+                "case": case.key, "title": case.title, "target": target,
+                "static_speedup": None if fastest is None
+                else fastest["wall_time_s"] / static["wall_time_s"],
+                "by_wall_time": _brief(fastest),
+                "by_force_evaluations": _brief(cheapest(mine, target, "force_evaluations")),
+                "static_newton": _brief(static), "static_reference": _brief(reference),
+                "lbfgs": _brief(min(reaching, key=lambda p: p["wall_time_s"]) if reaching
+                                else None)})
+    return rows
+
+
+def one_setting_table(points: list[dict], cases: list[Case]) -> list[dict]:
+    """Per target: the (method, tolerance) of least total wall time over all cases among
+    those reaching the target in every case (one setting for a whole load path)."""
+    keys = [case.key for case in cases]
+    groups: dict[tuple, dict] = {}
+    for p in points:
+        if p["solver"] == "dynamic":
+            groups.setdefault((p["method"], p["tolerance"]), {})[p["case"]] = p
+    rows = []
+    for target in TARGETS:
+        best = None
+        for (method, tolerance), by_case in groups.items():
+            if set(by_case) != set(keys) or any(
+                    p["status"] == "failed" or p["relative_error"] > target
+                    for p in by_case.values()):
+                continue
+            total = sum(p["wall_time_s"] for p in by_case.values())
+            evaluations = sum(p["force_evaluations"] for p in by_case.values())
+            if best is None or total < best["total_wall_time_s"]:
+                best = {"method": method, "label": next(iter(by_case.values()))["label"],
+                        "tolerance": tolerance, "total_wall_time_s": total,
+                        "total_force_evaluations": evaluations,
+                        "worst_relative_error": max(p["relative_error"]
+                                                    for p in by_case.values())}
+        static_total = sum(p["wall_time_s"] for p in points if p["method"] == "static_newton")
+        rows.append({"target": target, "best": best, "static_newton_total_wall_time_s":
+                     static_total})
+    return rows
+
+
+# --------------------------------------------------------------------------
+# Files.
+
+
+def _output_folder(out_dir) -> Path:
+    """`out_dir` as an existing folder (created if needed); SceneError if it cannot be."""
+    if out_dir is None or str(out_dir) == "":
+        raise SceneError("--out: give a folder for the report's files")
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise SceneError(f"--out '{out}' is a file, not a folder")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise SceneError(f"cannot create the folder '{out}': {exc.strerror}") from None
+    if not os.access(out, os.W_OK):
+        raise SceneError(f"cannot write into the folder '{out}'")
+    return out
+
+
+def machine() -> dict:
+    """What the report ran on: `uname -m`, `nproc`, the Python version."""
+    return {"machine": platform.machine(), "cpus": os.cpu_count(),
+            "python": platform.python_version(), "platform": platform.platform()}
+
+
+def _plan_dict(plan: Plan) -> dict:
+    return {"name": plan.name, "crossings": plan.crossings, "segments": plan.segments,
+            "tolerances_N": list(plan.tolerances),
+            "float32_tolerances_N": list(plan.float32_tolerances),
+            "methods": {key: METHODS[key].label for key in plan.methods},
+            "friction_methods": {key: METHODS[key].label for key in plan.friction_methods},
+            "step_fractions": list(plan.step_fractions), "repeats": plan.repeats,
+            "min_timed_s": plan.min_timed, "max_repeats": MAX_REPEATS,
+            "lbfgs_repeats": plan.lbfgs_repeats, "max_steps": plan.max_steps,
+            "reference_tolerance_N": REFERENCE_TOLERANCE}
+
+
+def _csv_value(value):
+    if isinstance(value, float):
+        return repr(value)
+    return "" if value is None else value
+
+
+def _write_csv(path: Path, points: list[dict], cases: list[Case]) -> Path:
+    """Tidy rows: one per (point, quantity) with the point's identifying columns."""
+    end_units = {case.key: ("N" if case.end_quantity == "end_force" else "m") for case in cases}
+    with path.open("w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=CSV_COLUMNS, lineterminator="\n")
+        writer.writeheader()
+        for p in points:
+            base = {"case": p["case"], "scene": p["scene"], "start_load": p["start_load"],
+                    "load": p["load"], "load_units": p["load_units"], "solver": p["solver"],
+                    "method": p["method"], "label": p["label"], "precision": p["precision"],
+                    "masses": p["masses"], "damping": p["damping"],
+                    "damping_coefficient": p["damping_coefficient"],
+                    "damping_coefficient_units": "1/s" if p["damping_coefficient"] != "" else "",
+                    "safety": p["safety"], "tolerance": p["tolerance"], "tolerance_units": "N",
+                    "status": p["status"]}
+            for quantity, (units, key) in QUANTITIES.items():
+                if p.get(key) is None:
+                    continue
+                if quantity.startswith("end_error"):
+                    quantity = f"{p['end_quantity']}_{quantity[4:]}"
+                units = end_units[p["case"]] if units is None else units
+                row = dict(base, quantity=quantity, value=p[key], units=units)
+                writer.writerow({k: _csv_value(v) for k, v in row.items()})
+    return path
+
+
+def _plain(value):
+    """JSON-ready: numpy scalars to Python, non-finite floats to None."""
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple, set)):
+        return [_plain(v) for v in value]
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def _write_json(path: Path, data) -> Path:
+    path.write_text(json.dumps(_plain(data), indent=1) + "\n")
+    return path
+
+
+def _write_text(path: Path, text: str) -> Path:
+    path.write_text(text)
+    return path
+
+
+def _ms(seconds: float) -> str:
+    return f"{1e3 * seconds:.3g} ms"
+
+
+def _cell(point: dict | None, cost: str) -> str:
+    if point is None:
+        return "none reaches it"
+    amount = _ms(point["wall_time_s"]) if cost == "wall_time_s" else \
+        f"{point['force_evaluations']} evaluations, {_ms(point['wall_time_s'])}"
+    return (f"{point['label']}, tol {point['tolerance']:.0e} N: {amount} "
+            f"(error {point['relative_error']:.1e})")
+
+
+def precision_markdown(summary: dict) -> str:
+    """The cases, the cheapest methods per target, and the notes, as markdown."""
+    lines = ["## Precision: error against cost", ""]
+    m = summary["machine"]
+    plan = summary["plan"]
+    lines += [f"Plan `{plan['name']}` on {m['machine']}, {m['cpus']} CPUs, Python "
+              f"{m['python']}. Relative error: the largest node position error / A_wa (L for "
+              f"a straight yarn). Wall "
+              f"time: warm, the fastest of at least {plan['repeats']} timed calls (more, up to "
+              f"{plan['max_repeats']}, until they add up to {plan['min_timed_s']:g} s).", ""]
+    lines += ["### Cases", "",
+              "| case | nodes | reference residual | inf-norm of K^-1 | c_crit | end quantity | "
+              "rounding floor (relative) |", "|---|---|---|---|---|---|---|"]
+    for c in summary["cases"]:
+        norm = c["inverse_stiffness_norm_m_per_N"]
+        crit = c["critical_damping_per_s"]
+        lines.append(
+            f"| {c['title']} | {c['segments'] + 1} | {c['reference_residual_N']:.1e} N | "
+            f"{'-' if norm is None else f'{norm:.3g} m/N'} | "
+            f"{'-' if crit is None else f'{crit:.3g} 1/s'} | "
+            f"{c['end_quantity'].replace('_', ' ')} ({c['end_value']:.4g}) | "
+            f"{c['rounding_floor_relative']:.1e} |")
+    lines += ["", "### Cheapest method for a relative error", "",
+              "The cheapest dynamic solve whose error is at most the target, beside the static "
+              "Newton solve at the scene's tolerance and to the rounding floor (the reference "
+              "itself), and the cheapest L-BFGS-B solve reaching the target.", "",
+              "| case | target | by wall time | by force evaluations | static Newton "
+              "(tolerance / floor) | L-BFGS-B |", "|---|---|---|---|---|---|"]
+    for row in summary["cheapest"]:
+        static, reference, lbfgs = row["static_newton"], row["static_reference"], row["lbfgs"]
+        lbfgs_text = ("not run (no scipy)" if not summary["scipy"]["available"] else
+                      "none reaches it" if lbfgs is None else
+                      f"{_ms(lbfgs['wall_time_s'])}, gtol {lbfgs['tolerance']:.0e} N")
+        lines.append(f"| {row['title']} | {row['target']:.0e} | "
+                     f"{_cell(row['by_wall_time'], 'wall_time_s')} | "
+                     f"{_cell(row['by_force_evaluations'], 'force_evaluations')} | "
+                     f"{_ms(static['wall_time_s'])} / {_ms(reference['wall_time_s'])} | "
+                     f"{lbfgs_text} |")
+    lines += ["", "### One setting for every case", "",
+              "The (method, tolerance) of least total wall time among those reaching the target "
+              "in every case:", "",
+              "| target | method | tolerance | total wall time | total force evaluations | "
+              "worst error | static Newton, total |", "|---|---|---|---|---|---|---|"]
+    for row in summary["one_setting"]:
+        best = row["best"]
+        static = _ms(row["static_newton_total_wall_time_s"])
+        if best is None:
+            lines.append(f"| {row['target']:.0e} | none reaches it in every case | | | | | "
+                         f"{static} |")
+            continue
+        lines.append(f"| {row['target']:.0e} | {best['label']} | {best['tolerance']:.0e} N | "
+                     f"{_ms(best['total_wall_time_s'])} | {best['total_force_evaluations']} | "
+                     f"{best['worst_relative_error']:.1e} | {static} |")
+    lines += ["", "### Notes", ""]
+    if not summary["scipy"]["available"]:
+        lines.append(f"- {SCIPY_MISSING}.")
+    slower = [row["static_speedup"] for row in summary["cheapest"]
+              if row["static_speedup"] is not None]
+    if slower:
+        lines.append(f"- The static Newton solve at the scene's tolerance is {min(slower):.2g} "
+                     f"to {max(slower):.2g} times faster than the cheapest dynamic solve "
+                     "reaching the target; the Pareto fronts drawn are those of the dynamic "
+                     "methods.")
+    lines.append("- End error: " + ("the end force (the reaction P), since the end displacement "
+                                    "is prescribed." if any(c["end_quantity"] == "end_force"
+                                                            for c in summary["cases"])
+                                    else "the end displacement, under force control."))
+    lines.append("- Force evaluations: the dynamic solver's count (semi_implicit also assembles "
+                 "and factors the banded tangent at each); static Newton: iterations + 1 "
+                 "gradients, each with a Hessian and line-search energies; L-BFGS-B: its "
+                 "energy-and-gradient evaluations.")
+    lines.append(f"- Kernel variants used: {'; '.join(summary['kernel_variants'])}.")
+    floor = [p for p in summary["points"] if p["status"] == "rounding_floor"
+             and p["solver"] == "dynamic"]
+    if floor:
+        methods = sorted({p["label"] for p in floor})
+        lines.append(f"- {len(floor)} dynamic solves met their tolerance at the rounding floor "
+                     f"(the residual stopped falling above it): {'; '.join(methods)}.")
+    stalled = [p for p in summary["points"] if p["status"] == "stalled"]
+    if stalled:
+        lines.append(f"- {len(stalled)} L-BFGS-B solves stopped above their gtol (the energy "
+                     "no longer decreases in float64); they are plotted where they stopped.")
+    if summary["failures"]:
+        lines.append(f"- {len(summary['failures'])} solves failed and are left out:")
+        for f in summary["failures"]:
+            lines.append(f"  - {f['case']}, {f['method']}, tol {f['tolerance']:.0e} N: "
+                         f"{f['message']}")
+    outside = [p for p in summary["points"] if p.get("within_bound") is False]
+    lines.append(f"- Position error above the bound ||K^-1||_inf (r + r_ref): {len(outside)} of "
+                 f"{len(_usable(summary['points']))} solves.")
+    return "\n".join(lines) + "\n"
+
+
+# --------------------------------------------------------------------------
+# Figures (matplotlib Figure + Agg, as dynfab.plot).
+
+
+def _save(fig: Figure, path: Path) -> Path:
+    fig.savefig(path, dpi=DPI)
+    return path
+
+
+def _style(ax) -> None:
+    ax.tick_params(labelsize=FONT_SIZE - 1)
+    ax.xaxis.label.set_size(FONT_SIZE)
+    ax.yaxis.label.set_size(FONT_SIZE)
+    ax.title.set_size(FONT_SIZE)
+    ax.grid(True, which="major", alpha=0.3)
+
+
+def _panels(cases: list[dict]):
+    """A figure with one panel per case: scenes in rows, steps in columns."""
+    scenes = list(dict.fromkeys(c["scene"] for c in cases))
+    columns = max(sum(c["scene"] == s for c in cases) for s in scenes)
+    fig = Figure(figsize=(3.3 * columns + 3.2, 2.9 * len(scenes) + 0.6), layout="constrained")
+    fig.set_dpi(DPI)
+    axes = fig.subplots(len(scenes), columns, squeeze=False)
+    where = {}
+    for row, scene in enumerate(scenes):
+        mine = [c for c in cases if c["scene"] == scene]
+        for column, case in enumerate(mine):
+            where[case["case"]] = axes[row, column]
+        for column in range(len(mine), columns):
+            axes[row, column].set_axis_off()
+    return fig, axes, where
+
+
+def _curves(points: list[dict]) -> dict[str, list[dict]]:
+    """Points by method, in legend order, each sorted by tolerance (loosest first)."""
+    order = [*STATIC_STYLES, *METHODS, "lbfgs"]
+    groups: dict[str, list[dict]] = {}
+    for p in _usable(points):
+        groups.setdefault(p["method"], []).append(p)
+    return {key: sorted(groups[key], key=lambda p: -p["tolerance"]) for key in order
+            if key in groups}
+
+
+def _style_of(key: str):
+    if key in STATIC_STYLES:
+        return STATIC_STYLES[key]
+    if key == "lbfgs":
+        return LBFGS_STYLE
+    return METHODS[key].style
+
+
+def _label_of(key: str) -> str:
+    return {"static_reference": "static Newton to the floor\n(the reference)",
+            "static_newton": "static Newton at the\nscene's tolerance",
+            "lbfgs": "scipy L-BFGS-B"}.get(key) or METHODS[key].label
+
+
+def plot_work_precision(summary: dict, cost: str) -> Figure:
+    """Relative error against `cost` (wall time or force evaluations), one panel per case."""
+    cases = summary["cases"]
+    fig, axes, where = _panels(cases)
+    used = {}
+    for case in cases:
+        ax = where[case["case"]]
+        points = [p for p in summary["points"] if p["case"] == case["case"]]
+        floor = case["rounding_floor_relative"]
+        for key, curve in _curves(points).items():
+            colour, marker, line = _style_of(key)
+            x = [p[cost] for p in curve]
+            y = [shown_error(p, floor) for p in curve]
+            size = {"static_reference": 11, "static_newton": 8}.get(key, 4)
+            ax.plot(x, y, color=colour, marker=marker, ls=line or "none", ms=size, lw=1.1,
+                    mfc="white" if key == "lbfgs" else colour, zorder=3)
+            used[key] = True
+        front = pareto_front(points, cost, floor)
+        fx = [p[cost] for p in front]
+        fy = [shown_error(p, floor) for p in front]
+        if fx:
+            ax.plot(fx, fy, drawstyle="steps-post", color="#ffd92f", lw=5, alpha=0.8, zorder=1)
+            ax.plot(fx, fy, ls="none", marker="o", ms=9, mfc="none", mec="#b8860b", mew=1.2,
+                    zorder=4)
+        for target in summary["targets"]:
+            ax.axhline(target, color="0.5", lw=0.7, ls=(0, (4, 3)), zorder=0)
+        ax.axhspan(floor / 10, floor, color="0.88", zorder=0)
+        _log_axes(ax, floor)
+        ax.set_title(case["title"], fontsize=FONT_SIZE)
+        ax.set(xlabel="warm wall time (s)" if cost == "wall_time_s" else "force evaluations (-)",
+               ylabel=f"relative error (max |x - x_ref| / {case['scale_name']})")
+        _style(ax)
+    handles = [Line2D([], [], color=_style_of(k)[0], marker=_style_of(k)[1],
+                      ls=_style_of(k)[2] or "none", ms=8 if k in STATIC_STYLES else 4,
+                      mfc="white" if k == "lbfgs" else _style_of(k)[0], label=_label_of(k))
+               for k in used]
+    handles += [Line2D([], [], color="#ffd92f", lw=5, alpha=0.8, marker="o", ms=9, mfc="none",
+                       mec="#b8860b", label="Pareto front of\nthe dynamic methods"),
+                Line2D([], [], color="0.5", lw=0.7, ls=(0, (4, 3)),
+                       label="targets 1e-3, 1e-5, 1e-7"),
+                Line2D([], [], color="0.88", lw=6, label="below the position\nrounding floor")]
+    fig.legend(handles=handles, loc="outside right upper", fontsize=FONT_SIZE - 2)
+    what = "warm wall time" if cost == "wall_time_s" else "force evaluations"
+    fig.suptitle(f"Work-precision: error of one relaxed load step against {what} "
+                 f"(tolerances {_tolerance_span(summary)})", fontsize=FONT_SIZE + 1)
+    if not summary["scipy"]["available"]:
+        fig.text(0.005, 0.005, "L-BFGS-B left out: scipy is not installed",
+                 fontsize=FONT_SIZE - 2, color="0.3")
+    return fig
+
+
+def _log_axes(ax, floor: float) -> None:
+    """Log-log axes, minor ticks unlabelled, the error axis from just below the floor."""
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.xaxis.set_minor_formatter(NullFormatter())
+    ax.yaxis.set_minor_formatter(NullFormatter())
+    ax.set_ylim(floor / 3, None)
+
+
+def _tolerance_span(summary: dict) -> str:
+    tolerances = summary["plan"]["tolerances_N"] + summary["plan"]["float32_tolerances_N"]
+    return f"{max(tolerances):.0e} to {min(tolerances):.0e} N"
+
+
+def plot_error_vs_residual(summary: dict) -> Figure:
+    """Relative error against the float64 residual, with the bound ||K^-1||_inf (r + r_ref)."""
+    cases = summary["cases"]
+    fig, axes, where = _panels(cases)
+    used = {}
+    for case in cases:
+        ax = where[case["case"]]
+        points = [p for p in summary["points"] if p["case"] == case["case"]]
+        floor = case["rounding_floor_relative"]
+        residuals = []
+        for key, curve in _curves(points).items():
+            colour, marker, _ = _style_of(key)
+            x = [p["residual_N"] for p in curve]
+            residuals += x
+            ax.plot(x, [shown_error(p, floor) for p in curve], color=colour, marker=marker,
+                    ls="none", ms=9 if key in STATIC_STYLES else 4,
+                    mfc="white" if key == "lbfgs" else colour, zorder=3)
+            used[key] = True
+        norm = case["inverse_stiffness_norm_m_per_N"]
+        if norm is not None and residuals:
+            r = np.geomspace(max(min(residuals), 1e-16), max(residuals) * 2, 50)
+            ax.plot(r, norm * (r + case["reference_residual_N"]) / case["scale_m"], color="k",
+                    lw=1.0, ls="--", zorder=2)
+        ax.axhspan(floor / 10, floor, color="0.88", zorder=0)
+        _log_axes(ax, floor)
+        ax.set_title(case["title"], fontsize=FONT_SIZE)
+        ax.set(xlabel="force residual, float64 (N)",
+               ylabel=f"relative error (max |x - x_ref| / {case['scale_name']})")
+        _style(ax)
+    handles = [Line2D([], [], color=_style_of(k)[0], marker=_style_of(k)[1], ls="none",
+                      ms=8 if k in STATIC_STYLES else 4,
+                      mfc="white" if k == "lbfgs" else _style_of(k)[0], label=_label_of(k))
+               for k in used]
+    handles += [Line2D([], [], color="k", lw=1.0, ls="--",
+                       label="bound ||K^-1||_inf (r + r_ref),\nrelative"),
+                Line2D([], [], color="0.88", lw=6, label="below the position\nrounding floor")]
+    fig.legend(handles=handles, loc="outside right upper", fontsize=FONT_SIZE - 2)
+    fig.suptitle("Position error left by a force residual: every solve, with its bound",
+                 fontsize=FONT_SIZE + 1)
+    return fig
