@@ -77,8 +77,9 @@ def _total_energy(pos, yarn, P, anchors, friction_limit, terms):
 
 @numba.njit(cache=True)
 def _line_search(pos, direction, slope, residual, yarn, P, anchors, friction_limit, fixed,
-                 trial, grad, terms):
-    """Backtrack on the energy (F_T frozen) from step 1; returns the accepted step or 0.
+                 trial, grad, terms, halvings):
+    """Backtrack on the energy (F_T frozen) from step 1, at most `halvings` times; returns the
+    accepted step or 0.
 
     Armijo: E(t) <= E(0) + 1e-4 t slope. Where |E(t) - E(0)| is within the rounding
     of the energy sum, the energy cannot judge: accept if the residual falls.
@@ -87,7 +88,7 @@ def _line_search(pos, direction, slope, residual, yarn, P, anchors, friction_lim
     rounding = 64.0 * EPS * (np.abs(terms).sum() + abs(P) * abs(pos[-1, 0]))
     d = direction.reshape(pos.shape)
     t = 1.0
-    for _ in range(60):
+    for _ in range(halvings):
         trial[:, :] = pos + t * d
         e1 = _total_energy(trial, yarn, P, anchors, friction_limit, terms)
         if e1 - e0 <= 1e-4 * t * slope:
@@ -147,8 +148,10 @@ def newton(pos, yarn, P, fixed, anchors, tolerance, max_iterations, info):
             assembly.hessian(pos, yarn, anchors, friction_limit, tangent, False, band, cut)
             info[DETAIL] = _shifted_direction(band, work, grad, fixed, direction)
             slope = np.dot(grad.ravel(), direction)
+        # At the rounding floor a Newton step can only be lost in rounding: a few halvings
+        # tell, sixty would only cost time.
         t = _line_search(pos, direction, slope, residual, yarn, P, anchors, friction_limit,
-                         fixed, trial, grad, terms)
+                         fixed, trial, grad, terms, 8 if residual <= floor else 60)
         if t == 0.0:
             info[STATUS] = ROUNDING_FLOOR if residual <= floor else STALLED
             return
