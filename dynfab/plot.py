@@ -54,34 +54,35 @@ def plot_results(path: str | os.PathLike, out_dir: str | os.PathLike) -> list[Pa
             raise SceneError(f"result file '{path}' lacks dataset steps/{key}")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    written = [_save(plot_traction(results, path), out / "traction.png")]
+    written = [save_png(plot_traction(results, path), out / "traction.png")]
     if crossing_count(results) > 0 and "contact_force" in results.steps:
-        written.append(_save(plot_contact_force(results), out / "contact_force.png"))
-    written.append(_save(plot_shape(results, path), out / "shape.png"))
+        written.append(save_png(plot_contact_force(results), out / "contact_force.png"))
+    written.append(save_png(plot_shape(results, path), out / "shape.png"))
     if has_friction(results):
-        written.append(_save(plot_friction(results), out / "friction.png"))
+        written.append(save_png(plot_friction(results), out / "friction.png"))
     return written
 
 
-def _save(fig: Figure, path: Path) -> Path:
+def save_png(fig: Figure, path: Path) -> Path:
     """Save ``fig`` as a PNG at ``path`` and return the path."""
     fig.savefig(path, dpi=DPI)
     return path
 
 
-def _figure(width: float, height: float) -> Figure:
+def new_figure(width: float, height: float) -> Figure:
     """A new figure of the given size [in] with the report font size."""
     fig = Figure(figsize=(width, height), layout="constrained")
     fig.set_dpi(DPI)
     return fig
 
 
-def _style(ax) -> None:
-    """Apply the common axis style (font sizes, grid)."""
-    ax.tick_params(labelsize=FONT_SIZE)
+def style_axes(ax, *, tick_size: float = FONT_SIZE, title_size: float = FONT_SIZE + 1) -> None:
+    """Apply the common axis style (font sizes, grid); `tick_size` and `title_size` let a
+    report keep its own tick-label and title sizes."""
+    ax.tick_params(labelsize=tick_size)
     ax.xaxis.label.set_size(FONT_SIZE)
     ax.yaxis.label.set_size(FONT_SIZE)
-    ax.title.set_size(FONT_SIZE + 1)
+    ax.title.set_size(title_size)
     ax.grid(True, alpha=0.3)
 
 
@@ -144,7 +145,7 @@ def plot_traction(results: Results, path="") -> Figure:
     width = 1.0 if rod else _attr(results, "width_per_yarn", path)
     force = _per_yarn(results, "end_force")
     displacement = _per_yarn(results, "end_displacement")
-    fig = _figure(7.0, 3.0)
+    fig = new_figure(7.0, 3.0)
     left, right = fig.subplots(1, 2)
     for k, label in enumerate(yarn_labels(results)):
         left.plot(100 * displacement[:, k] / length, force[:, k] / width, "o-", ms=3, label=label)
@@ -152,7 +153,7 @@ def plot_traction(results: Results, path="") -> Figure:
     left.set(xlabel="strain (%)", ylabel="end force P (N)" if rod else "force per unit width (N/m)")
     right.set(xlabel="end displacement (mm)", ylabel="end force P (N)")
     for ax in (left, right):
-        _style(ax)
+        style_axes(ax)
         _legend(ax)
     _suptitle(fig, results, "traction")
     return fig
@@ -163,13 +164,13 @@ def plot_contact_force(results: Results) -> Figure:
     contact = np.asarray(results.steps["contact_force"], dtype=float)
     contact = contact.reshape(results.step_count, -1, contact.shape[-1])
     displacement = 1e3 * _per_yarn(results, "end_displacement")
-    fig = _figure(5.0, 3.5)
+    fig = new_figure(5.0, 3.5)
     ax = fig.subplots()
     for k, label in enumerate(yarn_labels(results)):
         (line,) = ax.plot(displacement[:, k], contact[:, k].max(axis=1), "o-", ms=3, label=label)
         ax.plot(displacement[:, k], contact[:, k].mean(axis=1), "--", color=line.get_color())
     ax.set(xlabel="end displacement (mm)", ylabel="contact force (N)")
-    _style(ax)
+    style_axes(ax)
     handles = ax.get_legend_handles_labels()[0] + [
         Line2D([], [], color="k", ls="-", label="max over crossings"),
         Line2D([], [], color="k", ls="--", label="mean over crossings"),
@@ -187,21 +188,21 @@ def shape_steps(step_count: int) -> list[int]:
 def _plot_transient(results: Results, out: Path) -> list[Path]:
     """A transient run's figures: energies against time, shapes at a few frames."""
     out.mkdir(parents=True, exist_ok=True)
-    return [_save(plot_energy_history(results), out / "energy.png"),
-            _save(plot_frame_shapes(results), out / "shape.png")]
+    return [save_png(plot_energy_history(results), out / "energy.png"),
+            save_png(plot_frame_shapes(results), out / "shape.png")]
 
 
 def plot_energy_history(results: Results) -> Figure:
     """Every frames/energy/<term> [J] of the first yarn against time [ms]."""
     time_ms = 1e3 * np.asarray(results.frames["time"], dtype=float)
-    fig = _figure(6.0, 3.2)
+    fig = new_figure(6.0, 3.2)
     ax = fig.subplots()
     for name, value in results.frames.items():
         if name.startswith("energy/"):
             energy = np.asarray(value, dtype=float).reshape(time_ms.size, -1)[:, 0]
             ax.plot(time_ms, energy, label=name.split("/", 1)[1])
     ax.set(xlabel="time (ms)", ylabel="energy (J)")
-    _style(ax)
+    style_axes(ax)
     _legend(ax)
     _suptitle(fig, results, f"energies of {yarn_labels(results)[0]}")
     return fig
@@ -212,7 +213,7 @@ def plot_frame_shapes(results: Results) -> Figure:
     time_ms = 1e3 * np.asarray(results.frames["time"], dtype=float)
     positions = np.asarray(results.frames["positions"], dtype=float)
     nodes = np.asarray(results.reference.get("crossing_nodes", []), dtype=int).ravel()
-    fig = _figure(7.0, 3.2)
+    fig = new_figure(7.0, 3.2)
     ax = fig.subplots()
     ref = np.asarray(results.reference["positions"], dtype=float)[0]
     ax.plot(1e3 * ref[:, 0], 1e3 * ref[:, 1], "--", color="0.5", lw=1, label="as woven")
@@ -224,7 +225,7 @@ def plot_frame_shapes(results: Results) -> Figure:
         if nodes.size:
             ax.plot(xz[nodes, 0], xz[nodes, 1], "o", color=color, ms=4)
     ax.set(xlabel="x (mm)", ylabel="z (mm, exaggerated)")
-    _style(ax)
+    style_axes(ax)
     _legend(ax, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
     _suptitle(fig, results, f"shape of {yarn_labels(results)[0]} (z exaggerated; dots: crossings)")
     return fig
@@ -236,7 +237,7 @@ def plot_shape(results: Results, path="") -> Figure:
     positions = positions.reshape(results.step_count, -1, *positions.shape[-2:])
     nodes = np.asarray(results.reference.get("crossing_nodes", []), dtype=int).ravel()
     sliding = results.steps.get("sliding")
-    fig = _figure(7.0, 3.2)
+    fig = new_figure(7.0, 3.2)
     ax = fig.subplots()
     reference = results.reference.get("positions")
     if reference is not None:
@@ -269,7 +270,7 @@ def plot_shape(results: Results, path="") -> Figure:
                                   label="sliding crossing"))
     ax.set(xlabel="x (mm)", ylabel="z (mm, exaggerated)")
     ax.set_aspect("auto")
-    _style(ax)
+    style_axes(ax)
     _legend(ax, handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
     labels = yarn_labels(results)
     _suptitle(fig, results, f"shape of {labels[0]} (z exaggerated)")
@@ -297,7 +298,7 @@ def plot_friction(results: Results) -> Figure:
     """Categorical image of the first yarn's friction state: crossing index vs load step."""
     states = friction_states(results)
     steps, count = states.shape
-    fig = _figure(6.0, 3.5)
+    fig = new_figure(6.0, 3.5)
     ax = fig.subplots()
     cmap = ListedColormap([color for _, color in FRICTION_STATES])
     norm = BoundaryNorm(np.arange(len(FRICTION_STATES) + 1) - 0.5, cmap.N)
@@ -313,7 +314,7 @@ def plot_friction(results: Results) -> Figure:
     ax.set(xlabel="load step", ylabel="crossing index")
     ax.xaxis.get_major_locator().set_params(integer=True)
     ax.yaxis.get_major_locator().set_params(integer=True)
-    _style(ax)
+    style_axes(ax)
     ax.grid(False)
     handles = [Patch(facecolor=color, edgecolor="k", label=name) for name, color in FRICTION_STATES]
     ax.legend(handles=handles, fontsize=FONT_SIZE - 1, loc="upper left",

@@ -42,11 +42,6 @@ steps: a few seconds. Errors for user mistakes are `SceneError`s.
 
 from __future__ import annotations
 
-import csv
-import json
-import math
-import os
-import platform
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -59,7 +54,8 @@ from matplotlib.lines import Line2D
 from dynfab import assembly
 from dynfab.errors import SceneError
 from dynfab.model import build_model
-from dynfab.plot import DPI, FONT_SIZE
+from dynfab.plot import DPI, FONT_SIZE, save_png, style_axes
+from dynfab.reports.common import machine, output_folder, write_csv, write_json, write_text
 from dynfab.run import run
 from dynfab.scene import Load, Scene, expand_sweep, load_scene, validate_scene, with_key
 
@@ -137,7 +133,7 @@ def run_convergence(out_dir, *, quick: bool = False,
     `progress` receives one line per solve (None: silent). Raises SceneError when
     `out_dir` cannot be a folder or the paper scenes are missing.
     """
-    out = _output_folder(out_dir)
+    out = output_folder(out_dir)
     plan = QUICK if quick else FULL
     started = time.perf_counter()
     scenes = paper_scenes(plan)
@@ -157,12 +153,13 @@ def run_convergence(out_dir, *, quick: bool = False,
         "studies": studies,
         "eq27": solver.friction_check(),
     }
-    files = [_write_csv(out / f"{name}.csv", study_rows) for name, study_rows in rows.items()]
-    files.append(_write_orders(out / "orders.md", summary))
-    files += [_save(plot_study(name, studies[name]), out / f"{name}.png") for name in rows]
+    files = [write_csv(out / f"{name}.csv", CSV_COLUMNS, study_rows)
+             for name, study_rows in rows.items()]
+    files.append(write_text(out / "orders.md", orders_markdown(summary)))
+    files += [save_png(plot_study(name, studies[name]), out / f"{name}.png") for name in rows]
     summary["wall_time_s"] = time.perf_counter() - started
     summary["files"] = [str(path) for path in files] + [str(out / "summary.json")]
-    (out / "summary.json").write_text(json.dumps(_plain(summary), indent=1) + "\n")
+    write_json(out / "summary.json", summary)
     return summary
 
 
@@ -432,37 +429,6 @@ def order_of(p: np.ndarray, q: np.ndarray, expected: float) -> dict:
 # Files.
 
 
-def _output_folder(out_dir) -> Path:
-    """`out_dir` as an existing folder (created if needed); SceneError if it cannot be."""
-    if out_dir is None or str(out_dir) == "":
-        raise SceneError("--out: give a folder for the report's files")
-    out = Path(out_dir)
-    if out.exists() and not out.is_dir():
-        raise SceneError(f"--out '{out}' is a file, not a folder")
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise SceneError(f"cannot create the folder '{out}': {exc.strerror}") from None
-    if not os.access(out, os.W_OK):
-        raise SceneError(f"cannot write into the folder '{out}'")
-    return out
-
-
-def machine() -> dict:
-    """What the report ran on: `uname -m`, `nproc`, the Python version."""
-    return {"machine": platform.machine(), "cpus": os.cpu_count(),
-            "python": platform.python_version(), "platform": platform.platform()}
-
-
-def _write_csv(path: Path, rows: list[dict]) -> Path:
-    with path.open("w", newline="") as handle:
-        writer = csv.DictWriter(handle, fieldnames=CSV_COLUMNS, lineterminator="\n")
-        writer.writeheader()
-        for row in rows:
-            writer.writerow({k: repr(v) if isinstance(v, float) else v for k, v in row.items()})
-    return path
-
-
 def _show_order(value) -> str:
     return "-" if value is None else f"{value:.2f}"
 
@@ -512,39 +478,8 @@ def orders_markdown(summary: dict) -> str:
     return "\n".join(lines)
 
 
-def _write_orders(path: Path, summary: dict) -> Path:
-    path.write_text(orders_markdown(summary))
-    return path
-
-
-def _plain(value):
-    """JSON-ready: numpy scalars to Python, non-finite floats to None."""
-    if isinstance(value, dict):
-        return {k: _plain(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_plain(v) for v in value]
-    if isinstance(value, np.generic):
-        value = value.item()
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
-
-
 # --------------------------------------------------------------------------
 # Figures (matplotlib Figure + Agg, as dynfab.plot).
-
-
-def _save(fig: Figure, path: Path) -> Path:
-    fig.savefig(path, dpi=DPI)
-    return path
-
-
-def _style(ax) -> None:
-    ax.tick_params(labelsize=FONT_SIZE)
-    ax.xaxis.label.set_size(FONT_SIZE)
-    ax.yaxis.label.set_size(FONT_SIZE)
-    ax.title.set_size(FONT_SIZE)
-    ax.grid(True, alpha=0.3)
 
 
 def _parameter_text(study: str, value: float) -> str:
@@ -602,7 +537,7 @@ def plot_study(study: str, analysis: dict) -> Figure:
             ax.set_xticks([], minor=True)
         ax.set(xlabel=xlabel, ylabel=f"|{label} - finest| ({units})")
         ax.set_title(label, fontsize=FONT_SIZE)
-        _style(ax)
+        style_axes(ax, title_size=FONT_SIZE)
     handles = [Line2D([], [], color=colors[load], marker="o", label=f"u = {_load_mm(load)}")
                for load in loads]
     if len(scenes) > 1:

@@ -44,12 +44,11 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import platform
 import re
 import time
 import tomllib
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Callable
 
@@ -65,7 +64,9 @@ from dynfab import assembly
 from dynfab.banded import BANDWIDTH, constrain, lu_factor, lu_solve, zeros_band
 from dynfab.errors import SceneError
 from dynfab.model import build_model
-from dynfab.plot import DPI, FRICTION_STATES
+from dynfab.plot import DPI, FONT_SIZE, FRICTION_STATES, new_figure
+from dynfab.plot import style_axes as _plot_style
+from dynfab.reports.common import machine, output_folder, write_json
 from dynfab.results import Results, dynfab_version, read_results
 from dynfab.run import run
 from dynfab.scene import Scene, expand_sweep, load_scene, parse_scene_text
@@ -122,7 +123,7 @@ def run_figures(out_dir, *, quick: bool = False,
     "wall_time_s". `progress` receives one line per solve and one per trend (None: silent).
     """
     started = time.perf_counter()
-    out = _output_folder(out_dir)
+    out = output_folder(out_dir)
     plan = QUICK if quick else FULL
     solves = []
     for name, scene in paper_scenes(plan).items():
@@ -150,7 +151,7 @@ def run_figures(out_dir, *, quick: bool = False,
     summary["files"] = [str(out / result_name(n, s)) for n in FIGURES for s in SOLVERS]
     summary["files"] += [str(p) for p in figures] + [str(out / "trends.json")]
     summary["wall_time_s"] = time.perf_counter() - started
-    (out / "trends.json").write_text(json.dumps(_plain(summary), indent=1) + "\n")
+    write_json(out / "trends.json", summary)
     return summary
 
 
@@ -646,18 +647,8 @@ def draw_figures(out_dir, data=None) -> list[Path]:
     return written
 
 
-def _figure(width_in: float, height_in: float) -> Figure:
-    fig = Figure(figsize=(width_in, height_in), layout="constrained")
-    fig.set_dpi(DPI)
-    return fig
-
-
-def _style(ax) -> None:
-    ax.tick_params(labelsize=FONT)
-    ax.xaxis.label.set_size(9)
-    ax.yaxis.label.set_size(9)
-    ax.title.set_size(9)
-    ax.grid(True, alpha=0.3)
+# dynfab.plot's axis style with this report's tick labels (FONT) and titles (9 pt)
+style_axes = partial(_plot_style, tick_size=FONT, title_size=FONT_SIZE)
 
 
 def _title(fig: Figure, results: Results, what: str) -> None:
@@ -694,7 +685,7 @@ def plot_fig3a(data) -> Figure:
     order = _k_order(static)
     K = kawabata_K(static)
     middle = order[len(order) // 2]
-    fig = _figure(7.0, 3.2)
+    fig = new_figure(7.0, 3.2)
     left, right = fig.subplots(1, 2)
     colors = _k_colors(len(order))
     es, ed = strain_percent(static), strain_percent(dynamic)
@@ -709,7 +700,7 @@ def plot_fig3a(data) -> Figure:
     right.set(xlabel="strain (%)", ylabel=f"difference from K = {K[middle]:g} m/N (N/m)",
               title="(a') the K effect")
     for ax in (left, right):
-        _style(ax)
+        style_axes(ax)
     handles = left.get_legend_handles_labels()[0] + _solver_handles()
     fig.legend(handles=handles, fontsize=FONT, loc="outside lower center", ncol=len(handles),
                frameon=False, handletextpad=0.4, columnspacing=1.2)
@@ -721,7 +712,7 @@ def plot_fig3b(data) -> Figure:
     """Fig. 3b: contact force (mean over the crossings) against end displacement, each K."""
     static, dynamic = _pair(data, "fig3")
     order, K = _k_order(static), kawabata_K(static)
-    fig = _figure(3.5, 3.9)
+    fig = new_figure(3.5, 3.9)
     ax = fig.subplots()
     us, ud = 1e3 * static.steps["end_displacement"], 1e3 * dynamic.steps["end_displacement"]
     Rs, Rd = mean_contact_force(static), mean_contact_force(dynamic)
@@ -729,7 +720,7 @@ def plot_fig3b(data) -> Figure:
         _overlay(ax, us[:, k], 1e3 * Rs[:, k], ud[:, k], 1e3 * Rd[:, k], color, f"K = {K[k]:g} m/N")
     ax.set(xlabel="extension: end displacement (mm)",
            ylabel="contact force R (mN)\n(mean over the crossings)")
-    _style(ax)
+    style_axes(ax)
     ax.legend(handles=ax.get_legend_handles_labels()[0] + _solver_handles(), fontsize=FONT,
               loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=2, frameon=False,
               columnspacing=1.0, handletextpad=0.4)
@@ -746,7 +737,7 @@ def plot_fig5(data) -> Figure:
     friction limits."""
     static, dynamic = _pair(data, "fig5")
     on, off = _friction_split(static)
-    fig = _figure(7.0, 3.0)
+    fig = new_figure(7.0, 3.0)
     left, right = fig.subplots(1, 2)
     es, ed = strain_percent(static), strain_percent(dynamic)
     qs, qd = force_per_width(static), force_per_width(dynamic)
@@ -769,7 +760,7 @@ def plot_fig5(data) -> Figure:
     right.set(xlabel="strain (%)", ylabel="gap in force per unit width (N/m)",
               title="(b) the friction gap")
     for ax in (left, right):
-        _style(ax)
+        style_axes(ax)
     left.legend(handles=left.get_legend_handles_labels()[0] + _solver_handles(), fontsize=FONT,
                 loc="upper left")
     right.legend(fontsize=FONT, loc="lower right")
@@ -819,7 +810,7 @@ def plot_shapes(data) -> Figure:
     exaggeration = _round_1(SNAPSHOT_HEIGHT * len(snapshots) * (xlim[1] - xlim[0])
                             / (axes_width * (ylim[1] - ylim[0])))
     axes_height = (ylim[1] - ylim[0]) * exaggeration * axes_width / (xlim[1] - xlim[0])
-    fig = _figure(7.0, axes_height + 1.25)
+    fig = new_figure(7.0, axes_height + 1.25)
     ax = fig.subplots()
     offsets, labels, shown = [], [], set()
     for n, (step, xz, xz_dynamic) in enumerate(snapshots):
@@ -882,7 +873,7 @@ def plot_friction_states(data) -> Figure:
     u = 1e3 * static.steps["end_displacement"][:, on]
     du = u[0]
     crossings = codes.shape[1]
-    fig = _figure(7.0, 3.0)
+    fig = new_figure(7.0, 3.0)
     whole, zoom = fig.subplots(1, 2, sharey=True, width_ratios=(1.0, 1.0))
     cmap = ListedColormap([color for _, color in FRICTION_STATES])
     norm = BoundaryNorm(np.arange(len(FRICTION_STATES) + 1) - 0.5, cmap.N)
@@ -890,7 +881,7 @@ def plot_friction_states(data) -> Figure:
         ax.imshow(codes.T, cmap=cmap, norm=norm, origin="lower", aspect="auto",
                   interpolation="nearest",
                   extent=(u[0] - du / 2, u[-1] + du / 2, 0.5, crossings + 0.5))
-        _style(ax)
+        style_axes(ax)
         ax.grid(False)
         ax.set_xlabel("end displacement (mm)")
     settled = np.flatnonzero((codes == 2).all(axis=1))
@@ -912,42 +903,3 @@ def plot_friction_states(data) -> Figure:
                  f"static and dynamic differ at {mismatches} crossing-steps")
     _title(fig, static, f"Friction state along the friction yarn of Fig. 5 ({agreement})")
     return fig
-
-
-# --------------------------------------------------------------------------
-# Files and machine.
-
-
-def _output_folder(out_dir) -> Path:
-    """`out_dir` as an existing folder (created if needed); SceneError if it cannot be."""
-    if out_dir is None or str(out_dir) == "":
-        raise SceneError("--out: give a folder for the report's files")
-    out = Path(out_dir)
-    if out.exists() and not out.is_dir():
-        raise SceneError(f"--out '{out}' is a file, not a folder")
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise SceneError(f"cannot create the folder '{out}': {exc.strerror}") from None
-    if not os.access(out, os.W_OK):
-        raise SceneError(f"cannot write into the folder '{out}'")
-    return out
-
-
-def machine() -> dict:
-    """What the report ran on: `uname -m`, `nproc`, the Python version."""
-    return {"machine": platform.machine(), "cpus": os.cpu_count(),
-            "python": platform.python_version(), "platform": platform.platform()}
-
-
-def _plain(value):
-    """JSON-ready: numpy scalars to Python, non-finite floats to None."""
-    if isinstance(value, dict):
-        return {k: _plain(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_plain(v) for v in value]
-    if isinstance(value, np.generic):
-        value = value.item()
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value

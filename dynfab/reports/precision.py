@@ -68,13 +68,9 @@ kinetic and semi_implicit with friction). Errors for user mistakes are `SceneErr
 from __future__ import annotations
 
 import contextlib
-import csv
 import ctypes
 import importlib.util
-import json
 import math
-import os
-import platform
 import time
 import warnings
 from dataclasses import dataclass, field, replace
@@ -92,7 +88,8 @@ from dynfab.dynamic import DynamicSolver
 from dynfab.errors import SceneError, SolverError
 from dynfab.model import Model, State, build_model, initial_state
 from dynfab.observables import finish_step
-from dynfab.plot import DPI, FONT_SIZE
+from dynfab.plot import DPI, FONT_SIZE, save_png, style_axes
+from dynfab.reports.common import machine, output_folder, write_csv, write_json, write_text
 from dynfab.scene import Dynamic, Scene, expand_sweep, load_scene, with_key
 from dynfab.static import StaticSolver, max_free, prescribe_load
 
@@ -246,7 +243,7 @@ def run_precision(out_dir, *, quick: bool = False, progress: Callable[[str], Non
     quick/full plan (tests). `progress` receives one line per (case, method).
     """
     started = time.perf_counter()
-    out = _output_folder(out_dir)
+    out = output_folder(out_dir)
     plan = plan or (QUICK if quick else FULL)
     with_scipy = scipy_available()
     scenes = _scenes(scene, plan)
@@ -277,18 +274,18 @@ def run_precision(out_dir, *, quick: bool = False, progress: Callable[[str], Non
         "points": points,
         "solve_time_s": study.solve_time,
     }
-    files = [_write_csv(out / "points.csv", points, cases)]
+    files = [write_csv(out / "points.csv", CSV_COLUMNS, csv_rows(points, cases))]
     cheapest = {key: summary[key] for key in ("targets", "cheapest", "one_setting", "scipy")}
-    files.append(_write_json(out / "cheapest.json", cheapest))
-    files.append(_write_text(out / "precision.md", precision_markdown(summary)))
-    files.append(_save(plot_work_precision(summary, "wall_time_s"),
+    files.append(write_json(out / "cheapest.json", cheapest))
+    files.append(write_text(out / "precision.md", precision_markdown(summary)))
+    files.append(save_png(plot_work_precision(summary, "wall_time_s"),
                        out / "work_precision_time.png"))
-    files.append(_save(plot_work_precision(summary, "force_evaluations"),
+    files.append(save_png(plot_work_precision(summary, "force_evaluations"),
                        out / "work_precision_evaluations.png"))
-    files.append(_save(plot_error_vs_residual(summary), out / "error_vs_residual.png"))
+    files.append(save_png(plot_error_vs_residual(summary), out / "error_vs_residual.png"))
     summary["wall_time_s"] = time.perf_counter() - started
     summary["files"] = [str(path) for path in files] + [str(out / "summary.json")]
-    _write_json(out / "summary.json", summary)
+    write_json(out / "summary.json", summary)
     return summary
 
 
@@ -931,28 +928,6 @@ def one_setting_table(points: list[dict], cases: list[Case]) -> list[dict]:
 # Files.
 
 
-def _output_folder(out_dir) -> Path:
-    """`out_dir` as an existing folder (created if needed); SceneError if it cannot be."""
-    if out_dir is None or str(out_dir) == "":
-        raise SceneError("--out: give a folder for the report's files")
-    out = Path(out_dir)
-    if out.exists() and not out.is_dir():
-        raise SceneError(f"--out '{out}' is a file, not a folder")
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise SceneError(f"cannot create the folder '{out}': {exc.strerror}") from None
-    if not os.access(out, os.W_OK):
-        raise SceneError(f"cannot write into the folder '{out}'")
-    return out
-
-
-def machine() -> dict:
-    """What the report ran on: `uname -m`, `nproc`, the Python version."""
-    return {"machine": platform.machine(), "cpus": os.cpu_count(),
-            "python": platform.python_version(), "platform": platform.platform()}
-
-
 def _plan_dict(plan: Plan) -> dict:
     return {"name": plan.name, "crossings": plan.crossings, "segments": plan.segments,
             "tolerances_N": list(plan.tolerances),
@@ -965,59 +940,25 @@ def _plan_dict(plan: Plan) -> dict:
             "reference_tolerance_N": REFERENCE_TOLERANCE}
 
 
-def _csv_value(value):
-    if isinstance(value, float):
-        return repr(value)
-    return "" if value is None else value
-
-
-def _write_csv(path: Path, points: list[dict], cases: list[Case]) -> Path:
+def csv_rows(points: list[dict], cases: list[Case]):
     """Tidy rows: one per (point, quantity) with the point's identifying columns."""
     end_units = {case.key: ("N" if case.end_quantity == "end_force" else "m") for case in cases}
-    with path.open("w", newline="") as handle:
-        writer = csv.DictWriter(handle, fieldnames=CSV_COLUMNS, lineterminator="\n")
-        writer.writeheader()
-        for p in points:
-            base = {"case": p["case"], "scene": p["scene"], "start_load": p["start_load"],
-                    "load": p["load"], "load_units": p["load_units"], "solver": p["solver"],
-                    "method": p["method"], "label": p["label"], "precision": p["precision"],
-                    "masses": p["masses"], "damping": p["damping"],
-                    "damping_coefficient": p["damping_coefficient"],
-                    "damping_coefficient_units": "1/s" if p["damping_coefficient"] != "" else "",
-                    "safety": p["safety"], "tolerance": p["tolerance"], "tolerance_units": "N",
-                    "status": p["status"]}
-            for quantity, (units, key) in QUANTITIES.items():
-                if p.get(key) is None:
-                    continue
-                if quantity.startswith("end_error"):
-                    quantity = f"{p['end_quantity']}_{quantity[4:]}"
-                units = end_units[p["case"]] if units is None else units
-                row = dict(base, quantity=quantity, value=p[key], units=units)
-                writer.writerow({k: _csv_value(v) for k, v in row.items()})
-    return path
-
-
-def _plain(value):
-    """JSON-ready: numpy scalars to Python, non-finite floats to None."""
-    if isinstance(value, dict):
-        return {k: _plain(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple, set)):
-        return [_plain(v) for v in value]
-    if isinstance(value, np.generic):
-        value = value.item()
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
-
-
-def _write_json(path: Path, data) -> Path:
-    path.write_text(json.dumps(_plain(data), indent=1) + "\n")
-    return path
-
-
-def _write_text(path: Path, text: str) -> Path:
-    path.write_text(text)
-    return path
+    for p in points:
+        base = {"case": p["case"], "scene": p["scene"], "start_load": p["start_load"],
+                "load": p["load"], "load_units": p["load_units"], "solver": p["solver"],
+                "method": p["method"], "label": p["label"], "precision": p["precision"],
+                "masses": p["masses"], "damping": p["damping"],
+                "damping_coefficient": p["damping_coefficient"],
+                "damping_coefficient_units": "1/s" if p["damping_coefficient"] != "" else "",
+                "safety": p["safety"], "tolerance": p["tolerance"], "tolerance_units": "N",
+                "status": p["status"]}
+        for quantity, (units, key) in QUANTITIES.items():
+            if p.get(key) is None:
+                continue
+            if quantity.startswith("end_error"):
+                quantity = f"{p['end_quantity']}_{quantity[4:]}"
+            units = end_units[p["case"]] if units is None else units
+            yield dict(base, quantity=quantity, value=p[key], units=units)
 
 
 def _ms(seconds: float) -> str:
@@ -1130,19 +1071,6 @@ def precision_markdown(summary: dict) -> str:
 # Figures (matplotlib Figure + Agg, as dynfab.plot).
 
 
-def _save(fig: Figure, path: Path) -> Path:
-    fig.savefig(path, dpi=DPI)
-    return path
-
-
-def _style(ax) -> None:
-    ax.tick_params(labelsize=FONT_SIZE - 1)
-    ax.xaxis.label.set_size(FONT_SIZE)
-    ax.yaxis.label.set_size(FONT_SIZE)
-    ax.title.set_size(FONT_SIZE)
-    ax.grid(True, which="major", alpha=0.3)
-
-
 def _panels(cases: list[dict]):
     """A figure with one panel per case: scenes in rows, steps in columns."""
     scenes = list(dict.fromkeys(c["scene"] for c in cases))
@@ -1158,6 +1086,24 @@ def _panels(cases: list[dict]):
         for column in range(len(mine), columns):
             axes[row, column].set_axis_off()
     return fig, axes, where
+
+
+def _case_panels(summary: dict):
+    """The figure of `_panels` and, per case, (case, its axes, its points, its rounding floor)."""
+    cases = summary["cases"]
+    fig, _, where = _panels(cases)
+    return fig, [(case, where[case["case"]],
+                  [p for p in summary["points"] if p["case"] == case["case"]],
+                  case["rounding_floor_relative"]) for case in cases]
+
+
+def _finish_panel(ax, case: dict, floor: float, xlabel: str) -> None:
+    """A case's panel after its curves: the rounding-floor band, log axes, title, labels, style."""
+    ax.axhspan(floor / 10, floor, color="0.88", zorder=0)
+    _log_axes(ax, floor)
+    ax.set_title(case["title"], fontsize=FONT_SIZE)
+    ax.set(xlabel=xlabel, ylabel=f"relative error (max |x - x_ref| / {case['scale_name']})")
+    style_axes(ax, tick_size=FONT_SIZE - 1, title_size=FONT_SIZE)
 
 
 def _curves(points: list[dict]) -> dict[str, list[dict]]:
@@ -1186,13 +1132,9 @@ def _label_of(key: str) -> str:
 
 def plot_work_precision(summary: dict, cost: str) -> Figure:
     """Relative error against `cost` (wall time or force evaluations), one panel per case."""
-    cases = summary["cases"]
-    fig, axes, where = _panels(cases)
+    fig, panels = _case_panels(summary)
     used = {}
-    for case in cases:
-        ax = where[case["case"]]
-        points = [p for p in summary["points"] if p["case"] == case["case"]]
-        floor = case["rounding_floor_relative"]
+    for case, ax, points, floor in panels:
         for key, curve in _curves(points).items():
             colour, marker, line = _style_of(key)
             x = [p[cost] for p in curve]
@@ -1210,12 +1152,8 @@ def plot_work_precision(summary: dict, cost: str) -> Figure:
                     zorder=4)
         for target in summary["targets"]:
             ax.axhline(target, color="0.5", lw=0.7, ls=(0, (4, 3)), zorder=0)
-        ax.axhspan(floor / 10, floor, color="0.88", zorder=0)
-        _log_axes(ax, floor)
-        ax.set_title(case["title"], fontsize=FONT_SIZE)
-        ax.set(xlabel="warm wall time (s)" if cost == "wall_time_s" else "force evaluations (-)",
-               ylabel=f"relative error (max |x - x_ref| / {case['scale_name']})")
-        _style(ax)
+        _finish_panel(ax, case, floor, "warm wall time (s)" if cost == "wall_time_s" else
+                      "force evaluations (-)")
     handles = [Line2D([], [], color=_style_of(k)[0], marker=_style_of(k)[1],
                       ls=_style_of(k)[2] or "none", ms=8 if k in STATIC_STYLES else 4,
                       mfc="white" if k == "lbfgs" else _style_of(k)[0], label=_label_of(k))
@@ -1251,13 +1189,9 @@ def _tolerance_span(summary: dict) -> str:
 
 def plot_error_vs_residual(summary: dict) -> Figure:
     """Relative error against the float64 residual, with the bound ||K^-1||_inf (r + r_ref)."""
-    cases = summary["cases"]
-    fig, axes, where = _panels(cases)
+    fig, panels = _case_panels(summary)
     used = {}
-    for case in cases:
-        ax = where[case["case"]]
-        points = [p for p in summary["points"] if p["case"] == case["case"]]
-        floor = case["rounding_floor_relative"]
+    for case, ax, points, floor in panels:
         residuals = []
         for key, curve in _curves(points).items():
             colour, marker, _ = _style_of(key)
@@ -1272,12 +1206,7 @@ def plot_error_vs_residual(summary: dict) -> Figure:
             r = np.geomspace(max(min(residuals), 1e-16), max(residuals) * 2, 50)
             ax.plot(r, norm * (r + case["reference_residual_N"]) / case["scale_m"], color="k",
                     lw=1.0, ls="--", zorder=2)
-        ax.axhspan(floor / 10, floor, color="0.88", zorder=0)
-        _log_axes(ax, floor)
-        ax.set_title(case["title"], fontsize=FONT_SIZE)
-        ax.set(xlabel="force residual, float64 (N)",
-               ylabel=f"relative error (max |x - x_ref| / {case['scale_name']})")
-        _style(ax)
+        _finish_panel(ax, case, floor, "force residual, float64 (N)")
     handles = [Line2D([], [], color=_style_of(k)[0], marker=_style_of(k)[1], ls="none",
                       ms=8 if k in STATIC_STYLES else 4,
                       mfc="white" if k == "lbfgs" else _style_of(k)[0], label=_label_of(k))

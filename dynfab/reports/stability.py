@@ -41,11 +41,7 @@ family, with only the kernel variants the dynamic tests compile (`QUICK_METHODS`
 
 from __future__ import annotations
 
-import csv
-import json
 import math
-import os
-import platform
 import time
 import warnings
 from dataclasses import dataclass, replace
@@ -62,7 +58,8 @@ from dynfab.dynamic import DynamicSolver
 from dynfab.errors import SceneError, SolverError
 from dynfab.kernels import status
 from dynfab.model import build_model, initial_state
-from dynfab.plot import DPI, FONT_SIZE
+from dynfab.plot import DPI, FONT_SIZE, save_png
+from dynfab.reports.common import machine, output_folder, write_csv, write_json, write_text
 from dynfab.scene import Dynamic, Load, Scene, expand_sweep, load_scene, validate_scene, with_key
 from dynfab.static import StaticSolver
 
@@ -205,7 +202,7 @@ def run_stability(out_dir, *, quick: bool = False,
     `out_dir` cannot be a folder or the paper scenes are missing; a case's own
     failures are verdicts, never exceptions.
     """
-    out = _output_folder(out_dir)
+    out = output_folder(out_dir)
     plan = QUICK if quick else FULL
     started = time.perf_counter()
     bases = paper_yarns(plan)
@@ -225,12 +222,12 @@ def run_stability(out_dir, *, quick: bool = False,
         "mesh_fit": mesh_fit,
         "cases": cases,
     }
-    files = [_write_csv(out / "stability.csv", cases),
-             _write_text(out / "stability.md", stability_markdown(summary)),
-             _save(plot_map(cases, plan), out / "map.png")]
+    files = [write_csv(out / "stability.csv", CSV_COLUMNS, csv_rows(cases), cell=_finite),
+             write_text(out / "stability.md", stability_markdown(summary)),
+             save_png(plot_map(cases, plan), out / "map.png")]
     summary["wall_time_s"] = time.perf_counter() - started
     summary["files"] = [str(path) for path in files] + [str(out / "summary.json")]
-    (out / "summary.json").write_text(json.dumps(_plain(summary), indent=1) + "\n")
+    write_json(out / "summary.json", summary)
     return summary
 
 
@@ -717,41 +714,6 @@ def extrapolate_mesh(cases: list[dict]) -> dict:
 # Files.
 
 
-def _output_folder(out_dir) -> Path:
-    """`out_dir` as an existing folder (created if needed); SceneError if it cannot be."""
-    if out_dir is None or str(out_dir) == "":
-        raise SceneError("--out: give a folder for the report's files")
-    out = Path(out_dir)
-    if out.exists() and not out.is_dir():
-        raise SceneError(f"--out '{out}' is a file, not a folder")
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise SceneError(f"cannot create the folder '{out}': {exc.strerror}") from None
-    if not os.access(out, os.W_OK):
-        raise SceneError(f"cannot write into the folder '{out}'")
-    return out
-
-
-def machine() -> dict:
-    """What the report ran on: `uname -m`, `nproc`, the Python version."""
-    return {"machine": platform.machine(), "cpus": os.cpu_count(),
-            "python": platform.python_version(), "platform": platform.platform()}
-
-
-def _plain(value):
-    """JSON-ready: numpy scalars to Python, non-finite floats to None."""
-    if isinstance(value, dict):
-        return {k: _plain(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple, set)):
-        return [_plain(v) for v in value]
-    if isinstance(value, np.generic):
-        value = value.item()
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
-
-
 def _finite(value):
     """A CSV cell: '' for None or a non-finite number, repr for floats."""
     if value is None:
@@ -788,20 +750,6 @@ def csv_rows(cases: list[dict]) -> list[dict]:
                 "error_over_A_wa": method.get("error_over_A_wa"),
                 "bound_over_A_wa": method.get("bound_over_A_wa"), "message": message})
     return rows
-
-
-def _write_csv(path: Path, cases: list[dict]) -> Path:
-    with path.open("w", newline="") as handle:
-        writer = csv.DictWriter(handle, fieldnames=CSV_COLUMNS, lineterminator="\n")
-        writer.writeheader()
-        for row in csv_rows(cases):
-            writer.writerow({k: _finite(v) for k, v in row.items()})
-    return path
-
-
-def _write_text(path: Path, text: str) -> Path:
-    path.write_text(text)
-    return path
 
 
 def _number(value, digits: int = 2) -> str:
@@ -921,11 +869,6 @@ def stability_markdown(summary: dict) -> str:
 FAMILY_STYLE = {"baseline": ("k", "*"), "kawabata": ("C0", "o"), "stretch": ("C1", "s"),
                 "mesh": ("C2", "^"), "weft": ("C4", "D"), "load": ("C3", "v"),
                 "friction": ("#8c2d04", "P"), "reference": ("C9", "X")}
-
-
-def _save(fig: Figure, path: Path) -> Path:
-    fig.savefig(path, dpi=DPI)
-    return path
 
 
 def plot_map(cases: list[dict], plan: Plan) -> Figure:

@@ -1,0 +1,83 @@
+"""Helpers the reports share: the output folder, the machine, and the CSV, JSON and text writers.
+
+Figure helpers (saving, a new figure, the axis style) are dynfab.plot's.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+import platform
+from pathlib import Path
+from typing import Callable, Iterable, Sequence
+
+import numpy as np
+
+from dynfab.errors import SceneError
+
+
+def output_folder(out_dir) -> Path:
+    """`out_dir` as an existing folder (created if needed); SceneError if it cannot be."""
+    if out_dir is None or str(out_dir) == "":
+        raise SceneError("--out: give a folder for the report's files")
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise SceneError(f"--out '{out}' is a file, not a folder")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise SceneError(f"cannot create the folder '{out}': {exc.strerror}") from None
+    if not os.access(out, os.W_OK):
+        raise SceneError(f"cannot write into the folder '{out}'")
+    return out
+
+
+def machine() -> dict:
+    """What the report ran on: `uname -m`, `nproc`, the Python version."""
+    return {"machine": platform.machine(), "cpus": os.cpu_count(),
+            "python": platform.python_version(), "platform": platform.platform()}
+
+
+def plain(value):
+    """JSON-ready: numpy scalars to Python, non-finite floats to None, sets to lists."""
+    if isinstance(value, dict):
+        return {k: plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple, set)):
+        return [plain(v) for v in value]
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def csv_cell(value):
+    """A CSV cell: repr for floats (every digit), '' for None, anything else as it is."""
+    if isinstance(value, float):
+        return repr(value)
+    return "" if value is None else value
+
+
+def write_csv(path: Path, columns: Sequence[str], rows: Iterable[dict],
+              cell: Callable = csv_cell) -> Path:
+    """Write `rows` (dicts keyed by `columns`) as CSV, each value through `cell`; the path."""
+    with path.open("w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=columns, lineterminator="\n")
+        writer.writeheader()
+        for row in rows:
+            writer.writerow({k: cell(v) for k, v in row.items()})
+    return path
+
+
+def write_json(path: Path, data) -> Path:
+    """Write `data`, made JSON-ready by `plain`, as indented JSON; the path."""
+    path.write_text(json.dumps(plain(data), indent=1) + "\n")
+    return path
+
+
+def write_text(path: Path, text: str) -> Path:
+    """Write `text` to `path`; the path."""
+    path.write_text(text)
+    return path
