@@ -19,6 +19,8 @@ import numpy as np
 
 from dynfab import assembly
 from dynfab.banded import BANDWIDTH, constrain, lu_factor, lu_solve
+from dynfab.errors import SolverError
+from dynfab.observables import finish_step
 
 CONVERGED, ROUNDING_FLOOR, STALLED, MAX_ITERATIONS, CYCLING = range(5)
 """Outcomes of `newton`, in info[STATUS]."""
@@ -178,8 +180,6 @@ class StaticSolver:
 
     def step(self, state, load_value: float):
         """Relax every yarn under `load_value`; returns (new state, record) or raises SolverError."""
-        from dynfab.observables import finish_step
-
         positions = prescribe_load(self.model, state, load_value)
         P = load_value if self.model.control == "force" else 0.0
         info = np.zeros(4)
@@ -213,8 +213,6 @@ def prescribe_load(model, state, load_value: float) -> np.ndarray:
 
 def _raise_on_failure(info, yarn_index: int, yarn, tolerance: float) -> None:
     """SolverError with one clear line unless the step converged (or met the rounding floor)."""
-    from dynfab.errors import SolverError
-
     status, residual = int(info[STATUS]), info[RESIDUAL]
     where = f"yarn {yarn_index}"
     if status in (CONVERGED, ROUNDING_FLOOR):
