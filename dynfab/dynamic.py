@@ -374,12 +374,17 @@ class DynamicSolver:
                 f"{residual:.3g} N, tolerance {self.tolerance:.3g} N{self._open_crossing_hint(k)}")
 
     def _open_crossing_hint(self, k: int) -> str:
-        """With friction, name the crossing of yarn k nearest g = 0, where F_T jumps (MODEL.md 4)."""
+        """With friction, the likely cause of a step that does not converge (MODEL.md 4): a
+        crossing at g ~ 0, where F_T jumps (named), or else crossings chattering between
+        stick and slip. "At g ~ 0" is within 1 % of the Kawabata compression scale C_wa + C_we."""
         if not self.configuration.friction or self.model.crossings == 0:
             return ""
         yarn, positions = self.model.yarns[k], self._positions()[k]
         closure = yarn.gap_offset - yarn.crossing_side * positions[yarn.crossing_node, 1]
         j = int(np.argmin(np.abs(closure)))
-        return (f"; crossing {j + 1} (node {yarn.crossing_node[j]}) is nearest to opening "
-                f"(g = {closure[j]:.3g} m), where Gralen's limit jumps by beta*ell*r_f = "
-                f"{yarn.friction_constant:.3g} N")
+        if abs(closure[j]) < 0.01 * (yarn.contact_law[1] + yarn.contact_law[3]):
+            return (f"; crossing {j + 1} (node {yarn.crossing_node[j]}) sits at opening "
+                    f"(g = {closure[j]:.3g} m), where Gralen's limit jumps by beta*ell*r_f = "
+                    f"{yarn.friction_constant:.3g} N")
+        return ("; likely cause: crossings switching between stick and slip (a stiff stick "
+                "spring k_t); method semi_implicit or damping kinetic cope best with it")
