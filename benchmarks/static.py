@@ -39,7 +39,7 @@ from scipy.sparse.linalg import spsolve
 from dynfab import assembly
 from dynfab.banded import BANDWIDTH
 from dynfab.model import build_model, initial_state
-from dynfab.scene import Load, expand_sweep, load_scene, validate_scene
+from dynfab.scene import Load, expand_sweep, load_scene, validate_scene, with_key
 from dynfab.static import StaticSolver
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -153,6 +153,13 @@ def traction_curve(scene):
     return solve, model
 
 
+def first_step_iterations(scene) -> int:
+    """Newton iterations of the scene's first load step (iteration limit raised to 5000)."""
+    model = build_model(with_key(scene, "static.max_iterations", 5000))
+    _, record = StaticSolver(model).step(initial_state(model), float(model.load_values[0]))
+    return int(record["iterations"][0])
+
+
 def main() -> dict:
     results = {"machine": platform.processor() or platform.machine(),
                "python": platform.python_version(), "numpy": np.__version__,
@@ -203,6 +210,13 @@ def main() -> dict:
         results["traction_curve"][name] = {"time_s": best_time(solve, 20), "steps": len(curve_model.load_values),
                                            "newton_iterations": iterations}
 
+    # Newton iterations of the first friction step (stick/slip active set) against k_t
+    default_stick = on.warp.EA / (on.geometry.length / on.geometry.segments)
+    results["first_friction_step_iterations"] = {
+        f"{factor:g}": first_step_iterations(with_key(on, "friction.stick_stiffness",
+                                                      factor * default_stick))
+        for factor in (1, 10, 100, 1000)}
+
     curve = results["traction_curve"]
     results["ratios"] = {
         "lbfgs_over_dynfab_1e-11": t_lbfgs / t_newton,
@@ -240,6 +254,9 @@ def print_table(results: dict) -> None:
         print(f"{name:58s} {t * ms:10.3f} {it:7d} {shown:>13s}")
     print(f"\nL-BFGS-B position error vs dynfab: {lb['max_position_error_m']:.2e} m; "
           f"sparse Newton vs dynfab: {sn['max_position_difference_m']:.2e} m")
+    print("\nNewton iterations of the first friction step (runs/paper_fig5.toml), k_t x default:")
+    for factor, iterations in results["first_friction_step_iterations"].items():
+        print(f"  k_t x {factor:>5s}: {iterations}")
     print("\nratios (this run):")
     for name, value in results["ratios"].items():
         print(f"  {name:36s} {value:10.1f}")
