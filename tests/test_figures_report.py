@@ -46,6 +46,7 @@ from dynfab.errors import SceneError
 from dynfab.kernels.configuration import Configuration, built_variants
 from dynfab.model import build_model
 from dynfab.reports import figures as report
+from dynfab.reports import figures_plots
 from dynfab.results import read_results
 from dynfab.scene import expand_sweep, load_scene, parse_scene_text
 from independent import dense
@@ -282,7 +283,7 @@ def test_the_figures_are_redrawn_from_the_files_and_a_current_file_is_not_solved
     out = quick[0]
     for path in out.glob("*.h5"):
         shutil.copy(path, tmp_path / path.name)
-    written = report.draw_figures(tmp_path)
+    written = figures_plots.draw_figures(tmp_path)
     assert sorted(p.name for p in written) == sorted(PNGS)
     (tmp_path / "fig5_dynamic.h5").write_bytes(b"not an HDF5 file")
     summary = report.run_figures(tmp_path, quick=True)
@@ -293,7 +294,7 @@ def test_the_figures_are_redrawn_from_the_files_and_a_current_file_is_not_solved
 
 
 def test_fig3a_draws_the_file_data_static_as_lines_and_dynamic_as_markers(files):
-    fig = report.plot_fig3a(files)
+    fig = figures_plots.plot_fig3a(files)
     left = fig.axes[0]
     static, dynamic = files[("fig3", "static")], files[("fig3", "dynamic")]
     _, order = k_order(static)
@@ -310,8 +311,8 @@ def test_fig3a_draws_the_file_data_static_as_lines_and_dynamic_as_markers(files)
 
 
 def test_every_figure_names_its_reference_state_and_uses_readable_fonts(files):
-    for draw in (report.plot_fig3a, report.plot_fig3b, report.plot_fig5, report.plot_shapes,
-                 report.plot_friction_states):
+    for draw in (figures_plots.plot_fig3a, figures_plots.plot_fig3b, figures_plots.plot_fig5,
+                 figures_plots.plot_shapes, figures_plots.plot_friction_states):
         fig = draw(files)
         assert "reference state: prestressed" in fig.get_suptitle()
         width, height = fig.get_size_inches()

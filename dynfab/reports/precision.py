@@ -78,9 +78,6 @@ from pathlib import Path
 from typing import Callable
 
 import numpy as np
-from matplotlib.figure import Figure
-from matplotlib.lines import Line2D
-from matplotlib.ticker import NullFormatter
 
 from dynfab import assembly
 from dynfab.banded import BANDWIDTH, zeros_band
@@ -88,7 +85,7 @@ from dynfab.dynamic import DynamicSolver
 from dynfab.errors import SceneError, SolverError
 from dynfab.model import Model, State, build_model, initial_state
 from dynfab.observables import finish_step
-from dynfab.plot import DPI, FONT_SIZE, save_png, style_axes
+from dynfab.plot import save_png
 from dynfab.reports.common import machine, output_folder, write_csv, write_json, write_text
 from dynfab.scene import Dynamic, Scene, expand_sweep, load_scene, with_key
 from dynfab.static import StaticSolver, max_free, prescribe_load
@@ -180,8 +177,12 @@ METHODS = {m.key: m for m in (
 )}
 """Every method of the full report, in legend order."""
 
-STATIC_STYLES = {"static_reference": ("k", "*", ""), "static_newton": ("k", "X", "")}
-LBFGS_STYLE = ("0.35", "P", ":")
+
+def method_label(key: str) -> str:
+    """A point's method as labelled (legends break it over lines): static, L-BFGS-B or METHODS."""
+    return {"static_reference": "static Newton to the floor\n(the reference)",
+            "static_newton": "static Newton at the\nscene's tolerance",
+            "lbfgs": "scipy L-BFGS-B"}.get(key) or METHODS[key].label
 
 
 @dataclass(frozen=True)
@@ -242,6 +243,10 @@ def run_precision(out_dir, *, quick: bool = False, progress: Callable[[str], Non
     `scene`: a scene file to study instead of the paper scenes. `plan`: overrides the
     quick/full plan (tests). `progress` receives one line per (case, method).
     """
+    # the table and the figures import this module's names, so they are imported here
+    from dynfab.reports.precision_plots import plot_error_vs_residual, plot_work_precision
+    from dynfab.reports.precision_tables import precision_markdown
+
     started = time.perf_counter()
     out = output_folder(out_dir)
     plan = plan or (QUICK if quick else FULL)
@@ -619,7 +624,7 @@ def static_point(case: Case, plan: Plan, reference: bool) -> dict:
     wall = _best_time(lambda: solver.step(case.start, case.load), plan.repeats, plan.min_timed)
     iterations = int(record["iterations"].sum())
     key = "static_reference" if reference else "static_newton"
-    point = _base_point("static", key, _label_of(key).replace("\n", " "), tolerance,
+    point = _base_point("static", key, method_label(key).replace("\n", " "), tolerance,
                         status="rounding_floor" if record["rounding_floor"].any() else "converged")
     point.update(measure(case, state.positions, record))
     point.update({"wall_time_s": wall, "iterations": iterations,
@@ -827,7 +832,7 @@ def shown_error(point: dict, floor: float) -> float:
     return max(point["relative_error"], floor)
 
 
-def _usable(points: list[dict]) -> list[dict]:
+def usable_points(points: list[dict]) -> list[dict]:
     return [p for p in points if p["status"] != "failed"]
 
 
@@ -842,7 +847,7 @@ def pareto_front(points: list[dict], cost: str, floor: float = 0.0) -> list[dict
     """The dynamic points no other dynamic point dominates in `cost` and (floored)
     relative error, sorted by cost. (The static Newton solves, reference points, are left
     out: they are faster than nearly every dynamic solve of the same accuracy.)"""
-    dynamic = [p for p in _usable(points) if p["solver"] == "dynamic"]
+    dynamic = [p for p in usable_points(points) if p["solver"] == "dynamic"]
     front = [p for p in dynamic if not any(dominates(q, p, cost, floor) for q in dynamic)]
     return sorted(front, key=lambda p: (p[cost], shown_error(p, floor)))
 
@@ -855,7 +860,7 @@ def pareto_fronts(points: list[dict], floor: float) -> dict[str, set[int]]:
 
 def cheapest(points: list[dict], target: float, cost: str) -> dict | None:
     """The dynamic point of least `cost` (then least wall time) reaching `target`."""
-    reaching = [p for p in _usable(points) if p["solver"] == "dynamic"
+    reaching = [p for p in usable_points(points) if p["solver"] == "dynamic"
                 and p["relative_error"] <= target]
     if not reaching:
         return None
@@ -878,7 +883,7 @@ def cheapest_table(points: list[dict], cases: list[Case]) -> list[dict]:
         mine = [p for p in points if p["case"] == case.key]
         static = next(p for p in mine if p["method"] == "static_newton")
         reference = next(p for p in mine if p["method"] == "static_reference")
-        lbfgs = [p for p in _usable(mine) if p["solver"] == "lbfgs"]
+        lbfgs = [p for p in usable_points(mine) if p["solver"] == "lbfgs"]
         for target in TARGETS:
             reaching = [p for p in lbfgs if p["relative_error"] <= target]
             fastest = cheapest(mine, target, "wall_time_s")
@@ -959,262 +964,3 @@ def csv_rows(points: list[dict], cases: list[Case]):
                 quantity = f"{p['end_quantity']}_{quantity[4:]}"
             units = end_units[p["case"]] if units is None else units
             yield dict(base, quantity=quantity, value=p[key], units=units)
-
-
-def _ms(seconds: float) -> str:
-    return f"{1e3 * seconds:.3g} ms"
-
-
-def _cell(point: dict | None, cost: str) -> str:
-    if point is None:
-        return "none reaches it"
-    amount = _ms(point["wall_time_s"]) if cost == "wall_time_s" else \
-        f"{point['force_evaluations']} evaluations, {_ms(point['wall_time_s'])}"
-    return (f"{point['label']}, tol {point['tolerance']:.0e} N: {amount} "
-            f"(error {point['relative_error']:.1e})")
-
-
-def precision_markdown(summary: dict) -> str:
-    """The cases, the cheapest methods per target, and the notes, as markdown."""
-    lines = ["## Precision: error against cost", ""]
-    m = summary["machine"]
-    plan = summary["plan"]
-    lines += [f"Plan `{plan['name']}` on {m['machine']}, {m['cpus']} CPUs, Python "
-              f"{m['python']}. Relative error: the largest node position error / A_wa (L for "
-              f"a straight yarn). Wall "
-              f"time: warm, the fastest of at least {plan['repeats']} timed calls (more, up to "
-              f"{plan['max_repeats']}, until they add up to {plan['min_timed_s']:g} s).", ""]
-    lines += ["### Cases", "",
-              "| case | nodes | reference residual | inf-norm of K^-1 | c_crit | end quantity | "
-              "rounding floor (relative) |", "|---|---|---|---|---|---|---|"]
-    for c in summary["cases"]:
-        norm = c["inverse_stiffness_norm_m_per_N"]
-        crit = c["critical_damping_per_s"]
-        lines.append(
-            f"| {c['title']} | {c['segments'] + 1} | {c['reference_residual_N']:.1e} N | "
-            f"{'-' if norm is None else f'{norm:.3g} m/N'} | "
-            f"{'-' if crit is None else f'{crit:.3g} 1/s'} | "
-            f"{c['end_quantity'].replace('_', ' ')} ({c['end_value']:.4g}) | "
-            f"{c['rounding_floor_relative']:.1e} |")
-    lines += ["", "### Cheapest method for a relative error", "",
-              "The cheapest dynamic solve whose error is at most the target, beside the static "
-              "Newton solve at the scene's tolerance and to the rounding floor (the reference "
-              "itself), and the cheapest L-BFGS-B solve reaching the target.", "",
-              "| case | target | by wall time | by force evaluations | static Newton "
-              "(tolerance / floor) | L-BFGS-B |", "|---|---|---|---|---|---|"]
-    for row in summary["cheapest"]:
-        static, reference, lbfgs = row["static_newton"], row["static_reference"], row["lbfgs"]
-        lbfgs_text = ("not run (no scipy)" if not summary["scipy"]["available"] else
-                      "none reaches it" if lbfgs is None else
-                      f"{_ms(lbfgs['wall_time_s'])}, gtol {lbfgs['tolerance']:.0e} N")
-        lines.append(f"| {row['title']} | {row['target']:.0e} | "
-                     f"{_cell(row['by_wall_time'], 'wall_time_s')} | "
-                     f"{_cell(row['by_force_evaluations'], 'force_evaluations')} | "
-                     f"{_ms(static['wall_time_s'])} / {_ms(reference['wall_time_s'])} | "
-                     f"{lbfgs_text} |")
-    lines += ["", "### One setting for every case", "",
-              "The (method, tolerance) of least total wall time among those reaching the target "
-              "in every case:", "",
-              "| target | method | tolerance | total wall time | total force evaluations | "
-              "worst error | static Newton, total |", "|---|---|---|---|---|---|---|"]
-    for row in summary["one_setting"]:
-        best = row["best"]
-        static = _ms(row["static_newton_total_wall_time_s"])
-        if best is None:
-            lines.append(f"| {row['target']:.0e} | none reaches it in every case | | | | | "
-                         f"{static} |")
-            continue
-        lines.append(f"| {row['target']:.0e} | {best['label']} | {best['tolerance']:.0e} N | "
-                     f"{_ms(best['total_wall_time_s'])} | {best['total_force_evaluations']} | "
-                     f"{best['worst_relative_error']:.1e} | {static} |")
-    lines += ["", "### Notes", ""]
-    if not summary["scipy"]["available"]:
-        lines.append(f"- {SCIPY_MISSING}.")
-    slower = [row["static_speedup"] for row in summary["cheapest"]
-              if row["static_speedup"] is not None]
-    if slower:
-        lines.append(f"- The static Newton solve at the scene's tolerance is {min(slower):.2g} "
-                     f"to {max(slower):.2g} times faster than the cheapest dynamic solve "
-                     "reaching the target; the Pareto fronts drawn are those of the dynamic "
-                     "methods.")
-    lines.append("- End error: " + ("the end force (the reaction P), since the end displacement "
-                                    "is prescribed." if any(c["end_quantity"] == "end_force"
-                                                            for c in summary["cases"])
-                                    else "the end displacement, under force control."))
-    lines.append("- Force evaluations: the dynamic solver's count (semi_implicit also assembles "
-                 "and factors the banded tangent at each); static Newton: iterations + 1 "
-                 "gradients, each with a Hessian and line-search energies; L-BFGS-B: its "
-                 "energy-and-gradient evaluations.")
-    lines.append(f"- Kernel variants used: {'; '.join(summary['kernel_variants'])}.")
-    floor = [p for p in summary["points"] if p["status"] == "rounding_floor"
-             and p["solver"] == "dynamic"]
-    if floor:
-        methods = sorted({p["label"] for p in floor})
-        lines.append(f"- {len(floor)} dynamic solves met their tolerance at the rounding floor "
-                     f"(the residual stopped falling above it): {'; '.join(methods)}.")
-    stalled = [p for p in summary["points"] if p["status"] == "stalled"]
-    if stalled:
-        lines.append(f"- {len(stalled)} L-BFGS-B solves stopped above their gtol (the energy "
-                     "no longer decreases in float64); they are plotted where they stopped.")
-    if summary["failures"]:
-        lines.append(f"- {len(summary['failures'])} solves failed and are left out:")
-        for f in summary["failures"]:
-            lines.append(f"  - {f['case']}, {f['method']}, tol {f['tolerance']:.0e} N: "
-                         f"{f['message']}")
-    outside = [p for p in summary["points"] if p.get("within_bound") is False]
-    lines.append(f"- Position error above the bound ||K^-1||_inf (r + r_ref): {len(outside)} of "
-                 f"{len(_usable(summary['points']))} solves.")
-    return "\n".join(lines) + "\n"
-
-
-# --------------------------------------------------------------------------
-# Figures (matplotlib Figure + Agg, as dynfab.plot).
-
-
-def _panels(cases: list[dict]):
-    """A figure with one panel per case: scenes in rows, steps in columns."""
-    scenes = list(dict.fromkeys(c["scene"] for c in cases))
-    columns = max(sum(c["scene"] == s for c in cases) for s in scenes)
-    fig = Figure(figsize=(3.3 * columns + 3.2, 2.9 * len(scenes) + 0.6), layout="constrained")
-    fig.set_dpi(DPI)
-    axes = fig.subplots(len(scenes), columns, squeeze=False)
-    where = {}
-    for row, scene in enumerate(scenes):
-        mine = [c for c in cases if c["scene"] == scene]
-        for column, case in enumerate(mine):
-            where[case["case"]] = axes[row, column]
-        for column in range(len(mine), columns):
-            axes[row, column].set_axis_off()
-    return fig, axes, where
-
-
-def _case_panels(summary: dict):
-    """The figure of `_panels` and, per case, (case, its axes, its points, its rounding floor)."""
-    cases = summary["cases"]
-    fig, _, where = _panels(cases)
-    return fig, [(case, where[case["case"]],
-                  [p for p in summary["points"] if p["case"] == case["case"]],
-                  case["rounding_floor_relative"]) for case in cases]
-
-
-def _finish_panel(ax, case: dict, floor: float, xlabel: str) -> None:
-    """A case's panel after its curves: the rounding-floor band, log axes, title, labels, style."""
-    ax.axhspan(floor / 10, floor, color="0.88", zorder=0)
-    _log_axes(ax, floor)
-    ax.set_title(case["title"], fontsize=FONT_SIZE)
-    ax.set(xlabel=xlabel, ylabel=f"relative error (max |x - x_ref| / {case['scale_name']})")
-    style_axes(ax, tick_size=FONT_SIZE - 1, title_size=FONT_SIZE)
-
-
-def _curves(points: list[dict]) -> dict[str, list[dict]]:
-    """Points by method, in legend order, each sorted by tolerance (loosest first)."""
-    order = [*STATIC_STYLES, *METHODS, "lbfgs"]
-    groups: dict[str, list[dict]] = {}
-    for p in _usable(points):
-        groups.setdefault(p["method"], []).append(p)
-    return {key: sorted(groups[key], key=lambda p: -p["tolerance"]) for key in order
-            if key in groups}
-
-
-def _style_of(key: str):
-    if key in STATIC_STYLES:
-        return STATIC_STYLES[key]
-    if key == "lbfgs":
-        return LBFGS_STYLE
-    return METHODS[key].style
-
-
-def _label_of(key: str) -> str:
-    return {"static_reference": "static Newton to the floor\n(the reference)",
-            "static_newton": "static Newton at the\nscene's tolerance",
-            "lbfgs": "scipy L-BFGS-B"}.get(key) or METHODS[key].label
-
-
-def plot_work_precision(summary: dict, cost: str) -> Figure:
-    """Relative error against `cost` (wall time or force evaluations), one panel per case."""
-    fig, panels = _case_panels(summary)
-    used = {}
-    for case, ax, points, floor in panels:
-        for key, curve in _curves(points).items():
-            colour, marker, line = _style_of(key)
-            x = [p[cost] for p in curve]
-            y = [shown_error(p, floor) for p in curve]
-            size = {"static_reference": 11, "static_newton": 8}.get(key, 4)
-            ax.plot(x, y, color=colour, marker=marker, ls=line or "none", ms=size, lw=1.1,
-                    mfc="white" if key == "lbfgs" else colour, zorder=3)
-            used[key] = True
-        front = pareto_front(points, cost, floor)
-        fx = [p[cost] for p in front]
-        fy = [shown_error(p, floor) for p in front]
-        if fx:
-            ax.plot(fx, fy, drawstyle="steps-post", color="#ffd92f", lw=5, alpha=0.8, zorder=1)
-            ax.plot(fx, fy, ls="none", marker="o", ms=9, mfc="none", mec="#b8860b", mew=1.2,
-                    zorder=4)
-        for target in summary["targets"]:
-            ax.axhline(target, color="0.5", lw=0.7, ls=(0, (4, 3)), zorder=0)
-        _finish_panel(ax, case, floor, "warm wall time (s)" if cost == "wall_time_s" else
-                      "force evaluations (-)")
-    handles = [Line2D([], [], color=_style_of(k)[0], marker=_style_of(k)[1],
-                      ls=_style_of(k)[2] or "none", ms=8 if k in STATIC_STYLES else 4,
-                      mfc="white" if k == "lbfgs" else _style_of(k)[0], label=_label_of(k))
-               for k in used]
-    handles += [Line2D([], [], color="#ffd92f", lw=5, alpha=0.8, marker="o", ms=9, mfc="none",
-                       mec="#b8860b", label="Pareto front of\nthe dynamic methods"),
-                Line2D([], [], color="0.5", lw=0.7, ls=(0, (4, 3)),
-                       label="targets 1e-3, 1e-5, 1e-7"),
-                Line2D([], [], color="0.88", lw=6, label="below the position\nrounding floor")]
-    fig.legend(handles=handles, loc="outside right upper", fontsize=FONT_SIZE - 2)
-    what = "warm wall time" if cost == "wall_time_s" else "force evaluations"
-    fig.suptitle(f"Work-precision: error of one relaxed load step against {what} "
-                 f"(tolerances {_tolerance_span(summary)})", fontsize=FONT_SIZE + 1)
-    if not summary["scipy"]["available"]:
-        fig.text(0.005, 0.005, "L-BFGS-B left out: scipy is not installed",
-                 fontsize=FONT_SIZE - 2, color="0.3")
-    return fig
-
-
-def _log_axes(ax, floor: float) -> None:
-    """Log-log axes, minor ticks unlabelled, the error axis from just below the floor."""
-    ax.set_xscale("log")
-    ax.set_yscale("log")
-    ax.xaxis.set_minor_formatter(NullFormatter())
-    ax.yaxis.set_minor_formatter(NullFormatter())
-    ax.set_ylim(floor / 3, None)
-
-
-def _tolerance_span(summary: dict) -> str:
-    tolerances = summary["plan"]["tolerances_N"] + summary["plan"]["float32_tolerances_N"]
-    return f"{max(tolerances):.0e} to {min(tolerances):.0e} N"
-
-
-def plot_error_vs_residual(summary: dict) -> Figure:
-    """Relative error against the float64 residual, with the bound ||K^-1||_inf (r + r_ref)."""
-    fig, panels = _case_panels(summary)
-    used = {}
-    for case, ax, points, floor in panels:
-        residuals = []
-        for key, curve in _curves(points).items():
-            colour, marker, _ = _style_of(key)
-            x = [p["residual_N"] for p in curve]
-            residuals += x
-            ax.plot(x, [shown_error(p, floor) for p in curve], color=colour, marker=marker,
-                    ls="none", ms=9 if key in STATIC_STYLES else 4,
-                    mfc="white" if key == "lbfgs" else colour, zorder=3)
-            used[key] = True
-        norm = case["inverse_stiffness_norm_m_per_N"]
-        if norm is not None and residuals:
-            r = np.geomspace(max(min(residuals), 1e-16), max(residuals) * 2, 50)
-            ax.plot(r, norm * (r + case["reference_residual_N"]) / case["scale_m"], color="k",
-                    lw=1.0, ls="--", zorder=2)
-        _finish_panel(ax, case, floor, "force residual, float64 (N)")
-    handles = [Line2D([], [], color=_style_of(k)[0], marker=_style_of(k)[1], ls="none",
-                      ms=8 if k in STATIC_STYLES else 4,
-                      mfc="white" if k == "lbfgs" else _style_of(k)[0], label=_label_of(k))
-               for k in used]
-    handles += [Line2D([], [], color="k", lw=1.0, ls="--",
-                       label="bound ||K^-1||_inf (r + r_ref),\nrelative"),
-                Line2D([], [], color="0.88", lw=6, label="below the position\nrounding floor")]
-    fig.legend(handles=handles, loc="outside right upper", fontsize=FONT_SIZE - 2)
-    fig.suptitle("Position error left by a force residual: every solve, with its bound",
-                 fontsize=FONT_SIZE + 1)
-    return fig

@@ -49,8 +49,6 @@ from pathlib import Path
 from typing import Callable
 
 import numpy as np
-from matplotlib.figure import Figure
-from matplotlib.lines import Line2D
 
 from dynfab import assembly
 from dynfab.banded import BANDWIDTH, zeros_band
@@ -58,8 +56,9 @@ from dynfab.dynamic import DynamicSolver
 from dynfab.errors import SceneError, SolverError
 from dynfab.kernels import status
 from dynfab.model import build_model, initial_state
-from dynfab.plot import DPI, FONT_SIZE, save_png
+from dynfab.plot import save_png
 from dynfab.reports.common import machine, output_folder, write_csv, write_json, write_text
+from dynfab.reports.stability_plots import plot_map
 from dynfab.scene import Dynamic, Load, Scene, expand_sweep, load_scene, validate_scene, with_key
 from dynfab.static import StaticSolver
 
@@ -202,6 +201,9 @@ def run_stability(out_dir, *, quick: bool = False,
     `out_dir` cannot be a folder or the paper scenes are missing; a case's own
     failures are verdicts, never exceptions.
     """
+    # the table imports this module's names, so it is imported here
+    from dynfab.reports.stability_tables import stability_markdown
+
     out = output_folder(out_dir)
     plan = QUICK if quick else FULL
     started = time.perf_counter()
@@ -435,7 +437,7 @@ class _Runner:
                           same_sliding=bool((step["sliding"] == static_record["sliding"]).all()))
         self.say(f"{where}: {name}: {result['time_steps']} time steps, {elapsed:.3f} s, residual "
                  f"{result['residual_N']:.2g} N, error/A_wa "
-                 f"{_number(result.get('error_over_A_wa'))}")
+                 f"{short_number(result.get('error_over_A_wa'))}")
         return result, state
 
     def _relax_at(self, model, load: float, dt: float, where: str) -> dict:
@@ -480,7 +482,7 @@ class _Runner:
         if result.get("measured_dt_s") is not None:
             result["measured_over_predicted"] = result["measured_dt_s"] / result["predicted_dt_s"]
         self.say(f"{where}: stable dt: predicted {result['predicted_dt_s']:.3g} s, measured "
-                 f"{_number(result.get('measured_dt_s'))} s ({result['measured_with']}, "
+                 f"{short_number(result.get('measured_dt_s'))} s ({result['measured_with']}, "
                  f"{result['trials']} trials), linear {result['linear_dt_s']:.3g} s; relaxation "
                  f"at the measured dt: {result.get('relaxation_at_measured_dt', {}).get('verdict')}")
         return result
@@ -723,6 +725,11 @@ def _finite(value):
     return value
 
 
+def short_number(value, digits: int = 2) -> str:
+    """A number for the table; '-' for None."""
+    return "-" if value is None else f"{value:.{digits}g}"
+
+
 def csv_rows(cases: list[dict]) -> list[dict]:
     """One row per (case, method); a refused case has one row per method with its message."""
     rows = []
@@ -750,196 +757,3 @@ def csv_rows(cases: list[dict]) -> list[dict]:
                 "error_over_A_wa": method.get("error_over_A_wa"),
                 "bound_over_A_wa": method.get("bound_over_A_wa"), "message": message})
     return rows
-
-
-def _number(value, digits: int = 2) -> str:
-    """A number for the table; '-' for None."""
-    return "-" if value is None else f"{value:.{digits}g}"
-
-
-def _dt_us(value) -> str:
-    return "-" if value is None else f"{1e6 * value:.3g}"
-
-
-def _load_text(case: dict) -> str:
-    if case["load"] is None:
-        return "-"
-    if case["control"] == "force":
-        return f"P = {case['load']:.3g} N"
-    return f"u = {1e3 * case['load']:.3g} mm"
-
-
-def _note(notes: list[str], text: str) -> int:
-    """The number of note `text`, added if new."""
-    if text not in notes:
-        notes.append(text)
-    return notes.index(text) + 1
-
-
-def _relaxation_cell(stability: dict, notes: list[str]) -> str:
-    relaxation = stability.get("relaxation_at_measured_dt")
-    if not relaxation:
-        return "-"
-    if relaxation["verdict"] == "converged":
-        return f"yes, {relaxation['time_steps']} st"
-    if relaxation["verdict"] == "failed":
-        return f"**no** [{_note(notes, relaxation['message'])}]"
-    return relaxation["verdict"]
-
-
-def _cell(method: dict, notes: list[str]) -> str:
-    """One method's verdict in the table; long messages go to numbered notes."""
-    verdict = method.get("verdict")
-    if verdict == "converged":
-        error = method.get("error_over_A_wa")
-        bound = method.get("bound_over_A_wa")
-        text = f"{method['time_steps']} st, {method['wall_time_s']:.2g} s"
-        if error is not None:
-            text += f", err {error:.1e}" + (f" (bound {bound:.0e})" if bound is not None else "")
-        return text + (" (floor)" if method.get("rounding_floor") else "")
-    if verdict is None:
-        return "-"
-    number = _note(notes, method.get("message", ""))
-    label = {"failed": "**FAILED**", "skipped": "skipped",
-             "extrapolated: converges": f"~{method.get('predicted_time_steps', 0):.2g} st "
-                                        "(extrapolated)",
-             "extrapolated: max_steps": f"**~{method.get('predicted_time_steps', 0):.2g} st > "
-                                        "max_steps** (extrapolated)"}.get(verdict, verdict)
-    return f"{label} [{number}]"
-
-
-def stability_markdown(summary: dict) -> str:
-    """The table: one row per case, the stable dt and each method's verdict; then the notes."""
-    notes: list[str] = []
-    settings = summary["settings"]
-    lines = [f"## Stability of the dynamic methods ({summary['plan']} plan)", "",
-             "Stable dt [us]: *predicted* is the solver's Gershgorin bound on the stiffest tangent "
-             "of the load step (every contact at k_we, every crossing sticking); *measured* the "
-             f"largest dt whose {settings['bisection_steps']} undamped steps from the perturbed "
-             "relaxed state stay bounded (bisection to "
-             f"{100 * (settings['bisection_ratio'] - 1):g} %, physical masses); *linear* the exact "
-             "2/omega_max of the actual tangent at the relaxed state. *Relaxes at measured dt*: "
-             "the load step from the as-woven state with the physical masses, kinetic damping "
-             "and the measured dt. Methods: time steps (st) and wall time of the "
-             "load step, the largest position error against the static reference / A_wa and its "
-             f"bound ||K^-1|| (r + r_s) / A_wa. max_steps: {settings['explicit_max_steps']} "
-             f"(explicit), {settings['semi_implicit_max_steps']} (semi_implicit).", "",
-             "| case | load | stable dt: predicted | measured | measured / predicted | linear | "
-             "relaxes at measured dt | " + " | ".join(METHODS) + " |",
-             "|---|---|---|---|---|---|---|" + "---|" * len(METHODS)]
-    for case in summary["cases"]:
-        stability = case.get("stability") or {}
-        if case["refused"] is not None:
-            cells = [f"**refused** [{_note(notes, case['refused'])}]"] + ["-"] * (len(METHODS) - 1)
-            lines.append(f"| {case['case']} | - | - | - | - | - | - | " + " | ".join(cells) + " |")
-            continue
-        ratio = stability.get("measured_over_predicted")
-        kinetic_note = " (k)" if stability.get("measured_with") == "kinetic damping" else ""
-        cells = [_cell(case["methods"].get(name, {}), notes) for name in METHODS]
-        lines.append(f"| {case['case']} | {_load_text(case)} | "
-                     f"{_dt_us(stability.get('predicted_dt_s'))} | "
-                     f"{_dt_us(stability.get('measured_dt_s'))}{kinetic_note} | "
-                     f"{_number(ratio, 3)} | {_dt_us(stability.get('linear_dt_s'))} | "
-                     f"{_relaxation_cell(stability, notes)} | " + " | ".join(cells) + " |")
-    lines.append("")
-    if any((c.get("stability") or {}).get("measured_with") == "kinetic damping"
-           for c in summary["cases"]):
-        lines += ["(k): measured with kinetic damping instead of undamped (--quick: the undamped "
-                  "friction variant is not compiled). An unstable mode's kinetic energy rises "
-                  "every step and is never reset, so it is caught as when undamped; but the "
-                  "resets also remove the energy that stick/slip switching slowly pumps into an "
-                  "undamped motion, so with friction this threshold is higher than the undamped "
-                  "one (the full report measures both: 1.0 to 4.3 x).", ""]
-    if summary["mesh_fit"]:
-        lines += ["Explicit step counts against N, fitted (least squares) as steps = c N^p: "
-                  + "; ".join(
-                      f"{name} p = {fit['exponent']:.2f} (N = {', '.join(map(str, fit['segments']))}"
-                      f": {', '.join(map(str, fit['time_steps']))} steps; between the two finest "
-                      f"meshes p = {fit['local_exponent']:.2f})"
-                      for name, fit in summary["mesh_fit"].items()) + ".", ""]
-    lines += ["Notes:", ""]
-    lines += [f"{k}. {text}" for k, text in enumerate(notes, start=1)]
-    lines.append("")
-    return "\n".join(lines)
-
-
-# --------------------------------------------------------------------------
-# The stability map (matplotlib Figure + Agg, as dynfab.plot).
-
-FAMILY_STYLE = {"baseline": ("k", "*"), "kawabata": ("C0", "o"), "stretch": ("C1", "s"),
-                "mesh": ("C2", "^"), "weft": ("C4", "D"), "load": ("C3", "v"),
-                "friction": ("#8c2d04", "P"), "reference": ("C9", "X")}
-
-
-def plot_map(cases: list[dict], plan: Plan) -> Figure:
-    """Left: measured against predicted stable dt per case, log-log, with y = x (cases far
-    from the cluster named). Right: measured / predicted per case, with the solver's
-    default safety factor: a case left of 1 is one where Gershgorin is not on the safe
-    side."""
-    points = [(c, c["stability"]) for c in cases
-              if c.get("stability") and c["stability"].get("measured_dt_s") is not None]
-    fig = Figure(figsize=(11.5, 0.5 + max(4.8, 0.2 * len(points))), layout="constrained")
-    fig.set_dpi(DPI)
-    ax, ratios = fig.subplots(1, 2, width_ratios=(1.15, 1))
-    families, placed = [], []
-    for case, stability in points:
-        color, marker = FAMILY_STYLE.get(case["family"], ("0.4", "o"))
-        style = dict(ls="", marker=marker, ms=7, mew=1.6, color=color, zorder=3,
-                     mfc="white" if stability.get("measured_with") == "kinetic damping" else color)
-        x, y = stability["predicted_dt_s"], stability["measured_dt_s"]
-        ax.plot(x, y, **style)
-        if case["family"] not in families:
-            families.append(case["family"])
-        if stability["measured_over_predicted"] > 1.25 or case["family"] in ("stretch", "mesh"):
-            near = sum(abs(math.log10(x / px)) < 0.1 and abs(math.log10(y / py)) < 0.1
-                       for px, py in placed)
-            left = case["family"] == "stretch"
-            ax.annotate(case["case"], (x, y), xytext=(-7 if left else 7, -3 - 9 * near),
-                        textcoords="offset points", ha="right" if left else "left",
-                        fontsize=FONT_SIZE - 3)
-            placed.append((x, y))
-    values = [v for _, s in points for v in (s["predicted_dt_s"], s["measured_dt_s"])]
-    if values:
-        low, high = min(values) / 2, max(values) * 2
-        ax.plot([low, high], [low, high], "k-", lw=1)
-        ax.set_xlim(low, high)
-        ax.set_ylim(low, high)
-    ax.set_xscale("log")
-    ax.set_yscale("log")
-    ax.set_aspect("equal")
-    ax.set(xlabel="predicted stable dt (s): Gershgorin, stiffest tangent",
-           ylabel="measured stable dt (s): bisection, physical masses")
-    handles = [Line2D([], [], ls="", marker=FAMILY_STYLE[f][1], color=FAMILY_STYLE[f][0], label=f)
-               for f in families if f in FAMILY_STYLE]
-    handles.append(Line2D([], [], color="k", lw=1, label="y = x"))
-    if any(s.get("measured_with") == "kinetic damping" for _, s in points):
-        handles.append(Line2D([], [], ls="", marker="o", color="0.3", mfc="white",
-                              label="measured with kinetic damping"))
-    ax.legend(handles=handles, fontsize=FONT_SIZE - 2, loc="lower right")
-    ax.set_title("measured against predicted: above the line, the prediction is safe",
-                 fontsize=FONT_SIZE)
-    for k, (case, stability) in enumerate(points):
-        color, marker = FAMILY_STYLE.get(case["family"], ("0.4", "o"))
-        hollow = stability.get("measured_with") == "kinetic damping"
-        ratios.plot(stability["measured_over_predicted"], -k, ls="", marker=marker, ms=6, mew=1.4,
-                    color=color, mfc="white" if hollow else color, zorder=3)
-    ratios.axvline(1.0, color="k", lw=1, label="measured = predicted")
-    ratios.axvline(Dynamic().safety, color="k", lw=1, ls="--",
-                   label=f"default safety {Dynamic().safety:g} (dt used with physical masses)")
-    ratios.set_yticks([-k for k in range(len(points))], [c["case"] for c, _ in points],
-                      fontsize=FONT_SIZE - 2)
-    ratios.set_xscale("log")
-    ratios.set_xlabel("measured / predicted stable dt (-)")
-    ratios.set_ylim(-len(points) + 0.5, 0.5)
-    ratios.legend(fontsize=FONT_SIZE - 2, loc="upper right")
-    ratios.set_title("measured / predicted per case", fontsize=FONT_SIZE)
-    for axis in (ax, ratios):
-        axis.tick_params(labelsize=FONT_SIZE)
-        axis.xaxis.label.set_size(FONT_SIZE)
-        axis.yaxis.label.set_size(FONT_SIZE)
-        axis.grid(True, which="both", alpha=0.3)
-    ratios.tick_params(axis="y", labelsize=FONT_SIZE - 2)
-    fig.suptitle(f"Stable time step of symplectic Euler with the physical masses ({plan.name} "
-                 f"plan: {plan.crossings} crossings, N = {plan.segments} unless named)",
-                 fontsize=FONT_SIZE + 1)
-    return fig
