@@ -20,7 +20,7 @@ import numpy as np
 from dynfab.errors import SceneError, SolverError
 from dynfab.model import Model, State, build_model, initial_state, width_per_yarn
 from dynfab.results import ResultFile, Results, dynfab_version, read_results
-from dynfab.scene import Scene, expand_sweep
+from dynfab.scene import Scene, expand_sweep, scene_to_toml
 
 SOLVERS = ("static", "dynamic")
 
@@ -85,8 +85,9 @@ def _open_sink(model: Model, engine, out, *, overwrite: bool, resume: bool):
         return _MemorySink(_root_attrs(model, engine), _reference(model))
     if resume:
         sink = ResultFile.resume(out)
-        if sink.attrs.get("scene") != model.scene.text:
-            raise SceneError(f"cannot resume '{out}': it was written from a different scene")
+        if sink.attrs.get("scene") != scene_to_toml(model.scene):
+            raise SceneError(f"cannot resume '{out}': it was written from a different scene "
+                             "(or with other command-line options)")
         if sink.attrs.get("solver") != engine.name:
             raise SceneError(f"cannot resume '{out}': it was written by the "
                              f"{sink.attrs.get('solver')!r} solver, not {engine.name!r}")
@@ -107,7 +108,8 @@ def _start_state(model: Model, sink) -> State:
 def _root_attrs(model: Model, engine) -> dict:
     """Root attributes of the result file (HDF5 layout in dynfab/results.py)."""
     scene = model.scene
-    attrs = {"scene": scene.text, "solver": engine.name, "dynfab_version": dynfab_version(),
+    attrs = {"scene": scene_to_toml(scene), "scene_source": scene.text,
+             "solver": engine.name, "dynfab_version": dynfab_version(),
              "title": scene.title, "load_control": model.control,
              "projected_length": scene.geometry.length,
              "reference_state": scene.geometry.reference, "yarn_labels": yarn_labels(scene),

@@ -313,6 +313,41 @@ def parse_scene_text(text: str, source: str = "<string>") -> Scene:
     return validate_scene(_build_scene(raw, text))
 
 
+SCENE_TABLES = ("geometry", "warp", "weft", "friction", "gravity", "load", "static", "dynamic")
+"""The tables of a scene file, in the order `scene_to_toml` writes them."""
+
+
+def scene_to_toml(scene: Scene) -> str:
+    """The scene as TOML that parses back to an equal scene, every value written out.
+
+    What a result file stores as its `scene` attribute: the scene actually run, with
+    `with_key` changes and command-line overrides, not only the file it came from.
+    """
+    lines = [f"title = {_toml_value(scene.title)}"] if scene.title else []
+    for name in SCENE_TABLES:
+        table = getattr(scene, name)
+        if table is None:
+            continue
+        lines.append(f"\n[{name}]")
+        lines += [f"{f.name} = {_toml_value(getattr(table, f.name))}" for f in fields(table)
+                  if getattr(table, f.name) is not None]
+    if scene.sweep:
+        lines.append("\n[sweep]")
+        lines += [f"{json.dumps(key)} = {_toml_value(list(values))}" for key, values in scene.sweep]
+    return "\n".join(lines) + "\n"
+
+
+def _toml_value(value) -> str:
+    """One TOML value: bool, int, float (repr round-trips), string, or a list of them."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    if isinstance(value, str):
+        return json.dumps(value)
+    return repr(value)
+
+
 def validate_scene(scene: Scene) -> Scene:
     """Check every value and every combination of a Scene; return it unchanged.
 

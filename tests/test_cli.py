@@ -131,3 +131,31 @@ def test_existing_output_is_refused_and_untouched(tmp_path):
     done = dynfab_cli("run", FIG5, "--out", out)
     assert done.returncode == 2 and "--overwrite" in done.stderr
     assert out.read_bytes() == b"precious"
+
+
+def test_result_file_stores_the_scene_actually_run(tmp_path):
+    """The `scene` attribute parses back to the scene that ran, command-line overrides
+    included, so a result file documents its own run; `scene_source` keeps the file."""
+    out = tmp_path / "fig5.h5"
+    done = dynfab_cli("run", FIG5, "--out", out, "--quiet", "--tolerance", "1e-10")
+    assert done.returncode == 0, done.stderr
+    attrs = dynfab.read_results(out).attrs
+    ran = dynfab.parse_scene_text(attrs["scene"])
+    assert ran.static.tolerance == 1e-10
+    assert attrs["scene_source"] == FIG5.read_text()
+    expected = dynfab.load_scene(FIG5)
+    assert ran.load == expected.load and ran.sweep == expected.sweep
+    assert ran.friction == expected.friction and ran.geometry == expected.geometry
+    resumed = dynfab_cli("run", FIG5, "--out", out, "--quiet", "--resume")  # other tolerance
+    assert resumed.returncode == 2 and "different scene" in resumed.stderr
+
+
+def test_scene_to_toml_round_trips_every_scene_in_runs():
+    from dataclasses import replace
+
+    from dynfab.scene import scene_to_toml
+
+    for path in sorted((ROOT / "runs").glob("*.toml")):
+        scene = dynfab.load_scene(path)
+        again = dynfab.parse_scene_text(scene_to_toml(scene))
+        assert replace(again, text="") == replace(scene, text=""), path.name

@@ -10,7 +10,7 @@ residual 1e-8 N). Into `out_dir` it writes:
 * the four standard dynfab result files ``fig3_static.h5``, ``fig3_dynamic.h5``,
   ``fig5_static.h5``, ``fig5_dynamic.h5`` (`dynfab.results` layout, so ``dynfab plot``
   draws its standard figures from each). A file is solved again only when it is missing
-  or stale (unreadable, written from another scene text, by another solver or dynfab
+  or stale (unreadable, written from another scene, by another solver or dynfab
   version, or with fewer load steps than the scene has);
 * the report's figures, drawn by `draw_figures` from those four files alone:
   ``fig3a_traction.png``, ``fig3b_contact_force.png``, ``fig5_friction.png``,
@@ -43,33 +43,24 @@ without friction), and a few seconds. Errors for user mistakes are `SceneError`s
 from __future__ import annotations
 
 import json
-import math
 import re
 import time
 import tomllib
 from dataclasses import dataclass
-from functools import partial
 from pathlib import Path
 from typing import Callable
 
 import numba
 import numpy as np
-from matplotlib import colormaps
-from matplotlib.colors import BoundaryNorm, ListedColormap
-from matplotlib.figure import Figure
-from matplotlib.lines import Line2D
-from matplotlib.patches import Patch
 
 from dynfab import assembly
 from dynfab.banded import BANDWIDTH, constrain, lu_factor, lu_solve, zeros_band
 from dynfab.errors import SceneError
 from dynfab.model import build_model
-from dynfab.plot import DPI, FONT_SIZE, FRICTION_STATES, new_figure
-from dynfab.plot import style_axes as _plot_style
 from dynfab.reports.common import machine, output_folder, write_json
 from dynfab.results import Results, dynfab_version, read_results
 from dynfab.run import run
-from dynfab.scene import Scene, expand_sweep, load_scene, parse_scene_text
+from dynfab.scene import Scene, expand_sweep, load_scene, parse_scene_text, scene_to_toml
 
 RUNS = Path(__file__).resolve().parents[2] / "runs"
 """The paper scene files of the source tree."""
@@ -78,9 +69,6 @@ FIGURES = {"fig3": "paper_fig3.toml", "fig5": "paper_fig5.toml"}
 """The report's scenes: name -> scene file in `RUNS`."""
 
 SOLVERS = ("static", "dynamic")
-
-FONT = 8.5
-"""Smallest font size [pt] of the report's figures (legends, ticks); labels are 9 pt."""
 
 STRAIN_STAGE = 0.05
 """The paper's end of the first stage of Fig. 5: 5 mm on the 0.1 m yarn, 5 % strain."""
@@ -122,6 +110,9 @@ def run_figures(out_dir, *, quick: bool = False,
     The summary (also written as ``trends.json``) has "files" (every path written) and
     "wall_time_s". `progress` receives one line per solve and one per trend (None: silent).
     """
+    # the drawings import this module's names, so they are imported here
+    from dynfab.reports.figures_plots import draw_figures
+
     started = time.perf_counter()
     out = output_folder(out_dir)
     plan = QUICK if quick else FULL
@@ -237,8 +228,8 @@ def stale_reason(path: Path, scene: Scene, solver: str) -> str | None:
         results = read_results(path)
     except SceneError as error:
         return f"unreadable ({error})"
-    if results.attrs.get("scene") != scene.text:
-        return "written from another scene text"
+    if results.attrs.get("scene") != scene_to_toml(scene):
+        return "written from another scene"
     if results.attrs.get("solver") != solver:
         return f"written by the {results.attrs.get('solver')!r} solver"
     if results.attrs.get("dynfab_version") != dynfab_version():
@@ -327,7 +318,7 @@ def friction_on(results: Results) -> np.ndarray:
                      for s in expand_sweep(scene_of(results))])
 
 
-def _pair(data, figure):
+def solver_pair(data, figure):
     return data[(figure, "static")], data[(figure, "dynamic")]
 
 
@@ -394,7 +385,7 @@ def _inverse_norms(factors, fixed, end_row):
 
 def compare_solvers(data) -> dict:
     """Largest static-vs-dynamic differences of each figure's files, and their bound."""
-    return {figure: compare_pair(*_pair(data, figure)) for figure in FIGURES}
+    return {figure: compare_pair(*solver_pair(data, figure)) for figure in FIGURES}
 
 
 def compare_pair(static: Results, dynamic: Results) -> dict:
@@ -425,7 +416,7 @@ def compare_pair(static: Results, dynamic: Results) -> dict:
     x_bound, P_bound = inv_norm * bracket, force_norm * bracket
     worst_x = np.unravel_index(np.argmax(dx / x_bound), dx.shape)
     worst_P = np.unravel_index(np.argmax(dP / P_bound), dP.shape)
-    states = [np.stack([_states(r, k) for k in range(yarns)], axis=1) for r in (static, dynamic)]
+    states = [np.stack([state_codes(r, k) for k in range(yarns)], axis=1) for r in (static, dynamic)]
     return {
         "max_end_force_difference_N": float(dP.max()),
         "max_force_per_width_difference_N_per_m": float(dP.max() / width(static)),
@@ -451,7 +442,7 @@ def compare_pair(static: Results, dynamic: Results) -> dict:
     }
 
 
-def _states(results: Results, yarn: int) -> np.ndarray:
+def state_codes(results: Results, yarn: int) -> np.ndarray:
     """(steps, crossings) friction state codes of one yarn (`dynfab.plot.friction_states`)."""
     force = results.steps["contact_force"][:, yarn]
     codes = np.where(force > 0, 1, 0)
@@ -506,13 +497,13 @@ def _per_solver(data, figure, check, *args) -> dict:
     return {"passed": all(r["passed"] for r in results.values()), **results}
 
 
-def _k_order(results: Results) -> np.ndarray:
+def k_order(results: Results) -> np.ndarray:
     return np.argsort(kawabata_K(results))
 
 
 def _k_ordering(results: Results, noise_N: float) -> dict:
     """Force per width ordered K = 0.02 > 0.2 > 1.0 at every step, beyond solver noise."""
-    order = _k_order(results)
+    order = k_order(results)
     q = force_per_width(results)[:, order]
     gaps = q[:, :-1] - q[:, 1:]
     margin = noise_N / width(results)
@@ -526,7 +517,7 @@ def _k_ordering(results: Results, noise_N: float) -> dict:
 
 
 def _k_effect_shrinks(results: Results) -> dict:
-    order = _k_order(results)
+    order = k_order(results)
     q = force_per_width(results)[:, order]
     spread = q[:, 0] - q[:, -1]
     peak = int(np.argmax(spread))
@@ -541,7 +532,7 @@ def _k_effect_shrinks(results: Results) -> dict:
 
 
 def _saturation(results: Results) -> dict:
-    order = _k_order(results)
+    order = k_order(results)
     R = mean_contact_force(results)[:, order]
     u = results.steps["end_displacement"][:, 0]
     three_quarters = np.array([np.interp(0.75 * u[-1], u, R[:, k]) for k in range(R.shape[1])])
@@ -557,39 +548,39 @@ def _saturation(results: Results) -> dict:
 
 
 def _contact_ordering(results: Results) -> dict:
-    R = mean_contact_force(results)[:, _k_order(results)]
+    R = mean_contact_force(results)[:, k_order(results)]
     gaps = R[:, :-1] - R[:, 1:]
     return {"smallest_gap_N": float(gaps.min()), "end_N": R[-1].tolist(),
             "passed": bool(gaps.min() > 0)}
 
 
-def _friction_split(results: Results) -> tuple[int, int]:
+def friction_split(results: Results) -> tuple[int, int]:
     on = friction_on(results)
     return int(np.flatnonzero(on)[0]), int(np.flatnonzero(~on)[0])
 
 
-def _gap(results: Results) -> np.ndarray:
-    on, off = _friction_split(results)
+def friction_gap(results: Results) -> np.ndarray:
+    on, off = friction_split(results)
     q = force_per_width(results)
     return q[:, on] - q[:, off]
 
 
 def _friction_stiffens(results: Results, noise_N: float) -> dict:
-    gap = _gap(results)
+    gap = friction_gap(results)
     margin = noise_N / width(results)
     return {"smallest_gap_N_per_m": float(gap.min()), "margin_N_per_m": margin,
             "passed": bool(gap.min() > margin)}
 
 
 def _gap_shape(results: Results) -> dict:
-    gap = _gap(results)
-    on, _ = _friction_split(results)
+    gap = friction_gap(results)
+    on, _ = friction_split(results)
     strain = strain_percent(results)[:, 0]
     at_stage = _at_strain(results, gap, STRAIN_STAGE)
     growth = at_stage / gap[0]
     change = abs(gap[-1] - at_stage) / at_stage
     knee = strain[np.argmax(gap >= 0.9 * gap[-1])]
-    codes = _states(results, on)
+    codes = state_codes(results, on)
     all_sliding = np.flatnonzero((codes == 2).all(axis=1))
     return {"first_step_strain_percent": float(strain[0]),
             "gap_first_step_N_per_m": float(gap[0]),
@@ -604,8 +595,8 @@ def _gap_shape(results: Results) -> dict:
 
 
 def _gap_half_sum(results: Results) -> dict:
-    gap = _gap(results)
-    on, _ = _friction_split(results)
+    gap = friction_gap(results)
+    on, _ = friction_split(results)
     half_sum = 0.5 * results.steps["friction_limit"][-1, on].sum() / width(results)
     deviation = abs(gap[-1] - half_sum) / half_sum
     return {"gap_end_N_per_m": float(gap[-1]), "half_sum_F_T_N_per_m": float(half_sum),
@@ -627,279 +618,3 @@ def trend_lines(summary: dict) -> list[str]:
                      f"||J^-1|| (r_dyn + r_static + ...), at most "
                      f"{c['max_position_bound_m']:.2e} m)")
     return lines
-
-
-# --------------------------------------------------------------------------
-# Figures, drawn from the result files alone.
-
-
-def draw_figures(out_dir, data=None) -> list[Path]:
-    """Write the report's PNGs into `out_dir` from its four result files; their paths."""
-    out = Path(out_dir)
-    data = read_figure_data(out) if data is None else data
-    figures = {"fig3a_traction.png": plot_fig3a(data), "fig3b_contact_force.png": plot_fig3b(data),
-               "fig5_friction.png": plot_fig5(data), "shapes.png": plot_shapes(data),
-               "friction_states.png": plot_friction_states(data)}
-    written = []
-    for name, fig in figures.items():
-        fig.savefig(out / name, dpi=DPI)
-        written.append(out / name)
-    return written
-
-
-# dynfab.plot's axis style with this report's tick labels (FONT) and titles (9 pt)
-style_axes = partial(_plot_style, tick_size=FONT, title_size=FONT_SIZE)
-
-
-def _title(fig: Figure, results: Results, what: str) -> None:
-    """Suptitle: what is shown, the reference state, and the scene's size."""
-    scene = scene_of(results)
-    reference = results.attrs.get("reference_state", scene.geometry.reference)
-    fig.suptitle(f"{what}\nreference state: {reference}; {scene.geometry.crossings} crossings, "
-                 f"N = {scene.geometry.segments}, L = {1e3 * scene.geometry.length:g} mm",
-                 fontsize=9)
-
-
-def _solver_handles() -> list:
-    return [Line2D([], [], color="k", ls="-", label="static (Newton)"),
-            Line2D([], [], color="k", ls="", marker="o", mfc="none", ms=4,
-                   label="dynamic (relaxation)")]
-
-
-def _overlay(ax, x_static, y_static, x_dynamic, y_dynamic, color, label, marker="o"):
-    """Static as a line, dynamic as hollow markers of the same colour."""
-    ax.plot(x_static, y_static, "-", color=color, lw=1.3, label=label)
-    every = max(1, len(x_dynamic) // 20)
-    ax.plot(x_dynamic, y_dynamic, ls="", marker=marker, mfc="none", mec=color, ms=4, mew=0.9,
-            markevery=every)
-
-
-def _k_colors(count: int) -> list:
-    return [colormaps["viridis"](v) for v in np.linspace(0.0, 0.8, count)]
-
-
-def plot_fig3a(data) -> Figure:
-    """Fig. 3a: force per unit width [N/m] against strain [%] for each K (left), and each
-    curve minus the K = 0.2 m/N one (right), where the small K effect is visible."""
-    static, dynamic = _pair(data, "fig3")
-    order = _k_order(static)
-    K = kawabata_K(static)
-    middle = order[len(order) // 2]
-    fig = new_figure(7.0, 3.2)
-    left, right = fig.subplots(1, 2)
-    colors = _k_colors(len(order))
-    es, ed = strain_percent(static), strain_percent(dynamic)
-    qs, qd = force_per_width(static), force_per_width(dynamic)
-    for color, k in zip(colors, order):
-        label = f"K = {K[k]:g} m/N"
-        _overlay(left, es[:, k], qs[:, k], ed[:, k], qd[:, k], color, label)
-        _overlay(right, es[:, k], qs[:, k] - qs[:, middle], ed[:, k], qd[:, k] - qd[:, middle],
-                 color, label)
-    left.set(xlabel="strain (%)", ylabel="force per unit width (N/m)",
-             title="(a) traction curve")
-    right.set(xlabel="strain (%)", ylabel=f"difference from K = {K[middle]:g} m/N (N/m)",
-              title="(a') the K effect")
-    for ax in (left, right):
-        style_axes(ax)
-    handles = left.get_legend_handles_labels()[0] + _solver_handles()
-    fig.legend(handles=handles, fontsize=FONT, loc="outside lower center", ncol=len(handles),
-               frameon=False, handletextpad=0.4, columnspacing=1.2)
-    _title(fig, static, "Fig. 3a: uniaxial traction, Kawabata K swept on warp and weft")
-    return fig
-
-
-def plot_fig3b(data) -> Figure:
-    """Fig. 3b: contact force (mean over the crossings) against end displacement, each K."""
-    static, dynamic = _pair(data, "fig3")
-    order, K = _k_order(static), kawabata_K(static)
-    fig = new_figure(3.5, 3.9)
-    ax = fig.subplots()
-    us, ud = 1e3 * static.steps["end_displacement"], 1e3 * dynamic.steps["end_displacement"]
-    Rs, Rd = mean_contact_force(static), mean_contact_force(dynamic)
-    for color, k in zip(_k_colors(len(order)), order):
-        _overlay(ax, us[:, k], 1e3 * Rs[:, k], ud[:, k], 1e3 * Rd[:, k], color, f"K = {K[k]:g} m/N")
-    ax.set(xlabel="extension: end displacement (mm)",
-           ylabel="contact force R (mN)\n(mean over the crossings)")
-    style_axes(ax)
-    ax.legend(handles=ax.get_legend_handles_labels()[0] + _solver_handles(), fontsize=FONT,
-              loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=2, frameon=False,
-              columnspacing=1.0, handletextpad=0.4)
-    scene = scene_of(static)
-    fig.suptitle(f"Fig. 3b: contact force at the crossings\nreference state: "
-                 f"{static.attrs.get('reference_state')}; {scene.geometry.crossings} crossings",
-                 fontsize=9)
-    return fig
-
-
-def plot_fig5(data) -> Figure:
-    """Fig. 5: traction with and without friction (left); the gap between them (right),
-    with the stick-slip stage shaded, the paper's 5 mm (5 % strain) and half the summed
-    friction limits."""
-    static, dynamic = _pair(data, "fig5")
-    on, off = _friction_split(static)
-    fig = new_figure(7.0, 3.0)
-    left, right = fig.subplots(1, 2)
-    es, ed = strain_percent(static), strain_percent(dynamic)
-    qs, qd = force_per_width(static), force_per_width(dynamic)
-    for k, color, label in ((on, "C3", "with friction (Gralen)"), (off, "C0", "without friction")):
-        _overlay(left, es[:, k], qs[:, k], ed[:, k], qd[:, k], color, label)
-    _overlay(right, es[:, on], _gap(static), ed[:, on], _gap(dynamic), "C3",
-             "with - without friction")
-    half = 0.5 * static.steps["friction_limit"][:, on].sum(axis=1) / width(static)
-    right.plot(es[:, on], half, ":", color="k", lw=1.2, label="½ Σ F_T per unit width")
-    codes = _states(static, on)
-    sticking = np.flatnonzero((codes == 1).any(axis=1))
-    if sticking.size:
-        right.axvspan(0, es[sticking[-1], on], color="0.85", zorder=0,
-                      label="some crossings stick")
-    right.axvline(100 * STRAIN_STAGE, color="0.4", ls="--", lw=1)
-    right.text(100 * STRAIN_STAGE, 0.45, " paper: first stage\n ends at 5 mm (5 %)",
-               fontsize=FONT, transform=right.get_xaxis_transform(), va="bottom")
-    right.set_ylim(0, 1.15 * max(_gap(static).max(), half.max()))
-    left.set(xlabel="strain (%)", ylabel="force per unit width (N/m)", title="(a) traction curve")
-    right.set(xlabel="strain (%)", ylabel="gap in force per unit width (N/m)",
-              title="(b) the friction gap")
-    for ax in (left, right):
-        style_axes(ax)
-    left.legend(handles=left.get_legend_handles_labels()[0] + _solver_handles(), fontsize=FONT,
-                loc="upper left")
-    right.legend(fontsize=FONT, loc="lower right")
-    _title(fig, static, "Fig. 5: uniaxial traction with and without yarn-yarn friction "
-                        f"(K = {kawabata_K(static)[on]:g} m/N)")
-    return fig
-
-
-def shape_steps(results: Results, yarn: int = 0) -> list[int]:
-    """Steps nearest a quarter, half and all of the final end displacement, and the step
-    with the most sticking crossings if some stick (no repeats)."""
-    u = results.steps["end_displacement"][:, yarn]
-    steps = {int(np.argmin(np.abs(u - f * u[-1]))) for f in (0.25, 0.5, 1.0)}
-    sticking = (_states(results, yarn) == 1).sum(axis=1)
-    if sticking.max() > 0:
-        steps.add(int(np.argmax(sticking)))
-    return sorted(steps)
-
-
-SNAPSHOT_HEIGHT = 0.62
-"""Height [in] per snapshot in `plot_shapes`: sets the z exaggeration."""
-
-STATE_MARKERS = {1: dict(color="C0", mfc="C0"), 2: dict(color="C3", mfc="white"),
-                 0: dict(color="0.5", mfc="0.5")}
-"""Crossing markers of `plot_shapes` by state code (`dynfab.plot.friction_states` order)."""
-
-
-def plot_shapes(data) -> Figure:
-    """The friction yarn of Fig. 5 at its as-woven start (in a prestressed scene not an
-    equilibrium: the first load step relaxes it) and at three loads, one above the other,
-    z exaggerated (about `SNAPSHOT_HEIGHT` inches a snapshot); crossings marked by state
-    (static), dynamic crossings as crosses."""
-    static, dynamic = _pair(data, "fig5")
-    on, _ = _friction_split(static)
-    nodes = np.asarray(static.reference["crossing_nodes"], int)
-    amplitude = 1e3 * scene_of(static).geometry.amplitude  # mm
-    spacing = 3.2 * amplitude  # mm between the snapshots' axes
-    snapshots = [(None, np.asarray(static.reference["positions"])[on], None)]
-    snapshots += [(i, static.steps["positions"][i, on], dynamic.steps["positions"][i, on])
-                  for i in shape_steps(static, on)]
-    codes = _states(static, on)
-    L = 1e3 * length(static)
-    u_max = 1e3 * static.steps["end_displacement"][-1, on]
-    xlim = (-0.02 * L, L + u_max + 0.16 * L)
-    ylim = (-(len(snapshots) - 1) * spacing - 1.6 * amplitude, 1.6 * amplitude)
-    axes_width = 6.1  # in: 7 in less the tick labels
-    exaggeration = _round_1(SNAPSHOT_HEIGHT * len(snapshots) * (xlim[1] - xlim[0])
-                            / (axes_width * (ylim[1] - ylim[0])))
-    axes_height = (ylim[1] - ylim[0]) * exaggeration * axes_width / (xlim[1] - xlim[0])
-    fig = new_figure(7.0, axes_height + 1.25)
-    ax = fig.subplots()
-    offsets, labels, shown = [], [], set()
-    for n, (step, xz, xz_dynamic) in enumerate(snapshots):
-        offset = -n * spacing
-        xz = 1e3 * np.asarray(xz)
-        ax.axhline(offset, color="0.85", lw=0.6, zorder=0)
-        ax.plot(xz[:, 0], xz[:, 1] + offset, "-", color="k", lw=1.0)
-        if step is None:
-            ax.plot(xz[nodes, 0], xz[nodes, 1] + offset, "o", color="k", ms=3.5, ls="")
-        else:
-            for code, style in STATE_MARKERS.items():
-                pick = nodes[codes[step] == code]
-                if pick.size:
-                    shown.add(code)
-                    ax.plot(xz[pick, 0], xz[pick, 1] + offset, "o", ms=4, mew=1.2, ls="",
-                            **style)
-        if xz_dynamic is not None:
-            xzd = 1e3 * np.asarray(xz_dynamic)
-            ax.plot(xzd[nodes, 0], xzd[nodes, 1] + offset, "+", color="k", ms=5, mew=0.8)
-        offsets.append(offset)
-        labels.append("u = 0: as-woven\nstart (not in\nequilibrium)" if step is None else
-                      f"u = {1e3 * static.steps['end_displacement'][step, on]:.3g} mm")
-    ax.set_yticks(offsets, labels)
-    ax.set_xlim(*xlim)
-    ax.set_ylim(*ylim)
-    ax.set_aspect(exaggeration)
-    ax.set_xlabel("x (mm)", fontsize=9)
-    ax.tick_params(labelsize=FONT)
-    ax.tick_params(axis="y", length=0)
-    bar_x = L + u_max + 0.05 * L
-    ax.plot([bar_x, bar_x], [-amplitude, amplitude], "k-", lw=2)
-    ax.text(bar_x + 0.01 * L, 0.0, f"{2 * amplitude:g} mm\nin z", fontsize=FONT, va="center")
-    names = {1: "crossing sticking", 2: "crossing sliding", 0: "crossing open"}
-    handles = [Line2D([], [], color="k", lw=1, label="yarn (static)"),
-               Line2D([], [], ls="", marker="o", color="k", ms=3.5, label="crossing as woven")]
-    handles += [Line2D([], [], ls="", marker="o", ms=4, mew=1.2, label=names[code],
-                       **STATE_MARKERS[code]) for code in (1, 2, 0) if code in shown]
-    handles.append(Line2D([], [], ls="", marker="+", color="k", ms=5, label="crossing, dynamic"))
-    fig.legend(handles=handles, fontsize=FONT, loc="outside lower center", ncol=len(handles),
-               frameon=False, handletextpad=0.3, columnspacing=1.0)
-    _title(fig, static, f"Shape of the friction yarn of Fig. 5 along the path; z exaggerated "
-                        f"{exaggeration:g}x, snapshots offset in z")
-    return fig
-
-
-def _round_1(value: float) -> float:
-    """`value` rounded to one significant digit."""
-    power = 10 ** math.floor(math.log10(value))
-    return round(value / power) * power
-
-
-def plot_friction_states(data) -> Figure:
-    """Open / sticking / sliding state of each crossing of Fig. 5's friction yarn at each
-    load step against end displacement: the whole path (static, left) and a zoom on the
-    first steps (right), where each cell's dot is the dynamic solver's state."""
-    static, dynamic = _pair(data, "fig5")
-    on, _ = _friction_split(static)
-    codes, dynamic_codes = _states(static, on), _states(dynamic, on)
-    mismatches = int((codes != dynamic_codes).sum())
-    u = 1e3 * static.steps["end_displacement"][:, on]
-    du = u[0]
-    crossings = codes.shape[1]
-    fig = new_figure(7.0, 3.0)
-    whole, zoom = fig.subplots(1, 2, sharey=True, width_ratios=(1.0, 1.0))
-    cmap = ListedColormap([color for _, color in FRICTION_STATES])
-    norm = BoundaryNorm(np.arange(len(FRICTION_STATES) + 1) - 0.5, cmap.N)
-    for ax in (whole, zoom):
-        ax.imshow(codes.T, cmap=cmap, norm=norm, origin="lower", aspect="auto",
-                  interpolation="nearest",
-                  extent=(u[0] - du / 2, u[-1] + du / 2, 0.5, crossings + 0.5))
-        style_axes(ax)
-        ax.grid(False)
-        ax.set_xlabel("end displacement (mm)")
-    settled = np.flatnonzero((codes == 2).all(axis=1))
-    last = min(codes.shape[0], (settled[0] if settled.size else codes.shape[0]) + 3)
-    zoom.set_xlim(u[0] - du / 2, u[last - 1] + du / 2)
-    steps, rows = np.meshgrid(np.arange(last), np.arange(crossings), indexing="ij")
-    zoom.scatter(u[steps.ravel()], rows.ravel() + 1, c=dynamic_codes[:last].ravel(), cmap=cmap,
-                 norm=norm, s=14, edgecolors="k", linewidths=0.6, zorder=3)
-    whole.set_title("static, whole path", fontsize=9)
-    zoom.set_title(f"first {last} steps; dots: dynamic", fontsize=9)
-    whole.set_ylabel("crossing (1 = fixed end)")
-    whole.yaxis.get_major_locator().set_params(integer=True)
-    handles = [Patch(facecolor=color, edgecolor="k", label=name) for name, color in FRICTION_STATES]
-    handles.append(Line2D([], [], ls="", marker="o", mfc="w", mec="k", ms=4,
-                          label="dynamic: dot\nin its state's\ncolour"))
-    zoom.legend(handles=handles, fontsize=FONT, loc="upper left", bbox_to_anchor=(1.02, 1.0),
-                borderaxespad=0)
-    agreement = ("static and dynamic agree at every crossing and step" if mismatches == 0 else
-                 f"static and dynamic differ at {mismatches} crossing-steps")
-    _title(fig, static, f"Friction state along the friction yarn of Fig. 5 ({agreement})")
-    return fig
