@@ -16,6 +16,10 @@ from typing import Callable, Iterable, Sequence
 import numpy as np
 
 from dynfab.errors import SceneError
+from dynfab.scene import Scene, expand_sweep, load_scene
+
+RUNS = Path(__file__).resolve().parents[2] / "runs"
+"""The paper scene files of the source tree (the README's editable install keeps it)."""
 
 
 def output_folder(out_dir) -> Path:
@@ -81,3 +85,22 @@ def write_text(path: Path, text: str) -> Path:
     """Write `text` to `path`; the path."""
     path.write_text(text)
     return path
+
+
+def paper_scene_file(name: str, reader: str) -> Scene:
+    """The scene file `runs/<name>`; SceneError naming `reader` (who needs it) if missing."""
+    path = RUNS / name
+    if not path.is_file():
+        raise SceneError(f"paper scene '{path}' not found: {reader} reads the runs/ folder of a "
+                         "dynfab source tree")
+    return load_scene(path)
+
+
+def paper_yarns(reader: str) -> tuple[Scene, Scene]:
+    """(frictionless, friction): the K = 0.2 m/N entry of runs/paper_fig3.toml and the
+    friction-on entry of runs/paper_fig5.toml."""
+    fig3 = paper_scene_file("paper_fig3.toml", reader)
+    fig5 = paper_scene_file("paper_fig5.toml", reader)
+    frictionless = next(s for s in expand_sweep(fig3) if s.warp.kawabata_K == 0.2)
+    friction = next(s for s in expand_sweep(fig5) if s.friction and s.friction.alpha > 0)
+    return frictionless, friction

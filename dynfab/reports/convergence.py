@@ -44,7 +44,6 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, replace
-from pathlib import Path
 from typing import Callable
 
 import numpy as np
@@ -52,15 +51,12 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
 from dynfab import assembly
-from dynfab.errors import SceneError
 from dynfab.model import build_model
 from dynfab.plot import DPI, FONT_SIZE, save_png, style_axes
-from dynfab.reports.common import machine, output_folder, write_csv, write_json, write_text
+from dynfab.reports.common import (machine, output_folder, paper_yarns, write_csv, write_json,
+    write_text)
 from dynfab.run import run
-from dynfab.scene import Load, Scene, expand_sweep, load_scene, validate_scene, with_key
-
-RUNS = Path(__file__).resolve().parents[2] / "runs"
-"""The paper scene files of the source tree."""
+from dynfab.scene import Load, Scene, validate_scene, with_key
 
 NOISE = 1e-9
 """Relative difference [-] below which two solves count as equal (solver precision)."""
@@ -169,18 +165,9 @@ def run_convergence(out_dir, *, quick: bool = False,
 
 def paper_scenes(plan: Plan) -> dict[str, Scene]:
     """The frictionless (K = 0.2 m/N) and friction paper yarns, cut to `plan.crossings`."""
-    fig3, fig5 = (_paper_file(name) for name in ("paper_fig3.toml", "paper_fig5.toml"))
-    frictionless = next(s for s in expand_sweep(fig3) if s.warp.kawabata_K == 0.2)
-    friction = next(s for s in expand_sweep(fig5) if s.friction and s.friction.alpha > 0)
+    frictionless, friction = paper_yarns("the convergence report")
     return {"frictionless": _cut(frictionless, plan), "friction": _cut(friction, plan)}
 
-
-def _paper_file(name: str) -> Scene:
-    path = RUNS / name
-    if not path.is_file():
-        raise SceneError(f"paper scene '{path}' not found: the convergence report reads the "
-                         "runs/ folder of a dynfab source tree")
-    return load_scene(path)
 
 
 def _cut(scene: Scene, plan: Plan) -> Scene:

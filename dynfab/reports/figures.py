@@ -57,16 +57,13 @@ from dynfab import assembly
 from dynfab.banded import BANDWIDTH, constrain, lu_factor, lu_solve, zeros_band
 from dynfab.errors import SceneError
 from dynfab.model import build_model
-from dynfab.reports.common import machine, output_folder, write_json
+from dynfab.reports.common import machine, output_folder, paper_scene_file, write_json
 from dynfab.results import Results, dynfab_version, read_results
 from dynfab.run import run
-from dynfab.scene import Scene, expand_sweep, load_scene, parse_scene_text, scene_to_toml
-
-RUNS = Path(__file__).resolve().parents[2] / "runs"
-"""The paper scene files of the source tree."""
+from dynfab.scene import Scene, expand_sweep, parse_scene_text, scene_to_toml
 
 FIGURES = {"fig3": "paper_fig3.toml", "fig5": "paper_fig5.toml"}
-"""The report's scenes: name -> scene file in `RUNS`."""
+"""The report's scenes: name -> scene file in runs/ (`common.RUNS`)."""
 
 SOLVERS = ("static", "dynamic")
 
@@ -163,11 +160,7 @@ def paper_scenes(plan: Plan) -> dict[str, Scene]:
     """
     scenes = {}
     for name, file in FIGURES.items():
-        path = RUNS / file
-        if not path.is_file():
-            raise SceneError(f"paper scene '{path}' not found: the figures report reads the "
-                             "runs/ folder of a dynfab source tree")
-        scene = load_scene(path)
+        scene = paper_scene_file(file, "the figures report")
         if plan is not FULL:
             scene = parse_scene_text(cut_scene_text(scene, plan), source=f"{file} ({plan.name})")
         scenes[name] = scene

@@ -82,16 +82,14 @@ import numpy as np
 from dynfab import assembly
 from dynfab.banded import BANDWIDTH, zeros_band
 from dynfab.dynamic import DynamicSolver
-from dynfab.errors import SceneError, SolverError
+from dynfab.errors import SolverError
 from dynfab.model import Model, State, build_model, initial_state
 from dynfab.observables import finish_step
 from dynfab.plot import save_png
-from dynfab.reports.common import machine, output_folder, write_csv, write_json, write_text
+from dynfab.reports.common import (machine, output_folder, paper_yarns, write_csv, write_json,
+    write_text)
 from dynfab.scene import Dynamic, Scene, expand_sweep, load_scene, with_key
 from dynfab.static import StaticSolver, max_free, prescribe_load
-
-RUNS = Path(__file__).resolve().parents[2] / "runs"
-"""The paper scene files of the source tree."""
 
 REFERENCE_TOLERANCE = 1e-13
 """Static tolerance of the start states and references [N]: below float64's floor at
@@ -306,18 +304,10 @@ def _scenes(path, plan: Plan) -> dict[str, Scene]:
         if len(entries) == 1:
             return {stem: entries[0]}
         return {f"{stem} entry {k}": entry for k, entry in enumerate(entries)}
-    fig3, fig5 = (_paper_file(name) for name in ("paper_fig3.toml", "paper_fig5.toml"))
-    paper = {"frictionless": next(s for s in expand_sweep(fig3) if s.warp.kawabata_K == 0.2),
-             "friction": next(s for s in expand_sweep(fig5) if s.friction and s.friction.alpha > 0)}
+    paper = dict(zip(("frictionless", "friction"),
+                     paper_yarns("without a scene argument the precision report")))
     return {label: _cut(paper[label], plan) for label in plan.paper_scenes}
 
-
-def _paper_file(name: str) -> Scene:
-    path = RUNS / name
-    if not path.is_file():
-        raise SceneError(f"paper scene '{path}' not found: without a scene argument the precision "
-                         "report reads the runs/ folder of a dynfab source tree")
-    return load_scene(path)
 
 
 def _cut(scene: Scene, plan: Plan) -> Scene:

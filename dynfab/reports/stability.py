@@ -45,7 +45,6 @@ import math
 import time
 import warnings
 from dataclasses import dataclass, replace
-from pathlib import Path
 from typing import Callable
 
 import numpy as np
@@ -57,13 +56,11 @@ from dynfab.errors import SceneError, SolverError
 from dynfab.kernels import status
 from dynfab.model import build_model, initial_state
 from dynfab.plot import save_png
-from dynfab.reports.common import machine, output_folder, write_csv, write_json, write_text
+from dynfab.reports.common import (machine, output_folder, paper_yarns as common_paper_yarns,
+    write_csv, write_json, write_text)
 from dynfab.reports.stability_plots import plot_map
-from dynfab.scene import Dynamic, Load, Scene, expand_sweep, load_scene, validate_scene, with_key
+from dynfab.scene import Dynamic, Load, Scene, validate_scene, with_key
 from dynfab.static import StaticSolver
-
-RUNS = Path(__file__).resolve().parents[2] / "runs"
-"""The paper scene files of the source tree."""
 
 PERTURBATION = 1e-9
 """Standard deviation [m] of the random displacement of the inner nodes before a bisection
@@ -240,18 +237,9 @@ def run_stability(out_dir, *, quick: bool = False,
 def paper_yarns(plan: Plan) -> dict[bool, Scene]:
     """{friction: scene}: the paper yarn (K = 0.2 m/N) without and with Gralen friction,
     cut to `plan.crossings` at the same spacing (weft unchanged), `plan.segments`."""
-    fig3, fig5 = (_paper_file(name) for name in ("paper_fig3.toml", "paper_fig5.toml"))
-    frictionless = next(s for s in expand_sweep(fig3) if s.warp.kawabata_K == 0.2)
-    friction = next(s for s in expand_sweep(fig5) if s.friction and s.friction.alpha > 0)
+    frictionless, friction = common_paper_yarns("the stability report")
     return {False: _cut(frictionless, plan), True: _cut(friction, plan)}
 
-
-def _paper_file(name: str) -> Scene:
-    path = RUNS / name
-    if not path.is_file():
-        raise SceneError(f"paper scene '{path}' not found: the stability report reads the "
-                         "runs/ folder of a dynfab source tree")
-    return load_scene(path)
 
 
 def _cut(scene: Scene, plan: Plan) -> Scene:
