@@ -51,7 +51,7 @@ deterministic, so it reproduces the reference exactly: its error is the floor of
 comparison), and the solve at the scene's `static.tolerance` (1e-11 N by default), what
 `dynfab run` does. Errors are shown no lower than the position rounding floor
 eps max|x| / A_wa.
-scipy's L-BFGS-B (optional: ``pip install dynfab[compare]``) minimises the same energy
+scipy's L-BFGS-B minimises the same energy
 (`dynfab.assembly`) over the free dofs with ``gtol`` = the tolerance; with friction,
 whose F_T depends on the contact forces (MODEL.md 4: not a pure minimisation), it
 alternates minimisations with F_T frozen and F_T updates until the residual with the
@@ -226,12 +226,12 @@ QUICK = Plan(name="quick", crossings=4, segments=56, tolerances=(1e-4, 1e-7, 1e-
 
 
 def scipy_available() -> bool:
-    """scipy (for L-BFGS-B) can be imported: the optional `dynfab[compare]` extra."""
+    """scipy (for L-BFGS-B) can be imported (a base dependency; checked for stripped installs)."""
     return importlib.util.find_spec("scipy") is not None
 
 
 SCIPY_MISSING = ("scipy is not installed, so the L-BFGS-B reference points are left out "
-                 "(install it with `pip install dynfab[compare]`)")
+                 "(install it with `pip install scipy`)")
 
 
 def run_precision(out_dir, *, quick: bool = False, progress: Callable[[str], None] | None = None,
