@@ -8,24 +8,25 @@ status 3 and one line (finished steps kept on disk); an interrupt with 130
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import sys
 import warnings
 from pathlib import Path
 
 from dynfab.errors import DynfabError
 
-DYNAMIC_OPTIONS = {
-    # flag: (Dynamic field, type, help)
-    "--mode": ("mode", str, "quasi_static or transient"),
-    "--method": ("method", str, "explicit or semi_implicit"),
-    "--damping": ("damping", str, "kinetic, viscous or fire"),
-    "--damping-coefficient": ("damping_coefficient", float, "viscous c [1/s]"),
-    "--masses": ("masses", str, "fictitious or physical"),
-    "--dt": ("dt", float, "time step [s]"),
-    "--safety": ("safety", float, "fraction of the predicted stable time step"),
-    "--max-steps": ("max_steps", int, "time steps allowed per load step"),
-    "--precision": ("precision", str, "float64 or float32"),
+RUN_FLAGS = {
+    # flag: (type, help); each is an option of dynfab.options (the same for dynfab.run)
+    "--tolerance": (float, "force residual to reach [N] (static or dynamic)"),
+    "--max-iterations": (int, "static solver: Newton iterations per load step"),
+    "--mode": (str, "dynamic solver: quasi_static or transient"),
+    "--method": (str, "dynamic solver: explicit or semi_implicit"),
+    "--damping": (str, "dynamic solver: kinetic, viscous or fire"),
+    "--damping-coefficient": (float, "dynamic solver: viscous c [1/s]"),
+    "--masses": (str, "dynamic solver: fictitious or physical"),
+    "--dt": (float, "dynamic solver: time step [s]"),
+    "--safety": (float, "dynamic solver: fraction of the predicted stable time step"),
+    "--max-steps": (int, "dynamic solver: time steps allowed per load step"),
+    "--precision": (str, "dynamic solver: float64 or float32"),
 }
 
 
@@ -38,11 +39,10 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--out", type=Path, help="result file (default: <scene name>.h5)")
     run.add_argument("--overwrite", action="store_true", help="replace an existing result file")
     run.add_argument("--resume", action="store_true", help="continue an interrupted result file")
-    run.add_argument("--tolerance", type=float, help="force residual to reach [N]")
-    run.add_argument("--device", default="cpu", help="Warp device of the dynamic solver (cpu, cuda)")
+    run.add_argument("--device", help="Warp device of the dynamic solver (cpu, the default; cuda)")
     run.add_argument("--quiet", action="store_true", help="no progress lines, no summary table")
-    for flag, (_, kind, text) in DYNAMIC_OPTIONS.items():
-        run.add_argument(flag, type=kind, help=f"dynamic solver: {text}")
+    for flag, (kind, text) in RUN_FLAGS.items():
+        run.add_argument(flag, type=kind, help=text)
     plot = commands.add_parser("plot", help="draw the PNG figures of a result file")
     plot.add_argument("results", type=Path, help="result file (HDF5)")
     plot.add_argument("--out", type=Path, required=True, help="folder for the PNG files")
@@ -67,36 +67,19 @@ REPORTS = {
 """The report subcommands (dynfab/reports/<name>.py, each with run_<name>(out, quick=, progress=))."""
 
 
-def _scene_with_options(args):
-    """The scene file with the command-line overrides applied and re-validated."""
-    from dynfab.scene import load_scene, validate_scene
-
-    scene = load_scene(args.scene)
-    overrides = {field: getattr(args, flag[2:].replace("-", "_"))
-                 for flag, (field, _, _) in DYNAMIC_OPTIONS.items()}
-    overrides = {k: v for k, v in overrides.items() if v is not None}
-    if args.tolerance is not None:
-        if args.solver == "static":
-            scene = dataclasses.replace(scene, static=dataclasses.replace(scene.static,
-                                                                          tolerance=args.tolerance))
-        else:
-            overrides["tolerance"] = args.tolerance
-    if overrides:
-        scene = dataclasses.replace(scene, dynamic=dataclasses.replace(scene.dynamic, **overrides))
-    return validate_scene(scene)
-
-
 def _command_run(args) -> None:
     from dynfab.run import print_summary, run
+    from dynfab.scene import load_scene
 
-    scene = _scene_with_options(args)
+    scene = load_scene(args.scene)
     out = args.out or Path(args.scene.stem + ".h5")
     out.parent.mkdir(parents=True, exist_ok=True)
     report = None if args.quiet else (lambda line: print(line, file=sys.stderr, flush=True))
-    options = {"device": args.device} if args.solver == "dynamic" else {}
+    options = {flag[2:].replace("-", "_"): getattr(args, flag[2:].replace("-", "_"))
+               for flag in RUN_FLAGS}
     try:
         results = run(scene, solver=args.solver, out=out, overwrite=args.overwrite,
-                      resume=args.resume, progress=report, **options)
+                      resume=args.resume, progress=report, device=args.device, **options)
     except KeyboardInterrupt:
         print(f"dynfab: interrupted; every finished load step is in '{out}': "
               f"continue with --resume", file=sys.stderr)

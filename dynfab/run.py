@@ -18,33 +18,43 @@ from typing import Callable
 import numpy as np
 
 from dynfab.errors import SceneError, SolverError
+from dynfab.options import apply_run_options, check_solver
 from dynfab.model import Model, State, build_model, initial_state, width_per_yarn
 from dynfab.results import ResultFile, Results, dynfab_version, read_results
 from dynfab.scene import Scene, expand_sweep, scene_to_toml
 
-SOLVERS = ("static", "dynamic")
-
-
-def make_solver(model: Model, solver: str, **options):
-    """The solver object named `solver`, built for `model`."""
-    if solver == "static":
+def make_solver(model: Model, solver: str, device: str | None = None):
+    """The solver object named `solver`, built for `model` (its options are the scene's)."""
+    if check_solver(solver) == "static":
+        if device is not None:
+            raise SceneError(f"--device {device}: the static solver runs on the CPU (numba); "
+                             "a device is for --solver dynamic")
         from dynfab.static import StaticSolver
-        return StaticSolver(model, **options)
-    if solver == "dynamic":
-        from dynfab.dynamic import DynamicSolver
-        return DynamicSolver(model, **options)
-    raise SceneError(f"solver = {solver!r}: must be one of {', '.join(SOLVERS)}")
+        return StaticSolver(model)
+    from dynfab.dynamic import DynamicSolver
+    return DynamicSolver(model, device=device or "cpu")
 
 
 def run(scene: Scene, solver: str = "static", out: str | Path | None = None, *,
         overwrite: bool = False, resume: bool = False,
-        progress: Callable[[str], None] | None = None, **solver_options) -> Results:
+        progress: Callable[[str], None] | None = None, device: str | None = None,
+        **options) -> Results:
     """Solve the scene's load path; write `out` (HDF5) if given; return the results.
 
-    `progress` receives one line per finished load step (None: silent).
+    `solver` is "static" or "dynamic"; `device` the Warp device of the dynamic
+    solver ("cpu", "cuda", ...). `options` are the solver's options, the same
+    as the command line's (`dynfab.options`): static `tolerance` [N],
+    `max_iterations`; dynamic `mode`, `method`, `damping`,
+    `damping_coefficient` [1/s], `masses`, `dt` [s], `safety`, `tolerance` [N],
+    `max_steps`, `precision` (meanings and defaults: `dynfab.scene.Static`,
+    `dynfab.scene.Dynamic`). They are set on the scene, so the result file's
+    `scene` attribute is the scene actually run; an option the solver does not
+    take is a SceneError. `progress` receives one line per finished load step
+    (None: silent).
     """
+    scene = apply_run_options(scene, solver, **options)
     model = build_model(scene)
-    engine = make_solver(model, solver, **solver_options)
+    engine = make_solver(model, solver, device)
     sink = _open_sink(model, engine, out, overwrite=overwrite, resume=resume)
     if solver == "dynamic" and scene.dynamic.mode == "transient":
         _run_transient(model, engine, sink, progress)

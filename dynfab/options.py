@@ -1,0 +1,69 @@
+"""The options of a run, one list for `dynfab run` and `dynfab.run` alike.
+
+Every solver option is a scene key (`[static]` or `[dynamic]`), so the scene a
+result file records (its `scene` attribute) is the scene actually run, with
+every option applied. `apply_run_options` is the one place that maps an option
+to its key, refuses an option the chosen solver would ignore, and re-validates
+the scene (`dynfab.scene.validate_scene`), so the command line and the Python
+API give the same one-line errors.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+
+from dynfab.errors import SceneError
+from dynfab.scene import Scene, validate_scene
+
+SOLVERS = ("static", "dynamic")
+
+STATIC_OPTIONS = {"tolerance": "tolerance", "max_iterations": "max_iterations"}
+"""Option name -> field of `Scene.static`."""
+
+DYNAMIC_OPTIONS = {name: name for name in (
+    "mode", "method", "damping", "damping_coefficient", "masses", "dt", "safety",
+    "tolerance", "max_steps", "precision")}
+"""Option name -> field of `Scene.dynamic` (units and rules: dynfab.scene.Dynamic)."""
+
+SOLVER_OPTIONS = {"static": STATIC_OPTIONS, "dynamic": DYNAMIC_OPTIONS}
+ALL_OPTIONS = (*STATIC_OPTIONS, *(k for k in DYNAMIC_OPTIONS if k not in STATIC_OPTIONS))
+
+
+def check_solver(solver: str) -> str:
+    """`solver` if it names a solver, else a SceneError."""
+    if solver not in SOLVERS:
+        raise SceneError(f"solver = {solver!r}: must be one of {', '.join(SOLVERS)}")
+    return solver
+
+
+def apply_run_options(scene: Scene, solver: str, **options) -> Scene:
+    """`scene` with the run options set on its `[static]` or `[dynamic]` table, validated.
+
+    An option given as None is not set. An option the solver does not take (a
+    dynamic option with the static solver, or the reverse) or an unknown one is
+    a SceneError naming it, never silently ignored.
+    """
+    check_solver(solver)
+    given = {name: value for name, value in options.items() if value is not None}
+    fields = SOLVER_OPTIONS[solver]
+    for name, value in given.items():
+        if name not in fields:
+            raise _not_an_option(name, value, solver)
+    if not given:
+        return validate_scene(scene)
+    table = getattr(scene, solver)
+    updated = dataclasses.replace(table, **{fields[name]: value for name, value in given.items()})
+    return validate_scene(dataclasses.replace(scene, **{solver: updated}))
+
+
+def _not_an_option(name: str, value, solver: str) -> SceneError:
+    """The error for an option that the solver does not take."""
+    flag = "--" + name.replace("_", "-")
+    other = [s for s in SOLVERS if s != solver and name in SOLVER_OPTIONS[s]]
+    if other:
+        return SceneError(f"{flag} {value}: an option of the {other[0]} solver; the {solver} "
+                          f"solver does not use it (pass --solver {other[0]}, or drop it)")
+    match = difflib.get_close_matches(name, ALL_OPTIONS, n=1)
+    hint = f"; did you mean {match[0]!r}?" if match else ""
+    return SceneError(f"unknown run option {name!r}{hint} (options: {', '.join(ALL_OPTIONS)})")
