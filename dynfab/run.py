@@ -17,6 +17,7 @@ from typing import Callable
 
 import numpy as np
 
+from dynfab.budget import check_budget
 from dynfab.errors import SceneError, SolverError
 from dynfab.options import apply_run_options, check_solver
 from dynfab.model import Model, State, build_model, initial_state, width_per_yarn
@@ -53,6 +54,7 @@ def run(scene: Scene, solver: str = "static", out: str | Path | None = None, *,
     (None: silent).
     """
     scene = apply_run_options(scene, solver, **options)
+    check_budget(scene, None if resume else out)
     model = build_model(scene)
     engine = make_solver(model, solver, device)
     sink = _open_sink(model, engine, out, overwrite=overwrite, resume=resume)

@@ -272,6 +272,9 @@ _SCHEMA: dict[str, tuple[type, dict[str, _Key]]] = {
 }
 """Table -> (dataclass, keys). The TOML key set is a contract: never rename."""
 
+MAX_LOAD_STEPS = 10_000_000
+"""Most load steps a `max`/`steps` path may have (the list of values is built at parse)."""
+
 _LOAD_PATH = {"max": _real("N or m", "nonzero"), "steps": _Key("int", rule=_POS)}
 """The other way to write a load path: values = max k / steps, k = 1..steps."""
 
@@ -618,6 +621,10 @@ def _build_load(table: dict) -> Load:
             raise SceneError(f"missing required key load.{key} (given with load.{has_path[0]})")
     top = _convert("load.max", table["max"], _LOAD_PATH["max"])
     steps = _convert("load.steps", table["steps"], _LOAD_PATH["steps"])
+    if steps > MAX_LOAD_STEPS:
+        raise _bad("load.steps", steps, f"at most {MAX_LOAD_STEPS:,} load steps (each one is "
+                   "solved, written and reported; the path alone would hold "
+                   f"{32 * steps / 1e9:.3g} GB): use fewer, larger steps")
     return Load(control=control, values=tuple(top * k / steps for k in range(1, steps + 1)))
 
 

@@ -1,0 +1,81 @@
+"""Memory and result-file estimates made before a run allocates anything, and the refusal
+of a scene that cannot fit (one line, exit status 2)."""
+
+import subprocess
+import sys
+from dataclasses import replace
+
+import pytest
+
+import dynfab
+from dynfab import budget
+from dynfab.scene import parse_scene_text
+
+YARN = """
+[geometry]
+length = 0.1
+segments = {segments}
+crossings = 4
+amplitude = 0.5e-3
+reference = "prestressed"
+[warp]
+EA = 13.72
+EI = 1.47e-7
+kawabata_C = 0.2e-3
+kawabata_K = 0.2
+[weft]
+EI = 1.47e-7
+amplitude = 0.5e-3
+kawabata_C = 0.2e-3
+kawabata_K = 0.2
+[load]
+{path}
+"""
+
+
+def scene(segments=64, path="values = [0.001, 0.002, 0.003]"):
+    return parse_scene_text(YARN.format(segments=segments, path=path))
+
+
+def test_result_file_estimate_bounds_a_real_file(tmp_path):
+    """The estimate counts positions, crossing datasets and scalars; HDF5 adds headers and
+    the solver a few more datasets: the real file lies within a factor 2 of it."""
+    small = scene(segments=4096)
+    out = tmp_path / "r.h5"
+    dynfab.run(small, solver="static", out=out)
+    actual = out.stat().st_size
+    assert 0.5 < actual / budget.result_file_bytes(small) < 2.0
+
+
+def test_memory_estimate_covers_the_measured_peak():
+    """Peak resident memory of a real run (max RSS) stays below the estimate."""
+    text = YARN.format(segments=262144, path="values = [0.001]")
+    code = ("import resource, dynfab\n"
+            "try:\n"
+            f"    dynfab.run(dynfab.parse_scene_text({text!r}), solver='static', max_iterations=3)\n"
+            "except dynfab.SolverError:\n"
+            "    pass\n"
+            "print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024)")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert int(done.stdout.split()[-1]) < budget.memory_bytes(scene(segments=262144))
+
+
+def test_a_mesh_beyond_memory_is_refused_with_the_estimate(monkeypatch):
+    monkeypatch.setattr(budget, "available_memory_bytes", lambda: 10**9)
+    with pytest.raises(dynfab.SceneError, match=r"needs about 1\.\d+ GB of memory .* but 1 GB is available"):
+        dynfab.run(scene(segments=2_000_000), solver="static")
+
+
+def test_a_result_file_beyond_the_free_disk_is_refused(monkeypatch, tmp_path):
+    usage = type("usage", (), {"free": 10**5})
+    monkeypatch.setattr(budget.shutil, "disk_usage", lambda path: usage)
+    out = tmp_path / "big.h5"
+    with pytest.raises(dynfab.SceneError, match=r"would take about .* but 100 kB is free there"):
+        dynfab.run(scene(segments=4096), solver="static", out=out)
+    assert not out.exists()
+
+
+def test_a_huge_load_path_is_refused_before_it_is_built():
+    with pytest.raises(dynfab.SceneError, match="load.steps = 100000000: at most 10,000,000"):
+        scene(path="max = 0.01\nsteps = 100000000")
