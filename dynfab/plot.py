@@ -8,8 +8,9 @@
 * ``contact_force.png``: largest (solid) and mean (dashed) contact force per
   yarn against end displacement (skipped without crossings);
 * ``shape.png``: the first yarn's shape at about four loads, z exaggerated;
-* ``friction.png``: open / sticking / sliding state of each crossing of the
-  first yarn at each load step (only if the file has friction).
+* ``friction.png``: open / sticking / sliding state of each crossing (numbered
+  from 1) at each load step, one panel per yarn with friction (only if the
+  file has friction).
 
 Matplotlib figures are built with `matplotlib.figure.Figure`, so the global
 pyplot state and backend are never touched; PNGs are written with Agg.
@@ -277,49 +278,53 @@ def plot_shape(results: Results, path="") -> Figure:
     return fig
 
 
-def friction_states(results: Results) -> np.ndarray:
-    """(steps, crossings) state codes of the first yarn: 0 open, 1 sticking, 2 sliding.
+def friction_states(results: Results, yarn: int = 0) -> np.ndarray:
+    """(steps, crossings) state codes of yarn `yarn` (from 0): 0 open, 1 sticking, 2 sliding.
 
     A crossing is open when its contact force is zero (or, without contact
     forces in the file, its friction limit is zero).
     """
     count = crossing_count(results)
     source = results.steps.get("contact_force", results.steps.get("friction_limit"))
-    force = np.asarray(source, dtype=float).reshape(results.step_count, -1, count)[:, 0]
+    force = np.asarray(source, dtype=float).reshape(results.step_count, -1, count)[:, yarn]
     states = np.where(force > 0, 1, 0)
     sliding = results.steps.get("sliding")
     if sliding is not None:
-        slide = np.asarray(sliding).reshape(results.step_count, -1, count)[:, 0].astype(bool)
+        slide = np.asarray(sliding).reshape(results.step_count, -1, count)[:, yarn].astype(bool)
         states = np.where(slide & (force > 0), 2, states)
     return states
 
 
+def friction_yarns(results: Results) -> list[int]:
+    """The yarns (from 0) whose friction limit is non-zero at some step and crossing."""
+    limit = np.asarray(results.steps["friction_limit"], dtype=float)
+    limit = limit.reshape(results.step_count, -1, crossing_count(results))
+    return [k for k in range(limit.shape[1]) if np.any(limit[:, k] != 0)]
+
+
 def plot_friction(results: Results) -> Figure:
-    """Categorical image of the first yarn's friction state: crossing index vs load step."""
-    states = friction_states(results)
-    steps, count = states.shape
-    fig = new_figure(6.0, 3.5)
-    ax = fig.subplots()
+    """Categorical image of each friction yarn's state: crossing (numbered from 1, the one
+    nearest the fixed end first) against load step, one panel per yarn with friction."""
+    yarns, labels = friction_yarns(results), yarn_labels(results)
+    fig = new_figure(6.0, 0.6 + 2.4 * len(yarns))
+    axes = np.atleast_1d(fig.subplots(len(yarns), 1, sharex=True, squeeze=False)[:, 0])
     cmap = ListedColormap([color for _, color in FRICTION_STATES])
     norm = BoundaryNorm(np.arange(len(FRICTION_STATES) + 1) - 0.5, cmap.N)
-    ax.imshow(
-        states.T,
-        cmap=cmap,
-        norm=norm,
-        origin="lower",
-        aspect="auto",
-        interpolation="nearest",
-        extent=(0.5, steps + 0.5, -0.5, count - 0.5),
-    )
-    ax.set(xlabel="load step", ylabel="crossing index")
-    ax.xaxis.get_major_locator().set_params(integer=True)
-    ax.yaxis.get_major_locator().set_params(integer=True)
-    style_axes(ax)
-    ax.grid(False)
+    for ax, k in zip(axes, yarns):
+        states = friction_states(results, k)
+        steps, count = states.shape
+        ax.imshow(states.T, cmap=cmap, norm=norm, origin="lower", aspect="auto",
+                  interpolation="nearest", extent=(0.5, steps + 0.5, 0.5, count + 0.5))
+        ax.set(ylabel="crossing", title=labels[k])
+        ax.xaxis.get_major_locator().set_params(integer=True)
+        ax.yaxis.get_major_locator().set_params(integer=True)
+        style_axes(ax)
+        ax.grid(False)
+    axes[-1].set_xlabel("load step")
     handles = [Patch(facecolor=color, edgecolor="k", label=name) for name, color in FRICTION_STATES]
-    ax.legend(handles=handles, fontsize=FONT_SIZE - 1, loc="upper left",
-              bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
-    _suptitle(fig, results, f"friction state of {yarn_labels(results)[0]}")
+    axes[0].legend(handles=handles, fontsize=FONT_SIZE - 1, loc="upper left",
+                   bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
+    _suptitle(fig, results, "friction state at each crossing (1 = nearest the fixed end)")
     return fig
 
 

@@ -10,7 +10,8 @@ import pytest
 from matplotlib.image import imread
 
 from dynfab.errors import SceneError
-from dynfab.plot import friction_states, plot_results, shape_steps
+from dynfab.plot import (friction_states, friction_yarns, plot_friction, plot_results, shape_steps,
+                         yarn_labels)
 from dynfab.results import ResultFile, read_results
 
 LENGTH, SEGMENTS, AMPLITUDE = 0.01, 32, 1e-4
@@ -131,3 +132,25 @@ def test_missing_or_foreign_file_is_a_scene_error(tmp_path):
     with pytest.raises(SceneError, match="no finished load step"):
         plot_results(empty, tmp_path)
     assert not list(tmp_path.glob("*.png"))
+
+
+def test_friction_figure_has_a_panel_per_friction_yarn_numbered_from_1(tmp_path):
+    """A sweep over friction shows every yarn with friction (not only the first), and the
+    crossings are numbered 1..count as in messages and reports."""
+    results = read_results(write_synthetic(tmp_path / "run.h5", yarns=3))
+    fig = plot_friction(results)
+    axes = [ax for ax in fig.axes if ax.images]
+    assert [ax.get_title() for ax in axes] == yarn_labels(results)
+    for k, ax in enumerate(axes):
+        image = ax.images[0]
+        assert image.get_extent()[2:] == [0.5, 4.5]  # rows 1..4, centred on the integers
+        np.testing.assert_array_equal(image.get_array(), friction_states(results, k).T)
+
+
+def test_a_yarn_without_friction_gets_no_panel(tmp_path):
+    path = write_synthetic(tmp_path / "run.h5", yarns=2)
+    with h5py.File(path, "r+") as h5:
+        limit = h5["steps/friction_limit"][...]
+        limit[:, 0] = 0.0
+        h5["steps/friction_limit"][...] = limit
+    assert friction_yarns(read_results(path)) == [1]

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import contextlib
 import csv
-import importlib.util
 import io
 import json
 import math
@@ -313,36 +312,12 @@ def test_the_pngs_are_real_images(report):
 
 
 def test_lbfgs_points_are_there_with_scipy(report):
-    pytest.importorskip("scipy")
     out, summary, _ = report
-    assert summary["scipy"]["available"]
     lbfgs = [p for p in summary["points"] if p["solver"] == "lbfgs"]
     assert {p["case"] for p in lbfgs} == set(cases(summary))
     assert all(p["blas_single_thread"] for p in lbfgs)
-    assert "scipy is not installed" not in (out / "precision.md").read_text()
 
 
-TINY = Plan(name="tiny", crossings=4, segments=56, tolerances=(1e-6,), float32_tolerances=(),
-            methods=("semi_implicit",), friction_methods=(), step_fractions=(0.225,),
-            paper_scenes=("frictionless",))
-"""One case, one dynamic solve: enough to see what the report does without scipy."""
-
-
-def test_without_scipy_the_lbfgs_points_are_left_out_and_the_report_says_so(tmp_path,
-                                                                           monkeypatch):
-    finder = importlib.util.find_spec
-    monkeypatch.setattr(importlib.util, "find_spec",
-                        lambda name, *args: None if name == "scipy" else finder(name, *args))
-    assert not precision.scipy_available()
-    summary = run_precision(tmp_path, plan=TINY)
-    assert not summary["scipy"]["available"]
-    assert "pip install dynfab[compare]" in summary["scipy"]["note"]
-    assert {p["solver"] for p in summary["points"]} == {"static", "dynamic"}
-    _, rows = read_csv(tmp_path)
-    assert rows and not any(row["solver"] == "lbfgs" for row in rows)
-    text = (tmp_path / "precision.md").read_text()
-    assert "scipy is not installed" in text and "not run (no scipy)" in text
-    assert all(row["lbfgs"] is None for row in summary["cheapest"])
 
 
 def test_bad_output_folder_is_a_scene_error_and_exit_status_2(tmp_path, capsys):

@@ -57,6 +57,7 @@ from dynfab import assembly
 from dynfab.banded import BANDWIDTH, constrain, lu_factor, lu_solve, zeros_band
 from dynfab.errors import SceneError
 from dynfab.model import build_model
+from dynfab.plot import friction_states
 from dynfab.reports.common import machine, output_folder, paper_scene_file, write_json
 from dynfab.results import Results, dynfab_version, read_results
 from dynfab.run import run
@@ -437,12 +438,7 @@ def compare_pair(static: Results, dynamic: Results) -> dict:
 
 def state_codes(results: Results, yarn: int) -> np.ndarray:
     """(steps, crossings) friction state codes of one yarn (`dynfab.plot.friction_states`)."""
-    force = results.steps["contact_force"][:, yarn]
-    codes = np.where(force > 0, 1, 0)
-    sliding = results.steps.get("sliding")
-    if sliding is not None:
-        codes = np.where(sliding[:, yarn].astype(bool) & (force > 0), 2, codes)
-    return codes
+    return friction_states(results, yarn)
 
 
 # --------------------------------------------------------------------------

@@ -274,9 +274,9 @@ def plot_friction_states(data) -> Figure:
     whole, zoom = fig.subplots(1, 2, sharey=True, width_ratios=(1.0, 1.0))
     cmap = ListedColormap([color for _, color in FRICTION_STATES])
     norm = BoundaryNorm(np.arange(len(FRICTION_STATES) + 1) - 0.5, cmap.N)
-    for ax in (whole, zoom):
+    for ax, alpha in ((whole, 1.0), (zoom, 0.35)):  # pale cells under the zoom's dots
         ax.imshow(codes.T, cmap=cmap, norm=norm, origin="lower", aspect="auto",
-                  interpolation="nearest",
+                  interpolation="nearest", alpha=alpha,
                   extent=(u[0] - du / 2, u[-1] + du / 2, 0.5, crossings + 0.5))
         style_axes(ax)
         ax.grid(False)
@@ -286,14 +286,14 @@ def plot_friction_states(data) -> Figure:
     zoom.set_xlim(u[0] - du / 2, u[last - 1] + du / 2)
     steps, rows = np.meshgrid(np.arange(last), np.arange(crossings), indexing="ij")
     zoom.scatter(u[steps.ravel()], rows.ravel() + 1, c=dynamic_codes[:last].ravel(), cmap=cmap,
-                 norm=norm, s=14, edgecolors="k", linewidths=0.6, zorder=3)
+                 norm=norm, s=22, edgecolors="k", linewidths=0.8, zorder=3)
     whole.set_title("static, whole path", fontsize=9)
-    zoom.set_title(f"first {last} steps; dots: dynamic", fontsize=9)
+    zoom.set_title(f"first {last} steps: static cells pale, dynamic dots", fontsize=9)
     whole.set_ylabel("crossing (1 = fixed end)")
     whole.yaxis.get_major_locator().set_params(integer=True)
     handles = [Patch(facecolor=color, edgecolor="k", label=name) for name, color in FRICTION_STATES]
     handles.append(Line2D([], [], ls="", marker="o", mfc="w", mec="k", ms=4,
-                          label="dynamic: dot\nin its state's\ncolour"))
+                          label="dynamic: dot in\nits state's full\ncolour"))
     zoom.legend(handles=handles, fontsize=FONT, loc="upper left", bbox_to_anchor=(1.02, 1.0),
                 borderaxespad=0)
     agreement = ("static and dynamic agree at every crossing and step" if mismatches == 0 else

@@ -55,8 +55,7 @@ scipy's L-BFGS-B minimises the same energy
 (`dynfab.assembly`) over the free dofs with ``gtol`` = the tolerance; with friction,
 whose F_T depends on the contact forces (MODEL.md 4: not a pure minimisation), it
 alternates minimisations with F_T frozen and F_T updates until the residual with the
-current F_T meets the tolerance or stops falling. Without scipy its points are left out
-and the report says so.
+current F_T meets the tolerance or stops falling.
 
 ``quick=True`` solves the paper yarn cut to 4 crossings (L / 4, N = 56, the same spacing,
 weft and contact law, end displacements / 4) with few methods and 2-3 tolerances each,
@@ -69,7 +68,6 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
-import importlib.util
 import math
 import time
 import warnings
@@ -225,15 +223,6 @@ QUICK = Plan(name="quick", crossings=4, segments=56, tolerances=(1e-4, 1e-7, 1e-
              max_steps=100_000)
 
 
-def scipy_available() -> bool:
-    """scipy (for L-BFGS-B) can be imported (a base dependency; checked for stripped installs)."""
-    return importlib.util.find_spec("scipy") is not None
-
-
-SCIPY_MISSING = ("scipy is not installed, so the L-BFGS-B reference points are left out "
-                 "(install it with `pip install scipy`)")
-
-
 def run_precision(out_dir, *, quick: bool = False, progress: Callable[[str], None] | None = None,
                   scene=None, plan: Plan | None = None) -> dict:
     """Run the study, write the CSV, JSON, markdown and PNGs; return the summary.
@@ -248,10 +237,9 @@ def run_precision(out_dir, *, quick: bool = False, progress: Callable[[str], Non
     started = time.perf_counter()
     out = output_folder(out_dir)
     plan = plan or (QUICK if quick else FULL)
-    with_scipy = scipy_available()
     scenes = _scenes(scene, plan)
     cases = [case for label, s in scenes.items() for case in build_cases(label, s, plan)]
-    study = _Study(plan, progress, with_scipy)
+    study = _Study(plan, progress)
     points = [point for case in cases for point in study.solve_case(case)]
     fronts = {case.key: pareto_fronts([p for p in points if p["case"] == case.key], case.floor)
               for case in cases}
@@ -264,7 +252,6 @@ def run_precision(out_dir, *, quick: bool = False, progress: Callable[[str], Non
         "quick": quick,
         "scene_file": None if scene is None else str(scene),
         "machine": machine(),
-        "scipy": {"available": with_scipy, "note": "" if with_scipy else SCIPY_MISSING},
         "targets": list(TARGETS),
         "cases": [case.describe() for case in cases],
         "kernel_variants": sorted({p["kernel"] for p in points if p.get("kernel")}
@@ -278,7 +265,7 @@ def run_precision(out_dir, *, quick: bool = False, progress: Callable[[str], Non
         "solve_time_s": study.solve_time,
     }
     files = [write_csv(out / "points.csv", CSV_COLUMNS, csv_rows(points, cases))]
-    cheapest = {key: summary[key] for key in ("targets", "cheapest", "one_setting", "scipy")}
+    cheapest = {key: summary[key] for key in ("targets", "cheapest", "one_setting")}
     files.append(write_json(out / "cheapest.json", cheapest))
     files.append(write_text(out / "precision.md", precision_markdown(summary)))
     files.append(save_png(plot_work_precision(summary, "wall_time_s"),
@@ -506,8 +493,8 @@ def float_residuals(model: Model, positions, anchors, load: float) -> np.ndarray
 class _Study:
     """Solves every point of a case, one progress line per (case, method)."""
 
-    def __init__(self, plan: Plan, progress, with_scipy: bool):
-        self.plan, self.progress, self.with_scipy = plan, progress, with_scipy
+    def __init__(self, plan: Plan, progress):
+        self.plan, self.progress = plan, progress
         self.solve_time = 0.0
         self.count = 0
 
@@ -538,12 +525,11 @@ class _Study:
                      for tolerance in tolerances]
             points += curve
             self._say(case, method.label, curve, time.perf_counter() - started)
-        if self.with_scipy:
-            started = time.perf_counter()
-            curve = [self._point(case, lbfgs_point(case, tolerance, self.plan))
-                     for tolerance in self.plan.tolerances]
-            points += curve
-            self._say(case, "scipy L-BFGS-B", curve, time.perf_counter() - started)
+        started = time.perf_counter()
+        curve = [self._point(case, lbfgs_point(case, tolerance, self.plan))
+                 for tolerance in self.plan.tolerances]
+        points += curve
+        self._say(case, "scipy L-BFGS-B", curve, time.perf_counter() - started)
         return points
 
     def _point(self, case: Case, point: dict) -> dict:

@@ -111,9 +111,6 @@ def plot_work_precision(summary: dict, cost: str) -> Figure:
     what = "warm wall time" if cost == "wall_time_s" else "force evaluations"
     fig.suptitle(f"Work-precision: error of one relaxed load step against {what} "
                  f"(tolerances {_tolerance_span(summary)})", fontsize=FONT_SIZE + 1)
-    if not summary["scipy"]["available"]:
-        fig.text(0.005, 0.005, "L-BFGS-B left out: scipy is not installed",
-                 fontsize=FONT_SIZE - 2, color="0.3")
     return fig
 
 

@@ -5,7 +5,17 @@ Written from the summary `dynfab.reports.precision.run_precision` builds.
 
 from __future__ import annotations
 
-from dynfab.reports.precision import SCIPY_MISSING, usable_points
+from dynfab.reports.precision import usable_points
+
+
+def _timing_rule(plan: dict) -> str:
+    """How each wall time was taken, in words (a plan without a minimum total times a fixed
+    number of calls)."""
+    if plan["min_timed_s"] > 0:
+        return (f"the fastest of at least {plan['repeats']} timed calls (more, up to "
+                f"{plan['max_repeats']}, until they add up to {plan['min_timed_s']:g} s)")
+    calls = "one timed call" if plan["repeats"] == 1 else f"{plan['repeats']} timed calls"
+    return f"the fastest of {calls}" if plan["repeats"] > 1 else calls
 
 
 def _ms(seconds: float) -> str:
@@ -29,8 +39,7 @@ def precision_markdown(summary: dict) -> str:
     lines += [f"Plan `{plan['name']}` on {m['machine']}, {m['cpus']} CPUs, Python "
               f"{m['python']}. Relative error: the largest node position error / A_wa (L for "
               f"a straight yarn). Wall "
-              f"time: warm, the fastest of at least {plan['repeats']} timed calls (more, up to "
-              f"{plan['max_repeats']}, until they add up to {plan['min_timed_s']:g} s).", ""]
+              f"time: warm, {_timing_rule(plan)}.", ""]
     lines += ["### Cases", "",
               "| case | nodes | reference residual | inf-norm of K^-1 | c_crit | end quantity | "
               "rounding floor (relative) |", "|---|---|---|---|---|---|---|"]
@@ -51,8 +60,7 @@ def precision_markdown(summary: dict) -> str:
               "(tolerance / floor) | L-BFGS-B |", "|---|---|---|---|---|---|"]
     for row in summary["cheapest"]:
         static, reference, lbfgs = row["static_newton"], row["static_reference"], row["lbfgs"]
-        lbfgs_text = ("not run (no scipy)" if not summary["scipy"]["available"] else
-                      "none reaches it" if lbfgs is None else
+        lbfgs_text = ("none reaches it" if lbfgs is None else
                       f"{_ms(lbfgs['wall_time_s'])}, gtol {lbfgs['tolerance']:.0e} N")
         lines.append(f"| {row['title']} | {row['target']:.0e} | "
                      f"{_cell(row['by_wall_time'], 'wall_time_s')} | "
@@ -75,8 +83,6 @@ def precision_markdown(summary: dict) -> str:
                      f"{_ms(best['total_wall_time_s'])} | {best['total_force_evaluations']} | "
                      f"{best['worst_relative_error']:.1e} | {static} |")
     lines += ["", "### Notes", ""]
-    if not summary["scipy"]["available"]:
-        lines.append(f"- {SCIPY_MISSING}.")
     slower = [row["static_speedup"] for row in summary["cheapest"]
               if row["static_speedup"] is not None]
     if slower:
