@@ -1,0 +1,196 @@
+"""`dynfab.fit`: recovery of known parameters, identifiability, statistics, bad data.
+
+Curves are made by dynfab itself with known parameters plus seeded Gaussian
+noise; the scenes are the quarter paper yarn of tests/test_fit_sensitivity.py
+(N = 32, 4 crossings), 10 data points, so one fit costs well under 0.1 s.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from dynfab.errors import SceneError
+from dynfab.fit import default_substeps, fit, refined_path
+from dynfab.fit_data import curve_from_columns
+from dynfab.scene import with_key
+from dynfab.sensitivity import _get_key, solve_path
+from independent import PAPER_FRICTION, PAPER_WARP, PAPER_WEFT, make_scene
+from test_fit_sensitivity import quarter_yarn
+
+FORCES = np.linspace(0.05, 0.5, 10)
+DISPLACEMENTS = np.linspace(2.5e-4, 2.5e-3, 10)
+SEEDS = 100
+
+
+def measured_name(scene):
+    return ("end_force", "N") if scene.load.control == "displacement" else ("end_displacement", "m")
+
+
+def synthetic(scene, rel_noise, seed, sigma_column=False):
+    """The scene's own curve + Gaussian noise of rel_noise x max |curve| (seeded)."""
+    name, unit = measured_name(scene)
+    curve = solve_path(scene).observables[name]
+    sigma = rel_noise * np.abs(curve).max()
+    noisy = curve + np.random.default_rng(seed).normal(0.0, sigma, curve.size)
+    first = "load [N]" if scene.load.control == "force" else "end_displacement [m]"
+    header, columns = [first, f"{name} [{unit}]"], [np.asarray(scene.load.values), noisy]
+    if sigma_column:
+        header.append(f"{name} sigma [{unit}]")
+        columns.append(np.full(curve.size, sigma))
+    return curve_from_columns(header, np.c_[tuple(columns)], scene.load.control)
+
+
+RECOVERY = {
+    # frictionless, force control: the warp's EA and the weft's Kawabata C
+    "frictionless": (quarter_yarn("force", FORCES), ["warp.EA", "weft.kawabata_C"]),
+    # friction (every crossing sliding), displacement control: Gralen's alpha and EA
+    "friction": (quarter_yarn("displacement", DISPLACEMENTS, dict(PAPER_FRICTION, beta=1e4)),
+                 ["friction.alpha", "warp.EA"]),
+}
+
+
+@pytest.mark.parametrize("case", RECOVERY)
+def test_95_percent_intervals_contain_the_truth_about_95_times_in_100(case):
+    """Coverage of the t intervals over 100 seeds (noise 0.2 % of the curve's range, where the
+    linearisation holds): Binomial(100, 0.95) lies in [90, 99] with probability 0.99, so a
+    count outside means miscalibrated intervals (e.g. a covariance not scaled by s^2, or
+    normal quantiles with 8 dof), not bad luck. Each fit starts 10 % off the truth."""
+    scene, keys = RECOVERY[case]
+    truth = {k: _get_key(scene, k) for k in keys}
+    start = {k: 1.1 * v for k, v in truth.items()}
+    hits = dict.fromkeys(keys, 0)
+    for seed in range(SEEDS):
+        result = fit(scene, synthetic(scene, 2e-3, seed), keys, start=start)
+        assert result.converged and result.identifiable, result.warnings
+        for key in keys:
+            lo, hi = result.parameters[key]["ci95"]
+            hits[key] += lo <= truth[key] <= hi
+    for key, count in hits.items():
+        assert 90 <= count <= 99, (key, count)
+
+
+def test_sigma_column_fixes_the_covariance_and_estimated_noise_rescales_it():
+    """With sigma given, the covariance is (J^T W J)^-1 unscaled: doubling sigma doubles the
+    standard errors; without sigma, s^2 from the residuals makes them independent of it."""
+    scene, keys = RECOVERY["frictionless"]
+    data = synthetic(scene, 2e-3, 0, sigma_column=True)
+    name = next(iter(data.measured))
+    doubled = type(data)(data.load, data.measured, {name: 2 * data.sigma[name]}, data.source)
+    plain = type(data)(data.load, data.measured, {}, data.source)
+    once, twice, estimated = (fit(scene, d, keys) for d in (data, doubled, plain))
+    for key in keys:
+        ratio = twice.parameters[key]["standard_error"] / once.parameters[key]["standard_error"]
+        assert ratio == pytest.approx(2.0, rel=1e-6)
+    assert once.noise["estimated"] is False and estimated.noise["estimated"] is True
+    # the same minimum, the same J: the estimated-noise errors are the sigma ones x sqrt(chi2/dof)
+    chi2 = sum(((estimated.fitted[name] - data.measured[name]) / data.sigma[name]) ** 2)
+    scale = np.sqrt(chi2 / estimated.dof)
+    for key in keys:
+        assert estimated.parameters[key]["standard_error"] == pytest.approx(
+            scale * once.parameters[key]["standard_error"], rel=1e-4)
+
+
+def test_kawabata_K_and_C_from_a_linear_curve_are_reported_unidentifiable():
+    """As-woven yarn, K = 0.002 m/N: a_wa R ~ 1e-2 along the whole curve, so the Kawabata law is
+    linear, delta ~ C a R, and the curve only sees the product K C. The fit must say so,
+    naming both, and give neither an interval."""
+    scene = make_scene(
+        geometry={"length": 0.025, "segments": 32, "crossings": 4, "amplitude": 0.5e-3},
+        warp=dict(PAPER_WARP, kawabata_K=0.002), weft=PAPER_WEFT,
+        load={"control": "force", "values": list(FORCES)})
+    result = fit(scene, synthetic(scene, 2e-3, 1), ["warp.kawabata_K", "warp.kawabata_C"],
+                 start={"warp.kawabata_K": 0.0025})
+    assert not result.identifiable
+    message = " ".join(result.warnings)
+    assert "warp.kawabata_K" in message and "warp.kawabata_C" in message
+    for entry in result.parameters.values():
+        assert entry["ci95"] is None and entry["identified"] is False
+
+
+def test_a_parameter_at_an_active_bound_gets_no_interval():
+    scene, keys = RECOVERY["frictionless"]
+    data = synthetic(scene, 2e-3, 2)
+    truth = _get_key(scene, "warp.EA")
+    result = fit(scene, data, keys, bounds={"warp.EA": (0.5 * truth, 0.9 * truth)},
+                 start={"warp.EA": 0.8 * truth})
+    entry = result.parameters["warp.EA"]
+    assert entry["at_bound"] and entry["ci95"] is None
+    assert entry["value"] == pytest.approx(0.9 * truth, rel=1e-6)
+    assert any("warp.EA" in w and "bound" in w for w in result.warnings)
+
+
+def test_friction_curve_does_not_depend_on_the_sampling_density():
+    """Stick then slip under force control: the same loads sampled at 4 and at 16 points (the
+    4 among them) give the same curve at the 4 common points, with the default substeps and
+    with 16 substeps. The 1D return map is exact along a monotone slip, so only the solver's
+    tolerance (1e-11 N on compliances ~ 1e-3 m/N: ~1e-14 m) should separate them; 1e-9 of the
+    curve's range is a margin above that, while an O(increment) path error would be ~1e-2."""
+    friction = dict(PAPER_FRICTION, beta=3e4)
+    top = 0.5
+    curves = []
+    for points, substeps in ((4, None), (16, None), (4, 16)):
+        load = top * np.arange(1, points + 1) / points
+        steps = default_substeps(points) if substeps is None else substeps
+        path, index = refined_path(load, steps)
+        solution = solve_path(quarter_yarn("force", path, friction))
+        assert any(s.any() for s in solution.sliding) and not all(s.all() for s in solution.sliding)
+        curve = solution.observables["end_displacement"][index]
+        curves.append(curve if points == 4 else curve[3::4])
+    span = np.abs(curves[0]).max()
+    for other in curves[1:]:
+        assert np.abs(other - curves[0]).max() <= 1e-9 * span
+
+
+def test_refined_path_holds_the_data_points():
+    path, index = refined_path(np.array([1.0, 2.0, 4.0]), 2)
+    assert np.allclose(path, [0.5, 1.0, 1.5, 2.0, 3.0, 4.0])
+    assert (path[index] == [1.0, 2.0, 4.0]).all()
+
+
+# --------------------------------------------------------------------------
+# Bad data and keys: one SceneError each.
+
+
+def _scene():
+    return quarter_yarn("force", FORCES)
+
+
+BAD = {
+    "unknown column": (["load [N]", "strain [-]"], [[0.1, 1.0], [0.2, 2.0], [0.3, 3.0]]),
+    "wrong unit": (["load [N]", "end_displacement [mm]"], [[0.1, 1.0], [0.2, 2.0], [0.3, 3.0]]),
+    "wrong load column": (["end_displacement [m]", "end_force [N]"], [[0.1, 1.0], [0.2, 2.0]]),
+    "load in kN": (["load [kN]", "end_displacement [m]"], [[0.1, 1.0], [0.2, 2.0]]),
+    "NaN": (["load [N]", "end_displacement [m]"], [[0.1, 1.0], [0.2, "nan"], [0.3, 3.0]]),
+    "text": (["load [N]", "end_displacement [m]"], [[0.1, 1.0], [0.2, "x"], [0.3, 3.0]]),
+    "not monotonic": (["load [N]", "end_displacement [m]"], [[0.1, 1.0], [0.3, 2.0], [0.2, 3.0]]),
+    "no unit": (["load [N]", "end_displacement"], [[0.1, 1.0], [0.2, 2.0]]),
+    "sigma of nothing": (["load [N]", "end_displacement [m]", "crimp sigma [-]"],
+                         [[0.1, 1.0, 1.0], [0.2, 2.0, 1.0]]),
+    "sigma unit": (["load [N]", "end_displacement [m]", "end_displacement sigma [N]"],
+                   [[0.1, 1.0, 1.0], [0.2, 2.0, 1.0]]),
+    "load measured": (["load [N]", "end_force [N]"], [[0.1, 1.0], [0.2, 2.0]]),
+    "no measured column": (["load [N]"], [[0.1], [0.2]]),
+}
+
+
+@pytest.mark.parametrize("case", BAD)
+def test_bad_curve_is_one_scene_error(case):
+    header, rows = BAD[case]
+    with pytest.raises(SceneError) as error:
+        data = curve_from_columns(header, rows, "force")
+        fit(_scene(), data, ["warp.EA"])
+    assert "\n" not in str(error.value)
+
+
+def test_too_few_points_and_bad_keys_are_scene_errors():
+    scene = _scene()
+    two = curve_from_columns(["load [N]", "end_displacement [m]"], [[0.1, 1e-4], [0.2, 2e-4]],
+                             "force")
+    for keys in (["warp.EA", "weft.kawabata_C"],  # 2 values, 2 parameters, noise estimated
+                 ["geometry.segments"], ["load.values"], ["friction.alpha"], ["warp.EA", "warp.EA"],
+                 ["warp.nothing"]):
+        with pytest.raises(SceneError):
+            fit(scene, two, keys)
+    with pytest.raises(SceneError):
+        fit(scene, two, ["warp.EA"], bounds={"warp.EA": (1.0, 2.0)})  # start outside
