@@ -1,4 +1,4 @@
-"""The `dynfab` command line: `dynfab run` and `dynfab plot`.
+"""The `dynfab` command line: `dynfab run`, `dynfab plot` and `dynfab fit`.
 
 A user's mistake exits with status 2 and one line; a solver failure with
 status 3 and one line (finished steps kept on disk); an interrupt with 130
@@ -43,6 +43,7 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--quiet", action="store_true", help="no progress lines, no summary table")
     for flag, (kind, text) in RUN_FLAGS.items():
         run.add_argument(flag, type=kind, help=text)
+    _add_fit_parser(commands)
     plot = commands.add_parser("plot", help="draw the PNG figures of a result file")
     plot.add_argument("results", type=Path, help="result file (HDF5)")
     plot.add_argument("--out", type=Path, required=True, help="folder for the PNG files")
@@ -56,6 +57,17 @@ def _parser() -> argparse.ArgumentParser:
                             help="a reduced scene and few settings, that runs in seconds")
         report.add_argument("--quiet", action="store_true", help="no progress lines")
     return parser
+
+
+def _add_fit_parser(commands) -> None:
+    fit = commands.add_parser("fit", help="fit scene keys to a measured traction curve (CSV)")
+    fit.add_argument("scene", type=Path, help="scene file (TOML, SI units)")
+    fit.add_argument("--data", type=Path, required=True, help="curve CSV: load column first")
+    fit.add_argument("--fit", required=True, help="scene keys to fit, e.g. warp.EA,warp.kawabata_K")
+    fit.add_argument("--out", type=Path, required=True, help="folder for fit.json, fitted.toml, PNGs")
+    fit.add_argument("--bounds", action="append", help="KEY=LOWER:UPPER (repeatable)")
+    fit.add_argument("--substeps", type=int, help="load steps per data interval")
+    fit.add_argument("--quiet", action="store_true", help="no progress lines")
 
 
 REPORTS = {
@@ -87,6 +99,18 @@ def _command_run(args) -> None:
     if not args.quiet:
         print_summary(results)
         print(f"wrote {out}", file=sys.stderr)
+
+
+def _command_fit(args) -> None:
+    from dynfab.fit import fit, parse_bounds
+    from dynfab.scene import load_scene
+
+    report = None if args.quiet else (lambda line: print(line, file=sys.stderr, flush=True))
+    result = fit(load_scene(args.scene), args.data, args.fit, bounds=parse_bounds(args.bounds),
+                 substeps=args.substeps, progress=report, out=args.out)
+    print(result.table())
+    for name in ("fit.json", "fitted.toml", "fit_curve.png", "fit_correlation.png"):
+        print(f"wrote {args.out / name}", file=sys.stderr)
 
 
 def _command_plot(args) -> None:
@@ -121,7 +145,7 @@ def main(argv: list[str] | None = None) -> None:
     args = _parser().parse_args(argv)
     warnings.showwarning = _show_warning
     try:
-        commands = {"run": _command_run, "plot": _command_plot}
+        commands = {"run": _command_run, "plot": _command_plot, "fit": _command_fit}
         commands.get(args.command, _command_report)(args)
     except DynfabError as error:
         print(f"dynfab: error: {error}", file=sys.stderr)

@@ -37,15 +37,14 @@ from pathlib import Path
 from typing import Callable
 
 import numpy as np
-from scipy import stats as scipy_stats
-from scipy.optimize import least_squares
 
 from dynfab import scene as scene_module
 from dynfab.errors import SceneError, SolverError
 from dynfab.fit_data import CurveData, read_curve
-from dynfab.model import build_model
 from dynfab.scene import Load, scene_to_toml, validate_scene, with_key
-from dynfab.sensitivity import path_sensitivities, solve_path
+
+# scipy.optimize, scipy.stats and the solver (numba) are imported where used: `import dynfab`
+# stays light.
 
 RANK_TOLERANCE = 1e-6
 """Singular value ratio of the column-scaled Jacobian below which a direction is rank deficient."""
@@ -188,6 +187,7 @@ def _current_value(scene, key: str) -> float:
     table, name = key.split(".")
     value = getattr(getattr(scene, table), name)
     if value is None and key == "friction.stick_stiffness":  # its default, EA / (L/N)
+        from dynfab.model import build_model
         value = build_model(scene).yarns[0].stick_stiffness
     return float(value)
 
@@ -244,6 +244,8 @@ class _Problem:
 
     def solve(self, theta):
         """(solution, residuals) at theta; cached. A solver failure raises."""
+        from dynfab.sensitivity import solve_path
+
         key = tuple(np.asarray(theta, float))
         if key not in self.cache:
             solution = solve_path(self.scene_at(theta))
@@ -260,6 +262,8 @@ class _Problem:
             return np.full(self.data.residual_count, np.nan)
 
     def jacobian(self, theta):
+        from dynfab.sensitivity import path_sensitivities
+
         solution, residual = self.solve(theta)
         values = self.values(theta)
         keys = [p.key for p in self.parameters]
@@ -294,6 +298,8 @@ def fit(scene, data, keys, *, bounds=None, substeps: int | None = None, start=No
     fitted.toml and the figures; `jacobian`: "exact" (the sensitivities) or "finite-difference"
     (scipy's forward differences of whole runs, for comparison).
     """
+    from scipy.optimize import least_squares
+
     keys = parse_keys(keys)
     if jacobian not in ("exact", "finite-difference"):
         raise SceneError(f"jacobian={jacobian!r}: 'exact' or 'finite-difference'")
@@ -346,6 +352,10 @@ def _finish(problem: _Problem, result, parameters) -> FitResult:
            for n in problem.names}
     for key, value in zip([p.key for p in parameters], values):
         report["parameters"][key]["value"] = value
+    scale = math.sqrt(report["noise"].pop("residual_variance_scale"))
+    report["noise"]["sigma"] = {  # the noise level used [SI]: given (mean), or s x column scale
+        n: float(np.mean(w) * (1.0 if problem.sigma_given else scale))
+        for n, w in zip(problem.names, problem.weights)}
     return FitResult(parameters=report["parameters"], correlation=report["correlation"],
                      residual_rms=rms, dof=report["dof"], iterations=int(result.njev or 0),
                      identifiable=report["identifiable"], converged=bool(result.success),
@@ -367,6 +377,8 @@ def _silent_jacobian(problem, theta):
 
 def statistics(jac, residual, theta, parameters, sigma_given: bool, active) -> dict:
     """Standard errors, 95 % intervals, correlation and identifiability (module docstring)."""
+    from scipy import stats as scipy_stats
+
     m, n = jac.shape
     keys = [p.key for p in parameters]
     free = ~np.asarray(active, bool)

@@ -1,0 +1,76 @@
+"""`dynfab fit` on the command line: the example of runs/fit_example, outputs, exit statuses."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from dynfab.cli import main
+from dynfab.scene import load_scene
+from dynfab.sensitivity import solve_path
+
+EXAMPLE = Path(__file__).resolve().parent.parent / "runs" / "fit_example"
+
+
+def test_fit_example_writes_report_scene_and_figures(tmp_path, capsys):
+    out = tmp_path / "fit"
+    main(["fit", str(EXAMPLE / "scene.toml"), "--data", str(EXAMPLE / "curve.csv"),
+          "--fit", "warp.EA,friction.alpha", "--out", str(out)])
+    captured = capsys.readouterr()
+    assert "warp.EA" in captured.out and "95 % interval" in captured.out
+    progress = [line for line in captured.err.splitlines() if line.startswith("fit iteration")]
+    report = json.loads((out / "fit.json").read_text())
+    assert len(progress) >= report["iterations"] >= 1
+    assert all("cost" in line and "step" in line and "friction.alpha" in line for line in progress)
+    assert set(report) >= {"parameters", "correlation", "residual_rms", "dof", "iterations",
+                           "identifiable", "warnings"}
+    assert report["identifiable"] and report["dof"] == 8
+    for name in ("fit_curve.png", "fit_correlation.png"):
+        assert (out / name).stat().st_size > 0
+    # the fitted scene runs as it is, and gives back the fitted curve
+    fitted = load_scene(out / "fitted.toml")
+    assert fitted.warp.EA == report["parameters"]["warp.EA"]["value"]
+    main(["run", str(out / "fitted.toml"), "--out", str(tmp_path / "fitted.h5"), "--quiet"])
+    assert (tmp_path / "fitted.h5").exists()
+
+
+@pytest.mark.parametrize("args, words", [
+    (["--fit", "geometry.segments"], "cannot be fitted"),
+    (["--fit", "warp.EA", "--bounds", "warp.EA=20:30"], "start value"),
+    (["--fit", "warp.EA", "--bounds", "warp.EA"], "KEY=LOWER:UPPER"),
+    (["--fit", "warp.EA", "--substeps", "0"], "substeps"),
+])
+def test_bad_fit_options_exit_2_with_one_line(args, words, capsys):
+    with pytest.raises(SystemExit) as exit_:
+        main(["fit", str(EXAMPLE / "scene.toml"), "--data", str(EXAMPLE / "curve.csv"),
+              "--out", "unused", *args])
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("dynfab: error:") and words in err[0]
+
+
+def test_bad_curve_file_exits_2(tmp_path, capsys):
+    curve = tmp_path / "curve.csv"
+    curve.write_text("end_displacement [m],end_force [N]\n1e-3,0.1\n2e-3,nan\n")
+    with pytest.raises(SystemExit) as exit_:
+        main(["fit", str(EXAMPLE / "scene.toml"), "--data", str(curve), "--fit", "warp.EA",
+              "--out", str(tmp_path / "out")])
+    assert exit_.value.code == 2
+    assert "row 3" in capsys.readouterr().err
+
+
+def test_example_curve_is_the_documented_one():
+    """curve.csv comes from make_curve.py: EA = 13.72, alpha = 0.2 plus 0.2 % noise; the noise-free
+    curve lies within 5 sigma of every point (a regenerated or edited file would show)."""
+    import numpy as np
+    from dynfab.fit_data import read_curve
+    from dynfab.scene import with_key
+
+    data = read_curve(EXAMPLE / "curve.csv", "displacement")
+    scene = with_key(with_key(load_scene(EXAMPLE / "scene.toml"), "warp.EA", 13.72),
+                     "friction.alpha", 0.2)
+    force = solve_path(with_key(scene, "load.values", list(data.load))).observables["end_force"]
+    sigma = 2e-3 * np.abs(force).max()
+    assert np.abs(force - data.measured["end_force"]).max() < 5 * sigma
