@@ -27,7 +27,8 @@ MEASURABLE = {"end_displacement": "m", "end_force": "N", "crimp": "-"}
 LOAD_COLUMN = {"force": ("load", "N"), "displacement": ("end_displacement", "m")}
 """The first column under each control: the load-path variable."""
 
-_HEADER = re.compile(r"^\s*(?P<name>[A-Za-z_][A-Za-z0-9_]*)(?P<sigma>\s+sigma)?\s*\[(?P<unit>[^\]]*)\]\s*$")
+_HEADER = re.compile(
+    r"^\s*(?P<name>[A-Za-z_][A-Za-z0-9_]*)(?P<sigma>\s+sigma)?\s*\[(?P<unit>[^\]]*)\]\s*$")
 
 
 @dataclass(frozen=True)
@@ -84,8 +85,8 @@ def curve_from_columns(header, rows, control: str, source: str = "<data>") -> Cu
         _check_measured(source, label, name, unit, control, measured)
         measured[name] = values[:, index]
     if not measured:
-        raise SceneError(f"{source}: no measured column after '{header[0].strip()}': give one of "
-                         + ", ".join(f"'{n} [{u}]'" for n, u in MEASURABLE.items()))
+        raise SceneError(f"{source}: no measured column after '{header[0].strip()}': give one "
+                         "of " + ", ".join(f"'{n} [{u}]'" for n, u in MEASURABLE.items()))
     if sigma and set(sigma) != set(measured):
         missing = sorted(set(measured) - set(sigma))
         raise SceneError(f"{source}: a sigma column for some measured columns but not for "
@@ -108,7 +109,8 @@ def _check_load_column(source, column, control: str) -> None:
         raise SceneError(f"{source}: the first column must be '{want_name} [{want_unit}]', the "
                          f"load path of a scene under {control} control; got '{name}'")
     if unit != want_unit:
-        raise SceneError(f"{source}: column '{name}' is in [{unit}]; it must be in SI [{want_unit}]")
+        raise SceneError(f"{source}: column '{name}' is in [{unit}]; it must be in SI "
+                         f"[{want_unit}]")
 
 
 def _check_measured(source, label, name, unit, control, measured) -> None:

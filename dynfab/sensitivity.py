@@ -44,6 +44,7 @@ from dynfab.banded import BANDWIDTH, constrain, lu_factor, lu_solve
 from dynfab.errors import SceneError
 from dynfab.model import build_model, initial_state
 from dynfab.static import StaticSolver
+from dynfab.terms import friction
 
 EPS = np.finfo(np.float64).eps
 RELATIVE_STEP = EPS ** (1.0 / 3.0)
@@ -133,8 +134,8 @@ def path_sensitivities(solution: PathSolution, keys, values=None) -> dict:
     if values is None:
         values = [_get_key(scene, key) for key in keys]
     steps_h = [RELATIVE_STEP * parameter_scale(v) for v in values]
-    plus = [build_model(set_key(scene, k, v + h)).yarns[0] for k, v, h in zip(keys, values, steps_h)]
-    minus = [build_model(set_key(scene, k, v - h)).yarns[0] for k, v, h in zip(keys, values, steps_h)]
+    plus = [_yarn_at(scene, k, v + h) for k, v, h in zip(keys, values, steps_h)]
+    minus = [_yarn_at(scene, k, v - h) for k, v, h in zip(keys, values, steps_h)]
     fixed = model.fixed_dofs()
     force_control = model.control == "force"
     n_par, c = len(keys), yarn.crossing_node.size
@@ -157,6 +158,11 @@ def path_sensitivities(solution: PathSolution, keys, values=None) -> dict:
         d_anchor = _carry_anchors(pos, yarn, anchors, limit, coupled, symmetric, dx,
                                   explicit_limit, d_anchor)
     return out
+
+
+def _yarn_at(scene, dotted_key: str, value: float):
+    """The yarn of the scene with one key set (unvalidated: a difference neighbour)."""
+    return build_model(set_key(scene, dotted_key, value)).yarns[0]
 
 
 def _get_key(scene, dotted_key: str) -> float:
@@ -234,7 +240,7 @@ def _observe(out, step, pos, dx, symmetric, explicit_row_end, force_control):
 
 
 def _crimp_derivative(pos, dx):
-    """d crimp = d(arc)/proj - arc d(proj)/proj^2, crimp = (arc - proj)/proj (dynfab.model.crimp)."""
+    """d crimp = d(arc)/proj - arc d(proj)/proj^2 of crimp = (arc - proj)/proj (model.crimp)."""
     edges = np.diff(pos, axis=0)
     lengths = np.hypot(edges[:, 0], edges[:, 1])
     arc, proj = lengths.sum(), pos[-1, 0] - pos[0, 0]
@@ -253,7 +259,7 @@ def _carry_anchors(pos, yarn, anchors, limit, coupled, symmetric, dx, explicit_l
     k_t = yarn.stick_stiffness
     for j, node in enumerate(yarn.crossing_node):
         slip = pos[node, 0] - anchors[j]
-        if not k_t * abs(slip) > limit[j]:
+        if not friction.is_sliding(slip, limit[j], k_t):
             continue
         sign = np.sign(slip)
         x, z = 2 * node, 2 * node + 1

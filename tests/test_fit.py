@@ -194,3 +194,58 @@ def test_too_few_points_and_bad_keys_are_scene_errors():
             fit(scene, two, keys)
     with pytest.raises(SceneError):
         fit(scene, two, ["warp.EA"], bounds={"warp.EA": (1.0, 2.0)})  # start outside
+
+
+def test_fit_jacobian_is_the_derivative_of_its_residuals():
+    """The optimiser's Jacobian (sensitivities x dp/dtheta / weights, log coordinates for
+    positive keys) against a central difference of its own residual function in theta, on a
+    curve with two measured columns. Tolerance: the whole-curve FD error, estimated by
+    Richardson as in tests/test_fit_sensitivity.py."""
+    from dynfab.fit import _Problem, make_parameters, with_path
+
+    scene = quarter_yarn("force", FORCES, dict(PAPER_FRICTION, beta=3e4))
+    solution = solve_path(scene)
+    data = curve_from_columns(
+        ["load [N]", "end_displacement [m]", "crimp [-]"],
+        np.c_[FORCES, 1.01 * solution.observables["end_displacement"],
+              0.99 * solution.observables["crimp"]], "force")
+    parameters = make_parameters(scene, ["warp.EA", "friction.alpha"])
+    path, index = refined_path(data.load, 1)
+    problem = _Problem(with_path(scene, path), data, parameters, index, None)
+    theta = np.array([p.to_theta(p.start) for p in parameters])
+    jac = problem.jacobian(theta)
+    for k in range(theta.size):
+        def difference(h):
+            step = np.zeros_like(theta)
+            step[k] = h
+            return (problem.residuals(theta + step) - problem.residuals(theta - step)) / (2 * h)
+        coarse, fine = difference(1e-4), difference(5e-5)
+        error = np.abs(jac[:, k] - fine).max()
+        assert error <= 3 * np.abs(coarse - fine).max() + 1e-12 * np.abs(fine).max(), k
+
+
+def test_banded_solve_falls_back_to_pivoting_on_a_negative_pivot():
+    """J is not positive definite under compression: the solve must still be J^-1 rhs (dense
+    numpy reference), fixed dofs held at 0."""
+    from dynfab.banded import BANDWIDTH, band_add, zeros_band
+    from dynfab.sensitivity import _solve
+
+    rng = np.random.default_rng(0)
+    n = 24
+    band = zeros_band(n)
+    dense_matrix = np.zeros((n, n))
+    for i in range(n):
+        for j in range(max(0, i - BANDWIDTH), min(n, i + BANDWIDTH + 1)):
+            value = rng.normal() + (8.0 if i == j else 0.0)
+            if i == j == 3:
+                value = -8.0  # an indefinite matrix: LU without pivoting stops here
+            band_add(band, i, j, value)
+            dense_matrix[i, j] = value
+    fixed = np.zeros(n, bool)
+    fixed[[0, 1, n - 1]] = True
+    rhs = rng.normal(size=(2, n))
+    got = _solve(band, rhs, fixed)
+    free = ~fixed
+    expected = np.linalg.solve(dense_matrix[np.ix_(free, free)], rhs[:, free].T).T
+    assert np.allclose(got[:, free], expected, rtol=1e-12, atol=1e-14 * np.abs(expected).max())
+    assert (got[:, fixed] == 0).all()

@@ -27,6 +27,11 @@ def test_fit_example_writes_report_scene_and_figures(tmp_path, capsys):
     assert set(report) >= {"parameters", "correlation", "residual_rms", "dof", "iterations",
                            "identifiable", "warnings"}
     assert report["identifiable"] and report["dof"] == 8
+    # the README quotes this command's output: each table line as printed here
+    readme = (EXAMPLE.parent.parent / "README.md").read_text()
+    assert "--fit warp.EA,friction.alpha --out fit_example" in readme
+    for line in captured.out.splitlines():
+        assert line in readme, line
     for name in ("fit_curve.png", "fit_correlation.png"):
         assert (out / name).stat().st_size > 0
     # the fitted scene runs as it is, and gives back the fitted curve

@@ -68,8 +68,8 @@ def same_sets(a, b):
 
 def central_difference(scene, key, h):
     value = _get_key(scene, key)
-    up, down = solve_path(with_key(scene, key, value + h)), solve_path(with_key(scene, key, value - h))
-    return up, down
+    return (solve_path(with_key(scene, key, value + h)),
+            solve_path(with_key(scene, key, value - h)))
 
 
 @pytest.mark.parametrize("case", CASES)
@@ -89,7 +89,8 @@ def test_sensitivities_match_finite_differences_of_whole_curves(case):
             slid |= sliding
         assert resticks
     exact = path_sensitivities(base, keys)
-    observed = ["crimp", "end_force" if scene.load.control == "displacement" else "end_displacement"]
+    observed = ["crimp",
+                "end_force" if scene.load.control == "displacement" else "end_displacement"]
     for k, key in enumerate(keys):
         h = STEP * abs(_get_key(scene, key))
         coarse, fine = central_difference(scene, key, h), central_difference(scene, key, h / 2)
