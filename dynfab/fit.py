@@ -267,7 +267,7 @@ class _Problem:
         solution, residual = self.solve(theta)
         values = self.values(theta)
         keys = [p.key for p in self.parameters]
-        sens = path_sensitivities(solution, keys, values)
+        sens = path_sensitivities(solution, keys, values, self.names)
         chain = np.array([v if p.log else 1.0 for p, v in zip(self.parameters, values)])
         jac = np.concatenate([sens[n][self.data_index] * chain[None, :] / w[:, None]
                               for n, w in zip(self.names, self.weights)])

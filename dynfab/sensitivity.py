@@ -36,6 +36,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 
+import numba
 import numpy as np
 from scipy.linalg import solve_banded
 
@@ -118,13 +119,23 @@ def _closed(pos, yarn) -> np.ndarray:
     return tangent > 0.0
 
 
-def parameter_scale(value: float) -> float:
-    """The scale a central-difference step is relative to: |value|, or 1 at 0."""
-    return abs(value) if value != 0.0 else 1.0
+def parameter_scale(scene, dotted_key: str, value: float) -> float:
+    """The scale a central-difference step is relative to: |value|, or at 0 a typical size.
+
+    At 0: an amplitude takes the segment length L/N [m] (the residual is nonlinear in it);
+    every other key that may be 0 enters the residual linearly (alpha, beta, ell, r_f, g, the
+    weft tension through eq. 4), where any step is exact, and takes 1.
+    """
+    if value != 0.0:
+        return abs(value)
+    if dotted_key.endswith("amplitude"):
+        return scene.geometry.length / scene.geometry.segments
+    return 1.0
 
 
-def path_sensitivities(solution: PathSolution, keys, values=None) -> dict:
-    """d(observable)/dp (steps, len(keys)) of every observable, along the solved path.
+def path_sensitivities(solution: PathSolution, keys, values=None,
+                       observables=OBSERVABLES) -> dict:
+    """d(observable)/dp (steps, len(keys)) of each of `observables`, along the solved path.
 
     `values` are the parameters' current values (default: the scene's). The
     scene of `solution` must hold them already (it is the one solved).
@@ -133,7 +144,7 @@ def path_sensitivities(solution: PathSolution, keys, values=None) -> dict:
     yarn = model.yarns[0]
     if values is None:
         values = [_get_key(scene, key) for key in keys]
-    steps_h = [RELATIVE_STEP * parameter_scale(v) for v in values]
+    steps_h = [RELATIVE_STEP * parameter_scale(scene, k, v) for k, v in zip(keys, values)]
     plus = [_yarn_at(scene, k, v + h) for k, v, h in zip(keys, values, steps_h)]
     minus = [_yarn_at(scene, k, v - h) for k, v, h in zip(keys, values, steps_h)]
     fixed = model.fixed_dofs()
@@ -141,6 +152,7 @@ def path_sensitivities(solution: PathSolution, keys, values=None) -> dict:
     n_par, c = len(keys), yarn.crossing_node.size
     d_anchor = np.zeros((n_par, c))
     out = {name: np.zeros((solution.load.size, n_par)) for name in OBSERVABLES}
+    want_crimp = "crimp" in observables
     for step, (pos, anchors) in enumerate(zip(solution.positions, solution.anchors_before)):
         P = float(solution.load[step]) if force_control else 0.0
         coupled, symmetric, limit = _jacobians(pos, yarn, anchors)
@@ -149,15 +161,15 @@ def path_sensitivities(solution: PathSolution, keys, values=None) -> dict:
         explicit_row_end = np.zeros(n_par)
         explicit_limit = np.zeros((n_par, c))
         for k in range(n_par):
-            dr, explicit_limit[k] = _explicit(pos, anchors, d_anchor[k], P, plus[k], minus[k],
-                                              steps_h[k])
-            rhs[k] = -dr
-            explicit_row_end[k] = dr[-2]
+            _explicit(pos, anchors, d_anchor[k], P, plus[k], minus[k], steps_h[k], rhs[k],
+                      explicit_limit[k])
+            explicit_row_end[k] = rhs[k, -2]
+        rhs *= -1.0
         dx = _solve(factors, rhs, fixed)
-        _observe(out, step, pos, dx, symmetric, explicit_row_end, force_control)
+        _observe(out, step, pos, dx, symmetric, explicit_row_end, force_control, want_crimp)
         d_anchor = _carry_anchors(pos, yarn, anchors, limit, coupled, symmetric, dx,
                                   explicit_limit, d_anchor)
-    return out
+    return {name: out[name] for name in observables}
 
 
 def _yarn_at(scene, dotted_key: str, value: float):
@@ -183,23 +195,28 @@ def _jacobians(pos, yarn, anchors):
     return coupled, symmetric, limit
 
 
-def _residual(pos, yarn, P, anchors):
-    """r(x, xi, p): the coupled residual dV/dx [N] with F_T from the current contact forces,
-    and F_T / k_t per crossing [m]."""
+@numba.njit(cache=True)
+def _residual(pos, yarn, P, anchors, grad, slip_limit):
+    """r(x, xi, p) into grad: the coupled residual dV/dx [N] with F_T from the current contact
+    forces; F_T / k_t per crossing [m] into slip_limit."""
     c = yarn.crossing_node.size
-    R, limit, tangent = np.zeros(c), np.zeros(c), np.zeros(c)
-    assembly.contact_state(pos, yarn, R, limit, tangent)
-    grad = np.zeros_like(pos)
-    assembly.gradient(pos, yarn, P, anchors, limit, grad)
-    slip_limit = limit / yarn.stick_stiffness if yarn.has_friction else limit
-    return grad.ravel(), slip_limit
+    R, tangent = np.zeros(c), np.zeros(c)
+    assembly.contact_state(pos, yarn, R, slip_limit, tangent)
+    assembly.gradient(pos, yarn, P, anchors, slip_limit, grad)
+    if yarn.has_friction:
+        slip_limit /= yarn.stick_stiffness
 
 
-def _explicit(pos, anchors, d_anchor, P, yarn_plus, yarn_minus, h):
-    """Central difference at FIXED x along (dp = 1, dxi = d_anchor): (dr, d(F_T/k_t)|_x)."""
-    r_plus, t_plus = _residual(pos, yarn_plus, P, anchors + h * d_anchor)
-    r_minus, t_minus = _residual(pos, yarn_minus, P, anchors - h * d_anchor)
-    return (r_plus - r_minus) / (2.0 * h), (t_plus - t_minus) / (2.0 * h)
+@numba.njit(cache=True)
+def _explicit(pos, anchors, d_anchor, P, yarn_plus, yarn_minus, h, dr, dlimit):
+    """Central difference at FIXED x along (dp = 1, dxi = d_anchor): dr [N] and d(F_T/k_t)|_x."""
+    c = anchors.size
+    g_plus, g_minus = np.zeros_like(pos), np.zeros_like(pos)
+    t_plus, t_minus = np.zeros(c), np.zeros(c)
+    _residual(pos, yarn_plus, P, anchors + h * d_anchor, g_plus, t_plus)
+    _residual(pos, yarn_minus, P, anchors - h * d_anchor, g_minus, t_minus)
+    dr[:] = (g_plus.ravel() - g_minus.ravel()) / (2.0 * h)
+    dlimit[:] = (t_plus - t_minus) / (2.0 * h)
 
 
 def _solve(band, rhs, fixed):
@@ -225,7 +242,7 @@ def _solve(band, rhs, fixed):
     return solve_banded((BANDWIDTH, BANDWIDTH), ab, rhs.T).T
 
 
-def _observe(out, step, pos, dx, symmetric, explicit_row_end, force_control):
+def _observe(out, step, pos, dx, symmetric, explicit_row_end, force_control, want_crimp):
     """Observable sensitivities of one step from dx (n_par, n)."""
     n = pos.size
     end_x = n - 2
@@ -236,7 +253,8 @@ def _observe(out, step, pos, dx, symmetric, explicit_row_end, force_control):
         cols = np.arange(max(0, end_x - BANDWIDTH), min(n, end_x + BANDWIDTH + 1))
         row = symmetric[end_x, cols - end_x + BANDWIDTH]
         out["end_force"][step] = dx[:, cols] @ row + explicit_row_end
-    out["crimp"][step] = _crimp_derivative(pos, dx)
+    if want_crimp:
+        out["crimp"][step] = _crimp_derivative(pos, dx)
 
 
 def _crimp_derivative(pos, dx):

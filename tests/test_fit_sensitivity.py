@@ -20,7 +20,8 @@ import numpy as np
 import pytest
 
 from dynfab.scene import with_key
-from dynfab.sensitivity import RELATIVE_STEP, _get_key, path_sensitivities, solve_path
+from dynfab.sensitivity import (RELATIVE_STEP, _get_key, parameter_scale, path_sensitivities,
+                                solve_path)
 from independent import PAPER_FRICTION, PAPER_WARP, PAPER_WEFT, make_scene
 
 STEP = 1e-4
@@ -42,18 +43,20 @@ FORCES = np.linspace(0.05, 0.5, 8)
 STICK_SLIP = dict(PAPER_FRICTION, beta=3e4)
 """Gralen's constant 6e-2 N: under FORCES the crossings stick first and start sliding one by one."""
 ELASTIC_KEYS = ["warp.EA", "warp.kawabata_K", "weft.kawabata_C", "warp.EI"]
+GEOMETRY_KEYS = ["geometry.amplitude", "weft.amplitude", "weft.EI", "weft.tension",
+                 "weft.kawabata_K", "warp.kawabata_C"]
 FRICTION_KEYS = ["friction.alpha", "friction.beta"]
 
 CASES = {
     "displacement, frictionless": (quarter_yarn("displacement", DISPLACEMENTS), ELASTIC_KEYS),
-    "force, frictionless": (quarter_yarn("force", FORCES), ELASTIC_KEYS),
+    "force, frictionless": (quarter_yarn("force", FORCES), ELASTIC_KEYS + GEOMETRY_KEYS),
     "force, stick then slip": (quarter_yarn("force", FORCES, STICK_SLIP),
                                ELASTIC_KEYS + FRICTION_KEYS),
     # Unloading after sliding: crossings stick again on anchors the loading moved, so the
     # curve depends on the anchors' history (dxi/dp carried from the sliding steps).
     "force, slip then stick on unloading": (
         quarter_yarn("force", np.concatenate([FORCES, FORCES[::-1][1:5]]), STICK_SLIP),
-        ELASTIC_KEYS + FRICTION_KEYS),
+        ELASTIC_KEYS + FRICTION_KEYS + ["friction.contact_length", "geometry.amplitude"]),
     "displacement, friction": (quarter_yarn("displacement", DISPLACEMENTS,
                                             dict(PAPER_FRICTION, beta=1e4)),
                                ELASTIC_KEYS + FRICTION_KEYS + ["friction.stick_stiffness"]),
@@ -92,7 +95,7 @@ def test_sensitivities_match_finite_differences_of_whole_curves(case):
     observed = ["crimp",
                 "end_force" if scene.load.control == "displacement" else "end_displacement"]
     for k, key in enumerate(keys):
-        h = STEP * abs(_get_key(scene, key))
+        h = STEP * parameter_scale(scene, key, _get_key(scene, key))
         coarse, fine = central_difference(scene, key, h), central_difference(scene, key, h / 2)
         for solved in (*coarse, *fine):
             assert same_sets(base, solved), f"{key}: a set switches within +-h; choose other loads"
