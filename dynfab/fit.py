@@ -112,7 +112,8 @@ class FitResult:
             lines.append(f"{key:<22}{entry['value']:13.6g}{se_text}  {interval}")
         rms = ", ".join(f"{k} {v:.4g}" for k, v in self.residual_rms.items())
         lines.append(f"residual rms: {rms}; dof {self.dof}; iterations {self.iterations}; "
-                     f"identifiable: {'yes' if self.identifiable else 'NO'}")
+                     f"identifiable: {'yes' if self.identifiable else 'NO'}"
+                     + ("" if self.converged else "; NOT CONVERGED"))
         lines += [f"warning: {w}" for w in self.warnings]
         return "\n".join(lines)
 
