@@ -168,6 +168,9 @@ def make_parameters(scene, keys, bounds=None, start=None) -> list[Parameter]:
                              f"sweepable, in a table of the scene: {', '.join(allowed)}")
         if key in (p.key for p in parameters):
             raise SceneError(f"--fit {key}: given twice")
+        if key == "warp.linear_density" and scene.gravity is None:
+            raise SceneError(f"--fit {key}: a static curve does not depend on the mass without "
+                             "[gravity]; it cannot be fitted from this scene")
         table, name = key.split(".")
         rule = scene_module._SCHEMA[table][1][name].rule
         value = start.get(key, _current_value(scene, key))
@@ -391,13 +394,13 @@ def statistics(jac, residual, theta, parameters, sigma_given: bool, active) -> d
     cov = np.full((n, n), np.nan)
     undetermined = np.zeros(n, bool)
     idx = np.flatnonzero(free)
+    for k in idx[np.linalg.norm(jac[:, idx], axis=0) == 0.0]:
+        warnings.append(f"not identifiable: {keys[k]}; the curve does not depend on it")
+        undetermined[k] = True
+    idx = idx[~undetermined[idx]]
     if idx.size:
         sub = jac[:, idx]
-        norms = np.linalg.norm(sub, axis=0)
-        for k in idx[norms == 0.0]:
-            warnings.append(f"{keys[k]} is not identifiable: the curve does not depend on it")
-            undetermined[k] = True
-        scale = np.where(norms > 0, norms, 1.0)
+        scale = np.linalg.norm(sub, axis=0)
         _, s, vt = np.linalg.svd(sub / scale, full_matrices=False)
         ratio = s / s[0] if s[0] > 0 else np.zeros_like(s)
         inv = np.where(ratio > 1e-14, 1.0 / np.where(s > 0, s, 1.0) ** 2, np.inf)
@@ -405,6 +408,7 @@ def statistics(jac, residual, theta, parameters, sigma_given: bool, active) -> d
             cov_scaled = (vt.T * np.where(np.isfinite(inv), inv, 0.0)) @ vt
         cov_sub = variance * cov_scaled / np.outer(scale, scale)
         cov[np.ix_(idx, idx)] = cov_sub
+
         def combination(i):
             """The direction vt[i] as text, its largest component positive."""
             sign = 1.0 if vt[i][np.argmax(np.abs(vt[i]))] > 0 else -1.0

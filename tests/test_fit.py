@@ -194,7 +194,7 @@ def test_too_few_points_and_bad_keys_are_scene_errors():
                              "force")
     for keys in (["warp.EA", "weft.kawabata_C"],  # 2 values, 2 parameters, noise estimated
                  ["geometry.segments"], ["load.values"], ["friction.alpha"], ["warp.EA", "warp.EA"],
-                 ["warp.nothing"]):
+                 ["warp.nothing"], ["warp.linear_density"]):
         with pytest.raises(SceneError):
             fit(scene, two, keys)
     with pytest.raises(SceneError):
@@ -254,3 +254,61 @@ def test_banded_solve_falls_back_to_pivoting_on_a_negative_pivot():
     expected = np.linalg.solve(dense_matrix[np.ix_(free, free)], rhs[:, free].T).T
     assert np.allclose(got[:, free], expected, rtol=1e-12, atol=1e-14 * np.abs(expected).max())
     assert (got[:, fixed] == 0).all()
+
+
+def test_statistics_of_a_straight_line_match_the_textbook_formulas():
+    """y = b0 + b1 x by least squares: se(b1) = s / sqrt(sum (x - xbar)^2),
+    se(b0) = s sqrt(1/n + xbar^2 / sum (x - xbar)^2), corr(b0, b1) = -xbar / sqrt(mean(x^2)),
+    s^2 = |r|^2 / (n - 2), 95 % interval b +- t_{0.975, n-2} se (independent of dynfab)."""
+    from scipy import stats as scipy_stats
+
+    from dynfab.fit import Parameter, statistics
+
+    rng = np.random.default_rng(3)
+    x = np.linspace(0.0, 1.0, 9)
+    y = 0.3 + 2.0 * x + rng.normal(0.0, 0.05, x.size)
+    b1, b0 = np.polyfit(x, y, 1)
+    residual = b0 + b1 * x - y
+    jac = np.c_[np.ones_like(x), x]
+    parameters = [Parameter("a.b0", b0, False, -np.inf, np.inf),
+                  Parameter("a.b1", b1, False, -np.inf, np.inf)]
+    report = statistics(jac, residual, np.array([b0, b1]), parameters, False, [0, 0])
+    n, sxx = x.size, ((x - x.mean()) ** 2).sum()
+    s = np.sqrt((residual ** 2).sum() / (n - 2))
+    expected = {"a.b0": s * np.sqrt(1 / n + x.mean() ** 2 / sxx), "a.b1": s / np.sqrt(sxx)}
+    q = scipy_stats.t.ppf(0.975, n - 2)
+    for key, value in (("a.b0", b0), ("a.b1", b1)):
+        entry = report["parameters"][key]
+        assert entry["standard_error"] == pytest.approx(expected[key], rel=1e-10)
+        assert entry["ci95"] == pytest.approx([value - q * expected[key], value + q * expected[key]],
+                                              rel=1e-10)
+    assert report["correlation"][0][1] == pytest.approx(-x.mean() / np.sqrt((x ** 2).mean()),
+                                                        rel=1e-10)
+    assert report["dof"] == n - 2 and report["identifiable"]
+
+
+def test_statistics_name_a_key_the_curve_does_not_see():
+    from dynfab.fit import Parameter, statistics
+
+    x = np.linspace(0.0, 1.0, 9)
+    jac = np.c_[x, np.zeros_like(x)]
+    parameters = [Parameter(k, 1.0, True, 0.0, np.inf) for k in ("a.E", "a.m")]
+    report = statistics(jac, 0.01 * np.sin(7 * x), np.zeros(2), parameters, False, [0, 0])
+    assert report["parameters"]["a.E"]["ci95"] is not None
+    assert report["parameters"]["a.m"]["ci95"] is None and not report["identifiable"]
+    assert report["warnings"] == ["not identifiable: a.m; the curve does not depend on it"]
+
+
+def test_statistics_name_an_exactly_dependent_pair():
+    """Two columns proportional (the curve sees only their combination): rank deficient."""
+    from dynfab.fit import Parameter, statistics
+
+    x = np.linspace(0.0, 1.0, 9)
+    jac = np.c_[x, 2 * x, np.ones_like(x)]
+    parameters = [Parameter(k, 1.0, True, 0.0, np.inf) for k in ("a.K", "a.C", "a.E")]
+    report = statistics(jac, 0.01 * np.sin(7 * x), np.zeros(3), parameters, False, [0, 0, 0])
+    assert not report["identifiable"]
+    assert report["parameters"]["a.E"]["ci95"] is not None
+    for key in ("a.K", "a.C"):
+        assert report["parameters"][key]["ci95"] is None
+    assert any("a.K" in w and "a.C" in w and "a.E" not in w for w in report["warnings"])
