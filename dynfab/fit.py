@@ -265,7 +265,8 @@ class _Problem:
         except (SolverError, SceneError):  # a trial point the model refuses: the step is rejected
             return np.full(self.data.residual_count, np.nan)
 
-    def jacobian(self, theta):
+    def jacobian(self, theta, report=True):
+        """d(weighted residuals)/d(theta); `report`: one progress line (an optimiser iteration)."""
         from dynfab.sensitivity import path_sensitivities
 
         solution, residual = self.solve(theta)
@@ -275,7 +276,8 @@ class _Problem:
         chain = np.array([v if p.log else 1.0 for p, v in zip(self.parameters, values)])
         jac = np.concatenate([sens[n][self.data_index] * chain[None, :] / w[:, None]
                               for n, w in zip(self.names, self.weights)])
-        self._report(theta, residual)
+        if report:
+            self._report(theta, residual)
         return jac
 
     def _report(self, theta, residual):
@@ -309,6 +311,9 @@ def fit(scene, data, keys, *, bounds=None, substeps: int | None = None, start=No
         raise SceneError(f"jacobian={jacobian!r}: 'exact' or 'finite-difference'")
     if not isinstance(data, CurveData):
         data = read_curve(data, scene.load.control)
+    if data.control != scene.load.control:
+        raise SceneError(f"{data.source}: a curve under {data.control} control for a scene under "
+                         f"{scene.load.control} control")
     parameters = make_parameters(scene, keys, bounds, start)
     _check_counts(data, parameters)
     substeps = default_substeps(data.points) if substeps is None else int(substeps)
@@ -343,7 +348,7 @@ def _check_counts(data: CurveData, parameters) -> None:
 def _finish(problem: _Problem, result, parameters) -> FitResult:
     theta = result.x
     solution, residual = problem.solve(theta)
-    jac = problem.jacobian(theta) if problem.progress is None else _silent_jacobian(problem, theta)
+    jac = problem.jacobian(theta, report=False)
     active = np.asarray(result.active_mask) != 0
     values = problem.values(theta)
     report = statistics(jac, residual, theta, parameters, problem.sigma_given, active)
@@ -365,14 +370,6 @@ def _finish(problem: _Problem, result, parameters) -> FitResult:
                      identifiable=report["identifiable"], converged=bool(result.success),
                      warnings=warnings, noise=report["noise"], scene=fitted_scene,
                      data=problem.data, fitted=curves, cost_history=problem.costs)
-
-
-def _silent_jacobian(problem, theta):
-    progress, problem.progress = problem.progress, None
-    try:
-        return problem.jacobian(theta)
-    finally:
-        problem.progress = progress
 
 
 # --------------------------------------------------------------------------

@@ -42,6 +42,8 @@ class CurveData:
     sigma: dict
     """name -> noise level (points,) for columns that have one; empty when none has."""
     source: str = "<data>"
+    control: str = "force"
+    """The control whose load path the first column is."""
 
     @property
     def points(self) -> int:
@@ -91,7 +93,7 @@ def curve_from_columns(header, rows, control: str, source: str = "<data>") -> Cu
         missing = sorted(set(measured) - set(sigma))
         raise SceneError(f"{source}: a sigma column for some measured columns but not for "
                          f"{', '.join(missing)}: give one for each or for none")
-    return CurveData(load=load, measured=measured, sigma=sigma, source=source)
+    return CurveData(load=load, measured=measured, sigma=sigma, source=source, control=control)
 
 
 def _parse_header(source, text: str):

@@ -7,6 +7,8 @@ noise; the scenes are the quarter paper yarn of tests/test_fit_sensitivity.py
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -81,8 +83,8 @@ def test_sigma_column_fixes_the_covariance_and_estimated_noise_rescales_it():
     scene, keys = RECOVERY["frictionless"]
     data = synthetic(scene, 2e-3, 0, sigma_column=True)
     name = next(iter(data.measured))
-    doubled = type(data)(data.load, data.measured, {name: 2 * data.sigma[name]}, data.source)
-    plain = type(data)(data.load, data.measured, {}, data.source)
+    doubled = replace(data, sigma={name: 2 * data.sigma[name]})
+    plain = replace(data, sigma={})
     once, twice, estimated = (fit(scene, d, keys) for d in (data, doubled, plain))
     for key in keys:
         ratio = twice.parameters[key]["standard_error"] / once.parameters[key]["standard_error"]
