@@ -39,7 +39,7 @@ ROOT = Path(__file__).resolve().parent.parent
 EXAMPLE = ROOT / "runs" / "fit_example"
 OUTPUT = Path(__file__).resolve().parent / "fit.json"
 KEYS = ["warp.EA", "friction.alpha", "warp.kawabata_K", "weft.kawabata_C"]
-REPEATS = 5
+REPEATS = 10
 
 
 def best_time(function, repeats=REPEATS):

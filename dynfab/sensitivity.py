@@ -269,13 +269,15 @@ def _crimp_derivative(pos, dx):
     return d_arc / proj - arc * d_proj / proj ** 2
 
 
+@numba.njit(cache=True)
 def _carry_anchors(pos, yarn, anchors, limit, coupled, symmetric, dx, explicit_limit, d_anchor):
     """dxi^n/dp: the return map's derivative on sliding crossings, unchanged on sticking ones."""
-    if not yarn.has_friction:
-        return d_anchor
     new = d_anchor.copy()
+    if not yarn.has_friction:
+        return new
     k_t = yarn.stick_stiffness
-    for j, node in enumerate(yarn.crossing_node):
+    for j in range(yarn.crossing_node.size):
+        node = yarn.crossing_node[j]
         slip = pos[node, 0] - anchors[j]
         if not friction.is_sliding(slip, limit[j], k_t):
             continue
@@ -283,6 +285,7 @@ def _carry_anchors(pos, yarn, anchors, limit, coupled, symmetric, dx, explicit_l
         x, z = 2 * node, 2 * node + 1
         # coupling entry of J = sign(s) dF_T/dz (friction.add_limit_coupling)
         dlimit_dz = sign * (coupled[x, z - x + BANDWIDTH] - symmetric[x, z - x + BANDWIDTH])
-        dlimit = dlimit_dz * dx[:, z] / k_t + explicit_limit[:, j]
-        new[:, j] = dx[:, x] - sign * dlimit
+        for k in range(new.shape[0]):
+            dlimit = dlimit_dz * dx[k, z] / k_t + explicit_limit[k, j]
+            new[k, j] = dx[k, x] - sign * dlimit
     return new
