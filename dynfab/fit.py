@@ -204,13 +204,14 @@ def default_substeps(points: int) -> int:
 def refined_path(load: np.ndarray, substeps: int) -> tuple[np.ndarray, np.ndarray]:
     """The load path (each data interval, from 0, cut in `substeps` equal steps) and the
     indices of the data points in it."""
-    previous, path = 0.0, []
+    previous, path, index = 0.0, [], []
     for value in load:
-        path.extend(previous + (value - previous) * np.arange(1, substeps + 1) / substeps)
+        cuts = substeps if value != previous else 1  # a first point at 0: one (relaxing) step
+        path.extend(previous + (value - previous) * np.arange(1, cuts + 1) / cuts)
+        path[-1] = value  # exactly the data's value
+        index.append(len(path) - 1)
         previous = value
-    path = np.asarray(path)
-    path[substeps - 1::substeps] = load  # exactly the data's values
-    return path, np.arange(substeps - 1, path.size, substeps)
+    return np.asarray(path), np.asarray(index)
 
 
 def with_path(scene, path: np.ndarray):
@@ -296,7 +297,8 @@ class _Problem:
 def fit(scene, data, keys, *, bounds=None, substeps: int | None = None, start=None,
         progress: Callable[[str], None] | None = None, out=None, max_iterations: int = 50,
         jacobian: str = "exact") -> FitResult:
-    """Fit `keys` of `scene` to the measured curve `data` (a CSV path or a CurveData).
+    """Fit `keys` of `scene` (a Scene or a scene file) to the measured curve `data` (a CSV path
+    or a CurveData).
 
     `bounds`: {key: (lower, upper)} in the value; `start`: {key: value} instead of the
     scene's; `substeps`: load steps per data interval (default `default_substeps`);
@@ -306,6 +308,9 @@ def fit(scene, data, keys, *, bounds=None, substeps: int | None = None, start=No
     """
     from scipy.optimize import least_squares
 
+    if isinstance(scene, (str, Path)):
+        from dynfab.scene import load_scene
+        scene = load_scene(scene)
     keys = parse_keys(keys)
     if jacobian not in ("exact", "finite-difference"):
         raise SceneError(f"jacobian={jacobian!r}: 'exact' or 'finite-difference'")

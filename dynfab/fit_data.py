@@ -162,9 +162,13 @@ def _numbers(source, header, rows) -> np.ndarray:
 
 
 def _check_monotonic(source, label, load) -> None:
-    """The load path must be strictly monotonic: each data point a new load step on one branch."""
-    steps = np.diff(np.concatenate([[0.0], load]))
+    """The load path must be strictly monotonic from the unloaded start (a first row at 0, the
+    unloaded state, is allowed): each data point a new load step on one branch."""
+    moving = load[1:] if load.size > 1 and load[0] == 0.0 else load
+    first_row = 2 + (load.size - moving.size)
+    steps = np.diff(np.concatenate([[0.0], moving]))
     if not ((steps > 0).all() or (steps < 0).all()):
         bad = int(np.argmax(steps <= 0) if steps[0] > 0 else np.argmax(steps >= 0))
         raise SceneError(f"{source}: column '{label.strip()}' must move strictly away from 0 "
-                         f"(strictly monotonic from the unloaded start); row {bad + 2} does not")
+                         f"(strictly monotonic from the unloaded start); row {bad + first_row} "
+                         "does not")

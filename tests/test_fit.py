@@ -153,6 +153,25 @@ def test_refined_path_holds_the_data_points():
     path, index = refined_path(np.array([1.0, 2.0, 4.0]), 2)
     assert np.allclose(path, [0.5, 1.0, 1.5, 2.0, 3.0, 4.0])
     assert (path[index] == [1.0, 2.0, 4.0]).all()
+    path, index = refined_path(np.array([0.0, 1.0]), 2)  # a first row at the unloaded state
+    assert np.allclose(path, [0.0, 0.5, 1.0]) and (index == [0, 2]).all()
+
+
+def test_a_curve_may_start_at_the_unloaded_state():
+    """A first row at load 0 (the prestressed yarn relaxed at P = 0, a real step) is fitted
+    like any other point; the truth fits it to the solver's precision."""
+    scene = quarter_yarn("force", np.r_[0.0, FORCES])
+    curve = solve_path(scene).observables["end_displacement"]
+    assert curve[0] != 0.0  # the prestress relaxes at zero load
+    data = curve_from_columns(["load [N]", "end_displacement [m]"],
+                              np.c_[np.r_[0.0, FORCES], curve * (1 + 1e-3 * np.cos(np.arange(11)))],
+                              "force")
+    result = fit(scene, data, ["warp.EA"], start={"warp.EA": 12.0})
+    assert result.converged and result.parameters["warp.EA"]["ci95"] is not None
+    for bad in ([0.0, 0.0, 0.1], [0.1, 0.0, 0.2]):
+        with pytest.raises(SceneError):
+            curve_from_columns(["load [N]", "end_displacement [m]"],
+                               np.c_[bad, [1.0, 2.0, 3.0]], "force")
 
 
 # --------------------------------------------------------------------------
