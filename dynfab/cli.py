@@ -43,7 +43,6 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--quiet", action="store_true", help="no progress lines, no summary table")
     for flag, (kind, text) in RUN_FLAGS.items():
         run.add_argument(flag, type=kind, help=text)
-    _add_fit_parser(commands)
     plot = commands.add_parser("plot", help="draw the PNG figures of a result file")
     plot.add_argument("results", type=Path, help="result file (HDF5)")
     plot.add_argument("--out", type=Path, required=True, help="folder for the PNG files")
@@ -56,6 +55,7 @@ def _parser() -> argparse.ArgumentParser:
         report.add_argument("--quick", action="store_true",
                             help="a reduced scene and few settings, that runs in seconds")
         report.add_argument("--quiet", action="store_true", help="no progress lines")
+    _add_fit_parser(commands)
     return parser
 
 
