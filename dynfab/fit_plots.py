@@ -57,7 +57,7 @@ def plot_correlation(result) -> Figure:
     keys = list(result.parameters)
     corr = np.array([[np.nan if v is None else v for v in row] for row in result.correlation],
                     float).reshape(len(keys), len(keys))
-    fig = Figure(figsize=(1.2 * len(keys) + 2.5, 1.0 * len(keys) + 1.8), layout="constrained")
+    fig = Figure(figsize=(1.2 * len(keys) + 3.5, 1.0 * len(keys) + 2.0), layout="constrained")
     ax = fig.add_subplot()
     image = ax.imshow(corr, vmin=-1, vmax=1, cmap="RdBu_r")
     ax.set_xticks(range(len(keys)), keys, rotation=30, ha="right", fontsize=FONT_SIZE)
@@ -65,7 +65,8 @@ def plot_correlation(result) -> Figure:
     for i in range(len(keys)):
         for j in range(len(keys)):
             if np.isfinite(corr[i, j]):
-                ax.text(j, i, f"{corr[i, j]:.3f}", ha="center", va="center", fontsize=FONT_SIZE)
+                ax.text(j, i, f"{corr[i, j]:.3f}", ha="center", va="center", fontsize=FONT_SIZE,
+                        color="white" if abs(corr[i, j]) > 0.6 else "black")
     fig.colorbar(image, ax=ax, label="correlation")
     ax.set_title("parameter correlation", fontsize=FONT_SIZE)
     return fig
