@@ -18,11 +18,13 @@ Both solvers call `certify` on every converged yarn, in float64 on the host:
   factor (at most LANCZOS_STEPS solves, fixed quasi-random start): the Ritz
   vector y of the largest Ritz value of H^-1 has a Rayleigh quotient
   lambda >= lambda_min and an eigen-residual r = ||H y - lambda y|| (|y| = 1),
-  so an eigenvalue lies in [lambda - r, lambda]; one more LDL^T, of
-  H - (lambda - r) I, without a negative pivot proves it is the lowest
-  (Sylvester). Reported: lambda, with lambda_min in [lambda - r, lambda]
-  (r is `LOWEST_ERROR`; where the proof fails, r = lambda + tau: only
-  lambda_min > -tau is known). On an unstable state it is the smallest
+  so an eigenvalue lies in [lambda - r, lambda], and (Kato-Temple) in
+  [lambda - r^2 / gap, lambda], gap = lambda_2 - lambda estimated from the
+  second Ritz value. One more LDL^T, of H - l I, without a negative pivot
+  proves lambda_min >= l (Sylvester): tried with the Kato-Temple l, then
+  with lambda - r. Reported: lambda, with lambda_min in [lambda - e, lambda]
+  (e = `LOWEST_ERROR` = lambda - the proved l; where neither is proved,
+  e = lambda + tau: only lambda_min > -tau is known). On an unstable state it is the smallest
   Rayleigh quotient d_i / |v_i|^2 of the escape vectors, an upper bound of
   lambda_min (< 0), no more.
 - The error bound: residual x est ||H^-1||_inf, the Hager-Higham estimate of
@@ -51,8 +53,11 @@ from dynfab.ldlt import TINY_PIVOT, inverse_norm_1, ldlt_factor, ldlt_solve, neg
 from dynfab.terms import friction
 
 EPS = np.finfo(np.float64).eps
-LANCZOS_STEPS = 24
-"""Solves of shift-invert Lanczos for the lowest eigenvalue of a stable state."""
+LANCZOS_STEPS = 20
+"""Solves of shift-invert Lanczos for the lowest eigenvalue of a stable state, at most."""
+LANCZOS_TOLERANCE = 1e-6
+"""Lanczos stops once the top Ritz value of H^-1 has a residual below this times the
+Rayleigh quotient of the start vector's inverse (relative, about)."""
 MAX_CANDIDATES = 64
 """Negative pivots whose vectors `escape` tries (the most negative Rayleigh quotients are not
 the best escapes: far past a buckling load the lowest mode releases the most energy)."""
@@ -123,6 +128,17 @@ def _factor(band, matrix, free):
 
 
 @numba.njit(cache=True)
+def _ritz_vectors(alpha, beta, used):
+    """(eigenvalues ascending, eigenvectors as columns) of the Lanczos tridiagonal of order `used`."""
+    tridiagonal = np.zeros((used, used))
+    for j in range(used):
+        tridiagonal[j, j] = alpha[j]
+        if j + 1 < used:
+            tridiagonal[j, j + 1] = tridiagonal[j + 1, j] = beta[j]
+    return np.linalg.eigh(tridiagonal)
+
+
+@numba.njit(cache=True)
 def _lowest_eigenvalue(band, matrix, free, shift):
     """(estimate, error) of lambda_min of a positive definite `matrix` (module docstring).
 
@@ -143,28 +159,29 @@ def _lowest_eigenvalue(band, matrix, free, shift):
     alpha, beta = np.zeros(steps), np.zeros(steps)
     q = np.zeros(n)
     for i in range(n):
-        q[i] = np.sin(1.618033988749895 * (i + 1) + 0.5) if free[i] else 0.0
+        q[i] = 1.0 + i / n if free[i] else 0.0  # smooth, like the softest modes
     q /= np.sqrt(np.dot(q, q))
     used = 0
+    ritz, vectors = np.zeros(1), np.zeros((1, 1))
     for j in range(steps):
         basis[j] = q
         used = j + 1
         w = q.copy()
         ldlt_solve(band, w)
         alpha[j] = np.dot(q, w)
-        for _ in range(2):  # full reorthogonalisation, twice is enough
-            for m in range(j + 1):
-                w -= np.dot(basis[m], w) * basis[m]
+        for m in range(j + 1):  # full reorthogonalisation
+            w -= np.dot(basis[m], w) * basis[m]
         beta[j] = np.sqrt(np.dot(w, w))
+        if j == steps - 1 or (j >= 5 and j % 3 == 2):
+            ritz, vectors = _ritz_vectors(alpha, beta, used)
+            # Ritz residual of the inverse: beta_j |last component of the top Ritz vector|
+            if beta[j] * abs(vectors[used - 1, used - 1]) <= LANCZOS_TOLERANCE * abs(alpha[0]):
+                break
         if beta[j] <= 1e-14 * abs(alpha[j]):
             break
         q = w / beta[j]
-    tridiagonal = np.zeros((used, used))
-    for j in range(used):
-        tridiagonal[j, j] = alpha[j]
-        if j + 1 < used:
-            tridiagonal[j, j + 1] = tridiagonal[j + 1, j] = beta[j]
-    _, vectors = np.linalg.eigh(tridiagonal)
+    if vectors.shape[0] != used:
+        ritz, vectors = _ritz_vectors(alpha, beta, used)
     y = np.zeros(n)
     for j in range(used):
         y += vectors[j, used - 1] * basis[j]
@@ -173,14 +190,22 @@ def _lowest_eigenvalue(band, matrix, free, shift):
     band_matvec(matrix, y, hy)
     value = np.dot(y, hy)
     hy -= value * y
-    error = np.sqrt(np.dot(hy, hy))
-    check = matrix.copy()
-    for i in range(n):
-        if not free[i]:  # identity rows of fixed dofs: keep them out of the count
-            check[i, BANDWIDTH] = value + 1.0
-    if ldlt_factor(check, -(value - error), 0.0) != 0:
-        error = value + shift
-    return value, error
+    residual = np.sqrt(np.dot(hy, hy))
+    # Lower bounds to prove, tightest first: Kato-Temple's value - r^2 / (lambda_2 - value)
+    # with lambda_2 from the second Ritz value, then value - r.
+    second = 1.0 / ritz[used - 2] if used > 1 and ritz[used - 2] > 0.0 else np.inf
+    gap = second - value
+    tight = value - max(residual * residual / gap, 64.0 * EPS * value) if gap > residual else -np.inf
+    for lower in (tight, value - residual):
+        if lower == -np.inf:
+            continue
+        check = matrix.copy()
+        for i in range(n):
+            if not free[i]:  # identity rows of fixed dofs: keep them out of the count
+                check[i, BANDWIDTH] = lower + 1.0
+        if ldlt_factor(check, -lower, 0.0) == 0:
+            return value, value - lower
+    return value, value + shift
 
 
 @numba.njit(cache=True)

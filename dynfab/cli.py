@@ -39,6 +39,9 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--overwrite", action="store_true", help="replace an existing result file")
     run.add_argument("--resume", action="store_true", help="continue an interrupted result file")
     run.add_argument("--tolerance", type=float, help="force residual to reach [N]")
+    run.add_argument("--accuracy", type=float,
+                     help="largest accepted position error bound of a step, relative to its "
+                          "largest displacement (static.accuracy or dynamic.accuracy)")
     run.add_argument("--device", default="cpu", help="Warp device of the dynamic solver (cpu, cuda)")
     run.add_argument("--quiet", action="store_true", help="no progress lines, no summary table")
     for flag, (_, kind, text) in DYNAMIC_OPTIONS.items():
@@ -81,6 +84,12 @@ def _scene_with_options(args):
                                                                           tolerance=args.tolerance))
         else:
             overrides["tolerance"] = args.tolerance
+    if args.accuracy is not None:
+        if args.solver == "static":
+            scene = dataclasses.replace(scene, static=dataclasses.replace(scene.static,
+                                                                          accuracy=args.accuracy))
+        else:
+            overrides["accuracy"] = args.accuracy
     if overrides:
         scene = dataclasses.replace(scene, dynamic=dataclasses.replace(scene.dynamic, **overrides))
     return validate_scene(scene)

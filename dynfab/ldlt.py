@@ -31,10 +31,9 @@ def ldlt_factor(band, shift, tiny):
 
     Returns TINY_PIVOT (-1) as soon as a pivot has |d_k| <= tiny (the factor is
     then unusable). Column k eliminates rows k+1..k+BANDWIDTH:
-    H[k+o, k+m] -= L[k+o, k] d_k L[k+m, k] for 1 <= m <= o.
+    H[k+o, k+m] -= L[k+o, k] d_k L[k+m, k] = a_o a_m / d_k for 1 <= m <= o, a_o = H[k+o, k].
     """
     n = band.shape[0]
-    column = np.zeros(BANDWIDTH + 1)
     negatives = 0
     for k in range(n):
         d = band[k, BANDWIDTH] + shift
@@ -44,16 +43,16 @@ def ldlt_factor(band, shift, tiny):
         if d < 0.0:
             negatives += 1
         reach = min(BANDWIDTH, n - 1 - k)
+        inverse = 1.0 / d
+        # Column k below the diagonal still holds a_o = H[k+o, k]; L[k+o, k] = a_o / d.
         for o in range(1, reach + 1):
-            column[o] = band[k + o, BANDWIDTH - o] / d
-        for o in range(1, reach + 1):
-            factor = column[o] * d
-            if factor != 0.0:
-                row = band[k + o]
+            a = band[k + o, BANDWIDTH - o]
+            if a != 0.0:
+                factor = a * inverse
                 for m in range(1, o + 1):
-                    row[BANDWIDTH - o + m] -= factor * column[m]
+                    band[k + o, BANDWIDTH - o + m] -= factor * band[k + m, BANDWIDTH - m]
         for o in range(1, reach + 1):
-            band[k + o, BANDWIDTH - o] = column[o]
+            band[k + o, BANDWIDTH - o] *= inverse
     return negatives
 
 
@@ -75,11 +74,11 @@ def ldlt_solve(band, rhs):
 def back_substitute(band, rhs):
     """Solve L^T x = rhs in place (the unit upper triangle of the factor)."""
     n = rhs.size
-    for i in range(n - 1, -1, -1):
-        acc = rhs[i]
-        for j in range(i + 1, min(n, i + BANDWIDTH + 1)):
-            acc -= band[j, i - j + BANDWIDTH] * rhs[j]
-        rhs[i] = acc
+    for j in range(n - 1, 0, -1):  # by rows of L: x_j is final, remove it from the rows above
+        x = rhs[j]
+        if x != 0.0:
+            for i in range(max(0, j - BANDWIDTH), j):
+                rhs[i] -= band[j, i - j + BANDWIDTH] * x
 
 
 @numba.njit(cache=True)

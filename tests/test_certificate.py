@@ -102,8 +102,10 @@ def test_a_zero_pivot_is_reported_and_the_shift_proves_a_bound():
 def test_paper_yarn_is_stable_and_its_lowest_eigenvalue_matches_dense(scene_file):
     # The certificate matrix, dense, without its fixed dofs: numpy's eigenvalues. The
     # estimate is a Rayleigh quotient, so it is >= lambda_min (up to rounding of the
-    # quotient, 1e3 eps ||H||), and lambda_min >= est - r, r its eigen-residual, proved by
-    # the inertia of H - (est - r) I. Lanczos's r must also be small (1e-3 est) to be of use.
+    # quotient, 1e3 eps ||H||), and lambda_min >= est - e, e the bracket proved by the
+    # inertia of H - (est - e) I (Kato-Temple or eigen-residual). To be of use, e must be
+    # small: Lanczos stops at a Ritz residual of 1e-6 (relative), which with fig. 5's close
+    # lowest pair (1.608, 1.643 N/m at 0.5 mm) proves 0.5 %: asked, 1 %.
     entry = expand_sweep(load_scene(RUNS / scene_file))[0]
     scene = with_key(entry, "load.values", [0.0005, 0.004])
     model = build_model(scene)
@@ -123,7 +125,7 @@ def test_paper_yarn_is_stable_and_its_lowest_eigenvalue_matches_dense(scene_file
         estimate, accuracy = result[certificate.LOWEST], result[certificate.LOWEST_ERROR]
         assert record["lowest_eigenvalue"][0] == estimate > 0
         assert estimate - accuracy <= lowest <= estimate + 1e3 * EPS * np.abs(matrix).max()
-        assert accuracy <= 1e-3 * estimate
+        assert accuracy <= 1e-2 * estimate
         norm = np.abs(np.linalg.inv(matrix)).sum(axis=1).max()
         assert residual * norm / 3 <= record["error_estimate"][0] <= residual * norm * (1 + 1e-8)
 
