@@ -25,11 +25,11 @@ from scipy.special import ellipe, ellipk
 
 from dynfab import certificate
 from dynfab.banded import BANDWIDTH
-from dynfab.dynamic import DynamicSolver
+from dynfab.errors import SolverError
 from dynfab.ldlt import TINY_PIVOT, inverse_norm_1, ldlt_factor, ldlt_solve
 from dynfab.model import build_model, initial_state
 from dynfab.run import run
-from dynfab.scene import Dynamic, expand_sweep, load_scene, with_key
+from dynfab.scene import expand_sweep, load_scene, with_key
 from dynfab.static import StaticSolver
 from independent import dense
 from test_cli import dynfab_cli
@@ -296,3 +296,18 @@ def test_rounding_floor_is_summarised_once_per_run(make_scene):
     assert steps["rounding_floor"].all()
     floor = [w for w in caught if "rounding floor" in str(w.message)]
     assert len(floor) == 1 and "3 of 3 load steps" in str(floor[0].message)
+
+
+def test_accuracy_stop_at_a_float64_floor(make_scene):
+    # EA = 1e10 N on 10 segments: k = EA / l = 1e12 N/m, so rounding the positions (~1e-17 m
+    # near x = 0.1 m) leaves ~1e-5 N of force: the floor, far above the 1e-11 N asked. The
+    # bound floor x ||H^-1||_inf (~1 m/N: the tensioned rod's lateral softness) is then far
+    # above the displacement scale (P L / EA = 1e-12 m, floored at sqrt(eps) L = 1.5e-9 m).
+    # A worst case: this residual lies along the stiff axis, where it moves x by only
+    # ~1e-17 m; the bound cannot know that, and the check stops on the bound (docs/model.md).
+    scene = make_scene(geometry=dict(length=0.1, segments=10, crossings=0, amplitude=0.0),
+                       warp=dict(EA=1e10, EI=1.47e-7, kawabata_C=0.2e-3, kawabata_K=0.2),
+                       load=dict(control="force", values=[0.1]))
+    with pytest.raises(SolverError, match=r"load step 1/1 .*rounding floor of float64\) leaves a "
+                                          r"position error up to .* use a coarser mesh"):
+        run(scene)
