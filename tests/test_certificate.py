@@ -225,6 +225,17 @@ def test_pushed_in_yarn_leaves_its_saddle_in_both_solvers(make_scene):
         state, record = saddle.step(state, value)
         saddle_steps.append(record)
     assert not saddle_steps[-1]["stable"][0] and saddle_steps[-1]["lowest_eigenvalue"][0] < 0
+    # On a saddle the lowest eigenvalue comes from bisection on the inertia: within 1e-6
+    # relative (its bracket) of numpy's, plus the eigenvalues' rounding (1e3 eps ||H||).
+    positions = saddle_steps[-1]["positions"][0]
+    band = np.zeros((positions.size, 2 * BANDWIDTH + 1))
+    certificate.certificate_matrix(positions, model.yarns[0], np.zeros(model.crossings),
+                                   saddle.fixed, saddle_steps[-1]["residual"][0], band)
+    free = ~saddle.fixed
+    matrix = dense(band)[np.ix_(free, free)]
+    lowest = np.linalg.eigvalsh(matrix)[0]
+    assert abs(saddle_steps[-1]["lowest_eigenvalue"][0] - lowest) <= (
+        1e-6 * abs(lowest) + 1e3 * EPS * np.abs(matrix).max())
     static = run(scene).steps
     assert static["stable"].all() and static["buckled"][0, 0]
     # Lower energy than the saddle at the last step, beyond any rounding (1e-6 relative).
