@@ -57,6 +57,8 @@ from dynfab.terms import friction
 EPS = np.finfo(np.float64).eps
 LANCZOS_STEPS = 20
 """Solves of shift-invert Lanczos for the lowest eigenvalue of a stable state, at most."""
+LANCZOS_MEMORY = 20_000_000
+"""Numbers the Lanczos basis may hold (160 MB): fewer steps on meshes above 1e6 dofs."""
 LANCZOS_TOLERANCE = 1e-6
 """Lanczos stops once the top Ritz value of H^-1 has a residual below this times the
 Rayleigh quotient of the start vector's inverse (relative, about)."""
@@ -150,13 +152,14 @@ def _lowest_eigenvalue(band, matrix, free, shift):
     r = ||H y - lambda y|| (|y| = 1) put an eigenvalue in [lambda - r, lambda]. That it is
     the lowest is then proved by Sylvester: H - (lambda - r) I has no negative pivot.
     If not, the error is lambda + shift (lambda_min > -shift is all that is known).
+    Overwrites `band` (the factor) with the proof's factorisation.
     """
     n = free.size
     count = 0
     for i in range(n):
         if free[i]:
             count += 1
-    steps = min(LANCZOS_STEPS, count)
+    steps = min(LANCZOS_STEPS, count, max(6, LANCZOS_MEMORY // n))
     basis = np.zeros((steps, n))
     alpha, beta = np.zeros(steps), np.zeros(steps)
     q = np.zeros(n)
@@ -201,23 +204,24 @@ def _lowest_eigenvalue(band, matrix, free, shift):
     for lower in (tight, value - residual):
         if lower == -np.inf:
             continue
-        check = matrix.copy()
+        band[:, :] = matrix  # the factor is no longer needed
         for i in range(n):
             if not free[i]:  # identity rows of fixed dofs: keep them out of the count
-                check[i, BANDWIDTH] = lower + 1.0
-        if ldlt_factor(check, -lower, 0.0) == 0:
+                band[i, BANDWIDTH] = lower + 1.0
+        if ldlt_factor(band, -lower, 0.0) == 0:
             return value, value - lower
     return value, value + shift
 
 
 @numba.njit(cache=True)
-def _bisect_lowest(matrix, free, upper):
+def _bisect_lowest(check, matrix, free, upper):
     """(estimate, error) of lambda_min < 0 of an indefinite `matrix` by bisection on inertia.
 
     lambda_min lies in [lower, upper]: `upper` is a Rayleigh quotient (>= lambda_min), the
     start of `lower` Gershgorin's bound. H - s I without a negative pivot proves
     lambda_min >= s, with one proves lambda_min < s (Sylvester). Bisection until the bracket
     is 1e-6 of |upper| wide (about 40 factorisations, only on a state reported unstable).
+    `check` is work space of the matrix's shape.
     """
     n = free.size
     lower = 0.0
@@ -228,7 +232,6 @@ def _bisect_lowest(matrix, free, upper):
                 if m != BANDWIDTH:
                     row -= abs(matrix[i, m])
             lower = min(lower, row)
-    check = matrix.copy()
     for _ in range(200):
         if upper - lower <= 1e-6 * abs(upper):
             break
@@ -260,6 +263,8 @@ def certify(pos, yarn, anchors, fixed, residual, directions, result):
     result[NEGATIVES], result[SHIFT] = negatives, shift
     if negatives == TINY_PIVOT:  # NaN in the matrix
         return
+    result[INVERSE_NORM] = inverse_norm_1(band, free)
+    # The last uses of the factor; then `band` is the work space of the inertia counts.
     if negatives == 0:
         result[LOWEST], result[LOWEST_ERROR] = _lowest_eigenvalue(band, matrix, free, shift)
     else:
@@ -271,8 +276,8 @@ def certify(pos, yarn, anchors, fixed, residual, directions, result):
                 lowest = min(lowest, band[i, BANDWIDTH] / np.dot(v, v) - shift)
                 _canonical(v)
                 found += 1
-        result[LOWEST], result[LOWEST_ERROR] = _bisect_lowest(matrix, free, min(lowest, 0.0))
-    result[INVERSE_NORM] = inverse_norm_1(band, free)
+        result[LOWEST], result[LOWEST_ERROR] = _bisect_lowest(band, matrix, free,
+                                                              min(lowest, 0.0))
 
 
 @numba.njit(cache=True)
