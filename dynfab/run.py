@@ -152,8 +152,10 @@ def _progress_line(index: int, total: int, record: dict, unit: str) -> str:
     """One line per finished load step: load, worst residual, iterations, time."""
     steps = record.get("time_steps", record["iterations"])
     what = "time steps" if "time_steps" in record else "iterations"
-    buckled = record.get("buckled")
+    buckled, stable = record.get("buckled"), record.get("stable")
     note = ("  (buckled: left an unstable state)" if buckled is not None and buckled.any() else "")
+    if stable is not None and not stable.all():
+        note += "  (unstable: no escape lowered the energy; see steps/lowest_eigenvalue)"
     return (f"[{index + 1:>{len(str(total))}}/{total}] load {record['load'][0]:.6g} {unit}  "
             f"end displacement {1e3 * record['end_displacement'].max():.4f} mm  "
             f"residual {record['residual'].max():.2e} N  {what} {int(np.max(steps))}  "

@@ -198,27 +198,9 @@ class StaticSolver:
         residual, iterations = np.zeros(yarns), np.zeros(yarns, np.int64)
         at_floor, stability = np.zeros(yarns, np.bool_), StepStability(yarns)
         for k, yarn in enumerate(self.model.yarns):
-            newton(positions[k], yarn, P, self.fixed, state.anchors[k], self.tolerance,
-                   self.max_iterations, info)
-            _raise_on_failure(info, k, yarn, self.tolerance)
-            count = int(info[ITERATIONS])
-            result, directions = certify_yarn(positions[k], yarn, state.anchors[k], self.fixed,
-                                              info[RESIDUAL])
-            for _ in range(MAX_ESCAPES if self.certify else 0):
-                if result[NEGATIVES] <= 0:
-                    break
-                escaped = escape_yarn(positions[k], yarn, P, state.anchors[k], result, directions)
-                if escaped is None:
-                    break
-                stability.buckled[k] = True
-                positions[k] = escaped
-                newton(positions[k], yarn, P, self.fixed, state.anchors[k], self.tolerance,
-                       self.max_iterations, info)
-                _raise_on_failure(info, k, yarn, self.tolerance)
-                count += int(info[ITERATIONS])
-                result, directions = certify_yarn(positions[k], yarn, state.anchors[k],
-                                                  self.fixed, info[RESIDUAL])
-            residual[k], iterations[k] = info[RESIDUAL], count
+            result, iterations[k], stability.buckled[k] = self._solve_certified(
+                positions[k], k, yarn, P, state.anchors[k], info)
+            residual[k] = info[RESIDUAL]
             at_floor[k] = info[STATUS] == ROUNDING_FLOOR
             stability.record(k, result, residual[k])
             check_accuracy(k, stability.error_estimate[k],
@@ -230,6 +212,28 @@ class StaticSolver:
         record["rounding_floor"] = at_floor
         record.update(stability.fields())
         return new_state, record
+
+
+    def _solve_certified(self, pos, k: int, yarn, P: float, anchors, info):
+        """`newton` on yarn k in place, certified: from a saddle, escape (`dynfab.certificate`)
+        and solve again, at most MAX_ESCAPES times. Returns (certificate, Newton iterations,
+        whether a saddle was left); info holds the last solve's outcome."""
+        newton(pos, yarn, P, self.fixed, anchors, self.tolerance, self.max_iterations, info)
+        _raise_on_failure(info, k, yarn, self.tolerance)
+        iterations, buckled = int(info[ITERATIONS]), False
+        result, directions = certify_yarn(pos, yarn, anchors, self.fixed, info[RESIDUAL])
+        for _ in range(MAX_ESCAPES if self.certify else 0):
+            if result[NEGATIVES] <= 0:
+                break
+            escaped = escape_yarn(pos, yarn, P, anchors, result, directions)
+            if escaped is None:
+                break
+            pos[:, :], buckled = escaped, True
+            newton(pos, yarn, P, self.fixed, anchors, self.tolerance, self.max_iterations, info)
+            _raise_on_failure(info, k, yarn, self.tolerance)
+            iterations += int(info[ITERATIONS])
+            result, directions = certify_yarn(pos, yarn, anchors, self.fixed, info[RESIDUAL])
+        return result, iterations, buckled
 
 
 def prescribe_load(model, state, load_value: float) -> np.ndarray:
