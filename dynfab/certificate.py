@@ -263,7 +263,8 @@ def certify(pos, yarn, anchors, fixed, residual, directions, result):
     result[NEGATIVES], result[SHIFT] = negatives, shift
     if negatives == TINY_PIVOT:  # NaN in the matrix
         return
-    result[INVERSE_NORM] = inverse_norm_1(band, free)
+    # A shifted factor bounds nothing: H itself is singular to within its rounding.
+    result[INVERSE_NORM] = inverse_norm_1(band, free) if shift == 0.0 else np.inf
     # The last uses of the factor; then `band` is the work space of the inertia counts.
     if negatives == 0:
         result[LOWEST], result[LOWEST_ERROR] = _lowest_eigenvalue(band, matrix, free, shift)
@@ -338,15 +339,22 @@ def displacement_scale(positions, rest_positions):
 
 def check_accuracy(yarn_index: int, error_estimate: float, scale: float, residual: float,
                    tolerance: float, accuracy: float, at_floor: bool, precision: str,
-                   key: str) -> None:
+                   key: str, singular_shift: float = 0.0) -> None:
     """SolverError (one line) when the error bound is not small against the step's displacements.
 
     Accepted: error_estimate <= accuracy x max(scale, sqrt(eps) L) is checked by the caller
     through `scale` (already floored). The message says what the residual implies and what to
     change (MODEL.md 6, docs/model.md "Stability and accuracy of a converged step").
+    An infinite estimate means the matrix needed the shift `singular_shift` [N/m] to factor.
     """
     if error_estimate <= accuracy * scale:
         return
+    if np.isinf(error_estimate):
+        raise SolverError(
+            f"yarn {yarn_index}: the stiffness matrix is singular to rounding (a pivot within "
+            f"{singular_shift:.3g} N/m of zero, 64 eps of its largest diagonal entry), so the "
+            f"residual {residual:.3g} N bounds no position error: use a coarser mesh or softer "
+            f"data")
     inverse_norm = error_estimate / residual if residual > 0 else np.inf
     needed = accuracy * scale / inverse_norm
     if at_floor or residual > tolerance:
@@ -374,12 +382,14 @@ class StepStability:
         self.buckled = np.zeros(yarns, np.bool_)
         self.lowest_eigenvalue = np.full(yarns, np.nan)
         self.error_estimate = np.full(yarns, np.nan)
+        self.shift = np.zeros(yarns)
 
     def record(self, k: int, result: np.ndarray, residual: float) -> None:
         """Yarn k's certificate `result` (`certify`) at its final residual [N]."""
         self.stable[k] = result[NEGATIVES] == 0
         self.lowest_eigenvalue[k] = result[LOWEST]
-        self.error_estimate[k] = residual * result[INVERSE_NORM]
+        self.shift[k] = result[SHIFT]
+        self.error_estimate[k] = residual * result[INVERSE_NORM] if residual > 0 else 0.0
 
     @staticmethod
     def scale(positions: np.ndarray, rest_positions: np.ndarray) -> float:

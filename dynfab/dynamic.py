@@ -226,7 +226,7 @@ class DynamicSolver:
             check_accuracy(k, stability.error_estimate[k],
                            stability.scale(positions[k], model.yarns[k].rest_position),
                            residual[k], self.tolerance, self.options.accuracy, bool(at_floor[k]),
-                           self.options.precision, "dynamic.accuracy")
+                           self.options.precision, "dynamic.accuracy", stability.shift[k])
         return positions, residual, steps, stability, at_floor
 
     def transient(self, state, resume_from: dict | None = None):

@@ -206,7 +206,7 @@ class StaticSolver:
             check_accuracy(k, stability.error_estimate[k],
                            stability.scale(positions[k], yarn.rest_position), residual[k],
                            self.tolerance, self.accuracy, at_floor[k], "float64",
-                           "static.accuracy")
+                           "static.accuracy", stability.shift[k])
         new_state, record = finish_step(self.model, state, positions, load_value, residual,
                                         iterations)
         record["rounding_floor"] = at_floor
