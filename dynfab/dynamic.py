@@ -156,7 +156,8 @@ class DynamicSolver:
                 "dynamic_dt": "auto" if self.options.dt is None else self.options.dt,
                 "dynamic_safety": self.options.safety, "dynamic_tolerance": self.tolerance,
                 "dynamic_max_steps": self.options.max_steps,
-                "dynamic_precision": self.options.precision}
+                "dynamic_precision": self.options.precision,
+                "dynamic_accuracy": self.options.accuracy}
 
     def predicted_stable_dt(self, state, load_value: float = 0.0) -> np.ndarray:
         """Gershgorin's stable time step [s] per yarn at the start of a load step (of a
