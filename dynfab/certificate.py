@@ -362,7 +362,8 @@ def check_accuracy(yarn_index: int, error_estimate: float, scale: float, residua
                   "use a coarser mesh or softer data (the rounding floor grows with N and stiffness)")
         reached = f"the residual stopped at {residual:.3g} N (rounding floor of {precision})"
     else:
-        change = f"tighten the tolerance to below {needed:.2g} N"
+        change = (f"tighten the tolerance to below {needed:.2g} N" if precision == "float64" else
+                  f"use float64, or a tolerance below {needed:.2g} N if float32 reaches it")
         reached = f"the residual {residual:.3g} N (tolerance {tolerance:.3g} N)"
     raise SolverError(
         f"yarn {yarn_index}: {reached} leaves a position error up to {error_estimate:.3g} m "
