@@ -322,3 +322,13 @@ def test_accuracy_stop_at_a_float64_floor(make_scene):
     with pytest.raises(SolverError, match=r"load step 1/1 .*rounding floor of float64\) leaves a "
                                           r"position error up to .* use a coarser mesh"):
         run(scene)
+
+
+def test_semi_implicit_cannot_leave_a_saddle_and_says_so(make_scene):
+    # Its step rule accepts only steps that lower f^T M^-1 f, which rises on the way from a
+    # saddle to the minimum (docs/model.md): restarted from the escape it stalls. Not silent:
+    # exit status 3 naming the cause and the method that can.
+    scene = rod_scene(make_scene, 16, (0.05,), method="semi_implicit", max_steps=5000)
+    with pytest.raises(SolverError, match=r"relaxing from a saddle's escape \(semi_implicit "
+                                          r"accepts only steps that lower the residual.*explicit"):
+        run(scene, solver="dynamic")
