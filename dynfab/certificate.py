@@ -32,6 +32,8 @@ Both solvers call `certify` on every converged yarn, in float64 on the host:
 - The error bound: residual x est ||H^-1||_inf, the Hager-Higham estimate of
   `dynfab.ldlt.inverse_norm_1` (H symmetric: the 1- and inf-norms agree):
   |x - x*|_inf <= ||H^-1||_inf |f|_inf to first order, f the residual force.
+  Infinite when H needed the shift tau to factor: singular to rounding, it
+  bounds nothing (`check_accuracy` then stops the step).
 - The escape (`escape`): from each negative pivot d_i, v = L^-T e_i has
   v^T H v = d_i < 0. Each v (scaled to max |v_i| = 1 m, its largest |z|
   component made positive) is tried with steps t = L 2^-k, k = 0..52, both
