@@ -17,6 +17,8 @@ from dynfab.errors import DynfabError
 RUN_FLAGS = {
     # flag: (type, help); each is an option of dynfab.options (the same for dynfab.run)
     "--tolerance": (float, "force residual to reach [N] (static or dynamic)"),
+    "--accuracy": (float, "largest accepted position error bound of a step, relative to its "
+                          "largest displacement (static or dynamic)"),
     "--max-iterations": (int, "static solver: Newton iterations per load step"),
     "--mode": (str, "dynamic solver: quasi_static or transient"),
     "--method": (str, "dynamic solver: explicit or semi_implicit"),

@@ -33,6 +33,7 @@ splits from SPLIT_MIN_YARNS = 2 yarns on.
 from __future__ import annotations
 
 import concurrent.futures
+import dataclasses
 import os
 import threading
 import warnings
@@ -41,6 +42,8 @@ from typing import NamedTuple
 import numpy as np
 import warp as wp
 
+from dynfab.certificate import (MAX_ESCAPES, NEGATIVES, StepStability, certify_yarn, check_accuracy,
+                                escape_yarn)
 from dynfab.errors import SceneError, SolverError
 from dynfab.kernels import explicit, fire, motion as motion_module, semi_implicit
 from dynfab.kernels import settings as settings_module, transient
@@ -54,6 +57,10 @@ from dynfab.static import prescribe_load
 
 STEPS_PER_LAUNCH = 2000
 """Time steps a launch may take before Python regains control (progress, Ctrl-C)."""
+_SADDLE_HINT = {"semi_implicit": " (semi_implicit accepts only steps that lower the residual, "
+                                  "which cannot lead away from a saddle: use dynamic.method = "
+                                  "\"explicit\")"}
+"""Why a relaxation restarted from a saddle's escape may not converge, per method."""
 SPLIT_MIN_YARNS = 2
 """Fewest yarns whose launches are split across cores (one yarn is one thread: nothing to
 split)."""
@@ -149,7 +156,8 @@ class DynamicSolver:
                 "dynamic_dt": "auto" if self.options.dt is None else self.options.dt,
                 "dynamic_safety": self.options.safety, "dynamic_tolerance": self.tolerance,
                 "dynamic_max_steps": self.options.max_steps,
-                "dynamic_precision": self.options.precision}
+                "dynamic_precision": self.options.precision,
+                "dynamic_accuracy": self.options.accuracy}
 
     def predicted_stable_dt(self, state, load_value: float = 0.0) -> np.ndarray:
         """Gershgorin's stable time step [s] per yarn at the start of a load step (of a
@@ -171,14 +179,56 @@ class DynamicSolver:
         while (codes == status.RUNNING).any():
             codes = self._launch(None, load_value, steps=STEPS_PER_LAUNCH)
         self._raise_on_failure(codes)
-        self._warn_at_rounding_floor(codes)
-        steps = self.motion.steps.numpy().astype(np.int64)
-        new_state, record = finish_step(self.model, state, self._positions(), load_value,
-                                        self.motion.residual.numpy().astype(float), steps)
+        positions, residual, steps, stability, at_floor = self._certify(state, load_value, codes)
+        new_state, record = finish_step(self.model, state, positions, load_value, residual, steps)
+        record["rounding_floor"] = at_floor
+        record.update(stability.fields())
         record["time_steps"] = steps
         record["force_evaluations"] = self.motion.force_evaluations.numpy().astype(np.int64)
         record["dt"] = self.motion.dt.numpy().astype(float)
         return new_state, record
+
+    def _certify(self, state, load_value: float, codes: np.ndarray):
+        """Certify every relaxed yarn (`dynfab.certificate`, MODEL.md 6); a yarn on a saddle is
+        moved along its escape direction and every yarn relaxed again from there (at most
+        MAX_ESCAPES times). Then the accuracy check. Returns (positions, residual [N], time
+        steps, StepStability, at rounding floor)."""
+        model, fixed = self.model, self.model.fixed_dofs()
+        stability = StepStability(model.yarn_count)
+        steps = self.motion.steps.numpy().astype(np.int64)
+        for attempt in range(MAX_ESCAPES + 1):
+            positions = self._positions()
+            residual = self.motion.residual.numpy().astype(float)
+            certificates = [certify_yarn(positions[k], yarn, state.anchors[k], fixed, residual[k])
+                            for k, yarn in enumerate(model.yarns)]
+            restart, moved = positions.copy(), False
+            P = load_value if model.control == "force" else 0.0
+            for k, (result, directions) in enumerate(certificates):
+                if attempt < MAX_ESCAPES and result[NEGATIVES] > 0:
+                    escaped = escape_yarn(positions[k], model.yarns[k], P, state.anchors[k],
+                                          result, directions)
+                    if escaped is not None:
+                        restart[k], moved, stability.buckled[k] = escaped, True, True
+            if not moved:
+                break
+            codes = self._launch(dataclasses.replace(state, positions=restart), load_value,
+                                 steps=STEPS_PER_LAUNCH)
+            while (codes == status.RUNNING).any():
+                codes = self._launch(None, load_value, steps=STEPS_PER_LAUNCH)
+            try:
+                self._raise_on_failure(codes)
+            except SolverError as error:
+                hint = _SADDLE_HINT.get(self.options.method, "")
+                raise SolverError(f"{error}; relaxing from a saddle's escape{hint}") from error
+            steps = steps + self.motion.steps.numpy().astype(np.int64)
+        at_floor = codes == status.ROUNDING_FLOOR
+        for k, (result, _) in enumerate(certificates):
+            stability.record(k, result, residual[k])
+            check_accuracy(k, stability.error_estimate[k],
+                           stability.scale(positions[k], model.yarns[k].rest_position),
+                           residual[k], self.tolerance, self.options.accuracy, bool(at_floor[k]),
+                           self.options.precision, "dynamic.accuracy", stability.shift[k])
+        return positions, residual, steps, stability, at_floor
 
     def transient(self, state, resume_from: dict | None = None):
         """Run the transient (dynamic.mode = "transient", MODEL.md 5) from `state`; yield frames.
@@ -338,14 +388,6 @@ class DynamicSolver:
                           f"time step {bound:.3g} s (Gershgorin, conservative): allowed, but the "
                           f"run may diverge (it then stops with exit status 3)",
                           RuntimeWarning, stacklevel=3)
-
-    def _warn_at_rounding_floor(self, codes: np.ndarray) -> None:
-        """Say so when a yarn met a tolerance below its rounding floor by stalling (MODEL.md 5)."""
-        residual = self.motion.residual.numpy()
-        for k in np.flatnonzero(codes == status.ROUNDING_FLOOR):
-            warnings.warn(f"yarn {k}: the residual stopped falling at {residual[k]:.3g} N, the "
-                          f"{self.options.precision} rounding floor, above the tolerance "
-                          f"{self.tolerance:.3g} N", RuntimeWarning, stacklevel=3)
 
     def _failure_message(self, k: int, code: int) -> str:
         """What went wrong with yarn k, the numbers behind it, and the likely cause."""

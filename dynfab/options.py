@@ -18,12 +18,13 @@ from dynfab.scene import Scene, validate_scene
 
 SOLVERS = ("static", "dynamic")
 
-STATIC_OPTIONS = {"tolerance": "tolerance", "max_iterations": "max_iterations"}
+STATIC_OPTIONS = {"tolerance": "tolerance", "accuracy": "accuracy",
+                  "max_iterations": "max_iterations"}
 """Option name -> field of `Scene.static`."""
 
 DYNAMIC_OPTIONS = {name: name for name in (
     "mode", "method", "damping", "damping_coefficient", "masses", "dt", "safety",
-    "tolerance", "max_steps", "precision")}
+    "tolerance", "accuracy", "max_steps", "precision")}
 """Option name -> field of `Scene.dynamic` (units and rules: dynfab.scene.Dynamic)."""
 
 SOLVER_OPTIONS = {"static": STATIC_OPTIONS, "dynamic": DYNAMIC_OPTIONS}

@@ -70,6 +70,10 @@ UNITS: dict[str, str] = {
     "steps/time_steps": "-",  # dynamic solver: time steps taken
     "steps/force_evaluations": "-",  # dynamic solver
     "steps/dt": "s",  # dynamic solver time step
+    "steps/stable": "-",  # (steps, yarns) bool: no negative pivot of the frozen-F_T Hessian
+    "steps/buckled": "-",  # (steps, yarns) bool: the step left a saddle (an escape was taken)
+    "steps/lowest_eigenvalue": "N/m",  # (steps, yarns) estimate of lambda_min of that Hessian
+    "steps/error_estimate": "m",  # (steps, yarns) residual x est ||H^-1||_inf, position error bound
     # Transient runs: one entry per output frame (axis 0 = frames).
     "frames/time": "s",  # (frames,)
     "frames/positions": "m",  # (frames, yarns, N+1, 2)

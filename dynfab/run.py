@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import sys
 import time
+import warnings
 from pathlib import Path
 from typing import Callable
 
@@ -64,6 +65,7 @@ def run(scene: Scene, solver: str = "static", out: str | Path | None = None, *,
     state = _start_state(model, sink)
     values = model.load_values
     unit = "N" if model.control == "force" else "m"
+    floors = []
     for index in range(sink.step_count, values.size):
         started = time.perf_counter()
         try:
@@ -73,9 +75,21 @@ def run(scene: Scene, solver: str = "static", out: str | Path | None = None, *,
                               f"{error}; the {index} finished steps are kept") from error
         record["wall_time"] = time.perf_counter() - started
         sink.append_step(record)
+        floors.append(record.get("rounding_floor", np.zeros(1, bool)).any())
         if progress is not None:
             progress(_progress_line(index, values.size, record, unit))
+    _warn_rounding_floor(floors, engine)
     return sink.results() if isinstance(sink, _MemorySink) else read_results(sink.path)
+
+
+def _warn_rounding_floor(floors: list, engine) -> None:
+    """One warning at the end of a run for the steps whose residual stopped falling above the
+    tolerance (MODEL.md 5, 6); each such step also passed the accuracy check of its solver."""
+    count = int(np.sum(floors))
+    if count:
+        warnings.warn(f"{count} of {len(floors)} load steps stopped at the rounding floor, above "
+                      f"the tolerance {engine.tolerance:.3g} N (steps/rounding_floor); their "
+                      f"error bounds are in steps/error_estimate", RuntimeWarning, stacklevel=3)
 
 
 def _run_transient(model: Model, engine, sink, progress) -> None:
@@ -150,9 +164,10 @@ def _progress_line(index: int, total: int, record: dict, unit: str) -> str:
     """One line per finished load step: load, worst residual, iterations, time."""
     steps = record.get("time_steps", record["iterations"])
     what = "time steps" if "time_steps" in record else "iterations"
-    floor = record.get("rounding_floor")
-    note = ("  (rounding floor: the residual stopped falling above the tolerance)"
-            if floor is not None and floor.any() else "")
+    buckled, stable = record.get("buckled"), record.get("stable")
+    note = ("  (buckled: left an unstable state)" if buckled is not None and buckled.any() else "")
+    if stable is not None and not stable.all():
+        note += "  (unstable: no escape lowered the energy; see steps/lowest_eigenvalue)"
     return (f"[{index + 1:>{len(str(total))}}/{total}] load {record['load'][0]:.6g} {unit}  "
             f"end displacement {1e3 * record['end_displacement'].max():.4f} mm  "
             f"residual {record['residual'].max():.2e} N  {what} {int(np.max(steps))}  "

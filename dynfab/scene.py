@@ -130,6 +130,8 @@ class Static:
     """Force residual to reach [N] (or the rounding floor, where higher)."""
     max_iterations: int = 200
     """Newton iterations per load step before the step is declared failed."""
+    accuracy: float = 0.1
+    """Largest accepted position error bound of a step, relative to its largest displacement."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -159,6 +161,8 @@ class Dynamic:
     """Time steps allowed per load step."""
     precision: str = "float64"
     """"float64" or "float32"."""
+    accuracy: float = 0.1
+    """Largest accepted position error bound of a step, relative to its largest displacement."""
     duration: float | None = None
     """Transient: simulated time [s]."""
     output_interval: float | None = None
@@ -254,6 +258,7 @@ _SCHEMA: dict[str, tuple[type, dict[str, _Key]]] = {
     "static": (Static, {
         "tolerance": _real("N", _POS),
         "max_iterations": _Key("int", rule=_POS),
+        "accuracy": _real("-", _POS),
     }),
     "dynamic": (Dynamic, {
         "mode": _choice("quasi_static", "transient"),
@@ -266,6 +271,7 @@ _SCHEMA: dict[str, tuple[type, dict[str, _Key]]] = {
         "tolerance": _real("N", _POS),
         "max_steps": _Key("int", rule=_POS),
         "precision": _choice("float64", "float32"),
+        "accuracy": _real("-", _POS),
         "duration": _real("s", _POS),
         "output_interval": _real("s", _POS),
     }),

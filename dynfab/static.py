@@ -19,6 +19,8 @@ import numpy as np
 
 from dynfab import assembly
 from dynfab.banded import BANDWIDTH, constrain, lu_factor, lu_solve
+from dynfab.certificate import (MAX_ESCAPES, NEGATIVES, StepStability, certify_yarn, check_accuracy,
+                                escape_yarn)
 from dynfab.errors import SolverError
 from dynfab.observables import finish_step
 
@@ -162,40 +164,76 @@ def newton(pos, yarn, P, fixed, anchors, tolerance, max_iterations, info):
 
 
 class StaticSolver:
-    """Solves a model's load steps one after another with `newton` (MODEL.md section 6)."""
+    """Solves a model's load steps one after another with `newton` (MODEL.md section 6).
+
+    Every converged step is certified (`dynfab.certificate`): a saddle is left along a
+    direction of negative curvature and solved again (at most MAX_ESCAPES times), and the
+    step's position error bound must be within `accuracy` of its displacements.
+    `certify=False` skips the escape (the step still reports its stability).
+    """
 
     name = "static"
 
-    def __init__(self, model, *, tolerance: float | None = None, max_iterations: int | None = None):
+    def __init__(self, model, *, tolerance: float | None = None, max_iterations: int | None = None,
+                 accuracy: float | None = None, certify: bool = True):
         self.model = model
         self.tolerance = model.scene.static.tolerance if tolerance is None else tolerance
         self.max_iterations = (model.scene.static.max_iterations if max_iterations is None
                                else max_iterations)
+        self.accuracy = model.scene.static.accuracy if accuracy is None else accuracy
+        self.certify = certify
         self.fixed = model.fixed_dofs()
 
     def attrs(self) -> dict:
         """Root attributes describing the solver, for the result file."""
         return {"solver": self.name, "static_tolerance": self.tolerance,
-                "static_max_iterations": self.max_iterations}
+                "static_max_iterations": self.max_iterations, "static_accuracy": self.accuracy}
 
     def step(self, state, load_value: float):
         """Relax every yarn under `load_value`; returns (new state, record) or raises SolverError."""
         positions = prescribe_load(self.model, state, load_value)
         P = load_value if self.model.control == "force" else 0.0
         info = np.zeros(4)
-        residual = np.zeros(self.model.yarn_count)
-        iterations = np.zeros(self.model.yarn_count, np.int64)
-        at_floor = np.zeros(self.model.yarn_count, np.bool_)
+        yarns = self.model.yarn_count
+        residual, iterations = np.zeros(yarns), np.zeros(yarns, np.int64)
+        at_floor, stability = np.zeros(yarns, np.bool_), StepStability(yarns)
         for k, yarn in enumerate(self.model.yarns):
-            newton(positions[k], yarn, P, self.fixed, state.anchors[k], self.tolerance,
-                   self.max_iterations, info)
-            _raise_on_failure(info, k, yarn, self.tolerance)
-            residual[k], iterations[k] = info[RESIDUAL], int(info[ITERATIONS])
+            result, iterations[k], stability.buckled[k] = self._solve_certified(
+                positions[k], k, yarn, P, state.anchors[k], info)
+            residual[k] = info[RESIDUAL]
             at_floor[k] = info[STATUS] == ROUNDING_FLOOR
+            stability.record(k, result, residual[k])
+            check_accuracy(k, stability.error_estimate[k],
+                           stability.scale(positions[k], yarn.rest_position), residual[k],
+                           self.tolerance, self.accuracy, at_floor[k], "float64",
+                           "static.accuracy", stability.shift[k])
         new_state, record = finish_step(self.model, state, positions, load_value, residual,
                                         iterations)
         record["rounding_floor"] = at_floor
+        record.update(stability.fields())
         return new_state, record
+
+
+    def _solve_certified(self, pos, k: int, yarn, P: float, anchors, info):
+        """`newton` on yarn k in place, certified: from a saddle, escape (`dynfab.certificate`)
+        and solve again, at most MAX_ESCAPES times. Returns (certificate, Newton iterations,
+        whether a saddle was left); info holds the last solve's outcome."""
+        newton(pos, yarn, P, self.fixed, anchors, self.tolerance, self.max_iterations, info)
+        _raise_on_failure(info, k, yarn, self.tolerance)
+        iterations, buckled = int(info[ITERATIONS]), False
+        result, directions = certify_yarn(pos, yarn, anchors, self.fixed, info[RESIDUAL])
+        for _ in range(MAX_ESCAPES if self.certify else 0):
+            if result[NEGATIVES] <= 0:
+                break
+            escaped = escape_yarn(pos, yarn, P, anchors, result, directions)
+            if escaped is None:
+                break
+            pos[:, :], buckled = escaped, True
+            newton(pos, yarn, P, self.fixed, anchors, self.tolerance, self.max_iterations, info)
+            _raise_on_failure(info, k, yarn, self.tolerance)
+            iterations += int(info[ITERATIONS])
+            result, directions = certify_yarn(pos, yarn, anchors, self.fixed, info[RESIDUAL])
+        return result, iterations, buckled
 
 
 def prescribe_load(model, state, load_value: float) -> np.ndarray:

@@ -12,6 +12,7 @@ static solution. Every position comparison below uses exactly this bound.
 Load paths are reduced to a few steps to keep the suite fast.
 """
 
+import math
 import warnings
 from dataclasses import replace
 from pathlib import Path
@@ -196,11 +197,14 @@ def test_float32_reaches_its_tolerance_or_rounding_floor(fig3):
     """float32 rounds positions near x = 0.1 m to 7e-9 m, so a 3e4 N/m spring's force to
     ~2e-4 N: the default 1e-4 N may be out of reach, met by stalling at the rounding floor
     16 eps max|K_ii| max|x| (MODEL.md 5-6). Either way the equilibrium is within
-    ||K^-1||_inf (r + r_s) of the float64 reference."""
+    ||K^-1||_inf (r + r_s) of the float64 reference. That bound (about 1.1e-3 m here) is
+    not small against the 1e-3 m pulled, so the accuracy check (dynamic.accuracy) would
+    stop this step with exit status 3 (tests/test_certificate.py); accuracy = inf lets the
+    step finish so that the bound itself can be checked."""
     scene = with_key(replace(fig3, sweep=()), "load.values", [0.001])
     with warnings.catch_warnings(record=True):
         for model, static_state, static_record, state, record in relax_path(
-                scene, Dynamic(precision="float32")):
+                scene, Dynamic(precision="float32", accuracy=math.inf)):
             band = zeros_band(state.positions[0].size)
             yarn, positions = model.yarns[0], state.positions[0]
             contact_force, limit, tangent = (np.zeros(model.crossings) for _ in range(3))

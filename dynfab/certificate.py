@@ -1,0 +1,408 @@
+"""Certificate of a converged load step: stable minimum or saddle, and its error bound (MODEL.md 6).
+
+Both solvers call `certify` on every converged yarn, in float64 on the host:
+
+- The matrix (`certificate_matrix`): the symmetric Hessian of V plus the Huber
+  friction terms with F_T frozen at the state's values (not the coupled
+  friction Jacobian, not the secant or a shifted matrix), fixed dofs
+  constrained out. At a kink it takes the softer branch: a crossing whose
+  contact force is within the step's residual counts as open (no contact
+  tangent), a crossing whose trial friction force k_t |s| is within the
+  residual of F_T counts as sliding (no Huber curvature along the slip).
+  At that accuracy the state cannot tell the branches apart.
+- The inertia (`dynfab.ldlt`): unpivoted LDL^T, negative pivots counted
+  (Sylvester). A pivot within tau = 64 eps max|H_ii| of zero: H + tau I is
+  factored instead (doubling tau while a pivot stays that small); all
+  pivots positive then prove lambda_min > -tau. `stable` = no negative pivot.
+- The lowest eigenvalue: on a stable state, shift-invert Lanczos with the
+  factor (at most LANCZOS_STEPS solves, from a smooth start vector): the Ritz
+  vector y of the largest Ritz value of H^-1 has a Rayleigh quotient
+  lambda >= lambda_min and an eigen-residual r = ||H y - lambda y|| (|y| = 1),
+  so an eigenvalue lies in [lambda - r, lambda], and (Kato-Temple) in
+  [lambda - r^2 / gap, lambda], gap = lambda_2 - lambda estimated from the
+  second Ritz value. One more LDL^T, of H - l I, without a negative pivot
+  proves lambda_min >= l (Sylvester): tried with the Kato-Temple l, then
+  with lambda - r. Reported: lambda, with lambda_min in [lambda - e, lambda]
+  (e = `LOWEST_ERROR` = lambda - the proved l; where neither is proved,
+  e = lambda + tau: only lambda_min > -tau is known). On an unstable state:
+  bisection on the inertia of H - s I between Gershgorin's lower bound and
+  the smallest Rayleigh quotient d_i / |v_i|^2 of the escape vectors, to
+  1e-6 relative (`_bisect_lowest`: about 40 factorisations, only on a state
+  reported unstable); `LOWEST_ERROR` is the bracket's width.
+- The error bound: residual x est ||H^-1||_inf, the Hager-Higham estimate of
+  `dynfab.ldlt.inverse_norm_1` (H symmetric: the 1- and inf-norms agree):
+  |x - x*|_inf <= ||H^-1||_inf |f|_inf to first order, f the residual force.
+  Infinite when H needed the shift tau to factor: singular to rounding, it
+  bounds nothing (`check_accuracy` then stops the step).
+- The escape (`escape`): from each negative pivot d_i, v = L^-T e_i has
+  v^T H v = d_i < 0. Each v (scaled to max |v_i| = 1 m, its largest |z|
+  component made positive) is tried with steps t = L 2^-k, k = 0..52, both
+  signs, on V plus the Huber terms (F_T frozen at the saddle's values); the
+  lowest energy found wins. Ties (within the rounding of the energy sum)
+  keep the earlier candidate: the larger step, the + sign, the first pivot,
+  so mirror branches of equal energy are chosen by the sign rule
+  "largest |z| component of v positive", in both solvers. If no trial lowers
+  the energy beyond rounding, the state is accepted as it is (unstable).
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from dynfab import assembly
+from dynfab.banded import BANDWIDTH, band_add, band_matvec, constrain
+from dynfab.errors import SolverError
+from dynfab.ldlt import TINY_PIVOT, inverse_norm_1, ldlt_factor, ldlt_solve, negative_direction
+from dynfab.terms import friction
+
+EPS = np.finfo(np.float64).eps
+LANCZOS_STEPS = 20
+"""Solves of shift-invert Lanczos for the lowest eigenvalue of a stable state, at most."""
+LANCZOS_MEMORY = 20_000_000
+"""Numbers the Lanczos basis may hold (160 MB): fewer steps on meshes above 1e6 dofs."""
+LANCZOS_TOLERANCE = 1e-6
+"""Lanczos stops once the top Ritz value of H^-1 has a residual below this times the
+Rayleigh quotient of the start vector's inverse (relative, about)."""
+MAX_CANDIDATES = 64
+"""Negative pivots whose vectors `escape` tries (the most negative Rayleigh quotients are not
+the best escapes: far past a buckling load the lowest mode releases the most energy)."""
+MAX_ESCAPES = 12
+"""Escapes per yarn and load step before a solver accepts the state it has."""
+STEP_HALVINGS = 53
+"""Steps t = L 2^-k, k < STEP_HALVINGS, tried along each escape vector (down to rounding)."""
+NEGATIVES, LOWEST, LOWEST_ERROR, INVERSE_NORM, SHIFT = range(5)
+"""Fields of `certify`'s result array."""
+
+
+@numba.njit(cache=True)
+def certificate_matrix(pos, yarn, anchors, fixed, residual, band):
+    """band = the certificate's Hessian (module docstring), fixed dofs replaced by identity rows.
+
+    Returns F_T per crossing [N], the frozen friction limits it used.
+    """
+    c = yarn.crossing_node.size
+    force, limit, tangent = np.zeros(c), np.zeros(c), np.zeros(c)
+    assembly.contact_state(pos, yarn, force, limit, tangent)
+    assembly.hessian(pos, yarn, anchors, limit, tangent, False, band, False)
+    for j in range(c):
+        dof = 2 * yarn.crossing_node[j]
+        if tangent[j] > 0.0 and force[j] <= residual:  # at g = 0: open
+            band_add(band, dof + 1, dof + 1, -tangent[j])
+        if yarn.has_friction:
+            slip = pos[yarn.crossing_node[j], 0] - anchors[j]
+            k_t = yarn.stick_stiffness
+            if (not friction.is_sliding(slip, limit[j], k_t)
+                    and k_t * abs(slip) >= limit[j] - residual):  # at the stick/slip kink: sliding
+                band_add(band, dof, dof, -k_t)
+    constrain(band, np.zeros(band.shape[0]), fixed)
+    return limit
+
+
+@numba.njit(cache=True)
+def _canonical(v):
+    """Scale v to max |v_i| = 1 and make its largest |z| component (odd dof) positive."""
+    largest, at = 0.0, -1
+    for i in range(v.size):
+        largest = max(largest, abs(v[i]))
+    for i in range(1, v.size, 2):
+        if at < 0 or abs(v[i]) > abs(v[at]):
+            at = i
+    if at < 0 or v[at] == 0.0:
+        for i in range(v.size):
+            if at < 0 or abs(v[i]) > abs(v[at]):
+                at = i
+    sign = 1.0 if v[at] >= 0.0 else -1.0
+    v *= sign / largest
+
+
+@numba.njit(cache=True)
+def _factor(band, matrix, free):
+    """Factor the certificate matrix in place, shifted when a pivot is tiny; (negatives, shift)."""
+    largest = 0.0
+    for i in range(free.size):
+        if free[i]:
+            largest = max(largest, abs(matrix[i, BANDWIDTH]))
+    tau = 64.0 * EPS * max(largest, 1e-300)
+    shift = 0.0
+    negatives = ldlt_factor(band, shift, tau)
+    while negatives == TINY_PIVOT and shift < 1e6 * tau:
+        shift = tau if shift == 0.0 else 2.0 * shift
+        band[:, :] = matrix
+        negatives = ldlt_factor(band, shift, 1e-3 * tau)
+    return negatives, shift
+
+
+@numba.njit(cache=True)
+def _ritz_vectors(alpha, beta, used):
+    """(eigenvalues ascending, eigenvectors as columns) of the Lanczos tridiagonal of order `used`."""
+    tridiagonal = np.zeros((used, used))
+    for j in range(used):
+        tridiagonal[j, j] = alpha[j]
+        if j + 1 < used:
+            tridiagonal[j, j + 1] = tridiagonal[j + 1, j] = beta[j]
+    return np.linalg.eigh(tridiagonal)
+
+
+@numba.njit(cache=True)
+def _lowest_eigenvalue(band, matrix, free, shift):
+    """(estimate, error) of lambda_min of a positive definite `matrix` (module docstring).
+
+    Shift-invert Lanczos with the factor of matrix + shift I, full reorthogonalisation,
+    LANCZOS_STEPS solves at most: the largest Ritz value of the inverse gives the Ritz
+    vector y, whose Rayleigh quotient lambda >= lambda_min and eigen-residual
+    r = ||H y - lambda y|| (|y| = 1) put an eigenvalue in [lambda - r, lambda]. That it is
+    the lowest is then proved by Sylvester: H - (lambda - r) I has no negative pivot.
+    If not, the error is lambda + shift (lambda_min > -shift is all that is known).
+    Overwrites `band` (the factor) with the proof's factorisation.
+    """
+    n = free.size
+    count = 0
+    for i in range(n):
+        if free[i]:
+            count += 1
+    steps = min(LANCZOS_STEPS, count, max(6, LANCZOS_MEMORY // n))
+    basis = np.zeros((steps, n))
+    alpha, beta = np.zeros(steps), np.zeros(steps)
+    q = np.zeros(n)
+    for i in range(n):
+        q[i] = 1.0 + i / n if free[i] else 0.0  # smooth, like the softest modes
+    q /= np.sqrt(np.dot(q, q))
+    used = 0
+    ritz, vectors = np.zeros(1), np.zeros((1, 1))
+    for j in range(steps):
+        basis[j] = q
+        used = j + 1
+        w = q.copy()
+        ldlt_solve(band, w)
+        alpha[j] = np.dot(q, w)
+        for m in range(j + 1):  # full reorthogonalisation
+            w -= np.dot(basis[m], w) * basis[m]
+        beta[j] = np.sqrt(np.dot(w, w))
+        if j == steps - 1 or (j >= 5 and j % 3 == 2):
+            ritz, vectors = _ritz_vectors(alpha, beta, used)
+            # Ritz residual of the inverse: beta_j |last component of the top Ritz vector|
+            if beta[j] * abs(vectors[used - 1, used - 1]) <= LANCZOS_TOLERANCE * abs(alpha[0]):
+                break
+        if beta[j] <= 1e-14 * abs(alpha[j]):
+            break
+        q = w / beta[j]
+    if vectors.shape[0] != used:
+        ritz, vectors = _ritz_vectors(alpha, beta, used)
+    y = np.zeros(n)
+    for j in range(used):
+        y += vectors[j, used - 1] * basis[j]
+    y /= np.sqrt(np.dot(y, y))
+    hy = np.zeros(n)
+    band_matvec(matrix, y, hy)
+    value = np.dot(y, hy)
+    hy -= value * y
+    residual = np.sqrt(np.dot(hy, hy))
+    # Lower bounds to prove, tightest first: Kato-Temple's value - r^2 / (lambda_2 - value)
+    # with lambda_2 from the second Ritz value, then value - r.
+    second = 1.0 / ritz[used - 2] if used > 1 and ritz[used - 2] > 0.0 else np.inf
+    gap = second - value
+    tight = value - max(residual * residual / gap, 64.0 * EPS * value) if gap > residual else -np.inf
+    for lower in (tight, value - residual):
+        if lower == -np.inf:
+            continue
+        band[:, :] = matrix  # the factor is no longer needed
+        for i in range(n):
+            if not free[i]:  # identity rows of fixed dofs: keep them out of the count
+                band[i, BANDWIDTH] = lower + 1.0
+        if ldlt_factor(band, -lower, 0.0) == 0:
+            return value, value - lower
+    return value, value + shift
+
+
+@numba.njit(cache=True)
+def _bisect_lowest(check, matrix, free, upper):
+    """(estimate, error) of lambda_min < 0 of an indefinite `matrix` by bisection on inertia.
+
+    lambda_min lies in [lower, upper]: `upper` is a Rayleigh quotient (>= lambda_min), the
+    start of `lower` Gershgorin's bound. H - s I without a negative pivot proves
+    lambda_min >= s, with one proves lambda_min < s (Sylvester). Bisection until the bracket
+    is 1e-6 of |upper| wide (about 40 factorisations, only on a state reported unstable).
+    `check` is work space of the matrix's shape.
+    """
+    n = free.size
+    lower = 0.0
+    for i in range(n):
+        if free[i]:
+            row = matrix[i, BANDWIDTH]
+            for m in range(2 * BANDWIDTH + 1):
+                if m != BANDWIDTH:
+                    row -= abs(matrix[i, m])
+            lower = min(lower, row)
+    for _ in range(200):
+        if upper - lower <= 1e-6 * abs(upper):
+            break
+        middle = 0.5 * (lower + upper)
+        check[:, :] = matrix
+        for i in range(n):
+            if not free[i]:  # identity rows of fixed dofs: keep them out of the count
+                check[i, BANDWIDTH] = middle + 1.0
+        if ldlt_factor(check, -middle, 0.0) == 0:
+            lower = middle
+        else:
+            upper = middle
+    return upper, upper - lower
+
+
+@numba.njit(cache=True)
+def certify(pos, yarn, anchors, fixed, residual, directions, result):
+    """Certify one yarn's converged state; result (5,) = NEGATIVES, LOWEST, LOWEST_ERROR,
+    INVERSE_NORM, SHIFT; on a saddle `directions` (MAX_CANDIDATES, dofs) holds the escape
+    vectors (canonical, module docstring), the first `min(negatives, MAX_CANDIDATES)` rows.
+    """
+    n = pos.size
+    band = np.zeros((n, 2 * BANDWIDTH + 1))
+    certificate_matrix(pos, yarn, anchors, fixed, residual, band)
+    matrix = band.copy()
+    free = ~fixed
+    negatives, shift = _factor(band, matrix, free)
+    result[:] = np.nan
+    result[NEGATIVES], result[SHIFT] = negatives, shift
+    if negatives == TINY_PIVOT:  # NaN in the matrix
+        return
+    # A shifted factor bounds nothing: H itself is singular to within its rounding.
+    result[INVERSE_NORM] = inverse_norm_1(band, free) if shift == 0.0 else np.inf
+    # The last uses of the factor; then `band` is the work space of the inertia counts.
+    if negatives == 0:
+        result[LOWEST], result[LOWEST_ERROR] = _lowest_eigenvalue(band, matrix, free, shift)
+    else:
+        found, lowest = 0, np.inf
+        for i in range(n):
+            if band[i, BANDWIDTH] < 0.0 and found < directions.shape[0]:
+                v = directions[found]
+                negative_direction(band, i, v)
+                lowest = min(lowest, band[i, BANDWIDTH] / np.dot(v, v) - shift)
+                _canonical(v)
+                found += 1
+        result[LOWEST], result[LOWEST_ERROR] = _bisect_lowest(band, matrix, free,
+                                                              min(lowest, 0.0))
+
+
+@numba.njit(cache=True)
+def _energy(pos, yarn, P, anchors, limit, terms):
+    assembly.energies(pos, yarn, P, anchors, limit, terms)
+    return terms.sum()
+
+
+@numba.njit(cache=True)
+def escape(pos, yarn, P, anchors, directions, count, out):
+    """out = the trial of lowest V + H (F_T frozen) along the first `count` escape vectors
+    (module docstring); returns the energy drop [J] (0 when none lowers V + H beyond rounding)."""
+    c = yarn.crossing_node.size
+    force, limit, tangent = np.zeros(c), np.zeros(c), np.zeros(c)
+    assembly.contact_state(pos, yarn, force, limit, tangent)
+    terms = np.zeros(6)
+    e0 = _energy(pos, yarn, P, anchors, limit, terms)
+    rounding = 64.0 * EPS * (np.abs(terms).sum() + abs(P) * abs(pos[-1, 0]))
+    length = abs(yarn.rest_position[-1, 0] - yarn.rest_position[0, 0])
+    trial = np.empty_like(pos)
+    best = e0 - rounding
+    out[:, :] = pos
+    for candidate in range(count):
+        d = directions[candidate].reshape(pos.shape)
+        t = length
+        for _ in range(STEP_HALVINGS):
+            for sign in (1.0, -1.0):
+                trial[:, :] = pos + (sign * t) * d
+                e = _energy(trial, yarn, P, anchors, limit, terms)
+                if e < best - rounding:
+                    best = e
+                    out[:, :] = trial
+            t *= 0.5
+    drop = e0 - best
+    return drop if drop > rounding else 0.0
+
+
+def certify_yarn(pos, yarn, anchors, fixed, residual):
+    """`certify` for one yarn: (result (5,), escape vectors)."""
+    directions = np.zeros((MAX_CANDIDATES, pos.size))
+    result = np.zeros(5)
+    certify(pos, yarn, anchors, fixed, float(residual), directions, result)
+    return result, directions
+
+
+def escape_yarn(pos, yarn, P, anchors, result, directions):
+    """The escaped positions of one yarn (a new array), or None when no direction lowers V + H."""
+    count = int(min(result[NEGATIVES], MAX_CANDIDATES))
+    out = np.empty_like(pos)
+    drop = escape(pos, yarn, float(P), anchors, directions, count, out)
+    return out if drop > 0.0 else None
+
+
+def displacement_scale(positions, rest_positions):
+    """The displacement scale of a step [m]: max |r - r0| over the yarn's nodes and coordinates."""
+    return float(np.max(np.abs(positions - rest_positions)))
+
+
+def check_accuracy(yarn_index: int, error_estimate: float, scale: float, residual: float,
+                   tolerance: float, accuracy: float, at_floor: bool, precision: str,
+                   key: str, singular_shift: float = 0.0) -> None:
+    """SolverError (one line) when the error bound is not small against the step's displacements.
+
+    Accepted: error_estimate <= accuracy x max(scale, sqrt(eps) L) is checked by the caller
+    through `scale` (already floored). The message says what the residual implies and what to
+    change (MODEL.md 6, docs/model.md "Stability and accuracy of a converged step").
+    An infinite estimate means the matrix needed the shift `singular_shift` [N/m] to factor.
+    """
+    if error_estimate <= accuracy * scale:
+        return
+    if np.isinf(error_estimate):
+        raise SolverError(
+            f"yarn {yarn_index}: the stiffness matrix is singular to rounding (a pivot within "
+            f"{singular_shift:.3g} N/m of zero, 64 eps of its largest diagonal entry), so the "
+            f"residual {residual:.3g} N bounds no position error: use a coarser mesh or softer "
+            f"data")
+    inverse_norm = error_estimate / residual if residual > 0 else np.inf
+    needed = accuracy * scale / inverse_norm
+    if at_floor or residual > tolerance:
+        change = ("use float64" if precision == "float32" else
+                  "use a coarser mesh or softer data (the rounding floor grows with N and stiffness)")
+        reached = f"the residual stopped at {residual:.3g} N (rounding floor of {precision})"
+    else:
+        change = (f"tighten the tolerance to below {needed:.2g} N" if precision == "float64" else
+                  f"use float64, or a tolerance below {needed:.2g} N if float32 reaches it")
+        reached = f"the residual {residual:.3g} N (tolerance {tolerance:.3g} N)"
+    raise SolverError(
+        f"yarn {yarn_index}: {reached} leaves a position error up to {error_estimate:.3g} m "
+        f"(residual x ||H^-1||_inf = {inverse_norm:.3g} m/N), above {key} = {accuracy:g} of the "
+        f"step's largest displacement {scale:.3g} m: {change}, or loosen {key}")
+
+
+class StepStability:
+    """The certificate fields of one load step's record, filled yarn by yarn.
+
+    `stable` (no negative pivot), `lowest_eigenvalue` [N/m], `error_estimate` [m]
+    (residual x est ||H^-1||_inf) and `buckled` (an escape left a saddle in this step).
+    """
+
+    def __init__(self, yarns: int):
+        self.stable = np.zeros(yarns, np.bool_)
+        self.buckled = np.zeros(yarns, np.bool_)
+        self.lowest_eigenvalue = np.full(yarns, np.nan)
+        self.error_estimate = np.full(yarns, np.nan)
+        self.shift = np.zeros(yarns)
+
+    def record(self, k: int, result: np.ndarray, residual: float) -> None:
+        """Yarn k's certificate `result` (`certify`) at its final residual [N]."""
+        self.stable[k] = result[NEGATIVES] == 0
+        self.lowest_eigenvalue[k] = result[LOWEST]
+        self.shift[k] = result[SHIFT]
+        self.error_estimate[k] = residual * result[INVERSE_NORM] if residual > 0 else 0.0
+
+    @staticmethod
+    def scale(positions: np.ndarray, rest_positions: np.ndarray) -> float:
+        """The step's displacement scale [m]: max |r - r0| over nodes and coordinates, at least
+        sqrt(eps) L (a step that barely moves is not asked for relative accuracy below that)."""
+        length = abs(rest_positions[-1, 0] - rest_positions[0, 0])
+        return max(displacement_scale(positions, rest_positions), np.sqrt(EPS) * length)
+
+    def fields(self) -> dict:
+        """The record entries (`steps/<name>` of the result file)."""
+        return {"stable": self.stable.copy(), "buckled": self.buckled.copy(),
+                "lowest_eigenvalue": self.lowest_eigenvalue.copy(),
+                "error_estimate": self.error_estimate.copy()}
