@@ -49,7 +49,7 @@ from dynfab.kernels.configuration import Configuration
 from dynfab.kernels.precision import DEFAULT_TOLERANCE, SCALARS
 from dynfab.model import State
 from dynfab.observables import finish_step
-from dynfab.scene import Dynamic
+from dynfab.scene import Dynamic, check_method_damping
 from dynfab.static import prescribe_load
 
 STEPS_PER_LAUNCH = 2000
@@ -107,10 +107,7 @@ class DynamicSolver:
         self.tolerance = self.options.tolerance or DEFAULT_TOLERANCE[self.options.precision]
         self.scalar = SCALARS[self.options.precision]
         explicit_method = self.options.method == "explicit"
-        if not explicit_method and self.damping == "fire":
-            raise SceneError('dynamic.damping = "fire": not available with dynamic.method = '
-                             '"semi_implicit" (FIRE drives an explicit integrator); use "viscous" '
-                             'or leave damping unset')
+        check_method_damping(self.options)
         self.configuration = Configuration(
             precision=self.options.precision, friction="friction" in model.terms,
             gravity="gravity" in model.terms, control=model.control, method=self.options.method,
