@@ -175,6 +175,7 @@ class DynamicSolver:
         record["time_steps"] = steps
         record["force_evaluations"] = self.motion.force_evaluations.numpy().astype(np.int64)
         record["dt"] = self.motion.dt.numpy().astype(float)
+        record["tolerance"] = self.motion.tolerance.numpy().astype(float)
         return new_state, record
 
     def transient(self, state, resume_from: dict | None = None):
@@ -300,6 +301,8 @@ class DynamicSolver:
         return settings_module.fill(
             self.scalar, end_load=load_value if self.model.control == "force" else 0.0,
             tolerance=self.tolerance, safety=self.options.safety,
+            relative_tolerance=(settings_module.RELATIVE_TOLERANCE if self.options.tolerance is None
+                                else 0.0),
             fixed_dt=self.options.dt or 0.0, fictitious=int(self.masses == "fictitious"),
             damping_coefficient=-1.0 if coefficient is None else coefficient,
             max_steps=self.options.max_steps, chunk=steps)
@@ -314,8 +317,9 @@ class DynamicSolver:
             return
         steps, residual = self.motion.steps.numpy(), self.motion.residual.numpy()
         running = int((codes == status.RUNNING).sum())
+        tolerance = self.motion.tolerance.numpy().min()
         self.progress(f"dynamic: {steps.max()} time steps, residual {residual.max():.3g} N "
-                      f"(tolerance {self.tolerance:.3g} N), {running} of {codes.size} yarns running")
+                      f"(tolerance {tolerance:.3g} N), {running} of {codes.size} yarns running")
 
     def _raise_on_failure(self, codes: np.ndarray, allowed=status.SUCCESS) -> None:
         """SolverError with one line naming the first failed yarn, unless every code is allowed."""
@@ -338,11 +342,11 @@ class DynamicSolver:
 
     def _warn_at_rounding_floor(self, codes: np.ndarray) -> None:
         """Say so when a yarn met a tolerance below its rounding floor by stalling (MODEL.md 5)."""
-        residual = self.motion.residual.numpy()
+        residual, tolerance = self.motion.residual.numpy(), self.motion.tolerance.numpy()
         for k in np.flatnonzero(codes == status.ROUNDING_FLOOR):
             warnings.warn(f"yarn {k}: the residual stopped falling at {residual[k]:.3g} N, the "
                           f"{self.options.precision} rounding floor, above the tolerance "
-                          f"{self.tolerance:.3g} N", RuntimeWarning, stacklevel=3)
+                          f"{tolerance[k]:.3g} N", RuntimeWarning, stacklevel=3)
 
     def _failure_message(self, k: int, code: int) -> str:
         """What went wrong with yarn k, the numbers behind it, and the likely cause."""
@@ -357,7 +361,8 @@ class DynamicSolver:
                      "a stiffness the bound did not foresee (large strain, a contact closing): "
                      "lower dynamic.safety")
             growth = ("the state became non-finite" if code == status.NON_FINITE else
-                      f"the residual grew to {residual:.3g} N from {start:.3g} N")
+                      f"the residual grew to {residual:.3g} N from {start:.3g} N"
+                      if self._energy_ratio(k) <= status.ENERGY_FACTOR else self._energy_growth(k))
             return (f"{where}: the {self.options.method} integration diverged after {steps} time "
                     f"steps ({growth}); dt = {dt:.3g} s against the predicted stable dt = "
                     f"{bound:.3g} s (Gershgorin); likely cause: {cause}")
@@ -368,7 +373,30 @@ class DynamicSolver:
             return (f"{where}: the semi_implicit matrix had a pivot that is not positive at every "
                     f"time step tried after {steps} steps; residual {residual:.3g} N")
         return (f"{where}: no convergence in {steps} time steps (dynamic.max_steps); residual "
-                f"{residual:.3g} N, tolerance {self.tolerance:.3g} N{self._open_crossing_hint(k)}")
+                f"{residual:.3g} N, tolerance {float(self.motion.tolerance.numpy()[k]):.3g} N"
+                f"{self._above_bound_hint(dt, bound) or self._open_crossing_hint(k)}")
+
+    @staticmethod
+    def _above_bound_hint(dt: float, bound: float) -> str:
+        """A step limit reached with dt above the predicted stable dt: a mode just beyond its
+        limit can oscillate at a bounded amplitude (the nonlinear terms stop its growth),
+        which no divergence test sees but which keeps the residual up."""
+        if not dt > bound:
+            return ""
+        return (f"; dt = {dt:.3g} s is above the predicted stable dt = {bound:.3g} s "
+                "(Gershgorin): a mode beyond its stability limit may be oscillating without "
+                "growing; lower dynamic.dt or dynamic.safety")
+
+    def _energy_ratio(self, k: int) -> float:
+        """Yarn k's largest kinetic energy / work bound of the load step (explicit; 0 otherwise)."""
+        return float(self.motion.energy_ratio.numpy()[k])
+
+    def _energy_growth(self, k: int) -> str:
+        """How yarn k's kinetic energy outgrew the work its forces can have done."""
+        energy = float(self.motion.kinetic_energy.numpy()[k])
+        work = float(self.motion.work_bound.numpy()[k])
+        return (f"the kinetic energy grew to {energy:.3g} J, more than {status.ENERGY_FACTOR:.0f} x "
+                f"the {work:.3g} J the forces can have released since the step's start")
 
     def _open_crossing_hint(self, k: int) -> str:
         """With friction, the likely cause of a step that does not converge (MODEL.md 4): a

@@ -70,6 +70,7 @@ UNITS: dict[str, str] = {
     "steps/time_steps": "-",  # dynamic solver: time steps taken
     "steps/force_evaluations": "-",  # dynamic solver
     "steps/dt": "s",  # dynamic solver time step
+    "steps/tolerance": "N",  # dynamic solver: the residual each load step had to reach
     # Transient runs: one entry per output frame (axis 0 = frames).
     "frames/time": "s",  # (frames,)
     "frames/positions": "m",  # (frames, yarns, N+1, 2)
