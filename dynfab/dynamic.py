@@ -369,6 +369,13 @@ class DynamicSolver:
         if code == status.STALLED:
             return (f"{where}: FIRE stalled after {steps} time steps (the power stayed negative "
                     f"for {fire.MAX_NEGATIVE_STEPS} steps); residual {residual:.3g} N")
+        if code == status.NO_PROGRESS:
+            best = float(self.motion.best_residual.numpy()[k])
+            since = int(self.motion.steps_since_best.numpy()[k])
+            return (f"{where}: the semi_implicit relaxation stopped making progress: its residual "
+                    f"has not fallen below {best:.3g} N during the last {since} of {steps} time "
+                    f"steps (tolerance {float(self.motion.tolerance.numpy()[k]):.3g} N)"
+                    f"{self._open_crossing_hint(k)}")
         if code == status.NOT_POSITIVE_DEFINITE:
             return (f"{where}: the semi_implicit matrix had a pivot that is not positive at every "
                     f"time step tried after {steps} steps; residual {residual:.3g} N")
@@ -401,7 +408,10 @@ class DynamicSolver:
     def _open_crossing_hint(self, k: int) -> str:
         """With friction, the likely cause of a step that does not converge (MODEL.md 4): a
         crossing at g ~ 0, where F_T jumps (named), or else crossings chattering between
-        stick and slip. "At g ~ 0" is within 1 % of the Kawabata compression scale C_wa + C_we."""
+        stick and slip. "At g ~ 0" is within 1 % of the Kawabata compression scale C_wa + C_we.
+        The hint names no dynamic method: which one copes depends on the scene (on the
+        paper's friction path every method finishes; a method named here once failed where
+        it was recommended), only remedies that hold whatever the method."""
         if not self.configuration.friction or self.model.crossings == 0:
             return ""
         yarn, positions = self.model.yarns[k], self._positions()[k]
@@ -411,5 +421,7 @@ class DynamicSolver:
             return (f"; crossing {j + 1} (node {yarn.crossing_node[j]}) sits at opening "
                     f"(g = {closure[j]:.3g} m), where Gralen's limit jumps by beta*ell*r_f = "
                     f"{yarn.friction_constant:.3g} N")
-        return ("; likely cause: crossings switching between stick and slip (a stiff stick "
-                "spring k_t); method semi_implicit or damping kinetic cope best with it")
+        return (f"; likely cause: crossings switching between stick and slip (stick spring "
+                f"k_t = {yarn.stick_stiffness:.3g} N/m): a softer friction.stick_stiffness "
+                "switches less abruptly, and the static solver settles each crossing's stick or "
+                "slip state by Newton iteration")

@@ -153,6 +153,18 @@ def functions(scalar, has_friction: bool, has_gravity: bool, force_control: bool
         return code
 
     @wp.func
+    def check_progress(y: int, motion: Motion, code: int, min_steps: int) -> int:
+        """`code`, or status.NO_PROGRESS if the best residual has not fallen during the last
+        half of at least `min_steps` steps (and is above the rounding floor)."""
+        if code != status.RUNNING:
+            return code
+        if (motion.steps[y] >= min_steps and 2 * motion.steps_since_best[y] > motion.steps[y]
+                and motion.best_residual[y] > motion.rounding_floor[y]):
+            motion.status[y] = status.NO_PROGRESS
+            return status.NO_PROGRESS
+        return code
+
+    @wp.func
     def check_energy(y: int, motion: Motion, code: int) -> int:
         """`code`, or status.DIVERGED if the kinetic energy [J] exceeds ENERGY_FACTOR x
         the largest f0 . (x - x0) [J] of the load step so far (an explicit integrator only:
@@ -176,4 +188,5 @@ def functions(scalar, has_friction: bool, has_gravity: bool, force_control: bool
             motion.energy_ratio[y] = wp.max(motion.energy_ratio[y], energy / bound)
         return code
 
-    return SimpleNamespace(evaluate=evaluate, start=start, check=check, check_energy=check_energy)
+    return SimpleNamespace(evaluate=evaluate, start=start, check=check, check_energy=check_energy,
+                           check_progress=check_progress)

@@ -19,6 +19,10 @@ STALLED = 6
 NOT_POSITIVE_DEFINITE = 7
 """semi_implicit: no time step gave the LU factorisation positive pivots."""
 
+NO_PROGRESS = 8
+"""semi_implicit: the residual has not reached a new low during the last half of the load
+step's time steps, after at least `semi_implicit.STALL_MIN_STEPS`."""
+
 SUCCESS = (CONVERGED, ROUNDING_FLOOR)
 """The codes of a load step that ended well."""
 
