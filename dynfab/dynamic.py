@@ -400,8 +400,8 @@ class DynamicSolver:
 
     def _energy_growth(self, k: int) -> str:
         """How yarn k's kinetic energy outgrew the work its forces can have done."""
-        energy = float(self.motion.kinetic_energy.numpy()[k])
         work = float(self.motion.work_bound.numpy()[k])
+        energy = self._energy_ratio(k) * work
         return (f"the kinetic energy grew to {energy:.3g} J, more than {status.ENERGY_FACTOR:.0f} x "
                 f"the {work:.3g} J the forces can have released since the step's start")
 

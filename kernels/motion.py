@@ -80,6 +80,8 @@ def struct(scalar):
         work_bound: wp.array(dtype=scalar)
         """explicit: the largest f0 . (x - x0) of the load step so far [J], f0 and x0 at its
         start: what the forces can have released (`relaxation.check_energy`), shape (yarns,)."""
+        kinetic_peak: wp.array(dtype=scalar)
+        """explicit: the largest kinetic energy since the last energy test [J], shape (yarns,)."""
         energy_ratio: wp.array(dtype=scalar)
         """explicit: the largest kinetic energy / work_bound of the load step so far [-],
         shape (yarns,)."""
@@ -106,7 +108,7 @@ CROSSING_FIELDS = ("anchors", "contact_force", "contact_tangent", "friction_limi
 """Fields of shape (yarns, C)."""
 SCALAR_FIELDS = ("dt", "stable_dt", "kinetic_energy", "damping_coefficient", "fire_alpha",
                  "dissipated", "residual", "start_residual", "best_residual", "rounding_floor",
-                 "work_bound", "energy_ratio", "tolerance")
+                 "work_bound", "kinetic_peak", "energy_ratio", "tolerance")
 """Fields of shape (yarns,) of scalars."""
 COUNTER_FIELDS = ("fire_positive_steps", "fire_negative_steps", "steps_since_best", "steps",
                   "force_evaluations", "status")

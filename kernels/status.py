@@ -39,4 +39,5 @@ integration has diverged (`dynfab.kernels.relaxation`). At most about 1 in exact
 dynamics from rest with a convex energy, 5.3 for symplectic Euler's half-step velocities at
 safety 0.9 (100 at omega dt = 1.99); measured at most 0.91 on the paper relaxations (every
 damping, both mass choices, float32, N = 224 and 896). An unstable mode passes 1e3 within
-9 time steps at 1.37 x the predicted stable dt on the paper yarn at N = 896, 34 at 1.08 x."""
+9 time steps at 1.37 x the predicted stable dt on the paper yarn at N = 896, 34 at 1.08 x;
+the test, every `relaxation.ENERGY_CHECK_INTERVAL` steps, sees it at the next multiple."""

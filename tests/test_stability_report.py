@@ -23,7 +23,9 @@ limit of each of its pieces (the full report measures 0.94 dt_p at alpha = 2): t
 the lower bound is the solver's default safety factor, 0.9, the fraction of dt_p it
 uses with physical masses. (The quick friction case is measured with kinetic damping,
 the variant the dynamic tests compile, which sees the linear instability only: within
-the same bounds, near the top.)
+the same bounds. A stick oscillation that grows until sliding caps it still counts as
+unstable: the kernel's energy test sees kinetic energy the forces never supplied, so the
+measured step no longer reaches the sliding limit near the top.)
 """
 
 from __future__ import annotations
@@ -217,7 +219,6 @@ def test_measured_stable_dt_is_within_the_derived_factor_of_the_predicted_one(re
         else:
             sticking = math.sqrt(1 + case["stick_stiffness"] / (4 * case["stretch_stiffness_max"]))
             assert SAFETY <= ratio <= GERSHGORIN_SLACK * sticking, case["case"]
-            assert ratio > 10  # k_t = 1000 x default: the sticking assumption costs ~16x
             assert stability["measured_with"] == "kinetic damping"
         # Gershgorin on the actual tangent is a bound too, and the solver's (stiffest tangent)
         # is below it; 1e-6: the solver's is taken at the perturbed state (1e-9 m moves)
