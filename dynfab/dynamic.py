@@ -400,10 +400,11 @@ class DynamicSolver:
 
     def _energy_growth(self, k: int) -> str:
         """How yarn k's kinetic energy outgrew the work its forces can have done."""
-        work = float(self.motion.work_bound.numpy()[k])
-        energy = self._energy_ratio(k) * work
-        return (f"the kinetic energy grew to {energy:.3g} J, more than {status.ENERGY_FACTOR:.0f} x "
-                f"the {work:.3g} J the forces can have released since the step's start")
+        work = max(float(self.motion.work_bound.numpy()[k]), 0.0)
+        energy = float(self.motion.kinetic_peak.numpy()[k])
+        return (f"the kinetic energy grew to {energy:.3g} J while the forces can have released "
+                f"at most {work:.3g} J since the step's start (divergence beyond "
+                f"{status.ENERGY_FACTOR:.0f} x that)")
 
     def _open_crossing_hint(self, k: int) -> str:
         """With friction, the likely cause of a step that does not converge (MODEL.md 4): a

@@ -195,6 +195,7 @@ def functions(scalar, has_friction: bool, has_gravity: bool, force_control: bool
             if energy > scalar(status.ENERGY_FACTOR) * bound:
                 motion.energy_ratio[y] = wp.max(motion.energy_ratio[y], energy / wp.max(
                     bound, scalar(1.0e-30)))
+                motion.kinetic_peak[y] = energy  # kept for the message
                 motion.status[y] = status.DIVERGED
                 return status.DIVERGED
             motion.energy_ratio[y] = wp.max(motion.energy_ratio[y], energy / bound)
