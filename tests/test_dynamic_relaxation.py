@@ -279,3 +279,17 @@ def test_paper_relaxations_stay_far_from_the_energy_test(fig3, options):
         for load_value in model.load_values:
             state, _ = solver.step(state, load_value)
             assert (solver.motion.energy_ratio.numpy() <= 5.3).all()
+
+
+@pytest.mark.filterwarnings("ignore:dynamic.dt = .* above the predicted stable:RuntimeWarning")
+def test_step_limit_with_dt_above_the_bound_says_so(relaxed_yarn):
+    """A mode just beyond its limit can oscillate at a bounded amplitude (measured at N = 896,
+    1.02 x the bound: residual 2.8 N for 10^5 steps, KE / work 7, under the energy test), so
+    a step limit reached with dt above the bound names it rather than friction or nothing."""
+    model, state = relaxed_yarn
+    physical = Dynamic(masses="physical")
+    bound = DynamicSolver(model, physical).predicted_stable_dt(state, 0.002)[0]
+    solver = DynamicSolver(model, replace(physical, dt=1.02 * bound, max_steps=10))
+    with pytest.raises(SolverError, match=r"no convergence in 10 time steps .* is above the "
+                                          r"predicted stable dt .* lower dynamic\.dt"):
+        solver.step(state, 0.002)
