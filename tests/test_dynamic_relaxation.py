@@ -284,9 +284,8 @@ def test_paper_relaxations_stay_far_from_the_energy_test(fig3, options):
 @pytest.mark.filterwarnings("ignore:dynamic.dt = .* above the predicted stable:RuntimeWarning")
 def test_step_limit_with_dt_above_the_bound_says_so(relaxed_yarn):
     """A mode just beyond its limit can oscillate at a bounded amplitude (measured at N = 896,
-    1.024 x the bound: residual 2.8-3.7 N through 3 x 10^5 steps, KE / work 7, under the
-    energy test), so
-    a step limit reached with dt above the bound names it rather than friction or nothing."""
+    1.024 x the bound: residual 2.8 to 3.7 N through 3 x 10^5 steps, KE / work 7, under the
+    energy test), so a step limit reached with dt above the bound names it."""
     model, state = relaxed_yarn
     physical = Dynamic(masses="physical")
     bound = DynamicSolver(model, physical).predicted_stable_dt(state, 0.002)[0]
