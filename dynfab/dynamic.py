@@ -52,7 +52,7 @@ from dynfab.kernels.configuration import Configuration
 from dynfab.kernels.precision import DEFAULT_TOLERANCE, SCALARS
 from dynfab.model import State
 from dynfab.observables import finish_step
-from dynfab.scene import Dynamic
+from dynfab.scene import Dynamic, check_method_damping
 from dynfab.static import prescribe_load
 
 STEPS_PER_LAUNCH = 2000
@@ -114,10 +114,7 @@ class DynamicSolver:
         self.tolerance = self.options.tolerance or DEFAULT_TOLERANCE[self.options.precision]
         self.scalar = SCALARS[self.options.precision]
         explicit_method = self.options.method == "explicit"
-        if not explicit_method and self.damping == "fire":
-            raise SceneError('dynamic.damping = "fire": not available with dynamic.method = '
-                             '"semi_implicit" (FIRE drives an explicit integrator); use "viscous" '
-                             'or leave damping unset')
+        check_method_damping(self.options)
         self.configuration = Configuration(
             precision=self.options.precision, friction="friction" in model.terms,
             gravity="gravity" in model.terms, control=model.control, method=self.options.method,
@@ -186,6 +183,7 @@ class DynamicSolver:
         record["time_steps"] = steps
         record["force_evaluations"] = self.motion.force_evaluations.numpy().astype(np.int64)
         record["dt"] = self.motion.dt.numpy().astype(float)
+        record["tolerance"] = self.motion.tolerance.numpy().astype(float)
         return new_state, record
 
     def _certify(self, state, load_value: float, codes: np.ndarray):
@@ -222,11 +220,12 @@ class DynamicSolver:
                 raise SolverError(f"{error}; relaxing from a saddle's escape{hint}") from error
             steps = steps + self.motion.steps.numpy().astype(np.int64)
         at_floor = codes == status.ROUNDING_FLOOR
+        tolerance = self.motion.tolerance.numpy().astype(float)  # each yarn's, for this step
         for k, (result, _) in enumerate(certificates):
             stability.record(k, result, residual[k])
             check_accuracy(k, stability.error_estimate[k],
                            stability.scale(positions[k], model.yarns[k].rest_position),
-                           residual[k], self.tolerance, self.options.accuracy, bool(at_floor[k]),
+                           residual[k], tolerance[k], self.options.accuracy, bool(at_floor[k]),
                            self.options.precision, "dynamic.accuracy", stability.shift[k])
         return positions, residual, steps, stability, at_floor
 
@@ -353,6 +352,8 @@ class DynamicSolver:
         return settings_module.fill(
             self.scalar, end_load=load_value if self.model.control == "force" else 0.0,
             tolerance=self.tolerance, safety=self.options.safety,
+            relative_tolerance=(settings_module.RELATIVE_TOLERANCE if self.options.tolerance is None
+                                else 0.0),
             fixed_dt=self.options.dt or 0.0, fictitious=int(self.masses == "fictitious"),
             damping_coefficient=-1.0 if coefficient is None else coefficient,
             max_steps=self.options.max_steps, chunk=steps)
@@ -367,8 +368,9 @@ class DynamicSolver:
             return
         steps, residual = self.motion.steps.numpy(), self.motion.residual.numpy()
         running = int((codes == status.RUNNING).sum())
+        tolerance = self.motion.tolerance.numpy().min()
         self.progress(f"dynamic: {steps.max()} time steps, residual {residual.max():.3g} N "
-                      f"(tolerance {self.tolerance:.3g} N), {running} of {codes.size} yarns running")
+                      f"(tolerance {tolerance:.3g} N), {running} of {codes.size} yarns running")
 
     def _raise_on_failure(self, codes: np.ndarray, allowed=status.SUCCESS) -> None:
         """SolverError with one line naming the first failed yarn, unless every code is allowed."""
@@ -402,23 +404,58 @@ class DynamicSolver:
                      "a stiffness the bound did not foresee (large strain, a contact closing): "
                      "lower dynamic.safety")
             growth = ("the state became non-finite" if code == status.NON_FINITE else
-                      f"the residual grew to {residual:.3g} N from {start:.3g} N")
+                      f"the residual grew to {residual:.3g} N from {start:.3g} N"
+                      if self._energy_ratio(k) <= status.ENERGY_FACTOR else self._energy_growth(k))
             return (f"{where}: the {self.options.method} integration diverged after {steps} time "
                     f"steps ({growth}); dt = {dt:.3g} s against the predicted stable dt = "
                     f"{bound:.3g} s (Gershgorin); likely cause: {cause}")
         if code == status.STALLED:
             return (f"{where}: FIRE stalled after {steps} time steps (the power stayed negative "
                     f"for {fire.MAX_NEGATIVE_STEPS} steps); residual {residual:.3g} N")
+        if code == status.NO_PROGRESS:
+            best = float(self.motion.best_residual.numpy()[k])
+            since = int(self.motion.steps_since_best.numpy()[k])
+            return (f"{where}: the semi_implicit relaxation stopped making progress: its residual "
+                    f"has not fallen below {best:.3g} N during the last {since} of {steps} time "
+                    f"steps (tolerance {float(self.motion.tolerance.numpy()[k]):.3g} N)"
+                    f"{self._open_crossing_hint(k)}")
         if code == status.NOT_POSITIVE_DEFINITE:
             return (f"{where}: the semi_implicit matrix had a pivot that is not positive at every "
                     f"time step tried after {steps} steps; residual {residual:.3g} N")
         return (f"{where}: no convergence in {steps} time steps (dynamic.max_steps); residual "
-                f"{residual:.3g} N, tolerance {self.tolerance:.3g} N{self._open_crossing_hint(k)}")
+                f"{residual:.3g} N, tolerance {float(self.motion.tolerance.numpy()[k]):.3g} N"
+                f"{self._above_bound_hint(dt, bound) or self._open_crossing_hint(k)}")
+
+    @staticmethod
+    def _above_bound_hint(dt: float, bound: float) -> str:
+        """A step limit reached with dt above the predicted stable dt: a mode just beyond its
+        limit can oscillate at a bounded amplitude (the nonlinear terms stop its growth),
+        which no divergence test sees but which keeps the residual up."""
+        if not dt > bound:
+            return ""
+        return (f"; dt = {dt:.3g} s is above the predicted stable dt = {bound:.3g} s "
+                "(Gershgorin): a mode beyond its stability limit may be oscillating without "
+                "growing; lower dynamic.dt or dynamic.safety")
+
+    def _energy_ratio(self, k: int) -> float:
+        """Yarn k's largest kinetic energy / work bound of the load step (explicit; 0 otherwise)."""
+        return float(self.motion.energy_ratio.numpy()[k])
+
+    def _energy_growth(self, k: int) -> str:
+        """How yarn k's kinetic energy outgrew the work its forces can have done."""
+        work = max(float(self.motion.work_bound.numpy()[k]), 0.0)
+        energy = float(self.motion.kinetic_peak.numpy()[k])
+        return (f"the kinetic energy grew to {energy:.3g} J while the forces can have released "
+                f"at most {work:.3g} J since the step's start (divergence beyond "
+                f"{status.ENERGY_FACTOR:.0f} x that)")
 
     def _open_crossing_hint(self, k: int) -> str:
         """With friction, the likely cause of a step that does not converge (MODEL.md 4): a
         crossing at g ~ 0, where F_T jumps (named), or else crossings chattering between
-        stick and slip. "At g ~ 0" is within 1 % of the Kawabata compression scale C_wa + C_we."""
+        stick and slip. "At g ~ 0" is within 1 % of the Kawabata compression scale C_wa + C_we.
+        The hint names no dynamic method: which one copes depends on the scene (on the
+        paper's friction path every method finishes; a method named here once failed where
+        it was recommended), only remedies that hold whatever the method."""
         if not self.configuration.friction or self.model.crossings == 0:
             return ""
         yarn, positions = self.model.yarns[k], self._positions()[k]
@@ -428,5 +465,7 @@ class DynamicSolver:
             return (f"; crossing {j + 1} (node {yarn.crossing_node[j]}) sits at opening "
                     f"(g = {closure[j]:.3g} m), where Gralen's limit jumps by beta*ell*r_f = "
                     f"{yarn.friction_constant:.3g} N")
-        return ("; likely cause: crossings switching between stick and slip (a stiff stick "
-                "spring k_t); method semi_implicit or damping kinetic cope best with it")
+        return (f"; likely cause: crossings switching between stick and slip (stick spring "
+                f"k_t = {yarn.stick_stiffness:.3g} N/m): a softer friction.stick_stiffness "
+                "switches less abruptly, and the static solver settles each crossing's stick or "
+                "slip state by Newton iteration")

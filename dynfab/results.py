@@ -74,6 +74,7 @@ UNITS: dict[str, str] = {
     "steps/buckled": "-",  # (steps, yarns) bool: the step left a saddle (an escape was taken)
     "steps/lowest_eigenvalue": "N/m",  # (steps, yarns) estimate of lambda_min of that Hessian
     "steps/error_estimate": "m",  # (steps, yarns) residual x est ||H^-1||_inf, position error bound
+    "steps/tolerance": "N",  # dynamic solver: the residual each load step had to reach
     # Transient runs: one entry per output frame (axis 0 = frames).
     "frames/time": "s",  # (frames,)
     "frames/positions": "m",  # (frames, yarns, N+1, 2)

@@ -734,14 +734,23 @@ def _check_dynamic(dynamic: Dynamic) -> None:
             if value is not None:
                 raise _bad(f"dynamic.{key}", value,
                            'only used with dynamic.mode = "transient"')
-    if dynamic.method == "semi_implicit" and dynamic.damping == "fire":
-        raise _bad("dynamic.damping", dynamic.damping, 'not available with dynamic.method = '
-                   '"semi_implicit" (FIRE drives an explicit integrator); use "viscous" or '
-                   'leave damping unset')
+    check_method_damping(dynamic)
     damping = dynamic.damping or ("viscous" if dynamic.mode == "transient" else "kinetic")
     if dynamic.damping_coefficient is not None and damping != "viscous":
         raise _bad("dynamic.damping_coefficient", dynamic.damping_coefficient,
                    f'only used with dynamic.damping = "viscous" (damping is "{damping}")')
+
+
+def check_method_damping(dynamic: Dynamic) -> None:
+    """semi_implicit takes neither FIRE (which drives an explicit integrator) nor kinetic
+    damping (its rejected steps are undone instead, MODEL.md 5): refused, not ignored.
+    The one place this is checked; `DynamicSolver` calls it for options built in code."""
+    if dynamic.method != "semi_implicit" or dynamic.damping not in ("fire", "kinetic"):
+        return
+    why = ("FIRE drives an explicit integrator" if dynamic.damping == "fire" else
+           "its rejected time steps are undone instead of damped")
+    raise _bad("dynamic.damping", dynamic.damping, 'not available with dynamic.method = '
+               f'"semi_implicit" ({why}); use "viscous" or leave damping unset')
 
 
 def _check_transient(dynamic: Dynamic) -> None:

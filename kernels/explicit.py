@@ -47,7 +47,8 @@ def relaxation_kernel(configuration: Configuration):
                     motion.status[y] = status.STALLED
                     return
             relax_ops.evaluate(y, yarn, motion, settings)
-            if relax_ops.check(y, motion, settings) != status.RUNNING:
+            code = relax_ops.check_energy(y, motion, relax_ops.check(y, motion, settings))
+            if code != status.RUNNING:
                 return
 
     return relax

@@ -38,6 +38,8 @@ def struct(scalar):
         shape (yarns, N+1)."""
         start_position: wp.array2d(dtype=vec)
         """Positions at the start of the load step [m], shape (yarns, N+1)."""
+        start_force: wp.array2d(dtype=vec)
+        """Force at the start of the load step [N] (the energy check), shape (yarns, N+1)."""
         mass: wp.array2d(dtype=scalar)
         """Integration masses [kg] (fictitious or physical), shape (yarns, N+1)."""
         band: wp.array3d(dtype=scalar)
@@ -71,8 +73,18 @@ def struct(scalar):
         """transient: friction work since the start of the run [J], shape (yarns,)."""
         residual: wp.array(dtype=scalar)
         """Largest |free force component| at `position` [N], shape (yarns,)."""
+        tolerance: wp.array(dtype=scalar)
+        """Residual to reach in this load step [N] (`relaxation.start`), shape (yarns,)."""
         start_residual: wp.array(dtype=scalar)
         """The residual at the start of the load step [N], shape (yarns,)."""
+        work_bound: wp.array(dtype=scalar)
+        """explicit: the largest f0 . (x - x0) of the load step so far [J], f0 and x0 at its
+        start: what the forces can have released (`relaxation.check_energy`), shape (yarns,)."""
+        kinetic_peak: wp.array(dtype=scalar)
+        """explicit: the largest kinetic energy since the last energy test [J], shape (yarns,)."""
+        energy_ratio: wp.array(dtype=scalar)
+        """explicit: the largest kinetic energy / work_bound of the load step so far [-],
+        shape (yarns,)."""
         best_residual: wp.array(dtype=scalar)
         """The smallest residual of the load step so far [N], shape (yarns,)."""
         steps_since_best: wp.array(dtype=wp.int32)
@@ -90,12 +102,13 @@ def struct(scalar):
 
 
 VECTOR_FIELDS = ("position", "velocity", "force", "previous_force", "previous_position",
-                 "start_position")
+                 "start_position", "start_force")
 """Fields of shape (yarns, N+1) of vectors."""
 CROSSING_FIELDS = ("anchors", "contact_force", "contact_tangent", "friction_limit")
 """Fields of shape (yarns, C)."""
 SCALAR_FIELDS = ("dt", "stable_dt", "kinetic_energy", "damping_coefficient", "fire_alpha",
-                 "dissipated", "residual", "start_residual", "best_residual", "rounding_floor")
+                 "dissipated", "residual", "start_residual", "best_residual", "rounding_floor",
+                 "work_bound", "kinetic_peak", "energy_ratio", "tolerance")
 """Fields of shape (yarns,) of scalars."""
 COUNTER_FIELDS = ("fire_positive_steps", "fire_negative_steps", "steps_since_best", "steps",
                   "force_evaluations", "status")

@@ -1,10 +1,12 @@
-"""Starting Warp for a run: quietly on the CPU, loudly where a GPU was asked for."""
+"""Starting Warp for a run, quietly, on a device that exists (a user's mistake otherwise)."""
 
 import contextlib
 import os
 import sys
 
 import warp as wp
+
+from dynfab.errors import SceneError
 
 
 @contextlib.contextmanager
@@ -22,12 +24,16 @@ def _native_stderr_silenced():
 
 
 def initialize(device: str) -> None:
-    """wp.init() without the banner; on the CPU also without Warp's native notice that no
-    CUDA driver was found (printed unconditionally, and irrelevant to a CPU run: a user's
-    stderr then holds dynfab's lines only). On a GPU device the notice stays visible."""
+    """wp.init() without the banner and without Warp's native notices (that no CUDA driver
+    was found, printed unconditionally), then check that `device` exists: an unknown name
+    or a CUDA device on a machine without one is a SceneError (one line, exit status 2)
+    naming the devices this machine has, not a traceback from the first array."""
     wp.config.log_level = wp.LOG_WARNING
-    if str(device).startswith("cpu"):
-        with _native_stderr_silenced():
-            wp.init()
-    else:
+    with _native_stderr_silenced():
         wp.init()
+        try:
+            wp.get_device(device)
+        except (RuntimeError, ValueError) as error:
+            available = ", ".join(str(d) for d in wp.get_devices())
+            raise SceneError(f"--device {device!r}: not available on this machine ({error}); "
+                             f"available: {available}") from None

@@ -4,6 +4,12 @@ import functools
 
 import warp as wp
 
+RELATIVE_TOLERANCE = 1e-6
+"""The default tolerance's share of the load step's force scale [-] (`relaxation.start`):
+the default residual is min(DEFAULT_TOLERANCE, max(RELATIVE_TOLERANCE x scale, rounding
+floor)), so 1e-8 N from a force scale of 0.01 N up (the paper's loads and contact forces)
+and proportionally less below it."""
+
 
 @functools.cache
 def struct(scalar):
@@ -16,7 +22,10 @@ def struct(scalar):
         end_load: scalar
         """P [N] under force control (unused under displacement control)."""
         tolerance: scalar
-        """Residual to reach [N]."""
+        """Residual to reach [N] (with relative_tolerance > 0: at most)."""
+        relative_tolerance: scalar
+        """Default tolerance's share of the load step's force scale [-]; 0: `tolerance` as
+        given (a tolerance the user asked for)."""
         safety: scalar
         """Fraction of the Gershgorin stable time step used [-]."""
         fixed_dt: scalar

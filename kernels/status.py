@@ -9,13 +9,19 @@ ROUNDING_FLOOR = 2
 MAX_STEPS = 3
 """The load step used `max_steps` time steps."""
 DIVERGED = 4
-"""The residual grew beyond `DIVERGENCE_FACTOR` x its value at the start of the load step."""
+"""The residual grew beyond `DIVERGENCE_FACTOR` x its value at the start of the load step,
+or (explicit) the kinetic energy beyond `ENERGY_FACTOR` x the work the forces can have done
+since then (`relaxation.check_energy`)."""
 NON_FINITE = 5
 """A force or the kinetic energy became NaN or infinite."""
 STALLED = 6
 """FIRE: the power stayed negative for `fire.MAX_NEGATIVE_STEPS` steps in a row."""
 NOT_POSITIVE_DEFINITE = 7
 """semi_implicit: no time step gave the LU factorisation positive pivots."""
+
+NO_PROGRESS = 8
+"""semi_implicit: the residual has not reached a new low during the last half of the load
+step's time steps, after at least `semi_implicit.STALL_MIN_STEPS`."""
 
 SUCCESS = (CONVERGED, ROUNDING_FLOOR)
 """The codes of a load step that ended well."""
@@ -26,3 +32,12 @@ if larger) means unstable motion. A stable damped relaxation stays within about
 sqrt(cond(M^-1 K)) of its start (a few thousand on the paper's yarns); an unstable
 explicit mode (omega dt > 2) multiplies the residual by about (omega dt)^2 - 2 per
 step, so at 10x the stable time step it crosses the bound within a handful of steps."""
+
+ENERGY_FACTOR = 1e3
+"""Kinetic energy / the largest f0 . (x - x0) of the load step [-] beyond which an explicit
+integration has diverged (`dynfab.kernels.relaxation`). At most about 1 in exact stable
+dynamics from rest with a convex energy, 5.3 for symplectic Euler's half-step velocities at
+safety 0.9 (100 at omega dt = 1.99); measured at most 0.91 on the paper relaxations (every
+damping, both mass choices, float32, N = 224 and 896). An unstable mode passes 1e3 within
+9 time steps at 1.37 x the predicted stable dt on the paper yarn at N = 896, 34 at 1.08 x;
+the test, every `relaxation.ENERGY_CHECK_INTERVAL` steps, sees it at the next multiple."""

@@ -31,17 +31,23 @@ def functions(scalar) -> SimpleNamespace:
 
     @wp.func
     def adaptive_coefficient(y: int, motion: Motion, dt: scalar) -> scalar:
-        """c [1/s] = 2 sqrt(u^T K u / u^T M u) with Underwood's diagonal K from the last step."""
-        stiffness_term = scalar(0.0)
+        """c [1/s] = 2 sqrt(q), q = u^T K u / u^T M u by Underwood's diagonal K where it is
+        positive and below the secant quotient, otherwise by the secant -u . (f - f0)."""
+        underwood = scalar(0.0)
+        secant = scalar(0.0)
         mass_term = scalar(0.0)
         for i in range(motion.mass.shape[1]):
             u = motion.position[y, i] - motion.start_position[y, i]
             change = motion.force[y, i] - motion.previous_force[y, i]
+            secant -= wp.dot(u, motion.force[y, i] - motion.start_force[y, i])
             for c in range(2):
                 moved = dt * motion.velocity[y, i][c]
                 if moved != scalar(0.0):
-                    stiffness_term += u[c] * u[c] * (-change[c] / moved)
-                mass_term += u[c] * u[c] * motion.mass[y, i]
+                    underwood += u[c] * u[c] * (-change[c] / moved)
+            mass_term += wp.dot(u, u) * motion.mass[y, i]
+        stiffness_term = secant
+        if underwood > scalar(0.0) and underwood < secant:
+            stiffness_term = underwood
         coefficient = scalar(0.0)
         if stiffness_term > scalar(0.0) and mass_term > scalar(0.0):
             coefficient = wp.min(scalar(2.0) * wp.sqrt(stiffness_term / mass_term), scalar(2.0) / dt)

@@ -129,3 +129,34 @@ def test_given_dt_above_the_bound_is_allowed_with_a_one_line_warning(tmp_path):
     assert done.returncode == 0, done.stderr
     warning = [l for l in done.stderr.splitlines() if l.startswith("dynfab: warning:")]
     assert len(warning) == 1 and "above the predicted stable time step" in warning[0]
+
+
+def test_a_device_that_is_not_there_is_one_line_and_exit_2(tmp_path):
+    import warp as wp
+
+    scene = tmp_path / "small.toml"
+    scene.write_text(SMALL)
+    # "cuda" is a user mistake only where this machine has no CUDA device.
+    missing = ["foo"] + ([] if any(str(d).startswith("cuda") for d in wp.get_devices())
+                         else ["cuda"])
+    for device in missing:
+        done = dynfab_cli("run", scene, "--solver", "dynamic", "--device", device, "--out",
+                          tmp_path / "x.h5", "--quiet")
+        assert done.returncode == 2, done.stderr
+        assert "Traceback" not in done.stderr
+        lines = done.stderr.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith("dynfab: error: --device"), done.stderr
+        assert repr(device) in lines[0] and "available: cpu" in lines[0]
+
+
+def test_semi_implicit_refuses_kinetic_and_fire_damping_in_one_line(tmp_path):
+    scene = tmp_path / "small.toml"
+    scene.write_text(SMALL)
+    for damping in ("kinetic", "fire"):
+        done = dynfab_cli("run", scene, "--solver", "dynamic", "--method", "semi_implicit",
+                          "--damping", damping, "--out", tmp_path / "x.h5", "--quiet")
+        assert done.returncode == 2, done.stderr
+        lines = done.stderr.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith(
+            f'dynfab: error: dynamic.damping = "{damping}": not available with dynamic.method = '
+            '"semi_implicit"'), done.stderr

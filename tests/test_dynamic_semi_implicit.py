@@ -46,7 +46,8 @@ def test_matches_static_with_friction_one_step_at_a_time():
         state = static_state
 
 
-def test_fire_is_refused():
+@pytest.mark.parametrize("damping", ["fire", "kinetic"])
+def test_fire_and_kinetic_damping_are_refused(damping):
     model = build_model(load_scene(RUNS / "paper_fig3.toml"))
-    with pytest.raises(SceneError, match="fire.*semi_implicit"):
-        DynamicSolver(model, Dynamic(method="semi_implicit", damping="fire"))
+    with pytest.raises(SceneError, match=f"{damping}.*semi_implicit"):
+        DynamicSolver(model, Dynamic(method="semi_implicit", damping=damping))

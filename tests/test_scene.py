@@ -495,6 +495,13 @@ BAD = {
                                    r'dynamic\.duration = 0\.02: only used with dynamic\.mode'),
     "damping coefficient with kinetic": ({"dynamic": {"damping_coefficient": 1.0}},
                                          r"dynamic\.damping_coefficient = 1\.0: only used with"),
+    "semi_implicit with kinetic damping": ({"dynamic": {"method": "semi_implicit",
+                                                        "damping": "kinetic"}},
+                                           r'dynamic\.damping = "kinetic": not available with '
+                                           r'dynamic\.method = "semi_implicit"'),
+    "semi_implicit with fire damping": ({"dynamic": {"method": "semi_implicit", "damping": "fire"}},
+                                        r'dynamic\.damping = "fire": not available with '
+                                        r'dynamic\.method = "semi_implicit"'),
 }
 
 

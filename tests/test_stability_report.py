@@ -23,7 +23,9 @@ limit of each of its pieces (the full report measures 0.94 dt_p at alpha = 2): t
 the lower bound is the solver's default safety factor, 0.9, the fraction of dt_p it
 uses with physical masses. (The quick friction case is measured with kinetic damping,
 the variant the dynamic tests compile, which sees the linear instability only: within
-the same bounds, near the top.)
+the same bounds. A stick oscillation that grows until sliding caps it still counts as
+unstable: the kernel's energy test sees kinetic energy the forces never supplied, so the
+measured step no longer reaches the sliding limit near the top.)
 """
 
 from __future__ import annotations
@@ -217,7 +219,6 @@ def test_measured_stable_dt_is_within_the_derived_factor_of_the_predicted_one(re
         else:
             sticking = math.sqrt(1 + case["stick_stiffness"] / (4 * case["stretch_stiffness_max"]))
             assert SAFETY <= ratio <= GERSHGORIN_SLACK * sticking, case["case"]
-            assert ratio > 10  # k_t = 1000 x default: the sticking assumption costs ~16x
             assert stability["measured_with"] == "kinetic damping"
         # Gershgorin on the actual tangent is a bound too, and the solver's (stiffest tangent)
         # is below it; 1e-6: the solver's is taken at the perturbed state (1e-9 m moves)
@@ -245,10 +246,13 @@ def test_converged_errors_are_within_the_residual_bound(report):
 def test_the_table_has_a_row_per_case_and_its_notes(report):
     out, summary, _, _, _ = report
     text = (out / "stability.md").read_text()
-    rows = [line for line in text.splitlines() if line.startswith("| ")]
+    cases_table, paths_table = text.split("Friction load paths")  # the cases' table comes first
+    rows = [line for line in cases_table.splitlines() if line.startswith("| ")]
     header, body = rows[0], rows[1:]
     assert [cell.strip() for cell in header.strip("|").split("|")][-4:] == list(METHODS)
     assert len(body) == len(summary["cases"])
+    path_rows = [line for line in paths_table.splitlines() if line.startswith("| friction path")]
+    assert len(path_rows) == len(summary["paths"]) == 1
     width = header.count("|")
     assert all(line.count("|") == width for line in body)
     for case, line in zip(summary["cases"], body):
@@ -303,3 +307,21 @@ def test_bad_output_folder_is_a_scene_error_and_exit_status_2(tmp_path, capsys):
     assert exit_info.value.code == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("dynfab: error:") and "\n" not in err
+
+
+def test_the_friction_path_is_followed_by_the_compiled_methods(report):
+    """The quick path case: the static reference along the force path (loading, unloading to
+    zero, reloading), then kinetic and semi_implicit along its end displacements under
+    displacement control, each from its own last state: both finish every load step (the
+    stick/slip reversals of unloading included); the other methods are skipped, their
+    variants not being among those the tests compile."""
+    _, summary, _, _, _ = report
+    path = summary["paths"][0]
+    assert path["control"] == "displacement" and "failed" not in path["static"]
+    assert len(path["static"]["end_displacement_m"]) == len(path["values"])
+    for name, method in path["methods"].items():
+        if name in ("kinetic", "semi_implicit"):
+            assert method["verdict"] == "converged", method.get("message")
+            assert len(method["time_steps"]) == len(path["values"])
+        else:
+            assert method["verdict"] == "skipped" and method["message"]

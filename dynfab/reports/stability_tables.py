@@ -108,7 +108,43 @@ def stability_markdown(summary: dict) -> str:
                       f": {', '.join(map(str, fit['time_steps']))} steps; between the two finest "
                       f"meshes p = {fit['local_exponent']:.2f})"
                       for name, fit in summary["mesh_fit"].items()) + ".", ""]
+    lines += path_markdown(summary.get("paths", []), notes)
     lines += ["Notes:", ""]
     lines += [f"{k}. {text}" for k, text in enumerate(notes, start=1)]
     lines.append("")
     return "\n".join(lines)
+
+
+def _path_cell(method: dict, notes: list[str]) -> str:
+    """One method along a load path: total time steps, wall time and the largest difference
+    from the static reference; or where it stopped, with its message as a note."""
+    verdict = method.get("verdict")
+    if verdict == "converged":
+        return (f"{sum(method['time_steps'])} st, {method['wall_time_s']:.2g} s, "
+                f"diff {method['largest_difference']:.1e} {method['largest_difference_units']}")
+    if verdict == "failed":
+        return (f"**FAILED** at step {method['failed_load_step']} after "
+                f"{method['time_steps'][-1]} st [{_note(notes, method['message'])}]")
+    if verdict is None:
+        return "-"
+    return f"{verdict} [{_note(notes, method.get('message', ''))}]"
+
+
+def path_markdown(paths: list[dict], notes: list[str]) -> list[str]:
+    """The friction load path table: one row per mesh, the static reference and each method."""
+    if not paths:
+        return []
+    lines = ["Friction load paths (paper_fig5.toml entry 0, end force "
+             f"{', '.join(f'{1e3 * v:g}' for v in paths[0]['values'])} mN; each method from its "
+             "own last state; diff: the largest end displacement (force control) or end force "
+             "(displacement control) difference from the static reference):", "",
+             "| path | control | static | " + " | ".join(METHODS) + " |",
+             "|---|---|---|" + "---|" * len(METHODS)]
+    for path in paths:
+        static = path["static"] or {}
+        static_cell = (f"**FAILED** [{_note(notes, static['failed'])}]" if "failed" in static
+                       else f"{sum(static['iterations'])} it")
+        cells = [_path_cell(path["methods"].get(name, {}), notes) for name in METHODS]
+        lines.append(f"| {path['case']} | {path['control']} | {static_cell} | "
+                     + " | ".join(cells) + " |")
+    return lines + [""]
