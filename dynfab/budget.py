@@ -6,12 +6,12 @@ model and solver and the size of the result file from the scene alone, and
 raises a SceneError (exit status 2) with the estimate when either exceeds what
 the machine has (available memory, free disk space where the file goes).
 
-The memory model is linear in the number of nodes: BYTES_PER_NODE was measured
-as the slope of the peak resident memory of `dynfab.run` between 262,144 and
-2,097,152 segments (one yarn, 4 crossings, static Newton and the dynamic
-solver explicit and semi_implicit alike: 514 to 538 bytes per node), rounded
-up to 640; PROCESS_BYTES is the resident size of a process that has imported
-numpy, numba, Warp and h5py (about 160 MB).
+The memory model is linear in the number of nodes: the peak resident memory
+of `dynfab.run` (static, one yarn, 4 crossings, step certificate included)
+grew by 632 bytes per node between 262,144 and 2,097,152 segments, so
+BYTES_PER_NODE = 800; PROCESS_BYTES covers the imports and a first run's JIT
+compilation (498 MB peak at 262,144 segments with an empty numba cache, 329 MB
+with a warm one). Measured with the script in `tests/test_budget.py`.
 """
 
 from __future__ import annotations
@@ -23,10 +23,10 @@ from pathlib import Path
 from dynfab.errors import SceneError
 from dynfab.scene import Scene, yarn_count
 
-BYTES_PER_NODE = 640
+BYTES_PER_NODE = 800
 """Peak memory per node of one yarn, model and solver arrays together [B]."""
-PROCESS_BYTES = 200 * 2**20
-"""Memory of the process before the model is built (imports) [B]."""
+PROCESS_BYTES = 400 * 2**20
+"""Memory of the process before the model is built: imports, JIT compilation [B]."""
 STEP_SCALARS = 24
 """Per-step datasets that hold one number per yarn (load, end force, residual, ...)."""
 CROSSING_DATASETS = 6

@@ -63,7 +63,7 @@ def test_memory_estimate_covers_the_measured_peak():
 
 def test_a_mesh_beyond_memory_is_refused_with_the_estimate(monkeypatch):
     monkeypatch.setattr(budget, "available_memory_bytes", lambda: 10**9)
-    with pytest.raises(dynfab.SceneError, match=r"needs about 1\.\d+ GB of memory .* but 1 GB is available"):
+    with pytest.raises(dynfab.SceneError, match=r"needs about 2\.\d+ GB of memory .* but 1 GB is available"):
         dynfab.run(scene(segments=2_000_000), solver="static")
 
 

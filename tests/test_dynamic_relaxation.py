@@ -233,7 +233,9 @@ def test_default_tolerance_follows_a_tiny_load(fig3, options):
         bound = inverse_stiffness_norm(model, static_state.positions, static_record["anchors"],
                                        False) * (record["residual"] + static_record["residual"])
         assert (bound <= 0.01 * np.abs(static_record["end_displacement"])).all()
-    given = DynamicSolver(model, replace(options, tolerance=1e-8))
+    # A given 1e-8 N is used as given; the step's accuracy check (docs/model.md, stability and
+    # accuracy) would rightly refuse what it leaves here, so it is switched off for this check.
+    given = DynamicSolver(model, replace(options, tolerance=1e-8, accuracy=float("inf")))
     _, record = given.step(initial_state(model), 1e-6)
     assert (record["tolerance"] == 1e-8).all()
 
