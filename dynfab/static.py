@@ -38,12 +38,14 @@ DIRECT_SET_UPDATES = 4
 """Set updates tried at the scene's R_0 before the continuation (most steps need 0 or 1)."""
 DIRECT_ITERATIONS = 50
 """Newton iterations per set in that first attempt."""
+COUPLED_FIRST = 20
+"""Iterations of the coupled Newton tried first on a fixed set (`_newton_set_polished`)."""
 ENERGY_ITERATIONS = 30
 """Newton iterations with the energy line search on a fixed set before the coupled,
 pivoted Newton takes over (`_newton_set_polished`)."""
-CONTINUATION_FACTOR = 2.0
-"""R_0 falls by this factor per stage: 10 was measured to leave stages whose set
-updates cycle on the paper's yarn (1e-4 -> 1e-5 N at load step 6), 2 did not."""
+CONTINUATION_FACTORS = (2.0, 1.25, 1.05)
+"""R_0 falls by this factor per stage, the next one if the continuation fails: 10 was
+measured to leave stages whose set updates cycle on the paper's yarn."""
 CONTINUATION_START = 1e-3
 """R_0 [N] the continuation starts from (MODEL.md 4: Newton converges there in about 20
 iterations from the previous step's state on the paper's yarn)."""
@@ -230,6 +232,17 @@ def _natural_set(pos, yarn) -> np.ndarray:
     return np.where(_closures(pos, yarn) > 0.0, contact.CLOSED, contact.OPEN).astype(np.int64)
 
 
+@numba.njit(cache=True)
+def _natural_residual(pos, yarn, P, anchors, fixed):
+    """The residual [N] of the unilateral law (no set) at `pos`, F_T from the law."""
+    c = yarn.crossing_node.size
+    force, limit, tangent = np.zeros(c), np.zeros(c), np.zeros(c)
+    grad = np.zeros_like(pos)
+    assembly.contact_state(pos, yarn, force, limit, tangent)
+    assembly.gradient(pos, yarn, P, anchors, limit, grad)
+    return max_free(grad, fixed)
+
+
 def _update_set(pos, yarn, branch, seen) -> np.ndarray:
     """Switch the crossings whose branch the state contradicts; returns their indices.
 
@@ -244,7 +257,7 @@ def _update_set(pos, yarn, branch, seen) -> np.ndarray:
     indices = np.flatnonzero(wrong)
     if indices.size == 0:
         return indices
-    candidates = [indices] + [np.array([j]) for j in indices[np.argsort(-np.abs(g[indices]))]]
+    candidates = [np.array([j]) for j in indices[np.argsort(-np.abs(g[indices]))]] + [indices]
     for switch in candidates:
         trial = branch.copy()
         trial[switch] = contact.OPEN + contact.CLOSED - trial[switch]
@@ -328,9 +341,8 @@ def _solve_set(pos, yarn, P, fixed, anchors, tolerance, max_iterations, info, br
 
     A solve that ends short of the tolerance still updates the set (its state shows
     which crossings are on the wrong branch), as long as the state is finite. Returns
-    -1 on success (converged, set consistent; an intermediate stage, not `final`, is only
-    the next stage's start: it succeeds once its set is consistent or its updates come
-    back to a set already tried); else the crossing to blame
+    -1 on success (converged, set consistent); an intermediate stage, not `final`, is only
+    the next stage's start and always succeeds. Else the crossing to blame
     (the last one switched, or the one nearest to g = 0), info holding the last Newton
     outcome.
     """
@@ -345,6 +357,11 @@ def _solve_set(pos, yarn, P, fixed, anchors, tolerance, max_iterations, info, br
         nearest = int(np.argmin(np.abs(_closures(pos, yarn))))
         if not np.isfinite(info[RESIDUAL]):
             return nearest
+        if converged and _natural_residual(pos, yarn, P, anchors, fixed) <= tolerance:
+            # consistent to within the tolerance: the crossings the set contradicts sit so
+            # near g = 0 that the unilateral law's forces differ by less than it
+            info[RESIDUAL] = _natural_residual(pos, yarn, P, anchors, fixed)
+            return -1
         switched = _update_set(pos, yarn, branch, seen)
         if switched is None:  # every set the updates propose was tried
             if not final:
@@ -360,12 +377,32 @@ def _solve_set(pos, yarn, P, fixed, anchors, tolerance, max_iterations, info, br
     return blame
 
 
-def _onset_schedule(onset: float) -> list[float]:
-    """R_0 from CONTINUATION_START down to the scene's, by CONTINUATION_FACTOR (MODEL.md 4)."""
-    schedule = [CONTINUATION_START]
-    while schedule[-1] > CONTINUATION_FACTOR * onset:
-        schedule.append(schedule[-1] / CONTINUATION_FACTOR)
-    return [r for r in schedule if r > onset] + [onset]
+def _continuation(pos, yarn, P, fixed, anchors, tolerance, max_iterations, info) -> int:
+    """Solve with R_0 lowered from CONTINUATION_START to the scene's value, each stage from
+    the last one's state and set (MODEL.md 4); returns -1 or the crossing to blame.
+
+    R_0 falls by a factor per stage, CONTINUATION_FACTORS[0]; if the last stage fails,
+    the whole continuation is redone from the step's start with the next, finer factor.
+    """
+    target = yarn.friction_onset
+    start = pos.copy()
+    iterations, blame = 0, 0
+    for factor in CONTINUATION_FACTORS:
+        pos[:, :] = start
+        branch = _natural_set(pos, yarn)
+        onset = max(CONTINUATION_START, target)
+        while True:
+            blame = _solve_set(pos, yarn._replace(friction_onset=onset), P, fixed, anchors,
+                               tolerance, max_iterations, info, branch,
+                               final=onset == target)
+            iterations += int(info[ITERATIONS])
+            if onset == target:
+                break
+            onset = max(target, onset / factor)
+        info[ITERATIONS] = iterations
+        if blame < 0:
+            return -1
+    return blame
 
 
 def newton(pos, yarn, P, fixed, anchors, tolerance, max_iterations, info):
@@ -393,17 +430,11 @@ def newton(pos, yarn, P, fixed, anchors, tolerance, max_iterations, info):
                   info, branch, DIRECT_SET_UPDATES) < 0:
         return
     pos[:, :] = start
-    branch = _natural_set(pos, yarn)
     iterations = int(info[ITERATIONS])
-    for onset in _onset_schedule(yarn.friction_onset):
-        blame = _solve_set(pos, yarn._replace(friction_onset=onset), P, fixed, anchors,
-                           tolerance, max_iterations, info, branch,
-                           final=onset == yarn.friction_onset)
-        iterations += int(info[ITERATIONS])
-        info[ITERATIONS] = iterations
-        if blame >= 0:
-            info[STATUS], info[DETAIL] = ONSET_FAILED, blame
-            return
+    blame = _continuation(pos, yarn, P, fixed, anchors, tolerance, max_iterations, info)
+    info[ITERATIONS] += iterations
+    if blame >= 0:
+        info[STATUS], info[DETAIL] = ONSET_FAILED, blame
 
 
 class StaticSolver:
@@ -482,15 +513,27 @@ def _raise_on_failure(info, yarn_index: int, yarn, tolerance: float) -> None:
     raise SolverError(f"{where}: {reason}; residual {residual:.3g} N, tolerance {tolerance:.3g} N")
 
 def _newton_set_polished(pos, yarn, P, fixed, anchors, tolerance, max_iterations, info, branch):
-    """Newton on the fixed-set problem: `_newton_on_set` (energy line search, robust far
-    from the solution), then, if it stops short, `_newton_fixed_set` (the coupled Newton,
-    pivoted, residual merit), whose convergence stays quadratic where the friction
-    limit's slope near the onset makes the frozen-energy direction useless."""
-    _newton_on_set(pos, yarn, P, fixed, anchors, tolerance, min(max_iterations, ENERGY_ITERATIONS),
-                   info, branch)
-    if int(info[STATUS]) in (CONVERGED, ROUNDING_FLOOR) or not np.isfinite(info[RESIDUAL]):
+    """Newton on the fixed-set problem.
+
+    First `_newton_fixed_set` (the coupled Newton, pivoted, residual merit: quadratic
+    near the solution, where a continuation stage or set update starts). If it fails,
+    from the same start, `_newton_on_set` (energy line search, robust far from the
+    solution) for ENERGY_ITERATIONS, then `_newton_fixed_set` again: the frozen-energy
+    direction is of little use where the friction limit's slope near the onset is large.
+    """
+    start = pos.copy()
+    _newton_fixed_set(pos, yarn, P, fixed, anchors, tolerance, min(max_iterations, COUPLED_FIRST),
+                      info, branch)
+    if int(info[STATUS]) in (CONVERGED, ROUNDING_FLOOR):
         return
     iterations = int(info[ITERATIONS])
+    pos[:, :] = start
+    _newton_on_set(pos, yarn, P, fixed, anchors, tolerance, min(max_iterations, ENERGY_ITERATIONS),
+                   info, branch)
+    iterations += int(info[ITERATIONS])
+    if int(info[STATUS]) in (CONVERGED, ROUNDING_FLOOR) or not np.isfinite(info[RESIDUAL]):
+        info[ITERATIONS] = iterations
+        return
     _newton_fixed_set(pos, yarn, P, fixed, anchors, tolerance, max_iterations, info, branch)
     info[ITERATIONS] += iterations
 

@@ -16,11 +16,14 @@ side gains R/k_c and the energy R^2/(2 k_c) with no further term (`dynfab.model`
 
 Branches: the functions taking `branch` (None, or one of NATURAL, OPEN, CLOSED per
 crossing) let the static solver hold a crossing open or closed during a Newton solve
-(MODEL.md 4, the active set of `dynfab.static`). OPEN: R = 0 at any g. CLOSED: the law
-above for g > 0, continued for g <= 0 by its tangent at R = 0, R = k_0 g,
-k_0 = 1/(1/k_s + C_wa a_wa + C_we a_we), energy k_0 g^2 / 2 (C1 at g = 0). NATURAL (and
-None): the unilateral law. A state whose open crossings have g <= 0 and closed ones
-g >= 0 gives the same R on every branch.
+(MODEL.md 4, the active set of `dynfab.static`). OPEN: R = 0 and dR/dg = 0 at any g.
+CLOSED: the unilateral law's force (R = 0 for g <= 0: no adhesion), but for g <= 0 the
+tangent from the closed side, k_0 = 1/(1/k_s + C_wa a_wa + C_we a_we): the Newton
+matrix of a crossing held closed keeps its contact stiffness across g = 0. NATURAL (and
+None): the unilateral law. CLOSED gives the unilateral law's forces, OPEN too wherever
+g <= 0: a state whose open crossings have g <= 0 satisfies the unilateral law. (A closed
+branch continued as an adhesive spring, R = k_0 g for g < 0, was tried: its spurious
+solutions with R < 0 made the set updates cycle on the paper's yarn, at load step 19.)
 """
 
 import numba
@@ -104,11 +107,9 @@ def branch_of(branch, j):
 
 @numba.njit(cache=True)
 def force_on_branch(g, law, branch):
-    """R [N] at closure g on one branch (module docstring)."""
+    """R [N] at closure g on one branch (module docstring): 0 when OPEN."""
     if branch == OPEN:
         return 0.0
-    if branch == CLOSED and not g > 0.0:
-        return tangent(0.0, law) * g
     return force_from_closure(g, law)
 
 
@@ -127,8 +128,6 @@ def energy_on_branch(g, law, branch):
     """E_contact [J] at closure g on one branch."""
     if branch == OPEN:
         return 0.0
-    if branch == CLOSED and not g > 0.0:
-        return 0.5 * tangent(0.0, law) * g * g
     return energy_of_force(force_from_closure(g, law), law)
 
 

@@ -5,12 +5,9 @@ Friction limit (Gralen, eq. 20, with its onset regularised over R_0; MODEL.md 4)
     F_T,j = alpha R_j + beta ell r_f (1 - exp(-R_j / R_0))   if R_j > 0,   else 0;
 
 R_0 = 0 is the literal law, whose limit jumps by beta ell r_f as a crossing touches.
-For R <= 0, which a crossing held closed by the static solver's active set can
-reach (`dynfab.static`), F_T = 0 but `limit_slope` returns the slope at 0+,
-alpha + beta ell r_f / R_0: the element of the generalized derivative that points
-Newton at the R > 0 side, where a closed crossing's solution lies. (A smooth
-extension to R < 0 would make F_T negative: an anti-friction force with no stick
-zone, discontinuous at zero slip.)
+`limit_slope` is dF_T/dR, 0 where R <= 0. (A smooth continuation of F_T to R < 0
+for the static solver's active set would make F_T negative: an anti-friction force
+with no stick zone, discontinuous at zero slip; it was tried and dropped.)
 
 Within a load step the anchors xi_j stay put and each crossing adds the convex
 Huber potential of its slip s = x_{n_j} - xi_j:
@@ -42,11 +39,11 @@ def limit(R, alpha, constant, onset):
 @numba.njit(cache=True)
 def limit_slope(R, alpha, constant, onset):
     """dF_T/dR [-] of `limit`: alpha + (beta ell r_f / R_0) exp(-R / R_0) for R > 0."""
+    if not R > 0.0:
+        return 0.0
     if onset == 0.0:
-        return alpha if R > 0.0 else 0.0
-    if R > 0.0:
-        return alpha + constant / onset * np.exp(-R / onset)
-    return alpha + constant / onset
+        return alpha
+    return alpha + constant / onset * np.exp(-R / onset)
 
 
 @numba.njit(cache=True)
