@@ -4,7 +4,9 @@ Reads as the list of terms: each call below is one term of
 V = E_stretch + E_bend + sum_j E_contact,j - W_load - W_gravity (+ sum_j H_j),
 taken only when the yarn has it. `P` is the end load [N] (0 under
 displacement control, where the load term is absent); `anchors` and
-`friction_limit` (F_T, frozen) are per crossing.
+`friction_limit` (F_T, frozen) are per crossing. `branch` (optional, per crossing)
+holds crossings open or closed (`dynfab.terms.contact`); without it the contact is
+unilateral.
 """
 
 import numba
@@ -17,14 +19,14 @@ STRETCH, BENDING, CONTACT, FRICTION, GRAVITY, LOAD = range(6)
 
 
 @numba.njit(cache=True)
-def energies(pos, yarn, P, anchors, friction_limit, out):
+def energies(pos, yarn, P, anchors, friction_limit, out, branch=None):
     """Each term's energy [J] into out (6,); a term the yarn lacks is 0."""
     out[:] = 0.0
     out[STRETCH] = stretch.energy(pos, yarn.rest_length, yarn.stretch_stiffness)
     out[BENDING] = bending.energy(pos, yarn.bend_stiffness, yarn.rest_angle)
     if yarn.crossing_node.size > 0:
         out[CONTACT] = contact.energy(pos, yarn.crossing_node, yarn.crossing_side,
-                                      yarn.gap_offset, yarn.contact_law)
+                                      yarn.gap_offset, yarn.contact_law, branch)
     if yarn.has_friction:
         out[FRICTION] = friction.energy(pos, yarn.crossing_node, anchors, friction_limit,
                                         yarn.stick_stiffness)
@@ -34,14 +36,14 @@ def energies(pos, yarn, P, anchors, friction_limit, out):
 
 
 @numba.njit(cache=True)
-def gradient(pos, yarn, P, anchors, friction_limit, grad):
+def gradient(pos, yarn, P, anchors, friction_limit, grad, branch=None):
     """grad = dV/dr (N+1, 2) [N], F_T frozen."""
     grad[:, :] = 0.0
     stretch.add_gradient(pos, yarn.rest_length, yarn.stretch_stiffness, grad)
     bending.add_gradient(pos, yarn.bend_stiffness, yarn.rest_angle, grad)
     if yarn.crossing_node.size > 0:
         contact.add_gradient(pos, yarn.crossing_node, yarn.crossing_side, yarn.gap_offset,
-                             yarn.contact_law, grad)
+                             yarn.contact_law, grad, branch)
     if yarn.has_friction:
         friction.add_gradient(pos, yarn.crossing_node, anchors, friction_limit,
                               yarn.stick_stiffness, grad)
@@ -51,7 +53,8 @@ def gradient(pos, yarn, P, anchors, friction_limit, grad):
 
 
 @numba.njit(cache=True)
-def hessian(pos, yarn, anchors, friction_limit, contact_tangent, coupled, band, secant=False):
+def hessian(pos, yarn, anchors, friction_limit, contact_tangent, coupled, band, secant=False,
+            branch=None):
     """band = d2V/dr2 [N/m], banded (`dynfab.banded`), F_T frozen.
 
     With `coupled`, adds the derivative of F_T through the contact force on
@@ -64,24 +67,38 @@ def hessian(pos, yarn, anchors, friction_limit, contact_tangent, coupled, band, 
     bending.add_hessian(pos, yarn.bend_stiffness, yarn.rest_angle, band)
     if yarn.crossing_node.size > 0:
         contact.add_hessian(pos, yarn.crossing_node, yarn.crossing_side, yarn.gap_offset,
-                            yarn.contact_law, band)
+                            yarn.contact_law, band, branch)
     if yarn.has_friction:
         friction.add_hessian(pos, yarn.crossing_node, anchors, friction_limit,
                              yarn.stick_stiffness, band, secant)
         if coupled:
             friction.add_limit_coupling(pos, yarn.crossing_node, yarn.crossing_side, anchors,
-                                        friction_limit, yarn.stick_stiffness, yarn.friction_alpha,
-                                        contact_tangent, band)
+                                        friction_limit, yarn.stick_stiffness,
+                                        limit_slopes(pos, yarn, branch), contact_tangent, band)
 
 
 @numba.njit(cache=True)
-def contact_state(pos, yarn, contact_force, friction_limit, contact_tangent):
+def limit_slopes(pos, yarn, branch=None):
+    """dF_T/dR [-] of every crossing at its current contact force."""
+    slopes = np.zeros(yarn.crossing_node.size)
+    for j in range(slopes.size):
+        g = contact.closure(pos, yarn.crossing_node[j], yarn.crossing_side[j], yarn.gap_offset[j])
+        R = contact.force_on_branch(g, yarn.contact_law, contact.branch_of(branch, j))
+        slopes[j] = friction.limit_slope(R, yarn.friction_alpha, yarn.friction_constant,
+                                         yarn.friction_onset)
+    return slopes
+
+
+@numba.njit(cache=True)
+def contact_state(pos, yarn, contact_force, friction_limit, contact_tangent, branch=None):
     """R_j [N], F_T,j [N] (Gralen, 0 without friction) and dR/dg [N/m] of every crossing."""
     for j in range(yarn.crossing_node.size):
         g = contact.closure(pos, yarn.crossing_node[j], yarn.crossing_side[j], yarn.gap_offset[j])
-        R = contact.force_from_closure(g, yarn.contact_law)
+        on = contact.branch_of(branch, j)
+        R = contact.force_on_branch(g, yarn.contact_law, on)
         contact_force[j] = R
-        contact_tangent[j] = contact.tangent(R, yarn.contact_law) if g > 0.0 else 0.0
+        contact_tangent[j] = contact.tangent_on_branch(g, R, yarn.contact_law, on)
         friction_limit[j] = 0.0
         if yarn.has_friction:
-            friction_limit[j] = friction.limit(R, yarn.friction_alpha, yarn.friction_constant)
+            friction_limit[j] = friction.limit(R, yarn.friction_alpha, yarn.friction_constant,
+                                               yarn.friction_onset)

@@ -42,11 +42,15 @@ class Yarn(NamedTuple):
     gap_offset: np.ndarray
     """c_j in the closure g_j = c_j - s_j z_{n_j} (C,) [m] (MODEL.md 3)."""
     contact_law: np.ndarray
-    """(k_we [N/m], C_wa [m], a_wa [1/N], C_we [m], a_we [1/N]) of the series law."""
+    """(k_s [N/m], C_wa [m], a_wa [1/N], C_we [m], a_we [1/N]) of the series law; k_s is the
+    weft spring k_we in series with the core stiffness k_c when given (MODEL.md 3)."""
     friction_alpha: float
     """Gralen alpha [-]; 0 without friction."""
     friction_constant: float
     """Gralen beta ell r_f [N]; 0 without friction."""
+    friction_onset: float
+    """R_0 [N], the contact force over which the limit's constant term sets in (MODEL.md 4);
+    0: the literal jump law."""
     stick_stiffness: float
     """k_t [N/m]; 0 without friction."""
     gravity: float
@@ -178,6 +182,7 @@ def _build_yarn(scene: Scene, phase: float) -> Yarn:
         friction_alpha=float(friction.alpha) if friction else 0.0,
         friction_constant=float(friction.beta * friction.contact_length * friction.fiber_radius)
         if friction else 0.0,
+        friction_onset=float(friction.onset_force) if friction else 0.0,
         stick_stiffness=float(stick),
         gravity=float(scene.gravity.g) if scene.gravity else 0.0,
         has_friction=friction is not None,
@@ -199,11 +204,20 @@ def _gap_offset(scene: Scene, rest: np.ndarray, nodes: np.ndarray, sides: np.nda
 
 
 def _contact_law(scene: Scene) -> np.ndarray:
-    """(k_we, C_wa, a_wa, C_we, a_we), a_m = K_m / Lc_m (MODEL.md 3, eqs. 4, 6-7)."""
+    """(k_s, C_wa, a_wa, C_we, a_we), a_m = K_m / Lc_m (MODEL.md 3, eqs. 4, 6-7).
+
+    k_s = 1 / (1/k_we + 1/k_c): the weft spring in series with the core stiffness
+    `contact.core_stiffness` when the scene gives one (else k_we). One more linear spring
+    in series adds R/k_c to the law's left side and R^2/(2 k_c) to the energy, exactly
+    what k_s does, so both solvers take it with no term of its own.
+    """
     geo, weft = scene.geometry, scene.weft
     if geo.crossings == 0:
         return np.zeros(5)
     k_we = geometry.weft_stiffness(weft.EI, weft.length, weft.count, weft.tension)
+    core = scene.contact.core_stiffness if scene.contact is not None else None
+    if core is not None:
+        k_we = 1.0 / (1.0 / k_we + 1.0 / core)
     lc_warp = geometry.half_wave_arc_length(geo.length / geo.crossings, geo.amplitude)
     lc_weft = geometry.half_wave_arc_length(weft.length / weft.count, weft.amplitude)
     return np.array([k_we, scene.warp.kawabata_C, scene.warp.kawabata_K / lc_warp,

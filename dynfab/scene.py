@@ -8,7 +8,7 @@ and what is allowed.
 Public: `load_scene`, `parse_scene_text`, `validate_scene` (for a Scene built
 in Python), `with_key`, `expand_sweep`, `yarn_count`. Choices made here:
 
-- a scene without crossings (a plain rod) refuses a [weft] or [friction] table
+- a scene without crossings (a plain rod) refuses a [weft], [contact] or [friction] table
   and a non-zero geometry.amplitude, rather than ignoring them;
 - [dynamic] keys that the chosen mode or damping would ignore (duration and
   output_interval outside "transient", damping_coefficient without viscous
@@ -102,6 +102,18 @@ class Friction:
     """r_f, fibre radius [m]."""
     stick_stiffness: float | None = None
     """k_t [N/m]; None means EA / (L/N) of each yarn."""
+    onset_force: float = 1e-5
+    """R_0 [N]: the limit's constant term sets in as 1 - exp(-R/R_0); 0 is the literal
+    jump law (MODEL.md section 4)."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class Contact:
+    """Options of the crossing contact law (MODEL.md section 3)."""
+
+    core_stiffness: float | None = None
+    """k_c [N/m], the yarns' core stiffness in series with the weft spring and the
+    Kawabata compressions; None: no such spring."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -178,6 +190,8 @@ class Scene:
     warp: Warp
     weft: Weft | None = None
     """Absent exactly when geometry.crossings == 0."""
+    contact: Contact | None = None
+    """Only when given; a plain rod refuses it."""
     friction: Friction | None = None
     gravity: Gravity | None = None
     load: Load
@@ -243,12 +257,14 @@ _SCHEMA: dict[str, tuple[type, dict[str, _Key]]] = {
         "kawabata_K": _real("m/N", _POS),
         "tension": _real("N"),
     }),
+    "contact": (Contact, {"core_stiffness": _real("N/m", _POS)}),
     "friction": (Friction, {
         "alpha": _real("-", _NONNEG),
         "beta": _real("N/m^2", _NONNEG),
         "contact_length": _real("m", _NONNEG),
         "fiber_radius": _real("m", _NONNEG),
         "stick_stiffness": _real("N/m", _POS),
+        "onset_force": _real("N", _NONNEG),
     }),
     "gravity": (Gravity, {"g": _real("m/s^2")}),
     "load": (Load, {
@@ -289,7 +305,7 @@ _REQUIRED_TABLES = ("geometry", "warp", "load")
 _FIELD_KEYS = tuple(f"{t}.{k}" for t, (_, keys) in _SCHEMA.items() for k in keys)
 _ALL_KEYS = _FIELD_KEYS + tuple(f"load.{k}" for k in _LOAD_PATH)
 _SWEEPABLE = ("geometry.amplitude",) + tuple(
-    f"{t}.{k}" for t in ("warp", "weft", "friction", "gravity")
+    f"{t}.{k}" for t in ("warp", "weft", "contact", "friction", "gravity")
     for k, key in _SCHEMA[t][1].items() if key.kind == "float")
 """Keys a [sweep] may vary: real-valued, changing no array shape (MODEL.md 1)."""
 
@@ -322,7 +338,7 @@ def parse_scene_text(text: str, source: str = "<string>") -> Scene:
     return validate_scene(_build_scene(raw, text))
 
 
-SCENE_TABLES = ("geometry", "warp", "weft", "friction", "gravity", "load", "static", "dynamic")
+SCENE_TABLES = ("geometry", "warp", "weft", "contact", "friction", "gravity", "load", "static", "dynamic")
 """The tables of a scene file, in the order `scene_to_toml` writes them."""
 
 
@@ -541,6 +557,7 @@ def _build_scene(raw: dict, text: str) -> Scene:
         geometry=geometry,
         warp=_build_table("warp", tables["warp"]),
         weft=_build_weft(tables["weft"], geometry),
+        contact=_build_optional("contact", tables["contact"]),
         friction=_build_optional("friction", tables["friction"]),
         gravity=_build_optional("gravity", tables["gravity"]),
         load=_build_load(tables["load"]),
@@ -595,7 +612,7 @@ def _build_optional(name: str, table: dict | None):
 
 
 def _rod_table_error(name: str) -> SceneError:
-    """A [weft] or [friction] table given to a plain rod (crossings = 0)."""
+    """A [weft], [contact] or [friction] table given to a plain rod (crossings = 0)."""
     return SceneError(f"[{name}] given but geometry.crossings = 0: a plain rod has "
                       f"no crossings; remove the [{name}] table or set crossings > 0")
 
@@ -679,7 +696,7 @@ def _check_tables_present(scene: Scene) -> None:
         raise SceneError(f"missing required table [weft] (geometry.crossings = "
                          f"{scene.geometry.crossings} > 0)")
     if scene.geometry.crossings == 0:
-        for name in ("weft", "friction"):
+        for name in ("weft", "contact", "friction"):
             if getattr(scene, name) is not None:
                 raise _rod_table_error(name)
 
@@ -777,7 +794,7 @@ def _check_sweep_key(key: str) -> None:
     if key in _ALL_KEYS:
         raise SceneError(f'sweep."{key}": this key cannot be swept; sweepable are '
                          "geometry.amplitude and the real-valued keys of [warp], "
-                         "[weft], [friction] and [gravity]")
+                         "[weft], [contact], [friction] and [gravity]")
     match = difflib.get_close_matches(key, _SWEEPABLE, n=1)
     hint = f"; did you mean 'sweep.\"{match[0]}\"'?" if match else ""
     raise SceneError(f"unknown key 'sweep.\"{key}\"'{hint}")

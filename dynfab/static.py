@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import numba
 import numpy as np
+import scipy.linalg
 
 from dynfab import assembly
 from dynfab.banded import BANDWIDTH, constrain, lu_factor, lu_solve
@@ -23,8 +24,9 @@ from dynfab.certificate import (MAX_ESCAPES, NEGATIVES, StepStability, certify_y
                                 escape_yarn)
 from dynfab.errors import SolverError
 from dynfab.observables import finish_step
+from dynfab.terms import contact
 
-CONVERGED, ROUNDING_FLOOR, STALLED, MAX_ITERATIONS, CYCLING = range(5)
+CONVERGED, ROUNDING_FLOOR, STALLED, MAX_ITERATIONS, CYCLING, ONSET_FAILED = range(6)
 """Outcomes of `newton`, in info[STATUS]."""
 RESIDUAL, ITERATIONS, STATUS, DETAIL = range(4)
 """Fields of `newton`'s info array; DETAIL is the cycling crossing or the last shift."""
@@ -32,6 +34,23 @@ RESIDUAL, ITERATIONS, STATUS, DETAIL = range(4)
 EPS = np.finfo(np.float64).eps
 MAX_FLIPS = 12
 """Open/closed switches of one crossing after which the iteration is declared cycling."""
+MAX_SET_UPDATES = 40
+"""Open/closed set updates per continuation stage with an onset force (MODEL.md 4)."""
+DIRECT_SET_UPDATES = 4
+"""Set updates tried at the scene's R_0 before the continuation (most steps need 0 or 1)."""
+DIRECT_ITERATIONS = 50
+"""Newton iterations per set in that first attempt."""
+COUPLED_FIRST = 20
+"""Iterations of the coupled Newton tried first on a fixed set (`_newton_set_polished`)."""
+ENERGY_ITERATIONS = 30
+"""Newton iterations with the energy line search on a fixed set before the coupled,
+pivoted Newton takes over (`_newton_set_polished`)."""
+CONTINUATION_FACTORS = (2.0, 1.25, 1.05)
+"""R_0 falls by this factor per stage, the next one if the continuation fails: 10 was
+measured to leave stages whose set updates cycle on the paper's yarn."""
+CONTINUATION_START = 1e-3
+"""R_0 [N] the continuation starts from (MODEL.md 4: Newton converges there in about 20
+iterations from the previous step's state on the paper's yarn)."""
 
 
 @numba.njit(cache=True)
@@ -74,31 +93,31 @@ def _shifted_direction(band, work, grad, fixed, direction):
 
 
 @numba.njit(cache=True)
-def _total_energy(pos, yarn, P, anchors, friction_limit, terms):
-    assembly.energies(pos, yarn, P, anchors, friction_limit, terms)
+def _total_energy(pos, yarn, P, anchors, friction_limit, terms, branch=None):
+    assembly.energies(pos, yarn, P, anchors, friction_limit, terms, branch)
     return terms.sum()
 
 
 @numba.njit(cache=True)
 def _line_search(pos, direction, slope, residual, yarn, P, anchors, friction_limit, fixed,
-                 trial, grad, terms, halvings):
+                 trial, grad, terms, halvings, branch=None):
     """Backtrack on the energy (F_T frozen) from step 1, at most `halvings` times; returns the
     accepted step or 0.
 
     Armijo: E(t) <= E(0) + 1e-4 t slope. Where |E(t) - E(0)| is within the rounding
     of the energy sum, the energy cannot judge: accept if the residual falls.
     """
-    e0 = _total_energy(pos, yarn, P, anchors, friction_limit, terms)
+    e0 = _total_energy(pos, yarn, P, anchors, friction_limit, terms, branch)
     rounding = 64.0 * EPS * (np.abs(terms).sum() + abs(P) * abs(pos[-1, 0]))
     d = direction.reshape(pos.shape)
     t = 1.0
     for _ in range(halvings):
         trial[:, :] = pos + t * d
-        e1 = _total_energy(trial, yarn, P, anchors, friction_limit, terms)
+        e1 = _total_energy(trial, yarn, P, anchors, friction_limit, terms, branch)
         if e1 - e0 <= 1e-4 * t * slope:
             return t
         if abs(e1 - e0) <= rounding:
-            assembly.gradient(trial, yarn, P, anchors, friction_limit, grad)
+            assembly.gradient(trial, yarn, P, anchors, friction_limit, grad, branch)
             if max_free(grad, fixed) < residual:
                 return t
         t *= 0.5
@@ -106,11 +125,49 @@ def _line_search(pos, direction, slope, residual, yarn, P, anchors, friction_lim
 
 
 @numba.njit(cache=True)
-def newton(pos, yarn, P, fixed, anchors, tolerance, max_iterations, info):
-    """Solve one load step in place from `pos`; outcome in info (RESIDUAL, ITERATIONS, STATUS, DETAIL).
+def _free_norm(grad, fixed):
+    """The 2-norm of the force over the free dofs [N]."""
+    flat = grad.ravel()
+    total = 0.0
+    for i in range(flat.size):
+        if not fixed[i]:
+            total += flat[i] * flat[i]
+    return np.sqrt(total)
 
-    `P` is the end load [N] (0 under displacement control, x_N then fixed in
-    `fixed` and set by the caller). `anchors` stay fixed (incremental form).
+
+@numba.njit(cache=True)
+def _residual_line_search(pos, direction, yarn, P, anchors, fixed, trial, grad, branch,
+                          halvings):
+    """Backtrack from step 1 on the residual's 2-norm with F_T re-evaluated at each trial
+    (the coupled problem's merit, MODEL.md 4); returns the accepted step or 0.
+
+    Accepts |f(t)| <= (1 - 1e-4 t) |f(0)|: the coupled Newton direction is a descent
+    direction of |f|^2 where the Jacobian is exact.
+    """
+    c = yarn.crossing_node.size
+    force, limit, tangent = np.zeros(c), np.zeros(c), np.zeros(c)
+    assembly.contact_state(pos, yarn, force, limit, tangent, branch)
+    assembly.gradient(pos, yarn, P, anchors, limit, grad, branch)
+    norm0 = _free_norm(grad, fixed)
+    d = direction.reshape(pos.shape)
+    t = 1.0
+    for _ in range(halvings):
+        trial[:, :] = pos + t * d
+        assembly.contact_state(trial, yarn, force, limit, tangent, branch)
+        assembly.gradient(trial, yarn, P, anchors, limit, grad, branch)
+        if _free_norm(grad, fixed) <= (1.0 - 1e-4 * t) * norm0:
+            return t
+        t *= 0.5
+    return 0.0
+
+
+@numba.njit(cache=True)
+def _newton_on_set(pos, yarn, P, fixed, anchors, tolerance, max_iterations, info, branch):
+    """Newton on one load step from `pos`, in place; outcome in info.
+
+    `branch` None: the unilateral contact, with the open/closed flip count that
+    detects cycling (the literal jump law). `branch` an array: each crossing held
+    on its branch (`dynfab.terms.contact`), a smooth problem (MODEL.md 4).
     """
     n = pos.size
     c = yarn.crossing_node.size
@@ -123,8 +180,8 @@ def newton(pos, yarn, P, fixed, anchors, tolerance, max_iterations, info):
     cut = False  # the last step was shortened: use the secant friction stiffness
     info[STATUS], info[DETAIL] = MAX_ITERATIONS, 0.0
     for iteration in range(max_iterations + 1):
-        assembly.contact_state(pos, yarn, contact_force, friction_limit, tangent)
-        assembly.gradient(pos, yarn, P, anchors, friction_limit, grad)
+        assembly.contact_state(pos, yarn, contact_force, friction_limit, tangent, branch)
+        assembly.gradient(pos, yarn, P, anchors, friction_limit, grad, branch)
         residual = max_free(grad, fixed)
         info[RESIDUAL], info[ITERATIONS] = residual, iteration
         if residual <= tolerance:
@@ -140,7 +197,7 @@ def newton(pos, yarn, P, fixed, anchors, tolerance, max_iterations, info):
             if yarn.has_friction and flips[j] > MAX_FLIPS:
                 info[STATUS], info[DETAIL] = CYCLING, j
                 return
-        assembly.hessian(pos, yarn, anchors, friction_limit, tangent, True, band, cut)
+        assembly.hessian(pos, yarn, anchors, friction_limit, tangent, True, band, cut, branch)
         floor = 4.0 * EPS * np.abs(band[:, BANDWIDTH]).max() * np.abs(pos).max()
         if residual <= floor and residual > 0.5 * previous:
             info[STATUS] = ROUNDING_FLOOR
@@ -149,18 +206,238 @@ def newton(pos, yarn, P, fixed, anchors, tolerance, max_iterations, info):
         info[DETAIL] = _shifted_direction(band, work, grad, fixed, direction)
         slope = np.dot(grad.ravel(), direction)
         if not slope < 0.0:  # the coupling made it uphill for the frozen energy: drop it
-            assembly.hessian(pos, yarn, anchors, friction_limit, tangent, False, band, cut)
+            assembly.hessian(pos, yarn, anchors, friction_limit, tangent, False, band, cut, branch)
             info[DETAIL] = _shifted_direction(band, work, grad, fixed, direction)
             slope = np.dot(grad.ravel(), direction)
         # At the rounding floor a Newton step can only be lost in rounding: a few halvings
         # tell, sixty would only cost time.
         t = _line_search(pos, direction, slope, residual, yarn, P, anchors, friction_limit,
-                         fixed, trial, grad, terms, 8 if residual <= floor else 60)
+                         fixed, trial, grad, terms, 8 if residual <= floor else 60, branch)
         if t == 0.0:
             info[STATUS] = ROUNDING_FLOOR if residual <= floor else STALLED
             return
         pos[:, :] = trial
         cut = t < 1.0
+
+
+@numba.njit(cache=True)
+def _closures(pos, yarn):
+    """g_j [m] of every crossing."""
+    g = np.zeros(yarn.crossing_node.size)
+    for j in range(g.size):
+        g[j] = contact.closure(pos, yarn.crossing_node[j], yarn.crossing_side[j], yarn.gap_offset[j])
+    return g
+
+
+def _natural_set(pos, yarn) -> np.ndarray:
+    """The open/closed set the unilateral law gives at `pos`: CLOSED where g > 0."""
+    return np.where(_closures(pos, yarn) > 0.0, contact.CLOSED, contact.OPEN).astype(np.int64)
+
+
+@numba.njit(cache=True)
+def _natural_residual(pos, yarn, P, anchors, fixed):
+    """The residual [N] of the unilateral law (no set) at `pos`, F_T from the law."""
+    c = yarn.crossing_node.size
+    force, limit, tangent = np.zeros(c), np.zeros(c), np.zeros(c)
+    grad = np.zeros_like(pos)
+    assembly.contact_state(pos, yarn, force, limit, tangent)
+    assembly.gradient(pos, yarn, P, anchors, limit, grad)
+    return max_free(grad, fixed)
+
+
+def _update_set(pos, yarn, branch, seen) -> np.ndarray:
+    """Switch the crossings whose branch the state contradicts; returns their indices.
+
+    A closed crossing needs R >= 0 (g >= 0), an open one g <= 0 (MODEL.md 4); where
+    both hold (g = 0) the two branches agree. All of them switch at once, unless that
+    gives a set already tried (`seen`, the sets as bytes): then only the one that
+    contradicts its branch most, then the next ones, one at a time. Returns an empty
+    array when consistent, None when every choice was tried.
+    """
+    g = _closures(pos, yarn)
+    wrong = ((branch == contact.CLOSED) & (g < 0.0)) | ((branch == contact.OPEN) & (g > 0.0))
+    indices = np.flatnonzero(wrong)
+    if indices.size == 0:
+        return indices
+    candidates = [np.array([j]) for j in indices[np.argsort(-np.abs(g[indices]))]] + [indices]
+    for switch in candidates:
+        trial = branch.copy()
+        trial[switch] = contact.OPEN + contact.CLOSED - trial[switch]
+        if trial.tobytes() not in seen:
+            branch[:] = trial
+            seen.add(trial.tobytes())
+            return switch
+    return None
+
+
+@numba.njit(cache=True)
+def _set_state(pos, yarn, P, anchors, fixed, branch, grad, band):
+    """Residual [N] (grad filled) and, in band, the coupled Jacobian with fixed dofs
+    constrained, of the fixed-set problem; returns (residual, rounding floor [N])."""
+    c = yarn.crossing_node.size
+    force, limit, tangent = np.zeros(c), np.zeros(c), np.zeros(c)
+    assembly.contact_state(pos, yarn, force, limit, tangent, branch)
+    assembly.gradient(pos, yarn, P, anchors, limit, grad, branch)
+    assembly.hessian(pos, yarn, anchors, limit, tangent, True, band, False, branch)
+    floor = 4.0 * EPS * np.abs(band[:, BANDWIDTH]).max() * np.abs(pos).max()
+    rhs = -grad.ravel().copy()
+    constrain(band, rhs, fixed)
+    return max_free(grad, fixed), floor, rhs
+
+
+def _pivoted_solve(band, rhs):
+    """A x = rhs by banded LU with partial pivoting (LAPACK gbsv): the coupled Jacobian is
+    not symmetric, and near the friction onset its unpivoted LU meets non-positive pivots,
+    whose shift would spoil the Newton step. None if A is singular."""
+    n, u = rhs.size, BANDWIDTH
+    ab = np.zeros((2 * u + 1, n))
+    for k in range(-u, u + 1):  # ab[u + i - j, j] = A[i, j], A[i, j] = band[i, j - i + u]
+        if k >= 0:
+            ab[u - k, k:] = band[:n - k, u + k]
+        else:
+            ab[u - k, :n + k] = band[-k:, u + k]
+    try:
+        return scipy.linalg.solve_banded((u, u), ab, rhs, check_finite=False)
+    except np.linalg.LinAlgError:
+        return None
+
+
+def _newton_fixed_set(pos, yarn, P, fixed, anchors, tolerance, max_iterations, info, branch):
+    """Newton on the fixed-set problem (smooth but for the Huber stick/slip switch), in place.
+
+    The coupled Jacobian (friction limit through R) solved with pivoting; steps judged by
+    the residual's 2-norm with F_T re-evaluated (`_residual_line_search`). Outcome in info
+    as `_newton_on_set`.
+    """
+    grad, trial = np.zeros_like(pos), np.empty_like(pos)
+    band = np.zeros((pos.size, 2 * BANDWIDTH + 1))
+    previous = np.inf
+    info[STATUS], info[DETAIL] = MAX_ITERATIONS, 0.0
+    for iteration in range(max_iterations + 1):
+        residual, floor, rhs = _set_state(pos, yarn, P, anchors, fixed, branch, grad, band)
+        info[RESIDUAL], info[ITERATIONS] = residual, iteration
+        if residual <= tolerance:
+            info[STATUS] = CONVERGED
+            return
+        if iteration == max_iterations or not np.isfinite(residual):
+            return
+        if residual <= floor and residual > 0.5 * previous:
+            info[STATUS] = ROUNDING_FLOOR
+            return
+        previous = residual
+        direction = _pivoted_solve(band, rhs)
+        if direction is None:
+            info[STATUS] = STALLED
+            return
+        t = _residual_line_search(pos, direction, yarn, P, anchors, fixed, trial, grad, branch,
+                                  8 if residual <= floor else 60)
+        if t == 0.0:
+            info[STATUS] = ROUNDING_FLOOR if residual <= floor else STALLED
+            return
+        pos[:, :] = trial
+
+
+def _solve_set(pos, yarn, P, fixed, anchors, tolerance, max_iterations, info, branch,
+               max_updates=None, final=True, energy_first=False) -> int:
+    """Newton on fixed sets, updating the set between solves until it is consistent.
+
+    A solve that ends short of the tolerance still updates the set (its state shows
+    which crossings are on the wrong branch), as long as the state is finite. Returns
+    -1 on success (converged, set consistent); an intermediate stage, not `final`, is only
+    the next stage's start and always succeeds. Else the crossing to blame
+    (the last one switched, or the one nearest to g = 0), info holding the last Newton
+    outcome.
+    """
+    seen = {branch.tobytes()}
+    iterations = 0
+    blame = 0
+    for _ in range(MAX_SET_UPDATES if max_updates is None else max_updates):
+        SET_NEWTON(pos, yarn, P, fixed, anchors, tolerance, max_iterations, info, branch,
+                   energy_first)
+        iterations += int(info[ITERATIONS])
+        info[ITERATIONS] = iterations
+        converged = int(info[STATUS]) in (CONVERGED, ROUNDING_FLOOR)
+        nearest = int(np.argmin(np.abs(_closures(pos, yarn))))
+        if not np.isfinite(info[RESIDUAL]):
+            return nearest
+        if converged and _natural_residual(pos, yarn, P, anchors, fixed) <= tolerance:
+            # consistent to within the tolerance: the crossings the set contradicts sit so
+            # near g = 0 that the unilateral law's forces differ by less than it
+            info[RESIDUAL] = _natural_residual(pos, yarn, P, anchors, fixed)
+            return -1
+        switched = _update_set(pos, yarn, branch, seen)
+        if switched is None:  # every set the updates propose was tried
+            if not final:
+                return -1
+            info[STATUS] = CYCLING
+            return blame
+        if switched.size == 0:
+            return -1 if converged or not final else nearest
+        blame = int(switched[-1])
+    if not final:
+        return -1
+    info[STATUS] = CYCLING
+    return blame
+
+
+def _continuation(pos, yarn, P, fixed, anchors, tolerance, max_iterations, info) -> int:
+    """Solve with R_0 lowered from CONTINUATION_START to the scene's value, each stage from
+    the last one's state and set (MODEL.md 4); returns -1 or the crossing to blame.
+
+    R_0 falls by a factor per stage, CONTINUATION_FACTORS[0]; if the last stage fails,
+    the whole continuation is redone from the step's start with the next, finer factor.
+    """
+    target = yarn.friction_onset
+    start = pos.copy()
+    iterations, blame = 0, 0
+    for factor in CONTINUATION_FACTORS:
+        pos[:, :] = start
+        branch = _natural_set(pos, yarn)
+        onset = max(CONTINUATION_START, target)
+        while True:
+            blame = _solve_set(pos, yarn._replace(friction_onset=onset), P, fixed, anchors,
+                               tolerance, max_iterations, info, branch,
+                               final=onset == target)
+            iterations += int(info[ITERATIONS])
+            if onset == target:
+                break
+            onset = max(target, onset / factor)
+        info[ITERATIONS] = iterations
+        if blame < 0:
+            return -1
+    return blame
+
+
+def newton(pos, yarn, P, fixed, anchors, tolerance, max_iterations, info):
+    """Solve one load step in place from `pos`; outcome in info (RESIDUAL, ITERATIONS, STATUS, DETAIL).
+
+    `P` is the end load [N] (0 under displacement control, x_N then fixed in
+    `fixed` and set by the caller). `anchors` stay fixed (incremental form).
+
+    With friction and an onset force R_0 > 0 (MODEL.md 4) the open/closed set of
+    the crossings is held fixed during each Newton solve and updated between
+    solves until it agrees with the state (`_solve_set`); if that fails from the
+    previous state, the step is solved again from it by continuation in R_0, from
+    CONTINUATION_START down to the scene's value, each stage from the last. The
+    final state is consistent with the set, so the unilateral law gives the same
+    forces and F_T equals the law at the solution's R. DETAIL of a failure names
+    the crossing. Without it, one Newton solve on the unilateral law, stopped as
+    CYCLING when a crossing keeps opening and closing.
+    """
+    if not (yarn.has_friction and yarn.friction_onset > 0.0 and yarn.crossing_node.size > 0):
+        _newton_on_set(pos, yarn, P, fixed, anchors, tolerance, max_iterations, info, None)
+        return
+    start = pos.copy()
+    branch = _natural_set(pos, yarn)
+    if _solve_set(pos, yarn, P, fixed, anchors, tolerance, min(max_iterations, DIRECT_ITERATIONS),
+                  info, branch, DIRECT_SET_UPDATES, energy_first=True) < 0:
+        return
+    pos[:, :] = start
+    iterations = int(info[ITERATIONS])
+    blame = _continuation(pos, yarn, P, fixed, anchors, tolerance, max_iterations, info)
+    info[ITERATIONS] += iterations
+    if blame >= 0:
+        info[STATUS], info[DETAIL] = ONSET_FAILED, blame
 
 
 class StaticSolver:
@@ -261,8 +538,56 @@ def _raise_on_failure(info, yarn_index: int, yarn, tolerance: float) -> None:
             f"{where}: crossing {j + 1} (node {yarn.crossing_node[j]}) keeps opening and closing at "
             f"g = 0, where Gralen's friction limit jumps by beta*ell*r_f = {yarn.friction_constant:.3g} N; "
             f"no state consistent with the friction law was found (residual {residual:.3g} N)")
+    if status == ONSET_FAILED:
+        j = int(info[DETAIL])
+        raise SolverError(
+            f"{where}: crossing {j + 1} (node {yarn.crossing_node[j]}) at the friction onset "
+            f"(R_0 = {yarn.friction_onset:.3g} N): no open/closed state consistent with the "
+            f"contact and friction laws was found, also by continuation in R_0 from "
+            f"{CONTINUATION_START:.3g} N (residual {residual:.3g} N)")
     if not np.isfinite(residual):
         raise SolverError(f"{where}: the residual became {residual} (non-finite state)")
     reason = {STALLED: "line search stalled above the rounding floor",
               MAX_ITERATIONS: f"no convergence in {int(info[ITERATIONS])} Newton iterations"}[status]
     raise SolverError(f"{where}: {reason}; residual {residual:.3g} N, tolerance {tolerance:.3g} N")
+
+def _newton_set_polished(pos, yarn, P, fixed, anchors, tolerance, max_iterations, info, branch,
+                         energy_first=False):
+    """Newton on the fixed-set problem.
+
+    First `_newton_fixed_set` (the coupled Newton, pivoted, residual merit: quadratic
+    near the solution, where a continuation stage or set update starts). If it fails,
+    from the same start, `_newton_on_set` (energy line search with the secant friction
+    stiffness, robust far from the solution) for ENERGY_ITERATIONS, then
+    `_newton_fixed_set` again: the frozen-energy direction is of little use where the
+    friction limit's slope near the onset is large. With `energy_first` (a step's first
+    attempt, from the previous step's state), `_newton_on_set` comes first: away from
+    the onset it finds the sticking crossings in fewer iterations (10 against 30 on the
+    first friction step of runs/paper_fig5.toml, `benchmarks/static.py`).
+    """
+    start = pos.copy()
+    iterations = 0
+    if energy_first:
+        _newton_on_set(pos, yarn, P, fixed, anchors, tolerance, max_iterations, info, branch)
+    else:
+        _newton_fixed_set(pos, yarn, P, fixed, anchors, tolerance,
+                          min(max_iterations, COUPLED_FIRST), info, branch)
+    if int(info[STATUS]) in (CONVERGED, ROUNDING_FLOOR):
+        return
+    iterations = int(info[ITERATIONS])
+    if energy_first and np.isfinite(info[RESIDUAL]):
+        _newton_fixed_set(pos, yarn, P, fixed, anchors, tolerance, max_iterations, info, branch)
+        info[ITERATIONS] += iterations
+        return
+    pos[:, :] = start
+    _newton_on_set(pos, yarn, P, fixed, anchors, tolerance, min(max_iterations, ENERGY_ITERATIONS),
+                   info, branch)
+    iterations += int(info[ITERATIONS])
+    if int(info[STATUS]) in (CONVERGED, ROUNDING_FLOOR) or not np.isfinite(info[RESIDUAL]):
+        info[ITERATIONS] = iterations
+        return
+    _newton_fixed_set(pos, yarn, P, fixed, anchors, tolerance, max_iterations, info, branch)
+    info[ITERATIONS] += iterations
+
+
+SET_NEWTON = _newton_set_polished

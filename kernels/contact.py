@@ -108,4 +108,4 @@ def functions(scalar) -> SimpleNamespace:
                 stiffness = law[y, 0]
             band_ops.add(band, y, dof, dof, stiffness)
 
-    return SimpleNamespace(add_forces=add_forces, add_band=add_band)
+    return SimpleNamespace(expm1=expm1, add_forces=add_forces, add_band=add_band)

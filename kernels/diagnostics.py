@@ -61,6 +61,7 @@ def term_kernel(configuration: Configuration):
             if term == FRICTION:
                 friction_ops.add_forces(y, pos, yarn.crossing_node, anchors, contact_force,
                                         yarn.friction_alpha, yarn.friction_constant,
+                                        yarn.friction_onset,
                                         yarn.stick_stiffness, friction_limit, force)
                 friction_ops.add_band(y, pos, yarn.crossing_node, anchors, friction_limit,
                                       yarn.stick_stiffness, False, band)

@@ -52,6 +52,7 @@ def functions(scalar, has_friction: bool, has_gravity: bool, force_control: bool
         if wp.static(has_friction):
             friction_ops.add_forces(y, pos, yarn.crossing_node, anchors, contact_force,
                                     yarn.friction_alpha, yarn.friction_constant,
+                                    yarn.friction_onset,
                                     yarn.stick_stiffness, friction_limit, force)
         if wp.static(has_gravity):
             gravity_ops.add_forces(y, yarn.mass, yarn.gravity, force)

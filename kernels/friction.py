@@ -1,7 +1,8 @@
 """Gralen friction as stick-slip in the incremental Huber form, in a kernel (MODEL.md 4; eqs. 20-27).
 
-Warp twin of `dynfab.terms.friction`. F_T,j = alpha R_j + beta ell r_f if R_j > 0,
-else 0 (eq. 20), from the contact force of the same evaluation. With the anchor
+Warp twin of `dynfab.terms.friction`. F_T,j = alpha R_j + beta ell r_f (1 - exp(-R_j/R_0))
+if R_j > 0, else 0 (eq. 20 with its onset regularised over R_0; R_0 = 0 is the literal
+law), from the contact force of the same evaluation. With the anchor
 xi_j fixed, the slip s = x_{n_j} - xi_j feels -dH/ds: -k_t s while sticking
 (k_t |s| <= F_T), -F_T sign(s) while sliding.
 """
@@ -11,7 +12,7 @@ from types import SimpleNamespace
 
 import warp as wp
 
-from dynfab.kernels import banded
+from dynfab.kernels import banded, contact
 from dynfab.kernels.precision import VECTORS
 
 
@@ -20,13 +21,21 @@ def functions(scalar) -> SimpleNamespace:
     """The friction `wp.func`s for one scalar type."""
     vec = VECTORS[scalar]
     band_ops = banded.functions(scalar)
+    expm1 = contact.functions(scalar).expm1
 
     @wp.func
-    def limit(R: scalar, alpha: scalar, constant: scalar) -> scalar:
-        """F_T [N] from Gralen's law; `constant` = beta ell r_f [N]."""
+    def limit(R: scalar, alpha: scalar, constant: scalar, onset: scalar) -> scalar:
+        """F_T [N] from Gralen's law; `constant` = beta ell r_f [N], `onset` = R_0 [N] (0: literal).
+
+        1 - exp(-R/R_0) as -expm1(-R/R_0), accurate to a few ulps also for R << R_0.
+        """
         value = scalar(0.0)
         if R > scalar(0.0):
-            value = alpha * R + constant
+            onset_factor = scalar(1.0)
+            if onset > scalar(0.0):
+                x = -R / onset
+                onset_factor = -expm1(x, wp.exp(x))
+            value = alpha * R + constant * onset_factor
         return value
 
     @wp.func
@@ -46,12 +55,12 @@ def functions(scalar) -> SimpleNamespace:
     def add_forces(y: int, pos: wp.array2d(dtype=vec), nodes: wp.array(dtype=wp.int32),
                    anchors: wp.array2d(dtype=scalar), contact_force: wp.array2d(dtype=scalar),
                    alpha: wp.array(dtype=scalar), constant: wp.array(dtype=scalar),
-                   stick_stiffness: wp.array(dtype=scalar), friction_limit: wp.array2d(dtype=scalar),
-                   force: wp.array2d(dtype=vec)):
+                   onset: wp.array(dtype=scalar), stick_stiffness: wp.array(dtype=scalar),
+                   friction_limit: wp.array2d(dtype=scalar), force: wp.array2d(dtype=vec)):
         """force_x -= dH/ds [N] with F_T from the current R_j; stores F_T,j [N]."""
         for j in range(nodes.shape[0]):
             node = nodes[j]
-            limit_j = limit(contact_force[y, j], alpha[y], constant[y])
+            limit_j = limit(contact_force[y, j], alpha[y], constant[y], onset[y])
             friction_limit[y, j] = limit_j
             slip = pos[y, node][0] - anchors[y, j]
             force[y, node] = force[y, node] - vec(huber_derivative(slip, limit_j, stick_stiffness[y]),
@@ -88,4 +97,5 @@ def functions(scalar) -> SimpleNamespace:
                 anchors[y, j] = moved
         return lost
 
-    return SimpleNamespace(add_forces=add_forces, add_band=add_band, return_map=return_map)
+    return SimpleNamespace(limit=limit, add_forces=add_forces, add_band=add_band,
+                           return_map=return_map)

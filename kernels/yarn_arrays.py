@@ -40,11 +40,14 @@ def struct(scalar):
         gap_offset: wp.array2d(dtype=scalar)
         """c_j of g_j = c_j - s_j z_{n_j} [m], shape (yarns, C)."""
         contact_law: wp.array2d(dtype=scalar)
-        """(k_we [N/m], C_wa [m], a_wa [1/N], C_we [m], a_we [1/N]), shape (yarns, 5)."""
+        """(k_s [N/m], C_wa [m], a_wa [1/N], C_we [m], a_we [1/N]), shape (yarns, 5); k_s the
+        weft spring in series with the core stiffness (`dynfab.model`)."""
         friction_alpha: wp.array(dtype=scalar)
         """Gralen alpha [-], shape (yarns,)."""
         friction_constant: wp.array(dtype=scalar)
         """Gralen beta ell r_f [N], shape (yarns,)."""
+        friction_onset: wp.array(dtype=scalar)
+        """R_0 [N] of the limit's onset, shape (yarns,); 0: the literal jump law."""
         stick_stiffness: wp.array(dtype=scalar)
         """k_t [N/m], shape (yarns,)."""
         gravity: wp.array(dtype=scalar)
@@ -55,7 +58,8 @@ def struct(scalar):
 
 PER_YARN_FIELDS = ("rest_position", "rest_length", "stretch_stiffness", "bend_stiffness",
                    "rest_angle", "mass", "crossing_side", "gap_offset", "contact_law",
-                   "friction_alpha", "friction_constant", "stick_stiffness", "gravity")
+                   "friction_alpha", "friction_constant", "friction_onset", "stick_stiffness",
+                   "gravity")
 """The fields with one row per yarn (crossing_node is shared by all yarns)."""
 
 

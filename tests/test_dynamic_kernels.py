@@ -183,3 +183,43 @@ def test_each_configuration_builds_once():
     assert diagnostics.term_kernel(Configuration(friction=True, gravity=True, control="force")) is first
     keys = built_variants()
     assert len(keys) == len(set(keys))
+
+
+def test_onset_friction_limit_matches_numba_and_its_derivative(model, random_state):
+    # MODEL.md 4: F_T = alpha R + beta ell r_f (1 - exp(-R / R_0)). With R_0 = 1e-2 N, of the
+    # order of this state's contact forces (about 1.1e-2 N), the onset factor is far from 1.
+    # Warp's F_T against numba's at the same R, to a few ulps of F_T (the kernel's expm1 is
+    # Kahan's, a few ulps); and dF_T/dz through the kernel by central differences against
+    # -s_j dF_T/dR dR/dg (numba's slope): h = 1e-9 m, truncation h^2 |d3F/dz3| / 6 with
+    # |d3F/dz3| <= (c / R_0^3 + ...) k_we^3, rounding 2 ulps of F_T over 2 h.
+    onset = 1e-2
+    scene = with_key(model.scene, "friction.onset_force", onset)
+    onset_model = build_model(scene)
+    positions, anchors = random_state
+    _, _, (R, tangent, limit) = warp_term(onset_model, positions, anchors, diagnostics.FRICTION)
+    h = 1e-9
+    for k, yarn in enumerate(onset_model.yarns):
+        assert yarn.friction_onset == onset
+        if yarn.friction_alpha == 0.0 and yarn.friction_constant == 0.0:
+            continue
+        expected = np.array([friction.limit(r, yarn.friction_alpha, yarn.friction_constant, onset)
+                             for r in R[k]])
+        assert np.any((R[k] > 0.3 * onset) & (R[k] < 3 * onset))
+        assert np.abs(limit[k] - expected).max() <= 8 * EPS * expected.max()
+        for j, node in enumerate(yarn.crossing_node):
+            if not R[k, j] > 0:
+                continue
+            side = yarn.crossing_side[j]
+            shifted = []
+            for step in (h, -h):
+                moved = positions.copy()
+                moved[k, node, 1] += step
+                shifted.append(warp_term(onset_model, moved, anchors, diagnostics.FRICTION)[2][2][k, j])
+            fd = (shifted[0] - shifted[1]) / (2 * h)
+            slope = friction.limit_slope(R[k, j], yarn.friction_alpha, yarn.friction_constant, onset)
+            exact = -side * slope * tangent[k, j]
+            k_we = yarn.contact_law[0]
+            bound = h * h * (yarn.friction_constant / onset ** 3) * k_we ** 3 + \
+                2 * 8 * EPS * limit[k, j] / (2 * h)
+            assert abs(fd - exact) <= bound + 1e-9 * abs(exact)
+            break  # one crossing per yarn: each costs two launches

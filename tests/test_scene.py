@@ -18,6 +18,7 @@ from dynfab.scene import (
     expand_sweep,
     load_scene,
     parse_scene_text,
+    scene_to_toml,
     validate_scene,
     with_key,
     yarn_count,
@@ -126,6 +127,28 @@ def test_optional_tables_and_explicit_values():
 
 def test_friction_stick_stiffness_defaults_to_none():
     assert parse({"friction": FRICTION}).friction.stick_stiffness is None
+
+
+def test_friction_onset_force_defaults_to_1e_5_and_zero_is_the_literal_law():
+    # MODEL.md 4: R_0 = friction.onset_force [N], default 1e-5 N, >= 0.
+    assert parse({"friction": FRICTION}).friction.onset_force == 1e-5
+    assert parse({"friction": dict(FRICTION, onset_force=0.0)}).friction.onset_force == 0.0
+
+
+def test_onset_force_is_sweepable_and_round_trips():
+    scene = parse({"friction": FRICTION, "sweep": {"friction.onset_force": [1e-5, 0.0]}})
+    assert [s.friction.onset_force for s in expand_sweep(scene)] == [1e-5, 0.0]
+    assert parse_scene_text(scene_to_toml(scene)) == replace(scene, text=scene_to_toml(scene))
+
+
+def test_contact_core_stiffness_is_absent_by_default_and_sweepable():
+    # MODEL.md 3: contact.core_stiffness [N/m], default none in the one-yarn model.
+    assert parse().contact is None
+    scene = parse({"contact": {"core_stiffness": 1e5}})
+    assert scene.contact.core_stiffness == 1e5
+    swept = parse({"contact": {}, "sweep": {"contact.core_stiffness": [1e4, 1e5]}})
+    assert [s.contact.core_stiffness for s in expand_sweep(swept)] == [1e4, 1e5]
+    assert parse_scene_text(scene_to_toml(scene)).contact == scene.contact
 
 
 def test_ints_are_accepted_for_real_keys():
@@ -399,6 +422,15 @@ BAD = {
                                 r"friction\.contact_length = -0\.001"),
     "negative fiber radius": ({"friction": dict(FRICTION, fiber_radius=-1e-3)},
                               r"friction\.fiber_radius = -0\.001"),
+    "negative onset force": ({"friction": dict(FRICTION, onset_force=-1e-5)},
+                             r"friction\.onset_force = -1e-05: must be a non-negative number \[N\]"),
+    "zero core stiffness": ({"contact": {"core_stiffness": 0.0}},
+                            r"contact\.core_stiffness = 0\.0: must be a positive number \[N/m\]"),
+    "negative core stiffness": ({"contact": {"core_stiffness": -1e5}},
+                                r"contact\.core_stiffness = -100000\.0"),
+    "contact on a rod": ({"geometry.crossings": 0, "geometry.amplitude": 0.0,
+                          "weft": DELETE, "contact": {"core_stiffness": 1e5}},
+                         r"\[contact\] given but geometry\.crossings = 0"),
     "negative amplitude": ({"geometry.amplitude": -1e-4},
                            r"geometry\.amplitude = -0\.0001: must be a non-negative"),
     "negative weft amplitude": ({"weft.amplitude": -1e-4}, r"weft\.amplitude = -0\.0001"),

@@ -3,13 +3,27 @@
 At crossing j the closure is g_j = c_j - s_j z_{n_j} (c_j from the reference
 state, `dynfab.model`). The contact force R_j >= 0 solves
 
-    R / k_we + C_wa (1 - exp(-a_wa R)) + C_we (1 - exp(-a_we R)) = g_j   (g_j > 0),
+    R / k_s + C_wa (1 - exp(-a_wa R)) + C_we (1 - exp(-a_we R)) = g_j   (g_j > 0),
 
 R_j = 0 for g_j <= 0 (unilateral). The energy is the three series springs at
-the common force, E = R^2 / (2 k_we) + sum_m (C_m / a_m)(1 - exp(-a_m R)(1 + a_m R)),
-with dE/dg = R and d2E/dg2 = dR/dg = 1 / (1/k_we + sum_m C_m a_m exp(-a_m R)).
+the common force, E = R^2 / (2 k_s) + sum_m (C_m / a_m)(1 - exp(-a_m R)(1 + a_m R)),
+with dE/dg = R and d2E/dg2 = dR/dg = 1 / (1/k_s + sum_m C_m a_m exp(-a_m R)).
 
-`law` is the array (k_we [N/m], C_wa [m], a_wa [1/N], C_we [m], a_we [1/N]).
+`law` is the array (k_s [N/m], C_wa [m], a_wa [1/N], C_we [m], a_we [1/N]); k_s is the
+series spring: the weft spring k_we, in series with the yarns' core stiffness k_c when the
+scene gives one (`contact.core_stiffness`, MODEL.md 3): 1/k_s = 1/k_we + 1/k_c, so the left
+side gains R/k_c and the energy R^2/(2 k_c) with no further term (`dynfab.model`).
+
+Branches: the functions taking `branch` (None, or one of NATURAL, OPEN, CLOSED per
+crossing) let the static solver hold a crossing open or closed during a Newton solve
+(MODEL.md 4, the active set of `dynfab.static`). OPEN: R = 0 and dR/dg = 0 at any g.
+CLOSED: the unilateral law's force (R = 0 for g <= 0: no adhesion), but for g <= 0 the
+tangent from the closed side, k_0 = 1/(1/k_s + C_wa a_wa + C_we a_we): the Newton
+matrix of a crossing held closed keeps its contact stiffness across g = 0. NATURAL (and
+None): the unilateral law. CLOSED gives the unilateral law's forces, OPEN too wherever
+g <= 0: a state whose open crossings have g <= 0 satisfies the unilateral law. (A closed
+branch continued as an adhesive spring, R = k_0 g for g < 0, was tried: its spurious
+solutions with R < 0 made the set updates cycle on the paper's yarn, at load step 19.)
 """
 
 import numba
@@ -29,7 +43,7 @@ def closure_from_force(R, law):
 
 @numba.njit(cache=True)
 def tangent(R, law):
-    """dR/dg [N/m] at force R on a closed contact; bounded by k_we."""
+    """dR/dg [N/m] at force R on a closed contact; bounded by k_s."""
     return 1.0 / (1.0 / law[0] + law[1] * law[2] * np.exp(-law[2] * R)
                   + law[3] * law[4] * np.exp(-law[4] * R))
 
@@ -38,7 +52,7 @@ def tangent(R, law):
 def force_from_closure(g, law):
     """R(g) [N]: Newton on the series law from a lower bound of the root.
 
-    g(R) <= R / k_we + C_wa + C_we gives R >= k_we (g - C_wa - C_we); Newton on an
+    g(R) <= R / k_s + C_wa + C_we gives R >= k_s (g - C_wa - C_we); Newton on an
     increasing concave function started left of the root stays left of it
     and increases monotonically, so it stops when a step no longer increases R.
     """
@@ -74,9 +88,47 @@ def _kawabata_energy(C, a, R):
 
 @numba.njit(cache=True)
 def energy_of_force(R, law):
-    """E [J] stored in the series springs at the common force R."""
+    """E [J] stored in the series springs at the common force R (R^2 / (2 k_s) + Kawabata)."""
     return (R * R / (2.0 * law[0]) + _kawabata_energy(law[1], law[2], R)
             + _kawabata_energy(law[3], law[4], R))
+
+
+NATURAL, OPEN, CLOSED = -1, 0, 1
+"""Branches of a crossing's contact law (module docstring)."""
+
+
+@numba.njit(cache=True)
+def branch_of(branch, j):
+    """Crossing j's branch: NATURAL when `branch` is None."""
+    if branch is None:
+        return NATURAL
+    return branch[j]
+
+
+@numba.njit(cache=True)
+def force_on_branch(g, law, branch):
+    """R [N] at closure g on one branch (module docstring): 0 when OPEN."""
+    if branch == OPEN:
+        return 0.0
+    return force_from_closure(g, law)
+
+
+@numba.njit(cache=True)
+def tangent_on_branch(g, R, law, branch):
+    """dR/dg [N/m] at closure g (force R) on one branch."""
+    if branch == OPEN:
+        return 0.0
+    if g > 0.0:
+        return tangent(R, law)
+    return tangent(0.0, law) if branch == CLOSED else 0.0
+
+
+@numba.njit(cache=True)
+def energy_on_branch(g, law, branch):
+    """E_contact [J] at closure g on one branch."""
+    if branch == OPEN:
+        return 0.0
+    return energy_of_force(force_from_closure(g, law), law)
 
 
 @numba.njit(cache=True)
@@ -93,27 +145,30 @@ def forces(pos, nodes, sides, offsets, law, out):
 
 
 @numba.njit(cache=True)
-def energy(pos, nodes, sides, offsets, law):
-    """sum_j E_contact,j [J]."""
+def energy(pos, nodes, sides, offsets, law, branch=None):
+    """sum_j E_contact,j [J] (each crossing on its branch; unilateral without `branch`)."""
     total = 0.0
     for j in range(nodes.size):
-        total += energy_of_force(force_from_closure(closure(pos, nodes[j], sides[j], offsets[j]), law), law)
+        total += energy_on_branch(closure(pos, nodes[j], sides[j], offsets[j]), law,
+                                  branch_of(branch, j))
     return total
 
 
 @numba.njit(cache=True)
-def add_gradient(pos, nodes, sides, offsets, law, grad):
+def add_gradient(pos, nodes, sides, offsets, law, grad, branch=None):
     """grad_z += dE/dg dg/dz = -s_j R_j (the force on the warp is +s_j R_j)."""
     for j in range(nodes.size):
-        R = force_from_closure(closure(pos, nodes[j], sides[j], offsets[j]), law)
+        R = force_on_branch(closure(pos, nodes[j], sides[j], offsets[j]), law, branch_of(branch, j))
         grad[nodes[j], 1] -= sides[j] * R
 
 
 @numba.njit(cache=True)
-def add_hessian(pos, nodes, sides, offsets, law, band):
-    """band_zz += dR/dg on closed contacts (s_j^2 = 1); 0 on open ones."""
+def add_hessian(pos, nodes, sides, offsets, law, band, branch=None):
+    """band_zz += dR/dg (s_j^2 = 1): 0 on open contacts."""
     for j in range(nodes.size):
         g = closure(pos, nodes[j], sides[j], offsets[j])
-        if g > 0.0:
+        on = branch_of(branch, j)
+        stiffness = tangent_on_branch(g, force_on_branch(g, law, on), law, on)
+        if stiffness > 0.0:
             dof = 2 * nodes[j] + 1
-            band_add(band, dof, dof, tangent(force_from_closure(g, law), law))
+            band_add(band, dof, dof, stiffness)

@@ -1,6 +1,13 @@
 """Gralen friction as stick-slip, in the incremental Huber form (MODEL.md 4; eqs. 20-27).
 
-Friction limit (Gralen, eq. 20): F_T,j = alpha R_j + beta ell r_f if R_j > 0, else 0.
+Friction limit (Gralen, eq. 20, with its onset regularised over R_0; MODEL.md 4):
+
+    F_T,j = alpha R_j + beta ell r_f (1 - exp(-R_j / R_0))   if R_j > 0,   else 0;
+
+R_0 = 0 is the literal law, whose limit jumps by beta ell r_f as a crossing touches.
+`limit_slope` is dF_T/dR, 0 where R <= 0. (A smooth continuation of F_T to R < 0
+for the static solver's active set would make F_T negative: an anti-friction force
+with no stick zone, discontinuous at zero slip; it was tried and dropped.)
 
 Within a load step the anchors xi_j stay put and each crossing adds the convex
 Huber potential of its slip s = x_{n_j} - xi_j:
@@ -20,16 +27,30 @@ from dynfab.banded import band_add
 
 
 @numba.njit(cache=True)
-def limit(R, alpha, constant):
-    """F_T [N] from Gralen's law; `constant` = beta ell r_f [N]."""
-    return alpha * R + constant if R > 0.0 else 0.0
+def limit(R, alpha, constant, onset):
+    """F_T [N] from Gralen's law; `constant` = beta ell r_f [N], `onset` = R_0 [N] (0: literal)."""
+    if not R > 0.0:
+        return 0.0
+    if onset == 0.0:
+        return alpha * R + constant
+    return alpha * R - constant * np.expm1(-R / onset)
 
 
 @numba.njit(cache=True)
-def limits(contact_force, alpha, constant, out):
+def limit_slope(R, alpha, constant, onset):
+    """dF_T/dR [-] of `limit`: alpha + (beta ell r_f / R_0) exp(-R / R_0) for R > 0."""
+    if not R > 0.0:
+        return 0.0
+    if onset == 0.0:
+        return alpha
+    return alpha + constant / onset * np.exp(-R / onset)
+
+
+@numba.njit(cache=True)
+def limits(contact_force, alpha, constant, onset, out):
     """F_T,j [N] of every crossing."""
     for j in range(contact_force.size):
-        out[j] = limit(contact_force[j], alpha, constant)
+        out[j] = limit(contact_force[j], alpha, constant, onset)
 
 
 @numba.njit(cache=True)
@@ -84,24 +105,24 @@ def add_hessian(pos, nodes, anchors, friction_limit, stick_stiffness, band, seca
         slip = pos[nodes[j], 0] - anchors[j]
         if not is_sliding(slip, friction_limit[j], stick_stiffness):
             band_add(band, 2 * nodes[j], 2 * nodes[j], stick_stiffness)
-        elif secant:
+        elif secant and friction_limit[j] > 0.0:
             band_add(band, 2 * nodes[j], 2 * nodes[j], friction_limit[j] / abs(slip))
 
 
 @numba.njit(cache=True)
-def add_limit_coupling(pos, nodes, sides, anchors, friction_limit, stick_stiffness, alpha,
+def add_limit_coupling(pos, nodes, sides, anchors, friction_limit, stick_stiffness, limit_slope,
                        contact_tangent, band):
-    """band_xz += d(dH/ds)/dz = sign(s) alpha dR/dg dg/dz on sliding, closed crossings.
+    """band_xz += d(dH/ds)/dz = sign(s) dF_T/dR dR/dg dg/dz on sliding, closed crossings.
 
     The derivative of F_T through R(g), g = c - s_j z: what makes Newton on the
-    coupled (non-symmetric) problem quadratic. `contact_tangent` is dR/dg per
-    crossing (0 where open).
+    coupled (non-symmetric) problem quadratic. `limit_slope` is dF_T/dR and
+    `contact_tangent` dR/dg per crossing (0 where open).
     """
     for j in range(nodes.size):
         slip = pos[nodes[j], 0] - anchors[j]
         if contact_tangent[j] > 0.0 and is_sliding(slip, friction_limit[j], stick_stiffness):
             band_add(band, 2 * nodes[j], 2 * nodes[j] + 1,
-                     np.sign(slip) * alpha * contact_tangent[j] * (-sides[j]))
+                     np.sign(slip) * limit_slope[j] * contact_tangent[j] * (-sides[j]))
 
 
 @numba.njit(cache=True)
