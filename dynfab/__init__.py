@@ -6,16 +6,46 @@ The public surface::
     results = dynfab.run(scene, solver="static", out="fig3.h5")   # or solver="dynamic"
     results.steps["end_force"]                                  # (steps, yarns) [N]
     dynfab.read_results("fig3.h5")                              # the same arrays, from disk
+
+The names are imported on first use, so that `import dynfab` (and the
+`dynfab` command starting up) costs no heavy import: a Ctrl-C there is then
+the command line's to handle.
 """
 
+import importlib
+import sys
+import types
+
 from dynfab.errors import DynfabError, SceneError, SolverError
-from dynfab.model import build_model
-from dynfab.plot import plot_results
-from dynfab.results import Results, read_results
-from dynfab.run import run
-from dynfab.scene import load_scene, parse_scene_text
 
 __version__ = "0.1.0"
 
+_HOMES = {"build_model": "dynfab.model", "plot_results": "dynfab.plot",
+          "Results": "dynfab.results", "read_results": "dynfab.results", "run": "dynfab.run",
+          "load_scene": "dynfab.scene", "parse_scene_text": "dynfab.scene"}
+"""Module defining each public name."""
+
 __all__ = ["DynfabError", "Results", "SceneError", "SolverError", "build_model", "load_scene",
            "parse_scene_text", "plot_results", "read_results", "run", "__version__"]
+
+
+def __getattr__(name: str):
+    """Import a public name from its module on first use."""
+    if name not in _HOMES:
+        raise AttributeError(f"module 'dynfab' has no attribute {name!r}")
+    value = getattr(importlib.import_module(_HOMES[name]), name)
+    globals()[name] = value
+    return value
+
+
+class _Package(types.ModuleType):
+    """Keeps `dynfab.run` the function: importing the submodule dynfab.run would otherwise
+    rebind the package attribute to the module."""
+
+    def __setattr__(self, name: str, value) -> None:
+        if name == "run" and isinstance(value, types.ModuleType):
+            value = value.run
+        super().__setattr__(name, value)
+
+
+sys.modules[__name__].__class__ = _Package

@@ -38,21 +38,63 @@ def make_solver(model: Model, solver: str, **options):
 
 def run(scene: Scene, solver: str = "static", out: str | Path | None = None, *,
         overwrite: bool = False, resume: bool = False,
-        progress: Callable[[str], None] | None = None, **solver_options) -> Results:
+        progress: Callable[[str], None] | None = None,
+        status: Callable[[str], None] | None = None, **solver_options) -> Results:
     """Solve the scene's load path; write `out` (HDF5) if given; return the results.
 
-    `progress` receives one line per finished load step (None: silent).
+    `progress` receives one line per finished load step or frame, `status`
+    the dynamic solver's line within a step, once per launch (None: silent).
     """
+    if out is not None:
+        run_to_file(scene, solver, out, overwrite=overwrite, resume=resume, progress=progress,
+                    status=status, **solver_options)
+        return read_results(out)
+    if overwrite or resume:
+        raise SceneError("--overwrite and --resume need an output file")
+    model, engine = _build(scene, solver, status, solver_options)
+    sink = _MemorySink(_root_attrs(model, engine), _reference(model))
+    _solve(model, engine, sink, progress)
+    return sink.results()
+
+
+def run_to_file(scene: Scene, solver: str, out: str | Path, *, overwrite: bool = False,
+                resume: bool = False, progress: Callable[[str], None] | None = None,
+                status: Callable[[str], None] | None = None, **solver_options) -> int:
+    """`run` writing `out` without reading it back: the number of steps (or frames) written.
+
+    0 with `resume` means the file was already complete and nothing was
+    written. The file holds every finished entry at any moment; an interrupt
+    before the first one leaves no file behind (it was created by this run).
+    """
+    if overwrite and resume:
+        raise SceneError("--overwrite and --resume exclude each other: pick one")
+    model, engine = _build(scene, solver, status, solver_options)
+    with _open_sink(model, engine, out, overwrite=overwrite, resume=resume) as sink:
+        try:
+            return _solve(model, engine, sink, progress)
+        except KeyboardInterrupt:
+            if not resume and sink.step_count == 0 and sink.frame_count == 0:
+                Path(out).unlink(missing_ok=True)  # still ours: we hold its writer lock
+            raise
+
+
+def _build(scene: Scene, solver: str, status, solver_options: dict):
+    """The model and the solver; the dynamic solver reports its launches to `status`."""
     model = build_model(scene)
-    engine = make_solver(model, solver, **solver_options)
-    sink = _open_sink(model, engine, out, overwrite=overwrite, resume=resume)
-    if solver == "dynamic" and scene.dynamic.mode == "transient":
-        _run_transient(model, engine, sink, progress)
-        return sink.results() if isinstance(sink, _MemorySink) else read_results(sink.path)
+    if solver == "dynamic" and status is not None:
+        solver_options = {**solver_options, "progress": status}
+    return model, make_solver(model, solver, **solver_options)
+
+
+def _solve(model: Model, engine, sink, progress) -> int:
+    """Solve the load steps (or the transient) the sink lacks; the number of entries added."""
+    if _is_transient(model, engine):
+        return _run_transient(model, engine, sink, progress)
     state = _start_state(model, sink)
     values = model.load_values
     unit = "N" if model.control == "force" else "m"
-    for index in range(sink.step_count, values.size):
+    first = sink.step_count
+    for index in range(first, values.size):
         started = time.perf_counter()
         try:
             state, record = engine.step(state, float(values[index]))
@@ -63,37 +105,54 @@ def run(scene: Scene, solver: str = "static", out: str | Path | None = None, *,
         sink.append_step(record)
         if progress is not None:
             progress(_progress_line(index, values.size, record, unit))
-    return sink.results() if isinstance(sink, _MemorySink) else read_results(sink.path)
+    return sink.step_count - first
 
 
-def _run_transient(model: Model, engine, sink, progress) -> None:
+def _is_transient(model: Model, engine) -> bool:
+    """True for a transient run: the dynamic solver with dynamic.mode = "transient"."""
+    return engine.name == "dynamic" and model.scene.dynamic.mode == "transient"
+
+
+def frame_times(model: Model) -> np.ndarray:
+    """The output times of a transient run [s]: 0, every output_interval, and the duration."""
+    options = model.scene.dynamic
+    return np.append(np.arange(0.0, options.duration, options.output_interval), options.duration)
+
+
+def _run_transient(model: Model, engine, sink, progress) -> int:
     """A transient run (MODEL.md 5): append every frame as it comes; resume from the last one."""
     resume_from = sink.last_frame() if sink.frame_count else None
     duration = model.scene.dynamic.duration
+    if resume_from is not None and float(resume_from["time"]) >= duration:
+        return 0
+    first = sink.frame_count
     for frame in engine.transient(initial_state(model), resume_from):
         sink.append_frame(frame)
         if progress is not None:
             kinetic = np.max(frame["energy/kinetic"])
-            progress(f"t = {frame['time']:.6g} s of {duration:g} s  kinetic energy {kinetic:.4g} J")
+            progress(f"frame {sink.frame_count}: t = {frame['time']:.6g} s of {duration:g} s  "
+                     f"kinetic energy {kinetic:.4g} J")
+    return sink.frame_count - first
 
 
-def _open_sink(model: Model, engine, out, *, overwrite: bool, resume: bool):
-    """The result file (created, overwritten or resumed), or an in-memory sink without `out`."""
-    if overwrite and resume:
-        raise SceneError("--overwrite and --resume exclude each other: pick one")
-    if out is None:
-        return _MemorySink(_root_attrs(model, engine), _reference(model))
+def _open_sink(model: Model, engine, out, *, overwrite: bool, resume: bool) -> ResultFile:
+    """The result file: created, overwritten or resumed, sized for the run's entries."""
+    transient = _is_transient(model, engine)
+    capacity = ({"frame_capacity": frame_times(model).size} if transient
+                else {"step_capacity": model.load_values.size})
     if resume:
-        sink = ResultFile.resume(out)
+        sink = ResultFile.resume(out, **capacity)
         if sink.attrs.get("scene") != scene_to_toml(model.scene):
+            sink.close(trim=False)
             raise SceneError(f"cannot resume '{out}': it was written from a different scene "
                              "(or with other command-line options)")
         if sink.attrs.get("solver") != engine.name:
+            sink.close(trim=False)
             raise SceneError(f"cannot resume '{out}': it was written by the "
                              f"{sink.attrs.get('solver')!r} solver, not {engine.name!r}")
         return sink
     return ResultFile.create(out, attrs=_root_attrs(model, engine), reference=_reference(model),
-                             overwrite=overwrite)
+                             overwrite=overwrite, **capacity)
 
 
 def _start_state(model: Model, sink) -> State:

@@ -19,9 +19,11 @@ import numpy as np
 import pytest
 
 import dynfab
+from dynfab.results import finished_counts
 
 ROOT = Path(__file__).resolve().parents[1]
 FIG5 = ROOT / "runs" / "paper_fig5.toml"  # friction on and off: anchors must survive a resume
+RELAX = ROOT / "runs" / "relax.toml"  # a transient run: frames
 
 
 def dynfab_cli(*args, **kwargs):
@@ -36,6 +38,17 @@ def step_arrays(path) -> dict:
     return {k: v for k, v in results.steps.items() if k != "wall_time"}
 
 
+def finished_rows(path, group: str = "steps") -> dict:
+    """The finished rows of a result file read with plain h5py, as its layout tells a
+    script to: rows [0, <group>_done) of every <group>/ dataset (wall time left out)."""
+    with h5py.File(path, "r") as f:
+        count = int(f[f"{group}_done"][0])
+        rows = {}
+        f[group].visititems(lambda name, obj: rows.__setitem__(name, obj[:count])
+                            if isinstance(obj, h5py.Dataset) and name != "wall_time" else None)
+    return rows
+
+
 @pytest.fixture(scope="module")
 def uninterrupted(tmp_path_factory):
     path = tmp_path_factory.mktemp("full") / "fig5.h5"
@@ -44,23 +57,55 @@ def uninterrupted(tmp_path_factory):
     return path
 
 
-def test_kill_minus_9_leaves_a_readable_file_and_resume_is_exact(uninterrupted, tmp_path):
-    expected = step_arrays(uninterrupted)
-    total = expected["load"].shape[0]
-    rng = random.Random(20071)
-    out = tmp_path / "killed.h5"
-    for attempt in range(4):
-        args = [sys.executable, "-m", "dynfab.cli", "run", str(FIG5), "--out", str(out), "--quiet",
-                "--resume" if out.exists() else "--overwrite"]
-        child = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        time.sleep(rng.uniform(0.6, 1.6))
+def finished_count(path, group: str) -> int:
+    """Finished rows in a file being written (0 before it exists)."""
+    counts = finished_counts(path) if path.exists() else None
+    return 0 if counts is None else counts[0 if group == "steps" else 1]
+
+
+def kill_at_random_moments(args, out, group, expected, seed, kills):
+    """Start `dynfab run ...` and kill -9 it at random moments, `kills` times, resuming
+    each time; after every kill the file must open with plain h5py and its finished rows
+    must equal the uninterrupted run's first rows exactly. Returns the counts seen.
+
+    Each kill waits for a random row count ahead of the file's, then a random fraction
+    of a (millisecond) step, so that the kills land mid-run at random phases of the writing."""
+    rng = random.Random(seed)
+    total = len(next(iter(expected.values())))
+    counts = [0]
+    for _ in range(kills):
+        if counts[-1] == total:
+            break
+        mode = "--resume" if out.exists() else "--overwrite"
+        child = subprocess.Popen([sys.executable, "-m", "dynfab.cli", *map(str, args), "--out",
+                                  str(out), "--quiet", mode],
+                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        target = rng.randint(min(counts[-1] + 1, total - 3), total - 3)
+        deadline = time.monotonic() + 120
+        while (finished_count(out, group) < target and child.poll() is None
+               and time.monotonic() < deadline):
+            time.sleep(0.002)
+        time.sleep(rng.uniform(0.0, 0.005))
         child.send_signal(signal.SIGKILL)
         child.wait()
         if not out.exists():
             continue
-        with h5py.File(out, "r") as f:  # readable, every dataset with the same step count
-            counts = {f[f"steps/{name}"].shape[0] for name in ("load", "positions", "anchors")}
-            assert len(counts) == 1
+        rows = finished_rows(out, group)
+        count = len(next(iter(rows.values()))) if rows else 0
+        for name, value in rows.items():  # every finished row, bit for bit
+            assert value.shape[0] == count, name
+            np.testing.assert_array_equal(value, expected[name][:count], err_msg=name)
+        assert count >= counts[-1], "a kill lost finished rows"
+        counts.append(count)
+    return counts
+
+
+def test_kill_minus_9_leaves_a_readable_file_and_resume_is_exact(uninterrupted, tmp_path):
+    expected = step_arrays(uninterrupted)
+    total = expected["load"].shape[0]
+    out = tmp_path / "killed.h5"
+    counts = kill_at_random_moments(["run", FIG5], out, "steps", expected, 20071, kills=8)
+    assert len([c for c in counts if 0 < c < total]) >= 3, f"too few kills landed mid-run: {counts}"
     finished = dynfab_cli("run", FIG5, "--out", out, "--quiet",
                           "--resume" if out.exists() else "--overwrite")
     assert finished.returncode == 0, finished.stderr
@@ -68,6 +113,27 @@ def test_kill_minus_9_leaves_a_readable_file_and_resume_is_exact(uninterrupted, 
     assert resumed["load"].shape[0] == total
     for name, value in expected.items():
         np.testing.assert_array_equal(resumed[name], value, err_msg=name)
+    with h5py.File(out, "r") as f:  # a finished run keeps exactly its steps
+        assert f["steps/load"].shape[0] == f["steps_done"][0] == total
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["killed.h5"]
+
+
+def test_kill_minus_9_of_a_transient_run_keeps_its_frames_and_resume_is_exact(tmp_path):
+    full = tmp_path / "full.h5"
+    done = dynfab_cli("run", RELAX, "--solver", "dynamic", "--out", full, "--quiet")
+    assert done.returncode == 0, done.stderr
+    expected = dynfab.read_results(full).frames
+    total = expected["time"].shape[0]
+    out = tmp_path / "killed.h5"
+    counts = kill_at_random_moments(["run", RELAX, "--solver", "dynamic"], out, "frames",
+                                    expected, 5, kills=5)
+    assert any(0 < c < total for c in counts), f"no kill landed mid-run: {counts}"
+    finished = dynfab_cli("run", RELAX, "--solver", "dynamic", "--out", out, "--quiet",
+                          "--resume" if out.exists() else "--overwrite")
+    assert finished.returncode == 0, finished.stderr
+    frames = dynfab.read_results(out).frames
+    for name, value in expected.items():
+        np.testing.assert_array_equal(frames[name], value, err_msg=name)
 
 
 def test_python_api_returns_the_file_arrays(uninterrupted):

@@ -93,7 +93,7 @@ def test_round_trip(tmp_path):
     with h5py.File(path, "r") as h5:
         names = []
         h5.visititems(lambda name, obj: names.append(name) if isinstance(obj, h5py.Dataset) else None)
-        assert len(names) == 2 + len(make_step(0))
+        assert len(names) == 2 + 2 + len(make_step(0))  # + steps_done, frames_done
         for name in names:
             assert h5[name].attrs["units"] == units_of(name, "force"), name
         assert h5["steps/load"].attrs["units"] == "N"
@@ -258,22 +258,27 @@ while True:
 
 
 def check_complete_steps(path: Path) -> int:
-    """Open ``path`` with plain h5py and check it holds whole, consistent steps; return their count."""
+    """Open ``path`` with plain h5py and check it holds whole, consistent steps; return their count.
+
+    Reads the file as the layout contract tells a script to: rows [0, steps_done)
+    of every steps/ dataset are the finished steps.
+    """
     with h5py.File(path, "r") as h5:
         assert h5.attrs["units"] == "SI"
+        count = int(h5["steps_done"][0])
         if "steps" not in h5 or len(h5["steps"]) == 0:
+            assert count == 0
             return 0
         arrays = {}
         h5["steps"].visititems(
-            lambda name, obj: arrays.__setitem__(name, obj[()]) if isinstance(obj, h5py.Dataset) else None
+            lambda name, obj: arrays.__setitem__(name, obj[:count]) if isinstance(obj, h5py.Dataset) else None
         )
     assert set(arrays) == {
         "load", "end_force", "positions", "contact_force", "sliding",
         "energy/stretch", "iterations", "wall_time",
     }
-    count = len(arrays["load"])
     for name, array in arrays.items():
-        assert len(array) == count, f"steps/{name} has {len(array)} entries, steps/load {count}"
+        assert len(array) == count, f"steps/{name} has {len(array)} rows, steps_done is {count}"
         for n in range(count):
             expected = (n % 2 == 1) if name == "sliding" else n
             assert np.all(array[n] == expected), f"steps/{name}[{n}] is incomplete"
