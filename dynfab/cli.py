@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import io
+import os
 import shutil
 import signal
 import sys
@@ -114,8 +116,11 @@ class _Progress:
         if not self.live:
             return
         elapsed = time.monotonic() - self.step_started
-        width = shutil.get_terminal_size().columns
-        self.stream.write("\r" + f"{text}; {elapsed:.0f} s in this step"[:max(width - 1, 10)]
+        try:
+            width = os.get_terminal_size(self.stream.fileno()).columns
+        except (AttributeError, OSError, ValueError, io.UnsupportedOperation):
+            width = shutil.get_terminal_size().columns
+        self.stream.write("\r" + f"step running {elapsed:.0f} s: {text}"[:max(width - 1, 10)]
                           + "\x1b[K")
         self.stream.flush()
         self.showing = True

@@ -435,6 +435,18 @@ def _lock_existing(path: Path) -> int:
         os.close(fd)
 
 
+def _is_locked(path: Path) -> bool:
+    """True if a dynfab writer holds ``path`` (False if it cannot be opened)."""
+    try:
+        fd = os.open(path, os.O_RDWR)
+    except OSError:
+        return False
+    try:
+        return not _try_lock(fd)
+    finally:
+        os.close(fd)  # releases the lock just taken, if any
+
+
 def _write_all(fd: int, data: bytes, offset: int) -> None:
     """``os.pwrite`` until every byte is written."""
     view = memoryview(data)
@@ -540,9 +552,11 @@ class _Series:
                 and all(c.offset is not None for c in self.columns.values()))
 
     def next_capacity(self) -> int:
-        """Rows to allocate at the next rewrite: the hint, or double the count (amortised O(1))."""
-        hint = self.capacity_hint or 0
-        return max(self.count + 1, hint, min(2 * self.count, self.count + 2**16), 8)
+        """Rows to allocate at the next rewrite: the expected count if still ahead, else
+        double the count (so the copies cost O(1) per entry, amortised)."""
+        if self.capacity_hint is not None and self.capacity_hint > self.count:
+            return self.capacity_hint
+        return max(8, 2 * self.count)
 
     def check(self, entry: Mapping[str, Any], load_control: str | None) -> dict[str, np.ndarray]:
         """Validate one entry against the units table and the first entry's names and shapes."""
@@ -792,8 +806,8 @@ class ResultFile:
         try:
             os.link(tmp, self.path)
         except FileExistsError:
-            if publish == "new":
-                raise _exists(self.path) from None
+            if publish == "new":  # another process created it since the checks
+                raise _busy(self.path) if _is_locked(self.path) else _exists(self.path) from None
             self._fd = _lock_existing(self.path)  # released once the new file is in place
             os.replace(tmp, self.path)
             return

@@ -225,3 +225,114 @@ def test_scene_to_toml_round_trips_every_scene_in_runs():
         scene = dynfab.load_scene(path)
         again = dynfab.parse_scene_text(scene_to_toml(scene))
         assert replace(again, text="") == replace(scene, text=""), path.name
+
+
+def one_line(stderr: str) -> str:
+    """The single line of a command's stderr (fails if there are more, or a traceback)."""
+    assert "Traceback" not in stderr, stderr
+    lines = stderr.strip().splitlines()
+    assert len(lines) == 1, stderr
+    return lines[0]
+
+
+def test_two_runs_started_at_once_on_a_new_file_one_wins(uninterrupted, tmp_path):
+    """Creating the output is exclusive: never two exit 0 with one result lost."""
+    expected = step_arrays(uninterrupted)
+    for attempt in range(3):
+        out = tmp_path / f"race{attempt}.h5"
+        args = [sys.executable, "-m", "dynfab.cli", "run", str(FIG5), "--out", str(out), "--quiet"]
+        children = [subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                     text=True) for _ in range(2)]
+        outcomes = sorted((child.wait(), child.communicate()[1]) for child in children)
+        assert [status for status, _ in outcomes] == [0, 2], outcomes
+        assert one_line(outcomes[1][1]).startswith("dynfab: error: output file")
+        for name, value in step_arrays(out).items():
+            np.testing.assert_array_equal(value, expected[name], err_msg=name)
+
+
+def test_a_file_being_written_refuses_a_second_writer(tmp_path):
+    """--overwrite and --resume of a file another process writes: exit 2, file untouched."""
+    from dynfab.results import ResultFile
+
+    out = tmp_path / "busy.h5"
+    done = dynfab_cli("run", FIG5, "--out", out, "--quiet")
+    assert done.returncode == 0, done.stderr
+    before = out.read_bytes()
+    holder = ResultFile.resume(out)  # holds the writer lock, like a running dynfab
+    try:
+        for mode in ("--overwrite", "--resume"):
+            busy = dynfab_cli("run", FIG5, "--out", out, "--quiet", mode)
+            assert busy.returncode == 2, busy.stderr
+            assert "being written by another dynfab process" in one_line(busy.stderr)
+            assert out.read_bytes() == before
+    finally:
+        holder.close()
+    assert dynfab.read_results(out).step_count == 40
+
+
+def test_resume_of_a_finished_file_says_so_and_writes_nothing(uninterrupted, tmp_path):
+    out = tmp_path / "done.h5"
+    out.write_bytes(uninterrupted.read_bytes())
+    mtime = out.stat().st_mtime_ns
+    done = dynfab_cli("run", FIG5, "--out", out, "--resume")
+    assert done.returncode == 0, done.stderr
+    assert one_line(done.stderr) == f"'{out}' is already complete: nothing to do"
+    assert done.stdout == ""
+    assert out.read_bytes() == uninterrupted.read_bytes() and out.stat().st_mtime_ns == mtime
+
+
+@pytest.mark.parametrize("flag", [None, "--overwrite"])
+def test_run_out_a_directory_is_named_at_once(tmp_path, flag):
+    done = dynfab_cli("run", FIG5, "--out", tmp_path, *([flag] if flag else []))
+    assert done.returncode == 2
+    assert one_line(done.stderr) == f"dynfab: error: output file '{tmp_path}' is a directory"
+
+
+@pytest.mark.parametrize("case", ["existing_file", "unwritable"])
+def test_plot_out_that_cannot_be_a_folder_is_one_line(uninterrupted, tmp_path, case):
+    out = tmp_path / "taken.png" if case == "existing_file" else Path("/proc/nope")
+    if case == "existing_file":
+        out.write_bytes(b"keep")
+    done = dynfab_cli("plot", uninterrupted, "--out", out)
+    assert done.returncode == 2
+    assert one_line(done.stderr).startswith("dynfab: error:") and str(out) in done.stderr
+    if case == "existing_file":
+        assert out.read_bytes() == b"keep"
+
+
+@pytest.mark.parametrize("delay", [0.1, 0.25, 0.5])
+def test_ctrl_c_while_starting_is_one_line_and_exit_130(tmp_path, delay):
+    """A SIGINT during the imports (the first half second): no traceback, nothing written."""
+    out = tmp_path / "early.h5"
+    child = subprocess.Popen([sys.executable, "-m", "dynfab.cli", "run", str(FIG5), "--out",
+                              str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(delay)
+    child.send_signal(signal.SIGINT)
+    stdout, stderr = child.communicate()
+    assert child.returncode == 130, stderr
+    line = one_line(stderr)
+    if not out.exists():
+        assert line == "dynfab: interrupted; nothing was written"
+    else:  # the run got as far as its first steps
+        assert f"in '{out}': continue with --resume" in line
+
+
+def test_ctrl_c_mid_run_names_the_finished_steps_kept(uninterrupted, tmp_path):
+    expected = step_arrays(uninterrupted)
+    out = tmp_path / "mid.h5"
+    child = subprocess.Popen([sys.executable, "-m", "dynfab.cli", "run", str(FIG5), "--out",
+                              str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while finished_count(out, "steps") < 5 and time.monotonic() < deadline:
+        time.sleep(0.001)
+    child.send_signal(signal.SIGINT)
+    stdout, stderr = child.communicate()
+    assert child.returncode == 130, stderr
+    kept = finished_count(out, "steps")
+    assert 5 <= kept < 40, "the interrupt must land mid-run"
+    line = stderr.strip().splitlines()[-1]  # after the per-step progress lines
+    assert "Traceback" not in stderr
+    assert line == (f"dynfab: interrupted; {kept} finished load steps are in '{out}': "
+                    "continue with --resume")
+    for name, value in finished_rows(out).items():
+        np.testing.assert_array_equal(value, expected[name][:kept], err_msg=name)
