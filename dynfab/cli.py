@@ -119,7 +119,8 @@ class _Progress:
         try:
             width = os.get_terminal_size(self.stream.fileno()).columns
         except (AttributeError, OSError, ValueError, io.UnsupportedOperation):
-            width = shutil.get_terminal_size().columns
+            width = 0
+        width = width or shutil.get_terminal_size().columns  # 0: a terminal of unknown size
         self.stream.write("\r" + f"step running {elapsed:.0f} s: {text}"[:max(width - 1, 10)]
                           + "\x1b[K")
         self.stream.flush()
