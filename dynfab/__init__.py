@@ -8,13 +8,26 @@ The public surface::
     dynfab.read_results("fig3.h5")                              # the same arrays, from disk
 
 The names are imported on first use, so that `import dynfab` (and the
-`dynfab` command starting up) costs no heavy import: a Ctrl-C there is then
-the command line's to handle.
+`dynfab` command starting up) costs no heavy import. When the process is the
+`dynfab` console script, a Ctrl-C from here until `dynfab.cli.main` takes
+over ends it with one line and exit status 130 (nothing is written yet).
 """
 
 import importlib
+import os
+import signal
 import sys
 import types
+
+
+def _interrupted_while_starting(signum, frame) -> None:
+    """SIGINT while the command line starts: one line, exit status 130, no traceback."""
+    os.write(2, b"dynfab: interrupted; nothing was written\n")
+    os._exit(130)
+
+
+if sys.argv and os.path.basename(sys.argv[0]) == "dynfab":
+    signal.signal(signal.SIGINT, _interrupted_while_starting)
 
 from dynfab.errors import DynfabError, SceneError, SolverError
 

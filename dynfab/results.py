@@ -27,8 +27,8 @@ How (measured by ``benchmarks/io.py``; the reasons for this design):
   count: the half-written row is beyond it; a kill after it loses nothing
   (the page cache outlives the process). The count reaches the disk with the
   next append's ``fdatasync`` (or `close`'s), so a power failure can lose
-  the last step but never count a row not on disk; one sync per step, not
-  two (a sync costs 0.2 to 4 ms on the machine measured).
+  the last step but never count a row not on disk. One sync per step, not
+  two: the sync, not the writing, is most of an append's cost.
 * Rejected: rewriting the whole file per step (the former design, O(steps)
   per step); chunked resizable datasets (each append changes the chunk
   index and the extent, metadata that a kill can leave half-written unless
