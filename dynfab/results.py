@@ -813,14 +813,12 @@ class ResultFile:
             os.replace(tmp, self.path)
             return
         try:
-            os.link(tmp, self.path)
+            _create_exclusively(tmp, self.path)
         except FileExistsError:
             if publish == "new":  # another process created it since the checks
                 raise _busy(self.path) if _is_locked(self.path) else _exists(self.path) from None
             self._fd = _lock_existing(self.path)  # released once the new file is in place
             os.replace(tmp, self.path)
-            return
-        tmp.unlink()
 
     def _fill(self, h5: h5py.File) -> None:
         """Attributes, reference, and every series at its capacity with its finished rows."""
@@ -881,6 +879,23 @@ class ResultFile:
     def attrs(self) -> dict[str, Any]:
         """A copy of the root attributes as they will be written."""
         return {key: _attr_from_h5(value) for key, value in self._attrs.items()}
+
+
+def _create_exclusively(tmp: Path, target: Path) -> None:
+    """Put ``tmp`` at ``target`` unless ``target`` exists (FileExistsError), atomically.
+
+    ``os.link`` does it in one step; on a file system without hard links, an
+    empty ``target`` is claimed with O_EXCL, then replaced.
+    """
+    try:
+        os.link(tmp, target)
+    except FileExistsError:
+        raise
+    except OSError:
+        os.close(os.open(target, os.O_WRONLY | os.O_CREAT | os.O_EXCL))
+        os.replace(tmp, target)
+        return
+    tmp.unlink()
 
 
 def _exists(path: Path) -> SceneError:

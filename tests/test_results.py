@@ -164,14 +164,20 @@ def test_refuses_existing_file_and_leaves_it_untouched(tmp_path, content):
     assert read_results(path).step_count == 0
 
 
+@pytest.mark.parametrize("hard_links", [True, False])
 @pytest.mark.parametrize("writer_running", [False, True])
 def test_create_is_exclusive_even_against_a_file_appearing_after_the_checks(
-        tmp_path, monkeypatch, writer_running):
-    """Two runs on one new file: the one that publishes second must fail, not replace."""
+        tmp_path, monkeypatch, writer_running, hard_links):
+    """Two runs on one new file: the one that publishes second must fail, not replace
+    (also on a file system without hard links, where O_EXCL claims the name)."""
     import dynfab.results as results
 
     path = tmp_path / "x.h5"
     holder = []
+    if not hard_links:
+        def no_link(source, target):
+            raise PermissionError(1, "Operation not permitted")
+        monkeypatch.setattr(os, "link", no_link)
 
     def other_process_creates_it(target):
         if holder or path.exists():
