@@ -238,10 +238,21 @@ def _show_warning(message, category, filename, lineno, file=None, line=None) -> 
     print(f"dynfab: warning: {message}", file=sys.stderr, flush=True)
 
 
+def _redeliver_swallowed_interrupt(unraisable) -> None:
+    """A Ctrl-C that met a C callback (numba's compiler calls back into Python) is printed
+    and dropped there ("Exception ignored ..."): deliver it again, to the code that runs
+    next, so that it interrupts the run instead."""
+    if issubclass(unraisable.exc_type, KeyboardInterrupt):
+        signal.raise_signal(signal.SIGINT)
+        return
+    sys.__unraisablehook__(unraisable)
+
+
 def main(argv: list[str] | None = None) -> None:
     """Entry point of the `dynfab` console script."""
     context: dict = {}
     signal.signal(signal.SIGINT, signal.default_int_handler)  # Ctrl-C: KeyboardInterrupt
+    sys.unraisablehook = _redeliver_swallowed_interrupt
     try:
         _main(argv, context)
     except KeyboardInterrupt:

@@ -10,7 +10,10 @@ A solver failure keeps every finished step on disk and re-raises the
 
 from __future__ import annotations
 
+import contextlib
+import signal
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import Callable
@@ -19,7 +22,7 @@ import numpy as np
 
 from dynfab.errors import SceneError, SolverError
 from dynfab.model import Model, State, build_model, initial_state, width_per_yarn
-from dynfab.results import ResultFile, Results, dynfab_version, read_results
+from dynfab.results import ResultFile, Results, dynfab_version, finished_counts, read_results
 from dynfab.scene import Scene, expand_sweep, scene_to_toml
 
 SOLVERS = ("static", "dynamic")
@@ -64,18 +67,43 @@ def run_to_file(scene: Scene, solver: str, out: str | Path, *, overwrite: bool =
 
     0 with `resume` means the file was already complete and nothing was
     written. The file holds every finished entry at any moment; an interrupt
-    before the first one leaves no file behind (it was created by this run).
+    (KeyboardInterrupt) before the first one leaves no file behind (this run
+    made it).
     """
     if overwrite and resume:
         raise SceneError("--overwrite and --resume exclude each other: pick one")
     model, engine = _build(scene, solver, status, solver_options)
-    with _open_sink(model, engine, out, overwrite=overwrite, resume=resume) as sink:
-        try:
-            return _solve(model, engine, sink, progress)
-        except KeyboardInterrupt:
-            if not resume and sink.step_count == 0 and sink.frame_count == 0:
-                Path(out).unlink(missing_ok=True)  # still ours: we hold its writer lock
-            raise
+    sink = None
+    try:
+        with _interrupts_held_back():  # a Ctrl-C finds the file either not made or in `sink`
+            sink = _open_sink(model, engine, out, overwrite=overwrite, resume=resume)
+        written = _solve(model, engine, sink, progress)
+    except KeyboardInterrupt:
+        if sink is not None:
+            if not resume and finished_counts(out) == (0, 0):
+                Path(out).unlink(missing_ok=True)  # made by this run, still under its lock
+            sink.close(trim=False)
+        raise
+    except BaseException:
+        if sink is not None:
+            sink.close()  # a solver failure: the finished steps, trimmed
+        raise
+    sink.close()
+    return written
+
+
+@contextlib.contextmanager
+def _interrupts_held_back():
+    """Hold Ctrl-C (SIGINT) back while the block runs; it takes effect right after."""
+    if (not hasattr(signal, "pthread_sigmask")
+            or threading.current_thread() is not threading.main_thread()):
+        yield
+        return
+    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
 
 
 def _build(scene: Scene, solver: str, status, solver_options: dict):
