@@ -243,7 +243,9 @@ def _redeliver_swallowed_interrupt(unraisable) -> None:
     and dropped there ("Exception ignored ..."): deliver it again, to the code that runs
     next, so that it interrupts the run instead."""
     if issubclass(unraisable.exc_type, KeyboardInterrupt):
-        signal.raise_signal(signal.SIGINT)
+        import threading  # from another thread, so that it arrives once the callback is over
+
+        threading.Timer(0.05, os.kill, (os.getpid(), signal.SIGINT)).start()
         return
     sys.__unraisablehook__(unraisable)
 
@@ -264,6 +266,16 @@ def main(argv: list[str] | None = None) -> None:
         # Not SystemExit: after a Ctrl-C during the imports, the interpreter's shutdown then
         # ended the process by SIGINT (status -2) about once in twelve tries; os._exit never.
         os._exit(130)
+    finally:
+        if _is_the_command():  # done and said: a Ctrl-C while Python shuts down changes nothing
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _is_the_command() -> bool:
+    """True when this process is the `dynfab` command (not a program calling `main`)."""
+    spec = getattr(sys.modules.get("__main__"), "__spec__", None)
+    return ((spec is not None and spec.name == "dynfab.cli")
+            or os.path.basename(sys.argv[0]) == "dynfab")
 
 
 def _main(argv: list[str] | None, context: dict) -> None:

@@ -94,16 +94,22 @@ def run_to_file(scene: Scene, solver: str, out: str | Path, *, overwrite: bool =
 
 @contextlib.contextmanager
 def _interrupts_held_back():
-    """Hold Ctrl-C (SIGINT) back while the block runs; it takes effect right after."""
-    if (not hasattr(signal, "pthread_sigmask")
-            or threading.current_thread() is not threading.main_thread()):
+    """Hold Ctrl-C (SIGINT) back while the block runs; it takes effect right after.
+
+    A Python-level handler, not a signal mask: the mask is per thread, and a
+    process-directed SIGINT goes to any thread not masking it (numba's, Warp's).
+    """
+    if threading.current_thread() is not threading.main_thread():
         yield
         return
-    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    caught = []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: caught.append(signum))
     try:
         yield
     finally:
-        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+        signal.signal(signal.SIGINT, previous)
+    if caught:
+        signal.raise_signal(signal.SIGINT)  # to the handler held back (KeyboardInterrupt)
 
 
 def _build(scene: Scene, solver: str, status, solver_options: dict):
