@@ -7,17 +7,60 @@ The public surface::
     results.steps["end_force"]                                  # (steps, yarns) [N]
     dynfab.read_results("fig3.h5")                              # the same arrays, from disk
     dynfab.fit(scene, "curve.csv", ["warp.EA"])                 # parameters from a measured curve
+
+The names are imported on first use, so that `import dynfab` (and the
+`dynfab` command starting up) costs no heavy import. When the process is the
+`dynfab` console script, a Ctrl-C from here until `dynfab.cli.main` takes
+over ends it with one line and exit status 130 (nothing is written yet).
 """
 
+import importlib
+import os
+import signal
+import sys
+import types
+
+
+def _interrupted_while_starting(signum, frame) -> None:
+    """SIGINT while the command line starts: one line, exit status 130, no traceback."""
+    os.write(2, b"dynfab: interrupted; nothing was written\n")
+    os._exit(130)
+
+
+if sys.argv and os.path.basename(sys.argv[0]) == "dynfab":
+    signal.signal(signal.SIGINT, _interrupted_while_starting)
+
 from dynfab.errors import DynfabError, SceneError, SolverError
-from dynfab.fit import FitResult, fit
-from dynfab.model import build_model
-from dynfab.plot import plot_results
-from dynfab.results import Results, read_results
-from dynfab.run import run
-from dynfab.scene import load_scene, parse_scene_text
 
 __version__ = "0.1.0"
 
+_HOMES = {"build_model": "dynfab.model", "plot_results": "dynfab.plot",
+          "Results": "dynfab.results", "read_results": "dynfab.results", "run": "dynfab.run",
+          "load_scene": "dynfab.scene", "parse_scene_text": "dynfab.scene",
+          "fit": "dynfab.fit", "FitResult": "dynfab.fit"}
+"""Module defining each public name."""
+
 __all__ = ["DynfabError", "FitResult", "Results", "SceneError", "SolverError", "build_model", "fit",
            "load_scene", "parse_scene_text", "plot_results", "read_results", "run", "__version__"]
+
+
+def __getattr__(name: str):
+    """Import a public name from its module on first use."""
+    if name not in _HOMES:
+        raise AttributeError(f"module 'dynfab' has no attribute {name!r}")
+    value = getattr(importlib.import_module(_HOMES[name]), name)
+    globals()[name] = value
+    return value
+
+
+class _Package(types.ModuleType):
+    """Keeps `dynfab.run` and `dynfab.fit` the functions: importing the submodules dynfab.run
+    and dynfab.fit would otherwise rebind the package attributes to the modules."""
+
+    def __setattr__(self, name: str, value) -> None:
+        if name in ("run", "fit") and isinstance(value, types.ModuleType):
+            value = getattr(value, name)
+        super().__setattr__(name, value)
+
+
+sys.modules[__name__].__class__ = _Package

@@ -1,18 +1,35 @@
 """The `dynfab` command line: `dynfab run`, `dynfab plot` and `dynfab fit`.
 
 A user's mistake exits with status 2 and one line; a solver failure with
-status 3 and one line (finished steps kept on disk); an interrupt with 130
-(finished steps kept, `--resume` continues).
+status 3 and one line (finished steps kept on disk); an interrupt (Ctrl-C),
+at any moment, imports included, with 130 and one line naming what is on disk.
+
+When the process is the command (the console script, or ``python -m
+dynfab.cli``), a Ctrl-C during the imports ends it at once with that line
+(nothing is written yet); `main` then hands Ctrl-C to its handler.
+Its top-level imports are light, and the heavy ones (numpy, h5py, numba,
+matplotlib) are made inside `main`, under that handler.
 """
 
 from __future__ import annotations
 
-import argparse
+import os
+import signal
 import sys
-import warnings
-from pathlib import Path
 
-from dynfab.errors import DynfabError
+from dynfab import _interrupted_while_starting
+
+if __name__ == "__main__":  # python -m dynfab.cli (the console script's is set by dynfab)
+    signal.signal(signal.SIGINT, _interrupted_while_starting)
+
+import argparse  # noqa: E402 (after the handler, on purpose)
+import io  # noqa: E402
+import shutil  # noqa: E402
+import time  # noqa: E402
+import warnings  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+from dynfab.errors import DynfabError, SceneError  # noqa: E402
 
 RUN_FLAGS = {
     # flag: (type, help); each is an option of dynfab.options (the same for dynfab.run)
@@ -81,29 +98,117 @@ REPORTS = {
 """The report subcommands (dynfab/reports/<name>.py, each with run_<name>(out, quick=, progress=))."""
 
 
-def _command_run(args) -> None:
-    from dynfab.run import print_summary, run
+class _Progress:
+    """Progress on stderr: one line per finished step or frame and, on a terminal only, a
+    live status line within a step (the dynamic solver's time steps and residual against
+    its tolerance, and the time spent in the step), overwritten in place."""
+
+    def __init__(self, stream=None) -> None:
+        self.stream = sys.stderr if stream is None else stream
+        self.live = self.stream.isatty()
+        self.showing = False
+        self.step_started = time.monotonic()
+
+    def line(self, text: str) -> None:
+        """A finished step (or frame): a line of its own."""
+        self.clear()
+        print(text, file=self.stream, flush=True)
+        self.step_started = time.monotonic()
+
+    def status(self, text: str) -> None:
+        """Within a step: replace the live line (nothing when stderr is not a terminal)."""
+        if not self.live:
+            return
+        elapsed = time.monotonic() - self.step_started
+        try:
+            width = os.get_terminal_size(self.stream.fileno()).columns
+        except (AttributeError, OSError, ValueError, io.UnsupportedOperation):
+            width = 0
+        width = width or shutil.get_terminal_size().columns  # 0: a terminal of unknown size
+        self.stream.write("\r" + f"step running {elapsed:.0f} s: {text}"[:max(width - 1, 10)]
+                          + "\x1b[K")
+        self.stream.flush()
+        self.showing = True
+
+    def clear(self) -> None:
+        """Erase the live line, if shown, so the next line starts clean."""
+        if self.showing:
+            self.stream.write("\r\x1b[K")
+            self.stream.flush()
+            self.showing = False
+
+
+_progress: _Progress | None = None
+"""The running command's progress display (warnings and the interrupt line clear it)."""
+
+
+def _check_run_output(out: Path, args) -> None:
+    """Refuse a bad --out before any work: a directory, or an existing file without
+    --overwrite or --resume; create its folder."""
+    if out.is_dir():
+        raise SceneError(f"output file '{out}' is a directory")
+    if out.exists() and not (args.overwrite or args.resume):
+        raise SceneError(f"output file '{out}' exists: pass --overwrite to replace it "
+                         f"or --resume to continue it")
+    if args.resume and not out.exists():
+        raise SceneError(f"result file '{out}' does not exist: nothing to resume")
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise SceneError(f"cannot create the folder of '{out}': {error.strerror or error}") from None
+
+
+def _command_run(args, context: dict) -> None:
+    global _progress
     from dynfab.scene import load_scene
 
     scene = load_scene(args.scene)
     out = args.out or Path(args.scene.stem + ".h5")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    report = None if args.quiet else (lambda line: print(line, file=sys.stderr, flush=True))
+    _check_run_output(out, args)
+    context["out"] = out
+    from dynfab.run import print_summary, run_to_file
+    from dynfab.results import read_results
+
+    _progress = None if args.quiet else _Progress()
     options = {flag[2:].replace("-", "_"): getattr(args, flag[2:].replace("-", "_"))
                for flag in RUN_FLAGS}
-    try:
-        results = run(scene, solver=args.solver, out=out, overwrite=args.overwrite,
-                      resume=args.resume, progress=report, device=args.device, **options)
-    except KeyboardInterrupt:
-        print(f"dynfab: interrupted; every finished load step is in '{out}': "
-              f"continue with --resume", file=sys.stderr)
-        raise SystemExit(130)
-    if not args.quiet:
-        print_summary(results)
-        print(f"wrote {out}", file=sys.stderr)
+    written = run_to_file(scene, args.solver, out, overwrite=args.overwrite, resume=args.resume,
+                          progress=None if args.quiet else _progress.line,
+                          status=None if args.quiet else _progress.status, device=args.device,
+                          **options)
+    if args.quiet:
+        return
+    _progress.clear()
+    if written == 0 and args.resume:
+        print(f"'{out}' is already complete: nothing to do", file=sys.stderr)
+        return
+    print_summary(read_results(out, only=SUMMARY_DATASETS))
+    print(f"wrote {out}", file=sys.stderr)
 
 
-def _command_fit(args) -> None:
+SUMMARY_DATASETS = ("steps/load", "steps/end_displacement", "steps/end_force",
+                    "steps/contact_force", "steps/residual", "steps/wall_time", "frames/time",
+                    "frames/energy/kinetic", "frames/contact_force")
+"""What the summary table reads: not the positions, which may not fit in memory."""
+
+
+def _interrupted_line(context: dict) -> str:
+    """The message after Ctrl-C: what the output file holds, if this command writes one."""
+    out = context.get("out")
+    if out is None or not Path(out).is_file():
+        return "dynfab: interrupted; nothing was written" if "out" in context else "dynfab: interrupted"
+    from dynfab.results import finished_counts
+
+    counts = finished_counts(out) or (0, 0)
+    for count, what in zip(counts, ("load step", "frame")):
+        if count:
+            plural = "s are" if count > 1 else " is"
+            return (f"dynfab: interrupted; {count} finished {what}{plural} in '{out}': "
+                    f"continue with --resume")
+    return f"dynfab: interrupted; no finished step is in '{out}'"
+
+
+def _command_fit(args, context: dict) -> None:
     from dynfab.fit import fit, parse_bounds
     from dynfab.scene import load_scene
 
@@ -115,14 +220,14 @@ def _command_fit(args) -> None:
         print(f"wrote {args.out / name}", file=sys.stderr)
 
 
-def _command_plot(args) -> None:
+def _command_plot(args, context: dict) -> None:
     from dynfab.plot import plot_results
 
     for path in plot_results(args.results, args.out):
         print(f"wrote {path}")
 
 
-def _command_report(args) -> None:
+def _command_report(args, context: dict) -> None:
     """Run the report `args.command` (dynfab/reports/<name>.py) and list the files it wrote."""
     import importlib
 
@@ -139,17 +244,63 @@ def _command_report(args) -> None:
 
 def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
     """Warnings (a dt above the bound, a rounding floor) as one line each, without source."""
+    if _progress is not None:
+        _progress.clear()
     print(f"dynfab: warning: {message}", file=sys.stderr, flush=True)
+
+
+def _redeliver_swallowed_interrupt(unraisable) -> None:
+    """A Ctrl-C that met a C callback (numba's compiler calls back into Python) is printed
+    and dropped there ("Exception ignored ..."): deliver it again, to the code that runs
+    next, so that it interrupts the run instead."""
+    if issubclass(unraisable.exc_type, KeyboardInterrupt):
+        import threading  # from another thread, so that it arrives once the callback is over
+
+        threading.Timer(0.05, os.kill, (os.getpid(), signal.SIGINT)).start()
+        return
+    sys.__unraisablehook__(unraisable)
 
 
 def main(argv: list[str] | None = None) -> None:
     """Entry point of the `dynfab` console script."""
+    context: dict = {}
+    signal.signal(signal.SIGINT, signal.default_int_handler)  # Ctrl-C: KeyboardInterrupt
+    sys.unraisablehook = _redeliver_swallowed_interrupt
+    try:
+        _main(argv, context)
+    except KeyboardInterrupt:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # a second Ctrl-C must not cut the message
+        if _progress is not None:
+            _progress.clear()
+        print(_interrupted_line(context), file=sys.stderr, flush=True)
+        sys.stdout.flush()
+        # Not SystemExit: after a Ctrl-C during the imports, the interpreter's shutdown then
+        # ended the process by SIGINT (status -2) about once in twelve tries; os._exit never.
+        os._exit(130)
+    finally:
+        if _is_the_command():  # done and said: a Ctrl-C while Python shuts down changes nothing
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _is_the_command() -> bool:
+    """True when this process is the `dynfab` command (not a program calling `main`)."""
+    spec = getattr(sys.modules.get("__main__"), "__spec__", None)
+    return ((spec is not None and spec.name == "dynfab.cli")
+            or os.path.basename(sys.argv[0]) == "dynfab")
+
+
+def _main(argv: list[str] | None, context: dict) -> None:
+    """Parse and run a command; `context` records the output file once it is known."""
     args = _parser().parse_args(argv)
+    if args.command == "run":
+        context["out"] = None  # a run writes a file; its name is set once checked
     warnings.showwarning = _show_warning
     try:
         commands = {"run": _command_run, "plot": _command_plot, "fit": _command_fit}
-        commands.get(args.command, _command_report)(args)
+        commands.get(args.command, _command_report)(args, context)
     except DynfabError as error:
+        if _progress is not None:
+            _progress.clear()
         print(f"dynfab: error: {error}", file=sys.stderr)
         raise SystemExit(error.exit_status)
 

@@ -47,14 +47,13 @@ def plot_results(path: str | os.PathLike, out_dir: str | os.PathLike) -> list[Pa
     """
     results = read_results(path)
     if results.step_count == 0 and results.frame_count > 0:
-        return _plot_transient(results, Path(out_dir))
+        return _plot_transient(results, output_folder(out_dir))
     if results.step_count == 0:
         raise SceneError(f"result file '{path}' has no finished load step to plot")
     for key in ("end_force", "end_displacement", "positions"):
         if key not in results.steps:
             raise SceneError(f"result file '{path}' lacks dataset steps/{key}")
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    out = output_folder(out_dir)
     written = [save_png(plot_traction(results, path), out / "traction.png")]
     if crossing_count(results) > 0 and "contact_force" in results.steps:
         written.append(save_png(plot_contact_force(results), out / "contact_force.png"))
@@ -64,9 +63,24 @@ def plot_results(path: str | os.PathLike, out_dir: str | os.PathLike) -> list[Pa
     return written
 
 
+def output_folder(out_dir: str | os.PathLike) -> Path:
+    """The folder for the PNGs, created if needed; SceneError (one line) if it cannot be."""
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise SceneError(f"--out '{out}' is an existing file: give a folder for the PNG files")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise SceneError(f"cannot create the folder '{out}': {error.strerror or error}") from None
+    return out
+
+
 def save_png(fig: Figure, path: Path) -> Path:
-    """Save ``fig`` as a PNG at ``path`` and return the path."""
-    fig.savefig(path, dpi=DPI)
+    """Save ``fig`` as a PNG at ``path`` and return the path; SceneError if it cannot be written."""
+    try:
+        fig.savefig(path, dpi=DPI)
+    except OSError as error:
+        raise SceneError(f"cannot write '{path}': {error.strerror or error}") from None
     return path
 
 
@@ -188,7 +202,6 @@ def shape_steps(step_count: int) -> list[int]:
 
 def _plot_transient(results: Results, out: Path) -> list[Path]:
     """A transient run's figures: energies against time, shapes at a few frames."""
-    out.mkdir(parents=True, exist_ok=True)
     return [save_png(plot_energy_history(results), out / "energy.png"),
             save_png(plot_frame_shapes(results), out / "shape.png")]
 

@@ -10,7 +10,10 @@ A solver failure keeps every finished step on disk and re-raises the
 
 from __future__ import annotations
 
+import contextlib
+import signal
 import sys
+import threading
 import time
 import warnings
 from pathlib import Path
@@ -22,11 +25,12 @@ from dynfab.budget import check_budget
 from dynfab.errors import SceneError, SolverError
 from dynfab.options import apply_run_options, check_solver
 from dynfab.model import Model, State, build_model, initial_state, width_per_yarn
-from dynfab.results import ResultFile, Results, dynfab_version, read_results
+from dynfab.results import ResultFile, Results, dynfab_version, finished_counts, read_results
 from dynfab.scene import Scene, expand_sweep, scene_to_toml
 
-def make_solver(model: Model, solver: str, device: str | None = None):
-    """The solver object named `solver`, built for `model` (its options are the scene's)."""
+def make_solver(model: Model, solver: str, device: str | None = None, progress=None):
+    """The solver object named `solver`, built for `model` (its options are the scene's);
+    the dynamic solver reports each launch to `progress`."""
     if check_solver(solver) == "static":
         if device is not None:
             raise SceneError(f"--device {device}: the static solver runs on the CPU (numba); "
@@ -34,39 +38,112 @@ def make_solver(model: Model, solver: str, device: str | None = None):
         from dynfab.static import StaticSolver
         return StaticSolver(model)
     from dynfab.dynamic import DynamicSolver
-    return DynamicSolver(model, device=device or "cpu")
+    return DynamicSolver(model, device=device or "cpu", progress=progress)
 
 
 def run(scene: Scene, solver: str = "static", out: str | Path | None = None, *,
         overwrite: bool = False, resume: bool = False,
-        progress: Callable[[str], None] | None = None, device: str | None = None,
+        progress: Callable[[str], None] | None = None,
+        status: Callable[[str], None] | None = None, device: str | None = None,
         **options) -> Results:
     """Solve the scene's load path; write `out` (HDF5) if given; return the results.
 
     `solver` is "static" or "dynamic"; `device` the Warp device of the dynamic
     solver ("cpu", "cuda", ...). `options` are the solver's options, the same
     as the command line's (`dynfab.options`): static `tolerance` [N],
-    `max_iterations`; dynamic `mode`, `method`, `damping`,
+    `accuracy`, `max_iterations`; dynamic `mode`, `method`, `damping`,
     `damping_coefficient` [1/s], `masses`, `dt` [s], `safety`, `tolerance` [N],
-    `max_steps`, `precision` (meanings and defaults: `dynfab.scene.Static`,
-    `dynfab.scene.Dynamic`). They are set on the scene, so the result file's
-    `scene` attribute is the scene actually run; an option the solver does not
-    take is a SceneError. `progress` receives one line per finished load step
-    (None: silent).
+    `accuracy`, `max_steps`, `precision` (meanings and defaults:
+    `dynfab.scene.Static`, `dynfab.scene.Dynamic`). They are set on the scene,
+    so the result file's `scene` attribute is the scene actually run; an option
+    the solver does not take is a SceneError. `progress` receives one line per
+    finished load step or frame, `status` the dynamic solver's line within a
+    step, once per launch (None: silent).
     """
+    if out is not None:
+        run_to_file(scene, solver, out, overwrite=overwrite, resume=resume, progress=progress,
+                    status=status, device=device, **options)
+        return read_results(out)
+    if overwrite or resume:
+        raise SceneError("--overwrite and --resume need an output file")
+    model, engine = _build(scene, solver, None, status, device, options)
+    sink = _MemorySink(_root_attrs(model, engine), _reference(model))
+    _solve(model, engine, sink, progress)
+    return sink.results()
+
+
+def run_to_file(scene: Scene, solver: str, out: str | Path, *, overwrite: bool = False,
+                resume: bool = False, progress: Callable[[str], None] | None = None,
+                status: Callable[[str], None] | None = None, device: str | None = None,
+                **options) -> int:
+    """`run` writing `out` without reading it back: the number of steps (or frames) written.
+
+    0 with `resume` means the file was already complete and nothing was
+    written. The file holds every finished entry at any moment; an interrupt
+    (KeyboardInterrupt) before the first one leaves no file behind (this run
+    made it).
+    """
+    if overwrite and resume:
+        raise SceneError("--overwrite and --resume exclude each other: pick one")
+    model, engine = _build(scene, solver, None if resume else out, status, device, options)
+    sink = None
+    try:
+        with _interrupts_held_back():  # a Ctrl-C finds the file either not made or in `sink`
+            sink = _open_sink(model, engine, out, overwrite=overwrite, resume=resume)
+        written = _solve(model, engine, sink, progress)
+    except KeyboardInterrupt:
+        if sink is not None:
+            if not resume and finished_counts(out) == (0, 0):
+                Path(out).unlink(missing_ok=True)  # made by this run, still under its lock
+            sink.close(trim=False)
+        raise
+    except BaseException:
+        if sink is not None:
+            sink.close()  # a solver failure: the finished steps, trimmed
+        raise
+    sink.close()
+    return written
+
+
+@contextlib.contextmanager
+def _interrupts_held_back():
+    """Hold Ctrl-C (SIGINT) back while the block runs; it takes effect right after.
+
+    A Python-level handler, not a signal mask: the mask is per thread, and a
+    process-directed SIGINT goes to any thread not masking it (numba's, Warp's).
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught = []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: caught.append(signum))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    if caught:
+        signal.raise_signal(signal.SIGINT)  # to the handler held back (KeyboardInterrupt)
+
+
+def _build(scene: Scene, solver: str, out, status, device: str | None, options: dict):
+    """The model and the solver, the run options set on the scene (`dynfab.options`) and the
+    run's memory and result file (`out`, None: not checked) estimated first (`dynfab.budget`);
+    the dynamic solver reports its launches to `status`."""
     scene = apply_run_options(scene, solver, **options)
-    check_budget(scene, None if resume else out)
+    check_budget(scene, out)
     model = build_model(scene)
-    engine = make_solver(model, solver, device)
-    sink = _open_sink(model, engine, out, overwrite=overwrite, resume=resume)
-    if solver == "dynamic" and scene.dynamic.mode == "transient":
-        _run_transient(model, engine, sink, progress)
-        return sink.results() if isinstance(sink, _MemorySink) else read_results(sink.path)
+    return model, make_solver(model, solver, device, status)
+
+
+def _solve(model: Model, engine, sink, progress) -> int:
+    """Solve the load steps (or the transient) the sink lacks; the number of entries added."""
+    if _is_transient(model, engine):
+        return _run_transient(model, engine, sink, progress)
     state = _start_state(model, sink)
     values = model.load_values
     unit = "N" if model.control == "force" else "m"
-    floors = []
-    for index in range(sink.step_count, values.size):
+    first, floors = sink.step_count, []
+    for index in range(first, values.size):
         started = time.perf_counter()
         try:
             state, record = engine.step(state, float(values[index]))
@@ -78,48 +155,65 @@ def run(scene: Scene, solver: str = "static", out: str | Path | None = None, *,
         floors.append(record.get("rounding_floor", np.zeros(1, bool)).any())
         if progress is not None:
             progress(_progress_line(index, values.size, record, unit))
-    _warn_rounding_floor(floors, engine)
-    return sink.results() if isinstance(sink, _MemorySink) else read_results(sink.path)
+    _warn_rounding_floor(floors)
+    return sink.step_count - first
 
 
-def _warn_rounding_floor(floors: list, engine) -> None:
+def _warn_rounding_floor(floors: list) -> None:
     """One warning at the end of a run for the steps whose residual stopped falling above the
     tolerance (MODEL.md 5, 6); each such step also passed the accuracy check of its solver."""
     count = int(np.sum(floors))
     if count:
         warnings.warn(f"{count} of {len(floors)} load steps stopped at the rounding floor, above "
-                      f"the tolerance {engine.tolerance:.3g} N (steps/rounding_floor); their "
-                      f"error bounds are in steps/error_estimate", RuntimeWarning, stacklevel=3)
+                      f"their tolerance (steps/rounding_floor); their error bounds are in "
+                      f"steps/error_estimate", RuntimeWarning, stacklevel=3)
 
 
-def _run_transient(model: Model, engine, sink, progress) -> None:
+def _is_transient(model: Model, engine) -> bool:
+    """True for a transient run: the dynamic solver with dynamic.mode = "transient"."""
+    return engine.name == "dynamic" and model.scene.dynamic.mode == "transient"
+
+
+def frame_times(model: Model) -> np.ndarray:
+    """The output times of a transient run [s]: 0, every output_interval, and the duration."""
+    options = model.scene.dynamic
+    return np.append(np.arange(0.0, options.duration, options.output_interval), options.duration)
+
+
+def _run_transient(model: Model, engine, sink, progress) -> int:
     """A transient run (MODEL.md 5): append every frame as it comes; resume from the last one."""
     resume_from = sink.last_frame() if sink.frame_count else None
     duration = model.scene.dynamic.duration
+    if resume_from is not None and float(resume_from["time"]) >= duration:
+        return 0
+    first = sink.frame_count
     for frame in engine.transient(initial_state(model), resume_from):
         sink.append_frame(frame)
         if progress is not None:
             kinetic = np.max(frame["energy/kinetic"])
-            progress(f"t = {frame['time']:.6g} s of {duration:g} s  kinetic energy {kinetic:.4g} J")
+            progress(f"frame {sink.frame_count}: t = {frame['time']:.6g} s of {duration:g} s  "
+                     f"kinetic energy {kinetic:.4g} J")
+    return sink.frame_count - first
 
 
-def _open_sink(model: Model, engine, out, *, overwrite: bool, resume: bool):
-    """The result file (created, overwritten or resumed), or an in-memory sink without `out`."""
-    if overwrite and resume:
-        raise SceneError("--overwrite and --resume exclude each other: pick one")
-    if out is None:
-        return _MemorySink(_root_attrs(model, engine), _reference(model))
+def _open_sink(model: Model, engine, out, *, overwrite: bool, resume: bool) -> ResultFile:
+    """The result file: created, overwritten or resumed, sized for the run's entries."""
+    transient = _is_transient(model, engine)
+    capacity = ({"frame_capacity": frame_times(model).size} if transient
+                else {"step_capacity": model.load_values.size})
     if resume:
-        sink = ResultFile.resume(out)
+        sink = ResultFile.resume(out, **capacity)
         if sink.attrs.get("scene") != scene_to_toml(model.scene):
+            sink.close(trim=False)
             raise SceneError(f"cannot resume '{out}': it was written from a different scene "
                              "(or with other command-line options)")
         if sink.attrs.get("solver") != engine.name:
+            sink.close(trim=False)
             raise SceneError(f"cannot resume '{out}': it was written by the "
                              f"{sink.attrs.get('solver')!r} solver, not {engine.name!r}")
         return sink
     return ResultFile.create(out, attrs=_root_attrs(model, engine), reference=_reference(model),
-                             overwrite=overwrite)
+                             overwrite=overwrite, **capacity)
 
 
 def _start_state(model: Model, sink) -> State:

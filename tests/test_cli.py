@@ -19,9 +19,11 @@ import numpy as np
 import pytest
 
 import dynfab
+from dynfab.results import finished_counts
 
 ROOT = Path(__file__).resolve().parents[1]
 FIG5 = ROOT / "runs" / "paper_fig5.toml"  # friction on and off: anchors must survive a resume
+RELAX = ROOT / "runs" / "relax.toml"  # a transient run: frames
 
 
 def dynfab_cli(*args, **kwargs):
@@ -36,6 +38,17 @@ def step_arrays(path) -> dict:
     return {k: v for k, v in results.steps.items() if k != "wall_time"}
 
 
+def finished_rows(path, group: str = "steps") -> dict:
+    """The finished rows of a result file read with plain h5py, as its layout tells a
+    script to: rows [0, <group>_done) of every <group>/ dataset (wall time left out)."""
+    with h5py.File(path, "r") as f:
+        count = int(f[f"{group}_done"][0])
+        rows = {}
+        f[group].visititems(lambda name, obj: rows.__setitem__(name, obj[:count])
+                            if isinstance(obj, h5py.Dataset) and name != "wall_time" else None)
+    return rows
+
+
 @pytest.fixture(scope="module")
 def uninterrupted(tmp_path_factory):
     path = tmp_path_factory.mktemp("full") / "fig5.h5"
@@ -44,23 +57,62 @@ def uninterrupted(tmp_path_factory):
     return path
 
 
-def test_kill_minus_9_leaves_a_readable_file_and_resume_is_exact(uninterrupted, tmp_path):
-    expected = step_arrays(uninterrupted)
-    total = expected["load"].shape[0]
-    rng = random.Random(20071)
-    out = tmp_path / "killed.h5"
-    for attempt in range(4):
-        args = [sys.executable, "-m", "dynfab.cli", "run", str(FIG5), "--out", str(out), "--quiet",
-                "--resume" if out.exists() else "--overwrite"]
-        child = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        time.sleep(rng.uniform(0.6, 1.6))
+def finished_count(path, group: str) -> int:
+    """Finished rows in a file being written (0 before it exists)."""
+    counts = finished_counts(path) if path.exists() else None
+    return 0 if counts is None else counts[0 if group == "steps" else 1]
+
+
+def kill_at_random_moments(args, out, group, expected, seed, mid_run_kills):
+    """Start `dynfab run ...` and kill -9 it at random moments, resuming each time, until
+    `mid_run_kills` kills have landed mid-run; after every kill the file must open with
+    plain h5py and its finished rows must equal the uninterrupted run's first rows exactly.
+    Returns the counts seen after the mid-run kills.
+
+    Each kill waits for a random row count ahead of the file's, then a random fraction
+    of a (millisecond) step, so that the kills land mid-run at random phases of the
+    writing. A run that finishes before its kill (a loaded machine) starts the file over."""
+    rng = random.Random(seed)
+    total = len(next(iter(expected.values())))
+    counts, seen = [0], []
+    for _ in range(5 * mid_run_kills):
+        if len(seen) == mid_run_kills:
+            break
+        if counts[-1] == total:
+            out.unlink()
+            counts = [0]
+        mode = "--resume" if out.exists() else "--overwrite"
+        child = subprocess.Popen([sys.executable, "-m", "dynfab.cli", *map(str, args), "--out",
+                                  str(out), "--quiet", mode],
+                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        target = rng.randint(min(counts[-1] + 1, total - 3), total - 3)
+        deadline = time.monotonic() + 120
+        while (finished_count(out, group) < target and child.poll() is None
+               and time.monotonic() < deadline):
+            time.sleep(0.002)
+        time.sleep(rng.uniform(0.0, 0.005))
         child.send_signal(signal.SIGKILL)
         child.wait()
         if not out.exists():
             continue
-        with h5py.File(out, "r") as f:  # readable, every dataset with the same step count
-            counts = {f[f"steps/{name}"].shape[0] for name in ("load", "positions", "anchors")}
-            assert len(counts) == 1
+        rows = finished_rows(out, group)
+        count = len(next(iter(rows.values()))) if rows else 0
+        for name, value in rows.items():  # every finished row, bit for bit
+            assert value.shape[0] == count, name
+            np.testing.assert_array_equal(value, expected[name][:count], err_msg=name)
+        assert count >= counts[-1], "a kill lost finished rows"
+        counts.append(count)
+        if 0 < count < total:
+            seen.append(count)
+    assert len(seen) == mid_run_kills, f"too few kills landed mid-run: {seen}"
+    return seen
+
+
+def test_kill_minus_9_leaves_a_readable_file_and_resume_is_exact(uninterrupted, tmp_path):
+    expected = step_arrays(uninterrupted)
+    total = expected["load"].shape[0]
+    out = tmp_path / "killed.h5"
+    kill_at_random_moments(["run", FIG5], out, "steps", expected, 20071, mid_run_kills=4)
     finished = dynfab_cli("run", FIG5, "--out", out, "--quiet",
                           "--resume" if out.exists() else "--overwrite")
     assert finished.returncode == 0, finished.stderr
@@ -68,6 +120,26 @@ def test_kill_minus_9_leaves_a_readable_file_and_resume_is_exact(uninterrupted, 
     assert resumed["load"].shape[0] == total
     for name, value in expected.items():
         np.testing.assert_array_equal(resumed[name], value, err_msg=name)
+    with h5py.File(out, "r") as f:  # a finished run keeps exactly its steps
+        assert f["steps/load"].shape[0] == f["steps_done"][0] == total
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["killed.h5"]
+
+
+def test_kill_minus_9_of_a_transient_run_keeps_its_frames_and_resume_is_exact(tmp_path):
+    full = tmp_path / "full.h5"
+    done = dynfab_cli("run", RELAX, "--solver", "dynamic", "--out", full, "--quiet")
+    assert done.returncode == 0, done.stderr
+    expected = dynfab.read_results(full).frames
+    out = tmp_path / "killed.h5"
+    kill_at_random_moments(["run", RELAX, "--solver", "dynamic"], out, "frames", expected, 5,
+                           mid_run_kills=2)
+    finished = dynfab_cli("run", RELAX, "--solver", "dynamic", "--out", out, "--quiet",
+                          "--resume" if out.exists() else "--overwrite")
+    assert finished.returncode == 0, finished.stderr
+    assert finished_count(out, "frames") == expected["time"].shape[0]
+    frames = dynfab.read_results(out).frames
+    for name, value in expected.items():
+        np.testing.assert_array_equal(frames[name], value, err_msg=name)
 
 
 def test_python_api_returns_the_file_arrays(uninterrupted):
@@ -159,3 +231,143 @@ def test_scene_to_toml_round_trips_every_scene_in_runs():
         scene = dynfab.load_scene(path)
         again = dynfab.parse_scene_text(scene_to_toml(scene))
         assert replace(again, text="") == replace(scene, text=""), path.name
+
+
+def one_line(stderr: str) -> str:
+    """The single line of a command's stderr (fails if there are more, or a traceback)."""
+    assert "Traceback" not in stderr, stderr
+    lines = stderr.strip().splitlines()
+    assert len(lines) == 1, stderr
+    return lines[0]
+
+
+def test_two_runs_started_at_once_on_a_new_file_one_wins(uninterrupted, tmp_path):
+    """Creating the output is exclusive: never two exit 0 with one result lost."""
+    expected = step_arrays(uninterrupted)
+    for attempt in range(3):
+        out = tmp_path / f"race{attempt}.h5"
+        args = [sys.executable, "-m", "dynfab.cli", "run", str(FIG5), "--out", str(out), "--quiet"]
+        children = [subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                     text=True) for _ in range(2)]
+        outcomes = sorted((child.wait(), child.communicate()[1]) for child in children)
+        assert [status for status, _ in outcomes] == [0, 2], outcomes
+        assert one_line(outcomes[1][1]).startswith("dynfab: error: output file")
+        for name, value in step_arrays(out).items():
+            np.testing.assert_array_equal(value, expected[name], err_msg=name)
+
+
+def test_a_file_being_written_refuses_a_second_writer(tmp_path):
+    """--overwrite and --resume of a file another process writes: exit 2, file untouched."""
+    from dynfab.results import ResultFile
+
+    out = tmp_path / "busy.h5"
+    done = dynfab_cli("run", FIG5, "--out", out, "--quiet")
+    assert done.returncode == 0, done.stderr
+    before = out.read_bytes()
+    holder = ResultFile.resume(out)  # holds the writer lock, like a running dynfab
+    try:
+        for mode in ("--overwrite", "--resume"):
+            busy = dynfab_cli("run", FIG5, "--out", out, "--quiet", mode)
+            assert busy.returncode == 2, busy.stderr
+            assert "being written by another dynfab process" in one_line(busy.stderr)
+            assert out.read_bytes() == before
+    finally:
+        holder.close()
+    assert dynfab.read_results(out).step_count == 40
+
+
+def test_resume_of_a_finished_file_says_so_and_writes_nothing(uninterrupted, tmp_path):
+    out = tmp_path / "done.h5"
+    out.write_bytes(uninterrupted.read_bytes())
+    mtime = out.stat().st_mtime_ns
+    done = dynfab_cli("run", FIG5, "--out", out, "--resume")
+    assert done.returncode == 0, done.stderr
+    assert one_line(done.stderr) == f"'{out}' is already complete: nothing to do"
+    assert done.stdout == ""
+    assert out.read_bytes() == uninterrupted.read_bytes() and out.stat().st_mtime_ns == mtime
+
+
+@pytest.mark.parametrize("flag", [None, "--overwrite"])
+def test_run_out_a_directory_is_named_at_once(tmp_path, flag):
+    done = dynfab_cli("run", FIG5, "--out", tmp_path, *([flag] if flag else []))
+    assert done.returncode == 2
+    assert one_line(done.stderr) == f"dynfab: error: output file '{tmp_path}' is a directory"
+
+
+@pytest.mark.parametrize("case", ["existing_file", "unwritable"])
+def test_plot_out_that_cannot_be_a_folder_is_one_line(uninterrupted, tmp_path, case):
+    out = tmp_path / "taken.png" if case == "existing_file" else Path("/proc/nope")
+    if case == "existing_file":
+        out.write_bytes(b"keep")
+    done = dynfab_cli("plot", uninterrupted, "--out", out)
+    assert done.returncode == 2
+    assert one_line(done.stderr).startswith("dynfab: error:") and str(out) in done.stderr
+    if case == "existing_file":
+        assert out.read_bytes() == b"keep"
+
+
+def python_startup_time() -> float:
+    """Seconds the interpreter takes to start (site included) before any dynfab code runs:
+    a SIGINT before then is Python's own, which dynfab cannot handle."""
+    started = time.monotonic()
+    subprocess.run([sys.executable, "-c", "pass"], check=True)
+    return time.monotonic() - started
+
+
+@pytest.mark.parametrize("delay", [0.05, 0.2, 0.4])
+def test_ctrl_c_while_starting_is_one_line_and_exit_130(tmp_path, delay):
+    """A SIGINT during the imports (the first half second): no traceback, nothing written."""
+    delay += 1.5 * python_startup_time()
+    out = tmp_path / "early.h5"
+    child = subprocess.Popen([sys.executable, "-m", "dynfab.cli", "run", str(FIG5), "--out",
+                              str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(delay)
+    child.send_signal(signal.SIGINT)
+    stdout, stderr = child.communicate()
+    assert child.returncode == 130, stderr
+    line = one_line(stderr)
+    if not out.exists():
+        assert line == "dynfab: interrupted; nothing was written"
+    else:  # the run got as far as its first steps: a file exists only with some
+        kept = finished_count(out, "steps")
+        assert kept > 0 and line == (f"dynfab: interrupted; {kept} finished load step"
+                                     f"{'s are' if kept > 1 else ' is'} in '{out}': "
+                                     "continue with --resume")
+
+
+def test_ctrl_c_mid_run_names_the_finished_steps_kept(uninterrupted, tmp_path):
+    expected = step_arrays(uninterrupted)
+    out = tmp_path / "mid.h5"
+    child = subprocess.Popen([sys.executable, "-m", "dynfab.cli", "run", str(FIG5), "--out",
+                              str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while finished_count(out, "steps") < 5 and time.monotonic() < deadline:
+        time.sleep(0.001)
+    child.send_signal(signal.SIGINT)
+    stdout, stderr = child.communicate()
+    assert child.returncode == 130, stderr
+    kept = finished_count(out, "steps")
+    assert 5 <= kept < 40, "the interrupt must land mid-run"
+    line = stderr.strip().splitlines()[-1]  # after the per-step progress lines
+    assert "Traceback" not in stderr
+    assert line == (f"dynfab: interrupted; {kept} finished load steps are in '{out}': "
+                    "continue with --resume")
+    for name, value in finished_rows(out).items():
+        np.testing.assert_array_equal(value, expected[name][:kept], err_msg=name)
+
+
+def test_ctrl_c_mid_transient_run_names_the_frames_kept(tmp_path):
+    out = tmp_path / "relax.h5"
+    child = subprocess.Popen([sys.executable, "-m", "dynfab.cli", "run", str(RELAX), "--solver",
+                              "dynamic", "--out", str(out)],
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while finished_count(out, "frames") < 5 and time.monotonic() < deadline:
+        time.sleep(0.001)
+    child.send_signal(signal.SIGINT)
+    stdout, stderr = child.communicate()
+    assert child.returncode == 130, stderr
+    kept = finished_count(out, "frames")
+    assert "Traceback" not in stderr and 5 <= kept
+    assert stderr.strip().splitlines()[-1] == (
+        f"dynfab: interrupted; {kept} finished frames are in '{out}': continue with --resume")

@@ -93,7 +93,7 @@ def test_round_trip(tmp_path):
     with h5py.File(path, "r") as h5:
         names = []
         h5.visititems(lambda name, obj: names.append(name) if isinstance(obj, h5py.Dataset) else None)
-        assert len(names) == 2 + len(make_step(0))
+        assert len(names) == 2 + 2 + len(make_step(0))  # + steps_done, frames_done
         for name in names:
             assert h5[name].attrs["units"] == units_of(name, "force"), name
         assert h5["steps/load"].attrs["units"] == "N"
@@ -162,6 +162,40 @@ def test_refuses_existing_file_and_leaves_it_untouched(tmp_path, content):
 
     ResultFile.create(path, attrs=make_attrs(), reference=make_reference(), overwrite=True)
     assert read_results(path).step_count == 0
+
+
+@pytest.mark.parametrize("hard_links", [True, False])
+@pytest.mark.parametrize("writer_running", [False, True])
+def test_create_is_exclusive_even_against_a_file_appearing_after_the_checks(
+        tmp_path, monkeypatch, writer_running, hard_links):
+    """Two runs on one new file: the one that publishes second must fail, not replace
+    (also on a file system without hard links, where O_EXCL claims the name)."""
+    import dynfab.results as results
+
+    path = tmp_path / "x.h5"
+    holder = []
+    if not hard_links:
+        def no_link(source, target):
+            raise PermissionError(1, "Operation not permitted")
+        monkeypatch.setattr(os, "link", no_link)
+
+    def other_process_creates_it(target):
+        if holder or path.exists():
+            return
+        holder.append(None)
+        holder[0] = create(path)  # slips in between the existence check and publishing
+        holder[0].append_step(make_step(0))
+        if not writer_running:
+            holder[0].close()
+
+    monkeypatch.setattr(results, "_remove_stale_tmp", other_process_creates_it)
+    with pytest.raises(SceneError) as error:
+        create(path)
+    monkeypatch.undo()
+    expected = "being written by another dynfab process" if writer_running else "exists"
+    assert expected in str(error.value)
+    assert read_results(path).step_count == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["x.h5"]
 
 
 def test_resume_continues_appending(tmp_path):
@@ -258,22 +292,27 @@ while True:
 
 
 def check_complete_steps(path: Path) -> int:
-    """Open ``path`` with plain h5py and check it holds whole, consistent steps; return their count."""
+    """Open ``path`` with plain h5py and check it holds whole, consistent steps; return their count.
+
+    Reads the file as the layout contract tells a script to: rows [0, steps_done)
+    of every steps/ dataset are the finished steps.
+    """
     with h5py.File(path, "r") as h5:
         assert h5.attrs["units"] == "SI"
+        count = int(h5["steps_done"][0])
         if "steps" not in h5 or len(h5["steps"]) == 0:
+            assert count == 0
             return 0
         arrays = {}
         h5["steps"].visititems(
-            lambda name, obj: arrays.__setitem__(name, obj[()]) if isinstance(obj, h5py.Dataset) else None
+            lambda name, obj: arrays.__setitem__(name, obj[:count]) if isinstance(obj, h5py.Dataset) else None
         )
     assert set(arrays) == {
         "load", "end_force", "positions", "contact_force", "sliding",
         "energy/stretch", "iterations", "wall_time",
     }
-    count = len(arrays["load"])
     for name, array in arrays.items():
-        assert len(array) == count, f"steps/{name} has {len(array)} entries, steps/load {count}"
+        assert len(array) == count, f"steps/{name} has {len(array)} rows, steps_done is {count}"
         for n in range(count):
             expected = (n % 2 == 1) if name == "sliding" else n
             assert np.all(array[n] == expected), f"steps/{name}[{n}] is incomplete"
@@ -312,3 +351,74 @@ def test_kill_9_at_random_moments_leaves_complete_steps(tmp_path):
     resumed = ResultFile.resume(path)
     assert resumed.step_count == counts[-1]
     assert [p.name for p in tmp_path.iterdir()] == ["crash.h5"]
+
+
+def data_regions(path: Path) -> list[tuple[int, int]]:
+    """Byte ranges of the raw data of every steps/ dataset and of steps_done."""
+    regions = []
+    with h5py.File(path, "r") as h5:
+        datasets = [h5["steps_done"]]
+        h5["steps"].visititems(lambda name, obj: datasets.append(obj)
+                               if isinstance(obj, h5py.Dataset) else None)
+        for dataset in datasets:
+            if dataset.id.get_storage_size():
+                start = dataset.id.get_offset()
+                regions.append((start, start + dataset.id.get_storage_size()))
+    return regions
+
+
+def test_appends_write_raw_data_only_and_close_trims(tmp_path):
+    """After the first step lays the file out, an append changes no byte outside the raw
+    data of the step datasets and the count: no HDF5 metadata, so nothing a kill could
+    leave half-updated. Closing trims the datasets to the finished steps."""
+    path = tmp_path / "run.h5"
+    out = ResultFile.create(path, attrs=make_attrs(), reference=make_reference(), step_capacity=6)
+    out.append_step(make_step(0))
+    before = np.frombuffer(path.read_bytes(), np.uint8).copy()
+    for n in range(1, 5):
+        out.append_step(make_step(n))
+    after = np.frombuffer(path.read_bytes(), np.uint8).copy()
+    assert after.size == before.size
+    outside = np.ones(before.size, bool)
+    for start, stop in data_regions(path):
+        outside[start:stop] = False
+    assert outside.sum() > 1000  # the metadata is there to compare
+    np.testing.assert_array_equal(after[outside], before[outside])
+    with h5py.File(path, "r") as h5:  # unfinished rows hold the fill value
+        assert h5["steps_done"][0] == 5 and h5["steps/load"].shape[0] == 6
+        assert np.isnan(h5["steps/load"][5]).all() and (h5["steps/iterations"][5] == -1).all()
+    out.close()
+    with h5py.File(path, "r") as h5:
+        assert h5["steps_done"][0] == 5 and h5["steps/load"].shape[0] == 5
+    results = read_results(path)
+    for name in make_step(0):
+        expected = np.stack([np.asarray(make_step(n)[name]) for n in range(5)])
+        np.testing.assert_array_equal(results.steps[name], expected, err_msg=name)
+
+
+def test_appends_beyond_the_capacity_grow_the_file(tmp_path):
+    path = tmp_path / "run.h5"
+    out = ResultFile.create(path, attrs=make_attrs(), reference=make_reference(), step_capacity=2)
+    for n in range(7):
+        out.append_step(make_step(n))
+    assert read_results(path).step_count == 7
+    np.testing.assert_array_equal(read_results(path).steps["iterations"][:, 0], np.arange(7) + 3)
+
+
+def test_resume_appends_to_a_file_written_before_the_counts_existed(tmp_path):
+    """Older result files have no steps_done: every row is finished, and they resume."""
+    path = tmp_path / "old.h5"
+    with h5py.File(path, "w") as h5:
+        for key, value in make_attrs(dynfab_version="0.0", units="SI").items():
+            h5.attrs[key] = value
+        for name, value in make_reference().items():
+            h5[f"reference/{name}"] = value
+            h5[f"reference/{name}"].attrs["units"] = units_of(f"reference/{name}")
+        for name in make_step(0):
+            h5[f"steps/{name}"] = np.stack([np.asarray(make_step(n)[name]) for n in range(2)])
+            h5[f"steps/{name}"].attrs["units"] = units_of(f"steps/{name}", "force")
+    with ResultFile.resume(path) as out:
+        assert out.step_count == 2
+        out.append_step(make_step(2))
+    results = read_results(path)
+    np.testing.assert_array_equal(results.steps["iterations"][:, 0], [3, 4, 5])
