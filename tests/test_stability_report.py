@@ -325,3 +325,24 @@ def test_the_friction_path_is_followed_by_the_compiled_methods(report):
             assert len(method["time_steps"]) == len(path["values"])
         else:
             assert method["verdict"] == "skipped" and method["message"]
+
+
+def test_the_map_marks_a_case_whose_relaxation_fails_at_the_measured_dt():
+    """A friction case can be energy-stable at a dt where its relaxation still fails: the map
+    must say so on the figure (a cross and a label), not only in a footnote."""
+    from dynfab.reports.stability import QUICK
+    from dynfab.reports.stability_plots import plot_map
+
+    def case(name, verdict):
+        return {"case": name, "family": "friction",
+                "stability": {"predicted_dt_s": 1e-6, "measured_dt_s": 1.5e-5,
+                              "measured_over_predicted": 15.0, "measured_with": "viscous damping",
+                              "relaxation_at_measured_dt": {"verdict": verdict}}}
+
+    def crosses(figure):
+        return [line for ax in figure.axes for line in ax.lines if line.get_marker() == "x"]
+
+    failing = plot_map([case("stick", "failed")], QUICK)
+    texts = [t.get_text() for ax in failing.axes for t in ax.texts]
+    assert len(crosses(failing)) == 2 and "relaxation fails at this dt" in texts
+    assert not crosses(plot_map([case("stick", "converged")], QUICK))

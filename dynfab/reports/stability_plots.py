@@ -40,6 +40,8 @@ def plot_map(cases: list[dict], plan: Plan) -> Figure:
                      mfc="white" if stability.get("measured_with") == "kinetic damping" else color)
         x, y = stability["predicted_dt_s"], stability["measured_dt_s"]
         ax.plot(x, y, **style)
+        if _relaxation_fails(stability):  # energy-stable at that dt, yet no relaxation there
+            ax.plot(x, y, ls="", marker="x", ms=12, mew=1.6, color="k", zorder=4)
         if case["family"] not in families:
             families.append(case["family"])
         if stability["measured_over_predicted"] > 1.25 or case["family"] in ("stretch", "mesh"):
@@ -64,6 +66,9 @@ def plot_map(cases: list[dict], plan: Plan) -> Figure:
     handles = [Line2D([], [], ls="", marker=FAMILY_STYLE[f][1], color=FAMILY_STYLE[f][0], label=f)
                for f in families if f in FAMILY_STYLE]
     handles.append(Line2D([], [], color="k", lw=1, label="y = x"))
+    if any(_relaxation_fails(s) for _, s in points):
+        handles.append(Line2D([], [], ls="", marker="x", ms=9, mew=1.6, color="k",
+                              label="relaxation at the measured dt fails"))
     if any(s.get("measured_with") == "kinetic damping" for _, s in points):
         handles.append(Line2D([], [], ls="", marker="o", color="0.3", mfc="white",
                               label="measured with kinetic damping"))
@@ -75,6 +80,11 @@ def plot_map(cases: list[dict], plan: Plan) -> Figure:
         hollow = stability.get("measured_with") == "kinetic damping"
         ratios.plot(stability["measured_over_predicted"], -k, ls="", marker=marker, ms=6, mew=1.4,
                     color=color, mfc="white" if hollow else color, zorder=3)
+        if _relaxation_fails(stability):
+            ratios.plot(stability["measured_over_predicted"], -k, ls="", marker="x", ms=10,
+                        mew=1.6, color="k", zorder=4)
+            ratios.annotate("relaxation fails at this dt", (stability["measured_over_predicted"], -k),
+                            xytext=(8, -3), textcoords="offset points", fontsize=FONT_SIZE - 3)
     ratios.axvline(1.0, color="k", lw=1, label="measured = predicted")
     ratios.axvline(Dynamic().safety, color="k", lw=1, ls="--",
                    label=f"default safety {Dynamic().safety:g} (dt used with physical masses)")
@@ -95,3 +105,9 @@ def plot_map(cases: list[dict], plan: Plan) -> Figure:
                  f"plan: {plan.crossings} crossings, N = {plan.segments} unless named)",
                  fontsize=FONT_SIZE + 1)
     return fig
+
+
+def _relaxation_fails(stability: dict) -> bool:
+    """A case whose load step, relaxed at the measured stable dt, did not converge: stable in
+    energy is not enough to relax (friction's stick/slip), and the figure must say so."""
+    return stability.get("relaxation_at_measured_dt", {}).get("verdict") == "failed"
