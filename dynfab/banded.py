@@ -83,14 +83,21 @@ def lu_factor(band):
 
 
 @numba.njit(cache=True)
-def lu_solve(band, rhs):
-    """Solve A x = rhs in place with the factors of `lu_factor`."""
-    n = rhs.size
-    for i in range(n):
+def forward_substitute(band, rhs):
+    """rhs = L^-1 rhs in place, L the unit lower triangle stored left of the diagonal of
+    `band` (the factor of `lu_factor`, or of `dynfab.ldlt.ldlt_factor`)."""
+    for i in range(rhs.size):
         acc = rhs[i]
         for j in range(max(0, i - BANDWIDTH), i):
             acc -= band[i, j - i + BANDWIDTH] * rhs[j]
         rhs[i] = acc
+
+
+@numba.njit(cache=True)
+def lu_solve(band, rhs):
+    """Solve A x = rhs in place with the factors of `lu_factor`."""
+    n = rhs.size
+    forward_substitute(band, rhs)
     for i in range(n - 1, -1, -1):
         acc = rhs[i]
         for j in range(i + 1, min(n, i + BANDWIDTH + 1)):

@@ -19,7 +19,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from dynfab.banded import BANDWIDTH
+from dynfab.banded import BANDWIDTH, forward_substitute
 
 TINY_PIVOT = -1
 """`ldlt_factor`'s answer when a pivot is within the tolerance of zero."""
@@ -59,13 +59,8 @@ def ldlt_factor(band, shift, tiny):
 @numba.njit(cache=True)
 def ldlt_solve(band, rhs):
     """Solve (L D L^T) x = rhs in place with the factor of `ldlt_factor`."""
-    n = rhs.size
-    for i in range(n):
-        acc = rhs[i]
-        for j in range(max(0, i - BANDWIDTH), i):
-            acc -= band[i, j - i + BANDWIDTH] * rhs[j]
-        rhs[i] = acc
-    for i in range(n):
+    forward_substitute(band, rhs)
+    for i in range(rhs.size):
         rhs[i] /= band[i, BANDWIDTH]
     back_substitute(band, rhs)
 

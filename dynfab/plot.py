@@ -63,15 +63,20 @@ def plot_results(path: str | os.PathLike, out_dir: str | os.PathLike) -> list[Pa
     return written
 
 
-def output_folder(out_dir: str | os.PathLike) -> Path:
-    """The folder for the PNGs, created if needed; SceneError (one line) if it cannot be."""
+def output_folder(out_dir: str | os.PathLike | None) -> Path:
+    """`out_dir` as an existing, writable folder (created if needed); SceneError (one line)
+    if it cannot be. The one check of every command's --out folder (plots and reports)."""
+    if out_dir is None or str(out_dir) == "":
+        raise SceneError("--out: give a folder for the files")
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
-        raise SceneError(f"--out '{out}' is an existing file: give a folder for the PNG files")
+        raise SceneError(f"--out '{out}' is a file, not a folder")
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as error:
         raise SceneError(f"cannot create the folder '{out}': {error.strerror or error}") from None
+    if not os.access(out, os.W_OK):
+        raise SceneError(f"cannot write into the folder '{out}'")
     return out
 
 

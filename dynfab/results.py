@@ -377,20 +377,6 @@ _FLOCK = struct.Struct("hhqqi4x")
 """Linux ``struct flock`` (l_type, l_whence, l_start, l_len, l_pid), for F_OFD_SETLK."""
 
 
-def _fsync_directory(directory: Path) -> None:
-    """Make a rename in ``directory`` durable (no-op where directories cannot be opened)."""
-    try:
-        fd = os.open(directory, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
-
-
 def _try_lock(fd: int) -> bool:
     """Take the exclusive writer lock on ``fd``'s open file description; False if held elsewhere.
 

@@ -16,26 +16,11 @@ from typing import Callable, Iterable, Sequence
 import numpy as np
 
 from dynfab.errors import SceneError
+from dynfab.plot import output_folder  # noqa: F401 (the reports' --out check)
 from dynfab.scene import Scene, expand_sweep, load_scene
 
 RUNS = Path(__file__).resolve().parents[2] / "runs"
 """The paper scene files of the source tree (the README's editable install keeps it)."""
-
-
-def output_folder(out_dir) -> Path:
-    """`out_dir` as an existing folder (created if needed); SceneError if it cannot be."""
-    if out_dir is None or str(out_dir) == "":
-        raise SceneError("--out: give a folder for the report's files")
-    out = Path(out_dir)
-    if out.exists() and not out.is_dir():
-        raise SceneError(f"--out '{out}' is a file, not a folder")
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise SceneError(f"cannot create the folder '{out}': {exc.strerror}") from None
-    if not os.access(out, os.W_OK):
-        raise SceneError(f"cannot write into the folder '{out}'")
-    return out
 
 
 def machine() -> dict:
