@@ -10,7 +10,10 @@
   scipy, and dE/dg = R by central differences;
 - the static solver on the as-woven onset path: the state converges at first order as
   R_0 -> 0, to a limit where crossings sit at g = 0 with a friction force below
-  beta ell r_f; the literal law (R_0 = 0) still stops at step 1 with the exit-3 message.
+  beta ell r_f; the literal law (R_0 = 0) still stops at step 1 with the exit-3 message;
+- the semismooth fallback (contact forces as unknowns; a scalar root on one crossing)
+  against the active-set state, and the path through the step (19, at 512 segments)
+  where the active set with the R_0 continuation stopped.
 """
 
 from __future__ import annotations
@@ -281,3 +284,27 @@ def test_semismooth_newton_reaches_the_active_set_state(hold_crossing):
     law = yarn.contact_law
     assert np.abs(R - [contact.force_from_closure(g, law)
                        for g in static._closures(pos, yarn)]).max() <= TOLERANCE
+
+
+def test_onset_path_passes_the_step_the_set_updates_could_not_solve():
+    # The as-woven onset path at 512 segments, its first 19 load steps: at step 19 the
+    # active set with the R_0 continuation stopped (exit status 3, naming crossing 2) at
+    # 512, 672, 896 and 1792 segments (448 and 224 pass). The state it could not reach
+    # has crossing 2 open and crossing 3 closed with a contact force below R_0 (at 1792
+    # segments R = 7.06e-6 N at g = 3.3e-7 m); the semismooth fallback
+    # (`static._solve_semismooth`) reaches it. Checked here: every step converges to the
+    # tolerance, every F_T is the law at the step's R to 1e-12 N (MODEL.md 4: the law
+    # evaluated independently, with numpy's expm1), and step 19 has a closed crossing
+    # inside the onset, 0 < R < R_0.
+    from independent import run
+    values = list(np.linspace(0.005, 0.6, 400)[:19])
+    scene = onset_scene(segments=512, values=values)
+    model, records = run(scene)
+    f = scene.friction
+    for record in records:
+        assert record["residual"].max() <= scene.static.tolerance
+        R = record["contact_force"][0]
+        law = np.where(R > 0, f.alpha * R - CONSTANT * np.expm1(-R / f.onset_force), 0.0)
+        assert np.abs(record["friction_limit"][0] - law).max() <= 1e-12
+    R = records[-1]["contact_force"][0]
+    assert np.any((R > 0) & (R < f.onset_force))
