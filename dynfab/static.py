@@ -651,7 +651,7 @@ def _semismooth_system(pos, yarn, anchors, R, hold, state, band):
     Per crossing, the active branch of Phi_j: closed (k_0 (c(R) - g) < R) linearises
     c(R) = g, dR = t (dg - r) with t = 1/c'(R), r = c(R) - g (smooth for R of either
     sign); open gives dR = -R. dR enters the z force (-s dR) and, on a sliding crossing,
-    the friction force through dF_T/dR (0 for R <= 0, F_T taken at max(R, 0)).
+    the friction force through dF_T/dR (its right limit at R = 0; R stays >= 0).
     Returns (rhs, t, r, closed).
     """
     grad, limit, g, cR, phi, k0 = state
@@ -692,7 +692,10 @@ def _semismooth(pos, yarn, P, fixed, anchors, R, tolerance, max_iterations, hold
     Unknowns: the free positions and the contact forces R_j; equations: the force balance
     with F_T = F_T(max(R, 0)) and 0 <= R_j perp c(R_j) - g_j >= 0 in min-form. The set of
     closed crossings is the one each iteration's Phi picks (a primal-dual active set).
-    Steps are backtracked on the merit |(force, Phi)|. Converged when the unilateral law's
+    Trial forces are projected onto R >= 0 (a closed crossing at R = 0 moves into R > 0,
+    with dF_T/dR from the right; without it, closed crossings stalled at R < 0, g ~ 0,
+    where F_T(max(R, 0)) gives the Newton matrix no friction to balance), and steps are
+    backtracked on the merit |(force, Phi)|. Converged when the unilateral law's
     own residual (R from g, F_T from that R: `_natural_residual`) is within the tolerance,
     so the state is consistent with the laws; with `hold` >= 0 that crossing's R stays
     as given and the criterion is the force and Phi residual instead.
