@@ -19,12 +19,12 @@ import numpy as np
 import scipy.linalg
 
 from dynfab import assembly
-from dynfab.banded import BANDWIDTH, constrain, lu_factor, lu_solve
+from dynfab.banded import BANDWIDTH, band_add, constrain, lu_factor, lu_solve
 from dynfab.certificate import (MAX_ESCAPES, NEGATIVES, StepStability, certify_yarn, check_accuracy,
                                 escape_yarn)
 from dynfab.errors import SolverError
 from dynfab.observables import finish_step
-from dynfab.terms import contact
+from dynfab.terms import contact, friction
 
 CONVERGED, ROUNDING_FLOOR, STALLED, MAX_ITERATIONS, CYCLING, ONSET_FAILED = range(6)
 """Outcomes of `newton`, in info[STATUS]."""
@@ -420,8 +420,12 @@ def newton(pos, yarn, P, fixed, anchors, tolerance, max_iterations, info):
     previous state, the step is solved again from it by continuation in R_0, from
     CONTINUATION_START down to the scene's value, each stage from the last. The
     final state is consistent with the set, so the unilateral law gives the same
-    forces and F_T equals the law at the solution's R. DETAIL of a failure names
-    the crossing. Without it, one Newton solve on the unilateral law, stopped as
+    forces and F_T equals the law at the solution's R. If the continuation fails
+    too, the step is solved from the previous state by the semismooth Newton with
+    the contact forces as unknowns (`_solve_semismooth`), which reaches states the
+    set updates cannot: on the as-woven onset path at 896 and 1792 segments, load
+    step 19 (a crossing with R = 7e-6 N < R_0 next to one that is open). DETAIL of a
+    failure names the crossing. Without it, one Newton solve on the unilateral law, stopped as
     CYCLING when a crossing keeps opening and closing.
     """
     if not (yarn.has_friction and yarn.friction_onset > 0.0 and yarn.crossing_node.size > 0):
@@ -436,8 +440,16 @@ def newton(pos, yarn, P, fixed, anchors, tolerance, max_iterations, info):
     iterations = int(info[ITERATIONS])
     blame = _continuation(pos, yarn, P, fixed, anchors, tolerance, max_iterations, info)
     info[ITERATIONS] += iterations
-    if blame >= 0:
-        info[STATUS], info[DETAIL] = ONSET_FAILED, blame
+    if blame < 0:
+        return
+    iterations, residual = int(info[ITERATIONS]), info[RESIDUAL]
+    pos[:, :] = start
+    if _solve_semismooth(pos, yarn, P, fixed, anchors, tolerance, max_iterations, info):
+        info[ITERATIONS] += iterations
+        return
+    pos[:, :] = start
+    info[RESIDUAL], info[ITERATIONS] = residual, iterations
+    info[STATUS], info[DETAIL] = ONSET_FAILED, blame
 
 
 class StaticSolver:
@@ -544,7 +556,8 @@ def _raise_on_failure(info, yarn_index: int, yarn, tolerance: float) -> None:
             f"{where}: crossing {j + 1} (node {yarn.crossing_node[j]}) at the friction onset "
             f"(R_0 = {yarn.friction_onset:.3g} N): no open/closed state consistent with the "
             f"contact and friction laws was found, also by continuation in R_0 from "
-            f"{CONTINUATION_START:.3g} N (residual {residual:.3g} N)")
+            f"{CONTINUATION_START:.3g} N and by the semismooth Newton on the contact forces "
+            f"(residual {residual:.3g} N)")
     if not np.isfinite(residual):
         raise SolverError(f"{where}: the residual became {residual} (non-finite state)")
     reason = {STALLED: "line search stalled above the rounding floor",
@@ -591,3 +604,224 @@ def _newton_set_polished(pos, yarn, P, fixed, anchors, tolerance, max_iterations
 
 
 SET_NEWTON = _newton_set_polished
+
+
+# --------------------------------------------------------------------------
+# Semismooth Newton with the contact forces as unknowns (MODEL.md 3-4).
+
+SEMISMOOTH_ITERATIONS = 200
+"""Newton iterations of one semismooth solve (`_semismooth`)."""
+BRACKET_GROWTH = 4.0
+"""Factor by which the held contact force grows while bracketing the root (`_onset_root`)."""
+BRACKET_STEPS = 40
+"""Held forces tried while bracketing, then bisection/secant steps on the bracket."""
+ONSET_ROOTS = 4
+"""Crossings treated one after another by `_onset_root` before giving up."""
+
+
+def _semismooth_state(pos, yarn, P, anchors, R, hold):
+    """Force residual (grad, F_T from max(R, 0)) and the min-form complementarity
+    Phi_j = min(R_j, k_0 (c(R_j) - g_j)) [N] at (pos, R); crossing `hold` (>= 0) has its
+    R prescribed (Phi 0). Returns grad, F_T, g, c(R), Phi, k_0."""
+    c = R.size
+    law = yarn.contact_law
+    k0 = contact.tangent(0.0, law)
+    limit = np.array([friction.limit(max(r, 0.0), yarn.friction_alpha, yarn.friction_constant,
+                                     yarn.friction_onset) for r in R])
+    grad = np.zeros_like(pos)
+    assembly.gradient(pos, yarn, P, anchors, limit, grad, np.full(c, contact.OPEN, np.int64))
+    grad[yarn.crossing_node, 1] -= yarn.crossing_side * R
+    g = _closures(pos, yarn)
+    cR = np.array([contact.closure_from_force(r, law) for r in R])
+    phi = np.minimum(R, k0 * (cR - g))
+    if hold >= 0:
+        phi[hold] = 0.0
+    return grad, limit, g, cR, phi, k0
+
+
+def _semismooth_merit(grad, phi, fixed):
+    """sqrt(|force over the free dofs|^2 + |Phi|^2) [N]."""
+    f = grad.ravel()[~fixed]
+    return np.sqrt(f @ f + phi @ phi)
+
+
+def _semismooth_system(pos, yarn, anchors, R, hold, state, band):
+    """The semismooth Newton matrix with the dR_j eliminated, and its right side.
+
+    Per crossing, the active branch of Phi_j: closed (k_0 (c(R) - g) < R) linearises
+    c(R) = g, dR = t (dg - r) with t = 1/c'(R), r = c(R) - g (smooth for R of either
+    sign); open gives dR = -R. dR enters the z force (-s dR) and, on a sliding crossing,
+    the friction force through dF_T/dR (its right limit at R = 0; R stays >= 0).
+    Returns (rhs, t, r, closed).
+    """
+    grad, limit, g, cR, phi, k0 = state
+    c = R.size
+    law = yarn.contact_law
+    assembly.hessian(pos, yarn, anchors, limit, np.zeros(c), False, band, False,
+                     np.full(c, contact.OPEN, np.int64))
+    rhs = -grad.ravel().copy()
+    t, r, closed = np.zeros(c), np.zeros(c), np.zeros(c, np.bool_)
+    for j in range(c):
+        if j == hold:
+            continue
+        n, s = yarn.crossing_node[j], yarn.crossing_side[j]
+        slip = pos[n, 0] - anchors[j]
+        sliding = friction.is_sliding(slip, limit[j], yarn.stick_stiffness)
+        # dF_T/dR from the right at R = 0: R stays >= 0 (`_semismooth`), and a closed
+        # crossing at R = 0 can only move into R > 0
+        slope = np.sign(slip) * friction.limit_slope(max(R[j], 1e-300), yarn.friction_alpha,
+                                                     yarn.friction_constant, yarn.friction_onset)
+        if R[j] > k0 * (cR[j] - g[j]):
+            closed[j], t[j], r[j] = True, contact.tangent(R[j], law), cR[j] - g[j]
+            band_add(band, 2 * n + 1, 2 * n + 1, t[j])
+            rhs[2 * n + 1] -= s * t[j] * r[j]
+            if sliding:
+                band_add(band, 2 * n, 2 * n + 1, -s * slope * t[j])
+                rhs[2 * n] += slope * t[j] * r[j]
+        else:
+            rhs[2 * n + 1] -= s * R[j]
+            if sliding:
+                rhs[2 * n] += slope * R[j]
+    return rhs, t, r, closed
+
+
+def _semismooth(pos, yarn, P, fixed, anchors, R, tolerance, max_iterations, hold=-1):
+    """Semismooth Newton on (positions, R) in place (MODEL.md 4: "a semismooth Newton on
+    the complementarity form"); returns (iterations, converged).
+
+    Unknowns: the free positions and the contact forces R_j; equations: the force balance
+    with F_T = F_T(max(R, 0)) and 0 <= R_j perp c(R_j) - g_j >= 0 in min-form. The set of
+    closed crossings is the one each iteration's Phi picks (a primal-dual active set).
+    Trial forces are projected onto R >= 0 (a closed crossing at R = 0 moves into R > 0,
+    with dF_T/dR from the right; without it, closed crossings stalled at R < 0, g ~ 0,
+    where F_T(max(R, 0)) gives the Newton matrix no friction to balance), and steps are
+    backtracked on the merit |(force, Phi)|. Converged when the unilateral law's
+    own residual (R from g, F_T from that R: `_natural_residual`) is within the tolerance,
+    so the state is consistent with the laws; with `hold` >= 0 that crossing's R stays
+    as given and the criterion is the force and Phi residual instead.
+    """
+    band = np.zeros((pos.size, 2 * BANDWIDTH + 1))
+    for iteration in range(max_iterations + 1):
+        state = _semismooth_state(pos, yarn, P, anchors, R, hold)
+        grad, phi = state[0], state[4]
+        if hold < 0:
+            done = _natural_residual(pos, yarn, P, anchors, fixed) <= tolerance
+        else:
+            done = max(max_free(grad, fixed), np.abs(phi).max()) <= tolerance
+        if done:
+            return iteration, True
+        if iteration == max_iterations or not np.all(np.isfinite(grad)):
+            return iteration, False
+        rhs, t, r, closed = _semismooth_system(pos, yarn, anchors, R, hold, state, band)
+        constrain(band, rhs, fixed)
+        direction = _pivoted_solve(band, rhs)
+        if direction is None:
+            return iteration, False
+        d = direction.reshape(pos.shape)
+        dz = -yarn.crossing_side * d[yarn.crossing_node, 1]  # dg
+        dR = np.where(closed, t * (dz - r), -R)
+        if hold >= 0:
+            dR[hold] = 0.0
+        merit = _semismooth_merit(grad, phi, fixed)
+        step = 1.0
+        for _ in range(60):
+            trial, trial_R = pos + step * d, np.maximum(R + step * dR, 0.0)
+            trial_state = _semismooth_state(trial, yarn, P, anchors, trial_R, hold)
+            if _semismooth_merit(trial_state[0], trial_state[4], fixed) <= (1.0 - 1e-4 * step) * merit:
+                break
+            step *= 0.5
+        else:
+            return iteration, False
+        pos[:, :], R[:] = trial, trial_R
+    return max_iterations, False
+
+
+def _contact_forces(pos, yarn):
+    """R_j [N] from the unilateral law at `pos`."""
+    law = yarn.contact_law
+    return np.array([contact.force_from_closure(g, law) for g in _closures(pos, yarn)])
+
+
+def _onset_root(pos, yarn, P, fixed, anchors, R, tolerance, j):
+    """Crossing j's contact force as a scalar root, the others relaxed (MODEL.md 4), in place.
+
+    With R_j held, `_semismooth` relaxes the rest and gives the closure g_j(R_j); the law
+    asks c(R_j) = g_j(R_j) with R_j > 0, or g_j(0) <= 0 (open). phi(R_j) = c(R_j) - g_j(R_j)
+    rises with R_j (friction lowers the closure, MODEL.md 4), so a bracket grown from
+    R_0 / 100 and then regula falsi alternating with bisection find the root, each
+    relaxation from the last. Returns (whether a root or R_j = 0 was found, the Newton
+    iterations of all relaxations); the state is then the start of a free `_semismooth`.
+    """
+    law = yarn.contact_law
+    iterations = [0]
+
+    def phi(force):
+        R[j] = force
+        done, ok = _semismooth(pos, yarn, P, fixed, anchors, R, tolerance, SEMISMOOTH_ITERATIONS, j)
+        iterations[0] += done
+        return contact.closure_from_force(force, law) - _closures(pos, yarn)[j], ok
+
+    f_low, ok = phi(0.0)
+    if not ok:
+        return False, iterations[0]
+    if f_low >= 0.0:  # open: R_j = 0 is consistent
+        return True, iterations[0]
+    low, saved = 0.0, (pos.copy(), R.copy())
+    high = max(yarn.friction_onset, 1e-12) / 100.0
+    for _ in range(BRACKET_STEPS):
+        f_high, ok = phi(high)
+        if not ok:  # a relaxation too far from the last one: a shorter step from it
+            pos[:, :], R[:] = saved
+            high = low + 0.25 * (high - low)
+            continue
+        if f_high >= 0.0:
+            break
+        low, f_low, saved = high, f_high, (pos.copy(), R.copy())
+        high = high * BRACKET_GROWTH
+    else:
+        return False, iterations[0]
+    for k in range(BRACKET_STEPS):
+        middle = (0.5 * (low + high) if k % 2 else
+                  (low * f_high - high * f_low) / (f_high - f_low))
+        state = (pos.copy(), R.copy())
+        f_middle, ok = phi(middle)
+        if not ok:  # keep the last converged relaxation: the free solve starts from it
+            pos[:, :], R[:] = state
+            break
+        if f_middle < 0.0:
+            low, f_low = middle, f_middle
+        else:
+            high, f_high = middle, f_middle
+        if abs(f_middle) * contact.tangent(middle, law) <= tolerance or high - low <= 4 * EPS * high:
+            break
+    return True, iterations[0]
+
+
+def _solve_semismooth(pos, yarn, P, fixed, anchors, tolerance, max_iterations, info) -> bool:
+    """The onset fallback (MODEL.md 4), in place: `_semismooth` from the step's start; if
+    it stalls, `_onset_root` on the crossing whose complementarity is violated most, then
+    `_semismooth` again, at most ONSET_ROOTS times. Returns True when converged (info set)."""
+    R = _contact_forces(pos, yarn)
+    start, start_R = pos.copy(), R.copy()
+    iterations, converged = _semismooth(pos, yarn, P, fixed, anchors, R, tolerance,
+                                        min(max_iterations, SEMISMOOTH_ITERATIONS))
+    if not converged:
+        # the crossings whose complementarity the stalled state violates, worst first, each
+        # bracketed from the step's start (the stalled state can sit on a spurious branch)
+        phi = np.abs(_semismooth_state(pos, yarn, P, anchors, R, -1)[4])
+        phi[~np.isfinite(phi)] = np.inf
+        for j in np.argsort(-phi)[:ONSET_ROOTS]:
+            pos[:, :], R[:] = start, start_R
+            found, more = _onset_root(pos, yarn, P, fixed, anchors, R, tolerance, int(j))
+            iterations += more
+            if not found:
+                continue
+            more, converged = _semismooth(pos, yarn, P, fixed, anchors, R, tolerance,
+                                          min(max_iterations, SEMISMOOTH_ITERATIONS))
+            iterations += more
+            if converged:
+                break
+    if converged:
+        info[RESIDUAL] = _natural_residual(pos, yarn, P, anchors, fixed)
+        info[ITERATIONS], info[STATUS] = iterations, CONVERGED
+    return converged

@@ -10,7 +10,10 @@
   scipy, and dE/dg = R by central differences;
 - the static solver on the as-woven onset path: the state converges at first order as
   R_0 -> 0, to a limit where crossings sit at g = 0 with a friction force below
-  beta ell r_f; the literal law (R_0 = 0) still stops at step 1 with the exit-3 message.
+  beta ell r_f; the literal law (R_0 = 0) still stops at step 1 with the exit-3 message;
+- the semismooth fallback (contact forces as unknowns; a scalar root on one crossing)
+  against the active-set state, and the path through the step (19, at 512 segments)
+  where the active set with the R_0 continuation stopped.
 """
 
 from __future__ import annotations
@@ -247,3 +250,61 @@ def test_regularised_path_runs_and_satisfies_the_law():
         R = record["contact_force"][0]
         law = np.where(R > 0, f.alpha * R - CONSTANT * np.expm1(-R / f.onset_force), 0.0)
         assert np.abs(record["friction_limit"][0] - law).max() <= 1e-12
+
+
+
+@pytest.mark.parametrize("hold_crossing", [False, True])
+def test_semismooth_newton_reaches_the_active_set_state(hold_crossing):
+    # The onset fallback's two parts (MODEL.md 4): `static._semismooth` (contact forces as
+    # unknowns, the complementarity in min-form) and `static._onset_root` (one crossing's
+    # contact force as a scalar root, the rest relaxed, then the free solve). On the onset
+    # path's first step at R_0 = 1e-3 N (where the continuation starts: F_T is smooth on
+    # the scale of the steps) both must land on the state the active-set path
+    # (`static.newton`) finds: MODEL.md 4 claims one solution per step. Both stop at
+    # TOLERANCE; the position error that leaves is TOLERANCE x |K^-1| with K's smallest
+    # eigenvalue about 0.25 N/m on this yarn (MODEL.md 5): 4e-12 m each, so 1e-10 m has
+    # margin, and is 1e-5 of the first step's displacement (2e-5 m).
+    model, reference = solve_first_step(1e-3)
+    yarn, state = model.yarns[0], initial_state(model)
+    fixed, anchors = model.fixed_dofs(), state.anchors[0].copy()
+    pos = state.positions[0].copy()
+    R = static._contact_forces(pos, yarn)
+    if hold_crossing:
+        g_reference = static._closures(reference, yarn)
+        closed = np.flatnonzero(g_reference > 0)
+        j = int(closed[np.argmin(g_reference[closed])])  # the closed crossing nearest g = 0
+        found, _ = static._onset_root(pos, yarn, 0.005, fixed, anchors, R, TOLERANCE, j)
+        assert found
+    _, converged = static._semismooth(pos, yarn, 0.005, fixed, anchors, R, TOLERANCE, 200)
+    assert converged
+    # consistent with the unilateral contact law and Gralen's law: R from g, F_T from R
+    assert static._natural_residual(pos, yarn, 0.005, anchors, fixed) <= TOLERANCE
+    assert np.abs(pos - reference).max() <= 1e-10
+    # the unknowns R agree with the law at the solution's closures
+    law = yarn.contact_law
+    assert np.abs(R - [contact.force_from_closure(g, law)
+                       for g in static._closures(pos, yarn)]).max() <= TOLERANCE
+
+
+def test_onset_path_passes_the_step_the_set_updates_could_not_solve():
+    # The as-woven onset path at 512 segments, its first 19 load steps: at step 19 the
+    # active set with the R_0 continuation stopped (exit status 3, naming crossing 2) at
+    # 512, 672, 896 and 1792 segments (448 and 224 pass). The state it could not reach
+    # has crossing 2 open and crossing 3 closed with a contact force below R_0 (at 1792
+    # segments R = 7.06e-6 N at g = 3.3e-7 m); the semismooth fallback
+    # (`static._solve_semismooth`) reaches it. Checked here: every step converges to the
+    # tolerance, every F_T is the law at the step's R to 1e-12 N (MODEL.md 4: the law
+    # evaluated independently, with numpy's expm1), and step 19 has a closed crossing
+    # inside the onset, 0 < R < R_0.
+    from independent import run
+    values = list(np.linspace(0.005, 0.6, 400)[:19])
+    scene = onset_scene(segments=512, values=values)
+    model, records = run(scene)
+    f = scene.friction
+    for record in records:
+        assert record["residual"].max() <= scene.static.tolerance
+        R = record["contact_force"][0]
+        law = np.where(R > 0, f.alpha * R - CONSTANT * np.expm1(-R / f.onset_force), 0.0)
+        assert np.abs(record["friction_limit"][0] - law).max() <= 1e-12
+    R = records[-1]["contact_force"][0]
+    assert np.any((R > 0) & (R < f.onset_force))
