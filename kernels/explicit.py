@@ -33,6 +33,8 @@ def relaxation_kernel(configuration: Configuration):
         y = wp.tid()
         if motion.force_evaluations[y] == 0:
             relax_ops.start(y, yarn, motion, settings)
+            if wp.static(damping == "kinetic"):
+                kinetic_ops.start(y, motion)
             if wp.static(damping == "fire"):
                 fire_ops.start(y, motion)
         if motion.status[y] != status.RUNNING:
@@ -50,5 +52,7 @@ def relaxation_kernel(configuration: Configuration):
             code = relax_ops.check_energy(y, motion, relax_ops.check(y, motion, settings))
             if code != status.RUNNING:
                 return
+            if wp.static(damping == "kinetic"):
+                kinetic_ops.escalate(y, motion)
 
     return relax

@@ -1,10 +1,33 @@
-"""Kinetic damping (Barnes): zero the velocities at each peak of kinetic energy (MODEL.md 5).
+"""Kinetic damping (Barnes): zero the velocities at each peak of kinetic energy (MODEL.md 5),
+with a viscous fallback where the relaxation stops settling.
 
 One symplectic Euler step v += dt M^-1 f(x); x += dt v, unless the kinetic
 energy of the new half-step velocities is below the last one: the peak has
 just been passed. Then, with the usual back-step correction, the positions go
 back to the estimated peak, half a step before the current ones,
 x* = x - dt/2 v^{n-1/2} (= x^{n+1} - 3/2 dt v^{n+1/2} + dt^2/2 M^-1 f^n), and v = 0.
+
+Fallback (`escalate`). Kinetic damping dissipates only at its resets, and between
+them the motion is undamped. With the friction limit coupled to the closure
+(F_T(R(g)), MODEL.md 4) the force is not the gradient of an energy: near a crossing
+at g ~ 0 the Jacobian's circulatory part (dF_T/dg up to ~4e3 N/m against slow-mode
+stiffnesses of ~1 N/m) gives M^-1 J complex eigenvalue pairs with |Im| ~ Re (measured
+5.5e-5 +- 5.4e-5 i, dt = 1 s, at load step 5 of the as-woven onset path at N = 224),
+which undamped motion amplifies (the linearised symplectic Euler step's spectral
+radius is 1 + 3.3e-3 there), and the crossing's open/closed kink bounds that growth
+into a limit cycle: the crossing opens and closes with g within 1e-9 m of the static
+solution while the residual cycles between 3e-8 and 5e-7 N for good. Viscous damping cycles
+there as well with the adaptive c (~ 2 sqrt(lambda_min) ~ 0.008 1/s) and with c dt = 0.03
+(both from the static state of step 4, 10^6 steps), and converges with c dt = 0.1 (92,047
+steps). Kinetic damping's own residual is no guide to when it is stuck: the largest
+force component falls in bursts, and a settling relaxation went up to 136,606 steps
+without a new low (load step 7 of that path, converged after 151,231). So a yarn still
+running after KINETIC_STEPS steps switches, for the rest of the load step, to viscous
+damping with c dt = FALLBACK_DAMPING, and c is multiplied by FALLBACK_GROWTH each time
+the fallback's residual then sets no new low for STALL_STEPS steps (at most c dt = 2,
+where the centred damping's velocity factor reaches 0). A relaxation that settles
+within KINETIC_STEPS (every paper relaxation: at most 2,344 steps) is unchanged bit
+for bit.
 """
 
 import functools
@@ -12,15 +35,31 @@ from types import SimpleNamespace
 
 import warp as wp
 
-from dynfab.kernels import motion as motion_module
+from dynfab.kernels import motion as motion_module, viscous_damping
 from dynfab.kernels.precision import VECTORS
+
+KINETIC_STEPS = 200_000
+"""Time steps of kinetic damping before the viscous fallback. The slowest settling kinetic
+relaxation measured took 151,231 steps (load steps 2 to 9 of the as-woven onset path at
+N = 224, each from the static state before it; the paper relaxations at most 2,344)."""
+STALL_STEPS = 100_000
+"""Time steps without a new low of the residual after which the fallback's c grows."""
+FALLBACK_DAMPING = 0.05
+"""c dt [-] of the first viscous fallback."""
+FALLBACK_GROWTH = 2.0
+"""Factor on c at each further stall of the fallback [-]. With 0.05 and 2, the hardest steps
+measured finish: load steps 5 and 10 of the onset path from the static states before them
+(200,158 and 201,015 steps), step 7 from the dynamic path's own state (304,836), step 7 of
+the same path under displacement control (335,792); with 0.1 and 4 the last did not finish
+in 10^6 steps and the third took 619,229."""
 
 
 @functools.cache
 def functions(scalar) -> SimpleNamespace:
-    """The kinetic-damping step `wp.func` for one scalar type."""
+    """The kinetic-damping step `wp.func`s for one scalar type."""
     vec = VECTORS[scalar]
     Motion = motion_module.struct(scalar)
+    viscous_ops = viscous_damping.functions(scalar)
 
     @wp.func
     def trial_kinetic_energy(y: int, motion: Motion, dt: scalar) -> scalar:
@@ -33,7 +72,7 @@ def functions(scalar) -> SimpleNamespace:
         return energy
 
     @wp.func
-    def step(y: int, motion: Motion):
+    def kinetic_step(y: int, motion: Motion):
         """Advance yarn y by one time step, or reset it at a kinetic energy peak."""
         dt = motion.dt[y]
         energy = trial_kinetic_energy(y, motion, dt)
@@ -50,4 +89,41 @@ def functions(scalar) -> SimpleNamespace:
                 motion.position[y, i] = motion.position[y, i] + dt * v
             motion.kinetic_energy[y] = energy
 
-    return SimpleNamespace(step=step)
+    @wp.func
+    def start(y: int, motion: Motion):
+        """At the load step's start: kinetic damping, no fallback yet (c = 0)."""
+        motion.damping_coefficient[y] = scalar(0.0)
+
+    @wp.func
+    def step(y: int, motion: Motion):
+        """One time step: kinetic damping, or the viscous fallback once it has begun (c > 0)."""
+        coefficient = motion.damping_coefficient[y]
+        if coefficient > scalar(0.0):
+            viscous_ops.step_with(y, motion, coefficient)
+        else:
+            kinetic_step(y, motion)
+
+    @wp.func
+    def escalate(y: int, motion: Motion):
+        """Start the viscous fallback at c dt = FALLBACK_DAMPING after KINETIC_STEPS steps, or,
+        once it runs, multiply its c by FALLBACK_GROWTH (at most c dt = 2) after STALL_STEPS
+        steps without a new low of the residual; each time from rest, the stall count starting
+        again from the current residual."""
+        coefficient = motion.damping_coefficient[y]
+        dt = motion.dt[y]
+        if coefficient == scalar(0.0):
+            if motion.steps[y] < KINETIC_STEPS:
+                return
+            coefficient = scalar(FALLBACK_DAMPING) / dt
+        else:
+            if motion.steps_since_best[y] < STALL_STEPS:
+                return
+            coefficient = wp.min(coefficient * scalar(FALLBACK_GROWTH), scalar(2.0) / dt)
+        motion.damping_coefficient[y] = coefficient
+        for i in range(motion.mass.shape[1]):
+            motion.velocity[y, i] = vec(scalar(0.0), scalar(0.0))
+        motion.kinetic_energy[y] = scalar(0.0)
+        motion.best_residual[y] = motion.residual[y]
+        motion.steps_since_best[y] = 0
+
+    return SimpleNamespace(start=start, step=step, escalate=escalate)

@@ -54,13 +54,9 @@ def functions(scalar) -> SimpleNamespace:
         return coefficient
 
     @wp.func
-    def step(y: int, motion: Motion, settings: Settings):
-        """Advance yarn y by one damped time step; keeps the force for the next estimate."""
+    def step_with(y: int, motion: Motion, coefficient: scalar):
+        """Advance yarn y by one time step damped by the given c [1/s]."""
         dt = motion.dt[y]
-        coefficient = settings.damping_coefficient
-        if coefficient < scalar(0.0):
-            coefficient = adaptive_coefficient(y, motion, dt)
-        motion.damping_coefficient[y] = coefficient
         half_damping = scalar(0.5) * coefficient * dt
         keep = (scalar(1.0) - half_damping) / (scalar(1.0) + half_damping)
         gain = dt / (scalar(1.0) + half_damping)
@@ -74,4 +70,14 @@ def functions(scalar) -> SimpleNamespace:
             energy += scalar(0.5) * m * wp.dot(v, v)
         motion.kinetic_energy[y] = energy
 
-    return SimpleNamespace(step=step)
+    @wp.func
+    def step(y: int, motion: Motion, settings: Settings):
+        """Advance yarn y by one damped time step; keeps the force for the next estimate."""
+        dt = motion.dt[y]
+        coefficient = settings.damping_coefficient
+        if coefficient < scalar(0.0):
+            coefficient = adaptive_coefficient(y, motion, dt)
+        motion.damping_coefficient[y] = coefficient
+        step_with(y, motion, coefficient)
+
+    return SimpleNamespace(step=step, step_with=step_with)
