@@ -61,6 +61,9 @@ _SADDLE_HINT = {"semi_implicit": " (semi_implicit accepts only steps that lower 
                                   "which cannot lead away from a saddle: use dynamic.method = "
                                   "\"explicit\")"}
 """Why a relaxation restarted from a saddle's escape may not converge, per method."""
+MAX_TIGHTENINGS = 3
+"""Times a load step relaxed to the default tolerance is relaxed further because its error
+bound exceeds the accuracy target (`DynamicSolver._certify`)."""
 SPLIT_MIN_YARNS = 2
 """Fewest yarns whose launches are split across cores (one yarn is one thread: nothing to
 split)."""
@@ -106,6 +109,7 @@ class DynamicSolver:
         self.model = model
         self.options = model.scene.dynamic if options is None else options
         self.device = device
+        self._tolerance_override = None  # a tighter residual the accuracy target asks for [N]
         self.progress = progress
         self._dt_warned = False
         is_transient = self.options.mode == "transient"
@@ -171,6 +175,7 @@ class DynamicSolver:
         if self.options.mode == "transient":
             raise SceneError('dynamic.mode = "transient" runs by time, not by load step: '
                              "use DynamicSolver.transient(state), which yields frames")
+        self._tolerance_override = None
         codes = self._launch(state, load_value, steps=STEPS_PER_LAUNCH)
         self._warn_if_dt_above_bound()
         while (codes == status.RUNNING).any():
@@ -187,47 +192,90 @@ class DynamicSolver:
         return new_state, record
 
     def _certify(self, state, load_value: float, codes: np.ndarray):
-        """Certify every relaxed yarn (`dynfab.certificate`, MODEL.md 6); a yarn on a saddle is
+        """Certify every relaxed yarn (`dynfab.certificate`, MODEL.md 6): a yarn on a saddle is
         moved along its escape direction and every yarn relaxed again from there (at most
-        MAX_ESCAPES times). Then the accuracy check. Returns (positions, residual [N], time
-        steps, StepStability, at rounding floor)."""
-        model, fixed = self.model, self.model.fixed_dofs()
-        stability = StepStability(model.yarn_count)
+        MAX_ESCAPES times); then the accuracy check. With the default tolerance, a step whose
+        error bound exceeds the accuracy target is relaxed further, to the residual that
+        target needs (at most MAX_TIGHTENINGS times), before the check decides. Returns
+        (positions, residual [N], time steps, StepStability, at rounding floor)."""
+        model = self.model
         steps = self.motion.steps.numpy().astype(np.int64)
+        self._tolerance_override = None
+        for tightening in range(MAX_TIGHTENINGS + 1):
+            certificates, codes, steps, buckled = self._escape_saddles(state, load_value, codes,
+                                                                       steps)
+            positions = self._positions()
+            residual = self.motion.residual.numpy().astype(float)
+            stability = StepStability(model.yarn_count)
+            stability.buckled[:] = buckled
+            for k, (result, _) in enumerate(certificates):
+                stability.record(k, result, residual[k])
+            at_floor = codes == status.ROUNDING_FLOOR
+            needed = self._residual_needed(stability, positions, residual, at_floor)
+            if needed is None or tightening == MAX_TIGHTENINGS:
+                break
+            self._tolerance_override = needed
+            codes = self._relax(dataclasses.replace(state, positions=positions), load_value)
+            self._raise_on_failure(codes)
+            steps = steps + self.motion.steps.numpy().astype(np.int64)
+        tolerance = self.motion.tolerance.numpy().astype(float)  # each yarn's, for this step
+        for k in range(model.yarn_count):
+            check_accuracy(k, stability.error_estimate[k],
+                           stability.scale(positions[k], model.yarns[k].rest_position),
+                           residual[k], tolerance[k], self.options.accuracy, bool(at_floor[k]),
+                           self.options.precision, "dynamic.accuracy", stability.shift[k])
+        return positions, residual, steps, stability, at_floor
+
+    def _escape_saddles(self, state, load_value: float, codes: np.ndarray, steps: np.ndarray):
+        """Certify every yarn; move each one on a saddle along its escape and relax again, at
+        most MAX_ESCAPES times. Returns (certificates, codes, time steps, buckled flags)."""
+        model, fixed = self.model, self.model.fixed_dofs()
+        buckled = np.zeros(model.yarn_count, np.bool_)
+        P = load_value if model.control == "force" else 0.0
         for attempt in range(MAX_ESCAPES + 1):
             positions = self._positions()
             residual = self.motion.residual.numpy().astype(float)
             certificates = [certify_yarn(positions[k], yarn, state.anchors[k], fixed, residual[k])
                             for k, yarn in enumerate(model.yarns)]
             restart, moved = positions.copy(), False
-            P = load_value if model.control == "force" else 0.0
             for k, (result, directions) in enumerate(certificates):
                 if attempt < MAX_ESCAPES and result[NEGATIVES] > 0:
                     escaped = escape_yarn(positions[k], model.yarns[k], P, state.anchors[k],
                                           result, directions)
                     if escaped is not None:
-                        restart[k], moved, stability.buckled[k] = escaped, True, True
+                        restart[k], moved, buckled[k] = escaped, True, True
             if not moved:
                 break
-            codes = self._launch(dataclasses.replace(state, positions=restart), load_value,
-                                 steps=STEPS_PER_LAUNCH)
-            while (codes == status.RUNNING).any():
-                codes = self._launch(None, load_value, steps=STEPS_PER_LAUNCH)
+            codes = self._relax(dataclasses.replace(state, positions=restart), load_value)
             try:
                 self._raise_on_failure(codes)
             except SolverError as error:
                 hint = _SADDLE_HINT.get(self.options.method, "")
                 raise SolverError(f"{error}; relaxing from a saddle's escape{hint}") from error
             steps = steps + self.motion.steps.numpy().astype(np.int64)
-        at_floor = codes == status.ROUNDING_FLOOR
-        tolerance = self.motion.tolerance.numpy().astype(float)  # each yarn's, for this step
-        for k, (result, _) in enumerate(certificates):
-            stability.record(k, result, residual[k])
-            check_accuracy(k, stability.error_estimate[k],
-                           stability.scale(positions[k], model.yarns[k].rest_position),
-                           residual[k], tolerance[k], self.options.accuracy, bool(at_floor[k]),
-                           self.options.precision, "dynamic.accuracy", stability.shift[k])
-        return positions, residual, steps, stability, at_floor
+        return certificates, codes, steps, buckled
+
+    def _relax(self, state, load_value: float) -> np.ndarray:
+        """Relax every yarn from `state` (the load step's anchors) to the end; the status codes."""
+        codes = self._launch(state, load_value, steps=STEPS_PER_LAUNCH)
+        while (codes == status.RUNNING).any():
+            codes = self._launch(None, load_value, steps=STEPS_PER_LAUNCH)
+        return codes
+
+    def _residual_needed(self, stability, positions, residual, at_floor) -> float | None:
+        """With the default tolerance (none given), the residual [N] that brings every yarn's
+        error bound within the accuracy target, if some yarn's bound exceeds it and is not at
+        its rounding floor (there, relaxing further cannot help: the check stops the run);
+        half the largest residual the target allows, for a margin. None otherwise."""
+        if self.options.tolerance is not None:
+            return None
+        needed = []
+        for k, yarn in enumerate(self.model.yarns):
+            target = self.options.accuracy * stability.scale(positions[k], yarn.rest_position)
+            bound = stability.error_estimate[k]
+            if bound > target and np.isfinite(bound) and residual[k] > 0 and not at_floor[k]:
+                needed.append(0.5 * target * residual[k] / bound)
+        return min(needed) if needed else None
 
     def transient(self, state, resume_from: dict | None = None):
         """Run the transient (dynamic.mode = "transient", MODEL.md 5) from `state`; yield frames.
@@ -351,8 +399,9 @@ class DynamicSolver:
         coefficient = self.options.damping_coefficient
         return settings_module.fill(
             self.scalar, end_load=load_value if self.model.control == "force" else 0.0,
-            tolerance=self.tolerance, safety=self.options.safety,
-            relative_tolerance=(settings_module.RELATIVE_TOLERANCE if self.options.tolerance is None
+            tolerance=self._tolerance_override or self.tolerance, safety=self.options.safety,
+            relative_tolerance=(settings_module.RELATIVE_TOLERANCE
+                                if self.options.tolerance is None and not self._tolerance_override
                                 else 0.0),
             fixed_dt=self.options.dt or 0.0, fictitious=int(self.masses == "fictitious"),
             damping_coefficient=-1.0 if coefficient is None else coefficient,
