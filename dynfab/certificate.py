@@ -353,7 +353,7 @@ def check_accuracy(yarn_index: int, error_estimate: float, scale: float, residua
         return
     if np.isinf(error_estimate):
         raise SolverError(
-            f"yarn {yarn_index}: the stiffness matrix is singular to rounding (a pivot within "
+            f"yarn {yarn_index + 1}: the stiffness matrix is singular to rounding (a pivot within "
             f"{singular_shift:.3g} N/m of zero, 64 eps of its largest diagonal entry), so the "
             f"residual {residual:.3g} N bounds no position error: use a coarser mesh or softer "
             f"data")
@@ -368,7 +368,7 @@ def check_accuracy(yarn_index: int, error_estimate: float, scale: float, residua
                   f"use float64, or a tolerance below {needed:.2g} N if float32 reaches it")
         reached = f"the residual {residual:.3g} N (tolerance {tolerance:.3g} N)"
     raise SolverError(
-        f"yarn {yarn_index}: {reached} leaves a position error up to {error_estimate:.3g} m "
+        f"yarn {yarn_index + 1}: {reached} leaves a position error up to {error_estimate:.3g} m "
         f"(residual x ||H^-1||_inf = {inverse_norm:.3g} m/N), above {key} = {accuracy:g} of the "
         f"step's largest displacement {scale:.3g} m: {change}, or loosen {key}")
 

@@ -446,7 +446,7 @@ class DynamicSolver:
         residual = float(self.motion.residual.numpy()[k])
         start = float(self.motion.start_residual.numpy()[k])
         dt, bound = float(self.motion.dt.numpy()[k]), float(self.motion.stable_dt.numpy()[k])
-        where = f"yarn {k}"
+        where = f"yarn {k + 1}"
         if code in (status.DIVERGED, status.NON_FINITE):
             cause = ("the time step is above the stability bound: lower dynamic.dt or leave it unset"
                      if dt > bound else
@@ -511,9 +511,15 @@ class DynamicSolver:
         closure = yarn.gap_offset - yarn.crossing_side * positions[yarn.crossing_node, 1]
         j = int(np.argmin(np.abs(closure)))
         if abs(closure[j]) < 0.01 * (yarn.contact_law[1] + yarn.contact_law[3]):
+            if yarn.friction_onset == 0.0:
+                law = (f"Gralen's limit jumps by beta*ell*r_f = {yarn.friction_constant:.3g} N "
+                       "(friction.onset_force = 0: the literal law)")
+            else:
+                law = (f"Gralen's limit rises by beta*ell*r_f = {yarn.friction_constant:.3g} N "
+                       f"over a contact force of about friction.onset_force = "
+                       f"{yarn.friction_onset:.3g} N; the static solver handles that onset")
             return (f"; crossing {j + 1} (node {yarn.crossing_node[j]}) sits at opening "
-                    f"(g = {closure[j]:.3g} m), where Gralen's limit jumps by beta*ell*r_f = "
-                    f"{yarn.friction_constant:.3g} N")
+                    f"(g = {closure[j]:.3g} m), where {law}")
         return (f"; likely cause: crossings switching between stick and slip (stick spring "
                 f"k_t = {yarn.stick_stiffness:.3g} N/m): a softer friction.stick_stiffness "
                 "switches less abruptly, and the static solver settles each crossing's stick or "

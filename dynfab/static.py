@@ -541,7 +541,7 @@ def prescribe_load(model, state, load_value: float) -> np.ndarray:
 def _raise_on_failure(info, yarn_index: int, yarn, tolerance: float) -> None:
     """SolverError with one clear line unless the step converged (or met the rounding floor)."""
     status, residual = int(info[STATUS]), info[RESIDUAL]
-    where = f"yarn {yarn_index}"
+    where = f"yarn {yarn_index + 1}"
     if status in (CONVERGED, ROUNDING_FLOOR):
         return
     if status == CYCLING:

@@ -273,7 +273,7 @@ def test_accuracy_stop_on_float32_keeps_the_finished_step(tmp_path):
     assert done.returncode == 3, done.stderr
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1, lines
-    assert lines[0].startswith("dynfab: error: load step 2/2 (load 0.001 m): yarn 0: ")
+    assert lines[0].startswith("dynfab: error: load step 2/2 (load 0.001 m): yarn 1: ")
     assert "position error up to" in lines[0] and "use float64" in lines[0]
     with h5py.File(out, "r") as f:
         assert f["steps/load"].shape[0] == 1

@@ -106,7 +106,7 @@ def test_split_failure_names_the_same_yarn(fig3):
     for cores in (1, 2):
         solver = DynamicSolver(fig3, Dynamic(max_steps=10))
         solver.use_cores(cores)
-        with pytest.raises(SolverError, match=r"yarn 0: no convergence in 10 time steps") as error:
+        with pytest.raises(SolverError, match=r"yarn 1: no convergence in 10 time steps") as error:
             solver.step(initial_state(fig3), 0.001)
         messages.append(str(error.value))
     assert messages[0] == messages[1]

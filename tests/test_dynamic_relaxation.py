@@ -119,7 +119,7 @@ def test_step_record_has_the_dynamic_fields(fig3):
 def test_step_limit_raises_with_the_residual_reached(fig3):
     model = build_model(with_key(fig3, "load.values", [0.001]))
     solver = DynamicSolver(model, replace(model.scene.dynamic, max_steps=10))
-    with pytest.raises(SolverError, match=r"yarn 0: no convergence in 10 time steps .*residual"):
+    with pytest.raises(SolverError, match=r"yarn 1: no convergence in 10 time steps .*residual"):
         solver.step(initial_state(model), 0.001)
 
 
@@ -186,7 +186,7 @@ def test_time_step_ten_times_the_bound_diverges_quickly(relaxed_yarn):
     physical = Dynamic(masses="physical")
     bound = DynamicSolver(model, physical).predicted_stable_dt(state, 0.002)[0]
     solver = DynamicSolver(model, replace(physical, dt=10 * bound))
-    with pytest.raises(SolverError, match=r"yarn 0: the explicit integration diverged after [1-9] "
+    with pytest.raises(SolverError, match=r"yarn 1: the explicit integration diverged after [1-9] "
                                           r"time steps .* against the predicted stable dt"), \
             pytest.warns(RuntimeWarning, match="above the predicted stable time step"):
         solver.step(state, 0.002)
