@@ -3,38 +3,22 @@ of a scene that cannot fit (one line, exit status 2)."""
 
 import subprocess
 import sys
-from dataclasses import replace
 
 import pytest
 
 import dynfab
 from dynfab import budget
-from dynfab.scene import parse_scene_text
+from independent import PAPER_WARP, PAPER_WEFT, make_scene, scene_toml
 
-YARN = """
-[geometry]
-length = 0.1
-segments = {segments}
-crossings = 4
-amplitude = 0.5e-3
-reference = "prestressed"
-[warp]
-EA = 13.72
-EI = 1.47e-7
-kawabata_C = 0.2e-3
-kawabata_K = 0.2
-[weft]
-EI = 1.47e-7
-amplitude = 0.5e-3
-kawabata_C = 0.2e-3
-kawabata_K = 0.2
-[load]
-{path}
-"""
+def yarn_tables(segments: int, load: dict) -> dict:
+    """The paper yarn with 4 crossings, prestressed, `segments` segments, load table `load`."""
+    return {"geometry": {"length": 0.1, "segments": segments, "crossings": 4,
+                         "amplitude": 0.5e-3, "reference": "prestressed"},
+            "warp": PAPER_WARP, "weft": PAPER_WEFT, "load": load}
 
 
-def scene(segments=64, path="values = [0.001, 0.002, 0.003]"):
-    return parse_scene_text(YARN.format(segments=segments, path=path))
+def scene(segments=64, load=None):
+    return make_scene(**yarn_tables(segments, load or {"values": [0.001, 0.002, 0.003]}))
 
 
 def test_result_file_estimate_bounds_a_real_file(tmp_path):
@@ -49,7 +33,7 @@ def test_result_file_estimate_bounds_a_real_file(tmp_path):
 
 def test_memory_estimate_covers_the_measured_peak():
     """Peak resident memory of a real run (max RSS) stays below the estimate."""
-    text = YARN.format(segments=262144, path="values = [0.001]")
+    text = scene_toml(yarn_tables(262144, {"values": [0.001]}))
     code = ("import resource, dynfab\n"
             "try:\n"
             f"    dynfab.run(dynfab.parse_scene_text({text!r}), solver='static', max_iterations=3)\n"
@@ -78,4 +62,4 @@ def test_a_result_file_beyond_the_free_disk_is_refused(monkeypatch, tmp_path):
 
 def test_a_huge_load_path_is_refused_before_it_is_built():
     with pytest.raises(dynfab.SceneError, match="load.steps = 100000000: at most 10,000,000"):
-        scene(path="max = 0.01\nsteps = 100000000")
+        scene(load={"max": 0.01, "steps": 100000000})
