@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dynfab.dynamic import SPLIT_MIN_YARNS, DynamicSolver
+from dynfab.dynamic import DynamicSolver
 from dynfab.errors import SolverError
 from dynfab.model import build_model, initial_state
 from dynfab.scene import Dynamic, load_scene, validate_scene, with_key
@@ -92,7 +92,6 @@ def test_groups_are_contiguous_and_balanced():
 
 
 def test_one_yarn_is_never_split():
-    assert SPLIT_MIN_YARNS == 2
     scene = with_key(replace(load_scene(RUNS / "paper_fig3.toml"), sweep=()), "load.values", [0.001])
     solver = DynamicSolver(build_model(scene))
     solver.use_cores(2)

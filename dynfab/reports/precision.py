@@ -67,7 +67,6 @@ kinetic and semi_implicit with friction). Errors for user mistakes are `SceneErr
 from __future__ import annotations
 
 import contextlib
-import ctypes
 import math
 import time
 import warnings
@@ -76,6 +75,7 @@ from pathlib import Path
 from typing import Callable
 
 import numpy as np
+from threadpoolctl import threadpool_info, threadpool_limits
 
 from dynfab import assembly
 from dynfab.banded import BANDWIDTH, zeros_band
@@ -725,51 +725,18 @@ def lbfgs_solve(model: Model, state: State, load: float, tolerance: float):
     return positions, residuals, evaluations
 
 
-_BLAS_THREAD_FUNCTIONS = (
-    ("openblas_get_num_threads", "openblas_set_num_threads"),
-    ("scipy_openblas_get_num_threads", "scipy_openblas_set_num_threads"),
-    ("scipy_openblas_get_num_threads64_", "scipy_openblas_set_num_threads64_"))
-"""(get, set) thread-count functions of OpenBLAS builds: plain, scipy's, numpy's 64-bit one."""
-
-
-def _loaded_openblas() -> list[str]:
-    """Paths of the OpenBLAS libraries mapped into this process (Linux; else none)."""
-    try:
-        lines = Path("/proc/self/maps").read_text().splitlines()
-    except OSError:
-        return []
-    paths = {line.split()[-1] for line in lines if "openblas" in line.rsplit("/", 1)[-1]}
-    return sorted(path for path in paths if path.startswith("/"))
-
-
 @contextlib.contextmanager
 def single_threaded_blas():
-    """OpenBLAS limited to one thread inside the block; yields whether it could be.
+    """The BLAS libraries loaded in this process limited to one thread inside the block
+    (threadpoolctl); yields whether any was found to limit.
 
     Every solver compared runs on one thread (the Warp CPU kernel and numba), and
     L-BFGS-B's BLAS calls on vectors of a few hundred entries only lose by threading:
     measured up to 30x slower with OpenBLAS's default threads while other processes
-    loaded the 2-CPU machine. Best effort, on the libraries already loaded (scipy's
-    is, once scipy.optimize is imported); the thread counts are restored after.
+    loaded the 2-CPU machine. The thread counts are restored after.
     """
-    restore = []
-    for path in _loaded_openblas():
-        try:
-            library = ctypes.CDLL(path)
-        except OSError:
-            continue
-        for get_name, set_name in _BLAS_THREAD_FUNCTIONS:
-            get, put = getattr(library, get_name, None), getattr(library, set_name, None)
-            if get is not None and put is not None:
-                get.restype = ctypes.c_int
-                restore.append((put, get()))
-                put(ctypes.c_int(1))
-                break
-    try:
-        yield bool(restore)
-    finally:
-        for put, threads in restore:
-            put(ctypes.c_int(threads))
+    with threadpool_limits(limits=1, user_api="blas"):
+        yield any(info["user_api"] == "blas" for info in threadpool_info())
 
 
 def lbfgs_point(case: Case, tolerance: float, plan: Plan) -> dict:
