@@ -335,18 +335,25 @@ def test_ctrl_c_while_starting_is_one_line_and_exit_130(tmp_path, delay):
                                      "continue with --resume")
 
 
+def interrupt_after(args, out, group, count):
+    """Start `dynfab ARGS` (progress on), send it a real SIGINT once `out` holds `count`
+    finished rows of `group` ("steps" or "frames"); assert exit status 130 and return
+    (its stderr, the finished rows then on disk)."""
+    child = subprocess.Popen([sys.executable, "-m", "dynfab.cli", *map(str, args)],
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while finished_count(out, group) < count and time.monotonic() < deadline:
+        time.sleep(0.001)
+    child.send_signal(signal.SIGINT)
+    _, stderr = child.communicate()
+    assert child.returncode == 130, stderr
+    return stderr, finished_count(out, group)
+
+
 def test_ctrl_c_mid_run_names_the_finished_steps_kept(uninterrupted, tmp_path):
     expected = step_arrays(uninterrupted)
     out = tmp_path / "mid.h5"
-    child = subprocess.Popen([sys.executable, "-m", "dynfab.cli", "run", str(FIG5), "--out",
-                              str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    deadline = time.monotonic() + 120
-    while finished_count(out, "steps") < 5 and time.monotonic() < deadline:
-        time.sleep(0.001)
-    child.send_signal(signal.SIGINT)
-    stdout, stderr = child.communicate()
-    assert child.returncode == 130, stderr
-    kept = finished_count(out, "steps")
+    stderr, kept = interrupt_after(["run", FIG5, "--out", out], out, "steps", 5)
     assert 5 <= kept < 40, "the interrupt must land mid-run"
     line = stderr.strip().splitlines()[-1]  # after the per-step progress lines
     assert "Traceback" not in stderr
@@ -358,16 +365,8 @@ def test_ctrl_c_mid_run_names_the_finished_steps_kept(uninterrupted, tmp_path):
 
 def test_ctrl_c_mid_transient_run_names_the_frames_kept(tmp_path):
     out = tmp_path / "relax.h5"
-    child = subprocess.Popen([sys.executable, "-m", "dynfab.cli", "run", str(RELAX), "--solver",
-                              "dynamic", "--out", str(out)],
-                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    deadline = time.monotonic() + 120
-    while finished_count(out, "frames") < 5 and time.monotonic() < deadline:
-        time.sleep(0.001)
-    child.send_signal(signal.SIGINT)
-    stdout, stderr = child.communicate()
-    assert child.returncode == 130, stderr
-    kept = finished_count(out, "frames")
+    stderr, kept = interrupt_after(["run", RELAX, "--solver", "dynamic", "--out", out], out,
+                                   "frames", 5)
     assert "Traceback" not in stderr and 5 <= kept
     assert stderr.strip().splitlines()[-1] == (
         f"dynfab: interrupted; {kept} finished frames are in '{out}': continue with --resume")

@@ -237,6 +237,18 @@ def test_literal_law_still_stops_at_the_first_step_naming_the_crossing(tmp_path)
     assert "crossing" in lines[0] and "node" in lines[0]
 
 
+def assert_steps_obey_the_law(scene, records):
+    """Every step converged to the static tolerance, and every F_T equals the regularised
+    law (MODEL.md 4) at the step's R to 1e-12 N, the law evaluated independently with
+    numpy's expm1."""
+    f = scene.friction
+    for record in records:
+        assert record["residual"].max() <= scene.static.tolerance
+        R = record["contact_force"][0]
+        law = np.where(R > 0, f.alpha * R - CONSTANT * np.expm1(-R / f.onset_force), 0.0)
+        assert np.abs(record["friction_limit"][0] - law).max() <= 1e-12
+
+
 def test_regularised_path_runs_and_satisfies_the_law():
     # The first 12 steps of the onset path at 32 segments (the literal law stops at step 1):
     # every step to tolerance, every F_T equal to the law at the solution's R to 1e-12 N.
@@ -244,12 +256,7 @@ def test_regularised_path_runs_and_satisfies_the_law():
     values = list(np.linspace(0.005, 0.6, 400)[:12])
     scene = onset_scene(values=values)
     model, records = run(scene)
-    f = scene.friction
-    for record in records:
-        assert record["residual"].max() <= scene.static.tolerance
-        R = record["contact_force"][0]
-        law = np.where(R > 0, f.alpha * R - CONSTANT * np.expm1(-R / f.onset_force), 0.0)
-        assert np.abs(record["friction_limit"][0] - law).max() <= 1e-12
+    assert_steps_obey_the_law(scene, records)
 
 
 
@@ -300,11 +307,6 @@ def test_onset_path_passes_the_step_the_set_updates_could_not_solve():
     values = list(np.linspace(0.005, 0.6, 400)[:19])
     scene = onset_scene(segments=512, values=values)
     model, records = run(scene)
-    f = scene.friction
-    for record in records:
-        assert record["residual"].max() <= scene.static.tolerance
-        R = record["contact_force"][0]
-        law = np.where(R > 0, f.alpha * R - CONSTANT * np.expm1(-R / f.onset_force), 0.0)
-        assert np.abs(record["friction_limit"][0] - law).max() <= 1e-12
+    assert_steps_obey_the_law(scene, records)
     R = records[-1]["contact_force"][0]
-    assert np.any((R > 0) & (R < f.onset_force))
+    assert np.any((R > 0) & (R < scene.friction.onset_force))
