@@ -200,7 +200,6 @@ class DynamicSolver:
         (positions, residual [N], time steps, StepStability, at rounding floor)."""
         model = self.model
         steps = self.motion.steps.numpy().astype(np.int64)
-        self._tolerance_override = None
         for tightening in range(MAX_TIGHTENINGS + 1):
             certificates, codes, steps, buckled = self._escape_saddles(state, load_value, codes,
                                                                        steps)
