@@ -15,6 +15,7 @@ import numpy as np
 
 from dynfab import geometry
 from dynfab.scene import Scene, expand_sweep, yarn_count
+from dynfab.terms import registry
 
 
 class Yarn(NamedTuple):
@@ -59,8 +60,8 @@ class Yarn(NamedTuple):
     has_gravity: bool
 
 
-TERMS = ("stretch", "bending", "contact", "friction", "gravity", "load")
-"""Every energy term of the model, in the order of `dynfab.assembly`'s energy vector."""
+TERMS = registry.NAMES
+"""Every energy term of the model, in the order of `dynfab.terms.registry.TERMS`."""
 
 
 @dataclass(frozen=True)
@@ -137,16 +138,7 @@ def build_model(scene: Scene) -> Model:
         yarns = tuple(_build_yarn(s, phase=1.0) for s in expand_sweep(scene))
     else:
         yarns = tuple(_build_yarn(scene, phase=(-1.0) ** k) for k in range(yarn_count(scene)))
-    active = {"stretch", "bending"}
-    if scene.geometry.crossings > 0:
-        active.add("contact")
-    if scene.friction is not None:
-        active.add("friction")
-    if scene.gravity is not None:
-        active.add("gravity")
-    if scene.load.control == "force":
-        active.add("load")
-    return Model(scene=scene, yarns=yarns, terms=tuple(t for t in TERMS if t in active),
+    return Model(scene=scene, yarns=yarns, terms=registry.active_terms(scene),
                  control=scene.load.control, load_values=np.asarray(scene.load.values, float))
 
 

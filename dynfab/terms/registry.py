@@ -1,0 +1,55 @@
+"""The registry of the model's terms: each term declared once (docs/model.md, "Energy").
+
+V = sum over the active terms of their energies. A term is switched on by the
+scene (`Term.active`); its numba twin (`dynfab.terms.<name>`, +dV/dr) is the
+static reference, its Warp twin (`dynfab.kernels.<name>`) the dynamic solver's.
+The assembly (`dynfab.assembly`), the kernel configuration
+(`dynfab.kernels.configuration`), the diagnostics and the result datasets are
+derived from `TERMS`; adding a term is its two modules and one entry here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+
+@dataclass(frozen=True)
+class Term:
+    """One energy term of the model."""
+
+    name: str
+    """Its name, also its module's name in `dynfab.terms` and `dynfab.kernels`."""
+    meaning: str
+    """One line: what the term is, with its section of docs/model.md."""
+    active: Callable
+    """active(scene) -> bool: whether a scene has this term."""
+    dataset: str | None
+    """The result dataset of its energy [J] (`steps/<dataset>`), or None when it reports none."""
+
+
+def _always(scene) -> bool:
+    return True
+
+
+TERMS: tuple[Term, ...] = (
+    Term("stretch", "extension springs EA/l0 (model.md section 2)", _always, "energy/stretch"),
+    Term("bending", "bending springs EI/lbar (model.md section 2)", _always, "energy/bending"),
+    Term("contact", "series Kawabata compression at the crossings (model.md section 3)",
+         lambda scene: scene.geometry.crossings > 0, "energy/contact"),
+    Term("friction", "Huber stick-slip friction at the crossings (model.md section 4)",
+         lambda scene: scene.friction is not None, "energy/stick"),
+    Term("gravity", "the weight of the yarn's masses (model.md section 2)",
+         lambda scene: scene.gravity is not None, "energy/gravity"),
+    Term("load", "the end load's potential -P (x_N - x0_N) (model.md section 2)",
+         lambda scene: scene.load.control == "force", "energy/load"),
+)
+"""Every term of the model, in the order of the energy vector."""
+
+NAMES: tuple[str, ...] = tuple(t.name for t in TERMS)
+"""The term names, in registry order."""
+
+
+def active_terms(scene) -> tuple[str, ...]:
+    """The names of the terms a (validated) scene uses, in registry order."""
+    return tuple(t.name for t in TERMS if t.active(scene))
