@@ -1,7 +1,7 @@
 """The dynamic solver: dynamic relaxation of each load step with Warp kernels (MODEL.md section 5).
 
 Each load step starts from the previous state (under displacement control with
-`dynfab.static.prescribe_load`), integrates the equations of motion of every
+`dynfab.loading.prescribe_load`), integrates the equations of motion of every
 yarn (one Warp thread per yarn, the time loop inside the kernel, a bounded
 chunk of steps per launch) until the residual, the largest free force
 component including friction, is below the tolerance, then finishes the step
@@ -50,10 +50,10 @@ from dynfab.kernels import settings as settings_module, transient
 from dynfab.kernels import runtime, status, yarn_arrays
 from dynfab.kernels.configuration import Configuration
 from dynfab.kernels.precision import DEFAULT_TOLERANCE, SCALARS
+from dynfab.loading import load_at_time, prescribe_load
 from dynfab.model import State
 from dynfab.observables import finish_step
 from dynfab.scene import Dynamic, check_method_damping
-from dynfab.static import prescribe_load
 
 STEPS_PER_LAUNCH = 2000
 """Time steps a launch may take before Python regains control (progress, Ctrl-C)."""
@@ -335,8 +335,7 @@ class DynamicSolver:
         kinetic energy [J]."""
         positions = self._positions()
         velocities = self.motion.velocity.numpy().astype(np.float64)
-        load = np.interp(time, np.linspace(0.0, self.options.duration, self.model.load_values.size + 1),
-                         np.append(0.0, self.model.load_values))
+        load = load_at_time(self.model, time)
         yarns = self.model.yarn_count
         state = State(positions=positions, anchors=self.motion.anchors.numpy().astype(np.float64),
                       dissipated=np.zeros(yarns), load=np.full(yarns, load))
@@ -523,3 +522,4 @@ class DynamicSolver:
                 f"k_t = {yarn.stick_stiffness:.3g} N/m): a softer friction.stick_stiffness "
                 "switches less abruptly, and the static solver settles each crossing's stick or "
                 "slip state by Newton iteration")
+

@@ -23,6 +23,7 @@ from dynfab.banded import BANDWIDTH, band_add, constrain, lu_factor, lu_solve
 from dynfab.certificate import (MAX_ESCAPES, NEGATIVES, StepStability, certify_yarn, check_accuracy,
                                 escape_yarn)
 from dynfab.errors import SolverError
+from dynfab.loading import prescribe_load
 from dynfab.observables import finish_step
 from dynfab.terms import contact, friction
 
@@ -523,19 +524,6 @@ class StaticSolver:
             iterations += int(info[ITERATIONS])
             result, directions = certify_yarn(pos, yarn, anchors, self.fixed, info[RESIDUAL])
         return result, iterations, buckled
-
-
-def prescribe_load(model, state, load_value: float) -> np.ndarray:
-    """The starting positions of a load step: the previous state, and under displacement
-    control x_N = x0_N + u with the increment spread linearly along the yarn (a better guess)."""
-    positions = state.positions.copy()
-    if model.control == "displacement":
-        rest = model.stacked("rest_position")
-        length = rest[:, -1:, 0]
-        increment = load_value - (positions[:, -1, 0] - rest[:, -1, 0])
-        positions[:, :, 0] += increment[:, None] * rest[:, :, 0] / length
-        positions[:, -1, 0] = rest[:, -1, 0] + load_value
-    return positions
 
 
 def _raise_on_failure(info, yarn_index: int, yarn, tolerance: float) -> None:

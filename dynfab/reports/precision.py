@@ -87,7 +87,8 @@ from dynfab.plot import save_png
 from dynfab.reports.common import (machine, output_folder, paper_yarns, write_csv, write_json,
     write_text)
 from dynfab.scene import Dynamic, Scene, expand_sweep, load_scene, with_key
-from dynfab.static import StaticSolver, max_free, prescribe_load
+from dynfab.loading import prescribe_load
+from dynfab.static import StaticSolver, max_free
 
 REFERENCE_TOLERANCE = 1e-13
 """Static tolerance of the start states and references [N]: below float64's floor at
