@@ -171,7 +171,8 @@ class DynamicSolver:
         return self.motion.stable_dt.numpy().astype(float)
 
     def step(self, state, load_value: float):
-        """Relax every yarn under `load_value`; returns (new state, record) or raises SolverError."""
+        """Relax every yarn under `load_value`; returns (new state, record) or raises SolverError
+        (the `dynfab.solver.Solver` contract)."""
         if self.options.mode == "transient":
             raise SceneError('dynamic.mode = "transient" runs by time, not by load step: '
                              "use DynamicSolver.transient(state), which yields frames")
@@ -523,3 +524,26 @@ class DynamicSolver:
                 "switches less abruptly, and the static solver settles each crossing's stick or "
                 "slip state by Newton iteration")
 
+
+class DynamicTransient:
+    """The transient mode (dynamic.mode = "transient", MODEL.md 5) through the
+    `dynfab.solver.Transient` contract: a DynamicSolver driven by time, not by load step.
+
+    Built with DynamicSolver's arguments; `advance` is `DynamicSolver.transient`.
+    """
+
+    name = DynamicSolver.name
+
+    def __init__(self, model, options: Dynamic | None = None, device: str = "cpu", progress=None):
+        self.solver = DynamicSolver(model, options, device=device, progress=progress)
+        if self.solver.options.mode != "transient":
+            raise SceneError(f'dynamic.mode = "{self.solver.options.mode}" runs by load step: '
+                             "use DynamicSolver.step")
+
+    def attrs(self) -> dict:
+        """Root attributes describing the solver, for the result file."""
+        return self.solver.attrs()
+
+    def advance(self, state, resume_from: dict | None = None):
+        """Frames of the transient from `state` (or after `resume_from`), as they come."""
+        return self.solver.transient(state, resume_from)

@@ -5,7 +5,9 @@ model, solves the load steps in order from the as-woven state (or from the
 last step of the file with `resume=True`), appends every finished step to the
 crash-safe result file, and returns the same arrays as `read_results` would.
 A solver failure keeps every finished step on disk and re-raises the
-`SolverError` with the load step named.
+`SolverError` with the load step named. Solvers are driven through their
+contracts (`dynfab.solver`): `Solver.step` per load value, or `Transient.advance`
+for a transient run.
 """
 
 from __future__ import annotations
@@ -27,18 +29,22 @@ from dynfab.options import apply_run_options, check_solver
 from dynfab.model import Model, State, build_model, initial_state, width_per_yarn
 from dynfab.results import ResultFile, Results, dynfab_version, finished_counts, read_results
 from dynfab.scene import Scene, expand_sweep, scene_to_toml
+from dynfab.solver import Solver, Transient
 
-def make_solver(model: Model, solver: str, device: str | None = None, progress=None):
-    """The solver object named `solver`, built for `model` (its options are the scene's);
-    the dynamic solver reports each launch to `progress`."""
+def make_solver(model: Model, solver: str, device: str | None = None,
+                progress=None) -> Solver | Transient:
+    """The solver object named `solver`, built for `model` (its options are the scene's): a
+    `Solver` driven by load step, or for dynamic.mode = "transient" a `Transient` driven by
+    time (`dynfab.solver`); the dynamic solver reports each launch to `progress`."""
     if check_solver(solver) == "static":
         if device is not None:
             raise SceneError(f"--device {device}: the static solver runs on the CPU (numba); "
                              "a device is for --solver dynamic")
         from dynfab.static import StaticSolver
         return StaticSolver(model)
-    from dynfab.dynamic import DynamicSolver
-    return DynamicSolver(model, device=device or "cpu", progress=progress)
+    from dynfab.dynamic import DynamicSolver, DynamicTransient
+    kind = DynamicTransient if model.scene.dynamic.mode == "transient" else DynamicSolver
+    return kind(model, device=device or "cpu", progress=progress)
 
 
 def run(scene: Scene, solver: str = "static", out: str | Path | None = None, *,
@@ -135,9 +141,9 @@ def _build(scene: Scene, solver: str, out, status, device: str | None, options: 
     return model, make_solver(model, solver, device, status)
 
 
-def _solve(model: Model, engine, sink, progress) -> int:
+def _solve(model: Model, engine: Solver | Transient, sink, progress) -> int:
     """Solve the load steps (or the transient) the sink lacks; the number of entries added."""
-    if _is_transient(model, engine):
+    if isinstance(engine, Transient):
         return _run_transient(model, engine, sink, progress)
     state = _start_state(model, sink)
     values = model.load_values
@@ -152,7 +158,7 @@ def _solve(model: Model, engine, sink, progress) -> int:
                               f"{error}; the {index} finished steps are kept") from error
         record["wall_time"] = time.perf_counter() - started
         sink.append_step(record)
-        floors.append(record.get("rounding_floor", np.zeros(1, bool)).any())
+        floors.append(record["rounding_floor"].any())
         if progress is not None:
             progress(_progress_line(index, values.size, record, unit))
     _warn_rounding_floor(floors)
@@ -169,25 +175,20 @@ def _warn_rounding_floor(floors: list) -> None:
                       f"steps/error_estimate", RuntimeWarning, stacklevel=3)
 
 
-def _is_transient(model: Model, engine) -> bool:
-    """True for a transient run: the dynamic solver with dynamic.mode = "transient"."""
-    return engine.name == "dynamic" and model.scene.dynamic.mode == "transient"
-
-
 def frame_times(model: Model) -> np.ndarray:
     """The output times of a transient run [s]: 0, every output_interval, and the duration."""
     options = model.scene.dynamic
     return np.append(np.arange(0.0, options.duration, options.output_interval), options.duration)
 
 
-def _run_transient(model: Model, engine, sink, progress) -> int:
+def _run_transient(model: Model, engine: Transient, sink, progress) -> int:
     """A transient run (MODEL.md 5): append every frame as it comes; resume from the last one."""
     resume_from = sink.last_frame() if sink.frame_count else None
     duration = model.scene.dynamic.duration
     if resume_from is not None and float(resume_from["time"]) >= duration:
         return 0
     first = sink.frame_count
-    for frame in engine.transient(initial_state(model), resume_from):
+    for frame in engine.advance(initial_state(model), resume_from):
         sink.append_frame(frame)
         if progress is not None:
             kinetic = np.max(frame["energy/kinetic"])
@@ -196,10 +197,10 @@ def _run_transient(model: Model, engine, sink, progress) -> int:
     return sink.frame_count - first
 
 
-def _open_sink(model: Model, engine, out, *, overwrite: bool, resume: bool) -> ResultFile:
+def _open_sink(model: Model, engine: Solver | Transient, out, *, overwrite: bool,
+               resume: bool) -> ResultFile:
     """The result file: created, overwritten or resumed, sized for the run's entries."""
-    transient = _is_transient(model, engine)
-    capacity = ({"frame_capacity": frame_times(model).size} if transient
+    capacity = ({"frame_capacity": frame_times(model).size} if isinstance(engine, Transient)
                 else {"step_capacity": model.load_values.size})
     if resume:
         sink = ResultFile.resume(out, **capacity)
@@ -225,7 +226,7 @@ def _start_state(model: Model, sink) -> State:
                  dissipated=np.array(last["dissipated"]), load=np.array(last["load"]))
 
 
-def _root_attrs(model: Model, engine) -> dict:
+def _root_attrs(model: Model, engine: Solver | Transient) -> dict:
     """Root attributes of the result file (HDF5 layout in dynfab/results.py)."""
     scene = model.scene
     attrs = {"scene": scene_to_toml(scene), "scene_source": scene.text,

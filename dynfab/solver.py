@@ -1,0 +1,122 @@
+"""What every solver offers a run: two contracts (`typing.Protocol`), one per way of driving it.
+
+`dynfab.run` drives a solver through these contracts only; no solver module
+imports another, and the load a step prescribes comes from the model side
+(`dynfab.loading`), not from a solver.
+
+`Solver`, by load step: the static reference (`dynfab.static.StaticSolver`)
+and the dynamic relaxation (`dynfab.dynamic.DynamicSolver`). Each call of
+`step(state, load)` takes the equilibrium of the previous load step to the
+equilibrium under the next load value of the path (MODEL.md sections 5, 6).
+
+`Transient`, by time: the dynamic solver's transient mode
+(`dynfab.dynamic.DynamicTransient`, MODEL.md 5). It is a sibling contract,
+not the same one, because a transient run is one time integration over the
+whole load path: the load ramps in time, the state between two outputs holds
+velocities that live in the integrator (State has none), and the outputs are
+frames at output times, not one record per load value. It yields every frame
+as soon as it is computed, so a run can write each one to disk at once.
+
+A solver object conforms to one contract or the other, never both, so
+`isinstance(engine, Transient)` tells a run which way to drive it (the
+contracts are `runtime_checkable`: the check looks for the members by name,
+their signatures are this module's documentation).
+"""
+
+from __future__ import annotations
+
+from typing import Iterator, Mapping, Protocol, runtime_checkable
+
+import numpy as np
+
+from dynfab.model import State
+
+Record = dict[str, np.ndarray]
+"""One finished load step: dataset name -> array, written as `steps/<name>` (one row per
+step) of the result file (`dynfab.results` UNITS lists every name with its units)."""
+
+Frame = dict[str, np.ndarray]
+"""One transient output: dataset name -> array, written as `frames/<name>` of the result file."""
+
+STEP_KEYS = ("load", "end_force", "end_displacement", "positions", "contact_force",
+             "friction_force", "friction_limit", "sliding", "anchors", "dissipated", "crimp",
+             "residual", "iterations", "rounding_floor", "stable", "buckled",
+             "lowest_eigenvalue", "error_estimate")
+"""Names every `Solver.step` record holds, whatever the solver, besides one
+`energy/<term>` per reported energy term (`dynfab.observables`); shapes
+(yarns, ...) with yarns = model.yarn_count:
+
+- by `dynfab.observables.finish_step`: load [N or m], end_force [N],
+  end_displacement [m], dissipated [J], crimp [-], residual [N] and iterations
+  [-] (yarns,); positions [m] (yarns, N+1, 2); contact_force, friction_force,
+  friction_limit [N], sliding [-] (bool) and anchors [m] (yarns, crossings);
+- by the solver's certificate (`dynfab.certificate.StepStability.fields`,
+  MODEL.md 6): stable, buckled [-] (bool), lowest_eigenvalue [N/m] and
+  error_estimate [m] (yarns,); rounding_floor [-] (yarns,) bool: the residual
+  stopped falling above the tolerance.
+
+A solver may add its own names (the dynamic solver: time_steps, force_evaluations,
+dt [s], tolerance [N]), each listed in `dynfab.results.UNITS`. `dynfab.run` adds
+wall_time [s] (a scalar per step) after the step returns."""
+
+FRAME_KEYS = ("time", "positions", "velocities", "force", "contact_force", "anchors",
+              "energy/kinetic")
+"""Names every `Transient` frame holds, besides `energy/<term>` per reported term: time [s]
+(scalar), positions [m], velocities [m/s] and force [N] (yarns, N+1, 2), contact_force [N]
+and anchors [m] (yarns, crossings), energy/kinetic [J] (yarns,)."""
+
+
+@runtime_checkable
+class Solver(Protocol):
+    """Takes the model's yarns from one equilibrium to the next, one load value at a time.
+
+    The model (`dynfab.model.Model`) is given when the solver is built and does not change.
+    """
+
+    name: str
+    """The solver's name, the result file's `solver` attribute ("static", "dynamic")."""
+
+    def attrs(self) -> dict:
+        """Root attributes of the result file describing the solver and its options."""
+
+    def step(self, state: State, load: float) -> tuple[State, Record]:
+        """Relax every yarn under `load`, starting from `state`; return (new state, record).
+
+        `state` is the previous equilibrium (`dynfab.model.initial_state` for the first
+        step): positions [m] (yarns, N+1, 2), friction anchors [m] (yarns, crossings) held
+        during the step, dissipated [J] and the last load (yarns,). `load` is the next
+        value of the load path: the end force P [N] under force control, the end
+        displacement u [m] under displacement control. The step starts from
+        `dynfab.loading.prescribe_load(model, state, load)` and ends, once every yarn's
+        residual (largest free force component, friction included) is within tolerance
+        and certified, with `dynfab.observables.finish_step`: the new state has the
+        anchors return-mapped (MODEL.md 4) and `load` applied; the record holds
+        `STEP_KEYS`. `state` is not modified.
+
+        Raises `dynfab.errors.SolverError` (one line naming the yarn and the cause) when a
+        yarn cannot reach the answer: divergence, iteration or time-step limit, an error
+        bound above the accuracy target. Nothing of a failed step is returned.
+        """
+
+
+@runtime_checkable
+class Transient(Protocol):
+    """Integrates the equations of motion in physical time over the whole load path."""
+
+    name: str
+    """The solver's name, the result file's `solver` attribute."""
+
+    def attrs(self) -> dict:
+        """Root attributes of the result file describing the solver and its options."""
+
+    def advance(self, state: State, resume_from: Mapping | None = None) -> Iterator[Frame]:
+        """Run from `state` (at t = 0, at rest, zero load) to the scene's duration, the load
+        following `dynfab.loading.load_at_time`; yield every output frame (`FRAME_KEYS`)
+        as it is reached: t = 0, every output interval, the duration.
+
+        `resume_from`, the last frame a previous run of the same scene wrote, continues
+        that run: the frames after it are yielded, the same as an uninterrupted run's.
+
+        Raises `dynfab.errors.SolverError` when the integration diverges; the frames
+        yielded before stay valid.
+        """
