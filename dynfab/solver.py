@@ -95,7 +95,9 @@ class Solver(Protocol):
 
         Raises `dynfab.errors.SolverError` (one line naming the yarn and the cause) when a
         yarn cannot reach the answer: divergence, iteration or time-step limit, an error
-        bound above the accuracy target. Nothing of a failed step is returned.
+        bound above the accuracy target. Nothing of a failed step is returned. (A solver
+        asked to step a scene it integrates in time, a DynamicSolver built for
+        dynamic.mode = "transient", raises `dynfab.errors.SceneError` instead.)
         """
 
 
