@@ -60,7 +60,7 @@ class _Key:
     sweepable: bool = False
     """A [sweep] may vary it: real-valued, changing no array shape (MODEL.md 1)."""
     option: bool = False
-    """A run option ([static] and [dynamic] only): a `dynfab run` flag and a `dynfab.run` keyword."""
+    """A run option ([static], [dynamic]): a `dynfab run` flag and a `dynfab.run` keyword."""
     default_from: str = ""
     """When left out of the TOML: the value of this other key."""
 
@@ -318,7 +318,7 @@ def parse_scene_text(text: str, source: str = "<string>") -> Scene:
     return validate_scene(_build_scene(raw, text))
 
 
-SCENE_TABLES = ("geometry", "warp", "weft", "contact", "friction", "gravity", "load", "static", "dynamic")
+SCENE_TABLES = tuple(_SCHEMA)
 """The tables of a scene file, in the order `scene_to_toml` writes them."""
 
 

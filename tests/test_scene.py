@@ -548,8 +548,8 @@ def test_bad_input_raises_one_line_scene_error(edits, match):
     assert "\n" not in message and message.strip() == message
 
 
-COMBINATIONS = ["transient fictitious masses", "transient kinetic damping", "transient fire damping",
-                "output interval beyond duration", "duration without transient",
+COMBINATIONS = ["transient fictitious masses", "transient kinetic damping",
+                "transient fire damping", "output interval beyond duration", "duration without transient",
                 "damping coefficient with kinetic", "semi_implicit with kinetic damping",
                 "semi_implicit with fire damping"]
 """The BAD cases that combine [dynamic] keys (not one value out of its range)."""
