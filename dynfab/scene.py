@@ -533,7 +533,7 @@ def _build_scene(raw: dict, text: str) -> Scene:
     _fill_swept(tables, sweep)
     geometry = _build_table("geometry", tables["geometry"])
     return Scene(
-        title=_convert("title", raw.get("title", ""), _Key("str")),
+        title=_convert("title", raw.get("title", ""), _TITLE),
         geometry=geometry,
         warp=_build_table("warp", tables["warp"]),
         weft=_build_weft(tables["weft"], geometry),
@@ -684,7 +684,7 @@ def _check_tables_present(scene: Scene) -> None:
 
 def _check_fields(scene: Scene) -> None:
     """Every field's type and range, as if read from TOML."""
-    _convert("title", scene.title, _Key("str"))
+    _convert("title", scene.title, _TITLE)
     for name, (_, keys) in _SCHEMA.items():
         table = getattr(scene, name)
         if table is None:

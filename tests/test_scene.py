@@ -6,6 +6,8 @@ Fast: imports only dynfab.scene and dynfab.errors (no numba, no Warp).
 import copy
 import json
 import math
+import subprocess
+import sys
 from dataclasses import replace
 from pathlib import Path
 
@@ -598,8 +600,11 @@ def test_an_unsweepable_key_names_the_sweepable_ones():
 
 
 def test_docs_scene_md_is_the_generated_key_table():
+    """docs/scene.md is what the command it names prints, row for row with the keys."""
     committed = (RUNS.parent / "docs" / "scene.md").read_text()
-    assert committed == markdown_table(), (
+    printed = subprocess.run([sys.executable, "-m", "dynfab.scene", "--markdown"],
+                             capture_output=True, text=True, check=True).stdout
+    assert committed == printed == markdown_table(), (
         "docs/scene.md differs from the scene keys: regenerate it with "
         "`python -m dynfab.scene --markdown > docs/scene.md`")
     for dotted in scene_module._ALL_KEYS:
