@@ -31,22 +31,10 @@ from pathlib import Path  # noqa: E402
 
 from dynfab.errors import DynfabError, SceneError  # noqa: E402
 
-RUN_FLAGS = {
-    # flag: (type, help); each is an option of dynfab.options (the same for dynfab.run)
-    "--tolerance": (float, "force residual to reach [N] (static or dynamic)"),
-    "--accuracy": (float, "largest accepted position error bound of a step, relative to its "
-                          "largest displacement (static or dynamic)"),
-    "--max-iterations": (int, "static solver: Newton iterations per load step"),
-    "--mode": (str, "dynamic solver: quasi_static or transient"),
-    "--method": (str, "dynamic solver: explicit or semi_implicit"),
-    "--damping": (str, "dynamic solver: kinetic, viscous or fire"),
-    "--damping-coefficient": (float, "dynamic solver: viscous c [1/s]"),
-    "--masses": (str, "dynamic solver: fictitious or physical"),
-    "--dt": (float, "dynamic solver: time step [s]"),
-    "--safety": (float, "dynamic solver: fraction of the predicted stable time step"),
-    "--max-steps": (int, "dynamic solver: time steps allowed per load step"),
-    "--precision": (str, "dynamic solver: float64 or float32"),
-}
+from dynfab.options import run_flags  # noqa: E402 (light: the scene schema only)
+
+RUN_FLAGS = run_flags()
+"""`dynfab run` flag -> (type, help): the run options of dynfab.options, from the scene keys."""
 
 
 def _parser() -> argparse.ArgumentParser:

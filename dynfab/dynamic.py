@@ -53,7 +53,7 @@ from dynfab.kernels.precision import DEFAULT_TOLERANCE, SCALARS
 from dynfab.loading import load_at_time, prescribe_load
 from dynfab.model import State
 from dynfab.observables import finish_step
-from dynfab.scene import Dynamic, check_method_damping
+from dynfab.scene import Dynamic, check_dynamic_options
 
 STEPS_PER_LAUNCH = 2000
 """Time steps a launch may take before Python regains control (progress, Ctrl-C)."""
@@ -107,18 +107,16 @@ class DynamicSolver:
 
     def __init__(self, model, options: Dynamic | None = None, device: str = "cpu", progress=None):
         self.model = model
-        self.options = model.scene.dynamic if options is None else options
+        self.options = model.scene.dynamic if options is None else check_dynamic_options(options)
         self.device = device
         self._tolerance_override = None  # a tighter residual the accuracy target asks for [N]
         self.progress = progress
         self._dt_warned = False
-        is_transient = self.options.mode == "transient"
-        self.damping = self.options.damping or ("viscous" if is_transient else "kinetic")
-        self.masses = self.options.masses or ("physical" if is_transient else "fictitious")
+        self.damping = self.options.damping_used()
+        self.masses = self.options.masses_used()
         self.tolerance = self.options.tolerance or DEFAULT_TOLERANCE[self.options.precision]
         self.scalar = SCALARS[self.options.precision]
         explicit_method = self.options.method == "explicit"
-        check_method_damping(self.options)
         self.configuration = Configuration(
             precision=self.options.precision, friction="friction" in model.terms,
             gravity="gravity" in model.terms, control=model.control, method=self.options.method,

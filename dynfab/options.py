@@ -14,21 +14,42 @@ import dataclasses
 import difflib
 
 from dynfab.errors import SceneError
-from dynfab.scene import Scene, validate_scene
+from dynfab.scene import RUN_OPTIONS, Scene, run_flag, validate_scene
 
 SOLVERS = ("static", "dynamic")
 
-STATIC_OPTIONS = {"tolerance": "tolerance", "accuracy": "accuracy",
-                  "max_iterations": "max_iterations"}
-"""Option name -> field of `Scene.static`."""
+STATIC_OPTIONS = {name: name for name in RUN_OPTIONS["static"]}
+"""Option name -> field of `Scene.static` (the keys marked option=True in dynfab.scene)."""
 
-DYNAMIC_OPTIONS = {name: name for name in (
-    "mode", "method", "damping", "damping_coefficient", "masses", "dt", "safety",
-    "tolerance", "accuracy", "max_steps", "precision")}
+DYNAMIC_OPTIONS = {name: name for name in RUN_OPTIONS["dynamic"]}
 """Option name -> field of `Scene.dynamic` (units and rules: dynfab.scene.Dynamic)."""
 
 SOLVER_OPTIONS = {"static": STATIC_OPTIONS, "dynamic": DYNAMIC_OPTIONS}
 ALL_OPTIONS = (*STATIC_OPTIONS, *(k for k in DYNAMIC_OPTIONS if k not in STATIC_OPTIONS))
+
+
+def run_flags() -> dict[str, tuple[type, str]]:
+    """`dynfab run` flag -> (argparse type, help), one per option, from the scene keys."""
+    types = {"float": float, "int": int, "str": str}
+    flags = {}
+    for name in ALL_OPTIONS:
+        specs = {solver: RUN_OPTIONS[solver][name] for solver in SOLVERS
+                 if name in RUN_OPTIONS[solver]}
+        solvers_of = {}  # help text -> the solvers whose key it describes
+        for solver, spec in specs.items():
+            solvers_of.setdefault(_help(spec), []).append(solver)
+        flags[run_flag(name)] = (types[next(iter(specs.values())).kind], "; ".join(
+            f"{' or '.join(solvers)} solver: {text}" for text, solvers in solvers_of.items()))
+    return flags
+
+
+def _help(spec) -> str:
+    """A key's meaning for --help: its choices first, its unit after its first clause."""
+    head, sep, rest = spec.doc.partition("; ")
+    text = f"{head} [{spec.unit}]{sep}{rest}" if spec.unit else spec.doc
+    if not spec.choices:
+        return text
+    return f"{', '.join(spec.choices[:-1])} or {spec.choices[-1]}; {text}"
 
 
 def check_solver(solver: str) -> str:
@@ -60,7 +81,7 @@ def apply_run_options(scene: Scene, solver: str, **options) -> Scene:
 
 def _not_an_option(name: str, value, solver: str) -> SceneError:
     """The error for an option that the solver does not take."""
-    flag = "--" + name.replace("_", "-")
+    flag = run_flag(name)
     other = [s for s in SOLVERS if s != solver and name in SOLVER_OPTIONS[s]]
     if other:
         return SceneError(f"{flag} {value}: an option of the {other[0]} solver; the {solver} "

@@ -1,12 +1,19 @@
 """Scene files: TOML in SI units, parsed once at the boundary into frozen dataclasses.
 
-The keys are a contract (README, docs/model.md): scripts and users rely on
+The keys are a contract (README, docs/scene.md): scripts and users rely on
 them. Every field documents its unit. Validation happens here and only here;
 a user's mistake raises `SceneError` with one line naming the key, the value
 and what is allowed.
 
+Each key is a dataclass field declared once, with `_key(...)`: its meaning, unit,
+rule (or choices), default, whether a [sweep] may vary it and whether it is a run
+option (a `dynfab run` flag). The parser, the validation messages, the run
+options (`dynfab.options`), the command line's flags and docs/scene.md
+(`markdown_table`, `python -m dynfab.scene --markdown`) are all read from there.
+
 Public: `load_scene`, `parse_scene_text`, `validate_scene` (for a Scene built
-in Python), `with_key`, `expand_sweep`, `yarn_count`. Choices made here:
+in Python), `check_dynamic_options` (for solver options given apart from a
+scene), `with_key`, `expand_sweep`, `yarn_count`, `markdown_table`. Choices made here:
 
 - a scene without crossings (a plain rod) refuses a [weft], [contact] or [friction] table
   and a non-zero geometry.amplitude, rather than ignoring them;
@@ -34,151 +41,185 @@ from pathlib import Path
 from dynfab.errors import SceneError
 
 
+# --------------------------------------------------------------------------
+# The schema: each scene key is a dataclass field, described once by its metadata.
+
+
+@dataclass(frozen=True)
+class _Key:
+    """How one scene key is read, checked and documented."""
+
+    kind: str = ""
+    """"float", "int", "str" or "floats" (a non-empty list of numbers); from the field's type."""
+    unit: str = ""
+    rule: str = ""
+    """"", "positive", "nonnegative" or "nonzero"."""
+    choices: tuple[str, ...] = ()
+    doc: str = ""
+    """What the key is, for the documentation table and the command line's help."""
+    sweepable: bool = False
+    """A [sweep] may vary it: real-valued, changing no array shape (MODEL.md 1)."""
+    option: bool = False
+    """A run option ([static], [dynamic]): a `dynfab run` flag and a `dynfab.run` keyword."""
+    default_from: str = ""
+    """When left out of the TOML: the value of this other key."""
+
+
+_POS, _NONNEG = "positive", "nonnegative"
+
+
+def _key(doc: str, unit: str = "", rule: str = "", *, choices: tuple[str, ...] = (),
+         sweepable: bool = False, option: bool = False, default_from: str = "",
+         default=MISSING):
+    """A dataclass field that is a scene key: its description, unit, rule and roles.
+
+    The key's kind (real, integer, string, list) is its field's type; a field
+    without `default` is required (unless `default_from` fills it at parse time).
+    """
+    spec = _Key(unit=unit, rule=rule, choices=choices, doc=doc, sweepable=sweepable,
+                option=option, default_from=default_from)
+    return field(default=default, metadata={"scene_key": spec})
+
+
 @dataclass(frozen=True, kw_only=True)
 class Geometry:
     """The warp yarn's geometry (MODEL.md section 1)."""
 
-    length: float
-    """L, projected warp length [m]."""
-    segments: int
-    """N, segments per warp yarn; a multiple of 2 x crossings."""
-    crossings: int
-    """N_we, weft crossings per warp yarn; 0 is a plain straight rod."""
-    amplitude: float
-    """A_wa, as-woven warp crimp amplitude [m]; 0 is a straight yarn."""
-    reference: str = "as_woven"
-    """Stress-free state: "as_woven" or "prestressed" (MODEL.md section 3)."""
-    yarns: int = 1
-    """Adjacent warp yarns simulated, yarn k with phase s_k = (-1)^(k-1)."""
+    length: float = _key("L, projected warp length", "m", _POS)
+    segments: int = _key("N, segments per warp yarn; a multiple of 2 x crossings", rule=_POS)
+    crossings: int = _key("N_we, weft crossings per warp yarn; 0 is a plain straight rod",
+                          rule=_NONNEG)
+    amplitude: float = _key("A_wa, as-woven warp crimp amplitude; 0 is a straight yarn", "m",
+                            _NONNEG, sweepable=True)
+    reference: str = _key("stress-free state (MODEL.md section 3)",
+                          choices=("as_woven", "prestressed"), default="as_woven")
+    yarns: int = _key("adjacent warp yarns simulated, yarn k with phase s_k = (-1)^(k-1)",
+                      rule=_POS, default=1)
 
 
 @dataclass(frozen=True, kw_only=True)
 class Warp:
     """Warp yarn material (MODEL.md sections 2-3)."""
 
-    EA: float
-    """Extensional stiffness [N]."""
-    EI: float
-    """Bending stiffness [N m^2]."""
-    kawabata_C: float
-    """Kawabata C_wa, limit compression [m]."""
-    kawabata_K: float
-    """Kawabata K_wa, compliance parameter [m/N]."""
-    linear_density: float = 3e-5
-    """rho_l, mass per unit length [kg/m]."""
+    EA: float = _key("extensional stiffness", "N", _POS, sweepable=True)
+    EI: float = _key("bending stiffness", "N m^2", _POS, sweepable=True)
+    kawabata_C: float = _key("Kawabata C_wa, limit compression", "m", _POS, sweepable=True)
+    kawabata_K: float = _key("Kawabata K_wa, compliance parameter", "m/N", _POS, sweepable=True)
+    linear_density: float = _key("rho_l, mass per unit length", "kg/m", _POS, sweepable=True,
+                                 default=3e-5)
 
 
 @dataclass(frozen=True, kw_only=True)
 class Weft:
     """The weft at a crossing: a beam spring in series with Kawabata (MODEL.md 3)."""
 
-    EI: float
-    """Weft bending stiffness [N m^2]."""
-    length: float
-    """L_we, projected weft length [m]."""
-    count: int
-    """N_wa, warp yarns crossing one weft."""
-    amplitude: float
-    """A_we, weft crimp amplitude [m]."""
-    kawabata_C: float
-    """Kawabata C_we [m]."""
-    kawabata_K: float
-    """Kawabata K_we [m/N]."""
-    tension: float = 0.0
-    """P_we, weft tension [N]; negative is compression, above -pi^2 EI/L_we^2."""
+    EI: float = _key("weft bending stiffness", "N m^2", _POS, sweepable=True)
+    length: float = _key("L_we, projected weft length", "m", _POS, sweepable=True,
+                         default_from="geometry.length")
+    count: int = _key("N_wa, warp yarns crossing one weft", rule=_POS,
+                      default_from="geometry.crossings")
+    amplitude: float = _key("A_we, weft crimp amplitude", "m", _NONNEG, sweepable=True)
+    kawabata_C: float = _key("Kawabata C_we", "m", _POS, sweepable=True)
+    kawabata_K: float = _key("Kawabata K_we", "m/N", _POS, sweepable=True)
+    tension: float = _key("P_we, weft tension; negative is compression, above -pi^2 EI/L_we^2",
+                          "N", sweepable=True, default=0.0)
 
 
 @dataclass(frozen=True, kw_only=True)
 class Friction:
     """Gralen friction with stick-slip regularisation (MODEL.md section 4)."""
 
-    alpha: float
-    """Gralen alpha [-]."""
-    beta: float
-    """Gralen beta [N/m^2]."""
-    contact_length: float
-    """ell, effective contact length [m]."""
-    fiber_radius: float
-    """r_f, fibre radius [m]."""
-    stick_stiffness: float | None = None
-    """k_t [N/m]; None means EA / (L/N) of each yarn."""
-    onset_force: float = 1e-5
-    """R_0 [N]: the limit's constant term sets in as 1 - exp(-R/R_0); 0 is the literal
-    jump law (MODEL.md section 4)."""
+    alpha: float = _key("Gralen alpha", "-", _NONNEG, sweepable=True)
+    beta: float = _key("Gralen beta", "N/m^2", _NONNEG, sweepable=True)
+    contact_length: float = _key("ell, effective contact length", "m", _NONNEG, sweepable=True)
+    fiber_radius: float = _key("r_f, fibre radius", "m", _NONNEG, sweepable=True)
+    stick_stiffness: float | None = _key("k_t; none: EA / (L/N) of each yarn", "N/m", _POS,
+                                         sweepable=True, default=None)
+    onset_force: float = _key("R_0; the limit's constant term sets in as 1 - exp(-R/R_0); 0 is "
+                              "the literal jump law (MODEL.md section 4)", "N", _NONNEG,
+                              sweepable=True, default=1e-5)
 
 
 @dataclass(frozen=True, kw_only=True)
 class Contact:
     """Options of the crossing contact law (MODEL.md section 3)."""
 
-    core_stiffness: float | None = None
-    """k_c [N/m], the yarns' core stiffness in series with the weft spring and the
-    Kawabata compressions; None: no such spring."""
+    core_stiffness: float | None = _key(
+        "k_c, the yarns' core stiffness in series with the weft spring and the Kawabata "
+        "compressions; none: no such spring", "N/m", _POS, sweepable=True, default=None)
 
 
 @dataclass(frozen=True, kw_only=True)
 class Gravity:
     """Gravity along -z, acting on the physical masses (MODEL.md section 2)."""
 
-    g: float = 9.81
-    """Gravitational acceleration [m/s^2]."""
+    g: float = _key("gravitational acceleration", "m/s^2", sweepable=True, default=9.81)
 
 
 @dataclass(frozen=True, kw_only=True)
 class Load:
     """The load path (MODEL.md section 4: exactly these values, no zero step)."""
 
-    control: str = "force"
-    """"force": values are P per warp yarn [N]; "displacement": end displacement [m]."""
-    values: tuple[float, ...]
-    """The load steps, in order [N or m]."""
+    control: str = _key('what the values are: P per warp yarn [N] ("force") or the end '
+                        'displacement [m] ("displacement")', choices=("force", "displacement"),
+                        default="force")
+    values: tuple[float, ...] = _key("the load steps, in order", "N or m")
+
+
+_ACCURACY = "largest accepted position error bound of a step, relative to its largest displacement"
 
 
 @dataclass(frozen=True, kw_only=True)
 class Static:
     """Options of the static Newton reference solver (MODEL.md section 6)."""
 
-    tolerance: float = 1e-11
-    """Force residual to reach [N] (or the rounding floor, where higher)."""
-    max_iterations: int = 200
-    """Newton iterations per load step before the step is declared failed."""
-    accuracy: float = 0.1
-    """Largest accepted position error bound of a step, relative to its largest displacement."""
+    tolerance: float = _key("force residual to reach (or the rounding floor, where higher)", "N",
+                            _POS, option=True, default=1e-11)
+    max_iterations: int = _key("Newton iterations per load step before the step is declared "
+                               "failed", rule=_POS, option=True, default=200)
+    accuracy: float = _key(_ACCURACY, "-", _POS, option=True, default=0.1)
 
 
 @dataclass(frozen=True, kw_only=True)
 class Dynamic:
     """Options of the dynamic (Warp) solver (MODEL.md section 5)."""
 
-    mode: str = "quasi_static"
-    """"quasi_static" (relax each load step) or "transient"."""
-    method: str = "explicit"
-    """"explicit" (symplectic Euler) or "semi_implicit" (linearly implicit Euler)."""
-    damping: str | None = None
-    """"kinetic", "viscous" or "fire"; None: kinetic (quasi-static), viscous (transient).
-    `semi_implicit` takes no kinetic damping (its steps are undone instead) and no FIRE;
-    it uses a viscous c only when one is given."""
-    damping_coefficient: float | None = None
-    """Viscous c [1/s]; None: adaptive (quasi-static) or 0 (transient)."""
-    masses: str | None = None
-    """"fictitious" or "physical"; None: fictitious (quasi-static), physical (transient)."""
-    dt: float | None = None
-    """Time step [s]; None: 1 s with fictitious masses (Gershgorin chooses the masses),
-    safety x the Gershgorin stability bound with physical masses."""
-    safety: float = 0.9
-    """Fraction of the predicted stable time step used [-]."""
-    tolerance: float | None = None
-    """Force residual [N]; None: 1e-8 (float64), 1e-4 (float32)."""
-    max_steps: int = 1_000_000
-    """Time steps allowed per load step."""
-    precision: str = "float64"
-    """"float64" or "float32"."""
-    accuracy: float = 0.1
-    """Largest accepted position error bound of a step, relative to its largest displacement."""
-    duration: float | None = None
-    """Transient: simulated time [s]."""
-    output_interval: float | None = None
-    """Transient: time between frames [s]."""
+    mode: str = _key("relax each load step, or integrate in time",
+                     choices=("quasi_static", "transient"), option=True, default="quasi_static")
+    method: str = _key("symplectic Euler, or linearly implicit Euler",
+                       choices=("explicit", "semi_implicit"), option=True, default="explicit")
+    damping: str | None = _key(
+        "none: kinetic (quasi-static), viscous (transient); semi_implicit takes no kinetic "
+        "damping (its steps are undone instead) and no FIRE; it uses a viscous c only when "
+        "one is given", choices=("kinetic", "viscous", "fire"), option=True, default=None)
+    damping_coefficient: float | None = _key("viscous c; none: adaptive (quasi-static) or 0 "
+                                             "(transient)", "1/s", _NONNEG, option=True,
+                                             default=None)
+    masses: str | None = _key("none: fictitious (quasi-static), physical (transient)",
+                              choices=("fictitious", "physical"), option=True, default=None)
+    dt: float | None = _key("time step; none: 1 s with fictitious masses (Gershgorin chooses the "
+                            "masses), safety x the Gershgorin stability bound with physical "
+                            "masses", "s", _POS, option=True, default=None)
+    safety: float = _key("fraction of the predicted stable time step used", "-", _POS,
+                         option=True, default=0.9)
+    tolerance: float | None = _key("force residual; none: 1e-8 (float64), 1e-4 (float32)", "N",
+                                   _POS, option=True, default=None)
+    max_steps: int = _key("time steps allowed per load step", rule=_POS, option=True,
+                          default=1_000_000)
+    precision: str = _key("floating-point precision of the kernels",
+                          choices=("float64", "float32"), option=True, default="float64")
+    accuracy: float = _key(_ACCURACY, "-", _POS, option=True, default=0.1)
+    duration: float | None = _key("transient: simulated time", "s", _POS, default=None)
+    output_interval: float | None = _key("transient: time between frames", "s", _POS,
+                                         default=None)
+
+    def damping_used(self) -> str:
+        """The damping the solver runs: `damping`, else viscous (transient) or kinetic."""
+        return self.damping or ("viscous" if self.mode == "transient" else "kinetic")
+
+    def masses_used(self) -> str:
+        """The masses the solver uses: `masses`, else physical (transient) or fictitious."""
+        return self.masses or ("physical" if self.mode == "transient" else "fictitious")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -204,110 +245,49 @@ class Scene:
 
 
 # --------------------------------------------------------------------------
-# Schema: how each TOML key is read and checked.
+# Tables derived from the fields' metadata.
+
+_KINDS = {"float": "float", "float | None": "float", "int": "int", "str": "str",
+          "str | None": "str", "tuple[float, ...]": "floats"}
+"""A field's type (as written) -> the kind of its key."""
 
 
-@dataclass(frozen=True)
-class _Key:
-    """How one scene key is read: its kind, unit, range rule and choices."""
-
-    kind: str
-    """"float", "int", "str" or "floats" (a non-empty list of numbers)."""
-    unit: str = ""
-    rule: str = ""
-    """"", "positive", "nonnegative" or "nonzero"."""
-    choices: tuple[str, ...] = ()
+def _keys_of(cls: type) -> dict[str, _Key]:
+    """Field name -> key spec of one table's dataclass, the kind taken from the field's type."""
+    return {f.name: replace(f.metadata["scene_key"], kind=_KINDS[f.type]) for f in fields(cls)}
 
 
-_POS, _NONNEG = "positive", "nonnegative"
-
-
-def _real(unit: str, rule: str = "") -> _Key:
-    """A real-valued key."""
-    return _Key("float", unit, rule)
-
-
-def _choice(*choices: str) -> _Key:
-    """A string key restricted to choices."""
-    return _Key("str", choices=choices)
-
-
+_TABLES = {"geometry": Geometry, "warp": Warp, "weft": Weft, "contact": Contact,
+           "friction": Friction, "gravity": Gravity, "load": Load, "static": Static,
+           "dynamic": Dynamic}
 _SCHEMA: dict[str, tuple[type, dict[str, _Key]]] = {
-    "geometry": (Geometry, {
-        "length": _real("m", _POS),
-        "segments": _Key("int", rule=_POS),
-        "crossings": _Key("int", rule=_NONNEG),
-        "amplitude": _real("m", _NONNEG),
-        "reference": _choice("as_woven", "prestressed"),
-        "yarns": _Key("int", rule=_POS),
-    }),
-    "warp": (Warp, {
-        "EA": _real("N", _POS),
-        "EI": _real("N m^2", _POS),
-        "kawabata_C": _real("m", _POS),
-        "kawabata_K": _real("m/N", _POS),
-        "linear_density": _real("kg/m", _POS),
-    }),
-    "weft": (Weft, {
-        "EI": _real("N m^2", _POS),
-        "length": _real("m", _POS),
-        "count": _Key("int", rule=_POS),
-        "amplitude": _real("m", _NONNEG),
-        "kawabata_C": _real("m", _POS),
-        "kawabata_K": _real("m/N", _POS),
-        "tension": _real("N"),
-    }),
-    "contact": (Contact, {"core_stiffness": _real("N/m", _POS)}),
-    "friction": (Friction, {
-        "alpha": _real("-", _NONNEG),
-        "beta": _real("N/m^2", _NONNEG),
-        "contact_length": _real("m", _NONNEG),
-        "fiber_radius": _real("m", _NONNEG),
-        "stick_stiffness": _real("N/m", _POS),
-        "onset_force": _real("N", _NONNEG),
-    }),
-    "gravity": (Gravity, {"g": _real("m/s^2")}),
-    "load": (Load, {
-        "control": _choice("force", "displacement"),
-        "values": _Key("floats", "N or m"),
-    }),
-    "static": (Static, {
-        "tolerance": _real("N", _POS),
-        "max_iterations": _Key("int", rule=_POS),
-        "accuracy": _real("-", _POS),
-    }),
-    "dynamic": (Dynamic, {
-        "mode": _choice("quasi_static", "transient"),
-        "method": _choice("explicit", "semi_implicit"),
-        "damping": _choice("kinetic", "viscous", "fire"),
-        "damping_coefficient": _real("1/s", _NONNEG),
-        "masses": _choice("fictitious", "physical"),
-        "dt": _real("s", _POS),
-        "safety": _real("-", _POS),
-        "tolerance": _real("N", _POS),
-        "max_steps": _Key("int", rule=_POS),
-        "precision": _choice("float64", "float32"),
-        "accuracy": _real("-", _POS),
-        "duration": _real("s", _POS),
-        "output_interval": _real("s", _POS),
-    }),
-}
+    name: (cls, _keys_of(cls)) for name, cls in _TABLES.items()}
 """Table -> (dataclass, keys). The TOML key set is a contract: never rename."""
+
+_TITLE = _Key("str", doc="free text, stored with the results")
 
 MAX_LOAD_STEPS = 10_000_000
 """Most load steps a `max`/`steps` path may have (the list of values is built at parse)."""
 
-_LOAD_PATH = {"max": _real("N or m", "nonzero"), "steps": _Key("int", rule=_POS)}
+_LOAD_PATH = {
+    "max": _Key("float", "N or m", "nonzero", doc="the last load step (instead of values)"),
+    "steps": _Key("int", rule=_POS, doc="load steps: values = max k / steps, k = 1..steps"),
+}
 """The other way to write a load path: values = max k / steps, k = 1..steps."""
 
 _TOP_KEYS = ("title", *_SCHEMA, "sweep")
 _REQUIRED_TABLES = ("geometry", "warp", "load")
+_ROD_REFUSES = ("weft", "contact", "friction")
+"""Tables a plain rod (geometry.crossings = 0) refuses; [weft] is required otherwise."""
 _FIELD_KEYS = tuple(f"{t}.{k}" for t, (_, keys) in _SCHEMA.items() for k in keys)
 _ALL_KEYS = _FIELD_KEYS + tuple(f"load.{k}" for k in _LOAD_PATH)
-_SWEEPABLE = ("geometry.amplitude",) + tuple(
-    f"{t}.{k}" for t in ("warp", "weft", "contact", "friction", "gravity")
-    for k, key in _SCHEMA[t][1].items() if key.kind == "float")
+_SWEEPABLE = tuple(f"{t}.{k}" for t, (_, keys) in _SCHEMA.items()
+                   for k, spec in keys.items() if spec.sweepable)
 """Keys a [sweep] may vary: real-valued, changing no array shape (MODEL.md 1)."""
+
+RUN_OPTIONS = {solver: {k: spec for k, spec in _SCHEMA[solver][1].items() if spec.option}
+               for solver in ("static", "dynamic")}
+"""Solver -> its table's keys that are run options (`dynfab.options`, `dynfab run` flags)."""
 
 
 # --------------------------------------------------------------------------
@@ -338,7 +318,7 @@ def parse_scene_text(text: str, source: str = "<string>") -> Scene:
     return validate_scene(_build_scene(raw, text))
 
 
-SCENE_TABLES = ("geometry", "warp", "weft", "contact", "friction", "gravity", "load", "static", "dynamic")
+SCENE_TABLES = tuple(_SCHEMA)
 """The tables of a scene file, in the order `scene_to_toml` writes them."""
 
 
@@ -553,7 +533,7 @@ def _build_scene(raw: dict, text: str) -> Scene:
     _fill_swept(tables, sweep)
     geometry = _build_table("geometry", tables["geometry"])
     return Scene(
-        title=_convert("title", raw.get("title", ""), _Key("str")),
+        title=_convert("title", raw.get("title", ""), _TITLE),
         geometry=geometry,
         warp=_build_table("warp", tables["warp"]),
         weft=_build_weft(tables["weft"], geometry),
@@ -618,10 +598,11 @@ def _rod_table_error(name: str) -> SceneError:
 
 
 def _build_weft(table: dict | None, geometry: Geometry) -> Weft | None:
-    """The weft; length defaults to geometry.length, count to geometry.crossings."""
+    """The weft; a key left out takes its `default_from` key of [geometry] (length, count)."""
     if table is None:
         return None
-    defaults = {"length": geometry.length, "count": geometry.crossings}
+    defaults = {name: getattr(geometry, spec.default_from.split(".")[1])
+                for name, spec in _SCHEMA["weft"][1].items() if spec.default_from}
     return _build_table("weft", table, defaults)
 
 
@@ -696,14 +677,14 @@ def _check_tables_present(scene: Scene) -> None:
         raise SceneError(f"missing required table [weft] (geometry.crossings = "
                          f"{scene.geometry.crossings} > 0)")
     if scene.geometry.crossings == 0:
-        for name in ("weft", "contact", "friction"):
+        for name in _ROD_REFUSES:
             if getattr(scene, name) is not None:
                 raise _rod_table_error(name)
 
 
 def _check_fields(scene: Scene) -> None:
     """Every field's type and range, as if read from TOML."""
-    _convert("title", scene.title, _Key("str"))
+    _convert("title", scene.title, _TITLE)
     for name, (_, keys) in _SCHEMA.items():
         table = getattr(scene, name)
         if table is None:
@@ -751,17 +732,26 @@ def _check_dynamic(dynamic: Dynamic) -> None:
             if value is not None:
                 raise _bad(f"dynamic.{key}", value,
                            'only used with dynamic.mode = "transient"')
-    check_method_damping(dynamic)
-    damping = dynamic.damping or ("viscous" if dynamic.mode == "transient" else "kinetic")
+    _check_method_damping(dynamic)
+    damping = dynamic.damping_used()
     if dynamic.damping_coefficient is not None and damping != "viscous":
         raise _bad("dynamic.damping_coefficient", dynamic.damping_coefficient,
                    f'only used with dynamic.damping = "viscous" (damping is "{damping}")')
 
 
-def check_method_damping(dynamic: Dynamic) -> None:
+def check_dynamic_options(dynamic: Dynamic) -> Dynamic:
+    """The rules that combine [dynamic] keys (mode with its keys, method with damping,
+    damping with its coefficient), exactly as `validate_scene` applies them; returns
+    `dynamic` unchanged. For solver options built in Python and given to `DynamicSolver`
+    apart from a scene; each value's own range stays the caller's (code may set
+    accuracy = inf to turn the accuracy target off)."""
+    _check_dynamic(dynamic)
+    return dynamic
+
+
+def _check_method_damping(dynamic: Dynamic) -> None:
     """semi_implicit takes neither FIRE (which drives an explicit integrator) nor kinetic
-    damping (its rejected steps are undone instead, MODEL.md 5): refused, not ignored.
-    The one place this is checked; `DynamicSolver` calls it for options built in code."""
+    damping (its rejected steps are undone instead, MODEL.md 5): refused, not ignored."""
     if dynamic.method != "semi_implicit" or dynamic.damping not in ("fire", "kinetic"):
         return
     why = ("FIRE drives an explicit integrator" if dynamic.damping == "fire" else
@@ -793,11 +783,31 @@ def _check_sweep_key(key: str) -> None:
         return
     if key in _ALL_KEYS:
         raise SceneError(f'sweep."{key}": this key cannot be swept; sweepable are '
-                         "geometry.amplitude and the real-valued keys of [warp], "
-                         "[weft], [contact], [friction] and [gravity]")
+                         f"{_sweepable_text()}")
     match = difflib.get_close_matches(key, _SWEEPABLE, n=1)
     hint = f"; did you mean 'sweep.\"{match[0]}\"'?" if match else ""
     raise SceneError(f"unknown key 'sweep.\"{key}\"'{hint}")
+
+
+def _sweepable_text() -> str:
+    """The sweepable keys in words: a table whose real-valued keys all are, by its name."""
+    parts = []
+    for table, (_, keys) in _SCHEMA.items():
+        swept = [name for name, spec in keys.items() if spec.sweepable]
+        reals = [name for name, spec in keys.items() if spec.kind == "float"]
+        if swept and swept == reals:
+            parts.append(f"[{table}]")
+        else:
+            parts += [f"{table}.{name}" for name in swept]
+    single = [p for p in parts if not p.startswith("[")]
+    tables = [p for p in parts if p.startswith("[")]
+    words = single + ([f"the real-valued keys of {_and(tables)}"] if tables else [])
+    return _and(words)
+
+
+def _and(items: list[str]) -> str:
+    """"a", "a and b", "a, b and c"."""
+    return ", ".join(items[:-1]) + " and " + items[-1] if len(items) > 1 else "".join(items)
 
 
 def _check_sweep(scene: Scene) -> None:
@@ -851,3 +861,88 @@ def _field_of(dotted: str) -> tuple[str, str, _Key]:
     if name not in keys:
         raise _unknown(dotted, _FIELD_KEYS, _FIELD_KEYS)
     return table_name, name, keys[name]
+
+
+# --------------------------------------------------------------------------
+# The key table of docs/scene.md, written from the schema.
+
+_RULE_TEXT = {"": "", "positive": " > 0", "nonnegative": " >= 0", "nonzero": " != 0"}
+_KIND_TEXT = {"float": "number", "int": "integer", "str": "string", "floats": "list of numbers"}
+
+
+def run_flag(option: str) -> str:
+    """The `dynfab run` flag of a run option: max_steps -> --max-steps."""
+    return "--" + option.replace("_", "-")
+
+
+def markdown_table() -> str:
+    """docs/scene.md: every scene key with its unit, rule, default, roles and meaning.
+
+    Written from the dataclass fields' metadata, the one place a key is described;
+    `python -m dynfab.scene --markdown` prints it.
+    """
+    lines = ["# Scene keys", "",
+             "<!-- Generated by `python -m dynfab.scene --markdown` from the fields of "
+             "dynfab/scene.py; do not edit (tests/test_scene.py checks it). -->", "",
+             "A scene is a TOML file in SI units. Every key of every table, with the rule its "
+             "value must obey; *required*: when its table is given; *sweep*: a `[sweep]` may "
+             "vary it; *flag*: the `dynfab run` flag (and `dynfab.run` keyword) that "
+             "overrides it.", "",
+             f"Top level: `title`, {_allowed(_TITLE)}, default `\"\"`: {_TITLE.doc}."]
+    for name, (cls, keys) in _SCHEMA.items():
+        lines += ["", f"## [{name}]", "", f"{cls.__doc__.splitlines()[0]} {_presence(name)}", "",
+                  "| key | unit | allowed | default | sweep | flag | meaning |",
+                  "| --- | --- | --- | --- | --- | --- | --- |"]
+        defaults = {f.name: f.default for f in fields(cls)}
+        for key_name, spec in keys.items():
+            lines.append(_row(f"{name}.{key_name}", spec, _default_text(defaults[key_name], spec)))
+        if name == "load":
+            lines += [_row(f"load.{k}", spec, "-") for k, spec in _LOAD_PATH.items()]
+    lines += ["", "## [sweep]", "",
+              'Zipped lists of values, one batched yarn per entry (`"warp.kawabata_K" = '
+              '[0.02, 0.2, 1.0]`); sweepable are ' + _sweepable_text() + "."]
+    return "\n".join(lines) + "\n"
+
+
+def _presence(table: str) -> str:
+    """When a table is required, optional or refused."""
+    if table in _REQUIRED_TABLES:
+        return "Required."
+    text = "Required when geometry.crossings > 0" if table == "weft" else "Optional"
+    if table in _ROD_REFUSES:
+        text += "; a plain rod (geometry.crossings = 0) refuses it"
+    return text + "."
+
+
+def _row(dotted: str, spec: _Key, default: str) -> str:
+    """One table row."""
+    table, name = dotted.split(".")
+    flag = f"`{run_flag(name)}`" if spec.option else ""
+    cells = (f"`{dotted}`", spec.unit, _allowed(spec), default,
+             "yes" if spec.sweepable else "", flag, spec.doc)
+    return "| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |"
+
+
+def _allowed(spec: _Key) -> str:
+    """The values a key takes, in words."""
+    if spec.choices:
+        return ", ".join(f"`{json.dumps(c)}`" for c in spec.choices)
+    return _KIND_TEXT[spec.kind] + _RULE_TEXT[spec.rule]
+
+
+def _default_text(default, spec: _Key) -> str:
+    """A field's default as written in TOML; required, none, or another key's value."""
+    if spec.default_from:
+        return f"`{spec.default_from}`"
+    if default is MISSING:
+        return "required"
+    return "none" if default is None else f"`{_toml_value(default)}`"
+
+
+if __name__ == "__main__":
+    import sys
+
+    if sys.argv[1:] != ["--markdown"]:
+        print("usage: python -m dynfab.scene --markdown  (prints docs/scene.md)", file=sys.stderr)
+        raise SystemExit(2)
+    sys.stdout.write(markdown_table())

@@ -84,3 +84,19 @@ def test_cli_refuses_a_device_for_the_static_solver(tmp_path):
     done = cli("run", scene, "--device", "cuda", "--out", tmp_path / "r.h5")
     assert done.returncode == 2 and "Traceback" not in done.stderr
     assert "the static solver runs on the CPU" in done.stderr
+
+
+def test_each_flag_takes_its_keys_type_and_names_their_units():
+    """The flags are written from the scene keys: an option of both solvers has one kind,
+    and its help gives each key's unit (so `--help` and docs/scene.md cannot disagree)."""
+    from dynfab.cli import RUN_FLAGS
+    from dynfab.scene import RUN_OPTIONS
+
+    kinds = {"float": float, "int": int, "str": str}
+    for flag, (kind, text) in RUN_FLAGS.items():
+        name = flag[2:].replace("-", "_")
+        specs = [options[name] for options in RUN_OPTIONS.values() if name in options]
+        assert {kinds[spec.kind] for spec in specs} == {kind}, flag
+        for spec in specs:
+            assert not spec.unit or f"[{spec.unit}]" in text, flag
+            assert all(choice in text for choice in spec.choices), flag

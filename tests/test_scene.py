@@ -6,17 +6,22 @@ Fast: imports only dynfab.scene and dynfab.errors (no numba, no Warp).
 import copy
 import json
 import math
+import subprocess
+import sys
 from dataclasses import replace
 from pathlib import Path
 
 import pytest
 
 from dynfab.errors import SceneError
+from dynfab import scene as scene_module
 from dynfab.scene import (
     Dynamic,
     Static,
+    check_dynamic_options,
     expand_sweep,
     load_scene,
+    markdown_table,
     parse_scene_text,
     scene_to_toml,
     validate_scene,
@@ -543,3 +548,64 @@ def test_bad_input_raises_one_line_scene_error(edits, match):
         parse(edits)
     message = str(info.value)
     assert "\n" not in message and message.strip() == message
+
+
+COMBINATIONS = ["transient fictitious masses", "transient kinetic damping",
+                "transient fire damping", "output interval beyond duration", "duration without transient",
+                "damping coefficient with kinetic", "semi_implicit with kinetic damping",
+                "semi_implicit with fire damping"]
+"""The BAD cases that combine [dynamic] keys (not one value out of its range)."""
+
+
+@pytest.mark.parametrize("name", COMBINATIONS)
+def test_solver_options_built_in_python_meet_the_scene_rules_word_for_word(name):
+    """DynamicSolver's options given in code go through the scene's own combination rules:
+    the same refusal, byte for byte, as the same keys written in a scene file."""
+    edits, _ = BAD[name]
+    with pytest.raises(SceneError) as from_file:
+        parse(edits)
+    with pytest.raises(SceneError) as from_code:
+        check_dynamic_options(Dynamic(**edits["dynamic"]))
+    assert str(from_code.value) == str(from_file.value)
+
+
+def test_unset_damping_and_masses_follow_the_mode():
+    """The defaults the solver runs with (MODEL.md section 5), written once on Dynamic."""
+    assert (Dynamic().damping_used(), Dynamic().masses_used()) == ("kinetic", "fictitious")
+    transient = Dynamic(**TRANSIENT)
+    assert (transient.damping_used(), transient.masses_used()) == ("viscous", "physical")
+    assert Dynamic(damping="fire", masses="physical").damping_used() == "fire"
+
+
+def test_every_key_is_declared_with_what_it_needs():
+    """The schema read from the fields: sweepable keys are reals (a sweep holds reals and
+    changes no array shape), run options live in [static] and [dynamic] only, every key
+    has a meaning, every real key a unit, and a choice key no range rule."""
+    for table, (_, keys) in scene_module._SCHEMA.items():
+        for name, spec in keys.items():
+            assert spec.doc, f"{table}.{name}"
+            assert not spec.sweepable or spec.kind == "float", f"{table}.{name}"
+            assert not spec.option or table in ("static", "dynamic"), f"{table}.{name}"
+            assert spec.unit or spec.kind != "float", f"{table}.{name}"
+            assert not (spec.choices and spec.rule), f"{table}.{name}"
+
+
+def test_an_unsweepable_key_names_the_sweepable_ones():
+    """The list in the message is written from the sweepable flags; this is its wording."""
+    with pytest.raises(SceneError) as info:
+        parse({"sweep": {"weft.count": [16, 32]}})
+    assert str(info.value) == ('sweep."weft.count": this key cannot be swept; sweepable are '
+                               "geometry.amplitude and the real-valued keys of [warp], [weft], "
+                               "[contact], [friction] and [gravity]")
+
+
+def test_docs_scene_md_is_the_generated_key_table():
+    """docs/scene.md is what the command it names prints, row for row with the keys."""
+    committed = (RUNS.parent / "docs" / "scene.md").read_text()
+    printed = subprocess.run([sys.executable, "-m", "dynfab.scene", "--markdown"],
+                             capture_output=True, text=True, check=True).stdout
+    assert committed == printed == markdown_table(), (
+        "docs/scene.md differs from the scene keys: regenerate it with "
+        "`python -m dynfab.scene --markdown > docs/scene.md`")
+    for dotted in scene_module._ALL_KEYS:
+        assert f"| `{dotted}` |" in committed
