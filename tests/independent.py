@@ -1,7 +1,8 @@
 """Independent helpers shared by the verification tests (plain functions, not fixtures).
 
 Scene building through the TOML parser (as a user's scene file), a load-path
-driver, the dense matrix of a banded one, and the series contact law of
+driver, the dense matrix of a banded one (`dynfab.banded.to_dense`, checked against
+`band_matvec` in test_certificate.py), and the series contact law of
 MODEL.md 3 solved here with scipy (brentq on g(R), arc lengths from ellipe),
 independently of dynfab.terms.contact. Import with `from independent import ...`
 (pytest puts tests/ on sys.path).
@@ -17,7 +18,7 @@ from scipy.optimize import brentq
 from scipy.special import ellipe
 
 from dynfab import assembly
-from dynfab.banded import BANDWIDTH
+from dynfab.banded import to_dense as dense  # noqa: F401 (the tests' name for it)
 from dynfab.model import build_model, initial_state
 from dynfab.scene import Scene, parse_scene_text
 from dynfab.static import StaticSolver
@@ -78,20 +79,6 @@ def run(scene):
         state, record = solver.step(state, value)
         records.append(record)
     return model, records
-
-
-# --------------------------------------------------------------------------
-# Matrices (dynfab.banded layout).
-
-
-def dense(band):
-    """The full matrix A[i, j] = band[i, j - i + BANDWIDTH] of a banded one."""
-    n = band.shape[0]
-    matrix = np.zeros((n, n))
-    for i in range(n):
-        for j in range(max(0, i - BANDWIDTH), min(n, i + BANDWIDTH + 1)):
-            matrix[i, j] = band[i, j - i + BANDWIDTH]
-    return matrix
 
 
 # --------------------------------------------------------------------------

@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 from dynfab import assembly
-from dynfab.banded import BANDWIDTH, zeros_band
+from dynfab.banded import BANDWIDTH, to_dense, zeros_band
 from dynfab.dynamic import DynamicSolver
 from dynfab.errors import SolverError
 from dynfab.kernels import relaxation, status
@@ -38,15 +38,8 @@ def inverse_stiffness_norm(model, positions, anchors, coupled) -> np.ndarray:
     free = ~model.fixed_dofs()
     norms = []
     for k, yarn in enumerate(model.yarns):
-        contact_force, limit, tangent = (np.zeros(model.crossings) for _ in range(3))
-        assembly.contact_state(positions[k], yarn, contact_force, limit, tangent)
-        band = zeros_band(positions[k].size)
-        assembly.hessian(positions[k], yarn, anchors[k], limit, tangent, coupled, band)
-        dense = np.zeros((band.shape[0], band.shape[0]))
-        for i in range(band.shape[0]):
-            for j in range(max(0, i - BANDWIDTH), min(band.shape[0], i + BANDWIDTH + 1)):
-                dense[i, j] = band[i, j - i + BANDWIDTH]
-        inverse = np.linalg.inv(dense[np.ix_(free, free)])
+        band = assembly.tangent(positions[k], yarn, anchors[k], coupled)
+        inverse = np.linalg.inv(to_dense(band)[np.ix_(free, free)])
         norms.append(np.abs(inverse).sum(axis=1).max())
     return np.array(norms)
 
