@@ -33,7 +33,7 @@ from dynfab.errors import SceneError
 from dynfab.kernels.configuration import built_variants
 from dynfab.reports import precision
 from dynfab.reports.precision import CSV_COLUMNS, QUICK, TARGETS, Plan, run_precision
-from dynfab.reports.precision_plots import plot_work_precision
+from dynfab.reports.precision_plots import plot_error_vs_residual, plot_work_precision
 
 FILES = {"points.csv", "summary.json", "cheapest.json", "precision.md",
          "work_precision_time.png", "work_precision_evaluations.png", "error_vs_residual.png"}
@@ -328,6 +328,28 @@ def test_each_work_precision_panel_plots_the_usable_points_of_its_case(report):
         expected = {(float(p["force_evaluations"]), max(p["relative_error"], floor))
                     for p in usable(summary) if p["case"] == case["case"]}
         assert drawn == expected, case["case"]
+
+
+def test_each_error_vs_residual_panel_plots_its_points_and_their_bound(report):
+    # What error_vs_residual.png shows: (float64 residual, floored relative error) of every
+    # usable point of the case, and the dashed bound ||K^-1||_inf (r + r_ref) / scale.
+    _, summary, _ = report
+    figure = plot_error_vs_residual(summary)
+    panels = {ax.get_title(): ax for ax in figure.axes if ax.axison}
+    for case in summary["cases"]:
+        ax, floor = panels[case["title"]], case["rounding_floor_relative"]
+        lines = [line for line in ax.get_lines() if list(line.get_xdata()) != [0, 1]]
+        bounds = [line for line in lines if line.get_linestyle() == "--"]
+        drawn = {(float(x), float(y)) for line in lines if line not in bounds
+                 for x, y in zip(line.get_xdata(), line.get_ydata())}
+        assert drawn == {(p["residual_N"], max(p["relative_error"], floor))
+                         for p in usable(summary) if p["case"] == case["case"]}, case["case"]
+        if case["inverse_stiffness_norm_m_per_N"] is not None:
+            (bound,) = bounds
+            r = np.asarray(bound.get_xdata())
+            assert np.allclose(bound.get_ydata(), case["inverse_stiffness_norm_m_per_N"]
+                               * (r + case["reference_residual_N"]) / case["scale_m"],
+                               rtol=1e-15, atol=0)
 
 
 def test_lbfgs_points_are_there_with_scipy(report):
