@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-import time
+from time import perf_counter
 from typing import Callable
 
 
@@ -20,8 +20,8 @@ def best_time(call: Callable, repeats: int = 1, *, warm: bool = False, until: fl
     result = call() if warm else None
     best, total, count = math.inf, 0.0, 0
     while count < repeats or (total < until and count < most):
-        began = time.perf_counter()
+        began = perf_counter()
         result = call()
-        elapsed = time.perf_counter() - began
+        elapsed = perf_counter() - began
         best, total, count = min(best, elapsed), total + elapsed, count + 1
     return best, result
