@@ -49,6 +49,7 @@ from dynfab.kernels import explicit, settings as settings_module
 from dynfab.model import build_model, initial_state
 from dynfab.scene import Dynamic, load_scene, validate_scene, with_key
 from dynfab.static import StaticSolver
+from dynfab.timing import best_time
 
 HERE = Path(__file__).resolve().parent
 METHODS = {
@@ -81,6 +82,9 @@ TIMING_BUDGET = 1.0
 """Wall time [s] a relaxation is repeated for (at least MIN_REPEATS times, at most REPEATS);
 the fastest repeat is kept."""
 MIN_REPEATS = 2
+TIMING = dict(repeats=MIN_REPEATS, warm=True, until=TIMING_BUDGET, most=REPEATS)
+"""`dynfab.timing.best_time` of a relaxation: one untimed call, then at least MIN_REPEATS and
+at most REPEATS timed ones within TIMING_BUDGET."""
 AIMS = {"warp_step_per_node_over_numba": 1.2, "best_explicit_time_steps": 10_000,
         "semi_implicit_over_static_newton": 10.0, "sweep_64_per_yarn_over_one_yarn": 1.2}
 """The limit of each aim (at most)."""
@@ -106,23 +110,11 @@ def static_start(model):
     return state
 
 
-def best_time(function):
-    """(fastest wall time [s], last result) of repeated warm calls of `function`: one untimed
-    call, then at least MIN_REPEATS and at most REPEATS timed ones within TIMING_BUDGET."""
-    result = function()
-    times = []
-    while len(times) < MIN_REPEATS or (len(times) < REPEATS and sum(times) < TIMING_BUDGET):
-        began = time.perf_counter()
-        result = function()
-        times.append(time.perf_counter() - began)
-    return min(times), result
-
-
 def relax(model, start, options):
     """One method on one model: time steps, force evaluations, warm wall time [s] and the
     residual [N] of the step from START_LOAD to END_LOAD (yarn 0)."""
     solver = DynamicSolver(model, replace(options, tolerance=TOLERANCE))
-    elapsed, (_, record) = best_time(lambda: solver.step(start, END_LOAD))
+    elapsed, (_, record) = best_time(lambda: solver.step(start, END_LOAD), **TIMING)
     return {"time_steps": int(record["time_steps"][0]),
             "force_evaluations": int(record["force_evaluations"][0]),
             "wall_time_s": elapsed, "residual_N": float(record["residual"][0])}
@@ -169,7 +161,7 @@ def scaling():
         static["N"].append(segments)
         for tolerance, label in ((TOLERANCE, "1e-8"), (1e-11, "1e-11")):
             solver = StaticSolver(model, tolerance=tolerance)
-            elapsed, (_, record) = best_time(lambda: solver.step(start, END_LOAD))
+            elapsed, (_, record) = best_time(lambda: solver.step(start, END_LOAD), **TIMING)
             static[f"time_s_tolerance_{label}"].append(elapsed)
             static[f"iterations_tolerance_{label}"].append(int(record["iterations"][0]))
     for data in results.values():
@@ -319,7 +311,7 @@ def step_cost():
     start = static_start(model)
     probe = DynamicSolver(model, Dynamic(damping="kinetic"))
     probe.predicted_stable_dt(start, END_LOAD)
-    masses = probe.motion.mass.numpy()[0].astype(float)
+    masses = probe.last_relaxation()["masses"][0].astype(float)
     warp_ns, numba_ns = warp_step_cost(model, start), numba_step_cost(model, start, masses)
     return {"warp": warp_ns, "numba": numba_ns, "ratio": warp_ns / numba_ns}
 

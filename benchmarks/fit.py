@@ -4,7 +4,7 @@ against the same fit with a finite-difference Jacobian.
 Run:  python benchmarks/fit.py            (prints a table, writes benchmarks/fit.json)
 
 Measured in one run, warm (everything runs once to compile before timing; each
-figure is the best of several repeats, time.perf_counter):
+figure is the best of several repeats, `dynfab.timing.best_time`):
 
 - one forward solve of a curve (`dynfab.sensitivity.solve_path`: the static
   solver over the load path) against one Jacobian of the same curve
@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import json
 import platform
-import time
 from pathlib import Path
 
 import numpy as np
@@ -34,6 +33,7 @@ from dynfab.fit import fit
 from dynfab.fit_data import read_curve
 from dynfab.scene import expand_sweep, load_scene
 from dynfab.sensitivity import path_sensitivities, solve_path
+from dynfab.timing import best_time
 
 ROOT = Path(__file__).resolve().parent.parent
 EXAMPLE = ROOT / "runs" / "fit_example"
@@ -42,25 +42,16 @@ KEYS = ["warp.EA", "friction.alpha", "warp.kawabata_K", "weft.kawabata_C"]
 REPEATS = 10
 
 
-def best_time(function, repeats=REPEATS):
-    """(best wall time [s], last result) of `repeats` calls."""
-    best, result = np.inf, None
-    for _ in range(repeats):
-        start = time.perf_counter()
-        result = function()
-        best = min(best, time.perf_counter() - start)
-    return best, result
-
-
 def jacobian_against_forward(scene, label):
     solve_path(scene)  # compile
-    forward, solution = best_time(lambda: solve_path(scene))
+    forward, solution = best_time(lambda: solve_path(scene), REPEATS)
     rows = []
     for count in (1, 2, 4):
         keys = KEYS[:count]
         observed = ["end_force" if scene.load.control == "displacement" else "end_displacement"]
         path_sensitivities(solution, keys, observables=observed)
-        jac, _ = best_time(lambda: path_sensitivities(solution, keys, observables=observed))
+        jac, _ = best_time(lambda: path_sensitivities(solution, keys, observables=observed),
+                           REPEATS)
         rows.append({"scene": label, "steps": int(solution.load.size),
                      "segments": scene.geometry.segments, "parameters": count,
                      "forward_s": forward, "jacobian_s": jac, "ratio": jac / forward,

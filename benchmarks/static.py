@@ -3,7 +3,7 @@
 Run:  python benchmarks/static.py            (prints a table, writes benchmarks/static.json)
 
 Measured in one run, warm (every solver runs once to compile before timing;
-each figure is the best of several repeats, time.perf_counter):
+each figure is the best of several repeats, `dynfab.timing.best_time`):
 
 - one equilibrium: the paper's yarn (runs/paper_fig3.toml, entry K = 0.2 m/N,
   N = 224, 16 crossings, prestressed), one force step P = 0.3 N from the
@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import json
 import platform
-import time
 from dataclasses import replace
 from pathlib import Path
 
@@ -46,6 +45,7 @@ from dynfab.certificate import certify_yarn
 from dynfab.model import build_model, initial_state
 from dynfab.scene import Load, expand_sweep, load_scene, validate_scene, with_key
 from dynfab.static import StaticSolver
+from dynfab.timing import best_time
 
 ROOT = Path(__file__).resolve().parent.parent
 RUNS = ROOT / "runs"
@@ -54,17 +54,6 @@ LOAD = 0.3
 """End force of the single equilibrium [N]."""
 TOLERANCE = 1e-11
 """Residual of the reference solve [N] (MODEL.md 6)."""
-
-
-def best_time(function, repeats: int) -> float:
-    """Best wall time of `repeats` calls [s] (after one untimed call that compiles/warms)."""
-    function()
-    best = np.inf
-    for _ in range(repeats):
-        start = time.perf_counter()
-        function()
-        best = min(best, time.perf_counter() - start)
-    return best
 
 
 def equilibrium_scene():
@@ -176,7 +165,7 @@ def main() -> dict:
     start = initial_state(model)
     solver = StaticSolver(model, tolerance=TOLERANCE)
     _, record = solver.step(start, LOAD)
-    t_newton = best_time(lambda: solver.step(start, LOAD), 200)
+    t_newton = best_time(lambda: solver.step(start, LOAD), 200, warm=True)[0]
     results["equilibrium"] = {"time_s": t_newton, "iterations": int(record["iterations"][0]),
                               "residual_N": float(record["residual"][0])}
     reference = record["positions"][0]
@@ -184,7 +173,7 @@ def main() -> dict:
     # the step's certificate (dynfab/certificate.py): its share of the step's time
     yarn, fixed = model.yarns[0], model.fixed_dofs()
     t_certificate = best_time(lambda: certify_yarn(reference, yarn, start.anchors[0], fixed,
-                                                   record["residual"][0]), 200)
+                                                   record["residual"][0]), 200, warm=True)[0]
     results["certificate"] = {"time_s": t_certificate, "step_time_s": t_newton,
                               "step_time_without_s": t_newton - t_certificate,
                               "share_of_step": t_certificate / t_newton}
@@ -193,11 +182,11 @@ def main() -> dict:
     energy = Energy(model)
     result = lbfgs(energy)
     reached = energy.residual(result.x)
-    t_lbfgs = best_time(lambda: lbfgs(energy), 3)
+    t_lbfgs = best_time(lambda: lbfgs(energy), 3, warm=True)[0]
     error = np.abs(energy.positions(result.x) - reference).max()
     loose = StaticSolver(model, tolerance=reached)
     _, loose_record = loose.step(start, LOAD)
-    t_newton_loose = best_time(lambda: loose.step(start, LOAD), 200)
+    t_newton_loose = best_time(lambda: loose.step(start, LOAD), 200, warm=True)[0]
     results["lbfgs"] = {"time_s": t_lbfgs, "residual_N": float(reached), "iterations": int(result.nit),
                         "evaluations": int(result.nfev), "message": str(result.message),
                         "max_position_error_m": float(error),
@@ -206,7 +195,7 @@ def main() -> dict:
 
     # plain Newton with scipy.sparse and spsolve on the same energy and Hessian
     q, iterations, residual = sparse_newton(energy, TOLERANCE)
-    t_sparse = best_time(lambda: sparse_newton(energy, TOLERANCE), 20)
+    t_sparse = best_time(lambda: sparse_newton(energy, TOLERANCE), 20, warm=True)[0]
     results["scipy_sparse_newton"] = {
         "time_s": t_sparse, "iterations": iterations, "residual_N": float(residual),
         "max_position_difference_m": float(np.abs(energy.positions(q) - reference).max())}
@@ -220,7 +209,8 @@ def main() -> dict:
     for name, curve_scene in curves.items():
         solve, curve_model = traction_curve(curve_scene)
         iterations = solve()
-        results["traction_curve"][name] = {"time_s": best_time(solve, 20), "steps": len(curve_model.load_values),
+        results["traction_curve"][name] = {"time_s": best_time(solve, 20, warm=True)[0],
+                                           "steps": len(curve_model.load_values),
                                            "newton_iterations": iterations}
 
     # Newton iterations of the first friction step (stick/slip active set) against k_t

@@ -12,6 +12,7 @@ unilateral.
 import numba
 import numpy as np
 
+from dynfab import banded
 from dynfab.terms import bending, contact, friction, gravity, load, stretch
 
 STRETCH, BENDING, CONTACT, FRICTION, GRAVITY, LOAD = range(6)
@@ -102,3 +103,17 @@ def contact_state(pos, yarn, contact_force, friction_limit, contact_tangent, bra
         if yarn.has_friction:
             friction_limit[j] = friction.limit(R, yarn.friction_alpha, yarn.friction_constant,
                                                yarn.friction_onset)
+
+
+def tangent(pos, yarn, anchors, coupled: bool) -> np.ndarray:
+    """The banded tangent [N/m] of one yarn at `pos` (`hessian`, `dynfab.banded` layout): F_T
+    and dR/dg from the contact state there, the friction anchors of the step's start; with
+    `coupled` the coupled friction Jacobian."""
+    pos = np.ascontiguousarray(pos, dtype=np.float64)
+    c = yarn.crossing_node.size
+    contact_force, friction_limit, contact_tangent = np.zeros(c), np.zeros(c), np.zeros(c)
+    contact_state(pos, yarn, contact_force, friction_limit, contact_tangent)
+    band = banded.zeros_band(pos.size)
+    hessian(pos, yarn, np.ascontiguousarray(anchors, dtype=np.float64), friction_limit,
+            contact_tangent, coupled, band)
+    return band

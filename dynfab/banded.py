@@ -26,6 +26,17 @@ def zeros_band(dofs: int) -> np.ndarray:
     return np.zeros((dofs, 2 * BANDWIDTH + 1))
 
 
+def to_dense(band: np.ndarray) -> np.ndarray:
+    """The full n x n matrix A[i, j] = band[i, j - i + BANDWIDTH] of a banded one (numpy's
+    dense linear algebra: inverses, eigenvalues; O(n^2) memory)."""
+    n = band.shape[0]
+    matrix = np.zeros((n, n))
+    for offset in range(-BANDWIDTH, BANDWIDTH + 1):
+        rows = np.arange(max(0, -offset), min(n, n - offset))
+        matrix[rows, rows + offset] = band[rows, offset + BANDWIDTH]
+    return matrix
+
+
 @numba.njit(cache=True)
 def band_add(band, i, j, value):
     """A[i, j] += value."""

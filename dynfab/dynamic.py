@@ -168,6 +168,14 @@ class DynamicSolver:
             self._launch(state, load_value, steps=0)
         return self.motion.stable_dt.numpy().astype(float)
 
+    def last_relaxation(self) -> dict:
+        """What the last relaxation left, per yarn, also after a SolverError (copies):
+        "time_steps" of its last launch, "masses" [kg] (N+1 nodes, as chosen at the step's
+        start) and "energy_ratio" [-] (kinetic energy over work done, the divergence check)."""
+        return {"time_steps": self.motion.steps.numpy().copy(),
+                "masses": self.motion.mass.numpy().copy(),
+                "energy_ratio": self.motion.energy_ratio.numpy().copy()}
+
     def step(self, state, load_value: float):
         """Relax every yarn under `load_value`; returns (new state, record) or raises SolverError
         (the `dynfab.solver.Solver` contract)."""

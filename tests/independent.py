@@ -1,7 +1,8 @@
 """Independent helpers shared by the verification tests (plain functions, not fixtures).
 
 Scene building through the TOML parser (as a user's scene file), a load-path
-driver, the dense matrix of a banded one, and the series contact law of
+driver, the dense matrix of a banded one (`dynfab.banded.to_dense`, checked against
+`band_matvec` in test_certificate.py), and the series contact law of
 MODEL.md 3 solved here with scipy (brentq on g(R), arc lengths from ellipe),
 independently of dynfab.terms.contact. Import with `from independent import ...`
 (pytest puts tests/ on sys.path).
@@ -9,7 +10,6 @@ independently of dynfab.terms.contact. Import with `from independent import ...`
 
 from __future__ import annotations
 
-import json
 import math
 
 import numpy as np
@@ -17,10 +17,11 @@ from scipy.optimize import brentq
 from scipy.special import ellipe
 
 from dynfab import assembly
-from dynfab.banded import BANDWIDTH
+from dynfab.banded import to_dense as dense  # noqa: F401 (the tests' name for it)
 from dynfab.model import build_model, initial_state
 from dynfab.scene import Scene, parse_scene_text
 from dynfab.static import StaticSolver
+from toml_writer import toml_text as scene_toml  # TOML of {table: {key: value}}
 
 EPS = np.finfo(float).eps
 
@@ -33,41 +34,12 @@ PAPER_FRICTION = {"alpha": 0.2, "beta": 1e3, "contact_length": 2e-3, "fiber_radi
 # Scenes (MODEL.md 1).
 
 
-def _toml_value(value) -> str:
-    """A number, string, bool or list (or numpy array) of them as TOML."""
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, str):
-        return json.dumps(value)
-    if isinstance(value, (list, tuple, np.ndarray)):
-        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
-    if isinstance(value, np.floating):
-        return repr(float(value))
-    if isinstance(value, np.integer):
-        return repr(int(value))
-    return repr(value)
-
-
-def scene_toml(tables: dict) -> str:
-    """TOML text of a scene given as {table: {key: value}} (flat tables only)."""
-    lines = []
-    for name, table in tables.items():
-        lines.append(f"[{name}]")
-        lines.extend(f"{key} = {_toml_value(value)}" for key, value in table.items())
-        lines.append("")
-    return "\n".join(lines)
-
-
 def make_scene(sweep=None, **tables) -> Scene:
     """A Scene from {table: {key: value}} (and an optional [sweep]), through the TOML parser.
 
     Sweep keys are dotted parameter names ("warp.kawabata_K"), written quoted.
     """
-    text = scene_toml(tables)
-    if sweep:
-        text += "\n".join(["[sweep]"] + [f"{json.dumps(key)} = {_toml_value(values)}"
-                                         for key, values in sweep.items()])
-    return parse_scene_text(text)
+    return parse_scene_text(scene_toml({**tables, "sweep": sweep} if sweep else tables))
 
 
 def run(scene):
@@ -78,20 +50,6 @@ def run(scene):
         state, record = solver.step(state, value)
         records.append(record)
     return model, records
-
-
-# --------------------------------------------------------------------------
-# Matrices (dynfab.banded layout).
-
-
-def dense(band):
-    """The full matrix A[i, j] = band[i, j - i + BANDWIDTH] of a banded one."""
-    n = band.shape[0]
-    matrix = np.zeros((n, n))
-    for i in range(n):
-        for j in range(max(0, i - BANDWIDTH), min(n, i + BANDWIDTH + 1)):
-            matrix[i, j] = band[i, j - i + BANDWIDTH]
-    return matrix
 
 
 # --------------------------------------------------------------------------

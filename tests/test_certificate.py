@@ -24,7 +24,7 @@ from scipy.optimize import brentq
 from scipy.special import ellipe, ellipk
 
 from dynfab import certificate
-from dynfab.banded import BANDWIDTH
+from dynfab.banded import BANDWIDTH, band_matvec, to_dense
 from dynfab.errors import SolverError
 from dynfab.ldlt import TINY_PIVOT, inverse_norm_1, ldlt_factor, ldlt_solve
 from dynfab.model import build_model, initial_state
@@ -55,6 +55,26 @@ def random_banded_symmetric(n, seed, shift):
         for j in range(max(0, i - BANDWIDTH), i + 1):
             matrix[i, j] = matrix[j, i] = rng.normal()
     return matrix + shift * np.eye(n)
+
+
+def test_to_dense_is_the_banded_layout_and_multiplies_as_band_matvec():
+    # to_dense inverts `banded` above exactly (a copy of entries: no rounding), zero outside
+    # the band; on an unsymmetric band its product is band_matvec's up to the summation
+    # order: |error| <= (2 BANDWIDTH + 1) eps sum_j |A_ij x_j| (standard dot-product bound).
+    rng = np.random.default_rng(5)
+    n = 23
+    matrix = random_banded_symmetric(n, seed=4, shift=0.0) + np.triu(
+        rng.normal(size=(n, n)), 1) * (np.subtract.outer(np.arange(n), np.arange(n)) >= -BANDWIDTH)
+    assert np.array_equal(to_dense(banded(matrix)), matrix)
+    band = rng.normal(size=(n, 2 * BANDWIDTH + 1))
+    x = rng.normal(size=n)
+    product = np.zeros(n)
+    band_matvec(band, x, product)
+    full = to_dense(band)
+    offsets = np.subtract.outer(np.arange(n), np.arange(n))
+    assert (full[np.abs(offsets) > BANDWIDTH] == 0).all()
+    bound = (2 * BANDWIDTH + 1) * np.finfo(float).eps * (np.abs(full) @ np.abs(x))
+    assert (np.abs(full @ x - product) <= bound).all()
 
 
 # --------------------------------------------------------------------------

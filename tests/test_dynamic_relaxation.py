@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 from dynfab import assembly
-from dynfab.banded import BANDWIDTH, zeros_band
+from dynfab.banded import BANDWIDTH, to_dense
 from dynfab.dynamic import DynamicSolver
 from dynfab.errors import SolverError
 from dynfab.kernels import relaxation, status
@@ -38,15 +38,8 @@ def inverse_stiffness_norm(model, positions, anchors, coupled) -> np.ndarray:
     free = ~model.fixed_dofs()
     norms = []
     for k, yarn in enumerate(model.yarns):
-        contact_force, limit, tangent = (np.zeros(model.crossings) for _ in range(3))
-        assembly.contact_state(positions[k], yarn, contact_force, limit, tangent)
-        band = zeros_band(positions[k].size)
-        assembly.hessian(positions[k], yarn, anchors[k], limit, tangent, coupled, band)
-        dense = np.zeros((band.shape[0], band.shape[0]))
-        for i in range(band.shape[0]):
-            for j in range(max(0, i - BANDWIDTH), min(band.shape[0], i + BANDWIDTH + 1)):
-                dense[i, j] = band[i, j - i + BANDWIDTH]
-        inverse = np.linalg.inv(dense[np.ix_(free, free)])
+        band = assembly.tangent(positions[k], yarn, anchors[k], coupled)
+        inverse = np.linalg.inv(to_dense(band)[np.ix_(free, free)])
         norms.append(np.abs(inverse).sum(axis=1).max())
     return np.array(norms)
 
@@ -206,11 +199,8 @@ def test_float32_reaches_its_tolerance_or_rounding_floor(fig3):
     with warnings.catch_warnings(record=True):
         for model, static_state, static_record, state, record in relax_path(
                 scene, Dynamic(precision="float32", accuracy=math.inf)):
-            band = zeros_band(state.positions[0].size)
-            yarn, positions = model.yarns[0], state.positions[0]
-            contact_force, limit, tangent = (np.zeros(model.crossings) for _ in range(3))
-            assembly.contact_state(positions, yarn, contact_force, limit, tangent)
-            assembly.hessian(positions, yarn, state.anchors[0], limit, tangent, False, band)
+            positions = state.positions[0]
+            band = assembly.tangent(positions, model.yarns[0], state.anchors[0], False)
             floor = 16 * np.finfo(np.float32).eps * np.abs(band[:, BANDWIDTH]).max() \
                 * np.abs(positions).max()
             assert record["residual"][0] <= max(1e-4, floor)

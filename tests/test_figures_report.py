@@ -11,7 +11,8 @@ Thresholds (the same as the report's, dynfab/reports/figures.py `check_trends`):
 * orderings (K, friction) must hold at every load step by more than the largest
   static-vs-dynamic end-force difference, so that they are not solver noise;
 * saturation of the contact force: at most 10 % of its growth in the last quarter of
-  the displacement (a growth linear in the displacement puts 25 % there; the data ~2 %);
+  the displacement (a growth linear in the displacement puts 25 % there; the quick report's
+  trends.json: 2.4 to 3.1 %);
 * the friction gap: up by >= 10 % from the first step to 5 % strain (the paper's 5 mm),
   then within 10 % of its 5 % value to the end ("nearly parallel"); at the end within 5 %
   of half the summed friction limits, its value for fully sliding crossings symmetric
@@ -40,7 +41,7 @@ from matplotlib.image import imread
 from matplotlib.text import Text
 
 from dynfab import assembly
-from dynfab.banded import zeros_band
+from dynfab.banded import to_dense
 from dynfab.cli import main
 from dynfab.errors import SceneError
 from dynfab.kernels.configuration import Configuration, built_variants
@@ -49,7 +50,6 @@ from dynfab.reports import figures as report
 from dynfab.reports import figures_plots
 from dynfab.results import read_results
 from dynfab.scene import expand_sweep, load_scene, parse_scene_text
-from independent import dense
 
 RUNS = Path(__file__).resolve().parent.parent / "runs"
 NAMES = ("fig3", "fig5")
@@ -187,9 +187,11 @@ def test_fig3b_contact_force_grows_and_saturates(quick, files):
             late = R[-1, k] - np.interp(0.75 * u[-1], u, R[:, k])
             assert late <= 0.10 * (R[-1, k] - R[0, k])  # saturates
         assert (R[:, :-1] > R[:, 1:]).all()  # the smaller K, the larger the contact force
-        shares = summary["trends"]["fig3b_contact_force_grows_and_saturates"][solver][
-            "last_quarter_share_of_growth"]
-        assert max(shares) < 0.05
+        # the report's shares are the ones recomputed here (the same interpolation)
+        shares = [(R[-1, k] - np.interp(0.75 * u[-1], u, R[:, k])) / (R[-1, k] - R[0, k])
+                  for k in range(3)]
+        assert summary["trends"]["fig3b_contact_force_grows_and_saturates"][solver][
+            "last_quarter_share_of_growth"] == pytest.approx(shares, rel=1e-12)
     assert summary["trends"]["fig3b_contact_force_grows_and_saturates"]["passed"]
 
 
@@ -221,13 +223,9 @@ def test_fig5_friction_stiffens_and_the_gap_grows_then_stays_nearly_constant(qui
 
 def dense_inverse_norm(yarn, positions, anchors, fixed):
     """||J^-1||_inf on the free dofs, from numpy's dense inverse."""
-    c = yarn.crossing_node.size
-    force, limit, tangent = np.zeros(c), np.zeros(c), np.zeros(c)
-    assembly.contact_state(positions, yarn, force, limit, tangent)
-    band = zeros_band(positions.size)
-    assembly.hessian(positions, yarn, anchors, limit, tangent, bool(yarn.has_friction), band)
+    band = assembly.tangent(positions, yarn, anchors, bool(yarn.has_friction))
     free = ~fixed
-    return np.abs(np.linalg.inv(dense(band)[np.ix_(free, free)])).sum(axis=1).max()
+    return np.abs(np.linalg.inv(to_dense(band)[np.ix_(free, free)])).sum(axis=1).max()
 
 
 @pytest.mark.parametrize("name", NAMES)
@@ -257,8 +255,11 @@ def test_static_and_dynamic_agree_within_residual_times_inverse_stiffness(quick,
     assert c["inverse_stiffness_norm_m_per_N"]["max"] == pytest.approx(max(norms), rel=1e-9)
     assert c["within_bound"] and c["max_anchor_term_N"] == 0.0
     assert c["friction_state_mismatches"] == 0
-    # the bound is tight enough to mean something: positions to 1e-7 m, forces to 1e-6 N
-    assert c["max_position_bound_m"] < 1e-7 and c["max_end_force_difference_N"] < 1e-6
+    # The report's bound is the one the residual tolerances give (dynamic 1e-8 N, static
+    # 1e-11 N, both checked above) with the norms computed here (to the 1e-9 agreement of
+    # the LU and numpy inverses): nothing looser slips in. The end-force difference is
+    # within its own bound, and the orderings of Fig. 3a and 5 are judged against it above.
+    assert c["max_position_bound_m"] <= max(norms) * (1e-8 + 1e-11) * (1 + 1e-9)
     assert c["max_end_force_over_bound"] <= 1.0
 
 
@@ -308,6 +309,37 @@ def test_fig3a_draws_the_file_data_static_as_lines_and_dynamic_as_markers(files)
         assert np.array_equal(line.get_ydata(), per_width(static)[:, k])
         assert np.array_equal(markers.get_ydata(), per_width(dynamic)[:, k])
     assert "prestressed" in fig.get_suptitle()
+
+
+def test_fig3b_draws_the_mean_contact_force_of_each_K_from_the_files(files):
+    ax = figures_plots.plot_fig3b(files).axes[0]
+    static, dynamic = files[("fig3", "static")], files[("fig3", "dynamic")]
+    _, order = k_order(static)
+    lines = ax.get_lines()
+    assert len(lines) == 6  # a line (static) and a marker series (dynamic) per K
+    for n, k in enumerate(order):
+        for line, results in ((lines[2 * n], static), (lines[2 * n + 1], dynamic)):
+            assert np.array_equal(line.get_xdata(), 1e3 * results.steps["end_displacement"][:, k])
+            assert np.array_equal(line.get_ydata(),
+                                  1e3 * results.steps["contact_force"][:, k].mean(axis=-1))
+
+
+def test_fig5_draws_both_curves_the_friction_gap_and_half_the_friction_limits(files):
+    left, right = figures_plots.plot_fig5(files).axes
+    static, dynamic = files[("fig5", "static")], files[("fig5", "dynamic")]
+    on, off = friction_yarns(static)
+    width = static.attrs["width_per_yarn"]
+    left_lines = left.get_lines()
+    for n, k in enumerate((on, off)):  # static line, dynamic markers: with, then without
+        assert np.array_equal(left_lines[2 * n].get_ydata(), per_width(static)[:, k])
+        assert np.array_equal(left_lines[2 * n + 1].get_ydata(), per_width(dynamic)[:, k])
+    gap_static, gap_dynamic, half = right.get_lines()[:3]
+    for line, results in ((gap_static, static), (gap_dynamic, dynamic)):
+        q = per_width(results)
+        assert np.array_equal(line.get_ydata(), q[:, on] - q[:, off])
+    assert np.allclose(half.get_ydata(),
+                       0.5 * static.steps["friction_limit"][:, on].sum(axis=1) / width,
+                       rtol=1e-15, atol=0)
 
 
 def test_every_figure_names_its_reference_state_and_uses_readable_fonts(files):

@@ -1,4 +1,5 @@
-"""Figures from a synthetic result file: the PNGs exist, are real images, and errors are SceneErrors."""
+"""Figures from a synthetic result file: which PNGs are written (real images), what each figure
+draws (the file's data, read back from the matplotlib artists), and errors are SceneErrors."""
 
 from __future__ import annotations
 
@@ -10,8 +11,8 @@ import pytest
 from matplotlib.image import imread
 
 from dynfab.errors import SceneError
-from dynfab.plot import (friction_states, friction_yarns, plot_friction, plot_results, shape_steps,
-                         yarn_labels)
+from dynfab.plot import (friction_states, friction_yarns, plot_contact_force, plot_friction,
+                         plot_results, plot_shape, plot_traction, shape_steps, yarn_labels)
 from dynfab.results import ResultFile, read_results
 
 LENGTH, SEGMENTS, AMPLITUDE = 0.01, 32, 1e-4
@@ -84,6 +85,47 @@ def test_all_figures(tmp_path):
     for path in written:
         assert path.parent == tmp_path / "figures"
         assert_image(path)
+
+
+def test_traction_draws_each_yarns_force_against_strain_and_displacement(tmp_path):
+    results = read_results(write_synthetic(tmp_path / "run.h5", yarns=2))
+    left, right = plot_traction(results).axes
+    force, displacement = results.steps["end_force"], results.steps["end_displacement"]
+    for k, label in enumerate(yarn_labels(results)):
+        strain_line, displacement_line = left.get_lines()[k], right.get_lines()[k]
+        assert strain_line.get_label() == displacement_line.get_label() == label
+        assert np.array_equal(strain_line.get_xdata(), 100 * displacement[:, k] / LENGTH)
+        assert np.array_equal(strain_line.get_ydata(), force[:, k] / 5e-4)  # width_per_yarn
+        assert np.array_equal(displacement_line.get_xdata(), 1e3 * displacement[:, k])
+        assert np.array_equal(displacement_line.get_ydata(), force[:, k])
+
+
+def test_contact_force_draws_the_largest_and_the_mean_over_the_crossings(tmp_path):
+    results = read_results(write_synthetic(tmp_path / "run.h5", yarns=2))
+    lines = plot_contact_force(results).axes[0].get_lines()
+    contact = results.steps["contact_force"]
+    for k in range(2):  # the last step opens crossing 0: the mean drops, the largest does not
+        largest, mean = lines[2 * k], lines[2 * k + 1]
+        assert np.array_equal(largest.get_xdata(), 1e3 * results.steps["end_displacement"][:, k])
+        assert np.array_equal(largest.get_ydata(), contact[:, k].max(axis=1))
+        assert np.array_equal(mean.get_ydata(), contact[:, k].mean(axis=1))
+        assert largest.get_linestyle() == "-" and mean.get_linestyle() == "--"
+
+
+def test_shape_draws_the_first_yarn_at_the_shape_steps_with_sliding_crossings_hollow(tmp_path):
+    results = read_results(write_synthetic(tmp_path / "run.h5", steps=3))
+    lines = plot_shape(results).axes[0].get_lines()
+    positions, nodes = results.steps["positions"], results.reference["crossing_nodes"]
+    sliding = results.steps["sliding"].astype(bool)
+    assert np.array_equal(lines[0].get_ydata(), 1e3 * results.reference["positions"][0, :, 1])
+    for n, step in enumerate(shape_steps(3)):  # a curve, its sticking dots, its sliding rings
+        curve, solid, hollow = lines[1 + 3 * n: 4 + 3 * n]
+        assert np.array_equal(curve.get_xdata(), 1e3 * positions[step, 0, :, 0])
+        assert np.array_equal(curve.get_ydata(), 1e3 * positions[step, 0, :, 1])
+        slide = sliding[step, 0]
+        assert np.array_equal(solid.get_xdata(), 1e3 * positions[step, 0, nodes[~slide], 0])
+        assert np.array_equal(hollow.get_xdata(), 1e3 * positions[step, 0, nodes[slide], 0])
+        assert hollow.get_markerfacecolor() == "white"
 
 
 def test_one_step(tmp_path):

@@ -33,6 +33,7 @@ from dynfab.errors import SceneError
 from dynfab.kernels.configuration import built_variants
 from dynfab.reports import precision
 from dynfab.reports.precision import CSV_COLUMNS, QUICK, TARGETS, Plan, run_precision
+from dynfab.reports.precision_plots import plot_error_vs_residual, plot_work_precision
 
 FILES = {"points.csv", "summary.json", "cheapest.json", "precision.md",
          "work_precision_time.png", "work_precision_evaluations.png", "error_vs_residual.png"}
@@ -309,6 +310,46 @@ def test_the_pngs_are_real_images(report):
         levels = np.round(rgb * 255).astype(np.uint32)
         colours = levels[..., 0] << 16 | levels[..., 1] << 8 | levels[..., 2]
         assert np.unique(colours).size > 50  # anti-aliased curves and markers, not flat fills
+
+
+def test_each_work_precision_panel_plots_the_usable_points_of_its_case(report):
+    # What the figure shows: in the panel titled as a case, the (force evaluations, relative
+    # error floored at the case's rounding floor) of every usable point of that case, and
+    # nothing else (the Pareto front redraws some of them; the targets are horizontal lines).
+    _, summary, _ = report
+    figure = plot_work_precision(summary, "force_evaluations")
+    panels = {ax.get_title(): ax for ax in figure.axes if ax.axison}
+    assert len(panels) == len(summary["cases"])
+    for case in summary["cases"]:
+        ax, floor = panels[case["title"]], case["rounding_floor_relative"]
+        drawn = {(float(x), float(y)) for line in ax.get_lines()
+                 if list(line.get_xdata()) != [0, 1]  # not an axhline (axes coordinates)
+                 for x, y in zip(line.get_xdata(), line.get_ydata())}
+        expected = {(float(p["force_evaluations"]), max(p["relative_error"], floor))
+                    for p in usable(summary) if p["case"] == case["case"]}
+        assert drawn == expected, case["case"]
+
+
+def test_each_error_vs_residual_panel_plots_its_points_and_their_bound(report):
+    # What error_vs_residual.png shows: (float64 residual, floored relative error) of every
+    # usable point of the case, and the dashed bound ||K^-1||_inf (r + r_ref) / scale.
+    _, summary, _ = report
+    figure = plot_error_vs_residual(summary)
+    panels = {ax.get_title(): ax for ax in figure.axes if ax.axison}
+    for case in summary["cases"]:
+        ax, floor = panels[case["title"]], case["rounding_floor_relative"]
+        lines = [line for line in ax.get_lines() if list(line.get_xdata()) != [0, 1]]
+        bounds = [line for line in lines if line.get_linestyle() == "--"]
+        drawn = {(float(x), float(y)) for line in lines if line not in bounds
+                 for x, y in zip(line.get_xdata(), line.get_ydata())}
+        assert drawn == {(p["residual_N"], max(p["relative_error"], floor))
+                         for p in usable(summary) if p["case"] == case["case"]}, case["case"]
+        if case["inverse_stiffness_norm_m_per_N"] is not None:
+            (bound,) = bounds
+            r = np.asarray(bound.get_xdata())
+            assert np.allclose(bound.get_ydata(), case["inverse_stiffness_norm_m_per_N"]
+                               * (r + case["reference_residual_N"]) / case["scale_m"],
+                               rtol=1e-15, atol=0)
 
 
 def test_lbfgs_points_are_there_with_scipy(report):

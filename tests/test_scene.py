@@ -4,7 +4,6 @@ Fast: imports only dynfab.scene and dynfab.errors (no numba, no Warp).
 """
 
 import copy
-import json
 import math
 import subprocess
 import sys
@@ -28,6 +27,7 @@ from dynfab.scene import (
     with_key,
     yarn_count,
 )
+from toml_writer import toml_text
 
 RUNS = Path(__file__).resolve().parent.parent / "runs"
 
@@ -44,32 +44,6 @@ BASE = {
 FRICTION = {"alpha": 0.2, "beta": 1e3, "contact_length": 2e-3, "fiber_radius": 1e-3}
 
 
-def toml_value(value) -> str:
-    """A Python value as TOML (numbers, strings, bools, lists, inline tables)."""
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, str):
-        return json.dumps(value)
-    if isinstance(value, float) and not math.isfinite(value):
-        return "nan" if math.isnan(value) else ("inf" if value > 0 else "-inf")
-    if isinstance(value, list):
-        return "[" + ", ".join(toml_value(v) for v in value) + "]"
-    if isinstance(value, dict):
-        return "{" + ", ".join(f"{k} = {toml_value(v)}" for k, v in value.items()) + "}"
-    return repr(value)
-
-
-def to_toml(scene: dict) -> str:
-    """A two-level dictionary as TOML text; keys with dots are quoted."""
-    lines = [f"{k} = {toml_value(v)}" for k, v in scene.items() if not isinstance(v, dict)]
-    for name, table in scene.items():
-        if isinstance(table, dict):
-            lines.append(f"[{name}]")
-            lines += [f"{json.dumps(k) if '.' in k else k} = {toml_value(v)}"
-                      for k, v in table.items()]
-    return "\n".join(lines) + "\n"
-
-
 def edited(edits: dict) -> str:
     """BASE with edits {"table.key": value or DELETE, "table": {...} or DELETE} as TOML."""
     scene = copy.deepcopy(BASE)
@@ -80,7 +54,7 @@ def edited(edits: dict) -> str:
             del target[name]
         else:
             target[name] = copy.deepcopy(value)
-    return to_toml(scene)
+    return toml_text(scene)
 
 
 def parse(edits: dict | None = None):

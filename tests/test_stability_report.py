@@ -44,9 +44,11 @@ from matplotlib.image import imread
 from dynfab.cli import main
 from dynfab.errors import SceneError
 from dynfab.kernels import configuration
-from dynfab.reports.stability import (BISECTION_RATIO, CSV_COLUMNS, EXPLICIT_MAX_STEPS, METHODS,
-                                      QUICK, case_scene, extrapolate_mesh, fit_power_law,
-                                      paper_yarns, run_stability)
+from dynfab.reports.stability import (BISECTION_RATIO, CSV_COLUMNS, EXPLICIT_MAX_STEPS,
+                                      case_scene, extrapolate_mesh, fit_power_law, paper_yarns,
+                                      run_stability)
+from dynfab.reports.stability_cases import METHODS, QUICK
+from dynfab.reports.stability_plots import plot_map
 from dynfab.scene import Dynamic
 
 GERSHGORIN_SLACK = 1.15
@@ -274,6 +276,25 @@ def test_the_map_is_a_real_image(report):
     assert len(np.unique(rgb.reshape(-1, 3), axis=0)) > 50
 
 
+def test_the_map_plots_each_measured_case_at_its_predicted_and_measured_dt(report):
+    # What map.png shows: left, one marker at (predicted, measured) per case with a measured
+    # dt (a cross over it where the relaxation fails there); right, measured / predicted
+    # on the case's row, the rows labelled with the case names.
+    _, summary, _, _, _ = report
+    measured = [c for c in summary["cases"]
+                if c.get("stability") and c["stability"].get("measured_dt_s") is not None]
+    assert measured
+    left, right = plot_map(summary["cases"], QUICK).axes
+    markers = [line for line in left.get_lines() if line.get_linestyle() == "None"
+               and line.get_marker() != "x"]
+    assert [(line.get_xdata()[0], line.get_ydata()[0]) for line in markers] == [
+        (c["stability"]["predicted_dt_s"], c["stability"]["measured_dt_s"]) for c in measured]
+    ratios = [line for line in right.get_lines() if line.get_marker() not in ("x", "None", "")]
+    assert [(line.get_xdata()[0], line.get_ydata()[0]) for line in ratios] == [
+        (c["stability"]["measured_over_predicted"], -k) for k, c in enumerate(measured)]
+    assert [t.get_text() for t in right.get_yticklabels()] == [c["case"] for c in measured]
+
+
 def test_fine_meshes_are_judged_by_their_extrapolated_step_count():
     # steps = 2 N^1.5 measured at 224, 448, 896: 1792 and 3584 are predicted by the fit,
     # and judged against max_steps (1792: 1.5e5 <= 2e5; 3584: 4.3e5 > 2e5).
@@ -330,9 +351,6 @@ def test_the_friction_path_is_followed_by_the_compiled_methods(report):
 def test_the_map_marks_a_case_whose_relaxation_fails_at_the_measured_dt():
     """A friction case can be energy-stable at a dt where its relaxation still fails: the map
     must say so on the figure (a cross and a label), not only in a footnote."""
-    from dynfab.reports.stability import QUICK
-    from dynfab.reports.stability_plots import plot_map
-
     def case(name, verdict):
         return {"case": name, "family": "friction",
                 "stability": {"predicted_dt_s": 1e-6, "measured_dt_s": 1.5e-5,

@@ -20,7 +20,6 @@ import pytest
 from scipy.optimize import minimize
 
 from dynfab import assembly
-from dynfab.banded import BANDWIDTH
 from dynfab.model import initial_state
 from dynfab.scene import expand_sweep, load_scene
 from independent import (EPS, PAPER_FRICTION, PAPER_WARP, PAPER_WEFT, contact_forces, dense,
@@ -51,12 +50,7 @@ def paper_yarn(segments, crossings, load, friction=None, gravity=False, yarns=1,
 
 def jacobian(yarn, positions, anchors, coupled=True):
     """Dense d(grad V)/dr of the model at `positions` (Huber anchors `anchors`) [N/m]."""
-    c = yarn.crossing_node.size
-    R, limit, tangent = np.zeros(c), np.zeros(c), np.zeros(c)
-    assembly.contact_state(positions, yarn, R, limit, tangent)
-    band = np.zeros((positions.size, 2 * BANDWIDTH + 1))
-    assembly.hessian(positions, yarn, anchors, limit, tangent, coupled, band)
-    return dense(band)
+    return dense(assembly.tangent(positions, yarn, anchors, coupled))
 
 
 # --------------------------------------------------------------------------

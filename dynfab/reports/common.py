@@ -1,4 +1,5 @@
-"""Helpers the reports share: the output folder, the machine, and the CSV, JSON and text writers.
+"""Helpers the reports share: the output folder, the machine, the CSV, JSON and text writers,
+and the paper's yarns (cut to fewer crossings for the quick reports).
 
 Figure helpers (saving, a new figure, the axis style) are dynfab.plot's.
 """
@@ -17,7 +18,7 @@ import numpy as np
 
 from dynfab.errors import SceneError
 from dynfab.plot import output_folder  # noqa: F401 (the reports' --out check)
-from dynfab.scene import Scene, expand_sweep, load_scene
+from dynfab.scene import Scene, expand_sweep, load_scene, with_key
 
 RUNS = Path(__file__).resolve().parents[2] / "runs"
 """The paper scene files of the source tree (the README's editable install keeps it)."""
@@ -89,3 +90,22 @@ def paper_yarns(reader: str) -> tuple[Scene, Scene]:
     frictionless = next(s for s in expand_sweep(fig3) if s.warp.kawabata_K == 0.2)
     friction = next(s for s in expand_sweep(fig5) if s.friction and s.friction.alpha > 0)
     return frictionless, friction
+
+
+def cut_yarn(scene: Scene, crossings: int, segments: int | None = None, *,
+             scale_load: bool = False) -> Scene:
+    """The same yarn with `crossings` crossings at the same spacing (L scaled, the weft as it
+    was: `with_key` leaves its length and count), N = `segments` (None: as it is); with
+    `scale_load`, the load values scaled with L (the same strains under displacement control).
+
+    The crossings are set before N, so that N divides 2 x crossings at every change
+    (N = 224 divides 2 x 4 too)."""
+    ratio = crossings / scene.geometry.crossings
+    length = scene.geometry.length * ratio
+    scene = with_key(scene, "geometry.crossings", crossings)
+    if segments is not None:
+        scene = with_key(scene, "geometry.segments", segments)
+    scene = with_key(scene, "geometry.length", length)
+    if scale_load:
+        scene = with_key(scene, "load.values", [v * ratio for v in scene.load.values])
+    return scene

@@ -53,8 +53,8 @@ from matplotlib.lines import Line2D
 from dynfab import assembly
 from dynfab.model import build_model
 from dynfab.plot import DPI, FONT_SIZE, save_png, style_axes
-from dynfab.reports.common import (machine, output_folder, paper_yarns, write_csv, write_json,
-    write_text)
+from dynfab.reports.common import (cut_yarn, machine, output_folder, paper_yarns, write_csv,
+                                   write_json, write_text)
 from dynfab.run import run
 from dynfab.scene import Load, Scene, validate_scene, with_key
 
@@ -166,19 +166,8 @@ def run_convergence(out_dir, *, quick: bool = False,
 def paper_scenes(plan: Plan) -> dict[str, Scene]:
     """The frictionless (K = 0.2 m/N) and friction paper yarns, cut to `plan.crossings`."""
     frictionless, friction = paper_yarns("the convergence report")
-    return {"frictionless": _cut(frictionless, plan), "friction": _cut(friction, plan)}
-
-
-
-def _cut(scene: Scene, plan: Plan) -> Scene:
-    """The same yarn with `plan.crossings` crossings at the same spacing (weft unchanged)."""
-    geometry = scene.geometry
-    if plan.crossings == geometry.crossings:
-        return with_key(scene, "geometry.segments", plan.base_segments)
-    length = geometry.length * plan.crossings / geometry.crossings
-    scene = with_key(scene, "geometry.crossings", plan.crossings)  # N = 224 divides 2 x 4 too
-    scene = with_key(scene, "geometry.segments", plan.base_segments)
-    return with_key(scene, "geometry.length", length)
+    return {label: cut_yarn(scene, plan.crossings, plan.base_segments)
+            for label, scene in (("frictionless", frictionless), ("friction", friction))}
 
 
 def with_path(scene: Scene, top: float, steps: int) -> Scene:

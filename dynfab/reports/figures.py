@@ -42,11 +42,8 @@ without friction), and a few seconds. Errors for user mistakes are `SceneError`s
 
 from __future__ import annotations
 
-import json
-import re
 import time
-import tomllib
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable
 
@@ -54,22 +51,20 @@ import numba
 import numpy as np
 
 from dynfab import assembly
-from dynfab.banded import BANDWIDTH, constrain, lu_factor, lu_solve, zeros_band
+from dynfab.banded import BANDWIDTH, constrain, lu_factor, lu_solve, to_dense
 from dynfab.errors import SceneError
 from dynfab.model import build_model
-from dynfab.plot import friction_states
-from dynfab.reports.common import machine, output_folder, paper_scene_file, write_json
+from dynfab.reports.common import cut_yarn, machine, output_folder, paper_scene_file, write_json
+from dynfab.reports.figures_data import (FIGURES, SOLVERS, STRAIN_STAGE, at_strain,
+                                         force_per_width, friction_gap, friction_split,
+                                         k_order, kawabata_K, mean_contact_force,
+                                         read_figure_data, result_name, scene_of, solver_pair,
+                                         state_codes, strain_percent, width)
+from dynfab.reports.figures_plots import draw_figures
 from dynfab.results import Results, dynfab_version, read_results
 from dynfab.run import run
-from dynfab.scene import Scene, expand_sweep, parse_scene_text, scene_to_toml
+from dynfab.scene import Load, Scene, parse_scene_text, scene_to_toml, validate_scene
 
-FIGURES = {"fig3": "paper_fig3.toml", "fig5": "paper_fig5.toml"}
-"""The report's scenes: name -> scene file in runs/ (`common.RUNS`)."""
-
-SOLVERS = ("static", "dynamic")
-
-STRAIN_STAGE = 0.05
-"""The paper's end of the first stage of Fig. 5: 5 mm on the 0.1 m yarn, 5 % strain."""
 
 # Thresholds of the trend checks (see `check_trends` for the reasons).
 SATURATION_SHARE = 0.10
@@ -108,9 +103,6 @@ def run_figures(out_dir, *, quick: bool = False,
     The summary (also written as ``trends.json``) has "files" (every path written) and
     "wall_time_s". `progress` receives one line per solve and one per trend (None: silent).
     """
-    # the drawings import this module's names, so they are imported here
-    from dynfab.reports.figures_plots import draw_figures
-
     started = time.perf_counter()
     out = output_folder(out_dir)
     plan = QUICK if quick else FULL
@@ -148,11 +140,6 @@ def run_figures(out_dir, *, quick: bool = False,
 # Scenes and solves.
 
 
-def result_name(figure: str, solver: str) -> str:
-    """The result file of one scene and solver, e.g. ``fig3_dynamic.h5``."""
-    return f"{figure}_{solver}.h5"
-
-
 def paper_scenes(plan: Plan) -> dict[str, Scene]:
     """The report's scenes: the paper files as they are (FULL) or cut to `plan` (QUICK).
 
@@ -170,48 +157,18 @@ def paper_scenes(plan: Plan) -> dict[str, Scene]:
 
 def cut_scene_text(scene: Scene, plan: Plan) -> str:
     """TOML of `scene` with `plan.crossings` crossings at the same spacing and mesh density
-    (L and N scaled), the same weft (its length and count written out, since they default
-    to the warp's), and the end displacement to `plan.max_displacement` in `plan.steps`."""
-    raw = tomllib.loads(scene.text)
-    geometry = scene.geometry
-    scale = plan.crossings / geometry.crossings
-    raw["geometry"].update(crossings=plan.crossings, segments=plan.segments,
-                           length=geometry.length * scale)
-    raw["weft"].update(length=scene.weft.length, count=scene.weft.count)
-    raw["load"] = {"control": "displacement", "max": plan.max_displacement, "steps": plan.steps}
-    raw["title"] = (f"{raw.get('title', '')} [{plan.name}: {plan.crossings} crossings, "
-                    f"N = {plan.segments}, {1e3 * plan.max_displacement:g} mm "
-                    f"in {plan.steps} steps]")
+    (`common.cut_yarn`: L and N scaled, the same weft, whose length and count
+    `scene_to_toml` writes out), and the end displacement to `plan.max_displacement` in
+    `plan.steps` (values = max k / steps, as the scene file's max and steps)."""
+    cut = cut_yarn(scene, plan.crossings, plan.segments)
+    values = tuple(plan.max_displacement * k / plan.steps for k in range(1, plan.steps + 1))
+    title = (f"{scene.title} [{plan.name}: {plan.crossings} crossings, N = {plan.segments}, "
+             f"{1e3 * plan.max_displacement:g} mm in {plan.steps} steps]")
+    cut = validate_scene(replace(cut, title=title,
+                                 load=Load(control="displacement", values=values)))
     header = (f"# {plan.name} cut of the paper scene: {plan.crossings} of its "
-              f"{geometry.crossings} crossings at the same spacing, the same weft.\n")
-    return header + toml_text(raw)
-
-
-def toml_text(raw: dict) -> str:
-    """TOML text of a scene dictionary: top-level values, then one level of tables."""
-    lines = [f"{_toml_key(k)} = {_toml_value(v)}" for k, v in raw.items()
-             if not isinstance(v, dict)]
-    for name, table in raw.items():
-        if isinstance(table, dict):
-            lines += ["", f"[{name}]"]
-            lines += [f"{_toml_key(k)} = {_toml_value(v)}" for k, v in table.items()]
-    return "\n".join(lines) + "\n"
-
-
-def _toml_key(key: str) -> str:
-    return key if re.fullmatch(r"[A-Za-z0-9_-]+", key) else json.dumps(key)
-
-
-def _toml_value(value) -> str:
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, (int, float)):
-        return repr(value)
-    if isinstance(value, str):
-        return json.dumps(value)
-    if isinstance(value, (list, tuple)):
-        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
-    raise TypeError(f"cannot write {value!r} as TOML")
+              f"{scene.geometry.crossings} crossings at the same spacing, the same weft.\n")
+    return header + scene_to_toml(cut)
 
 
 def stale_reason(path: Path, scene: Scene, solver: str) -> str | None:
@@ -261,64 +218,8 @@ def ensure_result(scene: Scene, solver: str, path: Path,
     return entry
 
 
-def read_figure_data(folder) -> dict[tuple[str, str], Results]:
-    """The four result files of the report folder, by (figure, solver)."""
-    folder = Path(folder)
-    return {(name, solver): read_results(folder / result_name(name, solver))
-            for name in FIGURES for solver in SOLVERS}
-
-
 # --------------------------------------------------------------------------
 # Quantities read from a result file.
-
-
-def scene_of(results: Results) -> Scene:
-    """The scene a result file was written from (its ``scene`` attribute)."""
-    return parse_scene_text(results.attrs["scene"], source="the result file's scene attribute")
-
-
-def width(results: Results) -> float:
-    """Fabric width per warp yarn [m] (force per unit width = P / width)."""
-    return float(results.attrs["width_per_yarn"])
-
-
-def length(results: Results) -> float:
-    return float(results.attrs["projected_length"])
-
-
-def strain_percent(results: Results) -> np.ndarray:
-    """(steps, yarns) end displacement / L [%]."""
-    return 100 * results.steps["end_displacement"] / length(results)
-
-
-def force_per_width(results: Results) -> np.ndarray:
-    """(steps, yarns) P / width [N/m]."""
-    return results.steps["end_force"] / width(results)
-
-
-def mean_contact_force(results: Results) -> np.ndarray:
-    """(steps, yarns) contact force averaged over the crossings [N]."""
-    return results.steps["contact_force"].mean(axis=-1)
-
-
-def kawabata_K(results: Results) -> np.ndarray:
-    """Warp K [m/N] of each yarn (sweep entry)."""
-    return np.array([s.warp.kawabata_K for s in expand_sweep(scene_of(results))])
-
-
-def friction_on(results: Results) -> np.ndarray:
-    """(yarns,) True where the yarn has a non-zero Gralen law."""
-    return np.array([s.friction is not None and (s.friction.alpha > 0 or s.friction.beta > 0)
-                     for s in expand_sweep(scene_of(results))])
-
-
-def solver_pair(data, figure):
-    return data[(figure, "static")], data[(figure, "dynamic")]
-
-
-def _at_strain(results: Results, values: np.ndarray, strain: float) -> float:
-    """`values` (steps,) of yarn 0's path, linearly interpolated at `strain` [-]."""
-    return float(np.interp(100 * strain, strain_percent(results)[:, 0], values))
 
 
 # --------------------------------------------------------------------------
@@ -332,11 +233,7 @@ def jacobian_norms(yarn, positions, anchors, fixed) -> tuple[float, float]:
 
     Exact: J^-1 column by column from the banded LU (O(n^2) per yarn); a dense numpy
     inverse where the LU meets a pivot that is not positive."""
-    c = yarn.crossing_node.size
-    force, limit, tangent = np.zeros(c), np.zeros(c), np.zeros(c)
-    assembly.contact_state(positions, yarn, force, limit, tangent)
-    band = zeros_band(positions.size)
-    assembly.hessian(positions, yarn, anchors, limit, tangent, bool(yarn.has_friction), band)
+    band = assembly.tangent(positions, yarn, anchors, bool(yarn.has_friction))
     n = band.shape[0]
     end = n - 2  # x of the end node
     end_row = np.zeros(n)
@@ -347,12 +244,8 @@ def jacobian_norms(yarn, positions, anchors, fixed) -> tuple[float, float]:
     constrain(factors, np.zeros(n), fixed)
     if lu_factor(factors) < 0:
         return _inverse_norms(factors, fixed, end_row)
-    dense = np.zeros((n, n))
-    for i in range(n):
-        lo, hi = max(0, i - BANDWIDTH), min(n, i + BANDWIDTH + 1)
-        dense[i, lo:hi] = band[i, lo - i + BANDWIDTH:hi - i + BANDWIDTH]
     free = ~fixed
-    inverse = np.linalg.inv(dense[np.ix_(free, free)])
+    inverse = np.linalg.inv(to_dense(band)[np.ix_(free, free)])
     return float(np.abs(inverse).sum(axis=1).max()), float(np.abs(end_row[free] @ inverse).sum())
 
 
@@ -436,11 +329,6 @@ def compare_pair(static: Results, dynamic: Results) -> dict:
     }
 
 
-def state_codes(results: Results, yarn: int) -> np.ndarray:
-    """(steps, crossings) friction state codes of one yarn (`dynfab.plot.friction_states`)."""
-    return friction_states(results, yarn)
-
-
 # --------------------------------------------------------------------------
 # The paper's trends (MODEL.md 8), checked on the data of each solver.
 
@@ -484,10 +372,6 @@ def check_trends(data, comparison: dict | None = None) -> dict:
 def _per_solver(data, figure, check, *args) -> dict:
     results = {solver: check(data[(figure, solver)], *args) for solver in SOLVERS}
     return {"passed": all(r["passed"] for r in results.values()), **results}
-
-
-def k_order(results: Results) -> np.ndarray:
-    return np.argsort(kawabata_K(results))
 
 
 def _k_ordering(results: Results, noise_N: float) -> dict:
@@ -543,17 +427,6 @@ def _contact_ordering(results: Results) -> dict:
             "passed": bool(gaps.min() > 0)}
 
 
-def friction_split(results: Results) -> tuple[int, int]:
-    on = friction_on(results)
-    return int(np.flatnonzero(on)[0]), int(np.flatnonzero(~on)[0])
-
-
-def friction_gap(results: Results) -> np.ndarray:
-    on, off = friction_split(results)
-    q = force_per_width(results)
-    return q[:, on] - q[:, off]
-
-
 def _friction_stiffens(results: Results, noise_N: float) -> dict:
     gap = friction_gap(results)
     margin = noise_N / width(results)
@@ -565,7 +438,7 @@ def _gap_shape(results: Results) -> dict:
     gap = friction_gap(results)
     on, _ = friction_split(results)
     strain = strain_percent(results)[:, 0]
-    at_stage = _at_strain(results, gap, STRAIN_STAGE)
+    at_stage = at_strain(results, gap, STRAIN_STAGE)
     growth = at_stage / gap[0]
     change = abs(gap[-1] - at_stage) / at_stage
     knee = strain[np.argmax(gap >= 0.9 * gap[-1])]

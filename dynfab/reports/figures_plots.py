@@ -1,7 +1,7 @@
 """Figures report drawings: the paper's Fig. 3a, 3b and 5, the shapes and the friction states.
 
 `draw_figures` writes the report's PNGs from its four result files alone (read with
-`dynfab.reports.figures.read_figure_data`), static solutions as lines and dynamic ones as
+`dynfab.reports.figures_data.read_figure_data`), static solutions as lines and dynamic ones as
 markers.
 """
 
@@ -20,10 +20,10 @@ from matplotlib.patches import Patch
 
 from dynfab.plot import DPI, FONT_SIZE, FRICTION_STATES, new_figure
 from dynfab.plot import style_axes as _plot_style
-from dynfab.reports.figures import (STRAIN_STAGE, force_per_width, friction_gap, friction_split,
-                                    k_order, kawabata_K, length, mean_contact_force,
-                                    read_figure_data, scene_of, solver_pair, state_codes,
-                                    strain_percent, width)
+from dynfab.reports.figures_data import (STRAIN_STAGE, force_per_width, friction_gap,
+                                         friction_split, k_order, kawabata_K, length,
+                                         mean_contact_force, read_figure_data, scene_of,
+                                         solver_pair, state_codes, strain_percent, width)
 from dynfab.results import Results
 
 FONT = 8.5

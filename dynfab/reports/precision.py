@@ -78,17 +78,22 @@ import numpy as np
 from threadpoolctl import threadpool_info, threadpool_limits
 
 from dynfab import assembly
-from dynfab.banded import BANDWIDTH, zeros_band
+from dynfab.banded import to_dense
 from dynfab.dynamic import DynamicSolver
 from dynfab.errors import SolverError
 from dynfab.model import Model, State, build_model, initial_state
 from dynfab.observables import finish_step
 from dynfab.plot import save_png
-from dynfab.reports.common import (machine, output_folder, paper_yarns, write_csv, write_json,
-    write_text)
+from dynfab.reports.common import (cut_yarn, machine, output_folder, paper_yarns, write_csv,
+                                   write_json, write_text)
+from dynfab.reports.precision_plots import plot_error_vs_residual, plot_work_precision
+from dynfab.reports.precision_points import (METHODS, Method, cheapest, method_label,
+                                             pareto_fronts, usable_points)
+from dynfab.reports.precision_tables import precision_markdown
 from dynfab.scene import Dynamic, Scene, expand_sweep, load_scene, with_key
 from dynfab.loading import prescribe_load
 from dynfab.static import StaticSolver, max_free
+from dynfab.timing import best_time
 
 REFERENCE_TOLERANCE = 1e-13
 """Static tolerance of the start states and references [N]: below float64's floor at
@@ -122,64 +127,6 @@ QUANTITIES = {
     "solver_residual": ("N", "solver_residual_N"),
     "error_bound": ("m", "bound_m"),
 }
-
-
-@dataclass(frozen=True)
-class Method:
-    """One curve of the study: a dynamic solver configuration, swept over tolerances."""
-
-    key: str
-    label: str
-    options: Dynamic
-    critical_factor: float | None = None
-    """Viscous c = this x the critical damping of the lowest mode (None: options' c)."""
-    style: tuple[str, str, str] = ("C0", "o", "-")
-    """(colour, marker, line style) in the figures."""
-
-
-METHODS = {m.key: m for m in (
-    Method("kinetic", "explicit, kinetic", Dynamic(damping="kinetic"), style=("#1f77b4", "o", "-")),
-    Method("kinetic_safety_0.5", "explicit, kinetic, safety 0.5",
-           Dynamic(damping="kinetic", safety=0.5), style=("#6baed6", "o", "--")),
-    Method("kinetic_safety_0.99", "explicit, kinetic, safety 0.99",
-           Dynamic(damping="kinetic", safety=0.99), style=("#08306b", "o", "-.")),
-    Method("kinetic_physical", "explicit, kinetic, physical masses",
-           Dynamic(damping="kinetic", masses="physical"), style=("#17becf", "o", ":")),
-    Method("viscous", "explicit, viscous (adaptive c)", Dynamic(damping="viscous"),
-           style=("#ff7f0e", "s", "-")),
-    Method("viscous_physical", "explicit, viscous (adaptive c), physical masses",
-           Dynamic(damping="viscous", masses="physical"), style=("#fdae6b", "s", ":")),
-    Method("viscous_c0.5", "explicit, viscous, c = 0.5 c_crit", Dynamic(damping="viscous"),
-           critical_factor=0.5, style=("#8c564b", "v", "--")),
-    Method("viscous_c1", "explicit, viscous, c = c_crit", Dynamic(damping="viscous"),
-           critical_factor=1.0, style=("#d62728", "v", "-")),
-    Method("viscous_c2", "explicit, viscous, c = 2 c_crit", Dynamic(damping="viscous"),
-           critical_factor=2.0, style=("#e377c2", "v", "-.")),
-    Method("fire", "explicit, FIRE 2.0", Dynamic(damping="fire"), style=("#2ca02c", "^", "-")),
-    Method("fire_physical", "explicit, FIRE 2.0, physical masses",
-           Dynamic(damping="fire", masses="physical"), style=("#98df8a", "^", ":")),
-    Method("semi_implicit", "semi_implicit", Dynamic(method="semi_implicit"),
-           style=("#9467bd", "D", "-")),
-    Method("semi_implicit_physical", "semi_implicit, physical masses",
-           Dynamic(method="semi_implicit", masses="physical"), style=("#c5b0d5", "D", ":")),
-    Method("kinetic_float32", "explicit, kinetic, float32",
-           Dynamic(damping="kinetic", precision="float32"), style=("#1f77b4", "o", (0, (1, 3)))),
-    Method("viscous_float32", "explicit, viscous (adaptive c), float32",
-           Dynamic(damping="viscous", precision="float32"), style=("#ff7f0e", "s", (0, (1, 3)))),
-    Method("fire_float32", "explicit, FIRE 2.0, float32",
-           Dynamic(damping="fire", precision="float32"), style=("#2ca02c", "^", (0, (1, 3)))),
-    Method("semi_implicit_float32", "semi_implicit, float32",
-           Dynamic(method="semi_implicit", precision="float32"),
-           style=("#9467bd", "D", (0, (1, 3)))),
-)}
-"""Every method of the full report, in legend order."""
-
-
-def method_label(key: str) -> str:
-    """A point's method as labelled (legends break it over lines): static, L-BFGS-B or METHODS."""
-    return {"static_reference": "static Newton to the floor\n(the reference)",
-            "static_newton": "static Newton at the\nscene's tolerance",
-            "lbfgs": "scipy L-BFGS-B"}.get(key) or METHODS[key].label
 
 
 @dataclass(frozen=True)
@@ -231,10 +178,6 @@ def run_precision(out_dir, *, quick: bool = False, progress: Callable[[str], Non
     `scene`: a scene file to study instead of the paper scenes. `plan`: overrides the
     quick/full plan (tests). `progress` receives one line per (case, method).
     """
-    # the table and the figures import this module's names, so they are imported here
-    from dynfab.reports.precision_plots import plot_error_vs_residual, plot_work_precision
-    from dynfab.reports.precision_tables import precision_markdown
-
     started = time.perf_counter()
     out = output_folder(out_dir)
     plan = plan or (QUICK if quick else FULL)
@@ -297,19 +240,13 @@ def _scenes(path, plan: Plan) -> dict[str, Scene]:
     return {label: _cut(paper[label], plan) for label in plan.paper_scenes}
 
 
-
 def _cut(scene: Scene, plan: Plan) -> Scene:
-    """The paper yarn with `plan.crossings` crossings at the same spacing, N = `plan.segments`,
-    its end displacements scaled with its length (the same strains)."""
-    geometry = scene.geometry
-    if plan.crossings is None or plan.crossings == geometry.crossings:
+    """The paper yarn cut to `plan.crossings` (None: as it is), N = `plan.segments` (None: as
+    it is), its end displacements scaled with its length (the same strains)."""
+    if plan.crossings is None:
         return scene if plan.segments is None else with_key(scene, "geometry.segments",
                                                             plan.segments)
-    ratio = plan.crossings / geometry.crossings
-    scene = with_key(scene, "geometry.crossings", plan.crossings)
-    scene = with_key(scene, "geometry.segments", plan.segments or geometry.segments)
-    scene = with_key(scene, "geometry.length", geometry.length * ratio)
-    return with_key(scene, "load.values", [v * ratio for v in scene.load.values])
+    return cut_yarn(scene, plan.crossings, plan.segments, scale_load=True)
 
 
 @dataclass
@@ -425,21 +362,9 @@ def build_cases(label: str, scene: Scene, plan: Plan) -> list[Case]:
 def dense_hessian(model: Model, positions, anchors, k: int, coupled: bool) -> np.ndarray:
     """Yarn k's Hessian of V plus the Huber terms (coupled: the friction Jacobian) over its
     free dofs, dense [N/m]; anchors of the step's start, F_T from the contact forces."""
-    yarn, c = model.yarns[k], model.crossings
-    pos = np.ascontiguousarray(positions[k], dtype=np.float64)
-    force, limit, tangent = np.zeros(c), np.zeros(c), np.zeros(c)
-    assembly.contact_state(pos, yarn, force, limit, tangent)
-    band = zeros_band(pos.size)
-    assembly.hessian(pos, yarn, np.ascontiguousarray(anchors[k], dtype=np.float64), limit, tangent,
-                     coupled, band)
-    n = pos.size
-    rows = np.repeat(np.arange(n), 2 * BANDWIDTH + 1)
-    cols = rows + np.tile(np.arange(-BANDWIDTH, BANDWIDTH + 1), n)
-    inside = (cols >= 0) & (cols < n)
-    dense = np.zeros((n, n))
-    dense[rows[inside], cols[inside]] = band.reshape(-1)[inside]
+    band = assembly.tangent(positions[k], model.yarns[k], anchors[k], coupled)
     free = ~model.fixed_dofs()
-    return dense[np.ix_(free, free)]
+    return to_dense(band)[np.ix_(free, free)]
 
 
 def stiffness_measures(case: Case) -> tuple[np.ndarray | None, float | None]:
@@ -459,7 +384,7 @@ def stiffness_measures(case: Case) -> tuple[np.ndarray | None, float | None]:
     probe = DynamicSolver(model, Dynamic(damping="kinetic"))  # the masses of every damping
     probe.predicted_stable_dt(case.start, case.load)
     case.info["probe_kernel"] = _kernel_name(probe.configuration)
-    masses = probe.motion.mass.numpy().astype(np.float64)
+    masses = probe.last_relaxation()["masses"].astype(np.float64)
     free = ~model.fixed_dofs()
     lowest = []
     for k in range(model.yarn_count):
@@ -543,20 +468,14 @@ class _Study:
 
 
 MAX_REPEATS = 200
-"""Timed calls of one point at most, however short a call (see `_best_time`)."""
+"""Timed calls of one point at most, however short a call (see `_timed`)."""
 
 
-def _best_time(call, repeats: int, min_total: float = 0.0) -> float:
+def _timed(call, repeats: int, min_total: float) -> float:
     """The fastest of at least `repeats` timed calls [s], more (up to MAX_REPEATS) until
     they add up to `min_total` [s]: a sub-millisecond solve gets enough tries that one
     of them runs while no other process holds the CPU."""
-    best, total, count = math.inf, 0.0, 0
-    while count < repeats or (total < min_total and count < MAX_REPEATS):
-        began = time.perf_counter()
-        call()
-        elapsed = time.perf_counter() - began
-        best, total, count = min(best, elapsed), total + elapsed, count + 1
-    return best
+    return best_time(call, repeats, until=min_total, most=MAX_REPEATS)[0]
 
 
 def _base_point(solver: str, method: str, label: str, tolerance: float, **options) -> dict:
@@ -598,7 +517,7 @@ def static_point(case: Case, plan: Plan, reference: bool) -> dict:
     solver = StaticSolver(case.model, tolerance=tolerance, accuracy=math.inf)
     began = time.perf_counter()
     state, record = solver.step(case.start, case.load)
-    wall = _best_time(lambda: solver.step(case.start, case.load), plan.repeats, plan.min_timed)
+    wall = _timed(lambda: solver.step(case.start, case.load), plan.repeats, plan.min_timed)
     iterations = int(record["iterations"].sum())
     key = "static_reference" if reference else "static_newton"
     point = _base_point("static", key, method_label(key).replace("\n", " "), tolerance,
@@ -638,8 +557,8 @@ def dynamic_point(case: Case, method: Method, tolerance: float, plan: Plan) -> d
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)  # the floor is read from the record
             state, record = solver.step(case.start, case.load)
-            wall = _best_time(lambda: solver.step(case.start, case.load), plan.repeats,
-                              plan.min_timed)
+            wall = _timed(lambda: solver.step(case.start, case.load), plan.repeats,
+                          plan.min_timed)
     except SolverError as error:
         point = _mark_failed(point, str(error))
         point["_elapsed"] = time.perf_counter() - began
@@ -756,7 +675,7 @@ def lbfgs_point(case: Case, tolerance: float, plan: Plan) -> dict:
 
     with single_threaded_blas() as limited:
         positions, record, evaluations = solve()
-        wall = _best_time(solve, plan.lbfgs_repeats, plan.min_timed)
+        wall = _timed(solve, plan.lbfgs_repeats, plan.min_timed)
     point = _base_point("lbfgs", "lbfgs", "scipy L-BFGS-B", tolerance)
     point["blas_single_thread"] = limited
     point.update(measure(case, positions, record))
@@ -770,47 +689,7 @@ def lbfgs_point(case: Case, tolerance: float, plan: Plan) -> dict:
 
 
 # --------------------------------------------------------------------------
-# Pareto fronts and the cheapest methods.
-
-
-def shown_error(point: dict, floor: float) -> float:
-    """The relative error as plotted: no lower than the position rounding floor."""
-    return max(point["relative_error"], floor)
-
-
-def usable_points(points: list[dict]) -> list[dict]:
-    return [p for p in points if p["status"] != "failed"]
-
-
-def dominates(a: dict, b: dict, cost: str, floor: float) -> bool:
-    """a is at most as costly and as wrong as b, and strictly better in one of the two."""
-    ca, cb = a[cost], b[cost]
-    ea, eb = shown_error(a, floor), shown_error(b, floor)
-    return ca <= cb and ea <= eb and (ca < cb or ea < eb)
-
-
-def pareto_front(points: list[dict], cost: str, floor: float = 0.0) -> list[dict]:
-    """The dynamic points no other dynamic point dominates in `cost` and (floored)
-    relative error, sorted by cost. (The static Newton solves, reference points, are left
-    out: they are faster than nearly every dynamic solve of the same accuracy.)"""
-    dynamic = [p for p in usable_points(points) if p["solver"] == "dynamic"]
-    front = [p for p in dynamic if not any(dominates(q, p, cost, floor) for q in dynamic)]
-    return sorted(front, key=lambda p: (p[cost], shown_error(p, floor)))
-
-
-def pareto_fronts(points: list[dict], floor: float) -> dict[str, set[int]]:
-    """The ids on the dynamic front of each cost, errors floored at `floor`."""
-    return {cost: {p["id"] for p in pareto_front(points, cost, floor)}
-            for cost in ("wall_time_s", "force_evaluations")}
-
-
-def cheapest(points: list[dict], target: float, cost: str) -> dict | None:
-    """The dynamic point of least `cost` (then least wall time) reaching `target`."""
-    reaching = [p for p in usable_points(points) if p["solver"] == "dynamic"
-                and p["relative_error"] <= target]
-    if not reaching:
-        return None
-    return min(reaching, key=lambda p: (p[cost], p["wall_time_s"]))
+# The cheapest methods.
 
 
 def _brief(point: dict | None) -> dict | None:

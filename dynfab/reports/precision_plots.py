@@ -13,8 +13,8 @@ from matplotlib.lines import Line2D
 from matplotlib.ticker import NullFormatter
 
 from dynfab.plot import DPI, FONT_SIZE, style_axes
-from dynfab.reports.precision import (METHODS, method_label, pareto_front, shown_error,
-                                      usable_points)
+from dynfab.reports.precision_points import (METHODS, method_label, pareto_front,
+                                             shown_error, usable_points)
 
 STATIC_STYLES = {"static_reference": ("k", "*", ""), "static_newton": ("k", "X", "")}
 LBFGS_STYLE = ("0.35", "P", ":")

@@ -5,7 +5,7 @@ Written from the summary `dynfab.reports.precision.run_precision` builds.
 
 from __future__ import annotations
 
-from dynfab.reports.precision import usable_points
+from dynfab.reports.precision_points import usable_points
 
 
 def _timing_rule(plan: dict) -> str:

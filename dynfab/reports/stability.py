@@ -52,21 +52,25 @@ from __future__ import annotations
 import math
 import time
 import warnings
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from typing import Callable
 
 import numpy as np
 
 from dynfab import assembly
-from dynfab.banded import BANDWIDTH, zeros_band
+from dynfab.banded import BANDWIDTH, to_dense
 from dynfab.dynamic import DynamicSolver
 from dynfab.errors import SceneError, SolverError
 from dynfab.kernels import status
 from dynfab.model import build_model, initial_state
 from dynfab.plot import save_png
-from dynfab.reports.common import (machine, output_folder, paper_yarns as common_paper_yarns,
-    write_csv, write_json, write_text)
+from dynfab.reports.common import (cut_yarn, machine, output_folder,
+                                   paper_yarns as common_paper_yarns, write_csv, write_json,
+                                   write_text)
+from dynfab.reports.stability_cases import (EXPLICIT, FULL, METHODS, QUICK, QUICK_METHODS, Case,
+                                            PathCase, Plan, short_number)
 from dynfab.reports.stability_plots import plot_map
+from dynfab.reports.stability_tables import stability_markdown
 from dynfab.scene import Dynamic, Load, Scene, validate_scene, with_key
 from dynfab.static import StaticSolver
 
@@ -90,136 +94,16 @@ EXPLICIT_MAX_STEPS = 200_000
 SEMI_IMPLICIT_MAX_STEPS = 2_000
 """max_steps of semi_implicit (about 12 to 600 steps where it converges)."""
 
-FRICTION_PATH = (0.0025, 0.005, 0.0075, 0.01, 0.0075, 0.005, 0.0025, 0.0, 0.0025, 0.005)
-"""End forces [N] of the friction path cases: loading, unloading to zero, reloading."""
 PATH_MAX_STEPS = {"explicit": 1_000_000, "semi_implicit": 20_000}
 """max_steps per load step of the path cases (the solver's default for the explicit methods:
 a failure there is what a user meets)."""
 
-METHODS = {
-    "kinetic": Dynamic(damping="kinetic"),
-    "viscous": Dynamic(damping="viscous"),
-    "fire": Dynamic(damping="fire"),
-    "semi_implicit": Dynamic(method="semi_implicit"),
-}
-"""The methods compared: explicit (fictitious masses) with each damping, and semi_implicit."""
-EXPLICIT = ("kinetic", "viscous", "fire")
-
-QUICK_METHODS = {("displacement", False): ("kinetic", "viscous", "fire", "semi_implicit"),
-                 ("displacement", True): ("kinetic", "semi_implicit")}
-"""--quick: (control, friction) -> the methods whose kernel variants the dynamic tests
-compile (test_dynamic_relaxation, test_dynamic_semi_implicit), so that the quick report
-compiles nothing new. The undamped (viscous c = 0) variant of the bisection is the
-frictionless one; with friction the quick bisection uses kinetic damping instead, which
-measures the linear instability only (`measure_stable_dt`)."""
 
 CSV_COLUMNS = ("case", "family", "label", "segments", "control", "load", "load_units",
                "reference", "friction", "predicted_dt_s", "measured_dt_s",
                "measured_over_predicted", "gershgorin_actual_dt_s", "linear_dt_s",
                "dt_measured_with", "method", "verdict", "time_steps", "wall_time_s",
                "residual_N", "error_over_A_wa", "bound_over_A_wa", "message")
-
-
-@dataclass(frozen=True)
-class Case:
-    """One stiff or extreme variant of the paper yarn, solved as one load step."""
-
-    name: str
-    """Short unique id (a row of the table)."""
-    family: str
-    """"baseline", "kawabata", "stretch", "mesh", "weft", "load", "friction" or "reference"."""
-    label: str
-    """What is extreme about it, for the table."""
-    changes: tuple = ()
-    """(key, value) pairs applied to the paper yarn; see `case_scene` for the keys."""
-    friction: bool = False
-    """Gralen friction (paper_fig5.toml entry 0) on."""
-    control: str = "displacement"
-    strain: float = 0.01
-    """End displacement / L [-]; under force control P is the static reaction at that
-    displacement (of the same yarn under displacement control)."""
-
-
-@dataclass(frozen=True)
-class PathCase:
-    """The friction yarn (paper_fig5.toml entry 0) driven through a load path, unloading
-    included: the stick/slip reversals a single load step never meets."""
-
-    name: str
-    segments: int
-    """N of this case (any multiple of 2 x crossings)."""
-    values: tuple = FRICTION_PATH
-    """Applied end forces [N] (force control), one load step each."""
-    control: str = "force"
-    """"force"; "displacement": the dynamic methods follow the static reference's end
-    displacements along the force path (--quick: the variants the tests compile)."""
-
-
-@dataclass(frozen=True)
-class Plan:
-    """The yarn's size and the cases of a full or quick report."""
-
-    name: str
-    crossings: int
-    """Crossings of the yarn: the paper's 16, or fewer at the same spacing."""
-    segments: int
-    """N at the paper's mesh density."""
-    cases: tuple[Case, ...]
-    paths: tuple[PathCase, ...] = ()
-
-
-def _kawabata(value: float) -> str:
-    return f"{value:g}"
-
-
-FULL_CASES = (
-    Case("baseline", "baseline", "paper yarn, K = 0.2 m/N, u = 1 % of L"),
-    *(Case(f"K={_kawabata(k)}", "kawabata", f"Kawabata K = {k:g} m/N (both yarns)",
-           (("kawabata_K", k),)) for k in (1e-4, 1e-3, 1e-2, 1.0, 10.0)),
-    Case("C=2e-6", "kawabata", "Kawabata C = 2e-6 m (1 % of the paper's), K = 2 m/N: "
-         "the compression saturates", (("kawabata_C", 2e-6), ("kawabata_K", 2.0))),
-    Case("EAx1000", "stretch", "EA x 1000", (("EA_factor", 1000.0),)),
-    *(Case(f"N={n}", "mesh", f"N = {n} segments", (("geometry.segments", n),))
-      for n in (448, 896, 1792, 3584)),
-    Case("k_we x1000", "weft", "weft tension P_we making k_we 1000 x stiffer",
-         (("k_we_factor", 1000.0),)),
-    Case("alpha_we=-0.99", "weft", "compressive weft tension, alpha_we = -0.99 (short of "
-         "buckling)", (("alpha_we", -0.99),)),
-    Case("alpha_we=-1", "weft", "weft tension at the buckling load, alpha_we = -1",
-         (("alpha_we", -1.0),)),
-    Case("alpha_we=-1.01", "weft", "weft tension beyond buckling, alpha_we = -1.01",
-         (("alpha_we", -1.01),)),
-    Case("u=10%", "load", "displacement control, u = 10 % of L", strain=0.10),
-    Case("u=50%", "load", "displacement control, u = 50 % of L", strain=0.50),
-    *(Case(f"P({round(100 * e)}%)", "load", f"force control, P = the reaction at "
-           f"u = {100 * e:g} % of L", control="force", strain=e) for e in (0.01, 0.10, 0.50)),
-    *(Case(f"alpha={a:g}, k_t x{f:g}", "friction", f"friction alpha = {a:g}, "
-           f"k_t = {f:g} x EA/(L/N)", (("friction.alpha", a), ("stick_factor", f)), friction=True)
-      for f in (1.0, 1000.0) for a in (0.0, 0.2, 2.0)),
-    Case("as_woven", "reference", "as-woven reference state", (("geometry.reference",
-                                                                "as_woven"),)),
-    Case("as_woven, alpha=0.2", "reference", "as-woven reference, friction alpha = 0.2",
-         (("geometry.reference", "as_woven"),), friction=True),
-    Case("as_woven, alpha=2, k_t x1000", "reference", "as-woven reference, friction "
-         "alpha = 2, k_t = 1000 x EA/(L/N)", (("geometry.reference", "as_woven"),
-                                              ("friction.alpha", 2.0), ("stick_factor", 1000.0)),
-         friction=True),
-)
-
-QUICK_CASES = (
-    Case("K=1e-4", "kawabata", "Kawabata K = 1e-4 m/N (both yarns)", (("kawabata_K", 1e-4),)),
-    Case("EAx1000", "stretch", "EA x 1000", (("EA_factor", 1000.0),)),
-    Case("alpha_we=-1.01", "weft", "weft tension beyond buckling, alpha_we = -1.01",
-         (("alpha_we", -1.01),)),
-    Case("u=50%", "load", "displacement control, u = 50 % of L", strain=0.50),
-    Case("alpha=2, k_t x1000", "friction", "friction alpha = 2, k_t = 1000 x EA/(L/N)",
-         (("friction.alpha", 2.0), ("stick_factor", 1000.0)), friction=True),
-)
-
-FULL = Plan(name="full", crossings=16, segments=224, cases=FULL_CASES,
-            paths=tuple(PathCase(f"friction path, N={n}", n) for n in (224, 1792, 3584)))
-QUICK = Plan(name="quick", crossings=4, segments=56, cases=QUICK_CASES,
-             paths=(PathCase("friction path, N=56", 56, control="displacement"),))
 
 
 def run_stability(out_dir, *, quick: bool = False,
@@ -230,9 +114,6 @@ def run_stability(out_dir, *, quick: bool = False,
     `out_dir` cannot be a folder or the paper scenes are missing; a case's own
     failures are verdicts, never exceptions.
     """
-    # the table imports this module's names, so it is imported here
-    from dynfab.reports.stability_tables import stability_markdown
-
     out = output_folder(out_dir)
     plan = QUICK if quick else FULL
     started = time.perf_counter()
@@ -272,16 +153,8 @@ def paper_yarns(plan: Plan) -> dict[bool, Scene]:
     """{friction: scene}: the paper yarn (K = 0.2 m/N) without and with Gralen friction,
     cut to `plan.crossings` at the same spacing (weft unchanged), `plan.segments`."""
     frictionless, friction = common_paper_yarns("the stability report")
-    return {False: _cut(frictionless, plan), True: _cut(friction, plan)}
-
-
-
-def _cut(scene: Scene, plan: Plan) -> Scene:
-    """The same yarn with `plan.crossings` crossings at the same spacing, `plan.segments`."""
-    geometry = scene.geometry
-    scene = with_key(scene, "geometry.crossings", plan.crossings)
-    scene = with_key(scene, "geometry.segments", plan.segments)
-    return with_key(scene, "geometry.length", geometry.length * plan.crossings / geometry.crossings)
+    return {False: cut_yarn(frictionless, plan.crossings, plan.segments),
+            True: cut_yarn(friction, plan.crossings, plan.segments)}
 
 
 def case_scene(case: Case, base: Scene, load: float) -> Scene:
@@ -444,7 +317,7 @@ class _Runner:
                 try:
                     state, step = solver.step(state, float(value))
                 except SolverError as error:
-                    steps.append(int(solver.motion.steps.numpy()[0]))
+                    steps.append(int(solver.last_relaxation()["time_steps"][0]))
                     result.update(verdict="failed", message=str(error), failed_load_step=k + 1,
                                   time_steps=steps, wall_time_s=time.perf_counter() - started)
                     self.say(f"{where}: {name}: FAILED at load step {k + 1} after {steps[-1]} "
@@ -521,7 +394,7 @@ class _Runner:
                 state, step = solver.step(start, load)
             except SolverError as error:
                 elapsed = time.perf_counter() - started
-                steps = int(solver.motion.steps.numpy()[0])
+                steps = int(solver.last_relaxation()["time_steps"][0])
                 result.update(verdict="failed", message=str(error), time_steps=steps,
                               wall_time_s=elapsed, failed_load_step=1,
                               last_good_state={"load_step": 0, "finite": bool(
@@ -562,7 +435,7 @@ class _Runner:
             try:
                 _, step = solver.step(initial_state(model), load)
             except SolverError as error:
-                steps = int(solver.motion.steps.numpy()[0])
+                steps = int(solver.last_relaxation()["time_steps"][0])
                 self.say(f"{where}: physical masses at the measured dt {dt:.3g} s: FAILED after "
                          f"{steps} time steps: {error}")
                 return {"verdict": "failed", "dt_s": dt, "message": str(error),
@@ -650,7 +523,7 @@ def measure_stable_dt(model, relaxed, load: float, *, damping: str = "viscous",
                 solver.step(perturbed, load)
             except SolverError as error:
                 if "diverged" in str(error):
-                    if (solver.motion.energy_ratio.numpy() > status.ENERGY_FACTOR).any():
+                    if (solver.last_relaxation()["energy_ratio"] > status.ENERGY_FACTOR).any():
                         by_energy.append(dt)
                     return False
         return True
@@ -689,23 +562,7 @@ def measure_stable_dt(model, relaxed, load: float, *, damping: str = "viscous",
 def tangent_band(model, positions: np.ndarray, anchors: np.ndarray, coupled: bool) -> np.ndarray:
     """The banded tangent K [N/m] of yarn 0 at `positions` (actual contact tangents, Huber
     curvature as assembled; with `coupled`, the friction Jacobian of the static solver)."""
-    yarn = model.yarns[0]
-    contact_force, limit, tangent = (np.zeros(model.crossings) for _ in range(3))
-    positions = np.ascontiguousarray(positions)
-    assembly.contact_state(positions, yarn, contact_force, limit, tangent)
-    band = zeros_band(positions.size)
-    assembly.hessian(positions, yarn, np.ascontiguousarray(anchors), limit, tangent, coupled, band)
-    return band
-
-
-def dense(band: np.ndarray) -> np.ndarray:
-    """The full matrix of a banded one (`dynfab.banded` layout)."""
-    n = band.shape[0]
-    matrix = np.zeros((n, n))
-    for offset in range(-BANDWIDTH, BANDWIDTH + 1):
-        rows = np.arange(max(0, -offset), min(n, n - offset))
-        matrix[rows, rows + offset] = band[rows, offset + BANDWIDTH]
-    return matrix
+    return assembly.tangent(positions, model.yarns[0], anchors, coupled)
 
 
 def linear_stable_dts(model, relaxed) -> dict:
@@ -738,7 +595,7 @@ def _largest_symmetric_eigenvalue(band: np.ndarray) -> float:
     try:
         from scipy.linalg import eigvals_banded
     except ImportError:  # scipy is optional: the dense matrix (slower for large N)
-        return float(np.linalg.eigvalsh(dense(band))[-1])
+        return float(np.linalg.eigvalsh(to_dense(band))[-1])
     upper = np.zeros((BANDWIDTH + 1, n))  # LAPACK upper storage: a[u + i - j, j] = A[i, j]
     for offset in range(BANDWIDTH + 1):
         upper[BANDWIDTH - offset, offset:] = band[:n - offset, BANDWIDTH + offset]
@@ -751,7 +608,7 @@ def inverse_stiffness_norm(model, positions: np.ndarray, anchors: np.ndarray,
     as tests/test_dynamic_relaxation.py; None if K is singular."""
     band = tangent_band(model, positions, anchors, coupled)
     free = ~model.fixed_dofs()
-    matrix = dense(band)[np.ix_(free, free)]
+    matrix = to_dense(band)[np.ix_(free, free)]
     try:
         inverse = np.linalg.inv(matrix)
     except np.linalg.LinAlgError:
@@ -824,11 +681,6 @@ def _finite(value):
     if isinstance(value, (float, np.floating)):
         return repr(float(value)) if math.isfinite(value) else ""
     return value
-
-
-def short_number(value, digits: int = 2) -> str:
-    """A number for the table; '-' for None."""
-    return "-" if value is None else f"{value:.{digits}g}"
 
 
 def csv_rows(cases: list[dict]) -> list[dict]:

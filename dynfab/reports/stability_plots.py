@@ -7,16 +7,13 @@ Agg, as dynfab.plot).
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
 
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
 from dynfab.plot import DPI, FONT_SIZE
+from dynfab.reports.stability_cases import Plan
 from dynfab.scene import Dynamic
-
-if TYPE_CHECKING:
-    from dynfab.reports.stability import Plan
 
 FAMILY_STYLE = {"baseline": ("k", "*"), "kawabata": ("C0", "o"), "stretch": ("C1", "s"),
                 "mesh": ("C2", "^"), "weft": ("C4", "D"), "load": ("C3", "v"),

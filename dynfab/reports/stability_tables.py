@@ -5,7 +5,7 @@ Written from the summary `dynfab.reports.stability.run_stability` builds.
 
 from __future__ import annotations
 
-from dynfab.reports.stability import METHODS, short_number
+from dynfab.reports.stability_cases import METHODS, short_number
 
 
 def _dt_us(value) -> str:
