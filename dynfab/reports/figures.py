@@ -62,6 +62,7 @@ from dynfab.reports.common import machine, output_folder, paper_scene_file, writ
 from dynfab.results import Results, dynfab_version, read_results
 from dynfab.run import run
 from dynfab.scene import Scene, expand_sweep, parse_scene_text, scene_to_toml
+from dynfab.terms.friction import INDEX as FRICTION
 
 FIGURES = {"fig3": "paper_fig3.toml", "fig5": "paper_fig5.toml"}
 """The report's scenes: name -> scene file in runs/ (`common.RUNS`)."""
@@ -336,7 +337,7 @@ def jacobian_norms(yarn, positions, anchors, fixed) -> tuple[float, float]:
     force, limit, tangent = np.zeros(c), np.zeros(c), np.zeros(c)
     assembly.contact_state(positions, yarn, force, limit, tangent)
     band = zeros_band(positions.size)
-    assembly.hessian(positions, yarn, anchors, limit, tangent, bool(yarn.has_friction), band)
+    assembly.hessian(positions, yarn, anchors, limit, tangent, bool(yarn.active[FRICTION]), band)
     n = band.shape[0]
     end = n - 2  # x of the end node
     end_row = np.zeros(n)
@@ -401,7 +402,7 @@ def compare_pair(static: Results, dynamic: Results) -> dict:
             inv_norm[i, k], force_norm[i, k] = jacobian_norms(yarn, s["positions"][i, k],
                                                       np.ascontiguousarray(anchors[k]), fixed)
             anchor_term = 0.0
-            if yarn.has_friction:
+            if yarn.active[FRICTION]:
                 sticking = ~s["sliding"][i, k].astype(bool)
                 if sticking.any():
                     anchor_term = yarn.stick_stiffness * float(
