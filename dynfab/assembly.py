@@ -64,6 +64,15 @@ TERM_COUNT = len(registry.TERMS)
 
 
 @numba.njit(cache=True)
+def _check_terms(yarn):
+    """numba's cache does not notice a change of the registry: code compiled for another term
+    list must not run on yarns built from this one."""
+    if yarn.active.size != TERM_COUNT:
+        raise RuntimeError("the numba cache of dynfab.assembly predates the term registry: "
+                           "delete the stale *.nbi / *.nbc files")
+
+
+@numba.njit(cache=True)
 def energy_vector():
     """A zero energy vector (TERM_COUNT,) [J] for `energies`."""
     return np.zeros(TERM_COUNT)
@@ -72,6 +81,7 @@ def energy_vector():
 @numba.njit(cache=True)
 def energies(pos, yarn, P, anchors, friction_limit, out, branch=None):
     """Each term's energy [J] into out (TERM_COUNT,), registry order; a term the yarn lacks is 0."""
+    _check_terms(yarn)
     frozen = Frozen(P, anchors, friction_limit, anchors[:0], branch, False, False)
     k = 0
     for energy in literal_unroll(ENERGIES):
@@ -82,6 +92,7 @@ def energies(pos, yarn, P, anchors, friction_limit, out, branch=None):
 @numba.njit(cache=True)
 def gradient(pos, yarn, P, anchors, friction_limit, grad, branch=None):
     """grad = dV/dr (N+1, 2) [N], F_T frozen."""
+    _check_terms(yarn)
     grad[:, :] = 0.0
     frozen = Frozen(P, anchors, friction_limit, anchors[:0], branch, False, False)
     k = 0
@@ -101,6 +112,7 @@ def hessian(pos, yarn, anchors, friction_limit, contact_tangent, coupled, band, 
     the Jacobian of the coupled friction problem, no longer symmetric. With `secant`,
     sliding crossings get the secant stiffness F_T / |s| (`friction.add_hessian`).
     """
+    _check_terms(yarn)
     band[:, :] = 0.0
     frozen = Frozen(0.0, anchors, friction_limit, contact_tangent, branch, coupled, secant)
     k = 0
