@@ -5,7 +5,10 @@ scene (`Term.active`); its numba twin (`dynfab.terms.<name>`, +dV/dr) is the
 static reference, its Warp twin (`dynfab.kernels.<name>`) the dynamic solver's.
 The assembly (`dynfab.assembly`), the kernel configuration
 (`dynfab.kernels.configuration`), the diagnostics and the result datasets are
-derived from `TERMS`; adding a term is its two modules and one entry here.
+derived from `TERMS`; adding a term is its two modules and one entry here, plus
+its parameters, if it has new ones: fields of `dynfab.model.Yarn` (filled in
+`build_model`) read from its scene keys (`dynfab.scene`). The energy vector,
+`Yarn.active` and the reported `steps/energy/*` follow the entry.
 """
 
 from __future__ import annotations
