@@ -89,7 +89,7 @@ def certificate_matrix(pos, yarn, anchors, fixed, residual, band):
         dof = 2 * yarn.crossing_node[j]
         if tangent[j] > 0.0 and force[j] <= residual:  # at g = 0: open
             band_add(band, dof + 1, dof + 1, -tangent[j])
-        if yarn.has_friction:
+        if yarn.active[friction.INDEX]:
             slip = pos[yarn.crossing_node[j], 0] - anchors[j]
             k_t = yarn.stick_stiffness
             if (not friction.is_sliding(slip, limit[j], k_t)
@@ -296,7 +296,7 @@ def escape(pos, yarn, P, anchors, directions, count, out):
     c = yarn.crossing_node.size
     force, limit, tangent = np.zeros(c), np.zeros(c), np.zeros(c)
     assembly.contact_state(pos, yarn, force, limit, tangent)
-    terms = np.zeros(6)
+    terms = assembly.energy_vector()
     e0 = _energy(pos, yarn, P, anchors, limit, terms)
     rounding = 64.0 * EPS * (np.abs(terms).sum() + abs(P) * abs(pos[-1, 0]))
     length = abs(yarn.rest_position[-1, 0] - yarn.rest_position[0, 0])

@@ -56,8 +56,9 @@ class Yarn(NamedTuple):
     """k_t [N/m]; 0 without friction."""
     gravity: float
     """g [m/s^2]; 0 without gravity."""
-    has_friction: bool
-    has_gravity: bool
+    active: np.ndarray
+    """Which terms of `dynfab.terms.registry.TERMS` the yarn has, (len(TERMS),) bool in registry
+    order (`registry.active_mask`); `dynfab.assembly` skips the others."""
 
 
 TERMS = registry.NAMES
@@ -177,8 +178,7 @@ def _build_yarn(scene: Scene, phase: float) -> Yarn:
         friction_onset=float(friction.onset_force) if friction else 0.0,
         stick_stiffness=float(stick),
         gravity=float(scene.gravity.g) if scene.gravity else 0.0,
-        has_friction=friction is not None,
-        has_gravity=scene.gravity is not None,
+        active=registry.active_mask(scene),
     )
 
 

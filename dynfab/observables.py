@@ -13,12 +13,7 @@ import numpy as np
 
 from dynfab import assembly
 from dynfab.model import Model, State, crimp
-from dynfab.terms import friction
-
-ENERGY_TERMS = {"stretch": assembly.STRETCH, "bending": assembly.BENDING,
-                "contact": assembly.CONTACT, "gravity": assembly.GRAVITY, "load": assembly.LOAD}
-"""Reported energies [J] (`steps/energy/<term>`): the elastic terms, gravity's potential and the
-load's potential -P (x_N - x0_N); friction reports its stick springs as `energy/stick` instead."""
+from dynfab.terms import friction, registry
 
 
 @numba.njit(cache=True)
@@ -27,23 +22,21 @@ def observe_yarn(pos, yarn, P, anchors, contact_force, friction_limit, friction_
     """One yarn's finished step, in one call: contact state, return mapping, energies.
 
     Fills R, F_T, the friction force and sliding flags, and the energy vector
-    (`dynfab.assembly` order) after the anchors are return-mapped in place.
-    Returns (energy dissipated in this step [J], stick-spring energy [J],
-    end reaction dV/dx_N [N], the load term and friction excluded).
+    (`dynfab.assembly` order) after the anchors are return-mapped in place: friction's
+    entry is then the energy of its stick springs, 1/2 k_t (x - xi)^2 (|x - xi| <= F_T / k_t).
+    Returns (energy dissipated in this step [J], end reaction dV/dx_N [N], the load term
+    and friction excluded).
     """
     c = yarn.crossing_node.size
     assembly.contact_state(pos, yarn, contact_force, friction_limit, np.zeros(c))
-    lost, stick = 0.0, 0.0
-    if yarn.has_friction:
+    lost = 0.0
+    if yarn.active[friction.INDEX]:
         lost = friction.return_map(pos, yarn.crossing_node, anchors, friction_limit,
                                    yarn.stick_stiffness, sliding, friction_force)
-        for j in range(c):
-            slip = pos[yarn.crossing_node[j], 0] - anchors[j]
-            stick += 0.5 * yarn.stick_stiffness * slip * slip
     assembly.energies(pos, yarn, P, anchors, friction_limit, terms)
     grad = np.zeros_like(pos)
     assembly.gradient(pos, yarn, 0.0, anchors, np.zeros(c), grad)
-    return lost, stick, grad[-1, 0]
+    return lost, grad[-1, 0]
 
 
 def finish_step(model: Model, state: State, positions: np.ndarray, load_value: float,
@@ -57,19 +50,17 @@ def finish_step(model: Model, state: State, positions: np.ndarray, load_value: f
     record = {name: np.zeros((yarns, c)) for name in
               ("contact_force", "friction_force", "friction_limit")}
     record["sliding"] = np.zeros((yarns, c), dtype=np.bool_)
-    energies = {name: np.zeros(yarns) for name in _reported_terms(model)}
-    reaction, terms = np.zeros(yarns), np.zeros(6)
+    reported = _reported_terms(model)
+    energies = {registry.TERMS[i].dataset: np.zeros(yarns) for i in reported}
+    reaction, terms = np.zeros(yarns), assembly.energy_vector()
     P = load_value if model.control == "force" else 0.0
     for k, yarn in enumerate(model.yarns):
-        lost, stick, reaction[k] = observe_yarn(
+        lost, reaction[k] = observe_yarn(
             positions[k], yarn, P, anchors[k], record["contact_force"][k],
             record["friction_limit"][k], record["friction_force"][k], record["sliding"][k], terms)
         dissipated[k] += lost
-        for name, value in zip(ENERGY_TERMS, terms[list(ENERGY_TERMS.values())]):
-            if name in energies:
-                energies[name][k] = value
-        if "stick" in energies:
-            energies["stick"][k] = stick
+        for i in reported:
+            energies[registry.TERMS[i].dataset][k] = terms[i]
     loads = np.full(yarns, float(load_value))
     record.update({
         "load": loads,
@@ -82,15 +73,12 @@ def finish_step(model: Model, state: State, positions: np.ndarray, load_value: f
         "residual": np.asarray(residual, float),
         "iterations": np.asarray(iterations, np.int64),
     })
-    record.update({f"energy/{name}": value for name, value in energies.items()})
+    record.update(energies)
     new_state = State(positions=positions.copy(), anchors=anchors, dissipated=dissipated,
                       load=loads.copy())
     return new_state, record
 
 
-def _reported_terms(model: Model) -> list[str]:
-    """Energy names reported for this model: its active terms, friction as `stick`."""
-    names = [t for t in model.terms if t != "friction"]
-    if "friction" in model.terms:
-        names.append("stick")
-    return names
+def _reported_terms(model: Model) -> list[int]:
+    """Registry indices of the model's terms that report an energy dataset (`Term.dataset`)."""
+    return [i for i, t in enumerate(registry.TERMS) if t.name in model.terms and t.dataset]

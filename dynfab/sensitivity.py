@@ -203,7 +203,7 @@ def _residual(pos, yarn, P, anchors, grad, slip_limit):
     R, tangent = np.zeros(c), np.zeros(c)
     assembly.contact_state(pos, yarn, R, slip_limit, tangent)
     assembly.gradient(pos, yarn, P, anchors, slip_limit, grad)
-    if yarn.has_friction:
+    if yarn.active[friction.INDEX]:
         slip_limit /= yarn.stick_stiffness
 
 
@@ -273,7 +273,7 @@ def _crimp_derivative(pos, dx):
 def _carry_anchors(pos, yarn, anchors, limit, coupled, symmetric, dx, explicit_limit, d_anchor):
     """dxi^n/dp: the return map's derivative on sliding crossings, unchanged on sticking ones."""
     new = d_anchor.copy()
-    if not yarn.has_friction:
+    if not yarn.active[friction.INDEX]:
         return new
     k_t = yarn.stick_stiffness
     for j in range(yarn.crossing_node.size):

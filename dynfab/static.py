@@ -174,7 +174,7 @@ def _newton_on_set(pos, yarn, P, fixed, anchors, tolerance, max_iterations, info
     c = yarn.crossing_node.size
     grad, trial = np.zeros_like(pos), np.empty_like(pos)
     band, work = np.zeros((n, 2 * BANDWIDTH + 1)), np.zeros((n, 2 * BANDWIDTH + 1))
-    direction, terms = np.zeros(n), np.zeros(6)
+    direction, terms = np.zeros(n), assembly.energy_vector()
     contact_force, friction_limit, tangent = np.zeros(c), np.zeros(c), np.zeros(c)
     was_closed, flips = np.zeros(c, np.bool_), np.zeros(c, np.int64)
     previous = np.inf
@@ -195,7 +195,7 @@ def _newton_on_set(pos, yarn, P, fixed, anchors, tolerance, max_iterations, info
             if iteration > 0 and closed != was_closed[j]:
                 flips[j] += 1
             was_closed[j] = closed
-            if yarn.has_friction and flips[j] > MAX_FLIPS:
+            if yarn.active[friction.INDEX] and flips[j] > MAX_FLIPS:
                 info[STATUS], info[DETAIL] = CYCLING, j
                 return
         assembly.hessian(pos, yarn, anchors, friction_limit, tangent, True, band, cut, branch)
@@ -429,7 +429,7 @@ def newton(pos, yarn, P, fixed, anchors, tolerance, max_iterations, info):
     failure names the crossing. Without it, one Newton solve on the unilateral law, stopped as
     CYCLING when a crossing keeps opening and closing.
     """
-    if not (yarn.has_friction and yarn.friction_onset > 0.0 and yarn.crossing_node.size > 0):
+    if not (yarn.active[friction.INDEX] and yarn.friction_onset > 0.0 and yarn.crossing_node.size > 0):
         _newton_on_set(pos, yarn, P, fixed, anchors, tolerance, max_iterations, info, None)
         return
     start = pos.copy()

@@ -50,6 +50,7 @@ from dynfab.reports import figures as report
 from dynfab.reports import figures_plots
 from dynfab.results import read_results
 from dynfab.scene import expand_sweep, load_scene, parse_scene_text
+from dynfab.terms.friction import INDEX as FRICTION
 
 RUNS = Path(__file__).resolve().parent.parent / "runs"
 NAMES = ("fig3", "fig5")
@@ -223,7 +224,7 @@ def test_fig5_friction_stiffens_and_the_gap_grows_then_stays_nearly_constant(qui
 
 def dense_inverse_norm(yarn, positions, anchors, fixed):
     """||J^-1||_inf on the free dofs, from numpy's dense inverse."""
-    band = assembly.tangent(positions, yarn, anchors, bool(yarn.has_friction))
+    band = assembly.tangent(positions, yarn, anchors, bool(yarn.active[FRICTION]))
     free = ~fixed
     return np.abs(np.linalg.inv(to_dense(band)[np.ix_(free, free)])).sum(axis=1).max()
 
@@ -239,7 +240,7 @@ def test_static_and_dynamic_agree_within_residual_times_inverse_stiffness(quick,
     worst, norms = 0.0, []
     for i in range(s["load"].shape[0]):
         anchors = static.reference["positions"][:, nodes, 0] if i == 0 else s["anchors"][i - 1]
-        if model.yarns[0].has_friction and i > 0:
+        if "friction" in model.terms and i > 0:
             # every crossing slides from the first step on: the anchors do not enter
             assert s["sliding"][i].all() and d["sliding"][i].all()
         for k, yarn in enumerate(model.yarns):

@@ -22,6 +22,7 @@ import pytest
 
 from dynfab import assembly
 from dynfab.banded import BANDWIDTH
+from dynfab.terms.friction import INDEX as FRICTION
 from independent import (EPS, PAPER_FRICTION, PAPER_WARP, PAPER_WEFT, contact_forces, dense,
                          make_scene, pull, run, series_law)
 
@@ -265,7 +266,9 @@ def test_reversal_sticks_where_the_linear_response_unloads_the_crossing():
     R, limit, tangent = np.zeros(c), np.zeros(c), np.zeros(c)
     assembly.contact_state(positions, yarn, R, limit, tangent)
     band = np.zeros((positions.size, 2 * BANDWIDTH + 1))
-    elastic = yarn._replace(has_friction=False)
+    active = yarn.active.copy()
+    active[FRICTION] = False
+    elastic = yarn._replace(active=active)
     assembly.hessian(positions, elastic, np.zeros(c), np.zeros(c), tangent, False, band)
     stiffness = dense(band)
     stiffness[2 * nodes, 2 * nodes] += yarn.stick_stiffness

@@ -64,6 +64,7 @@ from dynfab.reports.figures_plots import draw_figures
 from dynfab.results import Results, dynfab_version, read_results
 from dynfab.run import run
 from dynfab.scene import Load, Scene, parse_scene_text, scene_to_toml, validate_scene
+from dynfab.terms.friction import INDEX as FRICTION
 
 
 # Thresholds of the trend checks (see `check_trends` for the reasons).
@@ -233,7 +234,7 @@ def jacobian_norms(yarn, positions, anchors, fixed) -> tuple[float, float]:
 
     Exact: J^-1 column by column from the banded LU (O(n^2) per yarn); a dense numpy
     inverse where the LU meets a pivot that is not positive."""
-    band = assembly.tangent(positions, yarn, anchors, bool(yarn.has_friction))
+    band = assembly.tangent(positions, yarn, anchors, bool(yarn.active[FRICTION]))
     n = band.shape[0]
     end = n - 2  # x of the end node
     end_row = np.zeros(n)
@@ -294,7 +295,7 @@ def compare_pair(static: Results, dynamic: Results) -> dict:
             inv_norm[i, k], force_norm[i, k] = jacobian_norms(yarn, s["positions"][i, k],
                                                       np.ascontiguousarray(anchors[k]), fixed)
             anchor_term = 0.0
-            if yarn.has_friction:
+            if yarn.active[FRICTION]:
                 sticking = ~s["sliding"][i, k].astype(bool)
                 if sticking.any():
                     anchor_term = yarn.stick_stiffness * float(

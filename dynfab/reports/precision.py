@@ -94,6 +94,7 @@ from dynfab.scene import Dynamic, Scene, expand_sweep, load_scene, with_key
 from dynfab.loading import prescribe_load
 from dynfab.static import StaticSolver, max_free
 from dynfab.timing import best_time
+from dynfab.terms.friction import INDEX as FRICTION
 
 REFERENCE_TOLERANCE = 1e-13
 """Static tolerance of the start states and references [N]: below float64's floor at
@@ -615,7 +616,7 @@ def lbfgs_solve(model: Model, state: State, load: float, tolerance: float):
         flat = pos.reshape(-1)
         anchors = np.ascontiguousarray(state.anchors[k], dtype=np.float64)
         force, limit, tangent = np.zeros(c), np.zeros(c), np.zeros(c)
-        terms, grad = np.zeros(6), np.zeros_like(pos)
+        terms, grad = assembly.energy_vector(), np.zeros_like(pos)
 
         def energy(q):
             flat[free] = q
@@ -638,7 +639,7 @@ def lbfgs_solve(model: Model, state: State, load: float, tolerance: float):
             assembly.contact_state(pos, yarn, force, limit, tangent)
             assembly.gradient(pos, yarn, P, anchors, limit, grad)
             residual = max_free(grad, fixed)
-            if not yarn.has_friction or residual <= tolerance or not residual < 0.5 * best:
+            if not yarn.active[FRICTION] or residual <= tolerance or not residual < 0.5 * best:
                 break
             best = residual
         residuals[k] = residual

@@ -355,7 +355,7 @@ class _Runner:
         law = model.yarns[0].contact_law
         R = step["contact_force"][0]
         norm = inverse_stiffness_norm(model, state.positions[0], step["anchors"][0],
-                                      coupled=model.yarns[0].has_friction)
+                                      coupled="friction" in model.terms)
         record["static"] = {
             "iterations": int(step["iterations"][0]), "residual_N": float(step["residual"][0]),
             "rounding_floor": bool(step["rounding_floor"][0]), "wall_time_s": elapsed,

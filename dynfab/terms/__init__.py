@@ -2,6 +2,15 @@
 
 Each module holds numba functions on plain arrays: `energy(...)`, `add_gradient(...,
 grad)` and `add_hessian(..., band)`, accumulating into a gradient of shape
-(N+1, 2) [N] and a banded Hessian (`dynfab.banded`) [N/m]. `dynfab.model`
-assembles them, using only the terms a scene has.
+(N+1, 2) [N] and a banded Hessian (`dynfab.banded`) [N/m]; and the term's entry
+points, with the same arguments for every term:
+
+    yarn_energy(pos, yarn, frozen) -> E [J]
+    add_yarn_gradient(pos, yarn, frozen, grad)    grad += dE/dr
+    add_yarn_hessian(pos, yarn, frozen, band)     band += d2E/dr2 (nothing for a linear term)
+
+`yarn` is a `dynfab.model.Yarn`, `frozen` a `dynfab.assembly.Frozen` (what a Newton
+solve holds fixed: end load, friction anchors and limits, contact branches). The
+registry (`dynfab.terms.registry`) lists the terms; `dynfab.assembly` calls the entry
+points of the terms a yarn has (`Yarn.active`), in registry order.
 """

@@ -107,3 +107,24 @@ def add_hessian(pos, stiffness, rest_angle, band):
         for p in range(6):
             for q in range(max(0, p - BANDWIDTH), 6):
                 band[base + p, q - p + BANDWIDTH] += k * g[p] * g[q] + moment * h[p, q]
+
+
+# The term's entry points (`dynfab.terms`).
+
+
+@numba.njit(cache=True)
+def yarn_energy(pos, yarn, frozen):
+    """E_bend [J] of a `dynfab.model.Yarn`."""
+    return energy(pos, yarn.bend_stiffness, yarn.rest_angle)
+
+
+@numba.njit(cache=True)
+def add_yarn_gradient(pos, yarn, frozen, grad):
+    """grad += dE_bend/dr."""
+    add_gradient(pos, yarn.bend_stiffness, yarn.rest_angle, grad)
+
+
+@numba.njit(cache=True)
+def add_yarn_hessian(pos, yarn, frozen, band):
+    """band += d2E_bend/dr2."""
+    add_hessian(pos, yarn.bend_stiffness, yarn.rest_angle, band)

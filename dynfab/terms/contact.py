@@ -172,3 +172,27 @@ def add_hessian(pos, nodes, sides, offsets, law, band, branch=None):
         if stiffness > 0.0:
             dof = 2 * nodes[j] + 1
             band_add(band, dof, dof, stiffness)
+
+
+# The term's entry points (`dynfab.terms`): each crossing on its branch `frozen.branch`.
+
+
+@numba.njit(cache=True)
+def yarn_energy(pos, yarn, frozen):
+    """sum_j E_contact,j [J] of a `dynfab.model.Yarn`."""
+    return energy(pos, yarn.crossing_node, yarn.crossing_side, yarn.gap_offset, yarn.contact_law,
+                  frozen.branch)
+
+
+@numba.njit(cache=True)
+def add_yarn_gradient(pos, yarn, frozen, grad):
+    """grad_z += -s_j R_j."""
+    add_gradient(pos, yarn.crossing_node, yarn.crossing_side, yarn.gap_offset, yarn.contact_law,
+                 grad, frozen.branch)
+
+
+@numba.njit(cache=True)
+def add_yarn_hessian(pos, yarn, frozen, band):
+    """band_zz += dR/dg."""
+    add_hessian(pos, yarn.crossing_node, yarn.crossing_side, yarn.gap_offset, yarn.contact_law,
+                band, frozen.branch)

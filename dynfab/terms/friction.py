@@ -24,6 +24,10 @@ import numba
 import numpy as np
 
 from dynfab.banded import band_add
+from dynfab.terms import contact, registry
+
+INDEX = registry.index("friction")
+"""The term's place in the registry: `yarn.active[INDEX]` says whether a yarn has friction."""
 
 
 @numba.njit(cache=True)
@@ -147,3 +151,45 @@ def return_map(pos, nodes, anchors, friction_limit, stick_stiffness, sliding, fr
         else:
             friction_force[j] = -stick_stiffness * slip
     return lost
+
+
+# The term's entry points (`dynfab.terms`): anchors and F_T frozen (`frozen.anchors`,
+# `frozen.friction_limit`).
+
+
+@numba.njit(cache=True)
+def yarn_energy(pos, yarn, frozen):
+    """sum_j H_j [J] of a `dynfab.model.Yarn`."""
+    return energy(pos, yarn.crossing_node, frozen.anchors, frozen.friction_limit,
+                  yarn.stick_stiffness)
+
+
+@numba.njit(cache=True)
+def add_yarn_gradient(pos, yarn, frozen, grad):
+    """grad_x += dH/ds."""
+    add_gradient(pos, yarn.crossing_node, frozen.anchors, frozen.friction_limit,
+                 yarn.stick_stiffness, grad)
+
+
+@numba.njit(cache=True)
+def add_yarn_hessian(pos, yarn, frozen, band):
+    """band_xx += d2H/ds2 (the secant on sliding crossings with `frozen.secant`); with
+    `frozen.coupled`, also the derivative of F_T through the contact force
+    (`add_limit_coupling`, dR/dg from `frozen.contact_tangent`)."""
+    add_hessian(pos, yarn.crossing_node, frozen.anchors, frozen.friction_limit,
+                yarn.stick_stiffness, band, frozen.secant)
+    if frozen.coupled:
+        add_limit_coupling(pos, yarn.crossing_node, yarn.crossing_side, frozen.anchors,
+                           frozen.friction_limit, yarn.stick_stiffness,
+                           limit_slopes(pos, yarn, frozen.branch), frozen.contact_tangent, band)
+
+
+@numba.njit(cache=True)
+def limit_slopes(pos, yarn, branch=None):
+    """dF_T/dR [-] of every crossing of a `dynfab.model.Yarn` at its current contact force."""
+    slopes = np.zeros(yarn.crossing_node.size)
+    for j in range(slopes.size):
+        g = contact.closure(pos, yarn.crossing_node[j], yarn.crossing_side[j], yarn.gap_offset[j])
+        R = contact.force_on_branch(g, yarn.contact_law, contact.branch_of(branch, j))
+        slopes[j] = limit_slope(R, yarn.friction_alpha, yarn.friction_constant, yarn.friction_onset)
+    return slopes

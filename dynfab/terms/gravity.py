@@ -21,3 +21,23 @@ def add_gradient(mass, g, grad):
     """grad_z += m_i g (the weight -m_i g on each node)."""
     for i in range(mass.size):
         grad[i, 1] += mass[i] * g
+
+
+# The term's entry points (`dynfab.terms`).
+
+
+@numba.njit(cache=True)
+def yarn_energy(pos, yarn, frozen):
+    """E_gravity [J] of a `dynfab.model.Yarn`."""
+    return energy(pos, yarn.rest_position, yarn.mass, yarn.gravity)
+
+
+@numba.njit(cache=True)
+def add_yarn_gradient(pos, yarn, frozen, grad):
+    """grad_z += m_i g."""
+    add_gradient(yarn.mass, yarn.gravity, grad)
+
+
+@numba.njit(cache=True)
+def add_yarn_hessian(pos, yarn, frozen, band):
+    """Linear in the positions: nothing."""

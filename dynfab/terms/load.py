@@ -18,3 +18,23 @@ def energy(pos, rest_pos, P):
 def add_gradient(P, grad):
     """grad_{x_N} -= P."""
     grad[grad.shape[0] - 1, 0] -= P
+
+
+# The term's entry points (`dynfab.terms`): P = `frozen.load`.
+
+
+@numba.njit(cache=True)
+def yarn_energy(pos, yarn, frozen):
+    """-P (x_N - x0_N) [J] of a `dynfab.model.Yarn`."""
+    return energy(pos, yarn.rest_position, frozen.load)
+
+
+@numba.njit(cache=True)
+def add_yarn_gradient(pos, yarn, frozen, grad):
+    """grad_{x_N} -= P."""
+    add_gradient(frozen.load, grad)
+
+
+@numba.njit(cache=True)
+def add_yarn_hessian(pos, yarn, frozen, band):
+    """Linear in the positions: nothing."""

@@ -5,7 +5,10 @@ scene (`Term.active`); its numba twin (`dynfab.terms.<name>`, +dV/dr) is the
 static reference, its Warp twin (`dynfab.kernels.<name>`) the dynamic solver's.
 The assembly (`dynfab.assembly`), the kernel configuration
 (`dynfab.kernels.configuration`), the diagnostics and the result datasets are
-derived from `TERMS`; adding a term is its two modules and one entry here.
+derived from `TERMS`; adding a term is its two modules and one entry here, plus
+its parameters, if it has new ones: fields of `dynfab.model.Yarn` (filled in
+`build_model`) read from its scene keys (`dynfab.scene`). The energy vector,
+`Yarn.active` and the reported `steps/energy/*` follow the entry.
 """
 
 from __future__ import annotations
@@ -13,13 +16,18 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Callable
 
+import numpy as np
+
 
 @dataclass(frozen=True)
 class Term:
     """One energy term of the model."""
 
     name: str
-    """Its name, also its module's name in `dynfab.terms` and `dynfab.kernels`."""
+    """Its name, also its module's name in `dynfab.terms` and `dynfab.kernels`. The numba module
+    `dynfab.terms.<name>` has the entry points `yarn_energy(pos, yarn, frozen)`,
+    `add_yarn_gradient(pos, yarn, frozen, grad)` and `add_yarn_hessian(pos, yarn, frozen, band)`
+    (`dynfab.terms`), which `dynfab.assembly` calls in registry order."""
     meaning: str
     """One line: what the term is, with its section of docs/model.md."""
     active: Callable
@@ -53,3 +61,13 @@ NAMES: tuple[str, ...] = tuple(t.name for t in TERMS)
 def active_terms(scene) -> tuple[str, ...]:
     """The names of the terms a (validated) scene uses, in registry order."""
     return tuple(t.name for t in TERMS if t.active(scene))
+
+
+def index(name: str) -> int:
+    """The position of term `name` in TERMS: its entry in the energy vector and in `Yarn.active`."""
+    return NAMES.index(name)
+
+
+def active_mask(scene) -> np.ndarray:
+    """Which terms a (validated) scene uses, (len(TERMS),) bool in registry order (`Yarn.active`)."""
+    return np.array([t.active(scene) for t in TERMS], dtype=np.bool_)

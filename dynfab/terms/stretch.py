@@ -54,3 +54,24 @@ def add_hessian(pos, rest_length, stiffness, band):
             band_add(band, p + 1, q + 1, sign * hzz)
             band_add(band, p, q + 1, sign * hxz)
             band_add(band, p + 1, q, sign * hxz)
+
+
+# The term's entry points (`dynfab.terms`).
+
+
+@numba.njit(cache=True)
+def yarn_energy(pos, yarn, frozen):
+    """E_stretch [J] of a `dynfab.model.Yarn`."""
+    return energy(pos, yarn.rest_length, yarn.stretch_stiffness)
+
+
+@numba.njit(cache=True)
+def add_yarn_gradient(pos, yarn, frozen, grad):
+    """grad += dE_stretch/dr."""
+    add_gradient(pos, yarn.rest_length, yarn.stretch_stiffness, grad)
+
+
+@numba.njit(cache=True)
+def add_yarn_hessian(pos, yarn, frozen, band):
+    """band += d2E_stretch/dr2."""
+    add_hessian(pos, yarn.rest_length, yarn.stretch_stiffness, band)

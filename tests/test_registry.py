@@ -1,0 +1,253 @@
+"""The term registry (dynfab/terms/registry.py) drives the numba assembly and the reported energies.
+
+- Every registry term has the three numba entry points, with the same arguments, and
+  the assembly calls exactly those of the terms a yarn has, in registry order: its
+  energy vector, gradient and Hessian equal, bit for bit, the sums of the entry points
+  of the active terms taken in that order (the same floating-point additions).
+- The energies a step reports are the registry datasets of the model's terms, and
+  friction's `energy/stick` is the stick springs' energy 1/2 k_t (x - xi)^2 after the
+  return map (MODEL.md 4), as written independently here.
+- A new term is its own module and one registry entry: a term declared only that way (a
+  test module and an entry added at run time, in a separate process with its own numba
+  cache) appears in the energy vector, the gradient, the Hessian and the result datasets.
+"""
+
+import inspect
+import json
+import os
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+from dynfab import assembly
+from dynfab.banded import zeros_band
+from dynfab.model import build_model, initial_state
+from dynfab.observables import finish_step
+from dynfab.terms import registry
+from dynfab.terms.friction import INDEX as FRICTION
+
+ENTRY_POINTS = {"yarn_energy": ["pos", "yarn", "frozen"],
+                "add_yarn_gradient": ["pos", "yarn", "frozen", "grad"],
+                "add_yarn_hessian": ["pos", "yarn", "frozen", "band"]}
+
+PAPER_TABLES = dict(
+    geometry=dict(length=0.1, segments=16, crossings=4, amplitude=0.5e-3, yarns=2),
+    warp=dict(EA=13.72, EI=1.47e-7, kawabata_C=0.2e-3, kawabata_K=0.2, linear_density=3e-5),
+    weft=dict(EI=1.47e-7, amplitude=0.5e-3, kawabata_C=0.2e-3, kawabata_K=0.2, count=16),
+)
+FRICTION_TABLE = dict(alpha=0.2, beta=1e3, contact_length=2e-3, fiber_radius=1e-3)
+
+
+def all_terms_scene(make_scene, values=(0.05,)):
+    """Every term on: contact, friction, gravity and a force-controlled load."""
+    return make_scene(**PAPER_TABLES, friction=FRICTION_TABLE, gravity=dict(g=9.81),
+                      load=dict(control="force", values=list(values)))
+
+
+def perturbed(yarn, seed):
+    """The as-woven positions moved by up to 2 % of a segment (seeded), the crossings then
+    placed at closures g = (1e-5, 1e-4, -1e-5, 5e-5) m (g = c_j - s_j z, MODEL.md 3): three
+    closed, one open; every term has a nonzero gradient."""
+    rng = np.random.default_rng(seed)
+    l0 = yarn.rest_length.mean()
+    pos = yarn.rest_position + rng.uniform(-0.02, 0.02, yarn.rest_position.shape) * l0
+    closure = np.array([1e-5, 1e-4, -1e-5, 5e-5])
+    pos[yarn.crossing_node, 1] = yarn.crossing_side * (yarn.gap_offset - closure)
+    return pos
+
+
+def test_every_term_has_the_entry_points_the_assembly_calls():
+    # The assembly's tuples are the registry terms' own functions, in registry order,
+    # and every entry point takes the same arguments (dynfab/terms/__init__.py).
+    tuples = {"yarn_energy": assembly.ENERGIES, "add_yarn_gradient": assembly.GRADIENTS,
+              "add_yarn_hessian": assembly.HESSIANS}
+    for name, functions in tuples.items():
+        assert len(functions) == len(registry.TERMS) == assembly.TERM_COUNT
+        for term, function in zip(registry.TERMS, functions):
+            module = sys.modules[f"dynfab.terms.{term.name}"]
+            assert getattr(module, name) is function, (term.name, name)
+            assert list(inspect.signature(function.py_func).parameters) == ENTRY_POINTS[name]
+
+
+@pytest.mark.parametrize("switched_off", [(), ("friction",), ("contact", "gravity", "load")])
+def test_the_assembly_is_the_sum_of_the_active_terms(make_scene, switched_off):
+    # Terms switched off in Yarn.active give 0 in the energy vector and nothing in the
+    # gradient or Hessian; the others are their entry points' values, added in registry order.
+    model = build_model(all_terms_scene(make_scene))
+    yarn = model.yarns[0]
+    active = yarn.active.copy()
+    for name in switched_off:
+        active[registry.index(name)] = False
+    yarn = yarn._replace(active=active)
+    pos = perturbed(yarn, seed=7)
+    c = yarn.crossing_node.size
+    P, anchors = 0.05, pos[yarn.crossing_node, 0] - 1e-7
+    force, limit, tangent = np.zeros(c), np.zeros(c), np.zeros(c)
+    assembly.contact_state(pos, yarn, force, limit, tangent)
+    assert (force > 0).any() and (force == 0).any()  # both contact regimes
+    frozen = assembly.Frozen(P, anchors, limit, tangent, None, True, False)
+
+    energies = assembly.energy_vector()
+    assembly.energies(pos, yarn, P, anchors, limit, energies)
+    grad = np.zeros_like(pos)
+    assembly.gradient(pos, yarn, P, anchors, limit, grad)
+    band = zeros_band(pos.size)
+    assembly.hessian(pos, yarn, anchors, limit, tangent, True, band)
+
+    expected_grad, expected_band = np.zeros_like(pos), zeros_band(pos.size)
+    for k, term in enumerate(registry.TERMS):
+        module = sys.modules[f"dynfab.terms.{term.name}"]
+        if not active[k]:
+            assert energies[k] == 0.0
+            continue
+        assert energies[k] == module.yarn_energy(pos, yarn, frozen) != 0.0, term.name
+        module.add_yarn_gradient(pos, yarn, frozen, expected_grad)
+        module.add_yarn_hessian(pos, yarn, frozen, expected_band)
+    assert np.array_equal(grad, expected_grad)
+    assert np.array_equal(band, expected_band)
+
+
+def test_reported_energies_are_the_registry_datasets(make_scene):
+    # A step reports steps/energy/<term> for exactly the model's terms (Term.dataset);
+    # friction's is its stick springs after the return map: sum_j 1/2 k_t (x_nj - xi_j)^2.
+    # Each crossing's value is the Huber energy on the stick branch, or on the slide
+    # branch exactly at |s| = F_T / k_t, equal to the quadratic up to a few eps; summed
+    # over 4 crossings and 2 yarns: 1e-13 relative.
+    model = build_model(all_terms_scene(make_scene))
+    state = initial_state(model)
+    positions = np.stack([perturbed(y, seed=k) for k, y in enumerate(model.yarns)])
+    nodes = model.yarns[0].crossing_node
+    # two crossings 1e-7 m from their anchors, within F_T / k_t >= beta ell r_f / k_t = 9e-7 m
+    # where closed: they stick; the others, 1e-4 m away, slide
+    state.anchors[:, :2] = positions[:, nodes[:2], 0] - 1e-7
+    _, record = finish_step(model, state, positions, 0.05, np.zeros(2), np.zeros(2, np.int64))
+    reported = {name for name in record if name.startswith("energy/")}
+    assert reported == {t.dataset for t in registry.TERMS}
+    assert record["sliding"].any() and not record["sliding"].all()  # both friction regimes
+    slip = positions[:, nodes, 0] - record["anchors"]
+    k_t = np.array([y.stick_stiffness for y in model.yarns])
+    stick = 0.5 * k_t * (slip ** 2).sum(axis=1)
+    assert record["energy/stick"] == pytest.approx(stick, rel=1e-13, abs=0)
+
+    elastic = build_model(make_scene(**PAPER_TABLES, load=dict(control="displacement",
+                                                                values=[1e-4])))
+    _, record = finish_step(elastic, initial_state(elastic), positions, 1e-4, np.zeros(2),
+                            np.zeros(2, np.int64))
+    assert {name for name in record if name.startswith("energy/")} == \
+        {"energy/stretch", "energy/bending", "energy/contact"}
+    assert not elastic.yarns[0].active[FRICTION]
+
+
+TETHER = '''
+"""A test term: a spring of stiffness K [N/m] holding the middle node at its rest height."""
+import numba
+
+from dynfab.banded import band_add
+
+K = 50.0
+
+
+@numba.njit(cache=True)
+def yarn_energy(pos, yarn, frozen):
+    m = pos.shape[0] // 2
+    dz = pos[m, 1] - yarn.rest_position[m, 1]
+    return 0.5 * K * dz * dz
+
+
+@numba.njit(cache=True)
+def add_yarn_gradient(pos, yarn, frozen, grad):
+    m = pos.shape[0] // 2
+    grad[m, 1] += K * (pos[m, 1] - yarn.rest_position[m, 1])
+
+
+@numba.njit(cache=True)
+def add_yarn_hessian(pos, yarn, frozen, band):
+    m = pos.shape[0] // 2
+    band_add(band, 2 * m + 1, 2 * m + 1, K)
+'''
+
+NEW_TERM_SCRIPT = '''
+import json
+import sys
+import numpy as np
+sys.path.insert(0, sys.argv[1])
+import tether
+sys.modules["dynfab.terms.tether"] = tether
+from dynfab.terms import registry
+registry.TERMS += (registry.Term("tether", "test spring", lambda scene: True, "energy/tether"),)
+registry.NAMES += ("tether",)
+
+from dynfab import assembly
+from dynfab.banded import zeros_band, BANDWIDTH
+from dynfab.model import build_model, initial_state
+from dynfab.observables import finish_step
+from dynfab.scene import parse_scene_text
+sys.path.insert(0, sys.argv[2])
+from independent import scene_toml
+
+scene = parse_scene_text(scene_toml({
+    "geometry": dict(length=0.1, segments=16, crossings=0, amplitude=0.0),
+    "warp": dict(EA=13.72, EI=1.47e-7, kawabata_C=0.2e-3, kawabata_K=0.2),
+    "load": dict(control="displacement", values=[1e-4])}))
+model = build_model(scene)
+yarn = model.yarns[0]
+pos = yarn.rest_position.copy()
+m = pos.shape[0] // 2
+pos[m, 1] += 1e-4
+zero = np.zeros(0)
+vector = assembly.energy_vector()
+assembly.energies(pos, yarn, 0.0, zero, zero, vector)
+grad = np.zeros_like(pos)
+assembly.gradient(pos, yarn, 0.0, zero, zero, grad)
+without = np.zeros_like(pos)
+yarn_without = yarn._replace(active=yarn.active & (np.arange(yarn.active.size) < 6))
+assembly.gradient(pos, yarn_without, 0.0, zero, zero, without)
+band, band_without = zeros_band(pos.size), zeros_band(pos.size)
+assembly.hessian(pos, yarn, zero, zero, zero, False, band)
+assembly.hessian(pos, yarn_without, zero, zero, zero, False, band_without)
+_, record = finish_step(model, initial_state(model), pos[None], 1e-4, np.zeros(1),
+                        np.zeros(1, np.int64))
+try:  # a yarn built for another term list (as after a stale numba cache) is refused
+    assembly.energies(pos, yarn._replace(active=yarn.active[:6]), 0.0, zero, zero, vector)
+    refused = False
+except RuntimeError:
+    refused = True
+print(json.dumps({"terms": model.terms, "refused": refused, "size": int(vector.size), "energy": vector[6],
+                  "dz": pos[m, 1] - yarn.rest_position[m, 1],
+                  "force": grad[m, 1] - without[m, 1],
+                  "others_force": without[m, 1],
+                  "stiffness": band[2 * m + 1, BANDWIDTH] - band_without[2 * m + 1, BANDWIDTH],
+                  "others_stiffness": band_without[2 * m + 1, BANDWIDTH],
+                  "reported": record["energy/tether"][0]}))
+'''
+
+
+def test_a_new_term_is_its_module_and_one_registry_entry(tmp_path):
+    # The tether term exists only as a module and a registry entry: it shows up in the energy
+    # vector's 7th entry, the gradient, the Hessian and the step's energy/tether, with
+    # E = K dz^2 / 2, dE/dz = K dz, d2E/dz2 = K (dz = 1e-4 m at the middle node). The energy
+    # is the same floating-point product as here; force and stiffness are read as differences
+    # of sums that include the other terms, so they carry those sums' rounding, eps x |sum|.
+    (tmp_path / "tether.py").write_text(textwrap.dedent(TETHER))
+    script = tmp_path / "new_term.py"
+    script.write_text(NEW_TERM_SCRIPT)
+    tests = os.path.dirname(os.path.abspath(__file__))
+    # its own numba cache: the assembly compiled with seven terms must not reach the others
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba_cache"))
+    done = subprocess.run([sys.executable, str(script), str(tmp_path), tests], env=env,
+                          capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    out = json.loads(done.stdout.strip().splitlines()[-1])
+    assert "tether" in out["terms"] and out["size"] == 7
+    assert out["refused"]
+    K, dz = 50.0, out["dz"]
+    assert dz == pytest.approx(1e-4, rel=1e-9)
+    assert out["energy"] == out["reported"] == 0.5 * K * dz * dz
+    eps = np.finfo(float).eps
+    force_sum = abs(out["force"]) + abs(out["others_force"])
+    assert abs(out["force"] - K * dz) <= 4 * eps * force_sum
+    stiffness_sum = abs(out["stiffness"]) + abs(out["others_stiffness"])
+    assert abs(out["stiffness"] - K) <= 4 * eps * stiffness_sum
