@@ -120,8 +120,7 @@ class DynamicSolver:
         explicit_method = self.options.method == "explicit"
         check_method_damping(self.options)
         self.configuration = Configuration(
-            precision=self.options.precision, friction="friction" in model.terms,
-            gravity="gravity" in model.terms, control=model.control, method=self.options.method,
+            precision=self.options.precision, terms=model.terms, method=self.options.method,
             damping=self.damping if explicit_method else None, mode=self.options.mode)
         runtime.initialize(device)
         self._kernel = (explicit.relaxation_kernel if self.options.method == "explicit"

@@ -51,14 +51,14 @@ energy is taken as its largest value since the last test."""
 
 
 @functools.cache
-def functions(scalar, has_friction: bool, has_gravity: bool, force_control: bool) -> SimpleNamespace:
-    """`evaluate`, `start` and `check` for one term selection and scalar type."""
+def functions(scalar, terms: tuple) -> SimpleNamespace:
+    """`evaluate`, `start` and `check` for one term selection (`Configuration.terms`) and scalar type."""
     YarnArrays = yarn_arrays.struct(scalar)
     Motion = motion_module.struct(scalar)
     Settings = settings_module.struct(scalar)
-    terms = (scalar, has_friction, has_gravity, force_control)
-    force_ops = forces.functions(*terms)
-    stability_ops = stability.functions(*terms)
+    force_ops = forces.functions(scalar, terms)
+    stability_ops = stability.functions(scalar, terms)
+    force_control = "load" in terms
     floor_scale = ROUNDING_FLOOR_FACTOR * epsilon(scalar)
 
     @wp.func
