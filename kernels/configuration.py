@@ -2,9 +2,10 @@
 
 A variant is one `Configuration`: the active terms (`dynfab.model.Model.terms`,
 from the registry `dynfab.terms.registry`), precision, integrator and damping, mode.
-Kernels are built by factories with `module="unique"` and `wp.static` branches and
-loops over the terms, so a variant holds only the code it uses; `cached` builds each (factory, configuration) once per process, and Warp's
-kernel cache (~/.cache/warp) reloads its binary in milliseconds in later processes.
+Kernels are built by factories with `module="unique"`, `wp.static` branches and
+loops over the terms, so a variant holds only the code it uses; `cached` builds each
+(factory, configuration) once per process, and Warp's kernel cache (~/.cache/warp)
+reloads its binary in milliseconds in later processes.
 """
 
 import functools
@@ -15,6 +16,10 @@ from dynfab.terms import registry
 
 MODULE_OPTIONS = {"enable_backward": False}
 """Every kernel is forward-only: no adjoint code (compiles about 3x faster)."""
+ALWAYS_COMPILED = ("contact",)
+"""Terms compiled into every variant, active or not. A scene without crossings has no contact
+term (`registry.TERMS`), but the contact code loops over its C = 0 crossings and does nothing;
+a variant of its own would cost a compile (tens of seconds) to save nothing at run time."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -24,10 +29,10 @@ class Configuration:
     precision: str = "float64"
     """"float64" or "float32"."""
     terms: tuple[str, ...] = ("stretch", "bending", "contact", "load")
-    """The active terms (`dynfab.model.Model.terms`): only their code is compiled. Kept in
-    registry order whatever order they are given in, so equal selections are equal variants.
-    "load" (the end load) is the term of force control; without it x_N is fixed
-    (displacement control, MODEL.md 1)."""
+    """The active terms (`dynfab.model.Model.terms`): only their code is compiled (and that of
+    ALWAYS_COMPILED). Kept in registry order whatever order they are given in, so equal
+    selections are equal variants. "load" (the end load) is the term of force control;
+    without it x_N is fixed (displacement control, MODEL.md 1)."""
     method: str = "explicit"
     """"explicit" (symplectic Euler) or "semi_implicit" (linearly implicit Euler)."""
     damping: str | None = "kinetic"
@@ -36,10 +41,12 @@ class Configuration:
     """"quasi_static" (relax each load step) or "transient"."""
 
     def __post_init__(self):
+        """Refuse an unknown term name; add ALWAYS_COMPILED; put the terms in registry order."""
         unknown = set(self.terms) - set(registry.NAMES)
         if unknown:
             raise ValueError(f"unknown terms {sorted(unknown)}; the terms are {registry.NAMES}")
-        object.__setattr__(self, "terms", tuple(n for n in registry.NAMES if n in self.terms))
+        compiled = set(self.terms) | set(ALWAYS_COMPILED)
+        object.__setattr__(self, "terms", tuple(n for n in registry.NAMES if n in compiled))
 
     @property
     def scalar(self):

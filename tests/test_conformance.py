@@ -2,7 +2,8 @@
 Warp one (`dynfab.kernels`, the dynamic solver's): gradient against central differences of
 the energy, banded Hessian against central differences of the gradient, and the twins
 against each other (MODEL.md 2-4). The terms are the registry's (`dynfab.terms.registry`),
-so a term added there is checked here by adding its numba calls to NUMBA_TERMS.
+so a term added there is checked here once its numba calls are in `numba_term` and its
+stiffness bound in `bounds`.
 
 The state: a small paper fabric (N = 16, 4 crossings, two adjacent yarns) with friction,
 gravity and the force load on, its nodes moved at random by up to 0.05 l0, and its crossings

@@ -163,6 +163,25 @@ def test_total_force_matches_assembly_gradient(model, random_state):
         assert np.abs(band[k] - hessian).max() <= 16 * EPS * np.abs(hessian).max()
 
 
+def test_energies_match_assembly_energies(model, random_state):
+    # Every active term's energy, in the slots of `dynfab.assembly.energies` (registry order),
+    # F_T from this evaluation's R. Rounding: each energy sums n <= N+1 terms, each rounded to
+    # a few eps of itself, and a rounding of eps |r_i| in a coordinate moves E by
+    # |dE/dr_i| eps |r_i|: 16 eps S with S = n |E| + sum_i |dE/dr_i| |r_i| (as in
+    # tests/test_conformance.py).
+    positions, anchors = random_state
+    energies = warp_term(model, positions, anchors, diagnostics.ALL_TERMS)[3]
+    expected = np.zeros_like(energies)
+    for k, yarn in enumerate(model.yarns):
+        _, F_T, _ = numba_contact_state(yarn, positions[k])
+        assembly.energies(positions[k], yarn, LOAD, anchors[k], F_T, expected[k])
+        for term in TERMS:
+            grad, _ = numba_term(yarn, positions[k], anchors[k], term)
+            S = (model.segments + 1) * abs(expected[k, term]) + np.sum(np.abs(grad * positions[k]))
+            assert abs(energies[k, term] - expected[k, term]) <= 16 * EPS * S
+    assert (expected != 0.0).any(axis=0).all()  # every term is exercised
+
+
 def generated_source(kernel) -> str:
     """The C++ Warp generated for a kernel's module, read from the kernel cache after a launch
     (the launch's own module hash names the cache folder)."""
