@@ -62,24 +62,40 @@ def functions(scalar, terms: tuple) -> SimpleNamespace:
                                     friction_limit, grad)
 
     @wp.func
-    def force_from_gradient(y: int, force: wp.array2d(dtype=vec)):
-        """force = -grad on the free dofs, 0 on the fixed ones: node 0, z_N, and x_N under
-        displacement control."""
+    def worse(worst: scalar, value: scalar) -> scalar:
+        """|value| unless it is <= worst (so a NaN value is taken, but a NaN worst is replaced
+        by the next value)."""
+        result = worst
+        if not wp.abs(value) <= worst:
+            result = wp.abs(value)
+        return result
+
+    @wp.func
+    def force_from_gradient(y: int, force: wp.array2d(dtype=vec)) -> scalar:
+        """force = -grad on the free dofs, 0 on the fixed ones (node 0, z_N, and x_N under
+        displacement control); returns the residual, the largest |force component| [N],
+        computed in the same pass with every component compared in node order (`worse`)."""
         last = force.shape[1] - 1
         force[y, 0] = vec(scalar(0.0), scalar(0.0))
+        worst = scalar(0.0)
         for i in range(1, last):
-            force[y, i] = -force[y, i]
+            f = -force[y, i]
+            force[y, i] = f
+            worst = worse(worse(worst, f[0]), f[1])
         free_x = -force[y, last][0]
         if wp.static(not force_control):
             free_x = scalar(0.0)
         force[y, last] = vec(free_x, scalar(0.0))
+        return worse(worse(worst, free_x), scalar(0.0))
 
     @wp.func
     def evaluate(y: int, pos: wp.array2d(dtype=vec), yarn: YarnArrays, anchors: wp.array2d(dtype=scalar),
                  end_load: scalar, force: wp.array2d(dtype=vec), contact_force: wp.array2d(dtype=scalar),
-                 contact_tangent: wp.array2d(dtype=scalar), friction_limit: wp.array2d(dtype=scalar)):
+                 contact_tangent: wp.array2d(dtype=scalar),
+                 friction_limit: wp.array2d(dtype=scalar)) -> scalar:
         """force = -dV/dr [N] on the free dofs (the Huber terms' F_T from this evaluation's
-        R_j); R_j, dR/dg and F_T,j of every crossing.
+        R_j); R_j, dR/dg and F_T,j of every crossing. Returns the residual [N], the largest
+        |force component| (`force_from_gradient`).
 
         `end_load` is P [N] (unused under displacement control); `anchors` xi_j [m] stay fixed.
         """
@@ -87,7 +103,7 @@ def functions(scalar, terms: tuple) -> SimpleNamespace:
             force[y, i] = vec(scalar(0.0), scalar(0.0))
         add_gradient(y, pos, yarn, anchors, end_load, contact_force, contact_tangent,
                      friction_limit, force)
-        force_from_gradient(y, force)
+        return force_from_gradient(y, force)
 
     @wp.func
     def energy(y: int, pos: wp.array2d(dtype=vec), yarn: YarnArrays, anchors: wp.array2d(dtype=scalar),
@@ -97,17 +113,6 @@ def functions(scalar, terms: tuple) -> SimpleNamespace:
         for k in range(wp.static(len(energies))):
             out[y, wp.static(energy_slots[k])] = wp.static(energies[k])(y, pos, yarn, anchors, P,
                                                                         contact_force)
-
-    @wp.func
-    def residual(y: int, force: wp.array2d(dtype=vec)) -> scalar:
-        """Largest |force component| over the free dofs [N] (fixed ones are 0); NaN propagates."""
-        worst = scalar(0.0)
-        for i in range(force.shape[1]):
-            for c in range(2):
-                value = wp.abs(force[y, i][c])
-                if not value <= worst:
-                    worst = value
-        return worst
 
     @wp.func
     def add_hessian(y: int, pos: wp.array2d(dtype=vec), yarn: YarnArrays,
@@ -140,5 +145,5 @@ def functions(scalar, terms: tuple) -> SimpleNamespace:
                       band_ops.absolute_row_sum(band, y, 2 * node + 1))
 
     return SimpleNamespace(add_gradient=add_gradient, evaluate=evaluate, energy=energy,
-                           residual=residual, add_hessian=add_hessian, assemble_band=assemble_band,
+                           add_hessian=add_hessian, assemble_band=assemble_band,
                            gershgorin_row_sums=gershgorin_row_sums)
