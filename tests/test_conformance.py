@@ -118,6 +118,7 @@ def numba_term(yarn, anchors, F_T, name):
 
 
 def numba_twin(model, k, positions, anchors, R, F_T, name):
+    """`dynfab.terms.<name>` of yarn k at each position, F_T given (frozen)."""
     energy, add_gradient, add_hessian = numba_term(model.yarns[k], anchors, F_T, name)
     energies, grads, hessians = [], [], []
     for r in positions:
