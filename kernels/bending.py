@@ -65,7 +65,7 @@ def functions(scalar) -> SimpleNamespace:
             total += scalar(0.5) * stiffness[y, i] * d * d
         return total
 
-    @wp.func
+    @wp.func(inline=True)
     def add_gradient(y: int, pos: wp.array2d(dtype=vec), yarn: YarnArrays,
                      anchors: wp.array2d(dtype=scalar), P: scalar,
                      contact_force: wp.array2d(dtype=scalar), contact_tangent: wp.array2d(dtype=scalar),
@@ -108,7 +108,7 @@ def functions(scalar) -> SimpleNamespace:
         """dphi/dr of node i-1+p: -g_a, g_a - g_b, g_b."""
         return selector_a(p) * ga + selector_b(p) * gb
 
-    @wp.func
+    @wp.func(inline=True)
     def add_hessian(y: int, pos: wp.array2d(dtype=vec), yarn: YarnArrays,
                     anchors: wp.array2d(dtype=scalar), contact_tangent: wp.array2d(dtype=scalar),
                     friction_limit: wp.array2d(dtype=scalar), definite: bool, stiffest: bool,

@@ -125,7 +125,7 @@ def functions(scalar) -> SimpleNamespace:
             total += energy_of_force(force_from_closure(g, law, y)[0], law, y)
         return total
 
-    @wp.func
+    @wp.func(inline=True)
     def add_gradient(y: int, pos: wp.array2d(dtype=vec), yarn: YarnArrays,
                      anchors: wp.array2d(dtype=scalar), P: scalar,
                      contact_force: wp.array2d(dtype=scalar), contact_tangent: wp.array2d(dtype=scalar),
@@ -144,7 +144,7 @@ def functions(scalar) -> SimpleNamespace:
             contact_tangent[y, j] = state[1]
             grad[y, node] = grad[y, node] - vec(scalar(0.0), sides[y, j] * R)
 
-    @wp.func
+    @wp.func(inline=True)
     def add_hessian(y: int, pos: wp.array2d(dtype=vec), yarn: YarnArrays,
                     anchors: wp.array2d(dtype=scalar), contact_tangent: wp.array2d(dtype=scalar),
                     friction_limit: wp.array2d(dtype=scalar), definite: bool, stiffest: bool,

@@ -11,7 +11,8 @@ unrolled at code generation (`for i in range(wp.static(n))` with
     add_gradient(y, pos, yarn, anchors, P, contact_force, contact_tangent, friction_limit, grad)
     add_hessian(y, pos, yarn, anchors, contact_tangent, friction_limit, definite, stiffest, band)
 
-(`add_hessian` only where the term has one: gravity and the load are linear). The
+(`add_hessian` only where the term has one: gravity and the load are linear; both are
+forced inline, `wp.func(inline=True)`, since each receives the YarnArrays struct by value). The
 terms run in registry order: contact writes R_j and dR/dg into contact_force and
 contact_tangent, and friction, after it, its limit F_T(R_j) into friction_limit.
 The solver's force is f = -dV/dr (+ the Huber terms' -dH/ds), 0 on the fixed dofs
@@ -51,7 +52,7 @@ def functions(scalar, terms: tuple) -> SimpleNamespace:
     hessians = [o.add_hessian for o in ops if hasattr(o, "add_hessian")]
     force_control = "load" in terms
 
-    @wp.func
+    @wp.func(inline=True)
     def add_gradient(y: int, pos: wp.array2d(dtype=vec), yarn: YarnArrays,
                      anchors: wp.array2d(dtype=scalar), P: scalar,
                      contact_force: wp.array2d(dtype=scalar), contact_tangent: wp.array2d(dtype=scalar),
@@ -70,7 +71,7 @@ def functions(scalar, terms: tuple) -> SimpleNamespace:
             result = wp.abs(value)
         return result
 
-    @wp.func
+    @wp.func(inline=True)
     def force_from_gradient(y: int, force: wp.array2d(dtype=vec)) -> scalar:
         """force = -grad on the free dofs, 0 on the fixed ones (node 0, z_N, and x_N under
         displacement control); returns the residual, the largest |force component| [N],
@@ -114,7 +115,7 @@ def functions(scalar, terms: tuple) -> SimpleNamespace:
             out[y, wp.static(energy_slots[k])] = wp.static(energies[k])(y, pos, yarn, anchors, P,
                                                                         contact_force)
 
-    @wp.func
+    @wp.func(inline=True)
     def add_hessian(y: int, pos: wp.array2d(dtype=vec), yarn: YarnArrays,
                     anchors: wp.array2d(dtype=scalar), contact_tangent: wp.array2d(dtype=scalar),
                     friction_limit: wp.array2d(dtype=scalar), definite: bool, stiffest: bool,

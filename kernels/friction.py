@@ -84,7 +84,7 @@ def functions(scalar) -> SimpleNamespace:
                            yarn.stick_stiffness[y])
         return total
 
-    @wp.func
+    @wp.func(inline=True)
     def add_gradient(y: int, pos: wp.array2d(dtype=vec), yarn: YarnArrays,
                      anchors: wp.array2d(dtype=scalar), P: scalar,
                      contact_force: wp.array2d(dtype=scalar), contact_tangent: wp.array2d(dtype=scalar),
@@ -100,7 +100,7 @@ def functions(scalar) -> SimpleNamespace:
             grad[y, node] = grad[y, node] + vec(huber_derivative(slip, limit_j, stick_stiffness),
                                                 scalar(0.0))
 
-    @wp.func
+    @wp.func(inline=True)
     def add_hessian(y: int, pos: wp.array2d(dtype=vec), yarn: YarnArrays,
                     anchors: wp.array2d(dtype=scalar), contact_tangent: wp.array2d(dtype=scalar),
                     friction_limit: wp.array2d(dtype=scalar), definite: bool, stiffest: bool,

@@ -32,7 +32,7 @@ def functions(scalar) -> SimpleNamespace:
             total += mass[y, i] * yarn.gravity[y] * (pos[y, i][1] - yarn.rest_position[y, i][1])
         return total
 
-    @wp.func
+    @wp.func(inline=True)
     def add_gradient(y: int, pos: wp.array2d(dtype=vec), yarn: YarnArrays,
                      anchors: wp.array2d(dtype=scalar), P: scalar,
                      contact_force: wp.array2d(dtype=scalar), contact_tangent: wp.array2d(dtype=scalar),

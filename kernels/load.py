@@ -28,7 +28,7 @@ def functions(scalar) -> SimpleNamespace:
         last = pos.shape[1] - 1
         return -P * (pos[y, last][0] - yarn.rest_position[y, last][0])
 
-    @wp.func
+    @wp.func(inline=True)
     def add_gradient(y: int, pos: wp.array2d(dtype=vec), yarn: YarnArrays,
                      anchors: wp.array2d(dtype=scalar), P: scalar,
                      contact_force: wp.array2d(dtype=scalar), contact_tangent: wp.array2d(dtype=scalar),

@@ -36,7 +36,7 @@ def functions(scalar) -> SimpleNamespace:
             total += scalar(0.5) * stiffness[y, i] * stretch * stretch
         return total
 
-    @wp.func
+    @wp.func(inline=True)
     def add_gradient(y: int, pos: wp.array2d(dtype=vec), yarn: YarnArrays,
                      anchors: wp.array2d(dtype=scalar), P: scalar,
                      contact_force: wp.array2d(dtype=scalar), contact_tangent: wp.array2d(dtype=scalar),
@@ -51,7 +51,7 @@ def functions(scalar) -> SimpleNamespace:
             grad[y, i] = grad[y, i] - pull
             grad[y, i + 1] = grad[y, i + 1] + pull
 
-    @wp.func
+    @wp.func(inline=True)
     def add_hessian(y: int, pos: wp.array2d(dtype=vec), yarn: YarnArrays,
                     anchors: wp.array2d(dtype=scalar), contact_tangent: wp.array2d(dtype=scalar),
                     friction_limit: wp.array2d(dtype=scalar), definite: bool, stiffest: bool,
