@@ -118,8 +118,7 @@ class DynamicSolver:
         self.scalar = SCALARS[self.options.precision]
         explicit_method = self.options.method == "explicit"
         self.configuration = Configuration(
-            precision=self.options.precision, friction="friction" in model.terms,
-            gravity="gravity" in model.terms, control=model.control, method=self.options.method,
+            precision=self.options.precision, terms=model.terms, method=self.options.method,
             damping=self.damping if explicit_method else None, mode=self.options.mode)
         runtime.initialize(device)
         self._kernel = (explicit.relaxation_kernel if self.options.method == "explicit"

@@ -6,8 +6,10 @@ One module per concept, mirroring `dynfab.terms` for the physics:
 - `yarn_arrays`, `motion`, `settings`: the Warp structs a kernel reads (a batch
   of yarns' Model arrays; the per-yarn time-integration state; the options);
 - `stretch`, `bending`, `contact`, `friction`, `gravity`, `load`: each term's
-  nodal force and banded tangent stiffness (`wp.func`s);
-- `forces`: the sum of the active terms, chosen with `wp.static`;
+  energy, gradient and banded Hessian (`wp.func`s with the same arguments in every
+  term, in the sign convention of the numba twins in `dynfab.terms`: grad += dV/dr);
+- `forces`: the totals, loops over the active terms (`Configuration.terms`, from the
+  registry `dynfab.terms.registry`) unrolled with `wp.static`;
 - `banded`: one yarn's banded matrix and its O(N) LU factorisation;
 - `stability`: Gershgorin masses and stable time step;
 - `relaxation`: start and convergence checks shared by the relaxation kernels;
@@ -16,7 +18,7 @@ One module per concept, mirroring `dynfab.terms` for the physics:
   thread per yarn with the time loop inside the kernel;
 - `configuration`: what selects a kernel variant, and the per-process cache;
 - `status`: the per-yarn outcome codes the kernels write;
-- `diagnostics`: one term's force and stiffness alone, for tests.
+- `diagnostics`: one term's energy, gradient and stiffness alone, for tests.
 
 Every `wp.func` is built per scalar type by a cached factory `functions(scalar, ...)`,
 because Warp refuses to mix float32 literals with float64 values.

@@ -1,6 +1,6 @@
 """Bending springs on exact turning angles in a kernel (MODEL.md 2; paper eqs. 13, 16).
 
-Warp twin of `dynfab.terms.bending`. E_bend = sum_{i=1}^{N-1} 1/2 (EI / lbar_i)
+Warp twin of `dynfab.terms.bending`, in its sign convention (grad += dV/dr). E_bend = sum_{i=1}^{N-1} 1/2 (EI / lbar_i)
 (phi_i - phi0_i)^2, phi_i = theta(b) - theta(a) = atan2(a x b, a . b), with
 a = r_i - r_{i-1}, b = r_{i+1} - r_i, theta(v) = atan2(v_z, v_x):
 
@@ -8,7 +8,8 @@ a = r_i - r_{i-1}, b = r_{i+1} - r_i, theta(v) = atan2(v_z, v_x):
     d2theta/dv2 = [[2 v_x v_z, v_z^2 - v_x^2], [v_z^2 - v_x^2, -2 v_x v_z]] / |v|^4,
 
 and d phi_i / d(r_{i-1}, r_i, r_{i+1}) = (-g_a, g_a - g_b, g_b) with
-g_a = dphi/da = -dtheta(a)/da and g_b = dphi/db = dtheta(b)/db.
+g_a = dphi/da = -dtheta(a)/da and g_b = dphi/db = dtheta(b)/db. `stiffness` = EI / lbar_i
+(`YarnArrays.bend_stiffness`), `rest_angle` = phi0_i.
 """
 
 import functools
@@ -16,7 +17,7 @@ from types import SimpleNamespace
 
 import warp as wp
 
-from dynfab.kernels import banded
+from dynfab.kernels import banded, yarn_arrays
 from dynfab.kernels.precision import VECTORS
 
 
@@ -25,6 +26,7 @@ def functions(scalar) -> SimpleNamespace:
     """The bending `wp.func`s for one scalar type."""
     vec = VECTORS[scalar]
     mat = wp.types.matrix((2, 2), scalar)
+    YarnArrays = yarn_arrays.struct(scalar)
     band_ops = banded.functions(scalar)
 
     @wp.func
@@ -51,18 +53,35 @@ def functions(scalar) -> SimpleNamespace:
         return mat(hxx, hxz, hxz, -hxx)
 
     @wp.func
-    def add_forces(y: int, pos: wp.array2d(dtype=vec), stiffness: wp.array2d(dtype=scalar),
-                   rest_angle: wp.array2d(dtype=scalar), force: wp.array2d(dtype=vec)):
-        """force -= k (phi - phi0) dphi/dr [N]; `stiffness` = EI / lbar_i [N m]."""
+    def energy(y: int, pos: wp.array2d(dtype=vec), yarn: YarnArrays,
+               anchors: wp.array2d(dtype=scalar), P: scalar,
+               contact_force: wp.array2d(dtype=scalar)) -> scalar:
+        """E_bend [J] = sum_i 1/2 k_i (phi_i - phi0_i)^2."""
+        stiffness = yarn.bend_stiffness
+        rest_angle = yarn.rest_angle
+        total = scalar(0.0)
+        for i in range(1, pos.shape[1] - 1):
+            d = turning_angle(pos[y, i] - pos[y, i - 1], pos[y, i + 1] - pos[y, i]) - rest_angle[y, i]
+            total += scalar(0.5) * stiffness[y, i] * d * d
+        return total
+
+    @wp.func(inline=True)
+    def add_gradient(y: int, pos: wp.array2d(dtype=vec), yarn: YarnArrays,
+                     anchors: wp.array2d(dtype=scalar), P: scalar,
+                     contact_force: wp.array2d(dtype=scalar), contact_tangent: wp.array2d(dtype=scalar),
+                     friction_limit: wp.array2d(dtype=scalar), grad: wp.array2d(dtype=vec)):
+        """grad += k (phi - phi0) dphi/dr [N]."""
+        stiffness = yarn.bend_stiffness
+        rest_angle = yarn.rest_angle
         for i in range(1, pos.shape[1] - 1):
             a = pos[y, i] - pos[y, i - 1]
             b = pos[y, i + 1] - pos[y, i]
             moment = stiffness[y, i] * (turning_angle(a, b) - rest_angle[y, i])
             ga = moment * angle_gradient_a(a)
             gb = moment * angle_gradient_b(b)
-            force[y, i - 1] = force[y, i - 1] + ga
-            force[y, i] = force[y, i] - ga + gb
-            force[y, i + 1] = force[y, i + 1] - gb
+            grad[y, i - 1] = grad[y, i - 1] - ga
+            grad[y, i] = grad[y, i] + ga - gb
+            grad[y, i + 1] = grad[y, i + 1] + gb
 
     @wp.func
     def selector_a(p: int) -> scalar:
@@ -89,10 +108,11 @@ def functions(scalar) -> SimpleNamespace:
         """dphi/dr of node i-1+p: -g_a, g_a - g_b, g_b."""
         return selector_a(p) * ga + selector_b(p) * gb
 
-    @wp.func
-    def add_band(y: int, pos: wp.array2d(dtype=vec), stiffness: wp.array2d(dtype=scalar),
-                 rest_angle: wp.array2d(dtype=scalar), definite: bool,
-                 band: wp.array3d(dtype=scalar)):
+    @wp.func(inline=True)
+    def add_hessian(y: int, pos: wp.array2d(dtype=vec), yarn: YarnArrays,
+                    anchors: wp.array2d(dtype=scalar), contact_tangent: wp.array2d(dtype=scalar),
+                    friction_limit: wp.array2d(dtype=scalar), definite: bool, stiffest: bool,
+                    band: wp.array3d(dtype=scalar)):
         """band += k dphi dphi^T + k (phi - phi0) d2phi [N/m] over nodes (i-1, i, i+1).
 
         d2phi = -S_a^T H(a) S_a + S_b^T H(b) S_b with selectors S_a = (-1, 1, 0) and
@@ -100,6 +120,8 @@ def functions(scalar) -> SimpleNamespace:
         term, which can be indefinite, is dropped: k dphi dphi^T is positive
         semi-definite (MODEL.md 5, semi_implicit).
         """
+        stiffness = yarn.bend_stiffness
+        rest_angle = yarn.rest_angle
         for i in range(1, pos.shape[1] - 1):
             a = pos[y, i] - pos[y, i - 1]
             b = pos[y, i + 1] - pos[y, i]
@@ -119,4 +141,4 @@ def functions(scalar) -> SimpleNamespace:
                         + selector_b(p) * selector_b(q) * hb
                     band_ops.add_block(band, y, i - 1 + p, i - 1 + q, block)
 
-    return SimpleNamespace(add_forces=add_forces, add_band=add_band)
+    return SimpleNamespace(energy=energy, add_gradient=add_gradient, add_hessian=add_hessian)

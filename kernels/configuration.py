@@ -1,19 +1,25 @@
 """What selects a kernel variant, and the per-process cache of compiled variants.
 
-A variant is one `Configuration`: terms (friction, gravity), load control,
-precision, integrator and damping, mode. Kernels are built by factories with
-`module="unique"` and `wp.static` branches, so a variant holds only the code it
-uses; `cached` builds each (factory, configuration) once per process, and Warp's
-kernel cache (~/.cache/warp) reloads its binary in milliseconds in later processes.
+A variant is one `Configuration`: the active terms (`dynfab.model.Model.terms`,
+from the registry `dynfab.terms.registry`), precision, integrator and damping, mode.
+Kernels are built by factories with `module="unique"`, `wp.static` branches and
+loops over the terms, so a variant holds only the code it uses; `cached` builds each
+(factory, configuration) once per process, and Warp's kernel cache (~/.cache/warp)
+reloads its binary in milliseconds in later processes.
 """
 
 import functools
 from dataclasses import dataclass
 
 from dynfab.kernels.precision import SCALARS
+from dynfab.terms import registry
 
 MODULE_OPTIONS = {"enable_backward": False}
 """Every kernel is forward-only: no adjoint code (compiles about 3x faster)."""
+ALWAYS_COMPILED = ("contact",)
+"""Terms compiled into every variant, active or not. A scene without crossings has no contact
+term (`registry.TERMS`), but the contact code loops over its C = 0 crossings and does nothing;
+a variant of its own would cost a compile (tens of seconds) to save nothing at run time."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -22,18 +28,25 @@ class Configuration:
 
     precision: str = "float64"
     """"float64" or "float32"."""
-    friction: bool = False
-    """The scene has a [friction] table (Huber friction terms compiled in)."""
-    gravity: bool = False
-    """The scene has a [gravity] table."""
-    control: str = "force"
-    """"force" (end load compiled in) or "displacement" (x_N fixed)."""
+    terms: tuple[str, ...] = ("stretch", "bending", "contact", "load")
+    """The active terms (`dynfab.model.Model.terms`): only their code is compiled (and that of
+    ALWAYS_COMPILED). Kept in registry order whatever order they are given in, so equal
+    selections are equal variants. "load" (the end load) is the term of force control;
+    without it x_N is fixed (displacement control, MODEL.md 1)."""
     method: str = "explicit"
     """"explicit" (symplectic Euler) or "semi_implicit" (linearly implicit Euler)."""
     damping: str | None = "kinetic"
     """"kinetic", "viscous" or "fire" (explicit); None for semi_implicit, which has its own rule."""
     mode: str = "quasi_static"
     """"quasi_static" (relax each load step) or "transient"."""
+
+    def __post_init__(self):
+        """Refuse an unknown term name; add ALWAYS_COMPILED; put the terms in registry order."""
+        unknown = set(self.terms) - set(registry.NAMES)
+        if unknown:
+            raise ValueError(f"unknown terms {sorted(unknown)}; the terms are {registry.NAMES}")
+        compiled = set(self.terms) | set(ALWAYS_COMPILED)
+        object.__setattr__(self, "terms", tuple(n for n in registry.NAMES if n in compiled))
 
     @property
     def scalar(self):
@@ -42,12 +55,23 @@ class Configuration:
 
     @property
     def force_control(self) -> bool:
-        return self.control == "force"
+        """The end load is a term (force control); otherwise x_N is prescribed."""
+        return "load" in self.terms
 
     @property
-    def terms(self) -> tuple:
-        """Arguments of `dynfab.kernels.forces.functions` for this variant."""
-        return (self.scalar, self.friction, self.gravity, self.force_control)
+    def control(self) -> str:
+        """"force" or "displacement"."""
+        return "force" if self.force_control else "displacement"
+
+    @property
+    def friction(self) -> bool:
+        """The Huber friction term is compiled in."""
+        return "friction" in self.terms
+
+    @property
+    def gravity(self) -> bool:
+        """The gravity term is compiled in."""
+        return "gravity" in self.terms
 
 
 _COMPILED: dict = {}

@@ -1,6 +1,6 @@
 """Weft contact in a kernel: the weft spring in series with both Kawabata laws (MODEL.md 3; eqs. 4-9).
 
-Warp twin of `dynfab.terms.contact`. At crossing j the closure is
+Warp twin of `dynfab.terms.contact`, in its sign convention (grad += dV/dr). At crossing j the closure is
 g_j = c_j - s_j z_{n_j}; the contact force R_j >= 0 solves
 
     R / k_we + C_wa (1 - exp(-a_wa R)) + C_we (1 - exp(-a_we R)) = g_j   (g_j > 0),
@@ -8,7 +8,10 @@ g_j = c_j - s_j z_{n_j}; the contact force R_j >= 0 solves
 R_j = 0 for g_j <= 0, by the same monotone Newton iteration as
 `dynfab.terms.contact.force_from_closure`. The force on the warp is +s_j R_j in z;
 the tangent dR/dg = 1 / (1/k_we + sum_m C_m a_m exp(-a_m R)) is bounded by k_we.
-`law` rows are (k_we [N/m], C_wa [m], a_wa [1/N], C_we [m], a_we [1/N]).
+The energy is the three series springs at the common force,
+E = R^2 / (2 k_we) + sum_m (C_m / a_m)(1 - exp(-a_m R)(1 + a_m R)), so dE/dg = R.
+`law` rows are (k_we [N/m], C_wa [m], a_wa [1/N], C_we [m], a_we [1/N])
+(`YarnArrays.contact_law`); `nodes`, `sides`, `offsets` are n_j, s_j and c_j.
 """
 
 import functools
@@ -16,7 +19,7 @@ from types import SimpleNamespace
 
 import warp as wp
 
-from dynfab.kernels import banded
+from dynfab.kernels import banded, yarn_arrays
 from dynfab.kernels.precision import VECTORS, epsilon
 from dynfab.terms.contact import MAX_NEWTON
 
@@ -29,6 +32,7 @@ NEWTON_STOP_EPS = 4e-16 / 2.220446049250313e-16
 def functions(scalar) -> SimpleNamespace:
     """The contact `wp.func`s for one scalar type."""
     vec = VECTORS[scalar]
+    YarnArrays = yarn_arrays.struct(scalar)
     band_ops = banded.functions(scalar)
     newton_stop = NEWTON_STOP_EPS * epsilon(scalar)
 
@@ -83,29 +87,77 @@ def functions(scalar) -> SimpleNamespace:
         return offset - side * pos[y, node][1]
 
     @wp.func
-    def add_forces(y: int, pos: wp.array2d(dtype=vec), nodes: wp.array(dtype=wp.int32),
-                   sides: wp.array2d(dtype=scalar), offsets: wp.array2d(dtype=scalar),
-                   law: wp.array2d(dtype=scalar), contact_force: wp.array2d(dtype=scalar),
-                   contact_tangent: wp.array2d(dtype=scalar), force: wp.array2d(dtype=vec)):
-        """force_z += s_j R_j [N]; stores R_j [N] and dR/dg [N/m] (0 where open) per crossing."""
+    def kawabata_energy(C: scalar, a: scalar, R: scalar) -> scalar:
+        """(C / a)(1 - exp(-x)(1 + x)), x = a R [J]; below x = 0.5 the series
+        sum_{n>=2} (-1)^n (n - 1) x^n / n! against cancellation (as `dynfab.terms.contact`)."""
+        x = a * R
+        result = scalar(0.0)
+        if x >= scalar(0.5):
+            result = (C / a) * (scalar(1.0) - wp.exp(-x) * (scalar(1.0) + x))
+        else:
+            term = x * x / scalar(2.0)
+            floor = scalar(1.0e-18) * term + scalar(1.0e-300)
+            total = scalar(0.0)
+            n = int(2)
+            while n < 40 and wp.abs(term) * scalar(n - 1) > floor:
+                total += scalar(n - 1) * term
+                n += 1
+                term *= -x / scalar(n)
+            result = (C / a) * total
+        return result
+
+    @wp.func
+    def energy_of_force(R: scalar, law: wp.array2d(dtype=scalar), y: int) -> scalar:
+        """E [J] stored in the series springs at the common force R."""
+        return (R * R / (scalar(2.0) * law[y, 0]) + kawabata_energy(law[y, 1], law[y, 2], R)
+                + kawabata_energy(law[y, 3], law[y, 4], R))
+
+    @wp.func
+    def energy(y: int, pos: wp.array2d(dtype=vec), yarn: YarnArrays,
+               anchors: wp.array2d(dtype=scalar), P: scalar,
+               contact_force: wp.array2d(dtype=scalar)) -> scalar:
+        """sum_j E_contact,j [J] at R_j(g_j) solved here (0 where open)."""
+        nodes = yarn.crossing_node
+        law = yarn.contact_law
+        total = scalar(0.0)
+        for j in range(nodes.shape[0]):
+            g = closure(pos, y, nodes[j], yarn.crossing_side[y, j], yarn.gap_offset[y, j])
+            total += energy_of_force(force_from_closure(g, law, y)[0], law, y)
+        return total
+
+    @wp.func(inline=True)
+    def add_gradient(y: int, pos: wp.array2d(dtype=vec), yarn: YarnArrays,
+                     anchors: wp.array2d(dtype=scalar), P: scalar,
+                     contact_force: wp.array2d(dtype=scalar), contact_tangent: wp.array2d(dtype=scalar),
+                     friction_limit: wp.array2d(dtype=scalar), grad: wp.array2d(dtype=vec)):
+        """grad_z += dE/dg dg/dz = -s_j R_j [N]; stores R_j [N] and dR/dg [N/m] (0 where open)
+        per crossing in contact_force and contact_tangent."""
+        nodes = yarn.crossing_node
+        sides = yarn.crossing_side
+        offsets = yarn.gap_offset
+        law = yarn.contact_law
         for j in range(nodes.shape[0]):
             node = nodes[j]
             state = force_from_closure(closure(pos, y, node, sides[y, j], offsets[y, j]), law, y)
             R = state[0]
             contact_force[y, j] = R
             contact_tangent[y, j] = state[1]
-            force[y, node] = force[y, node] + vec(scalar(0.0), sides[y, j] * R)
+            grad[y, node] = grad[y, node] - vec(scalar(0.0), sides[y, j] * R)
 
-    @wp.func
-    def add_band(y: int, nodes: wp.array(dtype=wp.int32), law: wp.array2d(dtype=scalar),
-                 contact_tangent: wp.array2d(dtype=scalar), stiffest: bool,
-                 band: wp.array3d(dtype=scalar)):
-        """band_zz += dR/dg [N/m] (s_j^2 = 1); with `stiffest`, its bound k_we on every crossing."""
+    @wp.func(inline=True)
+    def add_hessian(y: int, pos: wp.array2d(dtype=vec), yarn: YarnArrays,
+                    anchors: wp.array2d(dtype=scalar), contact_tangent: wp.array2d(dtype=scalar),
+                    friction_limit: wp.array2d(dtype=scalar), definite: bool, stiffest: bool,
+                    band: wp.array3d(dtype=scalar)):
+        """band_zz += dR/dg [N/m] (s_j^2 = 1), from contact_tangent of the same evaluation;
+        with `stiffest`, its bound k_we on every crossing."""
+        nodes = yarn.crossing_node
         for j in range(nodes.shape[0]):
             dof = 2 * nodes[j] + 1
             stiffness = contact_tangent[y, j]
             if stiffest:
-                stiffness = law[y, 0]
+                stiffness = yarn.contact_law[y, 0]
             band_ops.add(band, y, dof, dof, stiffness)
 
-    return SimpleNamespace(expm1=expm1, add_forces=add_forces, add_band=add_band)
+    return SimpleNamespace(expm1=expm1, energy=energy, add_gradient=add_gradient,
+                           add_hessian=add_hessian)

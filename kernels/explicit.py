@@ -22,7 +22,7 @@ def relaxation_kernel(configuration: Configuration):
     YarnArrays = yarn_arrays.struct(scalar)
     Motion = motion_module.struct(scalar)
     Settings = settings_module.struct(scalar)
-    relax_ops = relaxation.functions(*configuration.terms)
+    relax_ops = relaxation.functions(scalar, configuration.terms)
     damping = configuration.damping
     kinetic_ops = kinetic_damping.functions(scalar)
     viscous_ops = viscous_damping.functions(scalar)

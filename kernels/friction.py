@@ -1,10 +1,14 @@
 """Gralen friction as stick-slip in the incremental Huber form, in a kernel (MODEL.md 4; eqs. 20-27).
 
-Warp twin of `dynfab.terms.friction`. F_T,j = alpha R_j + beta ell r_f (1 - exp(-R_j/R_0))
+Warp twin of `dynfab.terms.friction`, in its sign convention (grad += dV/dr). F_T,j = alpha R_j + beta ell r_f (1 - exp(-R_j/R_0))
 if R_j > 0, else 0 (eq. 20 with its onset regularised over R_0; R_0 = 0 is the literal
-law), from the contact force of the same evaluation. With the anchor
-xi_j fixed, the slip s = x_{n_j} - xi_j feels -dH/ds: -k_t s while sticking
-(k_t |s| <= F_T), -F_T sign(s) while sliding.
+law), from the contact force R_j in `contact_force` (written by the contact term earlier in
+the same evaluation: the registry's order). With the anchor xi_j fixed, each crossing adds
+the Huber potential of its slip s = x_{n_j} - xi_j,
+
+    H(s) = 1/2 k_t s^2 (k_t |s| <= F_T, sticking),   F_T |s| - F_T^2 / (2 k_t) (sliding),
+
+so dH/ds = k_t s while sticking, F_T sign(s) while sliding. `stick_stiffness` = k_t.
 """
 
 import functools
@@ -12,7 +16,7 @@ from types import SimpleNamespace
 
 import warp as wp
 
-from dynfab.kernels import banded, contact
+from dynfab.kernels import banded, contact, yarn_arrays
 from dynfab.kernels.precision import VECTORS
 
 
@@ -20,6 +24,7 @@ from dynfab.kernels.precision import VECTORS
 def functions(scalar) -> SimpleNamespace:
     """The friction `wp.func`s for one scalar type."""
     vec = VECTORS[scalar]
+    YarnArrays = yarn_arrays.struct(scalar)
     band_ops = banded.functions(scalar)
     expm1 = contact.functions(scalar).expm1
 
@@ -52,31 +57,63 @@ def functions(scalar) -> SimpleNamespace:
         return value
 
     @wp.func
-    def add_forces(y: int, pos: wp.array2d(dtype=vec), nodes: wp.array(dtype=wp.int32),
-                   anchors: wp.array2d(dtype=scalar), contact_force: wp.array2d(dtype=scalar),
-                   alpha: wp.array(dtype=scalar), constant: wp.array(dtype=scalar),
-                   onset: wp.array(dtype=scalar), stick_stiffness: wp.array(dtype=scalar),
-                   friction_limit: wp.array2d(dtype=scalar), force: wp.array2d(dtype=vec)):
-        """force_x -= dH/ds [N] with F_T from the current R_j; stores F_T,j [N]."""
-        for j in range(nodes.shape[0]):
-            node = nodes[j]
-            limit_j = limit(contact_force[y, j], alpha[y], constant[y], onset[y])
-            friction_limit[y, j] = limit_j
-            slip = pos[y, node][0] - anchors[y, j]
-            force[y, node] = force[y, node] - vec(huber_derivative(slip, limit_j, stick_stiffness[y]),
-                                                  scalar(0.0))
+    def huber(slip: scalar, friction_limit: scalar, stick_stiffness: scalar) -> scalar:
+        """H(s) [J]."""
+        value = scalar(0.5) * stick_stiffness * slip * slip
+        if is_sliding(slip, friction_limit, stick_stiffness):
+            value = friction_limit * wp.abs(slip) \
+                - friction_limit * friction_limit / (scalar(2.0) * stick_stiffness)
+        return value
 
     @wp.func
-    def add_band(y: int, pos: wp.array2d(dtype=vec), nodes: wp.array(dtype=wp.int32),
-                 anchors: wp.array2d(dtype=scalar), friction_limit: wp.array2d(dtype=scalar),
-                 stick_stiffness: wp.array(dtype=scalar), stiffest: bool,
-                 band: wp.array3d(dtype=scalar)):
-        """band_xx += k_t [N/m] on sticking crossings (F_T frozen); with `stiffest`, on every one."""
+    def crossing_limit(y: int, yarn: YarnArrays, contact_force: wp.array2d(dtype=scalar),
+                       j: int) -> scalar:
+        """F_T,j [N] from R_j [N]."""
+        return limit(contact_force[y, j], yarn.friction_alpha[y], yarn.friction_constant[y],
+                     yarn.friction_onset[y])
+
+    @wp.func
+    def energy(y: int, pos: wp.array2d(dtype=vec), yarn: YarnArrays,
+               anchors: wp.array2d(dtype=scalar), P: scalar,
+               contact_force: wp.array2d(dtype=scalar)) -> scalar:
+        """sum_j H(x_{n_j} - xi_j) [J] with F_T,j from the given R_j (frozen)."""
+        nodes = yarn.crossing_node
+        total = scalar(0.0)
+        for j in range(nodes.shape[0]):
+            total += huber(pos[y, nodes[j]][0] - anchors[y, j], crossing_limit(y, yarn, contact_force, j),
+                           yarn.stick_stiffness[y])
+        return total
+
+    @wp.func(inline=True)
+    def add_gradient(y: int, pos: wp.array2d(dtype=vec), yarn: YarnArrays,
+                     anchors: wp.array2d(dtype=scalar), P: scalar,
+                     contact_force: wp.array2d(dtype=scalar), contact_tangent: wp.array2d(dtype=scalar),
+                     friction_limit: wp.array2d(dtype=scalar), grad: wp.array2d(dtype=vec)):
+        """grad_x += dH/ds [N] with F_T from the current R_j; stores F_T,j [N] in friction_limit."""
+        nodes = yarn.crossing_node
+        stick_stiffness = yarn.stick_stiffness[y]
+        for j in range(nodes.shape[0]):
+            node = nodes[j]
+            limit_j = crossing_limit(y, yarn, contact_force, j)
+            friction_limit[y, j] = limit_j
+            slip = pos[y, node][0] - anchors[y, j]
+            grad[y, node] = grad[y, node] + vec(huber_derivative(slip, limit_j, stick_stiffness),
+                                                scalar(0.0))
+
+    @wp.func(inline=True)
+    def add_hessian(y: int, pos: wp.array2d(dtype=vec), yarn: YarnArrays,
+                    anchors: wp.array2d(dtype=scalar), contact_tangent: wp.array2d(dtype=scalar),
+                    friction_limit: wp.array2d(dtype=scalar), definite: bool, stiffest: bool,
+                    band: wp.array3d(dtype=scalar)):
+        """band_xx += k_t [N/m] on sticking crossings (F_T frozen, from friction_limit);
+        with `stiffest`, on every one."""
+        nodes = yarn.crossing_node
+        stick_stiffness = yarn.stick_stiffness[y]
         for j in range(nodes.shape[0]):
             node = nodes[j]
             slip = pos[y, node][0] - anchors[y, j]
-            if stiffest or not is_sliding(slip, friction_limit[y, j], stick_stiffness[y]):
-                band_ops.add(band, y, 2 * node, 2 * node, stick_stiffness[y])
+            if stiffest or not is_sliding(slip, friction_limit[y, j], stick_stiffness):
+                band_ops.add(band, y, 2 * node, 2 * node, stick_stiffness)
 
     @wp.func
     def return_map(y: int, pos: wp.array2d(dtype=vec), nodes: wp.array(dtype=wp.int32),
@@ -97,5 +134,5 @@ def functions(scalar) -> SimpleNamespace:
                 anchors[y, j] = moved
         return lost
 
-    return SimpleNamespace(limit=limit, add_forces=add_forces, add_band=add_band,
-                           return_map=return_map)
+    return SimpleNamespace(limit=limit, energy=energy, add_gradient=add_gradient,
+                           add_hessian=add_hessian, return_map=return_map)

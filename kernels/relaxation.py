@@ -51,21 +51,23 @@ energy is taken as its largest value since the last test."""
 
 
 @functools.cache
-def functions(scalar, has_friction: bool, has_gravity: bool, force_control: bool) -> SimpleNamespace:
-    """`evaluate`, `start` and `check` for one term selection and scalar type."""
+def functions(scalar, terms: tuple) -> SimpleNamespace:
+    """`evaluate`, `start` and `check` for one term selection (`Configuration.terms`) and scalar type."""
     YarnArrays = yarn_arrays.struct(scalar)
     Motion = motion_module.struct(scalar)
     Settings = settings_module.struct(scalar)
-    terms = (scalar, has_friction, has_gravity, force_control)
-    force_ops = forces.functions(*terms)
-    stability_ops = stability.functions(*terms)
+    force_ops = forces.functions(scalar, terms)
+    stability_ops = stability.functions(scalar, terms)
+    force_control = "load" in terms
     floor_scale = ROUNDING_FLOOR_FACTOR * epsilon(scalar)
 
     @wp.func
     def evaluate(y: int, yarn: YarnArrays, motion: Motion, settings: Settings):
-        """motion.force [N] (and R, dR/dg, F_T) at motion.position; counts the evaluation."""
-        force_ops.evaluate(y, motion.position, yarn, motion.anchors, settings.end_load, motion.force,
-                           motion.contact_force, motion.contact_tangent, motion.friction_limit)
+        """motion.force [N] (and R, dR/dg, F_T) at motion.position, and its residual [N] in
+        motion.residual; counts the evaluation."""
+        motion.residual[y] = force_ops.evaluate(y, motion.position, yarn, motion.anchors,
+                                                settings.end_load, motion.force, motion.contact_force,
+                                                motion.contact_tangent, motion.friction_limit)
         motion.force_evaluations[y] = motion.force_evaluations[y] + 1
 
     @wp.func
@@ -109,8 +111,7 @@ def functions(scalar, has_friction: bool, has_gravity: bool, force_control: bool
         """Forces, masses, time step and residual at the load step's start (velocities are 0)."""
         evaluate(y, yarn, motion, settings)
         stability_ops.choose_masses(y, yarn, motion, settings)
-        residual = force_ops.residual(y, motion.force)
-        motion.residual[y] = residual
+        residual = motion.residual[y]
         motion.start_residual[y] = residual
         motion.best_residual[y] = residual
         motion.steps_since_best[y] = 0
@@ -135,10 +136,10 @@ def functions(scalar, has_friction: bool, has_gravity: bool, force_control: bool
 
     @wp.func
     def check(y: int, motion: Motion, settings: Settings) -> int:
-        """Count the step just taken and set motion.status [-] from the new residual [N]."""
+        """Count the step just taken and set motion.status [-] from the new residual [N]
+        (motion.residual, from the evaluation at the step's new positions)."""
         motion.steps[y] = motion.steps[y] + 1
-        residual = force_ops.residual(y, motion.force)
-        motion.residual[y] = residual
+        residual = motion.residual[y]
         if residual < motion.best_residual[y]:
             motion.best_residual[y] = residual
             motion.steps_since_best[y] = 0

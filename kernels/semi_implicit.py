@@ -55,14 +55,15 @@ took to stop improving, not after dynamic.max_steps (10^6 by default)."""
 
 
 @functools.cache
-def functions(scalar, has_friction: bool, has_gravity: bool, force_control: bool) -> SimpleNamespace:
-    """The semi-implicit step `wp.func`s for one term selection and scalar type."""
+def functions(scalar, terms: tuple) -> SimpleNamespace:
+    """The semi-implicit step `wp.func`s for one term selection (`Configuration.terms`) and scalar type."""
     vec = VECTORS[scalar]
     YarnArrays = yarn_arrays.struct(scalar)
     Motion = motion_module.struct(scalar)
     Settings = settings_module.struct(scalar)
-    force_ops = forces.functions(scalar, has_friction, has_gravity, force_control)
+    force_ops = forces.functions(scalar, terms)
     band_ops = banded.functions(scalar)
+    force_control = "load" in terms
 
     @wp.func
     def velocity_dof(motion: Motion, y: int, dof: int) -> scalar:
@@ -151,8 +152,8 @@ def relaxation_kernel(configuration: Configuration):
     YarnArrays = yarn_arrays.struct(scalar)
     Motion = motion_module.struct(scalar)
     Settings = settings_module.struct(scalar)
-    relax_ops = relaxation.functions(*configuration.terms)
-    semi_ops = functions(*configuration.terms)
+    relax_ops = relaxation.functions(scalar, configuration.terms)
+    semi_ops = functions(scalar, configuration.terms)
 
     @wp.kernel(module="unique", module_options=MODULE_OPTIONS)
     def relax(yarn: YarnArrays, motion: Motion, settings: Settings):

@@ -23,12 +23,12 @@ from dynfab.kernels import yarn_arrays
 
 
 @functools.cache
-def functions(scalar, has_friction: bool, has_gravity: bool, force_control: bool) -> SimpleNamespace:
-    """The mass-and-time-step `wp.func` of one term selection and scalar type."""
+def functions(scalar, terms: tuple) -> SimpleNamespace:
+    """The mass-and-time-step `wp.func` of one term selection (`Configuration.terms`) and scalar type."""
     YarnArrays = yarn_arrays.struct(scalar)
     Motion = motion_module.struct(scalar)
     Settings = settings_module.struct(scalar)
-    force_ops = forces.functions(scalar, has_friction, has_gravity, force_control)
+    force_ops = forces.functions(scalar, terms)
 
     @wp.func
     def choose_masses(y: int, yarn: YarnArrays, motion: Motion, settings: Settings):

@@ -1,7 +1,10 @@
-"""Extension springs in a kernel (MODEL.md section 2; Warp twin of `dynfab.terms.stretch`).
+"""Extension springs, geometrically exact, in a kernel (MODEL.md section 2; paper C_e = EA / Delta).
 
-E_stretch = sum_i 1/2 (EA / l0_i) (l_i - l0_i)^2,  l_i = |r_{i+1} - r_i|;
-the force on node i+1 is -k (l - l0) e / l (e = r_{i+1} - r_i), its opposite on node i.
+Warp twin of `dynfab.terms.stretch`, in its sign convention (grad += dV/dr):
+E_stretch = sum_i 1/2 (EA / l0_i) (l_i - l0_i)^2, l_i = |r_{i+1} - r_i|, with
+`stiffness` = EA / l0_i (`YarnArrays.stretch_stiffness`) and `rest_length` = l0_i.
+Every term module has the same three `wp.func`s with the same arguments
+(`dynfab.kernels.forces`): energy, add_gradient and add_hessian.
 """
 
 import functools
@@ -9,7 +12,7 @@ from types import SimpleNamespace
 
 import warp as wp
 
-from dynfab.kernels import banded
+from dynfab.kernels import banded, yarn_arrays
 from dynfab.kernels.precision import VECTORS
 
 
@@ -17,28 +20,49 @@ from dynfab.kernels.precision import VECTORS
 def functions(scalar) -> SimpleNamespace:
     """The stretch `wp.func`s for one scalar type."""
     vec = VECTORS[scalar]
+    YarnArrays = yarn_arrays.struct(scalar)
     band_ops = banded.functions(scalar)
 
     @wp.func
-    def add_forces(y: int, pos: wp.array2d(dtype=vec), rest_length: wp.array2d(dtype=scalar),
-                   stiffness: wp.array2d(dtype=scalar), force: wp.array2d(dtype=vec)):
-        """force -= dE_stretch/dr [N]; `stiffness` = EA / l0_i [N/m]."""
+    def energy(y: int, pos: wp.array2d(dtype=vec), yarn: YarnArrays,
+               anchors: wp.array2d(dtype=scalar), P: scalar,
+               contact_force: wp.array2d(dtype=scalar)) -> scalar:
+        """E_stretch [J] = sum_i 1/2 k_i (l_i - l0_i)^2."""
+        rest_length = yarn.rest_length
+        stiffness = yarn.stretch_stiffness
+        total = scalar(0.0)
+        for i in range(rest_length.shape[1]):
+            stretch = wp.length(pos[y, i + 1] - pos[y, i]) - rest_length[y, i]
+            total += scalar(0.5) * stiffness[y, i] * stretch * stretch
+        return total
+
+    @wp.func(inline=True)
+    def add_gradient(y: int, pos: wp.array2d(dtype=vec), yarn: YarnArrays,
+                     anchors: wp.array2d(dtype=scalar), P: scalar,
+                     contact_force: wp.array2d(dtype=scalar), contact_tangent: wp.array2d(dtype=scalar),
+                     friction_limit: wp.array2d(dtype=scalar), grad: wp.array2d(dtype=vec)):
+        """grad += dE/dr [N]: -k (l - l0) e / l on node i, + on node i+1, e = r_{i+1} - r_i."""
+        rest_length = yarn.rest_length
+        stiffness = yarn.stretch_stiffness
         for i in range(rest_length.shape[1]):
             e = pos[y, i + 1] - pos[y, i]
             length = wp.length(e)
             pull = (stiffness[y, i] * (length - rest_length[y, i]) / length) * e
-            force[y, i] = force[y, i] + pull
-            force[y, i + 1] = force[y, i + 1] - pull
+            grad[y, i] = grad[y, i] - pull
+            grad[y, i + 1] = grad[y, i + 1] + pull
 
-    @wp.func
-    def add_band(y: int, pos: wp.array2d(dtype=vec), rest_length: wp.array2d(dtype=scalar),
-                 stiffness: wp.array2d(dtype=scalar), definite: bool,
-                 band: wp.array3d(dtype=scalar)):
-        """band += d2E_stretch/dr2 [N/m]: per segment k [e e^T/l^2 + (1 - l0/l)(I - e e^T/l^2)].
+    @wp.func(inline=True)
+    def add_hessian(y: int, pos: wp.array2d(dtype=vec), yarn: YarnArrays,
+                    anchors: wp.array2d(dtype=scalar), contact_tangent: wp.array2d(dtype=scalar),
+                    friction_limit: wp.array2d(dtype=scalar), definite: bool, stiffest: bool,
+                    band: wp.array3d(dtype=scalar)):
+        """band += d2E/dr2 [N/m]: per segment k [e e^T/l^2 + (1 - l0/l)(I - e e^T/l^2)].
 
         With `definite`, a compressed segment's negative geometric part (1 - l0/l < 0)
         is dropped, leaving a positive semi-definite block (MODEL.md 5, semi_implicit).
         """
+        rest_length = yarn.rest_length
+        stiffness = yarn.stretch_stiffness
         for i in range(rest_length.shape[1]):
             e = pos[y, i + 1] - pos[y, i]
             l2 = wp.dot(e, e)
@@ -52,4 +76,4 @@ def functions(scalar) -> SimpleNamespace:
             band_ops.add_block(band, y, i, i + 1, -block)
             band_ops.add_block(band, y, i + 1, i, -block)
 
-    return SimpleNamespace(add_forces=add_forces, add_band=add_band)
+    return SimpleNamespace(energy=energy, add_gradient=add_gradient, add_hessian=add_hessian)

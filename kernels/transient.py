@@ -49,12 +49,12 @@ def transient_kernel(configuration: Configuration):
     YarnArrays = yarn_arrays.struct(scalar)
     Motion = motion_module.struct(scalar)
     Settings = settings_module.struct(scalar)
-    force_ops = forces.functions(*configuration.terms)
-    stability_ops = stability.functions(*configuration.terms)
+    force_ops = forces.functions(scalar, configuration.terms)
+    stability_ops = stability.functions(scalar, configuration.terms)
     viscous_ops = viscous_damping.functions(scalar)
     friction_ops = friction.functions(scalar)
     load_at = functions(scalar).load_at
-    has_friction, force_control = configuration.friction, configuration.force_control
+    has_friction, force_control = "friction" in configuration.terms, configuration.force_control
 
     @wp.func
     def evaluate(y: int, yarn: YarnArrays, motion: Motion, end_load: scalar):

@@ -1,10 +1,11 @@
 """Stage 1 of the dynamic solver: the Warp force and stiffness kernels (MODEL.md 2-4).
 
-Each term's Warp force and banded tangent stiffness against its numba twin in
-`dynfab.terms` at random states, the total force against `dynfab.assembly.gradient`
+Each term's Warp gradient and banded tangent stiffness against its numba twin in
+`dynfab.terms` at random states, the total force and energies against `dynfab.assembly`
 with F_T from `dynfab.assembly.contact_state`, to float64 rounding; and the
 kernel variants: a variant without a term compiles none of its code, and asking
-twice for a configuration returns the same kernel.
+twice for a configuration returns the same kernel. (Each term against finite
+differences of its energy, on both twins: tests/test_conformance.py.)
 """
 
 from dataclasses import replace
@@ -21,14 +22,17 @@ from dynfab.kernels import diagnostics, explicit, yarn_arrays
 from dynfab.kernels.configuration import Configuration, built_variants
 from dynfab.model import build_model, initial_state
 from dynfab.scene import Gravity, load_scene, validate_scene, with_key
-from dynfab.terms import bending, contact, friction, gravity, load, stretch
+from dynfab.terms import bending, contact, friction, gravity, load, registry, stretch
 
 RUNS = Path(__file__).resolve().parent.parent / "runs"
 EPS = np.finfo(np.float64).eps
 LOAD = 0.3
 """End load P [N] of the force-controlled test scene."""
-CONFIGURATION = Configuration(friction=True, gravity=True, control="force")
+CONFIGURATION = Configuration(terms=registry.NAMES)
 """The variant with every term: friction, gravity and the end load."""
+STRETCH, BENDING, CONTACT, FRICTION, GRAVITY, LOAD = (diagnostics.TERM_INDEX[name] for name in
+                                                      ("stretch", "bending", "contact",
+                                                       "friction", "gravity", "load"))
 
 
 @pytest.fixture(scope="module")
@@ -52,16 +56,20 @@ def random_state(model):
 
 
 def warp_term(model, positions, anchors, term):
-    """Warp's force (yarns, N+1, 2) [N], band (yarns, 2 (N+1), 11) [N/m] and (R, dR/dg, F_T)
-    of one term."""
+    """At the solver's evaluation (R, dR/dg and F_T at `positions`): Warp's gradient
+    (yarns, N+1, 2) [N] of one term (the solver's force for ALL_TERMS: -dV/dr on the free
+    dofs), band (yarns, 2 (N+1), 11) [N/m], (R, dR/dg, F_T) and energies (yarns, 6) [J]."""
     yarns, nodes, crossings = model.yarn_count, model.segments + 1, model.crossings
-    force = wp.zeros((yarns, nodes), dtype=wp.vec2d)
+    force, grad = (wp.zeros((yarns, nodes), dtype=wp.vec2d) for _ in range(2))
     band = wp.zeros((yarns, 2 * nodes, 11), dtype=wp.float64)
+    energy = wp.zeros((yarns, len(registry.NAMES)), dtype=wp.float64)
     contact_state = [wp.zeros((yarns, crossings), dtype=wp.float64) for _ in range(3)]
     wp.launch(diagnostics.term_kernel(CONFIGURATION), dim=yarns,
               inputs=[yarn_arrays.upload(model, wp.float64, "cpu"), wp.array(positions, dtype=wp.vec2d),
-                      wp.array(anchors, dtype=wp.float64), LOAD, term, force, band, *contact_state])
-    return force.numpy(), band.numpy(), [a.numpy() for a in contact_state]
+                      wp.array(anchors, dtype=wp.float64), LOAD, term, 1, force, grad, band, energy,
+                      *contact_state])
+    returned = force if term == diagnostics.ALL_TERMS else grad
+    return returned.numpy(), band.numpy(), [a.numpy() for a in contact_state], energy.numpy()
 
 
 def numba_contact_state(yarn, pos):
@@ -77,21 +85,21 @@ def numba_term(yarn, pos, anchors, term):
     grad, band = np.zeros_like(pos), zeros_band(pos.size)
     nodes, sides, offsets, law = (yarn.crossing_node, yarn.crossing_side, yarn.gap_offset,
                                   yarn.contact_law)
-    if term == diagnostics.STRETCH:
+    if term == STRETCH:
         stretch.add_gradient(pos, yarn.rest_length, yarn.stretch_stiffness, grad)
         stretch.add_hessian(pos, yarn.rest_length, yarn.stretch_stiffness, band)
-    elif term == diagnostics.BENDING:
+    elif term == BENDING:
         bending.add_gradient(pos, yarn.bend_stiffness, yarn.rest_angle, grad)
         bending.add_hessian(pos, yarn.bend_stiffness, yarn.rest_angle, band)
-    elif term == diagnostics.CONTACT:
+    elif term == CONTACT:
         contact.add_gradient(pos, nodes, sides, offsets, law, grad)
         contact.add_hessian(pos, nodes, sides, offsets, law, band)
-    elif term == diagnostics.FRICTION:
+    elif term == FRICTION:
         friction.add_gradient(pos, nodes, anchors, limit, yarn.stick_stiffness, grad)
         friction.add_hessian(pos, nodes, anchors, limit, yarn.stick_stiffness, band)
-    elif term == diagnostics.GRAVITY:
+    elif term == GRAVITY:
         gravity.add_gradient(yarn.mass, yarn.gravity, grad)
-    elif term == diagnostics.LOAD:
+    elif term == LOAD:
         load.add_gradient(LOAD, grad)
     return grad, band
 
@@ -105,41 +113,40 @@ def rounding_scale(yarn, pos, anchors, term):
     m g; the load P.
     """
     lengths = np.hypot(*np.diff(pos, axis=0).T)
-    if term == diagnostics.STRETCH:
+    if term == STRETCH:
         return np.max(yarn.stretch_stiffness * lengths)
-    if term == diagnostics.BENDING:
+    if term == BENDING:
         return np.max(yarn.bend_stiffness) * np.pi / lengths.min()
-    if term == diagnostics.CONTACT:
+    if term == CONTACT:
         return numba_contact_state(yarn, pos)[0].max()
-    if term == diagnostics.FRICTION:
+    if term == FRICTION:
         return yarn.stick_stiffness * np.abs(pos[:, 0]).max()
-    if term == diagnostics.GRAVITY:
+    if term == GRAVITY:
         return yarn.mass.max() * yarn.gravity
     return LOAD
 
 
-TERMS = [diagnostics.STRETCH, diagnostics.BENDING, diagnostics.CONTACT, diagnostics.FRICTION,
-         diagnostics.GRAVITY, diagnostics.LOAD]
+TERMS = [STRETCH, BENDING, CONTACT, FRICTION, GRAVITY, LOAD]
 
 
 @pytest.mark.parametrize("term", TERMS, ids=["stretch", "bending", "contact", "friction",
                                              "gravity", "load"])
 def test_term_force_and_stiffness_match_numba(model, random_state, term):
     positions, anchors = random_state
-    force, band, _ = warp_term(model, positions, anchors, term)
+    warp_grad, band, _, _ = warp_term(model, positions, anchors, term)
     for k, yarn in enumerate(model.yarns):
         grad, hessian = numba_term(yarn, positions[k], anchors[k], term)
         scale = rounding_scale(yarn, positions[k], anchors[k], term)
         # float64 rounding: a few ulps of the largest operand, summed over <= 3 elements per node.
-        assert np.abs(force[k] + grad).max() <= 16 * EPS * scale
+        assert np.abs(warp_grad[k] - grad).max() <= 16 * EPS * scale
         # Each band entry sums <= 3 element blocks, each rounded to eps of the largest entry.
         assert np.abs(band[k] - hessian).max() <= 16 * EPS * max(np.abs(hessian).max(), 1.0)
 
 
 def test_total_force_matches_assembly_gradient(model, random_state):
     positions, anchors = random_state
-    force, band, (contact_force, tangent, limit) = warp_term(model, positions, anchors,
-                                                             diagnostics.ALL_TERMS)
+    force, band, (contact_force, tangent, limit), _ = warp_term(model, positions, anchors,
+                                                                diagnostics.ALL_TERMS)
     fixed = model.fixed_dofs()
     for k, yarn in enumerate(model.yarns):
         R, F_T, dR_dg = numba_contact_state(yarn, positions[k])
@@ -154,6 +161,25 @@ def test_total_force_matches_assembly_gradient(model, random_state):
         scale = max(rounding_scale(yarn, positions[k], anchors[k], t) for t in TERMS)
         assert np.abs(force[k] - expected).max() <= 16 * EPS * scale
         assert np.abs(band[k] - hessian).max() <= 16 * EPS * np.abs(hessian).max()
+
+
+def test_energies_match_assembly_energies(model, random_state):
+    # Every active term's energy, in the slots of `dynfab.assembly.energies` (registry order),
+    # F_T from this evaluation's R. Rounding: each energy sums n <= N+1 terms, each rounded to
+    # a few eps of itself, and a rounding of eps |r_i| in a coordinate moves E by
+    # |dE/dr_i| eps |r_i|: 16 eps S with S = n |E| + sum_i |dE/dr_i| |r_i| (as in
+    # tests/test_conformance.py).
+    positions, anchors = random_state
+    energies = warp_term(model, positions, anchors, diagnostics.ALL_TERMS)[3]
+    expected = np.zeros_like(energies)
+    for k, yarn in enumerate(model.yarns):
+        _, F_T, _ = numba_contact_state(yarn, positions[k])
+        assembly.energies(positions[k], yarn, LOAD, anchors[k], F_T, expected[k])
+        for term in TERMS:
+            grad, _ = numba_term(yarn, positions[k], anchors[k], term)
+            S = (model.segments + 1) * abs(expected[k, term]) + np.sum(np.abs(grad * positions[k]))
+            assert abs(energies[k, term] - expected[k, term]) <= 16 * EPS * S
+    assert (expected != 0.0).any(axis=0).all()  # every term is exercised
 
 
 def generated_source(kernel) -> str:
@@ -174,13 +200,19 @@ def test_variant_without_friction_compiles_no_friction_code(model, random_state)
     for name in ("huber_derivative", "is_sliding"):
         assert name in with_friction
         assert name not in without
-    assert "gravity_ops" in with_friction and "gravity_ops" not in without
+    # the gravity term's code (its Python source is in the generated C++ as comments)
+    assert "yarn.gravity[y]" in with_friction and "yarn.gravity[y]" not in without
 
 
 def test_each_configuration_builds_once():
-    configuration = Configuration(friction=True, gravity=True, control="force")
+    configuration = Configuration(terms=registry.NAMES)
     first = diagnostics.term_kernel(configuration)
-    assert diagnostics.term_kernel(Configuration(friction=True, gravity=True, control="force")) is first
+    assert diagnostics.term_kernel(Configuration(terms=registry.NAMES)) is first
+    # the terms are kept in registry order, so the same selection in another order is the same
+    # variant, and an unknown term is refused
+    assert diagnostics.term_kernel(Configuration(terms=registry.NAMES[::-1])) is first
+    with pytest.raises(ValueError, match="unknown terms"):
+        Configuration(terms=("stretch", "twist"))
     keys = built_variants()
     assert len(keys) == len(set(keys))
 
@@ -196,7 +228,7 @@ def test_onset_friction_limit_matches_numba_and_its_derivative(model, random_sta
     scene = with_key(model.scene, "friction.onset_force", onset)
     onset_model = build_model(scene)
     positions, anchors = random_state
-    _, _, (R, tangent, limit) = warp_term(onset_model, positions, anchors, diagnostics.FRICTION)
+    _, _, (R, tangent, limit), _ = warp_term(onset_model, positions, anchors, FRICTION)
     h = 1e-9
     for k, yarn in enumerate(onset_model.yarns):
         assert yarn.friction_onset == onset
@@ -214,7 +246,7 @@ def test_onset_friction_limit_matches_numba_and_its_derivative(model, random_sta
             for step in (h, -h):
                 moved = positions.copy()
                 moved[k, node, 1] += step
-                shifted.append(warp_term(onset_model, moved, anchors, diagnostics.FRICTION)[2][2][k, j])
+                shifted.append(warp_term(onset_model, moved, anchors, FRICTION)[2][2][k, j])
             fd = (shifted[0] - shifted[1]) / (2 * h)
             slope = friction.limit_slope(R[k, j], yarn.friction_alpha, yarn.friction_constant, onset)
             exact = -side * slope * tangent[k, j]
