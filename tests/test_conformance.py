@@ -27,17 +27,19 @@ estimates are 1e-9 to 1e-8 of the gradient or of K, and a wrong factor, sign or 
 entry is O(1). The twins compute the same float64 formulas, so they agree to rounding.
 """
 
+import importlib
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
 import warp as wp
 
+from dynfab import assembly
 from dynfab.banded import zeros_band
 from dynfab.kernels import diagnostics, yarn_arrays
 from dynfab.kernels.configuration import Configuration
 from dynfab.model import build_model
-from dynfab.terms import bending, contact, friction, gravity, load, registry, stretch
+from dynfab.terms import contact, friction, registry
 from independent import PAPER_FRICTION, PAPER_WARP, PAPER_WEFT, dense, make_scene
 
 EPS = np.finfo(float).eps
@@ -93,28 +95,13 @@ def states(model):
 
 
 def numba_term(yarn, anchors, F_T, name):
-    """(energy(r), add_gradient(r, grad), add_hessian(r, band) or None) of `dynfab.terms.<name>`."""
-    nodes, sides, offsets, law = (yarn.crossing_node, yarn.crossing_side, yarn.gap_offset,
-                                  yarn.contact_law)
-    k_t = yarn.stick_stiffness
-    return {
-        "stretch": (lambda r: stretch.energy(r, yarn.rest_length, yarn.stretch_stiffness),
-                    lambda r, g: stretch.add_gradient(r, yarn.rest_length, yarn.stretch_stiffness, g),
-                    lambda r, b: stretch.add_hessian(r, yarn.rest_length, yarn.stretch_stiffness, b)),
-        "bending": (lambda r: bending.energy(r, yarn.bend_stiffness, yarn.rest_angle),
-                    lambda r, g: bending.add_gradient(r, yarn.bend_stiffness, yarn.rest_angle, g),
-                    lambda r, b: bending.add_hessian(r, yarn.bend_stiffness, yarn.rest_angle, b)),
-        "contact": (lambda r: contact.energy(r, nodes, sides, offsets, law),
-                    lambda r, g: contact.add_gradient(r, nodes, sides, offsets, law, g),
-                    lambda r, b: contact.add_hessian(r, nodes, sides, offsets, law, b)),
-        "friction": (lambda r: friction.energy(r, nodes, anchors, F_T, k_t),
-                     lambda r, g: friction.add_gradient(r, nodes, anchors, F_T, k_t, g),
-                     lambda r, b: friction.add_hessian(r, nodes, anchors, F_T, k_t, b)),
-        "gravity": (lambda r: gravity.energy(r, yarn.rest_position, yarn.mass, yarn.gravity),
-                    lambda r, g: gravity.add_gradient(yarn.mass, yarn.gravity, g), None),
-        "load": (lambda r: load.energy(r, yarn.rest_position, P),
-                 lambda r, g: load.add_gradient(P, g), None),
-    }[name]
+    """(energy(r), add_gradient(r, grad), add_hessian(r, band)) of `dynfab.terms.<name>`: the
+    registry's uniform entry points, with P, the anchors and F_T frozen."""
+    module = importlib.import_module(f"dynfab.terms.{name}")
+    frozen = assembly.Frozen(P, anchors, F_T, np.zeros(F_T.size), None, False, False)
+    return (lambda r: module.yarn_energy(r, yarn, frozen),
+            lambda r, g: module.add_yarn_gradient(r, yarn, frozen, g),
+            lambda r, b: module.add_yarn_hessian(r, yarn, frozen, b))
 
 
 def numba_twin(model, k, positions, anchors, R, F_T, name):
@@ -124,8 +111,7 @@ def numba_twin(model, k, positions, anchors, R, F_T, name):
     for r in positions:
         grad, band = np.zeros_like(r), zeros_band(r.size)
         add_gradient(r, grad)
-        if add_hessian is not None:
-            add_hessian(r, band)
+        add_hessian(r, band)
         energies.append(energy(r))
         grads.append(grad)
         hessians.append(dense(band))
