@@ -6,12 +6,10 @@ model and solver and the size of the result file from the scene alone, and
 raises a SceneError (exit status 2) with the estimate when either exceeds what
 the machine has (available memory, free disk space where the file goes).
 
-The memory model is linear in the number of nodes: the peak resident memory
-of `dynfab.run` (static, one yarn, 4 crossings, step certificate included)
-grew by 632 bytes per node between 262,144 and 2,097,152 segments, so
-BYTES_PER_NODE = 800; PROCESS_BYTES covers the imports and a first run's JIT
-compilation (498 MB peak at 262,144 segments with an empty numba cache, 329 MB
-with a warm one). Measured with the script in `tests/test_budget.py`.
+The memory model is linear in the number of nodes: BYTES_PER_NODE bounds the growth
+of the peak resident memory of `dynfab.run` (static, one yarn, 4 crossings, step
+certificate included) per node, and PROCESS_BYTES the imports and a first run's JIT
+compilation, both measured with the script in `tests/test_budget.py`.
 """
 
 from __future__ import annotations

@@ -23,11 +23,9 @@ becomes one launch per group, on views of the same arrays, issued at once from
 this thread and from a small pool of worker threads. Thread y of a group's launch
 does exactly the arithmetic thread first + y does in a launch of all the yarns,
 so a split run gives bit-identical results; each group stops being launched once
-all its yarns have finished. Measured on 2 cores (benchmarks/dynamic.py, one load
-step of the paper yarn): 8 or 64 yarns run 1.8-2.0x faster split, 2 yarns
-1.25-1.9x, and even 2 yarns of the smallest mesh (N = 32, semi_implicit, 0.3 ms a
-yarn) gain 1.1x; one yarn is one thread, with nothing to split. So the solver
-splits from SPLIT_MIN_YARNS = 2 yarns on.
+all its yarns have finished. One yarn is one thread, with nothing to split; from
+SPLIT_MIN_YARNS = 2 yarns on the solver splits (`python benchmarks/dynamic.py` measures
+the gain on a quiet machine: docs/results.md, "Batched yarns split across the cores").
 """
 
 from __future__ import annotations

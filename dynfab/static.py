@@ -47,8 +47,8 @@ ENERGY_ITERATIONS = 30
 """Newton iterations with the energy line search on a fixed set before the coupled,
 pivoted Newton takes over (`_newton_set_polished`)."""
 CONTINUATION_FACTORS = (2.0, 1.25, 1.05)
-"""R_0 falls by this factor per stage, the next one if the continuation fails: 10 was
-measured to leave stages whose set updates cycle on the paper's yarn."""
+"""R_0 falls by this factor per stage, the next one if the continuation fails (a factor of
+10 was tried and dropped: docs/model.md, "Decisions", friction onset)."""
 CONTINUATION_START = 1e-3
 """R_0 [N] the continuation starts from (MODEL.md 4: Newton converges there in about 20
 iterations from the previous step's state on the paper's yarn)."""
@@ -424,8 +424,8 @@ def newton(pos, yarn, P, fixed, anchors, tolerance, max_iterations, info):
     forces and F_T equals the law at the solution's R. If the continuation fails
     too, the step is solved from the previous state by the semismooth Newton with
     the contact forces as unknowns (`_solve_semismooth`), which reaches states the
-    set updates cannot: on the as-woven onset path at 896 and 1792 segments, load
-    step 19 (a crossing with R = 7e-6 N < R_0 next to one that is open). DETAIL of a
+    set updates cannot (a crossing with R < R_0 next to one that is open; docs/model.md,
+    "Decisions", friction onset). DETAIL of a
     failure names the crossing. Without it, one Newton solve on the unilateral law, stopped as
     CYCLING when a crossing keeps opening and closing.
     """

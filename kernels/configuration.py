@@ -15,7 +15,7 @@ from dynfab.kernels.precision import SCALARS
 from dynfab.terms import registry
 
 MODULE_OPTIONS = {"enable_backward": False}
-"""Every kernel is forward-only: no adjoint code (compiles about 3x faster)."""
+"""Every kernel is forward-only: no adjoint code to generate and compile."""
 ALWAYS_COMPILED = ("contact",)
 """Terms compiled into every variant, active or not. A scene without crossings has no contact
 term (`registry.TERMS`), but the contact code loops over its C = 0 crossings and does nothing;

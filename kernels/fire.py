@@ -11,10 +11,9 @@ Per step, with power P = f . v:
 dt starts at most at DT_START and grows to at most DT_MAX times the Gershgorin
 stable time step (`motion.stable_dt`), dt_min is DT_MIN times it. The mixing
 turns the velocity toward f, which the stiff axial modes dominate, so FIRE is
-unstable well below the plain integrator's bound: measured on the paper yarn
-(P = 0.2 -> 0.3 N), dt_max = 0.6 x the bound relaxes in 1,853 steps, 0.7 in
-86,360, 0.8 in 170,456 (the power keeps turning negative), and starting at 0.9
-diverges within 20 steps.
+unstable well below the plain integrator's bound; DT_START and DT_MAX come from the
+time steps the benchmark step takes against dt_max (docs/results.md, "FIRE's largest
+time step").
 """
 
 import functools

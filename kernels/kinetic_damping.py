@@ -11,23 +11,18 @@ Fallback (`escalate`). Kinetic damping dissipates only at its resets, and betwee
 them the motion is undamped. With the friction limit coupled to the closure
 (F_T(R(g)), MODEL.md 4) the force is not the gradient of an energy: near a crossing
 at g ~ 0 the Jacobian's circulatory part (dF_T/dg up to ~4e3 N/m against slow-mode
-stiffnesses of ~1 N/m) gives M^-1 J complex eigenvalue pairs with |Im| ~ Re (measured
-5.5e-5 +- 5.4e-5 i, dt = 1 s, at load step 5 of the as-woven onset path at N = 224),
-which undamped motion amplifies (the linearised symplectic Euler step's spectral
-radius is 1 + 3.3e-3 there), and the crossing's open/closed kink bounds that growth
-into a limit cycle: the crossing opens and closes with g within 1e-9 m of the static
-solution while the residual cycles between 3e-8 and 5e-7 N for good. Viscous damping cycles
-there as well with the adaptive c (~ 2 sqrt(lambda_min) ~ 0.008 1/s) and with c dt = 0.03
-(both from the static state of step 4, 10^6 steps), and converges with c dt = 0.1 (92,047
-steps). Kinetic damping's own residual is no guide to when it is stuck: the largest
-force component falls in bursts, and a settling relaxation went up to 136,606 steps
-without a new low (load step 7 of that path, converged after 151,231). So a yarn still
+stiffnesses of ~1 N/m) gives M^-1 J complex eigenvalue pairs with |Im| ~ Re, which
+undamped motion amplifies, and the crossing's open/closed kink bounds that growth into a
+limit cycle: the crossing opens and closes with g near the static solution while the
+residual cycles for good. A weak viscous damping cycles there as well, a stronger one
+converges. Kinetic damping's own residual is no guide to when it is stuck: the largest
+force component falls in bursts. (The measurements behind this and behind the constants
+below: docs/model.md, "The dynamic solver (decisions)", kinetic damping.) So a yarn still
 running after KINETIC_STEPS steps switches, for the rest of the load step, to viscous
 damping with c dt = FALLBACK_DAMPING, and c is multiplied by FALLBACK_GROWTH each time
 the fallback's residual then sets no new low for STALL_STEPS steps (at most c dt = 2,
 where the centred damping's velocity factor reaches 0). A relaxation that settles
-within KINETIC_STEPS (every paper relaxation: at most 2,344 steps) is unchanged bit
-for bit.
+within KINETIC_STEPS (every paper relaxation does) is unchanged bit for bit.
 """
 
 import functools
@@ -39,19 +34,17 @@ from dynfab.kernels import motion as motion_module, viscous_damping
 from dynfab.kernels.precision import VECTORS
 
 KINETIC_STEPS = 200_000
-"""Time steps of kinetic damping before the viscous fallback. The slowest settling kinetic
-relaxation measured took 151,231 steps (load steps 2 to 9 of the as-woven onset path at
-N = 224, each from the static state before it; the paper relaxations at most 2,344)."""
+"""Time steps of kinetic damping before the viscous fallback: above the slowest settling
+kinetic relaxation measured (docs/model.md, "The dynamic solver (decisions)")."""
 STALL_STEPS = 100_000
 """Time steps without a new low of the residual after which the fallback's c grows."""
 FALLBACK_DAMPING = 0.05
 """c dt [-] of the first viscous fallback."""
 FALLBACK_GROWTH = 2.0
-"""Factor on c at each further stall of the fallback [-]. With 0.05 and 2, the hardest steps
-measured finish: load steps 5 and 10 of the onset path from the static states before them
-(200,158 and 201,015 steps), step 7 from the dynamic path's own state (304,836), step 7 of
-the same path under displacement control (335,792); with 0.1 and 4 the last did not finish
-in 10^6 steps and the third took 619,229."""
+"""Factor on c at each further stall of the fallback [-]. With FALLBACK_DAMPING = 0.05 and
+2 the hardest steps measured on the as-woven onset path finish (steps 5 and 10 in
+`tests/test_dynamic_onset.py`); 0.1 and 4 left one unfinished (docs/model.md, "The dynamic
+solver (decisions)", kinetic damping)."""
 
 
 @functools.cache

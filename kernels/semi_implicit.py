@@ -24,8 +24,7 @@ not the largest component, decides: for small dt the step tends to
 dt^2 M^-1 f, along which f^T M^-1 f falls wherever K is positive definite
 (d/dt = -2 f^T M^-1 K M^-1 f), whereas the largest component need not; and
 undoing, not merely shrinking, keeps Newton steps from cycling as crossings
-switch between sticking and sliding (measured on the first step of Fig. 5: about
-10^4 steps with shrinking alone, 181 with undoing).
+switch between sticking and sliding.
 `c` is the viscous coefficient when one is given (else 0).
 """
 
@@ -49,9 +48,9 @@ MAX_REFACTORISATIONS = 60
 STALL_MIN_STEPS = 10_000
 """Time steps after which a load step whose residual has not reached a new low during the
 last half of its steps stops (status.NO_PROGRESS) instead of running to max_steps. Where
-semi_implicit converges it takes 9 to 600 steps (tests, stability report); a step cycling
-between stick and slip sets no new low, and now ends after at most twice the steps it
-took to stop improving, not after dynamic.max_steps (10^6 by default)."""
+semi_implicit converges it takes far fewer (docs/results.md, "semi_implicit's steps per
+load step"); a step cycling between stick and slip sets no new low, and ends after at most
+twice the steps it took to stop improving, not after dynamic.max_steps."""
 
 
 @functools.cache

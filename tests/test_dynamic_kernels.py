@@ -1,4 +1,4 @@
-"""Stage 1 of the dynamic solver: the Warp force and stiffness kernels (MODEL.md 2-4).
+"""The dynamic solver's Warp force and stiffness kernels against the numba terms (MODEL.md 2-4).
 
 Each term's Warp gradient and banded tangent stiffness against its numba twin in
 `dynfab.terms` at random states, the total force and energies against `dynfab.assembly`

@@ -1,4 +1,4 @@
-"""Stages 2-3 of the dynamic solver: relaxed equilibria against the static reference (MODEL.md 5-6).
+"""The dynamic solver's explicit relaxations: relaxed equilibria against the static reference (MODEL.md 5-6).
 
 A relaxation stops at a residual r (the largest free force component); the
 static reference stops at its own r_s. Linearising the residual map g at the

@@ -1,4 +1,4 @@
-"""Stage 5 of the dynamic solver: transient runs in physical time (MODEL.md 4-5).
+"""The dynamic solver's transient runs in physical time (MODEL.md 4-5).
 
 Energy: undamped symplectic Euler has, at whole steps, an O(dt) energy error that
 oscillates without drift (MODEL.md 5) on a scene without contact switching or

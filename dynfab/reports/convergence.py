@@ -1,4 +1,4 @@
-"""Convergence report (issue 5, part 4): is N = 224 enough, and how much do the answers
+"""Convergence report (`dynfab convergence`): is N = 224 enough, and how much do the answers
 depend on the load increment and on the stick stiffness?
 
 `run_convergence(out_dir, quick=False)` solves the paper's scenes with the static

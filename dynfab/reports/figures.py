@@ -1,4 +1,4 @@
-"""Figures report (issue 5, part 3): the paper's Fig. 3a, 3b and 5, static and dynamic.
+"""Figures report (`dynfab figures`): the paper's Fig. 3a, 3b and 5, static and dynamic.
 
 `run_figures(out_dir, quick=False)` solves the paper scenes ``runs/paper_fig3.toml`` (Kawabata
 K = 0.02, 0.2, 1.0 m/N on both yarns, frictionless) and ``runs/paper_fig5.toml`` (Gralen

@@ -1,4 +1,4 @@
-"""Precision report (issue 5, part 1): error against cost of every dynamic method.
+"""Precision report (`dynfab precision`): error against cost of every dynamic method.
 
 `run_precision(out_dir, quick=False, scene=None)` relaxes single load steps with every
 dynamic method (MODEL.md 5) over a ladder of tolerances, times each warm, measures its

@@ -1,4 +1,4 @@
-"""Stability report (issue 5, part 2): stiff and extreme cases against every dynamic method.
+"""Stability report (`dynfab stability`): stiff and extreme cases against every dynamic method.
 
 `run_stability(out_dir, quick=False)` takes the paper's yarn (``runs/paper_fig3.toml``
 entry K = 0.2 m/N, prestressed, displacement control; the friction cases take Gralen's
