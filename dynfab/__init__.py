@@ -30,7 +30,7 @@ def _interrupted_while_starting(signum, frame) -> None:
 if sys.argv and os.path.basename(sys.argv[0]) == "dynfab":
     signal.signal(signal.SIGINT, _interrupted_while_starting)
 
-from dynfab.errors import DynfabError, SceneError, SolverError
+from dynfab.errors import DynfabError, UserError, SolverError
 
 __version__ = "0.1.0"
 
@@ -40,7 +40,7 @@ _HOMES = {"build_model": "dynfab.model", "plot_results": "dynfab.plot",
           "fit": "dynfab.fit", "FitResult": "dynfab.fit"}
 """Module defining each public name."""
 
-__all__ = ["DynfabError", "FitResult", "Results", "SceneError", "SolverError", "build_model", "fit",
+__all__ = ["DynfabError", "FitResult", "Results", "UserError", "SolverError", "build_model", "fit",
            "load_scene", "parse_scene_text", "plot_results", "read_results", "run", "__version__"]
 
 

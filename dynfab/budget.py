@@ -3,7 +3,7 @@
 A scene with 10^8 segments used to be killed for memory after writing 1.6 GB;
 one with 10^8 load steps hung. `check_budget` estimates the peak memory of the
 model and solver and the size of the result file from the scene alone, and
-raises a SceneError (exit status 2) with the estimate when either exceeds what
+raises a UserError (exit status 2) with the estimate when either exceeds what
 the machine has (available memory, free disk space where the file goes).
 
 The memory model is linear in the number of nodes: BYTES_PER_NODE bounds the growth
@@ -18,7 +18,7 @@ import os
 import shutil
 from pathlib import Path
 
-from dynfab.errors import SceneError
+from dynfab.errors import UserError
 from dynfab.scene import Scene, yarn_count
 
 BYTES_PER_NODE = 800
@@ -61,10 +61,10 @@ def available_memory_bytes() -> int | None:
 
 
 def check_budget(scene: Scene, out: str | os.PathLike | None) -> None:
-    """SceneError if the run's memory or result file (at `out`) cannot fit."""
+    """UserError if the run's memory or result file (at `out`) cannot fit."""
     need, have = memory_bytes(scene), available_memory_bytes()
     if have is not None and need > have:
-        raise SceneError(
+        raise UserError(
             f"geometry.segments = {scene.geometry.segments} x {yarn_count(scene)} yarn(s) needs "
             f"about {_size(need)} of memory ({BYTES_PER_NODE} B per node), but {_size(have)} "
             "is available: use fewer segments or yarns")
@@ -77,7 +77,7 @@ def check_budget(scene: Scene, out: str | os.PathLike | None) -> None:
     if size > free:
         what = ("frames" if scene.dynamic.mode == "transient"
                 else f"{len(scene.load.values)} load steps")
-        raise SceneError(
+        raise UserError(
             f"the result file '{out}' would take about {_size(size)} ({what} of "
             f"{scene.geometry.segments + 1} nodes x {yarn_count(scene)} yarn(s)), but "
             f"{_size(free)} is free there: use fewer load steps or frames, or a coarser mesh")

@@ -29,7 +29,7 @@ import time  # noqa: E402
 import warnings  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-from dynfab.errors import DynfabError, SceneError  # noqa: E402
+from dynfab.errors import DynfabError, UserError  # noqa: E402
 
 from dynfab.options import run_flags  # noqa: E402 (light: the scene schema only)
 
@@ -134,16 +134,16 @@ def _check_run_output(out: Path, args) -> None:
     """Refuse a bad --out before any work: a directory, or an existing file without
     --overwrite or --resume; create its folder."""
     if out.is_dir():
-        raise SceneError(f"output file '{out}' is a directory")
+        raise UserError(f"output file '{out}' is a directory")
     if out.exists() and not (args.overwrite or args.resume):
-        raise SceneError(f"output file '{out}' exists: pass --overwrite to replace it "
+        raise UserError(f"output file '{out}' exists: pass --overwrite to replace it "
                          f"or --resume to continue it")
     if args.resume and not out.exists():
-        raise SceneError(f"result file '{out}' does not exist: nothing to resume")
+        raise UserError(f"result file '{out}' does not exist: nothing to resume")
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
     except OSError as error:
-        raise SceneError(f"cannot create the folder of '{out}': {error.strerror or error}") from None
+        raise UserError(f"cannot create the folder of '{out}': {error.strerror or error}") from None
 
 
 def _command_run(args, context: dict) -> None:

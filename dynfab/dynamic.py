@@ -42,7 +42,7 @@ import warp as wp
 
 from dynfab.certificate import (MAX_ESCAPES, NEGATIVES, StepStability, certify_yarn, check_accuracy,
                                 escape_yarn)
-from dynfab.errors import SceneError, SolverError
+from dynfab.errors import UserError, SolverError
 from dynfab.kernels import explicit, fire, motion as motion_module, semi_implicit
 from dynfab.kernels import settings as settings_module, transient
 from dynfab.kernels import runtime, status, yarn_arrays
@@ -177,7 +177,7 @@ class DynamicSolver:
         """Relax every yarn under `load_value`; returns (new state, record) or raises SolverError
         (the `dynfab.solver.Solver` contract)."""
         if self.options.mode == "transient":
-            raise SceneError('dynamic.mode = "transient" runs by time, not by load step: '
+            raise UserError('dynamic.mode = "transient" runs by time, not by load step: '
                              "use DynamicSolver.transient(state), which yields frames")
         self._tolerance_override = None
         codes = self._launch(state, load_value, steps=STEPS_PER_LAUNCH)
@@ -540,7 +540,7 @@ class DynamicTransient:
     def __init__(self, model, options: Dynamic | None = None, device: str = "cpu", progress=None):
         self.solver = DynamicSolver(model, options, device=device, progress=progress)
         if self.solver.options.mode != "transient":
-            raise SceneError(f'dynamic.mode = "{self.solver.options.mode}" runs by load step: '
+            raise UserError(f'dynamic.mode = "{self.solver.options.mode}" runs by load step: '
                              "use DynamicSolver.step")
 
     def attrs(self) -> dict:

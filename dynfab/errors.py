@@ -1,6 +1,8 @@
 """The two kinds of failure a user sees, each with its exit status.
 
-A user's mistake (bad scene, bad option, missing file) is a `SceneError`:
+A user's mistake (a bad scene key or value, a bad run option, a missing or foreign
+result file, an output folder that cannot be written, an interrupted file resumed
+with another scene) is a `UserError`:
 one line, exit status 2. A solver that cannot reach the answer (divergence,
 iteration limit, friction cycling at an opening contact) is a `SolverError`:
 one line, exit status 3, with every finished load step kept on disk.
@@ -13,8 +15,9 @@ class DynfabError(Exception):
     exit_status = 1
 
 
-class SceneError(DynfabError, ValueError):
-    """Bad input: names the key, the value and what is allowed. Exit status 2."""
+class UserError(DynfabError, ValueError):
+    """A user's mistake in what they gave dynfab (scene, options, files, folders): one line
+    naming the key, value or path and what is allowed. Exit status 2."""
 
     exit_status = 2
 

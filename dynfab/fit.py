@@ -39,7 +39,7 @@ from typing import Callable
 import numpy as np
 
 from dynfab import scene as scene_module
-from dynfab.errors import SceneError, SolverError
+from dynfab.errors import UserError, SolverError
 from dynfab.fit_data import CurveData, read_curve
 from dynfab.scene import Load, scene_to_toml, validate_scene, with_key
 
@@ -133,7 +133,7 @@ def parse_keys(keys) -> list[str]:
         keys = keys.split(",")
     keys = [k.strip() for k in keys if k.strip()]
     if not keys:
-        raise SceneError("--fit: give at least one scene key, e.g. warp.kawabata_K")
+        raise UserError("--fit: give at least one scene key, e.g. warp.kawabata_K")
     return keys
 
 
@@ -149,7 +149,7 @@ def parse_bounds(texts) -> dict:
             bounds[key.strip()] = (float(lo) if lo.strip() else -math.inf,
                                    float(hi) if hi.strip() else math.inf)
         except ValueError:
-            raise SceneError(f"--bounds {text}: write KEY=LOWER:UPPER, e.g. "
+            raise UserError(f"--bounds {text}: write KEY=LOWER:UPPER, e.g. "
                              "warp.kawabata_K=0.01:5") from None
     return bounds
 
@@ -157,19 +157,19 @@ def parse_bounds(texts) -> dict:
 def make_parameters(scene, keys, bounds=None, start=None) -> list[Parameter]:
     """Check the keys and bounds against the scene; the fitted coordinates of each key."""
     if scene.sweep or scene.geometry.yarns != 1:
-        raise SceneError("a fit takes one simulated yarn: remove the [sweep] and set "
+        raise UserError("a fit takes one simulated yarn: remove the [sweep] and set "
                          "geometry.yarns = 1")
     allowed = fittable_keys(scene)
     bounds, start = dict(bounds or {}), dict(start or {})
     parameters = []
     for key in keys:
         if key not in allowed:
-            raise SceneError(f"--fit {key}: cannot be fitted; a fitted key is numeric and "
+            raise UserError(f"--fit {key}: cannot be fitted; a fitted key is numeric and "
                              f"sweepable, in a table of the scene: {', '.join(allowed)}")
         if key in (p.key for p in parameters):
-            raise SceneError(f"--fit {key}: given twice")
+            raise UserError(f"--fit {key}: given twice")
         if key == "warp.linear_density" and scene.gravity is None:
-            raise SceneError(f"--fit {key}: a static curve does not depend on the mass without "
+            raise UserError(f"--fit {key}: a static curve does not depend on the mass without "
                              "[gravity]; it cannot be fitted from this scene")
         table, name = key.split(".")
         rule = scene_module._SCHEMA[table][1][name].rule
@@ -179,11 +179,11 @@ def make_parameters(scene, keys, bounds=None, start=None) -> list[Parameter]:
         if rule in ("positive", "nonnegative"):
             lower = max(lower, 0.0)
         if not lower <= value <= upper or not lower < upper:
-            raise SceneError(f"--bounds {key}={lower}:{upper}: the start value {value:g} must lie "
+            raise UserError(f"--bounds {key}={lower}:{upper}: the start value {value:g} must lie "
                              "within them (lower < upper)")
         parameters.append(Parameter(key, float(value), log, lower, upper))
     if bounds:
-        raise SceneError(f"--bounds {next(iter(bounds))}: not a fitted key (--fit)")
+        raise UserError(f"--bounds {next(iter(bounds))}: not a fitted key (--fit)")
     return parameters
 
 
@@ -263,7 +263,7 @@ class _Problem:
     def residuals(self, theta):
         try:
             return self.solve(theta)[1]
-        except (SolverError, SceneError):  # a trial point the model refuses: the step is rejected
+        except (SolverError, UserError):  # a trial point the model refuses: the step is rejected
             return np.full(self.data.residual_count, np.nan)
 
     def jacobian(self, theta, report=True):
@@ -313,17 +313,17 @@ def fit(scene, data, keys, *, bounds=None, substeps: int | None = None, start=No
         scene = load_scene(scene)
     keys = parse_keys(keys)
     if jacobian not in ("exact", "finite-difference"):
-        raise SceneError(f"jacobian={jacobian!r}: 'exact' or 'finite-difference'")
+        raise UserError(f"jacobian={jacobian!r}: 'exact' or 'finite-difference'")
     if not isinstance(data, CurveData):
         data = read_curve(data, scene.load.control)
     if data.control != scene.load.control:
-        raise SceneError(f"{data.source}: a curve under {data.control} control for a scene under "
+        raise UserError(f"{data.source}: a curve under {data.control} control for a scene under "
                          f"{scene.load.control} control")
     parameters = make_parameters(scene, keys, bounds, start)
     _check_counts(data, parameters)
     substeps = default_substeps(data.points) if substeps is None else int(substeps)
     if substeps < 1:
-        raise SceneError(f"--substeps {substeps}: must be at least 1")
+        raise UserError(f"--substeps {substeps}: must be at least 1")
     path, data_index = refined_path(data.load, substeps)
     problem = _Problem(with_path(scene, path), data, parameters, data_index, progress)
     theta0 = np.array([p.to_theta(p.start) for p in parameters])
@@ -344,10 +344,10 @@ def fit(scene, data, keys, *, bounds=None, substeps: int | None = None, start=No
 def _check_counts(data: CurveData, parameters) -> None:
     m, p = data.residual_count, len(parameters)
     if not data.sigma and m <= p:
-        raise SceneError(f"{data.source}: {m} measured values for {p} parameters: with the noise "
+        raise UserError(f"{data.source}: {m} measured values for {p} parameters: with the noise "
                          "estimated from the residuals a fit needs more values than parameters")
     if m < p:
-        raise SceneError(f"{data.source}: {m} measured values for {p} parameters: too few")
+        raise UserError(f"{data.source}: {m} measured values for {p} parameters: too few")
 
 
 def _finish(problem: _Problem, result, parameters) -> FitResult:

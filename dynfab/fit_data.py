@@ -5,7 +5,7 @@ is the load path of the scene's control (`load [N]` under force control,
 `end_displacement [m]` under displacement control); the others are measured
 per-step observables (`end_displacement [m]`, `end_force [N]`, `crimp [-]`),
 each optionally followed by its noise level `<name> sigma [unit]`. Every
-mistake is a SceneError of one line naming the column (or row) and what is
+mistake is a UserError of one line naming the column (or row) and what is
 allowed.
 """
 
@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dynfab.errors import SceneError
+from dynfab.errors import UserError
 
 MEASURABLE = {"end_displacement": "m", "end_force": "N", "crimp": "-"}
 """Observables a curve may hold, with their SI units (the result file's names)."""
@@ -60,13 +60,13 @@ def read_curve(path, control: str) -> CurveData:
     try:
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
-        raise SceneError(f"data file '{path}' not found") from None
+        raise UserError(f"data file '{path}' not found") from None
     except (OSError, UnicodeDecodeError) as exc:
-        raise SceneError(f"cannot read data file '{path}': {exc}") from None
+        raise UserError(f"cannot read data file '{path}': {exc}") from None
     rows = [row for row in csv.reader(text.splitlines()) if row and any(c.strip() for c in row)
             and not row[0].lstrip().startswith("#")]
     if len(rows) < 2:
-        raise SceneError(f"{path}: needs a header line and at least one row of numbers")
+        raise UserError(f"{path}: needs a header line and at least one row of numbers")
     return curve_from_columns(rows[0], rows[1:], control, str(path))
 
 
@@ -87,11 +87,11 @@ def curve_from_columns(header, rows, control: str, source: str = "<data>") -> Cu
         _check_measured(source, label, name, unit, control, measured)
         measured[name] = values[:, index]
     if not measured:
-        raise SceneError(f"{source}: no measured column after '{header[0].strip()}': give one "
+        raise UserError(f"{source}: no measured column after '{header[0].strip()}': give one "
                          "of " + ", ".join(f"'{n} [{u}]'" for n, u in MEASURABLE.items()))
     if sigma and set(sigma) != set(measured):
         missing = sorted(set(measured) - set(sigma))
-        raise SceneError(f"{source}: a sigma column for some measured columns but not for "
+        raise UserError(f"{source}: a sigma column for some measured columns but not for "
                          f"{', '.join(missing)}: give one for each or for none")
     return CurveData(load=load, measured=measured, sigma=sigma, source=source, control=control)
 
@@ -99,7 +99,7 @@ def curve_from_columns(header, rows, control: str, source: str = "<data>") -> Cu
 def _parse_header(source, text: str):
     match = _HEADER.match(text)
     if match is None:
-        raise SceneError(f"{source}: column '{text.strip()}' is not 'name [unit]' "
+        raise UserError(f"{source}: column '{text.strip()}' is not 'name [unit]' "
                          "(e.g. 'end_force [N]', 'end_force sigma [N]')")
     return match["name"], match["sigma"] is not None, match["unit"].strip()
 
@@ -108,37 +108,37 @@ def _check_load_column(source, column, control: str) -> None:
     name, is_sigma, unit = column
     want_name, want_unit = LOAD_COLUMN[control]
     if is_sigma or name != want_name:
-        raise SceneError(f"{source}: the first column must be '{want_name} [{want_unit}]', the "
+        raise UserError(f"{source}: the first column must be '{want_name} [{want_unit}]', the "
                          f"load path of a scene under {control} control; got '{name}'")
     if unit != want_unit:
-        raise SceneError(f"{source}: column '{name}' is in [{unit}]; it must be in SI "
+        raise UserError(f"{source}: column '{name}' is in [{unit}]; it must be in SI "
                          f"[{want_unit}]")
 
 
 def _check_measured(source, label, name, unit, control, measured) -> None:
     if name not in MEASURABLE:
-        raise SceneError(f"{source}: unknown column '{label}': a measured column is one of "
+        raise UserError(f"{source}: unknown column '{label}': a measured column is one of "
                          + ", ".join(f"'{n} [{u}]'" for n, u in MEASURABLE.items()))
     if unit != MEASURABLE[name]:
-        raise SceneError(f"{source}: column '{label}' is in [{unit}]; '{name}' is in SI "
+        raise UserError(f"{source}: column '{label}' is in [{unit}]; '{name}' is in SI "
                          f"[{MEASURABLE[name]}]")
     if name == LOAD_COLUMN[control][0] or (control == "force" and name == "end_force"):
-        raise SceneError(f"{source}: column '{label}' is the prescribed load under {control} "
+        raise UserError(f"{source}: column '{label}' is the prescribed load under {control} "
                          "control, not a measurement")
     if name in measured:
-        raise SceneError(f"{source}: column '{label}' appears twice")
+        raise UserError(f"{source}: column '{label}' appears twice")
 
 
 def _check_sigma(source, label, name, unit, measured, values) -> None:
     if name not in measured:
-        raise SceneError(f"{source}: column '{label}' does not follow a measured column "
+        raise UserError(f"{source}: column '{label}' does not follow a measured column "
                          f"'{name} [...]'")
     if unit != MEASURABLE[name]:
-        raise SceneError(f"{source}: column '{label}' is in [{unit}]; it must be in "
+        raise UserError(f"{source}: column '{label}' is in [{unit}]; it must be in "
                          f"[{MEASURABLE[name]}] like '{name}'")
     if not (values > 0).all():
         row = int(np.argmin(values > 0)) + 2
-        raise SceneError(f"{source}: row {row}: '{label}' must be positive")
+        raise UserError(f"{source}: row {row}: '{label}' must be positive")
 
 
 def _numbers(source, header, rows) -> np.ndarray:
@@ -146,16 +146,16 @@ def _numbers(source, header, rows) -> np.ndarray:
     for r, row in enumerate(rows):
         line = r + 2  # the header is line 1
         if len(row) != len(header):
-            raise SceneError(f"{source}: row {line} has {len(row)} values; the header has "
+            raise UserError(f"{source}: row {line} has {len(row)} values; the header has "
                              f"{len(header)} columns")
         for c, cell in enumerate(row):
             try:
                 value = float(cell)
             except (TypeError, ValueError):
-                raise SceneError(f"{source}: row {line}, column '{header[c].strip()}': "
+                raise UserError(f"{source}: row {line}, column '{header[c].strip()}': "
                                  f"'{str(cell).strip()}' is not a number") from None
             if not math.isfinite(value):
-                raise SceneError(f"{source}: row {line}, column '{header[c].strip()}': {value} "
+                raise UserError(f"{source}: row {line}, column '{header[c].strip()}': {value} "
                                  "(every value must be a finite number)")
             values[r, c] = value
     return values
@@ -169,6 +169,6 @@ def _check_monotonic(source, label, load) -> None:
     steps = np.diff(np.concatenate([[0.0], moving]))
     if not ((steps > 0).all() or (steps < 0).all()):
         bad = int(np.argmax(steps <= 0) if steps[0] > 0 else np.argmax(steps >= 0))
-        raise SceneError(f"{source}: column '{label.strip()}' must move strictly away from 0 "
+        raise UserError(f"{source}: column '{label.strip()}' must move strictly away from 0 "
                          f"(strictly monotonic from the unloaded start); row {bad + first_row} "
                          "does not")

@@ -13,7 +13,7 @@ from __future__ import annotations
 import dataclasses
 import difflib
 
-from dynfab.errors import SceneError
+from dynfab.errors import UserError
 from dynfab.scene import RUN_OPTIONS, Scene, run_flag, validate_scene
 
 SOLVERS = ("static", "dynamic")
@@ -53,9 +53,9 @@ def _help(spec) -> str:
 
 
 def check_solver(solver: str) -> str:
-    """`solver` if it names a solver, else a SceneError."""
+    """`solver` if it names a solver, else a UserError."""
     if solver not in SOLVERS:
-        raise SceneError(f"solver = {solver!r}: must be one of {', '.join(SOLVERS)}")
+        raise UserError(f"solver = {solver!r}: must be one of {', '.join(SOLVERS)}")
     return solver
 
 
@@ -64,7 +64,7 @@ def apply_run_options(scene: Scene, solver: str, **options) -> Scene:
 
     An option given as None is not set. An option the solver does not take (a
     dynamic option with the static solver, or the reverse) or an unknown one is
-    a SceneError naming it, never silently ignored.
+    a UserError naming it, never silently ignored.
     """
     check_solver(solver)
     given = {name: value for name, value in options.items() if value is not None}
@@ -79,13 +79,13 @@ def apply_run_options(scene: Scene, solver: str, **options) -> Scene:
     return validate_scene(dataclasses.replace(scene, **{solver: updated}))
 
 
-def _not_an_option(name: str, value, solver: str) -> SceneError:
+def _not_an_option(name: str, value, solver: str) -> UserError:
     """The error for an option that the solver does not take."""
     flag = run_flag(name)
     other = [s for s in SOLVERS if s != solver and name in SOLVER_OPTIONS[s]]
     if other:
-        return SceneError(f"{flag} {value}: an option of the {other[0]} solver; the {solver} "
+        return UserError(f"{flag} {value}: an option of the {other[0]} solver; the {solver} "
                           f"solver does not use it (pass --solver {other[0]}, or drop it)")
     match = difflib.get_close_matches(name, ALL_OPTIONS, n=1)
     hint = f"; did you mean {match[0]!r}?" if match else ""
-    return SceneError(f"unknown run option {name!r}{hint} (options: {', '.join(ALL_OPTIONS)})")
+    return UserError(f"unknown run option {name!r}{hint} (options: {', '.join(ALL_OPTIONS)})")

@@ -28,7 +28,7 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
-from dynfab.errors import SceneError
+from dynfab.errors import UserError
 from dynfab.results import Results, read_results
 
 DPI = 200
@@ -42,17 +42,17 @@ FRICTION_STATES = (("open", "#d9d9d9"), ("sticking", "#1f77b4"), ("sliding", "#d
 def plot_results(path: str | os.PathLike, out_dir: str | os.PathLike) -> list[Path]:
     """Write the figures of the result file ``path`` into ``out_dir`` (created if needed).
 
-    Returns the paths of the PNGs written. Raises SceneError for a missing
+    Returns the paths of the PNGs written. Raises UserError for a missing
     file, a file that is not a dynfab result, or one without a load step.
     """
     results = read_results(path)
     if results.step_count == 0 and results.frame_count > 0:
         return _plot_transient(results, output_folder(out_dir))
     if results.step_count == 0:
-        raise SceneError(f"result file '{path}' has no finished load step to plot")
+        raise UserError(f"result file '{path}' has no finished load step to plot")
     for key in ("end_force", "end_displacement", "positions"):
         if key not in results.steps:
-            raise SceneError(f"result file '{path}' lacks dataset steps/{key}")
+            raise UserError(f"result file '{path}' lacks dataset steps/{key}")
     out = output_folder(out_dir)
     written = [save_png(plot_traction(results, path), out / "traction.png")]
     if crossing_count(results) > 0 and "contact_force" in results.steps:
@@ -64,28 +64,28 @@ def plot_results(path: str | os.PathLike, out_dir: str | os.PathLike) -> list[Pa
 
 
 def output_folder(out_dir: str | os.PathLike | None) -> Path:
-    """`out_dir` as an existing, writable folder (created if needed); SceneError (one line)
+    """`out_dir` as an existing, writable folder (created if needed); UserError (one line)
     if it cannot be. The one check of every command's --out folder (plots and reports)."""
     if out_dir is None or str(out_dir) == "":
-        raise SceneError("--out: give a folder for the files")
+        raise UserError("--out: give a folder for the files")
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
-        raise SceneError(f"--out '{out}' is a file, not a folder")
+        raise UserError(f"--out '{out}' is a file, not a folder")
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as error:
-        raise SceneError(f"cannot create the folder '{out}': {error.strerror or error}") from None
+        raise UserError(f"cannot create the folder '{out}': {error.strerror or error}") from None
     if not os.access(out, os.W_OK):
-        raise SceneError(f"cannot write into the folder '{out}'")
+        raise UserError(f"cannot write into the folder '{out}'")
     return out
 
 
 def save_png(fig: Figure, path: Path) -> Path:
-    """Save ``fig`` as a PNG at ``path`` and return the path; SceneError if it cannot be written."""
+    """Save ``fig`` as a PNG at ``path`` and return the path; UserError if it cannot be written."""
     try:
         fig.savefig(path, dpi=DPI)
     except OSError as error:
-        raise SceneError(f"cannot write '{path}': {error.strerror or error}") from None
+        raise UserError(f"cannot write '{path}': {error.strerror or error}") from None
     return path
 
 
@@ -133,10 +133,10 @@ def _per_yarn(results: Results, name: str) -> np.ndarray:
 
 
 def _attr(results: Results, name: str, path) -> float:
-    """A positive float root attribute; SceneError naming it if absent or not positive."""
+    """A positive float root attribute; UserError naming it if absent or not positive."""
     value = results.attrs.get(name)
     if not isinstance(value, (int, float)) or isinstance(value, bool) or not value > 0:
-        raise SceneError(f"result file '{path}' lacks a positive root attribute {name!r}")
+        raise UserError(f"result file '{path}' lacks a positive root attribute {name!r}")
     return float(value)
 
 

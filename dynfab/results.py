@@ -76,7 +76,7 @@ from typing import Any, Iterable, Mapping
 import h5py
 import numpy as np
 
-from dynfab.errors import SceneError
+from dynfab.errors import UserError
 
 ENERGY_TERM = "<term>"
 """Placeholder in `UNITS` for any energy term name (``energy/stretch``, ...)."""
@@ -283,30 +283,30 @@ def _read_group(h5: h5py.File, group: str, only: set[str] | None = None
 
 
 def _load(path: Path, only: Iterable[str] | None = None) -> Results:
-    """Read a result file; SceneError (one line) if missing or not a dynfab file."""
+    """Read a result file; UserError (one line) if missing or not a dynfab file."""
     if not path.exists():
-        raise SceneError(f"result file '{path}' does not exist")
+        raise UserError(f"result file '{path}' does not exist")
     if not path.is_file():
-        raise SceneError(f"result file '{path}' is not a file")
+        raise UserError(f"result file '{path}' is not a file")
     wanted = None if only is None else set(only)
     try:
         with h5py.File(path, "r") as h5:
             attrs = {key: _attr_from_h5(value) for key, value in h5.attrs.items()}
             if "dynfab_version" not in attrs or attrs.get("units") != "SI":
-                raise SceneError(f"'{path}' is not a dynfab result file")
+                raise UserError(f"'{path}' is not a dynfab result file")
             reference, ref_units = _read_group(h5, "reference", wanted)
             steps, step_units = _read_group(h5, "steps", wanted)
             frames, frame_units = _read_group(h5, "frames", wanted)
     except ValueError as error:
-        raise SceneError(f"result file '{path}' is damaged: {error}") from None
+        raise UserError(f"result file '{path}' is damaged: {error}") from None
     except (OSError, KeyError, RuntimeError) as error:
         reason = str(error).splitlines()[0] if str(error) else type(error).__name__
-        raise SceneError(f"cannot read result file '{path}': {reason}") from None
+        raise UserError(f"cannot read result file '{path}': {reason}") from None
     results = Results(attrs, reference, steps, frames, {**ref_units, **step_units, **frame_units})
     try:
         results.step_count, results.frame_count
     except ValueError as error:
-        raise SceneError(f"result file '{path}' is damaged: {error}") from None
+        raise UserError(f"result file '{path}' is damaged: {error}") from None
     return results
 
 
@@ -314,7 +314,7 @@ def read_results(path: str | os.PathLike, only: Iterable[str] | None = None) -> 
     """Read a result file into memory: every finished step and frame.
 
     ``only`` (full dataset paths, e.g. ``steps/load``) reads just those
-    datasets, for a summary of a large file. Raises SceneError with a
+    datasets, for a summary of a large file. Raises UserError with a
     one-line message for a missing file or a file that is not a dynfab result.
     """
     return _load(Path(path), only)
@@ -399,15 +399,15 @@ def _try_lock(fd: int) -> bool:
     return True
 
 
-def _busy(path: Path) -> SceneError:
-    return SceneError(f"output file '{path}' is being written by another dynfab process: "
+def _busy(path: Path) -> UserError:
+    return UserError(f"output file '{path}' is being written by another dynfab process: "
                       "wait for it to finish or write another file")
 
 
 def _lock_existing(path: Path) -> int:
     """Open ``path`` read-write and take the writer lock; the locked fd.
 
-    SceneError if another writer holds it. The lock is taken on what was
+    UserError if another writer holds it. The lock is taken on what was
     opened, then checked to still be the file at ``path`` (a writer may have
     replaced it meanwhile: then try again).
     """
@@ -415,9 +415,9 @@ def _lock_existing(path: Path) -> int:
         try:
             fd = os.open(path, os.O_RDWR)
         except FileNotFoundError:
-            raise SceneError(f"result file '{path}' does not exist") from None
+            raise UserError(f"result file '{path}' does not exist") from None
         except OSError as error:
-            raise SceneError(f"cannot open '{path}' for writing: {error.strerror}") from None
+            raise UserError(f"cannot open '{path}' for writing: {error.strerror}") from None
         try:
             if not _try_lock(fd):
                 raise _busy(path)
@@ -608,7 +608,7 @@ class ResultFile:
         ``attrs`` are root attributes and must include ``scene`` and
         ``solver``; ``dynfab_version`` defaults to the installed version and
         ``units`` is always "SI". ``reference`` holds datasets stored under
-        ``reference/``. An existing ``path`` is refused with SceneError, and
+        ``reference/``. An existing ``path`` is refused with UserError, and
         left untouched, unless ``overwrite``; so is a file another process
         creates at the same moment, or one another dynfab process writes.
         ``step_capacity`` and ``frame_capacity``, the expected numbers of
@@ -616,11 +616,11 @@ class ResultFile:
         """
         target = Path(path)
         if target.is_dir():
-            raise SceneError(f"output file '{path}' is a directory")
+            raise UserError(f"output file '{path}' is a directory")
         if target.exists() and not overwrite:
             raise _exists(target)
         if not target.parent.is_dir():
-            raise SceneError(f"output directory '{target.parent}' does not exist")
+            raise UserError(f"output directory '{target.parent}' does not exist")
         missing = [key for key in _REQUIRED_ATTRS if key not in attrs]
         if missing:
             raise ValueError(f"result file attributes lack {missing}")
@@ -639,7 +639,7 @@ class ResultFile:
         try:
             result._rewrite(publish="overwrite" if overwrite else "new")
         except OSError as error:
-            raise SceneError(f"cannot write output file '{path}': {error.strerror or error}") from None
+            raise UserError(f"cannot write output file '{path}': {error.strerror or error}") from None
         return result
 
     @classmethod
@@ -647,7 +647,7 @@ class ResultFile:
                frame_capacity: int | None = None) -> "ResultFile":
         """Re-open an existing result file to append to it (only the last entries are read).
 
-        SceneError if the file is missing, unreadable, not a dynfab result,
+        UserError if the file is missing, unreadable, not a dynfab result,
         or being written by another dynfab process.
         """
         target = Path(path)
@@ -662,13 +662,13 @@ class ResultFile:
                 names += [f"reference/{name}" for name in _group_datasets(h5, "reference")]
         except (OSError, ValueError, KeyError) as error:
             os.close(fd)
-            raise SceneError(f"cannot resume '{path}': {str(error).splitlines()[0]}") from None
+            raise UserError(f"cannot resume '{path}': {str(error).splitlines()[0]}") from None
         for name in names:
             try:
                 units_of(name, attrs.get("load_control"))
             except ValueError as error:
                 os.close(fd)
-                raise SceneError(f"cannot resume '{path}': {error}") from None
+                raise UserError(f"cannot resume '{path}': {error}") from None
         attrs = {key: _check_attr(key, value) for key, value in attrs.items()}
         _remove_stale_tmp(target)
         result = cls(target, attrs, series["steps"], series["frames"])
@@ -889,9 +889,9 @@ def _create_exclusively(tmp: Path, target: Path) -> None:
     tmp.unlink()
 
 
-def _exists(path: Path) -> SceneError:
+def _exists(path: Path) -> UserError:
     """The refusal to replace an existing file (or one another process just created)."""
-    return SceneError(f"output file '{path}' exists: pass --overwrite to replace it "
+    return UserError(f"output file '{path}' exists: pass --overwrite to replace it "
                       f"or --resume to continue it")
 
 

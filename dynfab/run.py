@@ -24,7 +24,7 @@ from typing import Callable
 import numpy as np
 
 from dynfab.budget import check_budget
-from dynfab.errors import SceneError, SolverError
+from dynfab.errors import UserError, SolverError
 from dynfab.options import apply_run_options, check_solver
 from dynfab.model import Model, State, build_model, initial_state, width_per_yarn
 from dynfab.results import ResultFile, Results, dynfab_version, finished_counts, read_results
@@ -38,7 +38,7 @@ def make_solver(model: Model, solver: str, device: str | None = None,
     time (`dynfab.solver`); the dynamic solver reports each launch to `progress`."""
     if check_solver(solver) == "static":
         if device is not None:
-            raise SceneError(f"--device {device}: the static solver runs on the CPU (numba); "
+            raise UserError(f"--device {device}: the static solver runs on the CPU (numba); "
                              "a device is for --solver dynamic")
         from dynfab.static import StaticSolver
         return StaticSolver(model)
@@ -62,7 +62,7 @@ def run(scene: Scene, solver: str = "static", out: str | Path | None = None, *,
     `accuracy`, `max_steps`, `precision` (meanings and defaults:
     `dynfab.scene.Static`, `dynfab.scene.Dynamic`). They are set on the scene,
     so the result file's `scene` attribute is the scene actually run; an option
-    the solver does not take is a SceneError. `progress` receives one line per
+    the solver does not take is a UserError. `progress` receives one line per
     finished load step or frame, `status` the dynamic solver's line within a
     step, once per launch (None: silent).
     """
@@ -71,7 +71,7 @@ def run(scene: Scene, solver: str = "static", out: str | Path | None = None, *,
                     status=status, device=device, **options)
         return read_results(out)
     if overwrite or resume:
-        raise SceneError("--overwrite and --resume need an output file")
+        raise UserError("--overwrite and --resume need an output file")
     model, engine = _build(scene, solver, None, status, device, options)
     sink = _MemorySink(_root_attrs(model, engine), _reference(model))
     _solve(model, engine, sink, progress)
@@ -90,7 +90,7 @@ def run_to_file(scene: Scene, solver: str, out: str | Path, *, overwrite: bool =
     made it).
     """
     if overwrite and resume:
-        raise SceneError("--overwrite and --resume exclude each other: pick one")
+        raise UserError("--overwrite and --resume exclude each other: pick one")
     model, engine = _build(scene, solver, None if resume else out, status, device, options)
     sink = None
     try:
@@ -206,11 +206,11 @@ def _open_sink(model: Model, engine: Solver | Transient, out, *, overwrite: bool
         sink = ResultFile.resume(out, **capacity)
         if sink.attrs.get("scene") != scene_to_toml(model.scene):
             sink.close(trim=False)
-            raise SceneError(f"cannot resume '{out}': it was written from a different scene "
+            raise UserError(f"cannot resume '{out}': it was written from a different scene "
                              "(or with other command-line options)")
         if sink.attrs.get("solver") != engine.name:
             sink.close(trim=False)
-            raise SceneError(f"cannot resume '{out}': it was written by the "
+            raise UserError(f"cannot resume '{out}': it was written by the "
                              f"{sink.attrs.get('solver')!r} solver, not {engine.name!r}")
         return sink
     return ResultFile.create(out, attrs=_root_attrs(model, engine), reference=_reference(model),

@@ -2,7 +2,7 @@
 
 The keys are a contract (README, docs/scene.md): scripts and users rely on
 them. Every field documents its unit. Validation happens here and only here;
-a user's mistake raises `SceneError` with one line naming the key, the value
+a user's mistake raises `UserError` with one line naming the key, the value
 and what is allowed.
 
 Each key is a dataclass field declared once, with `_key(...)`: its meaning, unit,
@@ -38,7 +38,7 @@ import tomllib
 from dataclasses import MISSING, dataclass, field, fields, replace
 from pathlib import Path
 
-from dynfab.errors import SceneError
+from dynfab.errors import UserError
 
 
 # --------------------------------------------------------------------------
@@ -295,16 +295,16 @@ RUN_OPTIONS = {solver: {k: spec for k, spec in _SCHEMA[solver][1].items() if spe
 
 
 def load_scene(path) -> Scene:
-    """Read and validate the TOML scene file at `path` (SceneError if it cannot)."""
+    """Read and validate the TOML scene file at `path` (UserError if it cannot)."""
     path = Path(path)
     try:
         text = path.read_bytes().decode("utf-8")
     except FileNotFoundError:
-        raise SceneError(f"scene file '{path}' not found") from None
+        raise UserError(f"scene file '{path}' not found") from None
     except UnicodeDecodeError:
-        raise SceneError(f"scene file '{path}' is not UTF-8 text") from None
+        raise UserError(f"scene file '{path}' is not UTF-8 text") from None
     except OSError as exc:
-        raise SceneError(f"cannot read scene file '{path}': {exc.strerror}") from None
+        raise UserError(f"cannot read scene file '{path}': {exc.strerror}") from None
     return parse_scene_text(text, source=str(path))
 
 
@@ -314,7 +314,7 @@ def parse_scene_text(text: str, source: str = "<string>") -> Scene:
         raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         message = " ".join(str(exc).split())
-        raise SceneError(f"{source}: not valid TOML: {message}") from None
+        raise UserError(f"{source}: not valid TOML: {message}") from None
     return validate_scene(_build_scene(raw, text))
 
 
@@ -427,20 +427,20 @@ def _type_name(value) -> str:
     return f"a {type(value).__name__}"
 
 
-def _bad(label: str, value, what: str) -> SceneError:
+def _bad(label: str, value, what: str) -> UserError:
     """The one-line error `label = value: what`."""
-    return SceneError(f"{label} = {_show(value)}: {what}")
+    return UserError(f"{label} = {_show(value)}: {what}")
 
 
-def _unknown(label: str, candidates, allowed) -> SceneError:
+def _unknown(label: str, candidates, allowed) -> UserError:
     """Error for an unknown key, suggesting the candidate equal but for case, else the closest."""
     same_but_case = [c for c in candidates if c.lower() == label.lower()]
     match = same_but_case or difflib.get_close_matches(label, list(candidates), n=1)
     hint = f"did you mean '{match[0]}'?" if match else "allowed: " + ", ".join(allowed)
-    return SceneError(f"unknown key '{label}'; {hint}")
+    return UserError(f"unknown key '{label}'; {hint}")
 
 
-def _unknown_top(name: str) -> SceneError:
+def _unknown_top(name: str) -> UserError:
     """Error for an unknown top-level key or table; a field name points to its table."""
     if not difflib.get_close_matches(name, _TOP_KEYS, n=1):
         by_field = {}
@@ -449,7 +449,7 @@ def _unknown_top(name: str) -> SceneError:
         match = difflib.get_close_matches(name, list(by_field), n=1)
         if match:
             dotted = by_field[match[0]]
-            return SceneError(f"unknown key '{name}'; did you mean '{dotted}' "
+            return UserError(f"unknown key '{name}'; did you mean '{dotted}' "
                               f"({match[0]} under [{dotted.split('.')[0]}])?")
     return _unknown(name, _TOP_KEYS, _TOP_KEYS)
 
@@ -554,7 +554,7 @@ def _table(raw: dict, name: str) -> dict | None:
     if value is not None and not isinstance(value, dict):
         raise _bad(name, value, f"must be a table [{name}], not {_type_name(value)}")
     if value is None and name in _REQUIRED_TABLES:
-        raise SceneError(f"missing required table [{name}]")
+        raise UserError(f"missing required table [{name}]")
     return value
 
 
@@ -576,7 +576,7 @@ def _build_table(name: str, table: dict, defaults: dict | None = None):
         elif defaults and key in defaults:
             values[key] = defaults[key]
         elif _is_required(cls, key):
-            raise SceneError(f"missing required key {name}.{key}{_units(spec)}")
+            raise UserError(f"missing required key {name}.{key}{_units(spec)}")
     return cls(**values)
 
 
@@ -591,9 +591,9 @@ def _build_optional(name: str, table: dict | None):
     return None if table is None else _build_table(name, table)
 
 
-def _rod_table_error(name: str) -> SceneError:
+def _rod_table_error(name: str) -> UserError:
     """A [weft], [contact] or [friction] table given to a plain rod (crossings = 0)."""
-    return SceneError(f"[{name}] given but geometry.crossings = 0: a plain rod has "
+    return UserError(f"[{name}] given but geometry.crossings = 0: a plain rod has "
                       f"no crossings; remove the [{name}] table or set crossings > 0")
 
 
@@ -613,16 +613,16 @@ def _build_load(table: dict) -> Load:
     control = _convert("load.control", table.get("control", "force"), keys["control"])
     has_path = [k for k in _LOAD_PATH if k in table]
     if "values" in table and has_path:
-        raise SceneError(f"load.values and load.{has_path[0]} both given: "
+        raise UserError(f"load.values and load.{has_path[0]} both given: "
                          "write the load path either as values or as max and steps")
     if "values" in table:
         return Load(control=control, values=_convert("load.values", table["values"],
                                                       keys["values"]))
     if not has_path:
-        raise SceneError("missing required key load.values (or load.max and load.steps)")
+        raise UserError("missing required key load.values (or load.max and load.steps)")
     for key in _LOAD_PATH:
         if key not in table:
-            raise SceneError(f"missing required key load.{key} (given with load.{has_path[0]})")
+            raise UserError(f"missing required key load.{key} (given with load.{has_path[0]})")
     top = _convert("load.max", table["max"], _LOAD_PATH["max"])
     steps = _convert("load.steps", table["steps"], _LOAD_PATH["steps"])
     if steps > MAX_LOAD_STEPS:
@@ -636,7 +636,7 @@ def _parse_sweep(table: dict) -> tuple[tuple[str, tuple[float, ...]], ...]:
     """[sweep] as (dotted key, values) pairs; quoted or bare dotted keys alike."""
     flat = _flatten(table)
     if not flat:
-        raise SceneError('[sweep] is empty: give at least one key, e.g. '
+        raise UserError('[sweep] is empty: give at least one key, e.g. '
                          '"warp.kawabata_K" = [0.02, 0.2, 1.0], or remove the table')
     entries = []
     for key, values in flat.items():
@@ -674,7 +674,7 @@ def _fill_swept(tables: dict, sweep) -> None:
 def _check_tables_present(scene: Scene) -> None:
     """Tables that must be there, and the ones a plain rod must not have."""
     if scene.geometry.crossings > 0 and scene.weft is None:
-        raise SceneError(f"missing required table [weft] (geometry.crossings = "
+        raise UserError(f"missing required table [weft] (geometry.crossings = "
                          f"{scene.geometry.crossings} > 0)")
     if scene.geometry.crossings == 0:
         for name in _ROD_REFUSES:
@@ -770,7 +770,7 @@ def _check_transient(dynamic: Dynamic) -> None:
                    '"transient"; use "viscous" (the default)')
     for key in ("duration", "output_interval"):
         if getattr(dynamic, key) is None:
-            raise SceneError(f'missing required key dynamic.{key} [s] '
+            raise UserError(f'missing required key dynamic.{key} [s] '
                              '(needed with dynamic.mode = "transient")')
     if dynamic.output_interval > dynamic.duration:
         raise _bad("dynamic.output_interval", dynamic.output_interval,
@@ -782,11 +782,11 @@ def _check_sweep_key(key: str) -> None:
     if key in _SWEEPABLE:
         return
     if key in _ALL_KEYS:
-        raise SceneError(f'sweep."{key}": this key cannot be swept; sweepable are '
+        raise UserError(f'sweep."{key}": this key cannot be swept; sweepable are '
                          f"{_sweepable_text()}")
     match = difflib.get_close_matches(key, _SWEEPABLE, n=1)
     hint = f"; did you mean 'sweep.\"{match[0]}\"'?" if match else ""
-    raise SceneError(f"unknown key 'sweep.\"{key}\"'{hint}")
+    raise UserError(f"unknown key 'sweep.\"{key}\"'{hint}")
 
 
 def _sweepable_text() -> str:
@@ -823,10 +823,10 @@ def _check_sweep(scene: Scene) -> None:
         _convert(f'sweep."{key}"', values, _Key("floats"))
         table = key.split(".")[0]
         if getattr(scene, table) is None:
-            raise SceneError(f'sweep."{key}": the scene has no [{table}] table; '
+            raise UserError(f'sweep."{key}": the scene has no [{table}] table; '
                              f"add one to sweep its keys")
         if len(values) != len(first):
-            raise SceneError(f'sweep."{key}" has {len(values)} entries but sweep.'
+            raise UserError(f'sweep."{key}" has {len(values)} entries but sweep.'
                              f'"{first_key}" has {len(first)}: all sweep lists must '
                              "have the same length")
     _check_sweep_entries(scene)
@@ -838,8 +838,8 @@ def _check_sweep_entries(scene: Scene) -> None:
     for i in range(yarn_count(scene)):
         try:
             _with_keys(base, [(key, values[i]) for key, values in scene.sweep])
-        except SceneError as exc:
-            raise SceneError(f"sweep entry {i}: {exc}") from None
+        except UserError as exc:
+            raise UserError(f"sweep entry {i}: {exc}") from None
 
 
 def _with_keys(scene: Scene, items) -> Scene:
@@ -849,7 +849,7 @@ def _with_keys(scene: Scene, items) -> Scene:
         table_name, name, key = _field_of(dotted)
         table = changes.get(table_name) or getattr(scene, table_name)
         if table is None:
-            raise SceneError(f"{dotted}: the scene has no [{table_name}] table")
+            raise UserError(f"{dotted}: the scene has no [{table_name}] table")
         changes[table_name] = replace(table, **{name: _convert(dotted, value, key)})
     return validate_scene(replace(scene, **changes))
 

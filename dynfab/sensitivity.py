@@ -42,7 +42,7 @@ from scipy.linalg import solve_banded
 
 from dynfab import assembly
 from dynfab.banded import BANDWIDTH, constrain, lu_factor, lu_solve
-from dynfab.errors import SceneError
+from dynfab.errors import UserError
 from dynfab.model import build_model, initial_state
 from dynfab.static import StaticSolver
 from dynfab.terms import friction
@@ -82,7 +82,7 @@ def set_key(scene, dotted_key: str, value: float):
     table_name, _, name = dotted_key.partition(".")
     table = getattr(scene, table_name)
     if table is None or not hasattr(table, name):
-        raise SceneError(f"{dotted_key}: the scene has no such key")
+        raise UserError(f"{dotted_key}: the scene has no such key")
     return replace(scene, **{table_name: replace(table, **{name: float(value)})})
 
 
@@ -90,7 +90,7 @@ def solve_path(scene, solver_options: dict | None = None) -> PathSolution:
     """Solve the scene's load path with the static solver from the as-woven state (one yarn)."""
     model = build_model(scene)
     if model.yarn_count != 1:
-        raise SceneError(f"a fit takes one simulated yarn; the scene has {model.yarn_count} "
+        raise UserError(f"a fit takes one simulated yarn; the scene has {model.yarn_count} "
                          "(set geometry.yarns = 1 and remove any [sweep])")
     solver = StaticSolver(model, **(solver_options or {}))
     state = initial_state(model)

@@ -97,7 +97,7 @@ class Solver(Protocol):
         yarn cannot reach the answer: divergence, iteration or time-step limit, an error
         bound above the accuracy target. Nothing of a failed step is returned. (A solver
         asked to step a scene it integrates in time, a DynamicSolver built for
-        dynamic.mode = "transient", raises `dynfab.errors.SceneError` instead.)
+        dynamic.mode = "transient", raises `dynfab.errors.UserError` instead.)
         """
 
 

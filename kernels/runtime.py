@@ -6,7 +6,7 @@ import sys
 
 import warp as wp
 
-from dynfab.errors import SceneError
+from dynfab.errors import UserError
 
 
 @contextlib.contextmanager
@@ -26,7 +26,7 @@ def _native_stderr_silenced():
 def initialize(device: str) -> None:
     """wp.init() without the banner and without Warp's native notices (that no CUDA driver
     was found, printed unconditionally), then check that `device` exists: an unknown name
-    or a CUDA device on a machine without one is a SceneError (one line, exit status 2)
+    or a CUDA device on a machine without one is a UserError (one line, exit status 2)
     naming the devices this machine has, not a traceback from the first array."""
     wp.config.log_level = wp.LOG_WARNING
     with _native_stderr_silenced():
@@ -35,5 +35,5 @@ def initialize(device: str) -> None:
             wp.get_device(device)
         except (RuntimeError, ValueError) as error:
             available = ", ".join(str(d) for d in wp.get_devices())
-            raise SceneError(f"--device {device!r}: not available on this machine ({error}); "
+            raise UserError(f"--device {device!r}: not available on this machine ({error}); "
                              f"available: {available}") from None

@@ -47,7 +47,7 @@ def test_memory_estimate_covers_the_measured_peak():
 
 def test_a_mesh_beyond_memory_is_refused_with_the_estimate(monkeypatch):
     monkeypatch.setattr(budget, "available_memory_bytes", lambda: 10**9)
-    with pytest.raises(dynfab.SceneError, match=r"needs about 2\.\d+ GB of memory .* but 1 GB is available"):
+    with pytest.raises(dynfab.UserError, match=r"needs about 2\.\d+ GB of memory .* but 1 GB is available"):
         dynfab.run(scene(segments=2_000_000), solver="static")
 
 
@@ -55,11 +55,11 @@ def test_a_result_file_beyond_the_free_disk_is_refused(monkeypatch, tmp_path):
     usage = type("usage", (), {"free": 10**5})
     monkeypatch.setattr(budget.shutil, "disk_usage", lambda path: usage)
     out = tmp_path / "big.h5"
-    with pytest.raises(dynfab.SceneError, match=r"would take about .* but 100 kB is free there"):
+    with pytest.raises(dynfab.UserError, match=r"would take about .* but 100 kB is free there"):
         dynfab.run(scene(segments=4096), solver="static", out=out)
     assert not out.exists()
 
 
 def test_a_huge_load_path_is_refused_before_it_is_built():
-    with pytest.raises(dynfab.SceneError, match="load.steps = 100000000: at most 10,000,000"):
+    with pytest.raises(dynfab.UserError, match="load.steps = 100000000: at most 10,000,000"):
         scene(load={"max": 0.01, "steps": 100000000})

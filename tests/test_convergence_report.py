@@ -23,7 +23,7 @@ import pytest
 from matplotlib.image import imread
 
 from dynfab.cli import main
-from dynfab.errors import SceneError
+from dynfab.errors import UserError
 from dynfab.reports.convergence import CSV_COLUMNS, QUICK, plot_study, run_convergence
 
 STUDIES = ("mesh", "load_steps", "stick_stiffness")
@@ -187,7 +187,7 @@ def test_the_pngs_are_real_images(report):
 def test_bad_output_folder_is_a_scene_error_and_exit_status_2(tmp_path, capsys):
     not_a_folder = tmp_path / "file.txt"
     not_a_folder.write_text("x")
-    with pytest.raises(SceneError, match="is a file, not a folder"):
+    with pytest.raises(UserError, match="is a file, not a folder"):
         run_convergence(not_a_folder, quick=True)
     with pytest.raises(SystemExit) as exit_info:
         main(["convergence", "--out", str(not_a_folder), "--quick"])

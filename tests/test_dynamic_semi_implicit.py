@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from dynfab.dynamic import DynamicSolver
-from dynfab.errors import SceneError
+from dynfab.errors import UserError
 from dynfab.model import build_model, initial_state
 from dynfab.scene import Dynamic, load_scene, with_key
 from dynfab.static import StaticSolver
@@ -49,5 +49,5 @@ def test_matches_static_with_friction_one_step_at_a_time():
 @pytest.mark.parametrize("damping", ["fire", "kinetic"])
 def test_fire_and_kinetic_damping_are_refused(damping):
     model = build_model(load_scene(RUNS / "paper_fig3.toml"))
-    with pytest.raises(SceneError, match=f"{damping}.*semi_implicit"):
+    with pytest.raises(UserError, match=f"{damping}.*semi_implicit"):
         DynamicSolver(model, Dynamic(method="semi_implicit", damping=damping))

@@ -43,7 +43,7 @@ from matplotlib.text import Text
 from dynfab import assembly
 from dynfab.banded import to_dense
 from dynfab.cli import main
-from dynfab.errors import SceneError
+from dynfab.errors import UserError
 from dynfab.kernels.configuration import Configuration, built_variants
 from dynfab.model import build_model
 from dynfab.reports import figures as report
@@ -376,7 +376,7 @@ def test_the_pngs_are_real_images(quick):
 def test_bad_output_folder_is_a_scene_error_and_exit_status_2(tmp_path, capsys):
     not_a_folder = tmp_path / "file.txt"
     not_a_folder.write_text("x")
-    with pytest.raises(SceneError, match="is a file, not a folder"):
+    with pytest.raises(UserError, match="is a file, not a folder"):
         report.run_figures(not_a_folder, quick=True)
     with pytest.raises(SystemExit) as exit_info:
         main(["figures", "--out", str(not_a_folder), "--quick"])

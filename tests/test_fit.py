@@ -12,7 +12,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from dynfab.errors import SceneError
+from dynfab.errors import UserError
 from dynfab.fit import default_substeps, fit, refined_path
 from dynfab.fit_data import curve_from_columns
 from dynfab.scene import with_key
@@ -169,13 +169,13 @@ def test_a_curve_may_start_at_the_unloaded_state():
     result = fit(scene, data, ["warp.EA"], start={"warp.EA": 12.0})
     assert result.converged and result.parameters["warp.EA"]["ci95"] is not None
     for bad in ([0.0, 0.0, 0.1], [0.1, 0.0, 0.2]):
-        with pytest.raises(SceneError):
+        with pytest.raises(UserError):
             curve_from_columns(["load [N]", "end_displacement [m]"],
                                np.c_[bad, [1.0, 2.0, 3.0]], "force")
 
 
 # --------------------------------------------------------------------------
-# Bad data and keys: one SceneError each.
+# Bad data and keys: one UserError each.
 
 
 def _scene():
@@ -203,7 +203,7 @@ BAD = {
 @pytest.mark.parametrize("case", BAD)
 def test_bad_curve_is_one_scene_error(case):
     header, rows = BAD[case]
-    with pytest.raises(SceneError) as error:
+    with pytest.raises(UserError) as error:
         data = curve_from_columns(header, rows, "force")
         fit(_scene(), data, ["warp.EA"])
     assert "\n" not in str(error.value)
@@ -216,9 +216,9 @@ def test_too_few_points_and_bad_keys_are_scene_errors():
     for keys in (["warp.EA", "weft.kawabata_C"],  # 2 values, 2 parameters, noise estimated
                  ["geometry.segments"], ["load.values"], ["friction.alpha"], ["warp.EA", "warp.EA"],
                  ["warp.nothing"], ["warp.linear_density"]):
-        with pytest.raises(SceneError):
+        with pytest.raises(UserError):
             fit(scene, two, keys)
-    with pytest.raises(SceneError):
+    with pytest.raises(UserError):
         fit(scene, two, ["warp.EA"], bounds={"warp.EA": (1.0, 2.0)})  # start outside
 
 

@@ -1,5 +1,5 @@
 """Figures from a synthetic result file: which PNGs are written (real images), what each figure
-draws (the file's data, read back from the matplotlib artists), and errors are SceneErrors."""
+draws (the file's data, read back from the matplotlib artists), and errors are UserErrors."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from matplotlib.image import imread
 
-from dynfab.errors import SceneError
+from dynfab.errors import UserError
 from dynfab.plot import (friction_states, friction_yarns, plot_contact_force, plot_friction,
                          plot_results, plot_shape, plot_traction, shape_steps, yarn_labels)
 from dynfab.results import ResultFile, read_results
@@ -162,16 +162,16 @@ def test_shape_steps():
 
 
 def test_missing_or_foreign_file_is_a_scene_error(tmp_path):
-    with pytest.raises(SceneError, match="does not exist"):
+    with pytest.raises(UserError, match="does not exist"):
         plot_results(tmp_path / "missing.h5", tmp_path)
     foreign = tmp_path / "foreign.h5"
     with h5py.File(foreign, "w") as h5:
         h5["x"] = np.arange(3)
-    with pytest.raises(SceneError, match="not a dynfab result"):
+    with pytest.raises(UserError, match="not a dynfab result"):
         plot_results(foreign, tmp_path)
     empty = tmp_path / "empty.h5"
     write_synthetic(empty, steps=0)
-    with pytest.raises(SceneError, match="no finished load step"):
+    with pytest.raises(UserError, match="no finished load step"):
         plot_results(empty, tmp_path)
     assert not list(tmp_path.glob("*.png"))
 

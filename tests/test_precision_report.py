@@ -29,7 +29,7 @@ import pytest
 from matplotlib.image import imread
 
 from dynfab.cli import main
-from dynfab.errors import SceneError
+from dynfab.errors import UserError
 from dynfab.kernels.configuration import built_variants
 from dynfab.reports import precision
 from dynfab.reports.precision import CSV_COLUMNS, QUICK, TARGETS, Plan, run_precision
@@ -364,7 +364,7 @@ def test_lbfgs_points_are_there_with_scipy(report):
 def test_bad_output_folder_is_a_scene_error_and_exit_status_2(tmp_path, capsys):
     not_a_folder = tmp_path / "file.txt"
     not_a_folder.write_text("x")
-    with pytest.raises(SceneError, match="is a file, not a folder"):
+    with pytest.raises(UserError, match="is a file, not a folder"):
         run_precision(not_a_folder, quick=True)
     with pytest.raises(SystemExit) as exit_info:
         main(["precision", "--out", str(not_a_folder), "--quick"])

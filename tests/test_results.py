@@ -13,7 +13,7 @@ import h5py
 import numpy as np
 import pytest
 
-from dynfab.errors import SceneError
+from dynfab.errors import UserError
 from dynfab.results import UNITS, ResultFile, read_results, units_of
 
 REPO = Path(__file__).resolve().parents[1]
@@ -150,7 +150,7 @@ def test_refuses_existing_file_and_leaves_it_untouched(tmp_path, content):
         path.write_bytes(content)
     before = path.read_bytes()
     mtime = path.stat().st_mtime_ns
-    with pytest.raises(SceneError) as error:
+    with pytest.raises(UserError) as error:
         create(path)
     message = str(error.value)
     assert message == (
@@ -189,7 +189,7 @@ def test_create_is_exclusive_even_against_a_file_appearing_after_the_checks(
             holder[0].close()
 
     monkeypatch.setattr(results, "_remove_stale_tmp", other_process_creates_it)
-    with pytest.raises(SceneError) as error:
+    with pytest.raises(UserError) as error:
         create(path)
     monkeypatch.undo()
     expected = "being written by another dynfab process" if writer_running else "exists"
@@ -220,7 +220,7 @@ def test_resume_continues_appending(tmp_path):
 
 def test_resume_and_read_refuse_missing_or_foreign_files(tmp_path):
     for call in (ResultFile.resume, read_results):
-        with pytest.raises(SceneError, match="does not exist"):
+        with pytest.raises(UserError, match="does not exist"):
             call(tmp_path / "missing.h5")
     junk = tmp_path / "junk.h5"
     junk.write_text("not hdf5")
@@ -229,7 +229,7 @@ def test_resume_and_read_refuse_missing_or_foreign_files(tmp_path):
         h5["data"] = np.arange(3)
     for path in (junk, foreign):
         for call in (ResultFile.resume, read_results):
-            with pytest.raises(SceneError) as error:
+            with pytest.raises(UserError) as error:
                 call(path)
             assert "\n" not in str(error.value) and str(path) in str(error.value)
 

@@ -63,7 +63,7 @@ def test_dynamic_options_from_python_are_taken():
     ("newton", {}, "solver = 'newton'"),
 ])
 def test_an_option_the_solver_does_not_take_is_a_scene_error(solver, options, words):
-    with pytest.raises(dynfab.SceneError, match=words.replace("(", r"\(").replace(".", r"\.")):
+    with pytest.raises(dynfab.UserError, match=words.replace("(", r"\(").replace(".", r"\.")):
         dynfab.run(parse_scene_text(ROD), solver=solver, **options)
 
 

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from dynfab.errors import SceneError
+from dynfab.errors import UserError
 from dynfab import scene as scene_module
 from dynfab.scene import (
     Dynamic,
@@ -194,21 +194,21 @@ def test_with_key_sets_one_key_and_revalidates():
     changed = with_key(scene, "warp.kawabata_K", 0.02)
     assert changed.warp.kawabata_K == 0.02 and changed.warp.EA == scene.warp.EA
     assert with_key(scene, "geometry.amplitude", 0).geometry.amplitude == 0.0
-    with pytest.raises(SceneError, match=r"warp\.EA = -1\.0: must be a positive number \[N\]"):
+    with pytest.raises(UserError, match=r"warp\.EA = -1\.0: must be a positive number \[N\]"):
         with_key(scene, "warp.EA", -1.0)
-    with pytest.raises(SceneError, match=r"unknown key 'warp\.kawabata_k'; did you mean "
+    with pytest.raises(UserError, match=r"unknown key 'warp\.kawabata_k'; did you mean "
                                          r"'warp\.kawabata_K'\?"):
         with_key(scene, "warp.kawabata_k", 0.1)
-    with pytest.raises(SceneError, match=r"no \[friction\] table"):
+    with pytest.raises(UserError, match=r"no \[friction\] table"):
         with_key(scene, "friction.alpha", 0.1)
 
 
 def test_validate_scene_checks_a_scene_built_in_python():
     scene = parse()
     assert validate_scene(scene) is scene
-    with pytest.raises(SceneError, match=r"weft\.count = 0: must be a positive integer"):
+    with pytest.raises(UserError, match=r"weft\.count = 0: must be a positive integer"):
         validate_scene(replace(scene, weft=replace(scene.weft, count=0)))
-    with pytest.raises(SceneError, match=r"missing required table \[weft\]"):
+    with pytest.raises(UserError, match=r"missing required table \[weft\]"):
         validate_scene(replace(scene, weft=None))
 
 
@@ -216,7 +216,7 @@ def test_with_key_reaches_keys_that_cannot_be_swept():
     scene = parse()
     assert with_key(scene, "geometry.segments", 448).geometry.segments == 448
     assert with_key(scene, "load.values", [0.5]).load.values == (0.5,)
-    with pytest.raises(SceneError, match=r"geometry\.segments = 100: must be a positive "
+    with pytest.raises(UserError, match=r"geometry\.segments = 100: must be a positive "
                                          r"multiple .* nearest valid: 96"):
         with_key(scene, "geometry.segments", 100)
 
@@ -248,14 +248,14 @@ def test_paper_scenes():
 
 def test_missing_file(tmp_path):
     missing = tmp_path / "x.toml"
-    with pytest.raises(SceneError, match=r"scene file '.*x\.toml' not found"):
+    with pytest.raises(UserError, match=r"scene file '.*x\.toml' not found"):
         load_scene(missing)
 
 
 def test_not_toml_names_the_file(tmp_path):
     bad = tmp_path / "bad.toml"
     bad.write_text("[geometry\nlength = 0.1\n")
-    with pytest.raises(SceneError, match=r"bad\.toml: not valid TOML: .*line 1") as info:
+    with pytest.raises(UserError, match=r"bad\.toml: not valid TOML: .*line 1") as info:
         load_scene(bad)
     assert "\n" not in str(info.value)
 
@@ -267,7 +267,7 @@ def test_load_scene_reads_a_file(tmp_path):
 
 
 # --------------------------------------------------------------------------
-# User mistakes: each raises SceneError, one line, naming the key.
+# User mistakes: each raises UserError, one line, naming the key.
 
 NAN, INF = float("nan"), float("inf")
 TRANSIENT = {"mode": "transient", "duration": 0.02, "output_interval": 2e-4}
@@ -518,7 +518,7 @@ BAD = {
 
 @pytest.mark.parametrize("edits, match", BAD.values(), ids=BAD.keys())
 def test_bad_input_raises_one_line_scene_error(edits, match):
-    with pytest.raises(SceneError, match=match) as info:
+    with pytest.raises(UserError, match=match) as info:
         parse(edits)
     message = str(info.value)
     assert "\n" not in message and message.strip() == message
@@ -536,9 +536,9 @@ def test_solver_options_built_in_python_meet_the_scene_rules_word_for_word(name)
     """DynamicSolver's options given in code go through the scene's own combination rules:
     the same refusal, byte for byte, as the same keys written in a scene file."""
     edits, _ = BAD[name]
-    with pytest.raises(SceneError) as from_file:
+    with pytest.raises(UserError) as from_file:
         parse(edits)
-    with pytest.raises(SceneError) as from_code:
+    with pytest.raises(UserError) as from_code:
         check_dynamic_options(Dynamic(**edits["dynamic"]))
     assert str(from_code.value) == str(from_file.value)
 
@@ -566,7 +566,7 @@ def test_every_key_is_declared_with_what_it_needs():
 
 def test_an_unsweepable_key_names_the_sweepable_ones():
     """The list in the message is written from the sweepable flags; this is its wording."""
-    with pytest.raises(SceneError) as info:
+    with pytest.raises(UserError) as info:
         parse({"sweep": {"weft.count": [16, 32]}})
     assert str(info.value) == ('sweep."weft.count": this key cannot be swept; sweepable are '
                                "geometry.amplitude and the real-valued keys of [warp], [weft], "

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from dynfab.dynamic import DynamicSolver, DynamicTransient
-from dynfab.errors import SceneError
+from dynfab.errors import UserError
 from dynfab.loading import load_at_time, prescribe_load
 from dynfab.model import build_model, initial_state
 from dynfab.results import units_of
@@ -66,7 +66,7 @@ def test_load_step_solvers_conform_to_the_solver_contract_only(fig3, relax):
 
 
 def test_transient_contract_refuses_a_relaxation_scene(fig3):
-    with pytest.raises(SceneError, match="runs by load step"):
+    with pytest.raises(UserError, match="runs by load step"):
         DynamicTransient(build_model(fig3))
 
 

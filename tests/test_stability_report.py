@@ -42,7 +42,7 @@ import pytest
 from matplotlib.image import imread
 
 from dynfab.cli import main
-from dynfab.errors import SceneError
+from dynfab.errors import UserError
 from dynfab.kernels import configuration
 from dynfab.reports.stability import (BISECTION_RATIO, CSV_COLUMNS, EXPLICIT_MAX_STEPS,
                                       case_scene, extrapolate_mesh, fit_power_law, paper_yarns,
@@ -193,7 +193,7 @@ def test_beyond_buckling_is_refused_naming_the_limit(report):
         in message
     # the verdict is validate_scene's own message for that scene, verbatim
     plan_case = next(c for c in QUICK.cases if c.name == case["case"])
-    with pytest.raises(SceneError) as raised:
+    with pytest.raises(UserError) as raised:
         case_scene(plan_case, paper_yarns(QUICK)[False], 0.01 * 0.025)
     assert str(raised.value) == message
     out = report[0]
@@ -321,7 +321,7 @@ def test_fine_meshes_are_judged_by_their_extrapolated_step_count():
 def test_bad_output_folder_is_a_scene_error_and_exit_status_2(tmp_path, capsys):
     not_a_folder = tmp_path / "file.txt"
     not_a_folder.write_text("x")
-    with pytest.raises(SceneError, match="is a file, not a folder"):
+    with pytest.raises(UserError, match="is a file, not a folder"):
         run_stability(not_a_folder, quick=True)
     with pytest.raises(SystemExit) as exit_info:
         main(["stability", "--out", str(not_a_folder), "--quick"])

@@ -16,7 +16,7 @@ from typing import Callable, Iterable, Sequence
 
 import numpy as np
 
-from dynfab.errors import SceneError
+from dynfab.errors import UserError
 from dynfab.plot import output_folder  # noqa: F401 (the reports' --out check)
 from dynfab.scene import Scene, expand_sweep, load_scene, with_key
 
@@ -74,10 +74,10 @@ def write_text(path: Path, text: str) -> Path:
 
 
 def paper_scene_file(name: str, reader: str) -> Scene:
-    """The scene file `runs/<name>`; SceneError naming `reader` (who needs it) if missing."""
+    """The scene file `runs/<name>`; UserError naming `reader` (who needs it) if missing."""
     path = RUNS / name
     if not path.is_file():
-        raise SceneError(f"paper scene '{path}' not found: {reader} reads the runs/ folder of a "
+        raise UserError(f"paper scene '{path}' not found: {reader} reads the runs/ folder of a "
                          "dynfab source tree")
     return load_scene(path)
 

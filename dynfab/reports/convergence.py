@@ -37,7 +37,7 @@ is below it is reported as independent of the parameter (order None).
 
 ``quick=True`` solves the same yarn cut to 4 crossings (L / 4, the same crossing
 spacing, weft and mesh density, end displacements / 4), N = 32 ... 512, 10 ... 160 load
-steps: a few seconds. Errors for user mistakes are `SceneError`s.
+steps: a few seconds. Errors for user mistakes are `UserError`s.
 """
 
 from __future__ import annotations
@@ -126,7 +126,7 @@ def run_convergence(out_dir, *, quick: bool = False,
                     progress: Callable[[str], None] | None = None) -> dict:
     """Run the three studies, write the CSVs, JSON, markdown and PNGs; return the summary.
 
-    `progress` receives one line per solve (None: silent). Raises SceneError when
+    `progress` receives one line per solve (None: silent). Raises UserError when
     `out_dir` cannot be a folder or the paper scenes are missing.
     """
     out = output_folder(out_dir)

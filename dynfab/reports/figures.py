@@ -37,7 +37,7 @@ exactly (numpy, dense inverse) at every load step and yarn.
 ``quick=True`` cuts both yarns to 4 crossings at the same spacing (L = 25 mm, N = 56, the
 same weft), end displacement to 2.5 mm (the same 10 % strain) in 20 steps: the same Warp
 kernel variants as the paper scenes (kinetic damping, displacement control, with and
-without friction), and a few seconds. Errors for user mistakes are `SceneError`s.
+without friction), and a few seconds. Errors for user mistakes are `UserError`s.
 """
 
 from __future__ import annotations
@@ -52,7 +52,7 @@ import numpy as np
 
 from dynfab import assembly
 from dynfab.banded import BANDWIDTH, constrain, lu_factor, lu_solve, to_dense
-from dynfab.errors import SceneError
+from dynfab.errors import UserError
 from dynfab.model import build_model
 from dynfab.reports.common import cut_yarn, machine, output_folder, paper_scene_file, write_json
 from dynfab.reports.figures_data import (FIGURES, SOLVERS, STRAIN_STAGE, at_strain,
@@ -178,7 +178,7 @@ def stale_reason(path: Path, scene: Scene, solver: str) -> str | None:
         return "missing"
     try:
         results = read_results(path)
-    except SceneError as error:
+    except UserError as error:
         return f"unreadable ({error})"
     if results.attrs.get("scene") != scene_to_toml(scene):
         return "written from another scene"

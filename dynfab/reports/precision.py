@@ -61,7 +61,7 @@ current F_T meets the tolerance or stops falling.
 weft and contact law, end displacements / 4) with few methods and 2-3 tolerances each,
 using only the kernel variants the dynamic tests already build (displacement control;
 explicit kinetic, viscous and FIRE, semi_implicit and float32 kinetic without friction;
-kinetic and semi_implicit with friction). Errors for user mistakes are `SceneError`s.
+kinetic and semi_implicit with friction). Errors for user mistakes are `UserError`s.
 """
 
 from __future__ import annotations

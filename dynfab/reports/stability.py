@@ -8,7 +8,7 @@ control), friction (alpha 0 to 2, stick stiffness up to 1000 x the default) or t
 reference state. Each case is one load step from the as-woven state. For each case:
 
 * the static reference (MODEL.md 6) of the load step, or its SolverError text; a scene
-  the model must refuse (a weft tension at or beyond buckling) records its SceneError
+  the model must refuse (a weft tension at or beyond buckling) records its UserError
   text as the verdict;
 * the largest stable time step of symplectic Euler with the physical masses, found by
   bisection exactly as ``tests/test_dynamic_relaxation.py`` defines it: from the relaxed
@@ -60,7 +60,7 @@ import numpy as np
 from dynfab import assembly
 from dynfab.banded import BANDWIDTH, to_dense
 from dynfab.dynamic import DynamicSolver
-from dynfab.errors import SceneError, SolverError
+from dynfab.errors import UserError, SolverError
 from dynfab.kernels import status
 from dynfab.model import build_model, initial_state
 from dynfab.plot import save_png
@@ -110,7 +110,7 @@ def run_stability(out_dir, *, quick: bool = False,
                   progress: Callable[[str], None] | None = None) -> dict:
     """Run every case of the plan, write the table, CSV, JSON and map; return the summary.
 
-    `progress` receives one line per solve (None: silent). Raises SceneError when
+    `progress` receives one line per solve (None: silent). Raises UserError when
     `out_dir` cannot be a folder or the paper scenes are missing; a case's own
     failures are verdicts, never exceptions.
     """
@@ -164,7 +164,7 @@ def case_scene(case: Case, base: Scene, load: float) -> Scene:
     multiplies warp.EA; "stick_factor" sets k_t to that multiple of the default
     EA / (L / N); "alpha_we" sets P_we = alpha_we Pcr_we; "k_we_factor" sets P_we so
     that k_we (prop. to 1 + alpha_we / N_wa^2, MODEL.md 3) is that many times its
-    P_we = 0 value. Raises SceneError for a scene the model refuses.
+    P_we = 0 value. Raises UserError for a scene the model refuses.
     """
     scene = base
     for key, value in case.changes:
@@ -220,7 +220,7 @@ class _Runner:
             scene = case_scene(replace(case, control="displacement"), base, displacement)
             if case.control == "force":
                 scene = case_scene(case, base, self._reaction(scene, displacement))
-        except SceneError as error:
+        except UserError as error:
             record["refused"] = str(error)
             self.say(f"{where}: refused: {error}")
             return record
