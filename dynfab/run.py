@@ -97,7 +97,10 @@ def run_to_file(scene: Scene, solver: str, out: str | Path, *, overwrite: bool =
     try:
         with _interrupts_held_back():  # a Ctrl-C finds the file either not made or in `sink`
             sink = _open_sink(model, engine, out, overwrite=overwrite, resume=resume)
-        view.finish()  # the XDMF beside it (dynfab.xdmf): a resumed file's finished steps
+        if resume:
+            view.finish()  # the XDMF beside it (dynfab.xdmf), up to date with the finished steps
+        else:
+            xdmf_path(out).unlink(missing_ok=True)  # a replaced file's view is stale
         written = _solve(model, engine, _ViewedSink(sink, view), progress)
     except KeyboardInterrupt:
         if sink is not None:

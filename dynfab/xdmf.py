@@ -130,7 +130,9 @@ def _read_layout(path: Path) -> _Layout:
                 raise SceneError(f"'{path}' is not a dynfab result file")
             group = "frames" if _count(h5, "frames") else "steps"
             count = _count(h5, group)
-            shapes = {name: h5[name].shape for name in _datasets(h5)}
+            wanted = ["reference/positions", f"{group}/positions"]
+            wanted += [f"{group}/xdmf/{name}" for name in POINT_DATA]
+            shapes = {name: h5[name].shape for name in wanted if name in h5}
             times = (h5["frames/time"][:count] if group == "frames"
                      else np.arange(1, count + 1, dtype=float))
             loads = h5["steps/load"][:count, 0] if group == "steps" and count else None
@@ -154,12 +156,6 @@ def _count(h5: h5py.File, group: str) -> int:
     if f"{group}/positions" in h5:
         return int(h5[f"{group}/positions"].shape[0])
     return 0
-
-
-def _datasets(h5: h5py.File) -> list[str]:
-    names: list[str] = []
-    h5.visititems(lambda name, obj: names.append(name) if isinstance(obj, h5py.Dataset) else None)
-    return names
 
 
 def _hdf(layout: _Layout, dataset: str) -> str:
@@ -278,9 +274,13 @@ class XdmfSync:
     """Keeps a run's XDMF file in step with its result file.
 
     `update` after every finished entry rewrites it unless the last rewrite
-    took more than a fifth of the time since (a run of very many short steps,
-    where the O(steps) text would dominate); `finish` always rewrites it.
+    took more than `SHARE` of the time since it ended (short steps, or so many
+    that the O(steps) text would dominate: the view then lags by a few steps
+    until the next rewrite); `finish` always rewrites it.
     """
+
+    SHARE = 0.05
+    """Largest share of a run's time spent rewriting its view (benchmarks/xdmf.py)."""
 
     def __init__(self, result: str | os.PathLike) -> None:
         self.result = Path(result)
@@ -288,7 +288,7 @@ class XdmfSync:
         self.last_took = 0.0
 
     def update(self) -> None:
-        if time.perf_counter() - self.last_end >= 4 * self.last_took:
+        if self.last_took <= self.SHARE * (time.perf_counter() - self.last_end):
             self.finish()
 
     def finish(self) -> None:

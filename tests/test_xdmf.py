@@ -18,6 +18,7 @@ from pathlib import Path
 from xml.etree import ElementTree
 
 import h5py
+import meshio.xdmf as meshio_xdmf
 import numpy as np
 import pytest
 from independent import PAPER_FRICTION, PAPER_WARP, PAPER_WEFT, make_scene
@@ -25,8 +26,6 @@ from independent import PAPER_FRICTION, PAPER_WARP, PAPER_WEFT, make_scene
 import dynfab
 from dynfab.results import ResultFile
 from dynfab.run import run_to_file
-
-meshio_xdmf = pytest.importorskip("meshio.xdmf")
 
 XINCLUDE = "{http://www.w3.org/2001/XInclude}include"
 
