@@ -3,8 +3,9 @@
 An XDMF 3 file is XML that describes meshes whose numbers stay in the HDF5
 file: every array here is a ``HyperSlab`` of a dataset of the result file
 (one row of ``steps/positions``, ...), never a copy. ParaView opens it
-(``paraview out/paper_fig3.xdmf``, reader "XDMF Reader" or "Xdmf3 Reader")
-and shows the yarns as polylines over the load steps.
+(``paraview out/paper_fig3.xdmf``) and shows the yarns as polylines over the
+load steps; checked with VTK's XDMF reader, ParaView's "XDMF Reader"
+(tests/test_xdmf.py, where the ``vtk`` package is installed).
 
 Layout of the XDMF file:
 
@@ -86,6 +87,8 @@ class Family:
     name: str
     positions: str
     """Dataset of the positions, the two in-plane coordinates last."""
+    reference: str
+    """Dataset of the as-woven positions (yarns, N+1, 2)."""
     plane_axis: int
     """The 3D axis normal to the yarns' planes: 1 (y) for warps, 0 (x) for wefts."""
     planes: np.ndarray
@@ -103,7 +106,6 @@ class _Layout:
     count: int
     shapes: dict[str, tuple]
     families: list[Family]
-    reference: str
     times: np.ndarray
     loads: np.ndarray | None
 
@@ -130,7 +132,7 @@ def _read_layout(path: Path) -> _Layout:
                 raise SceneError(f"'{path}' is not a dynfab result file")
             group = "frames" if _count(h5, "frames") else "steps"
             count = _count(h5, group)
-            wanted = ["reference/positions", f"{group}/positions"]
+            wanted = ["reference/positions", f"{group}/positions"]  # a fabric: per family
             wanted += [f"{group}/xdmf/{name}" for name in POINT_DATA]
             shapes = {name: h5[name].shape for name in wanted if name in h5}
             times = (h5["frames/time"][:count] if group == "frames"
@@ -144,9 +146,9 @@ def _read_layout(path: Path) -> _Layout:
         raise SceneError(f"cannot read result file '{path}': {str(error).splitlines()[0]}") from None
     point_data = {name: f"{group}/xdmf/{name}" for name in POINT_DATA
                   if f"{group}/xdmf/{name}" in shapes}
-    warps = Family("warp yarns", f"{group}/positions", 1, (np.arange(yarns) + 0.5) * spacing,
-                   point_data)
-    return _Layout(path.name, group, count, shapes, [warps], "reference/positions", times, loads)
+    warps = Family("warp yarns", f"{group}/positions", "reference/positions", 1,
+                   (np.arange(yarns) + 0.5) * spacing, point_data)
+    return _Layout(path.name, group, count, shapes, [warps], times, loads)
 
 
 def _count(h5: h5py.File, group: str) -> int:
@@ -213,12 +215,11 @@ def render(layout: _Layout) -> str:
     """The XDMF text of a result file's layout."""
     lines = ['<?xml version="1.0" encoding="utf-8"?>',
              '<Xdmf xmlns:xi="http://www.w3.org/2001/XInclude" Version="3.0">', "<Domain>"]
-    for index, family in enumerate(layout.families):
-        yarns, nodes = layout.shapes[family.positions][1:3] if layout.count else \
-            layout.shapes[layout.reference][0:2]
+    for family in layout.families:
+        yarns, nodes = layout.shapes[family.reference][0:2]
         reference = f"as-woven {family.name}"
         lines += [f'<Grid Name="{reference}" GridType="Uniform">', _topology(yarns, nodes),
-                  _coordinates(layout, family, layout.reference, None,
+                  _coordinates(layout, family, family.reference, None,
                                _planes_item(family, nodes)), "</Grid>"]
         grid = f'//Grid[@Name="{reference}"]'
         lines.append(f'<Grid Name="{family.name}" GridType="Collection" '
@@ -233,7 +234,7 @@ def render(layout: _Layout) -> str:
 def _step_grid(layout: _Layout, family: Family, entry: int, reference: str, yarns: int,
                nodes: int) -> str:
     """One finished entry: its time, the shared topology, its geometry and point data."""
-    planes = _include(f"{reference}/Geometry/DataItem[2]")
+    planes = _include(f"{reference}/Geometry/DataItem[{family.plane_axis + 1}]")  # X_Y_Z order
     parts = [f'<Grid Name="{layout.group} {entry + 1}" GridType="Uniform">',
              f'<Time Value="{float(layout.times[entry])!r}"/>']
     if layout.loads is not None:
