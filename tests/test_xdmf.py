@@ -249,3 +249,36 @@ def test_paraview_reader_of_vtk_reads_the_view(finished):
         assert yarns.GetNumberOfCells() == 2 and yarns.GetCellType(0) == 4  # VTK_POLY_LINE
         nodal = vtk_to_numpy(yarns.GetPointData().GetArray("contact_force")).reshape(2, -1)
         np.testing.assert_array_equal(nodal[:, crossings], force[k])
+
+
+def test_a_transient_file_lists_its_frames_at_their_times(tmp_path):
+    """Frames (a transient run, `frames/*`): one grid per finished frame, Time = its time [s];
+    written here with `ResultFile` (frame data made up, nodal data by the test's own rule)."""
+    rng = np.random.default_rng(7)
+    yarns, nodes, crossings = 1, 9, np.array([2, 6])
+    out = tmp_path / "transient.h5"
+    attrs = {"scene": "", "solver": "dynamic", "projected_length": 0.02}
+    reference = {"positions": rng.normal(size=(yarns, nodes, 2)), "crossing_nodes": crossings}
+    frames = []
+    with ResultFile.create(out, attrs=attrs, reference=reference, frame_capacity=5) as f:
+        for time in (0.0, 1e-4, 3e-4):
+            frame = {"time": time, "positions": rng.normal(size=(yarns, nodes, 2)),
+                     "contact_force": rng.random((yarns, 2)), "anchors": rng.normal(size=(yarns, 2))}
+            force, slip = np.zeros((yarns, nodes)), np.zeros((yarns, nodes))
+            force[:, crossings] = frame["contact_force"]
+            slip[:, crossings] = frame["positions"][:, crossings, 0] - frame["anchors"]
+            frame.update({"xdmf/contact_force": force, "xdmf/slip": slip})
+            f.append_frame(frame)
+            frames.append(frame)
+    view = dynfab.write_xdmf(out)
+    with SlabReader(view) as reader:
+        assert reader.num_steps == 3
+        reader.read_points_cells()
+        for k, frame in enumerate(frames):
+            time, point_data, _ = reader.read_data(k)
+            assert time == frame["time"]
+            np.testing.assert_array_equal(reader.points(reader.collection[k]),
+                                          to_3d(frame["positions"], np.array([0.5 * (0.02 / 10)])))
+            np.testing.assert_array_equal(point_data["contact_force"].ravel(),
+                                          frame["xdmf/contact_force"].ravel())
+            np.testing.assert_array_equal(point_data["slip"].ravel(), frame["xdmf/slip"].ravel())
