@@ -12,8 +12,10 @@ h5py and from the scene (plane spacing), never from dynfab.xdmf.
 """
 
 import re
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 from xml.etree import ElementTree
 
@@ -24,7 +26,7 @@ import pytest
 from independent import PAPER_FRICTION, PAPER_WARP, PAPER_WEFT, make_scene
 
 import dynfab
-from dynfab.results import ResultFile
+from dynfab.results import ResultFile, finished_counts
 from dynfab.run import run_to_file
 
 XINCLUDE = "{http://www.w3.org/2001/XInclude}include"
@@ -99,11 +101,15 @@ def to_3d(positions, planes):
     return np.column_stack([positions[..., 0].ravel(), y, positions[..., 1].ravel()])
 
 
-def check_view(result: Path, planes: np.ndarray) -> int:
+def check_view(result: Path, planes: np.ndarray, behind: bool = False) -> int:
     """Read `result`'s XDMF with `SlabReader` and compare every grid with the HDF5 file; the
-    number of time steps."""
+    number of time steps: the finished steps, or (`behind`, after a kill -9) at most those."""
     with h5py.File(result, "r") as h5:
         count = int(h5["steps_done"][0])
+        if behind:
+            listed = SlabReader(result.with_suffix(".xdmf")).num_steps
+            assert 1 <= listed <= count
+            count = listed
         steps = {name: h5[f"steps/{name}"][:count] for name in
                  ("positions", "contact_force", "anchors")}
         reference = h5["reference/positions"][()]
@@ -179,6 +185,27 @@ def test_an_interrupted_run_lists_only_its_finished_steps_and_resume_completes_i
         for name in ("positions", "xdmf/contact_force", "xdmf/slip"):
             np.testing.assert_array_equal(h5[f"steps/{name}"][()], full[f"steps/{name}"][()])
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cut.h5", "cut.xdmf"]
+
+
+def test_after_kill_minus_9_the_view_lists_finished_steps_only(tmp_path):
+    """A run killed mid-way (SIGKILL: no handler runs) leaves a view of finished steps, perhaps
+    fewer than the file holds (`XdmfSync` skips rewrites of short steps), never more;
+    --resume completes it."""
+    fig5 = Path(__file__).resolve().parents[1] / "runs" / "paper_fig5.toml"
+    out = tmp_path / "killed.h5"
+    run = [sys.executable, "-m", "dynfab.cli", "run", str(fig5), "--out", str(out), "--quiet"]
+    child = subprocess.Popen(run, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 120
+    while (finished_counts(out) or (0, 0))[0] < 5 and time.monotonic() < deadline:
+        time.sleep(0.002)
+    child.send_signal(signal.SIGKILL)
+    child.wait()
+    assert 5 <= finished_counts(out)[0] < 40, "the kill must land mid-run"
+    planes = (np.arange(2) + 0.5) * (0.1 / 10)  # a sweep: L / 10
+    check_view(out, planes, behind=True)
+    done = subprocess.run(run + ["--resume"], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert check_view(out, planes) == 40
 
 
 def test_a_sweep_is_spaced_by_a_tenth_of_the_length(tmp_path):
