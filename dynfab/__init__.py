@@ -6,6 +6,7 @@ The public surface::
     results = dynfab.run(scene, solver="static", out="fig3.h5")   # or solver="dynamic"
     results.steps["end_force"]                                  # (steps, yarns) [N]
     dynfab.read_results("fig3.h5")                              # the same arrays, from disk
+    dynfab.write_xdmf("fig3.h5")                                # fig3.xdmf for ParaView (a run writes it)
     dynfab.fit(scene, "curve.csv", ["warp.EA"])                 # parameters from a measured curve
 
 The names are imported on first use, so that `import dynfab` (and the
@@ -37,11 +38,12 @@ __version__ = "0.1.0"
 _HOMES = {"build_model": "dynfab.model", "plot_results": "dynfab.plot",
           "Results": "dynfab.results", "read_results": "dynfab.results", "run": "dynfab.run",
           "load_scene": "dynfab.scene", "parse_scene_text": "dynfab.scene",
-          "fit": "dynfab.fit", "FitResult": "dynfab.fit"}
+          "fit": "dynfab.fit", "FitResult": "dynfab.fit", "write_xdmf": "dynfab.xdmf"}
 """Module defining each public name."""
 
-__all__ = ["DynfabError", "FitResult", "Results", "UserError", "SolverError", "build_model", "fit",
-           "load_scene", "parse_scene_text", "plot_results", "read_results", "run", "__version__"]
+__all__ = ["DynfabError", "FitResult", "Results", "SolverError", "UserError", "build_model",
+           "fit", "load_scene", "parse_scene_text", "plot_results", "read_results", "run",
+           "write_xdmf", "__version__"]
 
 
 def __getattr__(name: str):

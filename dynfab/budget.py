@@ -38,10 +38,11 @@ def memory_bytes(scene: Scene) -> int:
 
 
 def result_file_bytes(scene: Scene) -> int:
-    """Estimated size of the result file of `scene` [B]: positions (x, z) per node and
-    step (three node arrays per frame of a transient run), crossings and scalars."""
+    """Estimated size of the result file of `scene` [B]: positions (x, z) and the XDMF
+    view's two point data (`dynfab.xdmf`) per node and step (three node arrays more per
+    frame of a transient run), crossings and scalars."""
     yarns, nodes = yarn_count(scene), scene.geometry.segments + 1
-    per_yarn = 8 * (2 * nodes + CROSSING_DATASETS * scene.geometry.crossings + STEP_SCALARS)
+    per_yarn = 8 * (4 * nodes + CROSSING_DATASETS * scene.geometry.crossings + STEP_SCALARS)
     if scene.dynamic.mode == "transient" and scene.dynamic.output_interval:
         frames = scene.dynamic.duration / scene.dynamic.output_interval + 2
         return int(frames * yarns * (per_yarn + 8 * 4 * nodes))

@@ -1,4 +1,4 @@
-"""The `dynfab` command line: `dynfab run`, `dynfab plot` and `dynfab fit`.
+"""The `dynfab` command line: `dynfab run`, `dynfab plot`, `dynfab fit` and `dynfab xdmf`.
 
 A user's mistake exits with status 2 and one line; a solver failure with
 status 3 and one line (finished steps kept on disk); an interrupt (Ctrl-C),
@@ -53,6 +53,9 @@ def _parser() -> argparse.ArgumentParser:
     plot = commands.add_parser("plot", help="draw the PNG figures of a result file")
     plot.add_argument("results", type=Path, help="result file (HDF5)")
     plot.add_argument("--out", type=Path, required=True, help="folder for the PNG files")
+    xdmf = commands.add_parser("xdmf", help="(re)write <result>.xdmf, the ParaView view of a "
+                                            "result file (a run writes it too)")
+    xdmf.add_argument("results", type=Path, help="result file (HDF5)")
     for name, text in REPORTS.items():
         report = commands.add_parser(name, help=text)
         if name == "precision":
@@ -215,6 +218,12 @@ def _command_plot(args, context: dict) -> None:
         print(f"wrote {path}")
 
 
+def _command_xdmf(args, context: dict) -> None:
+    from dynfab.xdmf import write_xdmf
+
+    print(f"wrote {write_xdmf(args.results)}")
+
+
 def _command_report(args, context: dict) -> None:
     """Run the report `args.command` (dynfab/reports/<name>.py) and list the files it wrote."""
     import importlib
@@ -284,7 +293,8 @@ def _main(argv: list[str] | None, context: dict) -> None:
         context["out"] = None  # a run writes a file; its name is set once checked
     warnings.showwarning = _show_warning
     try:
-        commands = {"run": _command_run, "plot": _command_plot, "fit": _command_fit}
+        commands = {"run": _command_run, "plot": _command_plot, "fit": _command_fit,
+                    "xdmf": _command_xdmf}
         commands.get(args.command, _command_report)(args, context)
     except DynfabError as error:
         if _progress is not None:

@@ -116,6 +116,8 @@ UNITS: dict[str, str] = {
     "steps/lowest_eigenvalue": "N/m",  # (steps, yarns) estimate of lambda_min of that Hessian
     "steps/error_estimate": "m",  # (steps, yarns) residual x est ||H^-1||_inf, position error bound
     "steps/tolerance": "N",  # dynamic solver: the residual each load step had to reach
+    "steps/xdmf/contact_force": "N",  # (steps, yarns, N+1) R at crossing nodes, 0 elsewhere (dynfab.xdmf)
+    "steps/xdmf/slip": "m",  # (steps, yarns, N+1) x - anchor at crossing nodes, 0 elsewhere
     # Transient runs: one entry per output frame (axis 0 = frames).
     "frames/time": "s",  # (frames,)
     "frames/positions": "m",  # (frames, yarns, N+1, 2)
@@ -124,6 +126,8 @@ UNITS: dict[str, str] = {
     "frames/contact_force": "N",  # (frames, yarns, crossings)
     "frames/anchors": "m",
     f"frames/energy/{ENERGY_TERM}": "J",  # (frames, yarns)
+    "frames/xdmf/contact_force": "N",  # as steps/xdmf/contact_force
+    "frames/xdmf/slip": "m",  # as steps/xdmf/slip
     # Finished rows of steps/ and frames/ (the rest are unwritten: see the layout).
     "steps_done": "-",  # (1,) int64
     "frames_done": "-",  # (1,) int64

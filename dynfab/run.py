@@ -24,12 +24,13 @@ from typing import Callable
 import numpy as np
 
 from dynfab.budget import check_budget
-from dynfab.errors import UserError, SolverError
+from dynfab.errors import DynfabError, SolverError, UserError
 from dynfab.options import apply_run_options, check_solver
 from dynfab.model import Model, State, build_model, initial_state, width_per_yarn
 from dynfab.results import ResultFile, Results, dynfab_version, finished_counts, read_results
 from dynfab.scene import Scene, expand_sweep, scene_to_toml
 from dynfab.solver import Solver, Transient
+from dynfab.xdmf import XdmfSync, nodal_point_data, xdmf_path
 
 def make_solver(model: Model, solver: str, device: str | None = None,
                 progress=None) -> Solver | Transient:
@@ -92,23 +93,56 @@ def run_to_file(scene: Scene, solver: str, out: str | Path, *, overwrite: bool =
     if overwrite and resume:
         raise UserError("--overwrite and --resume exclude each other: pick one")
     model, engine = _build(scene, solver, None if resume else out, status, device, options)
-    sink = None
+    sink, view = None, XdmfSync(out)
     try:
         with _interrupts_held_back():  # a Ctrl-C finds the file either not made or in `sink`
             sink = _open_sink(model, engine, out, overwrite=overwrite, resume=resume)
-        written = _solve(model, engine, sink, progress)
+        if resume:
+            view.finish()  # the XDMF beside it (dynfab.xdmf), up to date with the finished steps
+        else:
+            xdmf_path(out).unlink(missing_ok=True)  # a replaced file's view is stale
+        written = _solve(model, engine, _ViewedSink(sink, view), progress)
     except KeyboardInterrupt:
         if sink is not None:
             if not resume and finished_counts(out) == (0, 0):
                 Path(out).unlink(missing_ok=True)  # made by this run, still under its lock
+                xdmf_path(out).unlink(missing_ok=True)
             sink.close(trim=False)
+            _finish_view(view, out)
         raise
     except BaseException:
         if sink is not None:
             sink.close()  # a solver failure: the finished steps, trimmed
+            _finish_view(view, out)
         raise
     sink.close()
+    view.finish()  # the trimmed file's dataset sizes
     return written
+
+
+def _finish_view(view: XdmfSync, out) -> None:
+    """Bring the XDMF file up to date after a failure or an interrupt, without masking it."""
+    if Path(out).exists():
+        with contextlib.suppress(DynfabError, OSError):
+            view.finish()
+
+
+class _ViewedSink:
+    """A result file whose XDMF view (`dynfab.xdmf.XdmfSync`) follows every appended entry."""
+
+    def __init__(self, sink: ResultFile, view: XdmfSync) -> None:
+        self.sink, self.view = sink, view
+
+    def __getattr__(self, name: str):
+        return getattr(self.sink, name)
+
+    def append_step(self, record: dict) -> None:
+        self.sink.append_step(record)
+        self.view.update()
+
+    def append_frame(self, frame: dict) -> None:
+        self.sink.append_frame(frame)
+        self.view.update()
 
 
 @contextlib.contextmanager
@@ -157,12 +191,23 @@ def _solve(model: Model, engine: Solver | Transient, sink, progress) -> int:
             raise SolverError(f"load step {index + 1}/{values.size} (load {values[index]:.6g} {unit}): "
                               f"{error}; the {index} finished steps are kept") from error
         record["wall_time"] = time.perf_counter() - started
+        _add_point_data(model, record, sink.last_step() if sink.step_count else None)
         sink.append_step(record)
         floors.append(record["rounding_floor"].any())
         if progress is not None:
             progress(_progress_line(index, values.size, record, unit))
     _warn_rounding_floor(floors)
     return sink.step_count - first
+
+
+def _add_point_data(model: Model, entry: dict, previous: dict | None) -> None:
+    """Add the nodal point data of the XDMF view (`dynfab.xdmf.nodal_point_data`) to a step
+    or frame, unless it continues a file written without them (whose entries must match)."""
+    if previous is not None and "xdmf/slip" not in previous:
+        return
+    entry.update(nodal_point_data(np.asarray(entry["positions"]), np.asarray(entry["anchors"]),
+                                  np.asarray(entry["contact_force"]),
+                                  model.yarns[0].crossing_node))
 
 
 def _warn_rounding_floor(floors: list) -> None:
@@ -189,6 +234,7 @@ def _run_transient(model: Model, engine: Transient, sink, progress) -> int:
         return 0
     first = sink.frame_count
     for frame in engine.advance(initial_state(model), resume_from):
+        _add_point_data(model, frame, sink.last_frame() if sink.frame_count else None)
         sink.append_frame(frame)
         if progress is not None:
             kinetic = np.max(frame["energy/kinetic"])
@@ -288,6 +334,12 @@ class _MemorySink:
 
     def append_frame(self, frame: dict) -> None:
         self.frames.append({k: np.asarray(v) for k, v in frame.items()})
+
+    def last_step(self) -> dict:
+        return self.steps[-1] if self.steps else {}
+
+    def last_frame(self) -> dict:
+        return self.frames[-1] if self.frames else {}
 
     def results(self) -> Results:
         return Results(attrs=self.attrs, reference=self.reference, steps=_stack(self.steps),

@@ -115,6 +115,7 @@ def solver_noise(files, name):
 def test_the_command_writes_every_file_it_names(quick):
     out, summary, stdout, _, _ = quick
     names = {f"{n}_{s}.h5" for n in NAMES for s in SOLVERS} | set(PNGS) | {"trends.json"}
+    names |= {f"{n}_{s}.xdmf" for n in NAMES for s in SOLVERS}  # each run's ParaView view
     assert {p.name for p in out.iterdir()} == names
     assert sorted(line.split()[-1] for line in stdout.splitlines()) == sorted(summary["files"])
     assert summary["quick"] and summary["plan"] == "quick"

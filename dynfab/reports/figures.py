@@ -9,7 +9,8 @@ residual 1e-8 N). Into `out_dir` it writes:
 
 * the four standard dynfab result files ``fig3_static.h5``, ``fig3_dynamic.h5``,
   ``fig5_static.h5``, ``fig5_dynamic.h5`` (`dynfab.results` layout, so ``dynfab plot``
-  draws its standard figures from each). A file is solved again only when it is missing
+  draws its standard figures from each; a run writes its ParaView view ``.xdmf`` beside
+  it, `dynfab.xdmf`). A file is solved again only when it is missing
   or stale (unreadable, written from another scene, by another solver or dynfab
   version, or with fewer load steps than the scene has);
 * the report's figures, drawn by `draw_figures` from those four files alone:
@@ -65,6 +66,7 @@ from dynfab.results import Results, dynfab_version, read_results
 from dynfab.run import run
 from dynfab.scene import Load, Scene, parse_scene_text, scene_to_toml, validate_scene
 from dynfab.terms.friction import INDEX as FRICTION
+from dynfab.xdmf import xdmf_path
 
 
 # Thresholds of the trend checks (see `check_trends` for the reasons).
@@ -131,6 +133,7 @@ def run_figures(out_dir, *, quick: bool = False,
             progress(line)
     summary["all_trends_hold"] = all(t["passed"] for t in trends.values())
     summary["files"] = [str(out / result_name(n, s)) for n in FIGURES for s in SOLVERS]
+    summary["files"] += [str(xdmf_path(f)) for f in summary["files"] if xdmf_path(f).exists()]
     summary["files"] += [str(p) for p in figures] + [str(out / "trends.json")]
     summary["wall_time_s"] = time.perf_counter() - started
     write_json(out / "trends.json", summary)
