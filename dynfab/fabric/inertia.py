@@ -1,0 +1,135 @@
+"""The fabric's stability check: the inertia of its Hessian (MODEL.md sections 6, 10).
+
+Library sparse factorisations (SuperLU, which pivots for stability) give no inertia.
+Ours comes from Haynsworth's inertia additivity: split the free dofs into the crossing
+dofs K (both coordinates of every crossing's warp and weft node) and the rest I. The
+crossing couplings (contact and friction blocks) only join dofs of K, so H_II is block
+diagonal, one band per yarn (that yarn's band with its crossing and fixed dofs replaced
+by identity rows), and
+
+    In(H) = In(H_II) + In(S),   S = H_KK - H_KI H_II^-1 H_IK
+
+(Haynsworth 1968). In(H_II) is counted from each yarn's unpivoted banded LDL^T
+(`dynfab.ldlt`, Sylvester's law: the negative pivots), O(n) per yarn; S is dense,
+|K| = 4 C, assembled from one banded solve per crossing dof and counted by its
+eigenvalues. A pivot within rounding of zero makes H_II unusable: the matrix is then
+shifted by tau I at the rounding level (MODEL.md 6), and "no negative" proves
+lambda_min(H) > -tau.
+
+The matrix is the symmetric Hessian with F_T frozen (the softer branch at kinks, as
+`dynfab.fabric.contact` and `friction` give it); instabilities from friction's
+non-associated coupling are not seen (MODEL.md 6).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+
+from dynfab.banded import BANDWIDTH, constrain
+from dynfab.fabric import assembly
+from dynfab.ldlt import TINY_PIVOT, ldlt_factor, ldlt_solve
+
+EPS = np.finfo(np.float64).eps
+
+
+@dataclass
+class Inertia:
+    negatives: int
+    """Negative eigenvalues of the Hessian on the free dofs (with the shift)."""
+    shift: float
+    """The shift tau [N/m] applied (0 unless a pivot vanished, or as asked)."""
+    schur_size: int
+    """|K|, the dense Schur complement's order."""
+
+
+def crossing_mask(fabric) -> np.ndarray:
+    """True on the crossing dofs K (2 nodes,): both dofs of every crossing's two nodes."""
+    mask = np.zeros(fabric.fixed.size, np.bool_)
+    for node in (fabric.warp_node, fabric.weft_node):
+        mask[2 * node] = mask[2 * node + 1] = True
+    return mask
+
+
+def inertia(solver, pos, anchors, limit, shift: float = 0.0) -> Inertia:
+    """In(H - (-shift) I) on the free dofs: the negatives of H + shift I (module docstring)."""
+    fabric = solver.fabric
+    scale = _scale(solver, pos, anchors, limit)
+    for tau in (shift, shift + 1e3 * EPS * scale, shift + 1e6 * EPS * scale):
+        result = _inertia(fabric, pos, anchors, limit, tau, scale)
+        if result is not None:
+            return result
+    raise ArithmeticError("fabric inertia: a vanishing pivot survived the rounding shift")
+
+
+def _scale(solver, pos, anchors, limit) -> float:
+    """max |H_ii| [N/m], the scale of the rounding shift."""
+    return float(np.abs(solver.hessian(pos, anchors, limit).diagonal()).max())
+
+
+def _inertia(fabric, pos, anchors, limit, tau, scale):
+    fixed = fabric.fixed
+    mask = crossing_mask(fabric)
+    k_dofs = np.flatnonzero(mask & ~fixed)
+    k_index = np.full(fixed.size, -1)
+    k_index[k_dofs] = np.arange(k_dofs.size)
+    S = np.zeros((k_dofs.size, k_dofs.size))
+    negatives = 0
+    start = fabric.yarn_start
+    tiny = 64.0 * EPS * scale
+    for y in range(start.size - 1):
+        first = 2 * start[y]
+        n = 2 * (start[y + 1] - start[y])
+        band = np.zeros((n, 2 * BANDWIDTH + 1))
+        assembly.yarn_band(pos, fabric, y, band)
+        band[:, BANDWIDTH] += tau
+        local_k = np.flatnonzero(mask[first:first + n] & ~fixed[first:first + n])
+        original = band.copy()
+        factor = band
+        constrain(factor, np.zeros(n), fixed[first:first + n] | mask[first:first + n])
+        count = ldlt_factor(factor, 0.0, tiny)
+        if count == TINY_PIVOT:
+            return None
+        negatives += count
+        _add_schur_block(original, factor, local_k, k_index[first + local_k], S,
+                         fixed[first:first + n] | mask[first:first + n])
+    _add_crossing_blocks(fabric, pos, anchors, limit, k_index, S)
+    eigenvalues = scipy.linalg.eigvalsh(S) if S.size else np.zeros(0)
+    negatives += int(np.count_nonzero(eigenvalues < 0.0))
+    return Inertia(negatives, tau, k_dofs.size)
+
+
+def _add_schur_block(original, factor, local_k, global_k, S, constrained):
+    """S[K_y, K_y] += H_KK(yarn band) - H_KI A^-1 H_IK for one yarn's crossing dofs."""
+    n = original.shape[0]
+    dense_rows = np.zeros((local_k.size, n))  # H[k, :] of the yarn band
+    for r, k in enumerate(local_k):
+        for j in range(max(0, k - BANDWIDTH), min(n, k + BANDWIDTH + 1)):
+            dense_rows[r, j] = original[k, j - k + BANDWIDTH]
+    coupling = dense_rows.copy()
+    coupling[:, constrained] = 0.0  # H_KI: only the interior columns
+    block = dense_rows[:, local_k]
+    for r in range(local_k.size):
+        x = coupling[r].copy()
+        ldlt_solve(factor, x)  # A^-1 H_Ik (zero on the constrained rows)
+        block[r] -= coupling @ x
+    S[np.ix_(global_k, global_k)] += block
+
+
+def _add_crossing_blocks(fabric, pos, anchors, limit, k_index, S):
+    """The contact and Huber blocks of every crossing into S (the shift came with the
+    yarn bands, which hold every crossing dof's diagonal)."""
+    c = fabric.warp_node.size
+    tangent, huber = np.zeros(c), np.zeros((c, 3))
+    assembly.crossing_blocks(pos, fabric, anchors, limit, tangent, huber)
+    za, zb = k_index[2 * fabric.warp_node + 1], k_index[2 * fabric.weft_node + 1]
+    xa, yb = k_index[2 * fabric.warp_node], k_index[2 * fabric.weft_node]
+    for i in range(c):
+        for (p, q), value in (((za[i], za[i]), tangent[i]), ((zb[i], zb[i]), tangent[i]),
+                              ((za[i], zb[i]), -tangent[i]), ((zb[i], za[i]), -tangent[i]),
+                              ((xa[i], xa[i]), huber[i, 0]), ((yb[i], yb[i]), huber[i, 2]),
+                              ((xa[i], yb[i]), huber[i, 1]), ((yb[i], xa[i]), huber[i, 1])):
+            if p >= 0 and q >= 0:
+                S[p, q] += value

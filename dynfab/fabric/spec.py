@@ -1,0 +1,114 @@
+"""Parameters of a woven fabric (MODEL.md section 10), SI units, as plain frozen dataclasses.
+
+Scene-file parsing comes later; a `FabricSpec` is what a parser will produce.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True, kw_only=True)
+class Family:
+    """One yarn family (the warps or the wefts): every yarn of it alike (MODEL.md 10)."""
+
+    length: float
+    """Yarn length [m] along its in-plane axis (L for warps, L_we for wefts)."""
+    segments: int
+    """Segments per yarn (N or M), a multiple of twice the other family's count."""
+    amplitude: float
+    """As-woven crimp amplitude A [m] (0: a straight yarn)."""
+    EA: float
+    """Extension stiffness [N]."""
+    EI: float
+    """Bending stiffness [N m^2]."""
+    kawabata_C: float
+    """Kawabata's maximum compression C [m] (MODEL.md 3, eqs. 6-8)."""
+    kawabata_K: float
+    """Kawabata's K [m/N]; a = K / Lc with Lc the half-wave arc length (MODEL.md 3)."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class Friction:
+    """Gralen's friction limit with its onset, as stick-slip (MODEL.md 4 and 10)."""
+
+    alpha: float
+    """Gralen alpha [-]."""
+    beta: float
+    """Gralen beta [N/m^2]."""
+    contact_length: float
+    """ell [m]."""
+    fiber_radius: float
+    """r_f [m]."""
+    onset_force: float = 1e-5
+    """R_0 [N]: the constant term sets in as 1 - exp(-R/R_0); 0 is the literal jump law."""
+    stick_stiffness: float | None = None
+    """k_t [N/m]; None: the smaller family's EA / segment length (MODEL.md 10)."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class FabricSpec:
+    """A woven fabric patch and its load path (MODEL.md section 10)."""
+
+    warp: Family
+    """The warp yarns, along x, in the planes y = Y_k."""
+    weft: Family
+    """The weft yarns, along y, in the planes x = X_j."""
+    warps: int
+    """n_wa, the number of warp yarns (= crossings per weft)."""
+    wefts: int
+    """n_we, the number of weft yarns (= crossings per warp)."""
+    core_stiffness: float = 1e5
+    """k_c [N/m], the yarns' core stiffness in series with both Kawabata laws; inf: none
+    (then Kawabata's wall at C_wa + C_we is a hard limit, energy +inf beyond)."""
+    friction: Friction | None = None
+    """None: no friction."""
+    boundary: str = "clamped"
+    """"clamped" (a finite patch; the only one implemented so far)."""
+    planes: str = "fixed"
+    """"fixed": X_j, Y_k at their as-woven values (the only one implemented so far)."""
+    control: str = "force"
+    """"force" (values are end forces per yarn [N]) or "displacement" (end displacements [m])."""
+    warp_values: tuple[float, ...] = ()
+    """The load path for each warp yarn (steps,) [N or m]."""
+    weft_values: tuple[float, ...] | None = None
+    """The load path for each weft yarn, same length; None: zeros."""
+    warp_factors: tuple[float, ...] | None = None
+    """Per-warp load factors (warps,); None: 1 each."""
+    weft_factors: tuple[float, ...] | None = None
+    """Per-weft load factors (wefts,); None: 1 each."""
+    hold: str = "none"
+    """"none", "warp" or "weft": every dof of that family held at its as-woven position
+    (a check of MODEL.md 10: with the wefts held, each warp is the one-yarn model)."""
+    tolerance: float = 1e-11
+    """Newton's residual tolerance [N] (MODEL.md 6), or the rounding floor where higher."""
+    max_iterations: int = 200
+    """Newton iterations per solve."""
+
+    def __post_init__(self):
+        _check(self)
+
+    @property
+    def steps(self) -> int:
+        return len(self.warp_values)
+
+    def loads(self) -> tuple[tuple[float, ...], tuple[float, ...]]:
+        """(warp values, weft values) of the load path, weft zeros when not given."""
+        weft = self.weft_values if self.weft_values is not None else (0.0,) * self.steps
+        return tuple(self.warp_values), tuple(weft)
+
+
+def _check(spec: FabricSpec) -> None:
+    """Refuse what the fabric model does not (yet) cover, naming the field."""
+    if spec.warp.segments % (2 * spec.wefts) or spec.weft.segments % (2 * spec.warps):
+        raise ValueError("warp.segments must be a multiple of 2 wefts, weft.segments of 2 warps")
+    if spec.boundary != "clamped" or spec.planes != "fixed":
+        raise ValueError("only boundary = 'clamped' with planes = 'fixed' is implemented")
+    if spec.control not in ("force", "displacement"):
+        raise ValueError(f"control must be 'force' or 'displacement', not {spec.control!r}")
+    if spec.hold not in ("none", "warp", "weft"):
+        raise ValueError(f"hold must be 'none', 'warp' or 'weft', not {spec.hold!r}")
+    if spec.weft_values is not None and len(spec.weft_values) != spec.steps:
+        raise ValueError("weft_values must have as many entries as warp_values")
+    if not spec.core_stiffness > 0:
+        raise ValueError("core_stiffness must be > 0 (inf for none)")

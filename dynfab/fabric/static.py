@@ -1,0 +1,303 @@
+"""The fabric's static solver: Newton on the exact sparse Hessian (MODEL.md sections 6, 10).
+
+Each load step minimises V plus the Huber friction terms over the free dofs from the
+previous state, to a residual (largest free force component) of `spec.tolerance`, or to
+the rounding floor where that is higher (MODEL.md 6). The Newton matrix is the exact
+Hessian (`dynfab.fabric.assembly`), factored by scipy's sparse LU (SuperLU); the loop,
+the line search and the friction updates are ours.
+
+Friction (MODEL.md 4 and 10): F_T is frozen during each Newton solve, at Gralen's law
+of the contact forces the solve starts from; after it, F_T is re-evaluated at the
+solution's contact forces and the solve repeated (an outer fixed point on F_T) until
+the residual with F_T equal to the law at the solution is within the tolerance. Then
+the anchors are return-mapped (radially, `dynfab.fabric.friction`). This is not the
+one-yarn solver's coupled Newton with its open/closed set and continuation in R_0: the
+fixed point on F_T is not a contraction where dF_T/dR dR/dg is large (crossings near
+g = 0 with a small onset force R_0, MODEL.md 4); there it stops after MAX_OUTER
+solves and says so (SolverError).
+
+Globalisation (MODEL.md 6): a backtracking line search on the energy (F_T frozen);
+where the energy change is within its rounding, a step that lowers the residual is
+accepted. A step reaching Kawabata's wall (k_c = inf) has energy +inf and is halved.
+If the Newton direction is not a descent direction (an indefinite Hessian), the matrix
+is shifted by mu I, mu growing tenfold from 1e-10 max|diag|, until it is.
+
+Each converged step is checked for stability (`dynfab.fabric.inertia`): the number of
+negative eigenvalues of the Hessian with F_T frozen, by Haynsworth's inertia additivity
+over the per-yarn banded LDL^T blocks.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse
+import scipy.sparse.linalg
+
+from dynfab.errors import SolverError
+from dynfab.fabric import assembly, contact, friction, inertia
+from dynfab.fabric.layout import Fabric, build_fabric
+from dynfab.fabric.spec import FabricSpec
+from dynfab.terms import friction as gralen
+
+EPS = np.finfo(np.float64).eps
+MAX_OUTER = 50
+"""Newton solves per load step of the fixed point on F_T (module docstring)."""
+HALVINGS = 60
+"""Line-search halvings (8 at the rounding floor, where a step is lost in rounding)."""
+
+
+@dataclass
+class FabricState:
+    """What changes during a run (MODEL.md 10)."""
+
+    positions: np.ndarray
+    """(in-plane coordinate, z) of every node (nodes, 2) [m]."""
+    anchors: np.ndarray
+    """Friction anchors xi per crossing (C, 2) [m], relative to the as-woven slip."""
+    dissipated: float = 0.0
+    """Cumulative friction dissipation [J]."""
+    work: float = 0.0
+    """Work of the end loads, trapezoid rule over the load steps [J]."""
+    end_force: np.ndarray | None = None
+    """End force along each yarn (Y,) [N]: the load (force control) or the reaction."""
+
+    def copy(self) -> "FabricState":
+        return FabricState(self.positions.copy(), self.anchors.copy(), self.dissipated,
+                           self.work, None if self.end_force is None else self.end_force.copy())
+
+
+@dataclass
+class NewtonInfo:
+    residual: float = np.inf
+    """Largest free force component [N] at the end."""
+    iterations: int = 0
+    at_floor: bool = False
+    """Stopped at the rounding floor above the tolerance (MODEL.md 6)."""
+    converged: bool = False
+
+
+class FabricStaticSolver:
+    """Solves a fabric's load steps one after another (MODEL.md 6, 10)."""
+
+    def __init__(self, spec: FabricSpec):
+        self.spec = spec
+        self.fabric: Fabric = build_fabric(spec)
+        self.pattern = assembly.Pattern(self.fabric)
+        self.free = ~self.fabric.fixed
+        self.yarns = self.fabric.yarn_start.size - 1
+        self._terms = np.zeros(5)
+
+    # ------------------------------------------------------------------ state
+
+    def initial_state(self) -> FabricState:
+        """As woven, anchors at zero slip, nothing dissipated."""
+        pos = self.fabric.rest_position.copy()
+        c = self.fabric.warp_node.size
+        anchors = np.zeros((c, 2))
+        anchors[:, 0] = pos[self.fabric.warp_node, 0] - self.fabric.plane_x
+        anchors[:, 1] = pos[self.fabric.weft_node, 0] - self.fabric.plane_y
+        return FabricState(pos, anchors, end_force=np.zeros(self.yarns))
+
+    def yarn_loads(self, warp_value: float, weft_value: float) -> np.ndarray:
+        """The load of each yarn (Y,) [N or m]: the family's value times its factor."""
+        f = self.fabric
+        return np.where(f.is_warp, warp_value, weft_value) * f.load_factor
+
+    # ------------------------------------------------------------------ pieces
+
+    def contact_forces(self, pos) -> np.ndarray:
+        f = self.fabric
+        out = np.zeros(f.warp_node.size)
+        contact.forces(pos, f.warp_node, f.weft_node, f.side, f.gap_offset, f.contact_law, out)
+        return out
+
+    def friction_limits(self, pos) -> np.ndarray:
+        """F_T from Gralen's law at the contact forces of `pos` (0 without friction)."""
+        f = self.fabric
+        out = np.zeros(f.warp_node.size)
+        if f.has_friction:
+            gralen.limits(self.contact_forces(pos), f.friction_alpha, f.friction_constant,
+                          f.friction_onset, out)
+        return out
+
+    def energy(self, pos, P, anchors, limit) -> float:
+        return assembly.total_energy(pos, self.fabric, P, anchors, limit, self._terms)
+
+    def gradient(self, pos, P, anchors, limit) -> np.ndarray:
+        grad = np.zeros_like(pos)
+        assembly.gradient(pos, self.fabric, P, anchors, limit, grad)
+        return grad
+
+    def hessian(self, pos, anchors, limit) -> scipy.sparse.csc_matrix:
+        """The Hessian on the free dofs, F_T frozen."""
+        values = np.zeros(self.pattern.size)
+        assembly.hessian_values(pos, self.fabric, anchors, limit, values)
+        return self.pattern.matrix(values)
+
+    def residual(self, grad) -> float:
+        r = np.abs(grad.ravel()[self.free])
+        return float(r.max()) if r.size else 0.0
+
+    # ------------------------------------------------------------------ Newton
+
+    def _direction(self, H, g):
+        """-H^-1 g by sparse LU, H shifted by mu I until the step is a descent direction."""
+        diag = np.abs(H.diagonal()).max()
+        shift = 0.0
+        eye = scipy.sparse.identity(H.shape[0], format="csc")
+        for _ in range(40):
+            try:
+                d = scipy.sparse.linalg.splu((H + shift * eye).tocsc()).solve(-g)
+                if np.all(np.isfinite(d)) and g @ d < 0.0:
+                    return d
+            except RuntimeError:  # exactly singular
+                pass
+            shift = max(10.0 * shift, 1e-10 * diag)
+        raise SolverError("fabric: no descent direction (the Hessian holds a NaN)")
+
+    def _line_search(self, pos, d, slope, residual, P, anchors, limit, halvings):
+        """Armijo on the energy from step 1; within its rounding, accept a lower residual."""
+        e0 = self.energy(pos, P, anchors, limit)
+        rounding = 64.0 * EPS * (np.abs(self._terms).sum())
+        t = 1.0
+        for _ in range(halvings):
+            trial = pos + t * d
+            e1 = self.energy(trial, P, anchors, limit)
+            if e1 - e0 <= 1e-4 * t * slope:
+                return trial
+            if abs(e1 - e0) <= rounding:
+                if self.residual(self.gradient(trial, P, anchors, limit)) < residual:
+                    return trial
+            t *= 0.5
+        return None
+
+    def newton(self, pos, P, anchors, limit) -> NewtonInfo:
+        """Minimise V + sum H (F_T frozen) from `pos`, in place (MODEL.md 6)."""
+        spec, info = self.spec, NewtonInfo()
+        previous = np.inf
+        for iteration in range(spec.max_iterations + 1):
+            grad = self.gradient(pos, P, anchors, limit)
+            residual = self.residual(grad)
+            info.residual, info.iterations = residual, iteration
+            if residual <= spec.tolerance:
+                info.converged = True
+                return info
+            if iteration == spec.max_iterations or not np.isfinite(residual):
+                return info
+            H = self.hessian(pos, anchors, limit)
+            floor = 4.0 * EPS * np.abs(H.diagonal()).max() * np.abs(pos).max()
+            if residual <= floor and residual > 0.5 * previous:
+                info.converged = info.at_floor = True
+                return info
+            previous = residual
+            g = grad.ravel()[self.free]
+            d_free = self._direction(H, g)
+            d = np.zeros(pos.size)
+            d[self.free] = d_free
+            trial = self._line_search(pos, d.reshape(pos.shape), g @ d_free, residual, P,
+                                      anchors, limit, 8 if residual <= floor else HALVINGS)
+            if trial is None:
+                info.converged = info.at_floor = residual <= floor
+                return info
+            pos[:, :] = trial
+        return info
+
+    def solve(self, pos, P, anchors) -> tuple[NewtonInfo, np.ndarray, int]:
+        """Newton solves with F_T frozen, F_T updated between them to the law at the
+        solution, until consistent (module docstring). Returns (info, F_T, solves)."""
+        limit = self.friction_limits(pos)
+        iterations = 0
+        for outer in range(1, MAX_OUTER + 1):
+            info = self.newton(pos, P, anchors, limit)
+            iterations += info.iterations
+            if not info.converged:
+                info.iterations = iterations
+                return info, limit, outer
+            if not self.fabric.has_friction:
+                return info, limit, outer
+            limit = self.friction_limits(pos)
+            info.residual = self.residual(self.gradient(pos, P, anchors, limit))
+            if info.residual <= self.spec.tolerance or (info.at_floor and outer > 1):
+                info.iterations = iterations
+                return info, limit, outer
+        info.converged = False
+        info.iterations = iterations
+        return info, limit, MAX_OUTER
+
+    # ------------------------------------------------------------------ steps
+
+    def step(self, state: FabricState, warp_value: float, weft_value: float):
+        """Solve one load step from `state`; returns (new state, record) or raises SolverError."""
+        f, spec = self.fabric, self.spec
+        loads = self.yarn_loads(warp_value, weft_value)
+        pos = state.positions.copy()
+        anchors = state.anchors.copy()
+        if spec.control == "force":
+            P = loads
+        else:
+            P = np.zeros(self.yarns)
+            self._prescribe(pos, loads)
+        info, limit, outer = self.solve(pos, P, anchors)
+        if not info.converged:
+            raise SolverError(
+                f"fabric: no convergence ({info.iterations} Newton iterations, {outer} friction "
+                f"updates); residual {info.residual:.3g} N, tolerance {spec.tolerance:.3g} N")
+        R = self.contact_forces(pos)
+        inertia_result = inertia.inertia(self, pos, anchors, limit)
+        end_force = self._end_force(pos, P, anchors, limit)
+        sliding = np.zeros(f.warp_node.size, np.bool_)
+        friction_force = np.zeros((f.warp_node.size, 2))
+        lost = 0.0
+        if f.has_friction:
+            lost = friction.return_map(pos, anchors, f.warp_node, f.weft_node, f.plane_x,
+                                       f.plane_y, limit, f.stick_stiffness, sliding,
+                                       friction_force)
+        u_old = state.positions[f.load_node, 0] - f.rest_position[f.load_node, 0]
+        u_new = pos[f.load_node, 0] - f.rest_position[f.load_node, 0]
+        work = state.work + float(0.5 * (state.end_force + end_force) @ (u_new - u_old))
+        new = FabricState(pos, anchors, state.dissipated + lost, work, end_force)
+        record = dict(residual=info.residual, iterations=info.iterations, friction_solves=outer,
+                      rounding_floor=info.at_floor, contact_force=R.reshape(spec.warps, spec.wefts),
+                      friction_limit=limit.reshape(spec.warps, spec.wefts),
+                      sliding=sliding.reshape(spec.warps, spec.wefts), friction_force=friction_force,
+                      negative_eigenvalues=inertia_result.negatives,
+                      stable=inertia_result.negatives == 0, end_force=end_force,
+                      end_displacement=u_new, strain=self.strains(pos))
+        return new, record
+
+    def run(self, state: FabricState | None = None):
+        """Every load step of the spec in sequence; returns (final state, records)."""
+        state = self.initial_state() if state is None else state
+        records = []
+        for warp_value, weft_value in zip(*self.spec.loads()):
+            state, record = self.step(state, warp_value, weft_value)
+            records.append(record)
+        return state, records
+
+    def _prescribe(self, pos, loads) -> None:
+        """Displacement control: u_N = load on each yarn, the increment spread linearly along
+        the yarn (a better start than the end node alone)."""
+        f = self.fabric
+        for y in range(self.yarns):
+            a, b = f.yarn_start[y], f.yarn_start[y + 1]
+            rest = f.rest_position[a:b, 0]
+            increment = loads[y] - (pos[b - 1, 0] - rest[-1])
+            pos[a:b, 0] += increment * (rest - rest[0]) / (rest[-1] - rest[0])
+            pos[b - 1, 0] = rest[-1] + loads[y]
+
+    def _end_force(self, pos, P, anchors, limit) -> np.ndarray:
+        """End force along each yarn [N]: P under force control; under displacement control
+        the reaction dV/du_N of the elastic terms."""
+        if self.spec.control == "force":
+            return np.asarray(P, float).copy()
+        grad = self.gradient(pos, np.zeros(self.yarns), anchors, limit)
+        return grad[self.fabric.load_node, 0].copy()
+
+    def strains(self, pos) -> np.ndarray:
+        """Nominal strains (warp, weft): mean end displacement over length (MODEL.md 10)."""
+        f, spec = self.fabric, self.spec
+        u = pos[f.load_node, 0] - f.rest_position[f.load_node, 0]
+        return np.array([u[f.is_warp].mean() / spec.warp.length,
+                         u[~f.is_warp].mean() / spec.weft.length])
