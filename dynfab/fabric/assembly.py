@@ -88,20 +88,21 @@ def yarn_band(pos, fabric, y, band):
 
 
 @numba.njit(cache=True)
-def crossing_blocks(pos, fabric, anchors, limit, tangent, huber):
+def crossing_blocks(pos, fabric, anchors, limit, tangent, huber, secant=False):
     """dR/dg per crossing into tangent (C,) and the Huber block (h_xx, h_xy, h_yy) into
-    huber (C, 3) (zeros without friction)."""
+    huber (C, 3) (zeros without friction; `secant`: see `friction.huber_hessian`)."""
     contact.tangents(pos, fabric.warp_node, fabric.weft_node, fabric.side, fabric.gap_offset,
                      fabric.contact_law, tangent)
     huber[:, :] = 0.0
     if fabric.has_friction:
         friction.hessians(pos, anchors, fabric.warp_node, fabric.weft_node, fabric.plane_x,
-                          fabric.plane_y, limit, fabric.stick_stiffness, huber)
+                          fabric.plane_y, limit, fabric.stick_stiffness, huber, secant)
 
 
 @numba.njit(cache=True)
-def hessian_values(pos, fabric, anchors, limit, values):
-    """The Hessian's entries (F_T frozen) in `Pattern` order into values."""
+def hessian_values(pos, fabric, anchors, limit, values, secant=False):
+    """The Hessian's entries (F_T frozen) in `Pattern` order into values; `secant`: the
+    sliding crossings' secant stiffness instead (`friction.huber_hessian`)."""
     start = fabric.yarn_start
     k = 0
     for y in range(start.size - 1):
@@ -116,7 +117,7 @@ def hessian_values(pos, fabric, anchors, limit, values):
                     k += 1
     c_count = fabric.warp_node.size
     tangent, huber = np.zeros(c_count), np.zeros((c_count, 3))
-    crossing_blocks(pos, fabric, anchors, limit, tangent, huber)
+    crossing_blocks(pos, fabric, anchors, limit, tangent, huber, secant)
     for c in range(c_count):
         t = tangent[c]
         values[k:k + 8] = (t, -t, -t, t, huber[c, 0], huber[c, 1], huber[c, 1], huber[c, 2])
@@ -170,3 +171,39 @@ class Pattern:
         """The Hessian on every dof, dense (for tests and small checks)."""
         n = self.free.size
         return scipy.sparse.coo_matrix((values, (self.rows, self.cols)), shape=(n, n)).toarray()
+
+
+@numba.njit(cache=True)
+def rounding_scale(pos, fabric, P, limit):
+    """S [J] with the rounding of V about eps S: sum_i |r_i| sum_terms |dE_term/dr_i|.
+
+    A coordinate r_i rounds by eps |r_i| (not eps times a segment length), which moves a
+    term by |dE_term/dr_i| eps |r_i|; summed per term with absolute values, because the
+    terms' forces cancel at equilibrium while their roundings do not. Stretch: the
+    segment tension |k (l - l0)| on both end nodes; bending: the moment |k (phi - phi0)|
+    over the segment lengths on three nodes; contact: R on both z; friction: F_T on the
+    slip coordinates; load: |P| on the end node (MODEL.md 6's rounding rule).
+    """
+    total = 0.0
+    start = fabric.yarn_start
+    for y in range(start.size - 1):
+        a, b = start[y], start[y + 1]
+        for i in range(a, b - 1):
+            ex, ez = pos[i + 1, 0] - pos[i, 0], pos[i + 1, 1] - pos[i, 1]
+            length = np.sqrt(ex * ex + ez * ez)
+            tension = abs(fabric.stretch_stiffness[i - y] * (length - fabric.rest_length[i - y]))
+            size = abs(pos[i, 0]) + abs(pos[i, 1]) + abs(pos[i + 1, 0]) + abs(pos[i + 1, 1])
+            total += tension * size
+            if i > a:
+                moment = abs(fabric.bend_stiffness[i] * (bending.turning_angle(pos, i)
+                                                          - fabric.rest_angle[i]))
+                total += 3.0 * moment * size / length
+        n = fabric.load_node[y]
+        total += abs(P[y]) * abs(pos[n, 0])
+    for c in range(fabric.warp_node.size):
+        za, zb = pos[fabric.warp_node[c], 1], pos[fabric.weft_node[c], 1]
+        g = contact.closure(pos, fabric.warp_node, fabric.weft_node, fabric.side,
+                            fabric.gap_offset, c)
+        total += contact.force(g, fabric.contact_law) * (abs(za) + abs(zb) + abs(g))
+        total += limit[c] * (abs(pos[fabric.warp_node[c], 0]) + abs(pos[fabric.weft_node[c], 0]))
+    return total

@@ -58,13 +58,21 @@ def huber_gradient(sx, sy, limit, stick):
 
 
 @numba.njit(cache=True)
-def huber_hessian(sx, sy, limit, stick):
-    """d2H/ds2 as (h_xx, h_xy, h_yy) [N/m]."""
+def huber_hessian(sx, sy, limit, stick, secant=False):
+    """d2H/ds2 as (h_xx, h_xy, h_yy) [N/m].
+
+    With `secant`, a sliding crossing gets (F_T / |s|) I instead: the curvature of the
+    quadratic that touches H at s and lies above it everywhere
+    (|s'| <= |s'|^2 / (2 |s|) + |s| / 2), so a Newton step on it cannot overshoot a
+    crossing about to stick again (the one-yarn solver's secant, `dynfab.terms.friction`).
+    """
     if not limit > 0.0:
         return 0.0, 0.0, 0.0
     n = np.hypot(sx, sy)
     if stick * n < limit:
         return stick, 0.0, stick
+    if secant:
+        return limit / n, 0.0, limit / n
     scale = limit / (n * n * n)
     return scale * sy * sy, -scale * sx * sy, scale * sx * sx
 
@@ -90,11 +98,12 @@ def add_gradient(pos, anchors, warp_node, weft_node, plane_x, plane_y, limit, st
 
 
 @numba.njit(cache=True)
-def hessians(pos, anchors, warp_node, weft_node, plane_x, plane_y, limit, stick, out):
+def hessians(pos, anchors, warp_node, weft_node, plane_x, plane_y, limit, stick, out,
+             secant=False):
     """(h_xx, h_xy, h_yy) of every crossing into out (C, 3): the block on (x_a, y_b)."""
     for c in range(warp_node.size):
         sx, sy = slip(pos, anchors, warp_node, weft_node, plane_x, plane_y, c)
-        out[c, 0], out[c, 1], out[c, 2] = huber_hessian(sx, sy, limit[c], stick)
+        out[c, 0], out[c, 1], out[c, 2] = huber_hessian(sx, sy, limit[c], stick, secant)
 
 
 @numba.njit(cache=True)

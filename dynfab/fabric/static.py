@@ -18,7 +18,9 @@ solves and says so (SolverError).
 
 Globalisation (MODEL.md 6): a backtracking line search on the energy (F_T frozen);
 where the energy change is within its rounding, a step that lowers the residual is
-accepted. A step reaching Kawabata's wall (k_c = inf) has energy +inf and is halved.
+accepted. After a shortened step, and to retry a failed one, sliding crossings get the
+secant stiffness F_T/|s| I (a quadratic majorant of the Huber term, as in the one-yarn
+solver), so a step cannot overshoot a crossing about to stick again. A step reaching Kawabata's wall (k_c = inf) has energy +inf and is halved.
 If the Newton direction is not a descent direction (an indefinite Hessian), the matrix
 is shifted by mu I, mu growing tenfold from 1e-10 max|diag|, until it is.
 
@@ -130,10 +132,10 @@ class FabricStaticSolver:
         assembly.gradient(pos, self.fabric, P, anchors, limit, grad)
         return grad
 
-    def hessian(self, pos, anchors, limit) -> scipy.sparse.csc_matrix:
-        """The Hessian on the free dofs, F_T frozen."""
+    def hessian(self, pos, anchors, limit, secant=False) -> scipy.sparse.csc_matrix:
+        """The Hessian on the free dofs, F_T frozen (`secant`: see `friction.huber_hessian`)."""
         values = np.zeros(self.pattern.size)
-        assembly.hessian_values(pos, self.fabric, anchors, limit, values)
+        assembly.hessian_values(pos, self.fabric, anchors, limit, values, secant)
         return self.pattern.matrix(values)
 
     def residual(self, grad) -> float:
@@ -160,16 +162,17 @@ class FabricStaticSolver:
     def _line_search(self, pos, d, slope, residual, P, anchors, limit, halvings):
         """Armijo on the energy from step 1; within its rounding, accept a lower residual."""
         e0 = self.energy(pos, P, anchors, limit)
-        rounding = 64.0 * EPS * (np.abs(self._terms).sum())
+        rounding = 64.0 * EPS * (np.abs(self._terms).sum()
+                                 + assembly.rounding_scale(pos, self.fabric, P, limit))
         t = 1.0
         for _ in range(halvings):
             trial = pos + t * d
             e1 = self.energy(trial, P, anchors, limit)
             if e1 - e0 <= 1e-4 * t * slope:
-                return trial
+                return trial, t
             if abs(e1 - e0) <= rounding:
                 if self.residual(self.gradient(trial, P, anchors, limit)) < residual:
-                    return trial
+                    return trial, t
             t *= 0.5
         return None
 
@@ -177,6 +180,7 @@ class FabricStaticSolver:
         """Minimise V + sum H (F_T frozen) from `pos`, in place (MODEL.md 6)."""
         spec, info = self.spec, NewtonInfo()
         previous = np.inf
+        cut = False  # the last step was shortened: the secant friction stiffness
         for iteration in range(spec.max_iterations + 1):
             grad = self.gradient(pos, P, anchors, limit)
             residual = self.residual(grad)
@@ -186,23 +190,33 @@ class FabricStaticSolver:
                 return info
             if iteration == spec.max_iterations or not np.isfinite(residual):
                 return info
-            H = self.hessian(pos, anchors, limit)
+            H = self.hessian(pos, anchors, limit, cut)
             floor = 4.0 * EPS * np.abs(H.diagonal()).max() * np.abs(pos).max()
             if residual <= floor and residual > 0.5 * previous:
                 info.converged = info.at_floor = True
                 return info
             previous = residual
-            g = grad.ravel()[self.free]
-            d_free = self._direction(H, g)
-            d = np.zeros(pos.size)
-            d[self.free] = d_free
-            trial = self._line_search(pos, d.reshape(pos.shape), g @ d_free, residual, P,
-                                      anchors, limit, 8 if residual <= floor else HALVINGS)
+            trial = self._newton_step(pos, grad, H, residual, floor, P, anchors, limit)
+            if trial is None and not cut and self.fabric.has_friction:
+                cut = True  # a Huber kink in the way: retry on the secant model
+                trial = self._newton_step(pos, grad, self.hessian(pos, anchors, limit, True),
+                                          residual, floor, P, anchors, limit)
             if trial is None:
                 info.converged = info.at_floor = residual <= floor
                 return info
+            trial, t = trial
+            cut = t < 1.0
             pos[:, :] = trial
         return info
+
+    def _newton_step(self, pos, grad, H, residual, floor, P, anchors, limit):
+        """(new positions, step length) of a line-searched Newton step on H, or None."""
+        g = grad.ravel()[self.free]
+        d_free = self._direction(H, g)
+        d = np.zeros(pos.size)
+        d[self.free] = d_free
+        return self._line_search(pos, d.reshape(pos.shape), g @ d_free, residual, P, anchors,
+                                 limit, 8 if residual <= floor else HALVINGS)
 
     def solve(self, pos, P, anchors) -> tuple[NewtonInfo, np.ndarray, int]:
         """Newton solves with F_T frozen, F_T updated between them to the law at the
