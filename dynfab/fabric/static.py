@@ -9,12 +9,14 @@ the line search and the friction updates are ours.
 Friction (MODEL.md 4 and 10): F_T is frozen during each Newton solve, at Gralen's law
 of the contact forces the solve starts from; after it, F_T is re-evaluated at the
 solution's contact forces and the solve repeated (an outer fixed point on F_T) until
-the residual with F_T equal to the law at the solution is within the tolerance. Then
-the anchors are return-mapped (radially, `dynfab.fabric.friction`). This is not the
-one-yarn solver's coupled Newton with its open/closed set and continuation in R_0: the
-fixed point on F_T is not a contraction where dF_T/dR dR/dg is large (crossings near
-g = 0 with a small onset force R_0, MODEL.md 4); there it stops after MAX_OUTER
-solves and says so (SolverError).
+the residual with F_T equal to the law at the solution is within the tolerance. That
+fixed point is not a contraction where dF_T/dR dR/dg is large (contact forces near the
+onset force R_0, MODEL.md 4): after FROZEN_UPDATES solves, a Newton on the coupled
+problem (F_T through R in the Jacobian, non-symmetric, the residual's norm as merit)
+continues from where it stands. Then the anchors are return-mapped (radially,
+`dynfab.fabric.friction`). The one-yarn solver's open/closed active set, continuation
+in R_0 and semismooth fallback are not here (yet): a step neither reaches stops with a
+SolverError.
 
 Globalisation (MODEL.md 6): a backtracking line search on the energy (F_T frozen);
 where the energy change is within its rounding, a step that lowers the residual is
@@ -44,8 +46,8 @@ from dynfab.fabric.spec import FabricSpec
 from dynfab.terms import friction as gralen
 
 EPS = np.finfo(np.float64).eps
-MAX_OUTER = 50
-"""Newton solves per load step of the fixed point on F_T (module docstring)."""
+FROZEN_UPDATES = 8
+"""Newton solves with F_T frozen per load step before the coupled Newton takes over."""
 HALVINGS = 60
 """Line-search halvings (8 at the rounding floor, where a step is lost in rounding)."""
 
@@ -220,15 +222,16 @@ class FabricStaticSolver:
 
     def solve(self, pos, P, anchors) -> tuple[NewtonInfo, np.ndarray, int]:
         """Newton solves with F_T frozen, F_T updated between them to the law at the
-        solution, until consistent (module docstring). Returns (info, F_T, solves)."""
+        solution, until consistent; if that fixed point has not settled after
+        FROZEN_UPDATES solves, the coupled Newton (`coupled_newton`) from where it stands
+        (module docstring). Returns (info, F_T, solves)."""
         limit = self.friction_limits(pos)
         iterations = 0
-        for outer in range(1, MAX_OUTER + 1):
+        for outer in range(1, FROZEN_UPDATES + 1):
             info = self.newton(pos, P, anchors, limit)
             iterations += info.iterations
             if not info.converged:
-                info.iterations = iterations
-                return info, limit, outer
+                break
             if not self.fabric.has_friction:
                 return info, limit, outer
             limit = self.friction_limits(pos)
@@ -236,9 +239,96 @@ class FabricStaticSolver:
             if info.residual <= self.spec.tolerance or (info.at_floor and outer > 1):
                 info.iterations = iterations
                 return info, limit, outer
-        info.converged = False
-        info.iterations = iterations
-        return info, limit, MAX_OUTER
+        if not self.fabric.has_friction:
+            info.iterations = iterations
+            return info, limit, outer
+        info = self.coupled_newton(pos, P, anchors)
+        info.iterations += iterations
+        return info, self.friction_limits(pos), outer + 1
+
+    def coupling(self, pos, anchors, limit) -> scipy.sparse.csc_matrix:
+        """d(dH/ds)/dz through F_T(R(g)) on the free dofs: the non-symmetric part of the
+        coupled friction Jacobian (`dynfab.terms.friction.add_limit_coupling` in 2D).
+
+        On a sliding crossing dH/ds = F_T s/|s|, so its rows (x_a, y_b) gain
+        (s/|s|) dF_T/dR dR/dg dg/dz with dg/dz_a = -sigma, dg/dz_b = +sigma; sticking
+        crossings (dH/ds = k_t s) have none.
+        """
+        f = self.fabric
+        c = f.warp_node.size
+        tangent, huber = np.zeros(c), np.zeros((c, 3))
+        assembly.crossing_blocks(pos, f, anchors, limit, tangent, huber)
+        R = self.contact_forces(pos)
+        rows, cols, values = [], [], []
+        for i in range(c):
+            sx, sy = friction.slip(pos, anchors, f.warp_node, f.weft_node, f.plane_x,
+                                   f.plane_y, i)
+            norm = np.hypot(sx, sy)
+            if not (tangent[i] > 0.0 and limit[i] > 0.0 and f.stick_stiffness * norm >= limit[i]):
+                continue
+            slope = gralen.limit_slope(R[i], f.friction_alpha, f.friction_constant,
+                                       f.friction_onset) * tangent[i]
+            za, zb = 2 * f.warp_node[i] + 1, 2 * f.weft_node[i] + 1
+            for row, unit in ((2 * f.warp_node[i], sx / norm), (2 * f.weft_node[i], sy / norm)):
+                for col, dg in ((za, -f.side[i]), (zb, f.side[i])):
+                    rows.append(row)
+                    cols.append(col)
+                    values.append(unit * slope * dg)
+        index = np.full(f.fixed.size, -1)
+        index[self.free] = np.arange(self.pattern.free_count)
+        rows, cols = index[np.array(rows, int)], index[np.array(cols, int)]
+        keep = (rows >= 0) & (cols >= 0)
+        n = self.pattern.free_count
+        return scipy.sparse.csc_matrix((np.array(values)[keep], (rows[keep], cols[keep])),
+                                       shape=(n, n))
+
+    def coupled_newton(self, pos, P, anchors) -> NewtonInfo:
+        """Newton on the coupled problem (F_T = F_T(R) at every iterate), in place.
+
+        The Jacobian is the Hessian plus `coupling` (not symmetric: SuperLU pivots), and
+        steps are backtracked on the 2-norm of the free residual with F_T re-evaluated at
+        each trial (MODEL.md 4's merit for the coupled problem): accepted when it falls
+        by 1e-4 t of itself.
+        """
+        spec, info = self.spec, NewtonInfo()
+        previous = np.inf
+        for iteration in range(spec.max_iterations + 1):
+            limit = self.friction_limits(pos)
+            grad = self.gradient(pos, P, anchors, limit)
+            residual = self.residual(grad)
+            info.residual, info.iterations = residual, iteration
+            if residual <= spec.tolerance:
+                info.converged = True
+                return info
+            if iteration == spec.max_iterations or not np.isfinite(residual):
+                return info
+            H = self.hessian(pos, anchors, limit)
+            floor = 4.0 * EPS * np.abs(H.diagonal()).max() * np.abs(pos).max()
+            if residual <= floor and residual > 0.5 * previous:
+                info.converged = info.at_floor = True
+                return info
+            previous = residual
+            g = grad.ravel()[self.free]
+            try:
+                d_free = scipy.sparse.linalg.splu(
+                    (H + self.coupling(pos, anchors, limit)).tocsc()).solve(-g)
+            except RuntimeError:
+                return info
+            d = np.zeros(pos.size)
+            d[self.free] = d_free
+            d = d.reshape(pos.shape)
+            norm0, t = np.linalg.norm(g), 1.0
+            for _ in range(8 if residual <= floor else HALVINGS):
+                trial = pos + t * d
+                trial_grad = self.gradient(trial, P, anchors, self.friction_limits(trial))
+                if np.linalg.norm(trial_grad.ravel()[self.free]) <= (1.0 - 1e-4 * t) * norm0:
+                    break
+                t *= 0.5
+            else:
+                info.converged = info.at_floor = residual <= floor
+                return info
+            pos[:, :] = trial
+        return info
 
     # ------------------------------------------------------------------ steps
 
@@ -257,7 +347,7 @@ class FabricStaticSolver:
         if not info.converged:
             raise SolverError(
                 f"fabric: no convergence ({info.iterations} Newton iterations, {outer} friction "
-                f"updates); residual {info.residual:.3g} N, tolerance {spec.tolerance:.3g} N")
+                f"solves); residual {info.residual:.3g} N, tolerance {spec.tolerance:.3g} N")
         R = self.contact_forces(pos)
         inertia_result = inertia.inertia(self, pos, anchors, limit)
         end_force = self._end_force(pos, P, anchors, limit)
