@@ -27,6 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg
+import scipy.sparse.linalg
 
 from dynfab.banded import BANDWIDTH, constrain
 from dynfab.fabric import assembly
@@ -43,6 +44,18 @@ class Inertia:
     """The shift tau [N/m] applied (0 unless a pivot vanished, or as asked)."""
     schur_size: int
     """|K|, the dense Schur complement's order."""
+
+
+def nearest_eigenvalue(H) -> float:
+    """The eigenvalue of the sparse symmetric H nearest zero [N/m] (ARPACK shift-invert at
+    0, relative accuracy about 1e-10): the lowest one when the inertia has no negative
+    (MODEL.md 6's estimate of the smallest eigenvalue); NaN if ARPACK fails."""
+    try:
+        value = scipy.sparse.linalg.eigsh(H, k=1, sigma=0.0, which="LM", tol=1e-10,
+                                          return_eigenvectors=False)
+    except (RuntimeError, scipy.sparse.linalg.ArpackNoConvergence):
+        return float("nan")
+    return float(value[0])
 
 
 def crossing_mask(fabric) -> np.ndarray:

@@ -29,7 +29,9 @@ is shifted by mu I, mu growing tenfold from 1e-10 max|diag|, until it is.
 
 Each converged step is checked for stability (`dynfab.fabric.inertia`): the number of
 negative eigenvalues of the Hessian with F_T frozen, by Haynsworth's inertia additivity
-over the per-yarn banded LDL^T blocks.
+over the per-yarn banded LDL^T blocks, and the eigenvalue nearest zero (the smallest
+when there is no negative one). A saddle is reported (`stable` False), not yet left
+along a direction of negative curvature as the one-yarn solver does (MODEL.md 6).
 """
 
 from __future__ import annotations
@@ -367,6 +369,7 @@ class FabricStaticSolver:
                 f"solves); residual {info.residual:.3g} N, tolerance {spec.tolerance:.3g} N")
         R = self.contact_forces(pos)
         inertia_result = inertia.inertia(self, pos, anchors, limit)
+        nearest = inertia.nearest_eigenvalue(self.hessian(pos, anchors, limit))
         end_force = self._end_force(pos, P, anchors, limit)
         sliding = np.zeros(f.warp_node.size, np.bool_)
         friction_force = np.zeros((f.warp_node.size, 2))
@@ -384,7 +387,8 @@ class FabricStaticSolver:
                       friction_limit=limit.reshape(spec.warps, spec.wefts),
                       sliding=sliding.reshape(spec.warps, spec.wefts), friction_force=friction_force,
                       negative_eigenvalues=inertia_result.negatives,
-                      stable=inertia_result.negatives == 0, end_force=end_force,
+                      stable=inertia_result.negatives == 0, nearest_eigenvalue=nearest,
+                      end_force=end_force,
                       end_displacement=u_new, strain=self.strains(pos))
         return new, record
 
