@@ -44,9 +44,9 @@ P = np.array([0.3, -0.2, 0.1, 0.05])
 """End forces of the 2 warps and 2 wefts [N] (the load term)."""
 
 
-def test_fabric(core_stiffness=1e5):
+def test_fabric(core_stiffness=1e5, boundary="clamped"):
     spec = FabricSpec(warp=WARP, weft=WEFT, warps=2, wefts=2, friction=FRICTION,
-                      core_stiffness=core_stiffness, warp_values=(0.1,))
+                      core_stiffness=core_stiffness, warp_values=(0.1,), boundary=boundary)
     return build_fabric(spec)
 
 
@@ -72,11 +72,12 @@ def perturbed_state(fabric, seed=7):
     gralen.limits(R, fabric.friction_alpha, fabric.friction_constant, fabric.friction_onset,
                   limit)
     anchors = np.zeros((c, 2))
+    px, py = assembly.planes(r, fabric)  # where the planes move (periodic cell)
     for i, (_, regime) in enumerate(CROSSING_STATES):
         angle = 0.4 + 1.7 * i
         size = SLIP[regime] * max(limit[i], 1e-3) / fabric.stick_stiffness
-        anchors[i, 0] = r[a[i], 0] - fabric.plane_x[i] - size * math.cos(angle)
-        anchors[i, 1] = r[b[i], 0] - fabric.plane_y[i] - size * math.sin(angle)
+        anchors[i, 0] = r[a[i], 0] - px[i] - size * math.cos(angle)
+        anchors[i, 1] = r[b[i], 0] - py[i] - size * math.sin(angle)
     return r, anchors, limit, g
 
 
@@ -212,6 +213,94 @@ def state():
     fabric = test_fabric()
     r, anchors, limit, g = perturbed_state(fabric)
     return fabric, r, anchors, limit, g
+
+
+@pytest.fixture(scope="module")
+def periodic_state():
+    """The periodic cell (MODEL.md 10): wrap springs at node 0, planes moving with the
+    end nodes; every node perturbed (ends too: the FD runs over every dof)."""
+    fabric = test_fabric(boundary="periodic")
+    r, anchors, limit, g = perturbed_state(fabric)
+    return fabric, r, anchors, limit, g
+
+
+def periodic_terms(fabric, anchors, limit):
+    """name -> (energy, gradient, dense Hessian, K, ell) of the periodic cell's own pieces.
+
+    "wrap": the bending springs across the wrap alone (K = 16 EI/(lbar l^2) with l >= 0.85
+    l0, as bending in tests/test_terms.py; ell = l0). "moving planes": the friction term
+    with X_j, Y_k following the end nodes, isolated as the whole model minus the whole
+    model with F_T = 0 (the Huber term vanishes there), K = k_t, ell as friction above.
+    """
+    pattern = assembly.Pattern(fabric)
+    yarns = fabric.yarn_start.size - 1
+    n_dof = fabric.rest_position.size
+
+    def wrap_energy(r):
+        return sum(0.5 * fabric.wrap_stiffness[y]
+                   * (assembly.wrap_angle(r, fabric, y) - fabric.wrap_rest_angle[y]) ** 2
+                   for y in range(yarns))
+
+    def wrap_grad(r):
+        out = np.zeros_like(r)
+        for y in range(yarns):
+            assembly._add_wrap_gradient(r, fabric, y, out)
+        return out
+
+    def wrap_hess(r):
+        H = np.zeros((n_dof, n_dof))
+        for y in range(yarns):
+            dofs, block = assembly.wrap_hessian(r, fabric, y)
+            H[np.ix_(dofs, dofs)] += block
+        return H
+
+    zero = np.zeros_like(limit)
+    terms = np.zeros(5)
+
+    def plane_energy(r):
+        return (assembly.total_energy(r, fabric, P, anchors, limit, terms)
+                - assembly.total_energy(r, fabric, P, anchors, zero, terms))
+
+    def plane_grad(r):
+        a, b = np.zeros_like(r), np.zeros_like(r)
+        assembly.gradient(r, fabric, P, anchors, limit, a)
+        assembly.gradient(r, fabric, P, anchors, zero, b)
+        return a - b
+
+    def plane_hess(r):
+        a, b = np.zeros(pattern.size), np.zeros(pattern.size)
+        assembly.hessian_values(r, fabric, anchors, limit, a)
+        assembly.hessian_values(r, fabric, anchors, zero, b)
+        return pattern.full_matrix(a - b)
+
+    l_min = 0.85 * min(L0, WEFT.length / WEFT.segments)
+    K_wrap = 16 * max(WARP.EI, WEFT.EI) / (0.5 * l_min) / l_min ** 2
+    friction_entry = term_functions(fabric, anchors, limit)["friction"]
+    return {"wrap": (wrap_energy, wrap_grad, wrap_hess, K_wrap, l_min),
+            "moving planes": (plane_energy, plane_grad, plane_hess, *friction_entry[3:])}
+
+
+@pytest.mark.parametrize("term", ["wrap", "moving planes"])
+def test_periodic_cell_terms_against_finite_differences(periodic_state, term):
+    # As the gradient and Hessian tests above (same steps and tolerance rule), on the
+    # periodic cell's own pieces: the wrap spring's chain rule over four nodes, and the
+    # slip's dependence on the end nodes that carry the moving planes.
+    fabric, r, anchors, limit, _ = periodic_state
+    assert fabric.wrap_stiffness.min() > 0 and fabric.plane_weight_x.min() > 0
+    energy, grad, hess, K, ell = periodic_terms(fabric, anchors, limit)[term]
+    expected = fd_gradient(energy, r, H_GRAD)
+    S = r.size * abs(energy(r)) + np.sum(np.abs(expected) * np.abs(r))
+    tolerance = 10 * (EPS * S / H_GRAD + H_GRAD ** 2 * K / (6 * ell))
+    assert np.abs(expected).max() > 1e3 * tolerance
+    assert np.abs(grad(r) - expected).max() <= tolerance
+    h = min(H_HESS, 0.01 * ell)
+    expected = fd_jacobian(grad, r, h)
+    tolerance = 10 * (EPS * K * np.abs(r).max() / h + h ** 2 * K / (6 * ell ** 2))
+    assert np.abs(expected).max() > 1e3 * tolerance
+    assert np.abs(hess(r) - expected).max() <= tolerance
+    if term == "moving planes":  # the end nodes are in it: x_N of warp 0 feels the slip
+        end = 2 * (fabric.yarn_start[1] - 1)
+        assert np.abs(expected[end]).max() > 1e3 * tolerance
 
 
 @pytest.mark.parametrize("term", ["contact", "friction", "whole"])

@@ -1,5 +1,10 @@
 """The fabric's energy, gradient and sparse Hessian (MODEL.md sections 2, 10).
 
+On the periodic cell two more pieces: the bending spring across the wrap at each yarn's
+node 0 (segment N-1's image, then segment 0), and the planes X_j, Y_k moving with the
+cell's stretch, so the slip also depends on the yarn end nodes that hold the cell
+length; and the cell length is one unknown per family (tied dofs, `Pattern.index`).
+
 V = sum_yarns (E_stretch + E_bend) + sum_c E_contact,c + sum_c H_c - W_load
 
 with the one-yarn stretch and bending terms (`dynfab.terms.stretch`, `bending`) on each
@@ -43,12 +48,15 @@ def energies(pos, fabric, P, anchors, limit, out):
                                        fabric.rest_angle[a:b])
         n = fabric.load_node[y]
         out[LOAD] -= P[y] * (pos[n, 0] - fabric.rest_position[n, 0])
+        if fabric.wrap_stiffness[y] > 0.0:
+            d = wrap_angle(pos, fabric, y) - fabric.wrap_rest_angle[y]
+            out[BENDING] += 0.5 * fabric.wrap_stiffness[y] * d * d
     out[CONTACT] = contact.energy(pos, fabric.warp_node, fabric.weft_node, fabric.side,
                                   fabric.gap_offset, fabric.contact_law)
     if fabric.has_friction:
+        px, py = planes(pos, fabric)
         out[FRICTION] = friction.energy(pos, anchors, fabric.warp_node, fabric.weft_node,
-                                        fabric.plane_x, fabric.plane_y, limit,
-                                        fabric.stick_stiffness)
+                                        px, py, limit, fabric.stick_stiffness)
 
 
 @numba.njit(cache=True)
@@ -70,11 +78,97 @@ def gradient(pos, fabric, P, anchors, limit, grad):
         bending.add_gradient(pos[a:b], fabric.bend_stiffness[a:b], fabric.rest_angle[a:b],
                              grad[a:b])
         grad[fabric.load_node[y], 0] -= P[y]
+        if fabric.wrap_stiffness[y] > 0.0:
+            _add_wrap_gradient(pos, fabric, y, grad)
     contact.add_gradient(pos, fabric.warp_node, fabric.weft_node, fabric.side,
                          fabric.gap_offset, fabric.contact_law, grad)
     if fabric.has_friction:
-        friction.add_gradient(pos, anchors, fabric.warp_node, fabric.weft_node, fabric.plane_x,
-                              fabric.plane_y, limit, fabric.stick_stiffness, grad)
+        px, py = planes(pos, fabric)
+        for c in range(fabric.warp_node.size):
+            sx, sy = friction.slip(pos, anchors, fabric.warp_node, fabric.weft_node, px, py, c)
+            gx, gy = friction.huber_gradient(sx, sy, limit[c], fabric.stick_stiffness)
+            grad[fabric.warp_node[c], 0] += gx
+            grad[fabric.plane_node_x[c], 0] -= fabric.plane_weight_x[c] * gx
+            grad[fabric.weft_node[c], 0] += gy
+            grad[fabric.plane_node_y[c], 0] -= fabric.plane_weight_y[c] * gy
+
+
+@numba.njit(cache=True)
+def planes(pos, fabric):
+    """(X_j, Y_k) of every crossing [m]: as woven, moved with the cell's stretch where the
+    planes follow it (periodic cell, MODEL.md 10): X_j = X0_j + w_j (x_N - x0_N)."""
+    n = fabric.warp_node.size
+    px, py = np.empty(n), np.empty(n)
+    for c in range(n):
+        a, b = fabric.plane_node_x[c], fabric.plane_node_y[c]
+        px[c] = fabric.plane_x[c] + fabric.plane_weight_x[c] * (pos[a, 0] - fabric.rest_position[a, 0])
+        py[c] = fabric.plane_y[c] + fabric.plane_weight_y[c] * (pos[b, 0] - fabric.rest_position[b, 0])
+    return px, py
+
+
+@numba.njit(cache=True)
+def _wrap_points(pos, fabric, y):
+    """(r_{N-1}, r_N, r_N + r_1 - r_0) of yarn y: the three points whose turning angle at the
+    middle one is the bending angle across the periodic wrap (segment N-1, then segment 0
+    shifted by the cell length)."""
+    a, b = fabric.yarn_start[y], fabric.yarn_start[y + 1]
+    p = np.empty((3, 2))
+    p[0, :] = pos[b - 2]
+    p[1, :] = pos[b - 1]
+    p[2, :] = pos[b - 1] + pos[a + 1] - pos[a]
+    return p
+
+
+@numba.njit(cache=True)
+def wrap_angle(pos, fabric, y):
+    """The turning angle [rad] at node 0 of a periodic yarn (MODEL.md 10)."""
+    return bending.turning_angle(_wrap_points(pos, fabric, y), 1)
+
+
+@numba.njit(cache=True)
+def _wrap_dofs(fabric, y):
+    """Dofs of (r_{N-1}, r_N, r_0, r_1) of yarn y, and the map M (6, 8) from them to the
+    three wrap points: p0 = r_{N-1}, p1 = r_N, p2 = r_N + r_1 - r_0."""
+    a, b = fabric.yarn_start[y], fabric.yarn_start[y + 1]
+    dofs = np.empty(8, np.int64)
+    for m, node in enumerate((b - 2, b - 1, a, a + 1)):
+        dofs[2 * m], dofs[2 * m + 1] = 2 * node, 2 * node + 1
+    M = np.zeros((6, 8))
+    for k in range(2):
+        M[k, k] = 1.0
+        M[2 + k, 2 + k] = 1.0
+        M[4 + k, 2 + k] = 1.0
+        M[4 + k, 6 + k] = 1.0
+        M[4 + k, 4 + k] = -1.0
+    return dofs, M
+
+
+@numba.njit(cache=True)
+def _add_wrap_gradient(pos, fabric, y, grad):
+    """grad += k (phi - phi0) dphi/dr of the wrap spring (chain rule through `_wrap_dofs`)."""
+    p = _wrap_points(pos, fabric, y)
+    g = np.empty(6)
+    bending._angle_gradient(p, 1, g)
+    moment = fabric.wrap_stiffness[y] * (bending.turning_angle(p, 1) - fabric.wrap_rest_angle[y])
+    dofs, M = _wrap_dofs(fabric, y)
+    flat = grad.reshape(-1)
+    full = M.T @ g
+    for m in range(8):
+        flat[dofs[m]] += moment * full[m]
+
+
+@numba.njit(cache=True)
+def wrap_hessian(pos, fabric, y):
+    """(dofs (8,), the wrap spring's Hessian (8, 8)) of yarn y: M^T (k g g^T + m H) M."""
+    p = _wrap_points(pos, fabric, y)
+    g, h = np.empty(6), np.empty((6, 6))
+    bending._angle_gradient(p, 1, g)
+    bending._angle_hessian(p, 1, h)
+    k = fabric.wrap_stiffness[y]
+    moment = k * (bending.turning_angle(p, 1) - fabric.wrap_rest_angle[y])
+    local = k * np.outer(g, g) + moment * h
+    dofs, M = _wrap_dofs(fabric, y)
+    return dofs, M.T @ local @ M
 
 
 @numba.njit(cache=True)
@@ -95,8 +189,9 @@ def crossing_blocks(pos, fabric, anchors, limit, tangent, huber, secant=False):
                      fabric.contact_law, tangent)
     huber[:, :] = 0.0
     if fabric.has_friction:
-        friction.hessians(pos, anchors, fabric.warp_node, fabric.weft_node, fabric.plane_x,
-                          fabric.plane_y, limit, fabric.stick_stiffness, huber, secant)
+        px, py = planes(pos, fabric)
+        friction.hessians(pos, anchors, fabric.warp_node, fabric.weft_node, px, py, limit,
+                          fabric.stick_stiffness, huber, secant)
 
 
 @numba.njit(cache=True)
@@ -115,13 +210,30 @@ def hessian_values(pos, fabric, anchors, limit, values, secant=False):
                 if 0 <= j < n:
                     values[k] = band[i, o]
                     k += 1
+        if fabric.wrap_stiffness[y] > 0.0:
+            _, block = wrap_hessian(pos, fabric, y)
+            values[k:k + 64] = block.ravel()
+            k += 64
     c_count = fabric.warp_node.size
     tangent, huber = np.zeros(c_count), np.zeros((c_count, 3))
     crossing_blocks(pos, fabric, anchors, limit, tangent, huber, secant)
+    J = np.zeros((2, 4))
     for c in range(c_count):
         t = tangent[c]
-        values[k:k + 8] = (t, -t, -t, t, huber[c, 0], huber[c, 1], huber[c, 1], huber[c, 2])
-        k += 8
+        values[k:k + 4] = (t, -t, -t, t)
+        k += 4
+        # slip s = J (x_a, x_N, y_b, y_M): J = [[1, -w_x, 0, 0], [0, 0, 1, -w_y]]
+        J[0, 0], J[0, 1], J[1, 2], J[1, 3] = 1.0, -fabric.plane_weight_x[c], 1.0, -fabric.plane_weight_y[c]
+        h = np.array([[huber[c, 0], huber[c, 1]], [huber[c, 1], huber[c, 2]]])
+        values[k:k + 16] = (J.T @ h @ J).ravel()
+        k += 16
+
+
+def wrap_dofs_of(fabric, y) -> np.ndarray:
+    """The 8 dofs of yarn y's wrap spring (`_wrap_dofs`), in plain numpy."""
+    a, b = fabric.yarn_start[y], fabric.yarn_start[y + 1]
+    nodes = np.array([b - 2, b - 1, a, a + 1])
+    return np.stack([2 * nodes, 2 * nodes + 1], axis=1).ravel()
 
 
 class Pattern:
@@ -137,17 +249,30 @@ class Pattern:
             keep = (j >= 0) & (j < n)
             rows.append(2 * start[y] + i[keep])
             cols.append(2 * start[y] + j[keep])
+            if fabric.wrap_stiffness[y] > 0.0:
+                dofs = wrap_dofs_of(fabric, y)
+                rows.append(np.repeat(dofs, 8))
+                cols.append(np.tile(dofs, 8))
         za, zb = 2 * fabric.warp_node + 1, 2 * fabric.weft_node + 1
-        xa, yb = 2 * fabric.warp_node, 2 * fabric.weft_node
-        rows.append(np.stack([za, za, zb, zb, xa, xa, yb, yb], axis=1).ravel())
-        cols.append(np.stack([za, zb, za, zb, xa, yb, xa, yb], axis=1).ravel())
+        friction_dofs = np.stack([2 * fabric.warp_node, 2 * fabric.plane_node_x,
+                                  2 * fabric.weft_node, 2 * fabric.plane_node_y], axis=1)
+        for c in range(za.size):
+            rows.append(np.array([za[c], za[c], zb[c], zb[c]]))
+            cols.append(np.array([za[c], zb[c], za[c], zb[c]]))
+            rows.append(np.repeat(friction_dofs[c], 4))
+            cols.append(np.tile(friction_dofs[c], 4))
         rows, cols = np.concatenate(rows), np.concatenate(cols)
         self.rows, self.cols = rows, cols
         self.size = rows.size
         self.free = ~fabric.fixed
+        # the unknowns: one per free dof, a tied dof sharing its master's (periodic cell)
         index = np.full(fabric.fixed.size, -1)
-        index[self.free] = np.arange(self.free.sum())
-        self.free_count = int(self.free.sum())
+        own = self.free & (fabric.tie < 0)
+        index[own] = np.arange(own.sum())
+        tied = self.free & (fabric.tie >= 0)
+        index[tied] = index[fabric.tie[tied]]
+        self.index = index
+        self.free_count = int(own.sum())
         keep = (index[rows] >= 0) & (index[cols] >= 0)
         self._keep = keep
         # CSC assembly through a fixed sparse summation matrix: entry e of `values`
@@ -161,8 +286,22 @@ class Pattern:
         columns = unique // self.free_count
         self._indptr = np.searchsorted(columns, np.arange(self.free_count + 1)).astype(np.int32)
 
+    def reduce(self, full) -> np.ndarray:
+        """A dof vector (gradient) on the unknowns: summed over each unknown's dofs."""
+        flat = np.asarray(full).ravel()
+        keep = self.index >= 0
+        return np.bincount(self.index[keep], weights=flat[keep], minlength=self.free_count)
+
+    def expand(self, reduced) -> np.ndarray:
+        """An unknowns' vector (a step) on every dof: 0 on the fixed ones."""
+        out = np.zeros(self.index.size)
+        keep = self.index >= 0
+        out[keep] = reduced[self.index[keep]]
+        return out
+
     def matrix(self, values) -> scipy.sparse.csc_matrix:
-        """The Hessian on the free dofs (CSC), from `hessian_values`' entries."""
+        """The Hessian on the unknowns (CSC), from `hessian_values`' entries (T^T H T with
+        T the 0/1 map from unknowns to dofs)."""
         data = np.bincount(self._slot, weights=values[self._keep], minlength=self._slots)
         return scipy.sparse.csc_matrix((data, self._indices, self._indptr),
                                        shape=(self.free_count, self.free_count))

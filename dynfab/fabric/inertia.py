@@ -70,10 +70,24 @@ def inertia(solver, pos, anchors, limit, shift: float = 0.0) -> Inertia:
     """In(H - (-shift) I) on the free dofs: the negatives of H + shift I (module docstring)."""
     fabric = solver.fabric
     scale = _scale(solver, pos, anchors, limit)
+    if fabric.wrap_stiffness.any():
+        return _dense_inertia(solver, pos, anchors, limit, shift, scale)
     for tau in (shift, shift + 1e3 * EPS * scale, shift + 1e6 * EPS * scale):
         result = _inertia(fabric, pos, anchors, limit, tau, scale)
         if result is not None:
             return result
+    raise ArithmeticError("fabric inertia: a vanishing pivot survived the rounding shift")
+
+
+def _dense_inertia(solver, pos, anchors, limit, shift, scale) -> Inertia:
+    """The periodic cell: its wrap springs and tied cell lengths join the ends of every
+    yarn, so H is no longer a band per yarn plus crossing blocks; the cell is small, and
+    its whole (reduced) Hessian goes to the dense Bunch-Kaufman count."""
+    H = solver.hessian(pos, anchors, limit).toarray()
+    for tau in (shift, shift + 1e3 * EPS * scale, shift + 1e6 * EPS * scale):
+        count = dense_negatives(H + tau * np.eye(H.shape[0]), 64.0 * EPS * scale)
+        if count >= 0:
+            return Inertia(count, tau, H.shape[0])
     raise ArithmeticError("fabric inertia: a vanishing pivot survived the rounding shift")
 
 

@@ -48,7 +48,24 @@ class Fabric(NamedTuple):
     plane_x: np.ndarray
     """X_j of each crossing (C,) [m] (planes fixed)."""
     plane_y: np.ndarray
-    """Y_k of each crossing (C,) [m]."""
+    """Y_k of each crossing (C,) [m] (as woven)."""
+    plane_weight_x: np.ndarray
+    """w_j with X_j = plane_x + w_j (x_N - x0_N) of the crossing's warp end node (C,) [-]:
+    (j - 1/2) / n_we when the planes move with the cell, else 0."""
+    plane_weight_y: np.ndarray
+    """The same for Y_k and the crossing's weft end node (C,) [-]."""
+    plane_node_x: np.ndarray
+    """The crossing's warp end node (C,), int64."""
+    plane_node_y: np.ndarray
+    """The crossing's weft end node (C,), int64."""
+    wrap_stiffness: np.ndarray
+    """EI / lbar_0 of the bending spring at node 0 across the periodic wrap (Y,) [N m];
+    0 on a clamped patch."""
+    wrap_rest_angle: np.ndarray
+    """As-woven turning angle across the wrap (Y,) [rad]."""
+    tie: np.ndarray
+    """Per dof (2 nodes,), int64: -1, or the dof it is tied to (periodic force control:
+    every warp's x_N is the cell length L1, held in warp 0's x_N; likewise the wefts)."""
     contact_law: np.ndarray
     """(k_c [N/m], C_wa [m], a_wa [1/N], C_we [m], a_we [1/N]) (MODEL.md 3, 10)."""
     friction_alpha: float
@@ -99,6 +116,11 @@ def build_fabric(spec: FabricSpec) -> Fabric:
         bend.append(kb)
         angle.append(geometry.turning_angles(shape))
     warp_node, weft_node, side = _crossings(spec, start)
+    periodic = spec.boundary == "periodic"
+    wrap_k, wrap_angle = np.zeros(len(shapes)), np.zeros(len(shapes))
+    if periodic:
+        for y, (shape, family) in enumerate(zip(shapes, families)):
+            wrap_k[y], wrap_angle[y] = _wrap_spring(shape, family)
     x_planes = (np.arange(spec.wefts) + 0.5) * spec.warp.length / spec.wefts
     y_planes = (np.arange(spec.warps) + 0.5) * spec.weft.length / spec.warps
     friction = spec.friction
@@ -110,6 +132,12 @@ def build_fabric(spec: FabricSpec) -> Fabric:
         warp_node=warp_node, weft_node=weft_node, side=side,
         gap_offset=side * (rest[warp_node, 1] - rest[weft_node, 1]),
         plane_x=np.tile(x_planes, spec.warps), plane_y=np.repeat(y_planes, spec.wefts),
+        plane_weight_x=np.tile(x_planes / spec.warp.length, spec.warps) * periodic,
+        plane_weight_y=np.repeat(y_planes / spec.weft.length, spec.wefts) * periodic,
+        plane_node_x=(start[1:spec.warps + 1] - 1)[np.arange(spec.warps * spec.wefts) // spec.wefts],
+        plane_node_y=(start[spec.warps + 1:] - 1)[np.arange(spec.warps * spec.wefts) % spec.wefts],
+        wrap_stiffness=wrap_k, wrap_rest_angle=wrap_angle,
+        tie=ties(spec, start),
         contact_law=contact_law(spec),
         friction_alpha=float(friction.alpha) if friction else 0.0,
         friction_constant=float(friction.beta * friction.contact_length * friction.fiber_radius)
@@ -123,6 +151,26 @@ def build_fabric(spec: FabricSpec) -> Fabric:
         is_warp=np.arange(yarns) < spec.warps,
         fixed=fixed_dofs(spec, start),
     )
+
+
+def _wrap_spring(shape: np.ndarray, family) -> tuple[float, float]:
+    """(EI / lbar_0, as-woven angle) of the bending spring at node 0 of a periodic yarn,
+    between segment N-1's image (shifted back by the cell length) and segment 0."""
+    l0 = geometry.segment_lengths(shape)
+    a, b = shape[-1] - shape[-2], shape[1] - shape[0]
+    angle = float(np.arctan2(a[0] * b[1] - a[1] * b[0], a @ b))
+    return family.EI / (0.5 * (l0[0] + l0[-1])), angle
+
+
+def ties(spec: FabricSpec, start: np.ndarray) -> np.ndarray:
+    """Periodic cell under force control: x_N of every warp tied to warp 0's (the cell
+    length L1), y_M of every weft to weft 0's (L2); -1 elsewhere (MODEL.md 10)."""
+    tie = np.full(2 * start[-1], -1, np.int64)
+    if spec.boundary == "periodic" and spec.control == "force":
+        last = start[1:] - 1
+        tie[2 * last[1:spec.warps]] = 2 * last[0]
+        tie[2 * last[spec.warps + 1:]] = 2 * last[spec.warps]
+    return tie
 
 
 def _crossings(spec: FabricSpec, start: np.ndarray):
@@ -158,7 +206,9 @@ def stick_stiffness(spec: FabricSpec) -> float:
 def fixed_dofs(spec: FabricSpec, start: np.ndarray) -> np.ndarray:
     """Clamped patch: each yarn's first node pinned, its last node's z held, and under
     displacement control its last node's in-plane coordinate prescribed; a held family
-    has every dof fixed (MODEL.md 10)."""
+    has every dof fixed (MODEL.md 10). The periodic cell alike: node 0 held at its
+    as-woven position, node N (node 0's image) at z = z_0 and at the cell length,
+    prescribed (displacement control) or tied across the family (force control)."""
     fixed = np.zeros(2 * start[-1], dtype=np.bool_)
     first, last = start[:-1], start[1:] - 1
     fixed[2 * first] = fixed[2 * first + 1] = True

@@ -64,9 +64,10 @@ class FabricSpec:
     friction: Friction | None = None
     """None: no friction."""
     boundary: str = "clamped"
-    """"clamped" (a finite patch; the only one implemented so far)."""
+    """"clamped" (a finite patch) or "periodic" (a unit cell; warps and wefts even)."""
     planes: str = "fixed"
-    """"fixed": X_j, Y_k at their as-woven values (the only one implemented so far)."""
+    """"fixed": X_j, Y_k at their as-woven values (patch; the only choice implemented for
+    it so far). On the periodic cell the planes move with the cell whatever this says."""
     control: str = "force"
     """"force" (values are end forces per yarn [N]) or "displacement" (end displacements [m])."""
     warp_values: tuple[float, ...] = ()
@@ -102,8 +103,12 @@ def _check(spec: FabricSpec) -> None:
     """Refuse what the fabric model does not (yet) cover, naming the field."""
     if spec.warp.segments % (2 * spec.wefts) or spec.weft.segments % (2 * spec.warps):
         raise ValueError("warp.segments must be a multiple of 2 wefts, weft.segments of 2 warps")
-    if spec.boundary != "clamped" or spec.planes != "fixed":
-        raise ValueError("only boundary = 'clamped' with planes = 'fixed' is implemented")
+    if spec.boundary not in ("clamped", "periodic"):
+        raise ValueError(f"boundary must be 'clamped' or 'periodic', not {spec.boundary!r}")
+    if spec.boundary == "clamped" and spec.planes != "fixed":
+        raise ValueError("a clamped patch has planes = 'fixed' only, so far")
+    if spec.boundary == "periodic" and (spec.warps % 2 or spec.wefts % 2):
+        raise ValueError("a periodic cell needs an even number of warps and of wefts")
     if spec.control not in ("force", "displacement"):
         raise ValueError(f"control must be 'force' or 'displacement', not {spec.control!r}")
     if spec.hold not in ("none", "warp", "weft"):

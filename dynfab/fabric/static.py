@@ -164,7 +164,9 @@ class FabricStaticSolver:
         return self.pattern.matrix(values)
 
     def residual(self, grad) -> float:
-        r = np.abs(grad.ravel()[self.free])
+        """The largest force component on the unknowns [N] (a tied family's cell length
+        carries the sum of its yarns' end forces)."""
+        r = np.abs(self.pattern.reduce(grad))
         return float(r.max()) if r.size else 0.0
 
     # ------------------------------------------------------------------ Newton
@@ -233,10 +235,9 @@ class FabricStaticSolver:
 
     def _newton_step(self, pos, grad, H, residual, floor, P, anchors, limit):
         """(new positions, step length) of a line-searched Newton step on H, or None."""
-        g = grad.ravel()[self.free]
+        g = self.pattern.reduce(grad)
         d_free = self._direction(H, g)
-        d = np.zeros(pos.size)
-        d[self.free] = d_free
+        d = self.pattern.expand(d_free)
         return self._line_search(pos, d.reshape(pos.shape), g @ d_free, residual, P, anchors,
                                  limit, 8 if residual <= floor else HALVINGS)
 
@@ -279,23 +280,24 @@ class FabricStaticSolver:
         tangent, huber = np.zeros(c), np.zeros((c, 3))
         assembly.crossing_blocks(pos, f, anchors, limit, tangent, huber)
         R = self.contact_forces(pos)
+        px, py = assembly.planes(pos, f)
         rows, cols, values = [], [], []
         for i in range(c):
-            sx, sy = friction.slip(pos, anchors, f.warp_node, f.weft_node, f.plane_x,
-                                   f.plane_y, i)
+            sx, sy = friction.slip(pos, anchors, f.warp_node, f.weft_node, px, py, i)
             norm = np.hypot(sx, sy)
             if not (tangent[i] > 0.0 and limit[i] > 0.0 and f.stick_stiffness * norm >= limit[i]):
                 continue
             slope = gralen.limit_slope(R[i], f.friction_alpha, f.friction_constant,
                                        f.friction_onset) * tangent[i]
             za, zb = 2 * f.warp_node[i] + 1, 2 * f.weft_node[i] + 1
-            for row, unit in ((2 * f.warp_node[i], sx / norm), (2 * f.weft_node[i], sy / norm)):
+            for row, unit in ((2 * f.warp_node[i], sx / norm), (2 * f.weft_node[i], sy / norm),
+                              (2 * f.plane_node_x[i], -f.plane_weight_x[i] * sx / norm),
+                              (2 * f.plane_node_y[i], -f.plane_weight_y[i] * sy / norm)):
                 for col, dg in ((za, -f.side[i]), (zb, f.side[i])):
                     rows.append(row)
                     cols.append(col)
                     values.append(unit * slope * dg)
-        index = np.full(f.fixed.size, -1)
-        index[self.free] = np.arange(self.pattern.free_count)
+        index = self.pattern.index
         rows, cols = index[np.array(rows, int)], index[np.array(cols, int)]
         keep = (rows >= 0) & (cols >= 0)
         n = self.pattern.free_count
@@ -328,19 +330,17 @@ class FabricStaticSolver:
                 info.converged = info.at_floor = True
                 return info
             previous = residual
-            g = grad.ravel()[self.free]
+            g = self.pattern.reduce(grad)
             d_free = _sparse_solve((H + self.coupling(pos, anchors, limit)).tocsc(), -g,
                                    symmetric=False)
             if d_free is None:
                 return info
-            d = np.zeros(pos.size)
-            d[self.free] = d_free
-            d = d.reshape(pos.shape)
+            d = self.pattern.expand(d_free).reshape(pos.shape)
             norm0, t = np.linalg.norm(g), 1.0
             for _ in range(8 if residual <= floor else HALVINGS):
                 trial = pos + t * d
                 trial_grad = self.gradient(trial, P, anchors, self.friction_limits(trial))
-                if np.linalg.norm(trial_grad.ravel()[self.free]) <= (1.0 - 1e-4 * t) * norm0:
+                if np.linalg.norm(self.pattern.reduce(trial_grad)) <= (1.0 - 1e-4 * t) * norm0:
                     break
                 t *= 0.5
             else:
@@ -375,9 +375,9 @@ class FabricStaticSolver:
         friction_force = np.zeros((f.warp_node.size, 2))
         lost = 0.0
         if f.has_friction:
-            lost = friction.return_map(pos, anchors, f.warp_node, f.weft_node, f.plane_x,
-                                       f.plane_y, limit, f.stick_stiffness, sliding,
-                                       friction_force)
+            px, py = assembly.planes(pos, f)
+            lost = friction.return_map(pos, anchors, f.warp_node, f.weft_node, px, py, limit,
+                                       f.stick_stiffness, sliding, friction_force)
         u_old = state.positions[f.load_node, 0] - f.rest_position[f.load_node, 0]
         u_new = pos[f.load_node, 0] - f.rest_position[f.load_node, 0]
         work = state.work + float(0.5 * (state.end_force + end_force) @ (u_new - u_old))
