@@ -1,7 +1,7 @@
 """A balanced fabric is symmetric under (x, y, z) -> (y, x, -z) (MODEL.md section 10).
 
 Warps and wefts alike (same count, length, segments, amplitude, material, equal k_t), no
-gravity: the map takes warp k onto weft k (as-woven shapes included: warp k's
+gravity, on the clamped patch and on the periodic cell: the map takes warp k onto weft k (as-woven shapes included: warp k's
 z = s_k A sin, weft k's z = -s_k A sin) and crossing (k, j) onto (j, k). So under equal
 biaxial loads warp k and weft k respond alike (z mirrored, contact forces a symmetric
 matrix), and swapping the loads swaps the results, to solver tolerance.
@@ -21,11 +21,11 @@ PATHS = {"force": ((0.1, 0.3, 0.6), (0.05, 0.1, 0.4)),
          "displacement": ((2e-4, 5e-4, 8e-4), (1e-4, 3e-4, 2e-4))}
 
 
-def solve(control, warp_values, weft_values, friction):
+def solve(control, warp_values, weft_values, friction, boundary="clamped"):
     """(solver, [(state, record)] per step) of the balanced fabric."""
     solver = FabricStaticSolver(FabricSpec(
         warp=YARN, weft=YARN, warps=COUNT, wefts=COUNT, friction=friction, control=control,
-        warp_values=warp_values, weft_values=weft_values))
+        warp_values=warp_values, weft_values=weft_values, boundary=boundary))
     state, steps = solver.initial_state(), []
     for a, b in zip(warp_values, weft_values):
         state, record = solver.step(state, a, b)
@@ -66,11 +66,13 @@ def test_equal_loads_give_equal_families(control, friction):
 
 
 @pytest.mark.parametrize("control", ["force", "displacement"])
-@pytest.mark.parametrize("friction", [None, FRICTION], ids=["frictionless", "friction"])
-def test_swapped_loads_swap_the_results(control, friction):
+@pytest.mark.parametrize("friction, boundary", [(None, "clamped"), (FRICTION, "clamped"),
+                                                (None, "periodic")],
+                         ids=["frictionless", "friction", "periodic"])
+def test_swapped_loads_swap_the_results(control, friction, boundary):
     first, second = PATHS[control]
-    solver_a, steps_a = solve(control, first, second, friction)
-    solver_b, steps_b = solve(control, second, first, friction)
+    solver_a, steps_a = solve(control, first, second, friction, boundary)
+    solver_b, steps_b = solve(control, second, first, friction, boundary)
     for (state_a, record_a), (state_b, record_b) in zip(steps_a, steps_b):
         warps_a, wefts_a = families(solver_a, state_a)
         warps_b, wefts_b = families(solver_b, state_b)
