@@ -136,6 +136,52 @@ def compare_with_one_yarn(control, values, friction):
     return records
 
 
+def warp_energies(solver, pos):
+    """Stretch + bending + contact energy of each warp [J] (its crossings' contact)."""
+    from dynfab.fabric import contact
+    from dynfab.terms import bending, stretch
+    f = solver.fabric
+    out = []
+    for k in range(WARPS):
+        a, b = f.yarn_start[k], f.yarn_start[k + 1]
+        e = stretch.energy(pos[a:b], f.rest_length[a - k:b - k - 1],
+                           f.stretch_stiffness[a - k:b - k - 1])
+        e += bending.energy(pos[a:b], f.bend_stiffness[a:b], f.rest_angle[a:b])
+        for c in range(k * WEFTS, (k + 1) * WEFTS):
+            g = contact.closure(pos, f.warp_node, f.weft_node, f.side, f.gap_offset, c)
+            e += contact.crossing_energy(g, f.contact_law)
+        out.append(e)
+    return np.array(out)
+
+
+def test_held_wefts_under_compression_leave_the_saddle_like_the_one_yarn_model():
+    # Warps pushed in (MODEL.md 6): Newton on the symmetric path converges to a saddle
+    # (6 negative eigenvalues at the first step, measured); the step leaves it along the
+    # lowest eigenvectors and ends stable. The one-yarn solver escapes along its own
+    # directions; where two branches have equal energy (identical warps 1 and 3 share
+    # their eigenvalues, so which warp a degenerate eigenvector moves is arbitrary) the
+    # states may differ, the energies not: each warp's energy equals the one-yarn's to
+    # 1e-10 relative (two minima within solver tolerance differ by r dx + |H| dx^2 / 2
+    # ~ 1e-21 J; the energy's own rounding, eps times its terms, is ~1e-15 relative).
+    values = (-3e-4, -6e-4, -9e-4)
+    solver = FabricStaticSolver(fabric_spec("displacement", values, None, hold="weft"))
+    reference = one_yarn_run("displacement", values, None, None)
+    state = solver.initial_state()
+    escapes = []
+    for value, expected in zip(values, reference):
+        state, record = solver.step(state, value, 0.0)
+        escapes.append(record["escapes"])
+        assert record["stable"] and record["nearest_eigenvalue"] > 0
+        assert expected["stable"].all()
+        one_yarn = expected["energy/stretch"] + expected["energy/bending"] \
+            + expected["energy/contact"]
+        assert warp_energies(solver, state.positions) == pytest.approx(one_yarn, rel=1e-10)
+        tol = 4 * inverse_norm(solver, state, np.zeros(WARPS * WEFTS)) * TOLERANCE
+        assert np.abs(np.sort(record["contact_force"], axis=1)
+                      - np.sort(expected["contact_force"], axis=1)).max() <= K_C * tol
+    assert escapes[0] > 0
+
+
 def test_inertia_from_the_schur_complement_matches_the_dense_spectrum():
     # Haynsworth: In(H) = In(H_II) + In(S). On a converged friction step (sticking and
     # sliding crossings, closed and open ones) the count of eigenvalues below -shift of the

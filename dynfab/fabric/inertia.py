@@ -58,6 +58,30 @@ def nearest_eigenvalue(H) -> float:
     return float(value[0])
 
 
+def lowest_eigenvectors(solver, pos, anchors, limit, count: int, nearest: float):
+    """The `count` lowest eigenpairs of the Hessian on the unknowns, (values, vectors).
+
+    Shift-invert Lanczos at a shift sigma below the whole spectrum, found by the inertia:
+    sigma = 2 nearest (the eigenvalue nearest zero), doubled until H - sigma I has no
+    negative eigenvalue; the `count` eigenvalues nearest such a sigma are the lowest.
+    Each vector's sign is fixed (its largest component positive), so the choice is
+    deterministic.
+    """
+    sigma = 2.0 * min(nearest, -1e-12)
+    for _ in range(60):
+        if inertia(solver, pos, anchors, limit, shift=-sigma).negatives == 0:
+            break
+        sigma *= 2.0
+    H = solver.hessian(pos, anchors, limit)
+    values, vectors = scipy.sparse.linalg.eigsh(H, k=count, sigma=sigma, which="LM", tol=1e-10)
+    order = np.argsort(values)
+    values, vectors = values[order], vectors[:, order]
+    for k in range(count):
+        if vectors[np.argmax(np.abs(vectors[:, k])), k] < 0:
+            vectors[:, k] *= -1.0
+    return values, vectors
+
+
 def crossing_mask(fabric) -> np.ndarray:
     """True on the crossing dofs K (2 nodes,): both dofs of every crossing's two nodes."""
     mask = np.zeros(fabric.fixed.size, np.bool_)

@@ -30,8 +30,10 @@ is shifted by mu I, mu growing tenfold from 1e-10 max|diag|, until it is.
 Each converged step is checked for stability (`dynfab.fabric.inertia`): the number of
 negative eigenvalues of the Hessian with F_T frozen, by Haynsworth's inertia additivity
 over the per-yarn banded LDL^T blocks, and the eigenvalue nearest zero (the smallest
-when there is no negative one). A saddle is reported (`stable` False), not yet left
-along a direction of negative curvature as the one-yarn solver does (MODEL.md 6).
+when there is no negative one). From a saddle the step leaves along the lowest
+eigenvectors (shift-invert Lanczos below the spectrum, the shift placed by the inertia)
+and is solved again (`_certified`), as the one-yarn solver does along its LDL^T's
+negative-pivot directions (MODEL.md 6).
 """
 
 from __future__ import annotations
@@ -51,6 +53,10 @@ from dynfab.terms import friction as gralen
 EPS = np.finfo(np.float64).eps
 FROZEN_UPDATES = 8
 """Newton solves with F_T frozen per load step before the coupled Newton takes over."""
+MAX_ESCAPES = 12
+"""Saddles left per load step (MODEL.md 6) before the state is accepted as it is."""
+ESCAPE_CANDIDATES = 16
+"""Directions of negative curvature tried per escape (the lowest eigenvectors)."""
 HALVINGS = 60
 """Line-search halvings (8 at the rounding floor, where a step is lost in rounding)."""
 
@@ -367,9 +373,9 @@ class FabricStaticSolver:
             raise SolverError(
                 f"fabric: no convergence ({info.iterations} Newton iterations, {outer} friction "
                 f"solves); residual {info.residual:.3g} N, tolerance {spec.tolerance:.3g} N")
+        info, limit, outer, escapes, inertia_result, nearest = self._certified(
+            pos, P, anchors, info, limit, outer)
         R = self.contact_forces(pos)
-        inertia_result = inertia.inertia(self, pos, anchors, limit)
-        nearest = inertia.nearest_eigenvalue(self.hessian(pos, anchors, limit))
         end_force = self._end_force(pos, P, anchors, limit)
         sliding = np.zeros(f.warp_node.size, np.bool_)
         friction_force = np.zeros((f.warp_node.size, 2))
@@ -388,9 +394,58 @@ class FabricStaticSolver:
                       sliding=sliding.reshape(spec.warps, spec.wefts), friction_force=friction_force,
                       negative_eigenvalues=inertia_result.negatives,
                       stable=inertia_result.negatives == 0, nearest_eigenvalue=nearest,
+                      escapes=escapes,
                       end_force=end_force,
                       end_displacement=u_new, strain=self.strains(pos))
         return new, record
+
+    def _certified(self, pos, P, anchors, info, limit, outer):
+        """The step's stability check, and the escape from a saddle (MODEL.md 6), in place.
+
+        With negative eigenvalues (F_T frozen), the lowest eigenvectors (at most
+        ESCAPE_CANDIDATES) are tried as directions: steps of +-t v, t from the patch
+        length halving 53 times, and the trial of lowest V + H (beyond its rounding) is
+        taken; the step is then solved again and checked again, at most MAX_ESCAPES
+        times. If no direction lowers the energy the state is accepted and reported as
+        a saddle. Returns (info, F_T, solves, escapes, inertia, nearest eigenvalue)."""
+        escapes = 0
+        while True:
+            result = inertia.inertia(self, pos, anchors, limit)
+            nearest = inertia.nearest_eigenvalue(self.hessian(pos, anchors, limit))
+            if result.negatives == 0 or escapes == MAX_ESCAPES:
+                return info, limit, outer, escapes, result, nearest
+            escaped = self._escape(pos, P, anchors, limit, result.negatives, nearest)
+            if escaped is None:
+                return info, limit, outer, escapes, result, nearest
+            pos[:, :] = escaped
+            escapes += 1
+            iterations = info.iterations
+            info, limit, more = self.solve(pos, P, anchors)
+            info.iterations += iterations
+            outer += more
+            if not info.converged:
+                return info, limit, outer, escapes, result, nearest
+
+    def _escape(self, pos, P, anchors, limit, negatives, nearest):
+        """The trial of lowest V + H along the lowest eigenvectors, or None (no drop)."""
+        count = min(negatives, ESCAPE_CANDIDATES, self.pattern.free_count - 1)
+        _, vectors = inertia.lowest_eigenvectors(self, pos, anchors, limit, count, nearest)
+        e0 = self.energy(pos, P, anchors, limit)
+        rounding = 64.0 * EPS * (np.abs(self._terms).sum()
+                                 + assembly.rounding_scale(pos, self.fabric, P, limit))
+        length = max(self.spec.warp.length, self.spec.weft.length)
+        best, best_pos = e0 - rounding, None
+        for k in range(count):
+            d = self.pattern.expand(vectors[:, k]).reshape(pos.shape)
+            t = length
+            for _ in range(53):
+                for sign in (1.0, -1.0):
+                    trial = pos + (sign * t) * d
+                    e = self.energy(trial, P, anchors, limit)
+                    if e < best - rounding:
+                        best, best_pos = e, trial
+                t *= 0.5
+        return best_pos
 
     def run(self, state: FabricState | None = None):
         """Every load step of the spec in sequence; returns (final state, records)."""
