@@ -37,7 +37,7 @@ def imbalance(control, steps):
         warp_factors=(1.0, 0.5, 0.2)))
     state, records = solver.run()
     f = solver.fabric
-    terms = np.zeros(5)
+    terms = np.zeros(len(assembly.TERMS))
     c = f.warp_node.size
     assembly.energies(state.positions, f, np.zeros(f.load_node.size), state.anchors,
                       np.zeros(c), terms)

@@ -44,18 +44,20 @@ def fabric_spec(control, values, friction, **more):
                       tolerance=TOLERANCE, **more)
 
 
-def one_yarn_run(control, values, friction, stick_stiffness):
+def one_yarn_run(control, values, friction, stick_stiffness, gravity=None):
     """The one-yarn model of the same warps (phases (-1)^(k-1), `geometry.yarns`), its weft
     spring made rigid: contact_law k_s = k_c (MODEL.md 10). Returns the records."""
     tables = dict(
         geometry=dict(length=L, segments=N, crossings=WEFTS, amplitude=WARP.amplitude,
                       yarns=WARPS),
         warp=dict(EA=WARP.EA, EI=WARP.EI, kawabata_C=WARP.kawabata_C,
-                  kawabata_K=WARP.kawabata_K),
+                  kawabata_K=WARP.kawabata_K, linear_density=WARP.linear_density),
         weft=dict(EI=WEFT.EI, length=WEFT.length, count=WARPS, amplitude=WEFT.amplitude,
                   kawabata_C=WEFT.kawabata_C, kawabata_K=WEFT.kawabata_K),
         contact=dict(core_stiffness=K_C),
         load=dict(control=control, values=list(values)))
+    if gravity is not None:
+        tables["gravity"] = dict(g=gravity)
     if friction is not None:
         tables["friction"] = dict(alpha=friction.alpha, beta=friction.beta,
                                   contact_length=friction.contact_length,
@@ -101,13 +103,21 @@ def test_held_wefts_give_the_one_yarn_model_near_the_friction_onset(control, val
         < FRICTION.onset_force
 
 
-def compare_with_one_yarn(control, values, friction):
+@pytest.mark.parametrize("control, values", [("force", FORCES), ("displacement", DISPLACEMENTS)])
+def test_held_wefts_give_the_one_yarn_model_under_gravity(control, values):
+    # Gravity on the physical masses rho_l lbar (MODEL.md 2), friction on: the same
+    # reduction, the weight now loading the contacts of the warps lying above.
+    compare_with_one_yarn(control, values, FRICTION, gravity=9.81)
+
+
+def compare_with_one_yarn(control, values, friction, gravity=None):
     """Solve both models along the path and compare them step by step; the fabric's
     records."""
-    spec = fabric_spec(control, values, friction, hold="weft")
+    spec = fabric_spec(control, values, friction, hold="weft", gravity=gravity)
     solver = FabricStaticSolver(spec)
     state = solver.initial_state()
-    reference = one_yarn_run(control, values, friction, solver.fabric.stick_stiffness or None)
+    reference = one_yarn_run(control, values, friction, solver.fabric.stick_stiffness or None,
+                             gravity)
     f = solver.fabric
     records = []
     for value, expected in zip(values, reference):

@@ -45,8 +45,10 @@ P = np.array([0.3, -0.2, 0.1, 0.05])
 
 
 def test_fabric(core_stiffness=1e5, boundary="clamped"):
+    """The 2 x 2 test fabric, every term on (gravity on the patch only: the cell refuses it)."""
     spec = FabricSpec(warp=WARP, weft=WEFT, warps=2, wefts=2, friction=FRICTION,
-                      core_stiffness=core_stiffness, warp_values=(0.1,), boundary=boundary)
+                      core_stiffness=core_stiffness, warp_values=(0.1,), boundary=boundary,
+                      gravity=9.81 if boundary == "clamped" else None)
     return build_fabric(spec)
 
 
@@ -178,7 +180,7 @@ def term_functions(fabric, anchors, limit):
         return H
 
     pattern = assembly.Pattern(fabric)
-    terms = np.zeros(5)
+    terms = np.zeros(len(assembly.TERMS))
 
     def total_energy(r):
         return assembly.total_energy(r, fabric, P, anchors, limit, terms)
@@ -255,7 +257,7 @@ def periodic_terms(fabric, anchors, limit):
         return H
 
     zero = np.zeros_like(limit)
-    terms = np.zeros(5)
+    terms = np.zeros(len(assembly.TERMS))
 
     def plane_energy(r):
         return (assembly.total_energy(r, fabric, P, anchors, limit, terms)
@@ -391,4 +393,4 @@ def test_without_a_core_spring_kawabata_is_a_hard_wall():
     for g in (wall, 1.01 * wall):
         assert contact.crossing_energy(g, law) == np.inf
     r, anchors, limit, _ = perturbed_state(test_fabric())  # crossing 1 sits past the wall
-    assert assembly.total_energy(r, fabric, P, anchors, limit, np.zeros(5)) == np.inf
+    assert assembly.total_energy(r, fabric, P, anchors, limit, np.zeros(len(assembly.TERMS))) == np.inf

@@ -5,13 +5,14 @@ node 0 (segment N-1's image, then segment 0), and the planes X_j, Y_k moving wit
 cell's stretch, so the slip also depends on the yarn end nodes that hold the cell
 length; and the cell length is one unknown per family (tied dofs, `Pattern.index`).
 
-V = sum_yarns (E_stretch + E_bend) + sum_c E_contact,c + sum_c H_c - W_load
+V = sum_yarns (E_stretch + E_bend) + sum_c E_contact,c + sum_c H_c - W_load - W_gravity
 
 with the one-yarn stretch and bending terms (`dynfab.terms.stretch`, `bending`) on each
 yarn's own (in-plane coordinate, z) chain, the two-node contact (`dynfab.fabric.contact`)
 and the 2D Huber friction (`dynfab.fabric.friction`, F_T frozen) per crossing, and the end
 load along each yarn, W_load = sum_y P_y (u_N,y - u0_N,y) (force control; 0 under
-displacement control).
+displacement control), and gravity on the physical masses when asked
+(`dynfab.terms.gravity`, MODEL.md 2).
 
 The Hessian is one band per yarn (half-bandwidth `dynfab.banded.BANDWIDTH` in that yarn's
 dofs, which are contiguous) plus, per crossing, the contact block on (z_a, z_b) and the
@@ -28,16 +29,16 @@ import scipy.sparse
 
 from dynfab.banded import BANDWIDTH
 from dynfab.fabric import contact, friction
-from dynfab.terms import bending, stretch
+from dynfab.terms import bending, gravity, stretch
 
-STRETCH, BENDING, CONTACT, FRICTION, LOAD = range(5)
+STRETCH, BENDING, CONTACT, FRICTION, LOAD, GRAVITY = range(6)
 """Indices of the energy vector."""
-TERMS = ("stretch", "bending", "contact", "friction", "load")
+TERMS = ("stretch", "bending", "contact", "friction", "load", "gravity")
 
 
 @numba.njit(cache=True)
 def energies(pos, fabric, P, anchors, limit, out):
-    """Each term's energy [J] into out (5,); P the end force per yarn (Y,) [N]."""
+    """Each term's energy [J] into out (len(TERMS),); P the end force per yarn (Y,) [N]."""
     out[:] = 0.0
     start = fabric.yarn_start
     for y in range(start.size - 1):
@@ -57,6 +58,8 @@ def energies(pos, fabric, P, anchors, limit, out):
         px, py = planes(pos, fabric)
         out[FRICTION] = friction.energy(pos, anchors, fabric.warp_node, fabric.weft_node,
                                         px, py, limit, fabric.stick_stiffness)
+    if fabric.gravity != 0.0:
+        out[GRAVITY] = gravity.energy(pos, fabric.rest_position, fabric.mass, fabric.gravity)
 
 
 @numba.njit(cache=True)
@@ -82,6 +85,8 @@ def gradient(pos, fabric, P, anchors, limit, grad):
             _add_wrap_gradient(pos, fabric, y, grad)
     contact.add_gradient(pos, fabric.warp_node, fabric.weft_node, fabric.side,
                          fabric.gap_offset, fabric.contact_law, grad)
+    if fabric.gravity != 0.0:
+        gravity.add_gradient(fabric.mass, fabric.gravity, grad)
     if fabric.has_friction:
         px, py = planes(pos, fabric)
         for c in range(fabric.warp_node.size):
@@ -321,7 +326,8 @@ def rounding_scale(pos, fabric, P, limit):
     terms' forces cancel at equilibrium while their roundings do not. Stretch: the
     segment tension |k (l - l0)| on both end nodes; bending: the moment |k (phi - phi0)|
     over the segment lengths on three nodes; contact: R on both z; friction: F_T on the
-    slip coordinates; load: |P| on the end node (MODEL.md 6's rounding rule).
+    slip coordinates; load: |P| on the end node; gravity m g on z (MODEL.md 6's rounding
+    rule).
     """
     total = 0.0
     start = fabric.yarn_start
@@ -339,6 +345,8 @@ def rounding_scale(pos, fabric, P, limit):
                 total += 3.0 * moment * size / length
         n = fabric.load_node[y]
         total += abs(P[y]) * abs(pos[n, 0])
+    for i in range(fabric.mass.size):
+        total += fabric.mass[i] * abs(fabric.gravity) * abs(pos[i, 1])
     for c in range(fabric.warp_node.size):
         za, zb = pos[fabric.warp_node[c], 1], pos[fabric.weft_node[c], 1]
         g = contact.closure(pos, fabric.warp_node, fabric.weft_node, fabric.side,

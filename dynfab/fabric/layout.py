@@ -37,6 +37,10 @@ class Fabric(NamedTuple):
     """EI / lbar per node (nodes,) [N m]; 0 at each yarn's end nodes."""
     rest_angle: np.ndarray
     """As-woven turning angles phi0 per node (nodes,) [rad]."""
+    mass: np.ndarray
+    """Physical lumped masses rho_l lbar per node (nodes,) [kg]."""
+    gravity: float
+    """g [m/s^2]; 0 without gravity."""
     warp_node: np.ndarray
     """Warp node of each crossing (C,), int64 (global node index)."""
     weft_node: np.ndarray
@@ -106,10 +110,12 @@ def build_fabric(spec: FabricSpec) -> Fabric:
     families = [spec.warp] * spec.warps + [spec.weft] * spec.wefts
     start = np.concatenate([[0], np.cumsum([s.shape[0] for s in shapes])]).astype(np.int64)
     rest = np.concatenate(shapes)
-    rest_length, stretch, bend, angle = [], [], [], []
+    rest_length, stretch, bend, angle, mass = [], [], [], [], []
     for shape, family in zip(shapes, families):
         l0 = geometry.segment_lengths(shape)
-        kb = family.EI / geometry.voronoi_lengths(l0)
+        lbar = geometry.voronoi_lengths(l0)
+        mass.append(family.linear_density * lbar)
+        kb = family.EI / lbar
         kb[[0, -1]] = 0.0
         rest_length.append(l0)
         stretch.append(family.EA / l0)
@@ -129,6 +135,7 @@ def build_fabric(spec: FabricSpec) -> Fabric:
         rest_position=rest, yarn_start=start,
         rest_length=np.concatenate(rest_length), stretch_stiffness=np.concatenate(stretch),
         bend_stiffness=np.concatenate(bend), rest_angle=np.concatenate(angle),
+        mass=np.concatenate(mass), gravity=float(spec.gravity or 0.0),
         warp_node=warp_node, weft_node=weft_node, side=side,
         gap_offset=side * (rest[warp_node, 1] - rest[weft_node, 1]),
         plane_x=np.tile(x_planes, spec.warps), plane_y=np.repeat(y_planes, spec.wefts),

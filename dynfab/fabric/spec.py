@@ -26,6 +26,8 @@ class Family:
     """Kawabata's maximum compression C [m] (MODEL.md 3, eqs. 6-8)."""
     kawabata_K: float
     """Kawabata's K [m/N]; a = K / Lc with Lc the half-wave arc length (MODEL.md 3)."""
+    linear_density: float = 3e-5
+    """rho_l [kg/m], for gravity's physical masses rho_l lbar_i (MODEL.md 2)."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -63,6 +65,9 @@ class FabricSpec:
     (then Kawabata's wall at C_wa + C_we is a hard limit, energy +inf beyond)."""
     friction: Friction | None = None
     """None: no friction."""
+    gravity: float | None = None
+    """g [m/s^2] along -z on the physical masses (MODEL.md 2); None: none. Refused on the
+    periodic cell (MODEL.md 10)."""
     boundary: str = "clamped"
     """"clamped" (a finite patch) or "periodic" (a unit cell; warps and wefts even)."""
     planes: str = "fixed"
@@ -107,6 +112,8 @@ def _check(spec: FabricSpec) -> None:
         raise ValueError(f"boundary must be 'clamped' or 'periodic', not {spec.boundary!r}")
     if spec.boundary == "clamped" and spec.planes != "fixed":
         raise ValueError("a clamped patch has planes = 'fixed' only, so far")
+    if spec.boundary == "periodic" and spec.gravity is not None:
+        raise ValueError("gravity is refused on the periodic cell (MODEL.md 10)")
     if spec.boundary == "periodic" and (spec.warps % 2 or spec.wefts % 2):
         raise ValueError("a periodic cell needs an even number of warps and of wefts")
     if spec.control not in ("force", "displacement"):

@@ -120,7 +120,7 @@ class FabricStaticSolver:
         self.pattern = assembly.Pattern(self.fabric)
         self.free = ~self.fabric.fixed
         self.yarns = self.fabric.yarn_start.size - 1
-        self._terms = np.zeros(5)
+        self._terms = np.zeros(len(assembly.TERMS))
 
     # ------------------------------------------------------------------ state
 
