@@ -153,8 +153,7 @@ def build_fabric(spec: FabricSpec) -> Fabric:
         stick_stiffness=stick_stiffness(spec),
         has_friction=friction is not None,
         load_node=start[1:] - 1,
-        load_factor=np.concatenate([spec.warp_factors or np.ones(spec.warps),
-                                    spec.weft_factors or np.ones(spec.wefts)]).astype(float),
+        load_factor=load_factors(spec),
         is_warp=np.arange(yarns) < spec.warps,
         fixed=fixed_dofs(spec, start),
     )
@@ -210,10 +209,22 @@ def stick_stiffness(spec: FabricSpec) -> float:
                spec.weft.EA * spec.weft.segments / spec.weft.length)
 
 
+def load_factors(spec: FabricSpec) -> np.ndarray:
+    """Per-yarn load factors (Y,): the given ones (default 1); a pull-out loads its warp
+    only (the others held at their as-woven ends, MODEL.md 10)."""
+    if spec.pullout is not None:
+        factors = np.zeros(spec.warps + spec.wefts)
+        factors[spec.pullout - 1] = 1.0
+        return factors
+    return np.concatenate([spec.warp_factors or np.ones(spec.warps),
+                           spec.weft_factors or np.ones(spec.wefts)]).astype(float)
+
+
 def fixed_dofs(spec: FabricSpec, start: np.ndarray) -> np.ndarray:
     """Clamped patch: each yarn's first node pinned, its last node's z held, and under
     displacement control its last node's in-plane coordinate prescribed; a held family
-    has every dof fixed (MODEL.md 10). The periodic cell alike: node 0 held at its
+    has every dof fixed; a pull-out frees its warp's first node (MODEL.md 10). The
+    periodic cell alike: node 0 held at its
     as-woven position, node N (node 0's image) at z = z_0 and at the cell length,
     prescribed (displacement control) or tied across the family (force control)."""
     fixed = np.zeros(2 * start[-1], dtype=np.bool_)
@@ -222,6 +233,8 @@ def fixed_dofs(spec: FabricSpec, start: np.ndarray) -> np.ndarray:
     fixed[2 * last + 1] = True
     if spec.control == "displacement":
         fixed[2 * last] = True
+    if spec.pullout is not None:  # the pulled warp's first node free
+        fixed[2 * first[spec.pullout - 1]] = fixed[2 * first[spec.pullout - 1] + 1] = False
     if spec.hold != "none":
         yarns = range(spec.warps) if spec.hold == "warp" else range(spec.warps, len(first))
         for y in yarns:

@@ -83,6 +83,10 @@ class FabricSpec:
     """Per-warp load factors (warps,); None: 1 each."""
     weft_factors: tuple[float, ...] | None = None
     """Per-weft load factors (wefts,); None: 1 each."""
+    pullout: int | None = None
+    """A pull-out (MODEL.md 10): warp `pullout` (1-based) has its first node free and its
+    last node displaced by `warp_values`; every other yarn clamped at both ends. Needs
+    displacement control on the clamped patch."""
     hold: str = "none"
     """"none", "warp" or "weft": every dof of that family held at its as-woven position
     (a check of MODEL.md 10: with the wefts held, each warp is the one-yarn model)."""
@@ -120,6 +124,10 @@ def _check(spec: FabricSpec) -> None:
         raise ValueError(f"control must be 'force' or 'displacement', not {spec.control!r}")
     if spec.hold not in ("none", "warp", "weft"):
         raise ValueError(f"hold must be 'none', 'warp' or 'weft', not {spec.hold!r}")
+    if spec.pullout is not None and (spec.control != "displacement" or spec.boundary != "clamped"
+                                     or not 1 <= spec.pullout <= spec.warps):
+        raise ValueError("pullout names a warp 1..warps, under displacement control on the "
+                         "clamped patch")
     if spec.weft_values is not None and len(spec.weft_values) != spec.steps:
         raise ValueError("weft_values must have as many entries as warp_values")
     if not spec.core_stiffness > 0:
