@@ -108,6 +108,8 @@ class NewtonInfo:
     iterations: int = 0
     at_floor: bool = False
     """Stopped at the rounding floor above the tolerance (MODEL.md 6)."""
+    floor: float = 0.0
+    """The residual's rounding floor [N], 4 eps max|H_ii| max|r|, at the last iteration."""
     converged: bool = False
 
 
@@ -222,6 +224,7 @@ class FabricStaticSolver:
                 return info
             H = self.hessian(pos, anchors, limit, cut)
             floor = 4.0 * EPS * np.abs(H.diagonal()).max() * np.abs(pos).max()
+            info.floor = floor
             if residual <= floor and residual > 0.5 * previous:
                 info.converged = info.at_floor = True
                 return info
@@ -263,7 +266,9 @@ class FabricStaticSolver:
                 return info, limit, outer
             limit = self.friction_limits(pos)
             info.residual = self.residual(self.gradient(pos, P, anchors, limit))
-            if info.residual <= self.spec.tolerance or (info.at_floor and outer > 1):
+            # consistent: the residual with F_T from the law within the tolerance, or within
+            # the rounding floor the last solve stopped at
+            if info.residual <= max(self.spec.tolerance, info.floor if info.at_floor else 0.0):
                 info.iterations = iterations
                 return info, limit, outer
         if not self.fabric.has_friction:
