@@ -4,8 +4,9 @@ Each load step minimises V plus the Huber friction terms over the free dofs from
 previous state, to a residual (largest free force component) of `spec.tolerance`, or to
 the rounding floor where that is higher (MODEL.md 6). The Newton matrix is the exact
 Hessian (`dynfab.fabric.assembly`), factored by scipy's sparse LU (SuperLU, in its
-symmetric mode where it can: `_sparse_solve`); the loop,
-the line search and the friction updates are ours.
+symmetric mode where it can: `_sparse_solve`); the loop, the line search and the
+friction updates are ours. The unknowns are the free dofs, a periodic cell's tied cell
+lengths counted once (`assembly.Pattern.reduce`, `expand`).
 
 Friction (MODEL.md 4 and 10): F_T is frozen during each Newton solve, at Gralen's law
 of the contact forces the solve starts from; after it, F_T is re-evaluated at the
@@ -23,13 +24,14 @@ Globalisation (MODEL.md 6): a backtracking line search on the energy (F_T frozen
 where the energy change is within its rounding, a step that lowers the residual is
 accepted. After a shortened step, and to retry a failed one, sliding crossings get the
 secant stiffness F_T/|s| I (a quadratic majorant of the Huber term, as in the one-yarn
-solver), so a step cannot overshoot a crossing about to stick again. A step reaching Kawabata's wall (k_c = inf) has energy +inf and is halved.
-If the Newton direction is not a descent direction (an indefinite Hessian), the matrix
+solver), so a step cannot overshoot a crossing about to stick again. A step reaching
+Kawabata's wall (k_c = inf) has energy +inf and is halved. If the Newton direction is not a descent direction (an indefinite Hessian), the matrix
 is shifted by mu I, mu growing tenfold from 1e-10 max|diag|, until it is.
 
 Each converged step is checked for stability (`dynfab.fabric.inertia`): the number of
 negative eigenvalues of the Hessian with F_T frozen, by Haynsworth's inertia additivity
-over the per-yarn banded LDL^T blocks, and the eigenvalue nearest zero (the smallest
+over the per-yarn banded LDL^T blocks (on the small periodic cell, a dense Bunch-Kaufman
+LDL^T), and the eigenvalue nearest zero (the smallest
 when there is no negative one). From a saddle the step leaves along the lowest
 eigenvectors (shift-invert Lanczos below the spectrum, the shift placed by the inertia)
 and is solved again (`_certified`), as the one-yarn solver does along its LDL^T's
