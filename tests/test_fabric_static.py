@@ -192,12 +192,14 @@ def test_held_wefts_under_compression_leave_the_saddle_like_the_one_yarn_model()
     assert escapes[0] > 0
 
 
-def test_inertia_from_the_schur_complement_matches_the_dense_spectrum():
+@pytest.mark.parametrize("planes", ["fixed", "affine"])
+def test_inertia_from_the_schur_complement_matches_the_dense_spectrum(planes):
     # Haynsworth: In(H) = In(H_II) + In(S). On a converged friction step (sticking and
     # sliding crossings, closed and open ones) the count of eigenvalues below -shift of the
     # dense Hessian equals the Schur count for shifts placed halfway between consecutive
-    # eigenvalues (a gap far above the eigenvalues' rounding, eps ||H||).
-    spec = fabric_spec("force", (0.2,), FRICTION, weft_values=(0.05,))
+    # eigenvalues (a gap far above the eigenvalues' rounding, eps ||H||). With planes
+    # "affine" the end nodes' in-plane dofs join the crossing dofs in K.
+    spec = fabric_spec("force", (0.2,), FRICTION, weft_values=(0.05,), planes=planes)
     solver = FabricStaticSolver(spec)
     state, records = solver.run()
     assert records[-1]["negative_eigenvalues"] == 0

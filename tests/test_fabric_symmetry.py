@@ -21,11 +21,11 @@ PATHS = {"force": ((0.1, 0.3, 0.6), (0.05, 0.1, 0.4)),
          "displacement": ((2e-4, 5e-4, 8e-4), (1e-4, 3e-4, 2e-4))}
 
 
-def solve(control, warp_values, weft_values, friction, boundary="clamped"):
+def solve(control, warp_values, weft_values, friction, boundary="clamped", planes="fixed"):
     """(solver, [(state, record)] per step) of the balanced fabric."""
     solver = FabricStaticSolver(FabricSpec(
         warp=YARN, weft=YARN, warps=COUNT, wefts=COUNT, friction=friction, control=control,
-        warp_values=warp_values, weft_values=weft_values, boundary=boundary))
+        warp_values=warp_values, weft_values=weft_values, boundary=boundary, planes=planes))
     state, steps = solver.initial_state(), []
     for a, b in zip(warp_values, weft_values):
         state, record = solver.step(state, a, b)
@@ -66,13 +66,14 @@ def test_equal_loads_give_equal_families(control, friction):
 
 
 @pytest.mark.parametrize("control", ["force", "displacement"])
-@pytest.mark.parametrize("friction, boundary", [(None, "clamped"), (FRICTION, "clamped"),
-                                                (None, "periodic")],
-                         ids=["frictionless", "friction", "periodic"])
-def test_swapped_loads_swap_the_results(control, friction, boundary):
+@pytest.mark.parametrize("friction, boundary, planes",
+                         [(None, "clamped", "fixed"), (FRICTION, "clamped", "fixed"),
+                          (None, "periodic", "fixed"), (FRICTION, "clamped", "affine")],
+                         ids=["frictionless", "friction", "periodic", "affine"])
+def test_swapped_loads_swap_the_results(control, friction, boundary, planes):
     first, second = PATHS[control]
-    solver_a, steps_a = solve(control, first, second, friction, boundary)
-    solver_b, steps_b = solve(control, second, first, friction, boundary)
+    solver_a, steps_a = solve(control, first, second, friction, boundary, planes)
+    solver_b, steps_b = solve(control, second, first, friction, boundary, planes)
     for (state_a, record_a), (state_b, record_b) in zip(steps_a, steps_b):
         warps_a, wefts_a = families(solver_a, state_a)
         warps_b, wefts_b = families(solver_b, state_b)

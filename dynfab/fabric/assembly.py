@@ -93,22 +93,39 @@ def gradient(pos, fabric, P, anchors, limit, grad):
             sx, sy = friction.slip(pos, anchors, fabric.warp_node, fabric.weft_node, px, py, c)
             gx, gy = friction.huber_gradient(sx, sy, limit[c], fabric.stick_stiffness)
             grad[fabric.warp_node[c], 0] += gx
-            grad[fabric.plane_node_x[c], 0] -= fabric.plane_weight_x[c] * gx
             grad[fabric.weft_node[c], 0] += gy
-            grad[fabric.plane_node_y[c], 0] -= fabric.plane_weight_y[c] * gy
+            nx, ny = fabric.plane_nodes_x.size, fabric.plane_nodes_y.size
+            for node in fabric.plane_nodes_x:
+                grad[node, 0] -= fabric.plane_weight_x[c] / nx * gx
+            for node in fabric.plane_nodes_y:
+                grad[node, 0] -= fabric.plane_weight_y[c] / ny * gy
 
 
 @numba.njit(cache=True)
 def planes(pos, fabric):
-    """(X_j, Y_k) of every crossing [m]: as woven, moved with the cell's stretch where the
-    planes follow it (periodic cell, MODEL.md 10): X_j = X0_j + w_j (x_N - x0_N)."""
-    n = fabric.warp_node.size
-    px, py = np.empty(n), np.empty(n)
-    for c in range(n):
-        a, b = fabric.plane_node_x[c], fabric.plane_node_y[c]
-        px[c] = fabric.plane_x[c] + fabric.plane_weight_x[c] * (pos[a, 0] - fabric.rest_position[a, 0])
-        py[c] = fabric.plane_y[c] + fabric.plane_weight_y[c] * (pos[b, 0] - fabric.rest_position[b, 0])
-    return px, py
+    """(X_j, Y_k) of every crossing [m]: as woven, moved with the mean end displacement of
+    each family where the planes follow it (periodic cell, planes "affine"; MODEL.md 10):
+    X_j = X0_j + w_j mean_k (x_N,k - x0_N,k)."""
+    u_x, u_y = 0.0, 0.0
+    for node in fabric.plane_nodes_x:
+        u_x += (pos[node, 0] - fabric.rest_position[node, 0]) / fabric.plane_nodes_x.size
+    for node in fabric.plane_nodes_y:
+        u_y += (pos[node, 0] - fabric.rest_position[node, 0]) / fabric.plane_nodes_y.size
+    return fabric.plane_x + fabric.plane_weight_x * u_x, fabric.plane_y + fabric.plane_weight_y * u_y
+
+
+@numba.njit(cache=True)
+def slip_jacobian(fabric, c):
+    """ds/d(x_a, y_b, x_N..., y_M...) of crossing c (2, 2 + n_x + n_y): the slip's own nodes,
+    then the end nodes moving the planes (weights -w / n each)."""
+    nx, ny = fabric.plane_nodes_x.size, fabric.plane_nodes_y.size
+    J = np.zeros((2, 2 + nx + ny))
+    J[0, 0], J[1, 1] = 1.0, 1.0
+    for m in range(nx):
+        J[0, 2 + m] = -fabric.plane_weight_x[c] / nx
+    for m in range(ny):
+        J[1, 2 + nx + m] = -fabric.plane_weight_y[c] / ny
+    return J
 
 
 @numba.njit(cache=True)
@@ -222,16 +239,22 @@ def hessian_values(pos, fabric, anchors, limit, values, secant=False):
     c_count = fabric.warp_node.size
     tangent, huber = np.zeros(c_count), np.zeros((c_count, 3))
     crossing_blocks(pos, fabric, anchors, limit, tangent, huber, secant)
-    J = np.zeros((2, 4))
     for c in range(c_count):
         t = tangent[c]
         values[k:k + 4] = (t, -t, -t, t)
         k += 4
-        # slip s = J (x_a, x_N, y_b, y_M): J = [[1, -w_x, 0, 0], [0, 0, 1, -w_y]]
-        J[0, 0], J[0, 1], J[1, 2], J[1, 3] = 1.0, -fabric.plane_weight_x[c], 1.0, -fabric.plane_weight_y[c]
+        J = slip_jacobian(fabric, c)
         h = np.array([[huber[c, 0], huber[c, 1]], [huber[c, 1], huber[c, 2]]])
-        values[k:k + 16] = (J.T @ h @ J).ravel()
-        k += 16
+        block = (J.T @ h @ J).ravel()
+        values[k:k + block.size] = block
+        k += block.size
+
+
+def slip_dofs(fabric, c) -> np.ndarray:
+    """The dofs of `slip_jacobian`'s columns for crossing c: x_a, y_b, then the end nodes'
+    in-plane dofs that move the planes."""
+    return np.concatenate([[2 * fabric.warp_node[c], 2 * fabric.weft_node[c]],
+                           2 * fabric.plane_nodes_x, 2 * fabric.plane_nodes_y]).astype(np.int64)
 
 
 def wrap_dofs_of(fabric, y) -> np.ndarray:
@@ -259,13 +282,12 @@ class Pattern:
                 rows.append(np.repeat(dofs, 8))
                 cols.append(np.tile(dofs, 8))
         za, zb = 2 * fabric.warp_node + 1, 2 * fabric.weft_node + 1
-        friction_dofs = np.stack([2 * fabric.warp_node, 2 * fabric.plane_node_x,
-                                  2 * fabric.weft_node, 2 * fabric.plane_node_y], axis=1)
         for c in range(za.size):
+            friction_dofs = slip_dofs(fabric, c)
             rows.append(np.array([za[c], za[c], zb[c], zb[c]]))
             cols.append(np.array([za[c], zb[c], za[c], zb[c]]))
-            rows.append(np.repeat(friction_dofs[c], 4))
-            cols.append(np.tile(friction_dofs[c], 4))
+            rows.append(np.repeat(friction_dofs, friction_dofs.size))
+            cols.append(np.tile(friction_dofs, friction_dofs.size))
         rows, cols = np.concatenate(rows), np.concatenate(cols)
         self.rows, self.cols = rows, cols
         self.size = rows.size

@@ -83,10 +83,12 @@ def lowest_eigenvectors(solver, pos, anchors, limit, count: int, nearest: float)
 
 
 def crossing_mask(fabric) -> np.ndarray:
-    """True on the crossing dofs K (2 nodes,): both dofs of every crossing's two nodes."""
+    """True on the crossing dofs K (2 nodes,): both dofs of every crossing's two nodes, and
+    the end nodes' in-plane dofs that move the planes (planes "affine")."""
     mask = np.zeros(fabric.fixed.size, np.bool_)
     for node in (fabric.warp_node, fabric.weft_node):
         mask[2 * node] = mask[2 * node + 1] = True
+    mask[2 * fabric.plane_nodes_x] = mask[2 * fabric.plane_nodes_y] = True
     return mask
 
 
@@ -199,11 +201,13 @@ def _add_crossing_blocks(fabric, pos, anchors, limit, k_index, S):
     tangent, huber = np.zeros(c), np.zeros((c, 3))
     assembly.crossing_blocks(pos, fabric, anchors, limit, tangent, huber)
     za, zb = k_index[2 * fabric.warp_node + 1], k_index[2 * fabric.weft_node + 1]
-    xa, yb = k_index[2 * fabric.warp_node], k_index[2 * fabric.weft_node]
     for i in range(c):
         for (p, q), value in (((za[i], za[i]), tangent[i]), ((zb[i], zb[i]), tangent[i]),
-                              ((za[i], zb[i]), -tangent[i]), ((zb[i], za[i]), -tangent[i]),
-                              ((xa[i], xa[i]), huber[i, 0]), ((yb[i], yb[i]), huber[i, 2]),
-                              ((xa[i], yb[i]), huber[i, 1]), ((yb[i], xa[i]), huber[i, 1])):
+                              ((za[i], zb[i]), -tangent[i]), ((zb[i], za[i]), -tangent[i])):
             if p >= 0 and q >= 0:
                 S[p, q] += value
+        J = assembly.slip_jacobian(fabric, i)
+        h = np.array([[huber[i, 0], huber[i, 1]], [huber[i, 1], huber[i, 2]]])
+        rows = k_index[assembly.slip_dofs(fabric, i)]
+        keep = rows >= 0
+        S[np.ix_(rows[keep], rows[keep])] += (J.T @ h @ J)[np.ix_(keep, keep)]

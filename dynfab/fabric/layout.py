@@ -54,14 +54,16 @@ class Fabric(NamedTuple):
     plane_y: np.ndarray
     """Y_k of each crossing (C,) [m] (as woven)."""
     plane_weight_x: np.ndarray
-    """w_j with X_j = plane_x + w_j (x_N - x0_N) of the crossing's warp end node (C,) [-]:
-    (j - 1/2) / n_we when the planes move with the cell, else 0."""
+    """w_j with X_j = plane_x + w_j u_wa (C,) [-], u_wa the mean end displacement of the
+    warps (the nodes `plane_nodes_x`): (j - 1/2) / n_we when the planes move (periodic
+    cell, or planes "affine"), else 0."""
     plane_weight_y: np.ndarray
-    """The same for Y_k and the crossing's weft end node (C,) [-]."""
-    plane_node_x: np.ndarray
-    """The crossing's warp end node (C,), int64."""
-    plane_node_y: np.ndarray
-    """The crossing's weft end node (C,), int64."""
+    """The same for Y_k and the wefts (C,) [-]."""
+    plane_nodes_x: np.ndarray
+    """The warp end nodes whose mean displacement moves the planes X_j (n_wa,), int64;
+    empty when the planes are fixed."""
+    plane_nodes_y: np.ndarray
+    """The weft end nodes moving Y_k (n_we,), int64; empty when fixed."""
     wrap_stiffness: np.ndarray
     """EI / lbar_0 of the bending spring at node 0 across the periodic wrap (Y,) [N m];
     0 on a clamped patch."""
@@ -123,6 +125,7 @@ def build_fabric(spec: FabricSpec) -> Fabric:
         angle.append(geometry.turning_angles(shape))
     warp_node, weft_node, side = _crossings(spec, start)
     periodic = spec.boundary == "periodic"
+    moving = periodic or spec.planes == "affine"
     wrap_k, wrap_angle = np.zeros(len(shapes)), np.zeros(len(shapes))
     if periodic:
         for y, (shape, family) in enumerate(zip(shapes, families)):
@@ -139,10 +142,10 @@ def build_fabric(spec: FabricSpec) -> Fabric:
         warp_node=warp_node, weft_node=weft_node, side=side,
         gap_offset=side * (rest[warp_node, 1] - rest[weft_node, 1]),
         plane_x=np.tile(x_planes, spec.warps), plane_y=np.repeat(y_planes, spec.wefts),
-        plane_weight_x=np.tile(x_planes / spec.warp.length, spec.warps) * periodic,
-        plane_weight_y=np.repeat(y_planes / spec.weft.length, spec.wefts) * periodic,
-        plane_node_x=(start[1:spec.warps + 1] - 1)[np.arange(spec.warps * spec.wefts) // spec.wefts],
-        plane_node_y=(start[spec.warps + 1:] - 1)[np.arange(spec.warps * spec.wefts) % spec.wefts],
+        plane_weight_x=np.tile(x_planes / spec.warp.length, spec.warps) * moving,
+        plane_weight_y=np.repeat(y_planes / spec.weft.length, spec.wefts) * moving,
+        plane_nodes_x=(start[1:spec.warps + 1] - 1) if moving else np.zeros(0, np.int64),
+        plane_nodes_y=(start[spec.warps + 1:] - 1) if moving else np.zeros(0, np.int64),
         wrap_stiffness=wrap_k, wrap_rest_angle=wrap_angle,
         tie=ties(spec, start),
         contact_law=contact_law(spec),

@@ -71,8 +71,9 @@ class FabricSpec:
     boundary: str = "clamped"
     """"clamped" (a finite patch) or "periodic" (a unit cell; warps and wefts even)."""
     planes: str = "fixed"
-    """"fixed": X_j, Y_k at their as-woven values (patch; the only choice implemented for
-    it so far). On the periodic cell the planes move with the cell whatever this says."""
+    """"fixed": X_j, Y_k at their as-woven values; "affine": they move with the patch's
+    mean stretch, X_j = (j - 1/2)(L + u_wa)/n_we, u_wa the warps' mean end displacement
+    (likewise Y_k). On the periodic cell the planes move with the cell whatever this says."""
     control: str = "force"
     """"force" (values are end forces per yarn [N]) or "displacement" (end displacements [m])."""
     warp_values: tuple[float, ...] = ()
@@ -114,8 +115,10 @@ def _check(spec: FabricSpec) -> None:
         raise ValueError("warp.segments must be a multiple of 2 wefts, weft.segments of 2 warps")
     if spec.boundary not in ("clamped", "periodic"):
         raise ValueError(f"boundary must be 'clamped' or 'periodic', not {spec.boundary!r}")
-    if spec.boundary == "clamped" and spec.planes != "fixed":
-        raise ValueError("a clamped patch has planes = 'fixed' only, so far")
+    if spec.planes not in ("fixed", "affine"):
+        raise ValueError(f"planes must be 'fixed' or 'affine', not {spec.planes!r}")
+    if spec.pullout is not None and spec.planes != "fixed":
+        raise ValueError("a pull-out keeps the planes fixed (MODEL.md 10)")
     if spec.boundary == "periodic" and spec.gravity is not None:
         raise ValueError("gravity is refused on the periodic cell (MODEL.md 10)")
     if spec.boundary == "periodic" and (spec.warps % 2 or spec.wefts % 2):

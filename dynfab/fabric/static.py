@@ -303,9 +303,9 @@ class FabricStaticSolver:
             slope = gralen.limit_slope(R[i], f.friction_alpha, f.friction_constant,
                                        f.friction_onset) * tangent[i]
             za, zb = 2 * f.warp_node[i] + 1, 2 * f.weft_node[i] + 1
-            for row, unit in ((2 * f.warp_node[i], sx / norm), (2 * f.weft_node[i], sy / norm),
-                              (2 * f.plane_node_x[i], -f.plane_weight_x[i] * sx / norm),
-                              (2 * f.plane_node_y[i], -f.plane_weight_y[i] * sy / norm)):
+            # rows: J^T (s / |s|), J the slip's Jacobian (its nodes and the plane nodes)
+            J = assembly.slip_jacobian(f, i)
+            for row, unit in zip(assembly.slip_dofs(f, i), J.T @ np.array([sx, sy]) / norm):
                 for col, dg in ((za, -f.side[i]), (zb, f.side[i])):
                     rows.append(row)
                     cols.append(col)
