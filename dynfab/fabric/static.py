@@ -15,7 +15,8 @@ the residual with F_T equal to the law at the solution is within the tolerance. 
 fixed point is not a contraction where dF_T/dR dR/dg is large (contact forces near the
 onset force R_0, MODEL.md 4): after FROZEN_UPDATES solves, a Newton on the coupled
 problem (F_T through R in the Jacobian, non-symmetric, the residual's norm as merit)
-continues from where it stands. Then the anchors are return-mapped (radially,
+continues from where it stands (and if it fails, more frozen solves, then it again:
+`solve`). Then the anchors are return-mapped (radially,
 `dynfab.fabric.friction`). The one-yarn solver's open/closed active set, continuation
 in R_0 and semismooth fallback are not here (yet): a step neither reaches stops with a
 SolverError.
@@ -53,8 +54,13 @@ from dynfab.fabric.spec import FabricSpec
 from dynfab.terms import friction as gralen
 
 EPS = np.finfo(np.float64).eps
-FROZEN_UPDATES = 8
-"""Newton solves with F_T frozen per load step before the coupled Newton takes over."""
+FROZEN_UPDATES = 3
+"""Newton solves with F_T frozen per load step before the coupled Newton takes over: 3
+halves the Newton iterations of the benchmark's friction steps against 8 (the fixed point
+contracts slowly there), 1 left the coupled Newton too far from the solution on the
+small-load energy-balance path (tests/test_fabric_energy.py)."""
+MAX_FROZEN = 50
+"""Further frozen solves when the coupled Newton fails."""
 MAX_ESCAPES = 12
 """Saddles left per load step (MODEL.md 6) before the state is accepted as it is."""
 ESCAPE_CANDIDATES = 16
@@ -254,31 +260,43 @@ class FabricStaticSolver:
 
     def solve(self, pos, P, anchors) -> tuple[NewtonInfo, np.ndarray, int]:
         """Newton solves with F_T frozen, F_T updated between them to the law at the
-        solution, until consistent; if that fixed point has not settled after
-        FROZEN_UPDATES solves, the coupled Newton (`coupled_newton`) from where it stands
-        (module docstring). Returns (info, F_T, solves)."""
+        solution, until consistent; after FROZEN_UPDATES of them the coupled Newton
+        (`coupled_newton`) from where they stand. If that fails, the frozen solves go on
+        from the state before it (the fixed point converges, slowly, where the coupled
+        Newton's merit stalls at a kink), up to MAX_FROZEN, and the coupled Newton is tried
+        again (module docstring). Returns (info, F_T, solves)."""
         limit = self.friction_limits(pos)
-        iterations = 0
-        for outer in range(1, FROZEN_UPDATES + 1):
-            info = self.newton(pos, P, anchors, limit)
-            iterations += info.iterations
-            if not info.converged:
-                break
+        iterations, outer = 0, 0
+        for frozen in (FROZEN_UPDATES, MAX_FROZEN):
+            for _ in range(frozen):
+                outer += 1
+                info = self.newton(pos, P, anchors, limit)
+                iterations += info.iterations
+                if not info.converged:
+                    break
+                if not self.fabric.has_friction:
+                    return info, limit, outer
+                limit = self.friction_limits(pos)
+                info.residual = self.residual(self.gradient(pos, P, anchors, limit))
+                # consistent: the residual with F_T from the law within the tolerance, or
+                # within the rounding floor the last solve stopped at
+                if info.residual <= max(self.spec.tolerance, info.floor if info.at_floor else 0.0):
+                    info.iterations = iterations
+                    return info, limit, outer
             if not self.fabric.has_friction:
-                return info, limit, outer
+                break
+            start = pos.copy()
+            outer += 1
+            coupled = self.coupled_newton(pos, P, anchors)
+            iterations += coupled.iterations
+            if coupled.converged:
+                coupled.iterations = iterations
+                return coupled, self.friction_limits(pos), outer
+            pos[:, :] = start
             limit = self.friction_limits(pos)
-            info.residual = self.residual(self.gradient(pos, P, anchors, limit))
-            # consistent: the residual with F_T from the law within the tolerance, or within
-            # the rounding floor the last solve stopped at
-            if info.residual <= max(self.spec.tolerance, info.floor if info.at_floor else 0.0):
-                info.iterations = iterations
-                return info, limit, outer
-        if not self.fabric.has_friction:
-            info.iterations = iterations
-            return info, limit, outer
-        info = self.coupled_newton(pos, P, anchors)
-        info.iterations += iterations
-        return info, self.friction_limits(pos), outer + 1
+        info.iterations = iterations
+        info.converged = False
+        return info, limit, outer
 
     def coupling(self, pos, anchors, limit) -> scipy.sparse.csc_matrix:
         """d(dH/ds)/dz through F_T(R(g)) on the free dofs: the non-symmetric part of the
