@@ -52,10 +52,18 @@ def nearest_eigenvalue(H) -> float:
     (MODEL.md 6's estimate of the smallest eigenvalue); NaN if ARPACK fails."""
     try:
         value = scipy.sparse.linalg.eigsh(H, k=1, sigma=0.0, which="LM", tol=1e-10,
+                                          v0=start_vector(H.shape[0]),
                                           return_eigenvectors=False)
     except (RuntimeError, scipy.sparse.linalg.ArpackNoConvergence):
         return float("nan")
     return float(value[0])
+
+
+def start_vector(n: int) -> np.ndarray:
+    """ARPACK's start vector, fixed (seeded), so that the vectors found in a degenerate
+    eigenspace (identical yarns share eigenvalues), and the escape they lead to, are the
+    same from run to run; ARPACK's own start is random."""
+    return np.random.default_rng(20070101).standard_normal(n)
 
 
 def lowest_eigenvectors(solver, pos, anchors, limit, count: int, nearest: float):
@@ -64,8 +72,8 @@ def lowest_eigenvectors(solver, pos, anchors, limit, count: int, nearest: float)
     Shift-invert Lanczos at a shift sigma below the whole spectrum, found by the inertia:
     sigma = 2 nearest (the eigenvalue nearest zero), doubled until H - sigma I has no
     negative eigenvalue; the `count` eigenvalues nearest such a sigma are the lowest.
-    Each vector's sign is fixed (its largest component positive), so the choice is
-    deterministic.
+    Each vector's sign is fixed (its largest component positive) and the start vector too
+    (`start_vector`), so the choice is deterministic.
     """
     sigma = 2.0 * min(nearest, -1e-12)
     for _ in range(60):
@@ -73,7 +81,8 @@ def lowest_eigenvectors(solver, pos, anchors, limit, count: int, nearest: float)
             break
         sigma *= 2.0
     H = solver.hessian(pos, anchors, limit)
-    values, vectors = scipy.sparse.linalg.eigsh(H, k=count, sigma=sigma, which="LM", tol=1e-10)
+    values, vectors = scipy.sparse.linalg.eigsh(H, k=count, sigma=sigma, which="LM", tol=1e-10,
+                                                v0=start_vector(H.shape[0]))
     order = np.argsort(values)
     values, vectors = values[order], vectors[:, order]
     for k in range(count):
