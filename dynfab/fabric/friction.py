@@ -1,0 +1,132 @@
+"""Isotropic 2D Huber stick-slip friction at a fabric crossing (MODEL.md sections 4 and 10).
+
+The in-plane slip of crossing c (warp node a, weft node b, planes X_j, Y_k fixed) is
+
+    s = (x_a - X_j - xi_x, y_b - Y_k - xi_y),
+
+xi the crossing's anchor. With the limit F_T (Gralen's law of section 4 at the contact
+force, frozen during a Newton solve) the incremental potential is the isotropic Huber
+
+    H(s) = 1/2 k_t |s|^2                 for k_t |s| < F_T   (sticking)
+         = F_T |s| - F_T^2 / (2 k_t)     otherwise            (sliding),
+
+dH/ds = k_t s or F_T s / |s|, d2H/ds2 = k_t I or (F_T / |s|)(I - s s^T / |s|^2)
+(the softer, sliding branch at k_t |s| = F_T, MODEL.md 6). F_T = 0 (an open crossing)
+gives H = 0 identically. After a load step the anchors are return-mapped radially,
+xi += (1 - F_T / (k_t |s|)) s where sliding, and the energy lost is F_T |delta xi|.
+"""
+
+import numba
+import numpy as np
+
+
+@numba.njit(cache=True)
+def slip(pos, anchors, warp_node, weft_node, plane_x, plane_y, c):
+    """s of crossing c (2 floats) [m]."""
+    return (pos[warp_node[c], 0] - plane_x[c] - anchors[c, 0],
+            pos[weft_node[c], 0] - plane_y[c] - anchors[c, 1])
+
+
+@numba.njit(cache=True)
+def is_sliding(sx, sy, limit, stick):
+    """The sliding branch: k_t |s| >= F_T with F_T > 0, or F_T <= 0 (H = 0)."""
+    if not limit > 0.0:
+        return True
+    return stick * np.hypot(sx, sy) >= limit
+
+
+@numba.njit(cache=True)
+def huber(sx, sy, limit, stick):
+    """H(s) [J]."""
+    if not limit > 0.0:
+        return 0.0
+    n = np.hypot(sx, sy)
+    if stick * n < limit:
+        return 0.5 * stick * n * n
+    return limit * n - limit * limit / (2.0 * stick)
+
+
+@numba.njit(cache=True)
+def huber_gradient(sx, sy, limit, stick):
+    """dH/ds (2 floats) [N]: minus the friction force on the slip."""
+    if not limit > 0.0:
+        return 0.0, 0.0
+    n = np.hypot(sx, sy)
+    if stick * n < limit:
+        return stick * sx, stick * sy
+    return limit * sx / n, limit * sy / n
+
+
+@numba.njit(cache=True)
+def huber_hessian(sx, sy, limit, stick, secant=False):
+    """d2H/ds2 as (h_xx, h_xy, h_yy) [N/m].
+
+    With `secant`, a sliding crossing gets (F_T / |s|) I instead: the curvature of the
+    quadratic that touches H at s and lies above it everywhere
+    (|s'| <= |s'|^2 / (2 |s|) + |s| / 2), so a Newton step on it cannot overshoot a
+    crossing about to stick again (the one-yarn solver's secant, `dynfab.terms.friction`).
+    """
+    if not limit > 0.0:
+        return 0.0, 0.0, 0.0
+    n = np.hypot(sx, sy)
+    if stick * n < limit:
+        return stick, 0.0, stick
+    if secant:
+        return limit / n, 0.0, limit / n
+    scale = limit / (n * n * n)
+    return scale * sy * sy, -scale * sx * sy, scale * sx * sx
+
+
+@numba.njit(cache=True)
+def energy(pos, anchors, warp_node, weft_node, plane_x, plane_y, limit, stick):
+    """sum_c H(s_c) [J], F_T frozen."""
+    total = 0.0
+    for c in range(warp_node.size):
+        sx, sy = slip(pos, anchors, warp_node, weft_node, plane_x, plane_y, c)
+        total += huber(sx, sy, limit[c], stick)
+    return total
+
+
+@numba.njit(cache=True)
+def add_gradient(pos, anchors, warp_node, weft_node, plane_x, plane_y, limit, stick, grad):
+    """grad += dH/ds on x of the warp node and y of the weft node."""
+    for c in range(warp_node.size):
+        sx, sy = slip(pos, anchors, warp_node, weft_node, plane_x, plane_y, c)
+        gx, gy = huber_gradient(sx, sy, limit[c], stick)
+        grad[warp_node[c], 0] += gx
+        grad[weft_node[c], 0] += gy
+
+
+@numba.njit(cache=True)
+def hessians(pos, anchors, warp_node, weft_node, plane_x, plane_y, limit, stick, out,
+             secant=False):
+    """(h_xx, h_xy, h_yy) of every crossing into out (C, 3): the block on (x_a, y_b)."""
+    for c in range(warp_node.size):
+        sx, sy = slip(pos, anchors, warp_node, weft_node, plane_x, plane_y, c)
+        out[c, 0], out[c, 1], out[c, 2] = huber_hessian(sx, sy, limit[c], stick, secant)
+
+
+@numba.njit(cache=True)
+def return_map(pos, anchors, warp_node, weft_node, plane_x, plane_y, limit, stick, sliding,
+               friction_force):
+    """Radial return of the sliding anchors, in place; returns the energy lost [J].
+
+    Where k_t |s| > F_T: xi += (1 - F_T / (k_t |s|)) s, so that k_t |s| = F_T after it,
+    dissipation F_T |delta xi|. Fills `sliding` (C,) and the friction force on the slip
+    (C, 2) [N]: -k_t s sticking, -F_T s / |s| sliding.
+    """
+    lost = 0.0
+    for c in range(warp_node.size):
+        sx, sy = slip(pos, anchors, warp_node, weft_node, plane_x, plane_y, c)
+        n = np.hypot(sx, sy)
+        F = limit[c]
+        sliding[c] = stick * n > F
+        if sliding[c]:
+            move = 1.0 - F / (stick * n)
+            anchors[c, 0] += move * sx
+            anchors[c, 1] += move * sy
+            lost += F * move * n
+            friction_force[c, 0], friction_force[c, 1] = -F * sx / n, -F * sy / n
+        else:
+            friction_force[c, 0], friction_force[c, 1] = -stick * sx, -stick * sy
+    return lost

@@ -1,0 +1,222 @@
+"""The fabric's stability check: the inertia of its Hessian (MODEL.md sections 6, 10).
+
+Library sparse factorisations (SuperLU, which pivots for stability) give no inertia.
+Ours comes from Haynsworth's inertia additivity: split the free dofs into the crossing
+dofs K (both coordinates of every crossing's warp and weft node) and the rest I. The
+crossing couplings (contact and friction blocks) only join dofs of K, so H_II is block
+diagonal, one band per yarn (that yarn's band with its crossing and fixed dofs replaced
+by identity rows), and
+
+    In(H) = In(H_II) + In(S),   S = H_KK - H_KI H_II^-1 H_IK
+
+(Haynsworth 1968). In(H_II) is counted from each yarn's unpivoted banded LDL^T
+(`dynfab.ldlt`, Sylvester's law: the negative pivots), O(n) per yarn; S is dense,
+|K| = 4 C, assembled from one banded solve per crossing dof and counted by its
+Bunch-Kaufman LDL^T (`dense_negatives`). A pivot within rounding of zero makes H_II unusable: the matrix is then
+shifted by tau I at the rounding level (MODEL.md 6), and "no negative" proves
+lambda_min(H) > -tau.
+
+The matrix is the symmetric Hessian with F_T frozen (the softer branch at kinks, as
+`dynfab.fabric.contact` and `friction` give it); instabilities from friction's
+non-associated coupling are not seen (MODEL.md 6).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+import scipy.sparse.linalg
+
+from dynfab.banded import BANDWIDTH, constrain
+from dynfab.fabric import assembly
+from dynfab.ldlt import TINY_PIVOT, ldlt_factor, ldlt_solve
+
+EPS = np.finfo(np.float64).eps
+
+
+@dataclass
+class Inertia:
+    negatives: int
+    """Negative eigenvalues of the Hessian on the free dofs (with the shift)."""
+    shift: float
+    """The shift tau [N/m] applied (0 unless a pivot vanished, or as asked)."""
+    schur_size: int
+    """|K|, the dense Schur complement's order."""
+
+
+def nearest_eigenvalue(H) -> float:
+    """The eigenvalue of the sparse symmetric H nearest zero [N/m] (ARPACK shift-invert at
+    0, relative accuracy about 1e-10): the lowest one when the inertia has no negative
+    (MODEL.md 6's estimate of the smallest eigenvalue); NaN if ARPACK fails."""
+    try:
+        value = scipy.sparse.linalg.eigsh(H, k=1, sigma=0.0, which="LM", tol=1e-10,
+                                          v0=start_vector(H.shape[0]),
+                                          return_eigenvectors=False)
+    except (RuntimeError, scipy.sparse.linalg.ArpackNoConvergence):
+        return float("nan")
+    return float(value[0])
+
+
+def start_vector(n: int) -> np.ndarray:
+    """ARPACK's start vector, fixed (seeded), so that the vectors found in a degenerate
+    eigenspace (identical yarns share eigenvalues), and the escape they lead to, are the
+    same from run to run; ARPACK's own start is random."""
+    return np.random.default_rng(20070101).standard_normal(n)
+
+
+def lowest_eigenvectors(solver, pos, anchors, limit, count: int, nearest: float):
+    """The `count` lowest eigenpairs of the Hessian on the unknowns, (values, vectors).
+
+    Shift-invert Lanczos at a shift sigma below the whole spectrum, found by the inertia:
+    sigma = 2 nearest (the eigenvalue nearest zero), doubled until H - sigma I has no
+    negative eigenvalue; the `count` eigenvalues nearest such a sigma are the lowest.
+    Each vector's sign is fixed (its largest component positive) and the start vector too
+    (`start_vector`), so the choice is deterministic.
+    """
+    sigma = 2.0 * min(nearest, -1e-12)
+    for _ in range(60):
+        if inertia(solver, pos, anchors, limit, shift=-sigma).negatives == 0:
+            break
+        sigma *= 2.0
+    H = solver.hessian(pos, anchors, limit)
+    values, vectors = scipy.sparse.linalg.eigsh(H, k=count, sigma=sigma, which="LM", tol=1e-10,
+                                                v0=start_vector(H.shape[0]))
+    order = np.argsort(values)
+    values, vectors = values[order], vectors[:, order]
+    for k in range(count):
+        if vectors[np.argmax(np.abs(vectors[:, k])), k] < 0:
+            vectors[:, k] *= -1.0
+    return values, vectors
+
+
+def crossing_mask(fabric) -> np.ndarray:
+    """True on the crossing dofs K (2 nodes,): both dofs of every crossing's two nodes, and
+    the end nodes' in-plane dofs that move the planes (planes "affine")."""
+    mask = np.zeros(fabric.fixed.size, np.bool_)
+    for node in (fabric.warp_node, fabric.weft_node):
+        mask[2 * node] = mask[2 * node + 1] = True
+    mask[2 * fabric.plane_nodes_x] = mask[2 * fabric.plane_nodes_y] = True
+    return mask
+
+
+def inertia(solver, pos, anchors, limit, shift: float = 0.0) -> Inertia:
+    """In(H - (-shift) I) on the free dofs: the negatives of H + shift I (module docstring)."""
+    fabric = solver.fabric
+    scale = _scale(solver, pos, anchors, limit)
+    if fabric.wrap_stiffness.any():
+        return _dense_inertia(solver, pos, anchors, limit, shift, scale)
+    for tau in (shift, shift + 1e3 * EPS * scale, shift + 1e6 * EPS * scale):
+        result = _inertia(fabric, pos, anchors, limit, tau, scale)
+        if result is not None:
+            return result
+    raise ArithmeticError("fabric inertia: a vanishing pivot survived the rounding shift")
+
+
+def _dense_inertia(solver, pos, anchors, limit, shift, scale) -> Inertia:
+    """The periodic cell: its wrap springs and tied cell lengths join the ends of every
+    yarn, so H is no longer a band per yarn plus crossing blocks; the cell is small, and
+    its whole (reduced) Hessian goes to the dense Bunch-Kaufman count."""
+    H = solver.hessian(pos, anchors, limit).toarray()
+    for tau in (shift, shift + 1e3 * EPS * scale, shift + 1e6 * EPS * scale):
+        count = dense_negatives(H + tau * np.eye(H.shape[0]), 64.0 * EPS * scale)
+        if count >= 0:
+            return Inertia(count, tau, H.shape[0])
+    raise ArithmeticError("fabric inertia: a vanishing pivot survived the rounding shift")
+
+
+def _scale(solver, pos, anchors, limit) -> float:
+    """max |H_ii| [N/m], the scale of the rounding shift."""
+    return float(np.abs(solver.hessian(pos, anchors, limit).diagonal()).max())
+
+
+def _inertia(fabric, pos, anchors, limit, tau, scale):
+    fixed = fabric.fixed
+    mask = crossing_mask(fabric)
+    k_dofs = np.flatnonzero(mask & ~fixed)
+    k_index = np.full(fixed.size, -1)
+    k_index[k_dofs] = np.arange(k_dofs.size)
+    S = np.zeros((k_dofs.size, k_dofs.size))
+    negatives = 0
+    start = fabric.yarn_start
+    tiny = 64.0 * EPS * scale
+    for y in range(start.size - 1):
+        first = 2 * start[y]
+        n = 2 * (start[y + 1] - start[y])
+        band = np.zeros((n, 2 * BANDWIDTH + 1))
+        assembly.yarn_band(pos, fabric, y, band)
+        band[:, BANDWIDTH] += tau
+        local_k = np.flatnonzero(mask[first:first + n] & ~fixed[first:first + n])
+        original = band.copy()
+        factor = band
+        constrain(factor, np.zeros(n), fixed[first:first + n] | mask[first:first + n])
+        count = ldlt_factor(factor, 0.0, tiny)
+        if count == TINY_PIVOT:
+            return None
+        negatives += count
+        _add_schur_block(original, factor, local_k, k_index[first + local_k], S,
+                         fixed[first:first + n] | mask[first:first + n])
+    _add_crossing_blocks(fabric, pos, anchors, limit, k_index, S)
+    schur = dense_negatives(S, tiny)
+    if schur < 0:
+        return None
+    return Inertia(negatives + schur, tau, k_dofs.size)
+
+
+def dense_negatives(S, tiny) -> int:
+    """Negative eigenvalues of the symmetric S by Bunch-Kaufman LDL^T (LAPACK sytrf through
+    scipy.linalg.ldl; S = P L D L^T P^T is a congruence, so Sylvester's law counts them in
+    D's 1x1 and 2x2 blocks). -1 if a block has an eigenvalue within `tiny` of zero.
+    About 20 times faster than the eigenvalues at |K| = 1024 (benchmarks/fabric_static.py)."""
+    if S.size == 0:
+        return 0
+    _, d, _ = scipy.linalg.ldl(S, lower=True)
+    negatives, i, n = 0, 0, d.shape[0]
+    while i < n:
+        if i + 1 < n and d[i + 1, i] != 0.0:
+            values = np.linalg.eigvalsh(d[i:i + 2, i:i + 2])
+            i += 2
+        else:
+            values = d[i:i + 1, i]
+            i += 1
+        if np.any(np.abs(values) <= tiny):
+            return -1
+        negatives += int(np.count_nonzero(values < 0.0))
+    return negatives
+
+
+def _add_schur_block(original, factor, local_k, global_k, S, constrained):
+    """S[K_y, K_y] += H_KK(yarn band) - H_KI A^-1 H_IK for one yarn's crossing dofs."""
+    n = original.shape[0]
+    dense_rows = np.zeros((local_k.size, n))  # H[k, :] of the yarn band
+    for r, k in enumerate(local_k):
+        for j in range(max(0, k - BANDWIDTH), min(n, k + BANDWIDTH + 1)):
+            dense_rows[r, j] = original[k, j - k + BANDWIDTH]
+    coupling = dense_rows.copy()
+    coupling[:, constrained] = 0.0  # H_KI: only the interior columns
+    block = dense_rows[:, local_k]
+    for r in range(local_k.size):
+        x = coupling[r].copy()
+        ldlt_solve(factor, x)  # A^-1 H_Ik (zero on the constrained rows)
+        block[r] -= coupling @ x
+    S[np.ix_(global_k, global_k)] += block
+
+
+def _add_crossing_blocks(fabric, pos, anchors, limit, k_index, S):
+    """The contact and Huber blocks of every crossing into S (the shift came with the
+    yarn bands, which hold every crossing dof's diagonal)."""
+    c = fabric.warp_node.size
+    tangent, huber = np.zeros(c), np.zeros((c, 3))
+    assembly.crossing_blocks(pos, fabric, anchors, limit, tangent, huber)
+    za, zb = k_index[2 * fabric.warp_node + 1], k_index[2 * fabric.weft_node + 1]
+    for i in range(c):
+        for (p, q), value in (((za[i], za[i]), tangent[i]), ((zb[i], zb[i]), tangent[i]),
+                              ((za[i], zb[i]), -tangent[i]), ((zb[i], za[i]), -tangent[i])):
+            if p >= 0 and q >= 0:
+                S[p, q] += value
+        J = assembly.slip_jacobian(fabric, i)
+        h = np.array([[huber[i, 0], huber[i, 1]], [huber[i, 1], huber[i, 2]]])
+        rows = k_index[assembly.slip_dofs(fabric, i)]
+        keep = rows >= 0
+        S[np.ix_(rows[keep], rows[keep])] += (J.T @ h @ J)[np.ix_(keep, keep)]

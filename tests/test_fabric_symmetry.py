@@ -1,0 +1,87 @@
+"""A balanced fabric is symmetric under (x, y, z) -> (y, x, -z) (MODEL.md section 10).
+
+Warps and wefts alike (same count, length, segments, amplitude, material, equal k_t), no
+gravity, on the clamped patch and on the periodic cell: the map takes warp k onto weft k (as-woven shapes included: warp k's
+z = s_k A sin, weft k's z = -s_k A sin) and crossing (k, j) onto (j, k). So under equal
+biaxial loads warp k and weft k respond alike (z mirrored, contact forces a symmetric
+matrix), and swapping the loads swaps the results, to solver tolerance.
+"""
+
+import numpy as np
+import pytest
+
+from dynfab.fabric.spec import FabricSpec, Family, Friction
+from dynfab.fabric.static import FabricStaticSolver
+
+COUNT = 4
+YARN = Family(length=0.04, segments=16, amplitude=0.5e-3, EA=13.72, EI=1.47e-7,
+              kawabata_C=0.2e-3, kawabata_K=0.2)
+FRICTION = Friction(alpha=0.2, beta=1e3, contact_length=2e-3, fiber_radius=1e-3)
+PATHS = {"force": ((0.1, 0.3, 0.6), (0.05, 0.1, 0.4)),
+         "displacement": ((2e-4, 5e-4, 8e-4), (1e-4, 3e-4, 2e-4))}
+
+
+def solve(control, warp_values, weft_values, friction, boundary="clamped", planes="fixed"):
+    """(solver, [(state, record)] per step) of the balanced fabric."""
+    solver = FabricStaticSolver(FabricSpec(
+        warp=YARN, weft=YARN, warps=COUNT, wefts=COUNT, friction=friction, control=control,
+        warp_values=warp_values, weft_values=weft_values, boundary=boundary, planes=planes))
+    state, steps = solver.initial_state(), []
+    for a, b in zip(warp_values, weft_values):
+        state, record = solver.step(state, a, b)
+        steps.append((state, record))
+    return solver, steps
+
+
+def families(solver, state):
+    """(warps, wefts): node positions (COUNT, nodes, 2), z of the wefts mirrored."""
+    f, pos = solver.fabric, state.positions
+    warps = np.stack([pos[f.yarn_start[k]:f.yarn_start[k + 1]] for k in range(COUNT)])
+    wefts = np.stack([pos[f.yarn_start[COUNT + j]:f.yarn_start[COUNT + j + 1]]
+                      for j in range(COUNT)]) * np.array([1.0, -1.0])
+    return warps, wefts
+
+
+def tolerance(solver, state, record, other):
+    """4 ||H^-1||_inf (r1 + r2) [m]: two states with residuals r1, r2 (F_T frozen Hessian;
+    factor 4 for the friction limit's coupling, as in test_fabric_static)."""
+    H = solver.hessian(state.positions, state.anchors, record["friction_limit"].ravel())
+    bound = np.abs(np.linalg.inv(H.toarray())).sum(axis=1).max()
+    return 4 * bound * max(record["residual"] + other["residual"], solver.spec.tolerance)
+
+
+@pytest.mark.parametrize("control", ["force", "displacement"])
+@pytest.mark.parametrize("friction", [None, FRICTION], ids=["frictionless", "friction"])
+def test_equal_loads_give_equal_families(control, friction):
+    values = PATHS[control][0]
+    solver, steps = solve(control, values, values, friction)
+    for state, record in steps:
+        warps, wefts = families(solver, state)
+        tol = tolerance(solver, state, record, record)
+        assert np.abs(warps - wefts).max() <= tol
+        R = record["contact_force"]
+        assert R.max() > 0
+        assert np.abs(R - R.T).max() <= solver.spec.core_stiffness * tol  # dR <= k_c dz
+        assert record["strain"][0] == pytest.approx(record["strain"][1], rel=0, abs=tol / YARN.length)
+
+
+@pytest.mark.parametrize("control", ["force", "displacement"])
+@pytest.mark.parametrize("friction, boundary, planes",
+                         [(None, "clamped", "fixed"), (FRICTION, "clamped", "fixed"),
+                          (None, "periodic", "fixed"), (FRICTION, "clamped", "affine")],
+                         ids=["frictionless", "friction", "periodic", "affine"])
+def test_swapped_loads_swap_the_results(control, friction, boundary, planes):
+    first, second = PATHS[control]
+    solver_a, steps_a = solve(control, first, second, friction, boundary, planes)
+    solver_b, steps_b = solve(control, second, first, friction, boundary, planes)
+    for (state_a, record_a), (state_b, record_b) in zip(steps_a, steps_b):
+        warps_a, wefts_a = families(solver_a, state_a)
+        warps_b, wefts_b = families(solver_b, state_b)
+        tol = tolerance(solver_a, state_a, record_a, record_b)
+        assert np.abs(warps_a - wefts_b).max() <= tol
+        assert np.abs(wefts_a - warps_b).max() <= tol
+        assert np.abs(warps_a - wefts_a).max() > 1e3 * tol  # the loads differ: so do families
+        R_a, R_b = record_a["contact_force"], record_b["contact_force"]
+        assert np.abs(R_a - R_b.T).max() <= solver_a.spec.core_stiffness * tol
+        if friction is not None:
+            assert np.array_equal(record_a["sliding"], record_b["sliding"].T)
