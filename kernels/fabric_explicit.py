@@ -1,0 +1,238 @@
+"""Explicit dynamic relaxation of a fabric patch: symplectic Euler, viscous or kinetic damping (MODEL.md 5, 10).
+
+    v^{n+1/2} = ((1 - c dt/2) v^{n-1/2} + dt M^-1 f(x^n)) / (1 + c dt/2),   x^{n+1} = x^n + dt v^{n+1/2}
+
+with f from `fabric_forces` (per-crossing contact pass, then per-node gather). Kinetic
+damping (Barnes, c = 0): when the kinetic energy of the new half-step velocities falls
+below the last one, the peak has just been passed; the positions go back to the
+estimated peak x* = x^{n+1} - 3/2 dt v^{n+1/2} + dt^2/2 M^-1 f^n and v = 0. Relaxation
+stops when the residual, max |f| over the free dofs, is at or below the tolerance.
+
+Two layouts of the same arithmetic (the same `wp.func`s, the same operation order, so
+they give bit-identical trajectories; tests/test_fabric_kernels.py checks it):
+
+- "persistent": one launch per relaxation, one thread running the time loop over
+  every node (CPU). A CPU `wp.launch` runs its threads one after another on one core
+  and costs 10-45 us from Python, so per-step launches on the CPU pay that cost twice
+  per step for no parallelism; the loop inside the kernel pays it once
+  (benchmarks/fabric_dynamic.py measures both). Viscous and kinetic damping.
+- "per_step": per time step, one launch of a thread per crossing (R), then one of a
+  thread per node (force gather, residual and update, writing the new positions into a
+  second buffer: a node's neighbours read the old ones), the GPU layout. Every thread
+  writes only its own slots, no atomics, so runs and resumed runs are bit for bit
+  repeatable. The residual is read back (max over the per-node maxima, exact in any
+  order) every `check_interval` steps. Viscous damping only: kinetic damping needs the
+  kinetic energy, a sum over all nodes, at every step (a deterministic reduction per step
+  is left out).
+
+`default_layout(device)` picks "persistent" on the CPU and "per_step" on a GPU.
+"""
+
+import functools
+from dataclasses import dataclass
+from types import SimpleNamespace
+
+import numpy as np
+import warp as wp
+
+from dynfab.kernels import fabric_arrays, fabric_forces, status
+from dynfab.kernels.configuration import MODULE_OPTIONS
+from dynfab.kernels.precision import VECTORS, numpy_dtype
+
+LAYOUTS = ("persistent", "per_step")
+DAMPINGS = ("viscous", "kinetic")
+
+
+def default_layout(device: str) -> str:
+    """"persistent" on the CPU, "per_step" on a CUDA device."""
+    return "per_step" if wp.get_device(device).is_cuda else "persistent"
+
+
+@functools.cache
+def functions(scalar) -> SimpleNamespace:
+    """The per-node update `wp.func` shared by both layouts."""
+    vec = VECTORS[scalar]
+
+    @wp.func
+    def largest_component(f: vec) -> scalar:
+        """max(|f_s|, |f_z|) [N]; NaN propagates (a NaN is never <= anything)."""
+        worst = wp.abs(f[0])
+        if not wp.abs(f[1]) <= worst:
+            worst = wp.abs(f[1])
+        return worst
+
+    @wp.func
+    def velocity(v: vec, f: vec, mass: scalar, dt: scalar, coefficient: scalar) -> vec:
+        """v^{n+1/2} [m/s] of the centred viscous step (c = 0: undamped)."""
+        half = scalar(0.5) * coefficient * dt
+        return ((scalar(1.0) - half) * v + (dt / mass) * f) / (scalar(1.0) + half)
+
+    return SimpleNamespace(largest_component=largest_component, velocity=velocity)
+
+
+@functools.cache
+def persistent_kernel(scalar, damping: str):
+    """One thread relaxes the whole patch, the time loop inside (layout "persistent")."""
+    vec = VECTORS[scalar]
+    Fabric = fabric_arrays.struct(scalar)
+    ops, step_ops = fabric_forces.functions(scalar), functions(scalar)
+    kinetic = damping == "kinetic"
+
+    @wp.kernel(module="unique", module_options=MODULE_OPTIONS)
+    def relax(fabric: Fabric, mass: wp.array(dtype=scalar), external: wp.array(dtype=vec),
+              dt: scalar, coefficient: scalar, tolerance: scalar, max_steps: int,
+              pos: wp.array(dtype=vec), vel: wp.array(dtype=vec), force: wp.array(dtype=vec),
+              contact: wp.array(dtype=scalar), outcome: wp.array(dtype=wp.int32),
+              residual_out: wp.array(dtype=scalar)):
+        """Steps until residual <= tolerance or max_steps; outcome = (status, steps)."""
+        nodes = pos.shape[0]
+        kinetic_energy = scalar(0.0)
+        code = int(status.MAX_STEPS)
+        steps = int(0)
+        residual = scalar(0.0)
+        for step in range(max_steps + 1):
+            for c in range(contact.shape[0]):
+                contact[c] = ops.contact_force(ops.closure(pos, fabric, c), fabric.contact_law)
+            residual = scalar(0.0)
+            for i in range(nodes):
+                f = ops.node_force(i, pos, fabric, contact, external)
+                force[i] = f
+                worst = step_ops.largest_component(f)
+                if not worst <= residual:
+                    residual = worst
+            if not wp.isfinite(residual):
+                code = int(status.NON_FINITE)
+                break
+            if residual <= tolerance:
+                code = int(status.CONVERGED)
+                break
+            if step == max_steps:
+                break
+            energy = scalar(0.0)
+            for i in range(nodes):
+                v = step_ops.velocity(vel[i], force[i], mass[i], dt, coefficient)
+                vel[i] = v
+                pos[i] = pos[i] + dt * v
+                energy += scalar(0.5) * mass[i] * wp.dot(v, v)
+            if wp.static(kinetic):
+                if energy < kinetic_energy:
+                    for i in range(nodes):
+                        back = scalar(-1.5) * dt * vel[i] + (scalar(0.5) * dt * dt / mass[i]) * force[i]
+                        pos[i] = pos[i] + back
+                        vel[i] = vec(scalar(0.0), scalar(0.0))
+                    energy = scalar(0.0)
+                kinetic_energy = energy
+            steps = step + 1
+        outcome[0] = code
+        outcome[1] = steps
+        residual_out[0] = residual
+
+    return relax
+
+
+@functools.cache
+def per_step_kernel(scalar):
+    """One thread per node: gather the force, keep the residual, update (layout "per_step")."""
+    vec = VECTORS[scalar]
+    Fabric = fabric_arrays.struct(scalar)
+    ops, step_ops = fabric_forces.functions(scalar), functions(scalar)
+
+    @wp.kernel(module="unique", module_options=MODULE_OPTIONS)
+    def node_step(fabric: Fabric, mass: wp.array(dtype=scalar), external: wp.array(dtype=vec),
+                  dt: scalar, coefficient: scalar, contact: wp.array(dtype=scalar),
+                  pos: wp.array(dtype=vec), vel: wp.array(dtype=vec), force: wp.array(dtype=vec),
+                  node_residual: wp.array(dtype=scalar), pos_out: wp.array(dtype=vec)):
+        """force and node_residual [N] at pos; v and pos_out = pos + dt v [m]."""
+        i = wp.tid()
+        f = ops.node_force(i, pos, fabric, contact, external)
+        force[i] = f
+        node_residual[i] = step_ops.largest_component(f)
+        v = step_ops.velocity(vel[i], f, mass[i], dt, coefficient)
+        vel[i] = v
+        pos_out[i] = pos[i] + dt * v
+
+    return node_step
+
+
+@dataclass
+class Outcome:
+    """What a relaxation reached."""
+
+    status: int
+    """A `dynfab.kernels.status` code: CONVERGED, MAX_STEPS or NON_FINITE."""
+    steps: int
+    """Time steps taken."""
+    residual: float
+    """max |f| over the free dofs at the final positions [N]."""
+
+
+class FabricExplicit:
+    """Explicit relaxation of one patch on one device (MODEL.md 5, 10)."""
+
+    def __init__(self, arrays: fabric_arrays.PatchArrays, *, device: str = "cpu",
+                 layout: str | None = None, damping: str = "kinetic", coefficient: float = 0.0,
+                 dt: float = 1.0, scalar=wp.float64, check_interval: int = 16):
+        if layout is None:
+            layout = default_layout(device)
+        if layout not in LAYOUTS or damping not in DAMPINGS:
+            raise ValueError(f"layout {layout!r} or damping {damping!r} unknown")
+        if layout == "per_step" and damping != "viscous":
+            raise ValueError("the per_step layout has viscous damping only")
+        self.arrays, self.device, self.layout, self.damping = arrays, device, layout, damping
+        self.scalar, self.dtype, self.vec = scalar, numpy_dtype(scalar), VECTORS[scalar]
+        self.dt, self.coefficient = dt, 0.0 if damping == "kinetic" else coefficient
+        self.check_interval = check_interval
+        self.fabric = fabric_arrays.upload(arrays, scalar, device)
+        self.mass = self._array(fabric_arrays.gershgorin_masses(arrays, dt), scalar)
+        n, crossings = arrays.nodes, arrays.crossings
+        self.vel, self.force = (self._array(np.zeros((n, 2)), self.vec) for _ in range(2))
+        self.contact = self._array(np.zeros(crossings), scalar)
+
+    def _array(self, values, dtype):
+        return wp.array(np.asarray(values, self.dtype), dtype=dtype, device=self.device)
+
+    def relax(self, positions: np.ndarray, external: np.ndarray, tolerance: float,
+              max_steps: int) -> tuple[np.ndarray, Outcome]:
+        """Relax from `positions` (n, 2) [m] at rest under the nodal forces `external` (n, 2) [N]."""
+        pos = self._array(positions, self.vec)
+        self.vel.zero_()
+        load = self._array(external, self.vec)
+        if self.layout == "persistent":
+            outcome = self._persistent(pos, load, tolerance, max_steps)
+        else:
+            pos, outcome = self._per_step(pos, load, tolerance, max_steps)
+        return pos.numpy().astype(float), outcome
+
+    def _persistent(self, pos, load, tolerance, max_steps) -> Outcome:
+        code = wp.zeros(2, dtype=wp.int32, device=self.device)
+        residual = wp.zeros(1, dtype=self.scalar, device=self.device)
+        wp.launch(persistent_kernel(self.scalar, self.damping), dim=1, device=self.device,
+                  inputs=[self.fabric, self.mass, load, self.scalar(self.dt),
+                          self.scalar(self.coefficient), self.scalar(tolerance), int(max_steps), pos,
+                          self.vel, self.force, self.contact, code, residual])
+        status_code, steps = code.numpy()
+        return Outcome(int(status_code), int(steps), float(residual.numpy()[0]))
+
+    def _per_step(self, pos, load, tolerance, max_steps):
+        passes = fabric_forces.kernels(self.scalar)
+        step_kernel = per_step_kernel(self.scalar)
+        other = wp.empty_like(pos)
+        node_residual = wp.zeros(self.arrays.nodes, dtype=self.scalar, device=self.device)
+        dt, c = self.scalar(self.dt), self.scalar(self.coefficient)
+        step = 0
+        while True:  # forces and residual at pos, and the move to `other`, in one pass
+            wp.launch(passes.crossing_pass, dim=self.arrays.crossings, device=self.device,
+                      inputs=[pos, self.fabric, self.contact])
+            wp.launch(step_kernel, dim=self.arrays.nodes, device=self.device,
+                      inputs=[self.fabric, self.mass, load, dt, c, self.contact, pos, self.vel,
+                              self.force, node_residual, other])
+            if step == max_steps or step % self.check_interval == 0:
+                residual = float(np.max(node_residual.numpy(), initial=0.0))
+                if not np.isfinite(residual):
+                    return pos, Outcome(status.NON_FINITE, step, residual)
+                if residual <= tolerance:
+                    return pos, Outcome(status.CONVERGED, step, residual)
+                if step == max_steps:
+                    return pos, Outcome(status.MAX_STEPS, step, residual)
+            pos, other = other, pos
+            step += 1
