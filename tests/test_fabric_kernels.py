@@ -1,0 +1,183 @@
+"""The fabric's Warp kernels (MODEL.md 10): forces against finite differences of the Warp energy,
+bit-for-bit repeatable runs in both layouts, and a patch with its wefts held against the
+one-yarn static reference.
+
+One kernel configuration (float64) is built: the force and energy passes, the per-step
+node kernel (viscous) and the persistent kernel (viscous and kinetic).
+"""
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import warp as wp
+
+from dynfab import assembly
+from dynfab.banded import zeros_band
+from dynfab.kernels import fabric_arrays, fabric_explicit, fabric_forces, status
+from dynfab.model import build_model, initial_state
+from dynfab.static import StaticSolver
+from independent import dense, make_scene
+
+EPS = np.finfo(float).eps
+SCALAR = wp.float64
+PATCH = fabric_arrays.paper_patch(2, 3)
+"""2 warps x 3 wefts of the paper's yarn, 8 segments per half-wave (N = 24, M = 16)."""
+
+
+@pytest.fixture(scope="module")
+def arrays():
+    return fabric_arrays.build(PATCH)
+
+
+def perturbed(arrays, seed=1, size=2e-5):
+    """As-woven positions moved by up to `size` [m] in every coordinate, every dof free."""
+    rng = np.random.default_rng(seed)
+    return arrays.rest_position + rng.uniform(-size, size, arrays.rest_position.shape)
+
+
+def forces_and_energy(arrays, positions, external):
+    """(force (n, 2) [N], energy [J]) from the Warp kernels (forces: the two passes)."""
+    passes = fabric_forces.kernels(SCALAR)
+    fabric = fabric_arrays.upload(arrays, SCALAR, "cpu")
+    pos = wp.array(positions, dtype=wp.vec2d)
+    load = wp.array(external, dtype=wp.vec2d)
+    contact = wp.zeros(arrays.crossings, dtype=wp.float64)
+    force = wp.zeros(arrays.nodes, dtype=wp.vec2d)
+    wp.launch(passes.crossing_pass, dim=arrays.crossings, inputs=[pos, fabric, contact])
+    wp.launch(passes.node_pass, dim=arrays.nodes, inputs=[pos, fabric, contact, load, force])
+    node_energy = wp.zeros(arrays.nodes, dtype=wp.float64)
+    crossing_energy = wp.zeros(arrays.crossings, dtype=wp.float64)
+    wp.launch(passes.energy_pass, dim=arrays.nodes,
+              inputs=[pos, fabric, load, node_energy, crossing_energy])
+    terms = np.concatenate([node_energy.numpy(), crossing_energy.numpy()])
+    return force.numpy(), math.fsum(terms), math.fsum(np.abs(terms))
+
+
+def only(arrays, term):
+    """The patch with one term: the others' stiffnesses zeroed, contacts opened by a large
+    negative offset (g < 0 at every crossing). Every dof free."""
+    open_offset = np.full(arrays.crossings, -1.0)
+    zero = np.zeros(arrays.nodes)
+    keep = {"stretch": dict(bend_stiffness=zero, crossing_offset=open_offset),
+            "bending": dict(stretch_stiffness=zero, crossing_offset=open_offset),
+            "contact": dict(stretch_stiffness=zero, bend_stiffness=zero),
+            "all": {}}[term]
+    return replace(arrays, free=np.ones_like(arrays.free), **keep)
+
+
+@pytest.mark.parametrize("term", ["stretch", "bending", "contact", "all"])
+def test_forces_are_minus_the_energy_gradient(arrays, term):
+    """-dE/dr by central differences of the Warp energy against the Warp force, every dof.
+
+    The central difference at step h errs by its truncation, O(h^2 E'''), plus rounding:
+    each energy term is evaluated to a few ulps (lengths, atan2, exponentials; 8 taken),
+    so the difference of two energies over 2h errs by up to 8 eps sum|E_terms| / h. The
+    truncation at h is a third of |D(2h) - D(h)| (it scales as h^2), so the force must lie
+    within |D(2h) - D(h)| + 8 eps sum|E| / h of D(h): a wrong force misses that by its own
+    error. Closures are kept 10 h away from the
+    contact's kink at g = 0 (the perturbation closes about half the crossings)."""
+    patch = only(arrays, term)
+    positions = perturbed(arrays)
+    external = 0.3 * (arrays.load_direction + arrays.weft_load_direction)
+    h = 1e-7
+    g = arrays.crossing_offset - arrays.crossing_side * (
+        positions[arrays.crossing_warp, 1] - positions[arrays.crossing_weft, 1])
+    assert np.abs(g).min() > 10 * h and (g > 0).any() and (g < 0).any()
+    force, _, scale = forces_and_energy(patch, positions, external)
+
+    def difference(i, c, step):
+        values, coordinates = [], []
+        for sign in (1.0, -1.0):
+            moved = positions.copy()
+            moved[i, c] += sign * step  # the coordinate actually reached, not x +- step
+            coordinates.append(moved[i, c])
+            values.append(forces_and_energy(patch, moved, external)[1])
+        return -(values[0] - values[1]) / (coordinates[0] - coordinates[1])
+
+    rng = np.random.default_rng(2)
+    for i in rng.choice(arrays.nodes, 24, replace=False).tolist() + list(arrays.crossing_warp[:2]):
+        for c in range(2):
+            at_h, at_2h = difference(i, c, h), difference(i, c, 2 * h)
+            bound = abs(at_2h - at_h) + 8 * EPS * scale / h
+            assert abs(force[i, c] - at_h) <= bound, (term, i, c, force[i, c], at_h, bound)
+    assert np.abs(force).max() > 1e3 * 8 * EPS * scale / h  # the check is not vacuous
+
+
+def test_runs_are_bit_identical_in_both_layouts(arrays):
+    """Two persistent runs, and the per-step layout, give the same bits after the same steps
+    (no atomics: every node's force is the same sum in the same order)."""
+    external = 0.3 * (arrays.load_direction + arrays.weft_load_direction)
+    results = []
+    for layout in ("persistent", "persistent", "per_step"):
+        solver = fabric_explicit.FabricExplicit(arrays, layout=layout, damping="viscous",
+                                                coefficient=0.05)
+        positions, outcome = solver.relax(arrays.rest_position, external, 0.0, 300)
+        assert outcome.status == status.MAX_STEPS and outcome.steps == 300
+        results.append(positions)
+    assert np.abs(results[0] - arrays.rest_position).max() > 1e-6  # the patch moved
+    assert np.array_equal(results[0], results[1])
+    assert np.array_equal(results[0], results[2])
+
+
+def one_yarn_model(load):
+    """The one-yarn model of PATCH's warps (geometry.yarns = 2, phases +-1) with a rigid weft
+    spring: contact_law k_s = k_c exactly (MODEL.md 10: k_we -> infinity)."""
+    family = PATCH.warp
+    scene = make_scene(
+        geometry={"length": PATCH.length, "segments": PATCH.segments, "crossings": PATCH.wefts,
+                  "amplitude": family.amplitude, "yarns": PATCH.warps},
+        warp={"EA": family.EA, "EI": family.EI, "kawabata_C": family.kawabata_C,
+              "kawabata_K": family.kawabata_K},
+        weft={"EI": PATCH.weft.EI, "length": PATCH.weft_length, "count": PATCH.warps,
+              "amplitude": PATCH.weft.amplitude, "kawabata_C": PATCH.weft.kawabata_C,
+              "kawabata_K": PATCH.weft.kawabata_K},
+        contact={"core_stiffness": PATCH.core_stiffness},
+        load={"control": "force", "values": [load]})
+    model = build_model(scene)
+    yarns = []
+    for yarn in model.yarns:
+        law = yarn.contact_law.copy()
+        law[0] = PATCH.core_stiffness
+        yarns.append(yarn._replace(contact_law=law))
+    return replace(model, yarns=tuple(yarns))
+
+
+def inverse_stiffness_norm(model, positions) -> float:
+    """max over yarns of ||K^-1||_inf [m/N], K the Hessian on the free dofs (no friction)."""
+    free = ~model.fixed_dofs()
+    norms = []
+    for k, yarn in enumerate(model.yarns):
+        contact_force, limit, tangent = (np.zeros(model.crossings) for _ in range(3))
+        assembly.contact_state(positions[k], yarn, contact_force, limit, tangent)
+        band = zeros_band(positions[k].size)
+        assembly.hessian(positions[k], yarn, np.zeros(model.crossings), limit, tangent, False, band)
+        matrix = dense(band)[np.ix_(free, free)]
+        norms.append(np.abs(np.linalg.inv(matrix)).sum(axis=1).max())
+    return max(norms)
+
+
+def test_held_wefts_give_the_one_yarn_model_with_a_rigid_weft_spring(arrays):
+    """Every weft node held: each warp is the one-yarn model with k_s = k_c (MODEL.md 10).
+
+    Linearising the residual at the solution, x_fabric - x_static = K^-1 (r_fabric - r_static),
+    so |x_fabric - x_static|_inf <= ||K^-1||_inf (r + r_s), K the warp's Hessian on its free
+    dofs (with the wefts held the fabric's K is block-diagonal, one one-yarn K per warp)."""
+    load = 0.3
+    model = one_yarn_model(load)
+    state, record = StaticSolver(model).step(initial_state(model), load)
+    held = arrays.free.copy()
+    held[arrays.weft_nodes.ravel()] = 0.0
+    patch = replace(arrays, free=held)
+    solver = fabric_explicit.FabricExplicit(patch, damping="kinetic")
+    tolerance = 1e-10
+    positions, outcome = solver.relax(arrays.rest_position, load * arrays.load_direction, tolerance,
+                                      200_000)
+    assert outcome.status == status.CONVERGED, outcome
+    assert np.array_equal(positions[arrays.weft_nodes], arrays.rest_position[arrays.weft_nodes])
+    bound = inverse_stiffness_norm(model, state.positions) * (outcome.residual + np.max(record["residual"]))
+    error = np.abs(positions[arrays.warp_nodes] - state.positions).max()
+    moved = np.abs(state.positions - initial_state(model).positions).max()
+    assert moved > 1e3 * bound  # the load moves the warps far beyond the tolerance
+    assert error <= bound, (error, bound)
