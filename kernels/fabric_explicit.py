@@ -8,14 +8,17 @@ below the last one, the peak has just been passed; the positions go back to the
 estimated peak x* = x^{n+1} - 3/2 dt v^{n+1/2} + dt^2/2 M^-1 f^n and v = 0. Relaxation
 stops when the residual, max |f| over the free dofs, is at or below the tolerance.
 
-Two layouts of the same arithmetic (the same `wp.func`s, the same operation order, so
-they give bit-identical trajectories; tests/test_fabric_kernels.py checks it):
+Two layouts (tests/test_fabric_kernels.py checks that they agree: bit for bit with
+`order="gather"`, to rounding with the default scatter order):
 
 - "persistent": one launch per relaxation, one thread running the time loop over
   every node (CPU). A CPU `wp.launch` runs its threads one after another on one core
   and costs 10-45 us from Python, so per-step launches on the CPU pay that cost twice
   per step for no parallelism; the loop inside the kernel pays it once
-  (benchmarks/fabric_dynamic.py measures both). Viscous and kinetic damping.
+  (benchmarks/fabric_dynamic.py measures both). One thread needs no gather: by default
+  it evaluates each term once and scatters it (`fabric_forces.scatter_forces`), about
+  half the work of the per-node gather, which recomputes every segment twice and every
+  bending spring three times. Viscous and kinetic damping.
 - "per_step": per time step, one launch of a thread per crossing (R), then one of a
   thread per node (force gather, residual and update, writing the new positions into a
   second buffer: a node's neighbours read the old ones), the GPU layout. Every thread
@@ -71,12 +74,18 @@ def functions(scalar) -> SimpleNamespace:
 
 
 @functools.cache
-def persistent_kernel(scalar, damping: str):
-    """One thread relaxes the whole patch, the time loop inside (layout "persistent")."""
+def persistent_kernel(scalar, damping: str, order: str = "scatter"):
+    """One thread relaxes the whole patch, the time loop inside (layout "persistent").
+
+    `order` "scatter" evaluates each term once and adds it to its nodes
+    (`fabric_forces.scatter_forces`, the default: one thread needs no gather); "gather"
+    runs the per-step layout's per-crossing and per-node passes as loops, the same
+    arithmetic in the same order as the per-step layout (bit-identical to it)."""
     vec = VECTORS[scalar]
     Fabric = fabric_arrays.struct(scalar)
     ops, step_ops = fabric_forces.functions(scalar), functions(scalar)
     kinetic = damping == "kinetic"
+    gather = order == "gather"
 
     @wp.kernel(module="unique", module_options=MODULE_OPTIONS)
     def relax(fabric: Fabric, mass: wp.array(dtype=scalar), external: wp.array(dtype=vec),
@@ -91,13 +100,16 @@ def persistent_kernel(scalar, damping: str):
         steps = int(0)
         residual = scalar(0.0)
         for step in range(max_steps + 1):
-            for c in range(contact.shape[0]):
-                contact[c] = ops.contact_force(ops.closure(pos, fabric, c), fabric.contact_law)
+            if wp.static(gather):
+                for c in range(contact.shape[0]):
+                    contact[c] = ops.contact_force(ops.closure(pos, fabric, c), fabric.contact_law)
+                for i in range(nodes):
+                    force[i] = ops.node_force(i, pos, fabric, contact, external)
+            else:
+                ops.scatter_forces(pos, fabric, contact, external, force)
             residual = scalar(0.0)
             for i in range(nodes):
-                f = ops.node_force(i, pos, fabric, contact, external)
-                force[i] = f
-                worst = step_ops.largest_component(f)
+                worst = step_ops.largest_component(force[i])
                 if not worst <= residual:
                     residual = worst
             if not wp.isfinite(residual):
@@ -171,7 +183,8 @@ class FabricExplicit:
 
     def __init__(self, arrays: fabric_arrays.PatchArrays, *, device: str = "cpu",
                  layout: str | None = None, damping: str = "kinetic", coefficient: float = 0.0,
-                 dt: float = 1.0, scalar=wp.float64, check_interval: int = 16):
+                 dt: float = 1.0, scalar=wp.float64, check_interval: int = 16,
+                 order: str = "scatter"):
         if layout is None:
             layout = default_layout(device)
         if layout not in LAYOUTS or damping not in DAMPINGS:
@@ -181,7 +194,7 @@ class FabricExplicit:
         self.arrays, self.device, self.layout, self.damping = arrays, device, layout, damping
         self.scalar, self.dtype, self.vec = scalar, numpy_dtype(scalar), VECTORS[scalar]
         self.dt, self.coefficient = dt, 0.0 if damping == "kinetic" else coefficient
-        self.check_interval = check_interval
+        self.check_interval, self.order = check_interval, order
         self.fabric = fabric_arrays.upload(arrays, scalar, device)
         self.mass = self._array(fabric_arrays.gershgorin_masses(arrays, dt), scalar)
         n, crossings = arrays.nodes, arrays.crossings
@@ -206,7 +219,7 @@ class FabricExplicit:
     def _persistent(self, pos, load, tolerance, max_steps) -> Outcome:
         code = wp.zeros(2, dtype=wp.int32, device=self.device)
         residual = wp.zeros(1, dtype=self.scalar, device=self.device)
-        wp.launch(persistent_kernel(self.scalar, self.damping), dim=1, device=self.device,
+        wp.launch(persistent_kernel(self.scalar, self.damping, self.order), dim=1, device=self.device,
                   inputs=[self.fabric, self.mass, load, self.scalar(self.dt),
                           self.scalar(self.coefficient), self.scalar(tolerance), int(max_steps), pos,
                           self.vel, self.force, self.contact, code, residual])

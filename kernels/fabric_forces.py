@@ -150,9 +150,42 @@ def functions(scalar) -> SimpleNamespace:
             energy += scalar(0.5) * fabric.bend_stiffness[i] * turn * turn
         return energy
 
+    @wp.func
+    def scatter_forces(pos: wp.array(dtype=vec), fabric: Fabric, contact: wp.array(dtype=scalar),
+                       external: wp.array(dtype=vec), force: wp.array(dtype=vec)):
+        """force = -dV/dr [N] on the free dofs, every term evaluated once and scattered to its
+        nodes (one thread: the single-threaded layout's cheaper order of the same sums);
+        contact[c] = R [N] of every crossing."""
+        for i in range(pos.shape[0]):
+            force[i] = external[i]
+        for i in range(pos.shape[0]):
+            j = fabric.next[i]
+            if j >= 0:  # segment (i, j), then the bending spring at j
+                pull = segment_pull(pos, fabric, i)
+                force[i] = force[i] + pull
+                force[j] = force[j] - pull
+                k = fabric.next[j]
+                if k >= 0:
+                    a = pos[j] - pos[i]
+                    b = pos[k] - pos[j]
+                    moment = bend_moment(pos, fabric, j, a, b)
+                    ga = moment * vec(a[1], -a[0]) / wp.dot(a, a)
+                    gb = moment * vec(-b[1], b[0]) / wp.dot(b, b)
+                    force[i] = force[i] + ga
+                    force[j] = force[j] - ga + gb
+                    force[k] = force[k] - gb
+        for c in range(contact.shape[0]):
+            R = contact_force(closure(pos, fabric, c), fabric.contact_law)
+            contact[c] = R
+            up = vec(scalar(0.0), fabric.crossing_side[c] * R)
+            force[fabric.crossing_warp[c]] = force[fabric.crossing_warp[c]] + up
+            force[fabric.crossing_weft[c]] = force[fabric.crossing_weft[c]] - up
+        for i in range(pos.shape[0]):
+            force[i] = wp.cw_mul(force[i], fabric.free[i])
+
     return SimpleNamespace(closure=closure, contact_force=contact_force,
                            contact_energy=contact_energy, node_force=node_force,
-                           node_energy=node_energy)
+                           node_energy=node_energy, scatter_forces=scatter_forces)
 
 
 @functools.cache
