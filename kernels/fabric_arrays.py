@@ -46,6 +46,24 @@ class Family:
 
 
 @dataclass(frozen=True, kw_only=True)
+class Friction:
+    """Gralen's law with its onset, as isotropic stick-slip at every crossing (MODEL.md 4, 10)."""
+
+    alpha: float
+    """Gralen alpha [-]."""
+    beta: float
+    """Gralen beta [N/m^2]."""
+    contact_length: float
+    """ell [m]."""
+    fiber_radius: float
+    """r_f [m]."""
+    onset_force: float = 1e-5
+    """R_0 [N]."""
+    stick_stiffness: float | None = None
+    """k_t [N/m]; None: the smaller family's EA / segment length (MODEL.md 10)."""
+
+
+@dataclass(frozen=True, kw_only=True)
 class Patch:
     """A clamped n_wa x n_we patch from plain parameters (MODEL.md 10)."""
 
@@ -65,6 +83,8 @@ class Patch:
     weft: Family
     core_stiffness: float = 1e5
     """k_c [N/m], in series with both Kawabata laws (MODEL.md 10)."""
+    friction: Friction | None = None
+    """None: frictionless crossings."""
 
 
 PAPER_WARP = Family(EA=13.72, EI=1.47e-7, amplitude=0.5e-3, kawabata_C=0.2e-3, kawabata_K=0.2)
@@ -114,6 +134,8 @@ class PatchArrays:
     """(C,) c = sigma (z0_wa - z0_we) [m], so g = c - sigma (z_wa - z_we)."""
     contact_law: np.ndarray
     """(5,) k_c [N/m], C_wa [m], a_wa [1/N], C_we [m], a_we [1/N] (a_m = K_m / Lc_m)."""
+    friction_law: np.ndarray
+    """(4,) alpha [-], beta ell r_f [N], R_0 [N], k_t [N/m]; zeros without friction."""
     warp_nodes: np.ndarray
     """(n_wa, N+1) flat index of warp k's node i."""
     weft_nodes: np.ndarray
@@ -195,6 +217,7 @@ def build(patch: Patch) -> PatchArrays:
         free=free, node_crossing=node_crossing, node_side=node_side,
         crossing_warp=crossing_warp.astype(np.int32), crossing_weft=crossing_weft.astype(np.int32),
         crossing_side=sigma, crossing_offset=offset, contact_law=contact_law(patch),
+        friction_law=friction_law(patch),
         warp_nodes=warp_nodes, weft_nodes=weft_nodes, load_direction=load_wa,
         weft_load_direction=load_we)
 
@@ -205,6 +228,17 @@ def contact_law(patch: Patch) -> np.ndarray:
     lc_we = geometry.half_wave_arc_length(patch.weft_length / patch.warps, patch.weft.amplitude)
     return np.array([patch.core_stiffness, patch.warp.kawabata_C, patch.warp.kawabata_K / lc_wa,
                      patch.weft.kawabata_C, patch.weft.kawabata_K / lc_we])
+
+
+def friction_law(patch: Patch) -> np.ndarray:
+    """(alpha, beta ell r_f, R_0, k_t) (MODEL.md 4, 10); zeros without friction."""
+    friction = patch.friction
+    if friction is None:
+        return np.zeros(4)
+    stick = friction.stick_stiffness or min(patch.warp.EA / (patch.length / patch.segments),
+                                            patch.weft.EA / (patch.weft_length / patch.weft_segments))
+    return np.array([friction.alpha, friction.beta * friction.contact_length * friction.fiber_radius,
+                     friction.onset_force, stick])
 
 
 def gershgorin_masses(arrays: PatchArrays, dt: float, safety: float = 0.9) -> np.ndarray:
@@ -229,7 +263,7 @@ def gershgorin_masses(arrays: PatchArrays, dt: float, safety: float = 0.9) -> np
     bend = 4.0 * arrays.bend_stiffness[inner] * inv ** 2
     for touched in (arrays.previous[inner], inner, arrays.next[inner]):
         np.add.at(rows, touched, bend)
-    rows[arrays.node_crossing >= 0] += 2.0 * arrays.contact_law[0]
+    rows[arrays.node_crossing >= 0] += 2.0 * arrays.contact_law[0] + arrays.friction_law[3]
     return dt ** 2 / 4.0 * rows / safety ** 2
 
 
@@ -257,6 +291,7 @@ def struct(scalar):
         crossing_side: wp.array(dtype=scalar)
         crossing_offset: wp.array(dtype=scalar)
         contact_law: wp.array(dtype=scalar)
+        friction_law: wp.array(dtype=scalar)
 
     return FabricArrays
 
@@ -264,7 +299,7 @@ def struct(scalar):
 VECTOR_FIELDS = ("rest_position", "free")
 INDEX_FIELDS = ("previous", "next", "node_crossing", "crossing_warp", "crossing_weft")
 SCALAR_FIELDS = ("rest_length", "stretch_stiffness", "bend_stiffness", "rest_angle", "node_side",
-                 "crossing_side", "crossing_offset", "contact_law")
+                 "crossing_side", "crossing_offset", "contact_law", "friction_law")
 
 
 def upload(arrays: PatchArrays, scalar, device: str):

@@ -74,7 +74,7 @@ def functions(scalar) -> SimpleNamespace:
 
 
 @functools.cache
-def persistent_kernel(scalar, damping: str, order: str = "scatter"):
+def persistent_kernel(scalar, damping: str, order: str = "scatter", has_friction: bool = False):
     """One thread relaxes the whole patch, the time loop inside (layout "persistent").
 
     `order` "scatter" evaluates each term once and adds it to its nodes
@@ -83,15 +83,16 @@ def persistent_kernel(scalar, damping: str, order: str = "scatter"):
     arithmetic in the same order as the per-step layout (bit-identical to it)."""
     vec = VECTORS[scalar]
     Fabric = fabric_arrays.struct(scalar)
-    ops, step_ops = fabric_forces.functions(scalar), functions(scalar)
+    ops, step_ops = fabric_forces.functions(scalar, has_friction), functions(scalar)
     kinetic = damping == "kinetic"
     gather = order == "gather"
 
     @wp.kernel(module="unique", module_options=MODULE_OPTIONS)
     def relax(fabric: Fabric, mass: wp.array(dtype=scalar), external: wp.array(dtype=vec),
-              dt: scalar, coefficient: scalar, tolerance: scalar, max_steps: int,
-              pos: wp.array(dtype=vec), vel: wp.array(dtype=vec), force: wp.array(dtype=vec),
-              contact: wp.array(dtype=scalar), outcome: wp.array(dtype=wp.int32),
+              anchors: wp.array(dtype=vec), dt: scalar, coefficient: scalar, tolerance: scalar,
+              max_steps: int, pos: wp.array(dtype=vec), vel: wp.array(dtype=vec),
+              force: wp.array(dtype=vec), contact: wp.array(dtype=scalar),
+              friction: wp.array(dtype=vec), outcome: wp.array(dtype=wp.int32),
               residual_out: wp.array(dtype=scalar)):
         """Steps until residual <= tolerance or max_steps; outcome = (status, steps)."""
         nodes = pos.shape[0]
@@ -102,11 +103,11 @@ def persistent_kernel(scalar, damping: str, order: str = "scatter"):
         for step in range(max_steps + 1):
             if wp.static(gather):
                 for c in range(contact.shape[0]):
-                    contact[c] = ops.contact_force(ops.closure(pos, fabric, c), fabric.contact_law)
+                    ops.crossing_pass(pos, fabric, anchors, contact, friction, c)
                 for i in range(nodes):
-                    force[i] = ops.node_force(i, pos, fabric, contact, external)
+                    force[i] = ops.node_force(i, pos, fabric, contact, friction, external)
             else:
-                ops.scatter_forces(pos, fabric, contact, external, force)
+                ops.scatter_forces(pos, fabric, anchors, contact, friction, external, force)
             residual = scalar(0.0)
             for i in range(nodes):
                 worst = step_ops.largest_component(force[i])
@@ -143,20 +144,21 @@ def persistent_kernel(scalar, damping: str, order: str = "scatter"):
 
 
 @functools.cache
-def per_step_kernel(scalar):
+def per_step_kernel(scalar, has_friction: bool = False):
     """One thread per node: gather the force, keep the residual, update (layout "per_step")."""
     vec = VECTORS[scalar]
     Fabric = fabric_arrays.struct(scalar)
-    ops, step_ops = fabric_forces.functions(scalar), functions(scalar)
+    ops, step_ops = fabric_forces.functions(scalar, has_friction), functions(scalar)
 
     @wp.kernel(module="unique", module_options=MODULE_OPTIONS)
     def node_step(fabric: Fabric, mass: wp.array(dtype=scalar), external: wp.array(dtype=vec),
                   dt: scalar, coefficient: scalar, contact: wp.array(dtype=scalar),
+                  friction: wp.array(dtype=vec),
                   pos: wp.array(dtype=vec), vel: wp.array(dtype=vec), force: wp.array(dtype=vec),
                   node_residual: wp.array(dtype=scalar), pos_out: wp.array(dtype=vec)):
         """force and node_residual [N] at pos; v and pos_out = pos + dt v [m]."""
         i = wp.tid()
-        f = ops.node_force(i, pos, fabric, contact, external)
+        f = ops.node_force(i, pos, fabric, contact, friction, external)
         force[i] = f
         node_residual[i] = step_ops.largest_component(f)
         v = step_ops.velocity(vel[i], f, mass[i], dt, coefficient)
@@ -184,7 +186,7 @@ class FabricExplicit:
     def __init__(self, arrays: fabric_arrays.PatchArrays, *, device: str = "cpu",
                  layout: str | None = None, damping: str = "kinetic", coefficient: float = 0.0,
                  dt: float = 1.0, scalar=wp.float64, check_interval: int = 16,
-                 order: str = "scatter"):
+                 order: str = "scatter", friction: bool | None = None):
         if layout is None:
             layout = default_layout(device)
         if layout not in LAYOUTS or damping not in DAMPINGS:
@@ -195,49 +197,64 @@ class FabricExplicit:
         self.scalar, self.dtype, self.vec = scalar, numpy_dtype(scalar), VECTORS[scalar]
         self.dt, self.coefficient = dt, 0.0 if damping == "kinetic" else coefficient
         self.check_interval, self.order = check_interval, order
+        self.has_friction = bool(arrays.friction_law[3] > 0.0) if friction is None else friction
         self.fabric = fabric_arrays.upload(arrays, scalar, device)
         self.mass = self._array(fabric_arrays.gershgorin_masses(arrays, dt), scalar)
         n, crossings = arrays.nodes, arrays.crossings
         self.vel, self.force = (self._array(np.zeros((n, 2)), self.vec) for _ in range(2))
         self.contact = self._array(np.zeros(crossings), scalar)
+        self.friction = self._array(np.zeros((crossings, 2)), self.vec)
 
     def _array(self, values, dtype):
         return wp.array(np.asarray(values, self.dtype), dtype=dtype, device=self.device)
 
     def relax(self, positions: np.ndarray, external: np.ndarray, tolerance: float,
-              max_steps: int) -> tuple[np.ndarray, Outcome]:
-        """Relax from `positions` (n, 2) [m] at rest under the nodal forces `external` (n, 2) [N]."""
+              max_steps: int, anchors: np.ndarray | None = None) -> tuple[np.ndarray, Outcome]:
+        """Relax from `positions` (n, 2) [m] at rest under the nodal forces `external` (n, 2) [N],
+        the friction anchors `anchors` (C, 2) [m] held (default: at the as-woven crossings)."""
         pos = self._array(positions, self.vec)
         self.vel.zero_()
         load = self._array(external, self.vec)
+        if anchors is None:
+            anchors = np.zeros((self.arrays.crossings, 2))
+        self.anchors = self._array(anchors, self.vec)
         if self.layout == "persistent":
             outcome = self._persistent(pos, load, tolerance, max_steps)
         else:
             pos, outcome = self._per_step(pos, load, tolerance, max_steps)
         return pos.numpy().astype(float), outcome
 
+    def return_map(self, positions: np.ndarray, anchors: np.ndarray) -> np.ndarray:
+        """The anchors (C, 2) [m] after the radial return map at `positions` (MODEL.md 4, 10)."""
+        updated = self._array(anchors, self.vec)
+        wp.launch(fabric_forces.kernels(self.scalar, self.has_friction).return_map,
+                  dim=self.arrays.crossings, device=self.device,
+                  inputs=[self._array(positions, self.vec), self.fabric, updated])
+        return updated.numpy().astype(float)
+
     def _persistent(self, pos, load, tolerance, max_steps) -> Outcome:
         code = wp.zeros(2, dtype=wp.int32, device=self.device)
         residual = wp.zeros(1, dtype=self.scalar, device=self.device)
-        wp.launch(persistent_kernel(self.scalar, self.damping, self.order), dim=1, device=self.device,
-                  inputs=[self.fabric, self.mass, load, self.scalar(self.dt),
+        kernel = persistent_kernel(self.scalar, self.damping, self.order, self.has_friction)
+        wp.launch(kernel, dim=1, device=self.device,
+                  inputs=[self.fabric, self.mass, load, self.anchors, self.scalar(self.dt),
                           self.scalar(self.coefficient), self.scalar(tolerance), int(max_steps), pos,
-                          self.vel, self.force, self.contact, code, residual])
+                          self.vel, self.force, self.contact, self.friction, code, residual])
         status_code, steps = code.numpy()
         return Outcome(int(status_code), int(steps), float(residual.numpy()[0]))
 
     def _per_step(self, pos, load, tolerance, max_steps):
-        passes = fabric_forces.kernels(self.scalar)
-        step_kernel = per_step_kernel(self.scalar)
+        passes = fabric_forces.kernels(self.scalar, self.has_friction)
+        step_kernel = per_step_kernel(self.scalar, self.has_friction)
         other = wp.empty_like(pos)
         node_residual = wp.zeros(self.arrays.nodes, dtype=self.scalar, device=self.device)
         dt, c = self.scalar(self.dt), self.scalar(self.coefficient)
         step = 0
         while True:  # forces and residual at pos, and the move to `other`, in one pass
             wp.launch(passes.crossing_pass, dim=self.arrays.crossings, device=self.device,
-                      inputs=[pos, self.fabric, self.contact])
+                      inputs=[pos, self.fabric, self.anchors, self.contact, self.friction])
             wp.launch(step_kernel, dim=self.arrays.nodes, device=self.device,
-                      inputs=[self.fabric, self.mass, load, dt, c, self.contact, pos, self.vel,
+                      inputs=[self.fabric, self.mass, load, dt, c, self.contact, self.friction, pos, self.vel,
                               self.force, node_residual, other])
             if step == max_steps or step % self.check_interval == 0:
                 residual = float(np.max(node_residual.numpy(), initial=0.0))

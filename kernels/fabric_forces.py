@@ -21,6 +21,14 @@ Terms (each a twin of the one-yarn kernels, written per node):
   from the lower bound k_c (g - C_wa - C_we), as in `kernels/contact.py`), energy
   R^2 / (2 k_c) + sum_m (C_m / a_m)(1 - exp(-a_m R)(1 + a_m R)); force +sigma R in z
   on the warp node, -sigma R on the weft node;
+- friction (variants built with it; MODEL.md 4, 10): at crossing c the in-plane slip
+  s = (x_wa - X_j - xi_x, y_we - Y_k - xi_y) (X_j, Y_k the nodes' as-woven in-plane
+  coordinates, the planes fixed; `anchors` holds xi relative to them) feels the isotropic
+  Huber potential with F_T = alpha R + beta ell r_f (1 - exp(-R/R_0)) (R > 0) at the
+  crossing's current R, frozen in the derivative: the force -k_t s while sticking
+  (k_t |s| <= F_T), -F_T s/|s| while sliding; its first component acts on the warp
+  node along x, its second on the weft node along y. The per-crossing pass writes it
+  beside R;
 - the end loads: a given external force per node (its work -f . (r - r0)).
 Held dofs (`free` = 0) carry no force.
 """
@@ -30,7 +38,7 @@ from types import SimpleNamespace
 
 import warp as wp
 
-from dynfab.kernels import fabric_arrays
+from dynfab.kernels import fabric_arrays, friction as friction_module
 from dynfab.kernels.configuration import MODULE_OPTIONS
 from dynfab.kernels.contact import NEWTON_STOP_EPS
 from dynfab.kernels.precision import VECTORS, epsilon
@@ -38,11 +46,12 @@ from dynfab.terms.contact import MAX_NEWTON
 
 
 @functools.cache
-def functions(scalar) -> SimpleNamespace:
-    """The per-node and per-crossing `wp.func`s for one scalar type."""
+def functions(scalar, has_friction: bool) -> SimpleNamespace:
+    """The per-node and per-crossing `wp.func`s for one scalar type, with or without friction."""
     vec = VECTORS[scalar]
     Fabric = fabric_arrays.struct(scalar)
     newton_stop = NEWTON_STOP_EPS * epsilon(scalar)
+    limit = friction_module.functions(scalar).limit
 
     @wp.func
     def closure(pos: wp.array(dtype=vec), fabric: Fabric, c: int) -> scalar:
@@ -83,6 +92,47 @@ def functions(scalar) -> SimpleNamespace:
         return energy
 
     @wp.func
+    def slip(pos: wp.array(dtype=vec), fabric: Fabric, anchors: wp.array(dtype=vec), c: int) -> vec:
+        """s = (x_wa - X_j, y_we - Y_k) - xi [m] of crossing c."""
+        warp_node = fabric.crossing_warp[c]
+        weft_node = fabric.crossing_weft[c]
+        return vec(pos[warp_node][0] - fabric.rest_position[warp_node][0],
+                   pos[weft_node][0] - fabric.rest_position[weft_node][0]) - anchors[c]
+
+    @wp.func
+    def friction_limit(R: scalar, fabric: Fabric) -> scalar:
+        """F_T [N] at contact force R (0 where open)."""
+        law = fabric.friction_law
+        return limit(R, law[0], law[1], law[2])
+
+    @wp.func
+    def huber_force(s: vec, bound: scalar, stick: scalar) -> vec:
+        """-dH/ds [N]: -k_t s sticking (k_t |s| <= F_T), -F_T s / |s| sliding."""
+        trial = -stick * s
+        size = wp.length(trial)
+        if size > bound:
+            trial = trial * (bound / size)
+        return trial
+
+    @wp.func
+    def huber_energy(s: vec, bound: scalar, stick: scalar) -> scalar:
+        """H(s) [J]: k_t |s|^2 / 2 sticking, F_T |s| - F_T^2 / (2 k_t) sliding (0 if k_t = 0)."""
+        energy = scalar(0.0)
+        if stick > scalar(0.0):
+            size = wp.length(s)
+            if stick * size <= bound:
+                energy = scalar(0.5) * stick * size * size
+            else:
+                energy = bound * size - bound * bound / (scalar(2.0) * stick)
+        return energy
+
+    @wp.func
+    def crossing_friction(pos: wp.array(dtype=vec), fabric: Fabric, anchors: wp.array(dtype=vec),
+                          c: int, R: scalar) -> vec:
+        """Friction force [N] of crossing c: (on the warp node along x, on the weft node along y)."""
+        return huber_force(slip(pos, fabric, anchors, c), friction_limit(R, fabric), fabric.friction_law[3])
+
+    @wp.func
     def segment_pull(pos: wp.array(dtype=vec), fabric: Fabric, i: int) -> vec:
         """k (l - l0) e / l [N] of segment (i, next i), e = r_next - r_i: the force on node i."""
         e = pos[fabric.next[i]] - pos[i]
@@ -100,8 +150,8 @@ def functions(scalar) -> SimpleNamespace:
         return fabric.bend_stiffness[m] * (turning_angle(a, b) - fabric.rest_angle[m])
 
     @wp.func
-    def node_force(i: int, pos: wp.array(dtype=vec), fabric: Fabric,
-                   contact: wp.array(dtype=scalar), external: wp.array(dtype=vec)) -> vec:
+    def node_force(i: int, pos: wp.array(dtype=vec), fabric: Fabric, contact: wp.array(dtype=scalar),
+                   friction: wp.array(dtype=vec), external: wp.array(dtype=vec)) -> vec:
         """-dV/dr_i [N] on the free dofs of node i, gathered from its chain and its crossing."""
         before = fabric.previous[i]
         after = fabric.next[i]
@@ -132,6 +182,11 @@ def functions(scalar) -> SimpleNamespace:
         c = fabric.node_crossing[i]
         if c >= 0:
             force = force + vec(scalar(0.0), fabric.node_side[i] * contact[c])
+            if wp.static(has_friction):
+                along = friction[c][1]
+                if fabric.crossing_warp[c] == i:
+                    along = friction[c][0]
+                force = force + vec(along, scalar(0.0))
         return wp.cw_mul(force, fabric.free[i])
 
     @wp.func
@@ -151,11 +206,12 @@ def functions(scalar) -> SimpleNamespace:
         return energy
 
     @wp.func
-    def scatter_forces(pos: wp.array(dtype=vec), fabric: Fabric, contact: wp.array(dtype=scalar),
+    def scatter_forces(pos: wp.array(dtype=vec), fabric: Fabric, anchors: wp.array(dtype=vec),
+                       contact: wp.array(dtype=scalar), friction: wp.array(dtype=vec),
                        external: wp.array(dtype=vec), force: wp.array(dtype=vec)):
         """force = -dV/dr [N] on the free dofs, every term evaluated once and scattered to its
         nodes (one thread: the single-threaded layout's cheaper order of the same sums);
-        contact[c] = R [N] of every crossing."""
+        contact[c] = R [N] and friction[c] of every crossing."""
         for i in range(pos.shape[0]):
             force[i] = external[i]
         for i in range(pos.shape[0]):
@@ -180,43 +236,88 @@ def functions(scalar) -> SimpleNamespace:
             up = vec(scalar(0.0), fabric.crossing_side[c] * R)
             force[fabric.crossing_warp[c]] = force[fabric.crossing_warp[c]] + up
             force[fabric.crossing_weft[c]] = force[fabric.crossing_weft[c]] - up
+            if wp.static(has_friction):
+                drag = crossing_friction(pos, fabric, anchors, c, R)
+                friction[c] = drag
+                force[fabric.crossing_warp[c]] = force[fabric.crossing_warp[c]] + vec(drag[0], scalar(0.0))
+                force[fabric.crossing_weft[c]] = force[fabric.crossing_weft[c]] + vec(drag[1], scalar(0.0))
         for i in range(pos.shape[0]):
             force[i] = wp.cw_mul(force[i], fabric.free[i])
 
-    return SimpleNamespace(closure=closure, contact_force=contact_force,
-                           contact_energy=contact_energy, node_force=node_force,
-                           node_energy=node_energy, scatter_forces=scatter_forces)
+    @wp.func
+    def crossing_pass(pos: wp.array(dtype=vec), fabric: Fabric, anchors: wp.array(dtype=vec),
+                      contact: wp.array(dtype=scalar), friction: wp.array(dtype=vec), c: int):
+        """contact[c] = R [N] and (with friction) friction[c] [N] of crossing c."""
+        R = contact_force(closure(pos, fabric, c), fabric.contact_law)
+        contact[c] = R
+        if wp.static(has_friction):
+            friction[c] = crossing_friction(pos, fabric, anchors, c, R)
+
+    @wp.func
+    def crossing_energy(pos: wp.array(dtype=vec), fabric: Fabric, anchors: wp.array(dtype=vec),
+                        c: int) -> scalar:
+        """Contact energy [J] of crossing c, plus its Huber term with F_T at the current R."""
+        R = contact_force(closure(pos, fabric, c), fabric.contact_law)
+        energy = contact_energy(R, fabric.contact_law)
+        if wp.static(has_friction):
+            energy += huber_energy(slip(pos, fabric, anchors, c), friction_limit(R, fabric),
+                                   fabric.friction_law[3])
+        return energy
+
+    @wp.func
+    def return_map(pos: wp.array(dtype=vec), fabric: Fabric, anchors: wp.array(dtype=vec), c: int):
+        """Radial return of anchor c after a converged step: where k_t |s| > F_T, xi moves
+        along s until k_t |s| = F_T (MODEL.md 4, 10)."""
+        R = contact_force(closure(pos, fabric, c), fabric.contact_law)
+        bound = friction_limit(R, fabric)
+        stick = fabric.friction_law[3]
+        s = slip(pos, fabric, anchors, c)
+        size = wp.length(s)
+        if stick * size > bound:
+            anchors[c] = anchors[c] + (scalar(1.0) - bound / (stick * size)) * s
+
+    return SimpleNamespace(closure=closure, contact_force=contact_force, crossing_pass=crossing_pass,
+                           crossing_energy=crossing_energy, return_map=return_map,
+                           node_force=node_force, node_energy=node_energy,
+                           scatter_forces=scatter_forces)
 
 
 @functools.cache
-def kernels(scalar) -> SimpleNamespace:
-    """Kernels of one scalar type: the two force passes and the energy, for tests and the
-    per-step layout."""
+def kernels(scalar, has_friction: bool) -> SimpleNamespace:
+    """Kernels of one scalar type and term selection: the two force passes, the energy (tests),
+    and the anchors' return map."""
     vec = VECTORS[scalar]
     Fabric = fabric_arrays.struct(scalar)
-    ops = functions(scalar)
+    ops = functions(scalar, has_friction)
 
     @wp.kernel(module="unique", module_options=MODULE_OPTIONS)
-    def crossing_pass(pos: wp.array(dtype=vec), fabric: Fabric, contact: wp.array(dtype=scalar)):
-        """contact[c] = R [N] of crossing c (one thread per crossing)."""
-        c = wp.tid()
-        contact[c] = ops.contact_force(ops.closure(pos, fabric, c), fabric.contact_law)
+    def crossing_pass(pos: wp.array(dtype=vec), fabric: Fabric, anchors: wp.array(dtype=vec),
+                      contact: wp.array(dtype=scalar), friction: wp.array(dtype=vec)):
+        """R [N] (and friction [N]) of crossing c (one thread per crossing)."""
+        ops.crossing_pass(pos, fabric, anchors, contact, friction, wp.tid())
 
     @wp.kernel(module="unique", module_options=MODULE_OPTIONS)
     def node_pass(pos: wp.array(dtype=vec), fabric: Fabric, contact: wp.array(dtype=scalar),
-                  external: wp.array(dtype=vec), force: wp.array(dtype=vec)):
-        """force[i] = -dV/dr_i [N] on the free dofs (one thread per node)."""
+                  friction: wp.array(dtype=vec), external: wp.array(dtype=vec),
+                  force: wp.array(dtype=vec)):
+        """force[i] = -dV/dr_i (+ friction) [N] on the free dofs (one thread per node)."""
         i = wp.tid()
-        force[i] = ops.node_force(i, pos, fabric, contact, external)
+        force[i] = ops.node_force(i, pos, fabric, contact, friction, external)
 
     @wp.kernel(module="unique", module_options=MODULE_OPTIONS)
-    def energy_pass(pos: wp.array(dtype=vec), fabric: Fabric, external: wp.array(dtype=vec),
-                    node_energy: wp.array(dtype=scalar), crossing_energy: wp.array(dtype=scalar)):
-        """Per-node energy [J] (and, in the first C threads, per-crossing contact energy)."""
+    def energy_pass(pos: wp.array(dtype=vec), fabric: Fabric, anchors: wp.array(dtype=vec),
+                    external: wp.array(dtype=vec), node_energy: wp.array(dtype=scalar),
+                    crossing_energy: wp.array(dtype=scalar)):
+        """Per-node energy [J] (and, in the first C threads, per-crossing energy)."""
         i = wp.tid()
         node_energy[i] = ops.node_energy(i, pos, fabric, external)
         if i < crossing_energy.shape[0]:
-            R = ops.contact_force(ops.closure(pos, fabric, i), fabric.contact_law)
-            crossing_energy[i] = ops.contact_energy(R, fabric.contact_law)
+            crossing_energy[i] = ops.crossing_energy(pos, fabric, anchors, i)
 
-    return SimpleNamespace(crossing_pass=crossing_pass, node_pass=node_pass, energy_pass=energy_pass)
+    @wp.kernel(module="unique", module_options=MODULE_OPTIONS)
+    def return_map(pos: wp.array(dtype=vec), fabric: Fabric, anchors: wp.array(dtype=vec)):
+        """Return-map every anchor (one thread per crossing)."""
+        ops.return_map(pos, fabric, anchors, wp.tid())
+
+    return SimpleNamespace(crossing_pass=crossing_pass, node_pass=node_pass, energy_pass=energy_pass,
+                           return_map=return_map)

@@ -2,8 +2,9 @@
 bit-for-bit repeatable runs in both layouts, and a patch with its wefts held against the
 one-yarn static reference.
 
-One kernel configuration (float64) is built: the force and energy passes, the per-step
-node kernel (viscous) and the persistent kernel (viscous and kinetic).
+One kernel configuration (float64, friction compiled in; a patch without friction has
+F_T = k_t = 0) is built: the force and energy passes, the per-step node kernel (viscous)
+and the persistent kernel (viscous in both force orders, kinetic).
 """
 
 import math
@@ -24,6 +25,8 @@ EPS = np.finfo(float).eps
 SCALAR = wp.float64
 PATCH = fabric_arrays.paper_patch(2, 3)
 """2 warps x 3 wefts of the paper's yarn, 8 segments per half-wave (N = 24, M = 16)."""
+PAPER_FRICTION = fabric_arrays.Friction(alpha=0.2, beta=1e3, contact_length=2e-3, fiber_radius=1e-3)
+"""The paper's Gralen parameters (MODEL.md 7), R_0 = 1e-5 N."""
 
 
 @pytest.fixture(scope="module")
@@ -37,37 +40,54 @@ def perturbed(arrays, seed=1, size=2e-5):
     return arrays.rest_position + rng.uniform(-size, size, arrays.rest_position.shape)
 
 
-def forces_and_energy(arrays, positions, external):
+def forces_and_energy(arrays, positions, external, anchors=None):
     """(force (n, 2) [N], energy [J]) from the Warp kernels (forces: the two passes)."""
-    passes = fabric_forces.kernels(SCALAR)
+    passes = fabric_forces.kernels(SCALAR, True)
     fabric = fabric_arrays.upload(arrays, SCALAR, "cpu")
     pos = wp.array(positions, dtype=wp.vec2d)
     load = wp.array(external, dtype=wp.vec2d)
+    held = wp.array(anchors if anchors is not None else np.zeros((arrays.crossings, 2)), dtype=wp.vec2d)
     contact = wp.zeros(arrays.crossings, dtype=wp.float64)
+    friction = wp.zeros(arrays.crossings, dtype=wp.vec2d)
     force = wp.zeros(arrays.nodes, dtype=wp.vec2d)
-    wp.launch(passes.crossing_pass, dim=arrays.crossings, inputs=[pos, fabric, contact])
-    wp.launch(passes.node_pass, dim=arrays.nodes, inputs=[pos, fabric, contact, load, force])
+    wp.launch(passes.crossing_pass, dim=arrays.crossings, inputs=[pos, fabric, held, contact, friction])
+    wp.launch(passes.node_pass, dim=arrays.nodes, inputs=[pos, fabric, contact, friction, load, force])
     node_energy = wp.zeros(arrays.nodes, dtype=wp.float64)
     crossing_energy = wp.zeros(arrays.crossings, dtype=wp.float64)
     wp.launch(passes.energy_pass, dim=arrays.nodes,
-              inputs=[pos, fabric, load, node_energy, crossing_energy])
+              inputs=[pos, fabric, held, load, node_energy, crossing_energy])
     terms = np.concatenate([node_energy.numpy(), crossing_energy.numpy()])
     return force.numpy(), math.fsum(terms), math.fsum(np.abs(terms))
 
 
 def only(arrays, term):
     """The patch with one term: the others' stiffnesses zeroed, contacts opened by a large
-    negative offset (g < 0 at every crossing). Every dof free."""
+    negative offset (g < 0 at every crossing), friction off (F_T = k_t = 0) but in
+    "friction" (which keeps the contact, F_T needs R), whose k_t is 10 N/m: the slips of
+    the perturbation then stick, 1e-4 m or more from the Huber kink. Every dof free."""
     open_offset = np.full(arrays.crossings, -1.0)
     zero = np.zeros(arrays.nodes)
     keep = {"stretch": dict(bend_stiffness=zero, crossing_offset=open_offset),
             "bending": dict(stretch_stiffness=zero, crossing_offset=open_offset),
             "contact": dict(stretch_stiffness=zero, bend_stiffness=zero),
+            "friction": dict(stretch_stiffness=zero, bend_stiffness=zero,
+                             friction_law=np.r_[fabric_arrays.friction_law(
+                                 replace(PATCH, friction=PAPER_FRICTION))[:3], 10.0]),
             "all": {}}[term]
+    if term != "friction":
+        keep["friction_law"] = np.zeros(4)
     return replace(arrays, free=np.ones_like(arrays.free), **keep)
 
 
-@pytest.mark.parametrize("term", ["stretch", "bending", "contact", "all"])
+def friction_anchors(arrays, positions):
+    """Anchors (C, 2) [m] that leave every other crossing sliding: xi = 1e-3 m along -s, far
+    beyond F_T / k_t (about 3e-4 m at k_t = 10 N/m), and the others at the as-woven planes."""
+    anchors = np.zeros((arrays.crossings, 2))
+    anchors[::2] = -1e-3
+    return anchors
+
+
+@pytest.mark.parametrize("term", ["stretch", "bending", "contact", "friction", "all"])
 def test_forces_are_minus_the_energy_gradient(arrays, term):
     """-dE/dr by central differences of the Warp energy against the Warp force, every dof.
 
@@ -77,7 +97,9 @@ def test_forces_are_minus_the_energy_gradient(arrays, term):
     truncation at h is a third of |D(2h) - D(h)| (it scales as h^2), so the force must lie
     within |D(2h) - D(h)| + 8 eps sum|E| / h of D(h): a wrong force misses that by its own
     error. Closures are kept 10 h away from the
-    contact's kink at g = 0 (the perturbation closes about half the crossings)."""
+    contact's kink at g = 0 (the perturbation closes about half the crossings).
+    Friction is the derivative of its Huber term with F_T frozen (MODEL.md 4): checked along
+    the in-plane dofs of the crossing nodes, on which R, hence F_T, does not depend."""
     patch = only(arrays, term)
     positions = perturbed(arrays)
     external = 0.3 * (arrays.load_direction + arrays.weft_load_direction)
@@ -85,7 +107,8 @@ def test_forces_are_minus_the_energy_gradient(arrays, term):
     g = arrays.crossing_offset - arrays.crossing_side * (
         positions[arrays.crossing_warp, 1] - positions[arrays.crossing_weft, 1])
     assert np.abs(g).min() > 10 * h and (g > 0).any() and (g < 0).any()
-    force, _, scale = forces_and_energy(patch, positions, external)
+    anchors = friction_anchors(arrays, positions)
+    force, _, scale = forces_and_energy(patch, positions, external, anchors)
 
     def difference(i, c, step):
         values, coordinates = [], []
@@ -93,16 +116,23 @@ def test_forces_are_minus_the_energy_gradient(arrays, term):
             moved = positions.copy()
             moved[i, c] += sign * step  # the coordinate actually reached, not x +- step
             coordinates.append(moved[i, c])
-            values.append(forces_and_energy(patch, moved, external)[1])
+            values.append(forces_and_energy(patch, moved, external, anchors)[1])
         return -(values[0] - values[1]) / (coordinates[0] - coordinates[1])
 
     rng = np.random.default_rng(2)
-    for i in rng.choice(arrays.nodes, 24, replace=False).tolist() + list(arrays.crossing_warp[:2]):
-        for c in range(2):
+    nodes = rng.choice(arrays.nodes, 24, replace=False).tolist() + list(arrays.crossing_warp[:2])
+    components = (0, 1)
+    if term == "friction":
+        nodes, components = list(arrays.crossing_warp) + list(arrays.crossing_weft), (0,)
+    for i in nodes:
+        for c in components:
             at_h, at_2h = difference(i, c, h), difference(i, c, 2 * h)
             bound = abs(at_2h - at_h) + 8 * EPS * scale / h
             assert abs(force[i, c] - at_h) <= bound, (term, i, c, force[i, c], at_h, bound)
     assert np.abs(force).max() > 1e3 * 8 * EPS * scale / h  # the check is not vacuous
+    if term == "friction":  # friction acts at sliding (even) and sticking (odd) crossings
+        drag = np.abs(force[arrays.crossing_warp, 0]) + np.abs(force[arrays.crossing_weft, 0])
+        assert (drag[::2] > 1e-4).any() and (drag[1::2] > 1e-5).any()
 
 
 def test_runs_are_bit_identical_in_both_layouts(arrays):
