@@ -159,11 +159,16 @@ def test_runs_are_bit_identical_in_both_layouts(arrays):
     assert np.abs(scattered - results["per_step", "gather"]).max() <= 1e-12
 
 
-def one_yarn_model(load):
+def one_yarn_model(load, friction=None):
     """The one-yarn model of PATCH's warps (geometry.yarns = 2, phases +-1) with a rigid weft
-    spring: contact_law k_s = k_c exactly (MODEL.md 10: k_we -> infinity)."""
+    spring: contact_law k_s = k_c exactly (MODEL.md 10: k_we -> infinity); `friction` a
+    fabric_arrays.Friction with its k_t given."""
     family = PATCH.warp
-    scene = make_scene(
+    tables = {} if friction is None else {"friction": {
+        "alpha": friction.alpha, "beta": friction.beta, "contact_length": friction.contact_length,
+        "fiber_radius": friction.fiber_radius, "onset_force": friction.onset_force,
+        "stick_stiffness": friction.stick_stiffness}}
+    scene = make_scene(**tables,
         geometry={"length": PATCH.length, "segments": PATCH.segments, "crossings": PATCH.wefts,
                   "amplitude": family.amplitude, "yarns": PATCH.warps},
         warp={"EA": family.EA, "EI": family.EI, "kawabata_C": family.kawabata_C,
@@ -182,40 +187,67 @@ def one_yarn_model(load):
     return replace(model, yarns=tuple(yarns))
 
 
-def inverse_stiffness_norm(model, positions) -> float:
-    """max over yarns of ||K^-1||_inf [m/N], K the Hessian on the free dofs (no friction)."""
+def inverse_stiffness_norm(model, positions, anchors, coupled=False) -> float:
+    """max over yarns of ||K^-1||_inf [m/N], K the Hessian on the free dofs (coupled: the
+    Jacobian of the friction problem, F_T following R), with the step's anchors (yarns, C)."""
     free = ~model.fixed_dofs()
     norms = []
     for k, yarn in enumerate(model.yarns):
         contact_force, limit, tangent = (np.zeros(model.crossings) for _ in range(3))
         assembly.contact_state(positions[k], yarn, contact_force, limit, tangent)
         band = zeros_band(positions[k].size)
-        assembly.hessian(positions[k], yarn, np.zeros(model.crossings), limit, tangent, False, band)
+        assembly.hessian(positions[k], yarn, anchors[k], limit, tangent, coupled, band)
         matrix = dense(band)[np.ix_(free, free)]
         norms.append(np.abs(np.linalg.inv(matrix)).sum(axis=1).max())
     return max(norms)
 
 
-def test_held_wefts_give_the_one_yarn_model_with_a_rigid_weft_spring(arrays):
-    """Every weft node held: each warp is the one-yarn model with k_s = k_c (MODEL.md 10).
+FRICTION_STICK = 1e3
+"""k_t [N/m] of the friction comparison, given to both models (the fabric's default is the
+smaller family's EA / segment length, the one-yarn model's its warp's)."""
+
+
+@pytest.mark.parametrize("with_friction", [False, True])
+def test_held_wefts_give_the_one_yarn_model_with_a_rigid_weft_spring(arrays, with_friction):
+    """Every weft node held: each warp is the one-yarn model with k_s = k_c (MODEL.md 10);
+    with friction, the weft node's slip y - Y_k - xi_y stays 0, so the isotropic Huber
+    term is the one-yarn model's on x alone.
 
     Linearising the residual at the solution, x_fabric - x_static = K^-1 (r_fabric - r_static),
     so |x_fabric - x_static|_inf <= ||K^-1||_inf (r + r_s), K the warp's Hessian on its free
-    dofs (with the wefts held the fabric's K is block-diagonal, one one-yarn K per warp)."""
+    dofs (with the wefts held the fabric's K is block-diagonal, one one-yarn K per warp; with
+    friction, the Jacobian of the coupled problem at the step's anchors). The return-mapped
+    anchors then agree to the same bound: xi = x - F_T s / (k_t |s|) at a sliding crossing moves
+    with x and with F_T / k_t, whose change alpha dR / k_t <= alpha k_c dz / k_t adds the factor
+    (1 + alpha k_c / k_t)."""
     load = 0.3
-    model = one_yarn_model(load)
-    state, record = StaticSolver(model).step(initial_state(model), load)
-    held = arrays.free.copy()
-    held[arrays.weft_nodes.ravel()] = 0.0
-    patch = replace(arrays, free=held)
-    solver = fabric_explicit.FabricExplicit(patch, damping="kinetic")
+    friction = replace(PAPER_FRICTION, stick_stiffness=FRICTION_STICK) if with_friction else None
+    model = one_yarn_model(load, friction)
+    start = initial_state(model)
+    state, record = StaticSolver(model).step(start, load)
+    patch = fabric_arrays.build(replace(PATCH, friction=friction))
+    held = patch.free.copy()
+    held[patch.weft_nodes.ravel()] = 0.0
+    patch = replace(patch, free=held)
+    solver = fabric_explicit.FabricExplicit(patch, damping="kinetic", friction=True)
     tolerance = 1e-10
-    positions, outcome = solver.relax(arrays.rest_position, load * arrays.load_direction, tolerance,
+    positions, outcome = solver.relax(patch.rest_position, load * patch.load_direction, tolerance,
                                       200_000)
     assert outcome.status == status.CONVERGED, outcome
-    assert np.array_equal(positions[arrays.weft_nodes], arrays.rest_position[arrays.weft_nodes])
-    bound = inverse_stiffness_norm(model, state.positions) * (outcome.residual + np.max(record["residual"]))
-    error = np.abs(positions[arrays.warp_nodes] - state.positions).max()
-    moved = np.abs(state.positions - initial_state(model).positions).max()
+    assert np.array_equal(positions[patch.weft_nodes], patch.rest_position[patch.weft_nodes])
+    norm = inverse_stiffness_norm(model, state.positions, start.anchors, coupled=with_friction)
+    bound = norm * (outcome.residual + np.max(record["residual"]))
+    error = np.abs(positions[patch.warp_nodes] - state.positions).max()
+    moved = np.abs(state.positions - start.positions).max()
     assert moved > 1e3 * bound  # the load moves the warps far beyond the tolerance
     assert error <= bound, (error, bound)
+    if with_friction:
+        anchors = solver.return_map(positions, np.zeros((patch.crossings, 2)))
+        planes = patch.rest_position[patch.crossing_warp, 0]
+        fabric_anchors = (planes + anchors[:, 0]).reshape(PATCH.warps, PATCH.wefts)
+        slid = np.abs(state.anchors - start.anchors).max()
+        law = patch.friction_law
+        anchor_bound = bound * (1 + law[0] * patch.contact_law[0] / law[3])
+        assert slid > 1e3 * anchor_bound  # crossings slide
+        assert np.abs(fabric_anchors - state.anchors).max() <= anchor_bound
+        assert np.array_equal(anchors[:, 1], np.zeros(patch.crossings))  # the weft does not slip
