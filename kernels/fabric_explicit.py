@@ -7,6 +7,9 @@ damping (Barnes, c = 0): when the kinetic energy of the new half-step velocities
 below the last one, the peak has just been passed; the positions go back to the
 estimated peak x* = x^{n+1} - 3/2 dt v^{n+1/2} + dt^2/2 M^-1 f^n and v = 0. Relaxation
 stops when the residual, max |f| over the free dofs, is at or below the tolerance.
+With friction (the variants built with it) the anchors stay fixed during a relaxation,
+the quasi-static incremental form of MODEL.md 4; `FabricExplicit.return_map` moves them
+after a converged one.
 
 Two layouts (tests/test_fabric_kernels.py checks that they agree: bit for bit with
 `order="gather"`, to rounding with the default scatter order):
@@ -22,8 +25,8 @@ Two layouts (tests/test_fabric_kernels.py checks that they agree: bit for bit wi
 - "per_step": per time step, one launch of a thread per crossing (R), then one of a
   thread per node (force gather, residual and update, writing the new positions into a
   second buffer: a node's neighbours read the old ones), the GPU layout. Every thread
-  writes only its own slots, no atomics, so runs and resumed runs are bit for bit
-  repeatable. The residual is read back (max over the per-node maxima, exact in any
+  writes only its own slots, no atomics, so runs are bit for bit repeatable (a resume
+  from saved positions, velocities and anchors would be too; `relax` starts from rest). The residual is read back (max over the per-node maxima, exact in any
   order) every `check_interval` steps. Viscous damping only: kinetic damping needs the
   kinetic energy, a sum over all nodes, at every step (a deterministic reduction per step
   is left out).
