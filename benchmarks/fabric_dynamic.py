@@ -18,10 +18,11 @@ compiles), fastest of REPEATS runs:
 4. A plain numba loop of the same forces: contact per crossing, stretch per segment and
    bending per inner node scattered into the force array, then the same update.
 
-Reported: ns per node and step of each, the per-step launch cost (3 - 2), the ratio persistent / numba (aim: at most
-1.5x), the exponent of a least-squares fit of log(time per step) against log(nodes) for
-the persistent layout (aim: at most 1.1), and the largest position difference between
-Warp and numba after the same steps (the same arithmetic up to the order of the sums).
+Reported: ns per node and step of each, the per-step launch cost (3 - 2), the ratio
+persistent / numba (aim: at most 1.5x), the exponent of a least-squares fit of
+log(time per step) against log(nodes) for the persistent layout (aim: at most 1.1), and
+the largest position difference between Warp and numba after the same steps (the same
+arithmetic up to the order of the sums).
 
 Run: python benchmarks/fabric_dynamic.py   (prints the table, writes benchmarks/fabric_dynamic.json)
 """
@@ -219,9 +220,10 @@ def main():
                "persistent_over_numba_worst": worst_ratio}
     print(f"fitted exponent of the time per step against the nodes (persistent): {exponent:.3f}"
           f" (numba: {numba_exponent:.3f})")
-    print(f"two launches per step (per_step layout on the CPU) cost {rows[0]['launch_cost_us_per_step']:.1f} us"
-          f" per step on the smallest patch, {rows[0]['persistent_s_per_step'] * 1e6:.1f} us the whole"
-          " step of the persistent layout there")
+    first = rows[0]
+    print(f"two launches per step (per_step layout on the CPU) cost "
+          f"{first['launch_cost_us_per_step']:.1f} us per step on the smallest patch, "
+          f"{first['persistent_s_per_step'] * 1e6:.1f} us the whole step of the persistent layout there")
     aims = {"persistent_over_numba": worst_ratio, "exponent_per_step_vs_nodes": exponent}
     for name, value in aims.items():
         verdict = "met" if value <= AIMS[name] else "NOT met"

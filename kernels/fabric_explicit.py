@@ -1,4 +1,4 @@
-"""Explicit dynamic relaxation of a fabric patch: symplectic Euler, viscous or kinetic damping (MODEL.md 5, 10).
+"""Explicit relaxation of a fabric patch: symplectic Euler, viscous or kinetic damping (MODEL.md 5, 10).
 
     v^{n+1/2} = ((1 - c dt/2) v^{n-1/2} + dt M^-1 f(x^n)) / (1 + c dt/2),   x^{n+1} = x^n + dt v^{n+1/2}
 
@@ -19,15 +19,17 @@ Two layouts (tests/test_fabric_kernels.py checks that they agree: bit for bit wi
   and costs 10-45 us from Python, so per-step launches on the CPU pay that cost twice
   per step for no parallelism; the loop inside the kernel pays it once
   (benchmarks/fabric_dynamic.py measures both). One thread needs no gather: by default
-  it evaluates each term once and scatters it (`fabric_forces.scatter_forces`), about
-  half the work of the per-node gather, which recomputes every segment twice and every
-  bending spring three times. Viscous and kinetic damping.
+  it evaluates each term once and scatters it (`fabric_forces.scatter_forces`), 1.7x
+  faster than the per-node gather on the 4x4 to 16x16 patches (which recomputes every
+  segment twice and every bending spring three times; benchmarks/fabric_dynamic.py).
+  Viscous and kinetic damping.
 - "per_step": per time step, one launch of a thread per crossing (R), then one of a
   thread per node (force gather, residual and update, writing the new positions into a
   second buffer: a node's neighbours read the old ones), the GPU layout. Every thread
   writes only its own slots, no atomics, so runs are bit for bit repeatable (a resume
-  from saved positions, velocities and anchors would be too; `relax` starts from rest). The residual is read back (max over the per-node maxima, exact in any
-  order) every `check_interval` steps. Viscous damping only: kinetic damping needs the
+  from saved positions, velocities and anchors would be too; `relax` starts from rest).
+  The residual is read back (max over the per-node maxima, exact in any order) every
+  `check_interval` steps. Viscous damping only: kinetic damping needs the
   kinetic energy, a sum over all nodes, at every step (a deterministic reduction per step
   is left out).
 

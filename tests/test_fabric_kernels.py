@@ -81,7 +81,8 @@ def only(arrays, term):
 
 def friction_anchors(arrays, positions):
     """Anchors (C, 2) [m] that leave every other crossing sliding: xi = 1e-3 m along -s, far
-    beyond F_T / k_t (about 2e-4 m at k_t = 10 N/m, F_T about 2e-3 N), and the others at the as-woven planes."""
+    beyond F_T / k_t (about 2e-4 m at k_t = 10 N/m, F_T about 2e-3 N), and the others at
+    the as-woven planes."""
     anchors = np.zeros((arrays.crossings, 2))
     anchors[::2] = -1e-3
     return anchors
