@@ -29,9 +29,11 @@ Two layouts (tests/test_fabric_kernels.py checks that they agree: bit for bit wi
   writes only its own slots, no atomics, so runs are bit for bit repeatable (a resume
   from saved positions, velocities and anchors would be too; `relax` starts from rest).
   The residual is read back (max over the per-node maxima, exact in any order) every
-  `check_interval` steps. Viscous damping only: kinetic damping needs the
-  kinetic energy, a sum over all nodes, at every step (a deterministic reduction per step
-  is left out).
+  `check_interval` steps. Kinetic damping needs the kinetic energy, a sum over all
+  nodes, at every step: each node writes its own 1/2 m v^2, a thread per block of
+  ENERGY_BLOCK nodes sums its block in order, one thread sums the blocks in order and
+  decides whether the peak has passed, and a thread per node applies the back-step
+  (three more launches per step, every sum in a fixed order: deterministic).
 
 `default_layout(device)` picks "persistent" on the CPU and "per_step" on a GPU.
 """
@@ -48,6 +50,8 @@ from dynfab.kernels.configuration import MODULE_OPTIONS
 from dynfab.kernels.precision import VECTORS, numpy_dtype
 
 LAYOUTS = ("persistent", "per_step")
+ENERGY_BLOCK = 256
+"""Nodes per partial sum of the kinetic energy in the per-step layout."""
 DAMPINGS = ("viscous", "kinetic")
 
 
@@ -160,8 +164,9 @@ def per_step_kernel(scalar, has_friction: bool = False):
                   dt: scalar, coefficient: scalar, contact: wp.array(dtype=scalar),
                   friction: wp.array(dtype=vec),
                   pos: wp.array(dtype=vec), vel: wp.array(dtype=vec), force: wp.array(dtype=vec),
-                  node_residual: wp.array(dtype=scalar), pos_out: wp.array(dtype=vec)):
-        """force and node_residual [N] at pos; v and pos_out = pos + dt v [m]."""
+                  node_residual: wp.array(dtype=scalar), pos_out: wp.array(dtype=vec),
+                  node_energy: wp.array(dtype=scalar)):
+        """force and node_residual [N] at pos; v, pos_out = pos + dt v [m], 1/2 m v^2 [J]."""
         i = wp.tid()
         f = ops.node_force(i, pos, fabric, contact, friction, external)
         force[i] = f
@@ -169,8 +174,50 @@ def per_step_kernel(scalar, has_friction: bool = False):
         v = step_ops.velocity(vel[i], f, mass[i], dt, coefficient)
         vel[i] = v
         pos_out[i] = pos[i] + dt * v
+        node_energy[i] = scalar(0.5) * mass[i] * wp.dot(v, v)
 
     return node_step
+
+
+@functools.cache
+def kinetic_kernels(scalar) -> SimpleNamespace:
+    """The per-step layout's kinetic damping: block sums, the peak test, the back-step."""
+    vec = VECTORS[scalar]
+
+    @wp.kernel(module="unique", module_options=MODULE_OPTIONS)
+    def block_sums(node_energy: wp.array(dtype=scalar), partial: wp.array(dtype=scalar)):
+        """partial[b] = sum of node_energy over block b [J], in node order."""
+        b = wp.tid()
+        total = scalar(0.0)
+        for i in range(b * ENERGY_BLOCK, wp.min((b + 1) * ENERGY_BLOCK, node_energy.shape[0])):
+            total += node_energy[i]
+        partial[b] = total
+
+    @wp.kernel(module="unique", module_options=MODULE_OPTIONS)
+    def peak_test(partial: wp.array(dtype=scalar), kinetic: wp.array(dtype=scalar)):
+        """kinetic = (last energy [J], 1 if the peak has just passed): one thread."""
+        total = scalar(0.0)
+        for b in range(partial.shape[0]):
+            total += partial[b]
+        if total < kinetic[0]:
+            kinetic[0] = scalar(0.0)
+            kinetic[1] = scalar(1.0)
+        else:
+            kinetic[0] = total
+            kinetic[1] = scalar(0.0)
+
+    @wp.kernel(module="unique", module_options=MODULE_OPTIONS)
+    def back_step(kinetic: wp.array(dtype=scalar), mass: wp.array(dtype=scalar),
+                  force: wp.array(dtype=vec), dt: scalar, vel: wp.array(dtype=vec),
+                  pos_out: wp.array(dtype=vec)):
+        """At a peak: x* = x - 3/2 dt v + dt^2/2 M^-1 f and v = 0 (node i)."""
+        i = wp.tid()
+        if kinetic[1] != scalar(0.0):
+            pos_out[i] = pos_out[i] + (scalar(-1.5) * dt * vel[i]
+                                       + (scalar(0.5) * dt * dt / mass[i]) * force[i])
+            vel[i] = vec(scalar(0.0), scalar(0.0))
+
+    return SimpleNamespace(block_sums=block_sums, peak_test=peak_test, back_step=back_step)
 
 
 @dataclass
@@ -196,8 +243,6 @@ class FabricExplicit:
             layout = default_layout(device)
         if layout not in LAYOUTS or damping not in DAMPINGS:
             raise ValueError(f"layout {layout!r} or damping {damping!r} unknown")
-        if layout == "per_step" and damping != "viscous":
-            raise ValueError("the per_step layout has viscous damping only")
         self.arrays, self.device, self.layout, self.damping = arrays, device, layout, damping
         self.scalar, self.dtype, self.vec = scalar, numpy_dtype(scalar), VECTORS[scalar]
         self.dt, self.coefficient = dt, 0.0 if damping == "kinetic" else coefficient
@@ -253,14 +298,19 @@ class FabricExplicit:
         step_kernel = per_step_kernel(self.scalar, self.has_friction)
         other = wp.empty_like(pos)
         node_residual = wp.zeros(self.arrays.nodes, dtype=self.scalar, device=self.device)
+        node_energy = wp.zeros(self.arrays.nodes, dtype=self.scalar, device=self.device)
+        blocks = (self.arrays.nodes + ENERGY_BLOCK - 1) // ENERGY_BLOCK
+        partial = wp.zeros(blocks, dtype=self.scalar, device=self.device)
+        kinetic = wp.zeros(2, dtype=self.scalar, device=self.device)
+        damping = kinetic_kernels(self.scalar) if self.damping == "kinetic" else None
         dt, c = self.scalar(self.dt), self.scalar(self.coefficient)
         step = 0
         while True:  # forces and residual at pos, and the move to `other`, in one pass
             wp.launch(passes.crossing_pass, dim=self.arrays.crossings, device=self.device,
                       inputs=[pos, self.fabric, self.anchors, self.contact, self.friction])
             wp.launch(step_kernel, dim=self.arrays.nodes, device=self.device,
-                      inputs=[self.fabric, self.mass, load, dt, c, self.contact, self.friction, pos, self.vel,
-                              self.force, node_residual, other])
+                      inputs=[self.fabric, self.mass, load, dt, c, self.contact, self.friction, pos,
+                              self.vel, self.force, node_residual, other, node_energy])
             if step == max_steps or step % self.check_interval == 0:
                 residual = float(np.max(node_residual.numpy(), initial=0.0))
                 if not np.isfinite(residual):
@@ -269,5 +319,15 @@ class FabricExplicit:
                     return pos, Outcome(status.CONVERGED, step, residual)
                 if step == max_steps:
                     return pos, Outcome(status.MAX_STEPS, step, residual)
+            if damping is not None:
+                self._kinetic_damping(damping, node_energy, partial, kinetic, dt, other)
             pos, other = other, pos
             step += 1
+
+    def _kinetic_damping(self, kernels, node_energy, partial, kinetic, dt, pos_out):
+        """The peak test on the step's kinetic energy, summed in a fixed order, and the back-step."""
+        wp.launch(kernels.block_sums, dim=partial.shape[0], device=self.device,
+                  inputs=[node_energy, partial])
+        wp.launch(kernels.peak_test, dim=1, device=self.device, inputs=[partial, kinetic])
+        wp.launch(kernels.back_step, dim=self.arrays.nodes, device=self.device,
+                  inputs=[kinetic, self.mass, self.force, dt, self.vel, pos_out])
