@@ -241,7 +241,11 @@ def friction_law(patch: Patch) -> np.ndarray:
                      friction.onset_force, stick])
 
 
-def gershgorin_masses(arrays: PatchArrays, dt: float, safety: float = 0.9) -> np.ndarray:
+GERSHGORIN_SAFETY = 0.9
+"""dt / the stable time step of the Gershgorin masses [-]."""
+
+
+def gershgorin_masses(arrays: PatchArrays, dt: float, safety: float = GERSHGORIN_SAFETY) -> np.ndarray:
     """Fictitious masses (n,) [kg] with m_i >= dt^2/4 sum_j |K_ij| / safety^2 (MODEL.md 5).
 
     Row-sum bounds at the as-woven state, per term touching node i: a stretch

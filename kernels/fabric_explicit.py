@@ -1,11 +1,13 @@
-"""Explicit relaxation of a fabric patch: symplectic Euler, viscous or kinetic damping (MODEL.md 5, 10).
+"""Explicit relaxation of a fabric patch: symplectic Euler; viscous, kinetic or FIRE damping (MODEL.md 5, 10).
 
     v^{n+1/2} = ((1 - c dt/2) v^{n-1/2} + dt M^-1 f(x^n)) / (1 + c dt/2),   x^{n+1} = x^n + dt v^{n+1/2}
 
 with f from `fabric_forces` (per-crossing contact pass, then per-node gather). Kinetic
 damping (Barnes, c = 0): when the kinetic energy of the new half-step velocities falls
 below the last one, the peak has just been passed; the positions go back to the
-estimated peak x* = x^{n+1} - 3/2 dt v^{n+1/2} + dt^2/2 M^-1 f^n and v = 0. Relaxation
+estimated peak x* = x^{n+1} - 3/2 dt v^{n+1/2} + dt^2/2 M^-1 f^n and v = 0. FIRE 2.0:
+as `kernels/fire.py` (its constants), the time step relative to the stable one of the
+Gershgorin masses (dt / GERSHGORIN_SAFETY). Relaxation
 stops when the residual, max |f| over the free dofs, is at or below the tolerance.
 With friction (the variants built with it) the anchors stay fixed during a relaxation,
 the quasi-static incremental form of MODEL.md 4; `FabricExplicit.return_map` moves them
@@ -22,7 +24,7 @@ Two layouts (tests/test_fabric_kernels.py checks that they agree: bit for bit wi
   it evaluates each term once and scatters it (`fabric_forces.scatter_forces`), 1.7x
   faster than the per-node gather on the 4x4 to 16x16 patches (which recomputes every
   segment twice and every bending spring three times; benchmarks/fabric_dynamic.py).
-  Viscous and kinetic damping.
+  Viscous, kinetic and FIRE damping.
 - "per_step": per time step, one launch of a thread per crossing (R), then one of a
   thread per node (force gather, residual and update, writing the new positions into a
   second buffer: a node's neighbours read the old ones), the GPU layout. Every thread
@@ -33,7 +35,8 @@ Two layouts (tests/test_fabric_kernels.py checks that they agree: bit for bit wi
   nodes, at every step: each node writes its own 1/2 m v^2, a thread per block of
   ENERGY_BLOCK nodes sums its block in order, one thread sums the blocks in order and
   decides whether the peak has passed, and a thread per node applies the back-step
-  (three more launches per step, every sum in a fixed order: deterministic).
+  (three more launches per step, every sum in a fixed order: deterministic). FIRE, whose
+  power and norms are sums at every step too, runs in the persistent layout only.
 
 `default_layout(device)` picks "persistent" on the CPU and "per_step" on a GPU.
 """
@@ -45,14 +48,14 @@ from types import SimpleNamespace
 import numpy as np
 import warp as wp
 
-from dynfab.kernels import fabric_arrays, fabric_forces, status
+from dynfab.kernels import fabric_arrays, fabric_forces, fire as fire_module, status
 from dynfab.kernels.configuration import MODULE_OPTIONS
 from dynfab.kernels.precision import VECTORS, numpy_dtype
 
 LAYOUTS = ("persistent", "per_step")
 ENERGY_BLOCK = 256
 """Nodes per partial sum of the kinetic energy in the per-step layout."""
-DAMPINGS = ("viscous", "kinetic")
+DAMPINGS = ("viscous", "kinetic", "fire")
 
 
 def default_layout(device: str) -> str:
@@ -94,7 +97,10 @@ def persistent_kernel(scalar, damping: str, order: str = "scatter", has_friction
     Fabric = fabric_arrays.struct(scalar)
     ops, step_ops = fabric_forces.functions(scalar, has_friction), functions(scalar)
     kinetic = damping == "kinetic"
+    fire = damping == "fire"
     gather = order == "gather"
+    stable = 1.0 / fabric_arrays.GERSHGORIN_SAFETY  # the stable dt / dt of the masses
+    f = fire_module
 
     @wp.kernel(module="unique", module_options=MODULE_OPTIONS)
     def relax(fabric: Fabric, mass: wp.array(dtype=scalar), external: wp.array(dtype=vec),
@@ -109,6 +115,10 @@ def persistent_kernel(scalar, damping: str, order: str = "scatter", has_friction
         code = int(status.MAX_STEPS)
         steps = int(0)
         residual = scalar(0.0)
+        h = wp.min(dt, scalar(f.DT_START * stable) * dt)  # FIRE's time step and state
+        alpha = scalar(f.ALPHA_START)
+        positive = int(0)
+        negative = int(0)
         for step in range(max_steps + 1):
             if wp.static(gather):
                 for c in range(contact.shape[0]):
@@ -130,20 +140,58 @@ def persistent_kernel(scalar, damping: str, order: str = "scatter", has_friction
                 break
             if step == max_steps:
                 break
-            energy = scalar(0.0)
-            for i in range(nodes):
-                v = step_ops.velocity(vel[i], force[i], mass[i], dt, coefficient)
-                vel[i] = v
-                pos[i] = pos[i] + dt * v
-                energy += scalar(0.5) * mass[i] * wp.dot(v, v)
-            if wp.static(kinetic):
-                if energy < kinetic_energy:
+            if wp.static(fire):  # FIRE 2.0 as kernels/fire.py, dt relative to the masses' dt
+                power = scalar(0.0)
+                for i in range(nodes):
+                    power += wp.dot(force[i], vel[i])
+                if power > scalar(0.0):
+                    positive += 1
+                    negative = 0
+                    if positive > f.DELAY_STEPS:
+                        h = wp.min(h * scalar(f.DT_GROWTH), scalar(f.DT_MAX * stable) * dt)
+                        alpha = alpha * scalar(f.ALPHA_SHRINK)
+                else:
+                    positive = 0
+                    negative += 1
+                    if negative > f.MAX_NEGATIVE_STEPS:
+                        code = int(status.STALLED)
+                        break
+                    if step >= f.DELAY_STEPS:
+                        if h * scalar(f.DT_SHRINK) >= scalar(f.DT_MIN * stable) * dt:
+                            h = h * scalar(f.DT_SHRINK)
+                        alpha = scalar(f.ALPHA_START)
                     for i in range(nodes):
-                        back = scalar(-1.5) * dt * vel[i] + (scalar(0.5) * dt * dt / mass[i]) * force[i]
-                        pos[i] = pos[i] + back
+                        pos[i] = pos[i] - (scalar(0.5) * h) * vel[i]
                         vel[i] = vec(scalar(0.0), scalar(0.0))
-                    energy = scalar(0.0)
-                kinetic_energy = energy
+                speed2 = scalar(0.0)
+                force2 = scalar(0.0)
+                for i in range(nodes):
+                    v = vel[i] + (h / mass[i]) * force[i]
+                    vel[i] = v
+                    speed2 += wp.dot(v, v)
+                    force2 += wp.dot(force[i], force[i])
+                mixing = scalar(0.0)
+                if force2 > scalar(0.0):
+                    mixing = alpha * wp.sqrt(speed2 / force2)
+                for i in range(nodes):
+                    v = (scalar(1.0) - alpha) * vel[i] + mixing * force[i]
+                    vel[i] = v
+                    pos[i] = pos[i] + h * v
+            else:
+                energy = scalar(0.0)
+                for i in range(nodes):
+                    v = step_ops.velocity(vel[i], force[i], mass[i], dt, coefficient)
+                    vel[i] = v
+                    pos[i] = pos[i] + dt * v
+                    energy += scalar(0.5) * mass[i] * wp.dot(v, v)
+                if wp.static(kinetic):
+                    if energy < kinetic_energy:
+                        for i in range(nodes):
+                            back = scalar(-1.5) * dt * vel[i] + (scalar(0.5) * dt * dt / mass[i]) * force[i]
+                            pos[i] = pos[i] + back
+                            vel[i] = vec(scalar(0.0), scalar(0.0))
+                        energy = scalar(0.0)
+                    kinetic_energy = energy
             steps = step + 1
         outcome[0] = code
         outcome[1] = steps
@@ -243,9 +291,11 @@ class FabricExplicit:
             layout = default_layout(device)
         if layout not in LAYOUTS or damping not in DAMPINGS:
             raise ValueError(f"layout {layout!r} or damping {damping!r} unknown")
+        if layout == "per_step" and damping == "fire":
+            raise ValueError("FIRE runs in the persistent layout only")
         self.arrays, self.device, self.layout, self.damping = arrays, device, layout, damping
         self.scalar, self.dtype, self.vec = scalar, numpy_dtype(scalar), VECTORS[scalar]
-        self.dt, self.coefficient = dt, 0.0 if damping == "kinetic" else coefficient
+        self.dt, self.coefficient = dt, coefficient if damping == "viscous" else 0.0
         self.check_interval, self.order = check_interval, order
         self.has_friction = bool(arrays.friction_law[3] > 0.0) if friction is None else friction
         self.fabric = fabric_arrays.upload(arrays, scalar, device)

@@ -4,8 +4,8 @@ one-yarn static reference.
 
 One kernel configuration (float64, friction compiled in; a patch without friction has
 F_T = k_t = 0) is built: the force and energy passes, the per-step node kernel and its
-kinetic-damping kernels, and the persistent kernel (viscous in both force orders, kinetic
-in both).
+kinetic-damping kernels, and the persistent kernel (viscous and kinetic in both force
+orders, FIRE).
 """
 
 import math
@@ -230,8 +230,9 @@ FRICTION_STICK = 1e3
 smaller family's EA / segment length, the one-yarn model's its warp's)."""
 
 
-@pytest.mark.parametrize("with_friction", [False, True])
-def test_held_wefts_give_the_one_yarn_model_with_a_rigid_weft_spring(arrays, with_friction):
+@pytest.mark.parametrize("with_friction, damping", [(False, "kinetic"), (True, "kinetic"),
+                                                    (False, "fire")])
+def test_held_wefts_give_the_one_yarn_model_with_a_rigid_weft_spring(arrays, with_friction, damping):
     """Every weft node held: each warp is the one-yarn model with k_s = k_c (MODEL.md 10);
     with friction, the weft node's slip y - Y_k - xi_y stays 0, so the isotropic Huber
     term is the one-yarn model's on x alone.
@@ -252,7 +253,7 @@ def test_held_wefts_give_the_one_yarn_model_with_a_rigid_weft_spring(arrays, wit
     held = patch.free.copy()
     held[patch.weft_nodes.ravel()] = 0.0
     patch = replace(patch, free=held)
-    solver = fabric_explicit.FabricExplicit(patch, damping="kinetic", friction=True)
+    solver = fabric_explicit.FabricExplicit(patch, damping=damping, friction=True)
     tolerance = 1e-10
     positions, outcome = solver.relax(patch.rest_position, load * patch.load_direction, tolerance,
                                       200_000)
