@@ -13,7 +13,7 @@ node passes and the return map): no new kernel variant.
 import numpy as np
 import pytest
 
-from dynfab.errors import SolverError
+from dynfab.errors import SolverError, UserError
 from dynfab.fabric.dynamic import FabricDynamicSolver
 from dynfab.fabric.static import FabricStaticSolver
 from dynfab.kernels.fabric_arrays import PAPER_FRICTION, gershgorin_masses, paper_patch
@@ -72,16 +72,19 @@ def anchor_bound(solver, record, bound: float) -> float:
     return 2 * np.sqrt(2) * bound + slope * dR / f.stick_stiffness
 
 
-CASES = [(2, "force", None, None), (2, "force", PAPER_FRICTION, None),
-         (2, "force", PAPER_FRICTION, 9.81), (4, "force", PAPER_FRICTION, None),
-         (4, "displacement", None, None), (4, "displacement", PAPER_FRICTION, None)]
+CASES = [(2, "force", None, None, {}), (2, "force", PAPER_FRICTION, None, {}),
+         (2, "force", PAPER_FRICTION, 9.81, {}), (4, "force", PAPER_FRICTION, None, {}),
+         (4, "displacement", None, None, {}), (4, "displacement", PAPER_FRICTION, None, {}),
+         (2, "displacement", PAPER_FRICTION, 9.81, {"pullout": 1})]
+"""(n, control, friction, gravity, more spec fields); the pull-out (MODEL.md 10) frees its
+warp's first node and needs gravity to press the warp onto the wefts."""
 
 
-@pytest.mark.parametrize("n, control, friction, gravity", CASES,
+@pytest.mark.parametrize("n, control, friction, gravity, more", CASES,
                          ids=["2x2-force", "2x2-force-friction", "2x2-force-friction-gravity",
                               "4x4-force-friction", "4x4-displacement",
-                              "4x4-displacement-friction"])
-def test_dynamic_solver_agrees_with_the_static_one(n, control, friction, gravity):
+                              "4x4-displacement-friction", "2x2-pullout-gravity"])
+def test_dynamic_solver_agrees_with_the_static_one(n, control, friction, gravity, more):
     """Positions and contact forces within `agreement_bound` (R: dR/dg <= k_c and |dg| <= 2
     bound), anchors within `anchor_bound`, the same crossings sliding, the same stability,
     step after step; under displacement control the end reactions within the bound times
@@ -89,7 +92,7 @@ def test_dynamic_solver_agrees_with_the_static_one(n, control, friction, gravity
     values = FORCES if control == "force" else DISPLACEMENTS
     spec = paper_patch(n, n, friction=friction, control=control, gravity=gravity,
                        warp_values=tuple(v[0] for v in values),
-                       weft_values=tuple(v[1] for v in values), tolerance=TOLERANCE)
+                       weft_values=tuple(v[1] for v in values), tolerance=TOLERANCE, **more)
     static, dynamic = FabricStaticSolver(spec), FabricDynamicSolver(spec)
     s_state, d_state = static.initial_state(), dynamic.initial_state()
     k_c = static.fabric.contact_law[0]
@@ -136,3 +139,11 @@ def test_a_relaxation_that_cannot_finish_raises_one_line():
         solver.step(solver.initial_state(), 0.3, 0.0)
     message = str(raised.value)
     assert "\n" not in message and "time-step limit" in message and "10 time steps" in message
+
+
+@pytest.mark.parametrize("more", [dict(boundary="periodic"), dict(planes="affine")])
+def test_what_the_kernels_do_not_model_is_refused_in_one_line(more):
+    """The periodic cell (wrap springs, tied cell lengths) and moving planes are the static
+    solver's only: a UserError naming the keys, before any kernel is built."""
+    with pytest.raises(UserError, match="boundary = .*planes = .*static solver"):
+        FabricDynamicSolver(paper_patch(2, 2, warp_values=(0.1,), **more))

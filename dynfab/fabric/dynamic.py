@@ -29,7 +29,7 @@ Stability (MODEL.md 6): as the one-yarn dynamic solver uses the shared certifica
 relaxed state is checked with the static solver's inertia count of its Hessian (F_T
 frozen); from a saddle the static solver's escape direction is taken and the step
 relaxed again from there (at most `static.MAX_ESCAPES` times). Not modelled by the
-kernels, so refused by `fabric_arrays.build`: the periodic cell and moving planes.
+kernels, so refused (UserError): the periodic cell and moving planes.
 Gravity, a constant force on the physical masses (MODEL.md 2), is added to the end
 loads.
 """
@@ -41,7 +41,7 @@ import time
 import numpy as np
 import warp as wp
 
-from dynfab.errors import SolverError
+from dynfab.errors import SolverError, UserError
 from dynfab.fabric import inertia
 from dynfab.fabric.spec import FabricSpec
 from dynfab.fabric.static import MAX_ESCAPES, FabricState, FabricStaticSolver
@@ -60,6 +60,10 @@ class FabricDynamicSolver:
     def __init__(self, spec: FabricSpec, device: str = "cpu", damping: str = "kinetic",
                  tolerance: float | None = None, max_steps: int = MAX_STEPS,
                  layout: str | None = None):
+        if spec.boundary != "clamped" or spec.planes != "fixed":
+            raise UserError(f"fabric: the dynamic solver models the clamped patch with fixed planes "
+                            f"only, not boundary = {spec.boundary!r}, planes = {spec.planes!r}: "
+                            f"use the static solver")
         self.spec = spec
         self.tolerance = spec.tolerance if tolerance is None else float(tolerance)
         """Residual tolerance [N] of a relaxation (the spec's Newton tolerance by default)."""
