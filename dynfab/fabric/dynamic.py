@@ -103,14 +103,14 @@ class FabricDynamicSolver:
         force[f.load_node, 0] += P
         return force
 
-    def crossing_forces(self, pos: np.ndarray, kernel_anchors: np.ndarray, fabric=None):
+    def crossing_forces(self, pos: np.ndarray, kernel_anchors: np.ndarray):
         """(R (C,) [N], friction force on the slip (C, 2) [N]) from the kernels' crossing pass."""
         a = self.arrays
         passes = fabric_forces.kernels(SCALAR, True)
         contact = wp.zeros(a.crossings, dtype=SCALAR, device=self.device)
         friction = wp.zeros(a.crossings, dtype=wp.vec2d, device=self.device)
         wp.launch(passes.crossing_pass, dim=a.crossings, device=self.device,
-                  inputs=[self._vectors(pos), fabric or self.relaxation.fabric,
+                  inputs=[self._vectors(pos), self.relaxation.fabric,
                           self._vectors(kernel_anchors), contact, friction])
         return contact.numpy().astype(float), friction.numpy().astype(float)
 
@@ -172,7 +172,7 @@ class FabricDynamicSolver:
         relax_time = time.perf_counter() - began
         steps, escapes = outcome.steps, 0
         while True:
-            R, _ = self.crossing_forces(pos, anchors + self._plane_shift)
+            R, friction_force = self.crossing_forces(pos, anchors + self._plane_shift)
             limit = self.friction_limits(R)
             result = inertia.inertia(ref, pos, anchors, limit)
             nearest = inertia.nearest_eigenvalue(ref.hessian(pos, anchors, limit))
@@ -186,7 +186,7 @@ class FabricDynamicSolver:
             pos, outcome = self.relax(escaped, P, anchors)
             relax_time += time.perf_counter() - began
             steps += outcome.steps
-        new_anchors, friction_force, sliding, lost = self._return_map(pos, anchors, limit)
+        new_anchors, sliding, lost = self._return_map(pos, anchors, limit)
         end_force = self._end_force(pos, P, anchors)
         u_old = state.positions[f.load_node, 0] - f.rest_position[f.load_node, 0]
         u_new = pos[f.load_node, 0] - f.rest_position[f.load_node, 0]
@@ -204,16 +204,15 @@ class FabricDynamicSolver:
         return new, record
 
     def _return_map(self, pos, anchors, limit):
-        """(anchors, friction force on the slip (C, 2) [N], sliding (C,), energy lost [J]) after
-        the kernels' radial return map (MODEL.md 4): lost = F_T |delta xi| per sliding crossing."""
-        kernel_anchors = anchors + self._plane_shift
-        _, friction_force = self.crossing_forces(pos, kernel_anchors)
+        """(anchors, sliding (C,), energy lost [J]) after the kernels' radial return map
+        (MODEL.md 4): lost = F_T |delta xi| per sliding crossing."""
         if not self.fabric.has_friction:
-            return anchors.copy(), friction_force, np.zeros(anchors.shape[0], np.bool_), 0.0
+            return anchors.copy(), np.zeros(anchors.shape[0], np.bool_), 0.0
+        kernel_anchors = anchors + self._plane_shift
         mapped = self.relaxation.return_map(pos, kernel_anchors)
         moved = np.hypot(*(mapped - kernel_anchors).T)
         sliding = moved > 0.0
-        return mapped - self._plane_shift, friction_force, sliding, float(limit @ moved)
+        return mapped - self._plane_shift, sliding, float(limit @ moved)
 
     def _end_force(self, pos, P, anchors) -> np.ndarray:
         """P under force control; under displacement control the reaction dV/du_N, minus the
