@@ -26,7 +26,7 @@ EPS = np.finfo(float).eps
 SCALAR = wp.float64
 PATCH = fabric_arrays.paper_patch(2, 3)
 """2 warps x 3 wefts of the paper's yarn, 8 segments per half-wave (N = 24, M = 16)."""
-PAPER_FRICTION = fabric_arrays.Friction(alpha=0.2, beta=1e3, contact_length=2e-3, fiber_radius=1e-3)
+PAPER_FRICTION = fabric_arrays.PAPER_FRICTION
 """The paper's Gralen parameters (MODEL.md 7), R_0 = 1e-5 N."""
 
 
@@ -185,18 +185,18 @@ def test_kinetic_damping_in_the_per_step_layout_repeats_the_persistent_loop():
 def one_yarn_model(load, friction=None):
     """The one-yarn model of PATCH's warps (geometry.yarns = 2, phases +-1) with a rigid weft
     spring: contact_law k_s = k_c exactly (MODEL.md 10: k_we -> infinity); `friction` a
-    fabric_arrays.Friction with its k_t given."""
+    dynfab.fabric.spec.Friction with its k_t given."""
     family = PATCH.warp
     tables = {} if friction is None else {"friction": {
         "alpha": friction.alpha, "beta": friction.beta, "contact_length": friction.contact_length,
         "fiber_radius": friction.fiber_radius, "onset_force": friction.onset_force,
         "stick_stiffness": friction.stick_stiffness}}
     scene = make_scene(**tables,
-        geometry={"length": PATCH.length, "segments": PATCH.segments, "crossings": PATCH.wefts,
+        geometry={"length": PATCH.warp.length, "segments": PATCH.warp.segments, "crossings": PATCH.wefts,
                   "amplitude": family.amplitude, "yarns": PATCH.warps},
         warp={"EA": family.EA, "EI": family.EI, "kawabata_C": family.kawabata_C,
               "kawabata_K": family.kawabata_K},
-        weft={"EI": PATCH.weft.EI, "length": PATCH.weft_length, "count": PATCH.warps,
+        weft={"EI": PATCH.weft.EI, "length": PATCH.weft.length, "count": PATCH.warps,
               "amplitude": PATCH.weft.amplitude, "kawabata_C": PATCH.weft.kawabata_C,
               "kawabata_K": PATCH.weft.kawabata_K},
         contact={"core_stiffness": PATCH.core_stiffness},

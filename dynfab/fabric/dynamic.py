@@ -1,0 +1,232 @@
+"""The fabric's dynamic solver: each load step relaxed by the Warp kernels (MODEL.md sections 5, 10).
+
+`FabricDynamicSolver.step(state, warp_value, weft_value)` takes the same state
+(`dynfab.fabric.static.FabricState`) and returns the same record keys as
+`FabricStaticSolver.step`, so the two are interchangeable and comparable step by step
+(tests/test_fabric_dynamic.py). The geometry and parameters are the static
+reference's (`dynfab.kernels.fabric_arrays.build` lays the spec out through
+`dynfab.fabric.layout`); the physics of the relaxation is the Warp twin's own
+(`dynfab.kernels.fabric_forces`, `fabric_explicit.FabricExplicit`): forces, contact
+forces, friction forces, the reaction at a prescribed end and the anchors' return map.
+
+A load step: the end loads (force control) or the prescribed end displacements
+(displacement control, the increment spread along each yarn as the static solver
+starts its Newton) are applied, and the patch relaxes from rest (kinetic damping by
+default) with the step's anchors held, until the largest free force component is at
+most the tolerance; then the anchors are return-mapped radially (MODEL.md 4).
+
+Friction, against the static solver's outer loop (MODEL.md 4, 10): the static solver
+freezes F_T during a Newton solve, updates it to Gralen's law at the solution and solves
+again until the residual with F_T from the law at the solution is within the tolerance.
+The relaxation needs no outer loop: its force evaluates F_T at the current contact force
+at every time step (frozen only in the derivative, which an explicit step never takes),
+so a converged relaxation is that same consistent point, the residual with F_T from the
+law at the solution within the tolerance. The return map after the step is the static
+solver's. (A relaxation is not a descent on one potential when F_T moves with R; it
+converges where the contact forces settle, which the tests check on small patches.)
+
+Stability (MODEL.md 6): as the one-yarn dynamic solver uses the shared certificate, the
+relaxed state is checked with the static solver's inertia count of its Hessian (F_T
+frozen); from a saddle the static solver's escape direction is taken and the step
+relaxed again from there (at most `static.MAX_ESCAPES` times). Not modelled by the
+kernels, so refused (UserError): the periodic cell and moving planes.
+Gravity, a constant force on the physical masses (MODEL.md 2), is added to the end
+loads.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import warp as wp
+
+from dynfab.errors import SolverError, UserError
+from dynfab.fabric import inertia
+from dynfab.fabric.spec import FabricSpec
+from dynfab.fabric.static import MAX_ESCAPES, FabricState, FabricStaticSolver
+from dynfab.kernels import fabric_arrays, fabric_explicit, fabric_forces, status
+
+SCALAR = wp.float64
+MAX_STEPS = 2_000_000
+"""Time steps a relaxation may take per load step (one kernel launch)."""
+_STATUS = {status.MAX_STEPS: "the time-step limit", status.NON_FINITE: "a non-finite force",
+           status.STALLED: "FIRE stalled", status.DIVERGED: "divergence"}
+
+
+class FabricDynamicSolver:
+    """Relaxes a fabric's load steps one after another with the Warp kernels (MODEL.md 5, 10)."""
+
+    def __init__(self, spec: FabricSpec, device: str = "cpu", damping: str = "kinetic",
+                 tolerance: float | None = None, max_steps: int = MAX_STEPS,
+                 layout: str | None = None):
+        if spec.boundary != "clamped" or spec.planes != "fixed":
+            raise UserError(f"fabric: the dynamic solver models the clamped patch with fixed planes "
+                            f"only, not boundary = {spec.boundary!r}, planes = {spec.planes!r}: "
+                            f"use the static solver")
+        self.spec = spec
+        self.tolerance = spec.tolerance if tolerance is None else float(tolerance)
+        """Residual tolerance [N] of a relaxation (the spec's Newton tolerance by default)."""
+        self.max_steps = int(max_steps)
+        self.arrays = fabric_arrays.build(spec)
+        # the kernels built with friction in every case (F_T = k_t = 0 without it): one
+        # variant per damping, the one the kernel tests build
+        self.relaxation = fabric_explicit.FabricExplicit(self.arrays, device=device, layout=layout,
+                                                         damping=damping, friction=True)
+        self.reference = FabricStaticSolver(spec)
+        """The static solver: its state conventions, load path, prescribed start, strains and
+        certificate (inertia, escape), never its forces."""
+        self.fabric = self.reference.fabric
+        self.yarns = self.reference.yarns
+        f = self.fabric
+        self._plane_shift = np.stack([f.plane_x - f.rest_position[f.warp_node, 0],
+                                      f.plane_y - f.rest_position[f.weft_node, 0]], axis=1)
+        """The kernels' anchors (slip from the crossing nodes' as-woven coordinates) minus
+        the static solver's (slip from the planes) [m]: a rounding-size constant."""
+        reaction = self.arrays.free.copy()
+        reaction[f.load_node] = 1.0  # the end dofs unmasked: their internal force is read
+        self._reaction_fabric = fabric_arrays.upload(
+            fabric_arrays.PatchArrays(**{**vars(self.arrays), "free": reaction}), SCALAR,
+            device)
+        self.device = device
+
+    def initial_state(self) -> FabricState:
+        """As woven, anchors at zero slip, nothing dissipated (the static solver's)."""
+        return self.reference.initial_state()
+
+    # ------------------------------------------------------------------ pieces
+
+    def external_force(self, P: np.ndarray) -> np.ndarray:
+        """End loads P (Y,) [N] on each yarn's last node along the yarn, plus gravity (n, 2) [N]."""
+        a, f = self.arrays, self.fabric
+        force = a.weight.copy()
+        force[f.load_node, 0] += P
+        return force
+
+    def crossing_forces(self, pos: np.ndarray, kernel_anchors: np.ndarray):
+        """(R (C,) [N], friction force on the slip (C, 2) [N]) from the kernels' crossing pass."""
+        a = self.arrays
+        passes = fabric_forces.kernels(SCALAR, True)
+        contact = wp.zeros(a.crossings, dtype=SCALAR, device=self.device)
+        friction = wp.zeros(a.crossings, dtype=wp.vec2d, device=self.device)
+        wp.launch(passes.crossing_pass, dim=a.crossings, device=self.device,
+                  inputs=[self._vectors(pos), self.relaxation.fabric,
+                          self._vectors(kernel_anchors), contact, friction])
+        return contact.numpy().astype(float), friction.numpy().astype(float)
+
+    def internal_force(self, pos: np.ndarray, kernel_anchors: np.ndarray) -> np.ndarray:
+        """-dV/dr (n, 2) [N] without external loads, the end dofs unmasked (the kernels' passes)."""
+        a = self.arrays
+        passes = fabric_forces.kernels(SCALAR, True)
+        pos_wp = self._vectors(pos)
+        contact = wp.zeros(a.crossings, dtype=SCALAR, device=self.device)
+        friction = wp.zeros(a.crossings, dtype=wp.vec2d, device=self.device)
+        force = wp.zeros(a.nodes, dtype=wp.vec2d, device=self.device)
+        wp.launch(passes.crossing_pass, dim=a.crossings, device=self.device,
+                  inputs=[pos_wp, self._reaction_fabric, self._vectors(kernel_anchors), contact,
+                          friction])
+        wp.launch(passes.node_pass, dim=a.nodes, device=self.device,
+                  inputs=[pos_wp, self._reaction_fabric, contact, friction,
+                          self._vectors(np.zeros((a.nodes, 2))), force])
+        return force.numpy().astype(float)
+
+    def friction_limits(self, R: np.ndarray) -> np.ndarray:
+        """F_T [N] of Gralen's law with its onset at contact forces R (MODEL.md 4); 0 where open."""
+        alpha, constant, onset, _ = self.arrays.friction_law
+        closed = R > 0.0
+        onset_factor = -np.expm1(-R / onset) if onset > 0.0 else np.ones_like(R)
+        return np.where(closed, alpha * R + constant * onset_factor, 0.0)
+
+    def _vectors(self, values):
+        return wp.array(np.asarray(values, float), dtype=wp.vec2d, device=self.device)
+
+    # ------------------------------------------------------------------ steps
+
+    def relax(self, pos: np.ndarray, P: np.ndarray, anchors: np.ndarray):
+        """Relax from `pos` under end loads P with the (static-convention) anchors held;
+        returns (positions, outcome) or raises SolverError."""
+        positions, outcome = self.relaxation.relax(pos, self.external_force(P), self.tolerance,
+                                                   self.max_steps, anchors + self._plane_shift)
+        if outcome.status != status.CONVERGED:
+            cause = _STATUS.get(outcome.status, f"status {outcome.status}")
+            raise SolverError(
+                f"fabric dynamic: relaxation stopped by {cause} after {outcome.steps} time steps; "
+                f"residual {outcome.residual:.3g} N, tolerance {self.tolerance:.3g} N")
+        return positions, outcome
+
+    def step(self, state: FabricState, warp_value: float, weft_value: float):
+        """Relax one load step from `state`; returns (new state, record) or raises SolverError.
+        The record holds FabricStaticSolver.step's keys, iterations counting time steps, plus
+        time_steps and relax_time [s] (the relaxations' wall time)."""
+        f, spec, ref = self.fabric, self.spec, self.reference
+        loads = ref.yarn_loads(warp_value, weft_value)
+        pos = state.positions.copy()
+        anchors = state.anchors.copy()
+        if spec.control == "force":
+            P = loads
+        else:
+            P = np.zeros(self.yarns)
+            ref._prescribe(pos, loads)
+        began = time.perf_counter()
+        pos, outcome = self.relax(pos, P, anchors)
+        relax_time = time.perf_counter() - began
+        steps, escapes = outcome.steps, 0
+        while True:
+            R, friction_force = self.crossing_forces(pos, anchors + self._plane_shift)
+            limit = self.friction_limits(R)
+            result = inertia.inertia(ref, pos, anchors, limit)
+            nearest = inertia.nearest_eigenvalue(ref.hessian(pos, anchors, limit))
+            if result.negatives == 0 or escapes == MAX_ESCAPES:
+                break
+            escaped = ref._escape(pos, P, anchors, limit, result.negatives, nearest)
+            if escaped is None:
+                break
+            escapes += 1
+            began = time.perf_counter()
+            pos, outcome = self.relax(escaped, P, anchors)
+            relax_time += time.perf_counter() - began
+            steps += outcome.steps
+        new_anchors, sliding, lost = self._return_map(pos, anchors, limit)
+        end_force = self._end_force(pos, P, anchors)
+        u_old = state.positions[f.load_node, 0] - f.rest_position[f.load_node, 0]
+        u_new = pos[f.load_node, 0] - f.rest_position[f.load_node, 0]
+        work = state.work + float(0.5 * (state.end_force + end_force) @ (u_new - u_old))
+        new = FabricState(pos, new_anchors, state.dissipated + lost, work, end_force)
+        shape = (spec.warps, spec.wefts)
+        record = dict(residual=outcome.residual, iterations=steps, friction_solves=1 + escapes,
+                      rounding_floor=False, contact_force=R.reshape(shape),
+                      friction_limit=limit.reshape(shape), sliding=sliding.reshape(shape),
+                      friction_force=friction_force,
+                      negative_eigenvalues=result.negatives, stable=result.negatives == 0,
+                      nearest_eigenvalue=nearest, escapes=escapes, end_force=end_force,
+                      end_displacement=u_new, strain=ref.strains(pos),
+                      time_steps=steps, relax_time=relax_time)
+        return new, record
+
+    def _return_map(self, pos, anchors, limit):
+        """(anchors, sliding (C,), energy lost [J]) after the kernels' radial return map
+        (MODEL.md 4): lost = F_T |delta xi| per sliding crossing."""
+        if not self.fabric.has_friction:
+            return anchors.copy(), np.zeros(anchors.shape[0], np.bool_), 0.0
+        kernel_anchors = anchors + self._plane_shift
+        mapped = self.relaxation.return_map(pos, kernel_anchors)
+        moved = np.hypot(*(mapped - kernel_anchors).T)
+        sliding = moved > 0.0
+        return mapped - self._plane_shift, sliding, float(limit @ moved)
+
+    def _end_force(self, pos, P, anchors) -> np.ndarray:
+        """P under force control; under displacement control the reaction dV/du_N, minus the
+        kernels' internal force on each yarn's end dof."""
+        if self.spec.control == "force":
+            return np.asarray(P, float).copy()
+        force = self.internal_force(pos, anchors + self._plane_shift)
+        return -force[self.fabric.load_node, 0]
+
+    def run(self, state: FabricState | None = None):
+        """Every load step of the spec in sequence; returns (final state, records)."""
+        state = self.initial_state() if state is None else state
+        records = []
+        for warp_value, weft_value in zip(*self.spec.loads()):
+            state, record = self.step(state, warp_value, weft_value)
+            records.append(record)
+        return state, records
