@@ -64,10 +64,10 @@ def functions(scalar, terms: tuple) -> SimpleNamespace:
 
     @wp.func
     def worse(worst: scalar, value: scalar) -> scalar:
-        """|value| unless it is <= worst (so a NaN value is taken, but a NaN worst is replaced
-        by the next value)."""
+        """The larger of worst and |value|; a NaN, once met, stays (a non-finite force is never
+        hidden behind the finite components compared after it)."""
         result = worst
-        if not wp.abs(value) <= worst:
+        if worst == worst and not wp.abs(value) <= worst:
             result = wp.abs(value)
         return result
 

@@ -18,7 +18,7 @@ import warp as wp
 from dynfab import assembly
 from dynfab.banded import zeros_band
 from dynfab.dynamic import DynamicSolver
-from dynfab.kernels import diagnostics, explicit, yarn_arrays
+from dynfab.kernels import diagnostics, explicit, forces, yarn_arrays
 from dynfab.kernels.configuration import Configuration, built_variants
 from dynfab.model import build_model, initial_state
 from dynfab.scene import Gravity, load_scene, validate_scene, with_key
@@ -255,3 +255,35 @@ def test_onset_friction_limit_matches_numba_and_its_derivative(model, random_sta
                 2 * 8 * EPS * limit[k, j] / (2 * h)
             assert abs(fd - exact) <= bound + 1e-9 * abs(exact)
             break  # one crossing per yarn: each costs two launches
+
+
+@wp.kernel(module="unique", module_options={"enable_backward": False})
+def _residual_of(yarn: yarn_arrays.struct(wp.float64), pos: wp.array2d(dtype=wp.vec2d),
+                 anchors: wp.array2d(dtype=wp.float64), force: wp.array2d(dtype=wp.vec2d),
+                 contact_force: wp.array2d(dtype=wp.float64),
+                 contact_tangent: wp.array2d(dtype=wp.float64),
+                 friction_limit: wp.array2d(dtype=wp.float64), residual: wp.array(dtype=wp.float64)):
+    y = wp.tid()
+    residual[y] = wp.static(forces.functions(wp.float64, CONFIGURATION.terms).evaluate)(
+        y, pos, yarn, anchors, wp.float64(LOAD), force, contact_force, contact_tangent,
+        friction_limit)
+
+
+def test_a_non_finite_force_gives_a_non_finite_residual(model, random_state):
+    """The residual the relaxation judges is the largest |force component|; one NaN node in
+    the middle of the yarn (its force and its neighbours' are NaN, the components compared
+    after them finite) must make it NaN, so the step reports a non-finite state instead of
+    converging on the finite components."""
+    positions, anchors = (a.copy() for a in random_state)
+    positions[0, model.segments // 3, 1] = np.nan
+    yarns, nodes, crossings = model.yarn_count, model.segments + 1, model.crossings
+    residual = wp.zeros(yarns, dtype=wp.float64)
+    wp.launch(_residual_of, dim=yarns,
+              inputs=[yarn_arrays.upload(model, wp.float64, "cpu"),
+                      wp.array(positions, dtype=wp.vec2d), wp.array(anchors, dtype=wp.float64),
+                      wp.zeros((yarns, nodes), dtype=wp.vec2d),
+                      *(wp.zeros((yarns, crossings), dtype=wp.float64) for _ in range(3)),
+                      residual])
+    values = residual.numpy()
+    assert np.isnan(values[0])
+    assert np.all(np.isfinite(values[1:])) and np.all(values[1:] > 0.0)
