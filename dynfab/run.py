@@ -169,6 +169,9 @@ def _build(scene: Scene, solver: str, out, status, device: str | None, options: 
     """The model and the solver, the run options set on the scene (`dynfab.options`) and the
     run's memory and result file (`out`, None: not checked) estimated first (`dynfab.budget`);
     the dynamic solver reports its launches to `status`."""
+    if scene.geometry.model == "fabric":  # MODEL.md section 10
+        from dynfab.fabric.from_scene import build_run
+        return build_run(scene, solver, device, options)
     scene = apply_run_options(scene, solver, **options)
     check_budget(scene, out)
     model = build_model(scene)
@@ -182,20 +185,22 @@ def _solve(model: Model, engine: Solver | Transient, sink, progress) -> int:
     state = _start_state(model, sink)
     values = model.load_values
     unit = "N" if model.control == "force" else "m"
-    first, floors = sink.step_count, []
-    for index in range(first, values.size):
+    first, floors, total = sink.step_count, [], len(values)
+    for index in range(first, total):
         started = time.perf_counter()
+        load = float(values[index]) if values.ndim == 1 else values[index]  # fabric: (warp, weft)
         try:
-            state, record = engine.step(state, float(values[index]))
+            state, record = engine.step(state, load)
         except SolverError as error:
-            raise SolverError(f"load step {index + 1}/{values.size} (load {values[index]:.6g} {unit}): "
+            shown = " ".join(f"{v:.6g}" for v in np.atleast_1d(load))
+            raise SolverError(f"load step {index + 1}/{total} (load {shown} {unit}): "
                               f"{error}; the {index} finished steps are kept") from error
         record["wall_time"] = time.perf_counter() - started
         _add_point_data(model, record, sink.last_step() if sink.step_count else None)
         sink.append_step(record)
-        floors.append(record["rounding_floor"].any())
+        floors.append(np.any(record["rounding_floor"]))
         if progress is not None:
-            progress(_progress_line(index, values.size, record, unit))
+            progress(_progress_line(index, total, record, unit))
     _warn_rounding_floor(floors)
     return sink.step_count - first
 
@@ -204,6 +209,9 @@ def _add_point_data(model: Model, entry: dict, previous: dict | None) -> None:
     """Add the nodal point data of the XDMF view (`dynfab.xdmf.nodal_point_data`) to a step
     or frame, unless it continues a file written without them (whose entries must match)."""
     if previous is not None and "xdmf/slip" not in previous:
+        return
+    if hasattr(model, "point_data"):  # a fabric (dynfab.fabric.from_scene)
+        entry.update(model.point_data(entry))
         return
     entry.update(nodal_point_data(np.asarray(entry["positions"]), np.asarray(entry["anchors"]),
                                   np.asarray(entry["contact_force"]),
@@ -247,7 +255,7 @@ def _open_sink(model: Model, engine: Solver | Transient, out, *, overwrite: bool
                resume: bool) -> ResultFile:
     """The result file: created, overwritten or resumed, sized for the run's entries."""
     capacity = ({"frame_capacity": frame_times(model).size} if isinstance(engine, Transient)
-                else {"step_capacity": model.load_values.size})
+                else {"step_capacity": len(model.load_values)})
     if resume:
         sink = ResultFile.resume(out, **capacity)
         if sink.attrs.get("scene") != scene_to_toml(model.scene):
@@ -265,6 +273,9 @@ def _open_sink(model: Model, engine: Solver | Transient, out, *, overwrite: bool
 
 def _start_state(model: Model, sink) -> State:
     """The as-woven start, or the last finished step of a resumed file."""
+    if hasattr(model, "state_from_step"):  # a fabric (dynfab.fabric.from_scene)
+        return model.state_from_step(sink.last_step()) if sink.step_count else \
+            model.initial_state()
     if sink.step_count == 0:
         return initial_state(model)
     last = sink.last_step()
@@ -277,7 +288,10 @@ def _root_attrs(model: Model, engine: Solver | Transient) -> dict:
     scene = model.scene
     attrs = {"scene": scene_to_toml(scene), "scene_source": scene.text,
              "solver": engine.name, "dynfab_version": dynfab_version(),
-             "title": scene.title, "load_control": model.control,
+             "title": scene.title, "load_control": model.control}
+    if hasattr(model, "reference"):  # a fabric (dynfab.fabric.from_scene)
+        return {**attrs, **model.attrs(), **engine.attrs()}
+    attrs = {**attrs,
              "projected_length": scene.geometry.length,
              "reference_state": scene.geometry.reference, "yarn_labels": yarn_labels(scene),
              "terms": list(model.terms)}
@@ -289,6 +303,8 @@ def _root_attrs(model: Model, engine: Solver | Transient) -> dict:
 
 
 def _reference(model: Model) -> dict:
+    if hasattr(model, "reference"):  # a fabric (dynfab.fabric.from_scene)
+        return model.reference()
     return {"positions": model.stacked("rest_position"),
             "crossing_nodes": model.yarns[0].crossing_node}
 
@@ -358,6 +374,9 @@ def print_summary(results: Results, file=sys.stdout) -> None:
     if results.step_count == 0:
         _print_frames_summary(results, file)
         return
+    if results.attrs.get("model") == "fabric":
+        _print_fabric_summary(results, file)
+        return
     unit = "N" if results.attrs.get("load_control") == "force" else "m"
     labels = results.attrs.get("yarn_labels") or []
     header = (f"{'step':>4} {'yarn':>4} {'load [' + unit + ']':>12} {'u_end [mm]':>11} "
@@ -373,6 +392,24 @@ def print_summary(results: Results, file=sys.stdout) -> None:
                   file=file)
     for k, label in enumerate(labels):
         print(f"yarn {k + 1}: {label}", file=file)
+
+
+def _print_fabric_summary(results: Results, file) -> None:
+    """A fabric's table (MODEL.md 10): per step, the (warp, weft) loads and strains, the
+    mean end force per family, the largest contact force, the residual and the time."""
+    steps, attrs = results.steps, results.attrs
+    unit = "N" if attrs.get("load_control") == "force" else "m"
+    warps = int(steps["contact_force"].shape[1])
+    print(f"{'step':>4} {'warp load':>11} {'weft load':>11} {'strain wa':>10} {'strain we':>10} "
+          f"{'P_wa [N]':>10} {'P_we [N]':>10} {'max R [N]':>10} {'residual':>10} "
+          f"{'time [s]':>9}   (loads in {unit})", file=file)
+    for i in range(results.step_count):
+        force = steps["end_force"][i]
+        strain = steps["strain"][i] if "strain" in steps else (np.nan, np.nan)
+        print(f"{i + 1:>4} {steps['load'][i, 0]:>11.5g} {steps['load'][i, 1]:>11.5g} "
+              f"{strain[0]:>10.4g} {strain[1]:>10.4g} {force[:warps].mean():>10.4g} "
+              f"{force[warps:].mean():>10.4g} {steps['contact_force'][i].max():>10.4g} "
+              f"{float(steps['residual'][i]):>10.2e} {steps['wall_time'][i]:>9.3f}", file=file)
 
 
 def _print_frames_summary(results: Results, file) -> None:
