@@ -680,7 +680,7 @@ def _build_load(table: dict) -> Load:
                          "write the load path either as values or as max and steps")
     if "values" in table:
         return Load(control=control, values=_convert("load.values", table["values"],
-                                                      keys["values"]))
+                                                      keys["values"]), **_fabric_loads(table))
     if not has_path:
         raise UserError("missing required key load.values (or load.max and load.steps)")
     for key in _LOAD_PATH:
@@ -692,7 +692,15 @@ def _build_load(table: dict) -> Load:
         raise _bad("load.steps", steps, f"at most {MAX_LOAD_STEPS:,} load steps (each one is "
                    "solved, written and reported; the path alone would hold "
                    f"{32 * steps / 1e9:.3g} GB): use fewer, larger steps")
-    return Load(control=control, values=tuple(top * k / steps for k in range(1, steps + 1)))
+    return Load(control=control, values=tuple(top * k / steps for k in range(1, steps + 1)),
+                **_fabric_loads(table))
+
+
+def _fabric_loads(table: dict) -> dict:
+    """The fabric's lists of [load] given (weft_values, warp_factors, weft_factors)."""
+    keys = _SCHEMA["load"][1]
+    return {key: _convert(f"load.{key}", table[key], spec) for key, spec in keys.items()
+            if spec.model == "fabric" and key in table}
 
 
 def _parse_sweep(table: dict) -> tuple[tuple[str, tuple[float, ...]], ...]:
