@@ -151,3 +151,10 @@ def test_fabric_refuses_the_dynamic_solver_in_one_line():
     with pytest.raises(UserError, match=r'^--solver dynamic: a fabric scene \(geometry.model = '
                                         r'"fabric"\) runs with --solver static$'):
         run(scene, "dynamic")
+
+
+def test_fabric_refuses_the_accuracy_option_it_cannot_honour():
+    scene = load_scene(RUNS / "fabric_biaxial.toml")
+    with pytest.raises(UserError, match=r"^--accuracy 0\.01: the fabric's static solver has no "
+                                        r"error estimate"):
+        run(scene, accuracy=0.01)

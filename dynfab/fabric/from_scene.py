@@ -216,6 +216,10 @@ def build_run(scene: Scene, solver: str, device: str | None, options: dict):
     if device is not None:
         raise UserError(f"--device {device}: the static solver runs on the CPU (numba); "
                         "a device is for --solver dynamic")
+    if options.get("accuracy") is not None:
+        raise UserError(f"--accuracy {options['accuracy']}: the fabric's static solver has no "
+                        "error estimate to hold to it (its steps are certified by their "
+                        "residual and inertia); drop it")
     scene = apply_run_options(scene, solver, **options)
     model = FabricModel.from_scene(scene)
     return model, FabricSolver(model)
