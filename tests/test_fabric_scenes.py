@@ -115,6 +115,9 @@ def test_pullout_is_resisted_by_the_friction_of_the_pressed_crossings():
         tolerance = nodes * max(float(steps["residual"][i]), model.spec.tolerance)
         assert abs(pull + steps["friction_force"][i, k, :, 0].sum()) <= tolerance
         assert 0 < pull <= steps["friction_limit"][i, k].sum() + tolerance
+    # the warp strain is the pulled warp's (the held warps are not loaded, MODEL.md 10)
+    np.testing.assert_allclose(steps["strain"][~stage1, 0],
+                               steps["load"][~stage1, 0] / model.spec.warp.length, rtol=1e-12)
     last = steps["sliding"][~stage1][-5:, k]
     assert last.all()
     # the plateau is the friction of the pressed crossings, not zero

@@ -519,8 +519,15 @@ class FabricStaticSolver:
         return np.array([crimp[f.is_warp].mean(), crimp[~f.is_warp].mean()])
 
     def strains(self, pos) -> np.ndarray:
-        """Nominal strains (warp, weft): mean end displacement over length (MODEL.md 10)."""
+        """Nominal strains (warp, weft): the mean end displacement of the family's loaded
+        yarns over their length (MODEL.md 10). Under displacement control a yarn of factor 0
+        is held, not loaded, and left out (a pull-out's other warps), unless the whole family
+        is; under force control a factor-0 yarn's end is free and counts."""
         f, spec = self.fabric, self.spec
         u = pos[f.load_node, 0] - f.rest_position[f.load_node, 0]
-        return np.array([u[f.is_warp].mean() / spec.warp.length,
-                         u[~f.is_warp].mean() / spec.weft.length])
+        loaded = (f.load_factor != 0) | (spec.control == "force")
+        out = []
+        for family, length in ((f.is_warp, spec.warp.length), (~f.is_warp, spec.weft.length)):
+            chosen = family & loaded if (family & loaded).any() else family
+            out.append(u[chosen].mean() / length)
+        return np.array(out)
