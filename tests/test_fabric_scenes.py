@@ -161,3 +161,32 @@ def test_fabric_refuses_the_accuracy_option_it_cannot_honour():
     with pytest.raises(UserError, match=r"^--accuracy 0\.01: the fabric's static solver has no "
                                         r"error estimate"):
         run(scene, accuracy=0.01)
+
+
+def test_dynfab_run_on_a_fabric_scene_from_the_command_line(tmp_path):
+    """The command a user types: exit 0, the fabric's summary table, the file and its view;
+    the wefts of the view lie in the planes x = X_j = (j - 1/2) L / n_we (MODEL.md 10)."""
+    import re
+    import subprocess
+    import sys
+
+    out = tmp_path / "cell.h5"
+    done = subprocess.run([sys.executable, "-m", "dynfab.cli", "run",
+                           str(RUNS / "fabric_biaxial.toml"), "--out", str(out)],
+                          capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert "strain wa" in done.stdout and len(done.stdout.strip().splitlines()) == 11
+    view = out.with_suffix(".xdmf").read_text()
+    grid = view[view.index('<Grid Name="as-woven weft yarns"'):]
+    planes = re.findall(r'<DataItem Format="XML" NumberType="Float" Precision="8" '
+                        r'Dimensions="\d+">([^<]*)</DataItem>', grid)[0]
+    scene = load_scene(RUNS / "fabric_biaxial.toml")
+    n_we, M = scene.geometry.crossings, scene.weft.segments
+    expected = np.repeat((np.arange(n_we) + 0.5) * scene.geometry.length / n_we, M + 1)
+    np.testing.assert_allclose(np.array(planes.split(), float), expected, rtol=1e-15)
+    refused = subprocess.run([sys.executable, "-m", "dynfab.cli", "run",
+                              str(RUNS / "fabric_biaxial.toml"), "--out", str(out),
+                              "--overwrite", "--solver", "dynamic"], capture_output=True, text=True)
+    assert refused.returncode == 2 and refused.stderr.strip().splitlines() == [
+        'dynfab: error: --solver dynamic: a fabric scene (geometry.model = "fabric") runs with '
+        '--solver static']
