@@ -200,7 +200,7 @@ def _solve(model: Model, engine: Solver | Transient, sink, progress) -> int:
         sink.append_step(record)
         floors.append(np.any(record["rounding_floor"]))
         if progress is not None:
-            progress(_progress_line(index, total, record, unit))
+            progress(_progress_line(index, total, record, unit, pair=values.ndim == 2))
     _warn_rounding_floor(floors)
     return sink.step_count - first
 
@@ -317,15 +317,18 @@ def yarn_labels(scene: Scene) -> list[str]:
     return [f"yarn {k + 1} (s={'+' if k % 2 == 0 else '-'}1)" for k in range(scene.geometry.yarns)]
 
 
-def _progress_line(index: int, total: int, record: dict, unit: str) -> str:
-    """One line per finished load step: load, worst residual, iterations, time."""
+def _progress_line(index: int, total: int, record: dict, unit: str, pair: bool = False) -> str:
+    """One line per finished load step: load (a fabric's `pair`: warp, weft), worst residual,
+    iterations, time."""
     steps = record.get("time_steps", record["iterations"])
     what = "time steps" if "time_steps" in record else "iterations"
     buckled, stable = record.get("buckled"), record.get("stable")
     note = ("  (buckled: left an unstable state)" if buckled is not None and buckled.any() else "")
     if stable is not None and not stable.all():
         note += "  (unstable: no escape lowered the energy; see steps/lowest_eigenvalue)"
-    return (f"[{index + 1:>{len(str(total))}}/{total}] load {record['load'][0]:.6g} {unit}  "
+    load = (f"load {record['load'][0]:.6g}, {record['load'][1]:.6g} {unit} (warp, weft)" if pair
+            else f"load {record['load'][0]:.6g} {unit}")
+    return (f"[{index + 1:>{len(str(total))}}/{total}] {load}  "
             f"end displacement {1e3 * record['end_displacement'].max():.4f} mm  "
             f"residual {record['residual'].max():.2e} N  {what} {int(np.max(steps))}  "
             f"{record['wall_time']:.3f} s{note}")
