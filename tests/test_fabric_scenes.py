@@ -145,6 +145,8 @@ def test_fabric_file_resumes_to_the_uninterrupted_run(tmp_path):
             if isinstance(a["steps"][name], h5py.Dataset) and name != "wall_time":
                 np.testing.assert_array_equal(a["steps"][name][:], b["steps"][name][:],
                                               err_msg=name)
+    from dynfab.plot import plot_results
+    assert [p.name for p in plot_results(part, tmp_path / "plots")] == ["fabric.png"]
     view = part.with_suffix(".xdmf").read_text()
     assert view.count('Name="steps ') == 2 * 10 and "weft_positions" in view
 
