@@ -205,12 +205,17 @@ def _solve(model: Model, engine: Solver | Transient, sink, progress) -> int:
     return sink.step_count - first
 
 
+def _is_fabric(model) -> bool:
+    """A fabric's run (MODEL.md 10): its model is `dynfab.fabric.from_scene.FabricModel`."""
+    return model.scene.geometry.model == "fabric"
+
+
 def _add_point_data(model: Model, entry: dict, previous: dict | None) -> None:
     """Add the nodal point data of the XDMF view (`dynfab.xdmf.nodal_point_data`) to a step
     or frame, unless it continues a file written without them (whose entries must match)."""
     if previous is not None and "xdmf/slip" not in previous:
         return
-    if hasattr(model, "point_data"):  # a fabric (dynfab.fabric.from_scene)
+    if _is_fabric(model):
         entry.update(model.point_data(entry))
         return
     entry.update(nodal_point_data(np.asarray(entry["positions"]), np.asarray(entry["anchors"]),
@@ -273,7 +278,7 @@ def _open_sink(model: Model, engine: Solver | Transient, out, *, overwrite: bool
 
 def _start_state(model: Model, sink) -> State:
     """The as-woven start, or the last finished step of a resumed file."""
-    if hasattr(model, "state_from_step"):  # a fabric (dynfab.fabric.from_scene)
+    if _is_fabric(model):
         return model.state_from_step(sink.last_step()) if sink.step_count else \
             model.initial_state()
     if sink.step_count == 0:
@@ -289,7 +294,7 @@ def _root_attrs(model: Model, engine: Solver | Transient) -> dict:
     attrs = {"scene": scene_to_toml(scene), "scene_source": scene.text,
              "solver": engine.name, "dynfab_version": dynfab_version(),
              "title": scene.title, "load_control": model.control}
-    if hasattr(model, "reference"):  # a fabric (dynfab.fabric.from_scene)
+    if _is_fabric(model):
         return {**attrs, **model.attrs(), **engine.attrs()}
     attrs = {**attrs,
              "projected_length": scene.geometry.length,
@@ -303,7 +308,7 @@ def _root_attrs(model: Model, engine: Solver | Transient) -> dict:
 
 
 def _reference(model: Model) -> dict:
-    if hasattr(model, "reference"):  # a fabric (dynfab.fabric.from_scene)
+    if _is_fabric(model):
         return model.reference()
     return {"positions": model.stacked("rest_position"),
             "crossing_nodes": model.yarns[0].crossing_node}
