@@ -50,6 +50,8 @@ def plot_results(path: str | os.PathLike, out_dir: str | os.PathLike) -> list[Pa
         return _plot_transient(results, output_folder(out_dir))
     if results.step_count == 0:
         raise UserError(f"result file '{path}' has no finished load step to plot")
+    if results.attrs.get("model") == "fabric":  # MODEL.md section 10
+        return [save_png(plot_fabric(results), output_folder(out_dir) / "fabric.png")]
     for key in ("end_force", "end_displacement", "positions"):
         if key not in results.steps:
             raise UserError(f"result file '{path}' lacks dataset steps/{key}")
@@ -61,6 +63,29 @@ def plot_results(path: str | os.PathLike, out_dir: str | os.PathLike) -> list[Pa
     if has_friction(results):
         written.append(save_png(plot_friction(results), out / "friction.png"))
     return written
+
+
+def plot_fabric(results: Results) -> Figure:
+    """A fabric's run (MODEL.md section 10): each family's mean end force against its
+    nominal strain, and each family's mean crimp over the load steps."""
+    steps = results.steps
+    warps = int(steps["contact_force"].shape[1])
+    force = steps["end_force"]
+    fig = new_figure(10, 4)
+    traction, crimp = fig.subplots(1, 2)
+    step = np.arange(1, results.step_count + 1)
+    for column, (name, yarns) in enumerate((("warps", slice(0, warps)),
+                                            ("wefts", slice(warps, None)))):
+        traction.plot(100 * steps["strain"][:, column], force[:, yarns].mean(axis=1), "o-", ms=3,
+                      label=name)
+        crimp.plot(step, 100 * steps["crimp"][:, column], "o-", ms=3, label=name)
+    traction.set(xlabel="nominal strain [%]", ylabel="mean end force per yarn [N]")
+    crimp.set(xlabel="load step", ylabel="mean crimp [%]")
+    for ax in (traction, crimp):
+        style_axes(ax)
+        _legend(ax)
+    _suptitle(fig, results, "woven fabric")
+    return fig
 
 
 def output_folder(out_dir: str | os.PathLike | None) -> Path:

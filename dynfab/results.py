@@ -91,6 +91,8 @@ UNITS: dict[str, str] = {
     # As-woven reference state.
     "reference/positions": "m",  # (yarns, N+1, 2) node (x, z)
     "reference/crossing_nodes": "-",  # (crossings,) node index of each crossing
+    "reference/weft_positions": "m",  # fabric: (n_we, M+1, 2) weft node (y, z)
+    "reference/weft_crossing_nodes": "-",  # fabric: (n_wa,) weft node of each crossing
     # One entry per finished load step (axis 0 = steps).
     "steps/load": LOAD_CONTROL_UNITS,  # (steps, yarns) applied value, N or m
     "steps/end_force": "N",  # (steps, yarns) P at the end node
@@ -116,6 +118,13 @@ UNITS: dict[str, str] = {
     "steps/lowest_eigenvalue": "N/m",  # (steps, yarns) estimate of lambda_min of that Hessian
     "steps/error_estimate": "m",  # (steps, yarns) residual x est ||H^-1||_inf, position error bound
     "steps/tolerance": "N",  # dynamic solver: the residual each load step had to reach
+    "steps/weft_positions": "m",  # fabric: (steps, n_we, M+1, 2) weft node (y, z)
+    "steps/strain": "-",  # fabric: (steps, 2) nominal strain (warp, weft)
+    "steps/work": "J",  # fabric: (steps,) work of the end loads so far
+    "steps/friction_solves": "-",  # fabric: (steps,) Newton solves of the friction update
+    "steps/negative_eigenvalues": "-",  # fabric: (steps,) of the frozen-F_T Hessian
+    "steps/xdmf/weft_contact_force": "N",  # fabric: (steps, n_we, M+1) as steps/xdmf/contact_force
+    "steps/xdmf/weft_slip": "m",  # fabric: (steps, n_we, M+1) y - anchor at crossing nodes
     "steps/xdmf/contact_force": "N",  # (steps, yarns, N+1) R at crossing nodes, 0 elsewhere (dynfab.xdmf)
     "steps/xdmf/slip": "m",  # (steps, yarns, N+1) x - anchor at crossing nodes, 0 elsewhere
     # Transient runs: one entry per output frame (axis 0 = frames).

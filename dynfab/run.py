@@ -169,6 +169,9 @@ def _build(scene: Scene, solver: str, out, status, device: str | None, options: 
     """The model and the solver, the run options set on the scene (`dynfab.options`) and the
     run's memory and result file (`out`, None: not checked) estimated first (`dynfab.budget`);
     the dynamic solver reports its launches to `status`."""
+    if scene.geometry.model == "fabric":  # MODEL.md section 10
+        from dynfab.fabric.from_scene import build_run
+        return build_run(scene, solver, device, options)
     scene = apply_run_options(scene, solver, **options)
     check_budget(scene, out)
     model = build_model(scene)
@@ -182,28 +185,38 @@ def _solve(model: Model, engine: Solver | Transient, sink, progress) -> int:
     state = _start_state(model, sink)
     values = model.load_values
     unit = "N" if model.control == "force" else "m"
-    first, floors = sink.step_count, []
-    for index in range(first, values.size):
+    first, floors, total = sink.step_count, [], len(values)
+    for index in range(first, total):
         started = time.perf_counter()
+        load = float(values[index]) if values.ndim == 1 else values[index]  # fabric: (warp, weft)
         try:
-            state, record = engine.step(state, float(values[index]))
+            state, record = engine.step(state, load)
         except SolverError as error:
-            raise SolverError(f"load step {index + 1}/{values.size} (load {values[index]:.6g} {unit}): "
+            shown = " ".join(f"{v:.6g}" for v in np.atleast_1d(load))
+            raise SolverError(f"load step {index + 1}/{total} (load {shown} {unit}): "
                               f"{error}; the {index} finished steps are kept") from error
         record["wall_time"] = time.perf_counter() - started
         _add_point_data(model, record, sink.last_step() if sink.step_count else None)
         sink.append_step(record)
-        floors.append(record["rounding_floor"].any())
+        floors.append(np.any(record["rounding_floor"]))
         if progress is not None:
-            progress(_progress_line(index, values.size, record, unit))
+            progress(_progress_line(index, total, record, unit, pair=values.ndim == 2))
     _warn_rounding_floor(floors)
     return sink.step_count - first
+
+
+def _is_fabric(model) -> bool:
+    """A fabric's run (MODEL.md 10): its model is `dynfab.fabric.from_scene.FabricModel`."""
+    return model.scene.geometry.model == "fabric"
 
 
 def _add_point_data(model: Model, entry: dict, previous: dict | None) -> None:
     """Add the nodal point data of the XDMF view (`dynfab.xdmf.nodal_point_data`) to a step
     or frame, unless it continues a file written without them (whose entries must match)."""
     if previous is not None and "xdmf/slip" not in previous:
+        return
+    if _is_fabric(model):
+        entry.update(model.point_data(entry))
         return
     entry.update(nodal_point_data(np.asarray(entry["positions"]), np.asarray(entry["anchors"]),
                                   np.asarray(entry["contact_force"]),
@@ -247,7 +260,7 @@ def _open_sink(model: Model, engine: Solver | Transient, out, *, overwrite: bool
                resume: bool) -> ResultFile:
     """The result file: created, overwritten or resumed, sized for the run's entries."""
     capacity = ({"frame_capacity": frame_times(model).size} if isinstance(engine, Transient)
-                else {"step_capacity": model.load_values.size})
+                else {"step_capacity": len(model.load_values)})
     if resume:
         sink = ResultFile.resume(out, **capacity)
         if sink.attrs.get("scene") != scene_to_toml(model.scene):
@@ -265,6 +278,9 @@ def _open_sink(model: Model, engine: Solver | Transient, out, *, overwrite: bool
 
 def _start_state(model: Model, sink) -> State:
     """The as-woven start, or the last finished step of a resumed file."""
+    if _is_fabric(model):
+        return model.state_from_step(sink.last_step()) if sink.step_count else \
+            model.initial_state()
     if sink.step_count == 0:
         return initial_state(model)
     last = sink.last_step()
@@ -277,7 +293,10 @@ def _root_attrs(model: Model, engine: Solver | Transient) -> dict:
     scene = model.scene
     attrs = {"scene": scene_to_toml(scene), "scene_source": scene.text,
              "solver": engine.name, "dynfab_version": dynfab_version(),
-             "title": scene.title, "load_control": model.control,
+             "title": scene.title, "load_control": model.control}
+    if _is_fabric(model):
+        return {**attrs, **model.attrs(), **engine.attrs()}
+    attrs = {**attrs,
              "projected_length": scene.geometry.length,
              "reference_state": scene.geometry.reference, "yarn_labels": yarn_labels(scene),
              "terms": list(model.terms)}
@@ -289,6 +308,8 @@ def _root_attrs(model: Model, engine: Solver | Transient) -> dict:
 
 
 def _reference(model: Model) -> dict:
+    if _is_fabric(model):
+        return model.reference()
     return {"positions": model.stacked("rest_position"),
             "crossing_nodes": model.yarns[0].crossing_node}
 
@@ -301,15 +322,18 @@ def yarn_labels(scene: Scene) -> list[str]:
     return [f"yarn {k + 1} (s={'+' if k % 2 == 0 else '-'}1)" for k in range(scene.geometry.yarns)]
 
 
-def _progress_line(index: int, total: int, record: dict, unit: str) -> str:
-    """One line per finished load step: load, worst residual, iterations, time."""
+def _progress_line(index: int, total: int, record: dict, unit: str, pair: bool = False) -> str:
+    """One line per finished load step: load (a fabric's `pair`: warp, weft), worst residual,
+    iterations, time."""
     steps = record.get("time_steps", record["iterations"])
     what = "time steps" if "time_steps" in record else "iterations"
     buckled, stable = record.get("buckled"), record.get("stable")
     note = ("  (buckled: left an unstable state)" if buckled is not None and buckled.any() else "")
     if stable is not None and not stable.all():
         note += "  (unstable: no escape lowered the energy; see steps/lowest_eigenvalue)"
-    return (f"[{index + 1:>{len(str(total))}}/{total}] load {record['load'][0]:.6g} {unit}  "
+    load = (f"load {record['load'][0]:.6g}, {record['load'][1]:.6g} {unit} (warp, weft)" if pair
+            else f"load {record['load'][0]:.6g} {unit}")
+    return (f"[{index + 1:>{len(str(total))}}/{total}] {load}  "
             f"end displacement {1e3 * record['end_displacement'].max():.4f} mm  "
             f"residual {record['residual'].max():.2e} N  {what} {int(np.max(steps))}  "
             f"{record['wall_time']:.3f} s{note}")
@@ -358,6 +382,9 @@ def print_summary(results: Results, file=sys.stdout) -> None:
     if results.step_count == 0:
         _print_frames_summary(results, file)
         return
+    if results.attrs.get("model") == "fabric":
+        _print_fabric_summary(results, file)
+        return
     unit = "N" if results.attrs.get("load_control") == "force" else "m"
     labels = results.attrs.get("yarn_labels") or []
     header = (f"{'step':>4} {'yarn':>4} {'load [' + unit + ']':>12} {'u_end [mm]':>11} "
@@ -373,6 +400,24 @@ def print_summary(results: Results, file=sys.stdout) -> None:
                   file=file)
     for k, label in enumerate(labels):
         print(f"yarn {k + 1}: {label}", file=file)
+
+
+def _print_fabric_summary(results: Results, file) -> None:
+    """A fabric's table (MODEL.md 10): per step, the (warp, weft) loads and strains, the
+    mean end force per family, the largest contact force, the residual and the time."""
+    steps, attrs = results.steps, results.attrs
+    unit = "N" if attrs.get("load_control") == "force" else "m"
+    warps = int(steps["contact_force"].shape[1])
+    print(f"{'step':>4} {'warp load':>11} {'weft load':>11} {'strain wa':>10} {'strain we':>10} "
+          f"{'P_wa [N]':>10} {'P_we [N]':>10} {'max R [N]':>10} {'residual':>10} "
+          f"{'time [s]':>9}   (loads in {unit})", file=file)
+    for i in range(results.step_count):
+        force = steps["end_force"][i]
+        strain = steps["strain"][i] if "strain" in steps else (np.nan, np.nan)
+        print(f"{i + 1:>4} {steps['load'][i, 0]:>11.5g} {steps['load'][i, 1]:>11.5g} "
+              f"{strain[0]:>10.4g} {strain[1]:>10.4g} {force[:warps].mean():>10.4g} "
+              f"{force[warps:].mean():>10.4g} {steps['contact_force'][i].max():>10.4g} "
+              f"{float(steps['residual'][i]):>10.2e} {steps['wall_time'][i]:>9.3f}", file=file)
 
 
 def _print_frames_summary(results: Results, file) -> None:

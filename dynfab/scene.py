@@ -63,6 +63,9 @@ class _Key:
     """A run option ([static], [dynamic]): a `dynfab run` flag and a `dynfab.run` keyword."""
     default_from: str = ""
     """When left out of the TOML: the value of this other key."""
+    model: str = ""
+    """"fabric": a key of the woven fabric only; "yarn": of the one-yarn model only (MODEL.md
+    10); "": both. A scene of the other model refuses it."""
 
 
 _POS, _NONNEG = "positive", "nonnegative"
@@ -70,14 +73,14 @@ _POS, _NONNEG = "positive", "nonnegative"
 
 def _key(doc: str, unit: str = "", rule: str = "", *, choices: tuple[str, ...] = (),
          sweepable: bool = False, option: bool = False, default_from: str = "",
-         default=MISSING):
+         model: str = "", default=MISSING):
     """A dataclass field that is a scene key: its description, unit, rule and roles.
 
     The key's kind (real, integer, string, list) is its field's type; a field
     without `default` is required (unless `default_from` fills it at parse time).
     """
     spec = _Key(unit=unit, rule=rule, choices=choices, doc=doc, sweepable=sweepable,
-                option=option, default_from=default_from)
+                option=option, default_from=default_from, model=model)
     return field(default=default, metadata={"scene_key": spec})
 
 
@@ -94,7 +97,15 @@ class Geometry:
     reference: str = _key("stress-free state (MODEL.md section 3)",
                           choices=("as_woven", "prestressed"), default="as_woven")
     yarns: int = _key("adjacent warp yarns simulated, yarn k with phase s_k = (-1)^(k-1)",
-                      rule=_POS, default=1)
+                      rule=_POS, default=1, model="yarn")
+    model: str = _key("one warp yarn against weft springs (MODEL.md sections 1-9), or the woven "
+                      "fabric, warps and wefts alike as chains (MODEL.md section 10)",
+                      choices=("yarn", "fabric"), default="yarn")
+    boundary: str = _key("a finite patch, or a periodic unit cell (MODEL.md section 10)",
+                         choices=("clamped", "periodic"), default="clamped", model="fabric")
+    planes: str = _key("the yarns' planes X_j, Y_k: as woven, or moving with the patch's mean "
+                       "stretch (MODEL.md section 10)", choices=("fixed", "affine"),
+                       default="fixed", model="fabric")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -122,7 +133,13 @@ class Weft:
     kawabata_C: float = _key("Kawabata C_we", "m", _POS, sweepable=True)
     kawabata_K: float = _key("Kawabata K_we", "m/N", _POS, sweepable=True)
     tension: float = _key("P_we, weft tension; negative is compression, above -pi^2 EI/L_we^2",
-                          "N", sweepable=True, default=0.0)
+                          "N", sweepable=True, default=0.0, model="yarn")
+    EA: float | None = _key("weft extensional stiffness; required in a fabric", "N", _POS,
+                            default=None, model="fabric")
+    linear_density: float | None = _key("weft rho_l, mass per unit length; none: 3e-5", "kg/m",
+                                        _POS, default=None, model="fabric")
+    segments: int | None = _key("M, segments per weft yarn, a multiple of 2 x weft.count; "
+                                "required in a fabric", rule=_POS, default=None, model="fabric")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -146,7 +163,8 @@ class Contact:
 
     core_stiffness: float | None = _key(
         "k_c, the yarns' core stiffness in series with the weft spring and the Kawabata "
-        "compressions; none: no such spring", "N/m", _POS, sweepable=True, default=None)
+        "compressions; none: no such spring (a fabric: 1e5 N/m, MODEL.md section 10)", "N/m",
+        _POS, sweepable=True, default=None)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -164,6 +182,24 @@ class Load:
                         'displacement [m] ("displacement")', choices=("force", "displacement"),
                         default="force")
     values: tuple[float, ...] = _key("the load steps, in order", "N or m")
+    weft_values: tuple[float, ...] | None = _key(
+        "the load per weft yarn at each step, as many as values; none: zeros", "N or m",
+        default=None, model="fabric")
+    warp_factors: tuple[float, ...] | None = _key(
+        "a factor per warp yarn (weft.count of them) on its load; none: 1 each", "-",
+        default=None, model="fabric")
+    weft_factors: tuple[float, ...] | None = _key(
+        "a factor per weft yarn (geometry.crossings of them) on its load; none: 1 each", "-",
+        default=None, model="fabric")
+
+
+@dataclass(frozen=True, kw_only=True)
+class Pullout:
+    """One warp pulled out of a clamped fabric patch (MODEL.md section 10)."""
+
+    warp: int = _key("the warp pulled (1..weft.count): its first node free, its last node "
+                     "displaced by load.values; every other warp held at both ends", rule=_POS,
+                     model="fabric")
 
 
 _ACCURACY = "largest accepted position error bound of a step, relative to its largest displacement"
@@ -236,6 +272,8 @@ class Scene:
     friction: Friction | None = None
     gravity: Gravity | None = None
     load: Load
+    pullout: Pullout | None = None
+    """A fabric's pull-out, only when given."""
     sweep: tuple[tuple[str, tuple[float, ...]], ...] = ()
     """Zipped lists ("table.key", values), one batched yarn per entry."""
     static: Static = field(default_factory=Static)
@@ -248,7 +286,8 @@ class Scene:
 # Tables derived from the fields' metadata.
 
 _KINDS = {"float": "float", "float | None": "float", "int": "int", "str": "str",
-          "str | None": "str", "tuple[float, ...]": "floats"}
+          "str | None": "str", "tuple[float, ...]": "floats", "int | None": "int",
+          "tuple[float, ...] | None": "floats"}
 """A field's type (as written) -> the kind of its key."""
 
 
@@ -258,7 +297,8 @@ def _keys_of(cls: type) -> dict[str, _Key]:
 
 
 _TABLES = {"geometry": Geometry, "warp": Warp, "weft": Weft, "contact": Contact,
-           "friction": Friction, "gravity": Gravity, "load": Load, "static": Static,
+           "friction": Friction, "gravity": Gravity, "load": Load, "pullout": Pullout,
+           "static": Static,
            "dynamic": Dynamic}
 _SCHEMA: dict[str, tuple[type, dict[str, _Key]]] = {
     name: (cls, _keys_of(cls)) for name, cls in _TABLES.items()}
@@ -335,11 +375,22 @@ def scene_to_toml(scene: Scene) -> str:
             continue
         lines.append(f"\n[{name}]")
         lines += [f"{f.name} = {_toml_value(getattr(table, f.name))}" for f in fields(table)
-                  if getattr(table, f.name) is not None]
+                  if getattr(table, f.name) is not None and _written(scene, f)]
     if scene.sweep:
         lines.append("\n[sweep]")
         lines += [f"{json.dumps(key)} = {_toml_value(list(values))}" for key, values in scene.sweep]
     return "\n".join(lines) + "\n"
+
+
+def _written(scene: Scene, f) -> bool:
+    """Whether `scene_to_toml` writes field f: not a key of the other model (at its default
+    there, and refused if written), nor geometry.model = "yarn" (so a one-yarn scene's text
+    is what it was before the fabric existed)."""
+    spec = f.metadata["scene_key"]
+    model = scene.geometry.model
+    if f.name == "model" and model == "yarn":
+        return False
+    return spec.model in ("", model)
 
 
 def _toml_value(value) -> str:
@@ -358,11 +409,17 @@ def validate_scene(scene: Scene) -> Scene:
 
     Runs on parsed scenes and on scenes built in Python alike.
     """
+    if scene.geometry.model == "fabric" and scene.geometry.crossings == 0:
+        raise _bad("geometry.crossings", 0, f"a fabric ({_FABRIC}) needs at least one weft")
     _check_tables_present(scene)
     _check_fields(scene)
     _check_segments(scene.geometry)
     if scene.weft is not None:
         _check_weft_tension(scene.weft)
+    if scene.geometry.model == "fabric":
+        _check_fabric(scene)
+    else:
+        _check_no_fabric_keys(scene)
     _check_dynamic(scene.dynamic)
     _check_sweep(scene)
     return scene
@@ -529,6 +586,7 @@ def _build_scene(raw: dict, text: str) -> Scene:
         if name not in _TOP_KEYS:
             raise _unknown_top(name)
     tables = {name: _table(raw, name) for name in (*_SCHEMA, "sweep")}
+    _check_model_keys(tables)
     sweep = _parse_sweep(tables["sweep"]) if tables["sweep"] is not None else ()
     _fill_swept(tables, sweep)
     geometry = _build_table("geometry", tables["geometry"])
@@ -541,6 +599,7 @@ def _build_scene(raw: dict, text: str) -> Scene:
         friction=_build_optional("friction", tables["friction"]),
         gravity=_build_optional("gravity", tables["gravity"]),
         load=_build_load(tables["load"]),
+        pullout=_build_optional("pullout", tables["pullout"]),
         sweep=sweep,
         static=_build_optional("static", tables["static"]) or Static(),
         dynamic=_build_optional("dynamic", tables["dynamic"]) or Dynamic(),
@@ -609,6 +668,10 @@ def _build_weft(table: dict | None, geometry: Geometry) -> Weft | None:
 def _build_load(table: dict) -> Load:
     """The load path: `values`, or `max` and `steps` (values = max k / steps)."""
     keys = _SCHEMA["load"][1]
+    for key in table:
+        if key.endswith("_control"):
+            raise _bad(f"load.{key}", table[key], "one load.control for both families "
+                       "(MODEL.md section 10): mixed control is refused")
     _check_keys("load", table, (*keys, *_LOAD_PATH))
     control = _convert("load.control", table.get("control", "force"), keys["control"])
     has_path = [k for k in _LOAD_PATH if k in table]
@@ -617,7 +680,7 @@ def _build_load(table: dict) -> Load:
                          "write the load path either as values or as max and steps")
     if "values" in table:
         return Load(control=control, values=_convert("load.values", table["values"],
-                                                      keys["values"]))
+                                                      keys["values"]), **_fabric_loads(table))
     if not has_path:
         raise UserError("missing required key load.values (or load.max and load.steps)")
     for key in _LOAD_PATH:
@@ -629,7 +692,15 @@ def _build_load(table: dict) -> Load:
         raise _bad("load.steps", steps, f"at most {MAX_LOAD_STEPS:,} load steps (each one is "
                    "solved, written and reported; the path alone would hold "
                    f"{32 * steps / 1e9:.3g} GB): use fewer, larger steps")
-    return Load(control=control, values=tuple(top * k / steps for k in range(1, steps + 1)))
+    return Load(control=control, values=tuple(top * k / steps for k in range(1, steps + 1)),
+                **_fabric_loads(table))
+
+
+def _fabric_loads(table: dict) -> dict:
+    """The fabric's lists of [load] given (weft_values, warp_factors, weft_factors)."""
+    keys = _SCHEMA["load"][1]
+    return {key: _convert(f"load.{key}", table[key], spec) for key, spec in keys.items()
+            if spec.model == "fabric" and key in table}
 
 
 def _parse_sweep(table: dict) -> tuple[tuple[str, tuple[float, ...]], ...]:
@@ -714,6 +785,141 @@ def _check_segments(geometry: Geometry) -> None:
                    f"nearest valid: {nearest}")
 
 
+_FABRIC, _YARN = 'geometry.model = "fabric"', 'geometry.model = "yarn"'
+_YARN_KEY_IN_FABRIC = {
+    "weft.tension": "the wefts are chains, loaded by load.weft_values",
+    "geometry.yarns": "the fabric simulates weft.count warps and geometry.crossings wefts",
+}
+"""Why each one-yarn key means nothing in a fabric (MODEL.md section 10)."""
+
+
+def _keys_for(model: str) -> list[tuple[str, str]]:
+    """(table, key) of the keys that only the `model` scenes take."""
+    return [(t, k) for t, (_, keys) in _SCHEMA.items() for k, spec in keys.items()
+            if spec.model == model]
+
+
+def _fabric_key_in_yarn(dotted: str, value) -> UserError:
+    return _bad(dotted, value, f"a key of the woven fabric (MODEL.md section 10), but {_YARN}: "
+                "set geometry.model = \"fabric\" or remove it")
+
+
+def _yarn_key_in_fabric(dotted: str, value) -> UserError:
+    return _bad(dotted, value, f"means nothing in a fabric ({_FABRIC}, MODEL.md section 10): "
+                f"{_YARN_KEY_IN_FABRIC[dotted]}; remove it")
+
+
+def _sweep_in_fabric() -> UserError:
+    return UserError(f"[sweep] given but {_FABRIC}: a fabric is one patch, not a batch of "
+                     "independent yarns (MODEL.md section 10); write one scene per value")
+
+
+def _pullout_in_yarn() -> UserError:
+    return UserError(f"[pullout] given but {_YARN}: a pull-out is a fabric scene (MODEL.md "
+                     "section 10); set geometry.model = \"fabric\" or remove [pullout]")
+
+
+def _check_model_keys(tables: dict) -> None:
+    """Refuse, as written in the file, a key of the other model (MODEL.md section 10)."""
+    model = (tables.get("geometry") or {}).get("model", "yarn")
+    if model == "yarn":
+        if tables.get("pullout") is not None:
+            raise _pullout_in_yarn()
+        for table, key in _keys_for("fabric"):
+            if key in (tables.get(table) or {}):
+                raise _fabric_key_in_yarn(f"{table}.{key}", tables[table][key])
+    elif model == "fabric":
+        if tables.get("sweep") is not None:
+            raise _sweep_in_fabric()
+        for table, key in _keys_for("yarn"):
+            if key in (tables.get(table) or {}):
+                raise _yarn_key_in_fabric(f"{table}.{key}", tables[table][key])
+
+
+def _check_no_fabric_keys(scene: Scene) -> None:
+    """A one-yarn scene built in Python: every fabric key at its default."""
+    if scene.pullout is not None:
+        raise _pullout_in_yarn()
+    for table, key in _keys_for("fabric"):
+        value = getattr(getattr(scene, table) or object(), key, None)
+        default = next(f.default for f in fields(_TABLES[table]) if f.name == key)
+        if value is not None and value != default:
+            raise _fabric_key_in_yarn(f"{table}.{key}", value)
+
+
+def _check_fabric(scene: Scene) -> None:
+    """What a fabric scene must be (MODEL.md section 10)."""
+    g, weft, load = scene.geometry, scene.weft, scene.load
+    if scene.sweep:
+        raise _sweep_in_fabric()
+    if weft.tension != 0.0:
+        raise _yarn_key_in_fabric("weft.tension", weft.tension)
+    if g.yarns != 1:
+        raise _yarn_key_in_fabric("geometry.yarns", g.yarns)
+    if g.reference != "as_woven":
+        raise _bad("geometry.reference", g.reference, "a fabric's stress-free state is as "
+                   "woven (MODEL.md section 10); use \"as_woven\"")
+    for key, unit in (("EA", " [N]"), ("segments", "")):
+        if getattr(weft, key) is None:
+            raise UserError(f"missing required key weft.{key}{unit} (needed with {_FABRIC})")
+    if weft.segments % (2 * weft.count):
+        step = 2 * weft.count
+        raise _bad("weft.segments", weft.segments, f"must be a positive multiple of 2 x "
+                   f"weft.count = {step}; nearest valid: {max(step, round(weft.segments / step) * step)}")
+    if g.boundary == "periodic":
+        _check_periodic(scene)
+    _check_fabric_lists(scene)
+    if scene.pullout is not None:
+        _check_pullout(scene)
+
+
+def _check_periodic(scene: Scene) -> None:
+    """A unit cell: even yarn counts (the 2 x 2 plain-weave repeat), no gravity."""
+    for dotted, count, what in (("weft.count", scene.weft.count, "warps"),
+                                ("geometry.crossings", scene.geometry.crossings, "wefts")):
+        if count % 2:
+            raise _bad(dotted, count, f"a periodic cell (geometry.boundary = \"periodic\") "
+                       f"needs an even number of {what}: the plain-weave repeat is 2 x 2")
+    if scene.gravity is not None:
+        raise UserError("[gravity] given with geometry.boundary = \"periodic\": a periodic "
+                        "cell has no gravity (MODEL.md section 10); remove [gravity] or use "
+                        "a clamped patch")
+
+
+def _check_fabric_lists(scene: Scene) -> None:
+    """weft_values as long as values; one factor per yarn of its family."""
+    load = scene.load
+    expected = (("weft_values", len(load.values), "load.values has"),
+                ("warp_factors", scene.weft.count, "weft.count says there are"),
+                ("weft_factors", scene.geometry.crossings, "geometry.crossings says there are"))
+    for key, count, what in expected:
+        values = getattr(load, key)
+        if values is not None and len(values) != count:
+            noun = "entries" if key == "weft_values" else ("warps" if key == "warp_factors"
+                                                          else "wefts")
+            raise UserError(f"load.{key} has {len(values)} entries but {what} {count}"
+                            f"{'' if key == 'weft_values' else ' ' + noun}: give one per "
+                            f"{'load step' if key == 'weft_values' else noun[:-1]}")
+
+
+def _check_pullout(scene: Scene) -> None:
+    """A pull-out: a warp of the patch, displacement control, clamped, planes fixed."""
+    warp, g = scene.pullout.warp, scene.geometry
+    if warp > scene.weft.count:
+        raise _bad("pullout.warp", warp, f"must name a warp 1..weft.count = {scene.weft.count}")
+    if scene.load.control != "displacement":
+        raise _bad("load.control", scene.load.control, "a pull-out is displacement-"
+                   "controlled (MODEL.md section 10); use \"displacement\"")
+    if g.boundary != "clamped" or g.planes != "fixed":
+        key, value = (("geometry.boundary", g.boundary) if g.boundary != "clamped"
+                      else ("geometry.planes", g.planes))
+        raise _bad(key, value, "a pull-out is a clamped patch with fixed planes "
+                   "(MODEL.md section 10)")
+    if scene.load.warp_factors is not None:
+        raise _bad("load.warp_factors", scene.load.warp_factors, "a pull-out sets them "
+                   "(the pulled warp 1, the others held); remove it")
+
+
 def _check_weft_tension(weft: Weft) -> None:
     """P_we > -Pcr_we = -pi^2 EI_we / L_we^2: the weft must not buckle (MODEL.md 3)."""
     limit = -math.pi**2 * weft.EI / weft.length**2
@@ -794,7 +1000,8 @@ def _sweepable_text() -> str:
     parts = []
     for table, (_, keys) in _SCHEMA.items():
         swept = [name for name, spec in keys.items() if spec.sweepable]
-        reals = [name for name, spec in keys.items() if spec.kind == "float"]
+        reals = [name for name, spec in keys.items() if spec.kind == "float"
+                 and spec.model != "fabric"]
         if swept and swept == reals:
             parts.append(f"[{table}]")
         else:
@@ -908,6 +1115,8 @@ def _presence(table: str) -> str:
     """When a table is required, optional or refused."""
     if table in _REQUIRED_TABLES:
         return "Required."
+    if table == "pullout":
+        return 'Optional; only with geometry.model = "fabric".'
     text = "Required when geometry.crossings > 0" if table == "weft" else "Optional"
     if table in _ROD_REFUSES:
         text += "; a plain rod (geometry.crossings = 0) refuses it"
@@ -918,8 +1127,9 @@ def _row(dotted: str, spec: _Key, default: str) -> str:
     """One table row."""
     table, name = dotted.split(".")
     flag = f"`{run_flag(name)}`" if spec.option else ""
+    only = {"fabric": "(fabric only) ", "yarn": "(one-yarn model only) "}.get(spec.model, "")
     cells = (f"`{dotted}`", spec.unit, _allowed(spec), default,
-             "yes" if spec.sweepable else "", flag, spec.doc)
+             "yes" if spec.sweepable else "", flag, only + spec.doc)
     return "| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |"
 
 

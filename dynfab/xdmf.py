@@ -111,7 +111,7 @@ class _Layout:
     loads: np.ndarray | None
 
 
-_ATTRS = ("dynfab_version", "width_per_yarn", "projected_length", "scene")
+_ATTRS = ("dynfab_version", "width_per_yarn", "projected_length", "scene", "length_per_weft")
 """The root attributes the view reads (all of them take longer)."""
 
 
@@ -139,6 +139,8 @@ def _read_layout(path: Path) -> _Layout:
             count = _count(h5, group)
             wanted = ["reference/positions", f"{group}/positions"]  # a fabric: per family
             wanted += [f"{group}/xdmf/{name}" for name in POINT_DATA]
+            wanted += ["reference/weft_positions", f"{group}/weft_positions"]  # MODEL.md 10
+            wanted += [f"{group}/xdmf/weft_{name}" for name in POINT_DATA]
             shapes = {name: h5[name].shape for name in wanted if name in h5}
             times = (h5["frames/time"][:count] if group == "frames"
                      else np.arange(1, count + 1, dtype=float))
@@ -153,7 +155,15 @@ def _read_layout(path: Path) -> _Layout:
                   if f"{group}/xdmf/{name}" in shapes}
     warps = Family("warp yarns", f"{group}/positions", "reference/positions", 1,
                    (np.arange(yarns) + 0.5) * spacing, point_data)
-    return _Layout(path.name, group, count, shapes, [warps], times, loads)
+    families = [warps]
+    if "reference/weft_positions" in shapes:  # a fabric: wefts in the planes x = X_j
+        wefts = shapes["reference/weft_positions"][0]
+        families.append(Family(
+            "weft yarns", f"{group}/weft_positions", "reference/weft_positions", 0,
+            (np.arange(wefts) + 0.5) * float(attrs["length_per_weft"]),
+            {name: f"{group}/xdmf/weft_{name}" for name in POINT_DATA
+             if f"{group}/xdmf/weft_{name}" in shapes}))
+    return _Layout(path.name, group, count, shapes, families, times, loads)
 
 
 def _count(h5: h5py.File, group: str) -> int:

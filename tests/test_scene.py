@@ -583,3 +583,161 @@ def test_docs_scene_md_is_the_generated_key_table():
         "`python -m dynfab.scene --markdown > docs/scene.md`")
     for dotted in scene_module._ALL_KEYS:
         assert f"| `{dotted}` |" in committed
+
+
+# --------------------------------------------------------------------------
+# The woven fabric's keys (MODEL.md section 10).
+
+FABRIC = {"geometry.model": "fabric", "geometry.segments": 32, "geometry.crossings": 4,
+          "weft.count": 4, "weft.segments": 32, "weft.EA": 13.72,
+          "load.weft_values": [0.0, 0.001]}
+"""BASE as a 4 x 4 fabric (clamped, displacement control)."""
+
+
+def fabric(edits: dict | None = None):
+    """BASE as a fabric, with edits."""
+    return parse({**FABRIC, **(edits or {})})
+
+
+def test_fabric_scene_keys_and_their_defaults():
+    scene = fabric()
+    g, load = scene.geometry, scene.load
+    assert (g.model, g.boundary, g.planes) == ("fabric", "clamped", "fixed")
+    assert (scene.weft.EA, scene.weft.segments, scene.weft.linear_density) == (13.72, 32, None)
+    assert load.weft_values == (0.0, 0.001) and load.warp_factors is load.weft_factors is None
+    assert parse().geometry.model == "yarn" and parse().load.weft_values is None
+    scene = fabric({"geometry.boundary": "periodic", "geometry.planes": "affine",
+                    "load.warp_factors": [1, 0, 1, 0], "load.weft_factors": [0, 0, 0, 0],
+                    "weft.linear_density": 2e-5})
+    assert scene.load.warp_factors == (1.0, 0.0, 1.0, 0.0)
+    assert scene.load.weft_factors == (0.0,) * 4 and scene.weft.linear_density == 2e-5
+    pull = fabric({"pullout": {"warp": 2}})
+    assert pull.pullout.warp == 2
+    for s in (scene, pull, parse()):
+        assert parse_scene_text(scene_to_toml(s)) == replace(s, text=scene_to_toml(s))
+    assert "model" not in scene_to_toml(parse())  # a one-yarn scene's text as before
+
+
+def test_fabric_load_path_from_max_and_steps_keeps_weft_values():
+    scene = fabric({"load.values": DELETE, "load.max": 0.002, "load.steps": 2})
+    assert scene.load.values == (0.001, 0.002) and scene.load.weft_values == (0.0, 0.001)
+
+
+@pytest.mark.parametrize("key, value", [
+    ("geometry.boundary", "periodic"), ("geometry.planes", "fixed"), ("weft.EA", 13.72),
+    ("weft.segments", 32), ("weft.linear_density", 3e-5), ("load.weft_values", [0.0, 0.1]),
+    ("load.warp_factors", [1.0]), ("load.weft_factors", [1.0])])
+def test_a_fabric_key_in_a_one_yarn_scene_is_refused(key, value):
+    with pytest.raises(UserError) as info:
+        parse({key: value})
+    shown = scene_module._show(value)
+    assert str(info.value) == (f'{key} = {shown}: a key of the woven fabric (MODEL.md section '
+                               '10), but geometry.model = "yarn": set geometry.model = '
+                               '"fabric" or remove it')
+
+
+def test_a_pullout_in_a_one_yarn_scene_is_refused():
+    with pytest.raises(UserError) as info:
+        parse({"pullout": {"warp": 1}})
+    assert str(info.value) == ('[pullout] given but geometry.model = "yarn": a pull-out is a '
+                               'fabric scene (MODEL.md section 10); set geometry.model = '
+                               '"fabric" or remove [pullout]')
+
+
+def test_a_fabric_key_set_in_python_on_a_one_yarn_scene_is_refused():
+    with pytest.raises(UserError, match=r'geometry\.boundary = "periodic": a key of the woven '
+                                        r'fabric'):
+        with_key(parse(), "geometry.boundary", "periodic")
+
+
+@pytest.mark.parametrize("key, value, why", [
+    ("weft.tension", 0.1, "the wefts are chains, loaded by load.weft_values"),
+    ("geometry.yarns", 2, "the fabric simulates weft.count warps and geometry.crossings wefts")])
+def test_a_one_yarn_key_in_a_fabric_is_refused(key, value, why):
+    with pytest.raises(UserError) as info:
+        fabric({key: value})
+    assert str(info.value) == (f'{key} = {value!r}: means nothing in a fabric (geometry.model = '
+                               f'"fabric", MODEL.md section 10): {why}; remove it')
+    with pytest.raises(UserError, match="means nothing in a fabric"):
+        with_key(fabric(), key, value)  # set in Python
+
+
+def test_a_sweep_in_a_fabric_is_refused():
+    with pytest.raises(UserError) as info:
+        fabric({"sweep": {"warp.EA": [13.0, 14.0]}})
+    assert str(info.value) == ('[sweep] given but geometry.model = "fabric": a fabric is one '
+                               'patch, not a batch of independent yarns (MODEL.md section 10); '
+                               'write one scene per value')
+
+
+def test_a_prestressed_fabric_is_refused():
+    with pytest.raises(UserError) as info:
+        fabric({"geometry.reference": "prestressed"})
+    assert str(info.value) == ('geometry.reference = "prestressed": a fabric\'s stress-free '
+                               'state is as woven (MODEL.md section 10); use "as_woven"')
+
+
+@pytest.mark.parametrize("key, value, what", [("weft.count", 3, "warps"),
+                                              ("geometry.crossings", 3, "wefts")])
+def test_odd_yarn_counts_on_a_periodic_cell_are_refused(key, value, what):
+    segments = {"weft.segments": 36} if key == "weft.count" else {"geometry.segments": 36}
+    with pytest.raises(UserError) as info:
+        fabric({"geometry.boundary": "periodic", key: value, **segments})
+    assert str(info.value) == (f'{key} = 3: a periodic cell (geometry.boundary = "periodic") '
+                               f'needs an even number of {what}: the plain-weave repeat is 2 x 2')
+
+
+def test_gravity_on_a_periodic_cell_is_refused():
+    with pytest.raises(UserError) as info:
+        fabric({"geometry.boundary": "periodic", "gravity": {}})
+    assert str(info.value) == ('[gravity] given with geometry.boundary = "periodic": a periodic '
+                               'cell has no gravity (MODEL.md section 10); remove [gravity] or '
+                               'use a clamped patch')
+
+
+@pytest.mark.parametrize("key, value, message", [
+    ("load.weft_values", [0.1], "load.weft_values has 1 entries but load.values has 2: give one "
+                                "per load step"),
+    ("load.warp_factors", [1, 1, 1], "load.warp_factors has 3 entries but weft.count says there "
+                                     "are 4 warps: give one per warp"),
+    ("load.weft_factors", [1] * 5, "load.weft_factors has 5 entries but geometry.crossings says "
+                                   "there are 4 wefts: give one per weft")])
+def test_fabric_lists_of_another_length_are_refused(key, value, message):
+    with pytest.raises(UserError) as info:
+        fabric({key: value})
+    assert str(info.value) == message
+
+
+def test_mixed_control_is_refused():
+    with pytest.raises(UserError) as info:
+        fabric({"load.weft_control": "force"})
+    assert str(info.value) == ('load.weft_control = "force": one load.control for both '
+                               'families (MODEL.md section 10): mixed control is refused')
+
+
+def test_fabric_needs_the_weft_chain_keys():
+    with pytest.raises(UserError) as info:
+        parse({k: v for k, v in FABRIC.items() if k != "weft.EA"})
+    assert str(info.value) == ('missing required key weft.EA [N] (needed with geometry.model = '
+                               '"fabric")')
+    with pytest.raises(UserError) as info:
+        fabric({"weft.segments": 30})
+    assert str(info.value) == ("weft.segments = 30: must be a positive multiple of 2 x "
+                               "weft.count = 8; nearest valid: 32")
+
+
+@pytest.mark.parametrize("edits, message", [
+    ({"pullout": {"warp": 5}}, "pullout.warp = 5: must name a warp 1..weft.count = 4"),
+    ({"pullout": {"warp": 1}, "load.control": "force"},
+     'load.control = "force": a pull-out is displacement-controlled (MODEL.md section 10); '
+     'use "displacement"'),
+    ({"pullout": {"warp": 1}, "geometry.planes": "affine"},
+     'geometry.planes = "affine": a pull-out is a clamped patch with fixed planes (MODEL.md '
+     'section 10)'),
+    ({"pullout": {"warp": 1}, "load.warp_factors": [1, 0, 0, 0]},
+     "load.warp_factors = [1.0, 0.0, 0.0, 0.0]: a pull-out sets them (the pulled warp 1, the "
+     "others held); remove it")])
+def test_a_pullout_outside_its_rules_is_refused(edits, message):
+    with pytest.raises(UserError) as info:
+        fabric(edits)
+    assert str(info.value) == message

@@ -213,11 +213,14 @@ def stick_stiffness(spec: FabricSpec) -> float:
 
 
 def load_factors(spec: FabricSpec) -> np.ndarray:
-    """Per-yarn load factors (Y,): the given ones (default 1); a pull-out loads its warp
-    only (the others held at their as-woven ends, MODEL.md 10)."""
+    """Per-yarn load factors (Y,): the given ones (default 1). A pull-out loads its warp
+    with factor 1, holds the other warps at their as-woven ends (factor 0) and loads the
+    wefts with their factors (default 1), so `weft_values` can tension the wefts first and
+    press the crossings (docs/model.md, decisions: what presses a pulled-out warp)."""
     if spec.pullout is not None:
         factors = np.zeros(spec.warps + spec.wefts)
         factors[spec.pullout - 1] = 1.0
+        factors[spec.warps:] = spec.weft_factors or np.ones(spec.wefts)
         return factors
     return np.concatenate([spec.warp_factors or np.ones(spec.warps),
                            spec.weft_factors or np.ones(spec.wefts)]).astype(float)

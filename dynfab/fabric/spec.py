@@ -86,10 +86,12 @@ class FabricSpec:
     """Per-weft load factors (wefts,); None: 1 each."""
     pullout: int | None = None
     """A pull-out (MODEL.md 10): warp `pullout` (1-based) has its first node free and its
-    last node displaced by `warp_values`; every other yarn clamped at both ends. Needs
+    last node displaced by `warp_values`; every other warp clamped at both ends, the wefts'
+    last nodes displaced by `weft_values` times `weft_factors` (zeros: clamped). Needs
     displacement control on the clamped patch, and something pressing the warp onto the
-    wefts (gravity): the as-woven contacts carry no force and a translated warp keeps its
-    closures, so alone it slides out at zero force (a rigid-body mode)."""
+    wefts (tensioned wefts, or gravity): the as-woven contacts carry no force and a
+    translated warp keeps its closures, so alone it slides out at zero force (a rigid-body
+    mode)."""
     hold: str = "none"
     """"none", "warp" or "weft": every dof of that family held at its as-woven position
     (a check of MODEL.md 10: with the wefts held, each warp is the one-yarn model)."""

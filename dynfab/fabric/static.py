@@ -110,6 +110,15 @@ class FabricState:
                            self.work, None if self.end_force is None else self.end_force.copy())
 
 
+def as_woven_state(fabric: Fabric) -> FabricState:
+    """As woven, anchors at zero slip, nothing dissipated, no end force."""
+    pos = fabric.rest_position.copy()
+    anchors = np.zeros((fabric.warp_node.size, 2))
+    anchors[:, 0] = pos[fabric.warp_node, 0] - fabric.plane_x
+    anchors[:, 1] = pos[fabric.weft_node, 0] - fabric.plane_y
+    return FabricState(pos, anchors, end_force=np.zeros(fabric.yarn_start.size - 1))
+
+
 @dataclass
 class NewtonInfo:
     residual: float = np.inf
@@ -136,13 +145,8 @@ class FabricStaticSolver:
     # ------------------------------------------------------------------ state
 
     def initial_state(self) -> FabricState:
-        """As woven, anchors at zero slip, nothing dissipated."""
-        pos = self.fabric.rest_position.copy()
-        c = self.fabric.warp_node.size
-        anchors = np.zeros((c, 2))
-        anchors[:, 0] = pos[self.fabric.warp_node, 0] - self.fabric.plane_x
-        anchors[:, 1] = pos[self.fabric.weft_node, 0] - self.fabric.plane_y
-        return FabricState(pos, anchors, end_force=np.zeros(self.yarns))
+        """As woven, anchors at zero slip, nothing dissipated (`as_woven_state`)."""
+        return as_woven_state(self.fabric)
 
     def yarn_loads(self, warp_value: float, weft_value: float) -> np.ndarray:
         """The load of each yarn (Y,) [N or m]: the family's value times its factor."""
@@ -422,7 +426,7 @@ class FabricStaticSolver:
                       stable=inertia_result.negatives == 0, nearest_eigenvalue=nearest,
                       escapes=escapes,
                       end_force=end_force,
-                      end_displacement=u_new, strain=self.strains(pos))
+                      end_displacement=u_new, strain=self.strains(pos), crimp=self.crimps(pos))
         return new, record
 
     def _certified(self, pos, P, anchors, info, limit, outer):
@@ -501,9 +505,29 @@ class FabricStaticSolver:
         grad = self.gradient(pos, np.zeros(self.yarns), anchors, limit)
         return grad[self.fabric.load_node, 0].copy()
 
+    def crimps(self, pos) -> np.ndarray:
+        """Mean crimps (warp, weft) [-]: (arc length - projected length) / projected length of
+        each yarn (`dynfab.model.crimp`, the projected length its end-to-end extent along
+        itself), averaged over the family (MODEL.md 10)."""
+        f = self.fabric
+        crimp = np.empty(self.yarns)
+        for y in range(self.yarns):
+            chain = pos[f.yarn_start[y]:f.yarn_start[y + 1]]
+            arc = np.hypot(*np.diff(chain, axis=0).T).sum()
+            projected = chain[-1, 0] - chain[0, 0]
+            crimp[y] = (arc - projected) / projected
+        return np.array([crimp[f.is_warp].mean(), crimp[~f.is_warp].mean()])
+
     def strains(self, pos) -> np.ndarray:
-        """Nominal strains (warp, weft): mean end displacement over length (MODEL.md 10)."""
+        """Nominal strains (warp, weft): the mean end displacement of the family's loaded
+        yarns over their length (MODEL.md 10). Under displacement control a yarn of factor 0
+        is held, not loaded, and left out (a pull-out's other warps), unless the whole family
+        is; under force control a factor-0 yarn's end is free and counts."""
         f, spec = self.fabric, self.spec
         u = pos[f.load_node, 0] - f.rest_position[f.load_node, 0]
-        return np.array([u[f.is_warp].mean() / spec.warp.length,
-                         u[~f.is_warp].mean() / spec.weft.length])
+        loaded = (f.load_factor != 0) | (spec.control == "force")
+        out = []
+        for family, length in ((f.is_warp, spec.warp.length), (~f.is_warp, spec.weft.length)):
+            chosen = family & loaded if (family & loaded).any() else family
+            out.append(u[chosen].mean() / length)
+        return np.array(out)

@@ -1,0 +1,225 @@
+"""A fabric scene (geometry.model = "fabric", MODEL.md section 10) as a run: its
+`FabricSpec`, its model, and the static solver under the run's contract.
+
+`fabric_spec(scene)` maps a validated scene to a `FabricSpec`; `FabricModel` is what a
+run needs of it (the load path, the as-woven reference, the root attributes, the start
+state and a resumed state); `FabricSolver` wraps `FabricStaticSolver` so that it
+conforms to `dynfab.solver.Solver`: `step(state, load)` with `load` the step's pair
+(warp value, weft value) of the path, the same kind of thing the one-yarn model's load
+value is (a value of the path, not an index into it), returning a record of the names
+below, written as `steps/<name>` (units in `dynfab.results.UNITS`).
+
+Record of one fabric step (n_wa warps of N+1 nodes, n_we wefts of M+1 nodes; Y = n_wa
++ n_we yarns, warps first):
+
+- load (2,): (warp, weft) value [N or m]; end_force, end_displacement (Y,) [N], [m];
+- positions (n_wa, N+1, 2): the warps' (x, z); weft_positions (n_we, M+1, 2): the
+  wefts' (y, z) [m];
+- strain, crimp (2,): (warp, weft) nominal strain and mean crimp [-];
+- contact_force, friction_limit, sliding (n_wa, n_we); friction_force, anchors
+  (n_wa, n_we, 2) [N], [m] (in-plane: warp x, weft y);
+- dissipated, work [J]; energy/<term> [J] per term of `dynfab.fabric.assembly.TERMS`;
+- residual [N], iterations, friction_solves, rounding_floor, stable, buckled (an escape
+  from a saddle was taken), lowest_eigenvalue [N/m] (the eigenvalue nearest zero of the
+  frozen-F_T Hessian: the lowest when none is negative), negative_eigenvalues; scalars.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from dynfab.fabric.assembly import TERMS
+from dynfab.fabric.layout import Fabric, build_fabric
+from dynfab.fabric.spec import FabricSpec, Family, Friction
+from dynfab.fabric.static import FabricState, FabricStaticSolver, as_woven_state
+from dynfab.scene import Scene
+
+DEFAULT_CORE_STIFFNESS = 1e5
+"""k_c [N/m] of a fabric scene without contact.core_stiffness (MODEL.md section 10)."""
+
+DEFAULT_LINEAR_DENSITY = 3e-5
+"""rho_l [kg/m] of the wefts without weft.linear_density (as the warps' default)."""
+
+
+def fabric_spec(scene: Scene) -> FabricSpec:
+    """The `FabricSpec` of a validated fabric scene (MODEL.md section 10)."""
+    g, warp, weft, load = scene.geometry, scene.warp, scene.weft, scene.load
+    friction = scene.friction
+    return FabricSpec(
+        warp=Family(length=g.length, segments=g.segments, amplitude=g.amplitude, EA=warp.EA,
+                    EI=warp.EI, kawabata_C=warp.kawabata_C, kawabata_K=warp.kawabata_K,
+                    linear_density=warp.linear_density),
+        weft=Family(length=weft.length, segments=weft.segments, amplitude=weft.amplitude,
+                    EA=weft.EA, EI=weft.EI, kawabata_C=weft.kawabata_C,
+                    kawabata_K=weft.kawabata_K,
+                    linear_density=weft.linear_density or DEFAULT_LINEAR_DENSITY),
+        warps=weft.count, wefts=g.crossings,
+        core_stiffness=(scene.contact.core_stiffness if scene.contact is not None
+                        and scene.contact.core_stiffness is not None else DEFAULT_CORE_STIFFNESS),
+        friction=None if friction is None else Friction(
+            alpha=friction.alpha, beta=friction.beta, contact_length=friction.contact_length,
+            fiber_radius=friction.fiber_radius, onset_force=friction.onset_force,
+            stick_stiffness=friction.stick_stiffness),
+        gravity=None if scene.gravity is None else scene.gravity.g,
+        boundary=g.boundary, planes=g.planes, control=load.control,
+        warp_values=load.values, weft_values=load.weft_values,
+        warp_factors=load.warp_factors, weft_factors=load.weft_factors,
+        pullout=None if scene.pullout is None else scene.pullout.warp,
+        tolerance=scene.static.tolerance, max_iterations=scene.static.max_iterations)
+
+
+@dataclass
+class FabricModel:
+    """What a run needs of a fabric scene besides its solver."""
+
+    scene: Scene
+    spec: FabricSpec
+    fabric: Fabric
+
+    @classmethod
+    def from_scene(cls, scene: Scene) -> "FabricModel":
+        spec = fabric_spec(scene)
+        return cls(scene, spec, build_fabric(spec))
+
+    @property
+    def control(self) -> str:
+        return self.spec.control
+
+    @property
+    def load_values(self) -> np.ndarray:
+        """The load path (steps, 2): (warp value, weft value) per step [N or m]."""
+        return np.column_stack(self.spec.loads())
+
+    def split(self, nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """All nodes (nodes, 2) -> (warps (n_wa, N+1, 2), wefts (n_we, M+1, 2))."""
+        spec = self.spec
+        cut = spec.warps * (spec.warp.segments + 1)
+        return (nodes[:cut].reshape(spec.warps, spec.warp.segments + 1, 2),
+                nodes[cut:].reshape(spec.wefts, spec.weft.segments + 1, 2))
+
+    def reference(self) -> dict:
+        """The result file's `reference/`: both families as woven, the crossing nodes."""
+        warps, wefts = self.split(self.fabric.rest_position)
+        spec = self.spec
+        return {"positions": warps, "weft_positions": wefts,
+                "crossing_nodes": (2 * np.arange(spec.wefts) + 1) * spec.warp.segments
+                // (2 * spec.wefts),
+                "weft_crossing_nodes": (2 * np.arange(spec.warps) + 1) * spec.weft.segments
+                // (2 * spec.warps)}
+
+    def attrs(self) -> dict:
+        """Root attributes of a fabric's result file besides the solver's."""
+        spec, scene = self.spec, self.scene
+        return {"model": "fabric", "boundary": spec.boundary, "planes": spec.planes,
+                "projected_length": spec.warp.length, "weft_length": spec.weft.length,
+                "width_per_yarn": spec.weft.length / spec.warps,
+                "length_per_weft": spec.warp.length / spec.wefts,
+                "reference_state": scene.geometry.reference, "load_control": spec.control,
+                "yarn_labels": [f"warp {k + 1}" for k in range(spec.warps)]
+                + [f"weft {j + 1}" for j in range(spec.wefts)],
+                "terms": list(TERMS)}
+
+    def initial_state(self) -> FabricState:
+        return as_woven_state(self.fabric)
+
+    def state_from_step(self, last: dict) -> FabricState:
+        """The state a finished step left (a resumed run continues from it)."""
+        spec = self.spec
+        nodes = np.concatenate([np.asarray(last["positions"]).reshape(-1, 2),
+                                np.asarray(last["weft_positions"]).reshape(-1, 2)])
+        return FabricState(nodes, np.array(last["anchors"]).reshape(spec.warps * spec.wefts, 2),
+                           float(last["dissipated"]), float(last["work"]),
+                           np.array(last["end_force"], float))
+
+    def point_data(self, record: dict) -> dict:
+        """The XDMF view's nodal point data of a step (`dynfab.xdmf`): contact force and
+        slip (in-plane coordinate - anchor) at each family's crossing nodes, 0 elsewhere."""
+        ref = self.reference()
+        R = np.asarray(record["contact_force"])
+        anchors = np.asarray(record["anchors"])
+        out = {}
+        for prefix, positions, nodes, force, anchor in (
+                ("", record["positions"], ref["crossing_nodes"], R, anchors[..., 0]),
+                ("weft_", record["weft_positions"], ref["weft_crossing_nodes"], R.T,
+                 anchors[..., 1].T)):
+            positions = np.asarray(positions)
+            f, slip = np.zeros(positions.shape[:2]), np.zeros(positions.shape[:2])
+            f[:, nodes] = force
+            slip[:, nodes] = positions[:, nodes, 0] - anchor
+            out[f"xdmf/{prefix}contact_force"], out[f"xdmf/{prefix}slip"] = f, slip
+        return out
+
+
+class FabricSolver:
+    """`FabricStaticSolver` under `dynfab.solver.Solver`: one load step per call."""
+
+    name = "static"
+
+    def __init__(self, model: FabricModel):
+        self.model = model
+        self.solver = FabricStaticSolver(model.spec)
+
+    def attrs(self) -> dict:
+        spec = self.model.spec
+        return {"solver": self.name, "static_tolerance": spec.tolerance,
+                "static_max_iterations": spec.max_iterations}
+
+    def step(self, state: FabricState, load) -> tuple[FabricState, dict]:
+        """Solve the step under `load` = (warp value, weft value) from `state` (not modified);
+        returns (new state, record of the module docstring's names). SolverError as
+        `FabricStaticSolver.step`."""
+        warp_value, weft_value = (float(v) for v in load)
+        new, raw = self.solver.step(state, warp_value, weft_value)
+        model, spec = self.model, self.model.spec
+        warps, wefts = model.split(new.positions)
+        shape = (spec.warps, spec.wefts)
+        record = {
+            "load": np.array([warp_value, weft_value]),
+            "end_force": raw["end_force"], "end_displacement": raw["end_displacement"],
+            "positions": warps, "weft_positions": wefts,
+            "strain": raw["strain"], "crimp": raw["crimp"],
+            "contact_force": raw["contact_force"], "friction_limit": raw["friction_limit"],
+            "sliding": raw["sliding"], "friction_force": raw["friction_force"].reshape(*shape, 2),
+            "anchors": new.anchors.reshape(*shape, 2),
+            "dissipated": new.dissipated, "work": new.work,
+            "residual": raw["residual"], "iterations": raw["iterations"],
+            "friction_solves": raw["friction_solves"], "rounding_floor": raw["rounding_floor"],
+            "stable": raw["stable"], "buckled": raw["escapes"] > 0,
+            "lowest_eigenvalue": raw["nearest_eigenvalue"],
+            "negative_eigenvalues": raw["negative_eigenvalues"],
+        }
+        record.update(self._energies(new, warp_value, weft_value, raw["friction_limit"]))
+        return new, {name: np.asarray(value) for name, value in record.items()}
+
+    def _energies(self, state: FabricState, warp_value, weft_value, limit) -> dict:
+        """energy/<term> [J] at the step's end: the load term with the end forces P (force
+        control; none under displacement control), friction with the return-mapped anchors."""
+        solver = self.solver
+        P = (solver.yarn_loads(warp_value, weft_value) if self.model.control == "force"
+             else np.zeros(solver.yarns))
+        solver.energy(state.positions, P, state.anchors, np.asarray(limit).ravel())
+        return {f"energy/{term}": float(value) for term, value in zip(TERMS, solver._terms)}
+
+
+def build_run(scene: Scene, solver: str, device: str | None, options: dict):
+    """(model, solver) of a fabric run: `dynfab.run`'s build step for geometry.model =
+    "fabric". The static solver only (the fabric's dynamic solver is not driven by runs
+    yet); `options` are the run options (`dynfab.options`)."""
+    from dynfab.errors import UserError
+    from dynfab.options import apply_run_options, check_solver
+
+    if check_solver(solver) != "static":
+        raise UserError(f"--solver {solver}: a fabric scene (geometry.model = \"fabric\") "
+                        "runs with --solver static")
+    if device is not None:
+        raise UserError(f"--device {device}: the static solver runs on the CPU (numba); "
+                        "a device is for --solver dynamic")
+    if options.get("accuracy") is not None:
+        raise UserError(f"--accuracy {options['accuracy']}: the fabric's static solver has no "
+                        "error estimate to hold to it (its steps are certified by their "
+                        "residual and inertia); drop it")
+    scene = apply_run_options(scene, solver, **options)
+    model = FabricModel.from_scene(scene)
+    return model, FabricSolver(model)

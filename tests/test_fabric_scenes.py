@@ -1,0 +1,194 @@
+"""The fabric scenes of runs/ run with `dynfab.run` and show their physics (MODEL.md 10).
+
+Each scene runs through the run driver (the scene file, `fabric_spec`, the Solver
+adapter, the result file), the strip as a smaller copy (4 x 4 yarns, 3 steps), and each
+test checks what the scene is for: the balanced cell's symmetry, the strip's crimp
+interchange, the pull-out's friction plateau, and a resumed file equal to an
+uninterrupted one.
+"""
+
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from dynfab.errors import UserError
+from dynfab.fabric.from_scene import FabricModel, FabricSolver
+from dynfab.run import run, run_to_file
+from dynfab.scene import load_scene, parse_scene_text
+
+RUNS = Path(__file__).resolve().parent.parent / "runs"
+
+
+def solved(name: str):
+    """(model, results) of runs/<name>.toml solved in memory."""
+    scene = load_scene(RUNS / f"{name}.toml")
+    return FabricModel.from_scene(scene), run(scene)
+
+
+def position_bound(model: FabricModel, results, step: int = -1) -> float:
+    """4 ||H^-1||_inf max(r, tolerance) [m]: how far a state with residual r may lie from the
+    exact one (F_T-frozen Hessian; factor 4 for the friction limit's coupling, as in
+    tests/test_fabric_symmetry.py). Two states compared: twice this."""
+    solver = FabricSolver(model).solver
+    last = {name: values[step] for name, values in results.steps.items()}
+    state = model.state_from_step(last)
+    H = solver.hessian(state.positions, state.anchors, np.ravel(last["friction_limit"]))
+    inverse = np.abs(np.linalg.inv(H.toarray())).sum(axis=1).max()
+    return 4 * inverse * max(float(last["residual"]), model.spec.tolerance)
+
+
+def test_balanced_cell_under_equal_loads_responds_alike_in_both_families():
+    """(x, y, z) -> (y, x, -z) maps the balanced cell onto itself (MODEL.md 10): at 1:1 each
+    weft is its warp mirrored in z, the strains and crimps equal, R symmetric."""
+    model, results = solved("fabric_biaxial")
+    steps = results.steps
+    for i in range(results.step_count):
+        tol = 2 * position_bound(model, results, i)
+        np.testing.assert_allclose(steps["weft_positions"][i] * [1, -1], steps["positions"][i],
+                                   rtol=0, atol=tol)
+        assert abs(steps["strain"][i, 0] - steps["strain"][i, 1]) <= 2 * tol / model.spec.warp.length
+        np.testing.assert_allclose(steps["contact_force"][i], steps["contact_force"][i].T,
+                                   rtol=0, atol=model.spec.core_stiffness * 2 * tol)
+    assert np.all(np.diff(steps["strain"][:, 0]) > 0)  # it stretches as the load grows
+    assert np.all(steps["stable"])
+
+
+def test_swapping_the_load_ratio_swaps_the_families():
+    """2:1 and 1:2 are each other's mirror image: strains swap, R transposes (MODEL.md 10)."""
+    model, two = solved("fabric_biaxial_2to1")
+    _, half = solved("fabric_biaxial_1to2")
+    np.testing.assert_array_equal(two.steps["load"], half.steps["load"][:, ::-1])
+    for i in range(two.step_count):
+        tol = position_bound(model, two, i) + position_bound(model, half, i)
+        np.testing.assert_allclose(two.steps["strain"][i], half.steps["strain"][i, ::-1], rtol=0,
+                                   atol=tol / model.spec.warp.length)
+        np.testing.assert_allclose(two.steps["contact_force"][i], half.steps["contact_force"][i].T,
+                                   rtol=0, atol=model.spec.core_stiffness * tol)
+    # the more loaded family stretches more, and its crimp falls below the other's
+    assert np.all(two.steps["strain"][:, 0] > two.steps["strain"][:, 1])
+    assert np.all(two.steps["crimp"][:, 0] < two.steps["crimp"][:, 1])
+
+
+def small_strip() -> str:
+    """runs/fabric_strip.toml as a 4 x 4 patch of the same yarns (segment length kept), 3 steps."""
+    text = (RUNS / "fabric_strip.toml").read_text()
+    for old, new in (("length = 0.1", "length = 0.025"), ("segments = 224", "segments = 56"),
+                     ("crossings = 16", "crossings = 4"), ("count = 16", "count = 4"),
+                     ("steps = 10", "steps = 3")):
+        assert old in text, old
+        text = text.replace(old, new)
+    return text
+
+
+def test_strip_shows_crimp_interchange():
+    """Warps pulled, weft ends free: the warps decrimp, which pushes the wefts into more crimp,
+    and the free wefts shorten (MODEL.md 10, the fabric's crimp interchange)."""
+    scene = parse_scene_text(small_strip())
+    results = run(scene)
+    steps = results.steps
+    as_woven = FabricModel.from_scene(scene).initial_state()
+    crimp0 = FabricSolver(FabricModel.from_scene(scene)).solver.crimps(as_woven.positions)
+    crimp = np.vstack([crimp0, steps["crimp"]])
+    assert np.all(np.diff(crimp[:, 0]) < 0) and np.all(np.diff(crimp[:, 1]) > 0)
+    assert np.all(steps["strain"][:, 0] > 0) and np.all(np.diff(steps["strain"][:, 1]) < 0)
+    assert np.all(steps["end_force"][:, :4] == steps["load"][:, :1])  # force control: P
+    assert np.all(steps["end_force"][:, 4:] == 0.0)  # the weft ends free
+    assert np.all(steps["stable"])
+
+
+def test_pullout_is_resisted_by_the_friction_of_the_pressed_crossings():
+    """Stage 1 (weft ends pulled) presses the crossings, which carry no force as woven; in
+    stage 2 the pulled warp's end force is the friction on its crossings (its x-equilibrium:
+    internal forces cancel, contact acts in z), at most their sum of limits, and once all
+    slide it stays there: a plateau (tests/test_fabric_pullout.py's argument)."""
+    scene = load_scene(RUNS / "fabric_pullout.toml")
+    model, results = FabricModel.from_scene(scene), run(scene)
+    steps, k = results.steps, scene.pullout.warp - 1
+    nodes = model.spec.warp.segments + 1
+    stage1 = steps["load"][:, 0] == 0.0
+    assert np.all(np.diff(steps["contact_force"][stage1, k].min(axis=1)) > 0)
+    assert steps["contact_force"][stage1][-1, k].min() > 0
+    for i in np.flatnonzero(~stage1):
+        pull = steps["end_force"][i, k]
+        tolerance = nodes * max(float(steps["residual"][i]), model.spec.tolerance)
+        assert abs(pull + steps["friction_force"][i, k, :, 0].sum()) <= tolerance
+        assert 0 < pull <= steps["friction_limit"][i, k].sum() + tolerance
+    # the warp strain is the pulled warp's (the held warps are not loaded, MODEL.md 10)
+    np.testing.assert_allclose(steps["strain"][~stage1, 0],
+                               steps["load"][~stage1, 0] / model.spec.warp.length, rtol=1e-12)
+    last = steps["sliding"][~stage1][-5:, k]
+    assert last.all()
+    # the plateau is the friction of the pressed crossings, not zero
+    assert steps["end_force"][-1, k] > 0.5 * steps["friction_limit"][-1, k].sum()
+
+
+def test_fabric_file_resumes_to_the_uninterrupted_run(tmp_path):
+    """A run stopped after 4 steps and resumed equals the run done in one go, entry for
+    entry; its XDMF view holds both families' grids for every step."""
+    scene = load_scene(RUNS / "fabric_biaxial_2to1.toml")
+    whole, part = tmp_path / "whole.h5", tmp_path / "part.h5"
+    run_to_file(scene, "static", whole)
+
+    def stop_after_four(line: str) -> None:
+        if line.lstrip("[ ").startswith("4/"):
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run_to_file(scene, "static", part, progress=stop_after_four)
+    with h5py.File(part, "r") as h5:
+        assert int(h5["steps_done"][0]) == 4
+    assert run_to_file(scene, "static", part, resume=True) == 6
+    with h5py.File(whole, "r") as a, h5py.File(part, "r") as b:
+        for name in a["steps"]:
+            if isinstance(a["steps"][name], h5py.Dataset) and name != "wall_time":
+                np.testing.assert_array_equal(a["steps"][name][:], b["steps"][name][:],
+                                              err_msg=name)
+    from dynfab.plot import plot_results
+    assert [p.name for p in plot_results(part, tmp_path / "plots")] == ["fabric.png"]
+    view = part.with_suffix(".xdmf").read_text()
+    assert view.count('Name="steps ') == 2 * 10 and "weft_positions" in view
+
+
+def test_fabric_refuses_the_dynamic_solver_in_one_line():
+    scene = load_scene(RUNS / "fabric_biaxial.toml")
+    with pytest.raises(UserError, match=r'^--solver dynamic: a fabric scene \(geometry.model = '
+                                        r'"fabric"\) runs with --solver static$'):
+        run(scene, "dynamic")
+
+
+def test_fabric_refuses_the_accuracy_option_it_cannot_honour():
+    scene = load_scene(RUNS / "fabric_biaxial.toml")
+    with pytest.raises(UserError, match=r"^--accuracy 0\.01: the fabric's static solver has no "
+                                        r"error estimate"):
+        run(scene, accuracy=0.01)
+
+
+def test_dynfab_run_on_a_fabric_scene_from_the_command_line(tmp_path):
+    """The command a user types: exit 0, the fabric's summary table, the file and its view;
+    the wefts of the view lie in the planes x = X_j = (j - 1/2) L / n_we (MODEL.md 10)."""
+    import re
+    import subprocess
+    import sys
+
+    out = tmp_path / "cell.h5"
+    done = subprocess.run([sys.executable, "-m", "dynfab.cli", "run",
+                           str(RUNS / "fabric_biaxial.toml"), "--out", str(out)],
+                          capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert "strain wa" in done.stdout and len(done.stdout.strip().splitlines()) == 11
+    view = out.with_suffix(".xdmf").read_text()
+    grid = view[view.index('<Grid Name="as-woven weft yarns"'):]
+    planes = re.findall(r'<DataItem Format="XML" NumberType="Float" Precision="8" '
+                        r'Dimensions="\d+">([^<]*)</DataItem>', grid)[0]
+    scene = load_scene(RUNS / "fabric_biaxial.toml")
+    n_we, M = scene.geometry.crossings, scene.weft.segments
+    expected = np.repeat((np.arange(n_we) + 0.5) * scene.geometry.length / n_we, M + 1)
+    np.testing.assert_allclose(np.array(planes.split(), float), expected, rtol=1e-15)
+    refused = subprocess.run([sys.executable, "-m", "dynfab.cli", "run",
+                              str(RUNS / "fabric_biaxial.toml"), "--out", str(out),
+                              "--overwrite", "--solver", "dynamic"], capture_output=True, text=True)
+    assert refused.returncode == 2 and refused.stderr.strip().splitlines() == [
+        'dynfab: error: --solver dynamic: a fabric scene (geometry.model = "fabric") runs with '
+        '--solver static']
