@@ -199,7 +199,7 @@ class FabricDynamicSolver:
                       friction_force=friction_force,
                       negative_eigenvalues=result.negatives, stable=result.negatives == 0,
                       nearest_eigenvalue=nearest, escapes=escapes, end_force=end_force,
-                      end_displacement=u_new, strain=ref.strains(pos),
+                      end_displacement=u_new, strain=ref.strains(pos), crimp=ref.crimps(pos),
                       time_steps=steps, relax_time=relax_time)
         return new, record
 

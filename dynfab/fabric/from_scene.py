@@ -153,25 +153,36 @@ class FabricModel:
 
 
 class FabricSolver:
-    """`FabricStaticSolver` under `dynfab.solver.Solver`: one load step per call."""
+    """A fabric solver under `dynfab.solver.Solver`, one load step per call: the static
+    `FabricStaticSolver`, or the dynamic `FabricDynamicSolver` (Warp), which returns the
+    same record (plus its time steps)."""
 
-    name = "static"
-
-    def __init__(self, model: FabricModel):
-        self.model = model
+    def __init__(self, model: FabricModel, name: str = "static", device: str = "cpu"):
+        self.model, self.name = model, name
         self.solver = FabricStaticSolver(model.spec)
+        self.engine = self.solver
+        if name == "dynamic":
+            from dynfab.fabric.dynamic import FabricDynamicSolver  # imports Warp: only here
+            from dynfab.kernels.runtime import initialize
+
+            initialize(device)
+            self.engine = FabricDynamicSolver(model.spec, device=device,
+                                              damping=model.scene.dynamic.damping_used())
 
     def attrs(self) -> dict:
         spec = self.model.spec
-        return {"solver": self.name, "static_tolerance": spec.tolerance,
-                "static_max_iterations": spec.max_iterations}
+        attrs = {"solver": self.name, "static_tolerance": spec.tolerance,
+                 "static_max_iterations": spec.max_iterations}
+        if self.name == "dynamic":
+            attrs["dynamic_damping"] = self.model.scene.dynamic.damping_used()
+        return attrs
 
     def step(self, state: FabricState, load) -> tuple[FabricState, dict]:
         """Solve the step under `load` = (warp value, weft value) from `state` (not modified);
         returns (new state, record of the module docstring's names). SolverError as
         `FabricStaticSolver.step`."""
         warp_value, weft_value = (float(v) for v in load)
-        new, raw = self.solver.step(state, warp_value, weft_value)
+        new, raw = self.engine.step(state, warp_value, weft_value)
         model, spec = self.model, self.model.spec
         warps, wefts = model.split(new.positions)
         shape = (spec.warps, spec.wefts)
@@ -205,21 +216,19 @@ class FabricSolver:
 
 def build_run(scene: Scene, solver: str, device: str | None, options: dict):
     """(model, solver) of a fabric run: `dynfab.run`'s build step for geometry.model =
-    "fabric". The static solver only (the fabric's dynamic solver is not driven by runs
-    yet); `options` are the run options (`dynfab.options`)."""
+    "fabric"; `options` are the run options (`dynfab.options`). The dynamic solver models
+    the clamped patch with fixed planes (`FabricDynamicSolver` refuses the rest)."""
     from dynfab.errors import UserError
     from dynfab.options import apply_run_options, check_solver
 
-    if check_solver(solver) != "static":
-        raise UserError(f"--solver {solver}: a fabric scene (geometry.model = \"fabric\") "
-                        "runs with --solver static")
-    if device is not None:
+    solver = check_solver(solver)
+    if device is not None and solver == "static":
         raise UserError(f"--device {device}: the static solver runs on the CPU (numba); "
                         "a device is for --solver dynamic")
     if options.get("accuracy") is not None:
-        raise UserError(f"--accuracy {options['accuracy']}: the fabric's static solver has no "
-                        "error estimate to hold to it (its steps are certified by their "
+        raise UserError(f"--accuracy {options['accuracy']}: the fabric's solvers have no "
+                        "error estimate to hold to it (their steps are certified by their "
                         "residual and inertia); drop it")
     scene = apply_run_options(scene, solver, **options)
     model = FabricModel.from_scene(scene)
-    return model, FabricSolver(model)
+    return model, FabricSolver(model, solver, device or "cpu")
