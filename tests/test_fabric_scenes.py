@@ -223,3 +223,15 @@ def test_dynfab_run_on_a_fabric_scene_from_the_command_line(tmp_path):
     assert refused.returncode == 2 and refused.stderr.strip().splitlines() == [
         "dynfab: error: fabric: the dynamic solver models the clamped patch with fixed planes "
         "only, not boundary = 'periodic', planes = 'fixed': use the static solver"]
+
+
+@pytest.mark.parametrize("key, value", [("dynamic.method", '"semi_implicit"'),
+                                        ("dynamic.precision", '"float32"'),
+                                        ("dynamic.damping", '"viscous"')])
+def test_the_dynamic_fabric_solver_refuses_settings_it_would_ignore(key, value):
+    """A [dynamic] key the fabric's relaxation does not implement is refused in one line
+    naming it, not silently run as the default."""
+    table, name = key.split(".")
+    text = small_pullout() + f"\n[{table}]\n{name} = {value}\n"
+    with pytest.raises(UserError, match=rf"^dynamic\.{name} = "):
+        run(parse_scene_text(text), "dynamic")

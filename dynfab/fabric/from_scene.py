@@ -166,8 +166,11 @@ class FabricSolver:
             from dynfab.kernels.runtime import initialize
 
             initialize(device)
+            dynamic = model.scene.dynamic
             self.engine = FabricDynamicSolver(model.spec, device=device,
-                                              damping=model.scene.dynamic.damping_used())
+                                              damping=dynamic.damping_used(),
+                                              tolerance=dynamic.tolerance,
+                                              max_steps=dynamic.max_steps)
 
     def attrs(self) -> dict:
         spec = self.model.spec
@@ -230,5 +233,28 @@ def build_run(scene: Scene, solver: str, device: str | None, options: dict):
                         "error estimate to hold to it (their steps are certified by their "
                         "residual and inertia); drop it")
     scene = apply_run_options(scene, solver, **options)
+    if solver == "dynamic":
+        _check_dynamic_keys(scene.dynamic)
     model = FabricModel.from_scene(scene)
     return model, FabricSolver(model, solver, device or "cpu")
+
+
+_DYNAMIC_SUPPORTED = {"mode": "quasi_static", "method": "explicit", "precision": "float64",
+                      "masses": None, "dt": None, "damping_coefficient": None, "safety": 0.9}
+"""The [dynamic] settings the fabric's dynamic solver runs (`FabricDynamicSolver`: a
+quasi-static explicit relaxation in float64 with its own fictitious masses and time step);
+any other value is refused rather than ignored."""
+
+
+def _check_dynamic_keys(dynamic) -> None:
+    """Refuse, in one line, a [dynamic] setting the fabric's dynamic solver would ignore."""
+    from dynfab.errors import UserError
+
+    for key, supported in _DYNAMIC_SUPPORTED.items():
+        value = getattr(dynamic, key)
+        if value != supported:
+            raise UserError(f"dynamic.{key} = {value!r}: the fabric's dynamic solver runs "
+                            f"{key} = {supported!r} only (docs/model.md section 10)")
+    if dynamic.damping_used() == "viscous":
+        raise UserError("dynamic.damping = 'viscous': the fabric's dynamic solver has no "
+                        "adaptive viscous coefficient; use \"kinetic\" or \"fire\"")
