@@ -41,14 +41,16 @@ def strain_bound(data, path):
 
 def test_equal_loads_give_equal_strains_and_crimps(data):
     bound = 2 * strain_bound(data, "1:1")  # two end positions, each within its bound
-    warp, weft = series(data, "1:1", "warp_strain_percent"), series(data, "1:1", "weft_strain_percent")
+    warp = series(data, "1:1", "warp_strain_percent")
+    weft = series(data, "1:1", "weft_strain_percent")
     assert np.all(np.abs(warp - weft) <= bound)
     assert warp[-1] > 1.0  # a real stretch, not two zeros
     # crimp: each of N segments' lengths moves by at most 2 sqrt(2) b with its two nodes
     # within b, the projected length by b; over the cell length, for each family
     segments = YARNS * QUICK.segments_per_crossing
     crimp_bound = 2 * (2 * np.sqrt(2) * segments + 1) * strain_bound(data, "1:1")
-    crimp_gap = series(data, "1:1", "warp_crimp_percent") - series(data, "1:1", "weft_crimp_percent")
+    crimp_gap = (series(data, "1:1", "warp_crimp_percent")
+                 - series(data, "1:1", "weft_crimp_percent"))
     assert np.all(np.abs(crimp_gap) <= crimp_bound)
 
 
@@ -100,7 +102,8 @@ def test_as_woven_crimp_is_the_sine_polyline(data):
     crimp = 100 * (np.hypot(np.diff(x), np.diff(z)).sum() - length) / length
     for name in PATHS:
         for family in ("warp", "weft"):
-            assert series(data, name, f"{family}_crimp_percent")[0] == pytest.approx(crimp, rel=1e-12)
+            first = series(data, name, f"{family}_crimp_percent")[0]
+            assert first == pytest.approx(crimp, rel=1e-12)
 
 
 def test_side_views_span_the_stretched_cell(data):

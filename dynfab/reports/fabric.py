@@ -33,7 +33,6 @@ within ||H^-1||_inf r of the exact solution (H the Hessian on the unknowns); we 
 from __future__ import annotations
 
 import time
-from pathlib import Path
 from typing import Callable
 
 import numpy as np
@@ -86,7 +85,8 @@ def solve_paths(plan: Plan, progress=None) -> dict:
                      "largest_load_N": plan.largest_load_N, "yarn": _family_dict(first.warp),
                      "core_stiffness_N_per_m": first.core_stiffness, "friction": None,
                      "tolerance_N": first.tolerance},
-            "as_woven": {"warp": warp_shape(first, 0).tolist(), "weft": weft_shape(first, 0).tolist()},
+            "as_woven": {"warp": warp_shape(first, 0).tolist(),
+                         "weft": weft_shape(first, 0).tolist()},
             "paths": {}}
     for name, ratio in PATHS.items():
         started = time.perf_counter()
@@ -189,7 +189,8 @@ def check_physics(data: dict) -> dict:
             "bound_percent": mirror_bound.max()},
         "crimp_interchange": {
             "what": "1:0.05: warp crimp falls at every step, weft crimp above its as-woven value",
-            "passed": bool(np.all(np.diff(warp_crimp) < 0) and np.all(weft_crimp[1:] > weft_crimp[0])),
+            "passed": bool(np.all(np.diff(warp_crimp) < 0)
+                           and np.all(weft_crimp[1:] > weft_crimp[0])),
             "warp_crimp_percent": [warp_crimp[0], warp_crimp[-1]],
             "weft_crimp_percent": [weft_crimp[0], weft_crimp[-1]]},
         "lateral_tension_stiffens": {

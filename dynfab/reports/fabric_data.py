@@ -8,7 +8,9 @@ hold the same numbers.
 The cell (MODEL.md section 10, boundary "periodic"): the plain-weave repeat of 2 warps x 2
 wefts of the paper's yarns (MODEL.md section 7: EA = 13.72 N, EI = 1.47e-7 N m^2,
 A = 0.5 mm, C = 0.2 mm, K = 0.2 m/N, crossings L / 16 = 6.25 mm apart), the weft family the
-same as the warp (a balanced fabric), the default core stiffness, no friction (on the
+same as the warp (a balanced fabric: the paper's weft has EI_we = EI_wa and C_we = C_wa, and
+section 7 takes A_we = A_wa; its EA, absent from the paper, is taken as the warp's), the
+default core stiffness, no friction (on the
 periodic cell every crossing lies on a mirror plane, so slips stay zero: MODEL.md 10).
 """
 

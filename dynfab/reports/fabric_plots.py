@@ -143,7 +143,8 @@ def plot_cell(data: dict) -> Figure:
         ax.set_title(f"side view of {family} 1 (z exaggerated)")
         style_axes(ax)
         # the as-woven crest's quarter away from the curves: below on the warp, above on the weft
-        ax.legend(fontsize=FONT - 2, ncols=2, loc="lower left" if family == "warp" else "upper left")
+        ax.legend(fontsize=FONT - 2, ncols=2,
+                  loc="lower left" if family == "warp" else "upper left")
     limit = max(np.max(p["contact_force_N"][-1]) for p in paths.values())
     norm = Normalize(0.0, limit)
     for column, (name, path) in enumerate(paths.items()):
