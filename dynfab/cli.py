@@ -85,6 +85,7 @@ REPORTS = {
     "stability": "stiff and extreme cases against every method: stable time step, convergence",
     "figures": "the paper's Fig. 3a, 3b and 5, static and dynamic, with shapes and friction states",
     "convergence": "mesh, load-increment and stick-stiffness convergence of the paper scenes",
+    "fabric": "biaxial load-strain and crimp interchange of the periodic fabric cell, its shape",
 }
 """The report subcommands (dynfab/reports/<name>.py, each with run_<name>(out, quick=, progress=))."""
 

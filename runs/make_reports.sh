@@ -9,5 +9,6 @@ dynfab precision --out docs/figures/precision
 dynfab stability --out docs/figures/stability
 dynfab figures --out docs/figures/paper
 dynfab convergence --out docs/figures/convergence
+dynfab fabric --out docs/figures/fabric
 python benchmarks/static.py
 python benchmarks/dynamic.py

@@ -1,0 +1,111 @@
+"""The fabric report's vocabulary: the cell, its load paths, and the quantities read from a solve.
+
+The report (`dynfab.reports.fabric`: solves, checks, summary) and its drawings
+(`dynfab.reports.fabric_plots`) share these names; the drawings read only the data dict
+that `solve_paths` returns (also written as ``fabric.json``), so the figures and the JSON
+hold the same numbers.
+
+The cell (MODEL.md section 10, boundary "periodic"): the plain-weave repeat of 2 warps x 2
+wefts of the paper's yarns (MODEL.md section 7: EA = 13.72 N, EI = 1.47e-7 N m^2,
+A = 0.5 mm, C = 0.2 mm, K = 0.2 m/N, crossings L / 16 = 6.25 mm apart), the weft family the
+same as the warp (a balanced fabric: the paper's weft has EI_we = EI_wa and C_we = C_wa, and
+section 7 takes A_we = A_wa; its EA, absent from the paper, is taken as the warp's), the
+default core stiffness, no friction (on the
+periodic cell every crossing lies on a mirror plane, so slips stay zero: MODEL.md 10).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from dynfab.fabric.spec import FabricSpec, Family
+
+SPACING = 0.1 / 16
+"""Crossing spacing [m]: the paper's L / crossings (MODEL.md 7), both directions."""
+YARNS = 2
+"""Warps and wefts in the cell (the plain-weave repeat)."""
+PAPER_YARN = dict(amplitude=0.5e-3, EA=13.72, EI=1.47e-7, kawabata_C=0.2e-3, kawabata_K=0.2)
+"""The paper's yarn (MODEL.md 7), K = 0.2 m/N where one is needed."""
+
+PATHS = {"2:1": (1.0, 0.5), "1:1": (1.0, 1.0), "1:2": (0.5, 1.0), "1:0.05": (1.0, 0.05)}
+"""Proportional biaxial paths, name -> (warp, weft) load ratio; the larger of the two loads
+rises to the plan's largest load. "1:0.05": the weft held at a small tension (near uniaxial)."""
+
+
+@dataclass(frozen=True)
+class Plan:
+    name: str
+    segments_per_crossing: int
+    """Segments between neighbouring crossings (the paper's N / crossings = 224 / 16 = 14)."""
+    steps: int
+    """Load steps per path, loads s^2 P_max at s = i / steps (dense where the crimp goes)."""
+    largest_load_N: float
+    """Largest end force per yarn [N] (1 N: about 8.5 % strain, 160 N/m)."""
+
+
+FULL = Plan("full", segments_per_crossing=14, steps=40, largest_load_N=1.0)
+QUICK = Plan("quick", segments_per_crossing=8, steps=8, largest_load_N=1.0)
+
+
+def width_per_yarn() -> float:
+    """Fabric width per yarn [m], as woven: the spacing of the other family's crossings."""
+    return SPACING
+
+
+def load_fractions(plan: Plan) -> np.ndarray:
+    """s^2 at s = i / steps, i = 1..steps (steps,) [-]."""
+    return (np.arange(1, plan.steps + 1) / plan.steps) ** 2
+
+
+def cell_spec(plan: Plan, ratio: tuple[float, float]) -> FabricSpec:
+    """The balanced periodic cell under force control along `ratio` (module docstring)."""
+    family = Family(length=YARNS * SPACING, segments=YARNS * plan.segments_per_crossing,
+                    **PAPER_YARN)
+    scale = plan.largest_load_N / max(ratio)
+    fractions = load_fractions(plan)
+    return FabricSpec(warp=family, weft=family, warps=YARNS, wefts=YARNS, boundary="periodic",
+                      control="force", warp_values=tuple(scale * ratio[0] * fractions),
+                      weft_values=tuple(scale * ratio[1] * fractions))
+
+
+def crimps(positions: np.ndarray, yarn_start: np.ndarray, is_warp: np.ndarray) -> np.ndarray:
+    """Mean crimp (warp, weft) [-]: (arc length - projected length) / projected length of
+    each yarn, projected = last node's in-plane coordinate minus the first's (MODEL.md 10)."""
+    crimp = np.empty(yarn_start.size - 1)
+    for y in range(crimp.size):
+        nodes = positions[yarn_start[y]:yarn_start[y + 1]]
+        arc = np.hypot(*np.diff(nodes, axis=0).T).sum()
+        projected = nodes[-1, 0] - nodes[0, 0]
+        crimp[y] = (arc - projected) / projected
+    return np.array([crimp[is_warp].mean(), crimp[~is_warp].mean()])
+
+
+def yarn_nodes(positions: np.ndarray, yarn_start: np.ndarray, yarn: int) -> np.ndarray:
+    """(in-plane coordinate, z) of one yarn's nodes (nodes, 2) [m]."""
+    return positions[yarn_start[yarn]:yarn_start[yarn + 1]]
+
+
+# --------------------------------------------------------------------------
+# Readers of the data dict (one path's entry), shared by the checks and the drawings.
+
+
+def load_per_width(path: dict, family: str) -> np.ndarray:
+    """(steps + 1,) end force per yarn over the width per yarn [N/m], as woven first (0)."""
+    return np.asarray(path[f"{family}_load_N_per_m"])
+
+
+def strain_percent(path: dict, family: str) -> np.ndarray:
+    """(steps + 1,) nominal strain [%]: cell stretch over cell length (MODEL.md 10)."""
+    return np.asarray(path[f"{family}_strain_percent"])
+
+
+def crimp_percent(path: dict, family: str) -> np.ndarray:
+    """(steps + 1,) mean crimp of the family [%]."""
+    return np.asarray(path[f"{family}_crimp_percent"])
+
+
+def larger_load(path: dict) -> np.ndarray:
+    """(steps + 1,) the larger of the two loads per unit width [N/m] (the path's abscissa)."""
+    return np.maximum(load_per_width(path, "warp"), load_per_width(path, "weft"))
