@@ -41,7 +41,7 @@ from dynfab.fabric.layout import warp_shape, weft_shape
 from dynfab.fabric.static import FabricStaticSolver
 from dynfab.reports.common import machine, output_folder, write_json, write_text
 from dynfab.reports.fabric_data import (FULL, PATHS, QUICK, YARNS, Plan, cell_spec, crimp_percent,
-                                        crimps, load_per_width, strain_percent, width_per_yarn,
+                                        load_per_width, strain_percent, width_per_yarn,
                                         yarn_nodes)
 from dynfab.reports.fabric_plots import draw_figures
 
@@ -111,12 +111,12 @@ def solve_path(plan: Plan, ratio: tuple[float, float]) -> dict:
     f, spec = solver.fabric, solver.spec
     state = solver.initial_state()
     warp_loads, weft_loads = (np.concatenate([[0.0], v]) for v in spec.loads())
-    strain, crimp = [np.zeros(2)], [crimps(state.positions, f.yarn_start, f.is_warp)]
+    strain, crimp = [np.zeros(2)], [solver.crimps(state.positions)]
     contact, residual, stable, bound = [np.zeros((YARNS, YARNS))], [0.0], [True], [0.0]
     for warp_value, weft_value in zip(*spec.loads()):
         state, record = solver.step(state, warp_value, weft_value)
         strain.append(record["strain"])
-        crimp.append(crimps(state.positions, f.yarn_start, f.is_warp))
+        crimp.append(record["crimp"])
         contact.append(record["contact_force"])
         residual.append(record["residual"])
         stable.append(bool(record["stable"]))

@@ -70,18 +70,6 @@ def cell_spec(plan: Plan, ratio: tuple[float, float]) -> FabricSpec:
                       weft_values=tuple(scale * ratio[1] * fractions))
 
 
-def crimps(positions: np.ndarray, yarn_start: np.ndarray, is_warp: np.ndarray) -> np.ndarray:
-    """Mean crimp (warp, weft) [-]: (arc length - projected length) / projected length of
-    each yarn, projected = last node's in-plane coordinate minus the first's (MODEL.md 10)."""
-    crimp = np.empty(yarn_start.size - 1)
-    for y in range(crimp.size):
-        nodes = positions[yarn_start[y]:yarn_start[y + 1]]
-        arc = np.hypot(*np.diff(nodes, axis=0).T).sum()
-        projected = nodes[-1, 0] - nodes[0, 0]
-        crimp[y] = (arc - projected) / projected
-    return np.array([crimp[is_warp].mean(), crimp[~is_warp].mean()])
-
-
 def yarn_nodes(positions: np.ndarray, yarn_start: np.ndarray, yarn: int) -> np.ndarray:
     """(in-plane coordinate, z) of one yarn's nodes (nodes, 2) [m]."""
     return positions[yarn_start[yarn]:yarn_start[yarn + 1]]
