@@ -1,4 +1,5 @@
-"""Benchmark of the dynamic solver (MODEL.md 5): one load step of the paper yarn, per method.
+"""Benchmark of the dynamic solver (docs/model.md section 5): one load step of the paper yarn, per
+method.
 
 The case: the paper yarn (runs/paper_fig3.toml at K = 0.2 m/N, prestressed) under
 force control, relaxed by the static solver at P = 0.2 N; each dynamic method then
@@ -72,7 +73,7 @@ SWEEP_METHODS = ("explicit, kinetic damping", "semi_implicit")
 START_LOAD, END_LOAD = 0.2, 0.3
 """The load step [N]: from the static equilibrium at START_LOAD to END_LOAD."""
 TOLERANCE = 1e-8
-"""Residual of the dynamic relaxations [N] (MODEL.md 5)."""
+"""Residual of the dynamic relaxations [N] (docs/model.md section 5)."""
 STEPS_TIMED = 20_000
 """Time steps of the per-step cost measurement."""
 REPEATS = 5

@@ -1,4 +1,5 @@
-"""Benchmark of the fabric's explicit time step in Warp (MODEL.md 5, 10): cost per node and step.
+"""Benchmark of the fabric's explicit time step in Warp (docs/model.md sections 5, 10): cost per
+node and step.
 
 The case: clamped balanced patches of the paper's yarn, n x n yarns for n = 4 to 64,
 8 segments per half-wave (N = M = 8 n, 2 n (8 n + 1) nodes), every yarn loaded with
@@ -77,7 +78,7 @@ def numba_contact(g, law):
 @numba.njit(cache=True)
 def numba_forces(pos, nxt, rest_length, stretch, bend, rest_angle, free, cw, cwe, side, offset,
                  law, external, force):
-    """force = -dV/dr on the free dofs, scattered term by term (MODEL.md 2, 10)."""
+    """force = -dV/dr on the free dofs, scattered term by term (docs/model.md sections 2, 10)."""
     n = pos.shape[0]
     force[:, :] = external
     for i in range(n):

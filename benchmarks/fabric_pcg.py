@@ -2,7 +2,7 @@
 
 Run:  python benchmarks/fabric_pcg.py     (prints a table, writes benchmarks/fabric_pcg.json)
 
-The question before writing a semi-implicit fabric step (MODEL.md 5; each step a linear
+The question before writing a semi-implicit fabric step (docs/model.md section 5; each step a linear
 solve with the Hessian, (M / h^2 + H) dx = f, Newton as h -> inf): can its linear solves be
 conjugate gradients preconditioned by each yarn's own banded matrix (the per-yarn blocks
 the kernels and the inertia count already handle), dropping only the crossing couplings?

@@ -1,4 +1,4 @@
-"""Benchmark of the fabric's static solver (MODEL.md sections 6, 10) on clamped patches.
+"""Benchmark of the fabric's static solver (docs/model.md sections 6, 10) on clamped patches.
 
 Run:  python benchmarks/fabric_static.py     (prints a table, writes benchmarks/fabric_static.json)
 

@@ -1,5 +1,5 @@
-"""How much the regularised friction onset (MODEL.md 4, friction.onset_force) moves the paper's
-friction results, and what the as-woven onset path costs the static solver.
+"""How much the regularised friction onset (docs/model.md section 4, friction.onset_force) moves the
+paper's friction results, and what the as-woven onset path costs the static solver.
 
 Run:  python benchmarks/onset.py   (prints the figures, writes benchmarks/onset.json)
 

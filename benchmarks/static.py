@@ -1,4 +1,4 @@
-"""Benchmark of the static Newton solver (MODEL.md 6) against scipy on the same energy.
+"""Benchmark of the static Newton solver (docs/model.md section 6) against scipy on the same energy.
 
 Run:  python benchmarks/static.py            (prints a table, writes benchmarks/static.json)
 
@@ -53,7 +53,7 @@ OUTPUT = Path(__file__).resolve().parent / "static.json"
 LOAD = 0.3
 """End force of the single equilibrium [N]."""
 TOLERANCE = 1e-11
-"""Residual of the reference solve [N] (MODEL.md 6)."""
+"""Residual of the reference solve [N] (docs/model.md section 6)."""
 
 
 def equilibrium_scene():

@@ -1,4 +1,4 @@
-"""The whole model's energy, gradient and banded Hessian for one yarn (MODEL.md 2-4).
+"""The whole model's energy, gradient and banded Hessian for one yarn (docs/model.md sections 2-4).
 
 V = sum over the terms of `dynfab.terms.registry.TERMS` that the yarn has
 (`Yarn.active`), each through its module's entry points (`dynfab.terms`), in
@@ -23,8 +23,8 @@ from dynfab.terms import contact, friction, registry
 
 
 class Frozen(NamedTuple):
-    """What a Newton solve holds fixed while it assembles V (MODEL.md 4, 6); every term's
-    entry points take it whole (`dynfab.terms`)."""
+    """What a Newton solve holds fixed while it assembles V (docs/model.md sections 4, 6); every
+    term's entry points take it whole (`dynfab.terms`)."""
 
     load: float
     """The end load P [N]; 0 under displacement control."""

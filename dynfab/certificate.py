@@ -1,4 +1,5 @@
-"""Certificate of a converged load step: stable minimum or saddle, and its error bound (MODEL.md 6).
+"""Certificate of a converged load step: stable minimum or saddle, and its error bound
+(docs/model.md section 6).
 
 Both solvers call `certify` on every converged yarn, in float64 on the host:
 
@@ -346,7 +347,7 @@ def check_accuracy(yarn_index: int, error_estimate: float, scale: float, residua
 
     Accepted: error_estimate <= accuracy x max(scale, sqrt(eps) L) is checked by the caller
     through `scale` (already floored). The message says what the residual implies and what to
-    change (MODEL.md 6, docs/model.md "Stability and accuracy of a converged step").
+    change (docs/model.md section 6, docs/model.md "Stability and accuracy of a converged step").
     An infinite estimate means the matrix needed the shift `singular_shift` [N/m] to factor.
     """
     if error_estimate <= accuracy * scale:

@@ -1,4 +1,5 @@
-"""The dynamic solver: dynamic relaxation of each load step with Warp kernels (MODEL.md section 5).
+"""The dynamic solver: dynamic relaxation of each load step with Warp kernels
+(docs/model.md section 5).
 
 Each load step starts from the previous state (under displacement control with
 `dynfab.loading.prescribe_load`), integrates the equations of motion of every
@@ -99,7 +100,8 @@ class YarnGroup(NamedTuple):
 
 
 class DynamicSolver:
-    """Relaxes a model's load steps one after another with Warp kernels (MODEL.md 5)."""
+    """Relaxes a model's load steps one after another with Warp kernels
+    (docs/model.md section 5)."""
 
     name = "dynamic"
 
@@ -157,7 +159,7 @@ class DynamicSolver:
 
     def predicted_stable_dt(self, state, load_value: float = 0.0) -> np.ndarray:
         """Gershgorin's stable time step [s] per yarn at the start of a load step (of a
-        transient run: at t = 0, zero load), for this solver's masses (MODEL.md 5):
+        transient run: at t = 0, zero load), for this solver's masses (docs/model.md section 5):
         2 min_i sqrt(m_i / sum_j |K_ij|)."""
         if self.options.mode == "transient":
             self._start_transient(state)
@@ -196,8 +198,8 @@ class DynamicSolver:
         return new_state, record
 
     def _certify(self, state, load_value: float, codes: np.ndarray):
-        """Certify every relaxed yarn (`dynfab.certificate`, MODEL.md 6): a yarn on a saddle is
-        moved along its escape direction and every yarn relaxed again from there (at most
+        """Certify every relaxed yarn (`dynfab.certificate`, docs/model.md section 6): a yarn on a
+        saddle is moved along its escape direction and every yarn relaxed again from there (at most
         MAX_ESCAPES times); then the accuracy check. With the default tolerance, a step whose
         error bound exceeds the accuracy target is relaxed further, to the residual that
         target needs (at most MAX_TIGHTENINGS times), before the check decides. Returns
@@ -281,7 +283,8 @@ class DynamicSolver:
         return min(needed) if needed else None
 
     def transient(self, state, resume_from: dict | None = None):
-        """Run the transient (dynamic.mode = "transient", MODEL.md 5) from `state`; yield frames.
+        """Run the transient (dynamic.mode = "transient", docs/model.md section 5) from `state`;
+        yield frames.
 
         Physical masses, viscous c (default 0), anchors return-mapped every time step,
         the load ramped piecewise-linearly from 0 at t = 0 through the load values evenly
@@ -431,7 +434,8 @@ class DynamicSolver:
 
     def _warn_if_dt_above_bound(self) -> None:
         """A given dt above the predicted stable dt is allowed (Gershgorin is conservative),
-        with a warning, once per solver (MODEL.md 5). Fictitious masses scale with dt: no bound."""
+        with a warning, once per solver (docs/model.md section 5). Fictitious masses scale with dt:
+        no bound."""
         if self.options.dt is None or self.masses == "fictitious" or self._dt_warned:
             return
         bound = float(self.motion.stable_dt.numpy().min())
@@ -501,11 +505,11 @@ class DynamicSolver:
                 f"{status.ENERGY_FACTOR:.0f} x that)")
 
     def _open_crossing_hint(self, k: int) -> str:
-        """With friction, the likely cause of a step that does not converge (MODEL.md 4): a
-        crossing at g ~ 0, where F_T jumps (named), or else crossings chattering between
-        stick and slip. "At g ~ 0" is within 1 % of the Kawabata compression scale C_wa + C_we.
-        The hint names no dynamic method: which one copes depends on the scene (on the
-        paper's friction path every method finishes; a method named here once failed where
+        """With friction, the likely cause of a step that does not converge
+        (docs/model.md section 4): a crossing at g ~ 0, where F_T jumps (named), or else crossings
+        chattering between stick and slip. "At g ~ 0" is within 1 % of the Kawabata compression
+        scale C_wa + C_we. The hint names no dynamic method: which one copes depends on the scene
+        (on the paper's friction path every method finishes; a method named here once failed where
         it was recommended), only remedies that hold whatever the method."""
         if not self.configuration.friction or self.model.crossings == 0:
             return ""
@@ -529,7 +533,7 @@ class DynamicSolver:
 
 
 class DynamicTransient:
-    """The transient mode (dynamic.mode = "transient", MODEL.md 5) through the
+    """The transient mode (dynamic.mode = "transient", docs/model.md section 5) through the
     `dynfab.solver.Transient` contract: a DynamicSolver driven by time, not by load step.
 
     Built with DynamicSolver's arguments; `advance` is `DynamicSolver.transient`.

@@ -123,7 +123,7 @@ class FitResult:
 
 
 def fittable_keys(scene) -> tuple[str, ...]:
-    """Numeric, sweepable keys whose table the scene has (MODEL.md 1)."""
+    """Numeric, sweepable keys whose table the scene has (docs/model.md section 1)."""
     return tuple(k for k in scene_module._SWEEPABLE if getattr(scene, k.split(".")[0]) is not None)
 
 

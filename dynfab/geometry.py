@@ -1,4 +1,4 @@
-"""As-woven geometry of a warp yarn and its crossings (MODEL.md sections 1 and 3).
+"""As-woven geometry of a warp yarn and its crossings (docs/model.md sections 1 and 3).
 
 Plain numpy: these run once per scene, not in a solver loop.
 """
@@ -52,7 +52,7 @@ def voronoi_lengths(rest_length: np.ndarray) -> np.ndarray:
 def turning_angles(positions: np.ndarray) -> np.ndarray:
     """Signed turning angle phi_i (N+1,) [rad] between segments i-1 and i; 0 at the ends.
 
-    phi_i = atan2(e_{i-1} x e_i, e_{i-1} . e_i)  (MODEL.md section 2).
+    phi_i = atan2(e_{i-1} x e_i, e_{i-1} . e_i)  (docs/model.md section 2).
     """
     e = np.diff(positions, axis=0)
     a, b = e[:-1], e[1:]
@@ -62,7 +62,8 @@ def turning_angles(positions: np.ndarray) -> np.ndarray:
 
 
 def half_wave_arc_length(projected: float, amplitude: float) -> float:
-    """Arc length Lc [m] of one half-wave of z = A sin(pi x / p), 0 <= x <= p (MODEL.md 3).
+    """Arc length Lc [m] of one half-wave of z = A sin(pi x / p), 0 <= x <= p
+    (docs/model.md section 3).
 
     Lc = int_0^p sqrt(1 + (A pi / p)^2 cos^2(pi x / p)) dx.  The integrand is
     smooth and p-periodic, so the trapezoid rule over one period converges

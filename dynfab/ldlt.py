@@ -1,4 +1,5 @@
-"""Symmetric banded LDL^T without pivoting, with the inertia of the matrix (MODEL.md section 6).
+"""Symmetric banded LDL^T without pivoting, with the inertia of the matrix
+(docs/model.md section 6).
 
 H = L D L^T, L unit lower triangular with the half-bandwidth of H
 (`dynfab.banded.BANDWIDTH`), D diagonal: O(n BANDWIDTH^2) work, O(n) memory.

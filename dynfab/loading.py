@@ -1,6 +1,6 @@
 """The load the model prescribes: where a load step starts, and the transient's load in time.
 
-Part of the model (MODEL.md sections 1, 5), not of a solver: every solver
+Part of the model (docs/model.md sections 1, 5), not of a solver: every solver
 takes its load from here (`dynfab.solver` states the contracts), so the
 static and the dynamic solvers start each load step from the same positions
 and neither imports the other.
@@ -32,8 +32,8 @@ def prescribe_load(model: Model, state: State, load_value: float) -> np.ndarray:
 
 
 def load_at_time(model: Model, time: float) -> float:
-    """The transient's load [N or m] at `time` [s] (MODEL.md 5): piecewise linear through
-    (0, 0) and (k T / n, value_k), k = 1..n, T = dynamic.duration, held after T.
+    """The transient's load [N or m] at `time` [s] (docs/model.md section 5): piecewise linear
+    through (0, 0) and (k T / n, value_k), k = 1..n, T = dynamic.duration, held after T.
 
     The transient kernel evaluates the same ramp on the device (`kernels/transient.py`
     load_at); this is its host side, for the frames.

@@ -2,7 +2,7 @@
 
 `build_model(scene)` turns a validated scene into a `Model`: one `Yarn` of
 arrays per simulated warp yarn (a `[sweep]` entry or one of `geometry.yarns`
-adjacent yarns, MODEL.md section 1) and the list of the energy terms the scene
+adjacent yarns, docs/model.md section 1) and the list of the energy terms the scene
 uses. Nothing in a Model changes during a run; what changes is a `State`.
 """
 
@@ -19,7 +19,7 @@ from dynfab.terms import registry
 
 
 class Yarn(NamedTuple):
-    """Arrays of one warp yarn (MODEL.md sections 1-4); passed whole to numba.
+    """Arrays of one warp yarn (docs/model.md sections 1-4); passed whole to numba.
 
     N segments, C crossings. Contact and friction arrays are empty when C = 0.
     """
@@ -41,17 +41,17 @@ class Yarn(NamedTuple):
     crossing_side: np.ndarray
     """Side s_j of the weft the warp lies on (C,) [-], +1 above."""
     gap_offset: np.ndarray
-    """c_j in the closure g_j = c_j - s_j z_{n_j} (C,) [m] (MODEL.md 3)."""
+    """c_j in the closure g_j = c_j - s_j z_{n_j} (C,) [m] (docs/model.md section 3)."""
     contact_law: np.ndarray
     """(k_s [N/m], C_wa [m], a_wa [1/N], C_we [m], a_we [1/N]) of the series law; k_s is the
-    weft spring k_we in series with the core stiffness k_c when given (MODEL.md 3)."""
+    weft spring k_we in series with the core stiffness k_c when given (docs/model.md section 3)."""
     friction_alpha: float
     """Gralen alpha [-]; 0 without friction."""
     friction_constant: float
     """Gralen beta ell r_f [N]; 0 without friction."""
     friction_onset: float
-    """R_0 [N], the contact force over which the limit's constant term sets in (MODEL.md 4);
-    0: the literal jump law."""
+    """R_0 [N], the contact force over which the limit's constant term sets in
+    (docs/model.md section 4); 0: the literal jump law."""
     stick_stiffness: float
     """k_t [N/m]; 0 without friction."""
     gravity: float
@@ -114,7 +114,7 @@ class State:
     positions: np.ndarray
     """Node positions (yarns, N+1, 2) [m]."""
     anchors: np.ndarray
-    """Friction anchors xi (yarns, C) [m] (MODEL.md 4)."""
+    """Friction anchors xi (yarns, C) [m] (docs/model.md section 4)."""
     dissipated: np.ndarray
     """Cumulative friction dissipation (yarns,) [J]."""
     load: np.ndarray
@@ -144,7 +144,7 @@ def build_model(scene: Scene) -> Model:
 
 
 def _build_yarn(scene: Scene, phase: float) -> Yarn:
-    """Arrays of one yarn of phase s_k = +-1 (MODEL.md sections 1-4)."""
+    """Arrays of one yarn of phase s_k = +-1 (docs/model.md sections 1-4)."""
     geo, warp = scene.geometry, scene.warp
     rest = geometry.as_woven_positions(geo.length, geo.segments, geo.crossings, geo.amplitude, phase)
     rest_length = geometry.segment_lengths(rest)
@@ -183,7 +183,7 @@ def _build_yarn(scene: Scene, phase: float) -> Yarn:
 
 
 def _gap_offset(scene: Scene, rest: np.ndarray, nodes: np.ndarray, sides: np.ndarray) -> np.ndarray:
-    """c_j of g_j = c_j - s_j z_{n_j} (MODEL.md 3).
+    """c_j of g_j = c_j - s_j z_{n_j} (docs/model.md section 3).
 
     as_woven: g_j = s_j (z0 - z), so c_j = s_j z0_{n_j} and every contact starts at g = 0;
     prestressed: g_j = A_wa + A_we - s_j z, the weft pre-deflected by its own amplitude.
@@ -196,7 +196,7 @@ def _gap_offset(scene: Scene, rest: np.ndarray, nodes: np.ndarray, sides: np.nda
 
 
 def _contact_law(scene: Scene) -> np.ndarray:
-    """(k_s, C_wa, a_wa, C_we, a_we), a_m = K_m / Lc_m (MODEL.md 3, eqs. 4, 6-7).
+    """(k_s, C_wa, a_wa, C_we, a_we), a_m = K_m / Lc_m (docs/model.md section 3, paper eqs. 4, 6-7).
 
     k_s = 1 / (1/k_we + 1/k_c): the weft spring in series with the core stiffness
     `contact.core_stiffness` when the scene gives one (else k_we). One more linear spring

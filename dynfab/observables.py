@@ -1,7 +1,7 @@
 """What a finished load step reports (the HDF5 `steps/*` layout), shared by every solver.
 
 `finish_step` takes the relaxed positions of a load step, return-maps the
-friction anchors (MODEL.md 4) and computes the reported quantities: contact
+friction anchors (docs/model.md section 4) and computes the reported quantities: contact
 and friction forces, F_T, sliding flags, energies per term, end force and
 displacement, crimp.
 """

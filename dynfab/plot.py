@@ -50,7 +50,7 @@ def plot_results(path: str | os.PathLike, out_dir: str | os.PathLike) -> list[Pa
         return _plot_transient(results, output_folder(out_dir))
     if results.step_count == 0:
         raise UserError(f"result file '{path}' has no finished load step to plot")
-    if results.attrs.get("model") == "fabric":  # MODEL.md section 10
+    if results.attrs.get("model") == "fabric":  # docs/model.md section 10
         return [save_png(plot_fabric(results), output_folder(out_dir) / "fabric.png")]
     for key in ("end_force", "end_displacement", "positions"):
         if key not in results.steps:
@@ -66,7 +66,7 @@ def plot_results(path: str | os.PathLike, out_dir: str | os.PathLike) -> list[Pa
 
 
 def plot_fabric(results: Results) -> Figure:
-    """A fabric's run (MODEL.md section 10): each family's mean end force against its
+    """A fabric's run (docs/model.md section 10): each family's mean end force against its
     nominal strain, and each family's mean crimp over the load steps."""
     steps = results.steps
     warps = int(steps["contact_force"].shape[1])

@@ -169,7 +169,7 @@ def _build(scene: Scene, solver: str, out, status, device: str | None, options: 
     """The model and the solver, the run options set on the scene (`dynfab.options`) and the
     run's memory and result file (`out`, None: not checked) estimated first (`dynfab.budget`);
     the dynamic solver reports its launches to `status`."""
-    if scene.geometry.model == "fabric":  # MODEL.md section 10
+    if scene.geometry.model == "fabric":  # docs/model.md section 10
         from dynfab.fabric.from_scene import build_run
         return build_run(scene, solver, device, options)
     scene = apply_run_options(scene, solver, **options)
@@ -206,7 +206,8 @@ def _solve(model: Model, engine: Solver | Transient, sink, progress) -> int:
 
 
 def _is_fabric(model) -> bool:
-    """A fabric's run (MODEL.md 10): its model is `dynfab.fabric.from_scene.FabricModel`."""
+    """A fabric's run (docs/model.md section 10): its model is
+    `dynfab.fabric.from_scene.FabricModel`."""
     return model.scene.geometry.model == "fabric"
 
 
@@ -225,7 +226,8 @@ def _add_point_data(model: Model, entry: dict, previous: dict | None) -> None:
 
 def _warn_rounding_floor(floors: list) -> None:
     """One warning at the end of a run for the steps whose residual stopped falling above the
-    tolerance (MODEL.md 5, 6); each such step also passed the accuracy check of its solver."""
+    tolerance (docs/model.md sections 5, 6); each such step also passed the accuracy check of its
+    solver."""
     count = int(np.sum(floors))
     if count:
         warnings.warn(f"{count} of {len(floors)} load steps stopped at the rounding floor, above "
@@ -240,7 +242,8 @@ def frame_times(model: Model) -> np.ndarray:
 
 
 def _run_transient(model: Model, engine: Transient, sink, progress) -> int:
-    """A transient run (MODEL.md 5): append every frame as it comes; resume from the last one."""
+    """A transient run (docs/model.md section 5): append every frame as it comes; resume from the
+    last one."""
     resume_from = sink.last_frame() if sink.frame_count else None
     duration = model.scene.dynamic.duration
     if resume_from is not None and float(resume_from["time"]) >= duration:
@@ -403,8 +406,8 @@ def print_summary(results: Results, file=sys.stdout) -> None:
 
 
 def _print_fabric_summary(results: Results, file) -> None:
-    """A fabric's table (MODEL.md 10): per step, the (warp, weft) loads and strains, the
-    mean end force per family, the largest contact force, the residual and the time."""
+    """A fabric's table (docs/model.md section 10): per step, the (warp, weft) loads and strains,
+    the mean end force per family, the largest contact force, the residual and the time."""
     steps, attrs = results.steps, results.attrs
     unit = "N" if attrs.get("load_control") == "force" else "m"
     warps = int(steps["contact_force"].shape[1])

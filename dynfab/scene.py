@@ -58,14 +58,14 @@ class _Key:
     doc: str = ""
     """What the key is, for the documentation table and the command line's help."""
     sweepable: bool = False
-    """A [sweep] may vary it: real-valued, changing no array shape (MODEL.md 1)."""
+    """A [sweep] may vary it: real-valued, changing no array shape (docs/model.md section 1)."""
     option: bool = False
     """A run option ([static], [dynamic]): a `dynfab run` flag and a `dynfab.run` keyword."""
     default_from: str = ""
     """When left out of the TOML: the value of this other key."""
     model: str = ""
-    """"fabric": a key of the woven fabric only; "yarn": of the one-yarn model only (MODEL.md
-    10); "": both. A scene of the other model refuses it."""
+    """"fabric": a key of the woven fabric only; "yarn": of the one-yarn model only (docs/model.md
+    section 10); "": both. A scene of the other model refuses it."""
 
 
 _POS, _NONNEG = "positive", "nonnegative"
@@ -86,7 +86,7 @@ def _key(doc: str, unit: str = "", rule: str = "", *, choices: tuple[str, ...] =
 
 @dataclass(frozen=True, kw_only=True)
 class Geometry:
-    """The warp yarn's geometry (MODEL.md section 1)."""
+    """The warp yarn's geometry (docs/model.md section 1)."""
 
     length: float = _key("L, projected warp length", "m", _POS)
     segments: int = _key("N, segments per warp yarn; a multiple of 2 x crossings", rule=_POS)
@@ -94,23 +94,23 @@ class Geometry:
                           rule=_NONNEG)
     amplitude: float = _key("A_wa, as-woven warp crimp amplitude; 0 is a straight yarn", "m",
                             _NONNEG, sweepable=True)
-    reference: str = _key("stress-free state (MODEL.md section 3)",
+    reference: str = _key("stress-free state (docs/model.md section 3)",
                           choices=("as_woven", "prestressed"), default="as_woven")
     yarns: int = _key("adjacent warp yarns simulated, yarn k with phase s_k = (-1)^(k-1)",
                       rule=_POS, default=1, model="yarn")
-    model: str = _key("one warp yarn against weft springs (MODEL.md sections 1-9), or the woven "
-                      "fabric, warps and wefts alike as chains (MODEL.md section 10)",
+    model: str = _key("one warp yarn against weft springs (docs/model.md sections 1-9), or the woven "
+                      "fabric, warps and wefts alike as chains (docs/model.md section 10)",
                       choices=("yarn", "fabric"), default="yarn")
-    boundary: str = _key("a finite patch, or a periodic unit cell (MODEL.md section 10)",
+    boundary: str = _key("a finite patch, or a periodic unit cell (docs/model.md section 10)",
                          choices=("clamped", "periodic"), default="clamped", model="fabric")
     planes: str = _key("the yarns' planes X_j, Y_k: as woven, or moving with the patch's mean "
-                       "stretch (MODEL.md section 10)", choices=("fixed", "affine"),
+                       "stretch (docs/model.md section 10)", choices=("fixed", "affine"),
                        default="fixed", model="fabric")
 
 
 @dataclass(frozen=True, kw_only=True)
 class Warp:
-    """Warp yarn material (MODEL.md sections 2-3)."""
+    """Warp yarn material (docs/model.md sections 2-3)."""
 
     EA: float = _key("extensional stiffness", "N", _POS, sweepable=True)
     EI: float = _key("bending stiffness", "N m^2", _POS, sweepable=True)
@@ -122,7 +122,7 @@ class Warp:
 
 @dataclass(frozen=True, kw_only=True)
 class Weft:
-    """The weft at a crossing: a beam spring in series with Kawabata (MODEL.md 3)."""
+    """The weft at a crossing: a beam spring in series with Kawabata (docs/model.md section 3)."""
 
     EI: float = _key("weft bending stiffness", "N m^2", _POS, sweepable=True)
     length: float = _key("L_we, projected weft length", "m", _POS, sweepable=True,
@@ -144,7 +144,7 @@ class Weft:
 
 @dataclass(frozen=True, kw_only=True)
 class Friction:
-    """Gralen friction with stick-slip regularisation (MODEL.md section 4)."""
+    """Gralen friction with stick-slip regularisation (docs/model.md section 4)."""
 
     alpha: float = _key("Gralen alpha", "-", _NONNEG, sweepable=True)
     beta: float = _key("Gralen beta", "N/m^2", _NONNEG, sweepable=True)
@@ -153,30 +153,30 @@ class Friction:
     stick_stiffness: float | None = _key("k_t; none: EA / (L/N) of each yarn", "N/m", _POS,
                                          sweepable=True, default=None)
     onset_force: float = _key("R_0; the limit's constant term sets in as 1 - exp(-R/R_0); 0 is "
-                              "the literal jump law (MODEL.md section 4)", "N", _NONNEG,
+                              "the literal jump law (docs/model.md section 4)", "N", _NONNEG,
                               sweepable=True, default=1e-5)
 
 
 @dataclass(frozen=True, kw_only=True)
 class Contact:
-    """Options of the crossing contact law (MODEL.md section 3)."""
+    """Options of the crossing contact law (docs/model.md section 3)."""
 
     core_stiffness: float | None = _key(
         "k_c, the yarns' core stiffness in series with the weft spring and the Kawabata "
-        "compressions; none: no such spring (a fabric: 1e5 N/m, MODEL.md section 10)", "N/m",
+        "compressions; none: no such spring (a fabric: 1e5 N/m, docs/model.md section 10)", "N/m",
         _POS, sweepable=True, default=None)
 
 
 @dataclass(frozen=True, kw_only=True)
 class Gravity:
-    """Gravity along -z, acting on the physical masses (MODEL.md section 2)."""
+    """Gravity along -z, acting on the physical masses (docs/model.md section 2)."""
 
     g: float = _key("gravitational acceleration", "m/s^2", sweepable=True, default=9.81)
 
 
 @dataclass(frozen=True, kw_only=True)
 class Load:
-    """The load path (MODEL.md section 4: exactly these values, no zero step)."""
+    """The load path (docs/model.md section 4: exactly these values, no zero step)."""
 
     control: str = _key('what the values are: P per warp yarn [N] ("force") or the end '
                         'displacement [m] ("displacement")', choices=("force", "displacement"),
@@ -195,7 +195,7 @@ class Load:
 
 @dataclass(frozen=True, kw_only=True)
 class Pullout:
-    """One warp pulled out of a clamped fabric patch (MODEL.md section 10)."""
+    """One warp pulled out of a clamped fabric patch (docs/model.md section 10)."""
 
     warp: int = _key("the warp pulled (1..weft.count): its first node free, its last node "
                      "displaced by load.values; every other warp held at both ends", rule=_POS,
@@ -207,7 +207,7 @@ _ACCURACY = "largest accepted position error bound of a step, relative to its la
 
 @dataclass(frozen=True, kw_only=True)
 class Static:
-    """Options of the static Newton reference solver (MODEL.md section 6)."""
+    """Options of the static Newton reference solver (docs/model.md section 6)."""
 
     tolerance: float = _key("force residual to reach (or the rounding floor, where higher)", "N",
                             _POS, option=True, default=1e-11)
@@ -218,7 +218,7 @@ class Static:
 
 @dataclass(frozen=True, kw_only=True)
 class Dynamic:
-    """Options of the dynamic (Warp) solver (MODEL.md section 5)."""
+    """Options of the dynamic (Warp) solver (docs/model.md section 5)."""
 
     mode: str = _key("relax each load step, or integrate in time",
                      choices=("quasi_static", "transient"), option=True, default="quasi_static")
@@ -323,7 +323,7 @@ _FIELD_KEYS = tuple(f"{t}.{k}" for t, (_, keys) in _SCHEMA.items() for k in keys
 _ALL_KEYS = _FIELD_KEYS + tuple(f"load.{k}" for k in _LOAD_PATH)
 _SWEEPABLE = tuple(f"{t}.{k}" for t, (_, keys) in _SCHEMA.items()
                    for k, spec in keys.items() if spec.sweepable)
-"""Keys a [sweep] may vary: real-valued, changing no array shape (MODEL.md 1)."""
+"""Keys a [sweep] may vary: real-valued, changing no array shape (docs/model.md section 1)."""
 
 RUN_OPTIONS = {solver: {k: spec for k, spec in _SCHEMA[solver][1].items() if spec.option}
                for solver in ("static", "dynamic")}
@@ -671,7 +671,7 @@ def _build_load(table: dict) -> Load:
     for key in table:
         if key.endswith("_control"):
             raise _bad(f"load.{key}", table[key], "one load.control for both families "
-                       "(MODEL.md section 10): mixed control is refused")
+                       "(docs/model.md section 10): mixed control is refused")
     _check_keys("load", table, (*keys, *_LOAD_PATH))
     control = _convert("load.control", table.get("control", "force"), keys["control"])
     has_path = [k for k in _LOAD_PATH if k in table]
@@ -790,7 +790,7 @@ _YARN_KEY_IN_FABRIC = {
     "weft.tension": "the wefts are chains, loaded by load.weft_values",
     "geometry.yarns": "the fabric simulates weft.count warps and geometry.crossings wefts",
 }
-"""Why each one-yarn key means nothing in a fabric (MODEL.md section 10)."""
+"""Why each one-yarn key means nothing in a fabric (docs/model.md section 10)."""
 
 
 def _keys_for(model: str) -> list[tuple[str, str]]:
@@ -800,27 +800,27 @@ def _keys_for(model: str) -> list[tuple[str, str]]:
 
 
 def _fabric_key_in_yarn(dotted: str, value) -> UserError:
-    return _bad(dotted, value, f"a key of the woven fabric (MODEL.md section 10), but {_YARN}: "
+    return _bad(dotted, value, f"a key of the woven fabric (docs/model.md section 10), but {_YARN}: "
                 "set geometry.model = \"fabric\" or remove it")
 
 
 def _yarn_key_in_fabric(dotted: str, value) -> UserError:
-    return _bad(dotted, value, f"means nothing in a fabric ({_FABRIC}, MODEL.md section 10): "
+    return _bad(dotted, value, f"means nothing in a fabric ({_FABRIC}, docs/model.md section 10): "
                 f"{_YARN_KEY_IN_FABRIC[dotted]}; remove it")
 
 
 def _sweep_in_fabric() -> UserError:
     return UserError(f"[sweep] given but {_FABRIC}: a fabric is one patch, not a batch of "
-                     "independent yarns (MODEL.md section 10); write one scene per value")
+                     "independent yarns (docs/model.md section 10); write one scene per value")
 
 
 def _pullout_in_yarn() -> UserError:
-    return UserError(f"[pullout] given but {_YARN}: a pull-out is a fabric scene (MODEL.md "
+    return UserError(f"[pullout] given but {_YARN}: a pull-out is a fabric scene (docs/model.md "
                      "section 10); set geometry.model = \"fabric\" or remove [pullout]")
 
 
 def _check_model_keys(tables: dict) -> None:
-    """Refuse, as written in the file, a key of the other model (MODEL.md section 10)."""
+    """Refuse, as written in the file, a key of the other model (docs/model.md section 10)."""
     model = (tables.get("geometry") or {}).get("model", "yarn")
     if model == "yarn":
         if tables.get("pullout") is not None:
@@ -848,7 +848,7 @@ def _check_no_fabric_keys(scene: Scene) -> None:
 
 
 def _check_fabric(scene: Scene) -> None:
-    """What a fabric scene must be (MODEL.md section 10)."""
+    """What a fabric scene must be (docs/model.md section 10)."""
     g, weft, load = scene.geometry, scene.weft, scene.load
     if scene.sweep:
         raise _sweep_in_fabric()
@@ -858,7 +858,7 @@ def _check_fabric(scene: Scene) -> None:
         raise _yarn_key_in_fabric("geometry.yarns", g.yarns)
     if g.reference != "as_woven":
         raise _bad("geometry.reference", g.reference, "a fabric's stress-free state is as "
-                   "woven (MODEL.md section 10); use \"as_woven\"")
+                   "woven (docs/model.md section 10); use \"as_woven\"")
     for key, unit in (("EA", " [N]"), ("segments", "")):
         if getattr(weft, key) is None:
             raise UserError(f"missing required key weft.{key}{unit} (needed with {_FABRIC})")
@@ -882,7 +882,7 @@ def _check_periodic(scene: Scene) -> None:
                        f"needs an even number of {what}: the plain-weave repeat is 2 x 2")
     if scene.gravity is not None:
         raise UserError("[gravity] given with geometry.boundary = \"periodic\": a periodic "
-                        "cell has no gravity (MODEL.md section 10); remove [gravity] or use "
+                        "cell has no gravity (docs/model.md section 10); remove [gravity] or use "
                         "a clamped patch")
 
 
@@ -909,23 +909,23 @@ def _check_pullout(scene: Scene) -> None:
         raise _bad("pullout.warp", warp, f"must name a warp 1..weft.count = {scene.weft.count}")
     if scene.load.control != "displacement":
         raise _bad("load.control", scene.load.control, "a pull-out is displacement-"
-                   "controlled (MODEL.md section 10); use \"displacement\"")
+                   "controlled (docs/model.md section 10); use \"displacement\"")
     if g.boundary != "clamped" or g.planes != "fixed":
         key, value = (("geometry.boundary", g.boundary) if g.boundary != "clamped"
                       else ("geometry.planes", g.planes))
         raise _bad(key, value, "a pull-out is a clamped patch with fixed planes "
-                   "(MODEL.md section 10)")
+                   "(docs/model.md section 10)")
     if scene.load.warp_factors is not None:
         raise _bad("load.warp_factors", scene.load.warp_factors, "a pull-out sets them "
                    "(the pulled warp 1, the others held); remove it")
 
 
 def _check_weft_tension(weft: Weft) -> None:
-    """P_we > -Pcr_we = -pi^2 EI_we / L_we^2: the weft must not buckle (MODEL.md 3)."""
+    """P_we > -Pcr_we = -pi^2 EI_we / L_we^2: the weft must not buckle (docs/model.md section 3)."""
     limit = -math.pi**2 * weft.EI / weft.length**2
     if weft.tension <= limit:
         raise _bad("weft.tension", weft.tension, f"must be > {limit:.6g} N = -pi^2 weft.EI / "
-                   "weft.length^2, where the weft buckles (MODEL.md section 3)")
+                   "weft.length^2, where the weft buckles (docs/model.md section 3)")
 
 
 def _check_dynamic(dynamic: Dynamic) -> None:
@@ -957,7 +957,8 @@ def check_dynamic_options(dynamic: Dynamic) -> Dynamic:
 
 def _check_method_damping(dynamic: Dynamic) -> None:
     """semi_implicit takes neither FIRE (which drives an explicit integrator) nor kinetic
-    damping (its rejected steps are undone instead, MODEL.md 5): refused, not ignored."""
+    damping (its rejected steps are undone instead, docs/model.md section 5): refused, not
+    ignored."""
     if dynamic.method != "semi_implicit" or dynamic.damping not in ("fire", "kinetic"):
         return
     why = ("FIRE drives an explicit integrator" if dynamic.damping == "fire" else

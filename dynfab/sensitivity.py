@@ -1,6 +1,6 @@
 """Exact sensitivities of a load path's equilibria to scene parameters (docs/model.md, "Fitting").
 
-At the converged state x^n of load step n (anchors xi^{n-1} held, MODEL.md 4)
+At the converged state x^n of load step n (anchors xi^{n-1} held, docs/model.md section 4)
 the coupled residual r(x, xi, p) = dV/dx (friction's F_T taken from the
 current contact forces) vanishes on the free dofs. Differentiating along the
 path,

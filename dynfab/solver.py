@@ -7,10 +7,10 @@ imports another, and the load a step prescribes comes from the model side
 `Solver`, by load step: the static reference (`dynfab.static.StaticSolver`)
 and the dynamic relaxation (`dynfab.dynamic.DynamicSolver`). Each call of
 `step(state, load)` takes the equilibrium of the previous load step to the
-equilibrium under the next load value of the path (MODEL.md sections 5, 6).
+equilibrium under the next load value of the path (docs/model.md sections 5, 6).
 
 `Transient`, by time: the dynamic solver's transient mode
-(`dynfab.dynamic.DynamicTransient`, MODEL.md 5). It is a sibling contract,
+(`dynfab.dynamic.DynamicTransient`, docs/model.md section 5). It is a sibling contract,
 not the same one, because a transient run is one time integration over the
 whole load path: the load ramps in time, the state between two outputs holds
 velocities that live in the integrator (State has none), and the outputs are
@@ -51,7 +51,7 @@ STEP_KEYS = ("load", "end_force", "end_displacement", "positions", "contact_forc
   [-] (yarns,); positions [m] (yarns, N+1, 2); contact_force, friction_force,
   friction_limit [N], sliding [-] (bool) and anchors [m] (yarns, crossings);
 - by the solver's certificate (`dynfab.certificate.StepStability.fields`,
-  MODEL.md 6): stable, buckled [-] (bool), lowest_eigenvalue [N/m] and
+  docs/model.md section 6): stable, buckled [-] (bool), lowest_eigenvalue [N/m] and
   error_estimate [m] (yarns,); rounding_floor [-] (yarns,) bool: the residual
   stopped falling above the tolerance.
 
@@ -90,7 +90,7 @@ class Solver(Protocol):
         `dynfab.loading.prescribe_load(model, state, load)` and ends, once every yarn's
         residual (largest free force component, friction included) is within tolerance
         and certified, with `dynfab.observables.finish_step`: the new state has the
-        anchors return-mapped (MODEL.md 4) and `load` applied; the record holds
+        anchors return-mapped (docs/model.md section 4) and `load` applied; the record holds
         `STEP_KEYS`. `state` is not modified.
 
         Raises `dynfab.errors.SolverError` (one line naming the yarn and the cause) when a

@@ -1,4 +1,4 @@
-"""The static reference solver: Newton on the exact banded Hessian (MODEL.md section 6).
+"""The static reference solver: Newton on the exact banded Hessian (docs/model.md section 6).
 
 Each load step minimises V plus the Huber friction terms over the free dofs,
 from the previous state. Friction is solved coupled: at every iteration F_T
@@ -8,7 +8,7 @@ Newton matrix carries the derivative of F_T through R on sliding crossings
 law exactly and convergence stays quadratic. Steps are globalised by a
 backtracking line search on the energy with F_T frozen; when the energy
 change is lost in rounding, a step is accepted if it lowers the residual
-(MODEL.md 6). An indefinite matrix (compression, exact bending) is shifted
+(docs/model.md section 6). An indefinite matrix (compression, exact bending) is shifted
 by a multiple of the identity until its LU pivots are positive.
 """
 
@@ -36,7 +36,7 @@ EPS = np.finfo(np.float64).eps
 MAX_FLIPS = 12
 """Open/closed switches of one crossing after which the iteration is declared cycling."""
 MAX_SET_UPDATES = 40
-"""Open/closed set updates per continuation stage with an onset force (MODEL.md 4)."""
+"""Open/closed set updates per continuation stage with an onset force (docs/model.md section 4)."""
 DIRECT_SET_UPDATES = 4
 """Set updates tried at the scene's R_0 before the continuation (most steps need 0 or 1)."""
 DIRECT_ITERATIONS = 50
@@ -50,7 +50,7 @@ CONTINUATION_FACTORS = (2.0, 1.25, 1.05)
 """R_0 falls by this factor per stage, the next one if the continuation fails (a factor of
 10 was tried and dropped: docs/model.md, "Decisions", friction onset)."""
 CONTINUATION_START = 1e-3
-"""R_0 [N] the continuation starts from (MODEL.md 4: Newton converges there in about 20
+"""R_0 [N] the continuation starts from (docs/model.md section 4: Newton converges there in about 20
 iterations from the previous step's state on the paper's yarn)."""
 
 
@@ -140,7 +140,7 @@ def _free_norm(grad, fixed):
 def _residual_line_search(pos, direction, yarn, P, anchors, fixed, trial, grad, branch,
                           halvings):
     """Backtrack from step 1 on the residual's 2-norm with F_T re-evaluated at each trial
-    (the coupled problem's merit, MODEL.md 4); returns the accepted step or 0.
+    (the coupled problem's merit, docs/model.md section 4); returns the accepted step or 0.
 
     Accepts |f(t)| <= (1 - 1e-4 t) |f(0)|: the coupled Newton direction is a descent
     direction of |f|^2 where the Jacobian is exact.
@@ -168,7 +168,7 @@ def _newton_on_set(pos, yarn, P, fixed, anchors, tolerance, max_iterations, info
 
     `branch` None: the unilateral contact, with the open/closed flip count that
     detects cycling (the literal jump law). `branch` an array: each crossing held
-    on its branch (`dynfab.terms.contact`), a smooth problem (MODEL.md 4).
+    on its branch (`dynfab.terms.contact`), a smooth problem (docs/model.md section 4).
     """
     n = pos.size
     c = yarn.crossing_node.size
@@ -249,7 +249,7 @@ def _natural_residual(pos, yarn, P, anchors, fixed):
 def _update_set(pos, yarn, branch, seen) -> np.ndarray:
     """Switch the crossings whose branch the state contradicts; returns their indices.
 
-    A closed crossing needs R >= 0 (g >= 0), an open one g <= 0 (MODEL.md 4); where
+    A closed crossing needs R >= 0 (g >= 0), an open one g <= 0 (docs/model.md section 4); where
     both hold (g = 0) the two branches agree. All of them switch at once, unless that
     gives a set already tried (`seen`, the sets as bytes): then only the one that
     contradicts its branch most, then the next ones, one at a time. Returns an empty
@@ -383,7 +383,7 @@ def _solve_set(pos, yarn, P, fixed, anchors, tolerance, max_iterations, info, br
 
 def _continuation(pos, yarn, P, fixed, anchors, tolerance, max_iterations, info) -> int:
     """Solve with R_0 lowered from CONTINUATION_START to the scene's value, each stage from
-    the last one's state and set (MODEL.md 4); returns -1 or the crossing to blame.
+    the last one's state and set (docs/model.md section 4); returns -1 or the crossing to blame.
 
     R_0 falls by a factor per stage, CONTINUATION_FACTORS[0]; if the last stage fails,
     the whole continuation is redone from the step's start with the next, finer factor.
@@ -415,7 +415,7 @@ def newton(pos, yarn, P, fixed, anchors, tolerance, max_iterations, info):
     `P` is the end load [N] (0 under displacement control, x_N then fixed in
     `fixed` and set by the caller). `anchors` stay fixed (incremental form).
 
-    With friction and an onset force R_0 > 0 (MODEL.md 4) the open/closed set of
+    With friction and an onset force R_0 > 0 (docs/model.md section 4) the open/closed set of
     the crossings is held fixed during each Newton solve and updated between
     solves until it agrees with the state (`_solve_set`); if that fails from the
     previous state, the step is solved again from it by continuation in R_0, from
@@ -454,7 +454,7 @@ def newton(pos, yarn, P, fixed, anchors, tolerance, max_iterations, info):
 
 
 class StaticSolver:
-    """Solves a model's load steps one after another with `newton` (MODEL.md section 6).
+    """Solves a model's load steps one after another with `newton` (docs/model.md section 6).
 
     Every converged step is certified (`dynfab.certificate`): a saddle is left along a
     direction of negative curvature and solved again (at most MAX_ESCAPES times), and the
@@ -595,7 +595,7 @@ SET_NEWTON = _newton_set_polished
 
 
 # --------------------------------------------------------------------------
-# Semismooth Newton with the contact forces as unknowns (MODEL.md 3-4).
+# Semismooth Newton with the contact forces as unknowns (docs/model.md sections 3-4).
 
 SEMISMOOTH_ITERATIONS = 200
 """Newton iterations of one semismooth solve (`_semismooth`)."""
@@ -674,8 +674,8 @@ def _semismooth_system(pos, yarn, anchors, R, hold, state, band):
 
 
 def _semismooth(pos, yarn, P, fixed, anchors, R, tolerance, max_iterations, hold=-1):
-    """Semismooth Newton on (positions, R) in place (MODEL.md 4: "a semismooth Newton on
-    the complementarity form"); returns (iterations, converged).
+    """Semismooth Newton on (positions, R) in place (docs/model.md section 4: "a semismooth Newton
+    on the complementarity form"); returns (iterations, converged).
 
     Unknowns: the free positions and the contact forces R_j; equations: the force balance
     with F_T = F_T(max(R, 0)) and 0 <= R_j perp c(R_j) - g_j >= 0 in min-form. The set of
@@ -731,11 +731,12 @@ def _contact_forces(pos, yarn):
 
 
 def _onset_root(pos, yarn, P, fixed, anchors, R, tolerance, j):
-    """Crossing j's contact force as a scalar root, the others relaxed (MODEL.md 4), in place.
+    """Crossing j's contact force as a scalar root, the others relaxed (docs/model.md section 4), in
+    place.
 
     With R_j held, `_semismooth` relaxes the rest and gives the closure g_j(R_j); the law
     asks c(R_j) = g_j(R_j) with R_j > 0, or g_j(0) <= 0 (open). phi(R_j) = c(R_j) - g_j(R_j)
-    rises with R_j (friction lowers the closure, MODEL.md 4), so a bracket grown from
+    rises with R_j (friction lowers the closure, docs/model.md section 4), so a bracket grown from
     R_0 / 100 and then regula falsi alternating with bisection find the root, each
     relaxation from the last. Returns (whether a root or R_j = 0 was found, the Newton
     iterations of all relaxations); the state is then the start of a free `_semismooth`.
@@ -786,8 +787,8 @@ def _onset_root(pos, yarn, P, fixed, anchors, R, tolerance, j):
 
 
 def _solve_semismooth(pos, yarn, P, fixed, anchors, tolerance, max_iterations, info) -> bool:
-    """The onset fallback (MODEL.md 4), in place: `_semismooth` from the step's start; if
-    it stalls, `_onset_root` on the crossing whose complementarity is violated most, then
+    """The onset fallback (docs/model.md section 4), in place: `_semismooth` from the step's start;
+    if it stalls, `_onset_root` on the crossing whose complementarity is violated most, then
     `_semismooth` again, at most ONSET_ROOTS times. Returns True when converged (info set)."""
     R = _contact_forces(pos, yarn)
     start, start_R = pos.copy(), R.copy()

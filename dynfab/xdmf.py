@@ -24,7 +24,7 @@ Layout of the XDMF file:
   (`dynfab.model.width_per_yarn`, root attribute ``width_per_yarn``). The
   yarns of a ``[sweep]`` are not neighbours in a fabric, and a rod has no
   width: they are spaced by L / `LENGTHS_PER_SPACING` (L the projected length).
-  (The fabric model, MODEL.md section 10, adds a second family: wefts in the
+  (The fabric model, docs/model.md section 10, adds a second family: wefts in the
   planes ``x = X_j`` moving in (y, z), a second `Family` with ``plane_axis``
   0; nothing else changes.)
 * point data (Center="Node") ``contact_force`` R [N] and ``slip`` x - anchor
@@ -139,7 +139,8 @@ def _read_layout(path: Path) -> _Layout:
             count = _count(h5, group)
             wanted = ["reference/positions", f"{group}/positions"]  # a fabric: per family
             wanted += [f"{group}/xdmf/{name}" for name in POINT_DATA]
-            wanted += ["reference/weft_positions", f"{group}/weft_positions"]  # MODEL.md 10
+            wanted += ["reference/weft_positions", f"{group}/weft_positions"]  # docs/model.md
+            # section 10
             wanted += [f"{group}/xdmf/weft_{name}" for name in POINT_DATA]
             shapes = {name: h5[name].shape for name in wanted if name in h5}
             times = (h5["frames/time"][:count] if group == "frames"

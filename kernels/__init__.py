@@ -1,4 +1,4 @@
-"""Warp kernels of the dynamic solver (MODEL.md section 5), installed as `dynfab.kernels`.
+"""Warp kernels of the dynamic solver (docs/model.md section 5), installed as `dynfab.kernels`.
 
 One module per concept, mirroring `dynfab.terms` for the physics:
 

@@ -1,4 +1,4 @@
-"""Bending springs on exact turning angles in a kernel (MODEL.md 2; paper eqs. 13, 16).
+"""Bending springs on exact turning angles in a kernel (docs/model.md section 2; paper eqs. 13, 16).
 
 Warp twin of `dynfab.terms.bending`, in its sign convention (grad += dV/dr). E_bend = sum_{i=1}^{N-1} 1/2 (EI / lbar_i)
 (phi_i - phi0_i)^2, phi_i = theta(b) - theta(a) = atan2(a x b, a . b), with
@@ -118,7 +118,7 @@ def functions(scalar) -> SimpleNamespace:
         d2phi = -S_a^T H(a) S_a + S_b^T H(b) S_b with selectors S_a = (-1, 1, 0) and
         S_b = (0, -1, 1), H = d2theta/dv2. With `definite`, the second (moment)
         term, which can be indefinite, is dropped: k dphi dphi^T is positive
-        semi-definite (MODEL.md 5, semi_implicit).
+        semi-definite (docs/model.md section 5, semi_implicit).
         """
         stiffness = yarn.bend_stiffness
         rest_angle = yarn.rest_angle

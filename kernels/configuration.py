@@ -24,7 +24,7 @@ a variant of its own would cost a compile (tens of seconds) to save nothing at r
 
 @dataclass(frozen=True, kw_only=True)
 class Configuration:
-    """One kernel variant (MODEL.md 5)."""
+    """One kernel variant (docs/model.md section 5)."""
 
     precision: str = "float64"
     """"float64" or "float32"."""
@@ -32,7 +32,7 @@ class Configuration:
     """The active terms (`dynfab.model.Model.terms`): only their code is compiled (and that of
     ALWAYS_COMPILED). Kept in registry order whatever order they are given in, so equal
     selections are equal variants. "load" (the end load) is the term of force control;
-    without it x_N is fixed (displacement control, MODEL.md 1)."""
+    without it x_N is fixed (displacement control, docs/model.md section 1)."""
     method: str = "explicit"
     """"explicit" (symplectic Euler) or "semi_implicit" (linearly implicit Euler)."""
     damping: str | None = "kinetic"

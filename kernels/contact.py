@@ -1,4 +1,5 @@
-"""Weft contact in a kernel: the weft spring in series with both Kawabata laws (MODEL.md 3; eqs. 4-9).
+"""Weft contact in a kernel: the weft spring in series with both Kawabata laws
+(docs/model.md section 3; paper eqs. 4-9).
 
 Warp twin of `dynfab.terms.contact`, in its sign convention (grad += dV/dr). At crossing j the closure is
 g_j = c_j - s_j z_{n_j}; the contact force R_j >= 0 solves

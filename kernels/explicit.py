@@ -1,4 +1,5 @@
-"""The explicit relaxation kernel: symplectic Euler with kinetic, viscous or FIRE damping (MODEL.md 5).
+"""The explicit relaxation kernel: symplectic Euler with kinetic, viscous or FIRE damping
+(docs/model.md section 5).
 
 One thread per yarn; each launch runs up to `settings.chunk` time steps of
 every yarn still running, so Python can report progress and stop between

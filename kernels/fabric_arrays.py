@@ -1,4 +1,5 @@
-"""A clamped patch of woven fabric as one flat node array, for node-parallel kernels (MODEL.md 10).
+"""A clamped patch of woven fabric as one flat node array, for node-parallel kernels
+(docs/model.md section 10).
 
 The geometry and the parameters are the static reference's: `build(spec)` takes a
 `dynfab.fabric.spec.FabricSpec` and lays it out through `dynfab.fabric.layout` (the
@@ -6,11 +7,11 @@ node order, the crossings and their sides, the fixed dofs, the masses, the conta
 law with k_c and the stick stiffness k_t), then adds what node-parallel kernels need.
 Only the force and energy code is the Warp twin's own (`fabric_forces`).
 
-Both yarn families are chains (MODEL.md 10). Every node of every yarn is one entry of
+Both yarn families are chains (docs/model.md section 10). Every node of every yarn is one entry of
 one flat array, in the layout's order: warp k's nodes first (k = 1..n_wa, N+1 nodes
 each), then weft j's (j = 1..n_we, M+1 nodes each). A node's two coordinates are
 (s, z): s = x along a warp, s = y along a weft (yarns stay straight in plan view,
-MODEL.md 10). Each node knows its chain neighbours (`previous`, `next`, -1 past an
+docs/model.md section 10). Each node knows its chain neighbours (`previous`, `next`, -1 past an
 end), so a thread can gather its own stretch and bending forces without touching
 another thread's output, and at most one crossing: in a plain weave the crossings of
 one yarn sit at distinct nodes, so the per-node list of incident crossings has length
@@ -35,10 +36,10 @@ from dynfab.kernels.precision import VECTORS, numpy_dtype
 
 PAPER_YARN = Family(length=0.1, segments=128, amplitude=0.5e-3, EA=13.72, EI=1.47e-7,
                     kawabata_C=0.2e-3, kawabata_K=0.2)
-"""The paper's yarn (MODEL.md 7), used for both families by the tests and the benchmark
+"""The paper's yarn (docs/model.md section 7), used for both families by the tests and the benchmark
 (length and segments are set per patch by `paper_patch`)."""
 PAPER_FRICTION = Friction(alpha=0.2, beta=1e3, contact_length=2e-3, fiber_radius=1e-3)
-"""The paper's Gralen parameters (MODEL.md 7), R_0 = 1e-5 N."""
+"""The paper's Gralen parameters (docs/model.md section 7), R_0 = 1e-5 N."""
 
 
 def paper_patch(warps: int, wefts: int, segments_per_half_wave: int = 8, pitch: float = 6.25e-3,
@@ -97,7 +98,7 @@ class PatchArrays:
     weft_load_direction: np.ndarray
     """(n, 2) the same for the wefts (their factors on y_M) [-]."""
     weight: np.ndarray
-    """(n, 2) gravity's constant nodal force (0, -rho_l lbar g) [N] (MODEL.md 2); zeros
+    """(n, 2) gravity's constant nodal force (0, -rho_l lbar g) [N] (docs/model.md section 2); zeros
     without gravity. Not part of the kernels: a driver adds it to the external force."""
 
     @property
@@ -110,7 +111,8 @@ class PatchArrays:
 
 
 def build(spec: FabricSpec) -> PatchArrays:
-    """The arrays of the clamped patch `spec` (MODEL.md 10), from `dynfab.fabric.layout`."""
+    """The arrays of the clamped patch `spec` (docs/model.md section 10), from
+    `dynfab.fabric.layout`."""
     if spec.boundary != "clamped" or spec.planes != "fixed":
         raise ValueError("the fabric kernels model the clamped patch with fixed planes only")
     fabric = layout.build_fabric(spec)
@@ -152,8 +154,8 @@ def build(spec: FabricSpec) -> PatchArrays:
 
 
 def friction_law(spec: FabricSpec) -> np.ndarray:
-    """(alpha, beta ell r_f, R_0, k_t) (MODEL.md 4, 10), k_t from `layout.stick_stiffness`;
-    zeros without friction."""
+    """(alpha, beta ell r_f, R_0, k_t) (docs/model.md sections 4, 10), k_t from
+    `layout.stick_stiffness`; zeros without friction."""
     friction = spec.friction
     if friction is None:
         return np.zeros(4)
@@ -166,7 +168,8 @@ GERSHGORIN_SAFETY = 0.9
 
 
 def gershgorin_masses(arrays: PatchArrays, dt: float, safety: float = GERSHGORIN_SAFETY) -> np.ndarray:
-    """Fictitious masses (n,) [kg] with m_i >= dt^2/4 sum_j |K_ij| / safety^2 (MODEL.md 5).
+    """Fictitious masses (n,) [kg] with m_i >= dt^2/4 sum_j |K_ij| / safety^2
+    (docs/model.md section 5).
 
     Row-sum bounds at the as-woven state, per term touching node i: a stretch
     segment k (e e^T / l^2) has absolute row sums <= (1 + sqrt 2)/2 k in its diagonal

@@ -1,4 +1,5 @@
-"""Explicit relaxation of a fabric patch: symplectic Euler; viscous, kinetic or FIRE damping (MODEL.md 5, 10).
+"""Explicit relaxation of a fabric patch: symplectic Euler; viscous, kinetic or FIRE damping
+(docs/model.md sections 5, 10).
 
     v^{n+1/2} = ((1 - c dt/2) v^{n-1/2} + dt M^-1 f(x^n)) / (1 + c dt/2),   x^{n+1} = x^n + dt v^{n+1/2}
 
@@ -10,7 +11,7 @@ as `kernels/fire.py` (its constants), the time step relative to the stable one o
 Gershgorin masses (dt / GERSHGORIN_SAFETY). Relaxation
 stops when the residual, max |f| over the free dofs, is at or below the tolerance.
 With friction (the variants built with it) the anchors stay fixed during a relaxation,
-the quasi-static incremental form of MODEL.md 4; `FabricExplicit.return_map` moves them
+the quasi-static incremental form of docs/model.md section 4; `FabricExplicit.return_map` moves them
 after a converged one.
 
 Two layouts (tests/test_fabric_kernels.py checks that they agree: bit for bit with
@@ -281,7 +282,7 @@ class Outcome:
 
 
 class FabricExplicit:
-    """Explicit relaxation of one patch on one device (MODEL.md 5, 10)."""
+    """Explicit relaxation of one patch on one device (docs/model.md sections 5, 10)."""
 
     def __init__(self, arrays: fabric_arrays.PatchArrays, *, device: str = "cpu",
                  layout: str | None = None, damping: str = "kinetic", coefficient: float = 0.0,
@@ -325,7 +326,8 @@ class FabricExplicit:
         return pos.numpy().astype(float), outcome
 
     def return_map(self, positions: np.ndarray, anchors: np.ndarray) -> np.ndarray:
-        """The anchors (C, 2) [m] after the radial return map at `positions` (MODEL.md 4, 10)."""
+        """The anchors (C, 2) [m] after the radial return map at `positions`
+        (docs/model.md sections 4, 10)."""
         updated = self._array(anchors, self.vec)
         wp.launch(fabric_forces.kernels(self.scalar, self.has_friction).return_map,
                   dim=self.arrays.crossings, device=self.device,

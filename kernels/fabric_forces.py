@@ -1,4 +1,4 @@
-"""Nodal forces and energy of a fabric patch, gathered per node (MODEL.md 2, 3, 10).
+"""Nodal forces and energy of a fabric patch, gathered per node (docs/model.md sections 2, 3, 10).
 
 Deterministic two-pass layout, no atomics: a per-crossing pass solves each contact
 force R once and writes it to its own slot; a per-node pass then gathers everything
@@ -16,12 +16,12 @@ Terms (each a twin of the one-yarn kernels, written per node):
 - bending: E = 1/2 (EI / lbar)(phi - phi0)^2 at each inner node, phi = atan2(a x b, a . b);
   with moment m = k (phi - phi0), g_a = (a_z, -a_x)/|a|^2, g_b = (-b_z, b_x)/|b|^2, the
   forces on (i-1, i, i+1) are (m g_a, -m g_a + m g_b, -m g_b);
-- contact (MODEL.md 10): g = c - sigma (z_wa - z_we); for g > 0 R solves
+- contact (docs/model.md section 10): g = c - sigma (z_wa - z_we); for g > 0 R solves
   R / k_c + C_wa (1 - exp(-a_wa R)) + C_we (1 - exp(-a_we R)) = g (monotone Newton
   from the lower bound k_c (g - C_wa - C_we), as in `kernels/contact.py`), energy
   R^2 / (2 k_c) + sum_m (C_m / a_m)(1 - exp(-a_m R)(1 + a_m R)); force +sigma R in z
   on the warp node, -sigma R on the weft node;
-- friction (variants built with it; MODEL.md 4, 10): at crossing c the in-plane slip
+- friction (variants built with it; docs/model.md sections 4, 10): at crossing c the in-plane slip
   s = (x_wa - X_j - xi_x, y_we - Y_k - xi_y) (X_j, Y_k the nodes' as-woven in-plane
   coordinates, the planes fixed; `anchors` holds xi relative to them) feels the isotropic
   Huber potential with F_T = alpha R + beta ell r_f (1 - exp(-R/R_0)) (R > 0) at the
@@ -267,7 +267,7 @@ def functions(scalar, has_friction: bool) -> SimpleNamespace:
     @wp.func
     def return_map(pos: wp.array(dtype=vec), fabric: Fabric, anchors: wp.array(dtype=vec), c: int):
         """Radial return of anchor c after a converged step: where k_t |s| > F_T, xi moves
-        along s until k_t |s| = F_T (MODEL.md 4, 10)."""
+        along s until k_t |s| = F_T (docs/model.md sections 4, 10)."""
         R = contact_force(closure(pos, fabric, c), fabric.contact_law)
         bound = friction_limit(R, fabric)
         stick = fabric.friction_law[3]

@@ -1,4 +1,5 @@
-"""FIRE 2.0 (Guenole et al. 2020, Comput. Mater. Sci. 175, 109584) with symplectic Euler (MODEL.md 5).
+"""FIRE 2.0 (Guenole et al. 2020, Comput. Mater. Sci. 175, 109584) with symplectic Euler
+(docs/model.md section 5).
 
 Per step, with power P = f . v:
 

@@ -1,5 +1,5 @@
 """The total gradient, force and tangent stiffness of one yarn: a loop over the active terms
-(MODEL.md 2-4).
+(docs/model.md sections 2-4).
 
 V = sum of the active terms' energies (`dynfab.terms.registry`, the scene switches
 each on). Every term module `dynfab.kernels.<name>` has the same `wp.func`s with
@@ -16,7 +16,7 @@ forced inline, `wp.func(inline=True)`, since each receives the YarnArrays struct
 terms run in registry order: contact writes R_j and dR/dg into contact_force and
 contact_tangent, and friction, after it, its limit F_T(R_j) into friction_limit.
 The solver's force is f = -dV/dr (+ the Huber terms' -dH/ds), 0 on the fixed dofs
-(node 0, z_N, and x_N under displacement control; MODEL.md 1).
+(node 0, z_N, and x_N under displacement control; docs/model.md section 1).
 """
 
 import functools
@@ -134,7 +134,7 @@ def functions(scalar, terms: tuple) -> SimpleNamespace:
 
         `definite` drops the negative parts of stretch and bending (semi_implicit);
         `stiffest` takes each contact at its bound k_we and every crossing as
-        sticking, the stiffest K a load step can meet (Gershgorin masses, MODEL.md 5).
+        sticking, the stiffest K a load step can meet (Gershgorin masses, docs/model.md section 5).
         """
         band_ops.clear(band, y)
         add_hessian(y, pos, yarn, anchors, contact_tangent, friction_limit, definite, stiffest, band)

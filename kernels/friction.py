@@ -1,4 +1,5 @@
-"""Gralen friction as stick-slip in the incremental Huber form, in a kernel (MODEL.md 4; eqs. 20-27).
+"""Gralen friction as stick-slip in the incremental Huber form, in a kernel
+(docs/model.md section 4; paper eqs. 20-27).
 
 Warp twin of `dynfab.terms.friction`, in its sign convention (grad += dV/dr). F_T,j = alpha R_j + beta ell r_f (1 - exp(-R_j/R_0))
 if R_j > 0, else 0 (eq. 20 with its onset regularised over R_0; R_0 = 0 is the literal
@@ -122,7 +123,8 @@ def functions(scalar) -> SimpleNamespace:
         """Move the anchors of sliding crossings onto the slip surface; the energy lost [J].
 
         xi = x - sign(x - xi) F_T / k_t where k_t |x - xi| > F_T, dissipating F_T |delta xi|
-        (MODEL.md 4). The friction force -dH/ds of the anchors before equals -k_t (x - xi) after.
+        (docs/model.md section 4). The friction force -dH/ds of the anchors before equals -k_t (x -
+        xi) after.
         """
         lost = scalar(0.0)
         for j in range(nodes.shape[0]):

@@ -1,4 +1,4 @@
-"""Gravity along -z on the physical masses, in a kernel (MODEL.md section 2).
+"""Gravity along -z on the physical masses, in a kernel (docs/model.md section 2).
 
 Warp twin of `dynfab.terms.gravity`, in its sign convention (grad += dV/dr):
 E_gravity = -W_gravity = sum_i m_i g (z_i - z0_i), always with the physical masses

@@ -1,5 +1,5 @@
-"""Kinetic damping (Barnes): zero the velocities at each peak of kinetic energy (MODEL.md 5),
-with a viscous fallback where the relaxation stops settling.
+"""Kinetic damping (Barnes): zero the velocities at each peak of kinetic energy
+(docs/model.md section 5), with a viscous fallback where the relaxation stops settling.
 
 One symplectic Euler step v += dt M^-1 f(x); x += dt v, unless the kinetic
 energy of the new half-step velocities is below the last one: the peak has
@@ -9,7 +9,7 @@ x* = x - dt/2 v^{n-1/2} (= x^{n+1} - 3/2 dt v^{n+1/2} + dt^2/2 M^-1 f^n), and v 
 
 Fallback (`escalate`). Kinetic damping dissipates only at its resets, and between
 them the motion is undamped. With the friction limit coupled to the closure
-(F_T(R(g)), MODEL.md 4) the force is not the gradient of an energy: near a crossing
+(F_T(R(g)), docs/model.md section 4) the force is not the gradient of an energy: near a crossing
 at g ~ 0 the Jacobian's circulatory part (dF_T/dg up to ~4e3 N/m against slow-mode
 stiffnesses of ~1 N/m) gives M^-1 J complex eigenvalue pairs with |Im| ~ Re, which
 undamped motion amplifies, and the crossing's open/closed kink bounds that growth into a

@@ -1,4 +1,4 @@
-"""The traction load at the end node, in a kernel (MODEL.md section 2).
+"""The traction load at the end node, in a kernel (docs/model.md section 2).
 
 Warp twin of `dynfab.terms.load`, in its sign convention (grad += dV/dr): under
 force control E_load = -W_load = -P (x_N - x0_N), P [N] the end load. Linear in

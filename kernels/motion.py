@@ -23,7 +23,7 @@ def struct(scalar):
 
     @wp.struct
     class Motion:
-        """Per-yarn time-integration state (MODEL.md 5)."""
+        """Per-yarn time-integration state (docs/model.md section 5)."""
 
         position: wp.array2d(dtype=vec)
         """Node positions [m], shape (yarns, N+1)."""

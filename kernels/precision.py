@@ -1,4 +1,5 @@
-"""Scalar types of the Warp kernels (MODEL.md section 5: float64 default, float32 on request)."""
+"""Scalar types of the Warp kernels (docs/model.md section 5: float64 default, float32 on
+request)."""
 
 import numpy as np
 import warp as wp
@@ -10,7 +11,8 @@ VECTORS = {wp.float64: wp.vec2d, wp.float32: wp.vec2f}
 """Warp scalar type -> its (x, z) vector type."""
 
 DEFAULT_TOLERANCE = {"float64": 1e-8, "float32": 1e-4}
-"""Default force residual [N] per precision (MODEL.md 5: float32's rounding floor is about 1e-4 N)."""
+"""Default force residual [N] per precision (docs/model.md section 5: float32's rounding floor is
+about 1e-4 N)."""
 
 
 def numpy_dtype(scalar) -> type:

@@ -1,4 +1,4 @@
-"""What every quasi-static relaxation kernel does around its integrator (MODEL.md 5).
+"""What every quasi-static relaxation kernel does around its integrator (docs/model.md section 5).
 
 `start` evaluates the forces at the load step's starting positions and chooses
 the masses and the time step; `check` judges the residual after each step:
@@ -21,8 +21,8 @@ KE > status.ENERGY_FACTOR x that bound. It catches the divergences that the resi
 test misses: on fine meshes the unstable chain folds, its forces saturating long
 before 1e6 x the step's start residual.
 
-Rounding floor (MODEL.md 5, as the static reference's, MODEL.md 6): a residual
-below ROUNDING_FLOOR_FACTOR eps max_i |K_ii| max_i |x_i| is within the rounding of
+Rounding floor (docs/model.md section 5, as the static reference's, docs/model.md section 6): a
+residual below ROUNDING_FLOOR_FACTOR eps max_i |K_ii| max_i |x_i| is within the rounding of
 the force sum; a tolerance below it is met once the residual stops falling, i.e.
 its best value has not improved during the last half of the load step's steps
 (and at least FLOOR_MIN_STEPS steps were taken).
@@ -98,7 +98,8 @@ def functions(scalar, terms: tuple) -> SimpleNamespace:
     @wp.func
     def step_tolerance(y: int, yarn: YarnArrays, motion: Motion, settings: Settings) -> scalar:
         """The residual to reach [N]: as given, or by default (relative_tolerance > 0)
-        min(tolerance, max(relative_tolerance x force scale, rounding floor)) (MODEL.md 5)."""
+        min(tolerance, max(relative_tolerance x force scale, rounding floor))
+        (docs/model.md section 5)."""
         tolerance = settings.tolerance
         if settings.relative_tolerance > scalar(0.0):
             relative = settings.relative_tolerance * force_scale(y, yarn, motion, settings)

@@ -1,4 +1,4 @@
-"""Linearly implicit backward Euler relaxation (Baraff and Witkin 1998; MODEL.md 5).
+"""Linearly implicit backward Euler relaxation (Baraff and Witkin 1998; docs/model.md section 5).
 
 Each time step solves, per yarn in O(N) (banded LU without pivoting),
 

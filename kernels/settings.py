@@ -1,4 +1,5 @@
-"""The solver options a time-stepping kernel reads (MODEL.md 5; `dynfab.scene.Dynamic`)."""
+"""The solver options a time-stepping kernel reads (docs/model.md section 5;
+`dynfab.scene.Dynamic`)."""
 
 import functools
 

@@ -1,4 +1,4 @@
-"""Integration masses and the stable time step by Gershgorin's theorem (MODEL.md 5).
+"""Integration masses and the stable time step by Gershgorin's theorem (docs/model.md section 5).
 
 Symplectic Euler is stable while dt omega_max < 2, and Gershgorin bounds
 omega_max^2 = lambda_max(M^-1 K) <= max_i sum_j |K_ij| / m_i. So

@@ -5,7 +5,8 @@ RUNNING = 0
 CONVERGED = 1
 """Residual at or below the tolerance."""
 ROUNDING_FLOOR = 2
-"""The residual stopped falling within the rounding floor, above the tolerance (MODEL.md 5)."""
+"""The residual stopped falling within the rounding floor, above the tolerance
+(docs/model.md section 5)."""
 MAX_STEPS = 3
 """The load step used `max_steps` time steps."""
 DIVERGED = 4

@@ -1,4 +1,5 @@
-"""Extension springs, geometrically exact, in a kernel (MODEL.md section 2; paper C_e = EA / Delta).
+"""Extension springs, geometrically exact, in a kernel (docs/model.md section 2; paper C_e = EA /
+Delta).
 
 Warp twin of `dynfab.terms.stretch`, in its sign convention (grad += dV/dr):
 E_stretch = sum_i 1/2 (EA / l0_i) (l_i - l0_i)^2, l_i = |r_{i+1} - r_i|, with
@@ -59,7 +60,7 @@ def functions(scalar) -> SimpleNamespace:
         """band += d2E/dr2 [N/m]: per segment k [e e^T/l^2 + (1 - l0/l)(I - e e^T/l^2)].
 
         With `definite`, a compressed segment's negative geometric part (1 - l0/l < 0)
-        is dropped, leaving a positive semi-definite block (MODEL.md 5, semi_implicit).
+        is dropped, leaving a positive semi-definite block (docs/model.md section 5, semi_implicit).
         """
         rest_length = yarn.rest_length
         stiffness = yarn.stretch_stiffness

@@ -1,4 +1,5 @@
-"""The transient kernel: symplectic Euler in physical time, viscous c (default 0) (MODEL.md 4-5).
+"""The transient kernel: symplectic Euler in physical time, viscous c (default 0)
+(docs/model.md sections 4-5).
 
 Each time step, from the force f^n at x^n and time t:
 
@@ -6,7 +7,7 @@ Each time step, from the force f^n at x^n and time t:
 
 under displacement control x_N = x0_N + u(t + dt) with the ramp's velocity;
 then f^{n+1} at the new positions and time, and the friction anchors are
-return-mapped at every step (MODEL.md 4: transient runs do not use the
+return-mapped at every step (docs/model.md section 4: transient runs do not use the
 incremental form), dissipating F_T |delta xi|. The load path is piecewise
 linear in time through (0, 0) and (k T / n, value_k), k = 1..n, T = duration,
 and held at its last value after T.

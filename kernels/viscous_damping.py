@@ -1,4 +1,5 @@
-"""Viscous damping -c M v, given or adaptive (Underwood's adaptive dynamic relaxation; MODEL.md 5).
+"""Viscous damping -c M v, given or adaptive (Underwood's adaptive dynamic relaxation;
+docs/model.md section 5).
 
 One step of symplectic Euler with the damping force centred in time,
 

@@ -1,4 +1,4 @@
-"""A batch of yarns' Model arrays as one Warp struct (MODEL.md sections 1-4).
+"""A batch of yarns' Model arrays as one Warp struct (docs/model.md sections 1-4).
 
 Row y of every array is yarn y of `dynfab.model.Model.yarns` (a [sweep] entry
 or one of geometry.yarns adjacent yarns); all yarns share N and the crossing nodes.

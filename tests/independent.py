@@ -3,7 +3,7 @@
 Scene building through the TOML parser (as a user's scene file), a load-path
 driver, the dense matrix of a banded one (`dynfab.banded.to_dense`, checked against
 `band_matvec` in test_certificate.py), and the series contact law of
-MODEL.md 3 solved here with scipy (brentq on g(R), arc lengths from ellipe),
+docs/model.md section 3 solved here with scipy (brentq on g(R), arc lengths from ellipe),
 independently of dynfab.terms.contact. Import with `from independent import ...`
 (pytest puts tests/ on sys.path).
 """
@@ -31,7 +31,7 @@ PAPER_FRICTION = {"alpha": 0.2, "beta": 1e3, "contact_length": 2e-3, "fiber_radi
 
 
 # --------------------------------------------------------------------------
-# Scenes (MODEL.md 1).
+# Scenes (docs/model.md section 1).
 
 
 def make_scene(sweep=None, **tables) -> Scene:
@@ -53,11 +53,12 @@ def run(scene):
 
 
 # --------------------------------------------------------------------------
-# The series contact law, solved independently (MODEL.md 3, 4).
+# The series contact law, solved independently (docs/model.md sections 3, 4).
 
 
 def series_law(scene):
-    """(k_we, C_wa, a_wa, C_we, a_we) from the scene's parameters (MODEL.md 3, eqs. 4, 6-8).
+    """(k_we, C_wa, a_wa, C_we, a_we) from the scene's parameters (docs/model.md section 3, paper
+    eqs. 4, 6-8).
 
     Lc of the half-wave z = A sin(pi x / p) is (2 p / pi) E(-(A pi / p)^2) with E
     the complete elliptic integral of the second kind (scipy's parameter m).

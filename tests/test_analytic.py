@@ -1,9 +1,9 @@
-"""The model against closed forms (MODEL.md sections 2, 6 and 9).
+"""The model against closed forms (docs/model.md sections 2, 6 and 9).
 
 - A straight yarn under an end force: springs in series, geometrically exact.
 - Timoshenko's beam under tension and a lateral point force (paper eq. 1): the
   model's linearised lateral response converges to it at second order in the
-  mesh size, on the stretched beam (MODEL.md 9: EI (1 + e) over L (1 + e)).
+  mesh size, on the stretched beam (docs/model.md section 9: EI (1 + e) over L (1 + e)).
 """
 
 import math
@@ -18,11 +18,11 @@ from dynfab.static import StaticSolver
 
 EPS = np.finfo(float).eps
 L, EA, EI = 0.1, 13.72, 1.47e-7
-"""Paper warp values (MODEL.md 7) [m, N, N m^2]."""
+"""Paper warp values (docs/model.md section 7) [m, N, N m^2]."""
 PCR = math.pi ** 2 * EI / L ** 2
 """Euler load of the unstretched pinned yarn [N], 1.45e-4 N."""
 TOLERANCE = 1e-11
-"""The static solver's residual [N] (MODEL.md 6; the scene default)."""
+"""The static solver's residual [N] (docs/model.md section 6; the scene default)."""
 
 
 def rod_scene(make_scene, segments, control, value, EA=EA):
@@ -159,7 +159,7 @@ MESHES = (16, 32, 64, 128)
 def test_timoshenko_beam_converges_at_second_order(make_scene, ea, ratio, load_point):
     # Linearised deflection per unit lateral force at c (a node on every mesh) against
     # eq. 1 on the stretched beam: Ls = L (1 + e), EIs = EI (1 + e), e = P/EA, x and c
-    # scaled by (1 + e) (MODEL.md 9), P/Pcr of order 1-10 so the tension matters.
+    # scaled by (1 + e) (docs/model.md section 9), P/Pcr of order 1-10 so the tension matters.
     # The model is then the central-difference discretisation of EIs w'''' - P w'' = F delta
     # (bending (EI/l0)/l^2 = EIs/l^3, string P/l): second order in l = Ls/N. The error at
     # the load point and the max error over nodes, relative to the peak, on N = 16..128;

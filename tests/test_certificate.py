@@ -1,4 +1,5 @@
-"""The certificate of a converged step (MODEL.md 6; dynfab/certificate.py, dynfab/ldlt.py).
+"""The certificate of a converged step (docs/model.md section 6; dynfab/certificate.py,
+dynfab/ldlt.py).
 
 - The banded LDL^T: inertia, solve and the Hager-Higham norm estimate against dense numpy.
 - A stable paper yarn: stable, and its lowest eigenvalue within the estimator's stated
@@ -7,7 +8,7 @@
 - A straight rod shortened far beyond Euler's load: both solvers leave the straight
   saddle (exactly zero lateral perturbation) for the buckled shape, and the end
   reaction converges at the measured (second) order to the inextensible elastica.
-- The as-woven yarn pushed in (MODEL.md 6's example): both solvers certify a minimum,
+- The as-woven yarn pushed in (docs/model.md section 6's example): both solvers certify a minimum,
   below the saddle's energy, and agree within their error bounds.
 - The accuracy check: exit status 3, one line, finished steps kept; one rounding-floor
   summary per run.
@@ -223,7 +224,7 @@ def test_dynamic_rod_leaves_the_straight_saddle_for_the_static_shape(make_scene)
 
 
 # --------------------------------------------------------------------------
-# The as-woven yarn pushed in (MODEL.md 6).
+# The as-woven yarn pushed in (docs/model.md section 6).
 
 COMPRESSION = dict(
     geometry=dict(length=0.1, segments=128, crossings=8, amplitude=0.5e-3),
@@ -301,8 +302,8 @@ def test_accuracy_stop_on_float32_keeps_the_finished_step(tmp_path):
 
 
 def test_absolute_tolerance_too_loose_for_a_tiny_load_stops(tmp_path):
-    # MODEL.md 5's default 1e-8 N against a 1e-6 N pull on the as-woven yarn, whose open
-    # crossings leave ||H^-1||_inf ~ 80 m/N: up to ~1e-6 m of error against ~6e-8 m of
+    # docs/model.md section 5's default 1e-8 N against a 1e-6 N pull on the as-woven yarn, whose
+    # open crossings leave ||H^-1||_inf ~ 80 m/N: up to ~1e-6 m of error against ~6e-8 m of
     # displacement. The check must stop it (exit 3) and name a tolerance that would do.
     source = (RUNS / "paper_fig3.toml").read_text()
     source = source.replace('reference = "prestressed"', 'reference = "as_woven"')

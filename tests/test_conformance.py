@@ -1,9 +1,9 @@
 """Every term of V on both twins, the numba one (`dynfab.terms`, the static reference) and the
 Warp one (`dynfab.kernels`, the dynamic solver's): gradient against central differences of
 the energy, banded Hessian against central differences of the gradient, and the twins
-against each other (MODEL.md 2-4). The terms are the registry's (`dynfab.terms.registry`),
-so a term added there is checked here once its numba calls are in `numba_term` and its
-stiffness bound in `bounds`.
+against each other (docs/model.md sections 2-4). The terms are the registry's
+(`dynfab.terms.registry`), so a term added there is checked here once its numba calls are in
+`numba_term` and its stiffness bound in `bounds`.
 
 The state: a small paper fabric (N = 16, 4 crossings, two adjacent yarns) with friction,
 gravity and the force load on, its nodes moved at random by up to 0.05 l0, and its crossings
@@ -74,7 +74,7 @@ def perturbed_state(yarn, seed):
     r = yarn.rest_position + rng.uniform(-0.05, 0.05, yarn.rest_position.shape) * L0
     law, nodes, sides = yarn.contact_law, yarn.crossing_node, yarn.crossing_side
     g = np.array([f for f, _ in CROSSING_STATES]) * (law[1] + law[3]) * rng.uniform(0.8, 1.0, 4)
-    r[nodes, 1] = sides * (yarn.gap_offset - g)  # g_j = c_j - s_j z_{n_j} (MODEL.md 3)
+    r[nodes, 1] = sides * (yarn.gap_offset - g)  # g_j = c_j - s_j z_{n_j} (docs/model.md section 3)
     R = np.array([contact.force_from_closure(gj, law) for gj in g])
     F_T = np.array([friction.limit(Rj, yarn.friction_alpha, yarn.friction_constant,
                                    yarn.friction_onset) for Rj in R])
@@ -156,8 +156,8 @@ def shifted(r, h):
 
 def bounds(yarn, name):
     """(K [N/m], ell [m], n): the term's stiffness bound, the length over which its stiffness
-    varies and its additions in the energy sum (MODEL.md 2-4). Stretch 2 EA/l0 (two springs
-    a node); bending (EI/lbar) |dphi/dr|^2 <= 6/l^2 with l >= 0.85 l0 here, plus the moment
+    varies and its additions in the energy sum (docs/model.md sections 2-4). Stretch 2 EA/l0 (two
+    springs a node); bending (EI/lbar) |dphi/dr|^2 <= 6/l^2 with l >= 0.85 l0 here, plus the moment
     term: 16 EI/(lbar l0^2); contact k_we (the tangent's bound), with |dT/dg| <= k_we^3
     sum C a^2 = K / ell; friction k_t, piecewise quadratic (ell = inf away from its kinks);
     gravity and the load are linear."""

@@ -122,7 +122,7 @@ def test_sliding_crossings_carry_exactly_the_friction_limit(report):
     # pulls the node with exactly F_T, to within the Newton residual (the residual is
     # the largest force imbalance of a free dof); the recorded force is F_T to rounding
     # (exact; a stick-spring form k_t (x - xi) would round by k_t eps |x|); F_T is
-    # Gralen's law at R (MODEL.md 4: 1e-12 N); a sticking crossing stays within F_T.
+    # Gralen's law at R (docs/model.md section 4: 1e-12 N); a sticking crossing stays within F_T.
     _, summary, _ = report
     check = summary["eq27"]
     assert check["sliding_crossing_steps"] > 100 and check["solves"] == 15

@@ -1,4 +1,5 @@
-"""The dynamic solver's Warp force and stiffness kernels against the numba terms (MODEL.md 2-4).
+"""The dynamic solver's Warp force and stiffness kernels against the numba terms
+(docs/model.md sections 2-4).
 
 Each term's Warp gradient and banded tangent stiffness against its numba twin in
 `dynfab.terms` at random states, the total force and energies against `dynfab.assembly`
@@ -218,8 +219,8 @@ def test_each_configuration_builds_once():
 
 
 def test_onset_friction_limit_matches_numba_and_its_derivative(model, random_state):
-    # MODEL.md 4: F_T = alpha R + beta ell r_f (1 - exp(-R / R_0)). With R_0 = 1e-2 N, of the
-    # order of this state's contact forces (about 1.1e-2 N), the onset factor is far from 1.
+    # docs/model.md section 4: F_T = alpha R + beta ell r_f (1 - exp(-R / R_0)). With R_0 = 1e-2 N,
+    # of the order of this state's contact forces (about 1.1e-2 N), the onset factor is far from 1.
     # Warp's F_T against numba's at the same R, to a few ulps of F_T (the kernel's expm1 is
     # Kahan's, a few ulps); and dF_T/dz through the kernel by central differences against
     # -s_j dF_T/dR dR/dg (numba's slope): h = 1e-9 m, truncation h^2 |d3F/dz3| / 6 with

@@ -1,4 +1,5 @@
-"""Kinetic damping on the as-woven friction onset path against the static reference (MODEL.md 4-5).
+"""Kinetic damping on the as-woven friction onset path against the static reference
+(docs/model.md sections 4-5).
 
 The scene: the paper's friction (runs/paper_fig5.toml, entry 0), as-woven, N = 224,
 pulled to the end displacements (3 digits) the static solver reaches on the first ten

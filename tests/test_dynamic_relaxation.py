@@ -1,4 +1,5 @@
-"""The dynamic solver's explicit relaxations: relaxed equilibria against the static reference (MODEL.md 5-6).
+"""The dynamic solver's explicit relaxations: relaxed equilibria against the static reference
+(docs/model.md sections 5-6).
 
 A relaxation stops at a residual r (the largest free force component); the
 static reference stops at its own r_s. Linearising the residual map g at the
@@ -190,7 +191,7 @@ def test_time_step_ten_times_the_bound_diverges_quickly(relaxed_yarn):
 def test_float32_reaches_its_tolerance_or_rounding_floor(fig3):
     """float32 rounds positions near x = 0.1 m to 7e-9 m, so a 3e4 N/m spring's force to
     ~2e-4 N: the default 1e-4 N may be out of reach, met by stalling at the rounding floor
-    16 eps max|K_ii| max|x| (MODEL.md 5-6). Either way the equilibrium is within
+    16 eps max|K_ii| max|x| (docs/model.md sections 5-6). Either way the equilibrium is within
     ||K^-1||_inf (r + r_s) of the float64 reference. That bound (about 1.1e-3 m here) is
     not small against the 1e-3 m pulled, so the accuracy check (dynamic.accuracy) would
     stop this step with exit status 3 (tests/test_certificate.py); accuracy = inf lets the
@@ -212,9 +213,9 @@ def test_float32_reaches_its_tolerance_or_rounding_floor(fig3):
 def test_default_tolerance_follows_a_tiny_load(fig3, options):
     """As-woven yarn pulled by 1 and 2 uN: an absolute 1e-8 N would allow an end displacement
     error of 1e-8 N x ||K^-1|| (several m/N here), about the 5.7e-8 m displacement itself. The
-    default tolerance is min(1e-8 N, max(1e-6 x the force scale, rounding floor)) (MODEL.md
-    5), so the residual x ||K^-1|| bound, which the positions must meet, is now within 1 % of
-    the end displacement; a tolerance the user gives is used as given."""
+    default tolerance is min(1e-8 N, max(1e-6 x the force scale, rounding floor)) (docs/model.md
+    section 5), so the residual x ||K^-1|| bound, which the positions must meet, is now within 1 %
+    of the end displacement; a tolerance the user gives is used as given."""
     scene = with_key(replace(fig3, sweep=()), "geometry.reference", "as_woven")
     scene = with_key(with_key(scene, "load.control", "force"), "load.values", [1e-6, 2e-6])
     for model, static_state, static_record, state, record in relax_path(scene, options):

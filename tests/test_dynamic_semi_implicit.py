@@ -1,4 +1,4 @@
-"""The dynamic solver's linearly implicit (semi_implicit) relaxation (MODEL.md 5).
+"""The dynamic solver's linearly implicit (semi_implicit) relaxation (docs/model.md section 5).
 
 Equilibria against the static reference within ||K^-1||_inf (r + r_s) (derivation
 in test_dynamic_relaxation.py), with and without friction, in far fewer time steps

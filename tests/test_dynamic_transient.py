@@ -1,7 +1,7 @@
-"""The dynamic solver's transient runs in physical time (MODEL.md 4-5).
+"""The dynamic solver's transient runs in physical time (docs/model.md sections 4-5).
 
 Energy: undamped symplectic Euler has, at whole steps, an O(dt) energy error that
-oscillates without drift (MODEL.md 5) on a scene without contact switching or
+oscillates without drift (docs/model.md section 5) on a scene without contact switching or
 friction kinks. Friction: the anchors are return-mapped at every time step, so
 no frame carries a friction force above Gralen's limit.
 """

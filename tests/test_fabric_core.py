@@ -1,4 +1,4 @@
-"""The core stiffness k_c and Kawabata's wall (MODEL.md section 10).
+"""The core stiffness k_c and Kawabata's wall (docs/model.md section 10).
 
 Without a core spring (k_c = inf) Kawabata's law is a hard wall at g = C_wa + C_we: the
 solver must converge with every closure below it (a step reaching it has energy +inf and

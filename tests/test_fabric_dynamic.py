@@ -1,4 +1,5 @@
-"""The fabric's dynamic solver (Warp relaxation) against the static reference (Newton), MODEL.md 5, 6, 10.
+"""The fabric's dynamic solver (Warp relaxation) against the static reference (Newton),
+docs/model.md sections 5, 6, 10.
 
 Both solve the same load path on small clamped patches of the paper's yarns, each
 carrying its own state from step to step (an independent run each), and every step's
@@ -76,8 +77,8 @@ CASES = [(2, "force", None, None, {}), (2, "force", PAPER_FRICTION, None, {}),
          (2, "force", PAPER_FRICTION, 9.81, {}), (4, "force", PAPER_FRICTION, None, {}),
          (4, "displacement", None, None, {}), (4, "displacement", PAPER_FRICTION, None, {}),
          (2, "displacement", PAPER_FRICTION, 9.81, {"pullout": 1})]
-"""(n, control, friction, gravity, more spec fields); the pull-out (MODEL.md 10) frees its
-warp's first node and needs gravity to press the warp onto the wefts."""
+"""(n, control, friction, gravity, more spec fields); the pull-out (docs/model.md section 10) frees
+its warp's first node and needs gravity to press the warp onto the wefts."""
 
 
 @pytest.mark.parametrize("n, control, friction, gravity, more", CASES,

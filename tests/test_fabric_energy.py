@@ -1,4 +1,4 @@
-"""Energy balance of the clamped patch with friction (MODEL.md sections 4, 10).
+"""Energy balance of the clamped patch with friction (docs/model.md sections 4, 10).
 
 Along a load path the work of the end loads equals the elastic energy (stretch, bending,
 contact) plus the energy of the stick springs plus the friction dissipation. The static

@@ -1,6 +1,6 @@
-"""The fabric's Warp kernels (MODEL.md 10): forces against finite differences of the Warp energy,
-bit-for-bit repeatable runs in both layouts, and a patch with its wefts held against the
-one-yarn static reference.
+"""The fabric's Warp kernels (docs/model.md section 10): forces against finite differences of the
+Warp energy, bit-for-bit repeatable runs in both layouts, and a patch with its wefts held against
+the one-yarn static reference.
 
 One kernel configuration (float64, friction compiled in; a patch without friction has
 F_T = k_t = 0) is built: the force and energy passes, the per-step node kernel and its
@@ -27,7 +27,7 @@ SCALAR = wp.float64
 PATCH = fabric_arrays.paper_patch(2, 3)
 """2 warps x 3 wefts of the paper's yarn, 8 segments per half-wave (N = 24, M = 16)."""
 PAPER_FRICTION = fabric_arrays.PAPER_FRICTION
-"""The paper's Gralen parameters (MODEL.md 7), R_0 = 1e-5 N."""
+"""The paper's Gralen parameters (docs/model.md section 7), R_0 = 1e-5 N."""
 
 
 @pytest.fixture(scope="module")
@@ -100,8 +100,8 @@ def test_forces_are_minus_the_energy_gradient(arrays, term):
     within |D(2h) - D(h)| + 8 eps sum|E| / h of D(h): a wrong force misses that by its own
     error. Closures are kept 10 h away from the
     contact's kink at g = 0 (the perturbation closes about half the crossings).
-    Friction is the derivative of its Huber term with F_T frozen (MODEL.md 4): checked along
-    the in-plane dofs of the crossing nodes, on which R, hence F_T, does not depend."""
+    Friction is the derivative of its Huber term with F_T frozen (docs/model.md section 4): checked
+    along the in-plane dofs of the crossing nodes, on which R, hence F_T, does not depend."""
     patch = only(arrays, term)
     positions = perturbed(arrays)
     external = 0.3 * (arrays.load_direction + arrays.weft_load_direction)
@@ -184,7 +184,7 @@ def test_kinetic_damping_in_the_per_step_layout_repeats_the_persistent_loop():
 
 def one_yarn_model(load, friction=None):
     """The one-yarn model of PATCH's warps (geometry.yarns = 2, phases +-1) with a rigid weft
-    spring: contact_law k_s = k_c exactly (MODEL.md 10: k_we -> infinity); `friction` a
+    spring: contact_law k_s = k_c exactly (docs/model.md section 10: k_we -> infinity); `friction` a
     dynfab.fabric.spec.Friction with its k_t given."""
     family = PATCH.warp
     tables = {} if friction is None else {"friction": {
@@ -233,9 +233,9 @@ smaller family's EA / segment length, the one-yarn model's its warp's)."""
 @pytest.mark.parametrize("with_friction, damping", [(False, "kinetic"), (True, "kinetic"),
                                                     (False, "fire")])
 def test_held_wefts_give_the_one_yarn_model_with_a_rigid_weft_spring(arrays, with_friction, damping):
-    """Every weft node held: each warp is the one-yarn model with k_s = k_c (MODEL.md 10);
-    with friction, the weft node's slip y - Y_k - xi_y stays 0, so the isotropic Huber
-    term is the one-yarn model's on x alone.
+    """Every weft node held: each warp is the one-yarn model with k_s = k_c
+    (docs/model.md section 10); with friction, the weft node's slip y - Y_k - xi_y stays 0, so the
+    isotropic Huber term is the one-yarn model's on x alone.
 
     Linearising the residual at the solution, x_fabric - x_static = K^-1 (r_fabric - r_static),
     so |x_fabric - x_static|_inf <= ||K^-1||_inf (r + r_s), K the warp's Hessian on its free

@@ -1,4 +1,4 @@
-"""The periodic fabric cell (MODEL.md section 10) against what it must reduce to.
+"""The periodic fabric cell (docs/model.md section 10) against what it must reduce to.
 
 - Every crossing of the cell lies on a mirror plane, so slips stay zero: friction on and
   off give the same results, to solver tolerance.

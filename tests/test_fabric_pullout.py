@@ -1,4 +1,4 @@
-"""A yarn pull-out from the clamped patch (MODEL.md section 10).
+"""A yarn pull-out from the clamped patch (docs/model.md section 10).
 
 Warp 2 of a 3 x 4 patch has its first node free and its last node displaced; every other
 yarn is clamped at both ends. Its internal forces (stretch, bending) cancel in a sum over

@@ -3,7 +3,7 @@
 
 The cell is balanced (the same yarn both ways) and frictionless, so:
 - at equal loads warp and weft respond alike, and the 2:1 and 1:2 paths are each other's
-  mirror (MODEL.md 10: the map (x, y, z) -> (y, x, -z)), to the solver's error bound;
+  mirror (docs/model.md section 10: the map (x, y, z) -> (y, x, -z)), to the solver's error bound;
 - each step is a stable equilibrium of a conservative system under dead loads, so along a
   proportional path the work-conjugate stretch r_wa eps_wa + r_we eps_we increases with the
   load (a positive-definite stiffness has a positive-definite compliance);
@@ -93,8 +93,8 @@ def test_lateral_tension_resists_the_warp(data):
 
 
 def test_as_woven_crimp_is_the_sine_polyline(data):
-    # the first point of every crimp curve: the as-woven chain (MODEL.md 10), computed here
-    # from its formula, z = A sin(n pi x / L) at x_i = i L / N
+    # the first point of every crimp curve: the as-woven chain (docs/model.md section 10), computed
+    # here from its formula, z = A sin(n pi x / L) at x_i = i L / N
     n, per = YARNS, QUICK.segments_per_crossing
     length = n * SPACING
     x = np.linspace(0.0, length, n * per + 1)

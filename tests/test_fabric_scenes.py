@@ -1,4 +1,5 @@
-"""The fabric scenes of runs/ run with `dynfab.run` and show their physics (MODEL.md 10).
+"""The fabric scenes of runs/ run with `dynfab.run` and show their physics
+(docs/model.md section 10).
 
 Each scene runs through the run driver (the scene file, `fabric_spec`, the Solver
 adapter, the result file), the strip as a smaller copy (4 x 4 yarns, 3 steps), and each
@@ -41,8 +42,8 @@ def position_bound(model: FabricModel, results, step: int = -1) -> float:
 
 
 def test_balanced_cell_under_equal_loads_responds_alike_in_both_families():
-    """(x, y, z) -> (y, x, -z) maps the balanced cell onto itself (MODEL.md 10): at 1:1 each
-    weft is its warp mirrored in z, the strains and crimps equal, R symmetric."""
+    """(x, y, z) -> (y, x, -z) maps the balanced cell onto itself (docs/model.md section 10): at 1:1
+    each weft is its warp mirrored in z, the strains and crimps equal, R symmetric."""
     model, results = solved("fabric_biaxial")
     steps = results.steps
     for i in range(results.step_count):
@@ -57,7 +58,8 @@ def test_balanced_cell_under_equal_loads_responds_alike_in_both_families():
 
 
 def test_swapping_the_load_ratio_swaps_the_families():
-    """2:1 and 1:2 are each other's mirror image: strains swap, R transposes (MODEL.md 10)."""
+    """2:1 and 1:2 are each other's mirror image: strains swap, R transposes
+    (docs/model.md section 10)."""
     model, two = solved("fabric_biaxial_2to1")
     _, half = solved("fabric_biaxial_1to2")
     np.testing.assert_array_equal(two.steps["load"], half.steps["load"][:, ::-1])
@@ -85,7 +87,7 @@ def small_strip() -> str:
 
 def test_strip_shows_crimp_interchange():
     """Warps pulled, weft ends free: the warps decrimp, which pushes the wefts into more crimp,
-    and the free wefts shorten (MODEL.md 10, the fabric's crimp interchange)."""
+    and the free wefts shorten (docs/model.md section 10, the fabric's crimp interchange)."""
     scene = parse_scene_text(small_strip())
     results = run(scene)
     steps = results.steps
@@ -116,7 +118,7 @@ def test_pullout_is_resisted_by_the_friction_of_the_pressed_crossings():
         tolerance = nodes * max(float(steps["residual"][i]), model.spec.tolerance)
         assert abs(pull + steps["friction_force"][i, k, :, 0].sum()) <= tolerance
         assert 0 < pull <= steps["friction_limit"][i, k].sum() + tolerance
-    # the warp strain is the pulled warp's (the held warps are not loaded, MODEL.md 10)
+    # the warp strain is the pulled warp's (the held warps are not loaded, docs/model.md section 10)
     np.testing.assert_allclose(steps["strain"][~stage1, 0],
                                steps["load"][~stage1, 0] / model.spec.warp.length, rtol=1e-12)
     last = steps["sliding"][~stage1][-5:, k]
@@ -168,7 +170,8 @@ def small_pullout() -> str:
 def test_dynamic_fabric_run_equals_the_static_one_within_their_residual_bounds():
     """`--solver dynamic` on a fabric relaxes each step with the Warp kernels: its positions
     lie within position_bound of the exact equilibrium, as the static solver's do, so the two
-    differ by at most twice the bound; both see the same crossings slide (MODEL.md 6, 10)."""
+    differ by at most twice the bound; both see the same crossings slide
+    (docs/model.md sections 6, 10)."""
     scene = parse_scene_text(small_pullout())
     model = FabricModel.from_scene(scene)
     static, dynamic = run(scene, "static"), run(scene, "dynamic")
@@ -198,7 +201,8 @@ def test_fabric_refuses_the_accuracy_option_it_cannot_honour():
 
 def test_dynfab_run_on_a_fabric_scene_from_the_command_line(tmp_path):
     """The command a user types: exit 0, the fabric's summary table, the file and its view;
-    the wefts of the view lie in the planes x = X_j = (j - 1/2) L / n_we (MODEL.md 10)."""
+    the wefts of the view lie in the planes x = X_j = (j - 1/2) L / n_we
+    (docs/model.md section 10)."""
     import re
     import subprocess
     import sys

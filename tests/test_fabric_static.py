@@ -1,4 +1,4 @@
-"""The fabric's static solver against the existing references (MODEL.md sections 6, 10).
+"""The fabric's static solver against the existing references (docs/model.md sections 6, 10).
 
 - Every weft dof held: each warp is the one-yarn model with a rigid weft spring
   (k_we -> inf, so the series spring is the core stiffness alone, k_s = k_c), solved by
@@ -48,8 +48,8 @@ def fabric_spec(control, values, friction, **more):
 
 def one_yarn_run(control, values, friction, stick_stiffness, gravity=None, with_model=False):
     """The one-yarn model of the same warps (phases (-1)^(k-1), `geometry.yarns`), its weft
-    spring made rigid: contact_law k_s = k_c (MODEL.md 10). Returns the records (and the
-    model)."""
+    spring made rigid: contact_law k_s = k_c (docs/model.md section 10). Returns the records (and
+    the model)."""
     tables = dict(
         geometry=dict(length=L, segments=N, crossings=WEFTS, amplitude=WARP.amplitude,
                       yarns=WARPS),
@@ -89,7 +89,8 @@ def inverse_norm(solver, state, limit):
 def test_held_wefts_give_the_one_yarn_model(control, values, friction):
     records = compare_with_one_yarn(control, values, friction)
     if friction is not None:
-        # fixed planes: the stretched warps slide over every closed crossing (MODEL.md 10)
+        # fixed planes: the stretched warps slide over every closed crossing
+        # (docs/model.md section 10)
         assert all(r["sliding"].any() and r["friction_limit"].min() > 0 for r in records)
 
 
@@ -108,7 +109,7 @@ def test_held_wefts_give_the_one_yarn_model_near_the_friction_onset(control, val
 
 @pytest.mark.parametrize("control, values", [("force", FORCES), ("displacement", DISPLACEMENTS)])
 def test_held_wefts_give_the_one_yarn_model_under_gravity(control, values):
-    # Gravity on the physical masses rho_l lbar (MODEL.md 2), friction on: the same
+    # Gravity on the physical masses rho_l lbar (docs/model.md section 2), friction on: the same
     # reduction, the weight now loading the contacts of the warps lying above.
     compare_with_one_yarn(control, values, FRICTION, gravity=9.81)
 
@@ -150,7 +151,7 @@ def compare_with_one_yarn(control, values, friction, gravity=None):
 
 
 def test_held_wefts_under_compression_leave_the_saddle_for_a_one_yarn_minimum():
-    # Warps pushed in (MODEL.md 6): Newton on the symmetric path converges to a saddle
+    # Warps pushed in (docs/model.md section 6): Newton on the symmetric path converges to a saddle
     # (6 negative eigenvalues at the first step, measured); the step leaves it along the
     # lowest eigenvectors and ends stable. Which minimum it reaches need not be the one the
     # one-yarn solver reaches along its own directions (identical warps 1 and 3 share

@@ -1,4 +1,4 @@
-"""A balanced fabric is symmetric under (x, y, z) -> (y, x, -z) (MODEL.md section 10).
+"""A balanced fabric is symmetric under (x, y, z) -> (y, x, -z) (docs/model.md section 10).
 
 Warps and wefts alike (same count, length, segments, amplitude, material, equal k_t), no
 gravity, on the clamped patch and on the periodic cell: the map takes warp k onto weft k (as-woven shapes included: warp k's

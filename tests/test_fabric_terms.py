@@ -1,4 +1,4 @@
-"""The fabric's new terms against central finite differences (MODEL.md section 10):
+"""The fabric's new terms against central finite differences (docs/model.md section 10):
 the two-node crossing contact, the isotropic 2D Huber friction in stick and in slip,
 and the whole assembly (stretch and bending on each yarn's own chain, the crossing
 blocks, the load), plus Kawabata's wall without a core spring.
@@ -126,7 +126,7 @@ def contact_length_scale(R, law):
 def term_functions(fabric, anchors, limit):
     """name -> (energy(r), gradient(r), dense Hessian(r), K [N/m], ell [m]).
 
-    K: contact k_c (the tangent bound, MODEL.md 10); friction k_t; the whole model adds
+    K: contact k_c (the tangent bound, docs/model.md section 10); friction k_t; the whole model adds
     the stretch springs 2 EA/l0 and bending 16 EI/(lbar l0^2) (tests/test_terms.py).
     ell: contact, from the law at each closed crossing's force (`contact_length_scale`);
     friction, the
@@ -219,7 +219,7 @@ def state():
 
 @pytest.fixture(scope="module", params=["periodic", "affine"])
 def periodic_state(request):
-    """The periodic cell (MODEL.md 10): wrap springs at node 0, planes moving with the
+    """The periodic cell (docs/model.md section 10): wrap springs at node 0, planes moving with the
     end nodes; or the clamped patch with planes "affine" (moving, no wrap). Every node
     perturbed (ends too: the FD runs over every dof)."""
     if request.param == "periodic":
@@ -369,8 +369,8 @@ def test_states_exercise_every_regime(state):
 
 
 def test_contact_pushes_the_two_nodes_apart_by_sigma_r(state):
-    # MODEL.md 10: the force on the warp node is +sigma R in z, on the weft node -sigma R,
-    # R from the series law at g: -grad equals that to the rounding of R.
+    # docs/model.md section 10: the force on the warp node is +sigma R in z, on the weft node -sigma
+    # R, R from the series law at g: -grad equals that to the rounding of R.
     fabric, r, _, _, g = state
     grad = np.zeros_like(r)
     contact.add_gradient(r, fabric.warp_node, fabric.weft_node, fabric.side, fabric.gap_offset,
@@ -385,8 +385,8 @@ def test_contact_pushes_the_two_nodes_apart_by_sigma_r(state):
 
 
 def test_without_a_core_spring_kawabata_is_a_hard_wall():
-    # k_c = inf (MODEL.md 10): the closure C_wa + C_we is the wall. Just below it the force
-    # solves C_wa (1 - e^-a_wa R) + C_we (1 - e^-a_we R) = g (to the rounding of g) and is
+    # k_c = inf (docs/model.md section 10): the closure C_wa + C_we is the wall. Just below it the
+    # force solves C_wa (1 - e^-a_wa R) + C_we (1 - e^-a_we R) = g (to the rounding of g) and is
     # large but finite; at and beyond it the energy is +inf, so a line search rejects it.
     fabric = test_fabric(core_stiffness=np.inf)
     law = fabric.contact_law

@@ -1,4 +1,4 @@
-"""A straight weft chain under tension against the tensioned beam (MODEL.md section 10).
+"""A straight weft chain under tension against the tensioned beam (docs/model.md section 10).
 
 A straight weft (A_we = 0) of n_wa half-waves under end tension T, pushed by alternating
 forces +-F at its crossings (F -> 0), has the lateral stiffness of each half-span Lp/2 a
@@ -6,8 +6,8 @@ guided-pinned beam-column with shear F/2:
 
     k = 2 T lam / (lam Lp/2 - tanh(lam Lp/2)),   lam = sqrt(T / EI),   Lp = L_we / n_wa,
 
-with Lp and EI at the stretched length (factor 1 + T/EA, MODEL.md 9), 48 EI/Lp^3 at T = 0
-(a series below lam Lp/2 = 1e-2). The pinned ends of the clamped patch sit where the
+with Lp and EI at the stretched length (factor 1 + T/EA, docs/model.md section 9), 48 EI/Lp^3 at T =
+0 (a series below lam Lp/2 = 1e-2). The pinned ends of the clamped patch sit where the
 infinite chain has its inflection points (Lp/2 from the first crossing), so the finite
 chain is exact. The chain's second differences converge at second order in the segment
 length h: the test measures the order.
@@ -60,7 +60,7 @@ def beam_stiffness(T):
 
 
 def test_beam_stiffness_limits():
-    # MODEL.md 10: 48 EI/Lp^3 at T = 0 and 4 T/Lp as T -> inf (x = lam Lp/2 >> 1, where
+    # docs/model.md section 10: 48 EI/Lp^3 at T = 0 and 4 T/Lp as T -> inf (x = lam Lp/2 >> 1, where
     # x - tanh x -> x - 1: relative 1/x), both at the stretched length; the series and the
     # closed form agree across x = 1e-2 to the series' truncation (x^6 ~ 1e-12) plus the
     # closed form's cancellation (eps / x^2 ~ 1e-12).

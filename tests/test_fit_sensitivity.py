@@ -11,7 +11,7 @@ residual (1e-11 N) enters both as noise / h, so 3 |fd(h) - fd(h/2)| bounds
 the error of fd(h/2) with margin.
 
 Scenes: the paper's yarn over a quarter of its length (L = 25 mm, 4
-crossings, N = 32, prestressed; MODEL.md 7), as in tests/test_friction.py.
+crossings, N = 32, prestressed; docs/model.md section 7), as in tests/test_friction.py.
 """
 
 from __future__ import annotations

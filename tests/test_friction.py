@@ -1,15 +1,15 @@
-"""Gralen friction as stick-slip in the static solver (MODEL.md section 4, paper eqs. 20-27).
+"""Gralen friction as stick-slip in the static solver (docs/model.md section 4, paper eqs. 20-27).
 
 Verification tests: each compares the static solution with an equation
 written in a comment -- Gralen's law evaluated by an independent solution of
-the series contact law (MODEL.md 3, computed here with scipy, not with
+the series contact law (docs/model.md section 3, computed here with scipy, not with
 dynfab.terms.contact), the equilibrium of a crossing node, the energy balance
 of the load path, the limit of rigid stick-slip -- with a tolerance derived
 from the solver's residual, the quadrature order or float64 rounding.
 
 Scenes (all built here, validated by `parse_scene_text`):
 - a single crossing (N = 8, one weft, as-woven reference): stick, then slip;
-- a "quarter paper yarn": the paper's yarn and weft (MODEL.md 7) over a
+- a "quarter paper yarn": the paper's yarn and weft (docs/model.md section 7) over a
   quarter of its length (L = 25 mm, 4 crossings, N = 32, prestressed), so
   that the weft spring k_we (set by L_we / N_wa = 6.25 mm) and the contact
   forces are the paper's while a load path costs milliseconds.
@@ -27,16 +27,17 @@ from independent import (EPS, PAPER_FRICTION, PAPER_WARP, PAPER_WEFT, contact_fo
                          make_scene, pull, run, series_law)
 
 GRALEN_TOLERANCE = 1e-12
-"""MODEL.md 4: at the solution every F_T equals Gralen's law at the solution's R to 1e-12 N."""
+"""docs/model.md section 4: at the solution every F_T equals Gralen's law at the solution's R to
+1e-12 N."""
 
 
 # --------------------------------------------------------------------------
-# Scenes and independent evaluations (MODEL.md 1, 3, 4).
+# Scenes and independent evaluations (docs/model.md sections 1, 3, 4).
 
 
 LITERAL_FRICTION = dict(PAPER_FRICTION, onset_force=0.0)
-"""The paper's friction with Gralen's literal jump law (MODEL.md 4: onset_force = 0). The
-single crossing's contact force, about 2e-6 N, lies in the onset of the default
+"""The paper's friction with Gralen's literal jump law (docs/model.md section 4: onset_force = 0).
+The single crossing's contact force, about 2e-6 N, lies in the onset of the default
 regularised law (R_0 = 1e-5 N), where F_T is well below beta ell r_f; its stick/slip
 tests are about the literal law."""
 
@@ -59,8 +60,8 @@ def quarter_yarn(values, friction=PAPER_FRICTION):
 
 
 def gralen(scene, contact_force):
-    """F_T = alpha R + beta ell r_f (1 - exp(-R / R_0)) where R > 0, else 0 (MODEL.md 4, eq. 20
-    with its onset regularised; R_0 = 0 the literal law)."""
+    """F_T = alpha R + beta ell r_f (1 - exp(-R / R_0)) where R > 0, else 0
+    (docs/model.md section 4, paper eq. 20 with its onset regularised; R_0 = 0 the literal law)."""
     f = scene.friction
     R = np.asarray(contact_force, dtype=float)
     onset = 1.0 if f.onset_force == 0 else -np.expm1(-R / max(f.onset_force, 1e-300))
@@ -88,7 +89,7 @@ def test_single_crossing_sticks_below_the_limit_and_slides_at_gralens_limit():
     #   sticking  <=> |pull| < F_T : the crossing holds, |friction| < F_T, xi unchanged, no loss;
     #   sliding:  |friction| = F_T to the rounding of k_t (x - xi) (see friction_rounding),
     #             pull = F_T up to the Newton residual (equilibrium of node n_1),
-    #             dD = F_T |d xi|   (MODEL.md 4), to a few ulps of D.
+    #             dD = F_T |d xi|   (docs/model.md section 4), to a few ulps of D.
     # The stick phase must exist (the stick spring carries a share of P that
     # reaches beta ell r_f = 2 mN only near P ~ 2 mN), and once sliding under a
     # growing load the crossing keeps sliding, forward (friction on the warp < 0).
@@ -97,7 +98,8 @@ def test_single_crossing_sticks_below_the_limit_and_slides_at_gralens_limit():
     model, records = run(scene)
     yarn = model.yarns[0]
     node = yarn.crossing_node[0]
-    k_t = scene.warp.EA / (scene.geometry.length / scene.geometry.segments)  # default, MODEL.md 7
+    k_t = scene.warp.EA / (scene.geometry.length / scene.geometry.segments)  # default,
+    # docs/model.md section 7
     anchor, dissipated = yarn.rest_position[node, 0], 0.0  # anchors start as woven
     phases = []
     for record in records:
@@ -167,7 +169,8 @@ def load_unload(steps_up):
 
 
 def energy_mismatch(records):
-    """Energy balance from the end of the first step (an equilibrium) to the last (MODEL.md 2, 4).
+    """Energy balance from the end of the first step (an equilibrium) to the last
+    (docs/model.md sections 2, 4).
 
     W = sum_k 1/2 (P_k + P_{k-1}) (u_k - u_{k-1})                     (trapezoid rule)
       = d(E_stretch + E_bend + E_contact) + d E_stick + D,
@@ -297,13 +300,13 @@ def test_reversal_sticks_where_the_linear_response_unloads_the_crossing():
 
 def test_sliding_crossings_carry_exactly_gralens_limit_at_any_stick_stiffness():
     # On the quarter yarn's load-unload path, for k_t = default x 1, 10, 100
-    # (default EA / (L/N), MODEL.md 7), at every sliding crossing:
+    # (default EA / (L/N), docs/model.md section 7), at every sliding crossing:
     #   |friction| = F_T (reported force, to the rounding bound of
     #     k_t (x - xi): k_t eps |x|, up to 1e-11 N at x 100 with x ~ 25 mm -- it
     #     grows with k_t, which is why the record's force is not held to 1e-12 N),
     #   F_T = alpha R + beta ell r_f to 1e-12 N (R solved here),
     #   pull = F_T up to the Newton residual: the force the crossing carries
-    #     in equilibrium does not depend on k_t (eq. 27's limit, MODEL.md 9).
+    #     in equilibrium does not depend on k_t (eq. 27's limit, docs/model.md section 9).
     default = PAPER_WARP["EA"] / (0.025 / 32)
     for factor in (1, 10, 100):
         friction = dict(PAPER_FRICTION, stick_stiffness=default * factor)
@@ -331,7 +334,7 @@ def test_sliding_crossings_carry_exactly_gralens_limit_at_any_stick_stiffness():
 
 
 def test_traction_curve_converges_to_rigid_stick_slip_at_first_order_in_one_over_k_t():
-    # As k_t -> inf the stuck crossings stop moving (rigid stick-slip, MODEL.md 4, 9).
+    # As k_t -> inf the stuck crossings stop moving (rigid stick-slip, docs/model.md sections 4, 9).
     # Sliding crossings carry F_T whatever k_t; a stuck crossing adds the
     # compliance 1/k_t of its spring to the yarn (its node sits f/k_t from its
     # anchor), and the stick-slip transitions move by O(f / k_t) along x. So

@@ -1,4 +1,4 @@
-"""The regularised friction onset and the contact core stiffness (MODEL.md 3 and 4).
+"""The regularised friction onset and the contact core stiffness (docs/model.md sections 3 and 4).
 
 - F_T(R) = alpha R + beta ell r_f (1 - exp(-R / R_0)) and dF_T/dR against an
   independent formula and central differences (numba; the Warp twin is checked in
@@ -34,9 +34,9 @@ from dynfab.terms import contact, friction
 from independent import EPS, PAPER_FRICTION, PAPER_WARP, PAPER_WEFT, dense, make_scene
 
 ALPHA, CONSTANT = 0.2, 1e3 * 2e-3 * 1e-3
-"""The paper's Gralen alpha and beta ell r_f [N] (MODEL.md 7)."""
+"""The paper's Gralen alpha and beta ell r_f [N] (docs/model.md section 7)."""
 ONSET = 1e-5
-"""R_0 [N], the default onset force (MODEL.md 4)."""
+"""R_0 [N], the default onset force (docs/model.md section 4)."""
 
 
 def onset_scene(segments=32, onset=ONSET, values=(0.005,), core_stiffness=None):
@@ -137,7 +137,7 @@ def test_coupled_jacobian_entry_at_the_onset_is_the_derivative_through_R():
 
 @pytest.mark.parametrize("g", [1e-7, 3e-5, 2e-4, 5e-4])
 def test_core_stiffness_is_a_spring_in_series(g):
-    # MODEL.md 3: R / k_we + R / k_c + delta_wa(R) + delta_we(R) = g, solved here by
+    # docs/model.md section 3: R / k_we + R / k_c + delta_wa(R) + delta_we(R) = g, solved here by
     # brentq on the left side written out; the model's R to 1e-12 relative (the left side
     # is monotone, its root found to rounding). dE/dg = R by central differences,
     # h = 1e-4 g: truncation h^2 |dR/dg''|/6 ~ h^2 k^3 sum C a^2 / 6, rounding 2 eps E / h.
@@ -167,7 +167,7 @@ def test_core_stiffness_is_a_spring_in_series(g):
 
 
 def test_without_core_stiffness_the_law_is_the_weft_spring_alone():
-    # default none (MODEL.md 3): the series spring is k_we itself, bit for bit
+    # default none (docs/model.md section 3): the series spring is k_we itself, bit for bit
     law = build_model(onset_scene()).yarns[0].contact_law
     scene = onset_scene(core_stiffness=1e300)
     assert build_model(scene).yarns[0].contact_law[0] == law[0]
@@ -179,7 +179,7 @@ def test_without_core_stiffness_the_law_is_the_weft_spring_alone():
 
 TOLERANCE = 1e-12
 """Newton tolerance [N] for the R_0 sequence: above the 32-segment yarn's rounding floor
-(4 eps max K_ii max|r| ~ 1e-12 N, MODEL.md 6), and small enough that the solver's
+(4 eps max K_ii max|r| ~ 1e-12 N, docs/model.md section 6), and small enough that the solver's
 position error, tolerance / 20 N/m (the softest crossing's contact tangent) ~ 5e-14 m,
 stays below 1 % of the smallest difference measured (2e-11 m)."""
 
@@ -196,7 +196,7 @@ def solve_first_step(onset):
 
 
 def test_state_converges_at_first_order_as_the_onset_force_vanishes():
-    # MODEL.md 4: as R_0 -> 0 the solution converges at first order to the set-valued
+    # docs/model.md section 4: as R_0 -> 0 the solution converges at first order to the set-valued
     # limit. Measured (this test's sequence, 32 segments): max |r(R_0) - r(R_0/2)| =
     # 1.69e-10, 8.9e-11, 4.59e-11, 2.33e-11 m for R_0 = 1e-5 .. 6.25e-7 N, ratios 1.89,
     # 1.94, 1.97: the ratio approaches 2 with a deviation that halves with R_0 (the
@@ -224,7 +224,7 @@ def test_state_converges_at_first_order_as_the_onset_force_vanishes():
 
 def test_literal_law_still_stops_at_the_first_step_naming_the_crossing(tmp_path):
     # onset_force = 0 keeps the jump law: the as-woven path cycles at step 1 and the run
-    # stops with exit status 3 and one line naming the crossing (MODEL.md 4).
+    # stops with exit status 3 and one line naming the crossing (docs/model.md section 4).
     scene = onset_scene(onset=0.0, values=(0.005, 0.006))
     path = tmp_path / "literal.toml"
     path.write_text(scene.text)
@@ -239,7 +239,7 @@ def test_literal_law_still_stops_at_the_first_step_naming_the_crossing(tmp_path)
 
 def assert_steps_obey_the_law(scene, records):
     """Every step converged to the static tolerance, and every F_T equals the regularised
-    law (MODEL.md 4) at the step's R to 1e-12 N, the law evaluated independently with
+    law (docs/model.md section 4) at the step's R to 1e-12 N, the law evaluated independently with
     numpy's expm1."""
     f = scene.friction
     for record in records:
@@ -262,14 +262,14 @@ def test_regularised_path_runs_and_satisfies_the_law():
 
 @pytest.mark.parametrize("hold_crossing", [False, True])
 def test_semismooth_newton_reaches_the_active_set_state(hold_crossing):
-    # The onset fallback's two parts (MODEL.md 4): `static._semismooth` (contact forces as
-    # unknowns, the complementarity in min-form) and `static._onset_root` (one crossing's
+    # The onset fallback's two parts (docs/model.md section 4): `static._semismooth` (contact forces
+    # as unknowns, the complementarity in min-form) and `static._onset_root` (one crossing's
     # contact force as a scalar root, the rest relaxed, then the free solve). On the onset
     # path's first step at R_0 = 1e-3 N (where the continuation starts: F_T is smooth on
     # the scale of the steps) both must land on the state the active-set path
-    # (`static.newton`) finds: MODEL.md 4 claims one solution per step. Both stop at
+    # (`static.newton`) finds: docs/model.md section 4 claims one solution per step. Both stop at
     # TOLERANCE; the position error that leaves is TOLERANCE x |K^-1| with K's smallest
-    # eigenvalue about 0.25 N/m on this yarn (MODEL.md 5): 4e-12 m each, so 1e-10 m has
+    # eigenvalue about 0.25 N/m on this yarn (docs/model.md section 5): 4e-12 m each, so 1e-10 m has
     # margin, and is 1e-5 of the first step's displacement (2e-5 m).
     model, reference = solve_first_step(1e-3)
     yarn, state = model.yarns[0], initial_state(model)
@@ -300,7 +300,7 @@ def test_onset_path_passes_the_step_the_set_updates_could_not_solve():
     # has crossing 2 open and crossing 3 closed with a contact force below R_0 (at 1792
     # segments R = 7.06e-6 N at g = 3.3e-7 m); the semismooth fallback
     # (`static._solve_semismooth`) reaches it. Checked here: every step converges to the
-    # tolerance, every F_T is the law at the step's R to 1e-12 N (MODEL.md 4: the law
+    # tolerance, every F_T is the law at the step's R to 1e-12 N (docs/model.md section 4: the law
     # evaluated independently, with numpy's expm1), and step 19 has a closed crossing
     # inside the onset, 0 < R < R_0.
     from independent import run

@@ -124,7 +124,7 @@ def test_quick_mode_builds_only_the_kernel_variants_the_dynamic_tests_build(repo
 
 def test_the_references_sit_at_the_rounding_floor(report):
     # The reference is Newton to 1e-13 N, below float64's floor: it stops where the residual
-    # stops falling, a few 1e-13 N here (MODEL.md 5-6).
+    # stops falling, a few 1e-13 N here (docs/model.md sections 5-6).
     _, summary, _ = report
     for case in summary["cases"]:
         assert case["reference_residual_N"] <= 1e-12, case

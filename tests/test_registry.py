@@ -6,7 +6,7 @@
   of the active terms taken in that order (the same floating-point additions).
 - The energies a step reports are the registry datasets of the model's terms, and
   friction's `energy/stick` is the stick springs' energy 1/2 k_t (x - xi)^2 after the
-  return map (MODEL.md 4), as written independently here.
+  return map (docs/model.md section 4), as written independently here.
 - A new term is its own module and one registry entry: a term declared only that way (a
   test module and an entry added at run time, in a separate process with its own numba
   cache) appears in the energy vector, the gradient, the Hessian and the result datasets.
@@ -49,8 +49,8 @@ def all_terms_scene(make_scene, values=(0.05,)):
 
 def perturbed(yarn, seed):
     """The as-woven positions moved by up to 2 % of a segment (seeded), the crossings then
-    placed at closures g = (1e-5, 1e-4, -1e-5, 5e-5) m (g = c_j - s_j z, MODEL.md 3): three
-    closed, one open; every term has a nonzero gradient."""
+    placed at closures g = (1e-5, 1e-4, -1e-5, 5e-5) m (g = c_j - s_j z, docs/model.md section 3):
+    three closed, one open; every term has a nonzero gradient."""
     rng = np.random.default_rng(seed)
     l0 = yarn.rest_length.mean()
     pos = yarn.rest_position + rng.uniform(-0.02, 0.02, yarn.rest_position.shape) * l0

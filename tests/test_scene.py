@@ -109,7 +109,7 @@ def test_friction_stick_stiffness_defaults_to_none():
 
 
 def test_friction_onset_force_defaults_to_1e_5_and_zero_is_the_literal_law():
-    # MODEL.md 4: R_0 = friction.onset_force [N], default 1e-5 N, >= 0.
+    # docs/model.md section 4: R_0 = friction.onset_force [N], default 1e-5 N, >= 0.
     assert parse({"friction": FRICTION}).friction.onset_force == 1e-5
     assert parse({"friction": dict(FRICTION, onset_force=0.0)}).friction.onset_force == 0.0
 
@@ -121,7 +121,7 @@ def test_onset_force_is_sweepable_and_round_trips():
 
 
 def test_contact_core_stiffness_is_absent_by_default_and_sweepable():
-    # MODEL.md 3: contact.core_stiffness [N/m], default none in the one-yarn model.
+    # docs/model.md section 3: contact.core_stiffness [N/m], default none in the one-yarn model.
     assert parse().contact is None
     scene = parse({"contact": {"core_stiffness": 1e5}})
     assert scene.contact.core_stiffness == 1e5
@@ -544,7 +544,7 @@ def test_solver_options_built_in_python_meet_the_scene_rules_word_for_word(name)
 
 
 def test_unset_damping_and_masses_follow_the_mode():
-    """The defaults the solver runs with (MODEL.md section 5), written once on Dynamic."""
+    """The defaults the solver runs with (docs/model.md section 5), written once on Dynamic."""
     assert (Dynamic().damping_used(), Dynamic().masses_used()) == ("kinetic", "fictitious")
     transient = Dynamic(**TRANSIENT)
     assert (transient.damping_used(), transient.masses_used()) == ("viscous", "physical")
@@ -586,7 +586,7 @@ def test_docs_scene_md_is_the_generated_key_table():
 
 
 # --------------------------------------------------------------------------
-# The woven fabric's keys (MODEL.md section 10).
+# The woven fabric's keys (docs/model.md section 10).
 
 FABRIC = {"geometry.model": "fabric", "geometry.segments": 32, "geometry.crossings": 4,
           "weft.count": 4, "weft.segments": 32, "weft.EA": 13.72,
@@ -631,7 +631,7 @@ def test_a_fabric_key_in_a_one_yarn_scene_is_refused(key, value):
     with pytest.raises(UserError) as info:
         parse({key: value})
     shown = scene_module._show(value)
-    assert str(info.value) == (f'{key} = {shown}: a key of the woven fabric (MODEL.md section '
+    assert str(info.value) == (f'{key} = {shown}: a key of the woven fabric (docs/model.md section '
                                '10), but geometry.model = "yarn": set geometry.model = '
                                '"fabric" or remove it')
 
@@ -640,7 +640,7 @@ def test_a_pullout_in_a_one_yarn_scene_is_refused():
     with pytest.raises(UserError) as info:
         parse({"pullout": {"warp": 1}})
     assert str(info.value) == ('[pullout] given but geometry.model = "yarn": a pull-out is a '
-                               'fabric scene (MODEL.md section 10); set geometry.model = '
+                               'fabric scene (docs/model.md section 10); set geometry.model = '
                                '"fabric" or remove [pullout]')
 
 
@@ -657,7 +657,7 @@ def test_a_one_yarn_key_in_a_fabric_is_refused(key, value, why):
     with pytest.raises(UserError) as info:
         fabric({key: value})
     assert str(info.value) == (f'{key} = {value!r}: means nothing in a fabric (geometry.model = '
-                               f'"fabric", MODEL.md section 10): {why}; remove it')
+                               f'"fabric", docs/model.md section 10): {why}; remove it')
     with pytest.raises(UserError, match="means nothing in a fabric"):
         with_key(fabric(), key, value)  # set in Python
 
@@ -666,7 +666,7 @@ def test_a_sweep_in_a_fabric_is_refused():
     with pytest.raises(UserError) as info:
         fabric({"sweep": {"warp.EA": [13.0, 14.0]}})
     assert str(info.value) == ('[sweep] given but geometry.model = "fabric": a fabric is one '
-                               'patch, not a batch of independent yarns (MODEL.md section 10); '
+                               'patch, not a batch of independent yarns (docs/model.md section 10); '
                                'write one scene per value')
 
 
@@ -674,7 +674,7 @@ def test_a_prestressed_fabric_is_refused():
     with pytest.raises(UserError) as info:
         fabric({"geometry.reference": "prestressed"})
     assert str(info.value) == ('geometry.reference = "prestressed": a fabric\'s stress-free '
-                               'state is as woven (MODEL.md section 10); use "as_woven"')
+                               'state is as woven (docs/model.md section 10); use "as_woven"')
 
 
 @pytest.mark.parametrize("key, value, what", [("weft.count", 3, "warps"),
@@ -691,7 +691,7 @@ def test_gravity_on_a_periodic_cell_is_refused():
     with pytest.raises(UserError) as info:
         fabric({"geometry.boundary": "periodic", "gravity": {}})
     assert str(info.value) == ('[gravity] given with geometry.boundary = "periodic": a periodic '
-                               'cell has no gravity (MODEL.md section 10); remove [gravity] or '
+                               'cell has no gravity (docs/model.md section 10); remove [gravity] or '
                                'use a clamped patch')
 
 
@@ -712,7 +712,7 @@ def test_mixed_control_is_refused():
     with pytest.raises(UserError) as info:
         fabric({"load.weft_control": "force"})
     assert str(info.value) == ('load.weft_control = "force": one load.control for both '
-                               'families (MODEL.md section 10): mixed control is refused')
+                               'families (docs/model.md section 10): mixed control is refused')
 
 
 def test_fabric_needs_the_weft_chain_keys():
@@ -729,10 +729,10 @@ def test_fabric_needs_the_weft_chain_keys():
 @pytest.mark.parametrize("edits, message", [
     ({"pullout": {"warp": 5}}, "pullout.warp = 5: must name a warp 1..weft.count = 4"),
     ({"pullout": {"warp": 1}, "load.control": "force"},
-     'load.control = "force": a pull-out is displacement-controlled (MODEL.md section 10); '
+     'load.control = "force": a pull-out is displacement-controlled (docs/model.md section 10); '
      'use "displacement"'),
     ({"pullout": {"warp": 1}, "geometry.planes": "affine"},
-     'geometry.planes = "affine": a pull-out is a clamped patch with fixed planes (MODEL.md '
+     'geometry.planes = "affine": a pull-out is a clamped patch with fixed planes (docs/model.md '
      'section 10)'),
     ({"pullout": {"warp": 1}, "load.warp_factors": [1, 0, 0, 0]},
      "load.warp_factors = [1.0, 0.0, 0.0, 0.0]: a pull-out sets them (the pulled warp 1, the "

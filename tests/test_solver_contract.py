@@ -163,7 +163,8 @@ def test_force_control_starts_from_the_previous_positions(fig3):
 
 
 def test_transient_load_ramps_through_the_load_values(relax):
-    """Piecewise linear through (0, 0) and (k T / n, value_k), held after T (MODEL.md 5)."""
+    """Piecewise linear through (0, 0) and (k T / n, value_k), held after T
+    (docs/model.md section 5)."""
     model = build_model(with_key(relax, "load.values", [0.2, 0.6]))
     T = model.scene.dynamic.duration
     assert load_at_time(model, 0.0) == 0.0

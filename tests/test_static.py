@@ -1,4 +1,4 @@
-"""The static Newton reference solver (MODEL.md sections 1-4, 6-8).
+"""The static Newton reference solver (docs/model.md sections 1-4, 6-8).
 
 Verification tests: the Newton solution against scipy on the same energy,
 symmetries (mirror yarns, sweep entries), displacement against force
@@ -8,7 +8,7 @@ checks and where its tolerance comes from (solver residual over the
 smallest stiffness, float64 rounding, or the physics of the trend).
 
 Contact forces used for Gralen's law are solved here from the positions
-(scipy, MODEL.md 3), independently of dynfab.terms.contact.
+(scipy, docs/model.md section 3), independently of dynfab.terms.contact.
 """
 
 from __future__ import annotations
@@ -27,7 +27,8 @@ from independent import (EPS, PAPER_FRICTION, PAPER_WARP, PAPER_WEFT, contact_fo
 
 RUNS = Path(__file__).resolve().parent.parent / "runs"
 GRALEN_TOLERANCE = 1e-12
-"""MODEL.md 4: at the solution every F_T equals Gralen's law at the solution's R to 1e-12 N."""
+"""docs/model.md section 4: at the solution every F_T equals Gralen's law at the solution's R to
+1e-12 N."""
 
 
 # --------------------------------------------------------------------------
@@ -35,7 +36,7 @@ GRALEN_TOLERANCE = 1e-12
 
 
 def paper_yarn(segments, crossings, load, friction=None, gravity=False, yarns=1, sweep=None):
-    """The paper's yarn (MODEL.md 7) at a reduced mesh, prestressed."""
+    """The paper's yarn (docs/model.md section 7) at a reduced mesh, prestressed."""
     tables = {"geometry": {"length": 0.1, "segments": segments, "crossings": crossings,
                            "amplitude": 0.5e-3, "reference": "prestressed", "yarns": yarns},
               "warp": PAPER_WARP, "weft": PAPER_WEFT, "load": load}
@@ -117,7 +118,7 @@ def test_newton_agrees_with_scipy_trust_exact_within_the_residual_bound():
 def test_two_adjacent_yarns_are_mirror_images_without_gravity():
     # geometry.yarns = 2: yarn 2 has phase s_2 = -1, so its rest shape, crossing
     # sides and closures are yarn 1's with z -> -z, and V is invariant under
-    # that reflection (MODEL.md 1). Without gravity
+    # that reflection (docs/model.md section 1). Without gravity
     #   x_2 = x_1,  z_2 = -z_1.
     # The two Newton solves perform the same operations up to the sign of z
     # (IEEE negation is exact; atan2 is odd), so the agreement is to rounding:
@@ -138,7 +139,7 @@ def test_two_adjacent_yarns_are_mirror_images_without_gravity():
 def test_gravity_breaks_the_mirror_by_its_linear_response():
     # With gravity both yarns sag along -z, which the reflection M (z -> -z)
     # does not map to itself. Expanding in g, with K the Hessian of yarn 1 at
-    # the gravity-free solution, f_g = -m_i g e_z (m_i = rho_l lbar_i, MODEL.md 5)
+    # the gravity-free solution, f_g = -m_i g e_z (m_i = rho_l lbar_i, docs/model.md section 5)
     # and Q the second-order response:
     #   r_1 = r_1(0) + K^-1 f_g + Q(f_g) + O(g^3),
     #   r_2 = M [r_1(0) + K^-1 (M f_g) + Q(M f_g)] + ...,   M f_g = -f_g, Q even,
@@ -180,7 +181,7 @@ def test_gravity_breaks_the_mirror_by_its_linear_response():
 
 def test_sweep_entries_equal_one_yarn_runs():
     # A [sweep] of n entries simulates n copies of the representative yarn
-    # (s_k = +1), each with its own parameters (MODEL.md 1); the solver treats
+    # (s_k = +1), each with its own parameters (docs/model.md section 1); the solver treats
     # the yarns one by one, so yarn k of the sweep and the one-yarn run of
     # expand_sweep(scene)[k] perform the same arithmetic:
     #   positions, anchors, dissipation, end force equal (bitwise).
@@ -204,7 +205,7 @@ def test_sweep_entries_equal_one_yarn_runs():
 
 
 # --------------------------------------------------------------------------
-# 7. The paper's trends on the paper's scenes (MODEL.md 8).
+# 7. The paper's trends on the paper's scenes (docs/model.md section 8).
 
 
 @pytest.fixture(scope="module")
@@ -330,10 +331,10 @@ def test_displacement_control_reports_the_end_reaction(friction):
 @pytest.mark.parametrize("figure", ["fig3", "fig5"])
 def test_every_step_meets_the_tolerance_and_gralens_law(figure, request):
     # For every yarn and step of the paper's scenes (40 steps, N = 224):
-    #   residual <= tolerance 1e-11 N (MODEL.md 6; the rounding floor at N = 224
+    #   residual <= tolerance 1e-11 N (docs/model.md section 6; the rounding floor at N = 224
     #     is ~6e-13 N, below it, so no step may stop at the floor);
     #   R_j = the series law solved here from the step's positions, to 1e-12 N;
-    #   F_T,j = alpha R_j + beta ell r_f (R_j > 0, else 0) to 1e-12 N (MODEL.md 4);
+    #   F_T,j = alpha R_j + beta ell r_f (R_j > 0, else 0) to 1e-12 N (docs/model.md section 4);
     #   node equilibrium with that F_T: a sliding crossing's pull equals F_T,
     #     a sticking one's is below it, up to the step's residual.
     scene, model, records = request.getfixturevalue(figure)

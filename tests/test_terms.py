@@ -1,5 +1,6 @@
-"""Energy terms: each energy against MODEL.md's formula, each gradient and banded Hessian
-against central finite differences, the series contact law, Lc and k_we (MODEL.md 2-4).
+"""Energy terms: each energy against docs/model.md's formula, each gradient and banded Hessian
+against central finite differences, the series contact law, Lc and k_we
+(docs/model.md sections 2-4).
 
 Finite-difference tolerances (one rule for every check, stated once here):
 
@@ -37,8 +38,8 @@ from independent import dense
 
 EPS = np.finfo(float).eps
 
-# Paper parameters (MODEL.md 7) on a small mesh: N = 16, 4 crossings (nodes 2, 6, 10, 14),
-# two adjacent yarns (phases s_k = +1, -1), weft as in the paper (N_wa = 16, L_we = L).
+# Paper parameters (docs/model.md section 7) on a small mesh: N = 16, 4 crossings (nodes 2, 6, 10,
+# 14), two adjacent yarns (phases s_k = +1, -1), weft as in the paper (N_wa = 16, L_we = L).
 L, N, CROSSINGS, A_WA = 0.1, 16, 4, 0.5e-3
 EA, EI, C_WA, K_WA = 13.72, 1.47e-7, 0.2e-3, 0.2
 EI_WE, A_WE, C_WE, K_WE, N_WA = 1.47e-7, 0.5e-3, 0.2e-3, 0.2, 16
@@ -71,11 +72,11 @@ def paper_scene(make_scene, reference):
 
 
 # --------------------------------------------------------------------------
-# The model as MODEL.md writes it, independently of dynfab (numpy and scipy).
+# The model as docs/model.md writes it, independently of dynfab (numpy and scipy).
 
 
 def as_woven(phase):
-    """r0_i = (i L/N, s_k A sin(N_we pi x0_i / L)) (MODEL.md 1)."""
+    """r0_i = (i L/N, s_k A sin(N_we pi x0_i / L)) (docs/model.md section 1)."""
     x = np.arange(N + 1) * L / N
     return np.stack([x, phase * A_WA * np.sin(CROSSINGS * math.pi * x / L)], axis=1)
 
@@ -117,20 +118,20 @@ def paper_law():
 
 
 def closure_of_force(R, law):
-    """g(R) = R/k_we + sum_m C_m (1 - exp(-a_m R)) (MODEL.md 3)."""
+    """g(R) = R/k_we + sum_m C_m (1 - exp(-a_m R)) (docs/model.md section 3)."""
     k, c1, a1, c2, a2 = law
     return R / k - c1 * math.expm1(-a1 * R) - c2 * math.expm1(-a2 * R)
 
 
 def contact_energy(R, law):
-    """R^2/(2 k_we) + sum_m (C_m/a_m)(1 - exp(-a_m R)(1 + a_m R)) (MODEL.md 3)."""
+    """R^2/(2 k_we) + sum_m (C_m/a_m)(1 - exp(-a_m R)(1 + a_m R)) (docs/model.md section 3)."""
     k, c1, a1, c2, a2 = law
     return R * R / (2 * k) + sum(c / a * (1 - math.exp(-a * R) * (1 + a * R))
                                  for c, a in ((c1, a1), (c2, a2)))
 
 
 def model_energies(r, phase, reference, anchors, friction_limit):
-    """Each term of V (MODEL.md 2-4) written from the spec, with numpy."""
+    """Each term of V (docs/model.md sections 2-4) written from the spec, with numpy."""
     r0 = as_woven(phase)
     l0 = np.hypot(*np.diff(r0, axis=0).T)
     lbar = np.concatenate([[l0[0] / 2], (l0[:-1] + l0[1:]) / 2, [l0[-1] / 2]])
@@ -169,7 +170,7 @@ def perturbed_state(yarn, phase, reference, seed):
     """Positions (N+1, 2), anchors, frozen F_T and the closures, every regime of CROSSING_STATES.
 
     Every coordinate moves by up to 0.05 l0 (random, seeded); then the crossing
-    nodes are placed at the closures of CROSSING_STATES (MODEL.md 3 formulas),
+    nodes are placed at the closures of CROSSING_STATES (docs/model.md section 3 formulas),
     and the anchors at the slips of the friction regimes, F_T = alpha R + beta ell r_f.
     """
     rng = np.random.default_rng(seed)
@@ -182,7 +183,8 @@ def perturbed_state(yarn, phase, reference, seed):
         r[nodes, 1] = sides * (A_WA + A_WE - g)
     R, F_T, tangent = np.zeros(4), np.zeros(4), np.zeros(4)
     assembly.contact_state(r, yarn, R, F_T, tangent)
-    assert np.array_equal(R > 0, g > 0)  # the closure of MODEL.md 3 opens and closes them
+    assert np.array_equal(R > 0, g > 0)  # the closure of docs/model.md section 3 opens and closes
+    # them
     k_t = EA / (L / N)
     scale = np.where(F_T > 0, F_T / k_t, 1e-6)
     anchors = r[nodes, 0] - np.array([SLIP[s] for _, s in CROSSING_STATES]) * scale
@@ -220,7 +222,7 @@ def fd_jacobian(gradient, r, h):
 def term_functions(yarn, anchors, F_T):
     """name -> (energy(r), gradient(r) (N+1, 2), dense Hessian(r), K [N/m], ell [m], n).
 
-    K bounds the term's Hessian entries, from its parameters (MODEL.md 2-4):
+    K bounds the term's Hessian entries, from its parameters (docs/model.md sections 2-4):
     stretch 2 EA/l0 (two springs per node); bending (EI/lbar) |dphi/dr|^2 <= 6/l^2
     with l >= 0.85 l0 on these states, plus the moment term, so 16 EI/(lbar l0^2);
     contact k_we (the tangent bound); friction k_t. ell, the length over which the
@@ -312,7 +314,7 @@ def yarn_states(model, reference):
 
 def test_energies_match_the_formulas_of_model_md(fabric):
     # Each term of V = E_stretch + E_bend + sum E_contact - W_load - W_gravity + sum H
-    # (MODEL.md 2-4) against the same formula written independently above, in
+    # (docs/model.md sections 2-4) against the same formula written independently above, in
     # every regime. Tolerance: the worst-conditioned operation is l - l0 at strains
     # ~ 1e-2 (condition ~ 1e2), summed over N = 16 terms: 1e2 x 16 x eps ~ 4e-13 of
     # the term; 1e-11 relative leaves a factor 20 (contact: brentq to 4 eps in R).
@@ -417,7 +419,7 @@ def test_friction_coupling_is_the_derivative_through_the_contact_force(fabric):
 
 
 # --------------------------------------------------------------------------
-# The series contact law (MODEL.md 3, eqs. 4-9).
+# The series contact law (docs/model.md section 3, paper eqs. 4-9).
 
 K_VALUES = (1e-4, 1e-3, 1e-2, 0.2, 1.0, 10.0)
 """Kawabata K [m/N] over the range asked of the law."""
@@ -462,7 +464,8 @@ def test_contact_energy_derivative_is_the_force(K):
         T = contact.tangent(R, law)
         R2 = T ** 3 * (c1 * a1 ** 2 * math.exp(-a1 * R) + c2 * a2 ** 2 * math.exp(-a2 * R))
         E = contact.energy_of_force(R, law)
-        assert E == pytest.approx(contact_energy(R, law), rel=1e-13)  # formula of MODEL.md 3
+        assert E == pytest.approx(contact_energy(R, law), rel=1e-13)  # formula of
+        # docs/model.md section 3
         plus, minus = g + h, g - h
         derivative = (contact.energy_of_force(contact.force_from_closure(plus, law), law)
                       - contact.energy_of_force(contact.force_from_closure(minus, law), law)) \
@@ -496,7 +499,7 @@ def test_contact_tangent_is_the_derivative_of_the_force(K):
 
 @pytest.mark.parametrize("K", K_VALUES)
 def test_contact_is_unilateral_and_monotonic(K):
-    # R = 0 for g <= 0 (open, MODEL.md 3); R strictly increasing in g: on a grid whose
+    # R = 0 for g <= 0 (open, docs/model.md section 3); R strictly increasing in g: on a grid whose
     # spacing (1 % of g) is far above R's rounding (8 eps relative), R(g) increases.
     law = law_for(K)
     for g in (0.0, -0.0, -1e-12, -1e-3, -np.inf):

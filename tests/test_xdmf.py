@@ -76,7 +76,8 @@ class SlabReader(meshio_xdmf.TimeSeriesReader):
 
 
 def scene(values, yarns=2, **geometry):
-    """N = 32, 4 crossings, two adjacent warps with friction (MODEL.md 1, 4): a fast static run."""
+    """N = 32, 4 crossings, two adjacent warps with friction (docs/model.md sections 1, 4): a fast
+    static run."""
     return make_scene(
         geometry={"length": 0.025, "segments": 32, "crossings": 4, "amplitude": 0.5e-3,
                   "reference": "prestressed", "yarns": yarns, **geometry},

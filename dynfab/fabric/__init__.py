@@ -1,5 +1,5 @@
 """The woven fabric: warp and weft yarns both as chains, coupled at every crossing
-(MODEL.md section 10).
+(docs/model.md section 10).
 
 One concept per module: `spec` (the parameters), `layout` (as-woven geometry and the
 arrays of the model), `contact` (the two-node crossing contact), `friction` (the

@@ -1,4 +1,4 @@
-"""The fabric's energy, gradient and sparse Hessian (MODEL.md sections 2, 10).
+"""The fabric's energy, gradient and sparse Hessian (docs/model.md sections 2, 10).
 
 On the periodic cell two more pieces: the bending spring across the wrap at each yarn's
 node 0 (segment N-1's image, then segment 0), and the planes X_j, Y_k moving with the
@@ -12,7 +12,7 @@ yarn's own (in-plane coordinate, z) chain, the two-node contact (`dynfab.fabric.
 and the 2D Huber friction (`dynfab.fabric.friction`, F_T frozen) per crossing, and the end
 load along each yarn, W_load = sum_y P_y (u_N,y - u0_N,y) (force control; 0 under
 displacement control), and gravity on the physical masses when asked
-(`dynfab.terms.gravity`, MODEL.md 2).
+(`dynfab.terms.gravity`, docs/model.md section 2).
 
 The Hessian is one band per yarn (half-bandwidth `dynfab.banded.BANDWIDTH` in that yarn's
 dofs, which are contiguous) plus, per crossing, the contact block on (z_a, z_b) and the
@@ -104,8 +104,8 @@ def gradient(pos, fabric, P, anchors, limit, grad):
 @numba.njit(cache=True)
 def planes(pos, fabric):
     """(X_j, Y_k) of every crossing [m]: as woven, moved with the mean end displacement of
-    each family where the planes follow it (periodic cell, planes "affine"; MODEL.md 10):
-    X_j = X0_j + w_j mean_k (x_N,k - x0_N,k)."""
+    each family where the planes follow it (periodic cell, planes "affine";
+    docs/model.md section 10): X_j = X0_j + w_j mean_k (x_N,k - x0_N,k)."""
     u_x, u_y = 0.0, 0.0
     for node in fabric.plane_nodes_x:
         u_x += (pos[node, 0] - fabric.rest_position[node, 0]) / fabric.plane_nodes_x.size
@@ -143,7 +143,7 @@ def _wrap_points(pos, fabric, y):
 
 @numba.njit(cache=True)
 def wrap_angle(pos, fabric, y):
-    """The turning angle [rad] at node 0 of a periodic yarn (MODEL.md 10)."""
+    """The turning angle [rad] at node 0 of a periodic yarn (docs/model.md section 10)."""
     return bending.turning_angle(_wrap_points(pos, fabric, y), 1)
 
 
@@ -348,8 +348,8 @@ def rounding_scale(pos, fabric, P, limit):
     terms' forces cancel at equilibrium while their roundings do not. Stretch: the
     segment tension |k (l - l0)| on both end nodes; bending: the moment |k (phi - phi0)|
     over the segment lengths on three nodes; contact: R on both z; friction: F_T on the
-    slip coordinates; load: |P| on the end node; gravity m g on z (MODEL.md 6's rounding
-    rule).
+    slip coordinates; load: |P| on the end node; gravity m g on z (docs/model.md section 6's
+    rounding rule).
     """
     total = 0.0
     start = fabric.yarn_start

@@ -1,4 +1,4 @@
-"""The two-node crossing contact of the fabric (MODEL.md section 10, with section 3's law).
+"""The two-node crossing contact of the fabric (docs/model.md section 10, with section 3's law).
 
 Crossing c joins warp node a and weft node b. Its closure (how far the two centrelines
 have approached since the as-woven state) is

@@ -1,4 +1,5 @@
-"""The fabric's dynamic solver: each load step relaxed by the Warp kernels (MODEL.md sections 5, 10).
+"""The fabric's dynamic solver: each load step relaxed by the Warp kernels
+(docs/model.md sections 5, 10).
 
 `FabricDynamicSolver.step(state, warp_value, weft_value)` takes the same state
 (`dynfab.fabric.static.FabricState`) and returns the same record keys as
@@ -13,9 +14,9 @@ A load step: the end loads (force control) or the prescribed end displacements
 (displacement control, the increment spread along each yarn as the static solver
 starts its Newton) are applied, and the patch relaxes from rest (kinetic damping by
 default) with the step's anchors held, until the largest free force component is at
-most the tolerance; then the anchors are return-mapped radially (MODEL.md 4).
+most the tolerance; then the anchors are return-mapped radially (docs/model.md section 4).
 
-Friction, against the static solver's outer loop (MODEL.md 4, 10): the static solver
+Friction, against the static solver's outer loop (docs/model.md sections 4, 10): the static solver
 freezes F_T during a Newton solve, updates it to Gralen's law at the solution and solves
 again until the residual with F_T from the law at the solution is within the tolerance.
 The relaxation needs no outer loop: its force evaluates F_T at the current contact force
@@ -25,12 +26,12 @@ law at the solution within the tolerance. The return map after the step is the s
 solver's. (A relaxation is not a descent on one potential when F_T moves with R; it
 converges where the contact forces settle, which the tests check on small patches.)
 
-Stability (MODEL.md 6): as the one-yarn dynamic solver uses the shared certificate, the
+Stability (docs/model.md section 6): as the one-yarn dynamic solver uses the shared certificate, the
 relaxed state is checked with the static solver's inertia count of its Hessian (F_T
 frozen); from a saddle the static solver's escape direction is taken and the step
 relaxed again from there (at most `static.MAX_ESCAPES` times). Not modelled by the
 kernels, so refused (UserError): the periodic cell and moving planes.
-Gravity, a constant force on the physical masses (MODEL.md 2), is added to the end
+Gravity, a constant force on the physical masses (docs/model.md section 2), is added to the end
 loads.
 """
 
@@ -55,7 +56,8 @@ _STATUS = {status.MAX_STEPS: "the time-step limit", status.NON_FINITE: "a non-fi
 
 
 class FabricDynamicSolver:
-    """Relaxes a fabric's load steps one after another with the Warp kernels (MODEL.md 5, 10)."""
+    """Relaxes a fabric's load steps one after another with the Warp kernels
+    (docs/model.md sections 5, 10)."""
 
     def __init__(self, spec: FabricSpec, device: str = "cpu", damping: str = "kinetic",
                  tolerance: float | None = None, max_steps: int = MAX_STEPS,
@@ -131,7 +133,8 @@ class FabricDynamicSolver:
         return force.numpy().astype(float)
 
     def friction_limits(self, R: np.ndarray) -> np.ndarray:
-        """F_T [N] of Gralen's law with its onset at contact forces R (MODEL.md 4); 0 where open."""
+        """F_T [N] of Gralen's law with its onset at contact forces R (docs/model.md section 4); 0
+        where open."""
         alpha, constant, onset, _ = self.arrays.friction_law
         closed = R > 0.0
         onset_factor = -np.expm1(-R / onset) if onset > 0.0 else np.ones_like(R)
@@ -205,7 +208,7 @@ class FabricDynamicSolver:
 
     def _return_map(self, pos, anchors, limit):
         """(anchors, sliding (C,), energy lost [J]) after the kernels' radial return map
-        (MODEL.md 4): lost = F_T |delta xi| per sliding crossing."""
+        (docs/model.md section 4): lost = F_T |delta xi| per sliding crossing."""
         if not self.fabric.has_friction:
             return anchors.copy(), np.zeros(anchors.shape[0], np.bool_), 0.0
         kernel_anchors = anchors + self._plane_shift

@@ -1,4 +1,4 @@
-"""Isotropic 2D Huber stick-slip friction at a fabric crossing (MODEL.md sections 4 and 10).
+"""Isotropic 2D Huber stick-slip friction at a fabric crossing (docs/model.md sections 4 and 10).
 
 The in-plane slip of crossing c (warp node a, weft node b, planes X_j, Y_k fixed) is
 
@@ -11,7 +11,7 @@ force, frozen during a Newton solve) the incremental potential is the isotropic 
          = F_T |s| - F_T^2 / (2 k_t)     otherwise            (sliding),
 
 dH/ds = k_t s or F_T s / |s|, d2H/ds2 = k_t I or (F_T / |s|)(I - s s^T / |s|^2)
-(the softer, sliding branch at k_t |s| = F_T, MODEL.md 6). F_T = 0 (an open crossing)
+(the softer, sliding branch at k_t |s| = F_T, docs/model.md section 6). F_T = 0 (an open crossing)
 gives H = 0 identically. After a load step the anchors are return-mapped radially,
 xi += (1 - F_T / (k_t |s|)) s where sliding, and the energy lost is F_T |delta xi|.
 """

@@ -1,4 +1,4 @@
-"""A fabric scene (geometry.model = "fabric", MODEL.md section 10) as a run: its
+"""A fabric scene (geometry.model = "fabric", docs/model.md section 10) as a run: its
 `FabricSpec`, its model, and the static solver under the run's contract.
 
 `fabric_spec(scene)` maps a validated scene to a `FabricSpec`; `FabricModel` is what a
@@ -37,14 +37,14 @@ from dynfab.fabric.static import FabricState, FabricStaticSolver, as_woven_state
 from dynfab.scene import Scene
 
 DEFAULT_CORE_STIFFNESS = 1e5
-"""k_c [N/m] of a fabric scene without contact.core_stiffness (MODEL.md section 10)."""
+"""k_c [N/m] of a fabric scene without contact.core_stiffness (docs/model.md section 10)."""
 
 DEFAULT_LINEAR_DENSITY = 3e-5
 """rho_l [kg/m] of the wefts without weft.linear_density (as the warps' default)."""
 
 
 def fabric_spec(scene: Scene) -> FabricSpec:
-    """The `FabricSpec` of a validated fabric scene (MODEL.md section 10)."""
+    """The `FabricSpec` of a validated fabric scene (docs/model.md section 10)."""
     g, warp, weft, load = scene.geometry, scene.warp, scene.weft, scene.load
     friction = scene.friction
     return FabricSpec(

@@ -1,4 +1,4 @@
-"""The fabric's stability check: the inertia of its Hessian (MODEL.md sections 6, 10).
+"""The fabric's stability check: the inertia of its Hessian (docs/model.md sections 6, 10).
 
 Library sparse factorisations (SuperLU, which pivots for stability) give no inertia.
 Ours comes from Haynsworth's inertia additivity: split the free dofs into the crossing
@@ -13,12 +13,12 @@ by identity rows), and
 (`dynfab.ldlt`, Sylvester's law: the negative pivots), O(n) per yarn; S is dense,
 |K| = 4 C, assembled from one banded solve per crossing dof and counted by its
 Bunch-Kaufman LDL^T (`dense_negatives`). A pivot within rounding of zero makes H_II unusable: the matrix is then
-shifted by tau I at the rounding level (MODEL.md 6), and "no negative" proves
+shifted by tau I at the rounding level (docs/model.md section 6), and "no negative" proves
 lambda_min(H) > -tau.
 
 The matrix is the symmetric Hessian with F_T frozen (the softer branch at kinks, as
 `dynfab.fabric.contact` and `friction` give it); instabilities from friction's
-non-associated coupling are not seen (MODEL.md 6).
+non-associated coupling are not seen (docs/model.md section 6).
 """
 
 from __future__ import annotations
@@ -49,7 +49,7 @@ class Inertia:
 def nearest_eigenvalue(H) -> float:
     """The eigenvalue of the sparse symmetric H nearest zero [N/m] (ARPACK shift-invert at
     0, relative accuracy about 1e-10): the lowest one when the inertia has no negative
-    (MODEL.md 6's estimate of the smallest eigenvalue); NaN if ARPACK fails."""
+    (docs/model.md section 6's estimate of the smallest eigenvalue); NaN if ARPACK fails."""
     try:
         value = scipy.sparse.linalg.eigsh(H, k=1, sigma=0.0, which="LM", tol=1e-10,
                                           v0=start_vector(H.shape[0]),

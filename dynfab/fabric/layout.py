@@ -1,4 +1,4 @@
-"""As-woven geometry of the fabric and its model arrays (MODEL.md section 10).
+"""As-woven geometry of the fabric and its model arrays (docs/model.md section 10).
 
 Every yarn is a planar chain in its own vertical plane: warp k in y = Y_k with
 nodes (x, z), weft j in x = X_j with nodes (y, z). All nodes sit in one array
@@ -22,7 +22,8 @@ from dynfab.fabric.spec import FabricSpec
 
 
 class Fabric(NamedTuple):
-    """Arrays of a fabric (MODEL.md 10); passed whole to numba. Y yarns, C crossings."""
+    """Arrays of a fabric (docs/model.md section 10); passed whole to numba. Y yarns, C
+    crossings."""
 
     rest_position: np.ndarray
     """As-woven (in-plane coordinate, z) of every node (nodes, 2) [m]."""
@@ -73,7 +74,7 @@ class Fabric(NamedTuple):
     """Per dof (2 nodes,), int64: -1, or the dof it is tied to (periodic force control:
     every warp's x_N is the cell length L1, held in warp 0's x_N; likewise the wefts)."""
     contact_law: np.ndarray
-    """(k_c [N/m], C_wa [m], a_wa [1/N], C_we [m], a_we [1/N]) (MODEL.md 3, 10)."""
+    """(k_c [N/m], C_wa [m], a_wa [1/N], C_we [m], a_we [1/N]) (docs/model.md sections 3, 10)."""
     friction_alpha: float
     """Gralen alpha [-]; 0 without friction."""
     friction_constant: float
@@ -90,7 +91,7 @@ class Fabric(NamedTuple):
     is_warp: np.ndarray
     """True for the warp yarns (Y,)."""
     fixed: np.ndarray
-    """Fixed dofs (2 nodes,) bool (MODEL.md 10, boundary "clamped")."""
+    """Fixed dofs (2 nodes,) bool (docs/model.md section 10, boundary "clamped")."""
 
 
 def warp_shape(spec: FabricSpec, k: int) -> np.ndarray:
@@ -106,7 +107,7 @@ def weft_shape(spec: FabricSpec, j: int) -> np.ndarray:
 
 
 def build_fabric(spec: FabricSpec) -> Fabric:
-    """The model arrays of `spec` (MODEL.md 10)."""
+    """The model arrays of `spec` (docs/model.md section 10)."""
     shapes = [warp_shape(spec, k) for k in range(spec.warps)]
     shapes += [weft_shape(spec, j) for j in range(spec.wefts)]
     families = [spec.warp] * spec.warps + [spec.weft] * spec.wefts
@@ -173,7 +174,7 @@ def _wrap_spring(shape: np.ndarray, family) -> tuple[float, float]:
 
 def ties(spec: FabricSpec, start: np.ndarray) -> np.ndarray:
     """Periodic cell under force control: x_N of every warp tied to warp 0's (the cell
-    length L1), y_M of every weft to weft 0's (L2); -1 elsewhere (MODEL.md 10)."""
+    length L1), y_M of every weft to weft 0's (L2); -1 elsewhere (docs/model.md section 10)."""
     tie = np.full(2 * start[-1], -1, np.int64)
     if spec.boundary == "periodic" and spec.control == "force":
         last = start[1:] - 1
@@ -183,7 +184,7 @@ def ties(spec: FabricSpec, start: np.ndarray) -> np.ndarray:
 
 
 def _crossings(spec: FabricSpec, start: np.ndarray):
-    """(warp node, weft node, sigma) of crossing c = k n_we + j (MODEL.md 10).
+    """(warp node, weft node, sigma) of crossing c = k n_we + j (docs/model.md section 10).
 
     sigma_jk = s_k (-1)^(j-1) in 1-based indices, (-1)^(k + j) in 0-based ones.
     """
@@ -203,7 +204,8 @@ def contact_law(spec: FabricSpec) -> np.ndarray:
 
 
 def stick_stiffness(spec: FabricSpec) -> float:
-    """k_t [N/m]: the given one, else the smaller family's EA / segment length (MODEL.md 10)."""
+    """k_t [N/m]: the given one, else the smaller family's EA / segment length
+    (docs/model.md section 10)."""
     if spec.friction is None:
         return 0.0
     if spec.friction.stick_stiffness is not None:
@@ -229,7 +231,7 @@ def load_factors(spec: FabricSpec) -> np.ndarray:
 def fixed_dofs(spec: FabricSpec, start: np.ndarray) -> np.ndarray:
     """Clamped patch: each yarn's first node pinned, its last node's z held, and under
     displacement control its last node's in-plane coordinate prescribed; a held family
-    has every dof fixed; a pull-out frees its warp's first node (MODEL.md 10). The
+    has every dof fixed; a pull-out frees its warp's first node (docs/model.md section 10). The
     periodic cell alike: node 0 held at its
     as-woven position, node N (node 0's image) at z = z_0 and at the cell length,
     prescribed (displacement control) or tied across the family (force control)."""

@@ -1,4 +1,4 @@
-"""Parameters of a woven fabric (MODEL.md section 10), SI units, as plain frozen dataclasses.
+"""Parameters of a woven fabric (docs/model.md section 10), SI units, as plain frozen dataclasses.
 
 Scene-file parsing comes later; a `FabricSpec` is what a parser will produce.
 """
@@ -10,7 +10,8 @@ from dataclasses import dataclass
 
 @dataclass(frozen=True, kw_only=True)
 class Family:
-    """One yarn family (the warps or the wefts): every yarn of it alike (MODEL.md 10)."""
+    """One yarn family (the warps or the wefts): every yarn of it alike
+    (docs/model.md section 10)."""
 
     length: float
     """Yarn length [m] along its in-plane axis (L for warps, L_we for wefts)."""
@@ -23,16 +24,16 @@ class Family:
     EI: float
     """Bending stiffness [N m^2]."""
     kawabata_C: float
-    """Kawabata's maximum compression C [m] (MODEL.md 3, eqs. 6-8)."""
+    """Kawabata's maximum compression C [m] (docs/model.md section 3, paper eqs. 6-8)."""
     kawabata_K: float
-    """Kawabata's K [m/N]; a = K / Lc with Lc the half-wave arc length (MODEL.md 3)."""
+    """Kawabata's K [m/N]; a = K / Lc with Lc the half-wave arc length (docs/model.md section 3)."""
     linear_density: float = 3e-5
-    """rho_l [kg/m], for gravity's physical masses rho_l lbar_i (MODEL.md 2)."""
+    """rho_l [kg/m], for gravity's physical masses rho_l lbar_i (docs/model.md section 2)."""
 
 
 @dataclass(frozen=True, kw_only=True)
 class Friction:
-    """Gralen's friction limit with its onset, as stick-slip (MODEL.md 4 and 10)."""
+    """Gralen's friction limit with its onset, as stick-slip (docs/model.md sections 4 and 10)."""
 
     alpha: float
     """Gralen alpha [-]."""
@@ -45,12 +46,12 @@ class Friction:
     onset_force: float = 1e-5
     """R_0 [N]: the constant term sets in as 1 - exp(-R/R_0); 0 is the literal jump law."""
     stick_stiffness: float | None = None
-    """k_t [N/m]; None: the smaller family's EA / segment length (MODEL.md 10)."""
+    """k_t [N/m]; None: the smaller family's EA / segment length (docs/model.md section 10)."""
 
 
 @dataclass(frozen=True, kw_only=True)
 class FabricSpec:
-    """A woven fabric patch and its load path (MODEL.md section 10)."""
+    """A woven fabric patch and its load path (docs/model.md section 10)."""
 
     warp: Family
     """The warp yarns, along x, in the planes y = Y_k."""
@@ -66,8 +67,8 @@ class FabricSpec:
     friction: Friction | None = None
     """None: no friction."""
     gravity: float | None = None
-    """g [m/s^2] along -z on the physical masses (MODEL.md 2); None: none. Refused on the
-    periodic cell (MODEL.md 10)."""
+    """g [m/s^2] along -z on the physical masses (docs/model.md section 2); None: none. Refused on
+    the periodic cell (docs/model.md section 10)."""
     boundary: str = "clamped"
     """"clamped" (a finite patch) or "periodic" (a unit cell; warps and wefts even)."""
     planes: str = "fixed"
@@ -85,8 +86,8 @@ class FabricSpec:
     weft_factors: tuple[float, ...] | None = None
     """Per-weft load factors (wefts,); None: 1 each."""
     pullout: int | None = None
-    """A pull-out (MODEL.md 10): warp `pullout` (1-based) has its first node free and its
-    last node displaced by `warp_values`; every other warp clamped at both ends, the wefts'
+    """A pull-out (docs/model.md section 10): warp `pullout` (1-based) has its first node free and
+    its last node displaced by `warp_values`; every other warp clamped at both ends, the wefts'
     last nodes displaced by `weft_values` times `weft_factors` (zeros: clamped). Needs
     displacement control on the clamped patch, and something pressing the warp onto the
     wefts (tensioned wefts, or gravity): the as-woven contacts carry no force and a
@@ -94,9 +95,10 @@ class FabricSpec:
     mode)."""
     hold: str = "none"
     """"none", "warp" or "weft": every dof of that family held at its as-woven position
-    (a check of MODEL.md 10: with the wefts held, each warp is the one-yarn model)."""
+    (a check of docs/model.md section 10: with the wefts held, each warp is the one-yarn model)."""
     tolerance: float = 1e-11
-    """Newton's residual tolerance [N] (MODEL.md 6), or the rounding floor where higher."""
+    """Newton's residual tolerance [N] (docs/model.md section 6), or the rounding floor where
+    higher."""
     max_iterations: int = 200
     """Newton iterations per solve."""
 
@@ -122,9 +124,9 @@ def _check(spec: FabricSpec) -> None:
     if spec.planes not in ("fixed", "affine"):
         raise ValueError(f"planes must be 'fixed' or 'affine', not {spec.planes!r}")
     if spec.pullout is not None and spec.planes != "fixed":
-        raise ValueError("a pull-out keeps the planes fixed (MODEL.md 10)")
+        raise ValueError("a pull-out keeps the planes fixed (docs/model.md section 10)")
     if spec.boundary == "periodic" and spec.gravity is not None:
-        raise ValueError("gravity is refused on the periodic cell (MODEL.md 10)")
+        raise ValueError("gravity is refused on the periodic cell (docs/model.md section 10)")
     if spec.boundary == "periodic" and (spec.warps % 2 or spec.wefts % 2):
         raise ValueError("a periodic cell needs an even number of warps and of wefts")
     if spec.control not in ("force", "displacement"):

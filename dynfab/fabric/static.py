@@ -1,19 +1,19 @@
-"""The fabric's static solver: Newton on the exact sparse Hessian (MODEL.md sections 6, 10).
+"""The fabric's static solver: Newton on the exact sparse Hessian (docs/model.md sections 6, 10).
 
 Each load step minimises V plus the Huber friction terms over the free dofs from the
 previous state, to a residual (largest free force component) of `spec.tolerance`, or to
-the rounding floor where that is higher (MODEL.md 6). The Newton matrix is the exact
+the rounding floor where that is higher (docs/model.md section 6). The Newton matrix is the exact
 Hessian (`dynfab.fabric.assembly`), factored by scipy's sparse LU (SuperLU, in its
 symmetric mode where it can: `_sparse_solve`); the loop, the line search and the
 friction updates are ours. The unknowns are the free dofs, a periodic cell's tied cell
 lengths counted once (`assembly.Pattern.reduce`, `expand`).
 
-Friction (MODEL.md 4 and 10): F_T is frozen during each Newton solve, at Gralen's law
+Friction (docs/model.md sections 4 and 10): F_T is frozen during each Newton solve, at Gralen's law
 of the contact forces the solve starts from; after it, F_T is re-evaluated at the
 solution's contact forces and the solve repeated (an outer fixed point on F_T) until
 the residual with F_T equal to the law at the solution is within the tolerance. That
 fixed point is not a contraction where dF_T/dR dR/dg is large (contact forces near the
-onset force R_0, MODEL.md 4): after FROZEN_UPDATES solves, a Newton on the coupled
+onset force R_0, docs/model.md section 4): after FROZEN_UPDATES solves, a Newton on the coupled
 problem (F_T through R in the Jacobian, non-symmetric, the residual's norm as merit)
 continues from where it stands (and if it fails, more frozen solves, then it again:
 `solve`). Then the anchors are return-mapped (radially,
@@ -21,7 +21,7 @@ continues from where it stands (and if it fails, more frozen solves, then it aga
 in R_0 and semismooth fallback are not here (yet): a step neither reaches stops with a
 SolverError.
 
-Globalisation (MODEL.md 6): a backtracking line search on the energy (F_T frozen);
+Globalisation (docs/model.md section 6): a backtracking line search on the energy (F_T frozen);
 where the energy change is within its rounding, a step that lowers the residual is
 accepted. After a shortened step, and to retry a failed one, sliding crossings get the
 secant stiffness F_T/|s| I (a quadratic majorant of the Huber term, as in the one-yarn
@@ -36,7 +36,7 @@ LDL^T), and the eigenvalue nearest zero (the smallest
 when there is no negative one). From a saddle the step leaves along the lowest
 eigenvectors (shift-invert Lanczos below the spectrum, the shift placed by the inertia)
 and is solved again (`_certified`), as the one-yarn solver does along its LDL^T's
-negative-pivot directions (MODEL.md 6).
+negative-pivot directions (docs/model.md section 6).
 """
 
 from __future__ import annotations
@@ -63,7 +63,7 @@ the solution on the small-load path of tests/test_fabric_energy.py."""
 MAX_FROZEN = 50
 """Further frozen solves when the coupled Newton fails."""
 MAX_ESCAPES = 12
-"""Saddles left per load step (MODEL.md 6) before the state is accepted as it is."""
+"""Saddles left per load step (docs/model.md section 6) before the state is accepted as it is."""
 ESCAPE_CANDIDATES = 16
 """Directions of negative curvature tried per escape (the lowest eigenvectors)."""
 HALVINGS = 60
@@ -92,7 +92,7 @@ def _sparse_solve(A, rhs, symmetric=True):
 
 @dataclass
 class FabricState:
-    """What changes during a run (MODEL.md 10)."""
+    """What changes during a run (docs/model.md section 10)."""
 
     positions: np.ndarray
     """(in-plane coordinate, z) of every node (nodes, 2) [m]."""
@@ -125,14 +125,14 @@ class NewtonInfo:
     """Largest free force component [N] at the end."""
     iterations: int = 0
     at_floor: bool = False
-    """Stopped at the rounding floor above the tolerance (MODEL.md 6)."""
+    """Stopped at the rounding floor above the tolerance (docs/model.md section 6)."""
     floor: float = 0.0
     """The residual's rounding floor [N], 4 eps max|H_ii| max|r|, at the last iteration."""
     converged: bool = False
 
 
 class FabricStaticSolver:
-    """Solves a fabric's load steps one after another (MODEL.md 6, 10)."""
+    """Solves a fabric's load steps one after another (docs/model.md sections 6, 10)."""
 
     def __init__(self, spec: FabricSpec):
         self.spec = spec
@@ -222,7 +222,7 @@ class FabricStaticSolver:
         return None
 
     def newton(self, pos, P, anchors, limit) -> NewtonInfo:
-        """Minimise V + sum H (F_T frozen) from `pos`, in place (MODEL.md 6)."""
+        """Minimise V + sum H (F_T frozen) from `pos`, in place (docs/model.md section 6)."""
         spec, info = self.spec, NewtonInfo()
         previous = np.inf
         cut = False  # the last step was shortened: the secant friction stiffness
@@ -345,7 +345,7 @@ class FabricStaticSolver:
 
         The Jacobian is the Hessian plus `coupling` (not symmetric: SuperLU pivots), and
         steps are backtracked on the 2-norm of the free residual with F_T re-evaluated at
-        each trial (MODEL.md 4's merit for the coupled problem): accepted when it falls
+        each trial (docs/model.md section 4's merit for the coupled problem): accepted when it falls
         by 1e-4 t of itself.
         """
         spec, info = self.spec, NewtonInfo()
@@ -430,7 +430,8 @@ class FabricStaticSolver:
         return new, record
 
     def _certified(self, pos, P, anchors, info, limit, outer):
-        """The step's stability check, and the escape from a saddle (MODEL.md 6), in place.
+        """The step's stability check, and the escape from a saddle (docs/model.md section 6), in
+        place.
 
         With negative eigenvalues (F_T frozen), the lowest eigenvectors (at most
         ESCAPE_CANDIDATES) are tried as directions: steps of +-t v, t from the patch
@@ -508,7 +509,7 @@ class FabricStaticSolver:
     def crimps(self, pos) -> np.ndarray:
         """Mean crimps (warp, weft) [-]: (arc length - projected length) / projected length of
         each yarn (`dynfab.model.crimp`, the projected length its end-to-end extent along
-        itself), averaged over the family (MODEL.md 10)."""
+        itself), averaged over the family (docs/model.md section 10)."""
         f = self.fabric
         crimp = np.empty(self.yarns)
         for y in range(self.yarns):
@@ -520,9 +521,9 @@ class FabricStaticSolver:
 
     def strains(self, pos) -> np.ndarray:
         """Nominal strains (warp, weft): the mean end displacement of the family's loaded
-        yarns over their length (MODEL.md 10). Under displacement control a yarn of factor 0
-        is held, not loaded, and left out (a pull-out's other warps), unless the whole family
-        is; under force control a factor-0 yarn's end is free and counts."""
+        yarns over their length (docs/model.md section 10). Under displacement control a yarn of
+        factor 0 is held, not loaded, and left out (a pull-out's other warps), unless the whole
+        family is; under force control a factor-0 yarn's end is free and counts."""
         f, spec = self.fabric, self.spec
         u = pos[f.load_node, 0] - f.rest_position[f.load_node, 0]
         loaded = (f.load_factor != 0) | (spec.control == "force")

@@ -2,7 +2,7 @@
 depend on the load increment and on the stick stiffness?
 
 `run_convergence(out_dir, quick=False)` solves the paper's scenes with the static
-Newton reference (MODEL.md 6) under displacement control and writes, into `out_dir`:
+Newton reference (docs/model.md section 6) under displacement control and writes, into `out_dir`:
 
 * ``mesh.csv``, ``load_steps.csv``, ``stick_stiffness.csv``: tidy rows (study, scene,
   parameter, parameter value, load, quantity, value, with the units of each);
@@ -177,7 +177,7 @@ def with_path(scene: Scene, top: float, steps: int) -> Scene:
 
 
 def default_stick_stiffness(scene: Scene) -> float:
-    """k_t = EA / (L / N) [N/m] (MODEL.md 7)."""
+    """k_t = EA / (L / N) [N/m] (docs/model.md section 7)."""
     return scene.warp.EA * scene.geometry.segments / scene.geometry.length
 
 
@@ -237,7 +237,7 @@ def friction_check(model, steps: dict) -> dict:
     * the record: |friction force| = F_T, to rounding (exactly, as -sign(s) F_T; a
       record computed as the stick spring k_t (x - xi) would round by up to
       k_t eps |x|, given as `stick_force_rounding_N`);
-    * F_T = Gralen's law at the step's R (MODEL.md 4: to 1e-12 N);
+    * F_T = Gralen's law at the step's R (docs/model.md section 4: to 1e-12 N);
     * a sticking crossing's force within the limit (`max_stick_excess_N` <= 0).
     """
     yarn = model.yarns[0]

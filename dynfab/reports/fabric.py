@@ -1,4 +1,5 @@
-"""Fabric report (`dynfab fabric`): biaxial loads on the balanced periodic cell (MODEL.md 10).
+"""Fabric report (`dynfab fabric`): biaxial loads on the balanced periodic cell
+(docs/model.md section 10).
 
 `run_fabric(out_dir, quick=False)` solves the 2 x 2 periodic cell of the paper's yarns
 (`dynfab.reports.fabric_data`) with the static Newton solver under force control along
@@ -18,8 +19,8 @@ tension), the larger load rising to 1 N per yarn (160 N/m), and writes into `out
 * ``fabric.md``: a short summary.
 
 The checks (`check_physics`): at equal loads warp and weft respond alike, and the 2:1 and
-1:2 paths mirror each other (a balanced fabric, MODEL.md 10), within the error bound; along
-the near-uniaxial path the warp's crimp falls and the weft's rises; at the same warp load
+1:2 paths mirror each other (a balanced fabric, docs/model.md section 10), within the error bound;
+along the near-uniaxial path the warp's crimp falls and the weft's rises; at the same warp load
 the warp stretches more when the weft carries less (2:1 against 1:1).
 
 The error bound of a step: a residual r (largest free force component) leaves the positions
@@ -206,7 +207,7 @@ def summary_text(data: dict) -> str:
         "# Fabric report: biaxial loads on the periodic cell",
         "",
         f"Plan {data['plan']}: the {cell['warps']} x {cell['wefts']} periodic cell "
-        f"(MODEL.md section 10) of the paper's yarns, cell length {1e3 * cell['length_m']:g} mm, "
+        f"(docs/model.md section 10) of the paper's yarns, cell length {1e3 * cell['length_m']:g} mm, "
         f"{cell['segments']} segments per yarn, force control, {cell['steps']} load steps per "
         f"path, no friction. Wall time {data['wall_time_s']:.1f} s.",
         "",

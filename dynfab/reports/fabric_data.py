@@ -5,13 +5,13 @@ The report (`dynfab.reports.fabric`: solves, checks, summary) and its drawings
 that `solve_paths` returns (also written as ``fabric.json``), so the figures and the JSON
 hold the same numbers.
 
-The cell (MODEL.md section 10, boundary "periodic"): the plain-weave repeat of 2 warps x 2
-wefts of the paper's yarns (MODEL.md section 7: EA = 13.72 N, EI = 1.47e-7 N m^2,
+The cell (docs/model.md section 10, boundary "periodic"): the plain-weave repeat of 2 warps x 2
+wefts of the paper's yarns (docs/model.md section 7: EA = 13.72 N, EI = 1.47e-7 N m^2,
 A = 0.5 mm, C = 0.2 mm, K = 0.2 m/N, crossings L / 16 = 6.25 mm apart), the weft family the
 same as the warp (a balanced fabric: the paper's weft has EI_we = EI_wa and C_we = C_wa, and
 section 7 takes A_we = A_wa; its EA, absent from the paper, is taken as the warp's), the
 default core stiffness, no friction (on the
-periodic cell every crossing lies on a mirror plane, so slips stay zero: MODEL.md 10).
+periodic cell every crossing lies on a mirror plane, so slips stay zero: docs/model.md section 10).
 """
 
 from __future__ import annotations
@@ -23,11 +23,11 @@ import numpy as np
 from dynfab.fabric.spec import FabricSpec, Family
 
 SPACING = 0.1 / 16
-"""Crossing spacing [m]: the paper's L / crossings (MODEL.md 7), both directions."""
+"""Crossing spacing [m]: the paper's L / crossings (docs/model.md section 7), both directions."""
 YARNS = 2
 """Warps and wefts in the cell (the plain-weave repeat)."""
 PAPER_YARN = dict(amplitude=0.5e-3, EA=13.72, EI=1.47e-7, kawabata_C=0.2e-3, kawabata_K=0.2)
-"""The paper's yarn (MODEL.md 7), K = 0.2 m/N where one is needed."""
+"""The paper's yarn (docs/model.md section 7), K = 0.2 m/N where one is needed."""
 
 PATHS = {"2:1": (1.0, 0.5), "1:1": (1.0, 1.0), "1:2": (0.5, 1.0), "1:0.05": (1.0, 0.05)}
 """Proportional biaxial paths, name -> (warp, weft) load ratio; the larger of the two loads
@@ -85,7 +85,7 @@ def load_per_width(path: dict, family: str) -> np.ndarray:
 
 
 def strain_percent(path: dict, family: str) -> np.ndarray:
-    """(steps + 1,) nominal strain [%]: cell stretch over cell length (MODEL.md 10)."""
+    """(steps + 1,) nominal strain [%]: cell stretch over cell length (docs/model.md section 10)."""
     return np.asarray(path[f"{family}_strain_percent"])
 
 

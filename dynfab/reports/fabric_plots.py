@@ -159,8 +159,8 @@ def plot_cell(data: dict) -> Figure:
 
 def _top_view(ax, path: dict, norm) -> None:
     """The cell in plan [mm]: warps along x at Y_k, wefts along y at X_j (the planes moving
-    with the cell, MODEL.md 10), grey bands; each crossing's upper yarn drawn over it in the
-    colour of its contact force."""
+    with the cell, docs/model.md section 10), grey bands; each crossing's upper yarn drawn over it
+    in the colour of its contact force."""
     length_x, length_y = (1e3 * c for c in path["last"]["cell_m"])
     forces = np.asarray(path["contact_force_N"][-1])
     above = np.asarray(path["last"]["warp_above"])

@@ -17,8 +17,8 @@ residual 1e-8 N). Into `out_dir` it writes:
   ``fig3a_traction.png``, ``fig3b_contact_force.png``, ``fig5_friction.png``,
   ``shapes.png`` and ``friction_states.png``, static solutions as lines and dynamic
   ones as markers;
-* ``trends.json``: the machine, the solve times, the paper's trends (MODEL.md 8) checked
-  on the data of each solver (`check_trends`), and the static-vs-dynamic differences
+* ``trends.json``: the machine, the solve times, the paper's trends (docs/model.md section 8)
+  checked on the data of each solver (`check_trends`), and the static-vs-dynamic differences
   against their bound (`compare_solvers`); both read only the files too.
 
 The static-vs-dynamic bound. Each solver stops at a residual r (largest free force
@@ -334,11 +334,12 @@ def compare_pair(static: Results, dynamic: Results) -> dict:
 
 
 # --------------------------------------------------------------------------
-# The paper's trends (MODEL.md 8), checked on the data of each solver.
+# The paper's trends (docs/model.md section 8), checked on the data of each solver.
 
 
 def check_trends(data, comparison: dict | None = None) -> dict:
-    """Each trend of MODEL.md 8 on the static and on the dynamic data: numbers and verdict.
+    """Each trend of docs/model.md section 8 on the static and on the dynamic data: numbers and
+    verdict.
 
     Thresholds and why:
 

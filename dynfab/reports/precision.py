@@ -1,8 +1,8 @@
 """Precision report (`dynfab precision`): error against cost of every dynamic method.
 
 `run_precision(out_dir, quick=False, scene=None)` relaxes single load steps with every
-dynamic method (MODEL.md 5) over a ladder of tolerances, times each warm, measures its
-error against the static reference converged to float64's rounding floor (MODEL.md 6)
+dynamic method (docs/model.md section 5) over a ladder of tolerances, times each warm, measures its
+error against the static reference converged to float64's rounding floor (docs/model.md section 6)
 and writes, into `out_dir`:
 
 * ``points.csv``: tidy rows, one per (solve, quantity), with the units of each;
@@ -53,7 +53,7 @@ comparison), and the solve at the scene's `static.tolerance` (1e-11 N by default
 eps max|x| / A_wa.
 scipy's L-BFGS-B minimises the same energy
 (`dynfab.assembly`) over the free dofs with ``gtol`` = the tolerance; with friction,
-whose F_T depends on the contact forces (MODEL.md 4: not a pure minimisation), it
+whose F_T depends on the contact forces (docs/model.md section 4: not a pure minimisation), it
 alternates minimisations with F_T frozen and F_T updates until the residual with the
 current F_T meets the tolerance or stops falling.
 
@@ -98,7 +98,8 @@ from dynfab.terms.friction import INDEX as FRICTION
 
 REFERENCE_TOLERANCE = 1e-13
 """Static tolerance of the start states and references [N]: below float64's floor at
-N = 224 (about 6e-13 N), so Newton stops where the residual stops falling (MODEL.md 6)."""
+N = 224 (about 6e-13 N), so Newton stops where the residual stops falling
+(docs/model.md section 6)."""
 
 TARGETS = (1e-3, 1e-5, 1e-7)
 """Relative errors for which the cheapest method is reported [-]."""

@@ -7,7 +7,7 @@ law, EA, the mesh, the weft tension, the load (up to 50 % strain, force or displ
 control), friction (alpha 0 to 2, stick stiffness up to 1000 x the default) or the
 reference state. Each case is one load step from the as-woven state. For each case:
 
-* the static reference (MODEL.md 6) of the load step, or its SolverError text; a scene
+* the static reference (docs/model.md section 6) of the load step, or its SolverError text; a scene
   the model must refuse (a weft tension at or beyond buckling) records its UserError
   text as the verdict;
 * the largest stable time step of symplectic Euler with the physical masses, found by
@@ -163,7 +163,7 @@ def case_scene(case: Case, base: Scene, load: float) -> Scene:
     Keys: any dotted scene key; "kawabata_K" / "kawabata_C" set both yarns; "EA_factor"
     multiplies warp.EA; "stick_factor" sets k_t to that multiple of the default
     EA / (L / N); "alpha_we" sets P_we = alpha_we Pcr_we; "k_we_factor" sets P_we so
-    that k_we (prop. to 1 + alpha_we / N_wa^2, MODEL.md 3) is that many times its
+    that k_we (prop. to 1 + alpha_we / N_wa^2, docs/model.md section 3) is that many times its
     P_we = 0 value. Raises UserError for a scene the model refuses.
     """
     scene = base
@@ -186,7 +186,7 @@ def case_scene(case: Case, base: Scene, load: float) -> Scene:
 
 
 def buckling_load(scene: Scene) -> float:
-    """Pcr_we = pi^2 EI_we / L_we^2 [N] (MODEL.md 3)."""
+    """Pcr_we = pi^2 EI_we / L_we^2 [N] (docs/model.md section 3)."""
     return math.pi ** 2 * scene.weft.EI / scene.weft.length ** 2
 
 
@@ -364,7 +364,7 @@ class _Runner:
             "max_contact_force_N": float(R.max()) if R.size else 0.0,
             "closed_crossings": int((R > 0).sum()),
             "sliding_crossings": int(step["sliding"][0].sum()),
-            # delta_m / C_m = 1 - exp(-a_m R) at the largest contact force (MODEL.md 3)
+            # delta_m / C_m = 1 - exp(-a_m R) at the largest contact force (docs/model.md section 3)
             "compression_saturation": [float(1 - np.exp(-law[2] * R.max())),
                                        float(1 - np.exp(-law[4] * R.max()))] if R.size else None,
             "inverse_stiffness_norm_m_per_N": norm,

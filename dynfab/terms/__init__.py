@@ -1,4 +1,4 @@
-"""The model's energy terms, one concept a module (MODEL.md sections 2-4).
+"""The model's energy terms, one concept a module (docs/model.md sections 2-4).
 
 Each module holds numba functions on plain arrays: `energy(...)`, `add_gradient(...,
 grad)` and `add_hessian(..., band)`, accumulating into a gradient of shape

@@ -1,4 +1,4 @@
-"""Bending springs on exact turning angles (MODEL.md section 2; paper eqs. 13, 16).
+"""Bending springs on exact turning angles (docs/model.md section 2; paper eqs. 13, 16).
 
 E_bend = sum_{i=1}^{N-1} 1/2 (EI / lbar_i) (phi_i - phi0_i)^2, phi_i the signed
 turning angle from segment a = r_i - r_{i-1} to b = r_{i+1} - r_i,

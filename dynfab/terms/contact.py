@@ -1,4 +1,5 @@
-"""Weft contact: the weft spring in series with both Kawabata laws (MODEL.md 3; eqs. 4-9).
+"""Weft contact: the weft spring in series with both Kawabata laws (docs/model.md section 3; paper
+eqs. 4-9).
 
 At crossing j the closure is g_j = c_j - s_j z_{n_j} (c_j from the reference
 state, `dynfab.model`). The contact force R_j >= 0 solves
@@ -11,12 +12,12 @@ with dE/dg = R and d2E/dg2 = dR/dg = 1 / (1/k_s + sum_m C_m a_m exp(-a_m R)).
 
 `law` is the array (k_s [N/m], C_wa [m], a_wa [1/N], C_we [m], a_we [1/N]); k_s is the
 series spring: the weft spring k_we, in series with the yarns' core stiffness k_c when the
-scene gives one (`contact.core_stiffness`, MODEL.md 3): 1/k_s = 1/k_we + 1/k_c, so the left
-side gains R/k_c and the energy R^2/(2 k_c) with no further term (`dynfab.model`).
+scene gives one (`contact.core_stiffness`, docs/model.md section 3): 1/k_s = 1/k_we + 1/k_c, so the
+left side gains R/k_c and the energy R^2/(2 k_c) with no further term (`dynfab.model`).
 
 Branches: the functions taking `branch` (None, or one of NATURAL, OPEN, CLOSED per
 crossing) let the static solver hold a crossing open or closed during a Newton solve
-(MODEL.md 4, the active set of `dynfab.static`). OPEN: R = 0 and dR/dg = 0 at any g.
+(docs/model.md section 4, the active set of `dynfab.static`). OPEN: R = 0 and dR/dg = 0 at any g.
 CLOSED: the unilateral law's force (R = 0 for g <= 0: no adhesion), but for g <= 0 the
 tangent from the closed side, k_0 = 1/(1/k_s + C_wa a_wa + C_we a_we): the Newton
 matrix of a crossing held closed keeps its contact stiffness across g = 0. NATURAL (and

@@ -1,6 +1,7 @@
-"""Gralen friction as stick-slip, in the incremental Huber form (MODEL.md 4; eqs. 20-27).
+"""Gralen friction as stick-slip, in the incremental Huber form (docs/model.md section 4; paper eqs.
+20-27).
 
-Friction limit (Gralen, eq. 20, with its onset regularised over R_0; MODEL.md 4):
+Friction limit (Gralen, eq. 20, with its onset regularised over R_0; docs/model.md section 4):
 
     F_T,j = alpha R_j + beta ell r_f (1 - exp(-R_j / R_0))   if R_j > 0,   else 0;
 

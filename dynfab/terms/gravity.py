@@ -1,4 +1,4 @@
-"""Gravity along -z on the physical masses (MODEL.md section 2).
+"""Gravity along -z on the physical masses (docs/model.md section 2).
 
 E_gravity = -W_gravity = sum_i m_i g (z_i - z0_i),  m_i = rho_l lbar_i.
 Linear in the positions: no Hessian.

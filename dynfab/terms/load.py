@@ -1,4 +1,4 @@
-"""The traction load at the end node (MODEL.md section 2).
+"""The traction load at the end node (docs/model.md section 2).
 
 Force control: E_load = -W_load = -P (x_N - x0_N).  Displacement control
 prescribes x_N = x0_N + u instead; the reaction P = dV/dx_N is reported.

@@ -1,4 +1,4 @@
-"""Extension springs, geometrically exact (MODEL.md section 2; paper C_e = EA / Delta).
+"""Extension springs, geometrically exact (docs/model.md section 2; paper C_e = EA / Delta).
 
 E_stretch = sum_i 1/2 (EA / l0_i) (l_i - l0_i)^2,  l_i = |r_{i+1} - r_i|.
 """
