@@ -545,7 +545,7 @@ COLUMNS = (("n", lambda r: f"{r['n']}x{r['n']}", 5),
            ("warp ns", lambda r: r["explicit"].get("persistent_ns_per_node_step"), 7),
            ("numba ns", lambda r: r["explicit"].get("numba_ns_per_node_step"), 8),
            ("ratio", lambda r: r["explicit"].get("persistent_over_numba"), 5),
-           ("|dyn-st| m", lambda r: r["dynamic"].get("static_difference_m"), 10),
+           ("dyn-st m", lambda r: r["dynamic"].get("static_difference_m"), 10),
            ("peak MB", peak, 7),
            ("base MB", lambda r: r["baseline"].get("peak_rss_MB"), 7))
 """The table's columns: (heading, value of a row, width)."""
