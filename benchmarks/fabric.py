@@ -6,7 +6,8 @@ Run:  python benchmarks/fabric.py [--quick] [--budget SECONDS] [--friction] [--p
 The case: clamped balanced patches of the paper's yarn (`fabric_arrays.paper_patch`:
 pitch 0.1/16 m, k_c = 1e5 N/m), n x n yarns for n = 4 to 64, 8 segments per half-wave
 (N = M = 8 n: 2 n (8 n + 1) nodes, about 131,000 dofs at n = 64), frictionless unless
---friction (the paper's friction), one load step from the as-woven state under force
+--friction (the paper's friction, in every part but the explicit one, whose numba loop has
+none), one load step from the as-woven state under force
 control, (warp, weft) = LOAD per yarn, residual tolerance TOLERANCE for every solver.
 Per size, in increasing order, in a subprocess of its own (`run_size`) that first runs
 every part untimed on a 4 x 4 patch (compiles; loads the numba and Warp caches), then:
