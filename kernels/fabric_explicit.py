@@ -21,10 +21,10 @@ Two layouts (tests/test_fabric_kernels.py checks that they agree: bit for bit wi
   every node (CPU). A CPU `wp.launch` runs its threads one after another on one core
   and costs 10-45 us from Python, so per-step launches on the CPU pay that cost twice
   per step for no parallelism; the loop inside the kernel pays it once
-  (benchmarks/fabric_dynamic.py measures both). One thread needs no gather: by default
+  (`python benchmarks/fabric.py` measures both). One thread needs no gather: by default
   it evaluates each term once and scatters it (`fabric_forces.scatter_forces`), 1.5-1.7x
   faster than the per-node gather measured on 4x4 to 64x64 patches (which recomputes every
-  segment twice and every bending spring three times; benchmarks/fabric_dynamic.py).
+  segment twice and every bending spring three times; `python benchmarks/fabric.py`).
   Viscous, kinetic and FIRE damping.
 - "per_step": per time step, one launch of a thread per crossing (R), then one of a
   thread per node (force gather, residual and update, writing the new positions into a
