@@ -168,7 +168,7 @@ def dense_negatives(S, tiny) -> int:
     """Negative eigenvalues of the symmetric S by Bunch-Kaufman LDL^T (LAPACK sytrf through
     scipy.linalg.ldl; S = P L D L^T P^T is a congruence, so Sylvester's law counts them in
     D's 1x1 and 2x2 blocks). -1 if a block has an eigenvalue within `tiny` of zero.
-    About 20 times faster than the eigenvalues at |K| = 1024 (`python benchmarks/fabric.py --pieces`)."""
+    Cheaper than the eigenvalues, which it replaces (`python benchmarks/fabric.py --pieces`)."""
     if S.size == 0:
         return 0
     _, d, _ = scipy.linalg.ldl(S, lower=True)

@@ -55,11 +55,11 @@ from dynfab.terms import friction as gralen
 
 EPS = np.finfo(np.float64).eps
 FROZEN_UPDATES = 3
-"""Newton solves with F_T frozen per load step before the coupled Newton takes over: 3
-takes fewer Newton iterations than 8 on the friction steps of `python benchmarks/fabric.py --pieces`
-(the fixed point contracts slowly there; 15 against 19 and 21 on the 4 x 4 and 8 x 8
-patches, measured once by patching this constant); 1 left the coupled Newton too far from
-the solution on the small-load path of tests/test_fabric_energy.py."""
+"""Newton solves with F_T frozen per load step before the coupled Newton takes over: the
+fixed point on F_T contracts slowly near the friction onset, so a few frozen solves then
+the coupled Newton take fewer iterations than more frozen solves (docs/model.md, fabric
+decisions); 1 left the coupled Newton too far from the solution on the small-load path of
+tests/test_fabric_energy.py."""
 MAX_FROZEN = 50
 """Further frozen solves when the coupled Newton fails."""
 MAX_ESCAPES = 12
@@ -74,9 +74,9 @@ def _sparse_solve(A, rhs, symmetric=True):
     """A^-1 rhs by SuperLU, or None if A is singular.
 
     A symmetric matrix is factored in SuperLU's symmetric mode (minimum degree on A^T + A,
-    diagonal pivots): 2 to 3 times faster than the default column ordering with partial
-    pivoting on the fabric's Hessians (`python benchmarks/fabric.py --pieces`); if a pivot vanishes
-    there, the default, pivoted factorisation is tried.
+    diagonal pivots), faster than the default column ordering with partial pivoting on the
+    fabric's Hessians (`python benchmarks/fabric.py --pieces` measures both); if a pivot
+    vanishes there, the default, pivoted factorisation is tried.
     """
     if symmetric:
         try:
