@@ -85,3 +85,20 @@ def weft_stiffness(EI_we: float, length_we: float, count_we: int, tension_we: fl
     half_period = length_we / count_we
     alpha = tension_we / (math.pi ** 2 * EI_we / length_we ** 2)
     return (math.pi ** 4 / 2) * EI_we / half_period ** 3 * (1.0 + alpha / count_we ** 2)
+
+
+def tensioned_beam_stiffness(tension: float, EA: float, EI: float, length: float,
+                             count: int) -> float:
+    """k [N/m] of a straight weft under tension T pushed by alternating point forces at its
+    `count` crossings (docs/model.md section 10): each half-span Lp/2 a guided-pinned
+    beam-column, k = 2 T lam / (lam Lp/2 - tanh(lam Lp/2)), lam = sqrt(T / EI),
+    Lp = length / count, Lp and EI at the stretched length (factor 1 + T/EA); 48 EI/Lp^3 at
+    T = 0. Below lam Lp/2 = 1e-2 the series x - tanh x = x^3/3 - 2 x^5/15 + 17 x^7/315
+    replaces the difference, which loses precision there (exact to x^6 ~ 1e-12).
+    Paper eq. 4 (`weft_stiffness`) is its one-sine-mode value."""
+    stretch = 1.0 + tension / EA
+    lp, ei = length / count * stretch, EI * stretch
+    x = math.sqrt(tension / ei) * lp / 2
+    if x < 1e-2:
+        return 16 * ei / lp ** 3 / (1 / 3 - 2 * x * x / 15 + 17 * x ** 4 / 315)
+    return 2 * tension * (2 * x / lp) / (x - math.tanh(x))

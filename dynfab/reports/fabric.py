@@ -41,7 +41,7 @@ import numpy as np
 from dynfab.fabric.layout import warp_shape, weft_shape
 from dynfab.fabric.static import FabricStaticSolver
 from dynfab.reports.common import machine, output_folder, write_json, write_text
-from dynfab.reports.fabric_data import (FULL, PATHS, QUICK, YARNS, Plan, cell_spec, crimp_percent,
+from dynfab.reports.fabric_data import (eq4_against_beam, FULL, PATHS, QUICK, YARNS, Plan, cell_spec, crimp_percent,
                                         load_per_width, strain_percent, width_per_yarn,
                                         yarn_nodes)
 from dynfab.reports.fabric_plots import draw_figures
@@ -222,6 +222,13 @@ def summary_text(data: dict) -> str:
             f"{strain_percent(path, 'weft')[-1]:.3f} | {crimp_percent(path, 'warp')[-1]:.3f} | "
             f"{crimp_percent(path, 'weft')[-1]:.3f} | "
             f"{np.max(path['contact_force_N'][-1]):.4f} |")
+    lines += ["", "Paper eq. 4 against the tensioned beam (docs/model.md section 10), the paper's "
+              "weft, both at the stretched length:", "",
+              "| weft tension [N] | eq. 4 [N/m] | tensioned beam [N/m] | eq. 4 exceeds it by [%] |",
+              "|---|---|---|---|"]
+    for row in eq4_against_beam():
+        lines.append(f"| {row['tension_N']:g} | {row['eq4_N_per_m']:.4g} | "
+                     f"{row['beam_N_per_m']:.4g} | {row['excess_percent']:.2f} |")
     lines += ["", f"As woven, each family's crimp is "
                   f"{crimp_percent(data['paths']['1:1'], 'warp')[0]:.3f} %.", "", "Checks:", ""]
     for name, check in data["checks"].items():

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dynfab.fabric.spec import FabricSpec, Family
+from dynfab.geometry import tensioned_beam_stiffness, weft_stiffness
 
 SPACING = 0.1 / 16
 """Crossing spacing [m]: the paper's L / crossings (docs/model.md section 7), both directions."""
@@ -28,6 +29,8 @@ YARNS = 2
 """Warps and wefts in the cell (the plain-weave repeat)."""
 PAPER_YARN = dict(amplitude=0.5e-3, EA=13.72, EI=1.47e-7, kawabata_C=0.2e-3, kawabata_K=0.2)
 """The paper's yarn (docs/model.md section 7), K = 0.2 m/N where one is needed."""
+PAPER_WEFT_LENGTH, PAPER_WEFT_COUNT = 0.1, 16
+"""The paper's weft: L_we [m] and the warps N_wa it crosses (runs/paper_fig5.toml)."""
 
 PATHS = {"2:1": (1.0, 0.5), "1:1": (1.0, 1.0), "1:2": (0.5, 1.0), "1:0.05": (1.0, 0.05)}
 """Proportional biaxial paths, name -> (warp, weft) load ratio; the larger of the two loads
@@ -97,3 +100,23 @@ def crimp_percent(path: dict, family: str) -> np.ndarray:
 def larger_load(path: dict) -> np.ndarray:
     """(steps + 1,) the larger of the two loads per unit width [N/m] (the path's abscissa)."""
     return np.maximum(load_per_width(path, "warp"), load_per_width(path, "weft"))
+
+
+EQ4_TENSIONS_N = (0.0, 0.01, 0.1, 0.3, 0.6, 1.0)
+"""Weft tensions [N] of the table of paper eq. 4 against the tensioned beam."""
+
+
+def eq4_against_beam(tensions=EQ4_TENSIONS_N) -> list[dict]:
+    """Paper eq. 4 (the one-sine-mode weft stiffness the one-yarn model uses) against the
+    tensioned beam with alternating point loads (docs/model.md section 10) on the paper's
+    weft (EI, L_we = 0.1 m, N_wa = 16; EA of the warp, the paper giving none), both at the
+    stretched length (EI, L_we and Lp times 1 + T/EA) so that only the shape differs."""
+    EA, EI = PAPER_YARN["EA"], PAPER_YARN["EI"]
+    rows = []
+    for T in tensions:
+        stretch = 1.0 + T / EA
+        eq4 = weft_stiffness(EI * stretch, PAPER_WEFT_LENGTH * stretch, PAPER_WEFT_COUNT, T)
+        beam = tensioned_beam_stiffness(T, EA, EI, PAPER_WEFT_LENGTH, PAPER_WEFT_COUNT)
+        rows.append({"tension_N": T, "eq4_N_per_m": eq4, "beam_N_per_m": beam,
+                     "excess_percent": 100 * (eq4 / beam - 1)})
+    return rows
