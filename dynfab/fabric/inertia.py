@@ -1,7 +1,20 @@
 """The fabric's stability check: the inertia of its Hessian (docs/model.md sections 6, 10).
 
-Library sparse factorisations (SuperLU, which pivots for stability) give no inertia.
-Ours comes from Haynsworth's inertia additivity: split the free dofs into the crossing
+First route (`sparse_inertia`): SuperLU in symmetric mode, the Newton solve's factorisation
+(minimum degree on A^T + A, diagonal pivot threshold 0), factors P A P^T = L U of the
+symmetrised A = (H + H^T)/2 + tau I. When it took every pivot on the diagonal
+(perm_r == perm_c), the factorisation is unpivoted Gaussian elimination of the symmetric
+P A P^T, so U = D L^T with D = diag(U) (uniqueness of LDU), and P A P^T = L D L^T is a
+congruence: by Sylvester's law the negatives of A are the negative pivots diag(U). Guards,
+each sending the count to the second route: SuperLU failing, an off-diagonal pivot, a pivot
+within 64 eps max|H_ii| of zero (the threshold the banded LDL^T below uses), or element
+growth (max |L_ij| or max |U_ij| / max|H_ii| above GROWTH: unpivoted elimination of an
+indefinite matrix is backward stable only while its factors stay bounded). Its cost is the
+Newton solve's factorisation, so it scales like a Newton iteration
+(`python benchmarks/fabric.py`).
+
+Second route, the reference and fallback: library sparse factorisations that pivot
+off the diagonal give no inertia. It comes from Haynsworth's inertia additivity: split the free dofs into the crossing
 dofs K (both coordinates of every crossing's warp and weft node) and the rest I. The
 crossing couplings (contact and friction blocks) only join dofs of K, so H_II is block
 diagonal, one band per yarn (that yarn's band with its crossing and fixed dofs replaced
@@ -34,6 +47,9 @@ from dynfab.fabric import assembly
 from dynfab.ldlt import TINY_PIVOT, ldlt_factor, ldlt_solve
 
 EPS = np.finfo(np.float64).eps
+GROWTH = 1e4
+"""Largest max |L_ij| and max |U_ij| / max|H_ii| the sparse route accepts (on the benchmark's
+patches, positive definite: about 3 and 1)."""
 
 
 @dataclass
@@ -43,7 +59,9 @@ class Inertia:
     shift: float
     """The shift tau [N/m] applied (0 unless a pivot vanished, or as asked)."""
     schur_size: int
-    """|K|, the dense Schur complement's order."""
+    """|K|, the dense Schur complement's order (0 when the sparse route counted)."""
+    method: str = "schur"
+    """"superlu" (the sparse route), "schur" (Haynsworth) or "dense" (the periodic cell)."""
 
 
 def nearest_eigenvalue(H) -> float:
@@ -102,33 +120,53 @@ def crossing_mask(fabric) -> np.ndarray:
 
 
 def inertia(solver, pos, anchors, limit, shift: float = 0.0) -> Inertia:
-    """In(H - (-shift) I) on the free dofs: the negatives of H + shift I (module docstring)."""
+    """In(H - (-shift) I) on the free dofs: the negatives of H + shift I (module docstring):
+    the sparse route, else the Schur (or, for the periodic cell, dense) route, at the shift
+    asked and then at two rounding-level shifts above it."""
     fabric = solver.fabric
-    scale = _scale(solver, pos, anchors, limit)
-    if fabric.wrap_stiffness.any():
-        return _dense_inertia(solver, pos, anchors, limit, shift, scale)
+    H = solver.hessian(pos, anchors, limit)
+    scale = float(np.abs(H.diagonal()).max())
     for tau in (shift, shift + 1e3 * EPS * scale, shift + 1e6 * EPS * scale):
-        result = _inertia(fabric, pos, anchors, limit, tau, scale)
+        result = sparse_inertia(H, tau, scale)
+        if result is None:
+            result = (_dense_inertia(H, tau, scale) if fabric.wrap_stiffness.any() else
+                      _inertia(fabric, pos, anchors, limit, tau, scale))
         if result is not None:
             return result
     raise ArithmeticError("fabric inertia: a vanishing pivot survived the rounding shift")
 
 
-def _dense_inertia(solver, pos, anchors, limit, shift, scale) -> Inertia:
+def sparse_inertia(H, tau, scale):
+    """Negatives of (H + H^T)/2 + tau I from SuperLU's symmetric-mode pivots, or None when a
+    guard fails (module docstring): no off-diagonal pivot, none within 64 eps scale of zero,
+    element growth at most GROWTH."""
+    A = (0.5 * (H + H.T) + tau * scipy.sparse.identity(H.shape[0])).tocsc()
+    if A.shape[0] == 0:
+        return Inertia(0, tau, 0, "superlu")
+    try:
+        lu = scipy.sparse.linalg.splu(A, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                                      options=dict(SymmetricMode=True))
+    except RuntimeError:  # an exactly zero pivot with no usable row
+        return None
+    if not np.array_equal(lu.perm_r, lu.perm_c):
+        return None
+    U = lu.U
+    pivots = U.diagonal()
+    if not np.all(np.isfinite(U.data)) or np.any(np.abs(pivots) <= 64.0 * EPS * scale):
+        return None
+    if np.abs(U.data).max() > GROWTH * scale or np.abs(lu.L.data).max() > GROWTH:
+        return None
+    return Inertia(int(np.count_nonzero(pivots < 0.0)), tau, 0, "superlu")
+
+
+def _dense_inertia(H, tau, scale):
     """The periodic cell: its wrap springs and tied cell lengths join the ends of every
     yarn, so H is no longer a band per yarn plus crossing blocks; the cell is small, and
-    its whole (reduced) Hessian goes to the dense Bunch-Kaufman count."""
-    H = solver.hessian(pos, anchors, limit).toarray()
-    for tau in (shift, shift + 1e3 * EPS * scale, shift + 1e6 * EPS * scale):
-        count = dense_negatives(H + tau * np.eye(H.shape[0]), 64.0 * EPS * scale)
-        if count >= 0:
-            return Inertia(count, tau, H.shape[0])
-    raise ArithmeticError("fabric inertia: a vanishing pivot survived the rounding shift")
-
-
-def _scale(solver, pos, anchors, limit) -> float:
-    """max |H_ii| [N/m], the scale of the rounding shift."""
-    return float(np.abs(solver.hessian(pos, anchors, limit).diagonal()).max())
+    its whole (reduced) Hessian goes to the dense Bunch-Kaufman count; None if a pivot
+    block is within rounding of singular."""
+    D = H.toarray() + tau * np.eye(H.shape[0])
+    count = dense_negatives(D, 64.0 * EPS * scale)
+    return Inertia(count, tau, H.shape[0], "dense") if count >= 0 else None
 
 
 def _inertia(fabric, pos, anchors, limit, tau, scale):
