@@ -29,7 +29,8 @@ every part untimed on a 4 x 4 patch (compiles; loads the numba and Warp caches),
    the same step: time per load step, its time steps, the relaxation's time per time step,
    and the largest position difference from the static solution.
 5. `newton_pieces` (--pieces): gradient, Hessian assembly, SuperLU (default and
-   symmetric mode), the inertia by Schur complement against dense eigenvalues (n <= 8).
+   symmetric mode), the inertia (SuperLU's symmetric-mode pivots, else the Schur complement) against dense
+   eigenvalues (n <= 8).
 
 Timing: time.perf_counter, the fastest of REPEATS runs where one run takes less than
 FAST seconds, else one run (warm: the 4 x 4 pass compiled everything). Memory: the
@@ -383,8 +384,9 @@ def pcg_costs(n: int, static_positions=None, friction=None) -> dict:
 # --- 5. The pieces of one Newton iteration ---
 
 def newton_pieces(n: int, positions) -> dict:
-    """Gradient, Hessian, SuperLU (default, symmetric) and the inertia (Schur; dense eigenvalues
-    where n <= 8) at `positions`, the frictionless Newton solution of the load step."""
+    """Gradient, Hessian, SuperLU (default, symmetric) and the inertia (`inertia.inertia`, its
+    route recorded; dense eigenvalues where n <= 8) at `positions`, the frictionless Newton
+    solution of the load step."""
     solver = FabricStaticSolver(spec(n))
     pos, anchors = positions, solver.initial_state().anchors
     limit = np.zeros(n * n)
@@ -396,8 +398,8 @@ def newton_pieces(n: int, positions) -> dict:
            "hessian_s": timed(lambda: solver.hessian(pos, anchors, limit))[0],
            "splu_default_s": timed(lambda: scipy.sparse.linalg.splu(H).solve(-g))[0],
            "splu_symmetric_s": timed(lambda: _sparse_solve(H, -g))[0]}
-    row["inertia_schur_s"], result = timed(lambda: inertia.inertia(solver, pos, anchors, limit))
-    row["schur_negatives"] = int(result.negatives)
+    row["inertia_s"], result = timed(lambda: inertia.inertia(solver, pos, anchors, limit))
+    row["inertia_negatives"], row["inertia_method"] = int(result.negatives), result.method
     if n <= 8:
         dense = H.toarray()
         row["inertia_dense_eigvalsh_s"], values = timed(lambda: np.linalg.eigvalsh(dense))

@@ -33,8 +33,8 @@ KEYS = {"newton": {"dofs_free", "newton_s", "newton_iterations", "s_per_newton_i
                 "static_difference_m"},
         "dynamic": {"step_s", "time_steps", "relax_s_per_time_step", "residual_N",
                     "static_difference_m"},
-        "pieces": {"gradient_s", "hessian_s", "splu_symmetric_s", "inertia_schur_s",
-                   "schur_negatives", "dense_negatives"}}
+        "pieces": {"gradient_s", "hessian_s", "splu_symmetric_s", "inertia_s",
+                   "inertia_negatives", "inertia_method", "dense_negatives"}}
 
 
 @pytest.fixture(scope="module")
@@ -60,7 +60,7 @@ def test_every_part_gives_its_keys_and_the_summary_its_fits(rows):
     text = bench.report({"rows": [row], "summary": summary})
     assert f"{N}x{N}" in text and "Newton s/it" in text
     # the inertia by Schur complement counts what the dense eigenvalues count
-    assert rows["pieces"]["schur_negatives"] == rows["pieces"]["dense_negatives"]
+    assert rows["pieces"]["inertia_negatives"] == rows["pieces"]["dense_negatives"]
 
 
 def test_the_solvers_end_states_agree_within_their_residual_bound():

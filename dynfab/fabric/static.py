@@ -30,9 +30,10 @@ Kawabata's wall (k_c = inf) has energy +inf and is halved. If the Newton directi
 is shifted by mu I, mu growing tenfold from 1e-10 max|diag|, until it is.
 
 Each converged step is checked for stability (`dynfab.fabric.inertia`): the number of
-negative eigenvalues of the Hessian with F_T frozen, by Haynsworth's inertia additivity
-over the per-yarn banded LDL^T blocks (on the small periodic cell, a dense Bunch-Kaufman
-LDL^T), and the eigenvalue nearest zero (the smallest
+negative eigenvalues of the Hessian with F_T frozen, from the signs of the pivots of
+SuperLU's symmetric-mode factorisation (Sylvester's law), or where that is not safe by
+Haynsworth's inertia additivity over the per-yarn banded LDL^T blocks (on the small
+periodic cell, a dense Bunch-Kaufman LDL^T), and the eigenvalue nearest zero (the smallest
 when there is no negative one). From a saddle the step leaves along the lowest
 eigenvectors (shift-invert Lanczos below the spectrum, the shift placed by the inertia)
 and is solved again (`_certified`), as the one-yarn solver does along its LDL^T's
