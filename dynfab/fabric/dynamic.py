@@ -162,14 +162,7 @@ class FabricDynamicSolver:
         The record holds FabricStaticSolver.step's keys, iterations counting time steps, plus
         time_steps and relax_time [s] (the relaxations' wall time)."""
         f, spec, ref = self.fabric, self.spec, self.reference
-        loads = ref.yarn_loads(warp_value, weft_value)
-        pos = state.positions.copy()
-        anchors = state.anchors.copy()
-        if spec.control == "force":
-            P = loads
-        else:
-            P = np.zeros(self.yarns)
-            ref._prescribe(pos, loads)
+        pos, anchors, P = ref.start_of_step(state, warp_value, weft_value)
         began = time.perf_counter()
         pos, outcome = self.relax(pos, P, anchors)
         relax_time = time.perf_counter() - began

@@ -391,14 +391,7 @@ class FabricStaticSolver:
     def step(self, state: FabricState, warp_value: float, weft_value: float):
         """Solve one load step from `state`; returns (new state, record) or raises SolverError."""
         f, spec = self.fabric, self.spec
-        loads = self.yarn_loads(warp_value, weft_value)
-        pos = state.positions.copy()
-        anchors = state.anchors.copy()
-        if spec.control == "force":
-            P = loads
-        else:
-            P = np.zeros(self.yarns)
-            self._prescribe(pos, loads)
+        pos, anchors, P = self.start_of_step(state, warp_value, weft_value)
         info, limit, outer = self.solve(pos, P, anchors)
         if not info.converged:
             raise SolverError(
@@ -487,6 +480,18 @@ class FabricStaticSolver:
             state, record = self.step(state, warp_value, weft_value)
             records.append(record)
         return state, records
+
+    def start_of_step(self, state: FabricState, warp_value: float, weft_value: float):
+        """(positions, anchors, end loads P [N]) a load step starts from, copies of the state's:
+        under force control P is each yarn's load; under displacement control P = 0 and the
+        ends are moved to their prescribed displacements (`_prescribe`). Shared by the static
+        and the dynamic fabric solvers."""
+        loads = self.yarn_loads(warp_value, weft_value)
+        pos, anchors = state.positions.copy(), state.anchors.copy()
+        if self.spec.control == "force":
+            return pos, anchors, loads
+        self._prescribe(pos, loads)
+        return pos, anchors, np.zeros(self.yarns)
 
     def _prescribe(self, pos, loads) -> None:
         """Displacement control: u_N = load on each yarn, the increment spread linearly along
