@@ -112,3 +112,31 @@ def pull(yarn, positions):
     grad = np.zeros_like(positions)
     assembly.gradient(positions, yarn, 0.0, np.zeros(c), np.zeros(c), grad)
     return -grad[yarn.crossing_node, 0]
+
+
+# --------------------------------------------------------------------------
+# Finite differences (central), for the gradient and Hessian checks of every term.
+
+
+def fd_gradient(energy, r, h):
+    """Central differences of energy(r) in every coordinate, steps as rounded."""
+    out = np.zeros_like(r)
+    for idx in np.ndindex(r.shape):
+        plus, minus = r.copy(), r.copy()
+        plus[idx] += h
+        minus[idx] -= h
+        out[idx] = (energy(plus) - energy(minus)) / (plus[idx] - minus[idx])
+    return out
+
+
+def fd_jacobian(gradient, r, h):
+    """J[:, k] = central difference of gradient(r).ravel() in coordinate k."""
+    n = r.size
+    out = np.zeros((n, n))
+    for k in range(n):
+        plus, minus = r.copy().ravel(), r.copy().ravel()
+        plus[k] += h
+        minus[k] -= h
+        out[:, k] = (gradient(plus.reshape(r.shape)) - gradient(minus.reshape(r.shape))).ravel() \
+            / (plus[k] - minus[k])
+    return out

@@ -21,6 +21,7 @@ from dynfab.fabric.layout import build_fabric
 from dynfab.fabric.spec import FabricSpec, Family, Friction
 from dynfab.terms import friction as gralen
 from dynfab.terms.contact import closure_from_force
+from independent import fd_gradient, fd_jacobian
 
 EPS = np.finfo(float).eps
 
@@ -81,29 +82,6 @@ def perturbed_state(fabric, seed=7):
         anchors[i, 0] = r[a[i], 0] - px[i] - size * math.cos(angle)
         anchors[i, 1] = r[b[i], 0] - py[i] - size * math.sin(angle)
     return r, anchors, limit, g
-
-
-def fd_gradient(energy, r, h):
-    """Central differences of energy(r) in every coordinate, steps as rounded."""
-    out = np.zeros_like(r)
-    for idx in np.ndindex(r.shape):
-        plus, minus = r.copy(), r.copy()
-        plus[idx] += h
-        minus[idx] -= h
-        out[idx] = (energy(plus) - energy(minus)) / (plus[idx] - minus[idx])
-    return out
-
-
-def fd_jacobian(gradient, r, h):
-    """J[:, k] = central difference of gradient(r).ravel() in coordinate k."""
-    out = np.zeros((r.size, r.size))
-    for k in range(r.size):
-        plus, minus = r.copy().ravel(), r.copy().ravel()
-        plus[k] += h
-        minus[k] -= h
-        out[:, k] = (gradient(plus.reshape(r.shape)) - gradient(minus.reshape(r.shape))).ravel() \
-            / (plus[k] - minus[k])
-    return out
 
 
 def contact_length_scale(R, law):

@@ -34,7 +34,7 @@ from dynfab.banded import zeros_band
 from dynfab.model import build_model
 from dynfab.scene import with_key
 from dynfab.terms import bending, contact, friction, gravity, load, registry, stretch
-from independent import dense
+from independent import dense, fd_gradient, fd_jacobian
 
 EPS = np.finfo(float).eps
 
@@ -193,30 +193,6 @@ def perturbed_state(yarn, phase, reference, seed):
 
 # --------------------------------------------------------------------------
 # Finite differences.
-
-
-def fd_gradient(energy, r, h):
-    """Central differences of energy(r) in every coordinate, steps as rounded."""
-    out = np.zeros_like(r)
-    for idx in np.ndindex(r.shape):
-        plus, minus = r.copy(), r.copy()
-        plus[idx] += h
-        minus[idx] -= h
-        out[idx] = (energy(plus) - energy(minus)) / (plus[idx] - minus[idx])
-    return out
-
-
-def fd_jacobian(gradient, r, h):
-    """J[:, k] = central difference of gradient(r).ravel() in coordinate k."""
-    n = r.size
-    out = np.zeros((n, n))
-    for k in range(n):
-        plus, minus = r.copy().ravel(), r.copy().ravel()
-        plus[k] += h
-        minus[k] -= h
-        out[:, k] = (gradient(plus.reshape(r.shape)) - gradient(minus.reshape(r.shape))).ravel() \
-            / (plus[k] - minus[k])
-    return out
 
 
 def term_functions(yarn, anchors, F_T):
