@@ -12,6 +12,10 @@
   from 1) at each load step, one panel per yarn with friction (only if the
   file has friction).
 
+A fabric's file (docs/model.md section 10) gets ``fabric.png`` (each family's end force
+against strain, and crimps), and a pull-out's also ``pullout.png`` (the pull force
+against end displacement, and the slip front along the pulled warp).
+
 Matplotlib figures are built with `matplotlib.figure.Figure`, so the global
 pyplot state and backend are never touched; PNGs are written with Agg.
 """
@@ -51,7 +55,11 @@ def plot_results(path: str | os.PathLike, out_dir: str | os.PathLike) -> list[Pa
     if results.step_count == 0:
         raise UserError(f"result file '{path}' has no finished load step to plot")
     if results.attrs.get("model") == "fabric":  # docs/model.md section 10
-        return [save_png(plot_fabric(results), output_folder(out_dir) / "fabric.png")]
+        out = output_folder(out_dir)
+        written = [save_png(plot_fabric(results), out / "fabric.png")]
+        if "pullout_warp" in results.attrs:
+            written.append(save_png(plot_pullout(results), out / "pullout.png"))
+        return written
     for key in ("end_force", "end_displacement", "positions"):
         if key not in results.steps:
             raise UserError(f"result file '{path}' lacks dataset steps/{key}")
@@ -85,6 +93,57 @@ def plot_fabric(results: Results) -> Figure:
         style_axes(ax)
         _legend(ax)
     _suptitle(fig, results, "woven fabric")
+    return fig
+
+
+def pullout_curves(results: Results) -> dict:
+    """The pulled warp's (`pullout_warp`, 1-based) end displacement [m] and pull force [N]
+    per step, the sum of its crossings' friction limits sum_j F_T,j [N] (the force's bound,
+    reached once every crossing slides along x), and per crossing (numbered from the free
+    end) the share |F_x,j| / F_T,j of the limit its friction carries along the warp, and
+    whether the return map moved its anchor (docs/model.md sections 4, 10)."""
+    steps, k = results.steps, int(results.attrs["pullout_warp"]) - 1
+    warps, wefts = np.asarray(steps["contact_force"]).shape[1:]
+    friction = np.asarray(steps["friction_force"], float).reshape(-1, warps, wefts, 2)[:, k]
+    limit = np.asarray(steps["friction_limit"], float)[:, k]
+    share = np.divide(np.abs(friction[..., 0]), limit, out=np.zeros_like(limit),
+                      where=limit > 0)
+    return {"displacement": _per_yarn(results, "end_displacement")[:, k],
+            "force": _per_yarn(results, "end_force")[:, k], "limit_sum": limit.sum(axis=1),
+            "share": share, "sliding": np.asarray(steps["sliding"], bool)[:, k]}
+
+
+def plot_pullout(results: Results) -> Figure:
+    """A pull-out (docs/model.md section 10): the pull force against the pulled warp's end
+    displacement with the bound sum_j F_T,j, and the slip front: each crossing's share of
+    its friction limit carried along the warp, at each load step, sliding ones marked."""
+    curves = pullout_curves(results)
+    fig = new_figure(10, 4)
+    force_ax, front_ax = fig.subplots(1, 2)
+    mm = 1e3 * curves["displacement"]
+    force_ax.plot(mm, 1e3 * curves["force"], "o-", ms=3, label="pull force")
+    force_ax.plot(mm, 1e3 * curves["limit_sum"], "--", color="0.4",
+                  label="sum of the friction limits F_T on the warp")
+    force_ax.set(xlabel="end displacement of the pulled warp [mm], linear below 0.01",
+                 ylabel="force [mN]")
+    force_ax.set_xscale("symlog", linthresh=1e-2)  # the slip front: the first 0.1 mm
+    share, sliding = curves["share"], curves["sliding"]
+    steps, count = share.shape
+    image = front_ax.imshow(share.T, cmap="viridis", vmin=0.0, vmax=1.0, origin="lower",
+                            aspect="auto", interpolation="nearest",
+                            extent=(0.5, steps + 0.5, 0.5, count + 0.5))
+    step, crossing = np.nonzero(sliding)
+    front_ax.plot(step + 1, crossing + 1, "x", color="w", ms=3, label="anchor moved (sliding)")
+    fig.colorbar(image, ax=front_ax, label="|F_x| / F_T")
+    front_ax.set(xlabel="load step", ylabel="crossing (1 = nearest the free end)")
+    front_ax.xaxis.get_major_locator().set_params(integer=True)
+    front_ax.yaxis.get_major_locator().set_params(integer=True)
+    style_axes(force_ax)
+    _legend(force_ax)
+    style_axes(front_ax)
+    _legend(front_ax, loc="lower right")
+    front_ax.grid(False)
+    _suptitle(fig, results, f"pull-out of warp {results.attrs['pullout_warp']}")
     return fig
 
 

@@ -104,8 +104,9 @@ def test_strip_shows_crimp_interchange():
 def test_pullout_is_resisted_by_the_friction_of_the_pressed_crossings():
     """Stage 1 (weft ends pulled) presses the crossings, which carry no force as woven; in
     stage 2 the pulled warp's end force is the friction on its crossings (its x-equilibrium:
-    internal forces cancel, contact acts in z), at most their sum of limits, and once all
-    slide it stays there: a plateau (tests/test_fabric_pullout.py's argument)."""
+    internal forces cancel, contact acts in z), at most their sum of limits; it rises while
+    the slip front runs along the warp, and once all slide it stays at that sum: the peak is
+    a plateau (tests/test_fabric_pullout.py's argument)."""
     scene = load_scene(RUNS / "fabric_pullout.toml")
     model, results = FabricModel.from_scene(scene), run(scene)
     steps, k = results.steps, scene.pullout.warp - 1
@@ -125,6 +126,18 @@ def test_pullout_is_resisted_by_the_friction_of_the_pressed_crossings():
     assert last.all()
     # the plateau is the friction of the pressed crossings, not zero
     assert steps["end_force"][-1, k] > 0.5 * steps["friction_limit"][-1, k].sum()
+    # Through the slip front to the peak: every crossing slides along the warp at the last
+    # step, so the pull is sum_j F_T,j, short of it by the slip's leftover y-part: the slip
+    # after a radial return has length F_T/k_t, and the last step moved it dU along x, so
+    # 1 - cos(angle to x) <= 1/2 (c / (dU - c))^2 with c = max F_T / k_t.
+    c = steps["friction_limit"][-1, k].max() / model.fabric.stick_stiffness
+    dU = steps["load"][-1, 0] - steps["load"][-2, 0]
+    last = steps["friction_limit"][-1, k].sum()
+    tolerance = nodes * max(float(steps["residual"][-1]), model.spec.tolerance)
+    assert abs(steps["end_force"][-1, k] - last) <= tolerance + 0.5 * last * (c / (dU - c)) ** 2
+    # before it, the force rises through the steps of the front (stick to slip)
+    rising = steps["end_force"][~stage1, k]
+    assert np.all(np.diff(rising[:10]) > 0) and rising[0] < 0.9 * last
 
 
 def test_fabric_file_resumes_to_the_uninterrupted_run(tmp_path):
@@ -152,6 +165,29 @@ def test_fabric_file_resumes_to_the_uninterrupted_run(tmp_path):
     assert [p.name for p in plot_results(part, tmp_path / "plots")] == ["fabric.png"]
     view = part.with_suffix(".xdmf").read_text()
     assert view.count('Name="steps ') == 2 * 10 and "weft_positions" in view
+
+
+def test_pullout_figure_draws_the_file(tmp_path):
+    """`dynfab plot` on a pull-out draws the pull force, the sum of the limits and each
+    crossing's |F_x| / F_T from the file's datasets, recomputed here."""
+    from dynfab.plot import plot_pullout, plot_results
+    from dynfab.results import read_results
+
+    scene = parse_scene_text(small_pullout())
+    path = tmp_path / "pullout.h5"
+    run_to_file(scene, "static", path)
+    assert [p.name for p in plot_results(path, tmp_path)] == ["fabric.png", "pullout.png"]
+    results, k = read_results(path), scene.pullout.warp - 1
+    steps = results.steps
+    force_ax, front_ax = plot_pullout(results).axes[:2]
+    force, bound = force_ax.get_lines()[:2]
+    np.testing.assert_array_equal(force.get_ydata(), 1e3 * steps["end_force"][:, k])
+    np.testing.assert_array_equal(force.get_xdata(), 1e3 * steps["end_displacement"][:, k])
+    np.testing.assert_array_equal(bound.get_ydata(),
+                                  1e3 * steps["friction_limit"][:, k].sum(axis=1))
+    limit = steps["friction_limit"][:, k]
+    share = np.abs(steps["friction_force"][:, k, :, 0]) / np.where(limit > 0, limit, np.inf)
+    np.testing.assert_allclose(front_ax.get_images()[0].get_array(), share.T, rtol=1e-15)
 
 
 def small_pullout() -> str:

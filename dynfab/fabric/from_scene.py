@@ -119,7 +119,8 @@ class FabricModel:
                 "reference_state": scene.geometry.reference, "load_control": spec.control,
                 "yarn_labels": [f"warp {k + 1}" for k in range(spec.warps)]
                 + [f"weft {j + 1}" for j in range(spec.wefts)],
-                "terms": list(TERMS)}
+                "terms": list(TERMS), **({} if spec.pullout is None
+                                          else {"pullout_warp": int(spec.pullout)})}
 
     def initial_state(self) -> FabricState:
         return as_woven_state(self.fabric)
