@@ -10,5 +10,9 @@ dynfab stability --out docs/figures/stability
 dynfab figures --out docs/figures/paper
 dynfab convergence --out docs/figures/convergence
 dynfab fabric --out docs/figures/fabric
+pullout=$(mktemp -d)
+dynfab run runs/fabric_pullout.toml --out "$pullout/pullout.h5" --quiet
+dynfab plot "$pullout/pullout.h5" --out "$pullout" >/dev/null
+cp "$pullout/pullout.png" docs/figures/fabric/pullout.png
 python benchmarks/static.py
 python benchmarks/dynamic.py
