@@ -24,6 +24,7 @@ from typing import Callable
 import numpy as np
 
 from dynfab.budget import check_budget
+from dynfab.domain import check_not_folded
 from dynfab.errors import DynfabError, SolverError, UserError
 from dynfab.options import apply_run_options, check_solver
 from dynfab.model import Model, State, build_model, initial_state, width_per_yarn
@@ -186,11 +187,13 @@ def _solve(model: Model, engine: Solver | Transient, sink, progress) -> int:
     values = model.load_values
     unit = "N" if model.control == "force" else "m"
     first, floors, total = sink.step_count, [], len(values)
+    labels = model.attrs()["yarn_labels"] if _is_fabric(model) else yarn_labels(model.scene)
     for index in range(first, total):
         started = time.perf_counter()
         load = float(values[index]) if values.ndim == 1 else values[index]  # fabric: (warp, weft)
         try:
             state, record = engine.step(state, load)
+            check_not_folded(record, labels)
         except SolverError as error:
             shown = " ".join(f"{v:.6g}" for v in np.atleast_1d(load))
             raise SolverError(f"load step {index + 1}/{total} (load {shown} {unit}): "

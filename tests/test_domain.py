@@ -1,0 +1,64 @@
+"""A folded yarn is outside the model (docs/model.md, what the model is not): `dynfab run`
+stops the step with exit status 3 instead of writing a mirrored yarn as a result."""
+
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from dynfab.cli import main
+from dynfab.domain import first_fold
+
+RUNS = Path(__file__).resolve().parents[1] / "runs"
+
+
+def chains(x_of_yarn):
+    """(yarns, nodes, 2) chains with the given in-plane coordinates and z = 0."""
+    x = np.asarray(x_of_yarn, float)
+    return np.stack([x, np.zeros_like(x)], axis=-1)
+
+
+def test_first_fold_names_the_first_segment_that_points_back():
+    assert first_fold(chains([[0.0, 1.0, 2.0], [0.0, 0.5, 1.0]])) is None
+    assert first_fold(chains([[0.0, 1.0, 2.0], [0.0, 0.5, 0.4]])) == (1, 1, pytest.approx(-0.1))
+    assert first_fold(chains([[0.0, 0.0, 1.0]])) == (0, 0, 0.0)  # a vertical segment: 90 deg
+    assert first_fold(chains([[0.0, np.nan, 1.0]]))[:2] == (0, 0)  # never a silent NaN
+
+
+def compressed_yarn(tmp_path) -> Path:
+    """The paper yarn, as woven, under force control -0.01 N then -0.1 N (section 7)."""
+    text = (RUNS / "relax.toml").read_text()
+    text = text[:text.index("[dynamic]")]
+    text = text.replace('reference = "prestressed"', 'reference = "as_woven"')
+    text = text.replace("values = [0.0]", "values = [-0.01, -0.1]")
+    path = tmp_path / "compressed.toml"
+    path.write_text(text)
+    return path
+
+
+def test_a_yarn_compressed_until_it_folds_stops_the_run_with_status_3(tmp_path, capsys):
+    """At -0.1 N the static solver converges to the yarn mirrored through its first node
+    (stable: the springs are blind to the mirror); the run keeps step 1 and stops."""
+    out = tmp_path / "out.h5"
+    with pytest.raises(SystemExit) as stop:
+        main(["run", str(compressed_yarn(tmp_path)), "--out", str(out), "--quiet"])
+    assert stop.value.code == 3
+    error = capsys.readouterr().err
+    assert "load step 2/2" in error and "yarn 1 (s=+1) folded back at segment" in error
+    with h5py.File(out, "r") as h5:
+        assert int(h5["steps_done"][0]) == 1
+        assert first_fold(h5["steps/positions"][0]) is None
+
+
+def test_a_fabric_cell_compressed_both_ways_stops_naming_a_warp(tmp_path, capsys):
+    text = (RUNS / "fabric_biaxial.toml").read_text()
+    lines = [("values = [-0.5]" if line.startswith("values =") else
+              "weft_values = [-0.5]" if line.startswith("weft_values =") else line)
+             for line in text.splitlines()]
+    scene = tmp_path / "cell.toml"
+    scene.write_text("\n".join(lines) + "\n")
+    with pytest.raises(SystemExit) as stop:
+        main(["run", str(scene), "--out", str(tmp_path / "cell.h5"), "--quiet"])
+    assert stop.value.code == 3
+    assert "warp 1 folded back at segment" in capsys.readouterr().err
