@@ -478,7 +478,8 @@ def functions(scalar) -> SimpleNamespace:
 
 @functools.cache
 def system_kernel(scalar):
-    """One thread: forces at pos, then A, rhs and P (and with `solve`, x = A^-1 rhs by PCG);
+    """One thread: with `assemble`, forces at pos, then A, rhs and P; with `solve`,
+    x = A^-1 rhs by PCG (the persistent layout's solve);
     outcome[0] = the first bad pivot (-1), outcome[1] = CG iterations. For tests and the
     benchmark's layout comparison."""
     vec = VECTORS[scalar]
@@ -490,10 +491,12 @@ def system_kernel(scalar):
                anchors: wp.array(dtype=vec), pos: wp.array(dtype=vec), vel: wp.array(dtype=vec),
                force: wp.array(dtype=vec), contact: wp.array(dtype=scalar),
                friction: wp.array(dtype=vec), dt: scalar, damping: scalar, definite: int,
-               solve: int, tolerance: scalar, max_iterations: int, outcome: wp.array(dtype=wp.int32)):
-        force_ops.scatter_forces(pos, fabric, anchors, contact, friction, external, force)
-        outcome[0] = ops.build_system(pos, vel, force, mass, fabric, anchors, contact, work, dt,
-                                      damping, definite)
+               assemble: int, solve: int, tolerance: scalar, max_iterations: int,
+               outcome: wp.array(dtype=wp.int32)):
+        if assemble != 0:
+            force_ops.scatter_forces(pos, fabric, anchors, contact, friction, external, force)
+            outcome[0] = ops.build_system(pos, vel, force, mass, fabric, anchors, contact, work,
+                                          dt, damping, definite)
         outcome[1] = 0
         if solve != 0:
             outcome[1] = ops.pcg(fabric, work, dt * dt, tolerance, max_iterations)
@@ -601,6 +604,107 @@ def relaxation_kernel(scalar):
     return relax
 
 
+START, PRECONDITION, FIRST_SUM, COPY_DIRECTION, PRODUCT, CURVATURE, STEP_LENGTH, UPDATE, \
+    NEXT_SUM, DIRECTION = range(10)
+"""The stages of `stage_kernel`."""
+
+
+@functools.cache
+def stage_kernel(scalar):
+    """The launch-per-stage layout of one PCG solve: one kernel, its stage chosen per launch
+    (one module to compile), a thread per dof, node or yarn, or one thread for each reduction
+    over the yarns' partial sums, in yarn order: the GPU's layout, the same arithmetic in the
+    same order as `functions.pcg` (bit-identical x). `scalars` = (r^T z, stop, alpha, beta,
+    done, iterations)."""
+    Fabric, Work = fabric_arrays.struct(scalar), work_struct(scalar)
+    ops = functions(scalar)
+
+    @wp.func
+    def partial_sum(work: Work) -> scalar:
+        total = scalar(0.0)
+        for y in range(work.partial.shape[0]):
+            total += work.partial[y]
+        return total
+
+    @wp.kernel(module="unique", module_options=MODULE_OPTIONS)
+    def stage_pass(fabric: Fabric, work: Work, dt2: scalar, tolerance: scalar,
+                   scalars: wp.array(dtype=scalar), stage: int):
+        t = wp.tid()
+        done = scalars[4] != scalar(0.0)
+        if stage == START:  # x = 0, r = b (per dof)
+            work.x[t] = scalar(0.0)
+            work.r[t] = work.rhs[t]
+        elif stage == PRECONDITION:  # z = P^-1 r, partial = r . z (per yarn)
+            ops.precondition_yarn(t, work)
+            work.partial[t] = ops.yarn_dot(t, work.r, work.z, work)
+        elif stage == FIRST_SUM:  # r^T z and the stopping value (one thread)
+            total = partial_sum(work)
+            scalars[0] = total
+            scalars[1] = tolerance * tolerance * total
+            scalars[4] = scalar(0.0)
+            if not total > scalars[1]:
+                scalars[4] = scalar(1.0)
+        elif stage == COPY_DIRECTION:  # p = z (per dof)
+            work.p[t] = work.z[t]
+        elif stage == PRODUCT:  # q = A p (per node)
+            ops.product_node(t, work.p, work.q, fabric, work, dt2)
+        elif stage == CURVATURE:  # partial = p . q (per yarn)
+            work.partial[t] = ops.yarn_dot(t, work.p, work.q, work)
+        elif stage == STEP_LENGTH:  # alpha, or done where p^T A p is not positive (one thread)
+            total = partial_sum(work)
+            if not done:
+                if total > scalar(0.0):
+                    scalars[2] = scalars[0] / total
+                else:
+                    scalars[4] = scalar(1.0)
+        elif stage == UPDATE:  # x += alpha p, r -= alpha q until done; thread 0 counts (per dof)
+            if not done:
+                alpha = scalars[2]
+                work.x[t] = work.x[t] + alpha * work.p[t]
+                work.r[t] = work.r[t] - alpha * work.q[t]
+                if t == 0:
+                    scalars[5] = scalars[5] + scalar(1.0)
+        elif stage == NEXT_SUM:  # beta = new r^T z / old; done at the stop (one thread)
+            total = partial_sum(work)
+            if not done:
+                scalars[3] = total / scalars[0]
+                scalars[0] = total
+                if not total > scalars[1]:
+                    scalars[4] = scalar(1.0)
+        elif stage == DIRECTION:  # p = z + beta p (per dof)
+            work.p[t] = work.z[t] + scalars[3] * work.p[t]
+
+    return stage_pass
+
+
+def pcg_launches(semi: "FabricSemiImplicit", dt: float, max_iterations: int | None = None,
+                 check_interval: int = 1) -> int:
+    """x = A^-1 rhs of the system last assembled in `semi.work`, by PCG in the launch-per-stage
+    layout (`stage_kernel`): 7 launches per iteration, the done flag read back every
+    `check_interval` iterations (after done, no launch changes x, r or the count: the flag
+    freezes them). Returns the iterations."""
+    kernel, work, device, scalar = stage_kernel(semi.scalar), semi.work, semi.device, semi.scalar
+    dofs, nodes = 2 * semi.arrays.nodes, semi.arrays.nodes
+    yarns = work.partial.shape[0]
+    max_iterations = dofs if max_iterations is None else max_iterations
+    scalars = wp.zeros(6, dtype=scalar, device=device)
+    dt2, tolerance = scalar(dt * dt), scalar(semi.cg_tolerance)
+
+    def launch(stage, dim):
+        wp.launch(kernel, dim=dim, device=device,
+                  inputs=[semi.fabric, work, dt2, tolerance, scalars, stage])
+    for stage, dim in ((START, dofs), (PRECONDITION, yarns), (FIRST_SUM, 1),
+                       (COPY_DIRECTION, dofs)):
+        launch(stage, dim)
+    for launched in range(max_iterations):
+        if launched % check_interval == 0 and scalars.numpy()[4] != 0.0:
+            break
+        for stage, dim in ((PRODUCT, nodes), (CURVATURE, yarns), (STEP_LENGTH, 1), (UPDATE, dofs),
+                           (PRECONDITION, yarns), (NEXT_SUM, 1), (DIRECTION, dofs)):
+            launch(stage, dim)
+    return int(scalars.numpy()[5])
+
+
 @dataclass
 class SemiOutcome:
     """What a semi-implicit relaxation reached."""
@@ -669,7 +773,7 @@ class FabricSemiImplicit:
 
     def system(self, positions, external, anchors, velocities=None, *, dt: float = 1.0,
                definite: bool = True, solve: bool = False, masses: np.ndarray | None = None,
-               max_iterations: int | None = None):
+               max_iterations: int | None = None, assemble: bool = True):
         """Assemble (and with `solve`, PCG-solve) one step's system at `positions` (tests,
         benchmark). Returns (bad pivot or -1, CG iterations)."""
         n = self.arrays.nodes
@@ -682,7 +786,7 @@ class FabricSemiImplicit:
                           self.anchors, self._array(positions, self.vec),
                           self._array(velocities, self.vec), self.force, self.contact,
                           self.friction, self.scalar(dt), self.scalar(self.coefficient),
-                          int(definite), int(solve), self.scalar(self.cg_tolerance),
+                          int(definite), int(assemble), int(solve), self.scalar(self.cg_tolerance),
                           int(2 * n if max_iterations is None else max_iterations), code])
         bad, iterations = (int(v) for v in code.numpy())
         return bad, iterations

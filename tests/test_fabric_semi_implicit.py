@@ -3,8 +3,8 @@ reference: its tangent against the exact Hessian, its preconditioned CG against 
 solve, its load steps against Newton's within their residual bounds (docs/model.md sections 5,
 10).
 
-Two kernel variants (float64, friction compiled in): the relaxation and the one-thread
-system assembly/solve; the force passes and the explicit relaxation are those
+Three kernels (float64, friction compiled in): the relaxation, the one-thread system
+assembly/solve and the launch-per-stage PCG; the force passes and the explicit relaxation are those
 tests/test_fabric_kernels.py builds.
 """
 
@@ -126,6 +126,22 @@ def test_preconditioned_cg_meets_its_stopping_bound_against_a_dense_solve(dt):
     smallest = scipy.linalg.eigh(A, P, eigvals_only=True).min()
     error = x - exact
     assert error @ A @ error <= r_norm2 / smallest * (1 + 1e-6)
+
+
+def test_the_launch_per_stage_pcg_is_the_persistent_one_bit_for_bit():
+    """The GPU's layout of one PCG solve (a launch per stage, threads per dof, node and yarn,
+    sums over the yarns in order) gives the persistent kernel's x exactly and the same
+    iteration count, whether the done flag is read back every iteration or every 4th."""
+    static, dynamic, pos, anchors = loaded_state(n=4, value=0.1)
+    semi = dynamic.relaxation
+    semi.cg_tolerance = 1e-10  # many iterations
+    dt = 1e4
+    _, iterations = assembled(dynamic, pos, anchors, dt=dt, solve=True)
+    x = semi.work.x.numpy().copy()
+    assert iterations > 4
+    for interval in (1, 4):
+        assert fabric_semi_implicit.pcg_launches(semi, dt, check_interval=interval) == iterations
+        np.testing.assert_array_equal(semi.work.x.numpy(), x)
 
 
 def block_pattern(dynamic) -> np.ndarray:
