@@ -214,6 +214,7 @@ def test_a_semi_implicit_scene_runs_and_matches_the_static_run():
 
     model = FabricModel.from_scene(scene)
     static, semi = run(scene, "static"), run(scene, "dynamic")
+    assert semi.attrs["dynamic_method"] == "semi_implicit"
     for i in range(static.step_count):
         tol = 2 * position_bound(model, static, i)
         for name in ("positions", "weft_positions"):

@@ -179,6 +179,7 @@ class FabricSolver:
                  "static_max_iterations": spec.max_iterations}
         if self.name == "dynamic":
             attrs["dynamic_damping"] = self.model.scene.dynamic.damping_used()
+            attrs["dynamic_method"] = self.model.scene.dynamic.method  # as the one-yarn run's
         return attrs
 
     def step(self, state: FabricState, load) -> tuple[FabricState, dict]:
