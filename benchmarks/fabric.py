@@ -33,8 +33,9 @@ every part untimed on a 4 x 4 patch (compiles; loads the numba and Warp caches),
    eigenvalues (n <= 8).
 6. `semi_costs` (part "semi"): `FabricDynamicSolver(method="semi_implicit").step` on the
    same step: time, time steps, CG iterations per time step, |x - x_static|, its relaxation
-   against the Newton solve; and one Newton-like system (dt = 1e4 s) at its solution solved
-   by PCG in the persistent layout and in the launch-per-stage one: us per CG iteration.
+   against the Newton solve; the relaxation in the per-step layout (a launch per stage, one
+   run); and one Newton-like system (dt = 1e4 s) at its solution solved by PCG in the
+   persistent layout and in the launch-per-stage one: us per CG iteration.
 
 Timing: time.perf_counter, the fastest of REPEATS runs where one run takes less than
 FAST seconds, else one run (warm: the 4 x 4 pass compiled everything). Memory: the
@@ -435,6 +436,11 @@ def semi_costs(n: int, static_positions=None, friction=None, newton_s=None) -> d
         state.positions, solver.external_force(P), anchors, dt=dt, assemble=False, solve=True)[1])
     x = semi.work.x.numpy().copy()
     launches, _ = per_iteration(lambda: fabric_semi_implicit.pcg_launches(semi, dt))
+    per_step = FabricDynamicSolver(spec(n, friction), method="semi_implicit", layout="per_step")
+    pos, held, loads = per_step.reference.start_of_step(start, *LOAD)
+    began = time.perf_counter()
+    per_step.relax(pos, loads, held)
+    row["per_step_relax_s"] = time.perf_counter() - began  # one run: the whole time loop
     row.update({"layout_cg_iterations": count,
                 "persistent_us_per_cg_iteration": 1e6 * persistent,
                 "launches_us_per_cg_iteration": 1e6 * launches,

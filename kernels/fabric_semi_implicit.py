@@ -40,15 +40,21 @@ f^T M^-1 f (capped at DT_MAX), and a step that does not is undone (positions bac
 velocities zeroed) and dt halved. A factorisation with a pivot that is not positive
 (rounding at very large dt) halves dt and rebuilds.
 
-Layout "persistent" (the CPU's): one launch per relaxation, one thread running the time loop
-and every CG iteration inside, each stage a loop over the per-unit `wp.func`s (crossing
-blocks per crossing, the yarn systems and the preconditioner per yarn, the matrix-vector
-product per node), every sum in a fixed order: bit for bit repeatable. A GPU layout
-launches the same per-unit functions with a thread per crossing, yarn and node (no
-atomics: a node's product row reads its own band rows and its crossing partner; a yarn's
-preconditioner its own dofs), with the dot products summed per yarn and then over yarns in
-order; `pcg_launches` is that layout of one solve (`python benchmarks/fabric.py --parts
-semi` times it against the persistent one on this CPU).
+Two layouts, the same arithmetic in the same order (bit-identical runs; tests check it):
+
+- "persistent" (the CPU's default): one launch per relaxation, one thread running the time
+  loop and every CG iteration inside, each stage a loop over the per-unit `wp.func`s;
+- "per_step" (the GPU's default): the time loop in Python, a launch per stage with a thread
+  per crossing (R, friction, the crossing blocks), node (the force gather, the product
+  A p, the move), yarn (the yarn systems and their LU, the preconditioner, the per-yarn
+  partial sums) or dof (the CG vector updates), one thread for each total over the yarns'
+  partial sums (in yarn order), and the decisions (CG's stop, a step's acceptance, a bad
+  pivot) on values read back. No atomics: every thread writes its own slots.
+
+Which pays on the CPU, where a launch runs its threads one after another: the per-step
+layout adds 7 launches and a read-back per CG iteration, measured against the work of an
+iteration by `python benchmarks/fabric.py --parts newton,semi` (docs/results.md, "Woven
+fabric: semi-implicit against static").
 """
 
 import functools
@@ -59,7 +65,8 @@ import numpy as np
 import warp as wp
 
 from dynfab.banded import BANDWIDTH
-from dynfab.kernels import fabric_arrays, fabric_forces, friction as friction_module, status
+from dynfab.kernels import fabric_arrays, fabric_explicit, fabric_forces, status
+from dynfab.kernels import friction as friction_module
 from dynfab.kernels.configuration import MODULE_OPTIONS
 from dynfab.kernels.precision import VECTORS, numpy_dtype
 
@@ -100,6 +107,8 @@ def work_struct(scalar):
         p: wp.array(dtype=scalar)             # (2n,) search direction
         q: wp.array(dtype=scalar)             # (2n,) A p
         partial: wp.array(dtype=scalar)       # (Y,) per-yarn partial dot products
+        largest: wp.array(dtype=scalar)       # (Y,) per-yarn largest |f component| [N]
+        failed: wp.array(dtype=wp.int32)      # (Y,) per-yarn first bad pivot, or -1
         previous: wp.array(dtype=vec)         # (n,) positions before the step [m]
 
     return SemiWork
@@ -126,6 +135,8 @@ def allocate(arrays: fabric_arrays.PatchArrays, scalar, device: str):
     for name in ("rhs", "x", "r", "z", "p", "q"):
         setattr(work, name, wp.zeros(dofs, dtype=scalar, device=device))
     work.partial = wp.zeros(start.size - 1, dtype=scalar, device=device)
+    work.largest = wp.zeros(start.size - 1, dtype=scalar, device=device)
+    work.failed = wp.zeros(start.size - 1, dtype=wp.int32, device=device)
     work.previous = wp.zeros(n, dtype=vec, device=device)
     return work
 
@@ -473,9 +484,56 @@ def functions(scalar) -> SimpleNamespace:
                 failed = bad
         return failed
 
+    @wp.func
+    def larger(worst: scalar, value: scalar) -> scalar:
+        """max(worst, |value|), a NaN kept once met."""
+        result = worst
+        if worst == worst and not wp.abs(value) <= worst:
+            result = wp.abs(value)
+        return result
+
+    @wp.func
+    def yarn_merit(y: int, force: wp.array(dtype=vec), mass: wp.array(dtype=scalar),
+                   work: Work) -> vec:
+        """(largest |f component| [N], sum f^T f / m [N^2/kg]) over yarn y's nodes, in order."""
+        worst = scalar(0.0)
+        total = scalar(0.0)
+        for i in range(work.yarn_start[y], work.yarn_start[y + 1]):
+            f = force[i]
+            total += wp.dot(f, f) / mass[i]
+            worst = larger(larger(worst, f[0]), f[1])
+        return vec(worst, total)
+
+    @wp.func
+    def merit_total(work: Work) -> vec:
+        """(residual, f^T M^-1 f) from the per-yarn values, in yarn order."""
+        worst = scalar(0.0)
+        total = scalar(0.0)
+        for y in range(work.partial.shape[0]):
+            worst = larger(worst, work.largest[y])
+            total += work.partial[y]
+        return vec(worst, total)
+
+    @wp.func
+    def move_node(i: int, pos: wp.array(dtype=vec), vel: wp.array(dtype=vec), work: Work,
+                  dt: scalar):
+        """previous = x, v += dv, x += dt v at node i."""
+        work.previous[i] = pos[i]
+        v = vel[i] + vec(work.x[2 * i], work.x[2 * i + 1])
+        vel[i] = v
+        pos[i] = pos[i] + dt * v
+
+    @wp.func
+    def undo_node(i: int, pos: wp.array(dtype=vec), vel: wp.array(dtype=vec), work: Work):
+        """Back to the step's start, at rest."""
+        pos[i] = work.previous[i]
+        vel[i] = vec(scalar(0.0), scalar(0.0))
+
     return SimpleNamespace(crossing_blocks=crossing_blocks, build_yarn=build_yarn,
                            product_node=product_node, precondition_yarn=precondition_yarn,
-                           yarn_dot=yarn_dot, dot=dot, pcg=pcg, build_system=build_system)
+                           yarn_dot=yarn_dot, dot=dot, pcg=pcg, build_system=build_system,
+                           yarn_merit=yarn_merit, merit_total=merit_total, move_node=move_node,
+                           undo_node=undo_node)
 
 
 @functools.cache
@@ -515,20 +573,22 @@ def relaxation_kernel(scalar):
     ops, force_ops = functions(scalar), fabric_forces.functions(scalar, True)
 
     @wp.func
-    def evaluate(fabric: Fabric, mass: wp.array(dtype=scalar), external: wp.array(dtype=vec),
-                 anchors: wp.array(dtype=vec), pos: wp.array(dtype=vec), force: wp.array(dtype=vec),
-                 contact: wp.array(dtype=scalar), friction: wp.array(dtype=vec)) -> vec:
-        """Forces at pos; returns (max |f component| [N], f^T M^-1 f [N^2/kg])."""
-        force_ops.scatter_forces(pos, fabric, anchors, contact, friction, external, force)
-        residual = scalar(0.0)
-        merit = scalar(0.0)
+    def evaluate(fabric: Fabric, work: Work, mass: wp.array(dtype=scalar),
+                 external: wp.array(dtype=vec), anchors: wp.array(dtype=vec), pos: wp.array(dtype=vec),
+                 force: wp.array(dtype=vec), contact: wp.array(dtype=scalar),
+                 friction: wp.array(dtype=vec)) -> vec:
+        """Forces at pos; returns (max |f component| [N], f^T M^-1 f [N^2/kg]). The per-step
+        layout's order: the crossing pass, the per-node gather, per-yarn sums added in yarn
+        order (bit-identical layouts; the forces are a small part of a step's cost)."""
+        for c in range(contact.shape[0]):
+            force_ops.crossing_pass(pos, fabric, anchors, contact, friction, c)
         for i in range(pos.shape[0]):
-            f = force[i]
-            merit += wp.dot(f, f) / mass[i]
-            for comp in range(2):
-                if not wp.abs(f[comp]) <= residual:
-                    residual = wp.abs(f[comp])
-        return vec(residual, merit)
+            force[i] = force_ops.node_force(i, pos, fabric, contact, friction, external)
+        for y in range(work.partial.shape[0]):
+            value = ops.yarn_merit(y, force, mass, work)
+            work.largest[y] = value[0]
+            work.partial[y] = value[1]
+        return ops.merit_total(work)
 
     @wp.kernel(module="unique", module_options=MODULE_OPTIONS)
     def relax(fabric: Fabric, work: Work, mass: wp.array(dtype=scalar), external: wp.array(dtype=vec),
@@ -542,7 +602,7 @@ def relaxation_kernel(scalar):
         nodes = pos.shape[0]
         dofs = 2 * nodes
         dt = dt_start
-        state = evaluate(fabric, mass, external, anchors, pos, force, contact, friction)
+        state = evaluate(fabric, work, mass, external, anchors, pos, force, contact, friction)
         residual = state[0]
         merit = state[1]
         best = residual
@@ -552,7 +612,7 @@ def relaxation_kernel(scalar):
         iterations = int(0)
         rejected = int(0)
         for step in range(max_steps + 1):
-            if not wp.isfinite(residual):
+            if not (wp.isfinite(residual) and wp.isfinite(merit)):
                 code = int(status.NON_FINITE)
                 break
             if residual <= tolerance:
@@ -575,11 +635,8 @@ def relaxation_kernel(scalar):
                 break
             iterations += ops.pcg(fabric, work, dt * dt, cg_tolerance, dofs)
             for i in range(nodes):
-                work.previous[i] = pos[i]
-                v = vel[i] + vec(work.x[2 * i], work.x[2 * i + 1])
-                vel[i] = v
-                pos[i] = pos[i] + dt * v
-            state = evaluate(fabric, mass, external, anchors, pos, force, contact, friction)
+                ops.move_node(i, pos, vel, work, dt)
+            state = evaluate(fabric, work, mass, external, anchors, pos, force, contact, friction)
             if state[1] < merit:
                 merit = state[1]
                 dt = wp.min(dt * scalar(DT_GROWTH), scalar(DT_MAX))
@@ -587,9 +644,8 @@ def relaxation_kernel(scalar):
                 rejected += 1
                 dt = dt * scalar(DT_SHRINK)
                 for i in range(nodes):
-                    pos[i] = work.previous[i]
-                    vel[i] = vec(scalar(0.0), scalar(0.0))
-                state = evaluate(fabric, mass, external, anchors, pos, force, contact, friction)
+                    ops.undo_node(i, pos, vel, work)
+                state = evaluate(fabric, work, mass, external, anchors, pos, force, contact, friction)
             residual = state[0]
             if residual < best:
                 best = residual
@@ -707,6 +763,46 @@ def pcg_launches(semi: "FabricSemiImplicit", dt: float, max_iterations: int | No
     return int(scalars.numpy()[5])
 
 
+CROSSINGS, BUILD, MOVE, UNDO, MERIT, MERIT_SUM = range(6)
+"""The stages of `step_stage_kernel`."""
+
+
+@functools.cache
+def step_stage_kernel(scalar):
+    """The per-step layout's stages of a time step outside CG (one kernel, its stage chosen per
+    launch): the crossing blocks (a thread per crossing), the yarn systems (per yarn), the
+    move and its undoing (per node), the per-yarn merit and residual (per yarn) and their
+    total (one thread, into sums = (residual, f^T M^-1 f))."""
+    vec = VECTORS[scalar]
+    Fabric, Work = fabric_arrays.struct(scalar), work_struct(scalar)
+    ops = functions(scalar)
+
+    @wp.kernel(module="unique", module_options=MODULE_OPTIONS)
+    def step_pass(fabric: Fabric, work: Work, mass: wp.array(dtype=scalar),
+                  anchors: wp.array(dtype=vec), pos: wp.array(dtype=vec), vel: wp.array(dtype=vec),
+                  force: wp.array(dtype=vec), contact: wp.array(dtype=scalar), dt: scalar,
+                  damping: scalar, sums: wp.array(dtype=scalar), stage: int):
+        t = wp.tid()
+        if stage == CROSSINGS:
+            ops.crossing_blocks(t, pos, fabric, anchors, contact, work)
+        elif stage == BUILD:
+            work.failed[t] = ops.build_yarn(t, pos, vel, force, mass, fabric, work, dt, damping, 1)
+        elif stage == MOVE:
+            ops.move_node(t, pos, vel, work, dt)
+        elif stage == UNDO:
+            ops.undo_node(t, pos, vel, work)
+        elif stage == MERIT:
+            value = ops.yarn_merit(t, force, mass, work)
+            work.largest[t] = value[0]
+            work.partial[t] = value[1]
+        elif stage == MERIT_SUM:
+            value = ops.merit_total(work)
+            sums[0] = value[0]
+            sums[1] = value[1]
+
+    return step_pass
+
+
 @dataclass
 class SemiOutcome:
     """What a semi-implicit relaxation reached."""
@@ -728,9 +824,13 @@ class FabricSemiImplicit:
     interface of `fabric_explicit.FabricExplicit` (relax, return_map)."""
 
     def __init__(self, arrays: fabric_arrays.PatchArrays, *, device: str = "cpu",
-                 scalar=wp.float64, coefficient: float = 0.0, dt: float = 1.0,
-                 cg_tolerance: float = CG_TOLERANCE):
-        self.arrays, self.device, self.scalar = arrays, device, scalar
+                 layout: str | None = None, scalar=wp.float64, coefficient: float = 0.0,
+                 dt: float = 1.0, cg_tolerance: float = CG_TOLERANCE):
+        if layout is None:
+            layout = fabric_explicit.default_layout(device)
+        if layout not in fabric_explicit.LAYOUTS:
+            raise ValueError(f"layout {layout!r} unknown")
+        self.arrays, self.device, self.scalar, self.layout = arrays, device, scalar, layout
         self.dtype, self.vec = numpy_dtype(scalar), VECTORS[scalar]
         self.dt, self.coefficient, self.cg_tolerance = dt, coefficient, cg_tolerance
         self.fabric = fabric_arrays.upload(arrays, scalar, device)
@@ -754,6 +854,11 @@ class FabricSemiImplicit:
         if anchors is None:
             anchors = np.zeros((self.arrays.crossings, 2))
         self.anchors = self._array(anchors, self.vec)
+        relax = self._persistent if self.layout == "persistent" else self._per_step
+        outcome = relax(pos, load, tolerance, max_steps)
+        return pos.numpy().astype(float), outcome
+
+    def _persistent(self, pos, load, tolerance, max_steps) -> SemiOutcome:
         code = wp.zeros(4, dtype=wp.int32, device=self.device)
         residual = wp.zeros(1, dtype=self.scalar, device=self.device)
         wp.launch(relaxation_kernel(self.scalar), dim=1, device=self.device,
@@ -762,8 +867,74 @@ class FabricSemiImplicit:
                           self.scalar(tolerance), self.scalar(self.cg_tolerance), int(max_steps),
                           pos, self.vel, self.force, self.contact, self.friction, code, residual])
         status_code, steps, iterations, rejected = (int(v) for v in code.numpy())
-        outcome = SemiOutcome(status_code, steps, float(residual.numpy()[0]), iterations, rejected)
-        return pos.numpy().astype(float), outcome
+        return SemiOutcome(status_code, steps, float(residual.numpy()[0]), iterations, rejected)
+
+    def _per_step(self, pos, load, tolerance, max_steps) -> SemiOutcome:
+        """The persistent kernel's time loop driven from Python, a launch per stage (threads
+        per crossing, node and yarn; `step_stage_kernel`, `pcg_launches`), the decisions on
+        values read back once or twice a step: the same arithmetic in the same order."""
+        a, device, scalar = self.arrays, self.device, self.scalar
+        passes = fabric_forces.kernels(scalar, True)
+        stage_pass = step_stage_kernel(scalar)
+        yarns = self.work.partial.shape[0]
+        sums = wp.zeros(2, dtype=scalar, device=device)
+        damping = scalar(self.coefficient)
+
+        def stage(which, dim, dt=0.0):
+            wp.launch(stage_pass, dim=dim, device=device,
+                      inputs=[self.fabric, self.work, self.mass, self.anchors, pos, self.vel,
+                              self.force, self.contact, scalar(dt), damping, sums, which])
+
+        def evaluate():
+            wp.launch(passes.crossing_pass, dim=a.crossings, device=device,
+                      inputs=[pos, self.fabric, self.anchors, self.contact, self.friction])
+            wp.launch(passes.node_pass, dim=a.nodes, device=device,
+                      inputs=[pos, self.fabric, self.contact, self.friction, load, self.force])
+            stage(MERIT, yarns)
+            stage(MERIT_SUM, 1)
+            return (float(v) for v in sums.numpy())
+        dt = float(scalar(self.dt))
+        residual, merit = evaluate()
+        best, since_best, iterations, rejected = residual, 0, 0, 0
+        code, steps = status.MAX_STEPS, 0
+        for step in range(max_steps + 1):
+            if not (np.isfinite(residual) and np.isfinite(merit)):
+                code = status.NON_FINITE
+                break
+            if residual <= tolerance:
+                code = status.CONVERGED
+                break
+            if step == max_steps:
+                break
+            if step >= STALL_MIN_STEPS and 2 * since_best > step:
+                code = status.NO_PROGRESS
+                break
+            stage(CROSSINGS, a.crossings)
+            for _ in range(MAX_REFACTORISATIONS):
+                stage(BUILD, yarns, dt)
+                if (self.work.failed.numpy() < 0).all():
+                    break
+                dt *= DT_SHRINK
+            else:
+                code = status.NOT_POSITIVE_DEFINITE
+                break
+            iterations += pcg_launches(self, dt, 2 * a.nodes)
+            stage(MOVE, a.nodes, dt)
+            new_residual, new_merit = evaluate()
+            if new_merit < merit:
+                merit, residual = new_merit, new_residual
+                dt = min(dt * DT_GROWTH, DT_MAX)
+            else:
+                rejected += 1
+                dt *= DT_SHRINK
+                stage(UNDO, a.nodes)
+                residual, _ = evaluate()
+            if residual < best:
+                best, since_best = residual, 0
+            else:
+                since_best += 1
+            steps = step + 1
+        return SemiOutcome(code, steps, residual, iterations, rejected)
 
     def return_map(self, positions: np.ndarray, anchors: np.ndarray) -> np.ndarray:
         """The anchors (C, 2) [m] after the radial return map at `positions` (the explicit

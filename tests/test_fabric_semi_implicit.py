@@ -3,8 +3,8 @@ reference: its tangent against the exact Hessian, its preconditioned CG against 
 solve, its load steps against Newton's within their residual bounds (docs/model.md sections 5,
 10).
 
-Three kernels (float64, friction compiled in): the relaxation, the one-thread system
-assembly/solve and the launch-per-stage PCG; the force passes and the explicit relaxation are those
+Four kernels (float64, friction compiled in): the relaxation, the one-thread system
+assembly/solve, and the per-step layout's two stage kernels (PCG, the rest of a step); the force passes and the explicit relaxation are those
 tests/test_fabric_kernels.py builds.
 """
 
@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from dynfab.errors import UserError
+from dynfab.errors import SolverError, UserError
 from dynfab.fabric.dynamic import FabricDynamicSolver
 from dynfab.fabric.static import FabricStaticSolver
 from dynfab.kernels import fabric_semi_implicit
@@ -144,6 +144,24 @@ def test_the_launch_per_stage_pcg_is_the_persistent_one_bit_for_bit():
         np.testing.assert_array_equal(semi.work.x.numpy(), x)
 
 
+def test_the_per_step_layout_relaxes_as_the_persistent_one_bit_for_bit():
+    """The GPU's layout of the whole relaxation (`FabricSemiImplicit._per_step`: a launch per
+    stage, decisions from values read back) takes the persistent kernel's time steps exactly:
+    the same positions, steps, CG iterations and rejected steps, on a 4 x 4 patch with
+    friction."""
+    spec = paper_patch(4, 4, friction=PAPER_FRICTION, warp_values=(0.3,), weft_values=(0.1,),
+                       tolerance=TOLERANCE)
+    ends = []
+    for layout in ("persistent", "per_step"):
+        dynamic = FabricDynamicSolver(spec, method="semi_implicit", layout=layout)
+        pos, anchors, P = dynamic.reference.start_of_step(dynamic.initial_state(), 0.3, 0.1)
+        ends.append(dynamic.relax(pos, P, anchors))
+    (x_persistent, persistent), (x_per_step, per_step) = ends
+    assert persistent.rejected > 0 and persistent.cg_iterations > persistent.steps
+    assert vars(per_step) == vars(persistent)
+    np.testing.assert_array_equal(x_per_step, x_persistent)
+
+
 def block_pattern(dynamic) -> np.ndarray:
     """True where two dofs belong to the same yarn (the preconditioner's blocks)."""
     start = fabric_semi_implicit.yarn_starts(dynamic.arrays)
@@ -220,6 +238,16 @@ def test_a_semi_implicit_scene_runs_and_matches_the_static_run():
         for name in ("positions", "weft_positions"):
             np.testing.assert_allclose(semi.steps[name][i], static.steps[name][i], rtol=0, atol=tol)
         np.testing.assert_array_equal(semi.steps["sliding"][i], static.steps["sliding"][i])
+
+
+def test_a_semi_implicit_relaxation_that_cannot_finish_raises_one_line():
+    """The time-step limit reached: SolverError, one line naming the cause and the residual."""
+    spec = paper_patch(2, 2, warp_values=(0.3,), tolerance=TOLERANCE)
+    solver = FabricDynamicSolver(spec, max_steps=3, method="semi_implicit")
+    with pytest.raises(SolverError) as raised:
+        solver.step(solver.initial_state(), 0.3, 0.0)
+    message = str(raised.value)
+    assert "\n" not in message and "time-step limit" in message and "3 time steps" in message
 
 
 @pytest.mark.parametrize("more", [dict(boundary="periodic"), dict(planes="affine")])

@@ -74,9 +74,6 @@ class FabricDynamicSolver:
                  layout: str | None = None, method: str = "explicit"):
         if method not in METHODS:
             raise UserError(f"fabric: dynamic.method = {method!r} unknown; one of {METHODS}")
-        if method == "semi_implicit" and layout not in (None, "persistent"):
-            raise UserError(f"fabric: the semi-implicit solver runs layout 'persistent' only, "
-                            f"not {layout!r}")
         if spec.boundary != "clamped" or spec.planes != "fixed":
             raise UserError(f"fabric: the dynamic solver models the clamped patch with fixed planes "
                             f"only, not boundary = {spec.boundary!r}, planes = {spec.planes!r}: "
@@ -90,8 +87,8 @@ class FabricDynamicSolver:
         # variant per damping, the one the kernel tests build
         self.relaxation = fabric_explicit.FabricExplicit(self.arrays, device=device, layout=layout,
                                                          damping=damping, friction=True) \
-            if method == "explicit" else fabric_semi_implicit.FabricSemiImplicit(self.arrays,
-                                                                                 device=device)
+            if method == "explicit" else fabric_semi_implicit.FabricSemiImplicit(
+                self.arrays, device=device, layout=layout)
         self.method = method
         self.linear_iterations = 0
         """CG iterations of every relaxation so far (0 with the explicit method)."""
