@@ -418,7 +418,8 @@ def functions(scalar) -> SimpleNamespace:
         lu_solve(work.factor, lo, hi, work.z)
 
     @wp.func
-    def yarn_dot(y: int, u: wp.array(dtype=scalar), w: wp.array(dtype=scalar), work: Work) -> scalar:
+    def yarn_dot(y: int, u: wp.array(dtype=scalar), w: wp.array(dtype=scalar),
+                 work: Work) -> scalar:
         """sum of u w over yarn y's dofs, in order."""
         total = scalar(0.0)
         for row in range(2 * work.yarn_start[y], 2 * work.yarn_start[y + 1]):
@@ -547,7 +548,8 @@ def system_kernel(scalar):
     ops, force_ops = functions(scalar), fabric_forces.functions(scalar, True)
 
     @wp.kernel(module="unique", module_options=MODULE_OPTIONS)
-    def system(fabric: Fabric, work: Work, mass: wp.array(dtype=scalar), external: wp.array(dtype=vec),
+    def system(fabric: Fabric, work: Work, mass: wp.array(dtype=scalar),
+               external: wp.array(dtype=vec),
                anchors: wp.array(dtype=vec), pos: wp.array(dtype=vec), vel: wp.array(dtype=vec),
                force: wp.array(dtype=vec), contact: wp.array(dtype=scalar),
                friction: wp.array(dtype=vec), dt: scalar, damping: scalar, definite: int,
@@ -574,7 +576,8 @@ def relaxation_kernel(scalar):
 
     @wp.func
     def evaluate(fabric: Fabric, work: Work, mass: wp.array(dtype=scalar),
-                 external: wp.array(dtype=vec), anchors: wp.array(dtype=vec), pos: wp.array(dtype=vec),
+                 external: wp.array(dtype=vec), anchors: wp.array(dtype=vec),
+                 pos: wp.array(dtype=vec),
                  force: wp.array(dtype=vec), contact: wp.array(dtype=scalar),
                  friction: wp.array(dtype=vec)) -> vec:
         """Forces at pos; returns (max |f component| [N], f^T M^-1 f [N^2/kg]). The per-step
@@ -591,9 +594,10 @@ def relaxation_kernel(scalar):
         return ops.merit_total(work)
 
     @wp.kernel(module="unique", module_options=MODULE_OPTIONS)
-    def relax(fabric: Fabric, work: Work, mass: wp.array(dtype=scalar), external: wp.array(dtype=vec),
-              anchors: wp.array(dtype=vec), dt_start: scalar, damping: scalar, tolerance: scalar,
-              cg_tolerance: scalar, max_steps: int, pos: wp.array(dtype=vec), vel: wp.array(dtype=vec),
+    def relax(fabric: Fabric, work: Work, mass: wp.array(dtype=scalar),
+              external: wp.array(dtype=vec), anchors: wp.array(dtype=vec), dt_start: scalar,
+              damping: scalar, tolerance: scalar, cg_tolerance: scalar, max_steps: int,
+              pos: wp.array(dtype=vec), vel: wp.array(dtype=vec),
               force: wp.array(dtype=vec), contact: wp.array(dtype=scalar),
               friction: wp.array(dtype=vec), outcome: wp.array(dtype=wp.int32),
               residual_out: wp.array(dtype=scalar)):
@@ -645,7 +649,8 @@ def relaxation_kernel(scalar):
                 dt = dt * scalar(DT_SHRINK)
                 for i in range(nodes):
                     ops.undo_node(i, pos, vel, work)
-                state = evaluate(fabric, work, mass, external, anchors, pos, force, contact, friction)
+                state = evaluate(fabric, work, mass, external, anchors, pos, force, contact,
+                                 friction)
             residual = state[0]
             if residual < best:
                 best = residual
@@ -941,7 +946,8 @@ class FabricSemiImplicit:
         solver's kernel)."""
         updated = self._array(anchors, self.vec)
         wp.launch(fabric_forces.kernels(self.scalar, True).return_map, dim=self.arrays.crossings,
-                  device=self.device, inputs=[self._array(positions, self.vec), self.fabric, updated])
+                  device=self.device,
+                  inputs=[self._array(positions, self.vec), self.fabric, updated])
         return updated.numpy().astype(float)
 
     def system(self, positions, external, anchors, velocities=None, *, dt: float = 1.0,
