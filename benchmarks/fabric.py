@@ -21,8 +21,8 @@ every part untimed on a 4 x 4 patch (compiles; loads the numba and Warp caches),
    iteration); later `static_costs`: `FabricStaticSolver.step` whole (Newton and the
    certificate) and the certificate's parts, the inertia count and the nearest
    eigenvalue (MODEL.md 6), each timed on its own.
-3. `pcg_costs`: the semi-implicit stand-in. There is no semi-implicit fabric solver; its
-   linear solve ((M/h^2 + H) dx = f, Newton as h -> inf) is measured inside the static
+3. `pcg_costs`: the semi-implicit solver's linear algebra inside Newton (the solver itself
+   is part 6); its linear solve ((M/h^2 + H) dx = f, Newton as h -> inf) is measured inside the static
    solver: `PCGStatic`, Newton with its direction by CG preconditioned with each yarn's
    own banded block of H, on the same step; time, CG iterations, fallbacks to SuperLU.
 4. `dynamic_costs`: `FabricDynamicSolver.step` (kinetic damping, persistent layout) on
@@ -31,6 +31,11 @@ every part untimed on a 4 x 4 patch (compiles; loads the numba and Warp caches),
 5. `newton_pieces` (--pieces): gradient, Hessian assembly, SuperLU (default and
    symmetric mode), the inertia (SuperLU's symmetric-mode pivots, else the Schur complement) against dense
    eigenvalues (n <= 8).
+6. `semi_costs` (part "semi"): `FabricDynamicSolver(method="semi_implicit").step` on the
+   same step: time, time steps, CG iterations per time step, |x - x_static|, its relaxation
+   against the Newton solve; the relaxation in the per-step layout (a launch per stage, one
+   run); and one Newton-like system (dt = 1e4 s) at its solution solved by PCG in the
+   persistent layout and in the launch-per-stage one: us per CG iteration.
 
 Timing: time.perf_counter, the fastest of REPEATS runs where one run takes less than
 FAST seconds, else one run (warm: the 4 x 4 pass compiled everything). Memory: the
@@ -101,7 +106,7 @@ line search and the stopping test then see the same steps as SuperLU's."""
 CG_MAX = 2000
 AIMS = {"explicit_over_numba": 1.5, "exponent_time_step": 1.1, "exponent_newton_iteration": 1.5}
 """The limit of each aim (at most)."""
-PARTS = ("explicit", "newton", "pcg", "static", "dynamic")
+PARTS = ("explicit", "newton", "pcg", "static", "dynamic", "semi")
 """In the order they run, cheapest first: on large patches the certificate (in the static
 and dynamic steps) is the slowest piece."""
 
@@ -381,6 +386,69 @@ def pcg_costs(n: int, static_positions=None, friction=None) -> dict:
     return row
 
 
+# --- 6. The semi-implicit solver on the same load step, and its two PCG layouts ---
+
+LAYOUT_CG_TOLERANCE = 1e-10
+"""CG tolerance of the layout comparison's solves: many iterations, so the time per iteration
+is measured, not the setup."""
+LAYOUT_TIME = 0.5
+"""Seconds of repeated solves per layout in the layout comparison."""
+
+
+def semi_costs(n: int, static_positions=None, friction=None, newton_s=None) -> dict:
+    """`FabricDynamicSolver(method="semi_implicit").step` on the load step: time, time steps,
+    CG iterations per time step, |x - x_static|; then, at its solution, one step's system
+    (dt = 1e4 s, a Newton-like step) solved by PCG in the persistent layout (one launch)
+    and in the launch-per-stage layout (`fabric_semi_implicit.pcg_launches`, 7 launches per
+    iteration): time per CG iteration of each, and their difference, the launches' cost."""
+    from dynfab.kernels import fabric_semi_implicit
+
+    solver = FabricDynamicSolver(spec(n, friction), method="semi_implicit")
+    start = solver.initial_state()
+
+    def step():
+        solver.linear_iterations = 0  # this run's alone
+        return solver.step(start, *LOAD)
+    step_s, (state, record) = timed(step)
+    steps = int(record["time_steps"])
+    row = {"step_s": step_s, "time_steps": steps, "relax_s": float(record["relax_time"]),
+           "cg_iterations": solver.linear_iterations,
+           "cg_per_time_step": solver.linear_iterations / max(steps, 1),
+           "relax_s_per_time_step": float(record["relax_time"]) / max(steps, 1),
+           "residual_N": float(record["residual"])}
+    if newton_s is not None:
+        row["relax_over_newton"] = row["relax_s"] / newton_s
+    if static_positions is not None:
+        row["static_difference_m"] = float(np.abs(state.positions - static_positions).max())
+    semi = solver.relaxation
+    semi.cg_tolerance = LAYOUT_CG_TOLERANCE
+    anchors = start.anchors + solver._plane_shift
+    P = solver.reference.yarn_loads(*LOAD)
+    dt = 1e4
+    semi.system(state.positions, solver.external_force(P), anchors, dt=dt)
+
+    def per_iteration(solve):
+        iterations, began = 0, time.perf_counter()
+        while time.perf_counter() - began < LAYOUT_TIME:
+            iterations += solve()
+        return (time.perf_counter() - began) / max(iterations, 1), iterations
+    persistent, count = per_iteration(lambda: semi.system(
+        state.positions, solver.external_force(P), anchors, dt=dt, assemble=False, solve=True)[1])
+    x = semi.work.x.numpy().copy()
+    launches, _ = per_iteration(lambda: fabric_semi_implicit.pcg_launches(semi, dt))
+    per_step = FabricDynamicSolver(spec(n, friction), method="semi_implicit", layout="per_step")
+    pos, held, loads = per_step.reference.start_of_step(start, *LOAD)
+    began = time.perf_counter()
+    per_step.relax(pos, loads, held)
+    row["per_step_relax_s"] = time.perf_counter() - began  # one run: the whole time loop
+    row.update({"layout_cg_iterations": count,
+                "persistent_us_per_cg_iteration": 1e6 * persistent,
+                "launches_us_per_cg_iteration": 1e6 * launches,
+                "launch_cost_us_per_cg_iteration": 1e6 * (launches - persistent),
+                "layouts_bit_identical": bool(np.array_equal(x, semi.work.x.numpy()))})
+    return row
+
+
 # --- 5. The pieces of one Newton iteration ---
 
 def newton_pieces(n: int, positions) -> dict:
@@ -417,7 +485,7 @@ def measure_size(n: int, parts=PARTS, friction=None, pieces=False, emit=None, wa
         work = (WARM_WORK, WARM_WORK) if warm else (STEP_WORK, PER_STEP_WORK)
         emit("explicit", explicit_costs(n, *work))
     positions = None
-    if {"newton", "static", "pcg", "dynamic"} & set(parts) or pieces:
+    if {"newton", "static", "pcg", "dynamic", "semi"} & set(parts) or pieces:
         row, positions = newton_costs(n, friction)
         emit("newton", row)
     if "pcg" in parts:
@@ -426,6 +494,8 @@ def measure_size(n: int, parts=PARTS, friction=None, pieces=False, emit=None, wa
         emit("static", static_costs(n, friction)[0])
     if "dynamic" in parts:
         emit("dynamic", dynamic_costs(n, positions, friction)[0])
+    if "semi" in parts:
+        emit("semi", semi_costs(n, positions, friction, row["newton_s"]))
     if pieces:
         emit("pieces", newton_pieces(n, positions))
 
@@ -514,7 +584,8 @@ FITS = {"exponent_time_step": ("explicit", "persistent_s_per_step"),
         "exponent_certificate": ("static", "certificate_s"),
         "exponent_inertia": ("static", "inertia_s"),
         "exponent_nearest_eigenvalue": ("static", "nearest_eigenvalue_s"),
-        "exponent_pcg_step": ("pcg", "step_s")}
+        "exponent_pcg_step": ("pcg", "step_s"),
+        "exponent_semi_implicit_load_step": ("semi", "step_s")}
 """Fitted exponent: (part, key of the time)."""
 
 
@@ -545,6 +616,9 @@ COLUMNS = (("n", lambda r: f"{r['n']}x{r['n']}", 5),
            ("dyn s", lambda r: r["dynamic"].get("step_s"), 7),
            ("pcg s", lambda r: r["pcg"].get("step_s"), 7),
            ("cg its", lambda r: r["pcg"].get("cg_iterations_mean"), 6),
+           ("semi s", lambda r: r["semi"].get("step_s"), 7),
+           ("semi steps", lambda r: r["semi"].get("time_steps"), 10),
+           ("cg/step", lambda r: r["semi"].get("cg_per_time_step"), 7),
            ("warp ns", lambda r: r["explicit"].get("persistent_ns_per_node_step"), 7),
            ("numba ns", lambda r: r["explicit"].get("numba_ns_per_node_step"), 8),
            ("ratio", lambda r: r["explicit"].get("persistent_over_numba"), 5),
@@ -569,7 +643,7 @@ def table(rows) -> str:
              "|" + "|".join("---:" for _ in COLUMNS) + "|"]
     for r in rows:
         parts = {p: r.get(p, {}) for p in ("newton", "static", "dynamic", "pcg", "explicit",
-                                            "memory", "baseline")}
+                                            "memory", "baseline", "semi")}
         lines.append("| " + " | ".join(cell(value({**r, **parts}), width)
                                        for _, value, width in COLUMNS) + " |")
     return "\n".join(lines)
@@ -626,8 +700,8 @@ def main(argv=None) -> None:
                        "damping_c_dt": DAMPING, "cg_rtol": CG_RTOL,
                        "memory": "peak RSS (ru_maxrss) of the size's subprocess; baseline: after "
                                  "the imports and the 4 x 4 compile pass",
-                       "semi_implicit": "no semi-implicit fabric solver exists: the static solver "
-                                        "with per-yarn preconditioned CG (pcg) stands in"},
+                       "semi_implicit": "semi: the Warp semi-implicit solver; pcg: the static "
+                                        "solver with per-yarn preconditioned CG"},
               "rows": rows, "summary": summary(rows)}
     print(report(result))
     args.output.write_text(json.dumps(result, indent=2) + "\n")

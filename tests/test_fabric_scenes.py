@@ -265,7 +265,7 @@ def test_dynfab_run_on_a_fabric_scene_from_the_command_line(tmp_path):
         "only, not boundary = 'periodic', planes = 'fixed': use the static solver"]
 
 
-@pytest.mark.parametrize("key, value", [("dynamic.method", '"semi_implicit"'),
+@pytest.mark.parametrize("key, value", [("dynamic.masses", '"physical"'),
                                         ("dynamic.precision", '"float32"'),
                                         ("dynamic.damping", '"viscous"')])
 def test_the_dynamic_fabric_solver_refuses_settings_it_would_ignore(key, value):

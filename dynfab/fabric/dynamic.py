@@ -33,6 +33,10 @@ relaxed again from there (at most `static.MAX_ESCAPES` times). Not modelled by t
 kernels, so refused (UserError): the periodic cell and moving planes.
 Gravity, a constant force on the physical masses (docs/model.md section 2), is added to the end
 loads.
+
+`method="semi_implicit"` relaxes each load step with `fabric_semi_implicit.FabricSemiImplicit`
+instead (linearly implicit steps, conjugate gradients preconditioned by the yarns' banded
+solves; docs/model.md section 10); everything else above is shared.
 """
 
 from __future__ import annotations
@@ -46,13 +50,19 @@ from dynfab.errors import SolverError, UserError
 from dynfab.fabric import inertia
 from dynfab.fabric.spec import FabricSpec
 from dynfab.fabric.static import MAX_ESCAPES, FabricState, FabricStaticSolver
-from dynfab.kernels import fabric_arrays, fabric_explicit, fabric_forces, status
+from dynfab.kernels import (fabric_arrays, fabric_explicit, fabric_forces, fabric_semi_implicit,
+                            status)
 
 SCALAR = wp.float64
 MAX_STEPS = 2_000_000
 """Time steps a relaxation may take per load step (one kernel launch)."""
 _STATUS = {status.MAX_STEPS: "the time-step limit", status.NON_FINITE: "a non-finite force",
-           status.STALLED: "FIRE stalled", status.DIVERGED: "divergence"}
+           status.STALLED: "FIRE stalled", status.DIVERGED: "divergence",
+           status.NOT_POSITIVE_DEFINITE: "pivots that are not positive at every dt",
+           status.NO_PROGRESS: "no progress"}
+METHODS = ("explicit", "semi_implicit")
+"""The integrators: `fabric_explicit.FabricExplicit` (every damping) or
+`fabric_semi_implicit.FabricSemiImplicit` (linearly implicit, PCG; no damping to choose)."""
 
 
 class FabricDynamicSolver:
@@ -61,7 +71,9 @@ class FabricDynamicSolver:
 
     def __init__(self, spec: FabricSpec, device: str = "cpu", damping: str = "kinetic",
                  tolerance: float | None = None, max_steps: int = MAX_STEPS,
-                 layout: str | None = None):
+                 layout: str | None = None, method: str = "explicit"):
+        if method not in METHODS:
+            raise UserError(f"fabric: dynamic.method = {method!r} unknown; one of {METHODS}")
         if spec.boundary != "clamped" or spec.planes != "fixed":
             raise UserError(f"fabric: the dynamic solver models the clamped patch with fixed planes "
                             f"only, not boundary = {spec.boundary!r}, planes = {spec.planes!r}: "
@@ -74,7 +86,12 @@ class FabricDynamicSolver:
         # the kernels built with friction in every case (F_T = k_t = 0 without it): one
         # variant per damping, the one the kernel tests build
         self.relaxation = fabric_explicit.FabricExplicit(self.arrays, device=device, layout=layout,
-                                                         damping=damping, friction=True)
+                                                         damping=damping, friction=True) \
+            if method == "explicit" else fabric_semi_implicit.FabricSemiImplicit(
+                self.arrays, device=device, layout=layout)
+        self.method = method
+        self.linear_iterations = 0
+        """CG iterations of every relaxation so far (0 with the explicit method)."""
         self.reference = FabricStaticSolver(spec)
         """The static solver: its state conventions, load path, prescribed start, strains and
         certificate (inertia, escape), never its forces."""
@@ -150,6 +167,7 @@ class FabricDynamicSolver:
         returns (positions, outcome) or raises SolverError."""
         positions, outcome = self.relaxation.relax(pos, self.external_force(P), self.tolerance,
                                                    self.max_steps, anchors + self._plane_shift)
+        self.linear_iterations += getattr(outcome, "cg_iterations", 0)
         if outcome.status != status.CONVERGED:
             cause = _STATUS.get(outcome.status, f"status {outcome.status}")
             raise SolverError(

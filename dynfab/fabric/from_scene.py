@@ -171,7 +171,8 @@ class FabricSolver:
             self.engine = FabricDynamicSolver(model.spec, device=device,
                                               damping=dynamic.damping_used(),
                                               tolerance=dynamic.tolerance,
-                                              max_steps=dynamic.max_steps)
+                                              max_steps=dynamic.max_steps,
+                                              method=dynamic.method)
 
     def attrs(self) -> dict:
         spec = self.model.spec
@@ -179,6 +180,7 @@ class FabricSolver:
                  "static_max_iterations": spec.max_iterations}
         if self.name == "dynamic":
             attrs["dynamic_damping"] = self.model.scene.dynamic.damping_used()
+            attrs["dynamic_method"] = self.model.scene.dynamic.method  # as the one-yarn run's
         return attrs
 
     def step(self, state: FabricState, load) -> tuple[FabricState, dict]:
@@ -244,7 +246,8 @@ _DYNAMIC_SUPPORTED = {"mode": "quasi_static", "method": "explicit", "precision":
                       "masses": None, "dt": None, "damping_coefficient": None, "safety": 0.9}
 """The [dynamic] settings the fabric's dynamic solver runs (`FabricDynamicSolver`: a
 quasi-static explicit relaxation in float64 with its own fictitious masses and time step);
-any other value is refused rather than ignored."""
+any other value is refused rather than ignored; method "semi_implicit" is accepted too
+(`fabric_semi_implicit.FabricSemiImplicit`, docs/model.md section 10)."""
 
 
 def _check_dynamic_keys(dynamic) -> None:
@@ -253,6 +256,8 @@ def _check_dynamic_keys(dynamic) -> None:
 
     for key, supported in _DYNAMIC_SUPPORTED.items():
         value = getattr(dynamic, key)
+        if key == "method" and value == "semi_implicit":  # FabricSemiImplicit
+            continue
         if value != supported:
             raise UserError(f"dynamic.{key} = {value!r}: the fabric's dynamic solver runs "
                             f"{key} = {supported!r} only (docs/model.md section 10)")

@@ -1,0 +1,258 @@
+"""The fabric's semi-implicit solver (`kernels/fabric_semi_implicit.py`) against the static
+reference: its tangent against the exact Hessian, its preconditioned CG against a dense
+solve, its load steps against Newton's within their residual bounds (docs/model.md sections 5,
+10).
+
+Four kernels (float64, friction compiled in): the relaxation, the one-thread system
+assembly/solve, and the per-step layout's two stage kernels (PCG, the rest of a step); the
+force passes and the explicit relaxation are those tests/test_fabric_kernels.py builds.
+"""
+
+import numpy as np
+import pytest
+import scipy.linalg
+
+from dynfab.errors import SolverError, UserError
+from dynfab.fabric.dynamic import FabricDynamicSolver
+from dynfab.fabric.static import FabricStaticSolver
+from dynfab.kernels import fabric_semi_implicit
+from dynfab.kernels.fabric_arrays import PAPER_FRICTION, paper_patch
+from dynfab.run import run
+from dynfab.scene import parse_scene_text
+from test_fabric_dynamic import (DISPLACEMENTS, FORCES, TOLERANCE, agreement_bound,
+                                 anchor_bound)
+from test_fabric_scenes import position_bound, small_pullout
+
+EPS = np.finfo(float).eps
+
+
+def loaded_state(n=2, friction=PAPER_FRICTION, value=0.3):
+    """(static solver, dynamic solver, positions at the end of a static step, anchors): a
+    deformed patch with closed contacts; the anchors held during the step, under which every
+    crossing slides (k_t |s| > F_T), except every other crossing's moved to within
+    1e-3 F_T / k_t of its slip point, so that it sticks: both Huber branches present."""
+    spec = paper_patch(n, n, friction=friction, warp_values=(value,), weft_values=(0.1 * value,),
+                       tolerance=TOLERANCE)
+    static = FabricStaticSolver(spec)
+    dynamic = FabricDynamicSolver(spec, method="semi_implicit")
+    start = static.initial_state()
+    state, _ = static.step(start, value, 0.1 * value)
+    f, pos = static.fabric, state.positions
+    anchors = start.anchors.copy()
+    slip_point = np.stack([pos[f.warp_node, 0] - f.plane_x, pos[f.weft_node, 0] - f.plane_y], 1)
+    nearby = 1e-3 * static.friction_limits(pos)[:, None] / max(f.stick_stiffness, 1.0)
+    anchors[::2] = slip_point[::2] - nearby[::2]
+    return static, dynamic, pos, anchors
+
+
+def free_block(dynamic, A):
+    """A on the free dofs."""
+    free = dynamic.arrays.free.ravel() > 0
+    return A[np.ix_(free, free)]
+
+
+def assembled(dynamic, pos, anchors, **options):
+    """The semi-implicit system's dense A after `FabricSemiImplicit.system` at pos."""
+    semi = dynamic.relaxation
+    bad, iterations = semi.system(pos, np.zeros_like(pos), anchors + dynamic._plane_shift,
+                                  **options)
+    assert bad < 0
+    return semi.dense(options.get("dt", 1.0)), iterations
+
+
+def test_the_tangent_is_the_exact_hessian_without_its_psd_modifications():
+    """With zero masses and dt = 1, A = K; with `definite` off, K is the static solver's exact
+    Hessian (F_T frozen at F_T(R) of the same positions) on the free dofs, to the rounding of
+    a few tens of operations on the largest entry. With `definite` on (the solver's K), the
+    crossing blocks are unchanged, only the yarn bands lose the compressed segments' geometric
+    part and the bending moment term, and K is positive semi-definite; at the as-woven state,
+    where every segment has its rest length and every angle its rest angle, both coincide."""
+    static, dynamic, pos, anchors = loaded_state()
+    limit = static.friction_limits(pos)
+    R = static.contact_forces(pos)
+    assert R.min() > 0  # every contact closed
+    s = pos[static.fabric.warp_node, 0] - static.fabric.plane_x - anchors[:, 0]
+    s_y = pos[static.fabric.weft_node, 0] - static.fabric.plane_y - anchors[:, 1]
+    sliding = static.fabric.stick_stiffness * np.hypot(s, s_y) > limit
+    assert sliding.any() and not sliding.all()  # both Huber branches exercised
+    zero = np.zeros(dynamic.arrays.nodes)
+    H = static.hessian(pos, anchors, limit).toarray()
+    exact, _ = assembled(dynamic, pos, anchors, definite=False, masses=zero)
+    exact = free_block(dynamic, exact)
+    scale = np.abs(H).max()
+    assert np.abs(exact - H).max() <= 64 * EPS * scale
+    definite, _ = assembled(dynamic, pos, anchors, definite=True, masses=zero)
+    definite = free_block(dynamic, definite)
+    assert np.linalg.eigvalsh(definite).min() >= -64 * EPS * scale
+    assert np.abs(definite - exact).max() > 1e-6 * scale  # the modifications are real here
+    rest = dynamic.arrays.rest_position
+    at_rest = [free_block(dynamic, assembled(dynamic, rest, 0 * anchors, definite=flag,
+                                             masses=zero)[0]) for flag in (False, True)]
+    assert np.abs(at_rest[0] - at_rest[1]).max() <= 64 * EPS * scale
+
+
+@pytest.mark.parametrize("dt", [1.0, 1e4])
+def test_preconditioned_cg_meets_its_stopping_bound_against_a_dense_solve(dt):
+    """At a deformed state with velocities, the right-hand side is dt (f - dt K v) (K from A),
+    CG stops with r^T P^-1 r <= CG_TOLERANCE^2 b^T P^-1 b, and its error in the A-norm is
+    within the bound that criterion gives: ||x - x*||_A^2 = r^T A^-1 r <= r^T P^-1 r / lambda_min,
+    lambda_min the smallest eigenvalue of the pencil (A, P); x* from a dense solve. dt = 1 (the
+    start: A near M) and 1e4 (A near dt^2 K: a Newton step)."""
+    static, dynamic, pos, anchors = loaded_state()
+    semi = dynamic.relaxation
+    rng = np.random.default_rng(7)
+    velocities = rng.standard_normal(pos.shape) * 1e-6 * dynamic.arrays.free
+    _, iterations = assembled(dynamic, pos, anchors, dt=dt, solve=True, velocities=velocities)
+    A = semi.dense(dt)
+    free = dynamic.arrays.free.ravel() > 0
+    b = semi.work.rhs.numpy()
+    x = semi.work.x.numpy()
+    mass = np.repeat(semi.mass.numpy(), 2)
+    K = (A - np.diag(mass)) / dt ** 2
+    force = semi.force.numpy().ravel()
+    v = velocities.ravel()
+    expected = dt * (force - dt * K @ v) * free
+    assert np.abs(b - expected).max() <= 1e-9 * np.abs(dt * force).max()
+    A, b, x = A[np.ix_(free, free)], b[free], x[free]
+    P = np.where(block_pattern(dynamic)[np.ix_(free, free)], A, 0.0)
+    P[np.diag_indices_from(P)] = np.diag(A)  # plus the crossing blocks' diagonals
+    exact = np.linalg.solve(A, b)
+    r = b - A @ x
+    tolerance = fabric_semi_implicit.CG_TOLERANCE
+    b_norm2 = b @ np.linalg.solve(P, b)
+    r_norm2 = r @ np.linalg.solve(P, r)
+    assert 0 < iterations < b.size
+    assert r_norm2 <= tolerance ** 2 * b_norm2 * (1 + 1e-6)
+    smallest = scipy.linalg.eigh(A, P, eigvals_only=True).min()
+    error = x - exact
+    assert error @ A @ error <= r_norm2 / smallest * (1 + 1e-6)
+
+
+def test_the_launch_per_stage_pcg_is_the_persistent_one_bit_for_bit():
+    """The GPU's layout of one PCG solve (a launch per stage, threads per dof, node and yarn,
+    sums over the yarns in order) gives the persistent kernel's x exactly and the same
+    iteration count, whether the done flag is read back every iteration or every 4th."""
+    static, dynamic, pos, anchors = loaded_state(n=4, value=0.1)
+    semi = dynamic.relaxation
+    semi.cg_tolerance = 1e-10  # many iterations
+    dt = 1e4
+    _, iterations = assembled(dynamic, pos, anchors, dt=dt, solve=True)
+    x = semi.work.x.numpy().copy()
+    assert iterations > 4
+    for interval in (1, 4):
+        assert fabric_semi_implicit.pcg_launches(semi, dt, check_interval=interval) == iterations
+        np.testing.assert_array_equal(semi.work.x.numpy(), x)
+
+
+def test_the_per_step_layout_relaxes_as_the_persistent_one_bit_for_bit():
+    """The GPU's layout of the whole relaxation (`FabricSemiImplicit._per_step`: a launch per
+    stage, decisions from values read back) takes the persistent kernel's time steps exactly:
+    the same positions, steps, CG iterations and rejected steps, on a 4 x 4 patch with
+    friction."""
+    spec = paper_patch(4, 4, friction=PAPER_FRICTION, warp_values=(0.3,), weft_values=(0.1,),
+                       tolerance=TOLERANCE)
+    ends = []
+    for layout in ("persistent", "per_step"):
+        dynamic = FabricDynamicSolver(spec, method="semi_implicit", layout=layout)
+        pos, anchors, P = dynamic.reference.start_of_step(dynamic.initial_state(), 0.3, 0.1)
+        ends.append(dynamic.relax(pos, P, anchors))
+    (x_persistent, persistent), (x_per_step, per_step) = ends
+    assert persistent.rejected > 0 and persistent.cg_iterations > persistent.steps
+    assert vars(per_step) == vars(persistent)
+    np.testing.assert_array_equal(x_per_step, x_persistent)
+
+
+def block_pattern(dynamic) -> np.ndarray:
+    """True where two dofs belong to the same yarn (the preconditioner's blocks)."""
+    start = fabric_semi_implicit.yarn_starts(dynamic.arrays)
+    yarn = np.repeat(np.repeat(np.arange(start.size - 1), np.diff(start)), 2)
+    return yarn[:, None] == yarn[None, :]
+
+
+CASES = [("force", None), ("force", PAPER_FRICTION), ("displacement", None),
+         ("displacement", PAPER_FRICTION)]
+
+
+@pytest.mark.parametrize("control, friction", CASES,
+                         ids=["force", "force-friction", "displacement", "displacement-friction"])
+def test_semi_implicit_load_steps_agree_with_the_static_ones(control, friction):
+    """On a clamped 4 x 4 patch, every load step's positions within `agreement_bound` of
+    Newton's (||J^-1|| (r_static + r_dynamic + k_t anchor gap), tests/test_fabric_dynamic.py),
+    contact forces within 2 k_c bound, the same crossings sliding, anchors within
+    `anchor_bound`, the same stability."""
+    values = FORCES if control == "force" else DISPLACEMENTS
+    spec = paper_patch(4, 4, friction=friction, control=control,
+                       warp_values=tuple(v[0] for v in values),
+                       weft_values=tuple(v[1] for v in values), tolerance=TOLERANCE)
+    static = FabricStaticSolver(spec)
+    dynamic = FabricDynamicSolver(spec, method="semi_implicit")
+    s_state, d_state = static.initial_state(), dynamic.initial_state()
+    k_c = static.fabric.contact_law[0]
+    for warp_value, weft_value in values:
+        anchors = s_state.anchors.copy()
+        anchor_gap = float(np.hypot(*(d_state.anchors - s_state.anchors).T).max())
+        start = s_state.positions
+        s_state, s_record = static.step(s_state, warp_value, weft_value)
+        d_state, d_record = dynamic.step(d_state, warp_value, weft_value)
+        assert d_record["residual"] <= TOLERANCE
+        bound = agreement_bound(static, s_state, anchors, s_record, d_record["residual"],
+                                anchor_gap)
+        assert np.abs(s_state.positions - start).max() > 1e3 * bound
+        error = np.abs(d_state.positions - s_state.positions).max()
+        assert error <= bound, (error, bound)
+        assert s_record["contact_force"].min() > 0
+        R_error = np.abs(d_record["contact_force"] - s_record["contact_force"]).max()
+        assert R_error <= 2 * k_c * bound
+        assert d_record["stable"] == s_record["stable"]
+        assert np.array_equal(d_record["sliding"], s_record["sliding"])
+        if friction is not None:
+            assert s_record["sliding"].any()
+            gap = np.abs(d_state.anchors - s_state.anchors).max()
+            assert gap <= anchor_bound(static, s_record, bound) + anchor_gap, gap
+    assert dynamic.linear_iterations > 0
+
+
+def test_records_have_the_explicit_solvers_keys_and_runs_repeat_bit_for_bit():
+    """The semi-implicit step returns exactly the explicit step's record keys; a second solver
+    on the same step gives identical positions (every sum in a fixed order, no atomics)."""
+    spec = paper_patch(2, 2, friction=PAPER_FRICTION, warp_values=(0.1,), tolerance=TOLERANCE)
+    explicit = FabricDynamicSolver(spec)
+    semis = [FabricDynamicSolver(spec, method="semi_implicit") for _ in range(2)]
+    _, e_record = explicit.step(explicit.initial_state(), 0.1, 0.0)
+    states = [semi.step(semi.initial_state(), 0.1, 0.0) for semi in semis]
+    assert states[0][1].keys() == e_record.keys()
+    np.testing.assert_array_equal(states[0][0].positions, states[1][0].positions)
+
+
+def test_a_semi_implicit_scene_runs_and_matches_the_static_run():
+    """`[dynamic] method = "semi_implicit"` on a fabric scene (the 4 x 4 pull-out with friction
+    and gravity) runs, each step within twice `position_bound` of the static run's."""
+    text = small_pullout() + '\n[dynamic]\nmethod = "semi_implicit"\n'
+    scene = parse_scene_text(text)
+    from dynfab.fabric.from_scene import FabricModel
+
+    model = FabricModel.from_scene(scene)
+    static, semi = run(scene, "static"), run(scene, "dynamic")
+    assert semi.attrs["dynamic_method"] == "semi_implicit"
+    for i in range(static.step_count):
+        tol = 2 * position_bound(model, static, i)
+        for name in ("positions", "weft_positions"):
+            np.testing.assert_allclose(semi.steps[name][i], static.steps[name][i], rtol=0, atol=tol)
+        np.testing.assert_array_equal(semi.steps["sliding"][i], static.steps["sliding"][i])
+
+
+def test_a_semi_implicit_relaxation_that_cannot_finish_raises_one_line():
+    """The time-step limit reached: SolverError, one line naming the cause and the residual."""
+    spec = paper_patch(2, 2, warp_values=(0.3,), tolerance=TOLERANCE)
+    solver = FabricDynamicSolver(spec, max_steps=3, method="semi_implicit")
+    with pytest.raises(SolverError) as raised:
+        solver.step(solver.initial_state(), 0.3, 0.0)
+    message = str(raised.value)
+    assert "\n" not in message and "time-step limit" in message and "3 time steps" in message
+
+
+@pytest.mark.parametrize("more", [dict(boundary="periodic"), dict(planes="affine")])
+def test_what_the_semi_implicit_solver_does_not_model_is_refused(more):
+    """The periodic cell and moving planes: the same one-line UserError as the explicit."""
+    with pytest.raises(UserError, match="boundary = .*planes = .*static solver"):
+        FabricDynamicSolver(paper_patch(2, 2, warp_values=(0.1,), **more), method="semi_implicit")
