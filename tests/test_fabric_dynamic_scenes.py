@@ -142,8 +142,9 @@ def test_moving_plane_forces_are_the_numba_gradient(case):
         assert tied.sum() == spec.warps + spec.wefts  # every end in one of the two cell lengths
 
 
-def test_tied_cell_lengths_move_as_one_in_both_layouts():
-    """The periodic cell under force control, kinetic damping: each family's end nodes keep
+@pytest.mark.parametrize("damping", ["viscous", "kinetic"])
+def test_tied_cell_lengths_move_as_one_in_both_layouts(damping):
+    """The periodic cell under force control, with friction: each family's end nodes keep
     one in-plane coordinate (one dof: the same force and mass on each, so the same bits) in
     the persistent layout (scatter and gather orders) and the per-step layout, which agree
     bit for bit in the gather order (the per-step layout's sums in the same order)."""
@@ -155,8 +156,8 @@ def test_tied_cell_lengths_move_as_one_in_both_layouts():
     anchors = dynamic.initial_state().anchors + dynamic._plane_shift
     runs = {}
     for layout, order in (("persistent", "scatter"), ("persistent", "gather"), ("per_step", "gather")):
-        solver = fabric_explicit.FabricExplicit(arrays, layout=layout, damping="kinetic",
-                                                order=order, friction=True)
+        solver = fabric_explicit.FabricExplicit(arrays, layout=layout, damping=damping,
+                                                coefficient=0.05, order=order, friction=True)
         positions, outcome = solver.relax(arrays.rest_position, external, 0.0, 400, anchors)
         assert outcome.status == status.MAX_STEPS
         for family in (0, 1):
@@ -242,3 +243,23 @@ def test_every_fabric_scene_agrees_with_the_static_solver(name):
         if s_record["sliding"].any():
             gap = np.abs(state.anchors - s_state.anchors).max()
             assert gap <= anchor_bound(static, s_record, bound), gap
+
+
+@pytest.mark.parametrize("damping, layout", [("fire", "persistent"), ("kinetic", "per_step")])
+@pytest.mark.parametrize("name", ["fabric_biaxial_2to1", "fabric_strip"])
+def test_the_other_dampings_and_layouts_reach_the_same_step(name, damping, layout):
+    """FIRE (persistent layout) and kinetic damping in the per-step layout on the periodic
+    cell and the affine strip (4 x 4 copy): the first step within `agreement_bound` of the
+    static solver's, as the default configuration in
+    `test_every_fabric_scene_agrees_with_the_static_solver`."""
+    spec = scene_spec(name)
+    spec = replace(spec, warp_values=spec.warp_values[:1], weft_values=spec.weft_values[:1])
+    static = FabricStaticSolver(spec)
+    dynamic = FabricDynamicSolver(spec, damping=damping, layout=layout)
+    start = dynamic.initial_state()
+    load = (spec.warp_values[0], spec.weft_values[0])
+    s_state, s_record = static.step(start.copy(), *load)
+    state, d_record = dynamic.step(start, *load)
+    bound = agreement_bound(static, s_state, start.anchors, s_record, d_record["residual"], 0.0)
+    assert np.abs(s_state.positions - start.positions).max() > 1e3 * bound
+    assert np.abs(state.positions - s_state.positions).max() <= bound
