@@ -29,8 +29,8 @@ The boundary is data, not a kernel variant (docs/model.md section 10):
   reaction -sum_c (w / n) f_c of the crossings' friction forces f_c (gathered over the
   crossings by that node's thread); fixed planes have no plane nodes and zero weights;
 - the periodic wrap: the bending spring at each yarn's node 0 between segment N-1 and
-  segment 0's image (`wrap_stiffness`, `wrap_rest_angle` at node 0, 0 elsewhere; each
-  node knows its yarn's first and last node);
+  segment 0's image (`wrap_stiffness`, `wrap_rest_angle` at node 0, 0 elsewhere; the four
+  nodes it joins know their yarn's node 0, `node_wrap`: one read per node decides);
 - the tied cell length (periodic force control): the end nodes of a family (`node_tie` =
   the family) move as one dof, each carrying the family's summed end force and the summed
   mass (`gershgorin_masses`), its kinetic energy counted once (`energy_shares`).
@@ -112,8 +112,9 @@ class PatchArrays:
     weight: np.ndarray
     """(n, 2) gravity's constant nodal force (0, -rho_l lbar g) [N] (docs/model.md section 2); zeros
     without gravity. Not part of the kernels: a driver adds it to the external force."""
-    yarn_first: np.ndarray
-    """(n,) the first node of the node's yarn."""
+    node_wrap: np.ndarray
+    """(n,) node 0 of the node's yarn where the node is one of the four its periodic wrap
+    spring joins (N-1, N, 0, 1), -1 elsewhere and on a clamped patch."""
     yarn_last: np.ndarray
     """(n,) the last node of the node's yarn."""
     wrap_stiffness: np.ndarray
@@ -194,6 +195,9 @@ def boundary_arrays(fabric: layout.Fabric, yarn_of_node: np.ndarray) -> dict:
     first, last = start[:-1], start[1:] - 1
     wrap_k, wrap_angle = np.zeros(n), np.zeros(n)
     wrap_k[first], wrap_angle[first] = fabric.wrap_stiffness, fabric.wrap_rest_angle
+    node_wrap = np.full(n, -1, np.int32)
+    for a, b in zip(first[fabric.wrap_stiffness > 0], last[fabric.wrap_stiffness > 0]):
+        node_wrap[[b - 1, b, a, a + 1]] = a
     nx, ny = fabric.plane_nodes_x.size, fabric.plane_nodes_y.size
     plane_nodes = np.concatenate([fabric.plane_nodes_x, fabric.plane_nodes_y]).astype(np.int32)
     node_plane = np.full(n, -1, np.int32)
@@ -203,6 +207,8 @@ def boundary_arrays(fabric: layout.Fabric, yarn_of_node: np.ndarray) -> dict:
         weight[:, 0] = fabric.plane_weight_x / nx
     if ny:
         weight[:, 1] = fabric.plane_weight_y / ny
+    if not np.isin(last[fabric.wrap_stiffness > 0], plane_nodes).all():
+        raise ValueError("a wrap spring on a yarn whose end does not move the planes")
     node_tie = np.full(n, -1, np.int32)
     tie = fabric.tie.reshape(n, 2)[:, 0]
     for family, nodes in enumerate((fabric.plane_nodes_x, fabric.plane_nodes_y)):
@@ -211,7 +217,7 @@ def boundary_arrays(fabric: layout.Fabric, yarn_of_node: np.ndarray) -> dict:
             if not (np.array_equal(tied, nodes[1:]) and (tie[tied] == 2 * nodes[0]).all()):
                 raise ValueError("tied dofs other than a family's plane nodes")
             node_tie[nodes] = family
-    return dict(yarn_first=first[yarn_of_node].astype(np.int32),
+    return dict(node_wrap=node_wrap,
                 yarn_last=last[yarn_of_node].astype(np.int32),
                 wrap_stiffness=wrap_k, wrap_rest_angle=wrap_angle, plane_nodes=plane_nodes,
                 plane_offsets=np.array([0, nx, nx + ny], np.int32), node_plane=node_plane,
@@ -331,7 +337,7 @@ def struct(scalar):
         crossing_offset: wp.array(dtype=scalar)
         contact_law: wp.array(dtype=scalar)
         friction_law: wp.array(dtype=scalar)
-        yarn_first: wp.array(dtype=wp.int32)
+        node_wrap: wp.array(dtype=wp.int32)
         yarn_last: wp.array(dtype=wp.int32)
         wrap_stiffness: wp.array(dtype=scalar)
         wrap_rest_angle: wp.array(dtype=scalar)
@@ -346,7 +352,7 @@ def struct(scalar):
 
 VECTOR_FIELDS = ("rest_position", "free", "crossing_plane_weight")
 INDEX_FIELDS = ("previous", "next", "node_crossing", "crossing_warp", "crossing_weft",
-                "yarn_first", "yarn_last", "plane_nodes", "plane_offsets", "node_plane", "node_tie")
+                "node_wrap", "yarn_last", "plane_nodes", "plane_offsets", "node_plane", "node_tie")
 SCALAR_FIELDS = ("rest_length", "stretch_stiffness", "bend_stiffness", "rest_angle", "node_side",
                  "crossing_side", "crossing_offset", "contact_law", "friction_law",
                  "wrap_stiffness", "wrap_rest_angle")

@@ -236,19 +236,18 @@ def functions(scalar, has_friction: bool) -> SimpleNamespace:
                 if fabric.crossing_warp[c] == i:
                     along = friction[c][0]
                 force = force + vec(along, scalar(0.0))
-        first = fabric.yarn_first[i]
-        if fabric.wrap_stiffness[first] > scalar(0.0):
-            last = fabric.yarn_last[i]
-            if i == last - 1 or i == last or i == first or i == first + 1:
-                g = wrap_forces(pos, fabric, first)
-                if i == last - 1:
-                    force = force + vec(g[0, 0], g[0, 1])
-                if i == last:
-                    force = force - vec(g[0, 0], g[0, 1])
-                if i == first + 1:
-                    force = force - vec(g[1, 0], g[1, 1])
-                if i == first:
-                    force = force + vec(g[1, 0], g[1, 1])
+        first = fabric.node_wrap[i]
+        if first >= 0:  # one of the four nodes of its yarn's wrap spring
+            last = fabric.yarn_last[first]
+            g = wrap_forces(pos, fabric, first)
+            if i == last - 1:
+                force = force + vec(g[0, 0], g[0, 1])
+            if i == last:
+                force = force - vec(g[0, 0], g[0, 1])
+            if i == first + 1:
+                force = force - vec(g[1, 0], g[1, 1])
+            if i == first:
+                force = force + vec(g[1, 0], g[1, 1])
         if wp.static(has_friction):
             family = fabric.node_plane[i]
             if family >= 0:
@@ -315,13 +314,15 @@ def functions(scalar, has_friction: bool) -> SimpleNamespace:
                     force[i] = force[i] + ga
                     force[j] = force[j] - ga + gb
                     force[k] = force[k] - gb
-            if fabric.wrap_stiffness[i] > scalar(0.0):  # node 0 of a periodic yarn
-                g = wrap_forces(pos, fabric, i)
-                last = fabric.yarn_last[i]
+        for m in range(fabric.plane_nodes.shape[0]):  # wrap springs: periodic yarns' ends move planes
+            last = fabric.plane_nodes[m]
+            first = fabric.node_wrap[last]
+            if first >= 0:
+                g = wrap_forces(pos, fabric, first)
                 force[last - 1] = force[last - 1] + vec(g[0, 0], g[0, 1])
                 force[last] = force[last] - vec(g[0, 0], g[0, 1])
-                force[i + 1] = force[i + 1] - vec(g[1, 0], g[1, 1])
-                force[i] = force[i] + vec(g[1, 0], g[1, 1])
+                force[first + 1] = force[first + 1] - vec(g[1, 0], g[1, 1])
+                force[first] = force[first] + vec(g[1, 0], g[1, 1])
         shift = plane_shift(pos, fabric)
         reaction = vec(scalar(0.0), scalar(0.0))
         for c in range(contact.shape[0]):
