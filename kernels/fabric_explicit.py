@@ -40,6 +40,12 @@ Two layouts (tests/test_fabric_kernels.py checks that they agree: bit for bit wi
   power and norms are sums at every step too, runs in the persistent layout only.
 
 `default_layout(device)` picks "persistent" on the CPU and "per_step" on a GPU.
+
+The boundary (docs/model.md section 10) is data of the fabric (`fabric_arrays`), the same
+kernels for every mode. A tied family's end nodes (a periodic cell's length under force
+control) each receive the family's summed force and mass, so they update by the same bits;
+the kinetic energy and FIRE's power and norms weight each node by its share (1/n for the n
+members of a tied family, 1 otherwise), so that one dof counts once.
 """
 
 import functools

@@ -200,8 +200,8 @@ def functions(scalar, has_friction: bool) -> SimpleNamespace:
     @wp.func
     def own_force(i: int, pos: wp.array(dtype=vec), fabric: Fabric, contact: wp.array(dtype=scalar),
                   friction: wp.array(dtype=vec), external: wp.array(dtype=vec)) -> vec:
-        """-dV/dr_i [N] of node i alone, unmasked: its chain, its crossing, the wrap spring
-        and the planes' reaction."""
+        """-dV/dr_i [N] of node i alone, unmasked, but for the planes' reaction: its chain,
+        its crossing, the wrap spring."""
         before = fabric.previous[i]
         after = fabric.next[i]
         force = external[i]
@@ -248,25 +248,28 @@ def functions(scalar, has_friction: bool) -> SimpleNamespace:
                 force = force - vec(g[1, 0], g[1, 1])
             if i == first:
                 force = force + vec(g[1, 0], g[1, 1])
-        if wp.static(has_friction):
-            family = fabric.node_plane[i]
-            if family >= 0:
-                force = force + vec(plane_reaction(fabric, friction, family), scalar(0.0))
         return force
 
     @wp.func
     def node_force(i: int, pos: wp.array(dtype=vec), fabric: Fabric, contact: wp.array(dtype=scalar),
                    friction: wp.array(dtype=vec), external: wp.array(dtype=vec)) -> vec:
-        """-dV/dr_i [N] on the free dofs of node i, gathered from its chain and its crossing;
-        on a tied end node, the family's summed force (module docstring)."""
+        """-dV/dr_i [N] on the free dofs of node i, gathered from its chain and its crossing,
+        and on an end node moving the planes their reaction; on a tied end node, the family's
+        summed force: its n members' own forces and n times the reaction (module docstring)."""
         family = fabric.node_tie[i]
         force = vec(scalar(0.0), scalar(0.0))
+        members = scalar(1.0)
         if family >= 0:
             for m in range(fabric.plane_offsets[family], fabric.plane_offsets[family + 1]):
                 force = force + own_force(fabric.plane_nodes[m], pos, fabric, contact, friction,
                                           external)
+            members = scalar(fabric.plane_offsets[family + 1] - fabric.plane_offsets[family])
         else:
             force = own_force(i, pos, fabric, contact, friction, external)
+        if wp.static(has_friction):
+            plane = fabric.node_plane[i]
+            if plane >= 0:
+                force = force + vec(members * plane_reaction(fabric, friction, plane), scalar(0.0))
         return wp.cw_mul(force, fabric.free[i])
 
     @wp.func
