@@ -132,7 +132,7 @@ def test_moving_plane_forces_are_the_numba_gradient(case):
     drag = np.hypot(*friction.T)
     assert (drag[::2] > 0).any() and (drag[1::2] > 0).any()  # sliding and sticking crossings
     weights = dynamic.arrays.crossing_plane_weight
-    reaction = np.abs(weights * friction).sum(axis=0).min()  # the planes' reaction, each family
+    reaction = np.abs((weights * friction).sum(axis=0)).min()  # each family's planes' reaction
     assert reaction > 1e6 * bound
     if case == "periodic":
         wrap = np.zeros_like(pos)
