@@ -293,3 +293,36 @@ def test_a_resumed_dynamic_run_of_the_periodic_cell_repeats_the_uninterrupted_on
                 np.testing.assert_array_equal(dataset[:], b["steps"][name][:], err_msg=name)
                 compared += 1
         assert compared > 20 and "warp_planes" in a["steps"]
+
+
+@pytest.mark.parametrize("boundary, planes", [("periodic", "fixed"), ("clamped", "affine")])
+def test_displacement_control_moves_the_planes_with_the_prescribed_ends(boundary, planes):
+    """Under displacement control the cell lengths (periodic) or the loaded ends (affine
+    planes) are prescribed and the planes move with them: each step of the dynamic run
+    against the static step from the same state, positions within `agreement_bound` and the
+    end reactions (which carry the planes' friction reaction) within the bound times the end
+    dof's stiffness row sum, as tests/test_fabric_dynamic.py bounds them."""
+    from dynfab.kernels.fabric_arrays import gershgorin_masses
+
+    values = ((2e-4, 5e-5), (6e-4, 2e-4))
+    spec = paper_patch(2 if boundary == "periodic" else 4, 2 if boundary == "periodic" else 4,
+                       friction=PAPER_FRICTION, control="displacement", boundary=boundary,
+                       planes=planes, warp_values=tuple(v[0] for v in values),
+                       weft_values=tuple(v[1] for v in values), tolerance=TOLERANCE)
+    static, dynamic = FabricStaticSolver(spec), FabricDynamicSolver(spec)
+    state = dynamic.initial_state()
+    f = static.fabric
+    for warp_value, weft_value in values:
+        start = state.copy()
+        s_state, s_record = static.step(start.copy(), warp_value, weft_value)
+        state, d_record = dynamic.step(start, warp_value, weft_value)
+        bound = agreement_bound(static, s_state, start.anchors, s_record, d_record["residual"], 0.0)
+        assert np.abs(s_state.positions - start.positions).max() > 1e3 * bound
+        assert np.abs(state.positions - s_state.positions).max() <= bound
+        px, py = assembly.planes(state.positions, f)
+        assert np.abs(px - f.plane_x).min() > 1e3 * bound  # the planes moved
+        rows = gershgorin_masses(dynamic.arrays, 2.0, 1.0)[f.load_node]
+        row = rows + np.abs(s_record["end_force"]) / dynamic.arrays.rest_length[f.load_node - 1]
+        difference = np.abs(d_record["end_force"] - s_record["end_force"])
+        assert (difference <= row * bound).all(), (difference, row * bound)
+        assert np.abs(s_record["end_force"]).max() > 1e3 * (row * bound).max()
