@@ -124,7 +124,11 @@ UNITS: dict[str, str] = {
     "steps/friction_solves": "-",  # fabric: (steps,) Newton solves of the friction update
     "steps/negative_eigenvalues": "-",  # fabric: (steps,) of the frozen-F_T Hessian
     "steps/xdmf/weft_contact_force": "N",  # fabric: (steps, n_we, M+1) as steps/xdmf/contact_force
-    "steps/xdmf/weft_slip": "m",  # fabric: (steps, n_we, M+1) y - anchor at crossing nodes
+    "steps/xdmf/weft_slip": "m",  # fabric: (steps, n_we, M+1) y - Y_k - anchor at crossing nodes
+    "steps/warp_planes": "m",  # fabric: (steps, n_wa) plane y = Y_k of each warp
+    "steps/weft_planes": "m",  # fabric: (steps, n_we) plane x = X_j of each weft
+    "steps/xdmf/plane": "m",  # fabric, moving planes: (steps, n_wa, N+1) each warp node's Y_k
+    "steps/xdmf/weft_plane": "m",  # fabric, moving planes: (steps, n_we, M+1) each weft node's X_j
     "steps/xdmf/contact_force": "N",  # (steps, yarns, N+1) R at crossing nodes, 0 elsewhere (dynfab.xdmf)
     "steps/xdmf/slip": "m",  # (steps, yarns, N+1) x - anchor at crossing nodes, 0 elsewhere
     # Transient runs: one entry per output frame (axis 0 = frames).

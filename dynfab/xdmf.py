@@ -26,7 +26,10 @@ Layout of the XDMF file:
   width: they are spaced by L / `LENGTHS_PER_SPACING` (L the projected length).
   (The fabric model, docs/model.md section 10, adds a second family: wefts in the
   planes ``x = X_j`` moving in (y, z), a second `Family` with ``plane_axis``
-  0; nothing else changes.)
+  0. Where its planes move, with "affine" planes or on a periodic cell, each step
+  stores every node's plane coordinate, ``steps/xdmf/plane`` (the warps' y = Y_k)
+  and ``steps/xdmf/weft_plane`` (the wefts' x = X_j) [m], and a step's grid
+  draws its yarns there, a HyperSlab of them, instead of in the as-woven planes.)
 * point data (Center="Node") ``contact_force`` R [N] and ``slip`` x - anchor
   [m] at the crossing nodes, 0 at the other nodes: the datasets
   ``steps/xdmf/contact_force`` and ``steps/xdmf/slip`` that `nodal_point_data`
@@ -96,6 +99,10 @@ class Family:
     """The plane coordinate of each yarn [m]."""
     point_data: dict[str, str]
     """Attribute name -> dataset of nodal point data (entries, yarns, N+1)."""
+    moving_planes: str | None = None
+    """Dataset of every node's plane coordinate per entry (entries, yarns, N+1) [m] where the
+    planes move (a fabric's "affine" planes or periodic cell), else None: the as-woven
+    `planes`."""
 
 
 @dataclass(frozen=True)
@@ -142,6 +149,7 @@ def _read_layout(path: Path) -> _Layout:
             wanted += ["reference/weft_positions", f"{group}/weft_positions"]  # docs/model.md
             # section 10
             wanted += [f"{group}/xdmf/weft_{name}" for name in POINT_DATA]
+            wanted += [f"{group}/xdmf/plane", f"{group}/xdmf/weft_plane"]  # moving planes
             shapes = {name: h5[name].shape for name in wanted if name in h5}
             times = (h5["frames/time"][:count] if group == "frames"
                      else np.arange(1, count + 1, dtype=float))
@@ -154,8 +162,10 @@ def _read_layout(path: Path) -> _Layout:
         raise UserError(f"cannot read result file '{path}': {str(error).splitlines()[0]}") from None
     point_data = {name: f"{group}/xdmf/{name}" for name in POINT_DATA
                   if f"{group}/xdmf/{name}" in shapes}
+    moving = {prefix: f"{group}/xdmf/{prefix}plane" if f"{group}/xdmf/{prefix}plane" in shapes
+              else None for prefix in ("", "weft_")}
     warps = Family("warp yarns", f"{group}/positions", "reference/positions", 1,
-                   (np.arange(yarns) + 0.5) * spacing, point_data)
+                   (np.arange(yarns) + 0.5) * spacing, point_data, moving[""])
     families = [warps]
     if "reference/weft_positions" in shapes:  # a fabric: wefts in the planes x = X_j
         wefts = shapes["reference/weft_positions"][0]
@@ -163,7 +173,7 @@ def _read_layout(path: Path) -> _Layout:
             "weft yarns", f"{group}/weft_positions", "reference/weft_positions", 0,
             (np.arange(wefts) + 0.5) * float(attrs["length_per_weft"]),
             {name: f"{group}/xdmf/weft_{name}" for name in POINT_DATA
-             if f"{group}/xdmf/weft_{name}" in shapes}))
+             if f"{group}/xdmf/weft_{name}" in shapes}, moving["weft_"]))
     return _Layout(path.name, group, count, shapes, families, times, loads)
 
 
@@ -250,7 +260,10 @@ def render(layout: _Layout) -> str:
 def _step_grid(layout: _Layout, family: Family, entry: int, reference: str, yarns: int,
                nodes: int) -> str:
     """One finished entry: its time, the shared topology, its geometry and point data."""
-    planes = _include(f"{reference}/Geometry/DataItem[{family.plane_axis + 1}]")  # X_Y_Z order
+    if family.moving_planes is None:
+        planes = _include(f"{reference}/Geometry/DataItem[{family.plane_axis + 1}]")  # X_Y_Z
+    else:  # the planes where they are at this entry
+        planes = _slab(layout, family.moving_planes, (entry, 0, 0), (1, yarns, nodes))
     parts = [f'<Grid Name="{layout.group} {entry + 1}" GridType="Uniform">',
              f'<Time Value="{float(layout.times[entry])!r}"/>']
     if layout.loads is not None:

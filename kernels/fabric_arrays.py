@@ -19,9 +19,21 @@ one yarn sit at distinct nodes, so the per-node list of incident crossings has l
 
 Crossing c = k n_we + j (0-based warp k, weft j) joins the layout's warp and weft
 nodes, the warp on side sigma; closure g = c - sigma (z_wa - z_we) with
-c = sigma (z0_wa - z0_we) (the layout's gap offset). The kernels keep the planes
-X_j, Y_k fixed at the crossing nodes' as-woven in-plane coordinates and have no wrap
-springs or tied dofs: `build` refuses the periodic cell and moving ("affine") planes.
+c = sigma (z0_wa - z0_we) (the layout's gap offset).
+
+The boundary is data, not a kernel variant (docs/model.md section 10):
+- moving planes (planes "affine", the periodic cell): X_j = X0_j + w_j u_wa with u_wa the
+  mean end displacement of the warps (`plane_nodes`, x-family first, split at
+  `plane_offsets`), so crossing c's slip subtracts `crossing_plane_weight[c]` (w_j / n_wa,
+  w_k / n_we) times the summed end displacements, and each of those end nodes feels the
+  reaction -sum_c (w / n) f_c of the crossings' friction forces f_c (gathered over the
+  crossings by that node's thread); fixed planes have no plane nodes and zero weights;
+- the periodic wrap: the bending spring at each yarn's node 0 between segment N-1 and
+  segment 0's image (`wrap_stiffness`, `wrap_rest_angle` at node 0, 0 elsewhere; the four
+  nodes it joins know their yarn's node 0, `node_wrap`: one read per node decides);
+- the tied cell length (periodic force control): the end nodes of a family (`node_tie` =
+  the family) move as one dof, each carrying the family's summed end force and the summed
+  mass (`gershgorin_masses`), its kinetic energy counted once (`energy_shares`).
 """
 
 import functools
@@ -100,6 +112,29 @@ class PatchArrays:
     weight: np.ndarray
     """(n, 2) gravity's constant nodal force (0, -rho_l lbar g) [N] (docs/model.md section 2); zeros
     without gravity. Not part of the kernels: a driver adds it to the external force."""
+    node_wrap: np.ndarray
+    """(n,) node 0 of the node's yarn where the node is one of the four its periodic wrap
+    spring joins (N-1, N, 0, 1), -1 elsewhere and on a clamped patch."""
+    yarn_last: np.ndarray
+    """(n,) the last node of the node's yarn."""
+    wrap_stiffness: np.ndarray
+    """(n,) EI / lbar_0 [N m] of the periodic wrap spring, at each yarn's node 0; 0 elsewhere
+    and on a clamped patch."""
+    wrap_rest_angle: np.ndarray
+    """(n,) as-woven turning angle across the wrap [rad], at each yarn's node 0."""
+    plane_nodes: np.ndarray
+    """(n_x + n_y,) the end nodes whose in-plane displacements move the planes: those moving
+    X_j (the warps' last nodes), then those moving Y_k; empty with fixed planes."""
+    plane_offsets: np.ndarray
+    """(3,) plane_nodes[plane_offsets[f]:plane_offsets[f+1]] are family f's (0: X_j, 1: Y_k)."""
+    node_plane: np.ndarray
+    """(n,) the family (0, 1) of planes the node moves, -1 for none."""
+    node_tie: np.ndarray
+    """(n,) the family whose end nodes move as one with this node (periodic force control:
+    the cell length), -1 for none."""
+    crossing_plane_weight: np.ndarray
+    """(C, 2) (w_j / n_x, w_k / n_y) [-]: X_j = X0_j + w_j mean u = X0_j + weight_x sum u over
+    the family's plane nodes (docs/model.md section 10); zeros with fixed planes."""
 
     @property
     def nodes(self) -> int:
@@ -111,10 +146,8 @@ class PatchArrays:
 
 
 def build(spec: FabricSpec) -> PatchArrays:
-    """The arrays of the clamped patch `spec` (docs/model.md section 10), from
-    `dynfab.fabric.layout`."""
-    if spec.boundary != "clamped" or spec.planes != "fixed":
-        raise ValueError("the fabric kernels model the clamped patch with fixed planes only")
+    """The arrays of the fabric `spec` (docs/model.md section 10), from
+    `dynfab.fabric.layout`: a clamped patch with fixed or affine planes, or a periodic cell."""
     fabric = layout.build_fabric(spec)
     start = fabric.yarn_start
     n, yarns = start[-1], start.size - 1
@@ -150,7 +183,45 @@ def build(spec: FabricSpec) -> PatchArrays:
         crossing_offset=fabric.gap_offset.copy(), contact_law=fabric.contact_law.copy(),
         friction_law=friction_law(spec),
         warp_nodes=np.array(nodes_of[:spec.warps]), weft_nodes=np.array(nodes_of[spec.warps:]),
-        load_direction=load_wa, weft_load_direction=load_we, weight=weight)
+        load_direction=load_wa, weft_load_direction=load_we, weight=weight,
+        **boundary_arrays(fabric, yarn_of_node))
+
+
+def boundary_arrays(fabric: layout.Fabric, yarn_of_node: np.ndarray) -> dict:
+    """The moving planes, the periodic wrap springs and the tied end nodes as per-node and
+    per-crossing data (module docstring)."""
+    start = fabric.yarn_start
+    n = start[-1]
+    first, last = start[:-1], start[1:] - 1
+    wrap_k, wrap_angle = np.zeros(n), np.zeros(n)
+    wrap_k[first], wrap_angle[first] = fabric.wrap_stiffness, fabric.wrap_rest_angle
+    node_wrap = np.full(n, -1, np.int32)
+    for a, b in zip(first[fabric.wrap_stiffness > 0], last[fabric.wrap_stiffness > 0]):
+        node_wrap[[b - 1, b, a, a + 1]] = a
+    nx, ny = fabric.plane_nodes_x.size, fabric.plane_nodes_y.size
+    plane_nodes = np.concatenate([fabric.plane_nodes_x, fabric.plane_nodes_y]).astype(np.int32)
+    node_plane = np.full(n, -1, np.int32)
+    node_plane[fabric.plane_nodes_x], node_plane[fabric.plane_nodes_y] = 0, 1
+    weight = np.zeros((fabric.warp_node.size, 2))
+    if nx:
+        weight[:, 0] = fabric.plane_weight_x / nx
+    if ny:
+        weight[:, 1] = fabric.plane_weight_y / ny
+    if not np.isin(last[fabric.wrap_stiffness > 0], plane_nodes).all():
+        raise ValueError("a wrap spring on a yarn whose end does not move the planes")
+    node_tie = np.full(n, -1, np.int32)
+    tie = fabric.tie.reshape(n, 2)[:, 0]
+    for family, nodes in enumerate((fabric.plane_nodes_x, fabric.plane_nodes_y)):
+        tied = nodes[tie[nodes] >= 0]
+        if tied.size:  # every node of the family tied to its first: the family moves as one
+            if not (np.array_equal(tied, nodes[1:]) and (tie[tied] == 2 * nodes[0]).all()):
+                raise ValueError("tied dofs other than a family's plane nodes")
+            node_tie[nodes] = family
+    return dict(node_wrap=node_wrap,
+                yarn_last=last[yarn_of_node].astype(np.int32),
+                wrap_stiffness=wrap_k, wrap_rest_angle=wrap_angle, plane_nodes=plane_nodes,
+                plane_offsets=np.array([0, nx, nx + ny], np.int32), node_plane=node_plane,
+                node_tie=node_tie, crossing_plane_weight=weight)
 
 
 def friction_law(spec: FabricSpec) -> np.ndarray:
@@ -191,7 +262,54 @@ def gershgorin_masses(arrays: PatchArrays, dt: float, safety: float = GERSHGORIN
     for touched in (arrays.previous[inner], inner, arrays.next[inner]):
         np.add.at(rows, touched, bend)
     rows[arrays.node_crossing >= 0] += 2.0 * arrays.contact_law[0] + arrays.friction_law[3]
-    return dt ** 2 / 4.0 * rows / safety ** 2
+    rows += boundary_rows(arrays)
+    masses = dt ** 2 / 4.0 * rows / safety ** 2
+    for family in (0, 1):  # a tied family's end nodes: one dof, the sum of their masses
+        tied = arrays.node_tie == family
+        if tied.any():
+            masses[tied] = masses[tied].sum()
+    return masses
+
+
+def boundary_rows(arrays: PatchArrays) -> np.ndarray:
+    """Absolute row sums (n,) [N/m] the moving planes and the wrap springs add.
+
+    Moving planes: crossing c's Huber block h (|h| <= k_t) acts through the slip's Jacobian
+    J, whose row for X_j holds 1 on x_a and -w_x on each of the family's n_x end nodes
+    (weight w_x = w_j / n_x each), likewise for Y_k; J^T h J then adds k_t (w_x n_x +
+    w_y n_y) to the crossing nodes' rows beyond the k_t counted (nothing with fixed
+    planes), and w_x k_t (2 + w_x n_x + w_y n_y) per crossing to an X end node's row (w_y
+    likewise for Y). The wrap spring:
+    the angle's gradient maps to (r_{N-1}, r_N, r_0, r_1) as (g_0, g_1 + g_2, -g_2, g_2), so
+    |M^T g|_1 <= 4 sqrt 2 S and each node's part <= sqrt 2 S (S = 1/|a| + 1/|b|): 8 k S^2
+    on each of the four nodes."""
+    rows = np.zeros(arrays.nodes)
+    k_t = arrays.friction_law[3]
+    weight = arrays.crossing_plane_weight
+    offsets = arrays.plane_offsets
+    counts = np.diff(offsets)
+    spread = 2.0 + weight[:, 0] * counts[0] + weight[:, 1] * counts[1]
+    rows[arrays.crossing_warp] += k_t * (spread - 2.0)
+    rows[arrays.crossing_weft] += k_t * (spread - 2.0)
+    for family in (0, 1):
+        nodes = arrays.plane_nodes[offsets[family]:offsets[family + 1]]
+        rows[nodes] += k_t * (weight[:, family] * spread).sum()
+    for first in np.flatnonzero(arrays.wrap_stiffness > 0.0):
+        last = arrays.yarn_last[first]
+        S = 1.0 / arrays.rest_length[last - 1] + 1.0 / arrays.rest_length[first]
+        rows[[last - 1, last, first, first + 1]] += 8.0 * arrays.wrap_stiffness[first] * S ** 2
+    return rows
+
+
+def energy_shares(arrays: PatchArrays) -> np.ndarray:
+    """(n,) the share of a node's 1/2 m v^2 (and of its terms in FIRE's sums) in the totals:
+    1, and 1 / n for each of a tied family's n end nodes, which move as one dof of their
+    summed mass (`gershgorin_masses`), so that dof is counted once."""
+    share = np.ones(arrays.nodes)
+    for family in (0, 1):
+        tied = arrays.node_tie == family
+        share[tied] = 1.0 / tied.sum() if tied.any() else 1.0
+    return share
 
 
 @functools.cache
@@ -219,14 +337,25 @@ def struct(scalar):
         crossing_offset: wp.array(dtype=scalar)
         contact_law: wp.array(dtype=scalar)
         friction_law: wp.array(dtype=scalar)
+        node_wrap: wp.array(dtype=wp.int32)
+        yarn_last: wp.array(dtype=wp.int32)
+        wrap_stiffness: wp.array(dtype=scalar)
+        wrap_rest_angle: wp.array(dtype=scalar)
+        plane_nodes: wp.array(dtype=wp.int32)
+        plane_offsets: wp.array(dtype=wp.int32)
+        node_plane: wp.array(dtype=wp.int32)
+        node_tie: wp.array(dtype=wp.int32)
+        crossing_plane_weight: wp.array(dtype=vec)
 
     return FabricArrays
 
 
-VECTOR_FIELDS = ("rest_position", "free")
-INDEX_FIELDS = ("previous", "next", "node_crossing", "crossing_warp", "crossing_weft")
+VECTOR_FIELDS = ("rest_position", "free", "crossing_plane_weight")
+INDEX_FIELDS = ("previous", "next", "node_crossing", "crossing_warp", "crossing_weft",
+                "node_wrap", "yarn_last", "plane_nodes", "plane_offsets", "node_plane", "node_tie")
 SCALAR_FIELDS = ("rest_length", "stretch_stiffness", "bend_stiffness", "rest_angle", "node_side",
-                 "crossing_side", "crossing_offset", "contact_law", "friction_law")
+                 "crossing_side", "crossing_offset", "contact_law", "friction_law",
+                 "wrap_stiffness", "wrap_rest_angle")
 
 
 def upload(arrays: PatchArrays, scalar, device: str):

@@ -40,6 +40,12 @@ Two layouts (tests/test_fabric_kernels.py checks that they agree: bit for bit wi
   power and norms are sums at every step too, runs in the persistent layout only.
 
 `default_layout(device)` picks "persistent" on the CPU and "per_step" on a GPU.
+
+The boundary (docs/model.md section 10) is data of the fabric (`fabric_arrays`), the same
+kernels for every mode. A tied family's end nodes (a periodic cell's length under force
+control) each receive the family's summed force and mass, so they update by the same bits;
+the kinetic energy and FIRE's power and norms weight each node by its share (1/n for the n
+members of a tied family, 1 otherwise), so that one dof counts once.
 """
 
 import functools
@@ -104,8 +110,8 @@ def persistent_kernel(scalar, damping: str, order: str = "scatter", has_friction
     f = fire_module
 
     @wp.kernel(module="unique", module_options=MODULE_OPTIONS)
-    def relax(fabric: Fabric, mass: wp.array(dtype=scalar), external: wp.array(dtype=vec),
-              anchors: wp.array(dtype=vec), dt: scalar, coefficient: scalar, tolerance: scalar,
+    def relax(fabric: Fabric, mass: wp.array(dtype=scalar), share: wp.array(dtype=scalar),
+              external: wp.array(dtype=vec), anchors: wp.array(dtype=vec), dt: scalar, coefficient: scalar, tolerance: scalar,
               max_steps: int, pos: wp.array(dtype=vec), vel: wp.array(dtype=vec),
               force: wp.array(dtype=vec), contact: wp.array(dtype=scalar),
               friction: wp.array(dtype=vec), outcome: wp.array(dtype=wp.int32),
@@ -122,8 +128,9 @@ def persistent_kernel(scalar, damping: str, order: str = "scatter", has_friction
         negative = int(0)
         for step in range(max_steps + 1):
             if wp.static(gather):
+                shift = ops.plane_shift(pos, fabric)
                 for c in range(contact.shape[0]):
-                    ops.crossing_pass(pos, fabric, anchors, contact, friction, c)
+                    ops.crossing_pass_at(pos, fabric, anchors, contact, friction, c, shift)
                 for i in range(nodes):
                     force[i] = ops.node_force(i, pos, fabric, contact, friction, external)
             else:
@@ -144,7 +151,7 @@ def persistent_kernel(scalar, damping: str, order: str = "scatter", has_friction
             if wp.static(fire):  # FIRE 2.0 as kernels/fire.py, dt relative to the masses' dt
                 power = scalar(0.0)
                 for i in range(nodes):
-                    power += wp.dot(force[i], vel[i])
+                    power += share[i] * wp.dot(force[i], vel[i])
                 if power > scalar(0.0):
                     positive += 1
                     negative = 0
@@ -169,8 +176,8 @@ def persistent_kernel(scalar, damping: str, order: str = "scatter", has_friction
                 for i in range(nodes):
                     v = vel[i] + (h / mass[i]) * force[i]
                     vel[i] = v
-                    speed2 += wp.dot(v, v)
-                    force2 += wp.dot(force[i], force[i])
+                    speed2 += share[i] * wp.dot(v, v)
+                    force2 += share[i] * wp.dot(force[i], force[i])
                 mixing = scalar(0.0)
                 if force2 > scalar(0.0):
                     mixing = alpha * wp.sqrt(speed2 / force2)
@@ -184,7 +191,7 @@ def persistent_kernel(scalar, damping: str, order: str = "scatter", has_friction
                     v = step_ops.velocity(vel[i], force[i], mass[i], dt, coefficient)
                     vel[i] = v
                     pos[i] = pos[i] + dt * v
-                    energy += scalar(0.5) * mass[i] * wp.dot(v, v)
+                    energy += scalar(0.5) * (mass[i] * share[i]) * wp.dot(v, v)
                 if wp.static(kinetic):
                     if energy < kinetic_energy:
                         for i in range(nodes):
@@ -209,7 +216,8 @@ def per_step_kernel(scalar, has_friction: bool = False):
     ops, step_ops = fabric_forces.functions(scalar, has_friction), functions(scalar)
 
     @wp.kernel(module="unique", module_options=MODULE_OPTIONS)
-    def node_step(fabric: Fabric, mass: wp.array(dtype=scalar), external: wp.array(dtype=vec),
+    def node_step(fabric: Fabric, mass: wp.array(dtype=scalar), share: wp.array(dtype=scalar),
+                  external: wp.array(dtype=vec),
                   dt: scalar, coefficient: scalar, contact: wp.array(dtype=scalar),
                   friction: wp.array(dtype=vec),
                   pos: wp.array(dtype=vec), vel: wp.array(dtype=vec), force: wp.array(dtype=vec),
@@ -223,7 +231,7 @@ def per_step_kernel(scalar, has_friction: bool = False):
         v = step_ops.velocity(vel[i], f, mass[i], dt, coefficient)
         vel[i] = v
         pos_out[i] = pos[i] + dt * v
-        node_energy[i] = scalar(0.5) * mass[i] * wp.dot(v, v)
+        node_energy[i] = scalar(0.5) * (mass[i] * share[i]) * wp.dot(v, v)
 
     return node_step
 
@@ -301,6 +309,7 @@ class FabricExplicit:
         self.has_friction = bool(arrays.friction_law[3] > 0.0) if friction is None else friction
         self.fabric = fabric_arrays.upload(arrays, scalar, device)
         self.mass = self._array(fabric_arrays.gershgorin_masses(arrays, dt), scalar)
+        self.share = self._array(fabric_arrays.energy_shares(arrays), scalar)
         n, crossings = arrays.nodes, arrays.crossings
         self.vel, self.force = (self._array(np.zeros((n, 2)), self.vec) for _ in range(2))
         self.contact = self._array(np.zeros(crossings), scalar)
@@ -339,7 +348,7 @@ class FabricExplicit:
         residual = wp.zeros(1, dtype=self.scalar, device=self.device)
         kernel = persistent_kernel(self.scalar, self.damping, self.order, self.has_friction)
         wp.launch(kernel, dim=1, device=self.device,
-                  inputs=[self.fabric, self.mass, load, self.anchors, self.scalar(self.dt),
+                  inputs=[self.fabric, self.mass, self.share, load, self.anchors, self.scalar(self.dt),
                           self.scalar(self.coefficient), self.scalar(tolerance), int(max_steps), pos,
                           self.vel, self.force, self.contact, self.friction, code, residual])
         status_code, steps = code.numpy()
@@ -361,7 +370,7 @@ class FabricExplicit:
             wp.launch(passes.crossing_pass, dim=self.arrays.crossings, device=self.device,
                       inputs=[pos, self.fabric, self.anchors, self.contact, self.friction])
             wp.launch(step_kernel, dim=self.arrays.nodes, device=self.device,
-                      inputs=[self.fabric, self.mass, load, dt, c, self.contact, self.friction, pos,
+                      inputs=[self.fabric, self.mass, self.share, load, dt, c, self.contact, self.friction, pos,
                               self.vel, self.force, node_residual, other, node_energy])
             if step == max_steps or step % self.check_interval == 0:
                 residual = float(np.max(node_residual.numpy(), initial=0.0))

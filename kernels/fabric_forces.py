@@ -23,12 +23,21 @@ Terms (each a twin of the one-yarn kernels, written per node):
   on the warp node, -sigma R on the weft node;
 - friction (variants built with it; docs/model.md sections 4, 10): at crossing c the in-plane slip
   s = (x_wa - X_j - xi_x, y_we - Y_k - xi_y) (X_j, Y_k the nodes' as-woven in-plane
-  coordinates, the planes fixed; `anchors` holds xi relative to them) feels the isotropic
+  coordinates plus, where the planes move, the weight times the summed end displacements
+  of the family moving them, `plane_shift`; `anchors` holds xi relative to the as-woven
+  coordinates) feels the isotropic
   Huber potential with F_T = alpha R + beta ell r_f (1 - exp(-R/R_0)) (R > 0) at the
   crossing's current R, frozen in the derivative: the force -k_t s while sticking
   (k_t |s| <= F_T), -F_T s/|s| while sliding; its first component acts on the warp
   node along x, its second on the weft node along y. The per-crossing pass writes it
-  beside R;
+  beside R. Where the planes move, each end node moving them feels -sum_c (w_c / n) f_c
+  (the chain rule through X_j(u)): its thread gathers it over the crossings, in crossing
+  order;
+- the periodic wrap (docs/model.md section 10): the bending spring at a yarn's node 0 between
+  segment N-1 (a = r_N - r_{N-1}) and segment 0's image (b = r_1 - r_0): forces m g_a on
+  r_{N-1}, -m g_a on r_N, -m g_b on r_1, +m g_b on r_0;
+- the tied cell length (periodic force control): each end node of a tied family carries the
+  family's summed force (each member's own force, gathered in plane-node order);
 - the end loads: a given external force per node (its work -f . (r - r0)).
 Held dofs (`free` = 0) carry no force.
 """
@@ -49,6 +58,7 @@ from dynfab.terms.contact import MAX_NEWTON
 def functions(scalar, has_friction: bool) -> SimpleNamespace:
     """The per-node and per-crossing `wp.func`s for one scalar type, with or without friction."""
     vec = VECTORS[scalar]
+    mat = wp.types.matrix(shape=(2, 2), dtype=scalar)
     Fabric = fabric_arrays.struct(scalar)
     newton_stop = NEWTON_STOP_EPS * epsilon(scalar)
     limit = friction_module.functions(scalar).limit
@@ -92,12 +102,28 @@ def functions(scalar, has_friction: bool) -> SimpleNamespace:
         return energy
 
     @wp.func
-    def slip(pos: wp.array(dtype=vec), fabric: Fabric, anchors: wp.array(dtype=vec), c: int) -> vec:
-        """s = (x_wa - X_j, y_we - Y_k) - xi [m] of crossing c."""
+    def plane_shift(pos: wp.array(dtype=vec), fabric: Fabric) -> vec:
+        """(sum of the in-plane displacements of the end nodes moving X_j, the same for Y_k)
+        [m], in plane-node order; zero with fixed planes (no plane nodes)."""
+        shift = vec(scalar(0.0), scalar(0.0))
+        for family in range(2):
+            total = scalar(0.0)
+            for m in range(fabric.plane_offsets[family], fabric.plane_offsets[family + 1]):
+                node = fabric.plane_nodes[m]
+                total += pos[node][0] - fabric.rest_position[node][0]
+            shift[family] = total
+        return shift
+
+    @wp.func
+    def slip(pos: wp.array(dtype=vec), fabric: Fabric, anchors: wp.array(dtype=vec), c: int,
+             shift: vec) -> vec:
+        """s = (x_wa - X_j, y_we - Y_k) - xi [m] of crossing c, the planes moved by the
+        crossing's weights times `shift` (`plane_shift`)."""
         warp_node = fabric.crossing_warp[c]
         weft_node = fabric.crossing_weft[c]
-        return vec(pos[warp_node][0] - fabric.rest_position[warp_node][0],
-                   pos[weft_node][0] - fabric.rest_position[weft_node][0]) - anchors[c]
+        return (vec(pos[warp_node][0] - fabric.rest_position[warp_node][0],
+                    pos[weft_node][0] - fabric.rest_position[weft_node][0])
+                - wp.cw_mul(fabric.crossing_plane_weight[c], shift)) - anchors[c]
 
     @wp.func
     def friction_limit(R: scalar, fabric: Fabric) -> scalar:
@@ -128,9 +154,10 @@ def functions(scalar, has_friction: bool) -> SimpleNamespace:
 
     @wp.func
     def crossing_friction(pos: wp.array(dtype=vec), fabric: Fabric, anchors: wp.array(dtype=vec),
-                          c: int, R: scalar) -> vec:
+                          c: int, R: scalar, shift: vec) -> vec:
         """Friction force [N] of crossing c: (on the warp node along x, on the weft node along y)."""
-        return huber_force(slip(pos, fabric, anchors, c), friction_limit(R, fabric), fabric.friction_law[3])
+        return huber_force(slip(pos, fabric, anchors, c, shift), friction_limit(R, fabric),
+                           fabric.friction_law[3])
 
     @wp.func
     def segment_pull(pos: wp.array(dtype=vec), fabric: Fabric, i: int) -> vec:
@@ -150,9 +177,31 @@ def functions(scalar, has_friction: bool) -> SimpleNamespace:
         return fabric.bend_stiffness[m] * (turning_angle(a, b) - fabric.rest_angle[m])
 
     @wp.func
-    def node_force(i: int, pos: wp.array(dtype=vec), fabric: Fabric, contact: wp.array(dtype=scalar),
-                   friction: wp.array(dtype=vec), external: wp.array(dtype=vec)) -> vec:
-        """-dV/dr_i [N] on the free dofs of node i, gathered from its chain and its crossing."""
+    def wrap_forces(pos: wp.array(dtype=vec), fabric: Fabric, first: int) -> mat:
+        """(m g_a, m g_b) [N] of the wrap spring at node `first` (rows): r_{N-1} feels +m g_a,
+        r_N -m g_a, r_1 -m g_b, r_0 +m g_b."""
+        last = fabric.yarn_last[first]
+        a = pos[last] - pos[last - 1]
+        b = pos[first + 1] - pos[first]
+        moment = fabric.wrap_stiffness[first] * (turning_angle(a, b) - fabric.wrap_rest_angle[first])
+        ga = moment * vec(a[1], -a[0]) / wp.dot(a, a)
+        gb = moment * vec(-b[1], b[0]) / wp.dot(b, b)
+        return mat(ga[0], ga[1], gb[0], gb[1])
+
+    @wp.func
+    def plane_reaction(fabric: Fabric, friction: wp.array(dtype=vec), family: int) -> scalar:
+        """-sum_c (w_c / n) f_c [N] along the yarn on each end node moving family `family`'s
+        planes, in crossing order."""
+        total = scalar(0.0)
+        for c in range(fabric.crossing_warp.shape[0]):
+            total += fabric.crossing_plane_weight[c][family] * friction[c][family]
+        return -total
+
+    @wp.func
+    def own_force(i: int, pos: wp.array(dtype=vec), fabric: Fabric, contact: wp.array(dtype=scalar),
+                  friction: wp.array(dtype=vec), external: wp.array(dtype=vec)) -> vec:
+        """-dV/dr_i [N] of node i alone, unmasked, but for the planes' reaction: its chain,
+        its crossing, the wrap spring."""
         before = fabric.previous[i]
         after = fabric.next[i]
         force = external[i]
@@ -187,6 +236,40 @@ def functions(scalar, has_friction: bool) -> SimpleNamespace:
                 if fabric.crossing_warp[c] == i:
                     along = friction[c][0]
                 force = force + vec(along, scalar(0.0))
+        first = fabric.node_wrap[i]
+        if first >= 0:  # one of the four nodes of its yarn's wrap spring
+            last = fabric.yarn_last[first]
+            g = wrap_forces(pos, fabric, first)
+            if i == last - 1:
+                force = force + vec(g[0, 0], g[0, 1])
+            if i == last:
+                force = force - vec(g[0, 0], g[0, 1])
+            if i == first + 1:
+                force = force - vec(g[1, 0], g[1, 1])
+            if i == first:
+                force = force + vec(g[1, 0], g[1, 1])
+        return force
+
+    @wp.func
+    def node_force(i: int, pos: wp.array(dtype=vec), fabric: Fabric, contact: wp.array(dtype=scalar),
+                   friction: wp.array(dtype=vec), external: wp.array(dtype=vec)) -> vec:
+        """-dV/dr_i [N] on the free dofs of node i, gathered from its chain and its crossing,
+        and on an end node moving the planes their reaction; on a tied end node, the family's
+        summed force: its n members' own forces and n times the reaction (module docstring)."""
+        family = fabric.node_tie[i]
+        force = vec(scalar(0.0), scalar(0.0))
+        members = scalar(1.0)
+        if family >= 0:
+            for m in range(fabric.plane_offsets[family], fabric.plane_offsets[family + 1]):
+                force = force + own_force(fabric.plane_nodes[m], pos, fabric, contact, friction,
+                                          external)
+            members = scalar(fabric.plane_offsets[family + 1] - fabric.plane_offsets[family])
+        else:
+            force = own_force(i, pos, fabric, contact, friction, external)
+        if wp.static(has_friction):
+            plane = fabric.node_plane[i]
+            if plane >= 0:
+                force = force + vec(members * plane_reaction(fabric, friction, plane), scalar(0.0))
         return wp.cw_mul(force, fabric.free[i])
 
     @wp.func
@@ -203,6 +286,10 @@ def functions(scalar, has_friction: bool) -> SimpleNamespace:
         if before >= 0 and after >= 0:
             turn = turning_angle(pos[i] - pos[before], pos[after] - pos[i]) - fabric.rest_angle[i]
             energy += scalar(0.5) * fabric.bend_stiffness[i] * turn * turn
+        if fabric.wrap_stiffness[i] > scalar(0.0):  # node 0 of a periodic yarn: its wrap spring
+            last = fabric.yarn_last[i]
+            turn = turning_angle(pos[last] - pos[last - 1], pos[i + 1] - pos[i]) - fabric.wrap_rest_angle[i]
+            energy += scalar(0.5) * fabric.wrap_stiffness[i] * turn * turn
         return energy
 
     @wp.func
@@ -230,6 +317,17 @@ def functions(scalar, has_friction: bool) -> SimpleNamespace:
                     force[i] = force[i] + ga
                     force[j] = force[j] - ga + gb
                     force[k] = force[k] - gb
+        for m in range(fabric.plane_nodes.shape[0]):  # wrap springs: periodic yarns' ends move planes
+            last = fabric.plane_nodes[m]
+            first = fabric.node_wrap[last]
+            if first >= 0:
+                g = wrap_forces(pos, fabric, first)
+                force[last - 1] = force[last - 1] + vec(g[0, 0], g[0, 1])
+                force[last] = force[last] - vec(g[0, 0], g[0, 1])
+                force[first + 1] = force[first + 1] - vec(g[1, 0], g[1, 1])
+                force[first] = force[first] + vec(g[1, 0], g[1, 1])
+        shift = plane_shift(pos, fabric)
+        reaction = vec(scalar(0.0), scalar(0.0))
         for c in range(contact.shape[0]):
             R = contact_force(closure(pos, fabric, c), fabric.contact_law)
             contact[c] = R
@@ -237,21 +335,43 @@ def functions(scalar, has_friction: bool) -> SimpleNamespace:
             force[fabric.crossing_warp[c]] = force[fabric.crossing_warp[c]] + up
             force[fabric.crossing_weft[c]] = force[fabric.crossing_weft[c]] - up
             if wp.static(has_friction):
-                drag = crossing_friction(pos, fabric, anchors, c, R)
+                drag = crossing_friction(pos, fabric, anchors, c, R, shift)
                 friction[c] = drag
                 force[fabric.crossing_warp[c]] = force[fabric.crossing_warp[c]] + vec(drag[0], scalar(0.0))
                 force[fabric.crossing_weft[c]] = force[fabric.crossing_weft[c]] + vec(drag[1], scalar(0.0))
+                reaction = reaction - wp.cw_mul(fabric.crossing_plane_weight[c], drag)
+        for family in range(2):  # the planes' reaction, then a tied family's summed force
+            begin = fabric.plane_offsets[family]
+            end = fabric.plane_offsets[family + 1]
+            for m in range(begin, end):
+                node = fabric.plane_nodes[m]
+                force[node] = force[node] + vec(reaction[family], scalar(0.0))
+            if end > begin:
+                if fabric.node_tie[fabric.plane_nodes[begin]] >= 0:
+                    total = vec(scalar(0.0), scalar(0.0))
+                    for m in range(begin, end):
+                        total = total + force[fabric.plane_nodes[m]]
+                    for m in range(begin, end):
+                        force[fabric.plane_nodes[m]] = total
         for i in range(pos.shape[0]):
             force[i] = wp.cw_mul(force[i], fabric.free[i])
 
     @wp.func
-    def crossing_pass(pos: wp.array(dtype=vec), fabric: Fabric, anchors: wp.array(dtype=vec),
-                      contact: wp.array(dtype=scalar), friction: wp.array(dtype=vec), c: int):
-        """contact[c] = R [N] and (with friction) friction[c] [N] of crossing c."""
+    def crossing_pass_at(pos: wp.array(dtype=vec), fabric: Fabric, anchors: wp.array(dtype=vec),
+                         contact: wp.array(dtype=scalar), friction: wp.array(dtype=vec), c: int,
+                         shift: vec):
+        """`crossing_pass` with the planes' `plane_shift` given."""
         R = contact_force(closure(pos, fabric, c), fabric.contact_law)
         contact[c] = R
         if wp.static(has_friction):
-            friction[c] = crossing_friction(pos, fabric, anchors, c, R)
+            friction[c] = crossing_friction(pos, fabric, anchors, c, R, shift)
+
+    @wp.func
+    def crossing_pass(pos: wp.array(dtype=vec), fabric: Fabric, anchors: wp.array(dtype=vec),
+                      contact: wp.array(dtype=scalar), friction: wp.array(dtype=vec), c: int):
+        """contact[c] = R [N] and (with friction) friction[c] [N] of crossing c (the planes'
+        shift summed by this thread: `crossing_pass_at` with a shift computed once)."""
+        crossing_pass_at(pos, fabric, anchors, contact, friction, c, plane_shift(pos, fabric))
 
     @wp.func
     def crossing_energy(pos: wp.array(dtype=vec), fabric: Fabric, anchors: wp.array(dtype=vec),
@@ -260,7 +380,8 @@ def functions(scalar, has_friction: bool) -> SimpleNamespace:
         R = contact_force(closure(pos, fabric, c), fabric.contact_law)
         energy = contact_energy(R, fabric.contact_law)
         if wp.static(has_friction):
-            energy += huber_energy(slip(pos, fabric, anchors, c), friction_limit(R, fabric),
+            energy += huber_energy(slip(pos, fabric, anchors, c, plane_shift(pos, fabric)),
+                                   friction_limit(R, fabric),
                                    fabric.friction_law[3])
         return energy
 
@@ -271,12 +392,13 @@ def functions(scalar, has_friction: bool) -> SimpleNamespace:
         R = contact_force(closure(pos, fabric, c), fabric.contact_law)
         bound = friction_limit(R, fabric)
         stick = fabric.friction_law[3]
-        s = slip(pos, fabric, anchors, c)
+        s = slip(pos, fabric, anchors, c, plane_shift(pos, fabric))
         size = wp.length(s)
         if stick * size > bound:
             anchors[c] = anchors[c] + (scalar(1.0) - bound / (stick * size)) * s
 
     return SimpleNamespace(closure=closure, contact_force=contact_force, crossing_pass=crossing_pass,
+                           crossing_pass_at=crossing_pass_at, plane_shift=plane_shift,
                            crossing_energy=crossing_energy, return_map=return_map,
                            node_force=node_force, node_energy=node_energy,
                            scatter_forces=scatter_forces)

@@ -14,7 +14,7 @@ node passes and the return map): no new kernel variant.
 import numpy as np
 import pytest
 
-from dynfab.errors import SolverError, UserError
+from dynfab.errors import SolverError
 from dynfab.fabric.dynamic import FabricDynamicSolver
 from dynfab.fabric.static import FabricStaticSolver
 from dynfab.kernels.fabric_arrays import PAPER_FRICTION, gershgorin_masses, paper_patch
@@ -140,11 +140,3 @@ def test_a_relaxation_that_cannot_finish_raises_one_line():
         solver.step(solver.initial_state(), 0.3, 0.0)
     message = str(raised.value)
     assert "\n" not in message and "time-step limit" in message and "10 time steps" in message
-
-
-@pytest.mark.parametrize("more", [dict(boundary="periodic"), dict(planes="affine")])
-def test_what_the_kernels_do_not_model_is_refused_in_one_line(more):
-    """The periodic cell (wrap springs, tied cell lengths) and moving planes are the static
-    solver's only: a UserError naming the keys, before any kernel is built."""
-    with pytest.raises(UserError, match="boundary = .*planes = .*static solver"):
-        FabricDynamicSolver(paper_patch(2, 2, warp_values=(0.1,), **more))

@@ -310,3 +310,92 @@ def test_a_transient_file_lists_its_frames_at_their_times(tmp_path):
             np.testing.assert_array_equal(point_data["contact_force"].ravel(),
                                           frame["xdmf/contact_force"].ravel())
             np.testing.assert_array_equal(point_data["slip"].ravel(), frame["xdmf/slip"].ravel())
+
+
+RUNS = Path(__file__).resolve().parents[1] / "runs"
+
+
+def fabric_scene(name: str):
+    """A fabric scene of runs/ whose planes move, cut for speed (static runs of a few steps):
+    the periodic biaxial cell (3 steps of its path), the affine strip as a 4 x 4 patch of the
+    same yarns and pitch (2 steps of 0.5 N, weft ends free)."""
+    from dynfab.scene import parse_scene_text
+
+    text = (RUNS / f"{name}.toml").read_text()
+    if name == "fabric_strip":
+        for old, new in (("segments = 224", "segments = 56"), ("crossings = 16", "crossings = 4"),
+                         ("count = 16", "count = 4"), ("length = 0.1", "length = 0.025"),
+                         ("max = 1.0", "max = 1.0"), ("steps = 10", "steps = 2")):
+            text = text.replace(old, new)
+    else:
+        text = re.sub(r"^values = \[([^,]*),([^,]*),([^,]*),.*$", r"values = [\1,\2,\3]", text,
+                      flags=re.M)
+        text = re.sub(r"^weft_values = \[([^,]*),([^,]*),([^,]*),.*$", r"weft_values = [\1,\2,\3]",
+                      text, flags=re.M)
+    return parse_scene_text(text)
+
+
+def grids_of(reader: SlabReader, collection: str) -> list:
+    """The step grids of the temporal collection named `collection`."""
+    found = [g for g in reader.root.iter("Grid") if g.get("Name") == collection]
+    assert len(found) == 1
+    return list(found[0])
+
+
+def node_attribute(reader: SlabReader, grid, name: str) -> np.ndarray:
+    attributes = [a for a in grid.iter("Attribute") if a.get("Name") == name]
+    assert len(attributes) == 1
+    return reader._read_data_item(list(attributes[0])[0]).ravel()
+
+
+@pytest.mark.parametrize("name", ["fabric_biaxial", "fabric_strip"])
+def test_a_fabric_view_draws_moving_planes_where_they_are(tmp_path, name):
+    """docs/model.md section 10: with "affine" planes and on the periodic cell the planes move,
+    X_j = (j - 1/2)(L + u_wa)/n_we with u_wa the warps' mean end displacement (on the cell the
+    stretched cell length), Y_k likewise. Each step's grid of the view (read back with
+    `SlabReader`) draws warp k in y = Y_k and weft j in x = X_j, computed here from the
+    file's end displacements and the scene's lengths, and its point data `slip` at the
+    crossing nodes is the slip s = x - X_j - xi (10.7) of the file's anchors; the as-woven
+    grids keep the as-woven planes. The planes must have moved by far more than rounding."""
+    scene = fabric_scene(name)
+    out = tmp_path / f"{name}.h5"
+    run_to_file(scene, "static", out)
+    n_wa, n_we = scene.weft.count, scene.geometry.crossings
+    L, L_we = scene.geometry.length, scene.weft.length or L
+    with h5py.File(out, "r") as h5:
+        count = int(h5["steps_done"][0])
+        steps = {key: h5[f"steps/{key}"][:count] for key in
+                 ("positions", "weft_positions", "end_displacement", "anchors", "warp_planes",
+                  "weft_planes")}
+        crossings = h5["reference/crossing_nodes"][()]
+        assert h5["steps/warp_planes"].attrs["units"] == "m"
+    u = steps["end_displacement"]
+    X = (np.arange(n_we) + 0.5) * (L + u[:, :n_wa].mean(axis=1, keepdims=True)) / n_we
+    Y = (np.arange(n_wa) + 0.5) * (L_we + u[:, n_wa:].mean(axis=1, keepdims=True)) / n_wa
+    np.testing.assert_allclose(steps["weft_planes"], X, rtol=0, atol=4 * EPS_M * L)
+    np.testing.assert_allclose(steps["warp_planes"], Y, rtol=0, atol=4 * EPS_M * L_we)
+    assert np.abs(X[-1] - (np.arange(n_we) + 0.5) * L / n_we).min() > 1e6 * EPS_M * L  # moved
+    reader = SlabReader(out.with_suffix(".xdmf"))
+    warp_grids, weft_grids = grids_of(reader, "warp yarns"), grids_of(reader, "weft yarns")
+    assert len(warp_grids) == len(weft_grids) == count == len(scene.load.values)
+    for k in range(count):
+        warps, wefts = steps["positions"][k], steps["weft_positions"][k]
+        nodes_wa, nodes_we = warps.shape[1], wefts.shape[1]
+        expected = np.column_stack([warps[..., 0].ravel(), np.repeat(steps["warp_planes"][k], nodes_wa),
+                                    warps[..., 1].ravel()])
+        np.testing.assert_array_equal(reader.points(warp_grids[k]), expected)
+        expected = np.column_stack([np.repeat(steps["weft_planes"][k], nodes_we),
+                                    wefts[..., 0].ravel(), wefts[..., 1].ravel()])
+        np.testing.assert_array_equal(reader.points(weft_grids[k]), expected)
+        slip = node_attribute(reader, warp_grids[k], "slip").reshape(n_wa, nodes_wa)
+        np.testing.assert_allclose(
+            slip[:, crossings],
+            warps[:, crossings, 0] - steps["weft_planes"][k] - steps["anchors"][k][..., 0],
+            rtol=0, atol=4 * EPS_M * L)
+    as_woven = [g for g in reader.root.iter("Grid") if g.get("Name") == "as-woven weft yarns"][0]
+    x = reader.points(as_woven)[:, 0]
+    np.testing.assert_allclose(np.unique(x), (np.arange(n_we) + 0.5) * L / n_we, rtol=1e-15)
+
+
+EPS_M = np.finfo(float).eps
+"""Machine epsilon: the planes are sums and products of a few rounded lengths."""

@@ -29,8 +29,16 @@ converges where the contact forces settle, which the tests check on small patche
 Stability (docs/model.md section 6): as the one-yarn dynamic solver uses the shared certificate, the
 relaxed state is checked with the static solver's inertia count of its Hessian (F_T
 frozen); from a saddle the static solver's escape direction is taken and the step
-relaxed again from there (at most `static.MAX_ESCAPES` times). Not modelled by the
-kernels, so refused (UserError): the periodic cell and moving planes.
+relaxed again from there (at most `static.MAX_ESCAPES` times).
+
+Every boundary of docs/model.md section 10 (the clamped patch with fixed or "affine" planes,
+the periodic cell under force or displacement control) is data to the kernels
+(`dynfab.kernels.fabric_arrays`): the planes move with the summed end displacements and
+their friction reaction acts on those ends, the wrap springs join node N-1 to node 1 across
+node 0, and under periodic force control each family's end nodes move as one dof, the cell
+length, of their summed masses under their summed end forces plus n P (the load potential
+-n_wa P_wa (L1 - L) - n_we P_we (L2 - L_we)); under displacement control the cell lengths
+are prescribed like any end.
 Gravity, a constant force on the physical masses (docs/model.md section 2), is added to the end
 loads.
 
@@ -46,7 +54,7 @@ import time
 import numpy as np
 import warp as wp
 
-from dynfab.errors import SolverError, UserError
+from dynfab.errors import SolverError
 from dynfab.fabric import inertia
 from dynfab.fabric.spec import FabricSpec
 from dynfab.fabric.static import MAX_ESCAPES, FabricState, FabricStaticSolver
@@ -74,10 +82,11 @@ class FabricDynamicSolver:
                  layout: str | None = None, method: str = "explicit"):
         if method not in METHODS:
             raise UserError(f"fabric: dynamic.method = {method!r} unknown; one of {METHODS}")
-        if spec.boundary != "clamped" or spec.planes != "fixed":
-            raise UserError(f"fabric: the dynamic solver models the clamped patch with fixed planes "
-                            f"only, not boundary = {spec.boundary!r}, planes = {spec.planes!r}: "
-                            f"use the static solver")
+        if method == "semi_implicit" and (spec.boundary != "clamped" or spec.planes != "fixed"):
+            # its tangent has neither the planes' coupling nor the tied cell lengths
+            raise UserError(f"fabric: the semi-implicit solver models the clamped patch with fixed "
+                            f"planes only, not boundary = {spec.boundary!r}, planes = "
+                            f"{spec.planes!r}: use the explicit method or the static solver")
         self.spec = spec
         self.tolerance = spec.tolerance if tolerance is None else float(tolerance)
         """Residual tolerance [N] of a relaxation (the spec's Newton tolerance by default)."""

@@ -17,7 +17,10 @@ Record of one fabric step (n_wa warps of N+1 nodes, n_we wefts of M+1 nodes; Y =
   wefts' (y, z) [m];
 - strain, crimp (2,): (warp, weft) nominal strain and mean crimp [-];
 - contact_force, friction_limit, sliding (n_wa, n_we); friction_force, anchors
-  (n_wa, n_we, 2) [N], [m] (in-plane: warp x, weft y);
+  (n_wa, n_we, 2) [N], [m] (in-plane: warp x, weft y; the anchors relative to the planes);
+- warp_planes (n_wa,): the plane y = Y_k of each warp, weft_planes (n_we,): x = X_j of each
+  weft [m], where they are at the step's end (they move with "affine" planes and on the
+  periodic cell, docs/model.md section 10);
 - dissipated, work [J]; energy/<term> [J] per term of `dynfab.fabric.assembly.TERMS`;
 - residual [N], iterations, friction_solves, rounding_floor, stable, buckled (an escape
   from a saddle was taken), lowest_eigenvalue [N/m] (the eigenvalue nearest zero of the
@@ -30,7 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dynfab.fabric.assembly import TERMS
+from dynfab.fabric.assembly import TERMS, planes
 from dynfab.fabric.layout import Fabric, build_fabric
 from dynfab.fabric.spec import FabricSpec, Family, Friction
 from dynfab.fabric.static import FabricState, FabricStaticSolver, as_woven_state
@@ -134,22 +137,34 @@ class FabricModel:
                            float(last["dissipated"]), float(last["work"]),
                            np.array(last["end_force"], float))
 
+    @property
+    def planes_move(self) -> bool:
+        """The planes X_j, Y_k follow the ends ("affine" planes, the periodic cell)."""
+        return self.spec.boundary == "periodic" or self.spec.planes == "affine"
+
     def point_data(self, record: dict) -> dict:
         """The XDMF view's nodal point data of a step (`dynfab.xdmf`): contact force and
-        slip (in-plane coordinate - anchor) at each family's crossing nodes, 0 elsewhere."""
+        the slip s (docs/model.md (10.7): in-plane coordinate - plane - anchor) at each
+        family's crossing nodes, 0 elsewhere; where the planes move, each node's plane
+        coordinate (`xdmf/plane`: the warps' y, `xdmf/weft_plane`: the wefts' x), which the
+        view draws them at."""
         ref = self.reference()
         R = np.asarray(record["contact_force"])
         anchors = np.asarray(record["anchors"])
+        warp_planes, weft_planes = np.asarray(record["warp_planes"]), np.asarray(record["weft_planes"])
         out = {}
-        for prefix, positions, nodes, force, anchor in (
-                ("", record["positions"], ref["crossing_nodes"], R, anchors[..., 0]),
+        for prefix, positions, nodes, force, anchor, crossed, own in (
+                ("", record["positions"], ref["crossing_nodes"], R, anchors[..., 0],
+                 weft_planes[None, :], warp_planes),
                 ("weft_", record["weft_positions"], ref["weft_crossing_nodes"], R.T,
-                 anchors[..., 1].T)):
+                 anchors[..., 1].T, warp_planes[None, :], weft_planes)):
             positions = np.asarray(positions)
             f, slip = np.zeros(positions.shape[:2]), np.zeros(positions.shape[:2])
             f[:, nodes] = force
-            slip[:, nodes] = positions[:, nodes, 0] - anchor
+            slip[:, nodes] = positions[:, nodes, 0] - crossed - anchor
             out[f"xdmf/{prefix}contact_force"], out[f"xdmf/{prefix}slip"] = f, slip
+            if self.planes_move:
+                out[f"xdmf/{prefix}plane"] = np.repeat(own[:, None], positions.shape[1], axis=1)
         return out
 
 
@@ -200,6 +215,7 @@ class FabricSolver:
             "contact_force": raw["contact_force"], "friction_limit": raw["friction_limit"],
             "sliding": raw["sliding"], "friction_force": raw["friction_force"].reshape(*shape, 2),
             "anchors": new.anchors.reshape(*shape, 2),
+            **self.planes(new.positions),
             "dissipated": new.dissipated, "work": new.work,
             "residual": raw["residual"], "iterations": raw["iterations"],
             "friction_solves": raw["friction_solves"], "rounding_floor": raw["rounding_floor"],
@@ -209,6 +225,13 @@ class FabricSolver:
         }
         record.update(self._energies(new, warp_value, weft_value, raw["friction_limit"]))
         return new, {name: np.asarray(value) for name, value in record.items()}
+
+    def planes(self, positions) -> dict:
+        """warp_planes (n_wa,) Y_k and weft_planes (n_we,) X_j [m] at `positions`
+        (`assembly.planes`: as woven, or moved with the ends)."""
+        spec = self.model.spec
+        x, y = planes(positions, self.solver.fabric)  # per crossing c = k n_we + j
+        return {"warp_planes": y[::spec.wefts].copy(), "weft_planes": x[:spec.wefts].copy()}
 
     def _energies(self, state: FabricState, warp_value, weft_value, limit) -> dict:
         """energy/<term> [J] at the step's end: the load term with the end forces P (force
@@ -222,8 +245,7 @@ class FabricSolver:
 
 def build_run(scene: Scene, solver: str, device: str | None, options: dict):
     """(model, solver) of a fabric run: `dynfab.run`'s build step for geometry.model =
-    "fabric"; `options` are the run options (`dynfab.options`). The dynamic solver models
-    the clamped patch with fixed planes (`FabricDynamicSolver` refuses the rest)."""
+    "fabric"; `options` are the run options (`dynfab.options`)."""
     from dynfab.errors import UserError
     from dynfab.options import apply_run_options, check_solver
 

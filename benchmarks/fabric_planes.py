@@ -1,0 +1,158 @@
+"""Benchmark of the fabric's moving planes and periodic cell in the dynamic solver
+(docs/model.md section 10): the explicit time step's cost with them against fixed planes,
+and `dynfab run` wall times of every fabric scene, dynamic against static.
+
+Run:  python benchmarks/fabric_planes.py [--sizes 8,16,32] [--modes fixed,affine,periodic]
+                                         [--no-runs] [--output benchmarks/fabric_planes.json]
+      (prints two tables, writes the JSON)
+
+1. `step_costs`: balanced n x n patches of the paper's yarn with the paper's friction
+   (`fabric_arrays.paper_patch`, 8 segments per half-wave), force control, loaded by
+   LOAD per yarn, in three boundary modes: clamped with fixed planes, clamped with "affine"
+   planes (the slip measured from planes moving with the mean end displacement, its
+   reaction gathered on the end nodes), and the periodic cell (wrap springs, tied cell
+   lengths, planes moving with the cell). A fixed number of viscous time steps from the
+   as-woven state in each layout (persistent: one launch, scatter order; per_step: two
+   launches per step, gather order), the fastest of REPEATS, modes alternating within each
+   repeat; ns per node and time step, and each mode over fixed planes. `--modes fixed`
+   runs on a tree without the moving planes too (the same public API), for before/after
+   ratios of the fixed-plane step.
+2. `run_times` (unless --no-runs): `dynfab run runs/<scene>.toml --out <tmp> --quiet`
+   with --solver static and --solver dynamic for each fabric scene of runs/, alternating
+   (static first for half the scenes), one run each in a subprocess (numba and Warp
+   caches warm: run the tests or the script once before), wall time around the
+   subprocess.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+OUTPUT = ROOT / "benchmarks" / "fabric_planes.json"
+LOAD = (0.3, 0.1)
+"""(warp, weft) end force per yarn [N]."""
+DAMPING = 0.05
+"""Viscous coefficient [1/s] of the timed steps (the result is not a relaxation)."""
+STEP_WORK = 4e6
+"""Node-steps timed per configuration (persistent layout): steps = STEP_WORK / nodes."""
+PER_STEP_WORK = 5e5
+"""Node-steps timed in the per-step layout (two launches per step: slower on the CPU)."""
+REPEATS = 3
+SCENES = ("fabric_biaxial", "fabric_biaxial_2to1", "fabric_biaxial_1to2", "fabric_strip",
+          "fabric_pullout")
+
+
+def patch(n: int, mode: str):
+    """The n x n spec of one boundary mode (module docstring)."""
+    from dynfab.kernels.fabric_arrays import PAPER_FRICTION, paper_patch
+
+    more = {"fixed": {}, "affine": {"planes": "affine"}, "periodic": {"boundary": "periodic"}}[mode]
+    return paper_patch(n, n, friction=PAPER_FRICTION, warp_values=(LOAD[0],),
+                       weft_values=(LOAD[1],), **more)
+
+
+def relaxer(n: int, mode: str, layout: str, steps: int):
+    """A callable running `steps` viscous steps of the mode's patch in one layout."""
+    from dynfab.kernels import fabric_arrays, fabric_explicit
+
+    arrays = fabric_arrays.build(patch(n, mode))
+    order = "scatter" if layout == "persistent" else "gather"
+    solver = fabric_explicit.FabricExplicit(arrays, layout=layout, damping="viscous",
+                                            coefficient=DAMPING, check_interval=1 << 30,
+                                            order=order, friction=True)
+    external = LOAD[0] * arrays.load_direction + LOAD[1] * arrays.weft_load_direction
+    return arrays.nodes, lambda: solver.relax(arrays.rest_position, external, 0.0, steps)
+
+
+def step_costs(sizes, modes) -> list[dict]:
+    """ns per node and step of each (size, layout, mode), modes alternating per repeat."""
+    rows = []
+    for n in sizes:
+        for layout, work in (("persistent", STEP_WORK), ("per_step", PER_STEP_WORK)):
+            nodes = {}
+            runs = {}
+            for mode in modes:
+                count, _ = relaxer(n, mode, layout, 1)
+                steps = max(10, int(work / count))
+                nodes[mode], runs[mode] = count, relaxer(n, mode, layout, steps)[1]
+                runs[mode]()  # compile / load the kernels, warm the caches
+            best = {mode: np.inf for mode in modes}
+            for repeat in range(REPEATS):
+                for mode in (modes if repeat % 2 == 0 else modes[::-1]):
+                    began = time.perf_counter()
+                    runs[mode]()
+                    best[mode] = min(best[mode], time.perf_counter() - began)
+            for mode in modes:
+                steps = max(10, int(work / nodes[mode]))
+                ns = 1e9 * best[mode] / (nodes[mode] * steps)
+                rows.append({"n": n, "layout": layout, "mode": mode, "nodes": nodes[mode],
+                             "steps": steps, "seconds": best[mode], "ns_per_node_step": ns})
+            fixed = [r for r in rows if r["n"] == n and r["layout"] == layout and r["mode"] == "fixed"]
+            for row in rows[-len(modes):]:
+                if fixed:
+                    row["over_fixed"] = row["ns_per_node_step"] / fixed[0]["ns_per_node_step"]
+            for row in rows[-len(modes):]:
+                print(f"{n:4d} x {n:<3d} {layout:10s} {row['mode']:9s} {row['nodes']:7d} nodes "
+                      f"{row['ns_per_node_step']:8.1f} ns/node/step"
+                      + (f"  {row['over_fixed']:.3f} x fixed" if "over_fixed" in row else ""),
+                      flush=True)
+    return rows
+
+
+def run_times() -> list[dict]:
+    """Wall time of `dynfab run` per scene and solver, alternating the order per scene."""
+    dynfab = Path(sys.executable).parent / "dynfab"
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for index, scene in enumerate(SCENES):
+            order = ("static", "dynamic") if index % 2 == 0 else ("dynamic", "static")
+            row = {"scene": scene}
+            for solver in order:
+                out = Path(tmp) / f"{scene}_{solver}.h5"
+                command = [str(dynfab), "run", str(ROOT / "runs" / f"{scene}.toml"), "--out",
+                           str(out), "--quiet", "--solver", solver]
+                began = time.perf_counter()
+                done = subprocess.run(command, capture_output=True, text=True)
+                row[f"{solver}_s"] = time.perf_counter() - began
+                row[f"{solver}_exit"] = done.returncode
+                if done.returncode:
+                    row[f"{solver}_error"] = done.stderr.strip().splitlines()[-1:]
+            row["dynamic_over_static"] = row["dynamic_s"] / row["static_s"]
+            print(f"{scene:22s} static {row['static_s']:7.2f} s   dynamic {row['dynamic_s']:7.2f} s"
+                  f"   {row['dynamic_over_static']:.2f} x", flush=True)
+            rows.append(row)
+    return rows
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--sizes", default="8,16,32", help="patch sizes n (n x n yarns)")
+    parser.add_argument("--modes", default="fixed,affine,periodic",
+                        help="comma-separated subset of fixed,affine,periodic")
+    parser.add_argument("--no-runs", action="store_true", help="skip the dynfab run timings")
+    parser.add_argument("--output", type=Path, default=OUTPUT)
+    args = parser.parse_args(argv)
+    sizes = [int(v) for v in args.sizes.split(",")]
+    modes = args.modes.split(",")
+    result = {"command": "python benchmarks/fabric_planes.py " + " ".join(argv or sys.argv[1:]),
+              "machine": platform.platform(), "processor": platform.processor(),
+              "load_N": LOAD, "damping_per_s": DAMPING, "repeats": REPEATS,
+              "steps": step_costs(sizes, modes)}
+    if not args.no_runs:
+        result["runs"] = run_times()
+    args.output.write_text(json.dumps(result, indent=1) + "\n")
+    print(f"wrote {args.output}")
+
+
+if __name__ == "__main__":
+    main()
