@@ -54,7 +54,7 @@ import time
 import numpy as np
 import warp as wp
 
-from dynfab.errors import SolverError
+from dynfab.errors import SolverError, UserError
 from dynfab.fabric import inertia
 from dynfab.fabric.spec import FabricSpec
 from dynfab.fabric.static import MAX_ESCAPES, FabricState, FabricStaticSolver
