@@ -23,9 +23,9 @@ the other), which follows the graph's actual couplings (the affine planes' end n
 a periodic cell's wrap) whatever they are.
 
 The ordering depends on the sparsity pattern alone, fixed per fabric: `fabric_order`
-computes it once per pattern and keeps it under a digest of the pattern, where
-`known_order` finds it for a caller that holds the Hessian only (the nearest
-eigenvalue). `OrderedLU` factors P A P^T by SuperLU with that fixed ordering in its
+computes it once per `assembly.Pattern` and keeps it under that pattern and under a digest
+of the Hessian's sparsity, where `known_order` finds it for a caller that holds the
+Hessian only (the nearest eigenvalue). `OrderedLU` factors P A P^T by SuperLU with that fixed ordering in its
 symmetric mode with diagonal pivots, so that the pivots are those of P A P^T = L D L^T
 (`dynfab.fabric.inertia`).
 """
@@ -33,6 +33,7 @@ symmetric mode with diagonal pivots, so that the pivots are those of P A P^T = L
 from __future__ import annotations
 
 import hashlib
+import weakref
 from collections import OrderedDict
 
 import numpy as np
@@ -44,7 +45,8 @@ LEAF = 64
 each yarn's band)."""
 KEPT = 8
 """Orderings kept (`fabric_order`), the least recently used dropped first."""
-_orders: OrderedDict[bytes, np.ndarray] = OrderedDict()
+_orders: OrderedDict[bytes, "Ordering"] = OrderedDict()
+_by_pattern: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 
 
 def coordinates(fabric, index, count: int) -> np.ndarray:
@@ -137,56 +139,78 @@ def digest(A) -> bytes:
     A = scipy.sparse.csc_matrix(A)
     h = hashlib.blake2b(digest_size=16)
     h.update(np.asarray(A.shape, np.int64).tobytes())
-    h.update(np.ascontiguousarray(A.indptr, np.int64).tobytes())
-    h.update(np.ascontiguousarray(A.indices, np.int64).tobytes())
+    for array in (A.indptr, A.indices):
+        h.update(str(array.dtype).encode())
+        h.update(np.ascontiguousarray(array).tobytes())
     return h.digest()
 
 
-def fabric_order(fabric, index, A) -> np.ndarray:
-    """The nested-dissection order of the fabric's Hessian A on its unknowns (`index`: dof
-    to unknown, `assembly.Pattern.index`), computed once per sparsity pattern and kept
-    (`known_order` finds it from A alone)."""
+class Ordering:
+    """An elimination order (`order[k]`: the unknown eliminated k-th) and the symmetric
+    permutation P A P^T by it, whose gather of A's values is kept for the last sparsity
+    pattern seen (the fabric's Hessians share one)."""
+
+    def __init__(self, order):
+        self.order = np.asarray(order, np.int64)
+        self.inverse = np.empty_like(self.order)
+        self.inverse[self.order] = np.arange(self.order.size)
+        self._pattern = None  # (indptr, indices) of A; (indptr, indices, gather) of P A P^T
+
+    def permuted(self, A) -> scipy.sparse.csc_matrix:
+        """P A P^T (CSC): entry (i, j) is A[order[i], order[j]]."""
+        A = scipy.sparse.csc_matrix(A)
+        known = self._pattern
+        if not (known is not None and np.array_equal(known[0], A.indptr)
+                and np.array_equal(known[1], A.indices)):
+            coo = A.tocoo()
+            slots = scipy.sparse.csc_matrix(
+                (np.arange(1, A.nnz + 1, dtype=float), (self.inverse[coo.row], self.inverse[coo.col])),
+                shape=A.shape)  # each entry's position in A's data, 1-based (0 is no entry)
+            slots.sort_indices()
+            known = (A.indptr.copy(), A.indices.copy(), slots.indptr, slots.indices,
+                     slots.data.astype(np.int64) - 1)
+            self._pattern = known
+        return scipy.sparse.csc_matrix((A.data[known[4]], known[3], known[2]), shape=A.shape)
+
+
+def fabric_order(fabric, pattern, A) -> Ordering:
+    """The nested-dissection order of the fabric's Hessian A on its unknowns (`pattern`:
+    its `assembly.Pattern`), computed once per pattern and kept (`known_order` finds it
+    from A alone)."""
+    found = _by_pattern.get(pattern)
+    if found is not None:
+        return found
     key = digest(A)
-    if key in _orders:
-        _orders.move_to_end(key)
-        return _orders[key]
-    order = nested_dissection(A, coordinates(fabric, index, A.shape[0]))
-    _orders[key] = order
-    while len(_orders) > KEPT:
-        _orders.popitem(last=False)
-    return order
+    if key not in _orders:
+        _orders[key] = Ordering(nested_dissection(
+            A, coordinates(fabric, pattern.index, A.shape[0])))
+        while len(_orders) > KEPT:
+            _orders.popitem(last=False)
+    _by_pattern[pattern] = _orders[key]
+    return _orders[key]
 
 
-def known_order(A) -> np.ndarray | None:
+def known_order(A) -> Ordering | None:
     """The order `fabric_order` computed for A's sparsity pattern, or None."""
     return _orders.get(digest(A))
 
 
-def permuted(A, order) -> scipy.sparse.csc_matrix:
-    """P A P^T (CSC): entry (i, j) of the result is A[order[i], order[j]]."""
-    A = scipy.sparse.csc_matrix(A)
-    inverse = np.empty_like(order)
-    inverse[order] = np.arange(order.size)
-    coo = A.tocoo()
-    return scipy.sparse.csc_matrix((coo.data, (inverse[coo.row], inverse[coo.col])),
-                                   shape=A.shape)
-
-
 class OrderedLU:
-    """SuperLU's factors of P A P^T, P from `order`, with that ordering kept (permc_spec
-    "NATURAL": SuperLU only postorders the elimination tree, which leaves the fill as it
-    is), in its symmetric mode with diagonal pivot threshold 0 (module docstring). Raises
-    RuntimeError where SuperLU does (an exactly zero pivot with no other row)."""
+    """SuperLU's factors of P A P^T, P from an `Ordering`, with that ordering kept
+    (permc_spec "NATURAL": SuperLU only postorders the elimination tree, which leaves the
+    fill as it is), in its symmetric mode with diagonal pivot threshold 0 (module
+    docstring). Raises RuntimeError where SuperLU does (an exactly zero pivot with no other
+    row)."""
 
-    def __init__(self, A, order):
-        self.order = np.asarray(order)
-        self.lu = scipy.sparse.linalg.splu(permuted(A, self.order), permc_spec="NATURAL",
+    def __init__(self, A, ordering: Ordering):
+        self.order = ordering.order
+        self.lu = scipy.sparse.linalg.splu(ordering.permuted(A), permc_spec="NATURAL",
                                            diag_pivot_thresh=0.0,
                                            options=dict(SymmetricMode=True))
 
     def solve(self, rhs) -> np.ndarray:
         """A^-1 rhs."""
-        out = np.empty_like(rhs, dtype=float)
+        out = np.empty(np.shape(rhs))
         out[self.order] = self.lu.solve(np.asarray(rhs, float)[self.order])
         return out
 

@@ -200,12 +200,13 @@ class FabricStaticSolver:
     def _direction(self, H, g):
         """-H^-1 g by sparse LU in the pattern's nested-dissection order
         (`ordering.fabric_order`), H shifted by mu I until the step is a descent direction."""
-        order = ordering.fabric_order(self.fabric, self.pattern.index, H)
+        order = ordering.fabric_order(self.fabric, self.pattern, H)
         diag = np.abs(H.diagonal()).max()
         shift = 0.0
         eye = scipy.sparse.identity(H.shape[0], format="csc")
         for _ in range(40):
-            d = _sparse_solve((H + shift * eye).tocsc(), -g, order=order)
+            A = H if shift == 0.0 else (H + shift * eye).tocsc()
+            d = _sparse_solve(A, -g, order=order)
             if d is not None and np.all(np.isfinite(d)) and g @ d < 0.0:
                 return d
             shift = max(10.0 * shift, 1e-10 * diag)
