@@ -28,10 +28,10 @@ every part untimed on a 4 x 4 patch (compiles; loads the numba and Warp caches),
 4. `dynamic_costs`: `FabricDynamicSolver.step` (kinetic damping, persistent layout) on
    the same step: time per load step, its time steps, the relaxation's time per time step,
    and the largest position difference from the static solution.
-5. `newton_pieces` (--pieces): gradient, Hessian assembly, SuperLU (default and
-   symmetric mode), the factorisation in each fill-reducing ordering (the geometric nested
-   dissection of `dynfab.fabric.ordering`, SuperLU's MMD_AT_PLUS_A and COLAMD: time, fill
-   nnz(L + U), one solve), the inertia (SuperLU's symmetric-mode pivots, else the Schur
+5. `newton_pieces` (--pieces): gradient, Hessian assembly, SuperLU (default; symmetric
+   mode in the nested-dissection order, the Newton solve's), the factorisation in each
+   fill-reducing ordering (the geometric nested dissection of `dynfab.fabric.ordering`,
+   SuperLU's MMD_AT_PLUS_A and COLAMD: time, fill nnz(L + U), one solve), the inertia (SuperLU's symmetric-mode pivots, else the Schur
    complement) against dense eigenvalues (n <= 8), and the nearest eigenvalue through the
    ordered shift-invert against ARPACK factoring the matrix itself.
 
@@ -401,7 +401,8 @@ def newton_pieces(n: int, positions) -> dict:
            "gradient_s": timed(lambda: solver.gradient(pos, P, anchors, limit))[0],
            "hessian_s": timed(lambda: solver.hessian(pos, anchors, limit))[0],
            "splu_default_s": timed(lambda: scipy.sparse.linalg.splu(H).solve(-g))[0],
-           "splu_symmetric_s": timed(lambda: _sparse_solve(H, -g))[0]}
+           "splu_symmetric_s": timed(lambda: _sparse_solve(H, -g, order=ordering.fabric_order(
+               solver.fabric, solver.pattern)))[0]}
     row.update(ordering_pieces(solver, H, g))
     row["inertia_s"], result = timed(lambda: inertia.inertia(solver, pos, anchors, limit))
     row["inertia_negatives"], row["inertia_method"] = int(result.negatives), result.method
@@ -418,16 +419,24 @@ ORDERINGS = ("nested_dissection", "MMD_AT_PLUS_A", "COLAMD")
 
 
 def ordering_pieces(solver, H, g) -> dict:
-    """Per ordering: SuperLU's factorisation of H in symmetric mode with diagonal pivots (the
-    Newton solve's and the inertia's), its time, its fill nnz(L + U) and one solve's time;
-    and the time to compute the nested-dissection order (once per pattern, uncached here)."""
+    """Per ordering: SuperLU's factorisation in symmetric mode with diagonal pivots (the
+    Newton solve's and the inertia's), its time, its fill nnz(L + U) and one solve's time,
+    of H without its explicit zeros (frictionless, the friction blocks are zero values: what
+    SuperLU's own orderings saw in the Newton solve, `H + 0 I` dropping them); minimum degree
+    also on H's whole pattern (the friction blocks' values are nonzero in a run with
+    friction); and the time to compute the nested-dissection order (once per pattern,
+    uncached here)."""
     xy = ordering.coordinates(solver.fabric, solver.pattern.index, H.shape[0])
     row = {"order_nested_dissection_s": timed(lambda: ordering.nested_dissection(H, xy))[0]}
-    order = ordering.fabric_order(solver.fabric, solver.pattern, H)
-    factors = {"nested_dissection": lambda: ordering.OrderedLU(H, order)}
+    order = ordering.fabric_order(solver.fabric, solver.pattern)
+    values = H.copy()
+    values.eliminate_zeros()
+    factors = {"nested_dissection": lambda: ordering.OrderedLU(values, order)}
     for name in ORDERINGS[1:]:
         factors[name] = lambda name=name: scipy.sparse.linalg.splu(
-            H, permc_spec=name, diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
+            values, permc_spec=name, diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
+    factors["MMD_AT_PLUS_A_whole_pattern"] = lambda: scipy.sparse.linalg.splu(
+        H, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
     for name, factor in factors.items():
         row[f"factor_{name}_s"], lu = timed(factor)
         superlu = getattr(lu, "lu", lu)
@@ -569,6 +578,7 @@ FITS = {"exponent_time_step": ("explicit", "persistent_s_per_step"),
         "exponent_factor_COLAMD": ("pieces", "factor_COLAMD_s"),
         "exponent_fill_nested_dissection": ("pieces", "fill_nested_dissection"),
         "exponent_fill_MMD_AT_PLUS_A": ("pieces", "fill_MMD_AT_PLUS_A"),
+        "exponent_fill_MMD_AT_PLUS_A_whole_pattern": ("pieces", "fill_MMD_AT_PLUS_A_whole_pattern"),
         "exponent_static_step": ("static", "step_s"),
         "exponent_certificate": ("static", "certificate_s"),
         "exponent_inertia": ("static", "inertia_s"),

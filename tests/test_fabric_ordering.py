@@ -34,7 +34,7 @@ def friction_step(**more):
     state, records = solver.run()
     limit = records[-1]["friction_limit"].ravel()
     H = solver.hessian(state.positions, state.anchors, limit)
-    return solver, H, ordering.fabric_order(solver.fabric, solver.pattern, H)
+    return solver, H, ordering.fabric_order(solver.fabric, solver.pattern)
 
 
 def compressed_saddle():
@@ -47,7 +47,7 @@ def compressed_saddle():
     info, limit, _ = solver.solve(pos, np.zeros(solver.yarns), anchors)
     assert info.converged
     H = solver.hessian(pos, anchors, limit)
-    return solver, H, ordering.fabric_order(solver.fabric, solver.pattern, H)
+    return solver, H, ordering.fabric_order(solver.fabric, solver.pattern)
 
 
 def as_woven_hessian(solver):
@@ -62,14 +62,14 @@ def test_the_order_is_a_permutation_of_the_unknowns(case):
     else:
         solver = FabricStaticSolver(fabric_spec("force", (0.2,), FRICTION, planes=case))
     H = as_woven_hessian(solver)
-    order = ordering.fabric_order(solver.fabric, solver.pattern, H)
+    order = ordering.fabric_order(solver.fabric, solver.pattern)
     assert order.order.dtype.kind == "i"
     assert np.array_equal(np.sort(order.order), np.arange(solver.pattern.free_count))
     # computed once per pattern: found again from the Hessian of another state
     state, _ = solver.step(solver.initial_state(), *((0.1, 0.05) if case == "periodic" else (0.2, 0.05)))
     again = solver.hessian(state.positions, state.anchors, np.zeros(solver.fabric.warp_node.size))
     assert ordering.known_order(again) is order
-    assert ordering.fabric_order(solver.fabric, solver.pattern, again) is order
+    assert ordering.fabric_order(solver.fabric, solver.pattern) is order
 
 
 def backward_error_bound(A, lu):
@@ -207,7 +207,7 @@ def test_the_ordered_fill_grows_like_n_log_n():
     # Constant increments (n log n) against doubling ones (n^1.5): each increment at most
     # sqrt(2) times the one before, the geometric midpoint of the two hypotheses' ratios.
     dissection = growth_increments(fills(
-        lambda solver, A: ordering.fabric_order(solver.fabric, solver.pattern, A)))
+        lambda solver, A: ordering.fabric_order(solver.fabric, solver.pattern)))
     assert np.all(dissection > 0.0)
     assert np.all(dissection[1:] <= np.sqrt(2.0) * dissection[:-1]), dissection
     # the test can fail: minimum degree's fill on the same patterns grows faster

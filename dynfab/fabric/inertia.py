@@ -124,7 +124,7 @@ def lowest_eigenvectors(solver, pos, anchors, limit, count: int, nearest: float)
             break
         sigma *= 2.0
     H = solver.hessian(pos, anchors, limit)
-    dissection = ordering.fabric_order(solver.fabric, solver.pattern, H)
+    dissection = ordering.fabric_order(solver.fabric, solver.pattern)
     values, vectors = scipy.sparse.linalg.eigsh(H, k=count, sigma=sigma, which="LM", tol=EIGEN_TOL,
                                                 OPinv=shift_inverse(H, sigma, dissection),
                                                 v0=start_vector(H.shape[0]))
@@ -154,7 +154,7 @@ def inertia(solver, pos, anchors, limit, shift: float = 0.0) -> Inertia:
     fabric = solver.fabric
     H = solver.hessian(pos, anchors, limit)
     scale = float(np.abs(H.diagonal()).max())
-    order = ordering.fabric_order(fabric, solver.pattern, H)
+    order = ordering.fabric_order(fabric, solver.pattern)
     for tau in (shift, shift + 1e3 * EPS * scale, shift + 1e6 * EPS * scale):
         result = sparse_inertia(H, tau, scale, order)
         if result is None:

@@ -42,9 +42,9 @@ import scipy.sparse.linalg
 
 LEAF = 64
 """Parts of at most this many unknowns are not dissected further (natural order: along
-each yarn's band)."""
+each yarn's band); smaller leaves lower the fill little and take longer to order."""
 KEPT = 8
-"""Orderings kept (`fabric_order`), the least recently used dropped first."""
+"""Orderings kept under their sparsity digest (`known_order`), the oldest dropped first."""
 _orders: OrderedDict[bytes, "Ordering"] = OrderedDict()
 _by_pattern: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 
@@ -173,13 +173,14 @@ class Ordering:
         return scipy.sparse.csc_matrix((A.data[known[4]], known[3], known[2]), shape=A.shape)
 
 
-def fabric_order(fabric, pattern, A) -> Ordering:
-    """The nested-dissection order of the fabric's Hessian A on its unknowns (`pattern`:
-    its `assembly.Pattern`), computed once per pattern and kept (`known_order` finds it
-    from A alone)."""
+def fabric_order(fabric, pattern) -> Ordering:
+    """The nested-dissection order of the fabric's Hessian on its unknowns (`pattern`: its
+    `assembly.Pattern`, whose every entry counts, whatever its value), computed once per
+    pattern and kept (`known_order` finds it from a Hessian alone)."""
     found = _by_pattern.get(pattern)
     if found is not None:
         return found
+    A = pattern.matrix(np.ones(pattern.size))
     key = digest(A)
     if key not in _orders:
         _orders[key] = Ordering(nested_dissection(

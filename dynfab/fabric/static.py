@@ -200,7 +200,7 @@ class FabricStaticSolver:
     def _direction(self, H, g):
         """-H^-1 g by sparse LU in the pattern's nested-dissection order
         (`ordering.fabric_order`), H shifted by mu I until the step is a descent direction."""
-        order = ordering.fabric_order(self.fabric, self.pattern, H)
+        order = ordering.fabric_order(self.fabric, self.pattern)
         diag = np.abs(H.diagonal()).max()
         shift = 0.0
         eye = scipy.sparse.identity(H.shape[0], format="csc")
