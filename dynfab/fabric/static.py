@@ -205,7 +205,8 @@ class FabricStaticSolver:
         shift = 0.0
         eye = scipy.sparse.identity(H.shape[0], format="csc")
         for _ in range(40):
-            A = H if shift == 0.0 else (H + shift * eye).tocsc()
+            A = (H + shift * eye if shift else H.copy()).tocsc()
+            A.eliminate_zeros()  # else carried through the factors (frictionless friction blocks)
             d = _sparse_solve(A, -g, order=order)
             if d is not None and np.all(np.isfinite(d)) and g @ d < 0.0:
                 return d
