@@ -31,9 +31,10 @@ every part untimed on a 4 x 4 patch (compiles; loads the numba and Warp caches),
 5. `newton_pieces` (--pieces): gradient, Hessian assembly, SuperLU (default; symmetric
    mode in the nested-dissection order, the Newton solve's), the factorisation in each
    fill-reducing ordering (the geometric nested dissection of `dynfab.fabric.ordering`,
-   SuperLU's MMD_AT_PLUS_A and COLAMD: time, fill nnz(L + U), one solve), the inertia (SuperLU's symmetric-mode pivots, else the Schur
-   complement) against dense eigenvalues (n <= 8), and the nearest eigenvalue through the
-   ordered shift-invert against ARPACK factoring the matrix itself.
+   SuperLU's MMD_AT_PLUS_A and COLAMD: time, fill nnz(L + U), one solve; fitted exponents
+   of the factor time and the fill), the inertia (SuperLU's symmetric-mode pivots, else
+   the Schur complement) against dense eigenvalues (n <= 8), and the nearest eigenvalue
+   through the ordered shift-invert against ARPACK factoring the matrix itself.
 
 Timing: time.perf_counter, the fastest of REPEATS runs where one run takes less than
 FAST seconds, else one run (warm: the 4 x 4 pass compiled everything). Memory: the

@@ -51,8 +51,9 @@ EPS = np.finfo(np.float64).eps
 EIGEN_TOL = 1e-10
 """ARPACK's relative tolerance on the eigenvalues (`nearest_eigenvalue`, `lowest_eigenvectors`)."""
 GROWTH = 1e4
-"""Largest max |L_ij| and max |U_ij| / max|H_ii| the sparse route accepts (on the benchmark's
-patches, positive definite: about 3 and 1)."""
+"""Largest max |L_ij| and max |U_ij| / max|H_ii| the sparse route accepts (a positive definite
+matrix's |U_ij| stay within max|H_ii|, and on the benchmark's patches its |L_ij| far below
+GROWTH, in either ordering)."""
 
 
 @dataclass
