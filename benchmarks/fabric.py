@@ -28,9 +28,13 @@ every part untimed on a 4 x 4 patch (compiles; loads the numba and Warp caches),
 4. `dynamic_costs`: `FabricDynamicSolver.step` (kinetic damping, persistent layout) on
    the same step: time per load step, its time steps, the relaxation's time per time step,
    and the largest position difference from the static solution.
-5. `newton_pieces` (--pieces): gradient, Hessian assembly, SuperLU (default and
-   symmetric mode), the inertia (SuperLU's symmetric-mode pivots, else the Schur complement) against dense
-   eigenvalues (n <= 8).
+5. `newton_pieces` (--pieces): gradient, Hessian assembly, SuperLU (default; symmetric
+   mode in the nested-dissection order, the Newton solve's), the factorisation in each
+   fill-reducing ordering (the geometric nested dissection of `dynfab.fabric.ordering`,
+   SuperLU's MMD_AT_PLUS_A and COLAMD: time, fill nnz(L + U), one solve; fitted exponents
+   of the factor time and the fill), the inertia (SuperLU's symmetric-mode pivots, else
+   the Schur complement) against dense eigenvalues (n <= 8), and the nearest eigenvalue
+   through the ordered shift-invert against ARPACK factoring the matrix itself.
 6. `semi_costs` (part "semi"): `FabricDynamicSolver(method="semi_implicit").step` on the
    same step: time, time steps, CG iterations per time step, |x - x_static|, its relaxation
    against the Newton solve; the relaxation in the per-step layout (a launch per stage, one
@@ -72,7 +76,7 @@ import scipy.linalg
 import scipy.sparse
 import scipy.sparse.linalg
 
-from dynfab.fabric import inertia
+from dynfab.fabric import inertia, ordering
 from dynfab.fabric.dynamic import FabricDynamicSolver
 from dynfab.fabric.static import FabricStaticSolver, _sparse_solve
 from dynfab.kernels import fabric_arrays, fabric_explicit
@@ -452,9 +456,10 @@ def semi_costs(n: int, static_positions=None, friction=None, newton_s=None) -> d
 # --- 5. The pieces of one Newton iteration ---
 
 def newton_pieces(n: int, positions) -> dict:
-    """Gradient, Hessian, SuperLU (default, symmetric) and the inertia (`inertia.inertia`, its
-    route recorded; dense eigenvalues where n <= 8) at `positions`, the frictionless Newton
-    solution of the load step."""
+    """Gradient, Hessian, the orderings' factorisations (`ordering_pieces`), SuperLU
+    (default and symmetric mode), the inertia (`inertia.inertia`, its route recorded; dense
+    eigenvalues where n <= 8) and the nearest eigenvalue (`nearest_eigenvalue_pieces`) at
+    `positions`, the frictionless Newton solution of the load step."""
     solver = FabricStaticSolver(spec(n))
     pos, anchors = positions, solver.initial_state().anchors
     limit = np.zeros(n * n)
@@ -465,13 +470,72 @@ def newton_pieces(n: int, positions) -> dict:
            "gradient_s": timed(lambda: solver.gradient(pos, P, anchors, limit))[0],
            "hessian_s": timed(lambda: solver.hessian(pos, anchors, limit))[0],
            "splu_default_s": timed(lambda: scipy.sparse.linalg.splu(H).solve(-g))[0],
-           "splu_symmetric_s": timed(lambda: _sparse_solve(H, -g))[0]}
+           "splu_symmetric_s": timed(lambda: _sparse_solve(H, -g, order=ordering.fabric_order(
+               solver.fabric, solver.pattern)))[0]}
+    row.update(ordering_pieces(solver, H, g))
     row["inertia_s"], result = timed(lambda: inertia.inertia(solver, pos, anchors, limit))
     row["inertia_negatives"], row["inertia_method"] = int(result.negatives), result.method
+    row.update(nearest_eigenvalue_pieces(H))
     if n <= 8:
         dense = H.toarray()
         row["inertia_dense_eigvalsh_s"], values = timed(lambda: np.linalg.eigvalsh(dense))
         row["dense_negatives"] = int(np.count_nonzero(values < 0))
+    return row
+
+
+ORDERINGS = ("nested_dissection", "MMD_AT_PLUS_A", "COLAMD")
+"""The fill-reducing orderings compared: `dynfab.fabric.ordering`'s, and SuperLU's own two."""
+
+
+def ordering_pieces(solver, H, g) -> dict:
+    """Per ordering: SuperLU's factorisation in symmetric mode with diagonal pivots (the
+    Newton solve's and the inertia's), its time, its fill nnz(L + U) and one solve's time,
+    of H without its explicit zeros (frictionless, the friction blocks are zero values: what
+    SuperLU's own orderings saw in the Newton solve, `H + 0 I` dropping them); minimum degree
+    also on H's whole pattern (the friction blocks' values are nonzero in a run with
+    friction); and the time to compute the nested-dissection order (once per pattern,
+    uncached here)."""
+    xy = ordering.coordinates(solver.fabric, solver.pattern.index, H.shape[0])
+    row = {"order_nested_dissection_s": timed(lambda: ordering.nested_dissection(H, xy))[0]}
+    order = ordering.fabric_order(solver.fabric, solver.pattern)
+    values = H.copy()
+    values.eliminate_zeros()
+    factors = {"nested_dissection": lambda: ordering.OrderedLU(values, order)}
+    for name in ORDERINGS[1:]:
+        factors[name] = lambda name=name: scipy.sparse.linalg.splu(
+            values, permc_spec=name, diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
+    factors["MMD_AT_PLUS_A_whole_pattern"] = lambda: scipy.sparse.linalg.splu(
+        H, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
+    for name, factor in factors.items():
+        row[f"factor_{name}_s"], lu = timed(factor)
+        superlu = getattr(lu, "lu", lu)
+        row[f"fill_{name}"] = int(superlu.L.nnz + superlu.U.nnz)
+        row[f"solve_{name}_s"] = timed(lambda: lu.solve(-g))[0]
+    return row
+
+
+def nearest_eigenvalue_pieces(H) -> dict:
+    """The nearest eigenvalue (`inertia.nearest_eigenvalue`: ARPACK with the ordered
+    shift-invert factorisation) and, as it was before, ARPACK factoring H itself (SuperLU's
+    COLAMD with partial pivoting); the ordered one's count of solves."""
+    row = {}
+    row["nearest_eigenvalue_s"], row["nearest_eigenvalue_N_per_m"] = timed(
+        lambda: inertia.nearest_eigenvalue(H))
+    row["nearest_eigenvalue_arpack_lu_s"], value = timed(lambda: float(scipy.sparse.linalg.eigsh(
+        H, k=1, sigma=0.0, which="LM", tol=inertia.EIGEN_TOL, v0=inertia.start_vector(H.shape[0]),
+        return_eigenvectors=False)[0]))
+    row["nearest_eigenvalue_arpack_lu_N_per_m"] = value
+    inverse = inertia.shift_inverse(H, 0.0, ordering.known_order(H))
+    count = [0]
+
+    def counted(r):
+        count[0] += 1
+        return inverse.matvec(r)
+    scipy.sparse.linalg.eigsh(H, k=1, sigma=0.0, which="LM", tol=inertia.EIGEN_TOL,
+                              OPinv=scipy.sparse.linalg.LinearOperator(H.shape, matvec=counted,
+                                                                       dtype=float),
+                              v0=inertia.start_vector(H.shape[0]), return_eigenvectors=False)
+    row["nearest_eigenvalue_solves"] = count[0]
     return row
 
 
@@ -580,6 +644,12 @@ FITS = {"exponent_time_step": ("explicit", "persistent_s_per_step"),
         "exponent_time_step_dynamic_solver": ("dynamic", "relax_s_per_time_step"),
         "exponent_dynamic_load_step": ("dynamic", "step_s"),
         "exponent_newton_iteration": ("newton", "s_per_newton_iteration"),
+        "exponent_factor_nested_dissection": ("pieces", "factor_nested_dissection_s"),
+        "exponent_factor_MMD_AT_PLUS_A": ("pieces", "factor_MMD_AT_PLUS_A_s"),
+        "exponent_factor_COLAMD": ("pieces", "factor_COLAMD_s"),
+        "exponent_fill_nested_dissection": ("pieces", "fill_nested_dissection"),
+        "exponent_fill_MMD_AT_PLUS_A": ("pieces", "fill_MMD_AT_PLUS_A"),
+        "exponent_fill_MMD_AT_PLUS_A_whole_pattern": ("pieces", "fill_MMD_AT_PLUS_A_whole_pattern"),
         "exponent_static_step": ("static", "step_s"),
         "exponent_certificate": ("static", "certificate_s"),
         "exponent_inertia": ("static", "inertia_s"),

@@ -6,8 +6,10 @@ dense eigenvalues of the same Hessian (docs/model.md section 6), and its guards.
   eigenvalues across the spectrum: both routes give the dense count.
 - A saddle: Newton's solution of held-weft warps pushed in (the state the step's escape
   starts from, negative eigenvalues by the dense spectrum): both routes give the dense count.
-- The guards: an exactly zero first pivot (the shift cancelling the diagonal entry SuperLU
-  eliminates first) sends `inertia` to the Schur route, which still gives the dense count;
+- The guards: an exactly zero pivot (the shift cancelling the diagonal entry of an unknown
+  SuperLU eliminates before anything coupled to it, in the nested-dissection order and in
+  minimum degree) is refused, and sends `inertia` to the Schur route, which still gives the
+  dense count;
   an off-diagonal pivot, a tiny pivot and element growth are refused on small matrices.
 """
 
@@ -16,7 +18,7 @@ import pytest
 import scipy.sparse
 import scipy.sparse.linalg
 
-from dynfab.fabric import inertia
+from dynfab.fabric import inertia, ordering
 from dynfab.fabric.static import FabricStaticSolver
 from test_fabric_static import FRICTION, fabric_spec
 
@@ -89,21 +91,56 @@ def test_sparse_count_of_a_saddle_under_compression():
     assert inertia.inertia(solver, pos, anchors, limit).negatives == count
 
 
-def test_an_exactly_zero_pivot_falls_back_to_the_schur_route():
-    # SuperLU's ordering depends on the pattern alone (minimum degree on A^T + A), so the dof
-    # it eliminates first is the same for every shift; the shift -A_jj makes that first
-    # pivot exactly zero (x - x = 0 in floating point): the sparse route must refuse it and
-    # `inertia` must count by the Schur route at the same shift, still the dense count.
+def minimum_degree_first(A):
+    """The unknown SuperLU eliminates first in its minimum degree order on A^T + A (which
+    depends on the pattern alone): its pivot is A_jj itself."""
+    lu = scipy.sparse.linalg.splu(A, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                                  options=dict(SymmetricMode=True))
+    return int(np.flatnonzero(lu.perm_c == 0)[0])
+
+
+def dissection_unmodified(solver, A, order):
+    """An unknown j whose pivot in the nested-dissection factorisation is A_jj itself (every
+    unknown coupled to it is eliminated after it, so no update reaches it), while the Schur
+    route's band LDL^T of its yarn eliminates it after the free, non-crossing unknown j - 1
+    coupled to it (whose update changes its pivot there). The first unknown eliminated in
+    nested dissection is the first of its yarn's band too (both start in a corner), so the
+    test looks further, at the first unknown of another part of the dissection."""
+    n = A.shape[0]
+    elimination = ordering.OrderedLU(A, order).elimination
+    position = np.empty(n, int)
+    position[elimination] = np.arange(n)
+    G = A.tocsr()
+    dof = np.flatnonzero(solver.pattern.index >= 0)  # unknown -> dof: no ties when clamped
+    yarn = np.searchsorted(solver.fabric.yarn_start, dof // 2, side="right")
+    band_only = ~inertia.crossing_mask(solver.fabric)[dof]
+    for j in elimination[1:]:
+        coupled = G.indices[G.indptr[j]:G.indptr[j + 1]]
+        coupled = coupled[coupled != j]
+        if (j > 0 and np.all(position[coupled] > position[j]) and band_only[j]
+                and band_only[j - 1] and yarn[j - 1] == yarn[j] and G[j, j - 1] != 0.0):
+            return int(j)
+    raise AssertionError("no unknown with an unmodified dissection pivot inside a band")
+
+
+@pytest.mark.parametrize("ordered", [True, False], ids=["nested_dissection", "minimum_degree"])
+def test_an_exactly_zero_pivot_falls_back_to_the_schur_route(ordered):
+    # The unknown chosen has the pivot A_jj itself in the sparse route's factorisation (the
+    # ordering depends on the pattern alone, so it is the same for every shift); the shift
+    # -A_jj makes that pivot exactly zero (x - x = 0 in floating point): the sparse route
+    # must refuse it and, in the order `inertia` uses, `inertia` must count by the Schur
+    # route at the same shift, still the dense count.
     solver, pos, anchors, limit = friction_step("fixed")
     H = solver.hessian(pos, anchors, limit)
     A = (0.5 * (H + H.T)).tocsc()
-    lu = scipy.sparse.linalg.splu(A, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                                  options=dict(SymmetricMode=True))
-    first = int(np.flatnonzero(lu.perm_c == 0)[0])
+    order = ordering.fabric_order(solver.fabric, solver.pattern) if ordered else None
+    first = dissection_unmodified(solver, A, order) if ordered else minimum_degree_first(A)
     shift = -A[first, first]
     assert shift + A[first, first] == 0.0
     scale = float(np.abs(H.diagonal()).max())
-    assert inertia.sparse_inertia(H, shift, scale) is None
+    assert inertia.sparse_inertia(H, shift, scale, order) is None
+    if not ordered:
+        return
     count, gap = dense_count(H.toarray(), shift)
     assert gap > 1e6 * EPS * scale  # the shifted matrix itself is far from singular
     result = inertia.inertia(solver, pos, anchors, limit, shift=shift)

@@ -1,7 +1,8 @@
 """The fabric's stability check: the inertia of its Hessian (docs/model.md sections 6, 10).
 
 First route (`sparse_inertia`): SuperLU in symmetric mode, the Newton solve's factorisation
-(minimum degree on A^T + A, diagonal pivot threshold 0), factors P A P^T = L U of the
+(the pattern's nested-dissection order, `dynfab.fabric.ordering`, or without one SuperLU's
+minimum degree on A^T + A; diagonal pivot threshold 0), factors P A P^T = L U of the
 symmetrised A = (H + H^T)/2 + tau I. When it took every pivot on the diagonal
 (perm_r == perm_c), the factorisation is unpivoted Gaussian elimination of the symmetric
 P A P^T, so U = D L^T with D = diag(U) (uniqueness of LDU), and P A P^T = L D L^T is a
@@ -43,13 +44,16 @@ import scipy.linalg
 import scipy.sparse.linalg
 
 from dynfab.banded import BANDWIDTH, constrain
-from dynfab.fabric import assembly
+from dynfab.fabric import assembly, ordering
 from dynfab.ldlt import TINY_PIVOT, ldlt_factor, ldlt_solve
 
 EPS = np.finfo(np.float64).eps
+EIGEN_TOL = 1e-10
+"""ARPACK's relative tolerance on the eigenvalues (`nearest_eigenvalue`, `lowest_eigenvectors`)."""
 GROWTH = 1e4
-"""Largest max |L_ij| and max |U_ij| / max|H_ii| the sparse route accepts (on the benchmark's
-patches, positive definite: about 3 and 1)."""
+"""Largest max |L_ij| and max |U_ij| / max|H_ii| the sparse route accepts (a positive definite
+matrix's |U_ij| stay within max|H_ii|, and on the benchmark's patches its |L_ij| far below
+GROWTH, in either ordering)."""
 
 
 @dataclass
@@ -64,17 +68,39 @@ class Inertia:
     """"superlu" (the sparse route), "schur" (Haynsworth) or "dense" (the periodic cell)."""
 
 
-def nearest_eigenvalue(H) -> float:
+def nearest_eigenvalue(H, order=None) -> float:
     """The eigenvalue of the sparse symmetric H nearest zero [N/m] (ARPACK shift-invert at
-    0, relative accuracy about 1e-10): the lowest one when the inertia has no negative
-    (docs/model.md section 6's estimate of the smallest eigenvalue); NaN if ARPACK fails."""
+    0, relative accuracy about EIGEN_TOL): the lowest one when the inertia has no negative
+    (docs/model.md section 6's estimate of the smallest eigenvalue); NaN if ARPACK fails.
+    The inverse is `shift_inverse`'s, in `order` or the one `ordering.fabric_order` computed
+    for H's pattern."""
+    order = ordering.known_order(H) if order is None else order
     try:
-        value = scipy.sparse.linalg.eigsh(H, k=1, sigma=0.0, which="LM", tol=1e-10,
+        value = scipy.sparse.linalg.eigsh(H, k=1, sigma=0.0, which="LM", tol=EIGEN_TOL,
+                                          OPinv=shift_inverse(H, 0.0, order),
                                           v0=start_vector(H.shape[0]),
                                           return_eigenvectors=False)
     except (RuntimeError, scipy.sparse.linalg.ArpackNoConvergence):
         return float("nan")
     return float(value[0])
+
+
+def shift_inverse(H, sigma, order=None):
+    """(H - sigma I)^-1 as a LinearOperator for ARPACK's shift-invert mode, or None (ARPACK
+    then factors H - sigma I itself, with SuperLU's default column ordering and partial
+    pivoting). SuperLU in symmetric mode, in `order` (`ordering.OrderedLU`) or, without
+    one, minimum degree on A^T + A; the same guards as `sparse_inertia` (diagonal pivots, none
+    within 64 eps of zero, growth at most GROWTH), else SuperLU with partial pivoting,
+    else None (singular)."""
+    A = (0.5 * (H + H.T) - sigma * scipy.sparse.identity(H.shape[0])).tocsc()
+    scale = float(np.abs(H.diagonal()).max()) if H.shape[0] else 0.0
+    lu, solve = _symmetric_lu(A, order)
+    if lu is None or _unsafe(lu, scale):
+        try:
+            solve = scipy.sparse.linalg.splu(A).solve
+        except RuntimeError:
+            return None
+    return scipy.sparse.linalg.LinearOperator(A.shape, matvec=solve, dtype=float)
 
 
 def start_vector(n: int) -> np.ndarray:
@@ -99,7 +125,9 @@ def lowest_eigenvectors(solver, pos, anchors, limit, count: int, nearest: float)
             break
         sigma *= 2.0
     H = solver.hessian(pos, anchors, limit)
-    values, vectors = scipy.sparse.linalg.eigsh(H, k=count, sigma=sigma, which="LM", tol=1e-10,
+    dissection = ordering.fabric_order(solver.fabric, solver.pattern)
+    values, vectors = scipy.sparse.linalg.eigsh(H, k=count, sigma=sigma, which="LM", tol=EIGEN_TOL,
+                                                OPinv=shift_inverse(H, sigma, dissection),
                                                 v0=start_vector(H.shape[0]))
     order = np.argsort(values)
     values, vectors = values[order], vectors[:, order]
@@ -121,13 +149,15 @@ def crossing_mask(fabric) -> np.ndarray:
 
 def inertia(solver, pos, anchors, limit, shift: float = 0.0) -> Inertia:
     """In(H - (-shift) I) on the free dofs: the negatives of H + shift I (module docstring):
-    the sparse route, else the Schur (or, for the periodic cell, dense) route, at the shift
-    asked and then at two rounding-level shifts above it."""
+    the sparse route in the pattern's nested-dissection order (`ordering.fabric_order`), else
+    the Schur (or, for the periodic cell, dense) route, at the shift asked and then at two
+    rounding-level shifts above it."""
     fabric = solver.fabric
     H = solver.hessian(pos, anchors, limit)
     scale = float(np.abs(H.diagonal()).max())
+    order = ordering.fabric_order(fabric, solver.pattern)
     for tau in (shift, shift + 1e3 * EPS * scale, shift + 1e6 * EPS * scale):
-        result = sparse_inertia(H, tau, scale)
+        result = sparse_inertia(H, tau, scale, order)
         if result is None:
             result = (_dense_inertia(H, tau, scale) if fabric.wrap_stiffness.any() else
                       _inertia(fabric, pos, anchors, limit, tau, scale))
@@ -136,27 +166,44 @@ def inertia(solver, pos, anchors, limit, shift: float = 0.0) -> Inertia:
     raise ArithmeticError("fabric inertia: a vanishing pivot survived the rounding shift")
 
 
-def sparse_inertia(H, tau, scale):
-    """Negatives of (H + H^T)/2 + tau I from SuperLU's symmetric-mode pivots, or None when a
-    guard fails (module docstring): no off-diagonal pivot, none within 64 eps scale of zero,
-    element growth at most GROWTH."""
+def sparse_inertia(H, tau, scale, order=None):
+    """Negatives of (H + H^T)/2 + tau I from SuperLU's symmetric-mode pivots, in `order`
+    (`ordering.OrderedLU`) or without one in SuperLU's minimum degree on A^T + A, or None
+    when a guard fails (module docstring): no off-diagonal pivot, none within 64 eps scale
+    of zero, element growth at most GROWTH."""
     A = (0.5 * (H + H.T) + tau * scipy.sparse.identity(H.shape[0])).tocsc()
     if A.shape[0] == 0:
         return Inertia(0, tau, 0, "superlu")
+    lu, _ = _symmetric_lu(A, order)
+    if lu is None or _unsafe(lu, scale):
+        return None
+    return Inertia(int(np.count_nonzero(lu.U.diagonal() < 0.0)), tau, 0, "superlu")
+
+
+def _symmetric_lu(A, order):
+    """(SuperLU's symmetric-mode factors of A, or of P A P^T in `order`; the solve of A),
+    or (None, None) where SuperLU fails (an exactly zero pivot with no usable row)."""
     try:
+        if order is not None:
+            factor = ordering.OrderedLU(A, order)
+            return factor.lu, factor.solve
         lu = scipy.sparse.linalg.splu(A, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
                                       options=dict(SymmetricMode=True))
-    except RuntimeError:  # an exactly zero pivot with no usable row
-        return None
+        return lu, lu.solve
+    except RuntimeError:
+        return None, None
+
+
+def _unsafe(lu, scale) -> bool:
+    """A guard of the pivots fails (module docstring): an off-diagonal pivot, a pivot within
+    64 eps scale of zero, a non-finite factor, or growth above GROWTH."""
     if not np.array_equal(lu.perm_r, lu.perm_c):
-        return None
+        return True
     U = lu.U
     pivots = U.diagonal()
     if not np.all(np.isfinite(U.data)) or np.any(np.abs(pivots) <= 64.0 * EPS * scale):
-        return None
-    if np.abs(U.data).max() > GROWTH * scale or np.abs(lu.L.data).max() > GROWTH:
-        return None
-    return Inertia(int(np.count_nonzero(pivots < 0.0)), tau, 0, "superlu")
+        return True
+    return bool(np.abs(U.data).max() > GROWTH * scale or np.abs(lu.L.data).max() > GROWTH)
 
 
 def _dense_inertia(H, tau, scale):

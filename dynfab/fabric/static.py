@@ -49,7 +49,7 @@ import scipy.sparse
 import scipy.sparse.linalg
 
 from dynfab.errors import SolverError
-from dynfab.fabric import assembly, contact, friction, inertia
+from dynfab.fabric import assembly, contact, friction, inertia, ordering
 from dynfab.fabric.layout import Fabric, build_fabric
 from dynfab.fabric.spec import FabricSpec
 from dynfab.terms import friction as gralen
@@ -71,16 +71,20 @@ HALVINGS = 60
 """Line-search halvings (8 at the rounding floor, where a step is lost in rounding)."""
 
 
-def _sparse_solve(A, rhs, symmetric=True):
+def _sparse_solve(A, rhs, symmetric=True, order=None):
     """A^-1 rhs by SuperLU, or None if A is singular.
 
-    A symmetric matrix is factored in SuperLU's symmetric mode (minimum degree on A^T + A,
-    diagonal pivots), faster than the default column ordering with partial pivoting on the
-    fabric's Hessians (`python benchmarks/fabric.py --pieces` measures both); if a pivot
-    vanishes there, the default, pivoted factorisation is tried.
+    A symmetric matrix is factored in SuperLU's symmetric mode (diagonal pivots): with
+    `order`, the fabric's nested-dissection order (`dynfab.fabric.ordering`), else SuperLU's
+    minimum degree on A^T + A; both are faster than the default column ordering with
+    partial pivoting on the fabric's Hessians, and nested dissection the fastest on large
+    patches (`python benchmarks/fabric.py --pieces` measures them). If a pivot vanishes
+    there, the default, pivoted factorisation is tried.
     """
     if symmetric:
         try:
+            if order is not None:
+                return ordering.OrderedLU(A, order).solve(rhs)
             return scipy.sparse.linalg.splu(A, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
                                             options=dict(SymmetricMode=True)).solve(rhs)
         except RuntimeError:
@@ -194,12 +198,16 @@ class FabricStaticSolver:
     # ------------------------------------------------------------------ Newton
 
     def _direction(self, H, g):
-        """-H^-1 g by sparse LU, H shifted by mu I until the step is a descent direction."""
+        """-H^-1 g by sparse LU in the pattern's nested-dissection order
+        (`ordering.fabric_order`), H shifted by mu I until the step is a descent direction."""
+        order = ordering.fabric_order(self.fabric, self.pattern)
         diag = np.abs(H.diagonal()).max()
         shift = 0.0
         eye = scipy.sparse.identity(H.shape[0], format="csc")
         for _ in range(40):
-            d = _sparse_solve((H + shift * eye).tocsc(), -g)
+            A = (H + shift * eye if shift else H.copy()).tocsc()
+            A.eliminate_zeros()  # else carried through the factors (frictionless friction blocks)
+            d = _sparse_solve(A, -g, order=order)
             if d is not None and np.all(np.isfinite(d)) and g @ d < 0.0:
                 return d
             shift = max(10.0 * shift, 1e-10 * diag)
