@@ -88,6 +88,10 @@ HALVINGS = 60
 COUPLED_FIRST = 20
 """Iterations of the coupled Newton on a fixed open/closed set before `solve_frozen` is tried
 from the same start (`FabricStaticSolver._solve_fixed_set`)."""
+FALLBACK_BUDGET = 25
+"""Newton iterations of a step's active-set fallback, in units of `max_iterations`: after
+them it stops with its failure (a 4 x 4 patch's hardest steps tried needed about 2,000 of
+5,000; an 8 x 8 patch's at small loads ran for more than ten minutes without one)."""
 CYCLING_REASON, ONSET_REASON = "cycling", "onset"
 """Why a step failed, in `NewtonInfo.reason` (the message of `FabricStaticSolver.step`)."""
 
@@ -194,6 +198,7 @@ class FabricStaticSolver:
         self.free = ~self.fabric.fixed
         self.yarns = self.fabric.yarn_start.size - 1
         self._terms = np.zeros(len(assembly.TERMS))
+        self._budget = 0  # Newton iterations left to the active-set fallback (`solve_on_sets`)
 
     # ------------------------------------------------------------------ state
 
@@ -469,10 +474,12 @@ class FabricStaticSolver:
         (`dynfab.active_set.onset_stages`), each stage from the last one's state and set, with
         the factors CONTINUATION_FACTORS in turn. With R_0 = 0 (the literal jump law) there
         is no continuation: the set updates at R_0 = 0 (at most MAX_FLIPS) either agree or
-        cycle, and a cycle names the crossing switched most often. Returns (info, solves)."""
+        cycle, and a cycle names the crossing switched most often. All of it within
+        FALLBACK_BUDGET x max_iterations Newton iterations. Returns (info, solves)."""
         f = self.fabric
         start = pos.copy()
         target = f.friction_onset
+        self._budget = FALLBACK_BUDGET * self.spec.max_iterations
         branch = self._natural_set(pos)
         info, outer = self._solve_set(pos, P, anchors, branch, target,
                                       DIRECT_SET_UPDATES if target > 0.0 else MAX_FLIPS, True,
@@ -488,9 +495,9 @@ class FabricStaticSolver:
                                              onset == target)
                 iterations += info.iterations
                 outer += more
-                if not np.isfinite(info.residual):
+                if not np.isfinite(info.residual) or self._budget <= 0:
                     break
-            if info.converged:
+            if info.converged or self._budget <= 0:
                 break
         info.iterations = iterations
         if not info.converged:
@@ -505,7 +512,7 @@ class FabricStaticSolver:
     def _solve_set(self, pos, P, anchors, branch, onset, max_updates, final,
                    max_iterations=None):
         """Solves on fixed sets at R_0 = `onset`, `branch` updated in place between them
-        (`dynfab.static.update_set`) until consistent: converged on its set with the
+        (`dynfab.active_set.update_set`) until consistent: converged on its set with the
         unilateral law's residual (F_T from the law at R_0 = `onset`) within the tolerance,
         each Newton solve at most `max_iterations` long (default the scene's).
         A solve that ends short of the tolerance still updates the set, while its state is
@@ -520,6 +527,7 @@ class FabricStaticSolver:
         for _ in range(max_updates):
             law = SetLaw(branch.copy(), onset)
             info, more = self._solve_fixed_set(pos, P, anchors, law, max_iterations)
+            self._budget -= info.iterations
             iterations += info.iterations
             outer += more
             info.iterations = iterations
@@ -530,6 +538,8 @@ class FabricStaticSolver:
             if info.converged and _within(residual, info, self.spec.tolerance):
                 info.residual = residual
                 return info, outer
+            if self._budget <= 0:  # FALLBACK_BUDGET spent
+                break
             switched = update_set(g, branch, seen)
             if switched is None:  # every set the updates propose was tried
                 if not final:
@@ -546,7 +556,7 @@ class FabricStaticSolver:
                 return _started(info), outer
             info.reason = CYCLING_REASON
         info.converged = False
-        # the crossing switched most often (the last of them), else the one nearest g = 0
+        # the crossing switched most often (of equals the highest c), else the one nearest g = 0
         info.crossing = (int(flips.size - 1 - np.argmax(flips[::-1])) if flips.any()
                          else int(np.argmin(np.abs(self.closures(pos)))))
         if np.isfinite(info.residual):  # the residual reached: of the laws, not of the set
@@ -712,7 +722,7 @@ class FabricStaticSolver:
             return (f"fabric: crossing {self.crossing_name(info.crossing)} at the friction onset "
                     f"(R_0 = {f.friction_onset:.3g} N): no open/closed state consistent with the "
                     f"contact and friction laws was found, also by continuation in R_0 from "
-                    f"{CONTINUATION_START:.3g} N ({reached})")
+                    f"{CONTINUATION_START:.3g} N ({info.iterations} Newton iterations; {reached})")
         c, force = self._worst_crossing(pos, P, anchors)
         return (f"fabric: no convergence ({info.iterations} Newton iterations, {outer} friction "
                 f"solves); {reached}; the largest residual at a crossing: {force:.3g} N at "
