@@ -15,7 +15,6 @@ from dataclasses import replace
 
 import h5py
 import numpy as np
-import pytest
 import scipy.optimize
 
 from dynfab.fabric.from_scene import fabric_spec
