@@ -163,3 +163,30 @@ def test_the_onset_converges_at_first_order_to_the_jump_law():
     error = np.abs(ratio - 2.0)
     assert error[-1] < 0.1
     assert np.all(error[1:] < 0.75 * error[:-1])  # the O(R_0) term halving with R_0
+
+
+def test_a_step_the_fallback_cannot_solve_names_its_crossing(monkeypatch):
+    """With the active set's budget cut to one max_iterations (200 Newton iterations; the
+    step needs about 1,600), the step of `test_force_control_at_a_small_onset_force` stops
+    with a SolverError naming a crossing as the scene counts it, the onset and the laws'
+    residual reached (above the tolerance), not a silent state."""
+    import dynfab.fabric.static as fabric_static
+    from dynfab.errors import SolverError
+
+    monkeypatch.setattr(fabric_static, "FALLBACK_BUDGET", 1)
+    solver = FabricStaticSolver(fabric_spec(parse_scene_text(
+        patch(4, 1e-7, "force", [0.0, 1e-4], [0.0, 5e-5]))))
+    state, _ = solver.step(solver.initial_state(), 0.0, 0.0)
+    try:
+        solver.step(state, 1e-4, 5e-5)
+    except SolverError as error:
+        message = str(error)
+    else:
+        raise AssertionError("the step was solved within 200 iterations")
+    match = re.fullmatch(r"fabric: crossing \(warp ([1-4]), weft ([1-4])\) at the friction onset "
+                         r"\(R_0 = 1e-07 N\): no open/closed state consistent with the contact "
+                         r"and friction laws was found, also by continuation in R_0 from 0\.001 N "
+                         r"\((\d+) Newton iterations, at most 1 x static\.max_iterations; "
+                         r"residual (\S+) N, tolerance 1e-11 N\)", message)
+    assert match, message
+    assert float(match[4]) > 1e-11

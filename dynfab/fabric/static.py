@@ -498,12 +498,16 @@ class FabricStaticSolver:
                 outer += more
                 if not np.isfinite(info.residual) or self._budget <= 0:
                     break
+            # solved only by the last stage: an intermediate one is a start, not the answer
+            info.converged = info.converged and onset == target
             if info.converged or self._budget <= 0:
                 break
         info.iterations = iterations
         if not info.converged:
             info.reason = ONSET_REASON
             info.crossing = first.crossing if info.crossing < 0 else info.crossing
+            if np.isfinite(info.residual):  # the laws' residual at the scene's R_0
+                info.residual = self.law_residual(pos, P, anchors)
         return info, outer
 
     def _natural_set(self, pos) -> np.ndarray:
