@@ -9,7 +9,8 @@ the machine has (available memory, free disk space where the file goes).
 The memory model is linear in the number of nodes: BYTES_PER_NODE bounds the growth
 of the peak resident memory of `dynfab.run` (static, one yarn, 4 crossings, step
 certificate included) per node, and PROCESS_BYTES the imports and a first run's JIT
-compilation, both measured with the script in `tests/test_budget.py`.
+compilation, both measured with the script in `tests/test_budget.py`. A fabric's
+(docs/model.md section 10) grows as nodes^1.5 (FABRIC_BYTES: its sparse factorisation).
 """
 
 from __future__ import annotations
@@ -29,10 +30,30 @@ STEP_SCALARS = 24
 """Per-step datasets that hold one number per yarn (load, end force, residual, ...)."""
 CROSSING_DATASETS = 6
 """Per-step datasets that hold one number per crossing (contact force, friction, anchors...)."""
+FABRIC_BYTES = 100
+"""c [B] of a fabric run's memory growth c nodes^1.5 (docs/model.md section 10): the static
+solver's sparse LU factors and the step's certificate on the patch's two-dimensional graph
+(nested-dissection-like fill). benchmarks/fabric.json's peak RSS grows by 138 MB from
+16 x 16 to 32 x 32 yarns and by 1.25 GB from 32 x 32 to 64 x 64 (65,664 nodes), about
+65 and 82 B nodes^1.5; 100 bounds both."""
+FABRIC_CROSSING_DATASETS = 7
+"""A fabric step's numbers per crossing: contact force, friction limit, sliding, friction
+force (2), anchors (2) (`dynfab.fabric.from_scene`)."""
+FABRIC_STEP_SCALARS = 40
+"""A fabric step's scalars and per-family pairs (load, strain, crimp, energies, residual...)."""
+
+
+def fabric_nodes(scene: Scene) -> int:
+    """Nodes of a fabric scene: n_wa warps of N+1 nodes and n_we wefts of M+1
+    (docs/model.md section 10)."""
+    g, weft = scene.geometry, scene.weft
+    return weft.count * (g.segments + 1) + g.crossings * (weft.segments + 1)
 
 
 def memory_bytes(scene: Scene) -> int:
     """Estimated peak memory of a run of `scene` [B]."""
+    if scene.geometry.model == "fabric":
+        return PROCESS_BYTES + int(FABRIC_BYTES * fabric_nodes(scene) ** 1.5)
     nodes = (scene.geometry.segments + 1) * yarn_count(scene)
     return PROCESS_BYTES + BYTES_PER_NODE * nodes
 
@@ -40,7 +61,14 @@ def memory_bytes(scene: Scene) -> int:
 def result_file_bytes(scene: Scene) -> int:
     """Estimated size of the result file of `scene` [B]: positions (x, z) and the XDMF
     view's two point data (`dynfab.xdmf`) per node and step (three node arrays more per
-    frame of a transient run), crossings and scalars."""
+    frame of a transient run), crossings and scalars; a fabric's per step: both families'
+    nodes so, its n_wa x n_we crossings, end force and displacement per yarn."""
+    if scene.geometry.model == "fabric":
+        yarns, crossings = scene.weft.count + scene.geometry.crossings, \
+            scene.weft.count * scene.geometry.crossings
+        per_step = 8 * (4 * fabric_nodes(scene) + FABRIC_CROSSING_DATASETS * crossings
+                        + 2 * yarns + FABRIC_STEP_SCALARS)
+        return len(scene.load.values) * per_step
     yarns, nodes = yarn_count(scene), scene.geometry.segments + 1
     per_yarn = 8 * (4 * nodes + CROSSING_DATASETS * scene.geometry.crossings + STEP_SCALARS)
     if scene.dynamic.mode == "transient" and scene.dynamic.output_interval:
@@ -64,6 +92,12 @@ def available_memory_bytes() -> int | None:
 def check_budget(scene: Scene, out: str | os.PathLike | None) -> None:
     """UserError if the run's memory or result file (at `out`) cannot fit."""
     need, have = memory_bytes(scene), available_memory_bytes()
+    if have is not None and need > have and scene.geometry.model == "fabric":
+        raise UserError(
+            f"a {scene.weft.count} x {scene.geometry.crossings} fabric of {fabric_nodes(scene)} "
+            f"nodes needs about {_size(need)} of memory (the static solver's sparse factors, "
+            f"about {FABRIC_BYTES} B x nodes^1.5), but {_size(have)} is available: use fewer "
+            "yarns or segments")
     if have is not None and need > have:
         raise UserError(
             f"geometry.segments = {scene.geometry.segments} x {yarn_count(scene)} yarn(s) needs "
@@ -78,6 +112,11 @@ def check_budget(scene: Scene, out: str | os.PathLike | None) -> None:
     if size > free:
         what = ("frames" if scene.dynamic.mode == "transient"
                 else f"{len(scene.load.values)} load steps")
+        if scene.geometry.model == "fabric":
+            raise UserError(
+                f"the result file '{out}' would take about {_size(size)} ({what} of a "
+                f"{fabric_nodes(scene)}-node fabric), but {_size(free)} is free there: use "
+                "fewer load steps or a coarser mesh")
         raise UserError(
             f"the result file '{out}' would take about {_size(size)} ({what} of "
             f"{scene.geometry.segments + 1} nodes x {yarn_count(scene)} yarn(s)), but "

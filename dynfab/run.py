@@ -168,10 +168,12 @@ def _interrupts_held_back():
 
 def _build(scene: Scene, solver: str, out, status, device: str | None, options: dict):
     """The model and the solver, the run options set on the scene (`dynfab.options`) and the
-    run's memory and result file (`out`, None: not checked) estimated first (`dynfab.budget`);
+    run's memory and result file (`out`, None: not checked) estimated first (`dynfab.budget`,
+    a fabric's too);
     the dynamic solver reports its launches to `status`."""
     if scene.geometry.model == "fabric":  # docs/model.md section 10
         from dynfab.fabric.from_scene import build_run
+        check_budget(scene, out)
         return build_run(scene, solver, device, options)
     scene = apply_run_options(scene, solver, **options)
     check_budget(scene, out)

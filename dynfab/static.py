@@ -19,6 +19,9 @@ import numpy as np
 import scipy.linalg
 
 from dynfab import assembly
+from dynfab.active_set import (CONTINUATION_FACTORS, CONTINUATION_START, DIRECT_ITERATIONS,
+                               DIRECT_SET_UPDATES, MAX_FLIPS, MAX_SET_UPDATES, onset_stages,
+                               update_set)
 from dynfab.banded import BANDWIDTH, band_add, constrain, lu_factor, lu_solve
 from dynfab.certificate import (MAX_ESCAPES, NEGATIVES, StepStability, certify_yarn, check_accuracy,
                                 escape_yarn)
@@ -33,25 +36,11 @@ RESIDUAL, ITERATIONS, STATUS, DETAIL = range(4)
 """Fields of `newton`'s info array; DETAIL is the cycling crossing or the last shift."""
 
 EPS = np.finfo(np.float64).eps
-MAX_FLIPS = 12
-"""Open/closed switches of one crossing after which the iteration is declared cycling."""
-MAX_SET_UPDATES = 40
-"""Open/closed set updates per continuation stage with an onset force (docs/model.md section 4)."""
-DIRECT_SET_UPDATES = 4
-"""Set updates tried at the scene's R_0 before the continuation (most steps need 0 or 1)."""
-DIRECT_ITERATIONS = 50
-"""Newton iterations per set in that first attempt."""
 COUPLED_FIRST = 20
 """Iterations of the coupled Newton tried first on a fixed set (`_newton_set_polished`)."""
 ENERGY_ITERATIONS = 30
 """Newton iterations with the energy line search on a fixed set before the coupled,
 pivoted Newton takes over (`_newton_set_polished`)."""
-CONTINUATION_FACTORS = (2.0, 1.25, 1.05)
-"""R_0 falls by this factor per stage, the next one if the continuation fails (a factor of
-10 was tried and dropped: docs/model.md, "Decisions", friction onset)."""
-CONTINUATION_START = 1e-3
-"""R_0 [N] the continuation starts from (docs/model.md section 4: Newton converges there in about 20
-iterations from the previous step's state on the paper's yarn)."""
 
 
 @numba.njit(cache=True)
@@ -247,28 +236,8 @@ def _natural_residual(pos, yarn, P, anchors, fixed):
 
 
 def _update_set(pos, yarn, branch, seen) -> np.ndarray:
-    """Switch the crossings whose branch the state contradicts; returns their indices.
-
-    A closed crossing needs R >= 0 (g >= 0), an open one g <= 0 (docs/model.md section 4); where
-    both hold (g = 0) the two branches agree. All of them switch at once, unless that
-    gives a set already tried (`seen`, the sets as bytes): then only the one that
-    contradicts its branch most, then the next ones, one at a time. Returns an empty
-    array when consistent, None when every choice was tried.
-    """
-    g = _closures(pos, yarn)
-    wrong = ((branch == contact.CLOSED) & (g < 0.0)) | ((branch == contact.OPEN) & (g > 0.0))
-    indices = np.flatnonzero(wrong)
-    if indices.size == 0:
-        return indices
-    candidates = [np.array([j]) for j in indices[np.argsort(-np.abs(g[indices]))]] + [indices]
-    for switch in candidates:
-        trial = branch.copy()
-        trial[switch] = contact.OPEN + contact.CLOSED - trial[switch]
-        if trial.tobytes() not in seen:
-            branch[:] = trial
-            seen.add(trial.tobytes())
-            return switch
-    return None
+    """`update_set` at the closures of `pos`."""
+    return update_set(_closures(pos, yarn), branch, seen)
 
 
 @numba.njit(cache=True)
@@ -394,15 +363,11 @@ def _continuation(pos, yarn, P, fixed, anchors, tolerance, max_iterations, info)
     for factor in CONTINUATION_FACTORS:
         pos[:, :] = start
         branch = _natural_set(pos, yarn)
-        onset = max(CONTINUATION_START, target)
-        while True:
+        for onset in onset_stages(target, factor):
             blame = _solve_set(pos, yarn._replace(friction_onset=onset), P, fixed, anchors,
                                tolerance, max_iterations, info, branch,
                                final=onset == target)
             iterations += int(info[ITERATIONS])
-            if onset == target:
-                break
-            onset = max(target, onset / factor)
         info[ITERATIONS] = iterations
         if blame < 0:
             return -1

@@ -63,3 +63,53 @@ def test_a_result_file_beyond_the_free_disk_is_refused(monkeypatch, tmp_path):
 def test_a_huge_load_path_is_refused_before_it_is_built():
     with pytest.raises(dynfab.UserError, match="load.steps = 100000000: at most 10,000,000"):
         scene(load={"max": 0.01, "steps": 100000000})
+
+
+def fabric_scene(n=4, values=(1e-3, 2e-3)):
+    """A clamped n x n patch of the paper's yarns (14 segments per half-wave), no friction."""
+    yarn = {"EA": 13.72, "EI": 1.47e-7, "kawabata_C": 0.2e-3, "kawabata_K": 0.2}
+    return make_scene(
+        geometry={"model": "fabric", "length": 0.00625 * n, "segments": 14 * n, "crossings": n,
+                  "amplitude": 0.5e-3},
+        warp=yarn, weft={**yarn, "count": n, "segments": 14 * n, "amplitude": 0.5e-3},
+        load={"values": list(values)})
+
+
+def test_fabric_result_file_estimate_bounds_a_real_file(tmp_path):
+    """The fabric's estimate counts both families' nodes, its n_wa x n_we crossing datasets
+    and per-yarn scalars: the real file lies within a factor 2 of it, as the one-yarn one."""
+    patch = fabric_scene(8)
+    out = tmp_path / "f.h5"
+    dynfab.run(patch, solver="static", out=out)
+    assert 0.5 < out.stat().st_size / budget.result_file_bytes(patch) < 2.0
+
+
+def test_fabric_memory_estimate_grows_as_its_sparse_factors():
+    """nodes^1.5 (module docstring): a 64 x 64 patch of 8 segments per half-wave (65,664
+    nodes) is estimated above benchmarks/fabric.json's measured peak of 1.71 GB."""
+    yarn = {"EA": 13.72, "EI": 1.47e-7, "kawabata_C": 0.2e-3, "kawabata_K": 0.2}
+    patch = make_scene(
+        geometry={"model": "fabric", "length": 0.4, "segments": 512, "crossings": 64,
+                  "amplitude": 0.5e-3},
+        warp=yarn, weft={**yarn, "count": 64, "segments": 512, "amplitude": 0.5e-3},
+        load={"values": [1e-3]})
+    assert budget.fabric_nodes(patch) == 65664
+    assert budget.memory_bytes(patch) > 1.71e9 * 1.1
+
+
+def test_a_fabric_beyond_memory_is_refused_with_the_estimate(monkeypatch):
+    monkeypatch.setattr(budget, "available_memory_bytes", lambda: 10**9)
+    big = fabric_scene(64)
+    with pytest.raises(dynfab.UserError, match=r"a 64 x 64 fabric of 114816 nodes needs about "
+                                               r".* of memory .* but 1 GB is available"):
+        dynfab.run(big, solver="static")
+
+
+def test_a_fabric_result_file_beyond_the_free_disk_is_refused(monkeypatch, tmp_path):
+    usage = type("usage", (), {"free": 10**5})
+    monkeypatch.setattr(budget.shutil, "disk_usage", lambda path: usage)
+    out = tmp_path / "big.h5"
+    with pytest.raises(dynfab.UserError, match=r"would take about .* of a 1808-node fabric\), "
+                                               r"but 100 kB is free there"):
+        dynfab.run(fabric_scene(8, values=[1e-3] * 50), solver="static", out=out)
+    assert not out.exists()

@@ -282,3 +282,33 @@ def test_the_dynamic_fabric_solver_refuses_settings_it_would_ignore(key, value):
     text = small_pullout() + f"\n[{table}]\n{name} = {value}\n"
     with pytest.raises(UserError, match=rf"^dynamic\.{name} = "):
         run(parse_scene_text(text), "dynamic")
+
+
+@pytest.mark.parametrize("key", ["static.accuracy", "dynamic.accuracy"])
+def test_a_fabric_refuses_the_accuracy_key_it_would_ignore(key, tmp_path):
+    """Neither fabric solver has a position error estimate, so [static] or [dynamic]
+    accuracy in a fabric scene is refused in one line naming it (exit 2), in the file and
+    in a scene built in Python, not silently ignored; and a fabric scene's written text
+    (the result file's `scene`) leaves it out."""
+    import subprocess
+    import sys
+    from dataclasses import replace
+
+    from dynfab.scene import scene_to_toml, validate_scene
+
+    table, name = key.split(".")
+    text = small_strip() + f"\n[{table}]\n{name} = 0.05\n"
+    with pytest.raises(UserError, match=rf"^{key} = 0\.05: means nothing in a fabric"):
+        parse_scene_text(text)
+    path = tmp_path / "strip.toml"
+    path.write_text(text)
+    done = subprocess.run([sys.executable, "-m", "dynfab.cli", "run", str(path), "--out",
+                           str(tmp_path / "strip.h5")], capture_output=True, text=True)
+    assert done.returncode == 2
+    assert len(done.stderr.strip().splitlines()) == 1
+    assert done.stderr.startswith(f"dynfab: error: {key} = 0.05: means nothing in a fabric")
+    scene = parse_scene_text(small_strip())
+    assert "accuracy" not in scene_to_toml(scene)
+    built = replace(scene, **{table: replace(getattr(scene, table), accuracy=0.05)})
+    with pytest.raises(UserError, match=rf"^{key} = 0\.05: means nothing in a fabric"):
+        validate_scene(built)

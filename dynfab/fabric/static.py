@@ -16,10 +16,21 @@ fixed point is not a contraction where dF_T/dR dR/dg is large (contact forces ne
 onset force R_0, docs/model.md section 4): after FROZEN_UPDATES solves, a Newton on the coupled
 problem (F_T through R in the Jacobian, non-symmetric, the residual's norm as merit)
 continues from where it stands (and if it fails, more frozen solves, then it again:
-`solve`). Then the anchors are return-mapped (radially,
-`dynfab.fabric.friction`). The one-yarn solver's open/closed active set, continuation
-in R_0 and semismooth fallback are not here (yet): a step neither reaches stops with a
-SolverError.
+`solve_frozen`). Then the anchors are return-mapped (radially,
+`dynfab.fabric.friction`).
+
+At the friction onset (docs/model.md section 4: crossings near g = 0, where the contact
+tangent and dF_T/dg jump) that can stall. The step is then solved again from its start
+as the one-yarn solver does (`solve_on_sets`, sharing `dynfab.active_set`): the open/closed
+set of the crossings held fixed during each solve (a crossing held open carries no
+force at any g; one held closed the unilateral force with the closed side's tangent
+across g = 0) and updated where the state contradicts it, first at the scene's R_0, then
+by continuation in R_0 from 1e-3 N down to it; with R_0 = 0 (the literal jump law) set
+updates that keep switching a crossing stop the step. Either way the state accepted is
+consistent with the unilateral law and Gralen's (the residual with F_T from the law at
+the solution's R within the tolerance). A step that still fails raises a SolverError
+naming the crossing (warp k, weft j) to blame and the residual reached. (The one-yarn
+solver's semismooth fallback is not ported.)
 
 Globalisation (docs/model.md section 6): a backtracking line search on the energy (F_T frozen);
 where the energy change is within its rounding, a step that lowers the residual is
@@ -48,11 +59,16 @@ import numpy as np
 import scipy.sparse
 import scipy.sparse.linalg
 
+from dynfab.active_set import (CONTINUATION_FACTORS, CONTINUATION_START, DIRECT_ITERATIONS,
+                               DIRECT_SET_UPDATES, MAX_FLIPS, MAX_SET_UPDATES, onset_stages,
+                               update_set)
 from dynfab.errors import SolverError
 from dynfab.fabric import assembly, contact, friction, inertia, ordering
 from dynfab.fabric.layout import Fabric, build_fabric
 from dynfab.fabric.spec import FabricSpec
+from dynfab.terms import contact as contact_1d
 from dynfab.terms import friction as gralen
+from dynfab.terms.contact import CLOSED, OPEN
 
 EPS = np.finfo(np.float64).eps
 FROZEN_UPDATES = 3
@@ -69,6 +85,16 @@ ESCAPE_CANDIDATES = 16
 """Directions of negative curvature tried per escape (the lowest eigenvectors)."""
 HALVINGS = 60
 """Line-search halvings (8 at the rounding floor, where a step is lost in rounding)."""
+COUPLED_FIRST = 20
+"""Iterations of the coupled Newton on a fixed open/closed set before `solve_frozen` is tried
+from the same start (`FabricStaticSolver._solve_fixed_set`)."""
+FALLBACK_BUDGET = 150
+"""Newton iterations of a step's active-set fallback, in units of `max_iterations`: after
+them it stops with its failure. The hardest 4 x 4 steps tried needed 23,125 (a 60-step
+equal biaxial path, step 14) and 17,756 (weft ends compressed, step 4) of the 30,000 this
+gives at max_iterations = 200; an 8 x 8 patch at 0.1 mN per warp found no state in 6,017."""
+CYCLING_REASON, ONSET_REASON = "cycling", "onset"
+"""Why a step failed, in `NewtonInfo.reason` (the message of `FabricStaticSolver.step`)."""
 
 
 def _sparse_solve(A, rhs, symmetric=True, order=None):
@@ -134,6 +160,37 @@ class NewtonInfo:
     floor: float = 0.0
     """The residual's rounding floor [N], 4 eps max|H_ii| max|r|, at the last iteration."""
     converged: bool = False
+    crossing: int = -1
+    """A failure's crossing to blame (0-based c = k n_we + j), -1 if none."""
+    reason: str = ""
+    """A failure's kind: CYCLING_REASON, ONSET_REASON or "" (no convergence)."""
+
+
+@dataclass(frozen=True)
+class SetLaw:
+    """The contact and friction laws a Newton solve holds (docs/model.md section 4): each
+    crossing's branch, OPEN or CLOSED (`dynfab.terms.contact`; None: the unilateral law),
+    and R_0 [N] (None: the scene's)."""
+
+    branch: np.ndarray | None = None
+    onset: float | None = None
+
+
+def _onset(fabric: Fabric, law: SetLaw | None) -> float:
+    """R_0 [N] of `law`, the scene's by default."""
+    return fabric.friction_onset if law is None or law.onset is None else law.onset
+
+
+def _within(residual: float, info: NewtonInfo, tolerance: float) -> bool:
+    """A residual [N] within the tolerance, or within the rounding floor the solve of `info`
+    stopped at."""
+    return residual <= max(tolerance, info.floor if info.at_floor else 0.0)
+
+
+def _started(info: NewtonInfo) -> NewtonInfo:
+    """An intermediate continuation stage's outcome: a start for the next stage."""
+    info.converged = True
+    return info
 
 
 class FabricStaticSolver:
@@ -146,6 +203,7 @@ class FabricStaticSolver:
         self.free = ~self.fabric.fixed
         self.yarns = self.fabric.yarn_start.size - 1
         self._terms = np.zeros(len(assembly.TERMS))
+        self._budget = 0  # Newton iterations left to the active-set fallback (`solve_on_sets`)
 
     # ------------------------------------------------------------------ state
 
@@ -160,40 +218,113 @@ class FabricStaticSolver:
 
     # ------------------------------------------------------------------ pieces
 
-    def contact_forces(self, pos) -> np.ndarray:
+    def closures(self, pos) -> np.ndarray:
+        """g of every crossing (C,) [m] (docs/model.md (10.5))."""
+        f = self.fabric
+        z = pos[:, 1]
+        return f.gap_offset - f.side * (z[f.warp_node] - z[f.weft_node])
+
+    def contact_forces(self, pos, law: SetLaw | None = None) -> np.ndarray:
+        """R of every crossing (C,) [N]: the unilateral law, or on `law`'s branches (an open
+        crossing carries none)."""
         f = self.fabric
         out = np.zeros(f.warp_node.size)
         contact.forces(pos, f.warp_node, f.weft_node, f.side, f.gap_offset, f.contact_law, out)
+        if law is not None and law.branch is not None:
+            out[law.branch == OPEN] = 0.0
         return out
 
-    def friction_limits(self, pos) -> np.ndarray:
-        """F_T from Gralen's law at the contact forces of `pos` (0 without friction)."""
+    def friction_limits(self, pos, law: SetLaw | None = None) -> np.ndarray:
+        """F_T from Gralen's law at the contact forces of `pos` (0 without friction), with
+        `law`'s branches and R_0 (default: the unilateral law, the scene's R_0)."""
         f = self.fabric
         out = np.zeros(f.warp_node.size)
         if f.has_friction:
-            gralen.limits(self.contact_forces(pos), f.friction_alpha, f.friction_constant,
-                          f.friction_onset, out)
+            gralen.limits(self.contact_forces(pos, law), f.friction_alpha, f.friction_constant,
+                          _onset(f, law), out)
         return out
 
-    def energy(self, pos, P, anchors, limit) -> float:
-        return assembly.total_energy(pos, self.fabric, P, anchors, limit, self._terms)
+    def energy(self, pos, P, anchors, limit, law: SetLaw | None = None) -> float:
+        total = assembly.total_energy(pos, self.fabric, P, anchors, limit, self._terms)
+        if law is None or law.branch is None:
+            return total
+        lost = sum(contact.crossing_energy(g, self.fabric.contact_law)
+                   for g in self._opened(pos, law)[1])
+        self._terms[assembly.CONTACT] -= lost
+        return total - lost
 
-    def gradient(self, pos, P, anchors, limit) -> np.ndarray:
+    def gradient(self, pos, P, anchors, limit, law: SetLaw | None = None) -> np.ndarray:
         grad = np.zeros_like(pos)
         assembly.gradient(pos, self.fabric, P, anchors, limit, grad)
+        if law is not None and law.branch is not None:
+            f = self.fabric
+            opened, g = self._opened(pos, law)
+            R = np.array([contact.force(value, f.contact_law) for value in g])
+            np.add.at(grad[:, 1], f.warp_node[opened], f.side[opened] * R)
+            np.add.at(grad[:, 1], f.weft_node[opened], -f.side[opened] * R)
         return grad
 
-    def hessian(self, pos, anchors, limit, secant=False) -> scipy.sparse.csc_matrix:
-        """The Hessian on the free dofs, F_T frozen (`secant`: see `friction.huber_hessian`)."""
+    def hessian(self, pos, anchors, limit, secant=False,
+                law: SetLaw | None = None) -> scipy.sparse.csc_matrix:
+        """The Hessian on the free dofs, F_T frozen (`secant`: see `friction.huber_hessian`);
+        on `law`'s branches, the contact tangent of `branch_tangents`."""
         values = np.zeros(self.pattern.size)
         assembly.hessian_values(pos, self.fabric, anchors, limit, values, secant)
-        return self.pattern.matrix(values)
+        H = self.pattern.matrix(values)
+        if law is None or law.branch is None:
+            return H
+        natural = np.zeros(self.fabric.warp_node.size)
+        f = self.fabric
+        contact.tangents(pos, f.warp_node, f.weft_node, f.side, f.gap_offset, f.contact_law,
+                         natural)
+        change = self.branch_tangents(pos, law) - natural
+        return (H + self._contact_blocks(change)).tocsc()
+
+    def branch_tangents(self, pos, law: SetLaw | None = None) -> np.ndarray:
+        """dR/dg per crossing (C,) [N/m] on `law`'s branches (`dynfab.terms.contact`): 0 when
+        open; closed, the unilateral tangent, or for g <= 0 the closed side's k_0 (the Newton
+        matrix of a crossing held closed keeps its contact stiffness across g = 0)."""
+        f = self.fabric
+        out = np.zeros(f.warp_node.size)
+        contact.tangents(pos, f.warp_node, f.weft_node, f.side, f.gap_offset, f.contact_law, out)
+        if law is not None and law.branch is not None:
+            out[law.branch == OPEN] = 0.0
+            shut = (law.branch == CLOSED) & ~(self.closures(pos) > 0.0)
+            out[shut] = contact_1d.tangent(0.0, f.contact_law)
+        return out
+
+    def _opened(self, pos, law: SetLaw):
+        """(mask, closures) of the crossings `law` holds open although g > 0."""
+        g = self.closures(pos)
+        opened = (law.branch == OPEN) & (g > 0.0)
+        return opened, g[opened]
+
+    def _contact_blocks(self, tangent) -> scipy.sparse.csc_matrix:
+        """sum_c tangent_c [[1, -1], [-1, 1]] on (z_a, z_b) of each crossing, on the unknowns."""
+        f = self.fabric
+        c = np.flatnonzero(tangent)
+        index = self.pattern.index
+        za, zb = index[2 * f.warp_node[c] + 1], index[2 * f.weft_node[c] + 1]
+        t = tangent[c]
+        rows = np.concatenate([za, za, zb, zb])
+        cols = np.concatenate([za, zb, za, zb])
+        values = np.concatenate([t, -t, -t, t])
+        keep = (rows >= 0) & (cols >= 0)
+        n = self.pattern.free_count
+        return scipy.sparse.csc_matrix((values[keep], (rows[keep], cols[keep])), shape=(n, n))
 
     def residual(self, grad) -> float:
         """The largest force component on the unknowns [N] (a tied family's cell length
         carries the sum of its yarns' end forces)."""
         r = np.abs(self.pattern.reduce(grad))
         return float(r.max()) if r.size else 0.0
+
+    def law_residual(self, pos, P, anchors, onset: float | None = None) -> float:
+        """The residual [N] of the unilateral law with F_T = Gralen's law at the contact forces
+        of `pos` (R_0 `onset`, default the scene's): how far `pos` is from a state consistent
+        with the laws (docs/model.md section 4)."""
+        law = None if onset is None else SetLaw(None, onset)
+        return self.residual(self.gradient(pos, P, anchors, self.friction_limits(pos, law)))
 
     # ------------------------------------------------------------------ Newton
 
@@ -213,49 +344,63 @@ class FabricStaticSolver:
             shift = max(10.0 * shift, 1e-10 * diag)
         raise SolverError("fabric: no descent direction (the Hessian holds a NaN)")
 
-    def _line_search(self, pos, d, slope, residual, P, anchors, limit, halvings):
+    def _line_search(self, pos, d, slope, residual, P, anchors, limit, halvings, law=None):
         """Armijo on the energy from step 1; within its rounding, accept a lower residual."""
-        e0 = self.energy(pos, P, anchors, limit)
+        e0 = self.energy(pos, P, anchors, limit, law)
         rounding = 64.0 * EPS * (np.abs(self._terms).sum()
                                  + assembly.rounding_scale(pos, self.fabric, P, limit))
         t = 1.0
         for _ in range(halvings):
             trial = pos + t * d
-            e1 = self.energy(trial, P, anchors, limit)
+            e1 = self.energy(trial, P, anchors, limit, law)
             if e1 - e0 <= 1e-4 * t * slope:
                 return trial, t
             if abs(e1 - e0) <= rounding:
-                if self.residual(self.gradient(trial, P, anchors, limit)) < residual:
+                if self.residual(self.gradient(trial, P, anchors, limit, law)) < residual:
                     return trial, t
             t *= 0.5
         return None
 
-    def newton(self, pos, P, anchors, limit) -> NewtonInfo:
-        """Minimise V + sum H (F_T frozen) from `pos`, in place (docs/model.md section 6)."""
-        spec, info = self.spec, NewtonInfo()
+    def _iteration_start(self, info, pos, grad, iteration, previous, max_iterations, hessian):
+        """The prologue of a Newton iteration shared by `newton` and `coupled_newton`: the
+        residual of `grad` into info; None when the solve ends here (converged, out of
+        iterations, non-finite, or at the rounding floor 4 eps max|H_ii| max|r|: the residual
+        below it and no longer halving, docs/model.md section 6), else the Newton matrix
+        `hessian()` to go on with."""
+        residual = self.residual(grad)
+        info.residual, info.iterations = residual, iteration
+        if residual <= self.spec.tolerance:
+            info.converged = True
+            return None
+        if iteration == max_iterations or not np.isfinite(residual):
+            return None
+        H = hessian()
+        info.floor = 4.0 * EPS * np.abs(H.diagonal()).max() * np.abs(pos).max()
+        if info.floor >= residual > 0.5 * previous:
+            info.converged = info.at_floor = True
+            return None
+        return H
+
+    def newton(self, pos, P, anchors, limit, law=None, max_iterations=None) -> NewtonInfo:
+        """Minimise V + sum H (F_T frozen) from `pos`, in place (docs/model.md section 6), the
+        contact on `law`'s branches (None: unilateral)."""
+        info = NewtonInfo()
+        max_iterations = self.spec.max_iterations if max_iterations is None else max_iterations
         previous = np.inf
         cut = False  # the last step was shortened: the secant friction stiffness
-        for iteration in range(spec.max_iterations + 1):
-            grad = self.gradient(pos, P, anchors, limit)
-            residual = self.residual(grad)
-            info.residual, info.iterations = residual, iteration
-            if residual <= spec.tolerance:
-                info.converged = True
+        for iteration in range(max_iterations + 1):
+            grad = self.gradient(pos, P, anchors, limit, law)
+            H = self._iteration_start(info, pos, grad, iteration, previous, max_iterations,
+                                      lambda: self.hessian(pos, anchors, limit, cut, law))
+            if H is None:
                 return info
-            if iteration == spec.max_iterations or not np.isfinite(residual):
-                return info
-            H = self.hessian(pos, anchors, limit, cut)
-            floor = 4.0 * EPS * np.abs(H.diagonal()).max() * np.abs(pos).max()
-            info.floor = floor
-            if residual <= floor and residual > 0.5 * previous:
-                info.converged = info.at_floor = True
-                return info
+            residual, floor = info.residual, info.floor
             previous = residual
-            trial = self._newton_step(pos, grad, H, residual, floor, P, anchors, limit)
+            trial = self._newton_step(pos, grad, H, residual, floor, P, anchors, limit, law)
             if trial is None and not cut and self.fabric.has_friction:
                 cut = True  # a Huber kink in the way: retry on the secant model
-                trial = self._newton_step(pos, grad, self.hessian(pos, anchors, limit, True),
-                                          residual, floor, P, anchors, limit)
+                trial = self._newton_step(pos, grad, self.hessian(pos, anchors, limit, True, law),
+                                          residual, floor, P, anchors, limit, law)
             if trial is None:
                 info.converged = info.at_floor = residual <= floor
                 return info
@@ -264,57 +409,192 @@ class FabricStaticSolver:
             pos[:, :] = trial
         return info
 
-    def _newton_step(self, pos, grad, H, residual, floor, P, anchors, limit):
+    def _newton_step(self, pos, grad, H, residual, floor, P, anchors, limit, law=None):
         """(new positions, step length) of a line-searched Newton step on H, or None."""
         g = self.pattern.reduce(grad)
         d_free = self._direction(H, g)
         d = self.pattern.expand(d_free)
         return self._line_search(pos, d.reshape(pos.shape), g @ d_free, residual, P, anchors,
-                                 limit, 8 if residual <= floor else HALVINGS)
+                                 limit, 8 if residual <= floor else HALVINGS, law)
 
     def solve(self, pos, P, anchors) -> tuple[NewtonInfo, np.ndarray, int]:
+        """One load step's equilibrium from `pos`, in place, consistent with the contact and
+        friction laws (docs/model.md section 4): `solve_frozen` on the unilateral law; if it
+        fails with friction, from the same start, the open/closed active set with its
+        continuation in R_0 (`solve_on_sets`). Returns (info, F_T, solves); a failure's info
+        names the crossing to blame (`NewtonInfo.crossing`)."""
+        start = pos.copy()
+        info, limit, outer = self.solve_frozen(pos, P, anchors)
+        if info.converged or not self.fabric.has_friction:
+            return info, limit, outer
+        iterations = info.iterations
+        pos[:, :] = start
+        info, more = self.solve_on_sets(pos, P, anchors)
+        info.iterations += iterations
+        return info, self.friction_limits(pos), outer + more
+
+    def solve_frozen(self, pos, P, anchors, law=None, max_iterations=None):
         """Newton solves with F_T frozen, F_T updated between them to the law at the
         solution, until consistent; after FROZEN_UPDATES of them the coupled Newton
         (`coupled_newton`) from where they stand. If that fails, the frozen solves go on
         from the state before it (the fixed point converges, slowly, where the coupled
         Newton's merit stalls at a kink), up to MAX_FROZEN, and the coupled Newton is tried
-        again (module docstring). Returns (info, F_T, solves)."""
-        limit = self.friction_limits(pos)
+        again (module docstring). The contact on `law`'s branches with its R_0 (None: the
+        unilateral law). Returns (info, F_T, solves)."""
+        limit = self.friction_limits(pos, law)
         iterations, outer = 0, 0
         for frozen in (FROZEN_UPDATES, MAX_FROZEN):
             for _ in range(frozen):
                 outer += 1
-                info = self.newton(pos, P, anchors, limit)
+                info = self.newton(pos, P, anchors, limit, law, max_iterations)
                 iterations += info.iterations
                 if not info.converged:
                     break
                 if not self.fabric.has_friction:
                     return info, limit, outer
-                limit = self.friction_limits(pos)
-                info.residual = self.residual(self.gradient(pos, P, anchors, limit))
-                # consistent: the residual with F_T from the law within the tolerance, or
-                # within the rounding floor the last solve stopped at
-                if info.residual <= max(self.spec.tolerance, info.floor if info.at_floor else 0.0):
+                limit = self.friction_limits(pos, law)
+                info.residual = self.residual(self.gradient(pos, P, anchors, limit, law))
+                if _within(info.residual, info, self.spec.tolerance):
                     info.iterations = iterations
                     return info, limit, outer
             if not self.fabric.has_friction:
                 break
             start = pos.copy()
             outer += 1
-            coupled = self.coupled_newton(pos, P, anchors)
+            coupled = self.coupled_newton(pos, P, anchors, law, max_iterations)
             iterations += coupled.iterations
             if coupled.converged:
                 coupled.iterations = iterations
-                return coupled, self.friction_limits(pos), outer
+                return coupled, self.friction_limits(pos, law), outer
             pos[:, :] = start
-            limit = self.friction_limits(pos)
+            limit = self.friction_limits(pos, law)
         info.iterations = iterations
         info.converged = False
         return info, limit, outer
 
-    def coupling(self, pos, anchors, limit) -> scipy.sparse.csc_matrix:
+    # ------------------------------------------------------------------ the onset
+
+    def solve_on_sets(self, pos, P, anchors) -> tuple[NewtonInfo, int]:
+        """The friction onset's fallback (docs/model.md section 4, and the fabric decisions),
+        in place: the open/closed set of the crossings held fixed during each solve and
+        updated between solves until the state agrees with it (`_solve_set`), first at the
+        scene's R_0 (DIRECT_SET_UPDATES updates, Newton solves of at most DIRECT_ITERATIONS),
+        then by continuation in R_0 from CONTINUATION_START down to the scene's R_0
+        (`dynfab.active_set.onset_stages`), each stage from the last one's state and set, with
+        the factors CONTINUATION_FACTORS in turn. With R_0 = 0 (the literal jump law) there
+        is no continuation: the set updates at R_0 = 0 (at most MAX_FLIPS) either agree or
+        cycle, and a cycle names the crossing switched most often. All of it within
+        FALLBACK_BUDGET x max_iterations Newton iterations. Returns (info, solves)."""
+        f = self.fabric
+        start = pos.copy()
+        target = f.friction_onset
+        self._budget = FALLBACK_BUDGET * self.spec.max_iterations
+        branch = self._natural_set(pos)
+        info, outer = self._solve_set(pos, P, anchors, branch, target,
+                                      DIRECT_SET_UPDATES if target > 0.0 else MAX_FLIPS, True,
+                                      DIRECT_ITERATIONS)
+        if info.converged or target == 0.0:
+            return info, outer
+        iterations, first = info.iterations, info
+        for factor in CONTINUATION_FACTORS:
+            pos[:, :] = start
+            branch = self._natural_set(pos)
+            for onset in onset_stages(target, factor):
+                info, more = self._solve_set(pos, P, anchors, branch, onset, MAX_SET_UPDATES,
+                                             onset == target)
+                iterations += info.iterations
+                outer += more
+                if not np.isfinite(info.residual) or self._budget <= 0:
+                    break
+            # solved only by the last stage: an intermediate one is a start, not the answer
+            info.converged = info.converged and onset == target
+            if info.converged or self._budget <= 0:
+                break
+        info.iterations = iterations
+        if not info.converged:
+            info.reason = ONSET_REASON
+            info.crossing = first.crossing if info.crossing < 0 else info.crossing
+            if np.isfinite(info.residual):  # the laws' residual at the scene's R_0
+                info.residual = self.law_residual(pos, P, anchors)
+        return info, outer
+
+    def _natural_set(self, pos) -> np.ndarray:
+        """The open/closed set the unilateral law gives at `pos`: CLOSED where g > 0."""
+        return np.where(self.closures(pos) > 0.0, CLOSED, OPEN).astype(np.int64)
+
+    def _solve_set(self, pos, P, anchors, branch, onset, max_updates, final,
+                   max_iterations=None):
+        """Solves on fixed sets at R_0 = `onset`, `branch` updated in place between them
+        (`dynfab.active_set.update_set`) until consistent: converged on its set with the
+        unilateral law's residual (F_T from the law at R_0 = `onset`) within the tolerance,
+        each Newton solve at most `max_iterations` long (default the scene's).
+        A solve that ends short of the tolerance still updates the set, while its state is
+        finite. An intermediate stage (not `final`) is only the next stage's start and always
+        succeeds. Returns (info, solves): a failure's info names the crossing to blame (the
+        one switched most often, or the one nearest g = 0), why, and the laws' residual
+        (`law_residual`) at the state reached."""
+        seen = {branch.tobytes()}
+        outer = iterations = 0
+        flips = np.zeros(branch.size, np.int64)
+        info = NewtonInfo()
+        for _ in range(max_updates):
+            law = SetLaw(branch.copy(), onset)
+            info, more = self._solve_fixed_set(pos, P, anchors, law, max_iterations)
+            self._budget -= info.iterations
+            iterations += info.iterations
+            outer += more
+            info.iterations = iterations
+            g = self.closures(pos)
+            if not np.isfinite(info.residual):
+                break
+            residual = self.law_residual(pos, P, anchors, onset)
+            if info.converged and _within(residual, info, self.spec.tolerance):
+                info.residual = residual
+                return info, outer
+            if self._budget <= 0:  # FALLBACK_BUDGET spent
+                break
+            switched = update_set(g, branch, seen)
+            if switched is None:  # every set the updates propose was tried
+                if not final:
+                    return _started(info), outer
+                info.reason = CYCLING_REASON
+                break
+            if switched.size == 0:
+                if not final:
+                    return _started(info), outer
+                break
+            flips[switched] += 1
+        else:
+            if not final:
+                return _started(info), outer
+            info.reason = CYCLING_REASON
+        info.converged = False
+        # the crossing switched most often (of equals the highest c), else the one nearest g = 0
+        info.crossing = (int(flips.size - 1 - np.argmax(flips[::-1])) if flips.any()
+                         else int(np.argmin(np.abs(self.closures(pos)))))
+        if np.isfinite(info.residual):  # the residual reached: of the laws, not of the set
+            info.residual = self.law_residual(pos, P, anchors, onset)
+        return info, outer
+
+    def _solve_fixed_set(self, pos, P, anchors, law, max_iterations=None):
+        """One set's equilibrium, in place: the coupled Newton (COUPLED_FIRST iterations,
+        quadratic near the solution, where a stage or a set update starts), and if it fails,
+        from the same start, `solve_frozen` on the set (robust farther away). Returns (info,
+        solves)."""
+        start = pos.copy()
+        info = self.coupled_newton(pos, P, anchors, law, min(COUPLED_FIRST, max_iterations or
+                                                             COUPLED_FIRST))
+        if info.converged:
+            return info, 1
+        pos[:, :] = start
+        more, _, outer = self.solve_frozen(pos, P, anchors, law, max_iterations)
+        more.iterations += info.iterations
+        return more, outer + 1
+
+    def coupling(self, pos, anchors, limit, law=None) -> scipy.sparse.csc_matrix:
         """d(dH/ds)/dz through F_T(R(g)) on the free dofs: the non-symmetric part of the
-        coupled friction Jacobian (`dynfab.terms.friction.add_limit_coupling` in 2D).
+        coupled friction Jacobian (`dynfab.terms.friction.add_limit_coupling` in 2D), on
+        `law`'s branches with its R_0.
 
         On a sliding crossing dH/ds = F_T s/|s|, so its rows (x_a, y_b) gain
         (s/|s|) dF_T/dR dR/dg dg/dz with dg/dz_a = -sigma, dg/dz_b = +sigma; sticking
@@ -322,9 +602,9 @@ class FabricStaticSolver:
         """
         f = self.fabric
         c = f.warp_node.size
-        tangent, huber = np.zeros(c), np.zeros((c, 3))
-        assembly.crossing_blocks(pos, f, anchors, limit, tangent, huber)
-        R = self.contact_forces(pos)
+        tangent = self.branch_tangents(pos, law)
+        R = self.contact_forces(pos, law)
+        onset = _onset(f, law)
         px, py = assembly.planes(pos, f)
         rows, cols, values = [], [], []
         for i in range(c):
@@ -333,7 +613,7 @@ class FabricStaticSolver:
             if not (tangent[i] > 0.0 and limit[i] > 0.0 and f.stick_stiffness * norm >= limit[i]):
                 continue
             slope = gralen.limit_slope(R[i], f.friction_alpha, f.friction_constant,
-                                       f.friction_onset) * tangent[i]
+                                       onset) * tangent[i]
             za, zb = 2 * f.warp_node[i] + 1, 2 * f.weft_node[i] + 1
             # rows: J^T (s / |s|), J the slip's Jacobian (its nodes and the plane nodes)
             J = assembly.slip_jacobian(f, i)
@@ -349,34 +629,29 @@ class FabricStaticSolver:
         return scipy.sparse.csc_matrix((np.array(values)[keep], (rows[keep], cols[keep])),
                                        shape=(n, n))
 
-    def coupled_newton(self, pos, P, anchors) -> NewtonInfo:
-        """Newton on the coupled problem (F_T = F_T(R) at every iterate), in place.
+    def coupled_newton(self, pos, P, anchors, law=None, max_iterations=None) -> NewtonInfo:
+        """Newton on the coupled problem (F_T = F_T(R) at every iterate), in place, the
+        contact on `law`'s branches with its R_0 (None: unilateral, the scene's R_0).
 
         The Jacobian is the Hessian plus `coupling` (not symmetric: SuperLU pivots), and
         steps are backtracked on the 2-norm of the free residual with F_T re-evaluated at
         each trial (docs/model.md section 4's merit for the coupled problem): accepted when it falls
         by 1e-4 t of itself.
         """
-        spec, info = self.spec, NewtonInfo()
+        info = NewtonInfo()
+        max_iterations = self.spec.max_iterations if max_iterations is None else max_iterations
         previous = np.inf
-        for iteration in range(spec.max_iterations + 1):
-            limit = self.friction_limits(pos)
-            grad = self.gradient(pos, P, anchors, limit)
-            residual = self.residual(grad)
-            info.residual, info.iterations = residual, iteration
-            if residual <= spec.tolerance:
-                info.converged = True
+        for iteration in range(max_iterations + 1):
+            limit = self.friction_limits(pos, law)
+            grad = self.gradient(pos, P, anchors, limit, law)
+            H = self._iteration_start(info, pos, grad, iteration, previous, max_iterations,
+                                      lambda: self.hessian(pos, anchors, limit, law=law))
+            if H is None:
                 return info
-            if iteration == spec.max_iterations or not np.isfinite(residual):
-                return info
-            H = self.hessian(pos, anchors, limit)
-            floor = 4.0 * EPS * np.abs(H.diagonal()).max() * np.abs(pos).max()
-            if residual <= floor and residual > 0.5 * previous:
-                info.converged = info.at_floor = True
-                return info
+            residual, floor = info.residual, info.floor
             previous = residual
             g = self.pattern.reduce(grad)
-            d_free = _sparse_solve((H + self.coupling(pos, anchors, limit)).tocsc(), -g,
+            d_free = _sparse_solve((H + self.coupling(pos, anchors, limit, law)).tocsc(), -g,
                                    symmetric=False)
             if d_free is None:
                 return info
@@ -384,7 +659,8 @@ class FabricStaticSolver:
             norm0, t = np.linalg.norm(g), 1.0
             for _ in range(8 if residual <= floor else HALVINGS):
                 trial = pos + t * d
-                trial_grad = self.gradient(trial, P, anchors, self.friction_limits(trial))
+                trial_grad = self.gradient(trial, P, anchors, self.friction_limits(trial, law),
+                                           law)
                 if np.linalg.norm(self.pattern.reduce(trial_grad)) <= (1.0 - 1e-4 * t) * norm0:
                     break
                 t *= 0.5
@@ -402,9 +678,7 @@ class FabricStaticSolver:
         pos, anchors, P = self.start_of_step(state, warp_value, weft_value)
         info, limit, outer = self.solve(pos, P, anchors)
         if not info.converged:
-            raise SolverError(
-                f"fabric: no convergence ({info.iterations} Newton iterations, {outer} friction "
-                f"solves); residual {info.residual:.3g} N, tolerance {spec.tolerance:.3g} N")
+            raise SolverError(self._failure(pos, P, anchors, info, outer))
         info, limit, outer, escapes, inertia_result, nearest = self._certified(
             pos, P, anchors, info, limit, outer)
         R = self.contact_forces(pos)
@@ -430,6 +704,43 @@ class FabricStaticSolver:
                       end_force=end_force,
                       end_displacement=u_new, strain=self.strains(pos), crimp=self.crimps(pos))
         return new, record
+
+    def crossing_name(self, c: int) -> str:
+        """Crossing c as the scene counts it: "(warp k, weft j)", 1-based."""
+        k, j = divmod(int(c), self.spec.wefts)
+        return f"(warp {k + 1}, weft {j + 1})"
+
+    def _worst_crossing(self, pos, P, anchors) -> tuple[int, float]:
+        """(c, force [N]): the crossing whose two nodes carry the largest component of the
+        unilateral law's residual at `pos` (F_T from the law)."""
+        f = self.fabric
+        grad = self.gradient(pos, P, anchors, self.friction_limits(pos))
+        force = np.where(f.fixed.reshape(-1, 2), 0.0, np.abs(grad)).max(axis=1)
+        worst = np.maximum(force[f.warp_node], force[f.weft_node])
+        c = int(np.argmax(worst))
+        return c, float(worst[c])
+
+    def _failure(self, pos, P, anchors, info: NewtonInfo, outer: int) -> str:
+        """The one line of a step that reached no state consistent with the laws, naming
+        the crossing to blame and the residual reached (docs/model.md section 4)."""
+        f, tolerance = self.fabric, self.spec.tolerance
+        reached = f"residual {info.residual:.3g} N, tolerance {tolerance:.3g} N"
+        if info.reason == CYCLING_REASON:
+            return (f"fabric: crossing {self.crossing_name(info.crossing)} keeps opening and "
+                    f"closing at g = 0, where Gralen's friction limit jumps by beta*ell*r_f = "
+                    f"{f.friction_constant:.3g} N (R_0 = {f.friction_onset:.3g} N); no "
+                    f"open/closed state consistent with the contact and friction laws was "
+                    f"found ({reached})")
+        if info.reason == ONSET_REASON:
+            return (f"fabric: crossing {self.crossing_name(info.crossing)} at the friction onset "
+                    f"(R_0 = {f.friction_onset:.3g} N): no open/closed state consistent with the "
+                    f"contact and friction laws was found, also by continuation in R_0 from "
+                    f"{CONTINUATION_START:.3g} N ({info.iterations} Newton iterations, at most "
+                    f"{FALLBACK_BUDGET} x static.max_iterations; {reached})")
+        c, force = self._worst_crossing(pos, P, anchors)
+        return (f"fabric: no convergence ({info.iterations} Newton iterations, {outer} friction "
+                f"solves); {reached}; the largest residual at a crossing: {force:.3g} N at "
+                f"crossing {self.crossing_name(c)}")
 
     def _certified(self, pos, P, anchors, info, limit, outer):
         """The step's stability check, and the escape from a saddle (docs/model.md section 6), in

@@ -1,0 +1,192 @@
+"""The fabric's static solver at the friction onset (docs/model.md sections 4 and 10).
+
+Clamped 4 x 4 patches of the paper's yarns at small loads, where crossings open and close
+and sit at the onset: steps the frozen-F_T and coupled Newton (`solve_frozen`) cannot
+reach, which the open/closed active set with its continuation in R_0 now solves, each
+state checked against Gralen's law and the contact law evaluated here independently; the
+literal jump law (R_0 = 0) stopping with exit status 3 naming a crossing; and R_0 -> 0
+converging at first order (docs/model.md section 4).
+"""
+
+import re
+import subprocess
+import sys
+from dataclasses import replace
+
+import h5py
+import numpy as np
+import scipy.optimize
+
+from dynfab.fabric.from_scene import fabric_spec
+from dynfab.fabric.static import FabricStaticSolver
+from dynfab.scene import parse_scene_text
+from independent import scene_toml
+
+ALPHA, BETA, ELL, R_F = 0.2, 1e3, 2e-3, 1e-3
+"""The paper's Gralen constants (docs/model.md section 7): beta ell r_f = 2 mN."""
+EPS = np.finfo(float).eps
+
+
+def patch(n: int, onset: float, control: str, values, weft_values) -> str:
+    """A clamped n x n patch of the paper's yarns (segment length of section 7, 14 per
+    half-wave), friction on with R_0 = `onset`, as scene text."""
+    yarn = {"EA": 13.72, "EI": 1.47e-7, "kawabata_C": 0.2e-3, "kawabata_K": 0.2}
+    return scene_toml({
+        "geometry": {"model": "fabric", "boundary": "clamped", "length": 0.00625 * n,
+                     "segments": 14 * n, "crossings": n, "amplitude": 0.5e-3},
+        "warp": yarn,
+        "weft": {**yarn, "count": n, "segments": 14 * n, "amplitude": 0.5e-3},
+        "friction": {"alpha": ALPHA, "beta": BETA, "contact_length": ELL,
+                     "fiber_radius": R_F, "onset_force": onset},
+        "load": {"control": control, "values": [float(v) for v in values],
+                 "weft_values": [float(v) for v in weft_values]}})
+
+
+def gralen(R: np.ndarray, onset: float) -> np.ndarray:
+    """F_T = alpha R + beta ell r_f (1 - exp(-R / R_0)) for R > 0, else 0 (docs/model.md (4.1))."""
+    R = np.asarray(R, float)
+    jump = (-np.expm1(-R / onset)) if onset > 0 else np.ones_like(R)
+    return np.where(R > 0, ALPHA * R + BETA * ELL * R_F * jump, 0.0)
+
+
+def contact_force(g: float, law) -> float:
+    """R(g) by bracketing the series law R/k_c + sum C (1 - exp(-a R)) = g (docs/model.md
+    (10.6)), not the solver's Newton inversion."""
+    if g <= 0:
+        return 0.0
+    k_c, c1, a1, c2, a2 = law
+    closure = lambda R: R / k_c + c1 * -np.expm1(-a1 * R) + c2 * -np.expm1(-a2 * R) - g
+    return scipy.optimize.brentq(closure, 0.0, k_c * g, xtol=1e-300, rtol=4 * EPS)
+
+
+def check_consistent(solver: FabricStaticSolver, before, after, record, load) -> None:
+    """The state `after` of a step from `before` obeys the laws (docs/model.md section 4):
+    every crossing's F_T equals Gralen's law at its contact force to 1e-12 N, and the force
+    residual with those F_T is within the tolerance (or the step's rounding floor)."""
+    f = solver.fabric
+    pos = after.positions
+    g = f.gap_offset - f.side * (pos[f.warp_node, 1] - pos[f.weft_node, 1])
+    R = np.array([contact_force(value, f.contact_law) for value in g])
+    law = gralen(R, f.friction_onset)
+    # R agrees with the solver's to the bracketing's rounding (4 eps relative)
+    np.testing.assert_allclose(np.ravel(record["contact_force"]), R, rtol=1e-12, atol=0)
+    assert np.abs(np.ravel(record["friction_limit"]) - law).max() <= 1e-12
+    _, anchors, P = solver.start_of_step(before, *load)
+    residual = solver.residual(solver.gradient(pos, P, anchors, law))
+    H = solver.hessian(pos, anchors, law)
+    floor = 4 * EPS * np.abs(H.diagonal()).max() * np.abs(pos).max()  # docs/model.md section 6
+    assert residual <= max(solver.spec.tolerance, floor if record["rounding_floor"] else 0.0)
+
+
+def solve_path(text: str, fallback_steps: set[int]):
+    """Every step of the scene's path solved and checked (`check_consistent`); at the steps
+    in `fallback_steps` (1-based) the frozen-F_T and coupled Newton alone (`solve_frozen`,
+    the solver before the active set) is first shown to fail from the step's start."""
+    solver = FabricStaticSolver(fabric_spec(parse_scene_text(text)))
+    state = solver.initial_state()
+    for index, load in enumerate(zip(*solver.spec.loads()), start=1):
+        pos, anchors, P = solver.start_of_step(state, *load)
+        if index in fallback_steps:
+            assert not solver.solve_frozen(pos, P, anchors)[0].converged
+        new, record = solver.step(state, *load)
+        check_consistent(solver, state, new, record, load)
+        state = new
+    return solver, state
+
+
+def test_displacement_control_through_closing_crossings_at_the_default_onset():
+    """A 4 x 4 patch stretched by small end displacements (R_0 = 1e-5 N, the default): at
+    step 3 crossings close and slide at the onset and `solve_frozen` stalls (residual
+    about 1 mN); the active set reaches a consistent state."""
+    values = np.linspace(1e-6, 2e-5, 8)[:3]
+    weft = np.linspace(0.0, 1e-5, 8)[:3]
+    solve_path(patch(4, 1e-5, "displacement", values, weft), {3})
+
+
+def test_force_control_at_a_small_onset_force():
+    """A 4 x 4 patch under 0.1 mN per warp and 0.05 mN per weft with R_0 = 1e-7 N: the
+    frozen and coupled Newton stall (a residual of 0.1 mN); the continuation in R_0 from
+    1e-3 N reaches a consistent state."""
+    solve_path(patch(4, 1e-7, "force", [0.0, 1e-4], [0.0, 5e-5]), {2})
+
+
+def test_the_literal_jump_law_stops_naming_a_crossing(tmp_path):
+    """R_0 = 0 (docs/model.md section 4): where the set updates keep switching a crossing at
+    g = 0 the run stops with exit status 3, one line naming the crossing as the scene counts
+    it and the residual reached, the finished step kept on disk."""
+    scene = tmp_path / "jump.toml"
+    scene.write_text(patch(4, 0.0, "force", [0.0, 1e-4], [0.0, 5e-5]))
+    out = tmp_path / "jump.h5"
+    done = subprocess.run([sys.executable, "-m", "dynfab.cli", "run", str(scene), "--out",
+                           str(out), "--quiet"], capture_output=True, text=True)
+    assert done.returncode == 3, done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1
+    match = re.fullmatch(
+        r"dynfab: error: load step 2/2 \(load 0\.0001 5e-05 N\): fabric: crossing \(warp (\d), "
+        r"weft (\d)\) keeps opening and closing at g = 0, where Gralen's friction limit jumps "
+        r"by beta\*ell\*r_f = 0\.002 N \(R_0 = 0 N\); no open/closed state consistent with the "
+        r"contact and friction laws was found \(residual (\S+) N, tolerance 1e-11 N\); the 1 "
+        r"finished steps are kept", lines[0])
+    assert match, lines[0]
+    assert 1 <= int(match[1]) <= 4 and 1 <= int(match[2]) <= 4
+    assert float(match[3]) > 1e-11
+    with h5py.File(out) as results:
+        assert results["steps/residual"].shape == (1,)
+
+
+def test_the_onset_converges_at_first_order_to_the_jump_law():
+    """docs/model.md section 4: as R_0 -> 0 the solution converges at first order to the
+    set-valued closure of the jump. A 2 x 2 patch stretched by displacement, where one
+    crossing is held near g = 0 with R about R_0 / 4: the change of the positions from
+    R_0 to R_0 / 2 halves with R_0 (ratio 2 + O(R_0): its error halves too), far above the
+    solver's position error, the tolerance times ||H^-1||_inf (docs/model.md (5.7))."""
+    text = patch(2, 1e-5, "displacement", np.linspace(1e-6, 2e-5, 8)[:2],
+                 np.linspace(0.0, 1e-5, 8)[:2])
+    spec = fabric_spec(parse_scene_text(text))
+    onsets = 1.6e-5 / 2.0 ** np.arange(6)
+    positions, smallest = [], []
+    for onset in onsets:
+        solver = FabricStaticSolver(replace(spec, friction=replace(spec.friction,
+                                                                   onset_force=onset)))
+        state, records = solver.run()
+        limit = np.ravel(records[-1]["friction_limit"])
+        H = solver.hessian(state.positions, state.anchors, limit).toarray()
+        bound = spec.tolerance * np.abs(np.linalg.inv(H)).sum(axis=1).max()
+        positions.append(state.positions)
+        smallest.append(np.min(records[-1]["contact_force"]))
+    # the crossing held at the onset: R proportional to R_0
+    assert np.all(np.array(smallest) < 0.5 * onsets) and np.all(np.array(smallest) > 0)
+    change = np.array([np.abs(a - b).max() for a, b in zip(positions, positions[1:])])
+    assert change[-1] > 100 * 2 * bound  # each difference of two solutions resolved
+    ratio = change[:-1] / change[1:]
+    error = np.abs(ratio - 2.0)
+    assert error[-1] < 0.1
+    assert np.all(error[1:] < 0.75 * error[:-1])  # the O(R_0) term halving with R_0
+
+
+def test_a_step_the_fallback_cannot_solve_names_its_crossing(monkeypatch):
+    """With the active set's budget cut to one max_iterations (200 Newton iterations; the
+    step needs about 1,600), the step of `test_force_control_at_a_small_onset_force` stops
+    with a SolverError naming a crossing as the scene counts it, the onset and the laws'
+    residual reached (above the tolerance), not a silent state."""
+    import dynfab.fabric.static as fabric_static
+    from dynfab.errors import SolverError
+
+    monkeypatch.setattr(fabric_static, "FALLBACK_BUDGET", 1)
+    solver = FabricStaticSolver(fabric_spec(parse_scene_text(
+        patch(4, 1e-7, "force", [0.0, 1e-4], [0.0, 5e-5]))))
+    state, _ = solver.step(solver.initial_state(), 0.0, 0.0)
+    try:
+        solver.step(state, 1e-4, 5e-5)
+    except SolverError as error:
+        message = str(error)
+    else:
+        raise AssertionError("the step was solved within 200 iterations")
+    match = re.fullmatch(r"fabric: crossing \(warp ([1-4]), weft ([1-4])\) at the friction onset "
+                         r"\(R_0 = 1e-07 N\): no open/closed state consistent with the contact "
+                         r"and friction laws was found, also by continuation in R_0 from 0\.001 N "
+                         r"\((\d+) Newton iterations, at most 1 x static\.max_iterations; "
+                         r"residual (\S+) N, tolerance 1e-11 N\)", message)
+    assert match, message
+    assert float(match[4]) > 1e-11
