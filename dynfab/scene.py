@@ -853,7 +853,7 @@ def _check_no_fabric_keys(scene: Scene) -> None:
 
 def _check_fabric(scene: Scene) -> None:
     """What a fabric scene must be (docs/model.md section 10)."""
-    g, weft, load = scene.geometry, scene.weft, scene.load
+    g, weft = scene.geometry, scene.weft
     if scene.sweep:
         raise _sweep_in_fabric()
     if weft.tension != 0.0:
