@@ -274,7 +274,7 @@ def test_dynfab_run_on_a_fabric_scene_from_the_command_line(tmp_path):
 
 @pytest.mark.parametrize("key, value", [("dynamic.masses", '"physical"'),
                                         ("dynamic.precision", '"float32"'),
-                                        ("dynamic.damping", '"viscous"')])
+                                        ("dynamic.damping", '"viscous"')])  # without its c
 def test_the_dynamic_fabric_solver_refuses_settings_it_would_ignore(key, value):
     """A [dynamic] key the fabric's relaxation does not implement is refused in one line
     naming it, not silently run as the default."""
@@ -282,6 +282,22 @@ def test_the_dynamic_fabric_solver_refuses_settings_it_would_ignore(key, value):
     text = small_pullout() + f"\n[{table}]\n{name} = {value}\n"
     with pytest.raises(UserError, match=rf"^dynamic\.{name} = "):
         run(parse_scene_text(text), "dynamic")
+
+
+def test_viscous_damping_with_a_given_coefficient_relaxes_to_the_static_solution():
+    """Explicit with viscous damping, c given (the fabric has no adaptive c): the first two
+    steps of the small pull-out agree with the static solver within twice position_bound,
+    as the kinetic relaxation does (test_dynamic_fabric_run_equals_the_static_one...)."""
+    text = re.sub(r"^values = .*$", "values = [0, 0.0005]", small_pullout(), flags=re.M)
+    text = re.sub(r"^weft_values = .*$", "weft_values = [1e-4, 2e-4]", text, flags=re.M)
+    viscous = text + '\n[dynamic]\ndamping = "viscous"\ndamping_coefficient = 0.01\n'
+    model = FabricModel.from_scene(parse_scene_text(text))
+    static, dynamic = run(parse_scene_text(text), "static"), run(parse_scene_text(viscous), "dynamic")
+    assert dynamic.attrs["dynamic_damping"] == "viscous"
+    for i in range(static.step_count):
+        tol = 2 * position_bound(model, static, i)
+        np.testing.assert_allclose(dynamic.steps["positions"][i], static.steps["positions"][i],
+                                   rtol=0, atol=tol)
 
 
 @pytest.mark.parametrize("key", ["static.accuracy", "dynamic.accuracy"])

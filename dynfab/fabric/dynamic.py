@@ -79,7 +79,8 @@ class FabricDynamicSolver:
 
     def __init__(self, spec: FabricSpec, device: str = "cpu", damping: str = "kinetic",
                  tolerance: float | None = None, max_steps: int = MAX_STEPS,
-                 layout: str | None = None, method: str = "explicit"):
+                 layout: str | None = None, method: str = "explicit",
+                 damping_coefficient: float | None = None):
         if method not in METHODS:
             raise UserError(f"fabric: dynamic.method = {method!r} unknown; one of {METHODS}")
         if method == "semi_implicit" and (spec.boundary != "clamped" or spec.planes != "fixed"):
@@ -94,8 +95,11 @@ class FabricDynamicSolver:
         self.arrays = fabric_arrays.build(spec)
         # the kernels built with friction in every case (F_T = k_t = 0 without it): one
         # variant per damping, the one the kernel tests build
-        self.relaxation = fabric_explicit.FabricExplicit(self.arrays, device=device, layout=layout,
-                                                         damping=damping, friction=True) \
+        if damping == "viscous" and damping_coefficient is None:
+            raise UserError("fabric: viscous damping needs its coefficient c [1/s] (no adaptive c)")
+        self.relaxation = fabric_explicit.FabricExplicit(
+            self.arrays, device=device, layout=layout, damping=damping, friction=True,
+            coefficient=damping_coefficient or 0.0) \
             if method == "explicit" else fabric_semi_implicit.FabricSemiImplicit(
                 self.arrays, device=device, layout=layout)
         self.method = method

@@ -187,7 +187,8 @@ class FabricSolver:
                                               damping=dynamic.damping_used(),
                                               tolerance=dynamic.tolerance,
                                               max_steps=dynamic.max_steps,
-                                              method=dynamic.method)
+                                              method=dynamic.method,
+                                              damping_coefficient=dynamic.damping_coefficient)
 
     def attrs(self) -> dict:
         spec = self.model.spec
@@ -265,7 +266,7 @@ def build_run(scene: Scene, solver: str, device: str | None, options: dict):
 
 
 _DYNAMIC_SUPPORTED = {"mode": "quasi_static", "method": "explicit", "precision": "float64",
-                      "masses": None, "dt": None, "damping_coefficient": None, "safety": 0.9}
+                      "masses": None, "dt": None, "safety": 0.9}
 """The [dynamic] settings the fabric's dynamic solver runs (`FabricDynamicSolver`: a
 quasi-static explicit relaxation in float64 with its own fictitious masses and time step);
 any other value is refused rather than ignored; method "semi_implicit" is accepted too
@@ -283,6 +284,7 @@ def _check_dynamic_keys(dynamic) -> None:
         if value != supported:
             raise UserError(f"dynamic.{key} = {value!r}: the fabric's dynamic solver runs "
                             f"{key} = {supported!r} only (docs/model.md section 10)")
-    if dynamic.damping_used() == "viscous":
+    if dynamic.damping_used() == "viscous" and dynamic.damping_coefficient is None:
         raise UserError("dynamic.damping = 'viscous': the fabric's dynamic solver has no "
-                        "adaptive viscous coefficient; use \"kinetic\" or \"fire\"")
+                        "adaptive viscous coefficient; give dynamic.damping_coefficient [1/s] "
+                        "or use \"kinetic\" or \"fire\"")
