@@ -57,7 +57,8 @@ import warp as wp
 
 from dynfab.kernels import fabric_arrays, fabric_forces, fire as fire_module, status
 from dynfab.kernels.configuration import MODULE_OPTIONS
-from dynfab.kernels.precision import VECTORS, numpy_dtype
+from dynfab.kernels.fabric_relaxation import PatchRelaxation
+from dynfab.kernels.precision import VECTORS
 
 LAYOUTS = ("persistent", "per_step")
 ENERGY_BLOCK = 256
@@ -289,7 +290,7 @@ class Outcome:
     """max |f| over the free dofs at the final positions [N]."""
 
 
-class FabricExplicit:
+class FabricExplicit(PatchRelaxation):
     """Explicit relaxation of one patch on one device (docs/model.md sections 5, 10)."""
 
     def __init__(self, arrays: fabric_arrays.PatchArrays, *, device: str = "cpu",
@@ -302,46 +303,17 @@ class FabricExplicit:
             raise ValueError(f"layout {layout!r} or damping {damping!r} unknown")
         if layout == "per_step" and damping == "fire":
             raise ValueError("FIRE runs in the persistent layout only")
-        self.arrays, self.device, self.layout, self.damping = arrays, device, layout, damping
-        self.scalar, self.dtype, self.vec = scalar, numpy_dtype(scalar), VECTORS[scalar]
-        self.dt, self.coefficient = dt, coefficient if damping == "viscous" else 0.0
+        self._allocate(arrays, device, layout, scalar, dt)
+        self.damping = damping
+        self.coefficient = coefficient if damping == "viscous" else 0.0
         self.check_interval, self.order = check_interval, order
         self.has_friction = bool(arrays.friction_law[3] > 0.0) if friction is None else friction
-        self.fabric = fabric_arrays.upload(arrays, scalar, device)
-        self.mass = self._array(fabric_arrays.gershgorin_masses(arrays, dt), scalar)
         self.share = self._array(fabric_arrays.energy_shares(arrays), scalar)
-        n, crossings = arrays.nodes, arrays.crossings
-        self.vel, self.force = (self._array(np.zeros((n, 2)), self.vec) for _ in range(2))
-        self.contact = self._array(np.zeros(crossings), scalar)
-        self.friction = self._array(np.zeros((crossings, 2)), self.vec)
 
-    def _array(self, values, dtype):
-        return wp.array(np.asarray(values, self.dtype), dtype=dtype, device=self.device)
-
-    def relax(self, positions: np.ndarray, external: np.ndarray, tolerance: float,
-              max_steps: int, anchors: np.ndarray | None = None) -> tuple[np.ndarray, Outcome]:
-        """Relax from `positions` (n, 2) [m] at rest under the nodal forces `external` (n, 2) [N],
-        the friction anchors `anchors` (C, 2) [m] held (default: at the as-woven crossings)."""
-        pos = self._array(positions, self.vec)
-        self.vel.zero_()
-        load = self._array(external, self.vec)
-        if anchors is None:
-            anchors = np.zeros((self.arrays.crossings, 2))
-        self.anchors = self._array(anchors, self.vec)
+    def _run(self, pos, load, tolerance, max_steps):
         if self.layout == "persistent":
-            outcome = self._persistent(pos, load, tolerance, max_steps)
-        else:
-            pos, outcome = self._per_step(pos, load, tolerance, max_steps)
-        return pos.numpy().astype(float), outcome
-
-    def return_map(self, positions: np.ndarray, anchors: np.ndarray) -> np.ndarray:
-        """The anchors (C, 2) [m] after the radial return map at `positions`
-        (docs/model.md sections 4, 10)."""
-        updated = self._array(anchors, self.vec)
-        wp.launch(fabric_forces.kernels(self.scalar, self.has_friction).return_map,
-                  dim=self.arrays.crossings, device=self.device,
-                  inputs=[self._array(positions, self.vec), self.fabric, updated])
-        return updated.numpy().astype(float)
+            return pos, self._persistent(pos, load, tolerance, max_steps)
+        return self._per_step(pos, load, tolerance, max_steps)
 
     def _persistent(self, pos, load, tolerance, max_steps) -> Outcome:
         code = wp.zeros(2, dtype=wp.int32, device=self.device)

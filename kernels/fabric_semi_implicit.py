@@ -68,7 +68,8 @@ from dynfab.banded import BANDWIDTH
 from dynfab.kernels import fabric_arrays, fabric_explicit, fabric_forces, status
 from dynfab.kernels import friction as friction_module
 from dynfab.kernels.configuration import MODULE_OPTIONS
-from dynfab.kernels.precision import VECTORS, numpy_dtype
+from dynfab.kernels.fabric_relaxation import PatchRelaxation
+from dynfab.kernels.precision import VECTORS
 
 CG_TOLERANCE = 1e-2
 """CG stops at sqrt(r^T P^-1 r / b^T P^-1 b) <= this [-] (see the module docstring)."""
@@ -824,7 +825,7 @@ class SemiOutcome:
     """Steps undone by the time step rule."""
 
 
-class FabricSemiImplicit:
+class FabricSemiImplicit(PatchRelaxation):
     """Semi-implicit relaxation of one patch on one device (docs/model.md sections 5, 10); the
     interface of `fabric_explicit.FabricExplicit` (relax, return_map)."""
 
@@ -835,33 +836,13 @@ class FabricSemiImplicit:
             layout = fabric_explicit.default_layout(device)
         if layout not in fabric_explicit.LAYOUTS:
             raise ValueError(f"layout {layout!r} unknown")
-        self.arrays, self.device, self.scalar, self.layout = arrays, device, scalar, layout
-        self.dtype, self.vec = numpy_dtype(scalar), VECTORS[scalar]
-        self.dt, self.coefficient, self.cg_tolerance = dt, coefficient, cg_tolerance
-        self.fabric = fabric_arrays.upload(arrays, scalar, device)
-        self.mass = self._array(fabric_arrays.gershgorin_masses(arrays, dt), scalar)
+        self._allocate(arrays, device, layout, scalar, dt)
+        self.coefficient, self.cg_tolerance = coefficient, cg_tolerance
         self.work = allocate(arrays, scalar, device)
-        n, crossings = arrays.nodes, arrays.crossings
-        self.vel, self.force = (self._array(np.zeros((n, 2)), self.vec) for _ in range(2))
-        self.contact = self._array(np.zeros(crossings), scalar)
-        self.friction = self._array(np.zeros((crossings, 2)), self.vec)
 
-    def _array(self, values, dtype):
-        return wp.array(np.asarray(values, self.dtype), dtype=dtype, device=self.device)
-
-    def relax(self, positions: np.ndarray, external: np.ndarray, tolerance: float,
-              max_steps: int, anchors: np.ndarray | None = None) -> tuple[np.ndarray, SemiOutcome]:
-        """Relax from `positions` (n, 2) [m] at rest under nodal forces `external` (n, 2) [N],
-        the friction anchors (C, 2) [m] held (default: at the as-woven crossings)."""
-        pos = self._array(positions, self.vec)
-        self.vel.zero_()
-        load = self._array(external, self.vec)
-        if anchors is None:
-            anchors = np.zeros((self.arrays.crossings, 2))
-        self.anchors = self._array(anchors, self.vec)
+    def _run(self, pos, load, tolerance, max_steps):
         relax = self._persistent if self.layout == "persistent" else self._per_step
-        outcome = relax(pos, load, tolerance, max_steps)
-        return pos.numpy().astype(float), outcome
+        return pos, relax(pos, load, tolerance, max_steps)
 
     def _persistent(self, pos, load, tolerance, max_steps) -> SemiOutcome:
         code = wp.zeros(4, dtype=wp.int32, device=self.device)
@@ -940,15 +921,6 @@ class FabricSemiImplicit:
                 since_best += 1
             steps = step + 1
         return SemiOutcome(code, steps, residual, iterations, rejected)
-
-    def return_map(self, positions: np.ndarray, anchors: np.ndarray) -> np.ndarray:
-        """The anchors (C, 2) [m] after the radial return map at `positions` (the explicit
-        solver's kernel)."""
-        updated = self._array(anchors, self.vec)
-        wp.launch(fabric_forces.kernels(self.scalar, True).return_map, dim=self.arrays.crossings,
-                  device=self.device,
-                  inputs=[self._array(positions, self.vec), self.fabric, updated])
-        return updated.numpy().astype(float)
 
     def system(self, positions, external, anchors, velocities=None, *, dt: float = 1.0,
                definite: bool = True, solve: bool = False, masses: np.ndarray | None = None,

@@ -1,0 +1,67 @@
+"""What every relaxation of one fabric patch on one device holds, and how it is driven
+(docs/model.md sections 5, 10).
+
+`PatchRelaxation` is the base of `fabric_explicit.FabricExplicit` and
+`fabric_semi_implicit.FabricSemiImplicit`: the patch's arrays uploaded once
+(`fabric_arrays.upload`), the Gershgorin masses at the fictitious time step, the velocity,
+force, contact-force and friction-force arrays the kernels update in place; `relax`
+(start at rest from given positions under given nodal forces, the friction anchors held,
+then the subclass's `_run` in its layout) and `return_map` (the anchors' radial return,
+docs/model.md section 4, one thread per crossing).
+"""
+
+import numpy as np
+import warp as wp
+
+from dynfab.kernels import fabric_arrays, fabric_forces
+from dynfab.kernels.precision import VECTORS, numpy_dtype
+
+
+class PatchRelaxation:
+    """A patch's device arrays and the relax / return_map interface; subclasses give `_run`."""
+
+    has_friction: bool = True
+    """Whether the kernels are built with the friction terms (the return map's variant)."""
+
+    def _allocate(self, arrays: fabric_arrays.PatchArrays, device: str, layout: str, scalar,
+                  dt: float) -> None:
+        """Upload the patch and allocate the state the kernels update (every field zero)."""
+        self.arrays, self.device, self.layout, self.dt = arrays, device, layout, dt
+        self.scalar, self.dtype, self.vec = scalar, numpy_dtype(scalar), VECTORS[scalar]
+        self.fabric = fabric_arrays.upload(arrays, scalar, device)
+        self.mass = self._array(fabric_arrays.gershgorin_masses(arrays, dt), scalar)
+        n, crossings = arrays.nodes, arrays.crossings
+        self.vel, self.force = (self._array(np.zeros((n, 2)), self.vec) for _ in range(2))
+        self.contact = self._array(np.zeros(crossings), scalar)
+        self.friction = self._array(np.zeros((crossings, 2)), self.vec)
+
+    def _array(self, values, dtype):
+        return wp.array(np.asarray(values, self.dtype), dtype=dtype, device=self.device)
+
+    def relax(self, positions: np.ndarray, external: np.ndarray, tolerance: float,
+              max_steps: int, anchors: np.ndarray | None = None):
+        """Relax from `positions` (n, 2) [m] at rest under the nodal forces `external` (n, 2)
+        [N], the friction anchors `anchors` (C, 2) [m] held (default: at the as-woven
+        crossings), until the residual is at most `tolerance` [N] or `max_steps` time steps;
+        returns (positions (n, 2) [m], the subclass's outcome)."""
+        pos = self._array(positions, self.vec)
+        self.vel.zero_()
+        load = self._array(external, self.vec)
+        if anchors is None:
+            anchors = np.zeros((self.arrays.crossings, 2))
+        self.anchors = self._array(anchors, self.vec)
+        pos, outcome = self._run(pos, load, tolerance, max_steps)
+        return pos.numpy().astype(float), outcome
+
+    def _run(self, pos, load, tolerance: float, max_steps: int):
+        """(final positions array, outcome) of the relaxation in this solver's layout."""
+        raise NotImplementedError
+
+    def return_map(self, positions: np.ndarray, anchors: np.ndarray) -> np.ndarray:
+        """The anchors (C, 2) [m] after the radial return map at `positions`
+        (docs/model.md sections 4, 10)."""
+        updated = self._array(anchors, self.vec)
+        wp.launch(fabric_forces.kernels(self.scalar, self.has_friction).return_map,
+                  dim=self.arrays.crossings, device=self.device,
+                  inputs=[self._array(positions, self.vec), self.fabric, updated])
+        return updated.numpy().astype(float)
