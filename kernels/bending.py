@@ -141,4 +141,5 @@ def functions(scalar) -> SimpleNamespace:
                         + selector_b(p) * selector_b(q) * hb
                     band_ops.add_block(band, y, i - 1 + p, i - 1 + q, block)
 
-    return SimpleNamespace(energy=energy, add_gradient=add_gradient, add_hessian=add_hessian)
+    return SimpleNamespace(energy=energy, add_gradient=add_gradient, add_hessian=add_hessian,
+                           theta_hessian=theta_hessian)

@@ -66,7 +66,7 @@ import warp as wp
 
 from dynfab.banded import BANDWIDTH
 from dynfab.kernels import fabric_arrays, fabric_explicit, fabric_forces, status
-from dynfab.kernels import friction as friction_module
+from dynfab.kernels import bending as bending_module, friction as friction_module
 from dynfab.kernels.configuration import MODULE_OPTIONS
 from dynfab.kernels.fabric_relaxation import PatchRelaxation
 from dynfab.kernels.precision import VECTORS
@@ -205,13 +205,7 @@ def functions(scalar) -> SimpleNamespace:
 
     # ---------------------------------------------------------------- the tangent K
 
-    @wp.func
-    def theta_hessian(v: vec) -> mat:
-        """d2theta/dv2 [1/m^2] of theta(v) = atan2(v_z, v_s) (`kernels/bending.py`)."""
-        n2 = wp.dot(v, v) * wp.dot(v, v)
-        hxx = scalar(2.0) * v[0] * v[1] / n2
-        hxz = (v[1] * v[1] - v[0] * v[0]) / n2
-        return mat(hxx, hxz, hxz, -hxx)
+    theta_hessian = bending_module.functions(scalar).theta_hessian  # d2theta/dv2 [1/m^2]
 
     @wp.func
     def add_stretch(band: wp.array2d(dtype=scalar), pos: wp.array(dtype=vec), fabric: Fabric,
