@@ -2,10 +2,12 @@
 
 Clamped 4 x 4 patches of the paper's yarns at small loads, where crossings open and close
 and sit at the onset: steps the frozen-F_T and coupled Newton (`solve_frozen`) cannot
-reach, which the open/closed active set with its continuation in R_0 now solves, each
-state checked against Gralen's law and the contact law evaluated here independently; the
-literal jump law (R_0 = 0) stopping with exit status 3 naming a crossing; and R_0 -> 0
-converging at first order (docs/model.md section 4).
+reach, which the under-relaxed fixed point on F_T and the open/closed active set with its
+continuation in R_0 now solve (the two agreeing where both are run), each state checked
+against Gralen's law and the contact law evaluated here independently; a 5 x 5 patch
+whose plain fixed point on F_T cycles; the literal jump law (R_0 = 0) stopping with exit
+status 3 naming a crossing; and R_0 -> 0 converging at first order (docs/model.md
+section 4).
 """
 
 import re
@@ -224,3 +226,28 @@ def test_a_fixed_point_on_friction_that_cycles_is_relaxed(monkeypatch):
     check_consistent(solver, state, new, record, (1e-4, 5e-5))
     pos, anchors, P = solver.start_of_step(state, 1e-4, 5e-5)
     assert not solver.solve_frozen(pos, P, anchors)[0].converged
+
+
+def test_the_relaxed_fixed_point_and_the_active_set_reach_the_same_state():
+    """With R_0 > 0 a step's solution is unique (docs/model.md section 4), so the two
+    fallbacks, each from the step's start, must agree: on the step of
+    `test_force_control_at_a_small_onset_force` (which the relaxed fixed point now solves
+    first) the active set with its continuation in R_0 is run too, and the positions differ
+    by at most twice the position error of a residual within the tolerance,
+    tolerance ||H^-1||_inf (docs/model.md (5.7))."""
+    import dynfab.fabric.static as fabric_static
+
+    solver = FabricStaticSolver(fabric_spec(parse_scene_text(
+        patch(4, 1e-7, "force", [0.0, 1e-4], [0.0, 5e-5]))))
+    state, _ = solver.step(solver.initial_state(), 0.0, 0.0)
+    solved = []
+    for fallback in (solver.solve_relaxed, solver.solve_on_sets):
+        pos, anchors, P = solver.start_of_step(state, 1e-4, 5e-5)
+        solver._budget = fabric_static.FALLBACK_BUDGET * solver.spec.max_iterations
+        assert fallback(pos, P, anchors)[0].converged
+        assert solver.law_residual(pos, P, anchors) <= solver.spec.tolerance
+        solved.append(pos)
+    H = solver.hessian(solved[0], anchors, solver.friction_limits(solved[0])).toarray()
+    bound = solver.spec.tolerance * np.abs(np.linalg.inv(H)).sum(axis=1).max()
+    assert np.abs(solved[0] - solved[1]).max() <= 2 * bound
+    assert np.abs(solved[0] - state.positions).max() > 1e3 * bound  # the step moved the patch
