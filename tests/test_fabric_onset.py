@@ -2,10 +2,12 @@
 
 Clamped 4 x 4 patches of the paper's yarns at small loads, where crossings open and close
 and sit at the onset: steps the frozen-F_T and coupled Newton (`solve_frozen`) cannot
-reach, which the open/closed active set with its continuation in R_0 now solves, each
-state checked against Gralen's law and the contact law evaluated here independently; the
-literal jump law (R_0 = 0) stopping with exit status 3 naming a crossing; and R_0 -> 0
-converging at first order (docs/model.md section 4).
+reach, which the under-relaxed fixed point on F_T and the open/closed active set with its
+continuation in R_0 now solve (the two agreeing where both are run), each state checked
+against Gralen's law and the contact law evaluated here independently; a 5 x 5 patch
+whose plain fixed point on F_T cycles; the literal jump law (R_0 = 0) stopping with exit
+status 3 naming a crossing; and R_0 -> 0 converging at first order (docs/model.md
+section 4).
 """
 
 import re
@@ -191,3 +193,61 @@ def test_a_step_the_fallback_cannot_solve_names_its_crossing(monkeypatch):
                          r"residual (\S+) N, tolerance 1e-11 N\)", message)
     assert match, message
     assert float(match[4]) > 1e-11
+
+
+def test_a_fixed_point_on_friction_that_cycles_is_relaxed(monkeypatch):
+    """A 5 x 5 patch under 0.1 mN per warp and 0.05 mN per weft (R_0 = 1e-5 N), its first
+    step: crossings sit at g ~ 1e-9 m with R ~ R_0 / 100, where dF_T/dR = beta ell r_f / R_0
+    = 200, and the plain fixed point on F_T falls into a 2-cycle (a crossing closed in
+    one solve is open in the next and closed again in the one after); `solve_frozen`
+    stalls, and so did the active set's fallback that followed (no consistent state in
+    31,770 Newton iterations, about 90 s: too long to show here). The under-relaxed fixed
+    point (`solve_relaxed`) reaches a state consistent with the laws, without the active
+    set's fallback."""
+    text = patch(5, 1e-5, "force", [1e-4], [5e-5])
+    solver = FabricStaticSolver(fabric_spec(parse_scene_text(text)))
+    state = solver.initial_state()
+    pos, anchors, P = solver.start_of_step(state, 1e-4, 5e-5)
+    limit = solver.friction_limits(pos)
+    closed = []
+    for _ in range(30):  # the plain update, F_T = the law at the last solution
+        assert solver.newton(pos, P, anchors, limit).converged
+        limit = solver.friction_limits(pos)
+        closed.append(solver.closures(pos) > 0)
+    assert np.array_equal(closed[-1], closed[-3]) and np.array_equal(closed[-2], closed[-4])
+    assert not np.array_equal(closed[-1], closed[-2])
+    assert solver.law_residual(pos, P, anchors) > 1e3 * solver.spec.tolerance
+
+    def no_active_set(*args):
+        raise AssertionError("the active set's fallback was needed")
+
+    monkeypatch.setattr(solver, "solve_on_sets", no_active_set)
+    new, record = solver.step(state, 1e-4, 5e-5)
+    check_consistent(solver, state, new, record, (1e-4, 5e-5))
+    pos, anchors, P = solver.start_of_step(state, 1e-4, 5e-5)
+    assert not solver.solve_frozen(pos, P, anchors)[0].converged
+
+
+def test_the_relaxed_fixed_point_and_the_active_set_reach_the_same_state():
+    """With R_0 > 0 a step's solution is unique (docs/model.md section 4), so the two
+    fallbacks, each from the step's start, must agree: on the step of
+    `test_force_control_at_a_small_onset_force` (which the relaxed fixed point now solves
+    first) the active set with its continuation in R_0 is run too, and the positions differ
+    by at most twice the position error of a residual within the tolerance,
+    tolerance ||H^-1||_inf (docs/model.md (5.7))."""
+    import dynfab.fabric.static as fabric_static
+
+    solver = FabricStaticSolver(fabric_spec(parse_scene_text(
+        patch(4, 1e-7, "force", [0.0, 1e-4], [0.0, 5e-5]))))
+    state, _ = solver.step(solver.initial_state(), 0.0, 0.0)
+    solved = []
+    for fallback in (solver.solve_relaxed, solver.solve_on_sets):
+        pos, anchors, P = solver.start_of_step(state, 1e-4, 5e-5)
+        solver._budget = fabric_static.FALLBACK_BUDGET * solver.spec.max_iterations
+        assert fallback(pos, P, anchors)[0].converged
+        assert solver.law_residual(pos, P, anchors) <= solver.spec.tolerance
+        solved.append(pos)
+    H = solver.hessian(solved[0], anchors, solver.friction_limits(solved[0])).toarray()
+    bound = solver.spec.tolerance * np.abs(np.linalg.inv(H)).sum(axis=1).max()
+    assert np.abs(solved[0] - solved[1]).max() <= 2 * bound
+    assert np.abs(solved[0] - state.positions).max() > 1e3 * bound  # the step moved the patch

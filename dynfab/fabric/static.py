@@ -20,8 +20,10 @@ continues from where it stands (and if it fails, more frozen solves, then it aga
 `dynfab.fabric.friction`).
 
 At the friction onset (docs/model.md section 4: crossings near g = 0, where the contact
-tangent and dF_T/dg jump) that can stall. The step is then solved again from its start
-as the one-yarn solver does (`solve_on_sets`, sharing `dynfab.active_set`): the open/closed
+tangent and dF_T/dg jump) that can stall. The step is then solved again from its start,
+first by the fixed point on F_T under-relaxed (`solve_relaxed`: where many crossings sit
+at g ~ 0 with R << R_0 the plain update cycles, crossings opening and closing in turn),
+then as the one-yarn solver does (`solve_on_sets`, sharing `dynfab.active_set`): the open/closed
 set of the crossings held fixed during each solve (a crossing held open carries no
 force at any g; one held closed the unilateral force with the closed side's tangent
 across g = 0) and updated where the state contradicts it, first at the scene's R_0, then
@@ -30,7 +32,8 @@ updates that keep switching a crossing stop the step. Either way the state accep
 consistent with the unilateral law and Gralen's (the residual with F_T from the law at
 the solution's R within the tolerance). A step that still fails raises a SolverError
 naming the crossing (warp k, weft j) to blame and the residual reached. (The one-yarn
-solver's semismooth fallback is not ported.)
+solver's semismooth fallback is not ported: on the fabric it stalled from the step's start
+where the relaxed fixed point converges, docs/model.md section 10.)
 
 Globalisation (docs/model.md section 6): a backtracking line search on the energy (F_T frozen);
 where the energy change is within its rounding, a step that lowers the residual is
@@ -93,6 +96,20 @@ FALLBACK_BUDGET = 150
 them it stops with its failure. The hardest 4 x 4 steps tried needed 23,125 (a 60-step
 equal biaxial path, step 14) and 17,756 (weft ends compressed, step 4) of the 30,000 this
 gives at max_iterations = 200; an 8 x 8 patch at 0.1 mN per warp found no state in 6,017."""
+RELAXED_BUDGET = 10
+"""Newton iterations of the relaxed fixed point on F_T (`solve_relaxed`), in units of
+`max_iterations`, taken from the fallback's FALLBACK_BUDGET: an 8 x 8 patch at 0.1 mN per
+warp (R_0 = 1e-5 N) needed 140 (25 solves, then the coupled Newton)."""
+RELAXATION_START = 0.5
+"""The first weight w of the relaxed update F_T <- F_T + w (law(R) - F_T)."""
+RELAXATION_MIN = 1.0 / 64.0
+"""The smallest weight: on that patch w = 0.3 still wandered after 60 solves, w = 0.05
+contracted the laws' residual by about 0.955 per solve."""
+RELAXATION_PATIENCE = 5
+"""Relaxed solves without a new lowest residual of the laws after which w is halved."""
+RELAXED_COUPLED_EVERY = 25
+"""Relaxed solves between attempts of the coupled Newton (COUPLED_FIRST iterations) from the
+state reached: once the open/closed set has settled it converges in a few iterations."""
 CYCLING_REASON, ONSET_REASON = "cycling", "onset"
 """Why a step failed, in `NewtonInfo.reason` (the message of `FabricStaticSolver.step`)."""
 
@@ -429,9 +446,66 @@ class FabricStaticSolver:
             return info, limit, outer
         iterations = info.iterations
         pos[:, :] = start
+        self._budget = FALLBACK_BUDGET * self.spec.max_iterations
+        if self.fabric.friction_onset > 0.0:
+            info, more = self.solve_relaxed(pos, P, anchors)
+            iterations += info.iterations
+            outer += more
+            if info.converged:
+                info.iterations = iterations
+                return info, self.friction_limits(pos), outer
+            pos[:, :] = start
         info, more = self.solve_on_sets(pos, P, anchors)
         info.iterations += iterations
         return info, self.friction_limits(pos), outer + more
+
+    def solve_relaxed(self, pos, P, anchors) -> tuple[NewtonInfo, int]:
+        """The friction onset's first fallback (docs/model.md section 10, fabric decisions), in
+        place: the fixed point on F_T under-relaxed, F_T <- F_T + w (law(R) - F_T) between
+        Newton solves with F_T frozen. Where many crossings sit at g ~ 0 with R << R_0 the
+        plain update (w = 1) falls into a 2-cycle, crossings opening and closing in turn
+        (dF_T/dR = beta ell r_f / R_0 there); w starts at RELAXATION_START and halves
+        whenever RELAXATION_PATIENCE solves bring no new lowest residual of the laws, down
+        to RELAXATION_MIN. Every RELAXED_COUPLED_EVERY solves the coupled Newton
+        (`coupled_newton`, COUPLED_FIRST iterations) is tried from the state reached: it
+        converges once the open/closed set has settled. Accepted only when the residual
+        with F_T from the law at the solution is within the tolerance; at most
+        RELAXED_BUDGET x max_iterations Newton iterations, taken from the fallback's
+        budget. Returns (info, solves)."""
+        budget = min(self._budget, RELAXED_BUDGET * self.spec.max_iterations)
+        limit = self.friction_limits(pos)
+        weight, best, since = RELAXATION_START, np.inf, 0
+        iterations = solves = 0
+        info = NewtonInfo()
+        while iterations < budget:
+            info = self.newton(pos, P, anchors, limit)
+            iterations += max(info.iterations, 1)
+            solves += 1
+            if not info.converged:
+                break
+            law = self.friction_limits(pos)
+            info.residual = self.residual(self.gradient(pos, P, anchors, law))
+            if _within(info.residual, info, self.spec.tolerance):
+                break
+            if info.residual < best:
+                best, since = info.residual, 0
+            else:
+                since += 1
+                if since == RELAXATION_PATIENCE:
+                    weight, since = max(0.5 * weight, RELAXATION_MIN), 0
+            if solves % RELAXED_COUPLED_EVERY == 0:
+                trial = pos.copy()
+                coupled = self.coupled_newton(trial, P, anchors, None, COUPLED_FIRST)
+                iterations += coupled.iterations
+                if coupled.converged:
+                    pos[:, :], info = trial, coupled
+                    break
+            limit = limit + weight * (law - limit)
+        else:
+            info.converged = False
+        self._budget -= iterations
+        info.iterations = iterations
+        return info, solves
 
     def solve_frozen(self, pos, P, anchors, law=None, max_iterations=None):
         """Newton solves with F_T frozen, F_T updated between them to the law at the
@@ -483,12 +557,12 @@ class FabricStaticSolver:
         (`dynfab.active_set.onset_stages`), each stage from the last one's state and set, with
         the factors CONTINUATION_FACTORS in turn. With R_0 = 0 (the literal jump law) there
         is no continuation: the set updates at R_0 = 0 (at most MAX_FLIPS) either agree or
-        cycle, and a cycle names the crossing switched most often. All of it within
-        FALLBACK_BUDGET x max_iterations Newton iterations. Returns (info, solves)."""
+        cycle, and a cycle names the crossing switched most often. All of it within what is
+        left of the step's FALLBACK_BUDGET x max_iterations Newton iterations (`solve` sets
+        it; `solve_relaxed` takes its share first). Returns (info, solves)."""
         f = self.fabric
         start = pos.copy()
         target = f.friction_onset
-        self._budget = FALLBACK_BUDGET * self.spec.max_iterations
         branch = self._natural_set(pos)
         info, outer = self._solve_set(pos, P, anchors, branch, target,
                                       DIRECT_SET_UPDATES if target > 0.0 else MAX_FLIPS, True,
