@@ -287,24 +287,37 @@ def functions(scalar) -> SimpleNamespace:
         work.coupling[c] = vec4(tangent, h[0], cross, h[1])
 
     @wp.func
+    def crossing_term(blk: vec4, comp: int, on_warp: bool, own: scalar, partner: scalar) -> scalar:
+        """One row of a crossing's block of K times a vector [N]: `own` is the vector at the
+        row's dof, `partner` at the crossing's other node, same component (z: the contact's
+        dR/dg (own - partner); in-plane: the Huber block, h_xx/h_xy on the warp's x row,
+        h_xy/h_yy on the weft's y row)."""
+        value = blk[0] * (own - partner)
+        if comp == 0:
+            if on_warp:
+                value = blk[1] * own + blk[2] * partner
+            else:
+                value = blk[2] * partner + blk[3] * own
+        return value
+
+    @wp.func
+    def crossing_partner(i: int, c: int, fabric: Fabric) -> int:
+        """The node that crossing c joins to node i."""
+        partner = fabric.crossing_warp[c]
+        if partner == i:
+            partner = fabric.crossing_weft[c]
+        return partner
+
+    @wp.func
     def coupling_row(i: int, comp: int, x: wp.array(dtype=scalar), fabric: Fabric,
                      work: Work) -> scalar:
-        """(K_crossings x) at dof (node i, component comp) [N]."""
+        """(K_crossings x) at dof (node i, component comp) [N], x flat."""
         c = fabric.node_crossing[i]
         total = scalar(0.0)
         if c >= 0:
-            blk = work.coupling[c]
-            warp_node = fabric.crossing_warp[c]
-            weft_node = fabric.crossing_weft[c]
-            if comp == 1:
-                other = warp_node
-                if warp_node == i:
-                    other = weft_node
-                total = blk[0] * (x[2 * i + 1] - x[2 * other + 1])
-            elif warp_node == i:
-                total = blk[1] * x[2 * i] + blk[2] * x[2 * weft_node]
-            else:
-                total = blk[2] * x[2 * warp_node] + blk[3] * x[2 * i]
+            partner = crossing_partner(i, c, fabric)
+            total = crossing_term(work.coupling[c], comp, fabric.crossing_warp[c] == i,
+                                  x[2 * i + comp], x[2 * partner + comp])
         return total
 
     @wp.func
@@ -364,18 +377,10 @@ def functions(scalar) -> SimpleNamespace:
                 stiffness_velocity += band[row, j - row + BANDWIDTH] * vel[j / 2][j % 2]
             c = fabric.node_crossing[i]
             if c >= 0:
-                blk = work.coupling[c]
-                warp_node = fabric.crossing_warp[c]
-                weft_node = fabric.crossing_weft[c]
-                if comp == 1:
-                    other = warp_node
-                    if warp_node == i:
-                        other = weft_node
-                    stiffness_velocity += blk[0] * (vel[i][1] - vel[other][1])
-                elif warp_node == i:
-                    stiffness_velocity += blk[1] * vel[i][0] + blk[2] * vel[weft_node][0]
-                else:
-                    stiffness_velocity += blk[2] * vel[warp_node][0] + blk[3] * vel[i][0]
+                partner = crossing_partner(i, c, fabric)
+                stiffness_velocity += crossing_term(work.coupling[c], comp,
+                                                    fabric.crossing_warp[c] == i,
+                                                    vel[i][comp], vel[partner][comp])
             work.rhs[row] = free_dof(fabric, row) * dt * (
                 force[i][comp] - dt * stiffness_velocity - damping * mass[i] * vel[i][comp])
         for row in range(lo, hi):
