@@ -57,7 +57,7 @@ import warp as wp
 from dynfab.errors import SolverError, UserError
 from dynfab.fabric import inertia
 from dynfab.fabric.spec import FabricSpec
-from dynfab.fabric.static import MAX_ESCAPES, FabricState, FabricStaticSolver
+from dynfab.fabric.static import MAX_ESCAPES, FabricState, FabricStaticSolver, run_load_path
 from dynfab.kernels import (fabric_arrays, fabric_explicit, fabric_forces, fabric_semi_implicit,
                             status)
 
@@ -251,9 +251,4 @@ class FabricDynamicSolver:
 
     def run(self, state: FabricState | None = None):
         """Every load step of the spec in sequence; returns (final state, records)."""
-        state = self.initial_state() if state is None else state
-        records = []
-        for warp_value, weft_value in zip(*self.spec.loads()):
-            state, record = self.step(state, warp_value, weft_value)
-            records.append(record)
-        return state, records
+        return run_load_path(self, state)

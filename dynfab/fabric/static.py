@@ -167,6 +167,18 @@ def as_woven_state(fabric: Fabric) -> FabricState:
     return FabricState(pos, anchors, end_force=np.zeros(fabric.yarn_start.size - 1))
 
 
+def run_load_path(solver, state: FabricState | None = None):
+    """Every load step of `solver.spec` in sequence by `solver.step(state, warp value, weft
+    value)` (the static or the dynamic fabric solver), from `state` or the solver's initial
+    one; returns (final state, records)."""
+    state = solver.initial_state() if state is None else state
+    records = []
+    for warp_value, weft_value in zip(*solver.spec.loads()):
+        state, record = solver.step(state, warp_value, weft_value)
+        records.append(record)
+    return state, records
+
+
 @dataclass
 class NewtonInfo:
     residual: float = np.inf
@@ -867,12 +879,7 @@ class FabricStaticSolver:
 
     def run(self, state: FabricState | None = None):
         """Every load step of the spec in sequence; returns (final state, records)."""
-        state = self.initial_state() if state is None else state
-        records = []
-        for warp_value, weft_value in zip(*self.spec.loads()):
-            state, record = self.step(state, warp_value, weft_value)
-            records.append(record)
-        return state, records
+        return run_load_path(self, state)
 
     def start_of_step(self, state: FabricState, warp_value: float, weft_value: float):
         """(positions, anchors, end loads P [N]) a load step starts from, copies of the state's:
