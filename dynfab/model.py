@@ -16,6 +16,7 @@ import numpy as np
 from dynfab import geometry
 from dynfab.scene import Scene, expand_sweep, yarn_count
 from dynfab.terms import registry
+from dynfab.terms.friction import law_constants
 
 
 class Yarn(NamedTuple):
@@ -161,6 +162,7 @@ def _build_yarn(scene: Scene, phase: float) -> Yarn:
     stick = 0.0
     if friction is not None:
         stick = friction.stick_stiffness or warp.EA / (geo.length / geo.segments)
+    alpha, constant, onset = law_constants(friction)  # Gralen, docs/model.md section 4
     return Yarn(
         rest_position=rest,
         rest_length=rest_length,
@@ -172,10 +174,7 @@ def _build_yarn(scene: Scene, phase: float) -> Yarn:
         crossing_side=sides,
         gap_offset=_gap_offset(scene, rest, nodes, sides),
         contact_law=_contact_law(scene),
-        friction_alpha=float(friction.alpha) if friction else 0.0,
-        friction_constant=float(friction.beta * friction.contact_length * friction.fiber_radius)
-        if friction else 0.0,
-        friction_onset=float(friction.onset_force) if friction else 0.0,
+        friction_alpha=alpha, friction_constant=constant, friction_onset=onset,
         stick_stiffness=float(stick),
         gravity=float(scene.gravity.g) if scene.gravity else 0.0,
         active=registry.active_mask(scene),

@@ -45,6 +45,7 @@ import warp as wp
 from dynfab.fabric import layout
 from dynfab.fabric.spec import FabricSpec, Family, Friction
 from dynfab.kernels.precision import VECTORS, numpy_dtype
+from dynfab.terms.friction import law_constants
 
 PAPER_YARN = Family(length=0.1, segments=128, amplitude=0.5e-3, EA=13.72, EI=1.47e-7,
                     kawabata_C=0.2e-3, kawabata_K=0.2)
@@ -227,11 +228,9 @@ def boundary_arrays(fabric: layout.Fabric, yarn_of_node: np.ndarray) -> dict:
 def friction_law(spec: FabricSpec) -> np.ndarray:
     """(alpha, beta ell r_f, R_0, k_t) (docs/model.md sections 4, 10), k_t from
     `layout.stick_stiffness`; zeros without friction."""
-    friction = spec.friction
-    if friction is None:
+    if spec.friction is None:
         return np.zeros(4)
-    return np.array([friction.alpha, friction.beta * friction.contact_length * friction.fiber_radius,
-                     friction.onset_force, layout.stick_stiffness(spec)])
+    return np.array([*law_constants(spec.friction), layout.stick_stiffness(spec)])
 
 
 GERSHGORIN_SAFETY = 0.9

@@ -19,6 +19,7 @@ import numpy as np
 
 from dynfab import geometry
 from dynfab.fabric.spec import FabricSpec
+from dynfab.terms.friction import law_constants
 
 
 class Fabric(NamedTuple):
@@ -135,6 +136,7 @@ def build_fabric(spec: FabricSpec) -> Fabric:
     y_planes = (np.arange(spec.warps) + 0.5) * spec.weft.length / spec.warps
     friction = spec.friction
     yarns = spec.warps + spec.wefts
+    alpha, constant, onset = law_constants(friction)  # Gralen, docs/model.md section 4
     return Fabric(
         rest_position=rest, yarn_start=start,
         rest_length=np.concatenate(rest_length), stretch_stiffness=np.concatenate(stretch),
@@ -150,10 +152,7 @@ def build_fabric(spec: FabricSpec) -> Fabric:
         wrap_stiffness=wrap_k, wrap_rest_angle=wrap_angle,
         tie=ties(spec, start),
         contact_law=contact_law(spec),
-        friction_alpha=float(friction.alpha) if friction else 0.0,
-        friction_constant=float(friction.beta * friction.contact_length * friction.fiber_radius)
-        if friction else 0.0,
-        friction_onset=float(friction.onset_force) if friction else 0.0,
+        friction_alpha=alpha, friction_constant=constant, friction_onset=onset,
         stick_stiffness=stick_stiffness(spec),
         has_friction=friction is not None,
         load_node=start[1:] - 1,

@@ -31,6 +31,17 @@ INDEX = registry.index("friction")
 """The term's place in the registry: `yarn.active[INDEX]` says whether a yarn has friction."""
 
 
+def law_constants(friction) -> tuple[float, float, float]:
+    """(alpha [-], constant = beta ell r_f [N], onset R_0 [N]) of Gralen's law
+    (docs/model.md section 4) from a friction table (a scene's [friction], a fabric's
+    `Friction`: alpha, beta, contact_length, fiber_radius, onset_force); zeros for None."""
+    if friction is None:
+        return 0.0, 0.0, 0.0
+    return (float(friction.alpha),
+            float(friction.beta * friction.contact_length * friction.fiber_radius),
+            float(friction.onset_force))
+
+
 @numba.njit(cache=True)
 def limit(R, alpha, constant, onset):
     """F_T [N] from Gralen's law; `constant` = beta ell r_f [N], `onset` = R_0 [N] (0: literal)."""
