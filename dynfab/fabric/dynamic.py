@@ -60,6 +60,7 @@ from dynfab.fabric.spec import FabricSpec
 from dynfab.fabric.static import MAX_ESCAPES, FabricState, FabricStaticSolver, run_load_path
 from dynfab.kernels import (fabric_arrays, fabric_explicit, fabric_forces, fabric_semi_implicit,
                             status)
+from dynfab.terms import friction as gralen
 
 SCALAR = wp.float64
 MAX_STEPS = 2_000_000
@@ -166,9 +167,9 @@ class FabricDynamicSolver:
         """F_T [N] of Gralen's law with its onset at contact forces R (docs/model.md section 4); 0
         where open."""
         alpha, constant, onset, _ = self.arrays.friction_law
-        closed = R > 0.0
-        onset_factor = -np.expm1(-R / onset) if onset > 0.0 else np.ones_like(R)
-        return np.where(closed, alpha * R + constant * onset_factor, 0.0)
+        out = np.zeros(R.size)
+        gralen.limits(np.ascontiguousarray(R, float), alpha, constant, onset, out)
+        return out
 
     def _vectors(self, values):
         return wp.array(np.asarray(values, float), dtype=wp.vec2d, device=self.device)
