@@ -193,7 +193,7 @@ class FabricDynamicSolver:
         """Relax one load step from `state`; returns (new state, record) or raises SolverError.
         The record holds FabricStaticSolver.step's keys, iterations counting time steps, plus
         time_steps and relax_time [s] (the relaxations' wall time)."""
-        f, spec, ref = self.fabric, self.spec, self.reference
+        spec, ref = self.spec, self.reference
         pos, anchors, P = ref.start_of_step(state, warp_value, weft_value)
         began = time.perf_counter()
         pos, outcome = self.relax(pos, P, anchors)
@@ -216,10 +216,7 @@ class FabricDynamicSolver:
             steps += outcome.steps
         new_anchors, sliding, lost = self._return_map(pos, anchors, limit)
         end_force = self._end_force(pos, P, anchors)
-        u_old = state.positions[f.load_node, 0] - f.rest_position[f.load_node, 0]
-        u_new = pos[f.load_node, 0] - f.rest_position[f.load_node, 0]
-        work = state.work + float(0.5 * (state.end_force + end_force) @ (u_new - u_old))
-        new = FabricState(pos, new_anchors, state.dissipated + lost, work, end_force)
+        new, u_new = ref.end_of_step(state, pos, new_anchors, end_force, lost)
         shape = (spec.warps, spec.wefts)
         record = dict(residual=outcome.residual, iterations=steps, friction_solves=1 + escapes,
                       rounding_floor=False, contact_force=R.reshape(shape),

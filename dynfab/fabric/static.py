@@ -776,10 +776,7 @@ class FabricStaticSolver:
             px, py = assembly.planes(pos, f)
             lost = friction.return_map(pos, anchors, f.warp_node, f.weft_node, px, py, limit,
                                        f.stick_stiffness, sliding, friction_force)
-        u_old = state.positions[f.load_node, 0] - f.rest_position[f.load_node, 0]
-        u_new = pos[f.load_node, 0] - f.rest_position[f.load_node, 0]
-        work = state.work + float(0.5 * (state.end_force + end_force) @ (u_new - u_old))
-        new = FabricState(pos, anchors, state.dissipated + lost, work, end_force)
+        new, u_new = self.end_of_step(state, pos, anchors, end_force, lost)
         record = dict(residual=info.residual, iterations=info.iterations, friction_solves=outer,
                       rounding_floor=info.at_floor, contact_force=R.reshape(spec.warps, spec.wefts),
                       friction_limit=limit.reshape(spec.warps, spec.wefts),
@@ -892,6 +889,17 @@ class FabricStaticSolver:
             return pos, anchors, loads
         self._prescribe(pos, loads)
         return pos, anchors, np.zeros(self.yarns)
+
+    def end_of_step(self, state: FabricState, pos, anchors, end_force, lost: float):
+        """(the state a step from `state` ends in, the end displacements u (Y,) [m]): its
+        positions, return-mapped anchors and end forces [N]; the dissipation plus `lost` [J],
+        and the end loads' work by the trapezoid rule over the step [J]. Shared by the static
+        and the dynamic fabric solvers."""
+        f = self.fabric
+        u_old = state.positions[f.load_node, 0] - f.rest_position[f.load_node, 0]
+        u_new = pos[f.load_node, 0] - f.rest_position[f.load_node, 0]
+        work = state.work + float(0.5 * (state.end_force + end_force) @ (u_new - u_old))
+        return FabricState(pos, anchors, state.dissipated + lost, work, end_force), u_new
 
     def _prescribe(self, pos, loads) -> None:
         """Displacement control: u_N = load on each yarn, the increment spread linearly along
