@@ -399,6 +399,7 @@ def functions(scalar, has_friction: bool) -> SimpleNamespace:
 
     return SimpleNamespace(closure=closure, contact_force=contact_force, crossing_pass=crossing_pass,
                            crossing_pass_at=crossing_pass_at, plane_shift=plane_shift,
+                           slip=slip, turning_angle=turning_angle,
                            crossing_energy=crossing_energy, return_map=return_map,
                            node_force=node_force, node_energy=node_energy,
                            scatter_forces=scatter_forces)

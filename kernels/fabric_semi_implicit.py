@@ -15,9 +15,24 @@ semi-definite, F_T frozen:
 - per crossing, the contact's dR/dg >= 0 on (z_wa, z_we) as dR/dg [[1, -1], [-1, 1]];
 - per crossing with friction, the exact Huber Hessian on the slip's dofs (x_wa, s_we):
   k_t I while sticking, (F_T / |s|^3) [[s_y^2, -s_x s_y], [-s_x s_y, s_x^2]] while sliding,
-  both positive semi-definite.
+  both positive semi-definite;
+- where the planes move ("affine", the periodic cell): the rest of J_c^T H_c J_c, J_c carrying
+  -w_c on the x dofs of the end nodes moving the crossing's planes (`fabric_forces`); it is
+  never stored: the product takes U_f (x summed over family f's end nodes) and
+  G_f = sum_c w_c,f (H_c ds_c)_f (`boundary_sums`, one pass) and adds -H_c (w_c o U) on the
+  slip dofs and -G_f on the end nodes (`plane_row`);
+- the periodic wrap spring at each yarn's node 0 (`add_wrap`): k dphi dphi^T, in the band
+  within its pairs (r_{N-1}, r_N) and (r_0, r_1) with the moment term, between the pairs
+  in the product (`wrap_row`, from the gradient stored at assembly);
+- a tied cell length (periodic force control): one unknown whose n copies sit on the
+  family's end nodes. Its row is the sum of theirs (`product_value`), each end node's band
+  holding 1/n of the family's mass, and the CG inner products weight each copy 1/n, so CG
+  runs on T^T A T, the static solver's unknowns; in P it is its diagonal alone
+  (`tie_diagonals`).
 
-Held dofs get identity rows and columns and a zero right-hand side. With M > 0 the matrix
+The right side dt (f - dt K v - c M v) is dt f + M v - A v, A v by the same product
+(`rhs_node`): every coupling of A is in it. Held dofs get identity rows and columns and a
+zero right-hand side. With M > 0 the matrix
 A = M (1 + dt c) + dt^2 K is symmetric positive definite, but no longer banded: the
 crossings couple the yarns. It is solved by conjugate gradients preconditioned by
 P = the yarns' own bands of A plus the crossing blocks' diagonal parts (dt^2 dR/dg on each
@@ -45,10 +60,10 @@ Two layouts, the same arithmetic in the same order (bit-identical runs; tests ch
 - "persistent" (the CPU's default): one launch per relaxation, one thread running the time
   loop and every CG iteration inside, each stage a loop over the per-unit `wp.func`s;
 - "per_step" (the GPU's default): the time loop in Python, a launch per stage with a thread
-  per crossing (R, friction, the crossing blocks), node (the force gather, the product
-  A p, the move), yarn (the yarn systems and their LU, the preconditioner, the per-yarn
-  partial sums) or dof (the CG vector updates), one thread for each total over the yarns'
-  partial sums (in yarn order), and the decisions (CG's stop, a step's acceptance, a bad
+  per crossing (R, friction, the crossing blocks), node (the force gather, the right side,
+  the product A p, the move), yarn (the yarn systems and their LU, the preconditioner, the
+  per-yarn partial sums) or dof (the CG vector updates), one thread for each total over the
+  yarns' partial sums (in yarn order) and for the planes' sums, and the decisions (CG's stop, a step's acceptance, a bad
   pivot) on values read back. No atomics: every thread writes its own slots.
 
 Which pays on the CPU, where a launch runs its threads one after another: the per-step
@@ -111,6 +126,8 @@ def work_struct(scalar):
         largest: wp.array(dtype=scalar)       # (Y,) per-yarn largest |f component| [N]
         failed: wp.array(dtype=wp.int32)      # (Y,) per-yarn first bad pivot, or -1
         previous: wp.array(dtype=vec)         # (n,) positions before the step [m]
+        wrap_gradient: wp.array(dtype=vec)    # (n,) dphi/dr [1/m] of a wrap spring's 4 nodes
+        boundary: wp.array(dtype=scalar)      # (6,) U_x, U_y, G_x, G_y, d_x, d_y (`boundary_sums`)
 
     return SemiWork
 
@@ -139,6 +156,8 @@ def allocate(arrays: fabric_arrays.PatchArrays, scalar, device: str):
     work.largest = wp.zeros(start.size - 1, dtype=scalar, device=device)
     work.failed = wp.zeros(start.size - 1, dtype=wp.int32, device=device)
     work.previous = wp.zeros(n, dtype=vec, device=device)
+    work.wrap_gradient = wp.zeros(n, dtype=vec, device=device)
+    work.boundary = wp.zeros(6, dtype=scalar, device=device)
     return work
 
 
@@ -151,6 +170,7 @@ def functions(scalar) -> SimpleNamespace:
     Fabric = fabric_arrays.struct(scalar)
     Work = work_struct(scalar)
     limit = friction_module.functions(scalar).limit
+    force_ops = fabric_forces.functions(scalar, True)
 
     # ---------------------------------------------------------------- band storage
 
@@ -254,11 +274,46 @@ def functions(scalar) -> SimpleNamespace:
         add_block(band, i + 1, i + 1, k * wp.outer(g2, g2) + hb)
 
     @wp.func
+    def add_pair(band: wp.array2d(dtype=scalar), start: int, end: int, block: mat):
+        """block on (start, start) and (end, end), -block on (start, end) and (end, start)."""
+        add_block(band, start, start, block)
+        add_block(band, end, end, block)
+        add_block(band, start, end, -block)
+        add_block(band, end, start, -block)
+
+    @wp.func
+    def add_wrap(band: wp.array2d(dtype=scalar), pos: wp.array(dtype=vec), fabric: Fabric,
+                 work: Work, first: int, definite: int):
+        """The periodic wrap spring at node `first` (docs/model.md section 10) between
+        a = r_N - r_{N-1} and b = r_1 - r_0: its gradient dphi/dr = (-g_a, g_a, -g_b, g_b) on
+        (r_{N-1}, r_N, r_0, r_1) into work.wrap_gradient; into the band, k dphi dphi^T within
+        each segment's pair of nodes and the moment term k (phi - phi0) d2phi (dropped with
+        `definite`), which lies within the pairs. The blocks between the pairs, far apart along
+        the yarn and outside the band, are `wrap_row`'s."""
+        last = fabric.yarn_last[first]
+        a = pos[last] - pos[last - 1]
+        b = pos[first + 1] - pos[first]
+        k = fabric.wrap_stiffness[first]
+        moment = k * (force_ops.turning_angle(a, b) - fabric.wrap_rest_angle[first])
+        if definite != 0:
+            moment = scalar(0.0)
+        ga = vec(a[1], -a[0]) / wp.dot(a, a)
+        gb = vec(-b[1], b[0]) / wp.dot(b, b)
+        work.wrap_gradient[last - 1] = -ga
+        work.wrap_gradient[last] = ga
+        work.wrap_gradient[first] = -gb
+        work.wrap_gradient[first + 1] = gb
+        add_pair(band, last - 1, last, k * wp.outer(ga, ga) - moment * theta_hessian(a))
+        add_pair(band, first, first + 1, k * wp.outer(gb, gb) + moment * theta_hessian(b))
+
+    @wp.func
     def crossing_blocks(c: int, pos: wp.array(dtype=vec), fabric: Fabric,
-                        anchors: wp.array(dtype=vec), contact: wp.array(dtype=scalar), work: Work):
+                        anchors: wp.array(dtype=vec), contact: wp.array(dtype=scalar), work: Work,
+                        shift: vec):
         """coupling[c] = (dR/dg, h_xx, h_xy, h_yy) [N/m] at R = contact[c] (this position's),
         F_T frozen at F_T(R): dR/dg of the series law where closed (0 open); the Huber Hessian
-        (0 where F_T = 0)."""
+        at the slip s (the planes moved by `shift`, `fabric_forces.plane_shift`), 0 where
+        F_T = 0."""
         law = fabric.contact_law
         R = contact[c]
         g = fabric.crossing_offset[c] - fabric.crossing_side[c] * (
@@ -273,10 +328,7 @@ def functions(scalar) -> SimpleNamespace:
         stick = friction[3]
         bound = limit(R, friction[0], friction[1], friction[2])
         if stick > scalar(0.0) and bound > scalar(0.0):
-            warp_node = fabric.crossing_warp[c]
-            weft_node = fabric.crossing_weft[c]
-            s = vec(pos[warp_node][0] - fabric.rest_position[warp_node][0],
-                    pos[weft_node][0] - fabric.rest_position[weft_node][0]) - anchors[c]
+            s = force_ops.slip(pos, fabric, anchors, c, shift)
             size = wp.length(s)
             if stick * size <= bound:
                 h = vec(stick, stick)
@@ -336,6 +388,96 @@ def functions(scalar) -> SimpleNamespace:
         return value
 
     @wp.func
+    def members(fabric: Fabric, i: int) -> int:
+        """n for an end node of a tied family of n (one dof, its copies on n nodes), else 1."""
+        family = fabric.node_tie[i]
+        count = int(1)
+        if family >= 0:
+            count = fabric.plane_offsets[family + 1] - fabric.plane_offsets[family]
+        return count
+
+    @wp.func
+    def wrap_row(i: int, comp: int, x: wp.array(dtype=scalar), fabric: Fabric,
+                 work: Work) -> scalar:
+        """The wrap spring's k dphi dphi^T between its two pairs of nodes times x, at dof
+        (node i, comp) [N]: k g_i (g_other . x_other) over the other pair (`add_wrap`)."""
+        first = fabric.node_wrap[i]
+        value = scalar(0.0)
+        if first >= 0:
+            other = first
+            if i < fabric.yarn_last[first] - 1:  # i in (r_0, r_1): the other pair ends the yarn
+                other = fabric.yarn_last[first] - 1
+            g = work.wrap_gradient
+            along = (wp.dot(g[other], vec(x[2 * other], x[2 * other + 1]))
+                     + wp.dot(g[other + 1], vec(x[2 * other + 2], x[2 * other + 3])))
+            value = fabric.wrap_stiffness[first] * g[i][comp] * along
+        return value
+
+    @wp.func
+    def plane_row(i: int, comp: int, fabric: Fabric, work: Work) -> scalar:
+        """The moving planes' part of the friction block J^T H J times x at dof (node i,
+        comp) [N], from `boundary_sums` of x: -H (w_c o U) on a crossing's slip dofs, -G_f on
+        an end node moving family f's planes (0 with fixed planes)."""
+        value = scalar(0.0)
+        if comp == 0:
+            c = fabric.node_crossing[i]
+            if c >= 0:
+                moved = wp.cw_mul(fabric.crossing_plane_weight[c],
+                                  vec(work.boundary[0], work.boundary[1]))
+                blk = work.coupling[c]
+                if fabric.crossing_warp[c] == i:
+                    value = -(blk[1] * moved[0] + blk[2] * moved[1])
+                else:
+                    value = -(blk[2] * moved[0] + blk[3] * moved[1])
+            family = fabric.node_plane[i]
+            if family >= 0:
+                value = value - work.boundary[2 + family]
+        return value
+
+    @wp.func
+    def boundary_sums(x: wp.array(dtype=scalar), fabric: Fabric, work: Work):
+        """boundary[0:4] = (U_x, U_y, G_x, G_y) of x (flat) where the planes move: U_f the sum
+        of x over family f's plane nodes, G_f = sum_c w_c,f (H_c ds_c)_f with ds_c = (x_wa,
+        x_we) - w_c o U the slip's change (crossing order). Nothing with fixed planes."""
+        if fabric.plane_offsets[2] > 0:
+            U = vec(scalar(0.0), scalar(0.0))
+            for family in range(2):
+                total = scalar(0.0)
+                for m in range(fabric.plane_offsets[family], fabric.plane_offsets[family + 1]):
+                    total += x[2 * fabric.plane_nodes[m]]
+                U[family] = total
+            G = vec(scalar(0.0), scalar(0.0))
+            for c in range(fabric.crossing_warp.shape[0]):
+                w = fabric.crossing_plane_weight[c]
+                blk = work.coupling[c]
+                ds = vec(x[2 * fabric.crossing_warp[c]], x[2 * fabric.crossing_weft[c]]) \
+                    - wp.cw_mul(w, U)
+                G = G + wp.cw_mul(w, vec(blk[1] * ds[0] + blk[2] * ds[1],
+                                         blk[2] * ds[0] + blk[3] * ds[1]))
+            work.boundary[0] = U[0]
+            work.boundary[1] = U[1]
+            work.boundary[2] = G[0]
+            work.boundary[3] = G[1]
+
+    @wp.func
+    def tie_diagonals(fabric: Fabric, work: Work, dt2: scalar):
+        """boundary[4 + f] = the preconditioner's entry for tied family f's one dof: its
+        nodes' band diagonals plus dt^2 sum_c (n w_c,f)^2 h_c,ff (the planes' part)."""
+        for family in range(2):
+            begin = fabric.plane_offsets[family]
+            end = fabric.plane_offsets[family + 1]
+            if end > begin:
+                if fabric.node_tie[fabric.plane_nodes[begin]] >= 0:
+                    total = scalar(0.0)
+                    for m in range(begin, end):
+                        total += work.band[2 * fabric.plane_nodes[m], BANDWIDTH]
+                    planes = scalar(0.0)
+                    for c in range(fabric.crossing_warp.shape[0]):
+                        w = scalar(end - begin) * fabric.crossing_plane_weight[c][family]
+                        planes += w * w * work.coupling[c][1 + 2 * family]
+                    work.boundary[4 + family] = total + dt2 * planes
+
+    @wp.func
     def band_row(row: int, x: wp.array(dtype=scalar), band: wp.array2d(dtype=scalar)) -> scalar:
         """sum_j band[row, j] x_j over the band (entries of other yarns are zero)."""
         total = scalar(0.0)
@@ -349,13 +491,14 @@ def functions(scalar) -> SimpleNamespace:
         return fabric.free[row / 2][row % 2]
 
     @wp.func
-    def build_yarn(y: int, pos: wp.array(dtype=vec), vel: wp.array(dtype=vec),
-                   force: wp.array(dtype=vec), mass: wp.array(dtype=scalar), fabric: Fabric,
+    def build_yarn(y: int, pos: wp.array(dtype=vec), mass: wp.array(dtype=scalar), fabric: Fabric,
                    work: Work, dt: scalar, damping: scalar, definite: int) -> int:
-        """Yarn y's rows: band = A = M (1 + dt c) + dt^2 K_yarn (held dofs: identity),
-        rhs = dt (f - dt K v - c M v) (0 on held dofs), factor = the LU of A_yarn plus dt^2 the
-        crossing diagonals. Needs coupling (`crossing_blocks`) of every crossing. Returns the
-        first pivot that is not positive, or -1."""
+        """Yarn y's rows of A = M (1 + dt c) + dt^2 K_yarn in the band (held dofs: identity; a
+        tied node's mass its share, the n copies of its dof summing to the family's mass), and
+        factor = the LU of that plus dt^2 the crossing diagonals, a tied dof's row and column
+        the identity (its preconditioner is `tie_diagonals`'). Needs coupling
+        (`crossing_blocks`) of every crossing. Returns the first pivot that is not positive,
+        or -1."""
         a = work.yarn_start[y]
         b = work.yarn_start[y + 1]
         lo = 2 * a
@@ -368,25 +511,14 @@ def functions(scalar) -> SimpleNamespace:
             add_stretch(band, pos, fabric, i, definite)
         for i in range(a + 1, b - 1):
             add_bending(band, pos, fabric, i, definite)
+        if fabric.wrap_stiffness[a] > scalar(0.0):
+            add_wrap(band, pos, fabric, work, a, definite)
         dt2 = dt * dt
-        for row in range(lo, hi):  # K v from the band and the crossings, v flat
-            i = row / 2
-            comp = row % 2
-            stiffness_velocity = scalar(0.0)
-            for j in range(wp.max(lo, row - BANDWIDTH), wp.min(hi, row + BANDWIDTH + 1)):
-                stiffness_velocity += band[row, j - row + BANDWIDTH] * vel[j / 2][j % 2]
-            c = fabric.node_crossing[i]
-            if c >= 0:
-                partner = crossing_partner(i, c, fabric)
-                stiffness_velocity += crossing_term(work.coupling[c], comp,
-                                                    fabric.crossing_warp[c] == i,
-                                                    vel[i][comp], vel[partner][comp])
-            work.rhs[row] = free_dof(fabric, row) * dt * (
-                force[i][comp] - dt * stiffness_velocity - damping * mass[i] * vel[i][comp])
         for row in range(lo, hi):
             for k in range(WIDTH):
                 band[row, k] = dt2 * band[row, k]
-            band[row, BANDWIDTH] += (scalar(1.0) + dt * damping) * mass[row / 2]
+            band[row, BANDWIDTH] += (scalar(1.0) + dt * damping) * mass[row / 2] / scalar(
+                members(fabric, row / 2))
         for row in range(lo, hi):
             if free_dof(fabric, row) == scalar(0.0):
                 constrain(band, lo, hi, row)
@@ -395,43 +527,93 @@ def functions(scalar) -> SimpleNamespace:
                 work.factor[row, k] = band[row, k]
             work.factor[row, BANDWIDTH] += dt2 * free_dof(fabric, row) * coupling_diagonal(
                 row / 2, row % 2, fabric, work)
+        for i in range(a, b):
+            if fabric.node_tie[i] >= 0:
+                constrain(work.factor, lo, hi, 2 * i)
         return lu_factor(work.factor, lo, hi)
 
     # ---------------------------------------------------------------- PCG pieces
 
     @wp.func
+    def own_row(i: int, comp: int, x: wp.array(dtype=scalar), fabric: Fabric, work: Work,
+                dt2: scalar) -> scalar:
+        """(A x) at dof (node i, comp) from node i's own row (x zero on held dofs): the band,
+        dt^2 the crossing, planes and wrap spring (`boundary_sums` of x done)."""
+        row = 2 * i + comp
+        return band_row(row, x, work.band) + dt2 * free_dof(fabric, row) * (
+            coupling_row(i, comp, x, fabric, work) + plane_row(i, comp, fabric, work)
+            + wrap_row(i, comp, x, fabric, work))
+
+    @wp.func
+    def product_value(i: int, comp: int, x: wp.array(dtype=scalar), fabric: Fabric, work: Work,
+                      dt2: scalar) -> scalar:
+        """(A x) at dof (node i, comp); on a tied node's x, the family's rows summed in
+        plane-node order (T^T A T x, the same value on every copy)."""
+        family = fabric.node_tie[i]
+        value = scalar(0.0)
+        if comp == 0 and family >= 0:
+            for m in range(fabric.plane_offsets[family], fabric.plane_offsets[family + 1]):
+                value += own_row(fabric.plane_nodes[m], 0, x, fabric, work, dt2)
+        else:
+            value = own_row(i, comp, x, fabric, work, dt2)
+        return value
+
+    @wp.func
     def product_node(i: int, x: wp.array(dtype=scalar), y_out: wp.array(dtype=scalar),
                      fabric: Fabric, work: Work, dt2: scalar):
-        """y_out = A x at node i's two dofs (x zero on held dofs)."""
+        """y_out = A x at node i's two dofs (x zero on held dofs, `boundary_sums` of x done)."""
+        for comp in range(2):
+            y_out[2 * i + comp] = product_value(i, comp, x, fabric, work, dt2)
+
+    @wp.func
+    def velocity_dofs(d: int, vel: wp.array(dtype=vec), work: Work):
+        """x[d] = v at flat dof d (the right side's product reads it)."""
+        work.x[d] = vel[d / 2][d % 2]
+
+    @wp.func
+    def rhs_node(i: int, vel: wp.array(dtype=vec), force: wp.array(dtype=vec),
+                 mass: wp.array(dtype=scalar), fabric: Fabric, work: Work, dt: scalar):
+        """rhs = dt (f - dt K v - c M v) = dt f + M v - A v at node i's dofs (0 on held ones),
+        A v from x = v (`velocity_dofs`, `boundary_sums` of it): the product CG uses, so K v has
+        every coupling A has. A tied node's f and m are its family's (`fabric_forces`,
+        `fabric_arrays.gershgorin_masses`)."""
         for comp in range(2):
             row = 2 * i + comp
-            y_out[row] = band_row(row, x, work.band) + dt2 * free_dof(fabric, row) * coupling_row(
-                i, comp, x, fabric, work)
+            work.rhs[row] = free_dof(fabric, row) * (
+                dt * force[i][comp] + mass[i] * vel[i][comp]
+                - product_value(i, comp, work.x, fabric, work, dt * dt))
 
     @wp.func
-    def precondition_yarn(y: int, work: Work):
-        """z = P^-1 r on yarn y's dofs."""
-        lo = 2 * work.yarn_start[y]
-        hi = 2 * work.yarn_start[y + 1]
-        for row in range(lo, hi):
+    def precondition_yarn(y: int, fabric: Fabric, work: Work):
+        """z = P^-1 r on yarn y's dofs; a tied dof's z = r / its `tie_diagonals` entry."""
+        a = work.yarn_start[y]
+        b = work.yarn_start[y + 1]
+        for row in range(2 * a, 2 * b):
             work.z[row] = work.r[row]
-        lu_solve(work.factor, lo, hi, work.z)
+        lu_solve(work.factor, 2 * a, 2 * b, work.z)
+        for i in range(a, b):
+            family = fabric.node_tie[i]
+            if family >= 0:
+                work.z[2 * i] = work.r[2 * i] / work.boundary[4 + family]
 
     @wp.func
-    def yarn_dot(y: int, u: wp.array(dtype=scalar), w: wp.array(dtype=scalar),
+    def yarn_dot(y: int, u: wp.array(dtype=scalar), w: wp.array(dtype=scalar), fabric: Fabric,
                  work: Work) -> scalar:
-        """sum of u w over yarn y's dofs, in order."""
+        """sum of u w over yarn y's dofs, in order, a tied dof's n copies each weighted 1/n
+        (the reduced system's inner product)."""
         total = scalar(0.0)
-        for row in range(2 * work.yarn_start[y], 2 * work.yarn_start[y + 1]):
-            total += u[row] * w[row]
+        for i in range(work.yarn_start[y], work.yarn_start[y + 1]):
+            total += u[2 * i] * w[2 * i] / scalar(members(fabric, i))
+            total += u[2 * i + 1] * w[2 * i + 1]
         return total
 
     @wp.func
-    def dot(u: wp.array(dtype=scalar), w: wp.array(dtype=scalar), work: Work) -> scalar:
+    def dot(u: wp.array(dtype=scalar), w: wp.array(dtype=scalar), fabric: Fabric,
+            work: Work) -> scalar:
         """u . w: per-yarn sums added in yarn order (the GPU layout's order)."""
         total = scalar(0.0)
         for y in range(work.partial.shape[0]):
-            total += yarn_dot(y, u, w, work)
+            total += yarn_dot(y, u, w, fabric, work)
         return total
 
     @wp.func
@@ -444,16 +626,17 @@ def functions(scalar) -> SimpleNamespace:
             work.x[d] = scalar(0.0)
             work.r[d] = work.rhs[d]
         for y in range(yarns):
-            precondition_yarn(y, work)
-        rz = dot(work.r, work.z, work)
+            precondition_yarn(y, fabric, work)
+        rz = dot(work.r, work.z, fabric, work)
         stop = tolerance * tolerance * rz
         for d in range(dofs):
             work.p[d] = work.z[d]
         iterations = int(0)
         while iterations < max_iterations and rz > stop:
+            boundary_sums(work.p, fabric, work)
             for i in range(nodes):
                 product_node(i, work.p, work.q, fabric, work, dt2)
-            pq = dot(work.p, work.q, work)
+            pq = dot(work.p, work.q, fabric, work)
             if not pq > scalar(0.0):
                 break
             alpha = rz / pq
@@ -461,8 +644,8 @@ def functions(scalar) -> SimpleNamespace:
                 work.x[d] = work.x[d] + alpha * work.p[d]
                 work.r[d] = work.r[d] - alpha * work.q[d]
             for y in range(yarns):
-                precondition_yarn(y, work)
-            rz_new = dot(work.r, work.z, work)
+                precondition_yarn(y, fabric, work)
+            rz_new = dot(work.r, work.z, fabric, work)
             beta = rz_new / rz
             rz = rz_new
             for d in range(dofs):
@@ -475,14 +658,22 @@ def functions(scalar) -> SimpleNamespace:
                      mass: wp.array(dtype=scalar), fabric: Fabric, anchors: wp.array(dtype=vec),
                      contact: wp.array(dtype=scalar), work: Work, dt: scalar, damping: scalar,
                      definite: int) -> int:
-        """Every crossing's blocks, then every yarn's system; -1, or a yarn's bad pivot."""
+        """Every crossing's blocks, every yarn's system, then the right side; -1, or a yarn's
+        bad pivot."""
+        shift = force_ops.plane_shift(pos, fabric)
         for c in range(contact.shape[0]):
-            crossing_blocks(c, pos, fabric, anchors, contact, work)
+            crossing_blocks(c, pos, fabric, anchors, contact, work, shift)
         failed = int(-1)
         for y in range(work.partial.shape[0]):
-            bad = build_yarn(y, pos, vel, force, mass, fabric, work, dt, damping, definite)
+            bad = build_yarn(y, pos, mass, fabric, work, dt, damping, definite)
             if bad >= 0 and failed < 0:
                 failed = bad
+        for d in range(work.x.shape[0]):
+            velocity_dofs(d, vel, work)
+        boundary_sums(work.x, fabric, work)
+        tie_diagonals(fabric, work, dt * dt)
+        for i in range(pos.shape[0]):
+            rhs_node(i, vel, force, mass, fabric, work, dt)
         return failed
 
     @wp.func
@@ -495,13 +686,14 @@ def functions(scalar) -> SimpleNamespace:
 
     @wp.func
     def yarn_merit(y: int, force: wp.array(dtype=vec), mass: wp.array(dtype=scalar),
-                   work: Work) -> vec:
-        """(largest |f component| [N], sum f^T f / m [N^2/kg]) over yarn y's nodes, in order."""
+                   fabric: Fabric, work: Work) -> vec:
+        """(largest |f component| [N], sum f^T f / m [N^2/kg]) over yarn y's nodes, in order, a
+        tied family's n copies of its dof each counted 1/n."""
         worst = scalar(0.0)
         total = scalar(0.0)
         for i in range(work.yarn_start[y], work.yarn_start[y + 1]):
             f = force[i]
-            total += wp.dot(f, f) / mass[i]
+            total += wp.dot(f, f) / mass[i] / scalar(members(fabric, i))
             worst = larger(larger(worst, f[0]), f[1])
         return vec(worst, total)
 
@@ -532,6 +724,8 @@ def functions(scalar) -> SimpleNamespace:
 
     return SimpleNamespace(crossing_blocks=crossing_blocks, build_yarn=build_yarn,
                            product_node=product_node, precondition_yarn=precondition_yarn,
+                           velocity_dofs=velocity_dofs, boundary_sums=boundary_sums,
+                           tie_diagonals=tie_diagonals, rhs_node=rhs_node,
                            yarn_dot=yarn_dot, dot=dot, pcg=pcg, build_system=build_system,
                            yarn_merit=yarn_merit, merit_total=merit_total, move_node=move_node,
                            undo_node=undo_node)
@@ -540,7 +734,7 @@ def functions(scalar) -> SimpleNamespace:
 @functools.cache
 def system_kernel(scalar):
     """One thread: with `assemble`, forces at pos, then A, rhs and P; with `solve`,
-    x = A^-1 rhs by PCG (the persistent layout's solve);
+    x = A^-1 rhs by PCG (the persistent layout's solve); with `apply`, q = A p (p as given);
     outcome[0] = the first bad pivot (-1), outcome[1] = CG iterations. For tests and the
     benchmark's layout comparison."""
     vec = VECTORS[scalar]
@@ -553,7 +747,7 @@ def system_kernel(scalar):
                anchors: wp.array(dtype=vec), pos: wp.array(dtype=vec), vel: wp.array(dtype=vec),
                force: wp.array(dtype=vec), contact: wp.array(dtype=scalar),
                friction: wp.array(dtype=vec), dt: scalar, damping: scalar, definite: int,
-               assemble: int, solve: int, tolerance: scalar, max_iterations: int,
+               assemble: int, solve: int, apply: int, tolerance: scalar, max_iterations: int,
                outcome: wp.array(dtype=wp.int32)):
         if assemble != 0:
             force_ops.scatter_forces(pos, fabric, anchors, contact, friction, external, force)
@@ -562,6 +756,10 @@ def system_kernel(scalar):
         outcome[1] = 0
         if solve != 0:
             outcome[1] = ops.pcg(fabric, work, dt * dt, tolerance, max_iterations)
+        if apply != 0:
+            ops.boundary_sums(work.p, fabric, work)
+            for i in range(pos.shape[0]):
+                ops.product_node(i, work.p, work.q, fabric, work, dt * dt)
 
     return system
 
@@ -588,7 +786,7 @@ def relaxation_kernel(scalar):
         for i in range(pos.shape[0]):
             force[i] = force_ops.node_force(i, pos, fabric, contact, friction, external)
         for y in range(work.partial.shape[0]):
-            value = ops.yarn_merit(y, force, mass, work)
+            value = ops.yarn_merit(y, force, mass, fabric, work)
             work.largest[y] = value[0]
             work.partial[y] = value[1]
         return ops.merit_total(work)
@@ -667,8 +865,8 @@ def relaxation_kernel(scalar):
     return relax
 
 
-START, PRECONDITION, FIRST_SUM, COPY_DIRECTION, PRODUCT, CURVATURE, STEP_LENGTH, UPDATE, \
-    NEXT_SUM, DIRECTION = range(10)
+START, PRECONDITION, FIRST_SUM, COPY_DIRECTION, BOUNDARY, PRODUCT, CURVATURE, STEP_LENGTH, \
+    UPDATE, NEXT_SUM, DIRECTION = range(11)
 """The stages of `stage_kernel`."""
 
 
@@ -698,8 +896,8 @@ def stage_kernel(scalar):
             work.x[t] = scalar(0.0)
             work.r[t] = work.rhs[t]
         elif stage == PRECONDITION:  # z = P^-1 r, partial = r . z (per yarn)
-            ops.precondition_yarn(t, work)
-            work.partial[t] = ops.yarn_dot(t, work.r, work.z, work)
+            ops.precondition_yarn(t, fabric, work)
+            work.partial[t] = ops.yarn_dot(t, work.r, work.z, fabric, work)
         elif stage == FIRST_SUM:  # r^T z and the stopping value (one thread)
             total = partial_sum(work)
             scalars[0] = total
@@ -709,10 +907,12 @@ def stage_kernel(scalar):
                 scalars[4] = scalar(1.0)
         elif stage == COPY_DIRECTION:  # p = z (per dof)
             work.p[t] = work.z[t]
+        elif stage == BOUNDARY:  # the planes' sums of p (one thread; moving planes only)
+            ops.boundary_sums(work.p, fabric, work)
         elif stage == PRODUCT:  # q = A p (per node)
             ops.product_node(t, work.p, work.q, fabric, work, dt2)
         elif stage == CURVATURE:  # partial = p . q (per yarn)
-            work.partial[t] = ops.yarn_dot(t, work.p, work.q, work)
+            work.partial[t] = ops.yarn_dot(t, work.p, work.q, fabric, work)
         elif stage == STEP_LENGTH:  # alpha, or done where p^T A p is not positive (one thread)
             total = partial_sum(work)
             if not done:
@@ -743,9 +943,9 @@ def stage_kernel(scalar):
 def pcg_launches(semi: "FabricSemiImplicit", dt: float, max_iterations: int | None = None,
                  check_interval: int = 1) -> int:
     """x = A^-1 rhs of the system last assembled in `semi.work`, by PCG in the launch-per-stage
-    layout (`stage_kernel`): 7 launches per iteration, the done flag read back every
-    `check_interval` iterations (after done, no launch changes x, r or the count: the flag
-    freezes them). Returns the iterations."""
+    layout (`stage_kernel`): 7 launches per iteration (8 where the planes move), the done flag
+    read back every `check_interval` iterations (after done, no launch changes x, r or the
+    count: the flag freezes them). Returns the iterations."""
     kernel, work, device, scalar = stage_kernel(semi.scalar), semi.work, semi.device, semi.scalar
     dofs, nodes = 2 * semi.arrays.nodes, semi.arrays.nodes
     yarns = work.partial.shape[0]
@@ -759,16 +959,17 @@ def pcg_launches(semi: "FabricSemiImplicit", dt: float, max_iterations: int | No
     for stage, dim in ((START, dofs), (PRECONDITION, yarns), (FIRST_SUM, 1),
                        (COPY_DIRECTION, dofs)):
         launch(stage, dim)
+    planes = ((BOUNDARY, 1),) if semi.arrays.plane_nodes.size else ()
     for launched in range(max_iterations):
         if launched % check_interval == 0 and scalars.numpy()[4] != 0.0:
             break
-        for stage, dim in ((PRODUCT, nodes), (CURVATURE, yarns), (STEP_LENGTH, 1), (UPDATE, dofs),
+        for stage, dim in (*planes, (PRODUCT, nodes), (CURVATURE, yarns), (STEP_LENGTH, 1), (UPDATE, dofs),
                            (PRECONDITION, yarns), (NEXT_SUM, 1), (DIRECTION, dofs)):
             launch(stage, dim)
     return int(scalars.numpy()[5])
 
 
-CROSSINGS, BUILD, MOVE, UNDO, MERIT, MERIT_SUM = range(6)
+CROSSINGS, BUILD, VELOCITY, BOUNDARY_SUMS, RHS, MOVE, UNDO, MERIT, MERIT_SUM = range(9)
 """The stages of `step_stage_kernel`."""
 
 
@@ -776,11 +977,13 @@ CROSSINGS, BUILD, MOVE, UNDO, MERIT, MERIT_SUM = range(6)
 def step_stage_kernel(scalar):
     """The per-step layout's stages of a time step outside CG (one kernel, its stage chosen per
     launch): the crossing blocks (a thread per crossing), the yarn systems (per yarn), the
-    move and its undoing (per node), the per-yarn merit and residual (per yarn) and their
-    total (one thread, into sums = (residual, f^T M^-1 f))."""
+    velocities as flat dofs (per dof), the planes' sums of them and the tied dofs'
+    preconditioner (one thread), the right side (per node), the move and its undoing (per
+    node), the per-yarn merit and residual (per yarn) and their total (one thread, into
+    sums = (residual, f^T M^-1 f))."""
     vec = VECTORS[scalar]
     Fabric, Work = fabric_arrays.struct(scalar), work_struct(scalar)
-    ops = functions(scalar)
+    ops, force_ops = functions(scalar), fabric_forces.functions(scalar, True)
 
     @wp.kernel(module="unique", module_options=MODULE_OPTIONS)
     def step_pass(fabric: Fabric, work: Work, mass: wp.array(dtype=scalar),
@@ -789,15 +992,23 @@ def step_stage_kernel(scalar):
                   damping: scalar, sums: wp.array(dtype=scalar), stage: int):
         t = wp.tid()
         if stage == CROSSINGS:
-            ops.crossing_blocks(t, pos, fabric, anchors, contact, work)
+            ops.crossing_blocks(t, pos, fabric, anchors, contact, work,
+                                force_ops.plane_shift(pos, fabric))
         elif stage == BUILD:
-            work.failed[t] = ops.build_yarn(t, pos, vel, force, mass, fabric, work, dt, damping, 1)
+            work.failed[t] = ops.build_yarn(t, pos, mass, fabric, work, dt, damping, 1)
+        elif stage == VELOCITY:
+            ops.velocity_dofs(t, vel, work)
+        elif stage == BOUNDARY_SUMS:
+            ops.boundary_sums(work.x, fabric, work)
+            ops.tie_diagonals(fabric, work, dt * dt)
+        elif stage == RHS:
+            ops.rhs_node(t, vel, force, mass, fabric, work, dt)
         elif stage == MOVE:
             ops.move_node(t, pos, vel, work, dt)
         elif stage == UNDO:
             ops.undo_node(t, pos, vel, work)
         elif stage == MERIT:
-            value = ops.yarn_merit(t, force, mass, work)
+            value = ops.yarn_merit(t, force, mass, fabric, work)
             work.largest[t] = value[0]
             work.partial[t] = value[1]
         elif stage == MERIT_SUM:
@@ -903,6 +1114,9 @@ class FabricSemiImplicit(PatchRelaxation):
             else:
                 code = status.NOT_POSITIVE_DEFINITE
                 break
+            stage(VELOCITY, 2 * a.nodes)
+            stage(BOUNDARY_SUMS, 1, dt)
+            stage(RHS, a.nodes, dt)
             iterations += pcg_launches(self, dt, 2 * a.nodes)
             stage(MOVE, a.nodes, dt)
             new_residual, new_merit = evaluate()
@@ -930,36 +1144,32 @@ class FabricSemiImplicit(PatchRelaxation):
         mass = self.mass if masses is None else self._array(masses, self.scalar)
         velocities = np.zeros((n, 2)) if velocities is None else velocities
         self.anchors = self._array(anchors, self.vec)
+        self._system_inputs = [self.fabric, self.work, mass, self._array(external, self.vec),
+                               self.anchors, self._array(positions, self.vec),
+                               self._array(velocities, self.vec), self.force, self.contact,
+                               self.friction, self.scalar(dt), self.scalar(self.coefficient),
+                               int(definite)]
+        return self._launch_system(assemble, solve, False, 2 * n if max_iterations is None
+                                   else max_iterations)
+
+    def _launch_system(self, assemble: bool, solve: bool, apply: bool, max_iterations: int):
         code = wp.zeros(2, dtype=wp.int32, device=self.device)
         wp.launch(system_kernel(self.scalar), dim=1, device=self.device,
-                  inputs=[self.fabric, self.work, mass, self._array(external, self.vec),
-                          self.anchors, self._array(positions, self.vec),
-                          self._array(velocities, self.vec), self.force, self.contact,
-                          self.friction, self.scalar(dt), self.scalar(self.coefficient),
-                          int(definite), int(assemble), int(solve), self.scalar(self.cg_tolerance),
-                          int(2 * n if max_iterations is None else max_iterations), code])
+                  inputs=[*self._system_inputs, int(assemble), int(solve), int(apply),
+                          self.scalar(self.cg_tolerance), int(max_iterations), code])
         bad, iterations = (int(v) for v in code.numpy())
         return bad, iterations
 
-    def dense(self, dt: float) -> np.ndarray:
-        """The last assembled A (2n, 2n) as a dense matrix, from the band and the crossing
-        blocks (tests)."""
-        a = self.arrays
-        band = self.work.band.numpy().astype(float)
-        dofs = band.shape[0]
-        A = np.zeros((dofs, dofs))
-        for i in range(dofs):
-            for k in range(WIDTH):
-                j = i + k - BANDWIDTH
-                if 0 <= j < dofs:
-                    A[i, j] += band[i, k]
-        blocks = self.work.coupling.numpy().astype(float)
-        free = a.free.ravel()
-        for c in range(a.crossings):
-            za, zb = 2 * a.crossing_warp[c] + 1, 2 * a.crossing_weft[c] + 1
-            xa, yb = 2 * a.crossing_warp[c], 2 * a.crossing_weft[c]
-            k, hxx, hxy, hyy = blocks[c]
-            for (i, j, value) in ((za, za, k), (za, zb, -k), (zb, za, -k), (zb, zb, k),
-                                  (xa, xa, hxx), (xa, yb, hxy), (yb, xa, hxy), (yb, yb, hyy)):
-                A[i, j] += dt * dt * value * free[i] * free[j]
+    def dense(self, index: np.ndarray) -> np.ndarray:
+        """The last assembled A on the unknowns (U, U), column u the kernels' product A T e_u
+        read at u's first dof (tests). `index` (2n,): each dof's unknown, -1 where held, a
+        tied family's dofs sharing one (`dynfab.fabric.assembly.Pattern.index`)."""
+        index = np.asarray(index)
+        unknowns = int(index.max()) + 1
+        first = np.array([np.flatnonzero(index == u)[0] for u in range(unknowns)])
+        A = np.zeros((unknowns, unknowns))
+        for u in range(unknowns):
+            self.work.p.assign((index == u).astype(self.dtype))
+            self._launch_system(False, False, True, 0)
+            A[:, u] = self.work.q.numpy()[first]
         return A

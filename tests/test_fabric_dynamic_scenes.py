@@ -6,14 +6,15 @@ scene in runs/.
    itself checked against finite differences in tests/test_fabric_terms.py) at perturbed
    positions, with crossings sliding and sticking: "affine" planes on a clamped patch and
    the periodic cell under force control (tied cell lengths), to rounding.
-2. Every fabric scene of runs/ (`dynfab run runs/<scene>.toml --solver dynamic`): the
-   dynamic run over the first load steps of the scene's own path, each step compared with
+2. Every fabric scene of runs/ (`dynfab run runs/<scene>.toml --solver dynamic`, with
+   `--method explicit` and `semi_implicit`): the dynamic run over the first load steps of the scene's own path, each step compared with
    the static solver's step from the same state (positions, anchors), within the bound
    their residual tolerances allow (`agreement_bound` of tests/test_fabric_dynamic.py).
 
 Kernel variants: float64 with friction compiled in, the passes and the persistent kinetic
 kernel tests/test_fabric_kernels.py and tests/test_fabric_dynamic.py build (the plane mode
-is data, not a variant), plus the per-step layout's kernels those tests build too.
+is data, not a variant), plus the per-step layout's kernels those tests build too, and the
+semi-implicit kernels tests/test_fabric_semi_implicit.py builds.
 """
 
 import math
@@ -208,9 +209,11 @@ TOLERANCE = 1e-10
 residual's rounding floor on these yarns, about 1e-11 N at k_c = 1e5 N/m)."""
 
 
+@pytest.mark.parametrize("method", ["explicit", "semi_implicit"])
 @pytest.mark.parametrize("name", sorted(SCENES))
-def test_every_fabric_scene_agrees_with_the_static_solver(name):
-    """Each step of the dynamic run against the static solver's step from the same state:
+def test_every_fabric_scene_agrees_with_the_static_solver(name, method):
+    """Each step of the dynamic run (explicit with kinetic damping, semi-implicit) against the
+    static solver's step from the same state:
     positions within `agreement_bound` (||J^-1|| (r_static + r_dynamic); the same anchors
     held), contact forces within 2 k_c times it, the same open/closed and sliding patterns
     and stability, the return-mapped anchors within `anchor_bound`, the step moving the
@@ -223,7 +226,7 @@ def test_every_fabric_scene_agrees_with_the_static_solver(name):
     differ by 2e-10 m. Started from one state, the steps share their anchors, and the anchors'
     agreement after the return map is checked instead."""
     spec = scene_spec(name)
-    static, dynamic = FabricStaticSolver(spec), FabricDynamicSolver(spec)
+    static, dynamic = FabricStaticSolver(spec), FabricDynamicSolver(spec, method=method)
     state = dynamic.initial_state()
     k_c = static.fabric.contact_law[0]
     for warp_value, weft_value in zip(*spec.loads()):

@@ -84,11 +84,6 @@ class FabricDynamicSolver:
                  damping_coefficient: float | None = None):
         if method not in METHODS:
             raise UserError(f"fabric: dynamic.method = {method!r} unknown; one of {METHODS}")
-        if method == "semi_implicit" and (spec.boundary != "clamped" or spec.planes != "fixed"):
-            # its tangent has neither the planes' coupling nor the tied cell lengths
-            raise UserError(f"fabric: the semi-implicit solver models the clamped patch with fixed "
-                            f"planes only, not boundary = {spec.boundary!r}, planes = "
-                            f"{spec.planes!r}: use the explicit method or the static solver")
         self.spec = spec
         self.tolerance = spec.tolerance if tolerance is None else float(tolerance)
         """Residual tolerance [N] of a relaxation (the spec's Newton tolerance by default)."""
