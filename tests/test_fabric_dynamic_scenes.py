@@ -7,9 +7,10 @@ scene in runs/.
    positions, with crossings sliding and sticking: "affine" planes on a clamped patch and
    the periodic cell under force control (tied cell lengths), to rounding.
 2. Every fabric scene of runs/ (`dynfab run runs/<scene>.toml --solver dynamic`, with
-   `--method explicit` and `semi_implicit`): the dynamic run over the first load steps of the scene's own path, each step compared with
-   the static solver's step from the same state (positions, anchors), within the bound
-   their residual tolerances allow (`agreement_bound` of tests/test_fabric_dynamic.py).
+   `--method explicit` and `semi_implicit`): the dynamic run over the first load steps of
+   the scene's own path, each step compared with the static solver's step from the same
+   state (positions, anchors), within the bound their residual tolerances allow
+   (`agreement_bound` of tests/test_fabric_dynamic.py).
 
 Kernel variants: float64 with friction compiled in, the passes and the persistent kinetic
 kernel tests/test_fabric_kernels.py and tests/test_fabric_dynamic.py build (the plane mode
