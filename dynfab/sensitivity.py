@@ -42,6 +42,7 @@ from scipy.linalg import solve_banded
 
 from dynfab import assembly
 from dynfab.banded import BANDWIDTH, constrain, lu_factor, lu_solve
+from dynfab.domain import check_not_folded
 from dynfab.errors import UserError
 from dynfab.model import build_model, initial_state
 from dynfab.static import StaticSolver
@@ -87,7 +88,8 @@ def set_key(scene, dotted_key: str, value: float):
 
 
 def solve_path(scene, solver_options: dict | None = None) -> PathSolution:
-    """Solve the scene's load path with the static solver from the as-woven state (one yarn)."""
+    """Solve the scene's load path with the static solver from the as-woven state (one yarn);
+    a step that folds the yarn back raises SolverError (`dynfab.domain`)."""
     model = build_model(scene)
     if model.yarn_count != 1:
         raise UserError(f"a fit takes one simulated yarn; the scene has {model.yarn_count} "
@@ -100,6 +102,7 @@ def solve_path(scene, solver_options: dict | None = None) -> PathSolution:
     for load_value in solution.load:
         before = state.anchors[0].copy()
         state, record = solver.step(state, float(load_value))
+        check_not_folded(record, ["the yarn"])  # a folded yarn is no fit: the trial is refused
         pos = record["positions"][0]
         solution.positions.append(pos)
         solution.anchors_before.append(before)

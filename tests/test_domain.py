@@ -62,3 +62,15 @@ def test_a_fabric_cell_compressed_both_ways_stops_naming_a_warp(tmp_path, capsys
         main(["run", str(scene), "--out", str(tmp_path / "cell.h5"), "--quiet"])
     assert stop.value.code == 3
     assert "warp 1 folded back at segment" in capsys.readouterr().err
+
+
+def test_a_fit_path_that_folds_the_yarn_is_refused(tmp_path):
+    """The fit's path solve (`dynfab.sensitivity.solve_path`) applies the same check: the
+    compressed yarn's second step raises SolverError naming the fold, so a fit rejects such
+    a trial point (and refuses such a start) instead of fitting a mirrored yarn."""
+    from dynfab.errors import SolverError
+    from dynfab.scene import load_scene
+    from dynfab.sensitivity import solve_path
+
+    with pytest.raises(SolverError, match="the yarn folded back at segment"):
+        solve_path(load_scene(compressed_yarn(tmp_path)))
