@@ -49,11 +49,25 @@ iterations, a looser one (1e-1) costs many more time steps on large patches; 1e-
 the fastest of 1e-1 to 1e-6 on 16 x 16 and 64 x 64 patches (docs/results.md, "Woven
 fabric: semi-implicit against static").
 
-Time step rule (the one-yarn solver's): dt starts at 1 s with the Gershgorin masses of
-`fabric_arrays.gershgorin_masses` (the explicit solver's), doubles after a step that lowers
-f^T M^-1 f (capped at DT_MAX), and a step that does not is undone (positions back,
-velocities zeroed) and dt halved. A factorisation with a pivot that is not positive
-(rounding at very large dt) halves dt and rebuilds.
+Time step rule: dt starts at 1 s with the Gershgorin masses of
+`fabric_arrays.gershgorin_masses` (the explicit solver's). A step that lowers the merit
+f^T M^-1 f is accepted and dt doubles (capped at DT_MAX). One that does not is first shortened
+along its new velocity, x = x_0 + alpha dt v, alpha = 1/2, 1/4, ... (MAX_BACKTRACKS halvings,
+one force evaluation each, the CG solution reused): the first alpha that lowers the merit is
+accepted with v scaled by alpha and dt kept. Only if none does is the step undone (positions
+back, velocities zeroed) and dt halved. After a shortened or undone step dt waits one full
+step before it grows again. A factorisation with a pivot that is not positive (rounding at
+very large dt) halves dt and rebuilds. Why: the one-yarn rule (undo and halve at once, as
+`kernels/semi_implicit.py`) cycled on the 16 x 16 strip (runs/fabric_strip.toml: affine
+planes, friction, weft ends free) between a rejected 2 dt and an accepted dt, each accepted
+step lowering the merit by a few per cent: its first load step took 779 time steps (380
+undone, 8190 CG iterations), with the line search 133 (2 undone, 2921 CG iterations), about
+a third of the wall time; on the n x n patches of `benchmarks/fabric_planes.py --parts semi`
+(fixed, affine, periodic; n = 8, 16) fewer steps and CG iterations too. Tried and dropped:
+acceptance on the total energy (it stalls with friction, F_T moving with R being no
+potential), the secant F_T/|s| I on sliding crossings (slower with the line search), keeping
+the velocities of an undone step. `RULES["halving"]` is the old rule (the benchmark's
+before).
 
 Two layouts, the same arithmetic in the same order (bit-identical runs; tests check it):
 
@@ -95,8 +109,15 @@ DT_SHRINK = 0.5
 DT_MAX = 1e12
 """The largest time step [s]: dt^2 K then outweighs M by ~1e24 (a Newton step); the cap only
 keeps dt^2 finite over long runs."""
+MAX_BACKTRACKS = 4
+"""Halvings of a step's length along its new velocity before the step is undone [-] (the
+line search of the module docstring's time step rule)."""
 MAX_REFACTORISATIONS = 60
 """dt halvings allowed to obtain positive pivots in one step."""
+RULES = {"line_search": (MAX_BACKTRACKS, 1), "halving": (0, 0)}
+"""Time step rules (module docstring): (halvings of a step's length before it is undone,
+whether dt waits one full step after a shortened or undone one before it grows again).
+"halving" is the rule before the line search, kept for the benchmark's before/after."""
 STALL_MIN_STEPS = 2_000
 """Time steps after which a relaxation whose residual has not reached a new low during the
 last half of its steps stops (status.NO_PROGRESS) instead of running to max_steps."""
@@ -722,13 +743,24 @@ def functions(scalar) -> SimpleNamespace:
         pos[i] = work.previous[i]
         vel[i] = vec(scalar(0.0), scalar(0.0))
 
+    @wp.func
+    def trial_node(i: int, pos: wp.array(dtype=vec), vel: wp.array(dtype=vec), work: Work,
+                   length: scalar):
+        """x = previous + length v at node i: the step shortened to length = alpha dt [s]."""
+        pos[i] = work.previous[i] + length * vel[i]
+
+    @wp.func
+    def scale_node(i: int, vel: wp.array(dtype=vec), alpha: scalar):
+        """v *= alpha at node i (a shortened step keeps the velocity of its length)."""
+        vel[i] = alpha * vel[i]
+
     return SimpleNamespace(crossing_blocks=crossing_blocks, build_yarn=build_yarn,
                            product_node=product_node, precondition_yarn=precondition_yarn,
                            velocity_dofs=velocity_dofs, boundary_sums=boundary_sums,
                            tie_diagonals=tie_diagonals, rhs_node=rhs_node,
                            yarn_dot=yarn_dot, dot=dot, pcg=pcg, build_system=build_system,
                            yarn_merit=yarn_merit, merit_total=merit_total, move_node=move_node,
-                           undo_node=undo_node)
+                           undo_node=undo_node, trial_node=trial_node, scale_node=scale_node)
 
 
 @functools.cache
@@ -795,12 +827,12 @@ def relaxation_kernel(scalar):
     def relax(fabric: Fabric, work: Work, mass: wp.array(dtype=scalar),
               external: wp.array(dtype=vec), anchors: wp.array(dtype=vec), dt_start: scalar,
               damping: scalar, tolerance: scalar, cg_tolerance: scalar, max_steps: int,
-              pos: wp.array(dtype=vec), vel: wp.array(dtype=vec),
+              backtracks: int, hold: int, pos: wp.array(dtype=vec), vel: wp.array(dtype=vec),
               force: wp.array(dtype=vec), contact: wp.array(dtype=scalar),
               friction: wp.array(dtype=vec), outcome: wp.array(dtype=wp.int32),
               residual_out: wp.array(dtype=scalar)):
         """Steps until residual <= tolerance or max_steps; outcome = (status, steps, CG
-        iterations, rejected steps)."""
+        iterations, rejected steps, shortened steps, evaluations at shortened lengths)."""
         nodes = pos.shape[0]
         dofs = 2 * nodes
         dt = dt_start
@@ -813,6 +845,9 @@ def relaxation_kernel(scalar):
         steps = int(0)
         iterations = int(0)
         rejected = int(0)
+        shortened = int(0)
+        trials = int(0)
+        grow = int(1)
         for step in range(max_steps + 1):
             if not (wp.isfinite(residual) and wp.isfinite(merit)):
                 code = int(status.NON_FINITE)
@@ -839,11 +874,30 @@ def relaxation_kernel(scalar):
             for i in range(nodes):
                 ops.move_node(i, pos, vel, work, dt)
             state = evaluate(fabric, work, mass, external, anchors, pos, force, contact, friction)
+            alpha = scalar(1.0)
+            for _ in range(backtracks):  # the step halved along its velocity
+                if state[1] < merit:
+                    break
+                alpha = alpha * scalar(0.5)
+                trials += 1
+                for i in range(nodes):
+                    ops.trial_node(i, pos, vel, work, alpha * dt)
+                state = evaluate(fabric, work, mass, external, anchors, pos, force, contact,
+                                 friction)
             if state[1] < merit:
                 merit = state[1]
-                dt = wp.min(dt * scalar(DT_GROWTH), scalar(DT_MAX))
+                if alpha < scalar(1.0):  # v of the length taken; dt kept
+                    shortened += 1
+                    for i in range(nodes):
+                        ops.scale_node(i, vel, alpha)
+                    grow = 1 - hold
+                else:
+                    if grow != 0:
+                        dt = wp.min(dt * scalar(DT_GROWTH), scalar(DT_MAX))
+                    grow = 1
             else:  # undo: back to the step's start at rest, dt halved
                 rejected += 1
+                grow = 1 - hold
                 dt = dt * scalar(DT_SHRINK)
                 for i in range(nodes):
                     ops.undo_node(i, pos, vel, work)
@@ -860,6 +914,8 @@ def relaxation_kernel(scalar):
         outcome[1] = steps
         outcome[2] = iterations
         outcome[3] = rejected
+        outcome[4] = shortened
+        outcome[5] = trials
         residual_out[0] = residual
 
     return relax
@@ -969,7 +1025,7 @@ def pcg_launches(semi: "FabricSemiImplicit", dt: float, max_iterations: int | No
     return int(scalars.numpy()[5])
 
 
-CROSSINGS, BUILD, VELOCITY, BOUNDARY_SUMS, RHS, MOVE, UNDO, MERIT, MERIT_SUM = range(9)
+CROSSINGS, BUILD, VELOCITY, BOUNDARY_SUMS, RHS, MOVE, UNDO, MERIT, MERIT_SUM, TRIAL, SCALE = range(11)
 """The stages of `step_stage_kernel`."""
 
 
@@ -979,8 +1035,8 @@ def step_stage_kernel(scalar):
     launch): the crossing blocks (a thread per crossing), the yarn systems (per yarn), the
     velocities as flat dofs (per dof), the planes' sums of them and the tied dofs'
     preconditioner (one thread), the right side (per node), the move and its undoing (per
-    node), the per-yarn merit and residual (per yarn) and their total (one thread, into
-    sums = (residual, f^T M^-1 f))."""
+    node), a shortened step's positions and velocities (per node), the per-yarn merit and
+    residual (per yarn) and their total (one thread, into sums = (residual, f^T M^-1 f))."""
     vec = VECTORS[scalar]
     Fabric, Work = fabric_arrays.struct(scalar), work_struct(scalar)
     ops, force_ops = functions(scalar), fabric_forces.functions(scalar, True)
@@ -1007,6 +1063,10 @@ def step_stage_kernel(scalar):
             ops.move_node(t, pos, vel, work, dt)
         elif stage == UNDO:
             ops.undo_node(t, pos, vel, work)
+        elif stage == TRIAL:  # dt = the shortened length alpha dt
+            ops.trial_node(t, pos, vel, work, dt)
+        elif stage == SCALE:  # dt = alpha
+            ops.scale_node(t, vel, dt)
         elif stage == MERIT:
             value = ops.yarn_merit(t, force, mass, fabric, work)
             work.largest[t] = value[0]
@@ -1033,6 +1093,10 @@ class SemiOutcome:
     """CG iterations over all the steps."""
     rejected: int = 0
     """Steps undone by the time step rule."""
+    shortened: int = 0
+    """Steps accepted at a fraction alpha < 1 of their length (the line search)."""
+    backtracks: int = 0
+    """Force evaluations at shortened lengths (one per halving)."""
 
 
 class FabricSemiImplicit(PatchRelaxation):
@@ -1041,11 +1105,14 @@ class FabricSemiImplicit(PatchRelaxation):
 
     def __init__(self, arrays: fabric_arrays.PatchArrays, *, device: str = "cpu",
                  layout: str | None = None, scalar=wp.float64, coefficient: float = 0.0,
-                 dt: float = 1.0, cg_tolerance: float = CG_TOLERANCE):
+                 dt: float = 1.0, cg_tolerance: float = CG_TOLERANCE, rule: str = "line_search"):
         if layout is None:
             layout = fabric_explicit.default_layout(device)
         if layout not in fabric_explicit.LAYOUTS:
             raise ValueError(f"layout {layout!r} unknown")
+        if rule not in RULES:
+            raise ValueError(f"time step rule {rule!r} unknown; one of {tuple(RULES)}")
+        self.backtracks, self.hold = RULES[rule]
         self._allocate(arrays, device, layout, scalar, dt)
         self.coefficient, self.cg_tolerance = coefficient, cg_tolerance
         self.work = allocate(arrays, scalar, device)
@@ -1055,15 +1122,16 @@ class FabricSemiImplicit(PatchRelaxation):
         return pos, relax(pos, load, tolerance, max_steps)
 
     def _persistent(self, pos, load, tolerance, max_steps) -> SemiOutcome:
-        code = wp.zeros(4, dtype=wp.int32, device=self.device)
+        code = wp.zeros(6, dtype=wp.int32, device=self.device)
         residual = wp.zeros(1, dtype=self.scalar, device=self.device)
         wp.launch(relaxation_kernel(self.scalar), dim=1, device=self.device,
                   inputs=[self.fabric, self.work, self.mass, load, self.anchors,
                           self.scalar(self.dt), self.scalar(self.coefficient),
                           self.scalar(tolerance), self.scalar(self.cg_tolerance), int(max_steps),
-                          pos, self.vel, self.force, self.contact, self.friction, code, residual])
-        status_code, steps, iterations, rejected = (int(v) for v in code.numpy())
-        return SemiOutcome(status_code, steps, float(residual.numpy()[0]), iterations, rejected)
+                          self.backtracks, self.hold, pos, self.vel, self.force, self.contact, self.friction, code, residual])
+        status_code, steps, iterations, rejected, shortened, trials = (int(v) for v in code.numpy())
+        return SemiOutcome(status_code, steps, float(residual.numpy()[0]), iterations, rejected,
+                           shortened, trials)
 
     def _per_step(self, pos, load, tolerance, max_steps) -> SemiOutcome:
         """The persistent kernel's time loop driven from Python, a launch per stage (threads
@@ -1092,6 +1160,7 @@ class FabricSemiImplicit(PatchRelaxation):
         dt = float(scalar(self.dt))
         residual, merit = evaluate()
         best, since_best, iterations, rejected = residual, 0, 0, 0
+        shortened, trials, grow = 0, 0, True
         code, steps = status.MAX_STEPS, 0
         for step in range(max_steps + 1):
             if not (np.isfinite(residual) and np.isfinite(merit)):
@@ -1120,11 +1189,27 @@ class FabricSemiImplicit(PatchRelaxation):
             iterations += pcg_launches(self, dt, 2 * a.nodes)
             stage(MOVE, a.nodes, dt)
             new_residual, new_merit = evaluate()
+            alpha = 1.0
+            for _ in range(self.backtracks):
+                if new_merit < merit:
+                    break
+                alpha *= 0.5
+                trials += 1
+                stage(TRIAL, a.nodes, alpha * dt)
+                new_residual, new_merit = evaluate()
             if new_merit < merit:
                 merit, residual = new_merit, new_residual
-                dt = min(dt * DT_GROWTH, DT_MAX)
+                if alpha < 1.0:
+                    shortened += 1
+                    stage(SCALE, a.nodes, alpha)
+                    grow = not self.hold
+                else:
+                    if grow:
+                        dt = min(dt * DT_GROWTH, DT_MAX)
+                    grow = True
             else:
                 rejected += 1
+                grow = not self.hold
                 dt *= DT_SHRINK
                 stage(UNDO, a.nodes)
                 residual, _ = evaluate()
@@ -1133,7 +1218,7 @@ class FabricSemiImplicit(PatchRelaxation):
             else:
                 since_best += 1
             steps = step + 1
-        return SemiOutcome(code, steps, residual, iterations, rejected)
+        return SemiOutcome(code, steps, residual, iterations, rejected, shortened, trials)
 
     def system(self, positions, external, anchors, velocities=None, *, dt: float = 1.0,
                definite: bool = True, solve: bool = False, masses: np.ndarray | None = None,

@@ -203,20 +203,23 @@ def test_the_launch_per_stage_pcg_is_the_persistent_one_bit_for_bit():
 def test_the_per_step_layout_relaxes_as_the_persistent_one_bit_for_bit(case):
     """The GPU's layout of the whole relaxation (`FabricSemiImplicit._per_step`: a launch per
     stage, decisions from values read back) takes the persistent kernel's time steps exactly:
-    the same positions, steps, CG iterations and rejected steps, with friction, on a 4 x 4
-    clamped patch, a 3 x 3 patch with moving planes, a 2 x 2 periodic cell (its cell lengths
+    the same positions, steps, CG iterations, rejected and shortened steps, with friction, on a
+    4 x 4 clamped patch (pulled harder, 1 N: steps both shortened by the line search and
+    undone), a 3 x 3 patch with moving planes, a 2 x 2 periodic cell (its cell lengths
     tied); a tied family's end nodes keep one in-plane coordinate."""
-    n, more = {"clamped": (4, {}), "affine": (3, dict(planes="affine")),
-               "periodic": (2, dict(boundary="periodic"))}[case]
-    spec = paper_patch(n, n, friction=PAPER_FRICTION, warp_values=(0.3,), weft_values=(0.1,),
+    n, (warp, weft), more = {"clamped": (4, (1.0, 1.0 / 3), {}),
+                             "affine": (3, (0.3, 0.1), dict(planes="affine")),
+                             "periodic": (2, (0.3, 0.1), dict(boundary="periodic"))}[case]
+    spec = paper_patch(n, n, friction=PAPER_FRICTION, warp_values=(warp,), weft_values=(weft,),
                        tolerance=TOLERANCE, **more)
     ends = []
     for layout in ("persistent", "per_step"):
         dynamic = FabricDynamicSolver(spec, method="semi_implicit", layout=layout)
-        pos, anchors, P = dynamic.reference.start_of_step(dynamic.initial_state(), 0.3, 0.1)
+        pos, anchors, P = dynamic.reference.start_of_step(dynamic.initial_state(), warp, weft)
         ends.append(dynamic.relax(pos, P, anchors))
     (x_persistent, persistent), (x_per_step, per_step) = ends
     assert persistent.cg_iterations > persistent.steps
+    assert persistent.shortened > 0
     if case == "clamped":
         assert persistent.rejected > 0
     assert vars(per_step) == vars(persistent)
