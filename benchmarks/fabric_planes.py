@@ -4,7 +4,8 @@ and `dynfab run` wall times of every fabric scene, dynamic against static.
 
 Run:  python benchmarks/fabric_planes.py [--sizes 8,16,32] [--modes fixed,affine,periodic]
                                          [--no-runs] [--parts steps,runs,semi]
-                                         [--semi-sizes 8,16] [--output benchmarks/fabric_planes.json]
+                                         [--semi-sizes 8,16]
+                                         [--output benchmarks/fabric_planes.json]
       (prints a table per part, writes the JSON)
 
 1. `step_costs`: balanced n x n patches of the paper's yarn with the paper's friction
@@ -27,8 +28,9 @@ Run:  python benchmarks/fabric_planes.py [--sizes 8,16,32] [--modes fixed,affine
    static solver's start of the step (`FabricDynamicSolver.relax`, persistent layout), under
    each time step rule of `fabric_semi_implicit.RULES` ("halving": undo and halve dt on a step
    that does not lower f^T M^-1 f; "line_search": first halve the step's length along its
-   velocity): runs/fabric_strip.toml's first step and the n x n patches of part 1 in each
-   mode (--semi-sizes). Time steps, rejected and shortened steps, CG iterations and the wall
+   velocity, and where the planes move the sliding crossings' secant blocks):
+   runs/fabric_strip.toml's first step and the n x n patches of part 1 in each mode
+   (--semi-sizes). Time steps, rejected and shortened steps, CG iterations and the wall
    time of one relaxation after a warm-up run (compilation), the rules alternating which runs
    first per case.
 """
@@ -124,11 +126,11 @@ def first_step_relaxer(spec, rule: str):
     from dynfab.kernels import fabric_semi_implicit
 
     dynamic = FabricDynamicSolver(spec, method="semi_implicit", layout="persistent")
-    semi = dynamic.relaxation
-    semi.backtracks, semi.hold = fabric_semi_implicit.RULES[rule]
+    dynamic.relaxation = fabric_semi_implicit.FabricSemiImplicit(dynamic.arrays,
+                                                                 layout="persistent", rule=rule)
     warp, weft = spec.loads()
-    start = dynamic.reference.start_of_step(dynamic.initial_state(), warp[0], weft[0])
-    return lambda: dynamic.relax(*start)[1]
+    pos, anchors, P = dynamic.reference.start_of_step(dynamic.initial_state(), warp[0], weft[0])
+    return lambda: dynamic.relax(pos, P, anchors)[1]
 
 
 def semi_rules(sizes, modes) -> list[dict]:
@@ -160,10 +162,14 @@ def semi_rules(sizes, modes) -> list[dict]:
             print(f"{name:18s} {rule:12s} {out.steps:6d} steps {out.rejected:5d} rejected "
                   f"{out.shortened:5d} shortened {out.cg_iterations:7d} CG {seconds[rule]:8.3f} s",
                   flush=True)
-        before, after = rows[-len(rules)], rows[-1]
-        print(f"{name:18s} line_search / halving: steps {after['steps'] / before['steps']:.3f}, "
-              f"CG {after['cg_iterations'] / before['cg_iterations']:.3f}, "
-              f"wall {after['seconds'] / before['seconds']:.3f}", flush=True)
+        by_rule = {row["rule"]: row for row in rows[-len(rules):]}
+        before = by_rule["halving"]
+        for rule in rules:
+            after = by_rule[rule]
+            if rule != "halving":
+                print(f"{name:18s} {rule} / halving: steps {after['steps'] / before['steps']:.3f}, "
+                      f"CG {after['cg_iterations'] / before['cg_iterations']:.3f}, "
+                      f"wall {after['seconds'] / before['seconds']:.3f}", flush=True)
     return rows
 
 

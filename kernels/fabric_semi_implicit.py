@@ -15,7 +15,8 @@ semi-definite, F_T frozen:
 - per crossing, the contact's dR/dg >= 0 on (z_wa, z_we) as dR/dg [[1, -1], [-1, 1]];
 - per crossing with friction, the exact Huber Hessian on the slip's dofs (x_wa, s_we):
   k_t I while sticking, (F_T / |s|^3) [[s_y^2, -s_x s_y], [-s_x s_y, s_x^2]] while sliding,
-  both positive semi-definite;
+  both positive semi-definite (where the planes move, the secant (F_T / |s|) I while sliding:
+  the time step rule below);
 - where the planes move ("affine", the periodic cell): the rest of J_c^T H_c J_c, J_c carrying
   -w_c on the x dofs of the end nodes moving the crossing's planes (`fabric_forces`); it is
   never stored: the product takes U_f (x summed over family f's end nodes) and
@@ -54,19 +55,27 @@ Time step rule: dt starts at 1 s with the Gershgorin masses of
 f^T M^-1 f is accepted and dt doubles (capped at DT_MAX). One that does not is first shortened
 along its new velocity, x = x_0 + alpha dt v, alpha = 1/2, 1/4, ... (MAX_BACKTRACKS halvings,
 one force evaluation each, the CG solution reused): the first alpha that lowers the merit is
-accepted with v scaled by alpha and dt kept. Only if none does is the step undone (positions
-back, velocities zeroed) and dt halved. After a shortened or undone step dt waits one full
-step before it grows again. A factorisation with a pivot that is not positive (rounding at
-very large dt) halves dt and rebuilds. Why: the one-yarn rule (undo and halve at once, as
-`kernels/semi_implicit.py`) cycled on the 16 x 16 strip (runs/fabric_strip.toml: affine
-planes, friction, weft ends free) between a rejected 2 dt and an accepted dt, each accepted
-step lowering the merit by a few per cent: its first load step took 779 time steps (380
-undone, 8190 CG iterations), with the line search 133 (2 undone, 2921 CG iterations), about
-a third of the wall time; on the n x n patches of `benchmarks/fabric_planes.py --parts semi`
-(fixed, affine, periodic; n = 8, 16) fewer steps and CG iterations too. Tried and dropped:
-acceptance on the total energy (it stalls with friction, F_T moving with R being no
-potential), the secant F_T/|s| I on sliding crossings (slower with the line search), keeping
-the velocities of an undone step. `RULES["halving"]` is the old rule (the benchmark's
+accepted with v scaled by alpha and dt kept; only if none does is the step undone (positions
+back, velocities zeroed) and dt halved. Where the planes move ("affine", the periodic cell) a
+sliding crossing's friction block is the secant (F_T/|s|) I, a quadratic majorant of the
+Huber term (the static solver's after a shortened step), instead of its exact Hessian, which
+has no stiffness along s: a step moving the planes shifts every slip of a family at once and
+the exact block let it carry slips through the anchors, their friction forces reversing.
+A factorisation with a pivot that is not positive (rounding at very large dt) halves dt and
+rebuilds. Why (`python benchmarks/fabric_planes.py --parts semi`, both rules in one run,
+benchmarks/fabric_semi_rules.json): the one-yarn rule (undo and halve at once,
+`kernels/semi_implicit.py`'s) cycled on the 16 x 16 strip (runs/fabric_strip.toml: affine
+planes, friction, weft ends free) between an undone 2 dt and an accepted dt, each accepted
+step lowering the merit by a few per cent; the steps that failed reversed the slip of a
+sliding crossing or moved a plane's end nodes. The strip's first load step took 779 time
+steps (380 undone, 8190 CG iterations), now 167 (65 undone, 2480), 0.29 x the wall time; the
+8 x 8 and 16 x 16 patches (fixed, affine, periodic) 0.21 to 0.63 x the time steps, 0.34 to
+0.89 x the CG iterations. Measured and dropped: acceptance on the total energy (it stalled
+with friction: F_T moving with R is no potential); the secant with fixed planes (16 x 16: 653
+CG iterations against 419 with the exact block, the sliding crossings losing Newton's
+quadratic convergence); dt held for a step after a shortened one (better with the exact
+block on the strip, much worse with the secant); keeping the velocities of an undone step
+(stalled). `RULES["halving"]` is the old rule, the exact blocks everywhere (the benchmark's
 before).
 
 Two layouts, the same arithmetic in the same order (bit-identical runs; tests check it):
@@ -114,10 +123,10 @@ MAX_BACKTRACKS = 4
 line search of the module docstring's time step rule)."""
 MAX_REFACTORISATIONS = 60
 """dt halvings allowed to obtain positive pivots in one step."""
-RULES = {"line_search": (MAX_BACKTRACKS, 1), "halving": (0, 0)}
-"""Time step rules (module docstring): (halvings of a step's length before it is undone,
-whether dt waits one full step after a shortened or undone one before it grows again).
-"halving" is the rule before the line search, kept for the benchmark's before/after."""
+RULES = {"line_search": MAX_BACKTRACKS, "halving": 0}
+"""Time step rules (module docstring): halvings of a step's length before it is undone.
+"halving" is the rule before the line search (and the secant friction blocks where the planes
+move), kept for the benchmark's before/after."""
 STALL_MIN_STEPS = 2_000
 """Time steps after which a relaxation whose residual has not reached a new low during the
 last half of its steps stops (status.NO_PROGRESS) instead of running to max_steps."""
@@ -330,11 +339,11 @@ def functions(scalar) -> SimpleNamespace:
     @wp.func
     def crossing_blocks(c: int, pos: wp.array(dtype=vec), fabric: Fabric,
                         anchors: wp.array(dtype=vec), contact: wp.array(dtype=scalar), work: Work,
-                        shift: vec):
+                        shift: vec, secant: int):
         """coupling[c] = (dR/dg, h_xx, h_xy, h_yy) [N/m] at R = contact[c] (this position's),
         F_T frozen at F_T(R): dR/dg of the series law where closed (0 open); the Huber Hessian
         at the slip s (the planes moved by `shift`, `fabric_forces.plane_shift`), 0 where
-        F_T = 0."""
+        F_T = 0, with `secant` the secant (F_T/|s|) I where sliding."""
         law = fabric.contact_law
         R = contact[c]
         g = fabric.crossing_offset[c] - fabric.crossing_side[c] * (
@@ -353,6 +362,8 @@ def functions(scalar) -> SimpleNamespace:
             size = wp.length(s)
             if stick * size <= bound:
                 h = vec(stick, stick)
+            elif secant != 0:
+                h = vec(bound / size, bound / size)
             else:
                 scale = bound / (size * size * size)
                 h = vec(scale * s[1] * s[1], scale * s[0] * s[0])
@@ -678,12 +689,12 @@ def functions(scalar) -> SimpleNamespace:
     def build_system(pos: wp.array(dtype=vec), vel: wp.array(dtype=vec), force: wp.array(dtype=vec),
                      mass: wp.array(dtype=scalar), fabric: Fabric, anchors: wp.array(dtype=vec),
                      contact: wp.array(dtype=scalar), work: Work, dt: scalar, damping: scalar,
-                     definite: int) -> int:
-        """Every crossing's blocks, every yarn's system, then the right side; -1, or a yarn's
-        bad pivot."""
+                     definite: int, secant: int) -> int:
+        """Every crossing's blocks (`secant`: see `crossing_blocks`), every yarn's system, then
+        the right side; -1, or a yarn's bad pivot."""
         shift = force_ops.plane_shift(pos, fabric)
         for c in range(contact.shape[0]):
-            crossing_blocks(c, pos, fabric, anchors, contact, work, shift)
+            crossing_blocks(c, pos, fabric, anchors, contact, work, shift, secant)
         failed = int(-1)
         for y in range(work.partial.shape[0]):
             bad = build_yarn(y, pos, mass, fabric, work, dt, damping, definite)
@@ -779,12 +790,12 @@ def system_kernel(scalar):
                anchors: wp.array(dtype=vec), pos: wp.array(dtype=vec), vel: wp.array(dtype=vec),
                force: wp.array(dtype=vec), contact: wp.array(dtype=scalar),
                friction: wp.array(dtype=vec), dt: scalar, damping: scalar, definite: int,
-               assemble: int, solve: int, apply: int, tolerance: scalar, max_iterations: int,
-               outcome: wp.array(dtype=wp.int32)):
+               secant: int, assemble: int, solve: int, apply: int, tolerance: scalar,
+               max_iterations: int, outcome: wp.array(dtype=wp.int32)):
         if assemble != 0:
             force_ops.scatter_forces(pos, fabric, anchors, contact, friction, external, force)
             outcome[0] = ops.build_system(pos, vel, force, mass, fabric, anchors, contact, work,
-                                          dt, damping, definite)
+                                          dt, damping, definite, secant)
         outcome[1] = 0
         if solve != 0:
             outcome[1] = ops.pcg(fabric, work, dt * dt, tolerance, max_iterations)
@@ -827,7 +838,7 @@ def relaxation_kernel(scalar):
     def relax(fabric: Fabric, work: Work, mass: wp.array(dtype=scalar),
               external: wp.array(dtype=vec), anchors: wp.array(dtype=vec), dt_start: scalar,
               damping: scalar, tolerance: scalar, cg_tolerance: scalar, max_steps: int,
-              backtracks: int, hold: int, pos: wp.array(dtype=vec), vel: wp.array(dtype=vec),
+              backtracks: int, secant: int, pos: wp.array(dtype=vec), vel: wp.array(dtype=vec),
               force: wp.array(dtype=vec), contact: wp.array(dtype=scalar),
               friction: wp.array(dtype=vec), outcome: wp.array(dtype=wp.int32),
               residual_out: wp.array(dtype=scalar)):
@@ -847,7 +858,6 @@ def relaxation_kernel(scalar):
         rejected = int(0)
         shortened = int(0)
         trials = int(0)
-        grow = int(1)
         for step in range(max_steps + 1):
             if not (wp.isfinite(residual) and wp.isfinite(merit)):
                 code = int(status.NON_FINITE)
@@ -863,7 +873,7 @@ def relaxation_kernel(scalar):
             factored = bool(False)
             for _ in range(MAX_REFACTORISATIONS):
                 if ops.build_system(pos, vel, force, mass, fabric, anchors, contact, work, dt,
-                                    damping, 1) < 0:
+                                    damping, 1, secant) < 0:
                     factored = True
                     break
                 dt = dt * scalar(DT_SHRINK)
@@ -890,14 +900,10 @@ def relaxation_kernel(scalar):
                     shortened += 1
                     for i in range(nodes):
                         ops.scale_node(i, vel, alpha)
-                    grow = 1 - hold
                 else:
-                    if grow != 0:
-                        dt = wp.min(dt * scalar(DT_GROWTH), scalar(DT_MAX))
-                    grow = 1
+                    dt = wp.min(dt * scalar(DT_GROWTH), scalar(DT_MAX))
             else:  # undo: back to the step's start at rest, dt halved
                 rejected += 1
-                grow = 1 - hold
                 dt = dt * scalar(DT_SHRINK)
                 for i in range(nodes):
                     ops.undo_node(i, pos, vel, work)
@@ -1025,7 +1031,8 @@ def pcg_launches(semi: "FabricSemiImplicit", dt: float, max_iterations: int | No
     return int(scalars.numpy()[5])
 
 
-CROSSINGS, BUILD, VELOCITY, BOUNDARY_SUMS, RHS, MOVE, UNDO, MERIT, MERIT_SUM, TRIAL, SCALE = range(11)
+CROSSINGS, BUILD, VELOCITY, BOUNDARY_SUMS, RHS, MOVE, UNDO, MERIT, MERIT_SUM, TRIAL, SCALE = \
+    range(11)
 """The stages of `step_stage_kernel`."""
 
 
@@ -1045,11 +1052,11 @@ def step_stage_kernel(scalar):
     def step_pass(fabric: Fabric, work: Work, mass: wp.array(dtype=scalar),
                   anchors: wp.array(dtype=vec), pos: wp.array(dtype=vec), vel: wp.array(dtype=vec),
                   force: wp.array(dtype=vec), contact: wp.array(dtype=scalar), dt: scalar,
-                  damping: scalar, sums: wp.array(dtype=scalar), stage: int):
+                  damping: scalar, sums: wp.array(dtype=scalar), stage: int, secant: int):
         t = wp.tid()
         if stage == CROSSINGS:
             ops.crossing_blocks(t, pos, fabric, anchors, contact, work,
-                                force_ops.plane_shift(pos, fabric))
+                                force_ops.plane_shift(pos, fabric), secant)
         elif stage == BUILD:
             work.failed[t] = ops.build_yarn(t, pos, mass, fabric, work, dt, damping, 1)
         elif stage == VELOCITY:
@@ -1112,7 +1119,9 @@ class FabricSemiImplicit(PatchRelaxation):
             raise ValueError(f"layout {layout!r} unknown")
         if rule not in RULES:
             raise ValueError(f"time step rule {rule!r} unknown; one of {tuple(RULES)}")
-        self.backtracks, self.hold = RULES[rule]
+        self.backtracks = RULES[rule]
+        self.secant = int(rule != "halving" and arrays.plane_nodes.size > 0)
+        """1: sliding crossings' friction blocks are the secant F_T/|s| I (module docstring)."""
         self._allocate(arrays, device, layout, scalar, dt)
         self.coefficient, self.cg_tolerance = coefficient, cg_tolerance
         self.work = allocate(arrays, scalar, device)
@@ -1128,7 +1137,8 @@ class FabricSemiImplicit(PatchRelaxation):
                   inputs=[self.fabric, self.work, self.mass, load, self.anchors,
                           self.scalar(self.dt), self.scalar(self.coefficient),
                           self.scalar(tolerance), self.scalar(self.cg_tolerance), int(max_steps),
-                          self.backtracks, self.hold, pos, self.vel, self.force, self.contact, self.friction, code, residual])
+                          self.backtracks, self.secant, pos, self.vel, self.force, self.contact,
+                          self.friction, code, residual])
         status_code, steps, iterations, rejected, shortened, trials = (int(v) for v in code.numpy())
         return SemiOutcome(status_code, steps, float(residual.numpy()[0]), iterations, rejected,
                            shortened, trials)
@@ -1147,7 +1157,8 @@ class FabricSemiImplicit(PatchRelaxation):
         def stage(which, dim, dt=0.0):
             wp.launch(stage_pass, dim=dim, device=device,
                       inputs=[self.fabric, self.work, self.mass, self.anchors, pos, self.vel,
-                              self.force, self.contact, scalar(dt), damping, sums, which])
+                              self.force, self.contact, scalar(dt), damping, sums, which,
+                              self.secant])
 
         def evaluate():
             wp.launch(passes.crossing_pass, dim=a.crossings, device=device,
@@ -1160,7 +1171,7 @@ class FabricSemiImplicit(PatchRelaxation):
         dt = float(scalar(self.dt))
         residual, merit = evaluate()
         best, since_best, iterations, rejected = residual, 0, 0, 0
-        shortened, trials, grow = 0, 0, True
+        shortened, trials = 0, 0
         code, steps = status.MAX_STEPS, 0
         for step in range(max_steps + 1):
             if not (np.isfinite(residual) and np.isfinite(merit)):
@@ -1202,14 +1213,10 @@ class FabricSemiImplicit(PatchRelaxation):
                 if alpha < 1.0:
                     shortened += 1
                     stage(SCALE, a.nodes, alpha)
-                    grow = not self.hold
                 else:
-                    if grow:
-                        dt = min(dt * DT_GROWTH, DT_MAX)
-                    grow = True
+                    dt = min(dt * DT_GROWTH, DT_MAX)
             else:
                 rejected += 1
-                grow = not self.hold
                 dt *= DT_SHRINK
                 stage(UNDO, a.nodes)
                 residual, _ = evaluate()
@@ -1222,9 +1229,10 @@ class FabricSemiImplicit(PatchRelaxation):
 
     def system(self, positions, external, anchors, velocities=None, *, dt: float = 1.0,
                definite: bool = True, solve: bool = False, masses: np.ndarray | None = None,
-               max_iterations: int | None = None, assemble: bool = True):
+               max_iterations: int | None = None, assemble: bool = True, secant: bool = False):
         """Assemble (and with `solve`, PCG-solve) one step's system at `positions` (tests,
-        benchmark). Returns (bad pivot or -1, CG iterations)."""
+        benchmark), with `secant` the sliding crossings' secant blocks. Returns (bad pivot or
+        -1, CG iterations)."""
         n = self.arrays.nodes
         mass = self.mass if masses is None else self._array(masses, self.scalar)
         velocities = np.zeros((n, 2)) if velocities is None else velocities
@@ -1233,7 +1241,7 @@ class FabricSemiImplicit(PatchRelaxation):
                                self.anchors, self._array(positions, self.vec),
                                self._array(velocities, self.vec), self.force, self.contact,
                                self.friction, self.scalar(dt), self.scalar(self.coefficient),
-                               int(definite)]
+                               int(definite), int(secant)]
         return self._launch_system(assemble, solve, False, 2 * n if max_iterations is None
                                    else max_iterations)
 
