@@ -3,8 +3,10 @@
 and `dynfab run` wall times of every fabric scene, dynamic against static.
 
 Run:  python benchmarks/fabric_planes.py [--sizes 8,16,32] [--modes fixed,affine,periodic]
-                                         [--no-runs] [--output benchmarks/fabric_planes.json]
-      (prints two tables, writes the JSON)
+                                         [--no-runs] [--parts steps,runs,semi]
+                                         [--semi-sizes 8,16]
+                                         [--output benchmarks/fabric_planes.json]
+      (prints a table per part, writes the JSON)
 
 1. `step_costs`: balanced n x n patches of the paper's yarn with the paper's friction
    (`fabric_arrays.paper_patch`, 8 segments per half-wave), force control, loaded by
@@ -22,6 +24,15 @@ Run:  python benchmarks/fabric_planes.py [--sizes 8,16,32] [--modes fixed,affine
    (static first for half the scenes), one run each in a subprocess (numba and Warp
    caches warm: run the tests or the script once before), wall time around the
    subprocess.
+3. `semi_rules` (part "semi"): the semi-implicit relaxation of the first load step, from the
+   static solver's start of the step (`FabricDynamicSolver.relax`, persistent layout), under
+   each time step rule of `fabric_semi_implicit.RULES` ("halving": undo and halve dt on a step
+   that does not lower f^T M^-1 f; "line_search": first halve the step's length along its
+   velocity, and where the planes move the sliding crossings' secant blocks):
+   runs/fabric_strip.toml's first step and the n x n patches of part 1 in each mode
+   (--semi-sizes). Time steps, rejected and shortened steps, CG iterations and the wall
+   time of one relaxation after a warm-up run (compilation), the rules alternating which runs
+   first per case.
 """
 
 from __future__ import annotations
@@ -109,6 +120,59 @@ def step_costs(sizes, modes) -> list[dict]:
     return rows
 
 
+def first_step_relaxer(spec, rule: str):
+    """A callable relaxing `spec`'s first load step with the semi-implicit solver under `rule`."""
+    from dynfab.fabric.dynamic import FabricDynamicSolver
+    from dynfab.kernels import fabric_semi_implicit
+
+    dynamic = FabricDynamicSolver(spec, method="semi_implicit", layout="persistent")
+    dynamic.relaxation = fabric_semi_implicit.FabricSemiImplicit(dynamic.arrays,
+                                                                 layout="persistent", rule=rule)
+    warp, weft = spec.loads()
+    pos, anchors, P = dynamic.reference.start_of_step(dynamic.initial_state(), warp[0], weft[0])
+    return lambda: dynamic.relax(pos, P, anchors)[1]
+
+
+def semi_rules(sizes, modes) -> list[dict]:
+    """Per case and time step rule: the first load step's time steps, CG iterations, wall time."""
+    from dynfab.fabric.from_scene import fabric_spec
+    from dynfab.kernels import fabric_semi_implicit
+    from dynfab.scene import load_scene
+
+    cases = [("strip", fabric_spec(load_scene(ROOT / "runs" / "fabric_strip.toml")))]
+    cases += [(f"{n}x{n} {mode}", patch(n, mode)) for n in sizes for mode in modes]
+    rules = tuple(fabric_semi_implicit.RULES)
+    rows = []
+    for index, (name, spec) in enumerate(cases):
+        runs = {rule: first_step_relaxer(spec, rule) for rule in rules}
+        for rule in rules:
+            runs[rule]()  # compile / load the kernels
+        seconds = {}
+        outcomes = {}
+        for rule in (rules if index % 2 == 0 else rules[::-1]):
+            began = time.perf_counter()
+            outcomes[rule] = runs[rule]()
+            seconds[rule] = time.perf_counter() - began
+        for rule in rules:
+            out = outcomes[rule]
+            rows.append({"case": name, "rule": rule, "status": out.status, "steps": out.steps,
+                         "rejected": out.rejected, "shortened": out.shortened,
+                         "backtracks": out.backtracks, "cg_iterations": out.cg_iterations,
+                         "residual_N": out.residual, "seconds": seconds[rule]})
+            print(f"{name:18s} {rule:12s} {out.steps:6d} steps {out.rejected:5d} rejected "
+                  f"{out.shortened:5d} shortened {out.cg_iterations:7d} CG {seconds[rule]:8.3f} s",
+                  flush=True)
+        by_rule = {row["rule"]: row for row in rows[-len(rules):]}
+        before = by_rule["halving"]
+        for rule in rules:
+            after = by_rule[rule]
+            if rule != "halving":
+                print(f"{name:18s} {rule} / halving: steps {after['steps'] / before['steps']:.3f}, "
+                      f"CG {after['cg_iterations'] / before['cg_iterations']:.3f}, "
+                      f"wall {after['seconds'] / before['seconds']:.3f}", flush=True)
+    return rows
+
+
 def run_times() -> list[dict]:
     """Wall time of `dynfab run` per scene and solver, alternating the order per scene."""
     dynfab = Path(sys.executable).parent / "dynfab"
@@ -140,16 +204,23 @@ def main(argv=None) -> None:
     parser.add_argument("--modes", default="fixed,affine,periodic",
                         help="comma-separated subset of fixed,affine,periodic")
     parser.add_argument("--no-runs", action="store_true", help="skip the dynfab run timings")
+    parser.add_argument("--parts", default="steps,runs,semi",
+                        help="comma-separated subset of steps,runs,semi (module docstring)")
+    parser.add_argument("--semi-sizes", default="8,16", help="patch sizes n of part semi")
     parser.add_argument("--output", type=Path, default=OUTPUT)
     args = parser.parse_args(argv)
     sizes = [int(v) for v in args.sizes.split(",")]
     modes = args.modes.split(",")
+    parts = args.parts.split(",")
     result = {"command": "python benchmarks/fabric_planes.py " + " ".join(argv or sys.argv[1:]),
               "machine": platform.platform(), "processor": platform.processor(),
-              "load_N": LOAD, "damping_per_s": DAMPING, "repeats": REPEATS,
-              "steps": step_costs(sizes, modes)}
-    if not args.no_runs:
+              "load_N": LOAD, "damping_per_s": DAMPING, "repeats": REPEATS}
+    if "steps" in parts:
+        result["steps"] = step_costs(sizes, modes)
+    if "runs" in parts and not args.no_runs:
         result["runs"] = run_times()
+    if "semi" in parts:
+        result["semi_rules"] = semi_rules([int(v) for v in args.semi_sizes.split(",")], modes)
     args.output.write_text(json.dumps(result, indent=1) + "\n")
     print(f"wrote {args.output}")
 

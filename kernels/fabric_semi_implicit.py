@@ -15,7 +15,8 @@ semi-definite, F_T frozen:
 - per crossing, the contact's dR/dg >= 0 on (z_wa, z_we) as dR/dg [[1, -1], [-1, 1]];
 - per crossing with friction, the exact Huber Hessian on the slip's dofs (x_wa, s_we):
   k_t I while sticking, (F_T / |s|^3) [[s_y^2, -s_x s_y], [-s_x s_y, s_x^2]] while sliding,
-  both positive semi-definite;
+  both positive semi-definite (where the planes move, the secant (F_T / |s|) I while sliding:
+  the time step rule below);
 - where the planes move ("affine", the periodic cell): the rest of J_c^T H_c J_c, J_c carrying
   -w_c on the x dofs of the end nodes moving the crossing's planes (`fabric_forces`); it is
   never stored: the product takes U_f (x summed over family f's end nodes) and
@@ -49,11 +50,33 @@ iterations, a looser one (1e-1) costs many more time steps on large patches; 1e-
 the fastest of 1e-1 to 1e-6 on 16 x 16 and 64 x 64 patches (docs/results.md, "Woven
 fabric: semi-implicit against static").
 
-Time step rule (the one-yarn solver's): dt starts at 1 s with the Gershgorin masses of
-`fabric_arrays.gershgorin_masses` (the explicit solver's), doubles after a step that lowers
-f^T M^-1 f (capped at DT_MAX), and a step that does not is undone (positions back,
-velocities zeroed) and dt halved. A factorisation with a pivot that is not positive
-(rounding at very large dt) halves dt and rebuilds.
+Time step rule: dt starts at 1 s with the Gershgorin masses of
+`fabric_arrays.gershgorin_masses` (the explicit solver's). A step that lowers the merit
+f^T M^-1 f is accepted and dt doubles (capped at DT_MAX). One that does not is first shortened
+along its new velocity, x = x_0 + alpha dt v, alpha = 1/2, 1/4, ... (MAX_BACKTRACKS halvings,
+one force evaluation each, the CG solution reused): the first alpha that lowers the merit is
+accepted with v scaled by alpha and dt kept; only if none does is the step undone (positions
+back, velocities zeroed) and dt halved. Where the planes move ("affine", the periodic cell) a
+sliding crossing's friction block is the secant (F_T/|s|) I, a quadratic majorant of the
+Huber term (the static solver's after a shortened step), instead of its exact Hessian, which
+has no stiffness along s: a step moving the planes shifts every slip of a family at once and
+the exact block let it carry slips through the anchors, their friction forces reversing.
+A factorisation with a pivot that is not positive (rounding at very large dt) halves dt and
+rebuilds. Why (`python benchmarks/fabric_planes.py --parts semi`, both rules in one run,
+benchmarks/fabric_semi_rules.json): the one-yarn rule (undo and halve at once,
+`kernels/semi_implicit.py`'s) cycled on the 16 x 16 strip (runs/fabric_strip.toml: affine
+planes, friction, weft ends free) between an undone 2 dt and an accepted dt, each accepted
+step lowering the merit by a few per cent; the steps that failed reversed the slip of a
+sliding crossing or moved a plane's end nodes. The strip's first load step took 779 time
+steps (380 undone, 8190 CG iterations), now 167 (65 undone, 2480), 0.29 x the wall time; the
+8 x 8 and 16 x 16 patches (fixed, affine, periodic) 0.21 to 0.63 x the time steps, 0.34 to
+0.89 x the CG iterations. Measured and dropped: acceptance on the total energy (it stalled
+with friction: F_T moving with R is no potential); the secant with fixed planes (16 x 16: 653
+CG iterations against 419 with the exact block, the sliding crossings losing Newton's
+quadratic convergence); dt held for a step after a shortened one (better with the exact
+block on the strip, much worse with the secant); keeping the velocities of an undone step
+(stalled). `RULES["halving"]` is the old rule, the exact blocks everywhere (the benchmark's
+before).
 
 Two layouts, the same arithmetic in the same order (bit-identical runs; tests check it):
 
@@ -95,8 +118,15 @@ DT_SHRINK = 0.5
 DT_MAX = 1e12
 """The largest time step [s]: dt^2 K then outweighs M by ~1e24 (a Newton step); the cap only
 keeps dt^2 finite over long runs."""
+MAX_BACKTRACKS = 4
+"""Halvings of a step's length along its new velocity before the step is undone [-] (the
+line search of the module docstring's time step rule)."""
 MAX_REFACTORISATIONS = 60
 """dt halvings allowed to obtain positive pivots in one step."""
+RULES = {"line_search": MAX_BACKTRACKS, "halving": 0}
+"""Time step rules (module docstring): halvings of a step's length before it is undone.
+"halving" is the rule before the line search (and the secant friction blocks where the planes
+move), kept for the benchmark's before/after."""
 STALL_MIN_STEPS = 2_000
 """Time steps after which a relaxation whose residual has not reached a new low during the
 last half of its steps stops (status.NO_PROGRESS) instead of running to max_steps."""
@@ -309,11 +339,11 @@ def functions(scalar) -> SimpleNamespace:
     @wp.func
     def crossing_blocks(c: int, pos: wp.array(dtype=vec), fabric: Fabric,
                         anchors: wp.array(dtype=vec), contact: wp.array(dtype=scalar), work: Work,
-                        shift: vec):
+                        shift: vec, secant: int):
         """coupling[c] = (dR/dg, h_xx, h_xy, h_yy) [N/m] at R = contact[c] (this position's),
         F_T frozen at F_T(R): dR/dg of the series law where closed (0 open); the Huber Hessian
         at the slip s (the planes moved by `shift`, `fabric_forces.plane_shift`), 0 where
-        F_T = 0."""
+        F_T = 0, with `secant` the secant (F_T/|s|) I where sliding."""
         law = fabric.contact_law
         R = contact[c]
         g = fabric.crossing_offset[c] - fabric.crossing_side[c] * (
@@ -332,6 +362,8 @@ def functions(scalar) -> SimpleNamespace:
             size = wp.length(s)
             if stick * size <= bound:
                 h = vec(stick, stick)
+            elif secant != 0:
+                h = vec(bound / size, bound / size)
             else:
                 scale = bound / (size * size * size)
                 h = vec(scale * s[1] * s[1], scale * s[0] * s[0])
@@ -657,12 +689,12 @@ def functions(scalar) -> SimpleNamespace:
     def build_system(pos: wp.array(dtype=vec), vel: wp.array(dtype=vec), force: wp.array(dtype=vec),
                      mass: wp.array(dtype=scalar), fabric: Fabric, anchors: wp.array(dtype=vec),
                      contact: wp.array(dtype=scalar), work: Work, dt: scalar, damping: scalar,
-                     definite: int) -> int:
-        """Every crossing's blocks, every yarn's system, then the right side; -1, or a yarn's
-        bad pivot."""
+                     definite: int, secant: int) -> int:
+        """Every crossing's blocks (`secant`: see `crossing_blocks`), every yarn's system, then
+        the right side; -1, or a yarn's bad pivot."""
         shift = force_ops.plane_shift(pos, fabric)
         for c in range(contact.shape[0]):
-            crossing_blocks(c, pos, fabric, anchors, contact, work, shift)
+            crossing_blocks(c, pos, fabric, anchors, contact, work, shift, secant)
         failed = int(-1)
         for y in range(work.partial.shape[0]):
             bad = build_yarn(y, pos, mass, fabric, work, dt, damping, definite)
@@ -722,13 +754,24 @@ def functions(scalar) -> SimpleNamespace:
         pos[i] = work.previous[i]
         vel[i] = vec(scalar(0.0), scalar(0.0))
 
+    @wp.func
+    def trial_node(i: int, pos: wp.array(dtype=vec), vel: wp.array(dtype=vec), work: Work,
+                   length: scalar):
+        """x = previous + length v at node i: the step shortened to length = alpha dt [s]."""
+        pos[i] = work.previous[i] + length * vel[i]
+
+    @wp.func
+    def scale_node(i: int, vel: wp.array(dtype=vec), alpha: scalar):
+        """v *= alpha at node i (a shortened step keeps the velocity of its length)."""
+        vel[i] = alpha * vel[i]
+
     return SimpleNamespace(crossing_blocks=crossing_blocks, build_yarn=build_yarn,
                            product_node=product_node, precondition_yarn=precondition_yarn,
                            velocity_dofs=velocity_dofs, boundary_sums=boundary_sums,
                            tie_diagonals=tie_diagonals, rhs_node=rhs_node,
                            yarn_dot=yarn_dot, dot=dot, pcg=pcg, build_system=build_system,
                            yarn_merit=yarn_merit, merit_total=merit_total, move_node=move_node,
-                           undo_node=undo_node)
+                           undo_node=undo_node, trial_node=trial_node, scale_node=scale_node)
 
 
 @functools.cache
@@ -747,12 +790,12 @@ def system_kernel(scalar):
                anchors: wp.array(dtype=vec), pos: wp.array(dtype=vec), vel: wp.array(dtype=vec),
                force: wp.array(dtype=vec), contact: wp.array(dtype=scalar),
                friction: wp.array(dtype=vec), dt: scalar, damping: scalar, definite: int,
-               assemble: int, solve: int, apply: int, tolerance: scalar, max_iterations: int,
-               outcome: wp.array(dtype=wp.int32)):
+               secant: int, assemble: int, solve: int, apply: int, tolerance: scalar,
+               max_iterations: int, outcome: wp.array(dtype=wp.int32)):
         if assemble != 0:
             force_ops.scatter_forces(pos, fabric, anchors, contact, friction, external, force)
             outcome[0] = ops.build_system(pos, vel, force, mass, fabric, anchors, contact, work,
-                                          dt, damping, definite)
+                                          dt, damping, definite, secant)
         outcome[1] = 0
         if solve != 0:
             outcome[1] = ops.pcg(fabric, work, dt * dt, tolerance, max_iterations)
@@ -795,12 +838,12 @@ def relaxation_kernel(scalar):
     def relax(fabric: Fabric, work: Work, mass: wp.array(dtype=scalar),
               external: wp.array(dtype=vec), anchors: wp.array(dtype=vec), dt_start: scalar,
               damping: scalar, tolerance: scalar, cg_tolerance: scalar, max_steps: int,
-              pos: wp.array(dtype=vec), vel: wp.array(dtype=vec),
+              backtracks: int, secant: int, pos: wp.array(dtype=vec), vel: wp.array(dtype=vec),
               force: wp.array(dtype=vec), contact: wp.array(dtype=scalar),
               friction: wp.array(dtype=vec), outcome: wp.array(dtype=wp.int32),
               residual_out: wp.array(dtype=scalar)):
         """Steps until residual <= tolerance or max_steps; outcome = (status, steps, CG
-        iterations, rejected steps)."""
+        iterations, rejected steps, shortened steps, evaluations at shortened lengths)."""
         nodes = pos.shape[0]
         dofs = 2 * nodes
         dt = dt_start
@@ -813,6 +856,8 @@ def relaxation_kernel(scalar):
         steps = int(0)
         iterations = int(0)
         rejected = int(0)
+        shortened = int(0)
+        trials = int(0)
         for step in range(max_steps + 1):
             if not (wp.isfinite(residual) and wp.isfinite(merit)):
                 code = int(status.NON_FINITE)
@@ -828,7 +873,7 @@ def relaxation_kernel(scalar):
             factored = bool(False)
             for _ in range(MAX_REFACTORISATIONS):
                 if ops.build_system(pos, vel, force, mass, fabric, anchors, contact, work, dt,
-                                    damping, 1) < 0:
+                                    damping, 1, secant) < 0:
                     factored = True
                     break
                 dt = dt * scalar(DT_SHRINK)
@@ -839,9 +884,24 @@ def relaxation_kernel(scalar):
             for i in range(nodes):
                 ops.move_node(i, pos, vel, work, dt)
             state = evaluate(fabric, work, mass, external, anchors, pos, force, contact, friction)
+            alpha = scalar(1.0)
+            for _ in range(backtracks):  # the step halved along its velocity
+                if state[1] < merit:
+                    break
+                alpha = alpha * scalar(0.5)
+                trials += 1
+                for i in range(nodes):
+                    ops.trial_node(i, pos, vel, work, alpha * dt)
+                state = evaluate(fabric, work, mass, external, anchors, pos, force, contact,
+                                 friction)
             if state[1] < merit:
                 merit = state[1]
-                dt = wp.min(dt * scalar(DT_GROWTH), scalar(DT_MAX))
+                if alpha < scalar(1.0):  # v of the length taken; dt kept
+                    shortened += 1
+                    for i in range(nodes):
+                        ops.scale_node(i, vel, alpha)
+                else:
+                    dt = wp.min(dt * scalar(DT_GROWTH), scalar(DT_MAX))
             else:  # undo: back to the step's start at rest, dt halved
                 rejected += 1
                 dt = dt * scalar(DT_SHRINK)
@@ -860,6 +920,8 @@ def relaxation_kernel(scalar):
         outcome[1] = steps
         outcome[2] = iterations
         outcome[3] = rejected
+        outcome[4] = shortened
+        outcome[5] = trials
         residual_out[0] = residual
 
     return relax
@@ -969,7 +1031,8 @@ def pcg_launches(semi: "FabricSemiImplicit", dt: float, max_iterations: int | No
     return int(scalars.numpy()[5])
 
 
-CROSSINGS, BUILD, VELOCITY, BOUNDARY_SUMS, RHS, MOVE, UNDO, MERIT, MERIT_SUM = range(9)
+CROSSINGS, BUILD, VELOCITY, BOUNDARY_SUMS, RHS, MOVE, UNDO, MERIT, MERIT_SUM, TRIAL, SCALE = \
+    range(11)
 """The stages of `step_stage_kernel`."""
 
 
@@ -979,8 +1042,8 @@ def step_stage_kernel(scalar):
     launch): the crossing blocks (a thread per crossing), the yarn systems (per yarn), the
     velocities as flat dofs (per dof), the planes' sums of them and the tied dofs'
     preconditioner (one thread), the right side (per node), the move and its undoing (per
-    node), the per-yarn merit and residual (per yarn) and their total (one thread, into
-    sums = (residual, f^T M^-1 f))."""
+    node), a shortened step's positions and velocities (per node), the per-yarn merit and
+    residual (per yarn) and their total (one thread, into sums = (residual, f^T M^-1 f))."""
     vec = VECTORS[scalar]
     Fabric, Work = fabric_arrays.struct(scalar), work_struct(scalar)
     ops, force_ops = functions(scalar), fabric_forces.functions(scalar, True)
@@ -989,11 +1052,11 @@ def step_stage_kernel(scalar):
     def step_pass(fabric: Fabric, work: Work, mass: wp.array(dtype=scalar),
                   anchors: wp.array(dtype=vec), pos: wp.array(dtype=vec), vel: wp.array(dtype=vec),
                   force: wp.array(dtype=vec), contact: wp.array(dtype=scalar), dt: scalar,
-                  damping: scalar, sums: wp.array(dtype=scalar), stage: int):
+                  damping: scalar, sums: wp.array(dtype=scalar), stage: int, secant: int):
         t = wp.tid()
         if stage == CROSSINGS:
             ops.crossing_blocks(t, pos, fabric, anchors, contact, work,
-                                force_ops.plane_shift(pos, fabric))
+                                force_ops.plane_shift(pos, fabric), secant)
         elif stage == BUILD:
             work.failed[t] = ops.build_yarn(t, pos, mass, fabric, work, dt, damping, 1)
         elif stage == VELOCITY:
@@ -1007,6 +1070,10 @@ def step_stage_kernel(scalar):
             ops.move_node(t, pos, vel, work, dt)
         elif stage == UNDO:
             ops.undo_node(t, pos, vel, work)
+        elif stage == TRIAL:  # dt = the shortened length alpha dt
+            ops.trial_node(t, pos, vel, work, dt)
+        elif stage == SCALE:  # dt = alpha
+            ops.scale_node(t, vel, dt)
         elif stage == MERIT:
             value = ops.yarn_merit(t, force, mass, fabric, work)
             work.largest[t] = value[0]
@@ -1033,6 +1100,10 @@ class SemiOutcome:
     """CG iterations over all the steps."""
     rejected: int = 0
     """Steps undone by the time step rule."""
+    shortened: int = 0
+    """Steps accepted at a fraction alpha < 1 of their length (the line search)."""
+    backtracks: int = 0
+    """Force evaluations at shortened lengths (one per halving)."""
 
 
 class FabricSemiImplicit(PatchRelaxation):
@@ -1041,11 +1112,16 @@ class FabricSemiImplicit(PatchRelaxation):
 
     def __init__(self, arrays: fabric_arrays.PatchArrays, *, device: str = "cpu",
                  layout: str | None = None, scalar=wp.float64, coefficient: float = 0.0,
-                 dt: float = 1.0, cg_tolerance: float = CG_TOLERANCE):
+                 dt: float = 1.0, cg_tolerance: float = CG_TOLERANCE, rule: str = "line_search"):
         if layout is None:
             layout = fabric_explicit.default_layout(device)
         if layout not in fabric_explicit.LAYOUTS:
             raise ValueError(f"layout {layout!r} unknown")
+        if rule not in RULES:
+            raise ValueError(f"time step rule {rule!r} unknown; one of {tuple(RULES)}")
+        self.backtracks = RULES[rule]
+        self.secant = int(rule != "halving" and arrays.plane_nodes.size > 0)
+        """1: sliding crossings' friction blocks are the secant F_T/|s| I (module docstring)."""
         self._allocate(arrays, device, layout, scalar, dt)
         self.coefficient, self.cg_tolerance = coefficient, cg_tolerance
         self.work = allocate(arrays, scalar, device)
@@ -1055,15 +1131,17 @@ class FabricSemiImplicit(PatchRelaxation):
         return pos, relax(pos, load, tolerance, max_steps)
 
     def _persistent(self, pos, load, tolerance, max_steps) -> SemiOutcome:
-        code = wp.zeros(4, dtype=wp.int32, device=self.device)
+        code = wp.zeros(6, dtype=wp.int32, device=self.device)
         residual = wp.zeros(1, dtype=self.scalar, device=self.device)
         wp.launch(relaxation_kernel(self.scalar), dim=1, device=self.device,
                   inputs=[self.fabric, self.work, self.mass, load, self.anchors,
                           self.scalar(self.dt), self.scalar(self.coefficient),
                           self.scalar(tolerance), self.scalar(self.cg_tolerance), int(max_steps),
-                          pos, self.vel, self.force, self.contact, self.friction, code, residual])
-        status_code, steps, iterations, rejected = (int(v) for v in code.numpy())
-        return SemiOutcome(status_code, steps, float(residual.numpy()[0]), iterations, rejected)
+                          self.backtracks, self.secant, pos, self.vel, self.force, self.contact,
+                          self.friction, code, residual])
+        status_code, steps, iterations, rejected, shortened, trials = (int(v) for v in code.numpy())
+        return SemiOutcome(status_code, steps, float(residual.numpy()[0]), iterations, rejected,
+                           shortened, trials)
 
     def _per_step(self, pos, load, tolerance, max_steps) -> SemiOutcome:
         """The persistent kernel's time loop driven from Python, a launch per stage (threads
@@ -1079,7 +1157,8 @@ class FabricSemiImplicit(PatchRelaxation):
         def stage(which, dim, dt=0.0):
             wp.launch(stage_pass, dim=dim, device=device,
                       inputs=[self.fabric, self.work, self.mass, self.anchors, pos, self.vel,
-                              self.force, self.contact, scalar(dt), damping, sums, which])
+                              self.force, self.contact, scalar(dt), damping, sums, which,
+                              self.secant])
 
         def evaluate():
             wp.launch(passes.crossing_pass, dim=a.crossings, device=device,
@@ -1092,6 +1171,7 @@ class FabricSemiImplicit(PatchRelaxation):
         dt = float(scalar(self.dt))
         residual, merit = evaluate()
         best, since_best, iterations, rejected = residual, 0, 0, 0
+        shortened, trials = 0, 0
         code, steps = status.MAX_STEPS, 0
         for step in range(max_steps + 1):
             if not (np.isfinite(residual) and np.isfinite(merit)):
@@ -1120,9 +1200,21 @@ class FabricSemiImplicit(PatchRelaxation):
             iterations += pcg_launches(self, dt, 2 * a.nodes)
             stage(MOVE, a.nodes, dt)
             new_residual, new_merit = evaluate()
+            alpha = 1.0
+            for _ in range(self.backtracks):
+                if new_merit < merit:
+                    break
+                alpha *= 0.5
+                trials += 1
+                stage(TRIAL, a.nodes, alpha * dt)
+                new_residual, new_merit = evaluate()
             if new_merit < merit:
                 merit, residual = new_merit, new_residual
-                dt = min(dt * DT_GROWTH, DT_MAX)
+                if alpha < 1.0:
+                    shortened += 1
+                    stage(SCALE, a.nodes, alpha)
+                else:
+                    dt = min(dt * DT_GROWTH, DT_MAX)
             else:
                 rejected += 1
                 dt *= DT_SHRINK
@@ -1133,13 +1225,14 @@ class FabricSemiImplicit(PatchRelaxation):
             else:
                 since_best += 1
             steps = step + 1
-        return SemiOutcome(code, steps, residual, iterations, rejected)
+        return SemiOutcome(code, steps, residual, iterations, rejected, shortened, trials)
 
     def system(self, positions, external, anchors, velocities=None, *, dt: float = 1.0,
                definite: bool = True, solve: bool = False, masses: np.ndarray | None = None,
-               max_iterations: int | None = None, assemble: bool = True):
+               max_iterations: int | None = None, assemble: bool = True, secant: bool = False):
         """Assemble (and with `solve`, PCG-solve) one step's system at `positions` (tests,
-        benchmark). Returns (bad pivot or -1, CG iterations)."""
+        benchmark), with `secant` the sliding crossings' secant blocks. Returns (bad pivot or
+        -1, CG iterations)."""
         n = self.arrays.nodes
         mass = self.mass if masses is None else self._array(masses, self.scalar)
         velocities = np.zeros((n, 2)) if velocities is None else velocities
@@ -1148,7 +1241,7 @@ class FabricSemiImplicit(PatchRelaxation):
                                self.anchors, self._array(positions, self.vec),
                                self._array(velocities, self.vec), self.force, self.contact,
                                self.friction, self.scalar(dt), self.scalar(self.coefficient),
-                               int(definite)]
+                               int(definite), int(secant)]
         return self._launch_system(assemble, solve, False, 2 * n if max_iterations is None
                                    else max_iterations)
 

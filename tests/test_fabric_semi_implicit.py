@@ -97,7 +97,10 @@ def test_the_tangent_has_the_moving_planes_wrap_springs_and_tied_cell_lengths(ca
     sliding and sticking crossings: the planes' rank-one blocks sum_c J_c^T H_c J_c (J_c
     carrying -w_c on the end dofs moving the planes), the wrap springs' blocks between a
     yarn's first and last nodes, and the cell length's summed rows. Not vacuous: each of
-    the three is far above the bound where it acts (leaving it out fails)."""
+    the three is far above the bound where it acts (leaving it out fails). With `secant`
+    (the relaxation's blocks where the planes move) it is the static solver's Hessian with
+    the sliding crossings' secant stiffness, to the same rounding, and differs from the
+    exact one (sliding crossings present)."""
     boundary = "clamped" if case == "affine" else "periodic"
     control = "displacement" if case.endswith("displacement") else "force"
     values = (2e-5, 1e-5) if control == "displacement" else (0.2, 0.1)
@@ -119,6 +122,11 @@ def test_the_tangent_has_the_moving_planes_wrap_springs_and_tied_cell_lengths(ca
     assert np.abs(A - H).max() <= 64 * EPS * scale
     beyond = ~local_pattern(dynamic, static.pattern.index)
     assert np.abs(H[beyond]).max() > 1e6 * 64 * EPS * scale
+    secant = static.hessian(pos, anchors, limit, secant=True).toarray()
+    semi.system(pos, np.zeros_like(pos), anchors + dynamic._plane_shift, definite=False,
+                masses=np.zeros(dynamic.arrays.nodes), secant=True)
+    assert np.abs(semi.dense(static.pattern.index) - secant).max() <= 64 * EPS * scale
+    assert np.abs(secant - H).max() > 1e6 * 64 * EPS * scale
 
 
 def local_pattern(dynamic, index) -> np.ndarray:
@@ -203,20 +211,23 @@ def test_the_launch_per_stage_pcg_is_the_persistent_one_bit_for_bit():
 def test_the_per_step_layout_relaxes_as_the_persistent_one_bit_for_bit(case):
     """The GPU's layout of the whole relaxation (`FabricSemiImplicit._per_step`: a launch per
     stage, decisions from values read back) takes the persistent kernel's time steps exactly:
-    the same positions, steps, CG iterations and rejected steps, with friction, on a 4 x 4
-    clamped patch, a 3 x 3 patch with moving planes, a 2 x 2 periodic cell (its cell lengths
+    the same positions, steps, CG iterations, rejected and shortened steps, with friction, on a
+    4 x 4 clamped patch (pulled harder, 5 N and 1 N: steps both shortened by the line search
+    and undone), a 3 x 3 patch with moving planes, a 2 x 2 periodic cell (its cell lengths
     tied); a tied family's end nodes keep one in-plane coordinate."""
-    n, more = {"clamped": (4, {}), "affine": (3, dict(planes="affine")),
-               "periodic": (2, dict(boundary="periodic"))}[case]
-    spec = paper_patch(n, n, friction=PAPER_FRICTION, warp_values=(0.3,), weft_values=(0.1,),
+    n, (warp, weft), more = {"clamped": (4, (5.0, 1.0), {}),
+                             "affine": (3, (0.3, 0.1), dict(planes="affine")),
+                             "periodic": (2, (0.3, 0.1), dict(boundary="periodic"))}[case]
+    spec = paper_patch(n, n, friction=PAPER_FRICTION, warp_values=(warp,), weft_values=(weft,),
                        tolerance=TOLERANCE, **more)
     ends = []
     for layout in ("persistent", "per_step"):
         dynamic = FabricDynamicSolver(spec, method="semi_implicit", layout=layout)
-        pos, anchors, P = dynamic.reference.start_of_step(dynamic.initial_state(), 0.3, 0.1)
+        pos, anchors, P = dynamic.reference.start_of_step(dynamic.initial_state(), warp, weft)
         ends.append(dynamic.relax(pos, P, anchors))
     (x_persistent, persistent), (x_per_step, per_step) = ends
     assert persistent.cg_iterations > persistent.steps
+    assert persistent.shortened > 0
     if case == "clamped":
         assert persistent.rejected > 0
     assert vars(per_step) == vars(persistent)
