@@ -1,6 +1,7 @@
 """Benchmark of the fabric's moving planes and periodic cell in the dynamic solver
 (docs/model.md section 10): the explicit time step's cost with them against fixed planes,
-and `dynfab run` wall times of every fabric scene, dynamic against static.
+`dynfab run` wall times of every fabric scene (static, explicit, semi-implicit), and the
+semi-implicit time step rules.
 
 Run:  python benchmarks/fabric_planes.py [--sizes 8,16,32] [--modes fixed,affine,periodic]
                                          [--no-runs] [--parts steps,runs,semi]
@@ -20,10 +21,10 @@ Run:  python benchmarks/fabric_planes.py [--sizes 8,16,32] [--modes fixed,affine
    runs on a tree without the moving planes too (the same public API), for before/after
    ratios of the fixed-plane step.
 2. `run_times` (unless --no-runs): `dynfab run runs/<scene>.toml --out <tmp> --quiet`
-   with --solver static and --solver dynamic for each fabric scene of runs/, alternating
-   (static first for half the scenes), one run each in a subprocess (numba and Warp
-   caches warm: run the tests or the script once before), wall time around the
-   subprocess.
+   with --solver static, --solver dynamic (explicit) and --solver dynamic --method
+   semi_implicit for each fabric scene of runs/, the order rotated per scene, one run each
+   in a subprocess (numba and Warp caches warm: run the tests or the script once before),
+   wall time around the subprocess.
 3. `semi_rules` (part "semi"): the semi-implicit relaxation of the first load step, from the
    static solver's start of the step (`FabricDynamicSolver.relax`, persistent layout), under
    each time step rule of `fabric_semi_implicit.RULES` ("halving": undo and halve dt on a step
@@ -173,18 +174,23 @@ def semi_rules(sizes, modes) -> list[dict]:
     return rows
 
 
+SOLVERS = {"static": ["--solver", "static"], "dynamic": ["--solver", "dynamic"],
+           "semi": ["--solver", "dynamic", "--method", "semi_implicit"]}
+"""`dynfab run` options of each solver timed by `run_times` (dynamic: explicit, kinetic)."""
+
+
 def run_times() -> list[dict]:
-    """Wall time of `dynfab run` per scene and solver, alternating the order per scene."""
+    """Wall time of `dynfab run` per scene and solver, the solvers' order rotated per scene."""
     dynfab = Path(sys.executable).parent / "dynfab"
+    names = list(SOLVERS)
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for index, scene in enumerate(SCENES):
-            order = ("static", "dynamic") if index % 2 == 0 else ("dynamic", "static")
             row = {"scene": scene}
-            for solver in order:
+            for solver in names[index % 3:] + names[:index % 3]:
                 out = Path(tmp) / f"{scene}_{solver}.h5"
                 command = [str(dynfab), "run", str(ROOT / "runs" / f"{scene}.toml"), "--out",
-                           str(out), "--quiet", "--solver", solver]
+                           str(out), "--quiet", *SOLVERS[solver]]
                 began = time.perf_counter()
                 done = subprocess.run(command, capture_output=True, text=True)
                 row[f"{solver}_s"] = time.perf_counter() - began
@@ -192,8 +198,10 @@ def run_times() -> list[dict]:
                 if done.returncode:
                     row[f"{solver}_error"] = done.stderr.strip().splitlines()[-1:]
             row["dynamic_over_static"] = row["dynamic_s"] / row["static_s"]
+            row["semi_over_static"] = row["semi_s"] / row["static_s"]
             print(f"{scene:22s} static {row['static_s']:7.2f} s   dynamic {row['dynamic_s']:7.2f} s"
-                  f"   {row['dynamic_over_static']:.2f} x", flush=True)
+                  f" ({row['dynamic_over_static']:.2f} x)   semi-implicit {row['semi_s']:7.2f} s"
+                  f" ({row['semi_over_static']:.2f} x)", flush=True)
             rows.append(row)
     return rows
 
