@@ -62,13 +62,13 @@ Huber term (the static solver's after a shortened step), instead of its exact He
 has no stiffness along s: a step moving the planes shifts every slip of a family at once and
 the exact block let it carry slips through the anchors, their friction forces reversing.
 A factorisation with a pivot that is not positive (rounding at very large dt) halves dt and
-rebuilds. Why (`python benchmarks/fabric_planes.py --parts semi`, both rules in one run,
-benchmarks/fabric_semi_rules.json): the one-yarn rule (undo and halve at once,
+rebuilds. Why (`python benchmarks/fabric_planes.py`, both rules in one run, part
+`semi_rules` of benchmarks/fabric_planes.json): the one-yarn rule (undo and halve at once,
 `kernels/semi_implicit.py`'s) cycled on the 16 x 16 strip (runs/fabric_strip.toml: affine
 planes, friction, weft ends free) between an undone 2 dt and an accepted dt, each accepted
 step lowering the merit by a few per cent; the steps that failed reversed the slip of a
 sliding crossing or moved a plane's end nodes. The strip's first load step took 779 time
-steps (380 undone, 8190 CG iterations), now 167 (65 undone, 2480), 0.29 x the wall time; the
+steps (380 undone, 8190 CG iterations), now 167 (65 undone, 2480), 0.26 x the wall time; the
 8 x 8 and 16 x 16 patches (fixed, affine, periodic) 0.21 to 0.63 x the time steps, 0.34 to
 0.89 x the CG iterations. Measured and dropped: acceptance on the total energy (it stalled
 with friction: F_T moving with R is no potential); the secant with fixed planes (16 x 16: 653
