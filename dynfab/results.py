@@ -111,6 +111,7 @@ UNITS: dict[str, str] = {
     "steps/rounding_floor": "-",  # (steps, yarns) bool: residual stopped falling above tolerance
     "steps/wall_time": "s",  # (steps,)
     "steps/time_steps": "-",  # dynamic solver: time steps taken
+    "steps/cg_iterations": "-",  # fabric semi-implicit solver: CG iterations of the step
     "steps/force_evaluations": "-",  # dynamic solver
     "steps/dt": "s",  # dynamic solver time step
     "steps/stable": "-",  # (steps, yarns) bool: no negative pivot of the frozen-F_T Hessian

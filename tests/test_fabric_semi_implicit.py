@@ -290,14 +290,16 @@ def test_semi_implicit_load_steps_agree_with_the_static_ones(control, friction):
 
 
 def test_records_have_the_explicit_solvers_keys_and_runs_repeat_bit_for_bit():
-    """The semi-implicit step returns exactly the explicit step's record keys; a second solver
-    on the same step gives identical positions (every sum in a fixed order, no atomics)."""
+    """The semi-implicit step returns the explicit step's record keys plus its CG iterations
+    (those of the step); a second solver on the same step gives identical positions (every
+    sum in a fixed order, no atomics)."""
     spec = paper_patch(2, 2, friction=PAPER_FRICTION, warp_values=(0.1,), tolerance=TOLERANCE)
     explicit = FabricDynamicSolver(spec)
     semis = [FabricDynamicSolver(spec, method="semi_implicit") for _ in range(2)]
     _, e_record = explicit.step(explicit.initial_state(), 0.1, 0.0)
     states = [semi.step(semi.initial_state(), 0.1, 0.0) for semi in semis]
-    assert states[0][1].keys() == e_record.keys()
+    assert states[0][1].keys() == e_record.keys() | {"cg_iterations"}
+    assert 0 < states[0][1]["cg_iterations"] == semis[0].linear_iterations
     np.testing.assert_array_equal(states[0][0].positions, states[1][0].positions)
 
 

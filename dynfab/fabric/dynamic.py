@@ -190,6 +190,7 @@ class FabricDynamicSolver:
         time_steps and relax_time [s] (the relaxations' wall time)."""
         spec, ref = self.spec, self.reference
         pos, anchors, P = ref.start_of_step(state, warp_value, weft_value)
+        linear = self.linear_iterations
         began = time.perf_counter()
         pos, outcome = self.relax(pos, P, anchors)
         relax_time = time.perf_counter() - began
@@ -221,6 +222,8 @@ class FabricDynamicSolver:
                       nearest_eigenvalue=nearest, escapes=escapes, end_force=end_force,
                       end_displacement=u_new, strain=ref.strains(pos), crimp=ref.crimps(pos),
                       time_steps=steps, relax_time=relax_time)
+        if self.method == "semi_implicit":
+            record["cg_iterations"] = self.linear_iterations - linear
         return new, record
 
     def _return_map(self, pos, anchors, limit):

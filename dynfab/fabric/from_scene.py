@@ -24,7 +24,9 @@ Record of one fabric step (n_wa warps of N+1 nodes, n_we wefts of M+1 nodes; Y =
 - dissipated, work [J]; energy/<term> [J] per term of `dynfab.fabric.assembly.TERMS`;
 - residual [N], iterations, friction_solves, rounding_floor, stable, buckled (an escape
   from a saddle was taken), lowest_eigenvalue [N/m] (the eigenvalue nearest zero of the
-  frozen-F_T Hessian: the lowest when none is negative), negative_eigenvalues; scalars.
+  frozen-F_T Hessian: the lowest when none is negative), negative_eigenvalues; scalars;
+- with the dynamic solver, time_steps (the time steps of the step's relaxations, also its
+  iterations), and with the semi-implicit method cg_iterations (their CG iterations).
 """
 
 from __future__ import annotations
@@ -225,6 +227,9 @@ class FabricSolver:
             "negative_eigenvalues": raw["negative_eigenvalues"],
         }
         record.update(self._energies(new, warp_value, weft_value, raw["friction_limit"]))
+        for name in ("time_steps", "cg_iterations"):  # the dynamic solver's (the semi-implicit's)
+            if name in raw:
+                record[name] = raw[name]
         return new, {name: np.asarray(value) for name, value in record.items()}
 
     def planes(self, positions) -> dict:
