@@ -57,7 +57,7 @@ import warp as wp
 
 from dynfab.kernels import fabric_arrays, fabric_forces, fire as fire_module, status
 from dynfab.kernels.configuration import MODULE_OPTIONS
-from dynfab.kernels.fabric_relaxation import PatchRelaxation
+from dynfab.kernels.fabric_relaxation import PatchRelaxation, stop_test
 from dynfab.kernels.precision import VECTORS
 
 LAYOUTS = ("persistent", "per_step")
@@ -109,6 +109,7 @@ def persistent_kernel(scalar, damping: str, order: str = "scatter", has_friction
     gather = order == "gather"
     stable = 1.0 / fabric_arrays.GERSHGORIN_SAFETY  # the stable dt / dt of the masses
     f = fire_module
+    stop = stop_test(scalar)
 
     @wp.kernel(module="unique", module_options=MODULE_OPTIONS)
     def relax(fabric: Fabric, mass: wp.array(dtype=scalar), share: wp.array(dtype=scalar),
@@ -141,13 +142,8 @@ def persistent_kernel(scalar, damping: str, order: str = "scatter", has_friction
                 worst = step_ops.largest_component(force[i])
                 if not worst <= residual:
                     residual = worst
-            if not wp.isfinite(residual):
-                code = int(status.NON_FINITE)
-                break
-            if residual <= tolerance:
-                code = int(status.CONVERGED)
-                break
-            if step == max_steps:
+            code = stop(wp.isfinite(residual), residual, tolerance, step, max_steps)
+            if code != int(status.RUNNING):
                 break
             if wp.static(fire):  # FIRE 2.0 as kernels/fire.py, dt relative to the masses' dt
                 power = scalar(0.0)

@@ -7,14 +7,38 @@
 force, contact-force and friction-force arrays the kernels update in place; `relax`
 (start at rest from given positions under given nodal forces, the friction anchors held,
 then the subclass's `_run` in its layout) and `return_map` (the anchors' radial return,
-docs/model.md section 4, one thread per crossing).
+docs/model.md section 4, one thread per crossing). `stop_test` is both relaxation kernels'
+test, at the top of every time step, of whether the relaxation ends.
 """
+
+import functools
 
 import numpy as np
 import warp as wp
 
-from dynfab.kernels import fabric_arrays, fabric_forces
+from dynfab.kernels import fabric_arrays, fabric_forces, status
 from dynfab.kernels.precision import VECTORS, numpy_dtype
+
+
+@functools.cache
+def stop_test(scalar):
+    """The `wp.func` stop(finite, residual, tolerance, step, max_steps) -> status code of a
+    relaxation at the top of time step `step`: NON_FINITE where its merits are not `finite`,
+    CONVERGED at residual <= tolerance [N], MAX_STEPS once `max_steps` steps are taken, else
+    RUNNING (the time loop goes on to its own tests)."""
+
+    @wp.func
+    def stop(finite: bool, residual: scalar, tolerance: scalar, step: int, max_steps: int) -> int:
+        code = int(status.RUNNING)
+        if not finite:
+            code = int(status.NON_FINITE)
+        elif residual <= tolerance:
+            code = int(status.CONVERGED)
+        elif step == max_steps:
+            code = int(status.MAX_STEPS)
+        return code
+
+    return stop
 
 
 class PatchRelaxation:

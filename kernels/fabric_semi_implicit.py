@@ -106,7 +106,7 @@ from dynfab.banded import BANDWIDTH
 from dynfab.kernels import fabric_arrays, fabric_explicit, fabric_forces, status
 from dynfab.kernels import bending as bending_module, friction as friction_module
 from dynfab.kernels.configuration import MODULE_OPTIONS
-from dynfab.kernels.fabric_relaxation import PatchRelaxation
+from dynfab.kernels.fabric_relaxation import PatchRelaxation, stop_test
 from dynfab.kernels.precision import VECTORS
 
 CG_TOLERANCE = 1e-2
@@ -814,6 +814,7 @@ def relaxation_kernel(scalar):
     vec = VECTORS[scalar]
     Fabric, Work = fabric_arrays.struct(scalar), work_struct(scalar)
     ops, force_ops = functions(scalar), fabric_forces.functions(scalar, True)
+    stop = stop_test(scalar)
 
     @wp.func
     def evaluate(fabric: Fabric, work: Work, mass: wp.array(dtype=scalar),
@@ -859,13 +860,9 @@ def relaxation_kernel(scalar):
         shortened = int(0)
         trials = int(0)
         for step in range(max_steps + 1):
-            if not (wp.isfinite(residual) and wp.isfinite(merit)):
-                code = int(status.NON_FINITE)
-                break
-            if residual <= tolerance:
-                code = int(status.CONVERGED)
-                break
-            if step == max_steps:
+            code = stop(wp.isfinite(residual) and wp.isfinite(merit), residual, tolerance, step,
+                        max_steps)
+            if code != int(status.RUNNING):
                 break
             if step >= STALL_MIN_STEPS and 2 * since_best > step:
                 code = int(status.NO_PROGRESS)
