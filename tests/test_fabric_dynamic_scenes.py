@@ -18,7 +18,6 @@ is data, not a variant), plus the per-step layout's kernels those tests build to
 semi-implicit kernels tests/test_fabric_semi_implicit.py builds.
 """
 
-import math
 from dataclasses import replace
 from pathlib import Path
 
@@ -30,10 +29,11 @@ from dynfab.fabric import assembly
 from dynfab.fabric.dynamic import FabricDynamicSolver
 from dynfab.fabric.from_scene import fabric_spec
 from dynfab.fabric.static import FabricStaticSolver
-from dynfab.kernels import fabric_arrays, fabric_explicit, fabric_forces, status
+from dynfab.kernels import fabric_explicit, fabric_forces, status
 from dynfab.kernels.fabric_arrays import PAPER_FRICTION, paper_patch
 from dynfab.scene import load_scene
 from test_fabric_dynamic import agreement_bound, anchor_bound
+from test_fabric_scenes import run_interrupted
 
 EPS = np.finfo(float).eps
 RUNS = Path(__file__).resolve().parent.parent / "runs"
@@ -286,13 +286,7 @@ def test_a_resumed_dynamic_run_of_the_periodic_cell_repeats_the_uninterrupted_on
     scene = parse_scene_text(text + f'\n[dynamic]\nmethod = "{method}"\n')
     whole, part = tmp_path / "whole.h5", tmp_path / "part.h5"
     run_to_file(scene, "dynamic", whole)
-
-    def stop_after_four(line: str) -> None:
-        if line.lstrip("[ ").startswith("4/"):
-            raise KeyboardInterrupt
-
-    with pytest.raises(KeyboardInterrupt):
-        run_to_file(scene, "dynamic", part, progress=stop_after_four)
+    run_interrupted(scene, "dynamic", part)
     assert run_to_file(scene, "dynamic", part, resume=True) == 6
     with h5py.File(whole, "r") as a, h5py.File(part, "r") as b:
         assert a.attrs["solver"] == "dynamic" and a.attrs["dynamic_method"] == method

@@ -140,19 +140,24 @@ def test_pullout_is_resisted_by_the_friction_of_the_pressed_crossings():
     assert np.all(np.diff(rising[:10]) > 0) and rising[0] < 0.9 * last
 
 
+def run_interrupted(scene, solver: str, out, steps: int = 4) -> None:
+    """`run_to_file` into `out`, interrupted (KeyboardInterrupt, as a Ctrl-C) once its
+    progress line reports load step `steps`."""
+    def stop_after(line: str) -> None:
+        if line.lstrip("[ ").startswith(f"{steps}/"):
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run_to_file(scene, solver, out, progress=stop_after)
+
+
 def test_fabric_file_resumes_to_the_uninterrupted_run(tmp_path):
     """A run stopped after 4 steps and resumed equals the run done in one go, entry for
     entry; its XDMF view holds both families' grids for every step."""
     scene = load_scene(RUNS / "fabric_biaxial_2to1.toml")
     whole, part = tmp_path / "whole.h5", tmp_path / "part.h5"
     run_to_file(scene, "static", whole)
-
-    def stop_after_four(line: str) -> None:
-        if line.lstrip("[ ").startswith("4/"):
-            raise KeyboardInterrupt
-
-    with pytest.raises(KeyboardInterrupt):
-        run_to_file(scene, "static", part, progress=stop_after_four)
+    run_interrupted(scene, "static", part)
     with h5py.File(part, "r") as h5:
         assert int(h5["steps_done"][0]) == 4
     assert run_to_file(scene, "static", part, resume=True) == 6
