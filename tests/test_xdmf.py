@@ -361,7 +361,8 @@ def test_a_fabric_view_draws_moving_planes_where_they_are(tmp_path, name):
     out = tmp_path / f"{name}.h5"
     run_to_file(scene, "static", out)
     n_wa, n_we = scene.weft.count, scene.geometry.crossings
-    L, L_we = scene.geometry.length, scene.weft.length or L
+    L = scene.geometry.length
+    L_we = scene.weft.length or L
     with h5py.File(out, "r") as h5:
         count = int(h5["steps_done"][0])
         steps = {key: h5[f"steps/{key}"][:count] for key in
