@@ -185,10 +185,12 @@ SUMMARY_DATASETS = ("steps/load", "steps/end_displacement", "steps/end_force",
 
 
 def _interrupted_line(context: dict) -> str:
-    """The message after Ctrl-C: what the output file holds, if this command writes one."""
+    """The message after Ctrl-C: what the output file holds, if this command writes one;
+    nothing was written before a command began (the arguments still being parsed)."""
     out = context.get("out")
     if out is None or not Path(out).is_file():
-        return "dynfab: interrupted; nothing was written" if "out" in context else "dynfab: interrupted"
+        wrote_nothing = "out" in context or not context.get("began")
+        return "dynfab: interrupted; nothing was written" if wrote_nothing else "dynfab: interrupted"
     from dynfab.results import finished_counts
 
     counts = finished_counts(out) or (0, 0)
@@ -288,11 +290,13 @@ def _is_the_command() -> bool:
 
 
 def _main(argv: list[str] | None, context: dict) -> None:
-    """Parse and run a command; `context` records the output file once it is known."""
+    """Parse and run a command; `context` records that the command began and, for a run, its
+    output file once it is known."""
     args = _parser().parse_args(argv)
     if args.command == "run":
         context["out"] = None  # a run writes a file; its name is set once checked
     warnings.showwarning = _show_warning
+    context["began"] = True
     try:
         commands = {"run": _command_run, "plot": _command_plot, "fit": _command_fit,
                     "xdmf": _command_xdmf}
