@@ -13,10 +13,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-from dynfab import geometry
-from dynfab.scene import Scene, expand_sweep, yarn_count
+from dynfab.build.yarn import yarn_structure
+from dynfab.scene import Scene
+from dynfab.structure import Structure, chain_nodes, chain_segments, tie_layout, uniform
 from dynfab.terms import registry
-from dynfab.terms.friction import law_constants
 
 
 class Yarn(NamedTuple):
@@ -135,84 +135,38 @@ def initial_state(model: Model) -> State:
 
 
 def build_model(scene: Scene) -> Model:
-    """The model of a validated scene: one Yarn per simulated warp yarn."""
-    if scene.sweep:
-        yarns = tuple(_build_yarn(s, phase=1.0) for s in expand_sweep(scene))
-    else:
-        yarns = tuple(_build_yarn(scene, phase=(-1.0) ** k) for k in range(yarn_count(scene)))
+    """The model of a validated one-yarn scene: its structure (`dynfab.build.yarn`) and one Yarn
+    view per simulated warp yarn."""
+    structure = yarn_structure(scene)
+    yarns = tuple(chain_view(structure, k, registry.active_mask(scene))
+                  for k in range(structure.chain_start.size - 1))
     return Model(scene=scene, yarns=yarns, terms=registry.active_terms(scene),
                  control=scene.load.control, load_values=np.asarray(scene.load.values, float))
 
 
-def _build_yarn(scene: Scene, phase: float) -> Yarn:
-    """Arrays of one yarn of phase s_k = +-1 (docs/model.md sections 1-4)."""
-    geo, warp = scene.geometry, scene.warp
-    rest = geometry.as_woven_positions(geo.length, geo.segments, geo.crossings, geo.amplitude, phase)
-    rest_length = geometry.segment_lengths(rest)
-    lbar = geometry.voronoi_lengths(rest_length)
-    bend_stiffness = warp.EI / lbar
-    bend_stiffness[[0, -1]] = 0.0
-    if geo.reference == "prestressed":
-        rest_angle = np.zeros(geo.segments + 1)
-    else:
-        rest_angle = geometry.turning_angles(rest)
-    nodes = geometry.crossing_nodes(geo.segments, geo.crossings).astype(np.int64)
-    sides = geometry.crossing_sides(geo.crossings, phase)
-    friction = scene.friction
-    stick = 0.0
-    if friction is not None:
-        stick = friction.stick_stiffness or warp.EA / (geo.length / geo.segments)
-    alpha, constant, onset = law_constants(friction)  # Gralen, docs/model.md section 4
+def chain_view(structure: Structure, y: int, active: np.ndarray) -> Yarn:
+    """Chain y of a structure whose ties are grounded (`dynfab.structure.grounded`), as the
+    banded solvers' Yarn: views of its arrays, its ties' laws (one per chain)."""
+    nodes, segments = chain_nodes(structure, y), chain_segments(structure, y)
+    ties, crossing_node = tie_layout(structure, y)
+    friction = uniform(structure.tie_friction_law[ties])
+    gravity = structure.gravity[nodes]
     return Yarn(
-        rest_position=rest,
-        rest_length=rest_length,
-        stretch_stiffness=warp.EA / rest_length,
-        bend_stiffness=bend_stiffness,
-        rest_angle=rest_angle,
-        mass=warp.linear_density * lbar,
-        crossing_node=nodes,
-        crossing_side=sides,
-        gap_offset=_gap_offset(scene, rest, nodes, sides),
-        contact_law=_contact_law(scene),
-        friction_alpha=alpha, friction_constant=constant, friction_onset=onset,
-        stick_stiffness=float(stick),
-        gravity=float(scene.gravity.g) if scene.gravity else 0.0,
-        active=registry.active_mask(scene),
+        rest_position=structure.rest_position[nodes],
+        rest_length=structure.rest_length[segments],
+        stretch_stiffness=structure.stretch_stiffness[segments],
+        bend_stiffness=structure.bend_stiffness[nodes],
+        rest_angle=structure.rest_angle[nodes],
+        mass=structure.mass[nodes],
+        crossing_node=crossing_node,
+        crossing_side=structure.tie_side[ties],
+        gap_offset=structure.tie_gap_offset[ties],
+        contact_law=uniform(structure.tie_contact_law[ties]) if ties.size else np.zeros(5),
+        friction_alpha=float(friction[0]), friction_constant=float(friction[1]),
+        friction_onset=float(friction[2]), stick_stiffness=float(friction[3]),
+        gravity=float(gravity[0]) if gravity.size else 0.0,
+        active=active,
     )
-
-
-def _gap_offset(scene: Scene, rest: np.ndarray, nodes: np.ndarray, sides: np.ndarray) -> np.ndarray:
-    """c_j of g_j = c_j - s_j z_{n_j} (docs/model.md section 3).
-
-    as_woven: g_j = s_j (z0 - z), so c_j = s_j z0_{n_j} and every contact starts at g = 0;
-    prestressed: g_j = A_wa + A_we - s_j z, the weft pre-deflected by its own amplitude.
-    """
-    if scene.geometry.crossings == 0:
-        return np.zeros(0)
-    if scene.geometry.reference == "prestressed":
-        return np.full(nodes.size, scene.geometry.amplitude + scene.weft.amplitude)
-    return sides * rest[nodes, 1]
-
-
-def _contact_law(scene: Scene) -> np.ndarray:
-    """(k_s, C_wa, a_wa, C_we, a_we), a_m = K_m / Lc_m (docs/model.md section 3, paper eqs. 4, 6-7).
-
-    k_s = 1 / (1/k_we + 1/k_c): the weft spring in series with the core stiffness
-    `contact.core_stiffness` when the scene gives one (else k_we). One more linear spring
-    in series adds R/k_c to the law's left side and R^2/(2 k_c) to the energy, exactly
-    what k_s does, so both solvers take it with no term of its own.
-    """
-    geo, weft = scene.geometry, scene.weft
-    if geo.crossings == 0:
-        return np.zeros(5)
-    k_we = geometry.weft_stiffness(weft.EI, weft.length, weft.count, weft.tension)
-    core = scene.contact.core_stiffness if scene.contact is not None else None
-    if core is not None:
-        k_we = 1.0 / (1.0 / k_we + 1.0 / core)
-    lc_warp = geometry.half_wave_arc_length(geo.length / geo.crossings, geo.amplitude)
-    lc_weft = geometry.half_wave_arc_length(weft.length / weft.count, weft.amplitude)
-    return np.array([k_we, scene.warp.kawabata_C, scene.warp.kawabata_K / lc_warp,
-                     weft.kawabata_C, weft.kawabata_K / lc_weft])
 
 
 def crimp(positions: np.ndarray) -> np.ndarray:
