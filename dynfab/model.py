@@ -135,8 +135,13 @@ def initial_state(model: Model) -> State:
 
 
 def build_model(scene: Scene) -> Model:
-    """The model of a validated one-yarn scene: its structure (`dynfab.build.yarn`) and one Yarn
-    view per simulated warp yarn."""
+    """The model of a validated scene: a fabric's (`dynfab.fabric.from_scene.FabricModel`), or
+    the one-yarn model's structure (`dynfab.build.yarn`) with one Yarn view per simulated warp
+    yarn."""
+    if scene.geometry.model == "fabric":
+        from dynfab.fabric.from_scene import FabricModel
+
+        return FabricModel.from_scene(scene)
     structure = yarn_structure(scene)
     yarns = tuple(chain_view(structure, k, registry.active_mask(scene))
                   for k in range(structure.chain_start.size - 1))

@@ -11,7 +11,7 @@ option (a `dynfab run` flag). The parser, the validation messages, the run
 options (`dynfab.options`), the command line's flags and docs/scene.md
 (`markdown_table`, `python -m dynfab.scene --markdown`) are all read from there.
 
-Public: `load_scene`, `parse_scene_text`, `validate_scene` (for a Scene built
+Public: `load_scene`, `parse_scene_text`, `scene_from_tables`, `validate_scene` (for a Scene built
 in Python), `check_dynamic_options` (for solver options given apart from a
 scene), `with_key`, `expand_sweep`, `yarn_count`, `markdown_table`. Choices made here:
 
@@ -356,6 +356,14 @@ def parse_scene_text(text: str, source: str = "<string>") -> Scene:
         message = " ".join(str(exc).split())
         raise UserError(f"{source}: not valid TOML: {message}") from None
     return validate_scene(_build_scene(raw, text))
+
+
+def scene_from_tables(tables: dict) -> Scene:
+    """Build and validate a scene given as {table: {key: value}} in Python, as a scene file
+    with those tables would be (the reports' and benchmarks' scenes); its `text` is the
+    scene written as TOML (`scene_to_toml`)."""
+    scene = validate_scene(_build_scene(tables, ""))
+    return replace(scene, text=scene_to_toml(scene))
 
 
 SCENE_TABLES = tuple(_SCHEMA)

@@ -58,7 +58,10 @@ class Structure(NamedTuple):
     chain_start: np.ndarray
     """First node of each chain, and the node count at the end (Y+1,), int64."""
     chain_family: np.ndarray
-    """Family of each chain (Y,), int64: 0 the warps (or the paper's yarns), 1 the wefts."""
+    """Family of each chain (Y,), int64: 0 the warps (or the paper's yarns), running along x,
+    1 the wefts, running along y."""
+    chain_plane: np.ndarray
+    """The as-woven plane of each chain (Y,) [m]: y = Y_k of a warp, x = X_j of a weft."""
     rest_length: np.ndarray
     """Segment rest lengths l0, chain after chain (n - Y,) [m]; chain y's segments start at
     chain_start[y] - y."""

@@ -1,10 +1,10 @@
 """A clamped patch of woven fabric as one flat node array, for node-parallel kernels
 (docs/model.md section 10).
 
-The geometry and the parameters are the static reference's: `build(spec)` takes a
-`dynfab.fabric.spec.FabricSpec` and lays it out through `dynfab.fabric.layout` (the
-node order, the crossings and their sides, the fixed dofs, the masses, the contact
-law with k_c and the stick stiffness k_t), then adds what node-parallel kernels need.
+The geometry and the parameters are the static reference's: `build(structure)` takes the
+fabric's `dynfab.structure.Structure` (`dynfab.build.fabric`: the node order, the crossings
+and their sides, the fixed dofs, the masses, the contact law with k_c and the stick
+stiffness k_t) and adds what node-parallel kernels need.
 Only the force and energy code is the Warp twin's own (`fabric_forces`).
 
 Both yarn families are chains (docs/model.md section 10). Every node of every yarn is one entry of
@@ -37,34 +37,13 @@ The boundary is data, not a kernel variant (docs/model.md section 10):
 """
 
 import functools
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 import warp as wp
 
-from dynfab.fabric import layout
-from dynfab.fabric.spec import FabricSpec, Family, Friction
+from dynfab.structure import Structure, chain_of_node, uniform
 from dynfab.kernels.precision import VECTORS, numpy_dtype
-from dynfab.terms.friction import law_constants
-
-PAPER_YARN = Family(length=0.1, segments=128, amplitude=0.5e-3, EA=13.72, EI=1.47e-7,
-                    kawabata_C=0.2e-3, kawabata_K=0.2)
-"""The paper's yarn (docs/model.md section 7), used for both families by the tests and the benchmark
-(length and segments are set per patch by `paper_patch`)."""
-PAPER_FRICTION = Friction(alpha=0.2, beta=1e3, contact_length=2e-3, fiber_radius=1e-3)
-"""The paper's Gralen parameters (docs/model.md section 7), R_0 = 1e-5 N."""
-
-
-def paper_patch(warps: int, wefts: int, segments_per_half_wave: int = 8, pitch: float = 6.25e-3,
-                core_stiffness: float = 1e5, **more) -> FabricSpec:
-    """A balanced clamped patch of the paper's yarn: pitch L / n_we = L_we / n_wa (the paper's
-    0.1 m / 16 by default), N = segments_per_half_wave x n_we, M likewise; `more`: other
-    FabricSpec fields (friction, control, load path...)."""
-    return FabricSpec(
-        warp=replace(PAPER_YARN, length=pitch * wefts, segments=segments_per_half_wave * wefts),
-        weft=replace(PAPER_YARN, length=pitch * warps, segments=segments_per_half_wave * warps),
-        warps=warps, wefts=wefts, core_stiffness=core_stiffness, **more)
-
 
 @dataclass
 class PatchArrays:
@@ -146,13 +125,16 @@ class PatchArrays:
         return self.crossing_warp.shape[0]
 
 
-def build(spec: FabricSpec) -> PatchArrays:
-    """The arrays of the fabric `spec` (docs/model.md section 10), from
-    `dynfab.fabric.layout`: a clamped patch with fixed or affine planes, or a periodic cell."""
-    fabric = layout.build_fabric(spec)
-    start = fabric.yarn_start
-    n, yarns = start[-1], start.size - 1
-    yarn_of_node = np.repeat(np.arange(yarns), np.diff(start))
+def build(fabric: Structure) -> PatchArrays:
+    """The arrays of a fabric's structure (docs/model.md section 10): a clamped patch with
+    fixed or affine planes, or a periodic cell. Its ties join two nodes, with one contact
+    law and one friction law for all (the kernels' laws are not per tie)."""
+    if np.any(fabric.tie_b < 0):
+        raise ValueError("the fabric kernels take ties between two nodes, not to ground")
+    start = fabric.chain_start
+    n = start[-1]
+    yarn_of_node = chain_of_node(fabric)
+    is_warp = fabric.chain_family == 0
     first, last = start[:-1], start[1:] - 1
     index = np.arange(n, dtype=np.int32)
     previous = np.where(np.isin(index, first), -1, index - 1).astype(np.int32)
@@ -162,36 +144,38 @@ def build(spec: FabricSpec) -> PatchArrays:
     segment = index[has_segment] - yarn_of_node[has_segment]  # the layout's segment index
     rest_length[has_segment] = fabric.rest_length[segment]
     stretch[has_segment] = fabric.stretch_stiffness[segment]
-    C = fabric.warp_node.size
+    C = fabric.tie_a.size
     node_crossing = np.full(n, -1, dtype=np.int32)
     node_side = np.zeros(n)
-    node_crossing[fabric.warp_node] = np.arange(C)
-    node_crossing[fabric.weft_node] = np.arange(C)
-    node_side[fabric.warp_node], node_side[fabric.weft_node] = fabric.side, -fabric.side
+    node_crossing[fabric.tie_a] = np.arange(C)
+    node_crossing[fabric.tie_b] = np.arange(C)
+    node_side[fabric.tie_a], node_side[fabric.tie_b] = fabric.tie_side, -fabric.tie_side
     load_wa, load_we = np.zeros((n, 2)), np.zeros((n, 2))
-    load_wa[last[fabric.is_warp], 0] = fabric.load_factor[fabric.is_warp]
-    load_we[last[~fabric.is_warp], 0] = fabric.load_factor[~fabric.is_warp]
+    load_wa[last[is_warp], 0] = fabric.load_factor[is_warp]
+    load_we[last[~is_warp], 0] = fabric.load_factor[~is_warp]
     weight = np.zeros((n, 2))
     weight[:, 1] = -fabric.mass * fabric.gravity
     nodes_of = [np.arange(a, b, dtype=np.int32) for a, b in zip(first, last + 1)]
+    warps = int(is_warp.sum())
     return PatchArrays(
         rest_position=fabric.rest_position.copy(), previous=previous, next=following,
         rest_length=rest_length, stretch_stiffness=stretch,
         bend_stiffness=fabric.bend_stiffness.copy(), rest_angle=fabric.rest_angle.copy(),
         free=(~fabric.fixed).reshape(n, 2).astype(float), node_crossing=node_crossing,
-        node_side=node_side, crossing_warp=fabric.warp_node.astype(np.int32),
-        crossing_weft=fabric.weft_node.astype(np.int32), crossing_side=fabric.side.copy(),
-        crossing_offset=fabric.gap_offset.copy(), contact_law=fabric.contact_law.copy(),
-        friction_law=friction_law(spec),
-        warp_nodes=np.array(nodes_of[:spec.warps]), weft_nodes=np.array(nodes_of[spec.warps:]),
+        node_side=node_side, crossing_warp=fabric.tie_a.astype(np.int32),
+        crossing_weft=fabric.tie_b.astype(np.int32), crossing_side=fabric.tie_side.copy(),
+        crossing_offset=fabric.tie_gap_offset.copy(),
+        contact_law=uniform(fabric.tie_contact_law).copy(),
+        friction_law=uniform(fabric.tie_friction_law).copy(),
+        warp_nodes=np.array(nodes_of[:warps]), weft_nodes=np.array(nodes_of[warps:]),
         load_direction=load_wa, weft_load_direction=load_we, weight=weight,
         **boundary_arrays(fabric, yarn_of_node))
 
 
-def boundary_arrays(fabric: layout.Fabric, yarn_of_node: np.ndarray) -> dict:
+def boundary_arrays(fabric: Structure, yarn_of_node: np.ndarray) -> dict:
     """The moving planes, the periodic wrap springs and the tied end nodes as per-node and
     per-crossing data (module docstring)."""
-    start = fabric.yarn_start
+    start = fabric.chain_start
     n = start[-1]
     first, last = start[:-1], start[1:] - 1
     wrap_k, wrap_angle = np.zeros(n), np.zeros(n)
@@ -199,20 +183,20 @@ def boundary_arrays(fabric: layout.Fabric, yarn_of_node: np.ndarray) -> dict:
     node_wrap = np.full(n, -1, np.int32)
     for a, b in zip(first[fabric.wrap_stiffness > 0], last[fabric.wrap_stiffness > 0]):
         node_wrap[[b - 1, b, a, a + 1]] = a
-    nx, ny = fabric.plane_nodes_x.size, fabric.plane_nodes_y.size
-    plane_nodes = np.concatenate([fabric.plane_nodes_x, fabric.plane_nodes_y]).astype(np.int32)
+    nx, ny = fabric.plane_nodes_a.size, fabric.plane_nodes_b.size
+    plane_nodes = np.concatenate([fabric.plane_nodes_a, fabric.plane_nodes_b]).astype(np.int32)
     node_plane = np.full(n, -1, np.int32)
-    node_plane[fabric.plane_nodes_x], node_plane[fabric.plane_nodes_y] = 0, 1
-    weight = np.zeros((fabric.warp_node.size, 2))
+    node_plane[fabric.plane_nodes_a], node_plane[fabric.plane_nodes_b] = 0, 1
+    weight = np.zeros((fabric.tie_a.size, 2))
     if nx:
-        weight[:, 0] = fabric.plane_weight_x / nx
+        weight[:, 0] = fabric.tie_plane_weight[:, 0] / nx
     if ny:
-        weight[:, 1] = fabric.plane_weight_y / ny
+        weight[:, 1] = fabric.tie_plane_weight[:, 1] / ny
     if not np.isin(last[fabric.wrap_stiffness > 0], plane_nodes).all():
         raise ValueError("a wrap spring on a yarn whose end does not move the planes")
     node_tie = np.full(n, -1, np.int32)
-    tie = fabric.tie.reshape(n, 2)[:, 0]
-    for family, nodes in enumerate((fabric.plane_nodes_x, fabric.plane_nodes_y)):
+    tie = fabric.dof_tie.reshape(n, 2)[:, 0]
+    for family, nodes in enumerate((fabric.plane_nodes_a, fabric.plane_nodes_b)):
         tied = nodes[tie[nodes] >= 0]
         if tied.size:  # every node of the family tied to its first: the family moves as one
             if not (np.array_equal(tied, nodes[1:]) and (tie[tied] == 2 * nodes[0]).all()):
@@ -223,14 +207,6 @@ def boundary_arrays(fabric: layout.Fabric, yarn_of_node: np.ndarray) -> dict:
                 wrap_stiffness=wrap_k, wrap_rest_angle=wrap_angle, plane_nodes=plane_nodes,
                 plane_offsets=np.array([0, nx, nx + ny], np.int32), node_plane=node_plane,
                 node_tie=node_tie, crossing_plane_weight=weight)
-
-
-def friction_law(spec: FabricSpec) -> np.ndarray:
-    """(alpha, beta ell r_f, R_0, k_t) (docs/model.md sections 4, 10), k_t from
-    `layout.stick_stiffness`; zeros without friction."""
-    if spec.friction is None:
-        return np.zeros(4)
-    return np.array([*law_constants(spec.friction), layout.stick_stiffness(spec)])
 
 
 GERSHGORIN_SAFETY = 0.9

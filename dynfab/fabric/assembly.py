@@ -40,7 +40,7 @@ TERMS = ("stretch", "bending", "contact", "friction", "load", "gravity")
 def energies(pos, fabric, P, anchors, limit, out):
     """Each term's energy [J] into out (len(TERMS),); P the end force per yarn (Y,) [N]."""
     out[:] = 0.0
-    start = fabric.yarn_start
+    start = fabric.chain_start
     for y in range(start.size - 1):
         a, b = start[y], start[y + 1]
         out[STRETCH] += stretch.energy(pos[a:b], fabric.rest_length[a - y:b - y - 1],
@@ -52,14 +52,11 @@ def energies(pos, fabric, P, anchors, limit, out):
         if fabric.wrap_stiffness[y] > 0.0:
             d = wrap_angle(pos, fabric, y) - fabric.wrap_rest_angle[y]
             out[BENDING] += 0.5 * fabric.wrap_stiffness[y] * d * d
-    out[CONTACT] = contact.energy(pos, fabric.warp_node, fabric.weft_node, fabric.side,
-                                  fabric.gap_offset, fabric.contact_law)
+    out[CONTACT] = contact.energy(pos, fabric)
     if fabric.has_friction:
         px, py = planes(pos, fabric)
-        out[FRICTION] = friction.energy(pos, anchors, fabric.warp_node, fabric.weft_node,
-                                        px, py, limit, fabric.stick_stiffness)
-    if fabric.gravity != 0.0:
-        out[GRAVITY] = gravity.energy(pos, fabric.rest_position, fabric.mass, fabric.gravity)
+        out[FRICTION] = friction.energy(pos, anchors, fabric, px, py, limit)
+    out[GRAVITY] = gravity.energy_per_node(pos, fabric.rest_position, fabric.mass, fabric.gravity)
 
 
 @numba.njit(cache=True)
@@ -73,7 +70,7 @@ def total_energy(pos, fabric, P, anchors, limit, out):
 def gradient(pos, fabric, P, anchors, limit, grad):
     """grad = dV/dr (nodes, 2) [N], F_T frozen."""
     grad[:, :] = 0.0
-    start = fabric.yarn_start
+    start = fabric.chain_start
     for y in range(start.size - 1):
         a, b = start[y], start[y + 1]
         stretch.add_gradient(pos[a:b], fabric.rest_length[a - y:b - y - 1],
@@ -83,22 +80,22 @@ def gradient(pos, fabric, P, anchors, limit, grad):
         grad[fabric.load_node[y], 0] -= P[y]
         if fabric.wrap_stiffness[y] > 0.0:
             _add_wrap_gradient(pos, fabric, y, grad)
-    contact.add_gradient(pos, fabric.warp_node, fabric.weft_node, fabric.side,
-                         fabric.gap_offset, fabric.contact_law, grad)
-    if fabric.gravity != 0.0:
-        gravity.add_gradient(fabric.mass, fabric.gravity, grad)
+    contact.add_gradient(pos, fabric, grad)
+    gravity.add_gradient_per_node(fabric.mass, fabric.gravity, grad)
     if fabric.has_friction:
         px, py = planes(pos, fabric)
-        for c in range(fabric.warp_node.size):
-            sx, sy = friction.slip(pos, anchors, fabric.warp_node, fabric.weft_node, px, py, c)
-            gx, gy = friction.huber_gradient(sx, sy, limit[c], fabric.stick_stiffness)
-            grad[fabric.warp_node[c], 0] += gx
-            grad[fabric.weft_node[c], 0] += gy
-            nx, ny = fabric.plane_nodes_x.size, fabric.plane_nodes_y.size
-            for node in fabric.plane_nodes_x:
-                grad[node, 0] -= fabric.plane_weight_x[c] / nx * gx
-            for node in fabric.plane_nodes_y:
-                grad[node, 0] -= fabric.plane_weight_y[c] / ny * gy
+        for c in range(fabric.tie_a.size):
+            sx, sy = friction.slip(pos, anchors, fabric, px, py, c)
+            gx, gy = friction.huber_gradient(sx, sy, limit[c],
+                                             fabric.tie_friction_law[c, friction.STICK])
+            grad[fabric.tie_a[c], 0] += gx
+            if fabric.tie_b[c] >= 0:
+                grad[fabric.tie_b[c], 0] += gy
+            nx, ny = fabric.plane_nodes_a.size, fabric.plane_nodes_b.size
+            for node in fabric.plane_nodes_a:
+                grad[node, 0] -= fabric.tie_plane_weight[c, 0] / nx * gx
+            for node in fabric.plane_nodes_b:
+                grad[node, 0] -= fabric.tie_plane_weight[c, 1] / ny * gy
 
 
 @numba.njit(cache=True)
@@ -107,24 +104,26 @@ def planes(pos, fabric):
     each family where the planes follow it (periodic cell, planes "affine";
     docs/model.md section 10): X_j = X0_j + w_j mean_k (x_N,k - x0_N,k)."""
     u_x, u_y = 0.0, 0.0
-    for node in fabric.plane_nodes_x:
-        u_x += (pos[node, 0] - fabric.rest_position[node, 0]) / fabric.plane_nodes_x.size
-    for node in fabric.plane_nodes_y:
-        u_y += (pos[node, 0] - fabric.rest_position[node, 0]) / fabric.plane_nodes_y.size
-    return fabric.plane_x + fabric.plane_weight_x * u_x, fabric.plane_y + fabric.plane_weight_y * u_y
+    for node in fabric.plane_nodes_a:
+        u_x += (pos[node, 0] - fabric.rest_position[node, 0]) / fabric.plane_nodes_a.size
+    for node in fabric.plane_nodes_b:
+        u_y += (pos[node, 0] - fabric.rest_position[node, 0]) / fabric.plane_nodes_b.size
+    return (fabric.tie_plane[:, 0] + fabric.tie_plane_weight[:, 0] * u_x,
+            fabric.tie_plane[:, 1] + fabric.tie_plane_weight[:, 1] * u_y)
 
 
 @numba.njit(cache=True)
 def slip_jacobian(fabric, c):
     """ds/d(x_a, y_b, x_N..., y_M...) of crossing c (2, 2 + n_x + n_y): the slip's own nodes,
     then the end nodes moving the planes (weights -w / n each)."""
-    nx, ny = fabric.plane_nodes_x.size, fabric.plane_nodes_y.size
+    nx, ny = fabric.plane_nodes_a.size, fabric.plane_nodes_b.size
     J = np.zeros((2, 2 + nx + ny))
-    J[0, 0], J[1, 1] = 1.0, 1.0
+    J[0, 0] = 1.0
+    J[1, 1] = 1.0 if fabric.tie_b[c] >= 0 else 0.0
     for m in range(nx):
-        J[0, 2 + m] = -fabric.plane_weight_x[c] / nx
+        J[0, 2 + m] = -fabric.tie_plane_weight[c, 0] / nx
     for m in range(ny):
-        J[1, 2 + nx + m] = -fabric.plane_weight_y[c] / ny
+        J[1, 2 + nx + m] = -fabric.tie_plane_weight[c, 1] / ny
     return J
 
 
@@ -133,7 +132,7 @@ def _wrap_points(pos, fabric, y):
     """(r_{N-1}, r_N, r_N + r_1 - r_0) of yarn y: the three points whose turning angle at the
     middle one is the bending angle across the periodic wrap (segment N-1, then segment 0
     shifted by the cell length)."""
-    a, b = fabric.yarn_start[y], fabric.yarn_start[y + 1]
+    a, b = fabric.chain_start[y], fabric.chain_start[y + 1]
     p = np.empty((3, 2))
     p[0, :] = pos[b - 2]
     p[1, :] = pos[b - 1]
@@ -151,7 +150,7 @@ def wrap_angle(pos, fabric, y):
 def _wrap_dofs(fabric, y):
     """Dofs of (r_{N-1}, r_N, r_0, r_1) of yarn y, and the map M (6, 8) from them to the
     three wrap points: p0 = r_{N-1}, p1 = r_N, p2 = r_N + r_1 - r_0."""
-    a, b = fabric.yarn_start[y], fabric.yarn_start[y + 1]
+    a, b = fabric.chain_start[y], fabric.chain_start[y + 1]
     dofs = np.empty(8, np.int64)
     for m, node in enumerate((b - 2, b - 1, a, a + 1)):
         dofs[2 * m], dofs[2 * m + 1] = 2 * node, 2 * node + 1
@@ -196,7 +195,7 @@ def wrap_hessian(pos, fabric, y):
 @numba.njit(cache=True)
 def yarn_band(pos, fabric, y, band):
     """band = d2(E_stretch + E_bend)/dr2 of yarn y in its own dofs (`dynfab.banded` layout)."""
-    a, b = fabric.yarn_start[y], fabric.yarn_start[y + 1]
+    a, b = fabric.chain_start[y], fabric.chain_start[y + 1]
     band[:, :] = 0.0
     stretch.add_hessian(pos[a:b], fabric.rest_length[a - y:b - y - 1],
                         fabric.stretch_stiffness[a - y:b - y - 1], band)
@@ -207,20 +206,18 @@ def yarn_band(pos, fabric, y, band):
 def crossing_blocks(pos, fabric, anchors, limit, tangent, huber, secant=False):
     """dR/dg per crossing into tangent (C,) and the Huber block (h_xx, h_xy, h_yy) into
     huber (C, 3) (zeros without friction; `secant`: see `friction.huber_hessian`)."""
-    contact.tangents(pos, fabric.warp_node, fabric.weft_node, fabric.side, fabric.gap_offset,
-                     fabric.contact_law, tangent)
+    contact.tangents(pos, fabric, tangent)
     huber[:, :] = 0.0
     if fabric.has_friction:
         px, py = planes(pos, fabric)
-        friction.hessians(pos, anchors, fabric.warp_node, fabric.weft_node, px, py, limit,
-                          fabric.stick_stiffness, huber, secant)
+        friction.hessians(pos, anchors, fabric, px, py, limit, huber, secant)
 
 
 @numba.njit(cache=True)
 def hessian_values(pos, fabric, anchors, limit, values, secant=False):
     """The Hessian's entries (F_T frozen) in `Pattern` order into values; `secant`: the
     sliding crossings' secant stiffness instead (`friction.huber_hessian`)."""
-    start = fabric.yarn_start
+    start = fabric.chain_start
     k = 0
     for y in range(start.size - 1):
         n = 2 * (start[y + 1] - start[y])
@@ -236,12 +233,15 @@ def hessian_values(pos, fabric, anchors, limit, values, secant=False):
             _, block = wrap_hessian(pos, fabric, y)
             values[k:k + 64] = block.ravel()
             k += 64
-    c_count = fabric.warp_node.size
+    c_count = fabric.tie_a.size
     tangent, huber = np.zeros(c_count), np.zeros((c_count, 3))
     crossing_blocks(pos, fabric, anchors, limit, tangent, huber, secant)
     for c in range(c_count):
         t = tangent[c]
-        values[k:k + 4] = (t, -t, -t, t)
+        if fabric.tie_b[c] >= 0:
+            values[k:k + 4] = (t, -t, -t, t)
+        else:  # to ground: on z_a alone (`Pattern` puts all four entries there)
+            values[k:k + 4] = (t, 0.0, 0.0, 0.0)
         k += 4
         J = slip_jacobian(fabric, c)
         h = np.array([[huber[c, 0], huber[c, 1]], [huber[c, 1], huber[c, 2]]])
@@ -253,13 +253,14 @@ def hessian_values(pos, fabric, anchors, limit, values, secant=False):
 def slip_dofs(fabric, c) -> np.ndarray:
     """The dofs of `slip_jacobian`'s columns for crossing c: x_a, y_b, then the end nodes'
     in-plane dofs that move the planes."""
-    return np.concatenate([[2 * fabric.warp_node[c], 2 * fabric.weft_node[c]],
-                           2 * fabric.plane_nodes_x, 2 * fabric.plane_nodes_y]).astype(np.int64)
+    b = fabric.tie_b[c] if fabric.tie_b[c] >= 0 else fabric.tie_a[c]  # ground: J's column is 0
+    return np.concatenate([[2 * fabric.tie_a[c], 2 * b],
+                           2 * fabric.plane_nodes_a, 2 * fabric.plane_nodes_b]).astype(np.int64)
 
 
 def wrap_dofs_of(fabric, y) -> np.ndarray:
     """The 8 dofs of yarn y's wrap spring (`_wrap_dofs`), in plain numpy."""
-    a, b = fabric.yarn_start[y], fabric.yarn_start[y + 1]
+    a, b = fabric.chain_start[y], fabric.chain_start[y + 1]
     nodes = np.array([b - 2, b - 1, a, a + 1])
     return np.stack([2 * nodes, 2 * nodes + 1], axis=1).ravel()
 
@@ -269,7 +270,7 @@ class Pattern:
 
     def __init__(self, fabric):
         rows, cols = [], []
-        start = fabric.yarn_start
+        start = fabric.chain_start
         for y in range(start.size - 1):
             n = 2 * (start[y + 1] - start[y])
             i, o = np.meshgrid(np.arange(n), np.arange(2 * BANDWIDTH + 1), indexing="ij")
@@ -281,7 +282,8 @@ class Pattern:
                 dofs = wrap_dofs_of(fabric, y)
                 rows.append(np.repeat(dofs, 8))
                 cols.append(np.tile(dofs, 8))
-        za, zb = 2 * fabric.warp_node + 1, 2 * fabric.weft_node + 1
+        za = 2 * fabric.tie_a + 1
+        zb = np.where(fabric.tie_b >= 0, 2 * fabric.tie_b + 1, za)  # ground: a's own z
         for c in range(za.size):
             friction_dofs = slip_dofs(fabric, c)
             rows.append(np.array([za[c], za[c], zb[c], zb[c]]))
@@ -294,10 +296,10 @@ class Pattern:
         self.free = ~fabric.fixed
         # the unknowns: one per free dof, a tied dof sharing its master's (periodic cell)
         index = np.full(fabric.fixed.size, -1)
-        own = self.free & (fabric.tie < 0)
+        own = self.free & (fabric.dof_tie < 0)
         index[own] = np.arange(own.sum())
-        tied = self.free & (fabric.tie >= 0)
-        index[tied] = index[fabric.tie[tied]]
+        tied = self.free & (fabric.dof_tie >= 0)
+        index[tied] = index[fabric.dof_tie[tied]]
         self.index = index
         self.free_count = int(own.sum())
         keep = (index[rows] >= 0) & (index[cols] >= 0)
@@ -352,7 +354,7 @@ def rounding_scale(pos, fabric, P, limit):
     rounding rule).
     """
     total = 0.0
-    start = fabric.yarn_start
+    start = fabric.chain_start
     for y in range(start.size - 1):
         a, b = start[y], start[y + 1]
         for i in range(a, b - 1):
@@ -368,11 +370,11 @@ def rounding_scale(pos, fabric, P, limit):
         n = fabric.load_node[y]
         total += abs(P[y]) * abs(pos[n, 0])
     for i in range(fabric.mass.size):
-        total += fabric.mass[i] * abs(fabric.gravity) * abs(pos[i, 1])
-    for c in range(fabric.warp_node.size):
-        za, zb = pos[fabric.warp_node[c], 1], pos[fabric.weft_node[c], 1]
-        g = contact.closure(pos, fabric.warp_node, fabric.weft_node, fabric.side,
-                            fabric.gap_offset, c)
-        total += contact.force(g, fabric.contact_law) * (abs(za) + abs(zb) + abs(g))
-        total += limit[c] * (abs(pos[fabric.warp_node[c], 0]) + abs(pos[fabric.weft_node[c], 0]))
+        total += fabric.mass[i] * abs(fabric.gravity[i]) * abs(pos[i, 1])
+    for c in range(fabric.tie_a.size):
+        a, b = fabric.tie_a[c], fabric.tie_b[c]
+        zb, xb = (abs(pos[b, 1]), abs(pos[b, 0])) if b >= 0 else (0.0, 0.0)
+        g = contact.closure(pos, fabric, c)
+        total += contact.force(g, fabric.tie_contact_law[c]) * (abs(pos[a, 1]) + zb + abs(g))
+        total += limit[c] * (abs(pos[a, 0]) + xb)
     return total

@@ -1,24 +1,25 @@
-"""The two-node crossing contact of the fabric (docs/model.md section 10, with section 3's law).
+"""The contact of a tie (docs/model.md sections 3 and 10): node a against node b, or against
+ground.
 
-Crossing c joins warp node a and weft node b. Its closure (how far the two centrelines
-have approached since the as-woven state) is
+Tie c joins node a to node b (`dynfab.structure`). Its closure (how far the two centrelines
+have approached since the stress-free state) is
 
-    g = sigma ((z0_a - z0_b) - (z_a - z_b)) = gap_offset - sigma (z_a - z_b),
+    g = gap_offset - sigma (z_a - z_b),      z_b = 0 for a tie to ground,
 
-and for g > 0 the contact force R >= 0 solves the series law of both Kawabata
-compressions and the core stiffness k_c,
+and for g > 0 the contact force R >= 0 solves the tie's series law of both Kawabata
+compressions and its series spring k_s (the core stiffness k_c of a fabric crossing; the
+weft spring in series with it on the paper's yarn),
 
-    R / k_c + C_wa (1 - exp(-a_wa R)) + C_we (1 - exp(-a_we R)) = g,
+    R / k_s + C_a (1 - exp(-a_a R)) + C_b (1 - exp(-a_b R)) = g,
 
 R = 0 for g <= 0 (unilateral; at g = 0 the tangent is the open side's 0, the softer
-branch). The energy is the series springs' at the common force (section 3 with k_c in
-place of k_we), dE/dg = R, d2E/dg2 = dR/dg <= k_c. It pushes the warp node by
-+sigma R in z and the weft node by -sigma R.
+branch). The energy is the series springs' at the common force (section 3),
+dE/dg = R, d2E/dg2 = dR/dg <= k_s. It pushes node a by +sigma R in z and node b by -sigma R.
 
-`law` = (k_c, C_wa, a_wa, C_we, a_we) as in `dynfab.terms.contact` (with k_c for k_s),
-whose scalar law this module reuses. k_c = inf is allowed: then Kawabata's law is a
-hard wall at g = C_wa + C_we, and a closure at or beyond it is never evaluated: the
-energy is +inf there (a line search rejects the step).
+The law of tie c is the row `tie_contact_law[c]` = (k_s, C_a, a_a, C_b, a_b), as in
+`dynfab.terms.contact`, whose scalar law this module reuses. k_s = inf is allowed: then
+Kawabata's law is a hard wall at g = C_a + C_b, and a closure at or beyond it is never
+evaluated: the energy is +inf there (a line search rejects the step).
 """
 
 import numba
@@ -29,16 +30,18 @@ from dynfab.terms import contact as law_1d
 
 @numba.njit(cache=True)
 def wall(law):
-    """The largest closure the law allows [m]: inf with a finite k_c, C_wa + C_we without."""
+    """The largest closure the law allows [m]: inf with a finite k_s, C_a + C_b without."""
     if np.isfinite(law[0]):
         return np.inf
     return law[1] + law[3]
 
 
 @numba.njit(cache=True)
-def closure(pos, warp_node, weft_node, side, gap_offset, c):
-    """g of crossing c [m]."""
-    return gap_offset[c] - side[c] * (pos[warp_node[c], 1] - pos[weft_node[c], 1])
+def closure(pos, s, c):
+    """g of tie c [m]."""
+    b = s.tie_b[c]
+    z_b = pos[b, 1] if b >= 0 else 0.0
+    return s.tie_gap_offset[c] - s.tie_side[c] * (pos[s.tie_a[c], 1] - z_b)
 
 
 @numba.njit(cache=True)
@@ -63,41 +66,43 @@ def crossing_energy(g, law):
 
 @numba.njit(cache=True)
 def crossing_tangent(g, R, law):
-    """dR/dg [N/m] at closure g (force R): 0 where open (g <= 0), at most k_c."""
+    """dR/dg [N/m] at closure g (force R): 0 where open (g <= 0), at most k_s."""
     if not g > 0.0:
         return 0.0
     return law_1d.tangent(R, law)
 
 
 @numba.njit(cache=True)
-def energy(pos, warp_node, weft_node, side, gap_offset, law):
+def energy(pos, s):
     """sum_c E_c [J]."""
     total = 0.0
-    for c in range(warp_node.size):
-        total += crossing_energy(closure(pos, warp_node, weft_node, side, gap_offset, c), law)
+    for c in range(s.tie_a.size):
+        total += crossing_energy(closure(pos, s, c), s.tie_contact_law[c])
     return total
 
 
 @numba.njit(cache=True)
-def forces(pos, warp_node, weft_node, side, gap_offset, law, out):
-    """R_c [N] of every crossing into out (C,)."""
-    for c in range(warp_node.size):
-        out[c] = force(closure(pos, warp_node, weft_node, side, gap_offset, c), law)
+def forces(pos, s, out):
+    """R_c [N] of every tie into out (T,)."""
+    for c in range(s.tie_a.size):
+        out[c] = force(closure(pos, s, c), s.tie_contact_law[c])
 
 
 @numba.njit(cache=True)
-def add_gradient(pos, warp_node, weft_node, side, gap_offset, law, grad):
-    """grad += dE/dz: R dg/dz_a = -sigma R on the warp node, +sigma R on the weft node."""
-    for c in range(warp_node.size):
-        R = force(closure(pos, warp_node, weft_node, side, gap_offset, c), law)
-        grad[warp_node[c], 1] -= side[c] * R
-        grad[weft_node[c], 1] += side[c] * R
+def add_gradient(pos, s, grad):
+    """grad += dE/dz: R dg/dz_a = -sigma R on node a, +sigma R on node b."""
+    for c in range(s.tie_a.size):
+        R = force(closure(pos, s, c), s.tie_contact_law[c])
+        grad[s.tie_a[c], 1] -= s.tie_side[c] * R
+        if s.tie_b[c] >= 0:
+            grad[s.tie_b[c], 1] += s.tie_side[c] * R
 
 
 @numba.njit(cache=True)
-def tangents(pos, warp_node, weft_node, side, gap_offset, law, out):
-    """dR/dg [N/m] of every crossing into out (C,): the Hessian block on (z_a, z_b) is
-    dR/dg [[1, -1], [-1, 1]] (sigma^2 = 1)."""
-    for c in range(warp_node.size):
-        g = closure(pos, warp_node, weft_node, side, gap_offset, c)
+def tangents(pos, s, out):
+    """dR/dg [N/m] of every tie into out (T,): the Hessian block on (z_a, z_b) is
+    dR/dg [[1, -1], [-1, 1]] (sigma^2 = 1; on z_a alone for a tie to ground)."""
+    for c in range(s.tie_a.size):
+        g = closure(pos, s, c)
+        law = s.tie_contact_law[c]
         out[c] = crossing_tangent(g, force(g, law), law)

@@ -5,8 +5,7 @@
 (`dynfab.fabric.static.FabricState`) and returns the same record keys as
 `FabricStaticSolver.step`, so the two are interchangeable and comparable step by step
 (tests/test_fabric_dynamic.py). The geometry and parameters are the static
-reference's (`dynfab.kernels.fabric_arrays.build` lays the spec out through
-`dynfab.fabric.layout`); the physics of the relaxation is the Warp twin's own
+reference's (`dynfab.kernels.fabric_arrays.build` lays out the model's structure); the physics of the relaxation is the Warp twin's own
 (`dynfab.kernels.fabric_forces`, `fabric_explicit.FabricExplicit`): forces, contact
 forces, friction forces, the reaction at a prescribed end and the anchors' return map.
 
@@ -56,7 +55,6 @@ import warp as wp
 
 from dynfab.errors import SolverError, UserError
 from dynfab.fabric import inertia
-from dynfab.fabric.spec import FabricSpec
 from dynfab.fabric.static import MAX_ESCAPES, FabricState, FabricStaticSolver, run_load_path
 from dynfab.kernels import (fabric_arrays, fabric_explicit, fabric_forces, fabric_semi_implicit,
                             status)
@@ -78,17 +76,18 @@ class FabricDynamicSolver:
     """Relaxes a fabric's load steps one after another with the Warp kernels
     (docs/model.md sections 5, 10)."""
 
-    def __init__(self, spec: FabricSpec, device: str = "cpu", damping: str = "kinetic",
+    def __init__(self, model, device: str = "cpu", damping: str = "kinetic",
                  tolerance: float | None = None, max_steps: int = MAX_STEPS,
                  layout: str | None = None, method: str = "explicit",
                  damping_coefficient: float | None = None):
         if method not in METHODS:
             raise UserError(f"fabric: dynamic.method = {method!r} unknown; one of {METHODS}")
-        self.spec = spec
-        self.tolerance = spec.tolerance if tolerance is None else float(tolerance)
-        """Residual tolerance [N] of a relaxation (the spec's Newton tolerance by default)."""
+        self.model = model
+        self.tolerance = (model.scene.static.tolerance if tolerance is None
+                          else float(tolerance))
+        """Residual tolerance [N] of a relaxation (the static Newton tolerance by default)."""
         self.max_steps = int(max_steps)
-        self.arrays = fabric_arrays.build(spec)
+        self.arrays = fabric_arrays.build(model.structure)
         # the kernels built with friction in every case (F_T = k_t = 0 without it): one
         # variant per damping, the one the kernel tests build
         if damping == "viscous" and damping_coefficient is None:
@@ -101,14 +100,14 @@ class FabricDynamicSolver:
         self.method = method
         self.linear_iterations = 0
         """CG iterations of every relaxation so far (0 with the explicit method)."""
-        self.reference = FabricStaticSolver(spec)
+        self.reference = FabricStaticSolver(model)
         """The static solver: its state conventions, load path, prescribed start, strains and
         certificate (inertia, escape), never its forces."""
         self.fabric = self.reference.fabric
         self.yarns = self.reference.yarns
         f = self.fabric
-        self._plane_shift = np.stack([f.plane_x - f.rest_position[f.warp_node, 0],
-                                      f.plane_y - f.rest_position[f.weft_node, 0]], axis=1)
+        self._plane_shift = np.stack([f.tie_plane[:, 0] - f.rest_position[f.tie_a, 0],
+                                      f.tie_plane[:, 1] - f.rest_position[f.tie_b, 0]], axis=1)
         """The kernels' anchors (slip from the crossing nodes' as-woven coordinates) minus
         the static solver's (slip from the planes) [m]: a rounding-size constant."""
         reaction = self.arrays.free.copy()
@@ -188,7 +187,7 @@ class FabricDynamicSolver:
         """Relax one load step from `state`; returns (new state, record) or raises SolverError.
         The record holds FabricStaticSolver.step's keys, iterations counting time steps, plus
         time_steps and relax_time [s] (the relaxations' wall time)."""
-        spec, ref = self.spec, self.reference
+        model, ref = self.model, self.reference
         pos, anchors, P = ref.start_of_step(state, warp_value, weft_value)
         linear = self.linear_iterations
         began = time.perf_counter()
@@ -213,7 +212,7 @@ class FabricDynamicSolver:
         new_anchors, sliding, lost = self._return_map(pos, anchors, limit)
         end_force = self._end_force(pos, P, anchors)
         new, u_new = ref.end_of_step(state, pos, new_anchors, end_force, lost)
-        shape = (spec.warps, spec.wefts)
+        shape = (model.warps, model.wefts)
         record = dict(residual=outcome.residual, iterations=steps, friction_solves=1 + escapes,
                       rounding_floor=False, contact_force=R.reshape(shape),
                       friction_limit=limit.reshape(shape), sliding=sliding.reshape(shape),
@@ -240,11 +239,11 @@ class FabricDynamicSolver:
     def _end_force(self, pos, P, anchors) -> np.ndarray:
         """P under force control; under displacement control the reaction dV/du_N, minus the
         kernels' internal force on each yarn's end dof."""
-        if self.spec.control == "force":
+        if self.model.control == "force":
             return np.asarray(P, float).copy()
         force = self.internal_force(pos, anchors + self._plane_shift)
         return -force[self.fabric.load_node, 0]
 
     def run(self, state: FabricState | None = None):
-        """Every load step of the spec in sequence; returns (final state, records)."""
+        """Every load step of the model in sequence; returns (final state, records)."""
         return run_load_path(self, state)

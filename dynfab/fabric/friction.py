@@ -1,30 +1,36 @@
-"""Isotropic 2D Huber stick-slip friction at a fabric crossing (docs/model.md sections 4 and 10).
+"""Isotropic Huber stick-slip friction at a tie (docs/model.md sections 4 and 10).
 
-The in-plane slip of crossing c (warp node a, weft node b, planes X_j, Y_k fixed) is
+The slip of tie c (node a, node b; the planes X, Y of the chains they cross) is
 
-    s = (x_a - X_j - xi_x, y_b - Y_k - xi_y),
+    s = (x_a - X - xi_x, y_b - Y - xi_y),
 
-xi the crossing's anchor. With the limit F_T (Gralen's law of section 4 at the contact
-force, frozen during a Newton solve) the incremental potential is the isotropic Huber
+xi the tie's anchor; a tie to ground has only the first component (its planes are 0 and
+its anchor a position). With the limit F_T (Gralen's law of section 4 at the contact
+force, frozen during a Newton solve) and the tie's stick stiffness k_t
+(`tie_friction_law[c, 3]`), the incremental potential is the isotropic Huber
 
     H(s) = 1/2 k_t |s|^2                 for k_t |s| < F_T   (sticking)
          = F_T |s| - F_T^2 / (2 k_t)     otherwise            (sliding),
 
 dH/ds = k_t s or F_T s / |s|, d2H/ds2 = k_t I or (F_T / |s|)(I - s s^T / |s|^2)
-(the softer, sliding branch at k_t |s| = F_T, docs/model.md section 6). F_T = 0 (an open crossing)
-gives H = 0 identically. After a load step the anchors are return-mapped radially,
+(the softer, sliding branch at k_t |s| = F_T, docs/model.md section 6). F_T = 0 (an open
+tie) gives H = 0 identically. After a load step the anchors are return-mapped radially,
 xi += (1 - F_T / (k_t |s|)) s where sliding, and the energy lost is F_T |delta xi|.
 """
 
 import numba
 import numpy as np
 
+STICK = 3
+"""Column of k_t [N/m] in `tie_friction_law`."""
+
 
 @numba.njit(cache=True)
-def slip(pos, anchors, warp_node, weft_node, plane_x, plane_y, c):
-    """s of crossing c (2 floats) [m]."""
-    return (pos[warp_node[c], 0] - plane_x[c] - anchors[c, 0],
-            pos[weft_node[c], 0] - plane_y[c] - anchors[c, 1])
+def slip(pos, anchors, s, plane_x, plane_y, c):
+    """s of tie c (2 floats) [m]; the second 0 for a tie to ground."""
+    b = s.tie_b[c]
+    second = pos[b, 0] - plane_y[c] - anchors[c, 1] if b >= 0 else 0.0
+    return pos[s.tie_a[c], 0] - plane_x[c] - anchors[c, 0], second
 
 
 @numba.njit(cache=True)
@@ -61,10 +67,10 @@ def huber_gradient(sx, sy, limit, stick):
 def huber_hessian(sx, sy, limit, stick, secant=False):
     """d2H/ds2 as (h_xx, h_xy, h_yy) [N/m].
 
-    With `secant`, a sliding crossing gets (F_T / |s|) I instead: the curvature of the
+    With `secant`, a sliding tie gets (F_T / |s|) I instead: the curvature of the
     quadratic that touches H at s and lies above it everywhere
     (|s'| <= |s'|^2 / (2 |s|) + |s| / 2), so a Newton step on it cannot overshoot a
-    crossing about to stick again (the one-yarn solver's secant, `dynfab.terms.friction`).
+    tie about to stick again (the one-yarn solver's secant, `dynfab.terms.friction`).
     """
     if not limit > 0.0:
         return 0.0, 0.0, 0.0
@@ -78,46 +84,36 @@ def huber_hessian(sx, sy, limit, stick, secant=False):
 
 
 @numba.njit(cache=True)
-def energy(pos, anchors, warp_node, weft_node, plane_x, plane_y, limit, stick):
+def energy(pos, anchors, s, plane_x, plane_y, limit):
     """sum_c H(s_c) [J], F_T frozen."""
     total = 0.0
-    for c in range(warp_node.size):
-        sx, sy = slip(pos, anchors, warp_node, weft_node, plane_x, plane_y, c)
-        total += huber(sx, sy, limit[c], stick)
+    for c in range(s.tie_a.size):
+        sx, sy = slip(pos, anchors, s, plane_x, plane_y, c)
+        total += huber(sx, sy, limit[c], s.tie_friction_law[c, STICK])
     return total
 
 
 @numba.njit(cache=True)
-def add_gradient(pos, anchors, warp_node, weft_node, plane_x, plane_y, limit, stick, grad):
-    """grad += dH/ds on x of the warp node and y of the weft node."""
-    for c in range(warp_node.size):
-        sx, sy = slip(pos, anchors, warp_node, weft_node, plane_x, plane_y, c)
-        gx, gy = huber_gradient(sx, sy, limit[c], stick)
-        grad[warp_node[c], 0] += gx
-        grad[weft_node[c], 0] += gy
+def hessians(pos, anchors, s, plane_x, plane_y, limit, out, secant=False):
+    """(h_xx, h_xy, h_yy) of every tie into out (T, 3): the block on (x_a, y_b)."""
+    for c in range(s.tie_a.size):
+        sx, sy = slip(pos, anchors, s, plane_x, plane_y, c)
+        out[c, 0], out[c, 1], out[c, 2] = huber_hessian(sx, sy, limit[c],
+                                                        s.tie_friction_law[c, STICK], secant)
 
 
 @numba.njit(cache=True)
-def hessians(pos, anchors, warp_node, weft_node, plane_x, plane_y, limit, stick, out,
-             secant=False):
-    """(h_xx, h_xy, h_yy) of every crossing into out (C, 3): the block on (x_a, y_b)."""
-    for c in range(warp_node.size):
-        sx, sy = slip(pos, anchors, warp_node, weft_node, plane_x, plane_y, c)
-        out[c, 0], out[c, 1], out[c, 2] = huber_hessian(sx, sy, limit[c], stick, secant)
-
-
-@numba.njit(cache=True)
-def return_map(pos, anchors, warp_node, weft_node, plane_x, plane_y, limit, stick, sliding,
-               friction_force):
+def return_map(pos, anchors, s, plane_x, plane_y, limit, sliding, friction_force):
     """Radial return of the sliding anchors, in place; returns the energy lost [J].
 
     Where k_t |s| > F_T: xi += (1 - F_T / (k_t |s|)) s, so that k_t |s| = F_T after it,
-    dissipation F_T |delta xi|. Fills `sliding` (C,) and the friction force on the slip
-    (C, 2) [N]: -k_t s sticking, -F_T s / |s| sliding.
+    dissipation F_T |delta xi|. Fills `sliding` (T,) and the friction force on the slip
+    (T, 2) [N]: -k_t s sticking, -F_T s / |s| sliding.
     """
     lost = 0.0
-    for c in range(warp_node.size):
-        sx, sy = slip(pos, anchors, warp_node, weft_node, plane_x, plane_y, c)
+    for c in range(s.tie_a.size):
+        sx, sy = slip(pos, anchors, s, plane_x, plane_y, c)
+        stick = s.tie_friction_law[c, STICK]
         n = np.hypot(sx, sy)
         F = limit[c]
         sliding[c] = stick * n > F

@@ -35,114 +35,99 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from dynfab.build.fabric import Family, families, fabric_structure
 from dynfab.fabric.assembly import TERMS, planes
-from dynfab.fabric.layout import Fabric, build_fabric
-from dynfab.fabric.spec import FabricSpec, Family, Friction
 from dynfab.fabric.static import FabricState, FabricStaticSolver, as_woven_state
 from dynfab.scene import Scene
-
-DEFAULT_CORE_STIFFNESS = 1e5
-"""k_c [N/m] of a fabric scene without contact.core_stiffness (docs/model.md section 10)."""
-
-DEFAULT_LINEAR_DENSITY = 3e-5
-"""rho_l [kg/m] of the wefts without weft.linear_density (as the warps' default)."""
-
-
-def fabric_spec(scene: Scene) -> FabricSpec:
-    """The `FabricSpec` of a validated fabric scene (docs/model.md section 10)."""
-    g, warp, weft, load = scene.geometry, scene.warp, scene.weft, scene.load
-    friction = scene.friction
-    return FabricSpec(
-        warp=Family(length=g.length, segments=g.segments, amplitude=g.amplitude, EA=warp.EA,
-                    EI=warp.EI, kawabata_C=warp.kawabata_C, kawabata_K=warp.kawabata_K,
-                    linear_density=warp.linear_density),
-        weft=Family(length=weft.length, segments=weft.segments, amplitude=weft.amplitude,
-                    EA=weft.EA, EI=weft.EI, kawabata_C=weft.kawabata_C,
-                    kawabata_K=weft.kawabata_K,
-                    linear_density=weft.linear_density or DEFAULT_LINEAR_DENSITY),
-        warps=weft.count, wefts=g.crossings,
-        core_stiffness=(scene.contact.core_stiffness if scene.contact is not None
-                        and scene.contact.core_stiffness is not None else DEFAULT_CORE_STIFFNESS),
-        friction=None if friction is None else Friction(
-            alpha=friction.alpha, beta=friction.beta, contact_length=friction.contact_length,
-            fiber_radius=friction.fiber_radius, onset_force=friction.onset_force,
-            stick_stiffness=friction.stick_stiffness),
-        gravity=None if scene.gravity is None else scene.gravity.g,
-        boundary=g.boundary, planes=g.planes, control=load.control,
-        warp_values=load.values, weft_values=load.weft_values,
-        warp_factors=load.warp_factors, weft_factors=load.weft_factors,
-        pullout=None if scene.pullout is None else scene.pullout.warp,
-        tolerance=scene.static.tolerance, max_iterations=scene.static.max_iterations)
+from dynfab.structure import Structure
 
 
 @dataclass
 class FabricModel:
-    """What a run needs of a fabric scene besides its solver."""
+    """A fabric scene as the solvers see it: its structure (`dynfab.build.fabric`), its yarn
+    families and its load path (docs/model.md section 10)."""
 
     scene: Scene
-    spec: FabricSpec
-    fabric: Fabric
+    structure: Structure
+    warp: Family
+    weft: Family
 
     @classmethod
-    def from_scene(cls, scene: Scene) -> "FabricModel":
-        spec = fabric_spec(scene)
-        return cls(scene, spec, build_fabric(spec))
+    def from_scene(cls, scene: Scene, structure: Structure | None = None) -> "FabricModel":
+        """The model of a validated fabric scene; `structure` replaces the scene's own (a test
+        holding more dofs, say)."""
+        warp, weft = families(scene)
+        return cls(scene, fabric_structure(scene) if structure is None else structure, warp,
+                   weft)
+
+    @property
+    def warps(self) -> int:
+        return self.warp.count
+
+    @property
+    def wefts(self) -> int:
+        return self.weft.count
 
     @property
     def control(self) -> str:
-        return self.spec.control
+        return self.scene.load.control
+
+    @property
+    def pullout(self) -> int | None:
+        """The pulled warp (1-based), or None."""
+        return None if self.scene.pullout is None else self.scene.pullout.warp
 
     @property
     def load_values(self) -> np.ndarray:
         """The load path (steps, 2): (warp value, weft value) per step [N or m]."""
-        return np.column_stack(self.spec.loads())
+        load = self.scene.load
+        weft = load.weft_values if load.weft_values is not None else (0.0,) * len(load.values)
+        return np.column_stack([load.values, weft]).astype(float)
 
     def split(self, nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """All nodes (nodes, 2) -> (warps (n_wa, N+1, 2), wefts (n_we, M+1, 2))."""
-        spec = self.spec
-        cut = spec.warps * (spec.warp.segments + 1)
-        return (nodes[:cut].reshape(spec.warps, spec.warp.segments + 1, 2),
-                nodes[cut:].reshape(spec.wefts, spec.weft.segments + 1, 2))
+        cut = self.warps * (self.warp.segments + 1)
+        return (nodes[:cut].reshape(self.warps, self.warp.segments + 1, 2),
+                nodes[cut:].reshape(self.wefts, self.weft.segments + 1, 2))
 
     def reference(self) -> dict:
         """The result file's `reference/`: both families as woven, the crossing nodes."""
-        warps, wefts = self.split(self.fabric.rest_position)
-        spec = self.spec
+        warps, wefts = self.split(self.structure.rest_position)
         return {"positions": warps, "weft_positions": wefts,
-                "crossing_nodes": (2 * np.arange(spec.wefts) + 1) * spec.warp.segments
-                // (2 * spec.wefts),
-                "weft_crossing_nodes": (2 * np.arange(spec.warps) + 1) * spec.weft.segments
-                // (2 * spec.warps)}
+                "crossing_nodes": (2 * np.arange(self.wefts) + 1) * self.warp.segments
+                // (2 * self.wefts),
+                "weft_crossing_nodes": (2 * np.arange(self.warps) + 1) * self.weft.segments
+                // (2 * self.warps)}
 
     def attrs(self) -> dict:
         """Root attributes of a fabric's result file besides the solver's."""
-        spec, scene = self.spec, self.scene
-        return {"model": "fabric", "boundary": spec.boundary, "planes": spec.planes,
-                "projected_length": spec.warp.length, "weft_length": spec.weft.length,
-                "width_per_yarn": spec.weft.length / spec.warps,
-                "length_per_weft": spec.warp.length / spec.wefts,
-                "reference_state": scene.geometry.reference, "load_control": spec.control,
-                "yarn_labels": [f"warp {k + 1}" for k in range(spec.warps)]
-                + [f"weft {j + 1}" for j in range(spec.wefts)],
-                "terms": list(TERMS), **({} if spec.pullout is None
-                                          else {"pullout_warp": int(spec.pullout)})}
+        scene = self.scene
+        return {"model": "fabric", "boundary": scene.geometry.boundary,
+                "planes": scene.geometry.planes,
+                "projected_length": self.warp.length, "weft_length": self.weft.length,
+                "width_per_yarn": self.weft.length / self.warps,
+                "length_per_weft": self.warp.length / self.wefts,
+                "reference_state": scene.geometry.reference, "load_control": self.control,
+                "yarn_labels": [f"warp {k + 1}" for k in range(self.warps)]
+                + [f"weft {j + 1}" for j in range(self.wefts)],
+                "terms": list(TERMS), **({} if self.pullout is None
+                                          else {"pullout_warp": int(self.pullout)})}
 
     def initial_state(self) -> FabricState:
-        return as_woven_state(self.fabric)
+        return as_woven_state(self.structure)
 
     def state_from_step(self, last: dict) -> FabricState:
         """The state a finished step left (a resumed run continues from it)."""
-        spec = self.spec
         nodes = np.concatenate([np.asarray(last["positions"]).reshape(-1, 2),
                                 np.asarray(last["weft_positions"]).reshape(-1, 2)])
-        return FabricState(nodes, np.array(last["anchors"]).reshape(spec.warps * spec.wefts, 2),
+        return FabricState(nodes, np.array(last["anchors"]).reshape(self.warps * self.wefts, 2),
                            float(last["dissipated"]), float(last["work"]),
                            np.array(last["end_force"], float))
 
     @property
     def planes_move(self) -> bool:
         """The planes X_j, Y_k follow the ends ("affine" planes, the periodic cell)."""
-        return self.spec.boundary == "periodic" or self.spec.planes == "affine"
+        return bool(self.structure.plane_nodes_a.size or self.structure.plane_nodes_b.size)
 
     def point_data(self, record: dict) -> dict:
         """The XDMF view's nodal point data of a step (`dynfab.xdmf`): contact force and
@@ -177,7 +162,7 @@ class FabricSolver:
 
     def __init__(self, model: FabricModel, name: str = "static", device: str = "cpu"):
         self.model, self.name = model, name
-        self.solver = FabricStaticSolver(model.spec)
+        self.solver = FabricStaticSolver(model)
         self.engine = self.solver
         if name == "dynamic":
             from dynfab.fabric.dynamic import FabricDynamicSolver  # imports Warp: only here
@@ -185,7 +170,7 @@ class FabricSolver:
 
             initialize(device)
             dynamic = model.scene.dynamic
-            self.engine = FabricDynamicSolver(model.spec, device=device,
+            self.engine = FabricDynamicSolver(model, device=device,
                                               damping=dynamic.damping_used(),
                                               tolerance=dynamic.tolerance,
                                               max_steps=dynamic.max_steps,
@@ -193,9 +178,9 @@ class FabricSolver:
                                               damping_coefficient=dynamic.damping_coefficient)
 
     def attrs(self) -> dict:
-        spec = self.model.spec
-        attrs = {"solver": self.name, "static_tolerance": spec.tolerance,
-                 "static_max_iterations": spec.max_iterations}
+        static = self.model.scene.static
+        attrs = {"solver": self.name, "static_tolerance": static.tolerance,
+                 "static_max_iterations": static.max_iterations}
         if self.name == "dynamic":
             attrs["dynamic_damping"] = self.model.scene.dynamic.damping_used()
             attrs["dynamic_method"] = self.model.scene.dynamic.method  # as the one-yarn run's
@@ -207,9 +192,9 @@ class FabricSolver:
         `FabricStaticSolver.step`."""
         warp_value, weft_value = (float(v) for v in load)
         new, raw = self.engine.step(state, warp_value, weft_value)
-        model, spec = self.model, self.model.spec
+        model = self.model
         warps, wefts = model.split(new.positions)
-        shape = (spec.warps, spec.wefts)
+        shape = (model.warps, model.wefts)
         record = {
             "load": np.array([warp_value, weft_value]),
             "end_force": raw["end_force"], "end_displacement": raw["end_displacement"],
@@ -235,9 +220,9 @@ class FabricSolver:
     def planes(self, positions) -> dict:
         """warp_planes (n_wa,) Y_k and weft_planes (n_we,) X_j [m] at `positions`
         (`assembly.planes`: as woven, or moved with the ends)."""
-        spec = self.model.spec
+        wefts = self.model.wefts
         x, y = planes(positions, self.solver.fabric)  # per crossing c = k n_we + j
-        return {"warp_planes": y[::spec.wefts].copy(), "weft_planes": x[:spec.wefts].copy()}
+        return {"warp_planes": y[::wefts].copy(), "weft_planes": x[:wefts].copy()}
 
     def _energies(self, state: FabricState, warp_value, weft_value, limit) -> dict:
         """energy/<term> [J] at the step's end: the load term with the end forces P (force

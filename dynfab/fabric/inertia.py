@@ -141,9 +141,9 @@ def crossing_mask(fabric) -> np.ndarray:
     """True on the crossing dofs K (2 nodes,): both dofs of every crossing's two nodes, and
     the end nodes' in-plane dofs that move the planes (planes "affine")."""
     mask = np.zeros(fabric.fixed.size, np.bool_)
-    for node in (fabric.warp_node, fabric.weft_node):
+    for node in (fabric.tie_a, fabric.tie_b[fabric.tie_b >= 0]):
         mask[2 * node] = mask[2 * node + 1] = True
-    mask[2 * fabric.plane_nodes_x] = mask[2 * fabric.plane_nodes_y] = True
+    mask[2 * fabric.plane_nodes_a] = mask[2 * fabric.plane_nodes_b] = True
     return mask
 
 
@@ -224,7 +224,7 @@ def _inertia(fabric, pos, anchors, limit, tau, scale):
     k_index[k_dofs] = np.arange(k_dofs.size)
     S = np.zeros((k_dofs.size, k_dofs.size))
     negatives = 0
-    start = fabric.yarn_start
+    start = fabric.chain_start
     tiny = 64.0 * EPS * scale
     for y in range(start.size - 1):
         first = 2 * start[y]
@@ -291,10 +291,11 @@ def _add_schur_block(original, factor, local_k, global_k, S, constrained):
 def _add_crossing_blocks(fabric, pos, anchors, limit, k_index, S):
     """The contact and Huber blocks of every crossing into S (the shift came with the
     yarn bands, which hold every crossing dof's diagonal)."""
-    c = fabric.warp_node.size
+    c = fabric.tie_a.size
     tangent, huber = np.zeros(c), np.zeros((c, 3))
     assembly.crossing_blocks(pos, fabric, anchors, limit, tangent, huber)
-    za, zb = k_index[2 * fabric.warp_node + 1], k_index[2 * fabric.weft_node + 1]
+    za = k_index[2 * fabric.tie_a + 1]
+    zb = np.where(fabric.tie_b >= 0, k_index[2 * fabric.tie_b + 1], -1)  # ground: none
     for i in range(c):
         for (p, q), value in (((za[i], za[i]), tangent[i]), ((zb[i], zb[i]), tangent[i]),
                               ((za[i], zb[i]), -tangent[i]), ((zb[i], za[i]), -tangent[i])):

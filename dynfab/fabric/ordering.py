@@ -41,6 +41,8 @@ import numpy as np
 import scipy.sparse
 import scipy.sparse.linalg
 
+from dynfab.structure import chain_of_node
+
 LEAF = 64
 """Parts of at most this many unknowns are not dissected further (natural order: along
 each yarn's band); smaller leaves lower the fill little and take longer to order."""
@@ -54,16 +56,10 @@ def coordinates(fabric, index, count: int) -> np.ndarray:
     """(x, y) [m] of each of the `count` unknowns, as woven: a warp node at (its in-plane
     coordinate, Y_k), a weft node at (X_j, its in-plane coordinate); `index` maps dofs to
     unknowns (-1 fixed, `assembly.Pattern.index`), a tied unknown placed at its first dof."""
-    nodes = fabric.rest_position.shape[0]
-    yarn = np.searchsorted(fabric.yarn_start, np.arange(nodes), side="right") - 1
-    warps = int(np.count_nonzero(fabric.is_warp))
-    wefts = yarn.max() + 1 - warps
-    along = fabric.rest_position[:, 0]
-    # Y_k of warp k: its crossings' plane_y (crossing c = k n_we + j); X_j of weft j likewise
-    line = np.where(fabric.is_warp[yarn], fabric.plane_y[np.minimum(yarn, warps - 1) * wefts],
-                    fabric.plane_x[np.clip(yarn - warps, 0, wefts - 1)])
-    xy = np.where(fabric.is_warp[yarn, None], np.stack([along, line], 1),
-                  np.stack([line, along], 1))
+    yarn = chain_of_node(fabric)
+    along, line = fabric.rest_position[:, 0], fabric.chain_plane[yarn]
+    warp = fabric.chain_family[yarn, None] == 0
+    xy = np.where(warp, np.stack([along, line], 1), np.stack([line, along], 1))
     dofs = np.flatnonzero(index >= 0)
     unknowns, first = np.unique(index[dofs], return_index=True)
     out = np.zeros((count, 2))

@@ -1,7 +1,7 @@
 """The fabric's static solver: Newton on the exact sparse Hessian (docs/model.md sections 6, 10).
 
 Each load step minimises V plus the Huber friction terms over the free dofs from the
-previous state, to a residual (largest free force component) of `spec.tolerance`, or to
+previous state, to a residual (largest free force component) of `static.tolerance`, or to
 the rounding floor where that is higher (docs/model.md section 6). The Newton matrix is the exact
 Hessian (`dynfab.fabric.assembly`), factored by scipy's sparse LU (SuperLU, in its
 symmetric mode where it can: `_sparse_solve`); the loop, the line search and the
@@ -67,8 +67,7 @@ from dynfab.active_set import (CONTINUATION_FACTORS, CONTINUATION_START, DIRECT_
                                update_set)
 from dynfab.errors import SolverError
 from dynfab.fabric import assembly, contact, friction, inertia, ordering
-from dynfab.fabric.layout import Fabric, build_fabric
-from dynfab.fabric.spec import FabricSpec
+from dynfab.structure import Structure, chain_count
 from dynfab.terms import contact as contact_1d
 from dynfab.terms import friction as gralen
 from dynfab.terms.contact import CLOSED, OPEN
@@ -158,22 +157,24 @@ class FabricState:
                            self.work, None if self.end_force is None else self.end_force.copy())
 
 
-def as_woven_state(fabric: Fabric) -> FabricState:
+def as_woven_state(structure: Structure) -> FabricState:
     """As woven, anchors at zero slip, nothing dissipated, no end force."""
-    pos = fabric.rest_position.copy()
-    anchors = np.zeros((fabric.warp_node.size, 2))
-    anchors[:, 0] = pos[fabric.warp_node, 0] - fabric.plane_x
-    anchors[:, 1] = pos[fabric.weft_node, 0] - fabric.plane_y
-    return FabricState(pos, anchors, end_force=np.zeros(fabric.yarn_start.size - 1))
+    pos = structure.rest_position.copy()
+    anchors = np.zeros((structure.tie_a.size, 2))
+    anchors[:, 0] = pos[structure.tie_a, 0] - structure.tie_plane[:, 0]
+    grounded = structure.tie_b < 0
+    anchors[:, 1] = np.where(grounded, 0.0, pos[np.where(grounded, 0, structure.tie_b), 0]
+                             - structure.tie_plane[:, 1])
+    return FabricState(pos, anchors, end_force=np.zeros(chain_count(structure)))
 
 
 def run_load_path(solver, state: FabricState | None = None):
-    """Every load step of `solver.spec` in sequence by `solver.step(state, warp value, weft
+    """Every load step of `solver.model` in sequence by `solver.step(state, warp value, weft
     value)` (the static or the dynamic fabric solver), from `state` or the solver's initial
     one; returns (final state, records)."""
     state = solver.initial_state() if state is None else state
     records = []
-    for warp_value, weft_value in zip(*solver.spec.loads()):
+    for warp_value, weft_value in solver.model.load_values:
         state, record = solver.step(state, warp_value, weft_value)
         records.append(record)
     return state, records
@@ -205,9 +206,18 @@ class SetLaw:
     onset: float | None = None
 
 
-def _onset(fabric: Fabric, law: SetLaw | None) -> float:
-    """R_0 [N] of `law`, the scene's by default."""
-    return fabric.friction_onset if law is None or law.onset is None else law.onset
+def _onset(law: SetLaw | None) -> float:
+    """R_0 [N] of `law` for every tie, or -1: each tie's own (`gralen.tie_limits`)."""
+    return -1.0 if law is None or law.onset is None else law.onset
+
+
+def scene_onset(structure: Structure) -> float:
+    """The R_0 [N] the friction onset's continuation ends at (docs/model.md section 4): the
+    ties' one R_0 (a ValueError if their laws differ)."""
+    values = np.unique(structure.tie_friction_law[:, 2])
+    if values.size > 1:
+        raise ValueError("the continuation in R_0 needs one R_0 for every tie")
+    return float(values[0]) if values.size else 0.0
 
 
 def _within(residual: float, info: NewtonInfo, tolerance: float) -> bool:
@@ -225,12 +235,18 @@ def _started(info: NewtonInfo) -> NewtonInfo:
 class FabricStaticSolver:
     """Solves a fabric's load steps one after another (docs/model.md sections 6, 10)."""
 
-    def __init__(self, spec: FabricSpec):
-        self.spec = spec
-        self.fabric: Fabric = build_fabric(spec)
+    def __init__(self, model):
+        self.model = model
+        """The fabric's model (`dynfab.fabric.from_scene.FabricModel`): its structure, load
+        path and the scene's static options."""
+        self.fabric: Structure = model.structure
         self.pattern = assembly.Pattern(self.fabric)
         self.free = ~self.fabric.fixed
-        self.yarns = self.fabric.yarn_start.size - 1
+        self.yarns = chain_count(self.fabric)
+        self.tolerance = model.scene.static.tolerance
+        """Newton's residual tolerance [N] (docs/model.md section 6), or the rounding floor
+        where higher."""
+        self.max_iterations = model.scene.static.max_iterations
         self._terms = np.zeros(len(assembly.TERMS))
         self._budget = 0  # Newton iterations left to the active-set fallback (`solve_on_sets`)
 
@@ -243,7 +259,7 @@ class FabricStaticSolver:
     def yarn_loads(self, warp_value: float, weft_value: float) -> np.ndarray:
         """The load of each yarn (Y,) [N or m]: the family's value times its factor."""
         f = self.fabric
-        return np.where(f.is_warp, warp_value, weft_value) * f.load_factor
+        return np.where(f.chain_family == 0, warp_value, weft_value) * f.load_factor
 
     # ------------------------------------------------------------------ pieces
 
@@ -251,14 +267,15 @@ class FabricStaticSolver:
         """g of every crossing (C,) [m] (docs/model.md (10.5))."""
         f = self.fabric
         z = pos[:, 1]
-        return f.gap_offset - f.side * (z[f.warp_node] - z[f.weft_node])
+        z_b = np.where(f.tie_b >= 0, z[np.maximum(f.tie_b, 0)], 0.0)
+        return f.tie_gap_offset - f.tie_side * (z[f.tie_a] - z_b)
 
     def contact_forces(self, pos, law: SetLaw | None = None) -> np.ndarray:
         """R of every crossing (C,) [N]: the unilateral law, or on `law`'s branches (an open
         crossing carries none)."""
         f = self.fabric
-        out = np.zeros(f.warp_node.size)
-        contact.forces(pos, f.warp_node, f.weft_node, f.side, f.gap_offset, f.contact_law, out)
+        out = np.zeros(f.tie_a.size)
+        contact.forces(pos, f, out)
         if law is not None and law.branch is not None:
             out[law.branch == OPEN] = 0.0
         return out
@@ -267,18 +284,18 @@ class FabricStaticSolver:
         """F_T from Gralen's law at the contact forces of `pos` (0 without friction), with
         `law`'s branches and R_0 (default: the unilateral law, the scene's R_0)."""
         f = self.fabric
-        out = np.zeros(f.warp_node.size)
+        out = np.zeros(f.tie_a.size)
         if f.has_friction:
-            gralen.limits(self.contact_forces(pos, law), f.friction_alpha, f.friction_constant,
-                          _onset(f, law), out)
+            gralen.tie_limits(self.contact_forces(pos, law), f.tie_friction_law, _onset(law), out)
         return out
 
     def energy(self, pos, P, anchors, limit, law: SetLaw | None = None) -> float:
         total = assembly.total_energy(pos, self.fabric, P, anchors, limit, self._terms)
         if law is None or law.branch is None:
             return total
-        lost = sum(contact.crossing_energy(g, self.fabric.contact_law)
-                   for g in self._opened(pos, law)[1])
+        opened, g = self._opened(pos, law)
+        laws = self.fabric.tie_contact_law[opened]
+        lost = sum(contact.crossing_energy(value, row) for value, row in zip(g, laws))
         self._terms[assembly.CONTACT] -= lost
         return total - lost
 
@@ -288,9 +305,11 @@ class FabricStaticSolver:
         if law is not None and law.branch is not None:
             f = self.fabric
             opened, g = self._opened(pos, law)
-            R = np.array([contact.force(value, f.contact_law) for value in g])
-            np.add.at(grad[:, 1], f.warp_node[opened], f.side[opened] * R)
-            np.add.at(grad[:, 1], f.weft_node[opened], -f.side[opened] * R)
+            R = np.array([contact.force(value, row)
+                          for value, row in zip(g, f.tie_contact_law[opened])])
+            np.add.at(grad[:, 1], f.tie_a[opened], f.tie_side[opened] * R)
+            to_node = f.tie_b[opened] >= 0
+            np.add.at(grad[:, 1], f.tie_b[opened][to_node], -(f.tie_side[opened] * R)[to_node])
         return grad
 
     def hessian(self, pos, anchors, limit, secant=False,
@@ -302,10 +321,8 @@ class FabricStaticSolver:
         H = self.pattern.matrix(values)
         if law is None or law.branch is None:
             return H
-        natural = np.zeros(self.fabric.warp_node.size)
-        f = self.fabric
-        contact.tangents(pos, f.warp_node, f.weft_node, f.side, f.gap_offset, f.contact_law,
-                         natural)
+        natural = np.zeros(self.fabric.tie_a.size)
+        contact.tangents(pos, self.fabric, natural)
         change = self.branch_tangents(pos, law) - natural
         return (H + self._contact_blocks(change)).tocsc()
 
@@ -314,12 +331,12 @@ class FabricStaticSolver:
         open; closed, the unilateral tangent, or for g <= 0 the closed side's k_0 (the Newton
         matrix of a crossing held closed keeps its contact stiffness across g = 0)."""
         f = self.fabric
-        out = np.zeros(f.warp_node.size)
-        contact.tangents(pos, f.warp_node, f.weft_node, f.side, f.gap_offset, f.contact_law, out)
+        out = np.zeros(f.tie_a.size)
+        contact.tangents(pos, f, out)
         if law is not None and law.branch is not None:
             out[law.branch == OPEN] = 0.0
             shut = (law.branch == CLOSED) & ~(self.closures(pos) > 0.0)
-            out[shut] = contact_1d.tangent(0.0, f.contact_law)
+            out[shut] = [contact_1d.tangent(0.0, row) for row in f.tie_contact_law[shut]]
         return out
 
     def _opened(self, pos, law: SetLaw):
@@ -333,7 +350,8 @@ class FabricStaticSolver:
         f = self.fabric
         c = np.flatnonzero(tangent)
         index = self.pattern.index
-        za, zb = index[2 * f.warp_node[c] + 1], index[2 * f.weft_node[c] + 1]
+        za = index[2 * f.tie_a[c] + 1]
+        zb = np.where(f.tie_b[c] >= 0, index[2 * np.maximum(f.tie_b[c], 0) + 1], -1)  # ground: none
         t = tangent[c]
         rows = np.concatenate([za, za, zb, zb])
         cols = np.concatenate([za, zb, za, zb])
@@ -398,7 +416,7 @@ class FabricStaticSolver:
         `hessian()` to go on with."""
         residual = self.residual(grad)
         info.residual, info.iterations = residual, iteration
-        if residual <= self.spec.tolerance:
+        if residual <= self.tolerance:
             info.converged = True
             return None
         if iteration == max_iterations or not np.isfinite(residual):
@@ -414,7 +432,7 @@ class FabricStaticSolver:
         """Minimise V + sum H (F_T frozen) from `pos`, in place (docs/model.md section 6), the
         contact on `law`'s branches (None: unilateral)."""
         info = NewtonInfo()
-        max_iterations = self.spec.max_iterations if max_iterations is None else max_iterations
+        max_iterations = self.max_iterations if max_iterations is None else max_iterations
         previous = np.inf
         cut = False  # the last step was shortened: the secant friction stiffness
         for iteration in range(max_iterations + 1):
@@ -458,8 +476,8 @@ class FabricStaticSolver:
             return info, limit, outer
         iterations = info.iterations
         pos[:, :] = start
-        self._budget = FALLBACK_BUDGET * self.spec.max_iterations
-        if self.fabric.friction_onset > 0.0:
+        self._budget = FALLBACK_BUDGET * self.max_iterations
+        if scene_onset(self.fabric) > 0.0:
             info, more = self.solve_relaxed(pos, P, anchors)
             iterations += info.iterations
             outer += more
@@ -484,7 +502,7 @@ class FabricStaticSolver:
         with F_T from the law at the solution is within the tolerance; at most
         RELAXED_BUDGET x max_iterations Newton iterations, taken from the fallback's
         budget. Returns (info, solves)."""
-        budget = min(self._budget, RELAXED_BUDGET * self.spec.max_iterations)
+        budget = min(self._budget, RELAXED_BUDGET * self.max_iterations)
         limit = self.friction_limits(pos)
         weight, best, since = RELAXATION_START, np.inf, 0
         iterations = solves = 0
@@ -497,7 +515,7 @@ class FabricStaticSolver:
                 break
             law = self.friction_limits(pos)
             info.residual = self.residual(self.gradient(pos, P, anchors, law))
-            if _within(info.residual, info, self.spec.tolerance):
+            if _within(info.residual, info, self.tolerance):
                 break
             if info.residual < best:
                 best, since = info.residual, 0
@@ -540,7 +558,7 @@ class FabricStaticSolver:
                     return info, limit, outer
                 limit = self.friction_limits(pos, law)
                 info.residual = self.residual(self.gradient(pos, P, anchors, limit, law))
-                if _within(info.residual, info, self.spec.tolerance):
+                if _within(info.residual, info, self.tolerance):
                     info.iterations = iterations
                     return info, limit, outer
             if not self.fabric.has_friction:
@@ -574,7 +592,7 @@ class FabricStaticSolver:
         it; `solve_relaxed` takes its share first). Returns (info, solves)."""
         f = self.fabric
         start = pos.copy()
-        target = f.friction_onset
+        target = scene_onset(f)
         branch = self._natural_set(pos)
         info, outer = self._solve_set(pos, P, anchors, branch, target,
                                       DIRECT_SET_UPDATES if target > 0.0 else MAX_FLIPS, True,
@@ -634,7 +652,7 @@ class FabricStaticSolver:
             if not np.isfinite(info.residual):
                 break
             residual = self.law_residual(pos, P, anchors, onset)
-            if info.converged and _within(residual, info, self.spec.tolerance):
+            if info.converged and _within(residual, info, self.tolerance):
                 info.residual = residual
                 return info, outer
             if self._budget <= 0:  # FALLBACK_BUDGET spent
@@ -687,24 +705,26 @@ class FabricStaticSolver:
         crossings (dH/ds = k_t s) have none.
         """
         f = self.fabric
-        c = f.warp_node.size
+        c = f.tie_a.size
         tangent = self.branch_tangents(pos, law)
         R = self.contact_forces(pos, law)
-        onset = _onset(f, law)
+        onset = _onset(law)
         px, py = assembly.planes(pos, f)
         rows, cols, values = [], [], []
         for i in range(c):
-            sx, sy = friction.slip(pos, anchors, f.warp_node, f.weft_node, px, py, i)
+            sx, sy = friction.slip(pos, anchors, f, px, py, i)
             norm = np.hypot(sx, sy)
-            if not (tangent[i] > 0.0 and limit[i] > 0.0 and f.stick_stiffness * norm >= limit[i]):
+            stick = f.tie_friction_law[i, friction.STICK]
+            if not (tangent[i] > 0.0 and limit[i] > 0.0 and stick * norm >= limit[i]):
                 continue
-            slope = gralen.limit_slope(R[i], f.friction_alpha, f.friction_constant,
-                                       onset) * tangent[i]
-            za, zb = 2 * f.warp_node[i] + 1, 2 * f.weft_node[i] + 1
+            slope = gralen.tie_limit_slope(R[i], f.tie_friction_law, onset, i) * tangent[i]
+            z_dofs = [(2 * f.tie_a[i] + 1, -f.tie_side[i])]
+            if f.tie_b[i] >= 0:
+                z_dofs.append((2 * f.tie_b[i] + 1, f.tie_side[i]))
             # rows: J^T (s / |s|), J the slip's Jacobian (its nodes and the plane nodes)
             J = assembly.slip_jacobian(f, i)
             for row, unit in zip(assembly.slip_dofs(f, i), J.T @ np.array([sx, sy]) / norm):
-                for col, dg in ((za, -f.side[i]), (zb, f.side[i])):
+                for col, dg in z_dofs:
                     rows.append(row)
                     cols.append(col)
                     values.append(unit * slope * dg)
@@ -725,7 +745,7 @@ class FabricStaticSolver:
         by 1e-4 t of itself.
         """
         info = NewtonInfo()
-        max_iterations = self.spec.max_iterations if max_iterations is None else max_iterations
+        max_iterations = self.max_iterations if max_iterations is None else max_iterations
         previous = np.inf
         for iteration in range(max_iterations + 1):
             limit = self.friction_limits(pos, law)
@@ -760,7 +780,7 @@ class FabricStaticSolver:
 
     def step(self, state: FabricState, warp_value: float, weft_value: float):
         """Solve one load step from `state`; returns (new state, record) or raises SolverError."""
-        f, spec = self.fabric, self.spec
+        f, model = self.fabric, self.model
         pos, anchors, P = self.start_of_step(state, warp_value, weft_value)
         info, limit, outer = self.solve(pos, P, anchors)
         if not info.converged:
@@ -769,18 +789,18 @@ class FabricStaticSolver:
             pos, P, anchors, info, limit, outer)
         R = self.contact_forces(pos)
         end_force = self._end_force(pos, P, anchors, limit)
-        sliding = np.zeros(f.warp_node.size, np.bool_)
-        friction_force = np.zeros((f.warp_node.size, 2))
+        sliding = np.zeros(f.tie_a.size, np.bool_)
+        friction_force = np.zeros((f.tie_a.size, 2))
         lost = 0.0
         if f.has_friction:
             px, py = assembly.planes(pos, f)
-            lost = friction.return_map(pos, anchors, f.warp_node, f.weft_node, px, py, limit,
-                                       f.stick_stiffness, sliding, friction_force)
+            lost = friction.return_map(pos, anchors, f, px, py, limit, sliding, friction_force)
         new, u_new = self.end_of_step(state, pos, anchors, end_force, lost)
+        shape = (model.warps, model.wefts)
         record = dict(residual=info.residual, iterations=info.iterations, friction_solves=outer,
-                      rounding_floor=info.at_floor, contact_force=R.reshape(spec.warps, spec.wefts),
-                      friction_limit=limit.reshape(spec.warps, spec.wefts),
-                      sliding=sliding.reshape(spec.warps, spec.wefts), friction_force=friction_force,
+                      rounding_floor=info.at_floor, contact_force=R.reshape(shape),
+                      friction_limit=limit.reshape(shape),
+                      sliding=sliding.reshape(shape), friction_force=friction_force,
                       negative_eigenvalues=inertia_result.negatives,
                       stable=inertia_result.negatives == 0, nearest_eigenvalue=nearest,
                       escapes=escapes,
@@ -790,7 +810,7 @@ class FabricStaticSolver:
 
     def crossing_name(self, c: int) -> str:
         """Crossing c as the scene counts it: "(warp k, weft j)", 1-based."""
-        k, j = divmod(int(c), self.spec.wefts)
+        k, j = divmod(int(c), self.model.wefts)
         return f"(warp {k + 1}, weft {j + 1})"
 
     def _worst_crossing(self, pos, P, anchors) -> tuple[int, float]:
@@ -799,24 +819,25 @@ class FabricStaticSolver:
         f = self.fabric
         grad = self.gradient(pos, P, anchors, self.friction_limits(pos))
         force = np.where(f.fixed.reshape(-1, 2), 0.0, np.abs(grad)).max(axis=1)
-        worst = np.maximum(force[f.warp_node], force[f.weft_node])
+        worst = np.maximum(force[f.tie_a], np.where(f.tie_b >= 0, force[np.maximum(f.tie_b, 0)],
+                                                    0.0))
         c = int(np.argmax(worst))
         return c, float(worst[c])
 
     def _failure(self, pos, P, anchors, info: NewtonInfo, outer: int) -> str:
         """The one line of a step that reached no state consistent with the laws, naming
         the crossing to blame and the residual reached (docs/model.md section 4)."""
-        f, tolerance = self.fabric, self.spec.tolerance
+        f, tolerance = self.fabric, self.tolerance
         reached = f"residual {info.residual:.3g} N, tolerance {tolerance:.3g} N"
         if info.reason == CYCLING_REASON:
             return (f"fabric: crossing {self.crossing_name(info.crossing)} keeps opening and "
                     f"closing at g = 0, where Gralen's friction limit jumps by beta*ell*r_f = "
-                    f"{f.friction_constant:.3g} N (R_0 = {f.friction_onset:.3g} N); no "
+                    f"{f.tie_friction_law[info.crossing, 1]:.3g} N (R_0 = {scene_onset(f):.3g} N); no "
                     f"open/closed state consistent with the contact and friction laws was "
                     f"found ({reached})")
         if info.reason == ONSET_REASON:
             return (f"fabric: crossing {self.crossing_name(info.crossing)} at the friction onset "
-                    f"(R_0 = {f.friction_onset:.3g} N): no open/closed state consistent with the "
+                    f"(R_0 = {scene_onset(f):.3g} N): no open/closed state consistent with the "
                     f"contact and friction laws was found, also by continuation in R_0 from "
                     f"{CONTINUATION_START:.3g} N ({info.iterations} Newton iterations, at most "
                     f"{FALLBACK_BUDGET} x static.max_iterations; {reached})")
@@ -860,7 +881,7 @@ class FabricStaticSolver:
         e0 = self.energy(pos, P, anchors, limit)
         rounding = 64.0 * EPS * (np.abs(self._terms).sum()
                                  + assembly.rounding_scale(pos, self.fabric, P, limit))
-        length = max(self.spec.warp.length, self.spec.weft.length)
+        length = max(self.model.warp.length, self.model.weft.length)
         best, best_pos = e0 - rounding, None
         for k in range(count):
             d = self.pattern.expand(vectors[:, k]).reshape(pos.shape)
@@ -875,7 +896,7 @@ class FabricStaticSolver:
         return best_pos
 
     def run(self, state: FabricState | None = None):
-        """Every load step of the spec in sequence; returns (final state, records)."""
+        """Every load step of the model in sequence; returns (final state, records)."""
         return run_load_path(self, state)
 
     def start_of_step(self, state: FabricState, warp_value: float, weft_value: float):
@@ -885,7 +906,7 @@ class FabricStaticSolver:
         and the dynamic fabric solvers."""
         loads = self.yarn_loads(warp_value, weft_value)
         pos, anchors = state.positions.copy(), state.anchors.copy()
-        if self.spec.control == "force":
+        if self.model.control == "force":
             return pos, anchors, loads
         self._prescribe(pos, loads)
         return pos, anchors, np.zeros(self.yarns)
@@ -906,7 +927,7 @@ class FabricStaticSolver:
         the yarn (a better start than the end node alone)."""
         f = self.fabric
         for y in range(self.yarns):
-            a, b = f.yarn_start[y], f.yarn_start[y + 1]
+            a, b = f.chain_start[y], f.chain_start[y + 1]
             rest = f.rest_position[a:b, 0]
             increment = loads[y] - (pos[b - 1, 0] - rest[-1])
             pos[a:b, 0] += increment * (rest - rest[0]) / (rest[-1] - rest[0])
@@ -915,7 +936,7 @@ class FabricStaticSolver:
     def _end_force(self, pos, P, anchors, limit) -> np.ndarray:
         """End force along each yarn [N]: P under force control; under displacement control
         the reaction dV/du_N of the elastic terms."""
-        if self.spec.control == "force":
+        if self.model.control == "force":
             return np.asarray(P, float).copy()
         grad = self.gradient(pos, np.zeros(self.yarns), anchors, limit)
         return grad[self.fabric.load_node, 0].copy()
@@ -927,22 +948,24 @@ class FabricStaticSolver:
         f = self.fabric
         crimp = np.empty(self.yarns)
         for y in range(self.yarns):
-            chain = pos[f.yarn_start[y]:f.yarn_start[y + 1]]
+            chain = pos[f.chain_start[y]:f.chain_start[y + 1]]
             arc = np.hypot(*np.diff(chain, axis=0).T).sum()
             projected = chain[-1, 0] - chain[0, 0]
             crimp[y] = (arc - projected) / projected
-        return np.array([crimp[f.is_warp].mean(), crimp[~f.is_warp].mean()])
+        warp = f.chain_family == 0
+        return np.array([crimp[warp].mean(), crimp[~warp].mean()])
 
     def strains(self, pos) -> np.ndarray:
         """Nominal strains (warp, weft): the mean end displacement of the family's loaded
         yarns over their length (docs/model.md section 10). Under displacement control a yarn of
         factor 0 is held, not loaded, and left out (a pull-out's other warps), unless the whole
         family is; under force control a factor-0 yarn's end is free and counts."""
-        f, spec = self.fabric, self.spec
+        f, model = self.fabric, self.model
         u = pos[f.load_node, 0] - f.rest_position[f.load_node, 0]
-        loaded = (f.load_factor != 0) | (spec.control == "force")
+        loaded = (f.load_factor != 0) | (model.control == "force")
+        warp = f.chain_family == 0
         out = []
-        for family, length in ((f.is_warp, spec.warp.length), (~f.is_warp, spec.weft.length)):
+        for family, length in ((warp, model.warp.length), (~warp, model.weft.length)):
             chosen = family & loaded if (family & loaded).any() else family
             out.append(u[chosen].mean() / length)
         return np.array(out)

@@ -38,10 +38,10 @@ from typing import Callable
 
 import numpy as np
 
-from dynfab.fabric.layout import warp_shape, weft_shape
+from dynfab.fabric.from_scene import FabricModel
 from dynfab.fabric.static import FabricStaticSolver
 from dynfab.reports.common import machine, output_folder, write_json, write_text
-from dynfab.reports.fabric_data import (eq4_against_beam, FULL, PATHS, QUICK, YARNS, Plan, cell_spec, crimp_percent,
+from dynfab.reports.fabric_data import (eq4_against_beam, FULL, PATHS, QUICK, YARNS, Plan, cell_scene, crimp_percent,
                                         load_per_width, strain_percent, width_per_yarn,
                                         yarn_nodes)
 from dynfab.reports.fabric_plots import draw_figures
@@ -78,16 +78,17 @@ def run_fabric(out_dir, *, quick: bool = False,
 
 def solve_paths(plan: Plan, progress=None) -> dict:
     """Every path of PATHS on the cell of `plan`: the data dict the figures and JSON hold."""
-    first = cell_spec(plan, PATHS["1:1"])
+    first = FabricModel.from_scene(cell_scene(plan, PATHS["1:1"]))
+    rest = first.structure.rest_position
     data = {"report": "fabric", "plan": plan.name,
             "cell": {"warps": YARNS, "wefts": YARNS, "boundary": "periodic", "control": "force",
                      "length_m": first.warp.length, "segments": first.warp.segments,
                      "width_per_yarn_m": width_per_yarn(), "steps": plan.steps,
                      "largest_load_N": plan.largest_load_N, "yarn": _family_dict(first.warp),
-                     "core_stiffness_N_per_m": first.core_stiffness, "friction": None,
-                     "tolerance_N": first.tolerance},
-            "as_woven": {"warp": warp_shape(first, 0).tolist(),
-                         "weft": weft_shape(first, 0).tolist()},
+                     "core_stiffness_N_per_m": float(first.structure.tie_contact_law[0, 0]),
+                     "friction": None, "tolerance_N": first.scene.static.tolerance},
+            "as_woven": {"warp": yarn_nodes(rest, first.structure.chain_start, 0).tolist(),
+                         "weft": yarn_nodes(rest, first.structure.chain_start, YARNS).tolist()},
             "paths": {}}
     for name, ratio in PATHS.items():
         started = time.perf_counter()
@@ -108,13 +109,13 @@ def _family_dict(family) -> dict:
 def solve_path(plan: Plan, ratio: tuple[float, float]) -> dict:
     """One proportional path: per step (as woven first) loads, strains, crimps, contact
     forces, residual, stability and the positions' error bound; the last shapes and plan."""
-    solver = FabricStaticSolver(cell_spec(plan, ratio))
-    f, spec = solver.fabric, solver.spec
+    solver = FabricStaticSolver(FabricModel.from_scene(cell_scene(plan, ratio)))
+    f, path = solver.fabric, solver.model.load_values
     state = solver.initial_state()
-    warp_loads, weft_loads = (np.concatenate([[0.0], v]) for v in spec.loads())
+    warp_loads, weft_loads = (np.concatenate([[0.0], v]) for v in path.T)
     strain, crimp = [np.zeros(2)], [solver.crimps(state.positions)]
     contact, residual, stable, bound = [np.zeros((YARNS, YARNS))], [0.0], [True], [0.0]
-    for warp_value, weft_value in zip(*spec.loads()):
+    for warp_value, weft_value in path:
         state, record = solver.step(state, warp_value, weft_value)
         strain.append(record["strain"])
         crimp.append(record["crimp"])
@@ -132,10 +133,10 @@ def solve_path(plan: Plan, ratio: tuple[float, float]) -> dict:
             "warp_crimp_percent": crimp[:, 0], "weft_crimp_percent": crimp[:, 1],
             "contact_force_N": np.array(contact), "residual_N": residual, "stable": stable,
             "position_bound_m": bound,
-            "last": {"warp": yarn_nodes(state.positions, f.yarn_start, 0),
-                     "weft": yarn_nodes(state.positions, f.yarn_start, weft0),
+            "last": {"warp": yarn_nodes(state.positions, f.chain_start, 0),
+                     "weft": yarn_nodes(state.positions, f.chain_start, weft0),
                      "cell_m": [float(c) for c in cell],
-                     "warp_above": (f.side.reshape(YARNS, YARNS) > 0)}})
+                     "warp_above": (f.tie_side.reshape(YARNS, YARNS) > 0)}})
 
 
 def _lists(value):
@@ -154,7 +155,7 @@ def position_bound(solver: FabricStaticSolver, state, record) -> float:
     exact solution (module docstring)."""
     H = solver.hessian(state.positions, state.anchors, record["friction_limit"].ravel())
     inverse_norm = np.abs(np.linalg.inv(H.toarray())).sum(axis=1).max()
-    return float(4 * inverse_norm * max(record["residual"], solver.spec.tolerance))
+    return float(4 * inverse_norm * max(record["residual"], solver.tolerance))
 
 
 # --------------------------------------------------------------------------

@@ -20,8 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dynfab.fabric.spec import FabricSpec, Family
 from dynfab.geometry import tensioned_beam_stiffness, weft_stiffness
+from dynfab.scene import Scene, scene_from_tables
 
 SPACING = 0.1 / 16
 """Crossing spacing [m]: the paper's L / crossings (docs/model.md section 7), both directions."""
@@ -62,20 +62,40 @@ def load_fractions(plan: Plan) -> np.ndarray:
     return (np.arange(1, plan.steps + 1) / plan.steps) ** 2
 
 
-def cell_spec(plan: Plan, ratio: tuple[float, float]) -> FabricSpec:
+def cell_scene(plan: Plan, ratio: tuple[float, float]) -> Scene:
     """The balanced periodic cell under force control along `ratio` (module docstring)."""
-    family = Family(length=YARNS * SPACING, segments=YARNS * plan.segments_per_crossing,
-                    **PAPER_YARN)
     scale = plan.largest_load_N / max(ratio)
     fractions = load_fractions(plan)
-    return FabricSpec(warp=family, weft=family, warps=YARNS, wefts=YARNS, boundary="periodic",
-                      control="force", warp_values=tuple(scale * ratio[0] * fractions),
-                      weft_values=tuple(scale * ratio[1] * fractions))
+    return paper_patch_scene(YARNS, YARNS, plan.segments_per_crossing, SPACING,
+                             boundary="periodic",
+                             load={"control": "force",
+                                   "values": list(scale * ratio[0] * fractions),
+                                   "weft_values": list(scale * ratio[1] * fractions)})
 
 
-def yarn_nodes(positions: np.ndarray, yarn_start: np.ndarray, yarn: int) -> np.ndarray:
+def paper_patch_scene(warps: int, wefts: int, segments_per_half_wave: int = 8,
+                      pitch: float = SPACING, *, boundary: str = "clamped",
+                      planes: str = "fixed", load: dict, **tables) -> Scene:
+    """A balanced fabric scene of the paper's yarn (docs/model.md section 7) for both families:
+    crossings `pitch` apart both ways (L = pitch n_we, L_we = pitch n_wa), a half-wave of
+    crimp of `segments_per_half_wave` segments between neighbouring crossings; `load` the
+    [load] table, `tables` any other tables ([friction], [contact], [gravity], [pullout], ...)."""
+    yarn = {key: PAPER_YARN[key] for key in ("EA", "EI", "kawabata_C", "kawabata_K")}
+    geometry = {"model": "fabric", "length": pitch * wefts, "crossings": wefts,
+                "segments": segments_per_half_wave * wefts,
+                "amplitude": PAPER_YARN["amplitude"], "boundary": boundary}
+    if boundary != "periodic":
+        geometry["planes"] = planes
+    return scene_from_tables({
+        "geometry": geometry, "warp": yarn,
+        "weft": {**yarn, "amplitude": PAPER_YARN["amplitude"], "length": pitch * warps,
+                 "count": warps, "segments": segments_per_half_wave * warps},
+        "load": load, **tables})
+
+
+def yarn_nodes(positions: np.ndarray, chain_start: np.ndarray, yarn: int) -> np.ndarray:
     """(in-plane coordinate, z) of one yarn's nodes (nodes, 2) [m]."""
-    return positions[yarn_start[yarn]:yarn_start[yarn + 1]]
+    return positions[chain_start[yarn]:chain_start[yarn + 1]]
 
 
 # --------------------------------------------------------------------------

@@ -70,6 +70,23 @@ def limits(contact_force, alpha, constant, onset, out):
 
 
 @numba.njit(cache=True)
+def tie_limits(contact_force, law, onset, out):
+    """F_T [N] of every tie from its own law row (alpha, beta ell r_f, R_0, k_t) of a
+    structure's `tie_friction_law` (T, 4); `onset` >= 0 replaces every tie's R_0 (a stage of the
+    continuation in R_0, docs/model.md section 4), < 0 keeps them."""
+    for j in range(contact_force.size):
+        r0 = law[j, 2] if onset < 0.0 else onset
+        out[j] = limit(contact_force[j], law[j, 0], law[j, 1], r0)
+
+
+@numba.njit(cache=True)
+def tie_limit_slope(R, law, onset, j):
+    """dF_T/dR [-] of tie j at contact force R (`tie_limits`' law and `onset`)."""
+    r0 = law[j, 2] if onset < 0.0 else onset
+    return limit_slope(R, law[j, 0], law[j, 1], r0)
+
+
+@numba.njit(cache=True)
 def is_sliding(slip, friction_limit, stick_stiffness):
     """True where the trial force k_t |s| exceeds F_T."""
     return stick_stiffness * abs(slip) > friction_limit

@@ -23,6 +23,24 @@ def add_gradient(mass, g, grad):
         grad[i, 1] += mass[i] * g
 
 
+@numba.njit(cache=True)
+def energy_per_node(pos, rest_pos, mass, g):
+    """sum_i m_i g_i (z_i - z0_i) [J], g per node (a structure's `gravity`)."""
+    total = 0.0
+    for i in range(mass.size):
+        if g[i] != 0.0:
+            total += mass[i] * g[i] * (pos[i, 1] - rest_pos[i, 1])
+    return total
+
+
+@numba.njit(cache=True)
+def add_gradient_per_node(mass, g, grad):
+    """grad_z += m_i g_i."""
+    for i in range(mass.size):
+        if g[i] != 0.0:
+            grad[i, 1] += mass[i] * g[i]
+
+
 # The term's entry points (`dynfab.terms`).
 
 
