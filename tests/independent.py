@@ -1,8 +1,9 @@
 """Independent helpers shared by the verification tests (plain functions, not fixtures).
 
-Scene building through the TOML parser (as a user's scene file), a load-path
-driver, the dense matrix of a banded one (`dynfab.banded.to_dense`, checked against
-`band_matvec` in test_certificate.py), and the series contact law of
+Scene building through the TOML parser (as a user's scene file), fabric scenes and
+their models (a held family, no core spring), a load-path driver, the dense matrix of a
+banded one (`dynfab.banded.to_dense`, checked against `band_matvec` in
+test_certificate.py), and the series contact law of
 docs/model.md section 3 solved here with scipy (brentq on g(R), arc lengths from ellipe),
 independently of dynfab.terms.contact. Import with `from independent import ...`
 (pytest puts tests/ on sys.path).
@@ -11,6 +12,7 @@ independently of dynfab.terms.contact. Import with `from independent import ...`
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 from scipy.optimize import brentq
@@ -18,8 +20,10 @@ from scipy.special import ellipe
 
 from dynfab import assembly
 from dynfab.banded import to_dense as dense  # noqa: F401 (the tests' name for it)
+from dynfab.fabric.from_scene import FabricModel
 from dynfab.model import build_model, initial_state
-from dynfab.scene import Scene, parse_scene_text
+from dynfab.scene import Scene, parse_scene_text, validate_scene
+from dynfab.structure import chain_of_node, dim
 from dynfab.static import StaticSolver
 from toml_writer import toml_text as scene_toml  # TOML of {table: {key: value}}
 
@@ -40,6 +44,54 @@ def make_scene(sweep=None, **tables) -> Scene:
     Sweep keys are dotted parameter names ("warp.kawabata_K"), written quoted.
     """
     return parse_scene_text(scene_toml({**tables, "sweep": sweep} if sweep else tables))
+
+
+def scene_with(scene: Scene, **tables) -> Scene:
+    """A copy of `scene` with keys of its tables changed, {table: {key: value}}, validated once
+    as a whole (several keys that only together make a valid scene, a patch resized, say)."""
+    changes = {name: replace(getattr(scene, name), **keys) for name, keys in tables.items()}
+    return validate_scene(replace(scene, **changes))
+
+
+# --------------------------------------------------------------------------
+# Fabric scenes and their models (docs/model.md section 10).
+
+FAMILY_GEOMETRY = ("length", "segments", "amplitude")
+"""The keys of a family's dict that the warps take from [geometry]."""
+
+
+def fabric_scene(warp: dict, weft: dict, warps: int, wefts: int, geometry=None,
+                 **tables) -> Scene:
+    """A fabric scene (geometry.model = "fabric") through the TOML parser: `warp` and `weft`
+    each family's {length, segments, amplitude, EA, EI, kawabata_C, kawabata_K[,
+    linear_density]}, `warps` x `wefts` yarns; `geometry` more [geometry] keys (boundary,
+    planes); `tables` the other tables ([load] at least; [friction], [contact], [gravity],
+    [pullout], [static], ...)."""
+    return make_scene(
+        geometry={"model": "fabric", **{key: warp[key] for key in FAMILY_GEOMETRY},
+                  "crossings": wefts, **(geometry or {})},
+        warp={key: value for key, value in warp.items() if key not in FAMILY_GEOMETRY},
+        weft={**weft, "count": warps}, **tables)
+
+
+def held_family(scene: Scene, family: str) -> FabricModel:
+    """The fabric model of `scene` with every dof of one family ("warp" or "weft") held at its
+    as-woven position besides the scene's own boundary (docs/model.md section 10: with the
+    wefts held, each warp is the one-yarn model with a rigid weft spring)."""
+    structure = FabricModel.from_scene(scene).structure
+    chosen = structure.chain_family[chain_of_node(structure)] == {"warp": 0, "weft": 1}[family]
+    held = np.repeat(chosen, dim(structure))
+    return FabricModel.from_scene(scene, structure._replace(fixed=structure.fixed | held))
+
+
+def without_core_spring(scene: Scene) -> FabricModel:
+    """The fabric model of `scene` with k_c = inf at every crossing: Kawabata's law alone, a
+    hard wall at g = C_wa + C_we (docs/model.md section 10). A scene takes finite numbers
+    only (contact.core_stiffness), so the law is set on the structure."""
+    structure = FabricModel.from_scene(scene).structure
+    law = structure.tie_contact_law.copy()
+    law[:, 0] = np.inf
+    return FabricModel.from_scene(scene, structure._replace(tie_contact_law=law))
 
 
 def run(scene):

@@ -8,19 +8,28 @@ order on a patch loaded until the closures reach 80 % of the wall (contact tange
 about 10 times their value at first touch).
 """
 
-import dataclasses
-
 import numpy as np
 
 from dynfab.fabric import contact
+from dynfab.fabric.from_scene import FabricModel
 from dynfab.fabric.static import FabricStaticSolver
-from test_fabric_static import fabric_spec
+from independent import without_core_spring
+from test_fabric_static import patch_scene
 
-SPEC = fabric_spec("force", (1.0, 3.0, 6.0), None, weft_values=(0.5, 1.5, 3.0))
+
+PATH = dict(control="force", values=(1.0, 3.0, 6.0), friction=None, weft_values=(0.5, 1.5, 3.0))
+"""The load path: warps and wefts pulled."""
 
 
 def solve(core_stiffness):
-    solver = FabricStaticSolver(dataclasses.replace(SPEC, core_stiffness=core_stiffness))
+    """(solver, final state, records) of the loaded patch with k_c = `core_stiffness` [N/m];
+    inf: no core spring (set on the structure, `independent.without_core_spring`: a scene
+    takes finite numbers only)."""
+    if core_stiffness == np.inf:
+        model = without_core_spring(patch_scene(**PATH))
+    else:
+        model = FabricModel.from_scene(patch_scene(**PATH, core_stiffness=core_stiffness))
+    solver = FabricStaticSolver(model)
     state, records = solver.run()
     return solver, state, records
 
@@ -28,11 +37,11 @@ def solve(core_stiffness):
 def test_without_a_core_spring_the_closures_stay_below_the_wall():
     solver, state, records = solve(np.inf)
     f = solver.fabric
-    wall = f.contact_law[1] + f.contact_law[3]
-    g = np.array([contact.closure(state.positions, f.warp_node, f.weft_node, f.side,
-                                  f.gap_offset, c) for c in range(f.warp_node.size)])
+    assert np.all(f.tie_contact_law[:, 0] == np.inf)
+    wall = f.tie_contact_law[0, 1] + f.tie_contact_law[0, 3]
+    g = np.array([contact.closure(state.positions, f, c) for c in range(f.tie_a.size)])
     assert g.max() < wall and g.max() > 0.75 * wall  # near it, not past it
-    assert all(r["residual"] <= solver.spec.tolerance or r["rounding_floor"] for r in records)
+    assert all(r["residual"] <= solver.tolerance or r["rounding_floor"] for r in records)
 
 
 def test_a_finite_core_spring_converges_to_the_wall_at_first_order():

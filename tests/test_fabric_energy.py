@@ -14,14 +14,15 @@ import numpy as np
 import pytest
 
 from dynfab.fabric import assembly
-from dynfab.fabric.spec import FabricSpec, Family, Friction
+from dynfab.fabric.from_scene import FabricModel
 from dynfab.fabric.static import FabricStaticSolver
+from independent import fabric_scene
 
-WARP = Family(length=0.04, segments=12, amplitude=0.5e-3, EA=13.72, EI=1.47e-7,
-              kawabata_C=0.2e-3, kawabata_K=0.2)
-WEFT = Family(length=0.03, segments=12, amplitude=0.4e-3, EA=10.0, EI=2e-7,
-              kawabata_C=0.15e-3, kawabata_K=0.3)
-FRICTION = Friction(alpha=0.2, beta=1e3, contact_length=2e-3, fiber_radius=1e-3)
+WARP = dict(length=0.04, segments=12, amplitude=0.5e-3, EA=13.72, EI=1.47e-7, kawabata_C=0.2e-3,
+            kawabata_K=0.2)
+WEFT = dict(length=0.03, segments=12, amplitude=0.4e-3, EA=10.0, EI=2e-7, kawabata_C=0.15e-3,
+            kawabata_K=0.3)
+FRICTION = dict(alpha=0.2, beta=1e3, contact_length=2e-3, fiber_radius=1e-3)
 PATHS = {"force": (0.02, 0.01), "displacement": (2e-5, 0.0)}
 """(warp, weft) end values at the end of the linear load path [N or m]."""
 
@@ -31,20 +32,20 @@ def imbalance(control, steps):
     and the dissipation [J]."""
     warp_end, weft_end = PATHS[control]
     fraction = np.arange(1, steps + 1) / steps
-    solver = FabricStaticSolver(FabricSpec(
-        warp=WARP, weft=WEFT, warps=3, wefts=3, friction=FRICTION, control=control,
-        warp_values=tuple(warp_end * fraction), weft_values=tuple(weft_end * fraction),
-        warp_factors=(1.0, 0.5, 0.2)))
+    solver = FabricStaticSolver(FabricModel.from_scene(fabric_scene(
+        WARP, WEFT, 3, 3, friction=FRICTION,
+        load=dict(control=control, values=list(warp_end * fraction),
+                  weft_values=list(weft_end * fraction), warp_factors=[1.0, 0.5, 0.2]))))
     state, records = solver.run()
     f = solver.fabric
     terms = np.zeros(len(assembly.TERMS))
-    c = f.warp_node.size
+    c = f.tie_a.size
     assembly.energies(state.positions, f, np.zeros(f.load_node.size), state.anchors,
                       np.zeros(c), terms)
     elastic = terms[assembly.STRETCH] + terms[assembly.BENDING] + terms[assembly.CONTACT]
-    sx = state.positions[f.warp_node, 0] - f.plane_x - state.anchors[:, 0]
-    sy = state.positions[f.weft_node, 0] - f.plane_y - state.anchors[:, 1]
-    stick = 0.5 * f.stick_stiffness * np.sum(sx ** 2 + sy ** 2)
+    sx = state.positions[f.tie_a, 0] - f.tie_plane[:, 0] - state.anchors[:, 0]
+    sy = state.positions[f.tie_b, 0] - f.tie_plane[:, 1] - state.anchors[:, 1]
+    stick = 0.5 * np.sum(f.tie_friction_law[:, 3] * (sx ** 2 + sy ** 2))
     assert records[-1]["sliding"].any() and not records[-1]["sliding"].all()
     return state.work - elastic - stick - state.dissipated, state.dissipated
 

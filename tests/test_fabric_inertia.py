@@ -20,7 +20,7 @@ import scipy.sparse.linalg
 
 from dynfab.fabric import inertia, ordering
 from dynfab.fabric.static import FabricStaticSolver
-from test_fabric_static import FRICTION, fabric_spec
+from test_fabric_static import FRICTION, patch_model
 
 EPS = np.finfo(float).eps
 
@@ -33,8 +33,8 @@ def dense_count(H, shift):
 
 
 def friction_step(planes):
-    spec = fabric_spec("force", (0.2,), FRICTION, weft_values=(0.05,), planes=planes)
-    solver = FabricStaticSolver(spec)
+    solver = FabricStaticSolver(patch_model("force", (0.2,), FRICTION, weft_values=(0.05,),
+                                            planes=planes))
     state, records = solver.run()
     limit = records[-1]["friction_limit"].ravel()
     return solver, state.positions, solver.initial_state().anchors, limit
@@ -76,7 +76,7 @@ def test_sparse_count_of_a_saddle_under_compression():
     # Held wefts, warps pushed in (docs/model.md section 6): Newton's equilibrium before the
     # escape is a saddle (tests/test_fabric_static.py); counted at it, both routes agree
     # with the dense spectrum, which has negatives.
-    solver = FabricStaticSolver(fabric_spec("displacement", (-3e-4,), None, hold="weft"))
+    solver = FabricStaticSolver(patch_model("displacement", (-3e-4,), None, hold="weft"))
     state = solver.initial_state()
     pos, anchors = state.positions.copy(), state.anchors.copy()
     solver._prescribe(pos, solver.yarn_loads(-3e-4, 0.0))
@@ -112,7 +112,7 @@ def dissection_unmodified(solver, A, order):
     position[elimination] = np.arange(n)
     G = A.tocsr()
     dof = np.flatnonzero(solver.pattern.index >= 0)  # unknown -> dof: no ties when clamped
-    yarn = np.searchsorted(solver.fabric.yarn_start, dof // 2, side="right")
+    yarn = np.searchsorted(solver.fabric.chain_start, dof // 2, side="right")
     band_only = ~inertia.crossing_mask(solver.fabric)[dof]
     for j in elimination[1:]:
         coupled = G.indices[G.indptr[j]:G.indptr[j + 1]]

@@ -13,13 +13,12 @@ section 4).
 import re
 import subprocess
 import sys
-from dataclasses import replace
 
 import h5py
 import numpy as np
 import scipy.optimize
 
-from dynfab.fabric.from_scene import fabric_spec
+from dynfab.fabric.from_scene import FabricModel
 from dynfab.fabric.static import FabricStaticSolver
 from dynfab.scene import parse_scene_text
 from independent import scene_toml
@@ -42,6 +41,11 @@ def patch(n: int, onset: float, control: str, values, weft_values) -> str:
                      "fiber_radius": R_F, "onset_force": onset},
         "load": {"control": control, "values": [float(v) for v in values],
                  "weft_values": [float(v) for v in weft_values]}})
+
+
+def patch_solver(text: str) -> FabricStaticSolver:
+    """The static solver of a scene's text (`patch`)."""
+    return FabricStaticSolver(FabricModel.from_scene(parse_scene_text(text)))
 
 
 def gralen(R: np.ndarray, onset: float) -> np.ndarray:
@@ -67,9 +71,9 @@ def check_consistent(solver: FabricStaticSolver, before, after, record, load) ->
     residual with those F_T is within the tolerance (or the step's rounding floor)."""
     f = solver.fabric
     pos = after.positions
-    g = f.gap_offset - f.side * (pos[f.warp_node, 1] - pos[f.weft_node, 1])
-    R = np.array([contact_force(value, f.contact_law) for value in g])
-    law = gralen(R, f.friction_onset)
+    g = f.tie_gap_offset - f.tie_side * (pos[f.tie_a, 1] - pos[f.tie_b, 1])
+    R = np.array([contact_force(value, row) for value, row in zip(g, f.tie_contact_law)])
+    law = gralen(R, solver.model.scene.friction.onset_force)
     # R agrees with the solver's to the bracketing's rounding (4 eps relative)
     np.testing.assert_allclose(np.ravel(record["contact_force"]), R, rtol=1e-12, atol=0)
     assert np.abs(np.ravel(record["friction_limit"]) - law).max() <= 1e-12
@@ -77,16 +81,16 @@ def check_consistent(solver: FabricStaticSolver, before, after, record, load) ->
     residual = solver.residual(solver.gradient(pos, P, anchors, law))
     H = solver.hessian(pos, anchors, law)
     floor = 4 * EPS * np.abs(H.diagonal()).max() * np.abs(pos).max()  # docs/model.md section 6
-    assert residual <= max(solver.spec.tolerance, floor if record["rounding_floor"] else 0.0)
+    assert residual <= max(solver.tolerance, floor if record["rounding_floor"] else 0.0)
 
 
 def solve_path(text: str, fallback_steps: set[int]):
     """Every step of the scene's path solved and checked (`check_consistent`); at the steps
     in `fallback_steps` (1-based) the frozen-F_T and coupled Newton alone (`solve_frozen`,
     the solver before the active set) is first shown to fail from the step's start."""
-    solver = FabricStaticSolver(fabric_spec(parse_scene_text(text)))
+    solver = patch_solver(text)
     state = solver.initial_state()
-    for index, load in enumerate(zip(*solver.spec.loads()), start=1):
+    for index, load in enumerate(solver.model.load_values, start=1):
         pos, anchors, P = solver.start_of_step(state, *load)
         if index in fallback_steps:
             assert not solver.solve_frozen(pos, P, anchors)[0].converged
@@ -144,18 +148,15 @@ def test_the_onset_converges_at_first_order_to_the_jump_law():
     crossing is held near g = 0 with R about R_0 / 4: the change of the positions from
     R_0 to R_0 / 2 halves with R_0 (ratio 2 + O(R_0): its error halves too), far above the
     solver's position error, the tolerance times ||H^-1||_inf (docs/model.md (5.7))."""
-    text = patch(2, 1e-5, "displacement", np.linspace(1e-6, 2e-5, 8)[:2],
-                 np.linspace(0.0, 1e-5, 8)[:2])
-    spec = fabric_spec(parse_scene_text(text))
     onsets = 1.6e-5 / 2.0 ** np.arange(6)
     positions, smallest = [], []
     for onset in onsets:
-        solver = FabricStaticSolver(replace(spec, friction=replace(spec.friction,
-                                                                   onset_force=onset)))
+        solver = patch_solver(patch(2, onset, "displacement", np.linspace(1e-6, 2e-5, 8)[:2],
+                                    np.linspace(0.0, 1e-5, 8)[:2]))
         state, records = solver.run()
         limit = np.ravel(records[-1]["friction_limit"])
         H = solver.hessian(state.positions, state.anchors, limit).toarray()
-        bound = spec.tolerance * np.abs(np.linalg.inv(H)).sum(axis=1).max()
+        bound = solver.tolerance * np.abs(np.linalg.inv(H)).sum(axis=1).max()
         positions.append(state.positions)
         smallest.append(np.min(records[-1]["contact_force"]))
     # the crossing held at the onset: R proportional to R_0
@@ -177,8 +178,7 @@ def test_a_step_the_fallback_cannot_solve_names_its_crossing(monkeypatch):
     from dynfab.errors import SolverError
 
     monkeypatch.setattr(fabric_static, "FALLBACK_BUDGET", 1)
-    solver = FabricStaticSolver(fabric_spec(parse_scene_text(
-        patch(4, 1e-7, "force", [0.0, 1e-4], [0.0, 5e-5]))))
+    solver = patch_solver(patch(4, 1e-7, "force", [0.0, 1e-4], [0.0, 5e-5]))
     state, _ = solver.step(solver.initial_state(), 0.0, 0.0)
     try:
         solver.step(state, 1e-4, 5e-5)
@@ -205,7 +205,7 @@ def test_a_fixed_point_on_friction_that_cycles_is_relaxed(monkeypatch):
     point (`solve_relaxed`) reaches a state consistent with the laws, without the active
     set's fallback."""
     text = patch(5, 1e-5, "force", [1e-4], [5e-5])
-    solver = FabricStaticSolver(fabric_spec(parse_scene_text(text)))
+    solver = patch_solver(text)
     state = solver.initial_state()
     pos, anchors, P = solver.start_of_step(state, 1e-4, 5e-5)
     limit = solver.friction_limits(pos)
@@ -216,7 +216,7 @@ def test_a_fixed_point_on_friction_that_cycles_is_relaxed(monkeypatch):
         closed.append(solver.closures(pos) > 0)
     assert np.array_equal(closed[-1], closed[-3]) and np.array_equal(closed[-2], closed[-4])
     assert not np.array_equal(closed[-1], closed[-2])
-    assert solver.law_residual(pos, P, anchors) > 1e3 * solver.spec.tolerance
+    assert solver.law_residual(pos, P, anchors) > 1e3 * solver.tolerance
 
     def no_active_set(*args):
         raise AssertionError("the active set's fallback was needed")
@@ -237,17 +237,16 @@ def test_the_relaxed_fixed_point_and_the_active_set_reach_the_same_state():
     tolerance ||H^-1||_inf (docs/model.md (5.7))."""
     import dynfab.fabric.static as fabric_static
 
-    solver = FabricStaticSolver(fabric_spec(parse_scene_text(
-        patch(4, 1e-7, "force", [0.0, 1e-4], [0.0, 5e-5]))))
+    solver = patch_solver(patch(4, 1e-7, "force", [0.0, 1e-4], [0.0, 5e-5]))
     state, _ = solver.step(solver.initial_state(), 0.0, 0.0)
     solved = []
     for fallback in (solver.solve_relaxed, solver.solve_on_sets):
         pos, anchors, P = solver.start_of_step(state, 1e-4, 5e-5)
-        solver._budget = fabric_static.FALLBACK_BUDGET * solver.spec.max_iterations
+        solver._budget = fabric_static.FALLBACK_BUDGET * solver.max_iterations
         assert fallback(pos, P, anchors)[0].converged
-        assert solver.law_residual(pos, P, anchors) <= solver.spec.tolerance
+        assert solver.law_residual(pos, P, anchors) <= solver.tolerance
         solved.append(pos)
     H = solver.hessian(solved[0], anchors, solver.friction_limits(solved[0])).toarray()
-    bound = solver.spec.tolerance * np.abs(np.linalg.inv(H)).sum(axis=1).max()
+    bound = solver.tolerance * np.abs(np.linalg.inv(H)).sum(axis=1).max()
     assert np.abs(solved[0] - solved[1]).max() <= 2 * bound
     assert np.abs(solved[0] - state.positions).max() > 1e3 * bound  # the step moved the patch

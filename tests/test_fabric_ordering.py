@@ -19,18 +19,19 @@ import scipy.sparse
 import scipy.sparse.linalg
 
 from dynfab.fabric import inertia, ordering
+from dynfab.fabric.from_scene import FabricModel
 from dynfab.fabric.static import FabricStaticSolver, _sparse_solve
-from dynfab.kernels.fabric_arrays import paper_patch
+from dynfab.reports.fabric_data import paper_patch_scene
 from test_fabric_periodic import cell
-from test_fabric_static import FRICTION, fabric_spec
+from test_fabric_static import FRICTION, patch_model
 
 EPS = np.finfo(float).eps
 
 
 def friction_step(**more):
     """A converged friction load step of the small test fabric: (solver, H, order)."""
-    spec = fabric_spec("force", (0.2,), FRICTION, weft_values=(0.05,), **more)
-    solver = FabricStaticSolver(spec)
+    solver = FabricStaticSolver(patch_model("force", (0.2,), FRICTION, weft_values=(0.05,),
+                                            **more))
     state, records = solver.run()
     limit = records[-1]["friction_limit"].ravel()
     H = solver.hessian(state.positions, state.anchors, limit)
@@ -40,7 +41,7 @@ def friction_step(**more):
 def compressed_saddle():
     """Warps pushed in with the wefts free: Newton's equilibrium on the symmetric path is a
     saddle (negative eigenvalues by the dense spectrum, checked where used)."""
-    solver = FabricStaticSolver(fabric_spec("displacement", (-3e-4,), None))
+    solver = FabricStaticSolver(patch_model("displacement", (-3e-4,), None))
     state = solver.initial_state()
     pos, anchors = state.positions.copy(), state.anchors.copy()
     solver._prescribe(pos, solver.yarn_loads(-3e-4, 0.0))
@@ -52,7 +53,7 @@ def compressed_saddle():
 
 def as_woven_hessian(solver):
     state = solver.initial_state()
-    return solver.hessian(state.positions, state.anchors, np.zeros(solver.fabric.warp_node.size))
+    return solver.hessian(state.positions, state.anchors, np.zeros(solver.fabric.tie_a.size))
 
 
 @pytest.mark.parametrize("case", ["fixed", "affine", "periodic"])
@@ -60,14 +61,14 @@ def test_the_order_is_a_permutation_of_the_unknowns(case):
     if case == "periodic":  # tied cell lengths, wrap springs, moving planes
         solver = cell(2, 4, "force", FRICTION)
     else:
-        solver = FabricStaticSolver(fabric_spec("force", (0.2,), FRICTION, planes=case))
+        solver = FabricStaticSolver(patch_model("force", (0.2,), FRICTION, planes=case))
     H = as_woven_hessian(solver)
     order = ordering.fabric_order(solver.fabric, solver.pattern)
     assert order.order.dtype.kind == "i"
     assert np.array_equal(np.sort(order.order), np.arange(solver.pattern.free_count))
     # computed once per pattern: found again from the Hessian of another state
     state, _ = solver.step(solver.initial_state(), *((0.1, 0.05) if case == "periodic" else (0.2, 0.05)))
-    again = solver.hessian(state.positions, state.anchors, np.zeros(solver.fabric.warp_node.size))
+    again = solver.hessian(state.positions, state.anchors, np.zeros(solver.fabric.tie_a.size))
     assert ordering.known_order(again) is order
     assert ordering.fabric_order(solver.fabric, solver.pattern) is order
 
@@ -173,7 +174,8 @@ def fills(order_of):
     the order `order_of(solver, A)` gives (None: SuperLU's minimum degree on A^T + A)."""
     out = []
     for n in SIZES:
-        solver = FabricStaticSolver(paper_patch(n, n, 8))
+        solver = FabricStaticSolver(FabricModel.from_scene(paper_patch_scene(
+            n, n, 8, load={"control": "force", "values": [0.0]})))
         state = solver.initial_state()
         A = structural_matrix(solver.hessian(state.positions, state.anchors,
                                              np.zeros(n * n)))

@@ -9,13 +9,14 @@
 import numpy as np
 import pytest
 
-from dynfab.fabric.spec import FabricSpec, Family, Friction
+from dynfab.fabric.from_scene import FabricModel
 from dynfab.fabric.static import FabricStaticSolver
+from independent import fabric_scene
 
 SPACING_WARP, SPACING_WEFT = 0.1 / 16, 0.005
 """Crossing spacings [m] along the warps (L / n_we) and along the wefts (L_we / n_wa)."""
 PER_CROSSING = 8
-FRICTION = Friction(alpha=0.2, beta=1e3, contact_length=2e-3, fiber_radius=1e-3)
+FRICTION = dict(alpha=0.2, beta=1e3, contact_length=2e-3, fiber_radius=1e-3)
 PATHS = {"force": ((0.1, 0.3, 0.6), (0.05, 0.1, 0.4)),
          "displacement": ((1e-4, 2e-4, 4e-4), (0.0, 5e-5, 1e-4))}
 """(warp, weft) load paths per yarn [N] or per cell repeat of two crossings [m]."""
@@ -24,21 +25,23 @@ PATHS = {"force": ((0.1, 0.3, 0.6), (0.05, 0.1, 0.4)),
 def cell(warps, wefts, control, friction):
     """The solver of a periodic cell of `warps` x `wefts` yarns (the tests pass each step's
     loads to `step`)."""
-    warp = Family(length=wefts * SPACING_WARP, segments=PER_CROSSING * wefts, amplitude=0.5e-3,
-                  EA=13.72, EI=1.47e-7, kawabata_C=0.2e-3, kawabata_K=0.2)
-    weft = Family(length=warps * SPACING_WEFT, segments=PER_CROSSING * warps, amplitude=0.4e-3,
-                  EA=10.0, EI=2e-7, kawabata_C=0.15e-3, kawabata_K=0.3)
+    warp = dict(length=wefts * SPACING_WARP, segments=PER_CROSSING * wefts, amplitude=0.5e-3,
+                EA=13.72, EI=1.47e-7, kawabata_C=0.2e-3, kawabata_K=0.2)
+    weft = dict(length=warps * SPACING_WEFT, segments=PER_CROSSING * warps, amplitude=0.4e-3,
+                EA=10.0, EI=2e-7, kawabata_C=0.15e-3, kawabata_K=0.3)
     warp_values, weft_values = PATHS[control]
-    return FabricStaticSolver(FabricSpec(
-        warp=warp, weft=weft, warps=warps, wefts=wefts, boundary="periodic", friction=friction,
-        control=control, warp_values=warp_values, weft_values=weft_values))
+    tables = {} if friction is None else {"friction": friction}
+    return FabricStaticSolver(FabricModel.from_scene(fabric_scene(
+        warp, weft, warps, wefts, geometry=dict(boundary="periodic"),
+        load=dict(control=control, values=list(warp_values), weft_values=list(weft_values)),
+        **tables)))
 
 
 def position_tolerance(solver, state, record, other_residual):
     """4 ||H^-1||_inf (r1 + r2) [m] on the unknowns (as in test_fabric_static)."""
     H = solver.hessian(state.positions, state.anchors, record["friction_limit"].ravel())
     bound = np.abs(np.linalg.inv(H.toarray())).sum(axis=1).max()
-    return 4 * bound * max(record["residual"] + other_residual, solver.spec.tolerance)
+    return 4 * bound * max(record["residual"] + other_residual, solver.tolerance)
 
 
 @pytest.mark.parametrize("control", ["force", "displacement"])
@@ -72,8 +75,9 @@ def test_two_repeats_are_the_cell_tiled(control):
         spacing = min(SPACING_WARP, SPACING_WEFT)
         assert np.abs(r_small["strain"] - r_large["strain"]).max() <= tol / spacing
         tiled = np.tile(r_small["contact_force"], (2, 2))
-        assert np.abs(tiled - r_large["contact_force"]).max() <= small.spec.core_stiffness * tol
+        k_c = small.fabric.tie_contact_law[0, 0]
+        assert np.abs(tiled - r_large["contact_force"]).max() <= k_c * tol
         assert r_small["contact_force"].max() > 0
         # warp 0 of the large cell, first repeat, is warp 0 of the small one
-        n = small.fabric.yarn_start[1]
+        n = small.fabric.chain_start[1]
         assert np.abs(s_large.positions[:n] - s_small.positions[:n]).max() <= tol

@@ -18,26 +18,30 @@ frozen-F_T solves).
 
 import numpy as np
 
-from dynfab.fabric.spec import FabricSpec, Family, Friction
+from dynfab.fabric.from_scene import FabricModel
 from dynfab.fabric.static import FabricStaticSolver
+from independent import fabric_scene
 
-WARP = Family(length=0.04, segments=24, amplitude=0.5e-3, EA=13.72, EI=1.47e-7,
-              kawabata_C=0.2e-3, kawabata_K=0.2)
-WEFT = Family(length=0.03, segments=18, amplitude=0.4e-3, EA=10.0, EI=2e-7,
-              kawabata_C=0.15e-3, kawabata_K=0.3)
-FRICTION = Friction(alpha=0.2, beta=1e3, contact_length=2e-3, fiber_radius=1e-3)
+WARP = dict(length=0.04, segments=24, amplitude=0.5e-3, EA=13.72, EI=1.47e-7, kawabata_C=0.2e-3,
+            kawabata_K=0.2)
+WEFT = dict(length=0.03, segments=18, amplitude=0.4e-3, EA=10.0, EI=2e-7, kawabata_C=0.15e-3,
+            kawabata_K=0.3)
+FRICTION = dict(alpha=0.2, beta=1e3, contact_length=2e-3, fiber_radius=1e-3, onset_force=1e-5)
+K_C = 1e5
+"""The core stiffness [N/m] (a fabric's default)."""
 PULLED = 2
 WARPS, WEFTS = 3, 4
 
 
 def test_pullout_force_is_the_friction_on_the_pulled_warp():
     values = tuple(np.linspace(2e-5, 6e-4, 12))
-    solver = FabricStaticSolver(FabricSpec(
-        warp=WARP, weft=WEFT, warps=WARPS, wefts=WEFTS, friction=FRICTION,
-        control="displacement", warp_values=values, pullout=PULLED, gravity=9.81))
+    solver = FabricStaticSolver(FabricModel.from_scene(fabric_scene(
+        WARP, WEFT, WARPS, WEFTS, friction=FRICTION, contact=dict(core_stiffness=K_C),
+        gravity=dict(g=9.81), pullout=dict(warp=PULLED),
+        load=dict(control="displacement", values=list(values)))))
     f = solver.fabric
     k = PULLED - 1
-    nodes = f.yarn_start[k + 1] - f.yarn_start[k]
+    nodes = f.chain_start[k + 1] - f.chain_start[k]
     state, forces = solver.initial_state(), []
     for value in values:
         state, record = solver.step(state, value, 0.0)
@@ -45,20 +49,20 @@ def test_pullout_force_is_the_friction_on_the_pulled_warp():
         friction_x = record["friction_force"].reshape(WARPS, WEFTS, 2)[k, :, 0]
         limits = record["friction_limit"][k]
         # the residual bounds every free force component: nodes x residual for the sum
-        tolerance = nodes * max(record["residual"], solver.spec.tolerance)
+        tolerance = nodes * max(record["residual"], solver.tolerance)
         assert abs(pull + friction_x.sum()) <= tolerance
         assert pull <= limits.sum() + tolerance
         forces.append((pull, record["sliding"][k].all(), record["residual"]))
     assert all(all_slide for _, all_slide, _ in forces[-5:])
     assert forces[-1][0] > 0  # it slides, against friction: its free end has moved
-    assert state.positions[f.yarn_start[k], 0] > f.rest_position[f.yarn_start[k], 0] + 1e-4
+    assert state.positions[f.chain_start[k], 0] > f.rest_position[f.chain_start[k], 0] + 1e-4
     # The plateau: each pull within nodes x r of its friction sum; each F_T,j within
     # dF_T/dR x k_c x |dz| of the next step's, |dz| <= ||H^-1|| r (dF_T/dR <= alpha +
     # beta ell r_f / R_0, the contact tangent <= k_c).
-    residual = max(max(r for _, _, r in forces[-5:]), solver.spec.tolerance)
+    residual = max(max(r for _, _, r in forces[-5:]), solver.tolerance)
     H = solver.hessian(state.positions, state.anchors, record["friction_limit"].ravel())
     inverse = np.abs(np.linalg.inv(H.toarray())).sum(axis=1).max()
-    slope = FRICTION.alpha + (FRICTION.beta * FRICTION.contact_length * FRICTION.fiber_radius
-                              / FRICTION.onset_force)
-    bound = 2 * (nodes * residual + WEFTS * slope * solver.spec.core_stiffness * inverse * residual)
+    slope = FRICTION["alpha"] + (FRICTION["beta"] * FRICTION["contact_length"]
+                                 * FRICTION["fiber_radius"] / FRICTION["onset_force"])
+    bound = 2 * (nodes * residual + WEFTS * slope * K_C * inverse * residual)
     assert np.ptp([p for p, _, _ in forces[-5:]]) <= bound

@@ -15,20 +15,20 @@ import numpy as np
 import pytest
 
 from dynfab.fabric import inertia
-from dynfab.fabric.spec import FabricSpec, Family, Friction
+from dynfab.fabric.from_scene import FabricModel
 from dynfab.fabric.static import FabricStaticSolver
 from dynfab import assembly as one_yarn_assembly
 from dynfab.certificate import NEGATIVES, certify_yarn
 from dynfab.model import build_model, initial_state
 from dynfab.static import StaticSolver
-from independent import make_scene
+from independent import fabric_scene, held_family, make_scene
 
 L, N, WEFTS, WARPS = 0.1, 24, 4, 3
-WARP = Family(length=L, segments=N, amplitude=0.5e-3, EA=13.72, EI=1.47e-7,
-              kawabata_C=0.2e-3, kawabata_K=0.2)
-WEFT = Family(length=0.06, segments=12, amplitude=0.4e-3, EA=10.0, EI=2e-7,
-              kawabata_C=0.15e-3, kawabata_K=0.3)
-FRICTION = Friction(alpha=0.2, beta=1e3, contact_length=2e-3, fiber_radius=1e-3)
+WARP = dict(length=L, segments=N, amplitude=0.5e-3, EA=13.72, EI=1.47e-7, kawabata_C=0.2e-3,
+            kawabata_K=0.2, linear_density=3e-5)
+WEFT = dict(length=0.06, segments=12, amplitude=0.4e-3, EA=10.0, EI=2e-7, kawabata_C=0.15e-3,
+            kawabata_K=0.3)
+FRICTION = dict(alpha=0.2, beta=1e3, contact_length=2e-3, fiber_radius=1e-3, onset_force=1e-5)
 K_C = 1e5
 FORCES = (0.05, 0.2, 0.5)
 DISPLACEMENTS = (2e-4, 8e-4, 1.6e-3)
@@ -40,10 +40,27 @@ floor is about eps k_c |r| x (a few terms) ~ 1e-11 N, where the one-yarn solver'
 search stalls (measured: 1.6e-11 N under displacement control), so 1e-11 is out of reach."""
 
 
-def fabric_spec(control, values, friction, **more):
-    return FabricSpec(warp=WARP, weft=WEFT, warps=WARPS, wefts=WEFTS, core_stiffness=K_C,
-                      friction=friction, control=control, warp_values=values,
-                      tolerance=TOLERANCE, **more)
+def patch_scene(control, values, friction, weft_values=None, planes="fixed", gravity=None,
+                core_stiffness=K_C):
+    """The 3 x 4 test patch: `values` (`weft_values`) the warps' (wefts') load path, friction a
+    [friction] table or None, gravity g [m/s^2] or None."""
+    load = dict(control=control, values=list(values))
+    if weft_values is not None:
+        load["weft_values"] = list(weft_values)
+    tables = dict(contact=dict(core_stiffness=core_stiffness), static=dict(tolerance=TOLERANCE),
+                  load=load)
+    if friction is not None:
+        tables["friction"] = friction
+    if gravity is not None:
+        tables["gravity"] = dict(g=gravity)
+    return fabric_scene(WARP, WEFT, WARPS, WEFTS, geometry=dict(planes=planes), **tables)
+
+
+def patch_model(control, values, friction, hold=None, **more) -> FabricModel:
+    """The model of `patch_scene(control, values, friction, **more)`; `hold` "warp" or "weft":
+    that family's every dof held (`independent.held_family`)."""
+    scene = patch_scene(control, values, friction, **more)
+    return FabricModel.from_scene(scene) if hold is None else held_family(scene, hold)
 
 
 def one_yarn_run(control, values, friction, stick_stiffness, gravity=None, with_model=False):
@@ -51,22 +68,18 @@ def one_yarn_run(control, values, friction, stick_stiffness, gravity=None, with_
     spring made rigid: contact_law k_s = k_c (docs/model.md section 10). Returns the records (and
     the model)."""
     tables = dict(
-        geometry=dict(length=L, segments=N, crossings=WEFTS, amplitude=WARP.amplitude,
+        geometry=dict(length=L, segments=N, crossings=WEFTS, amplitude=WARP["amplitude"],
                       yarns=WARPS),
-        warp=dict(EA=WARP.EA, EI=WARP.EI, kawabata_C=WARP.kawabata_C,
-                  kawabata_K=WARP.kawabata_K, linear_density=WARP.linear_density),
-        weft=dict(EI=WEFT.EI, length=WEFT.length, count=WARPS, amplitude=WEFT.amplitude,
-                  kawabata_C=WEFT.kawabata_C, kawabata_K=WEFT.kawabata_K),
+        warp=dict(EA=WARP["EA"], EI=WARP["EI"], kawabata_C=WARP["kawabata_C"],
+                  kawabata_K=WARP["kawabata_K"], linear_density=WARP["linear_density"]),
+        weft=dict(EI=WEFT["EI"], length=WEFT["length"], count=WARPS, amplitude=WEFT["amplitude"],
+                  kawabata_C=WEFT["kawabata_C"], kawabata_K=WEFT["kawabata_K"]),
         contact=dict(core_stiffness=K_C),
         load=dict(control=control, values=list(values)))
     if gravity is not None:
         tables["gravity"] = dict(g=gravity)
     if friction is not None:
-        tables["friction"] = dict(alpha=friction.alpha, beta=friction.beta,
-                                  contact_length=friction.contact_length,
-                                  fiber_radius=friction.fiber_radius,
-                                  onset_force=friction.onset_force,
-                                  stick_stiffness=stick_stiffness)
+        tables["friction"] = dict(friction, stick_stiffness=stick_stiffness)
     model = build_model(make_scene(**tables))
     rigid = tuple(y._replace(contact_law=np.concatenate([[K_C], y.contact_law[1:]]))
                   for y in model.yarns)
@@ -104,7 +117,7 @@ def test_held_wefts_give_the_one_yarn_model_near_the_friction_onset(control, val
     sliding = np.array([r["sliding"].sum() for r in records])
     assert sliding.min() < WARPS * WEFTS and sliding.max() > 0  # stick and slip both
     assert min(r["contact_force"][r["contact_force"] > 0].min() for r in records) \
-        < FRICTION.onset_force
+        < FRICTION["onset_force"]
 
 
 @pytest.mark.parametrize("control, values", [("force", FORCES), ("displacement", DISPLACEMENTS)])
@@ -117,11 +130,11 @@ def test_held_wefts_give_the_one_yarn_model_under_gravity(control, values):
 def compare_with_one_yarn(control, values, friction, gravity=None):
     """Solve both models along the path and compare them step by step; the fabric's
     records."""
-    spec = fabric_spec(control, values, friction, hold="weft", gravity=gravity)
-    solver = FabricStaticSolver(spec)
+    solver = FabricStaticSolver(patch_model(control, values, friction, hold="weft",
+                                            gravity=gravity))
     state = solver.initial_state()
-    reference = one_yarn_run(control, values, friction, solver.fabric.stick_stiffness or None,
-                             gravity)
+    reference = one_yarn_run(control, values, friction,
+                             solver.fabric.tie_friction_law[0, 3] or None, gravity)
     f = solver.fabric
     records = []
     for value, expected in zip(values, reference):
@@ -135,18 +148,18 @@ def compare_with_one_yarn(control, values, friction, gravity=None):
         residuals = record["residual"] + expected["residual"].max()
         tolerance = 4 * bound * max(residuals, TOLERANCE)
         for k in range(WARPS):
-            warp = state.positions[f.yarn_start[k]:f.yarn_start[k + 1]]
+            warp = state.positions[f.chain_start[k]:f.chain_start[k + 1]]
             assert np.abs(warp - expected["positions"][k]).max() <= tolerance
         # contact forces: R changes by at most k_c |dz| at a crossing
         assert np.abs(record["contact_force"] - expected["contact_force"]).max() <= K_C * tolerance
         assert record["contact_force"].max() > 0
         if friction is not None:
             assert np.allclose(record["friction_limit"], expected["friction_limit"], rtol=0,
-                               atol=(FRICTION.alpha + FRICTION.beta * FRICTION.contact_length
-                                     * FRICTION.fiber_radius / FRICTION.onset_force)
-                               * K_C * tolerance)  # dF_T/dR <= alpha + beta ell r_f / R_0
-        assert state.positions[f.yarn_start[WARPS]:].tolist() == \
-            f.rest_position[f.yarn_start[WARPS]:].tolist()  # the wefts did not move
+                               atol=(FRICTION["alpha"] + FRICTION["beta"]
+                                     * FRICTION["contact_length"] * FRICTION["fiber_radius"]
+                                     / FRICTION["onset_force"]) * K_C * tolerance)  # dF_T/dR <= alpha + beta ell r_f / R_0
+        assert state.positions[f.chain_start[WARPS]:].tolist() == \
+            f.rest_position[f.chain_start[WARPS]:].tolist()  # the wefts did not move
     return records
 
 
@@ -161,7 +174,7 @@ def test_held_wefts_under_compression_leave_the_saddle_for_a_one_yarn_minimum():
     # order, and the fabric stops at 1e-10 N) and stable by the one-yarn certificate
     # (dynfab.certificate: no negative pivot of its Hessian).
     values = (-3e-4, -6e-4, -9e-4)
-    solver = FabricStaticSolver(fabric_spec("displacement", values, None, hold="weft"))
+    solver = FabricStaticSolver(patch_model("displacement", values, None, hold="weft"))
     records, model = one_yarn_run("displacement", values, None, None, with_model=True)
     model = dataclasses.replace(model, yarns=tuple(
         y._replace(contact_law=np.concatenate([[K_C], y.contact_law[1:]])) for y in model.yarns))
@@ -174,7 +187,7 @@ def test_held_wefts_under_compression_leave_the_saddle_for_a_one_yarn_minimum():
         escapes.append(record["escapes"])
         assert record["stable"] and record["nearest_eigenvalue"] > 0
         for k, yarn in enumerate(model.yarns):
-            warp = state.positions[f.yarn_start[k]:f.yarn_start[k + 1]].copy()
+            warp = state.positions[f.chain_start[k]:f.chain_start[k + 1]].copy()
             grad = np.zeros_like(warp)
             c = yarn.crossing_node.size
             one_yarn_assembly.gradient(warp, yarn, 0.0, np.zeros(c), np.zeros(c), grad)
@@ -191,8 +204,8 @@ def test_inertia_from_the_schur_complement_matches_the_dense_spectrum(planes):
     # dense Hessian equals the Schur count for shifts placed halfway between consecutive
     # eigenvalues (a gap far above the eigenvalues' rounding, eps ||H||). With planes
     # "affine" the end nodes' in-plane dofs join the crossing dofs in K.
-    spec = fabric_spec("force", (0.2,), FRICTION, weft_values=(0.05,), planes=planes)
-    solver = FabricStaticSolver(spec)
+    solver = FabricStaticSolver(patch_model("force", (0.2,), FRICTION, weft_values=(0.05,),
+                                            planes=planes))
     state, records = solver.run()
     assert records[-1]["negative_eigenvalues"] == 0
     # the state before the return map: the Hessian the step certified

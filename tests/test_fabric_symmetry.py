@@ -10,22 +10,25 @@ matrix), and swapping the loads swaps the results, to solver tolerance.
 import numpy as np
 import pytest
 
-from dynfab.fabric.spec import FabricSpec, Family, Friction
+from dynfab.fabric.from_scene import FabricModel
 from dynfab.fabric.static import FabricStaticSolver
+from independent import fabric_scene
 
 COUNT = 4
-YARN = Family(length=0.04, segments=16, amplitude=0.5e-3, EA=13.72, EI=1.47e-7,
-              kawabata_C=0.2e-3, kawabata_K=0.2)
-FRICTION = Friction(alpha=0.2, beta=1e3, contact_length=2e-3, fiber_radius=1e-3)
+YARN = dict(length=0.04, segments=16, amplitude=0.5e-3, EA=13.72, EI=1.47e-7, kawabata_C=0.2e-3,
+            kawabata_K=0.2)
+FRICTION = dict(alpha=0.2, beta=1e3, contact_length=2e-3, fiber_radius=1e-3)
 PATHS = {"force": ((0.1, 0.3, 0.6), (0.05, 0.1, 0.4)),
          "displacement": ((2e-4, 5e-4, 8e-4), (1e-4, 3e-4, 2e-4))}
 
 
 def solve(control, warp_values, weft_values, friction, boundary="clamped", planes="fixed"):
     """(solver, [(state, record)] per step) of the balanced fabric."""
-    solver = FabricStaticSolver(FabricSpec(
-        warp=YARN, weft=YARN, warps=COUNT, wefts=COUNT, friction=friction, control=control,
-        warp_values=warp_values, weft_values=weft_values, boundary=boundary, planes=planes))
+    tables = {} if friction is None else {"friction": friction}
+    solver = FabricStaticSolver(FabricModel.from_scene(fabric_scene(
+        YARN, YARN, COUNT, COUNT, geometry=dict(boundary=boundary, planes=planes),
+        load=dict(control=control, values=list(warp_values), weft_values=list(weft_values)),
+        **tables)))
     state, steps = solver.initial_state(), []
     for a, b in zip(warp_values, weft_values):
         state, record = solver.step(state, a, b)
@@ -36,8 +39,8 @@ def solve(control, warp_values, weft_values, friction, boundary="clamped", plane
 def families(solver, state):
     """(warps, wefts): node positions (COUNT, nodes, 2), z of the wefts mirrored."""
     f, pos = solver.fabric, state.positions
-    warps = np.stack([pos[f.yarn_start[k]:f.yarn_start[k + 1]] for k in range(COUNT)])
-    wefts = np.stack([pos[f.yarn_start[COUNT + j]:f.yarn_start[COUNT + j + 1]]
+    warps = np.stack([pos[f.chain_start[k]:f.chain_start[k + 1]] for k in range(COUNT)])
+    wefts = np.stack([pos[f.chain_start[COUNT + j]:f.chain_start[COUNT + j + 1]]
                       for j in range(COUNT)]) * np.array([1.0, -1.0])
     return warps, wefts
 
@@ -47,7 +50,7 @@ def tolerance(solver, state, record, other):
     factor 4 for the friction limit's coupling, as in test_fabric_static)."""
     H = solver.hessian(state.positions, state.anchors, record["friction_limit"].ravel())
     bound = np.abs(np.linalg.inv(H.toarray())).sum(axis=1).max()
-    return 4 * bound * max(record["residual"] + other["residual"], solver.spec.tolerance)
+    return 4 * bound * max(record["residual"] + other["residual"], solver.tolerance)
 
 
 @pytest.mark.parametrize("control", ["force", "displacement"])
@@ -61,8 +64,10 @@ def test_equal_loads_give_equal_families(control, friction):
         assert np.abs(warps - wefts).max() <= tol
         R = record["contact_force"]
         assert R.max() > 0
-        assert np.abs(R - R.T).max() <= solver.spec.core_stiffness * tol  # dR <= k_c dz
-        assert record["strain"][0] == pytest.approx(record["strain"][1], rel=0, abs=tol / YARN.length)
+        k_c = solver.fabric.tie_contact_law[0, 0]
+        assert np.abs(R - R.T).max() <= k_c * tol  # dR <= k_c dz
+        assert record["strain"][0] == pytest.approx(record["strain"][1], rel=0,
+                                                    abs=tol / YARN["length"])
 
 
 @pytest.mark.parametrize("control", ["force", "displacement"])
@@ -82,6 +87,6 @@ def test_swapped_loads_swap_the_results(control, friction, boundary, planes):
         assert np.abs(wefts_a - warps_b).max() <= tol
         assert np.abs(warps_a - wefts_a).max() > 1e3 * tol  # the loads differ: so do families
         R_a, R_b = record_a["contact_force"], record_b["contact_force"]
-        assert np.abs(R_a - R_b.T).max() <= solver_a.spec.core_stiffness * tol
+        assert np.abs(R_a - R_b.T).max() <= solver_a.fabric.tie_contact_law[0, 0] * tol
         if friction is not None:
             assert np.array_equal(record_a["sliding"], record_b["sliding"].T)

@@ -17,20 +17,20 @@ import numpy as np
 import pytest
 
 from dynfab.fabric import assembly, contact, friction
-from dynfab.fabric.layout import build_fabric
-from dynfab.fabric.spec import FabricSpec, Family, Friction
+from dynfab.fabric.from_scene import FabricModel
+from dynfab.structure import Structure, chain_count, uniform
 from dynfab.terms import friction as gralen
 from dynfab.terms.contact import closure_from_force
-from independent import fd_gradient, fd_jacobian
+from independent import fabric_scene, fd_gradient, fd_jacobian, without_core_spring
 
 EPS = np.finfo(float).eps
 
 L, N = 0.1, 8
-WARP = Family(length=L, segments=N, amplitude=0.5e-3, EA=13.72, EI=1.47e-7,
-              kawabata_C=0.2e-3, kawabata_K=0.2)
-WEFT = Family(length=0.08, segments=8, amplitude=0.4e-3, EA=10.0, EI=2e-7,
-              kawabata_C=0.15e-3, kawabata_K=0.3)
-FRICTION = Friction(alpha=0.2, beta=1e3, contact_length=2e-3, fiber_radius=1e-3)
+WARP = dict(length=L, segments=N, amplitude=0.5e-3, EA=13.72, EI=1.47e-7, kawabata_C=0.2e-3,
+            kawabata_K=0.2)
+WEFT = dict(length=0.08, segments=8, amplitude=0.4e-3, EA=10.0, EI=2e-7, kawabata_C=0.15e-3,
+            kawabata_K=0.3)
+FRICTION = dict(alpha=0.2, beta=1e3, contact_length=2e-3, fiber_radius=1e-3)
 L0 = L / N
 """The geometry scale [m]."""
 H_GRAD, H_HESS = 1e-6 * L0, 1e-5 * L0
@@ -45,15 +45,24 @@ P = np.array([0.3, -0.2, 0.1, 0.05])
 """End forces of the 2 warps and 2 wefts [N] (the load term)."""
 
 
-def test_fabric(core_stiffness=1e5, boundary="clamped", planes="fixed"):
-    """The 2 x 2 test fabric, every term on (gravity on the patch only: the cell refuses it)."""
-    spec = FabricSpec(warp=WARP, weft=WEFT, warps=2, wefts=2, friction=FRICTION,
-                      core_stiffness=core_stiffness, warp_values=(0.1,), boundary=boundary,
-                      planes=planes, gravity=9.81 if boundary == "clamped" else None)
-    return build_fabric(spec)
+def two_by_two_fabric(core_stiffness=1e5, boundary="clamped", planes="fixed") -> Structure:
+    """The structure of the 2 x 2 test fabric, every term on (gravity on the patch only: the
+    cell refuses it); `core_stiffness` k_c [N/m], inf: none (`independent.without_core_spring`)."""
+    tables = dict(friction=FRICTION, load=dict(control="force", values=[0.1]))
+    if boundary == "clamped":
+        tables["gravity"] = dict(g=9.81)
+    if np.isfinite(core_stiffness):
+        tables["contact"] = dict(core_stiffness=core_stiffness)
+    scene = fabric_scene(WARP, WEFT, 2, 2, geometry=dict(boundary=boundary, planes=planes),
+                         **tables)
+    model = (FabricModel.from_scene(scene) if np.isfinite(core_stiffness)
+             else without_core_spring(scene))
+    return model.structure
 
 
-test_fabric.__test__ = False  # a builder, not a test
+def stick_stiffness(fabric) -> float:
+    """k_t [N/m], one for every crossing of the test fabric."""
+    return float(uniform(fabric.tie_friction_law)[friction.STICK])
 
 
 def perturbed_state(fabric, seed=7):
@@ -61,24 +70,23 @@ def perturbed_state(fabric, seed=7):
     put at its CROSSING_STATES closure (both nodes moved in z) and slip (by its anchor)."""
     rng = np.random.default_rng(seed)
     r = fabric.rest_position + rng.uniform(-0.05, 0.05, fabric.rest_position.shape) * L0
-    law = fabric.contact_law
+    law = uniform(fabric.tie_contact_law)
     wall = law[1] + law[3]
-    c = fabric.warp_node.size
+    c = fabric.tie_a.size
     g = np.array([s * wall for s, _ in CROSSING_STATES])
-    a, b, sigma = fabric.warp_node, fabric.weft_node, fabric.side
+    a, b, sigma = fabric.tie_a, fabric.tie_b, fabric.tie_side
     mean = 0.5 * (r[a, 1] + r[b, 1])
     # g = gap_offset - sigma (z_a - z_b): set z_a - z_b = sigma (gap_offset - g)
-    r[a, 1] = mean + 0.5 * sigma * (fabric.gap_offset - g)
-    r[b, 1] = mean - 0.5 * sigma * (fabric.gap_offset - g)
+    r[a, 1] = mean + 0.5 * sigma * (fabric.tie_gap_offset - g)
+    r[b, 1] = mean - 0.5 * sigma * (fabric.tie_gap_offset - g)
     R = np.array([contact.force(gc, law) for gc in g])
     limit = np.zeros(c)
-    gralen.limits(R, fabric.friction_alpha, fabric.friction_constant, fabric.friction_onset,
-                  limit)
+    gralen.tie_limits(R, fabric.tie_friction_law, -1.0, limit)  # each tie's own R_0
     anchors = np.zeros((c, 2))
     px, py = assembly.planes(r, fabric)  # where the planes move (periodic cell)
     for i, (_, regime) in enumerate(CROSSING_STATES):
         angle = 0.4 + 1.7 * i
-        size = SLIP[regime] * max(limit[i], 1e-3) / fabric.stick_stiffness
+        size = SLIP[regime] * max(limit[i], 1e-3) / stick_stiffness(fabric)
         anchors[i, 0] = r[a[i], 0] - px[i] - size * math.cos(angle)
         anchors[i, 1] = r[b[i], 0] - py[i] - size * math.sin(angle)
     return r, anchors, limit, g
@@ -106,28 +114,33 @@ def term_functions(fabric, anchors, limit):
 
     K: contact k_c (the tangent bound, docs/model.md section 10); friction k_t; the whole model adds
     the stretch springs 2 EA/l0 and bending 16 EI/(lbar l0^2) (tests/test_terms.py).
+    The friction term's gradient is the assembly's (`assembly.gradient`, which computes it
+    for the whole model): the whole model's minus the whole model's with F_T = 0, where the
+    Huber term vanishes; its energy and Hessian are `dynfab.fabric.friction`'s own.
     ell: contact, from the law at each closed crossing's force (`contact_length_scale`);
     friction, the
     sliding branch F|s| has derivatives of order n bounded by about F/|s|^(n-1) <= k_t/|s|^(n-2)
     (k_t |s| >= F), so ell = min |s| / 3 over the sliding crossings (the sticking branch
     is quadratic); the whole model the smallest of these and l0.
     """
-    law = fabric.contact_law
-    a, b = fabric.warp_node, fabric.weft_node
+    law = uniform(fabric.tie_contact_law)
+    a, b = fabric.tie_a, fabric.tie_b
     n_dof = fabric.rest_position.size
-    kt = fabric.stick_stiffness
+    kt = stick_stiffness(fabric)
+    px, py = fabric.tie_plane.T.copy()  # the planes as woven (planes "fixed")
+    zero = np.zeros_like(limit)
 
     def contact_energy(r):
-        return contact.energy(r, a, b, fabric.side, fabric.gap_offset, law)
+        return contact.energy(r, fabric)
 
     def contact_grad(r):
         out = np.zeros_like(r)
-        contact.add_gradient(r, a, b, fabric.side, fabric.gap_offset, law, out)
+        contact.add_gradient(r, fabric, out)
         return out
 
     def contact_hess(r):
         t = np.zeros(a.size)
-        contact.tangents(r, a, b, fabric.side, fabric.gap_offset, law, t)
+        contact.tangents(r, fabric, t)
         H = np.zeros((n_dof, n_dof))
         for c in range(a.size):
             za, zb = 2 * a[c] + 1, 2 * b[c] + 1
@@ -138,16 +151,17 @@ def term_functions(fabric, anchors, limit):
         return H
 
     def friction_energy(r):
-        return friction.energy(r, anchors, a, b, fabric.plane_x, fabric.plane_y, limit, kt)
+        return friction.energy(r, anchors, fabric, px, py, limit)
 
     def friction_grad(r):
-        out = np.zeros_like(r)
-        friction.add_gradient(r, anchors, a, b, fabric.plane_x, fabric.plane_y, limit, kt, out)
-        return out
+        with_friction, without = np.zeros_like(r), np.zeros_like(r)
+        assembly.gradient(r, fabric, P, anchors, limit, with_friction)
+        assembly.gradient(r, fabric, P, anchors, zero, without)
+        return with_friction - without
 
     def friction_hess(r):
         h = np.zeros((a.size, 3))
-        friction.hessians(r, anchors, a, b, fabric.plane_x, fabric.plane_y, limit, kt, h)
+        friction.hessians(r, anchors, fabric, px, py, limit, h)
         H = np.zeros((n_dof, n_dof))
         for c in range(a.size):
             xa, yb = 2 * a[c], 2 * b[c]
@@ -178,8 +192,8 @@ def term_functions(fabric, anchors, limit):
                       ((s * (law[1] + law[3]), 0) for s, _ in CROSSING_STATES) if g > 0)
     slips = np.array([SLIP[s] * max(F, 1e-3) / kt for (_, s), F in zip(CROSSING_STATES, limit)])
     ell_friction = slips[[s == "slide" for _, s in CROSSING_STATES]].min() / 3.0
-    K_yarn = max(2 * WARP.EA / L0, 16 * WARP.EI / L0 ** 3, 2 * WEFT.EA / (WEFT.length / 8),
-                 16 * WEFT.EI / (WEFT.length / 8) ** 3)
+    K_yarn = max(2 * WARP["EA"] / L0, 16 * WARP["EI"] / L0 ** 3,
+                 2 * WEFT["EA"] / (WEFT["length"] / 8), 16 * WEFT["EI"] / (WEFT["length"] / 8) ** 3)
     return {
         "contact": (contact_energy, contact_grad, contact_hess, k_c, ell_contact),
         "friction": (friction_energy, friction_grad, friction_hess, kt, ell_friction),
@@ -190,7 +204,7 @@ def term_functions(fabric, anchors, limit):
 
 @pytest.fixture(scope="module")
 def state():
-    fabric = test_fabric()
+    fabric = two_by_two_fabric()
     r, anchors, limit, g = perturbed_state(fabric)
     return fabric, r, anchors, limit, g
 
@@ -201,9 +215,9 @@ def periodic_state(request):
     end nodes; or the clamped patch with planes "affine" (moving, no wrap). Every node
     perturbed (ends too: the FD runs over every dof)."""
     if request.param == "periodic":
-        fabric = test_fabric(boundary="periodic")
+        fabric = two_by_two_fabric(boundary="periodic")
     else:
-        fabric = test_fabric(planes="affine")
+        fabric = two_by_two_fabric(planes="affine")
     r, anchors, limit, g = perturbed_state(fabric)
     return fabric, r, anchors, limit, g
 
@@ -217,7 +231,7 @@ def periodic_terms(fabric, anchors, limit):
     model with F_T = 0 (the Huber term vanishes there), K = k_t, ell as friction above.
     """
     pattern = assembly.Pattern(fabric)
-    yarns = fabric.yarn_start.size - 1
+    yarns = chain_count(fabric)
     n_dof = fabric.rest_position.size
 
     def wrap_energy(r):
@@ -257,8 +271,8 @@ def periodic_terms(fabric, anchors, limit):
         assembly.hessian_values(r, fabric, anchors, zero, b)
         return pattern.full_matrix(a - b)
 
-    l_min = 0.85 * min(L0, WEFT.length / WEFT.segments)
-    K_wrap = 16 * max(WARP.EI, WEFT.EI) / (0.5 * l_min) / l_min ** 2
+    l_min = 0.85 * min(L0, WEFT["length"] / WEFT["segments"])
+    K_wrap = 16 * max(WARP["EI"], WEFT["EI"]) / (0.5 * l_min) / l_min ** 2
     friction_entry = term_functions(fabric, anchors, limit)["friction"]
     return {"wrap": (wrap_energy, wrap_grad, wrap_hess, K_wrap, l_min),
             "moving planes": (plane_energy, plane_grad, plane_hess, *friction_entry[3:])}
@@ -273,8 +287,8 @@ def test_periodic_cell_terms_against_finite_differences(periodic_state, term):
     fabric, r, anchors, limit, _ = periodic_state
     if term == "wrap" and not fabric.wrap_stiffness.any():
         pytest.skip("a clamped patch has no wrap springs")
-    assert fabric.plane_weight_x.min() > 0
-    assert fabric.plane_nodes_x.size == 2 and fabric.plane_nodes_y.size == 2
+    assert fabric.tie_plane_weight[:, 0].min() > 0
+    assert fabric.plane_nodes_a.size == 2 and fabric.plane_nodes_b.size == 2
     energy, grad, hess, K, ell = periodic_terms(fabric, anchors, limit)[term]
     expected = fd_gradient(energy, r, H_GRAD)
     S = r.size * abs(energy(r)) + np.sum(np.abs(expected) * np.abs(r))
@@ -287,7 +301,7 @@ def test_periodic_cell_terms_against_finite_differences(periodic_state, term):
     assert np.abs(expected).max() > 1e3 * tolerance
     assert np.abs(hess(r) - expected).max() <= tolerance
     if term == "moving planes":  # the end nodes are in it: x_N of warp 0 feels the slips
-        end = 2 * (fabric.yarn_start[1] - 1)  # (k_t w / n_wa, split over the warps' ends)
+        end = 2 * (fabric.chain_start[1] - 1)  # (k_t w / n_wa, split over the warps' ends)
         assert np.abs(expected[end]).max() > 100 * tolerance
 
 
@@ -325,25 +339,25 @@ def test_states_exercise_every_regime(state):
     # open (F_T = 0); the contact tangent is > 0 and <= k_c on closed crossings, 0 on the
     # open one.
     fabric, r, anchors, limit, g = state
+    kt = stick_stiffness(fabric)
     h = np.zeros((limit.size, 3))
-    friction.hessians(r, anchors, fabric.warp_node, fabric.weft_node, fabric.plane_x,
-                      fabric.plane_y, limit, fabric.stick_stiffness, h)
+    px, py = fabric.tie_plane.T.copy()
+    friction.hessians(r, anchors, fabric, px, py, limit, h)
     t = np.zeros(limit.size)
-    contact.tangents(r, fabric.warp_node, fabric.weft_node, fabric.side, fabric.gap_offset,
-                     fabric.contact_law, t)
+    contact.tangents(r, fabric, t)
     for c, (_, regime) in enumerate(CROSSING_STATES):
         block = np.array([[h[c, 0], h[c, 1]], [h[c, 1], h[c, 2]]])
         if regime == "stick":
-            assert np.array_equal(block, fabric.stick_stiffness * np.eye(2))
+            assert np.array_equal(block, kt * np.eye(2))
         elif regime == "slide":
             # (F/|s|)(I - s s^T/|s|^2): eigenvalues 0 and F/|s| (to rounding of F/|s|)
             w = np.linalg.eigvalsh(block)
-            s_norm = SLIP["slide"] * limit[c] / fabric.stick_stiffness
+            s_norm = SLIP["slide"] * limit[c] / kt
             assert abs(w[0]) <= 8 * EPS * w[1]
             assert w[1] == pytest.approx(limit[c] / s_norm, rel=1e-12)
         else:
             assert not block.any()
-        assert (t[c] > 0) == (g[c] > 0) and t[c] <= fabric.contact_law[0]
+        assert (t[c] > 0) == (g[c] > 0) and t[c] <= fabric.tie_contact_law[c, 0]
 
 
 def test_contact_pushes_the_two_nodes_apart_by_sigma_r(state):
@@ -351,23 +365,23 @@ def test_contact_pushes_the_two_nodes_apart_by_sigma_r(state):
     # R, R from the series law at g: -grad equals that to the rounding of R.
     fabric, r, _, _, g = state
     grad = np.zeros_like(r)
-    contact.add_gradient(r, fabric.warp_node, fabric.weft_node, fabric.side, fabric.gap_offset,
-                         fabric.contact_law, grad)
+    contact.add_gradient(r, fabric, grad)
     for c in range(g.size):
-        R = contact.force(g[c], fabric.contact_law)
+        law = fabric.tie_contact_law[c]
+        R = contact.force(g[c], law)
         assert (R > 0) == (g[c] > 0)
         if R > 0:  # the series law holds at R (Newton's stopping rule: a few eps of g)
-            assert closure_from_force(R, fabric.contact_law) == pytest.approx(g[c], rel=1e-14)
-        assert -grad[fabric.warp_node[c], 1] == pytest.approx(fabric.side[c] * R, rel=4 * EPS)
-        assert -grad[fabric.weft_node[c], 1] == pytest.approx(-fabric.side[c] * R, rel=4 * EPS)
+            assert closure_from_force(R, law) == pytest.approx(g[c], rel=1e-14)
+        assert -grad[fabric.tie_a[c], 1] == pytest.approx(fabric.tie_side[c] * R, rel=4 * EPS)
+        assert -grad[fabric.tie_b[c], 1] == pytest.approx(-fabric.tie_side[c] * R, rel=4 * EPS)
 
 
 def test_without_a_core_spring_kawabata_is_a_hard_wall():
     # k_c = inf (docs/model.md section 10): the closure C_wa + C_we is the wall. Just below it the
     # force solves C_wa (1 - e^-a_wa R) + C_we (1 - e^-a_we R) = g (to the rounding of g) and is
     # large but finite; at and beyond it the energy is +inf, so a line search rejects it.
-    fabric = test_fabric(core_stiffness=np.inf)
-    law = fabric.contact_law
+    fabric = two_by_two_fabric(core_stiffness=np.inf)
+    law = uniform(fabric.tie_contact_law)
     wall = law[1] + law[3]
     assert contact.wall(law) == wall
     for fraction in (0.5, 1 - 1e-6, 1 - 1e-12):
@@ -378,5 +392,5 @@ def test_without_a_core_spring_kawabata_is_a_hard_wall():
         assert np.isfinite(contact.crossing_energy(g, law))
     for g in (wall, 1.01 * wall):
         assert contact.crossing_energy(g, law) == np.inf
-    r, anchors, limit, _ = perturbed_state(test_fabric())  # crossing 1 sits past the wall
+    r, anchors, limit, _ = perturbed_state(two_by_two_fabric())  # crossing 1 sits past the wall
     assert assembly.total_energy(r, fabric, P, anchors, limit, np.zeros(len(assembly.TERMS))) == np.inf

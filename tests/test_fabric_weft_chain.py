@@ -24,29 +24,30 @@ import numpy as np
 import pytest
 import scipy.sparse.linalg
 
-from dynfab.fabric.spec import FabricSpec, Family
 from dynfab.geometry import tensioned_beam_stiffness
 from dynfab.fabric.static import FabricStaticSolver
+from independent import fabric_scene, held_family
 
 WARPS, L_WE, EA, EI = 4, 0.1, 13.72, 1.47e-7
 
 
 def chain_stiffness(T, m):
     """k [N/m] of the weft chain with m segments per half-span (M = 2 n_wa m) under T."""
-    warp = Family(length=0.02, segments=2, amplitude=0.5e-3, EA=EA, EI=EI,
-                  kawabata_C=0.2e-3, kawabata_K=0.2)
-    weft = Family(length=L_WE, segments=2 * WARPS * m, amplitude=0.0, EA=EA, EI=EI,
-                  kawabata_C=0.2e-3, kawabata_K=0.2)
-    solver = FabricStaticSolver(FabricSpec(warp=warp, weft=weft, warps=WARPS, wefts=1,
-                                           hold="warp", warp_values=(0.0,), weft_values=(T,)))
+    warp = dict(length=0.02, segments=2, amplitude=0.5e-3, EA=EA, EI=EI, kawabata_C=0.2e-3,
+                kawabata_K=0.2)
+    weft = dict(length=L_WE, segments=2 * WARPS * m, amplitude=0.0, EA=EA, EI=EI,
+                kawabata_C=0.2e-3, kawabata_K=0.2)
+    scene = fabric_scene(warp, weft, WARPS, 1,
+                         load=dict(control="force", values=[0.0], weft_values=[T]))
+    solver = FabricStaticSolver(held_family(scene, "warp"))
     state, records = solver.run()
     f = solver.fabric
     H = solver.hessian(state.positions, state.anchors, np.zeros(WARPS))
     push = np.zeros(f.fixed.size)
-    push[2 * f.weft_node + 1] = -f.side  # unit forces, each away from its warp
+    push[2 * f.tie_b + 1] = -f.tie_side  # unit forces, each away from its warp
     deflection = np.zeros(f.fixed.size)
     deflection[solver.free] = scipy.sparse.linalg.spsolve(H, push[solver.free])
-    away = -f.side * deflection[2 * f.weft_node + 1]
+    away = -f.tie_side * deflection[2 * f.tie_b + 1]
     assert np.all(away > 0)
     return 1.0 / away.mean()
 
