@@ -1,13 +1,13 @@
 """The fabric's static solver at the friction onset (docs/model.md sections 4 and 10).
 
 Clamped 4 x 4 patches of the paper's yarns at small loads, where crossings open and close
-and sit at the onset: steps the frozen-F_T and coupled Newton (`solve_frozen`) cannot
-reach, which the under-relaxed fixed point on F_T and the open/closed active set with its
-continuation in R_0 now solve (the two agreeing where both are run), each state checked
-against Gralen's law and the contact law evaluated here independently; a 5 x 5 patch
-whose plain fixed point on F_T cycles; the literal jump law (R_0 = 0) stopping with exit
-status 3 naming a crossing; and R_0 -> 0 converging at first order (docs/model.md
-section 4).
+and sit at the onset: each step solved through the solver's default path and, at the
+hardest steps, through each of its fallbacks forced (`force_fallback`: the under-relaxed
+fixed point on F_T, the open/closed active set with its continuation in R_0), every state
+checked against Gralen's law and the contact law evaluated here independently and the
+fallbacks' states against the default path's; a 5 x 5 patch whose plain fixed point on
+F_T cycles; the literal jump law (R_0 = 0) stopping with exit status 3 naming a crossing;
+and R_0 -> 0 converging at first order (docs/model.md section 4).
 """
 
 import re
@@ -19,7 +19,7 @@ import numpy as np
 import scipy.optimize
 
 from dynfab.fabric.from_scene import FabricModel
-from dynfab.fabric.static import FabricStaticSolver
+from dynfab.fabric.static import FabricStaticSolver, NewtonInfo
 from dynfab.scene import parse_scene_text
 from independent import scene_toml
 
@@ -84,37 +84,94 @@ def check_consistent(solver: FabricStaticSolver, before, after, record, load) ->
     assert residual <= max(solver.tolerance, floor if record["rounding_floor"] else 0.0)
 
 
-def solve_path(text: str, fallback_steps: set[int]):
-    """Every step of the scene's path solved and checked (`check_consistent`); at the steps
-    in `fallback_steps` (1-based) the frozen-F_T and coupled Newton alone (`solve_frozen`,
-    the solver before the active set) is first shown to fail from the step's start."""
+STAGES = ("solve_frozen", "solve_relaxed", "solve_on_sets")
+"""The stages of `FabricStaticSolver.solve` in order: the frozen-F_T and coupled Newton from
+the step's start, then its two fallbacks, the under-relaxed fixed point on F_T and the
+open/closed active set with its continuation in R_0."""
+
+
+def force_fallback(monkeypatch, solver: FabricStaticSolver, fallback: str) -> None:
+    """Make `solver`'s steps solve by `fallback` ("solve_relaxed" or "solve_on_sets") alone:
+    each stage before it (STAGES) fails without running, so that `solve` goes on from the
+    step's start (it restores the start after a failed stage; the active set's own frozen
+    solves on a fixed set, `law` given, still run), and a stage after it raises."""
+    frozen = solver.solve_frozen
+
+    def failed_frozen(pos, P, anchors, law=None, max_iterations=None):
+        if law is not None:
+            return frozen(pos, P, anchors, law, max_iterations)
+        return NewtonInfo(), solver.friction_limits(pos), 0
+
+    def failed_relaxed(pos, P, anchors):
+        return NewtonInfo(), 0
+
+    def not_needed(*args):
+        raise AssertionError(f"{fallback} did not solve the step")
+
+    failed = {"solve_frozen": failed_frozen, "solve_relaxed": failed_relaxed}
+    position = STAGES.index(fallback)
+    for stage in STAGES[:position]:
+        monkeypatch.setattr(solver, stage, failed[stage])
+    for stage in STAGES[position + 1:]:
+        monkeypatch.setattr(solver, stage, not_needed)
+
+
+def assert_same_state(solver, before, load, states) -> None:
+    """States of one step from `before`, each (state, record), are the same equilibrium: with
+    R_0 > 0 a step's solution is unique (docs/model.md section 4), and a state whose residual
+    is r lies within r ||H^-1||_inf of it (docs/model.md (5.7)), so two differ by at most
+    ||H^-1||_inf (r_1 + r_2), each r at least the tolerance; the step moves the patch far
+    beyond that."""
+    (first, first_record), *others = states
+    _, anchors, _ = solver.start_of_step(before, *load)
+    limit = solver.friction_limits(first.positions)
+    H = solver.hessian(first.positions, anchors, limit).toarray()
+    inverse = np.abs(np.linalg.inv(H)).sum(axis=1).max()
+    residual = max(float(first_record["residual"]), solver.tolerance)
+    for state, record in others:
+        bound = inverse * (residual + max(float(record["residual"]), solver.tolerance))
+        assert np.abs(state.positions - first.positions).max() <= bound
+        assert np.abs(first.positions - before.positions).max() > 1e3 * bound
+
+
+def solve_path(text: str, fallback_steps: set[int], monkeypatch):
+    """Every step of the scene's path solved by the default path and checked
+    (`check_consistent`); at the steps in `fallback_steps` (1-based) also by each fallback
+    alone from the step's start (`force_fallback`), each state checked and the same as the
+    default path's (`assert_same_state`)."""
     solver = patch_solver(text)
     state = solver.initial_state()
     for index, load in enumerate(solver.model.load_values, start=1):
-        pos, anchors, P = solver.start_of_step(state, *load)
-        if index in fallback_steps:
-            assert not solver.solve_frozen(pos, P, anchors)[0].converged
         new, record = solver.step(state, *load)
         check_consistent(solver, state, new, record, load)
+        if index in fallback_steps:
+            solved = [(new, record)]
+            for fallback in STAGES[1:]:
+                with monkeypatch.context() as patched:
+                    force_fallback(patched, solver, fallback)
+                    solved.append(solver.step(state, *load))
+                check_consistent(solver, state, *solved[-1], load)
+            assert_same_state(solver, state, load, solved)
         state = new
     return solver, state
 
 
-def test_displacement_control_through_closing_crossings_at_a_small_onset_force():
+def test_displacement_control_through_closing_crossings_at_a_small_onset_force(monkeypatch):
     """A 4 x 4 patch stretched by small end displacements (R_0 = 1e-7 N): at step 3
-    crossings close and slide at the onset and `solve_frozen` stalls; the active set reaches
-    a consistent state. (At the default R_0 = 1e-5 N the frozen and coupled Newton, its
-    factorisation in the nested-dissection order, now passes this whole path.)"""
+    crossings close and slide at the onset; the default path, the relaxed fixed point and the
+    active set each reach a consistent state, the same one. (At the default R_0 = 1e-5 N
+    the frozen and coupled Newton, its factorisation in the nested-dissection order, passes
+    this whole path.)"""
     values = np.linspace(1e-6, 2e-5, 8)[:3]
     weft = np.linspace(0.0, 1e-5, 8)[:3]
-    solve_path(patch(4, 1e-7, "displacement", values, weft), {3})
+    solve_path(patch(4, 1e-7, "displacement", values, weft), {3}, monkeypatch)
 
 
-def test_force_control_at_a_small_onset_force():
+def test_force_control_at_a_small_onset_force(monkeypatch):
     """A 4 x 4 patch under 0.1 mN per warp and 0.05 mN per weft with R_0 = 1e-7 N: the
-    frozen and coupled Newton stall (a residual of 0.1 mN); the continuation in R_0 from
-    1e-3 N reaches a consistent state."""
-    solve_path(patch(4, 1e-7, "force", [0.0, 1e-4], [0.0, 5e-5]), {2})
+    default path, the relaxed fixed point and the active set with its continuation in R_0
+    from 1e-3 N each reach a consistent state, the same one."""
+    solve_path(patch(4, 1e-7, "force", [0.0, 1e-4], [0.0, 5e-5]), {2}, monkeypatch)
 
 
 def test_the_literal_jump_law_stops_naming_a_crossing(tmp_path):
@@ -199,11 +256,11 @@ def test_a_fixed_point_on_friction_that_cycles_is_relaxed(monkeypatch):
     """A 5 x 5 patch under 0.1 mN per warp and 0.05 mN per weft (R_0 = 1e-5 N), its first
     step: crossings sit at g ~ 1e-9 m with R ~ R_0 / 100, where dF_T/dR = beta ell r_f / R_0
     = 200, and the plain fixed point on F_T falls into a 2-cycle (a crossing closed in
-    one solve is open in the next and closed again in the one after); `solve_frozen`
-    stalls, and so did the active set's fallback that followed (no consistent state in
-    31,770 Newton iterations, about 90 s: too long to show here). The under-relaxed fixed
-    point (`solve_relaxed`) reaches a state consistent with the laws, without the active
-    set's fallback."""
+    one solve is open in the next and closed again in the one after). The step reaches a
+    state consistent with the laws through the default path, and through the under-relaxed
+    fixed point (`solve_relaxed`) alone (`force_fallback`: without the active set's fallback,
+    which, before the relaxed fixed point existed, found no consistent state here in
+    31,770 Newton iterations, about 90 s: too long to show here): the same state."""
     text = patch(5, 1e-5, "force", [1e-4], [5e-5])
     solver = patch_solver(text)
     state = solver.initial_state()
@@ -218,14 +275,15 @@ def test_a_fixed_point_on_friction_that_cycles_is_relaxed(monkeypatch):
     assert not np.array_equal(closed[-1], closed[-2])
     assert solver.law_residual(pos, P, anchors) > 1e3 * solver.tolerance
 
-    def no_active_set(*args):
-        raise AssertionError("the active set's fallback was needed")
+    load = (1e-4, 5e-5)
+    new, record = solver.step(state, *load)  # the default path
+    check_consistent(solver, state, new, record, load)
 
-    monkeypatch.setattr(solver, "solve_on_sets", no_active_set)
-    new, record = solver.step(state, 1e-4, 5e-5)
-    check_consistent(solver, state, new, record, (1e-4, 5e-5))
-    pos, anchors, P = solver.start_of_step(state, 1e-4, 5e-5)
-    assert not solver.solve_frozen(pos, P, anchors)[0].converged
+    with monkeypatch.context() as patched:
+        force_fallback(patched, solver, "solve_relaxed")
+        relaxed = solver.step(state, *load)
+    check_consistent(solver, state, *relaxed, load)
+    assert_same_state(solver, state, load, [(new, record), relaxed])
 
 
 def test_the_relaxed_fixed_point_and_the_active_set_reach_the_same_state():
