@@ -3,7 +3,7 @@
 Run:  python benchmarks/fabric.py [--quick] [--budget SECONDS] [--friction] [--pieces]
       (prints the table, writes benchmarks/fabric.json; --quick: 4 x 4 and 8 x 8 only)
 
-The case: clamped balanced patches of the paper's yarn (`fabric_arrays.paper_patch`:
+The case: clamped balanced patches of the paper's yarn (`fabric_data.paper_patch_scene`:
 pitch 0.1/16 m, k_c = 1e5 N/m), n x n yarns for n = 4 to 64, 8 segments per half-wave
 (N = M = 8 n: 2 n (8 n + 1) nodes, about 131,000 dofs at n = 64), frictionless unless
 --friction (the paper's friction, in every part but the explicit one, whose numba loop has
@@ -78,9 +78,10 @@ import scipy.sparse.linalg
 
 from dynfab.fabric import inertia, ordering
 from dynfab.fabric.dynamic import FabricDynamicSolver
+from dynfab.fabric.from_scene import FabricModel
 from dynfab.fabric.static import FabricStaticSolver, _sparse_solve
 from dynfab.kernels import fabric_arrays, fabric_explicit
-from dynfab.kernels.fabric_arrays import PAPER_FRICTION, paper_patch
+from dynfab.reports.fabric_data import paper_patch_scene
 
 OUTPUT = Path(__file__).resolve().parent / "fabric.json"
 SIZES = (4, 8, 16, 32, 64)
@@ -91,6 +92,9 @@ LOAD = (0.3, 0.1)
 """(warp, weft) end force per yarn [N] of the load step."""
 TOLERANCE = 1e-10
 """Residual tolerance [N] of the static, PCG and dynamic solvers (tests/test_fabric_dynamic.py)."""
+PAPER_FRICTION = {"alpha": 0.2, "beta": 1e3, "contact_length": 2e-3, "fiber_radius": 1e-3}
+"""The paper's Gralen parameters (docs/model.md section 7), R_0 the default 1e-5 N: the
+[friction] table of --friction."""
 BUDGET = 120.0
 """Default wall-time budget of one size [s]."""
 DAMPING = 0.05
@@ -120,10 +124,14 @@ def nodes(n: int) -> int:
     return 2 * n * (SEGMENTS_PER_HALF_WAVE * n + 1)
 
 
-def spec(n: int, friction=None):
-    """The n x n patch with the load step and tolerance of this benchmark."""
-    return paper_patch(n, n, SEGMENTS_PER_HALF_WAVE, friction=friction, warp_values=(LOAD[0],),
-                       weft_values=(LOAD[1],), tolerance=TOLERANCE)
+def patch_model(n: int, friction=None) -> FabricModel:
+    """The n x n patch with the load step and tolerance of this benchmark; `friction` a
+    [friction] table or None."""
+    tables = {} if friction is None else {"friction": friction}
+    return FabricModel.from_scene(paper_patch_scene(
+        n, n, SEGMENTS_PER_HALF_WAVE,
+        load={"control": "force", "values": [LOAD[0]], "weft_values": [LOAD[1]]},
+        static={"tolerance": TOLERANCE}, **tables))
 
 
 def timed(function):
@@ -246,7 +254,7 @@ def numba_run(arrays, steps):
 
 def explicit_costs(n: int, work: float = STEP_WORK, per_step_work: float = PER_STEP_WORK) -> dict:
     """ns per node and step of the Warp layouts and the numba loop on the n x n patch."""
-    arrays = fabric_arrays.build(spec(n))
+    arrays = fabric_arrays.build(patch_model(n).structure)
     count = arrays.nodes
     steps = max(20, int(work / count))
     per_step_steps = max(10, int(per_step_work / count))
@@ -273,7 +281,7 @@ def explicit_costs(n: int, work: float = STEP_WORK, per_step_work: float = PER_S
 def newton_costs(n: int, friction=None):
     """(row, positions): the Newton solve of the load step alone (FabricStaticSolver.solve,
     no certificate), its time per iteration."""
-    solver = FabricStaticSolver(spec(n, friction))
+    solver = FabricStaticSolver(patch_model(n, friction))
     start = solver.initial_state()
     P = solver.yarn_loads(*LOAD)
 
@@ -291,7 +299,7 @@ def static_costs(n: int, friction=None):
     """(row, state, record): FabricStaticSolver.step on the load step (Newton and the
     certificate), and the certificate's two parts on their own at its solution: the
     inertia count and the nearest eigenvalue (MODEL.md 6)."""
-    solver = FabricStaticSolver(spec(n, friction))
+    solver = FabricStaticSolver(patch_model(n, friction))
     start = solver.initial_state()
     step_s, (state, record) = timed(lambda: solver.step(start, *LOAD))
     limit = solver.friction_limits(state.positions)
@@ -310,7 +318,7 @@ def static_costs(n: int, friction=None):
 
 def dynamic_costs(n: int, static_positions=None, friction=None):
     """(row, state, record): FabricDynamicSolver.step on the load step; |x - x_static|."""
-    solver = FabricDynamicSolver(spec(n, friction))
+    solver = FabricDynamicSolver(patch_model(n, friction))
     start = solver.initial_state()
     step_s, (state, record) = timed(lambda: solver.step(start, *LOAD))
     steps = int(record["time_steps"])
@@ -327,10 +335,10 @@ def dynamic_costs(n: int, static_positions=None, friction=None):
 class PCGStatic(FabricStaticSolver):
     """The static solver with its Newton direction by per-yarn preconditioned CG."""
 
-    def __init__(self, spec):
-        super().__init__(spec)
+    def __init__(self, model):
+        super().__init__(model)
         f = self.fabric
-        dof_yarn = np.repeat(np.arange(self.yarns), 2 * np.diff(f.yarn_start))
+        dof_yarn = np.repeat(np.arange(self.yarns), 2 * np.diff(f.chain_start))
         unknown = self.pattern.index >= 0
         self.unknown_yarn = np.zeros(self.pattern.free_count, int)
         self.unknown_yarn[self.pattern.index[unknown]] = dof_yarn[unknown]
@@ -373,7 +381,7 @@ class PCGStatic(FabricStaticSolver):
 
 def pcg_costs(n: int, static_positions=None, friction=None) -> dict:
     """PCGStatic.step on the load step: time, CG iterations, fallbacks, |x - x_static|."""
-    solver = PCGStatic(spec(n, friction))
+    solver = PCGStatic(patch_model(n, friction))
     start = solver.initial_state()
 
     def step():
@@ -407,7 +415,7 @@ def semi_costs(n: int, static_positions=None, friction=None, newton_s=None) -> d
     iteration): time per CG iteration of each, and their difference, the launches' cost."""
     from dynfab.kernels import fabric_semi_implicit
 
-    solver = FabricDynamicSolver(spec(n, friction), method="semi_implicit")
+    solver = FabricDynamicSolver(patch_model(n, friction), method="semi_implicit")
     start = solver.initial_state()
 
     def step():
@@ -440,7 +448,8 @@ def semi_costs(n: int, static_positions=None, friction=None, newton_s=None) -> d
         state.positions, solver.external_force(P), anchors, dt=dt, assemble=False, solve=True)[1])
     x = semi.work.x.numpy().copy()
     launches, _ = per_iteration(lambda: fabric_semi_implicit.pcg_launches(semi, dt))
-    per_step = FabricDynamicSolver(spec(n, friction), method="semi_implicit", layout="per_step")
+    per_step = FabricDynamicSolver(patch_model(n, friction), method="semi_implicit",
+                                   layout="per_step")
     pos, held, loads = per_step.reference.start_of_step(start, *LOAD)
     began = time.perf_counter()
     per_step.relax(pos, loads, held)
@@ -460,7 +469,7 @@ def newton_pieces(n: int, positions) -> dict:
     (default and symmetric mode), the inertia (`inertia.inertia`, its route recorded; dense
     eigenvalues where n <= 8) and the nearest eigenvalue (`nearest_eigenvalue_pieces`) at
     `positions`, the frictionless Newton solution of the load step."""
-    solver = FabricStaticSolver(spec(n))
+    solver = FabricStaticSolver(patch_model(n))
     pos, anchors = positions, solver.initial_state().anchors
     limit = np.zeros(n * n)
     P = solver.yarn_loads(*LOAD)

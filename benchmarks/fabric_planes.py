@@ -10,7 +10,7 @@ Run:  python benchmarks/fabric_planes.py [--sizes 8,16,32] [--modes fixed,affine
       (prints a table per part, writes the JSON)
 
 1. `step_costs`: balanced n x n patches of the paper's yarn with the paper's friction
-   (`fabric_arrays.paper_patch`, 8 segments per half-wave), force control, loaded by
+   (`fabric_data.paper_patch_scene`, 8 segments per half-wave), force control, loaded by
    LOAD per yarn, in three boundary modes: clamped with fixed planes, clamped with "affine"
    planes (the slip measured from planes moving with the mean end displacement, its
    reaction gathered on the end nodes), and the periodic cell (wrap springs, tied cell
@@ -62,22 +62,26 @@ PER_STEP_WORK = 5e5
 REPEATS = 3
 SCENES = ("fabric_biaxial", "fabric_biaxial_2to1", "fabric_biaxial_1to2", "fabric_strip",
           "fabric_pullout")
+PAPER_FRICTION = {"alpha": 0.2, "beta": 1e3, "contact_length": 2e-3, "fiber_radius": 1e-3}
+"""The paper's Gralen parameters (docs/model.md section 7), R_0 the default 1e-5 N."""
 
 
 def patch(n: int, mode: str):
-    """The n x n spec of one boundary mode (module docstring)."""
-    from dynfab.kernels.fabric_arrays import PAPER_FRICTION, paper_patch
+    """The n x n patch's `FabricModel` in one boundary mode (module docstring)."""
+    from dynfab.fabric.from_scene import FabricModel
+    from dynfab.reports.fabric_data import paper_patch_scene
 
     more = {"fixed": {}, "affine": {"planes": "affine"}, "periodic": {"boundary": "periodic"}}[mode]
-    return paper_patch(n, n, friction=PAPER_FRICTION, warp_values=(LOAD[0],),
-                       weft_values=(LOAD[1],), **more)
+    return FabricModel.from_scene(paper_patch_scene(
+        n, n, friction=PAPER_FRICTION,
+        load={"control": "force", "values": [LOAD[0]], "weft_values": [LOAD[1]]}, **more))
 
 
 def relaxer(n: int, mode: str, layout: str, steps: int):
     """A callable running `steps` viscous steps of the mode's patch in one layout."""
     from dynfab.kernels import fabric_arrays, fabric_explicit
 
-    arrays = fabric_arrays.build(patch(n, mode))
+    arrays = fabric_arrays.build(patch(n, mode).structure)
     order = "scatter" if layout == "persistent" else "gather"
     solver = fabric_explicit.FabricExplicit(arrays, layout=layout, damping="viscous",
                                             coefficient=DAMPING, check_interval=1 << 30,
@@ -121,31 +125,32 @@ def step_costs(sizes, modes) -> list[dict]:
     return rows
 
 
-def first_step_relaxer(spec, rule: str):
-    """A callable relaxing `spec`'s first load step with the semi-implicit solver under `rule`."""
+def first_step_relaxer(model, rule: str):
+    """A callable relaxing the first load step of `model` (a `FabricModel`) with the
+    semi-implicit solver under `rule`."""
     from dynfab.fabric.dynamic import FabricDynamicSolver
     from dynfab.kernels import fabric_semi_implicit
 
-    dynamic = FabricDynamicSolver(spec, method="semi_implicit", layout="persistent")
+    dynamic = FabricDynamicSolver(model, method="semi_implicit", layout="persistent")
     dynamic.relaxation = fabric_semi_implicit.FabricSemiImplicit(dynamic.arrays,
                                                                  layout="persistent", rule=rule)
-    warp, weft = spec.loads()
-    pos, anchors, P = dynamic.reference.start_of_step(dynamic.initial_state(), warp[0], weft[0])
+    warp, weft = model.load_values[0]
+    pos, anchors, P = dynamic.reference.start_of_step(dynamic.initial_state(), warp, weft)
     return lambda: dynamic.relax(pos, P, anchors)[1]
 
 
 def semi_rules(sizes, modes) -> list[dict]:
     """Per case and time step rule: the first load step's time steps, CG iterations, wall time."""
-    from dynfab.fabric.from_scene import fabric_spec
+    from dynfab.fabric.from_scene import FabricModel
     from dynfab.kernels import fabric_semi_implicit
     from dynfab.scene import load_scene
 
-    cases = [("strip", fabric_spec(load_scene(ROOT / "runs" / "fabric_strip.toml")))]
+    cases = [("strip", FabricModel.from_scene(load_scene(ROOT / "runs" / "fabric_strip.toml")))]
     cases += [(f"{n}x{n} {mode}", patch(n, mode)) for n in sizes for mode in modes]
     rules = tuple(fabric_semi_implicit.RULES)
     rows = []
-    for index, (name, spec) in enumerate(cases):
-        runs = {rule: first_step_relaxer(spec, rule) for rule in rules}
+    for index, (name, model) in enumerate(cases):
+        runs = {rule: first_step_relaxer(model, rule) for rule in rules}
         for rule in rules:
             runs[rule]()  # compile / load the kernels
         seconds = {}

@@ -69,7 +69,7 @@ def test_the_solvers_end_states_agree_within_their_residual_bound():
     static_row, state, record = bench.static_costs(N)
     dynamic_row, dynamic_state, dynamic_record = bench.dynamic_costs(N, state.positions)
     pcg_row = bench.pcg_costs(N, state.positions)
-    solver = FabricStaticSolver(bench.spec(N))
+    solver = FabricStaticSolver(bench.patch_model(N))
     anchors = solver.initial_state().anchors
     difference = np.abs(dynamic_state.positions - state.positions).max()
     assert dynamic_row["static_difference_m"] == difference

@@ -16,8 +16,12 @@ import pytest
 
 from dynfab.errors import SolverError
 from dynfab.fabric.dynamic import FabricDynamicSolver
+from dynfab.fabric.from_scene import FabricModel
 from dynfab.fabric.static import FabricStaticSolver
-from dynfab.kernels.fabric_arrays import PAPER_FRICTION, gershgorin_masses, paper_patch
+from dynfab.kernels.fabric_arrays import gershgorin_masses
+from dynfab.reports.fabric_data import paper_patch_scene
+from dynfab.structure import uniform
+from independent import PAPER_FRICTION
 
 TOLERANCE = 1e-10
 """Residual tolerance [N] of both solvers: with k_c = 1e5 N/m the static residual's rounding
@@ -26,6 +30,28 @@ FORCES = ((0.1, 0.03), (0.3, 0.1), (0.5, 0.2))
 """(warp, weft) end forces per yarn [N] of the three load steps."""
 DISPLACEMENTS = ((2e-4, 5e-5), (6e-4, 2e-4), (1e-3, 3e-4))
 """(warp, weft) end displacements [m] of the three load steps."""
+
+
+def paper_patch_model(warps, wefts, values, control="force", friction=None, gravity=None,
+                      pullout=None, tolerance=None, **geometry) -> FabricModel:
+    """A patch of the paper's yarn (`paper_patch_scene`: 8 segments per half-wave, the
+    paper's pitch, k_c = 1e5 N/m) under the (warp, weft) load path `values` [N or m];
+    `friction` a [friction] table or None, `gravity` g [m/s^2] or None, `pullout` the pulled
+    warp (1-based) or None, `tolerance` static.tolerance [N] (None: the scene's default),
+    `geometry` its boundary and planes."""
+    tables = {}
+    if friction is not None:
+        tables["friction"] = friction
+    if gravity is not None:
+        tables["gravity"] = {"g": gravity}
+    if pullout is not None:
+        tables["pullout"] = {"warp": pullout}
+    if tolerance is not None:
+        tables["static"] = {"tolerance": tolerance}
+    load = {"control": control, "values": [float(v[0]) for v in values],
+            "weft_values": [float(v[1]) for v in values]}
+    return FabricModel.from_scene(paper_patch_scene(warps, wefts, load=load, **geometry,
+                                                    **tables))
 
 
 def inverse_norm(solver: FabricStaticSolver, state, anchors, limit) -> float:
@@ -52,7 +78,7 @@ def agreement_bound(solver, static_state, anchors, record, dynamic_residual, anc
     same branch of every Huber kink and contact (checked: the sliding patterns agree, the
     contacts closed)."""
     norm = inverse_norm(solver, static_state, anchors, record["friction_limit"].ravel())
-    slack = solver.fabric.stick_stiffness * anchor_gap
+    slack = uniform(solver.fabric.tie_friction_law)[3] * anchor_gap  # k_t
     return norm * (dynamic_residual + record["residual"] + slack)
 
 
@@ -66,18 +92,19 @@ def anchor_bound(solver, record, bound: float) -> float:
     dF_T/dR = alpha + (beta ell r_f / R_0) exp(-R / R_0) times that, the exponential taken at
     the smallest R of a sliding crossing less that change."""
     f = solver.fabric
-    dR = 2 * f.contact_law[0] * bound
+    dR = 2 * uniform(f.tie_contact_law)[0] * bound
     sliding = record["sliding"].ravel()
     R_low = max(record["contact_force"].ravel()[sliding].min(initial=0.0) - dR, 0.0)
-    slope = f.friction_alpha + f.friction_constant / f.friction_onset * np.exp(-R_low / f.friction_onset)
-    return 2 * np.sqrt(2) * bound + slope * dR / f.stick_stiffness
+    alpha, constant, onset, stick = uniform(f.tie_friction_law)
+    slope = alpha + constant / onset * np.exp(-R_low / onset)
+    return 2 * np.sqrt(2) * bound + slope * dR / stick
 
 
 CASES = [(2, "force", None, None, {}), (2, "force", PAPER_FRICTION, None, {}),
          (2, "force", PAPER_FRICTION, 9.81, {}), (4, "force", PAPER_FRICTION, None, {}),
          (4, "displacement", None, None, {}), (4, "displacement", PAPER_FRICTION, None, {}),
          (2, "displacement", PAPER_FRICTION, 9.81, {"pullout": 1})]
-"""(n, control, friction, gravity, more spec fields); the pull-out (docs/model.md section 10) frees
+"""(n, control, friction, gravity, more `paper_patch_model` arguments); the pull-out (docs/model.md section 10) frees
 its warp's first node and needs gravity to press the warp onto the wefts."""
 
 
@@ -91,12 +118,11 @@ def test_dynamic_solver_agrees_with_the_static_one(n, control, friction, gravity
     step after step; under displacement control the end reactions within the bound times
     the end dof's stiffness row sum."""
     values = FORCES if control == "force" else DISPLACEMENTS
-    spec = paper_patch(n, n, friction=friction, control=control, gravity=gravity,
-                       warp_values=tuple(v[0] for v in values),
-                       weft_values=tuple(v[1] for v in values), tolerance=TOLERANCE, **more)
-    static, dynamic = FabricStaticSolver(spec), FabricDynamicSolver(spec)
+    model = paper_patch_model(n, n, values, control, friction, gravity, tolerance=TOLERANCE,
+                              **more)
+    static, dynamic = FabricStaticSolver(model), FabricDynamicSolver(model)
     s_state, d_state = static.initial_state(), dynamic.initial_state()
-    k_c = static.fabric.contact_law[0]
+    k_c = uniform(static.fabric.tie_contact_law)[0]
     for warp_value, weft_value in values:
         anchors = s_state.anchors.copy()  # held during the step
         anchor_gap = float(np.hypot(*(d_state.anchors - s_state.anchors).T).max())
@@ -134,8 +160,8 @@ def test_dynamic_solver_agrees_with_the_static_one(n, control, friction, gravity
 
 def test_a_relaxation_that_cannot_finish_raises_one_line():
     """The time-step limit reached: SolverError, one line naming the cause and the residual."""
-    spec = paper_patch(2, 2, warp_values=(0.3,), tolerance=TOLERANCE)
-    solver = FabricDynamicSolver(spec, max_steps=10)
+    model = paper_patch_model(2, 2, [(0.3, 0.0)], tolerance=TOLERANCE)
+    solver = FabricDynamicSolver(model, max_steps=10)
     with pytest.raises(SolverError) as raised:
         solver.step(solver.initial_state(), 0.3, 0.0)
     message = str(raised.value)

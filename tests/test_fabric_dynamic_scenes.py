@@ -18,7 +18,6 @@ is data, not a variant), plus the per-step layout's kernels those tests build to
 semi-implicit kernels tests/test_fabric_semi_implicit.py builds.
 """
 
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -27,12 +26,13 @@ import warp as wp
 
 from dynfab.fabric import assembly
 from dynfab.fabric.dynamic import FabricDynamicSolver
-from dynfab.fabric.from_scene import fabric_spec
+from dynfab.fabric.from_scene import FabricModel
 from dynfab.fabric.static import FabricStaticSolver
 from dynfab.kernels import fabric_explicit, fabric_forces, status
-from dynfab.kernels.fabric_arrays import PAPER_FRICTION, paper_patch
 from dynfab.scene import load_scene
-from test_fabric_dynamic import agreement_bound, anchor_bound
+from dynfab.structure import uniform
+from independent import PAPER_FRICTION, scene_with
+from test_fabric_dynamic import agreement_bound, anchor_bound, paper_patch_model
 from test_fabric_scenes import run_interrupted
 
 EPS = np.finfo(float).eps
@@ -48,8 +48,8 @@ def perturbed_state(solver: FabricStaticSolver, seed=3, size=2e-5):
     rng = np.random.default_rng(seed)
     move = rng.uniform(-size, size, f.rest_position.size)
     move[f.fixed] = 0.0
-    tied = f.tie >= 0
-    move[tied] = move[f.tie[tied]]
+    tied = f.dof_tie >= 0
+    move[tied] = move[f.dof_tie[tied]]
     return f.rest_position + move.reshape(-1, 2)
 
 
@@ -59,7 +59,7 @@ def mixed_anchors(solver, pos):
     about 1e-5 N below F_T wherever a contact is closed)."""
     f = solver.fabric
     px, py = assembly.planes(pos, f)
-    current = np.stack([pos[f.warp_node, 0] - px, pos[f.weft_node, 0] - py], axis=1)
+    current = np.stack([pos[f.tie_a, 0] - px, pos[f.tie_b, 0] - py], axis=1)
     anchors = current - 1e-9 * np.array([1.0, 0.0])
     anchors[::2] = current[::2] + np.array([1e-5, -1e-5])
     return anchors
@@ -90,7 +90,7 @@ def term_scale(static, pos, P, anchors, limit) -> float:
     f = static.fabric
     without = [f._replace(stretch_stiffness=0 * f.stretch_stiffness),
                f._replace(bend_stiffness=0 * f.bend_stiffness, wrap_stiffness=0 * f.wrap_stiffness),
-               f._replace(gap_offset=f.gap_offset - 1.0), f._replace(has_friction=False)]
+               f._replace(tie_gap_offset=f.tie_gap_offset - 1.0), f._replace(has_friction=False)]
     full = np.zeros_like(pos)
     assembly.gradient(pos, f, P, anchors, limit, full)
     scale = np.abs(P).max()
@@ -101,10 +101,10 @@ def term_scale(static, pos, P, anchors, limit) -> float:
     return scale
 
 
-SPECS = {"affine": dict(planes="affine"), "periodic": dict(boundary="periodic")}
+GEOMETRY = {"affine": dict(planes="affine"), "periodic": dict(boundary="periodic")}
 
 
-@pytest.mark.parametrize("case", sorted(SPECS))
+@pytest.mark.parametrize("case", sorted(GEOMETRY))
 def test_moving_plane_forces_are_the_numba_gradient(case):
     """The kernels' force on every unknown equals -dV/dr of `assembly.gradient` (F_T frozen at
     the law of the current contact forces), reduced to the unknowns (a tied cell length
@@ -116,9 +116,9 @@ def test_moving_plane_forces_are_the_numba_gradient(case):
     so the two evaluations differ by at most 2 x 16 x 8 eps S = 256 eps S. Not vacuous: the
     planes' reaction on the end nodes and the wrap springs' forces are far above the bound,
     so leaving either out fails."""
-    spec = paper_patch(2, 2 if case == "periodic" else 3, friction=PAPER_FRICTION,
-                       warp_values=(LOADS[0],), weft_values=(LOADS[1],), **SPECS[case])
-    static, dynamic = FabricStaticSolver(spec), FabricDynamicSolver(spec)
+    model = paper_patch_model(2, 2 if case == "periodic" else 3, [LOADS], friction=PAPER_FRICTION,
+                              **GEOMETRY[case])
+    static, dynamic = FabricStaticSolver(model), FabricDynamicSolver(model)
     f = static.fabric
     pos = perturbed_state(static)
     anchors = mixed_anchors(static, pos)
@@ -141,7 +141,7 @@ def test_moving_plane_forces_are_the_numba_gradient(case):
         assembly._add_wrap_gradient(pos, f, 0, wrap)  # warp 0's wrap spring
         assert np.abs(wrap).max() > 1e6 * bound
         tied = dynamic.arrays.node_tie >= 0
-        assert tied.sum() == spec.warps + spec.wefts  # every end in one of the two cell lengths
+        assert tied.sum() == model.warps + model.wefts  # every end in one of the two cell lengths
 
 
 @pytest.mark.parametrize("damping", ["viscous", "kinetic"])
@@ -150,9 +150,8 @@ def test_tied_cell_lengths_move_as_one_in_both_layouts(damping):
     one in-plane coordinate (one dof: the same force and mass on each, so the same bits) in
     the persistent layout (scatter and gather orders) and the per-step layout, which agree
     bit for bit in the gather order (the per-step layout's sums in the same order)."""
-    spec = paper_patch(2, 2, boundary="periodic", friction=PAPER_FRICTION,
-                       warp_values=(LOADS[0],), weft_values=(LOADS[1],))
-    dynamic = FabricDynamicSolver(spec)
+    model = paper_patch_model(2, 2, [LOADS], friction=PAPER_FRICTION, boundary="periodic")
+    dynamic = FabricDynamicSolver(model)
     arrays = dynamic.arrays
     external = dynamic.external_force(dynamic.reference.yarn_loads(*LOADS))
     anchors = dynamic.initial_state().anchors + dynamic._plane_shift
@@ -179,30 +178,31 @@ scene runs the same code (the static solver's start, one relaxation, the certifi
 return map), so the first steps exercise every term the scene has. Two for the biaxial cells
 (2 x 2, under a second each); one for the 16 x 16 strip (7,200 nodes: its first relaxation
 takes about 16,000 time steps, several seconds, and its ||J^-1|| a dense inverse of 14,000
-unknowns, too slow: see `scene_spec`); two for the pull-out, its steps 5 and 6: the end of
+unknowns, too slow: see `scene_model`); two for the pull-out, its steps 5 and 6: the end of
 the first stage (the wefts tensioned, pressing the crossings) reached in one step, then the
-first pull of the warp, where the crossings on it slide (`scene_spec`)."""
+first pull of the warp, where the crossings on it slide (`scene_model`)."""
 
 
-def scene_spec(name: str):
-    """The scene's spec at TOLERANCE, its load path cut to SCENES[name] steps (the pull-out's
-    from its step 5). The strip is
+def scene_model(name: str, steps: int | None = None) -> FabricModel:
+    """The scene's model at static.tolerance = TOLERANCE, its load path cut to `steps` steps
+    (default SCENES[name]; the pull-out's from its step 5). The strip is
     the same scene on a 4 x 4 patch of the same yarns (pitch, segment length, planes
     "affine", friction, loads per yarn), as tests/test_fabric_scenes.py runs it: the
     bound needs ||J^-1|| by a dense inverse."""
-    spec = fabric_spec(load_scene(RUNS / f"{name}.toml"))
-    steps = SCENES[name]
-    warp_values, weft_values = spec.loads()
+    scene = load_scene(RUNS / f"{name}.toml")
+    steps = SCENES[name] if steps is None else steps
     first = 4 if name == "fabric_pullout" else 0  # the pull-out from its step 5
-    spec = replace(spec, tolerance=TOLERANCE, warp_values=tuple(warp_values[first:first + steps]),
-                   weft_values=tuple(weft_values[first:first + steps]))
+    path = FabricModel.from_scene(scene).load_values[first:first + steps]
+    tables = {"static": {"tolerance": TOLERANCE},
+              "load": {"values": tuple(map(float, path[:, 0])),
+                       "weft_values": tuple(map(float, path[:, 1]))}}
     if name == "fabric_strip":
-        pitch_wa, pitch_we = spec.warp.length / spec.wefts, spec.weft.length / spec.warps
-        per_wa, per_we = spec.warp.segments // spec.wefts, spec.weft.segments // spec.warps
-        spec = replace(spec, warps=4, wefts=4,
-                       warp=replace(spec.warp, length=4 * pitch_wa, segments=4 * per_wa),
-                       weft=replace(spec.weft, length=4 * pitch_we, segments=4 * per_we))
-    return spec
+        g, weft = scene.geometry, scene.weft
+        pitch_wa, pitch_we = g.length / g.crossings, weft.length / weft.count
+        per_wa, per_we = g.segments // g.crossings, weft.segments // weft.count
+        tables["geometry"] = {"crossings": 4, "length": 4 * pitch_wa, "segments": 4 * per_wa}
+        tables["weft"] = {"count": 4, "length": 4 * pitch_we, "segments": 4 * per_we}
+    return FabricModel.from_scene(scene_with(scene, **tables))
 
 
 TOLERANCE = 1e-10
@@ -226,11 +226,11 @@ def test_every_fabric_scene_agrees_with_the_static_solver(name, method):
     J^-1 (17 m/N there): a bound of 1e-5 m against a pull of 2e-4 m, where the positions
     differ by 2e-10 m. Started from one state, the steps share their anchors, and the anchors'
     agreement after the return map is checked instead."""
-    spec = scene_spec(name)
-    static, dynamic = FabricStaticSolver(spec), FabricDynamicSolver(spec, method=method)
+    model = scene_model(name)
+    static, dynamic = FabricStaticSolver(model), FabricDynamicSolver(model, method=method)
     state = dynamic.initial_state()
-    k_c = static.fabric.contact_law[0]
-    for warp_value, weft_value in zip(*spec.loads()):
+    k_c = uniform(static.fabric.tie_contact_law)[0]
+    for warp_value, weft_value in model.load_values:
         start = state.copy()
         s_state, s_record = static.step(start.copy(), warp_value, weft_value)
         state, d_record = dynamic.step(start, warp_value, weft_value)
@@ -256,12 +256,11 @@ def test_the_other_dampings_and_layouts_reach_the_same_step(name, damping, layou
     cell and the affine strip (4 x 4 copy): the first step within `agreement_bound` of the
     static solver's, as the default configuration in
     `test_every_fabric_scene_agrees_with_the_static_solver`."""
-    spec = scene_spec(name)
-    spec = replace(spec, warp_values=spec.warp_values[:1], weft_values=spec.weft_values[:1])
-    static = FabricStaticSolver(spec)
-    dynamic = FabricDynamicSolver(spec, damping=damping, layout=layout)
+    model = scene_model(name, steps=1)
+    static = FabricStaticSolver(model)
+    dynamic = FabricDynamicSolver(model, damping=damping, layout=layout)
     start = dynamic.initial_state()
-    load = (spec.warp_values[0], spec.weft_values[0])
+    load = tuple(model.load_values[0])
     s_state, s_record = static.step(start.copy(), *load)
     state, d_record = dynamic.step(start, *load)
     bound = agreement_bound(static, s_state, start.anchors, s_record, d_record["residual"], 0.0)
@@ -308,11 +307,10 @@ def test_displacement_control_moves_the_planes_with_the_prescribed_ends(boundary
     from dynfab.kernels.fabric_arrays import gershgorin_masses
 
     values = ((2e-4, 5e-5), (6e-4, 2e-4))
-    spec = paper_patch(2 if boundary == "periodic" else 4, 2 if boundary == "periodic" else 4,
-                       friction=PAPER_FRICTION, control="displacement", boundary=boundary,
-                       planes=planes, warp_values=tuple(v[0] for v in values),
-                       weft_values=tuple(v[1] for v in values), tolerance=TOLERANCE)
-    static, dynamic = FabricStaticSolver(spec), FabricDynamicSolver(spec)
+    n = 2 if boundary == "periodic" else 4
+    model = paper_patch_model(n, n, values, "displacement", PAPER_FRICTION, boundary=boundary,
+                              planes=planes, tolerance=TOLERANCE)
+    static, dynamic = FabricStaticSolver(model), FabricDynamicSolver(model)
     state = dynamic.initial_state()
     f = static.fabric
     for warp_value, weft_value in values:
@@ -323,7 +321,7 @@ def test_displacement_control_moves_the_planes_with_the_prescribed_ends(boundary
         assert np.abs(s_state.positions - start.positions).max() > 1e3 * bound
         assert np.abs(state.positions - s_state.positions).max() <= bound
         px, py = assembly.planes(state.positions, f)
-        assert np.abs(px - f.plane_x).min() > 1e3 * bound  # the planes moved
+        assert np.abs(px - f.tie_plane[:, 0]).min() > 1e3 * bound  # the planes moved
         rows = gershgorin_masses(dynamic.arrays, 2.0, 1.0)[f.load_node]
         row = rows + np.abs(s_record["end_force"]) / dynamic.arrays.rest_length[f.load_node - 1]
         difference = np.abs(d_record["end_force"] - s_record["end_force"])

@@ -17,22 +17,36 @@ import warp as wp
 
 from dynfab import assembly
 from dynfab.banded import zeros_band
+from dynfab.fabric.from_scene import FabricModel
 from dynfab.kernels import fabric_arrays, fabric_explicit, fabric_forces, status
 from dynfab.model import build_model, initial_state
+from dynfab.reports.fabric_data import paper_patch_scene
 from dynfab.static import StaticSolver
-from independent import dense, make_scene
+from independent import PAPER_FRICTION, dense, make_scene
 
 EPS = np.finfo(float).eps
 SCALAR = wp.float64
-PATCH = fabric_arrays.paper_patch(2, 3)
-"""2 warps x 3 wefts of the paper's yarn, 8 segments per half-wave (N = 24, M = 16)."""
-PAPER_FRICTION = fabric_arrays.PAPER_FRICTION
-"""The paper's Gralen parameters (docs/model.md section 7), R_0 = 1e-5 N."""
+K_C = 1e5
+"""The core stiffness k_c [N/m] of the patch (a fabric's default)."""
+
+
+def patch_model(friction=None) -> FabricModel:
+    """2 warps x 3 wefts of the paper's yarn, 8 segments per half-wave (N = 24, M = 16);
+    `friction` a [friction] table (the paper's: `independent.PAPER_FRICTION`, R_0 = 1e-5 N)
+    or None. Its [load] is never read: the kernels take the external force."""
+    tables = {} if friction is None else {"friction": friction}
+    return FabricModel.from_scene(paper_patch_scene(
+        2, 3, load={"control": "force", "values": [0.3]}, contact={"core_stiffness": K_C},
+        **tables))
+
+
+PATCH = patch_model()
+"""The patch without friction."""
 
 
 @pytest.fixture(scope="module")
 def arrays():
-    return fabric_arrays.build(PATCH)
+    return fabric_arrays.build(PATCH.structure)
 
 
 def perturbed(arrays, seed=1, size=2e-5):
@@ -72,8 +86,8 @@ def only(arrays, term):
             "bending": dict(stretch_stiffness=zero, crossing_offset=open_offset),
             "contact": dict(stretch_stiffness=zero, bend_stiffness=zero),
             "friction": dict(stretch_stiffness=zero, bend_stiffness=zero,
-                             friction_law=np.r_[fabric_arrays.friction_law(
-                                 replace(PATCH, friction=PAPER_FRICTION))[:3], 10.0]),
+                             friction_law=np.r_[fabric_arrays.build(patch_model(
+                                 PAPER_FRICTION).structure).friction_law[:3], 10.0]),
             "all": {}}[term]
     if term != "friction":
         keep["friction_law"] = np.zeros(4)
@@ -145,7 +159,7 @@ def test_runs_are_bit_identical_in_both_layouts():
     order the same motion up to the rounding of the sums' order: within 1e-12 m, a
     millionth of the motion (about 6e-4 m), where an error in a term would change the
     motion at the term's own relative size (measured: 2e-17 m, a few ulps of 0.01 m)."""
-    arrays = fabric_arrays.build(replace(PATCH, friction=PAPER_FRICTION))
+    arrays = fabric_arrays.build(patch_model(PAPER_FRICTION).structure)
     external = 0.3 * (arrays.load_direction + arrays.weft_load_direction)
     results = {}
     for layout, order in (("persistent", "scatter"), ("persistent", "gather"), ("per_step", "gather")):
@@ -168,7 +182,7 @@ def test_kinetic_damping_in_the_per_step_layout_repeats_the_persistent_loop():
     over blocks, in a fixed order) is repeatable bit for bit and, with one block (this
     patch has 101 nodes < ENERGY_BLOCK), makes the same sums as the persistent loop in
     gather order: the same bits after the same steps, resets included."""
-    arrays = fabric_arrays.build(replace(PATCH, friction=PAPER_FRICTION))
+    arrays = fabric_arrays.build(patch_model(PAPER_FRICTION).structure)
     assert arrays.nodes <= fabric_explicit.ENERGY_BLOCK
     external = 0.3 * (arrays.load_direction + arrays.weft_load_direction)
     runs = []
@@ -185,12 +199,9 @@ def test_kinetic_damping_in_the_per_step_layout_repeats_the_persistent_loop():
 def one_yarn_model(load, friction=None):
     """The one-yarn model of PATCH's warps (geometry.yarns = 2, phases +-1) with a rigid weft
     spring: contact_law k_s = k_c exactly (docs/model.md section 10: k_we -> infinity); `friction` a
-    dynfab.fabric.spec.Friction with its k_t given."""
+    [friction] table with its k_t given."""
     family = PATCH.warp
-    tables = {} if friction is None else {"friction": {
-        "alpha": friction.alpha, "beta": friction.beta, "contact_length": friction.contact_length,
-        "fiber_radius": friction.fiber_radius, "onset_force": friction.onset_force,
-        "stick_stiffness": friction.stick_stiffness}}
+    tables = {} if friction is None else {"friction": friction}
     scene = make_scene(**tables,
         geometry={"length": PATCH.warp.length, "segments": PATCH.warp.segments, "crossings": PATCH.wefts,
                   "amplitude": family.amplitude, "yarns": PATCH.warps},
@@ -199,13 +210,13 @@ def one_yarn_model(load, friction=None):
         weft={"EI": PATCH.weft.EI, "length": PATCH.weft.length, "count": PATCH.warps,
               "amplitude": PATCH.weft.amplitude, "kawabata_C": PATCH.weft.kawabata_C,
               "kawabata_K": PATCH.weft.kawabata_K},
-        contact={"core_stiffness": PATCH.core_stiffness},
+        contact={"core_stiffness": K_C},
         load={"control": "force", "values": [load]})
     model = build_model(scene)
     yarns = []
     for yarn in model.yarns:
         law = yarn.contact_law.copy()
-        law[0] = PATCH.core_stiffness
+        law[0] = K_C
         yarns.append(yarn._replace(contact_law=law))
     return replace(model, yarns=tuple(yarns))
 
@@ -245,11 +256,11 @@ def test_held_wefts_give_the_one_yarn_model_with_a_rigid_weft_spring(arrays, wit
     with x and with F_T / k_t, whose change alpha dR / k_t <= alpha k_c dz / k_t adds the factor
     (1 + alpha k_c / k_t)."""
     load = 0.3
-    friction = replace(PAPER_FRICTION, stick_stiffness=FRICTION_STICK) if with_friction else None
+    friction = dict(PAPER_FRICTION, stick_stiffness=FRICTION_STICK) if with_friction else None
     model = one_yarn_model(load, friction)
     start = initial_state(model)
     state, record = StaticSolver(model).step(start, load)
-    patch = fabric_arrays.build(replace(PATCH, friction=friction))
+    patch = fabric_arrays.build(patch_model(friction).structure)
     held = patch.free.copy()
     held[patch.weft_nodes.ravel()] = 0.0
     patch = replace(patch, free=held)

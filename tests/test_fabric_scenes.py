@@ -1,7 +1,7 @@
 """The fabric scenes of runs/ run with `dynfab.run` and show their physics
 (docs/model.md section 10).
 
-Each scene runs through the run driver (the scene file, `fabric_spec`, the Solver
+Each scene runs through the run driver (the scene file, `FabricModel`, the Solver
 adapter, the result file), the strip as a smaller copy (4 x 4 yarns, 3 steps), and each
 test checks what the scene is for: the balanced cell's symmetry, the strip's crimp
 interchange, the pull-out's friction plateau, and a resumed file equal to an
@@ -19,8 +19,14 @@ from dynfab.errors import UserError
 from dynfab.fabric.from_scene import FabricModel, FabricSolver
 from dynfab.run import run, run_to_file
 from dynfab.scene import load_scene, parse_scene_text
+from dynfab.structure import uniform
 
 RUNS = Path(__file__).resolve().parent.parent / "runs"
+
+
+def core_stiffness(model: FabricModel) -> float:
+    """k_c [N/m], one for every crossing: dR/dg <= k_c (docs/model.md section 10)."""
+    return float(uniform(model.structure.tie_contact_law)[0])
 
 
 def solved(name: str):
@@ -38,7 +44,7 @@ def position_bound(model: FabricModel, results, step: int = -1) -> float:
     state = model.state_from_step(last)
     H = solver.hessian(state.positions, state.anchors, np.ravel(last["friction_limit"]))
     inverse = np.abs(np.linalg.inv(H.toarray())).sum(axis=1).max()
-    return 4 * inverse * max(float(last["residual"]), model.spec.tolerance)
+    return 4 * inverse * max(float(last["residual"]), model.scene.static.tolerance)
 
 
 def test_balanced_cell_under_equal_loads_responds_alike_in_both_families():
@@ -50,9 +56,9 @@ def test_balanced_cell_under_equal_loads_responds_alike_in_both_families():
         tol = 2 * position_bound(model, results, i)
         np.testing.assert_allclose(steps["weft_positions"][i] * [1, -1], steps["positions"][i],
                                    rtol=0, atol=tol)
-        assert abs(steps["strain"][i, 0] - steps["strain"][i, 1]) <= 2 * tol / model.spec.warp.length
+        assert abs(steps["strain"][i, 0] - steps["strain"][i, 1]) <= 2 * tol / model.warp.length
         np.testing.assert_allclose(steps["contact_force"][i], steps["contact_force"][i].T,
-                                   rtol=0, atol=model.spec.core_stiffness * 2 * tol)
+                                   rtol=0, atol=core_stiffness(model) * 2 * tol)
     assert np.all(np.diff(steps["strain"][:, 0]) > 0)  # it stretches as the load grows
     assert np.all(steps["stable"])
 
@@ -66,9 +72,9 @@ def test_swapping_the_load_ratio_swaps_the_families():
     for i in range(two.step_count):
         tol = position_bound(model, two, i) + position_bound(model, half, i)
         np.testing.assert_allclose(two.steps["strain"][i], half.steps["strain"][i, ::-1], rtol=0,
-                                   atol=tol / model.spec.warp.length)
+                                   atol=tol / model.warp.length)
         np.testing.assert_allclose(two.steps["contact_force"][i], half.steps["contact_force"][i].T,
-                                   rtol=0, atol=model.spec.core_stiffness * tol)
+                                   rtol=0, atol=core_stiffness(model) * tol)
     # the more loaded family stretches more, and its crimp falls below the other's
     assert np.all(two.steps["strain"][:, 0] > two.steps["strain"][:, 1])
     assert np.all(two.steps["crimp"][:, 0] < two.steps["crimp"][:, 1])
@@ -110,18 +116,18 @@ def test_pullout_is_resisted_by_the_friction_of_the_pressed_crossings():
     scene = load_scene(RUNS / "fabric_pullout.toml")
     model, results = FabricModel.from_scene(scene), run(scene)
     steps, k = results.steps, scene.pullout.warp - 1
-    nodes = model.spec.warp.segments + 1
+    nodes = model.warp.segments + 1
     stage1 = steps["load"][:, 0] == 0.0
     assert np.all(np.diff(steps["contact_force"][stage1, k].min(axis=1)) > 0)
     assert steps["contact_force"][stage1][-1, k].min() > 0
     for i in np.flatnonzero(~stage1):
         pull = steps["end_force"][i, k]
-        tolerance = nodes * max(float(steps["residual"][i]), model.spec.tolerance)
+        tolerance = nodes * max(float(steps["residual"][i]), model.scene.static.tolerance)
         assert abs(pull + steps["friction_force"][i, k, :, 0].sum()) <= tolerance
         assert 0 < pull <= steps["friction_limit"][i, k].sum() + tolerance
     # the warp strain is the pulled warp's (the held warps are not loaded, docs/model.md section 10)
     np.testing.assert_allclose(steps["strain"][~stage1, 0],
-                               steps["load"][~stage1, 0] / model.spec.warp.length, rtol=1e-12)
+                               steps["load"][~stage1, 0] / model.warp.length, rtol=1e-12)
     last = steps["sliding"][~stage1][-5:, k]
     assert last.all()
     # the plateau is the friction of the pressed crossings, not zero
@@ -130,10 +136,10 @@ def test_pullout_is_resisted_by_the_friction_of_the_pressed_crossings():
     # step, so the pull is sum_j F_T,j, short of it by the slip's leftover y-part: the slip
     # after a radial return has length F_T/k_t, and the last step moved it dU along x, so
     # 1 - cos(angle to x) <= 1/2 (c / (dU - c))^2 with c = max F_T / k_t.
-    c = steps["friction_limit"][-1, k].max() / model.fabric.stick_stiffness
+    c = steps["friction_limit"][-1, k].max() / uniform(model.structure.tie_friction_law)[3]
     dU = steps["load"][-1, 0] - steps["load"][-2, 0]
     last = steps["friction_limit"][-1, k].sum()
-    tolerance = nodes * max(float(steps["residual"][-1]), model.spec.tolerance)
+    tolerance = nodes * max(float(steps["residual"][-1]), model.scene.static.tolerance)
     assert abs(steps["end_force"][-1, k] - last) <= tolerance + 0.5 * last * (c / (dU - c)) ** 2
     # before it, the force rises through the steps of the front (stick to slip)
     rising = steps["end_force"][~stage1, k]

@@ -17,11 +17,12 @@ from dynfab.fabric import assembly
 from dynfab.fabric.dynamic import FabricDynamicSolver
 from dynfab.fabric.static import FabricStaticSolver
 from dynfab.kernels import fabric_semi_implicit
-from dynfab.kernels.fabric_arrays import PAPER_FRICTION, paper_patch
 from dynfab.run import run
 from dynfab.scene import parse_scene_text
+from dynfab.structure import uniform
+from independent import PAPER_FRICTION
 from test_fabric_dynamic import (DISPLACEMENTS, FORCES, TOLERANCE, agreement_bound,
-                                 anchor_bound)
+                                 anchor_bound, paper_patch_model)
 from test_fabric_dynamic_scenes import mixed_anchors, perturbed_state
 from test_fabric_scenes import position_bound, small_pullout
 
@@ -33,18 +34,19 @@ def loaded_state(n=2, friction=PAPER_FRICTION, value=0.3, **more):
     deformed patch with closed contacts; the anchors held during the step, under which every
     crossing of a clamped patch slides (k_t |s| > F_T), except every other crossing's moved
     to within 1e-3 F_T / k_t of its slip point, so that it sticks: both Huber branches
-    present. `more`: `paper_patch`'s boundary, planes."""
-    spec = paper_patch(n, n, friction=friction, warp_values=(value,), weft_values=(0.1 * value,),
-                       tolerance=TOLERANCE, **more)
-    static = FabricStaticSolver(spec)
-    dynamic = FabricDynamicSolver(spec, method="semi_implicit")
+    present. `more`: `paper_patch_model`'s boundary, planes."""
+    model = paper_patch_model(n, n, [(value, 0.1 * value)], friction=friction,
+                              tolerance=TOLERANCE, **more)
+    static = FabricStaticSolver(model)
+    dynamic = FabricDynamicSolver(model, method="semi_implicit")
     start = static.initial_state()
     state, _ = static.step(start, value, 0.1 * value)
     f, pos = static.fabric, state.positions
     anchors = start.anchors.copy()
     plane_x, plane_y = assembly.planes(pos, f)
-    slip_point = np.stack([pos[f.warp_node, 0] - plane_x, pos[f.weft_node, 0] - plane_y], 1)
-    nearby = 1e-3 * static.friction_limits(pos)[:, None] / max(f.stick_stiffness, 1.0)
+    slip_point = np.stack([pos[f.tie_a, 0] - plane_x, pos[f.tie_b, 0] - plane_y], 1)
+    stick = uniform(f.tie_friction_law)[3]  # k_t
+    nearby = 1e-3 * static.friction_limits(pos)[:, None] / max(stick, 1.0)
     anchors[::2] = slip_point[::2] - nearby[::2]
     return static, dynamic, pos, anchors
 
@@ -70,9 +72,10 @@ def test_the_tangent_is_the_exact_hessian_without_its_psd_modifications():
     limit = static.friction_limits(pos)
     R = static.contact_forces(pos)
     assert R.min() > 0  # every contact closed
-    s = pos[static.fabric.warp_node, 0] - static.fabric.plane_x - anchors[:, 0]
-    s_y = pos[static.fabric.weft_node, 0] - static.fabric.plane_y - anchors[:, 1]
-    sliding = static.fabric.stick_stiffness * np.hypot(s, s_y) > limit
+    f = static.fabric
+    s = pos[f.tie_a, 0] - f.tie_plane[:, 0] - anchors[:, 0]
+    s_y = pos[f.tie_b, 0] - f.tie_plane[:, 1] - anchors[:, 1]
+    sliding = uniform(f.tie_friction_law)[3] * np.hypot(s, s_y) > limit
     assert sliding.any() and not sliding.all()  # both Huber branches exercised
     zero = np.zeros(dynamic.arrays.nodes)
     H = static.hessian(pos, anchors, limit).toarray()
@@ -104,12 +107,12 @@ def test_the_tangent_has_the_moving_planes_wrap_springs_and_tied_cell_lengths(ca
     boundary = "clamped" if case == "affine" else "periodic"
     control = "displacement" if case.endswith("displacement") else "force"
     values = (2e-5, 1e-5) if control == "displacement" else (0.2, 0.1)
-    spec = paper_patch(2, 2 if boundary == "periodic" else 3, friction=PAPER_FRICTION,
-                       boundary=boundary, planes="affine" if case == "affine" else "fixed",
-                       control=control, warp_values=(values[0],), weft_values=(values[1],),
-                       tolerance=TOLERANCE)
-    static = FabricStaticSolver(spec)
-    dynamic = FabricDynamicSolver(spec, method="semi_implicit")
+    model = paper_patch_model(2, 2 if boundary == "periodic" else 3, [values], control,
+                              PAPER_FRICTION, boundary=boundary,
+                              planes="affine" if case == "affine" else "fixed",
+                              tolerance=TOLERANCE)
+    static = FabricStaticSolver(model)
+    dynamic = FabricDynamicSolver(model, method="semi_implicit")
     pos = perturbed_state(static)
     anchors = mixed_anchors(static, pos)
     limit = static.friction_limits(pos)
@@ -218,11 +221,11 @@ def test_the_per_step_layout_relaxes_as_the_persistent_one_bit_for_bit(case):
     n, (warp, weft), more = {"clamped": (4, (5.0, 1.0), {}),
                              "affine": (3, (0.3, 0.1), dict(planes="affine")),
                              "periodic": (2, (0.3, 0.1), dict(boundary="periodic"))}[case]
-    spec = paper_patch(n, n, friction=PAPER_FRICTION, warp_values=(warp,), weft_values=(weft,),
-                       tolerance=TOLERANCE, **more)
+    model = paper_patch_model(n, n, [(warp, weft)], friction=PAPER_FRICTION, tolerance=TOLERANCE,
+                              **more)
     ends = []
     for layout in ("persistent", "per_step"):
-        dynamic = FabricDynamicSolver(spec, method="semi_implicit", layout=layout)
+        dynamic = FabricDynamicSolver(model, method="semi_implicit", layout=layout)
         pos, anchors, P = dynamic.reference.start_of_step(dynamic.initial_state(), warp, weft)
         ends.append(dynamic.relax(pos, P, anchors))
     (x_persistent, persistent), (x_per_step, per_step) = ends
@@ -258,13 +261,11 @@ def test_semi_implicit_load_steps_agree_with_the_static_ones(control, friction):
     contact forces within 2 k_c bound, the same crossings sliding, anchors within
     `anchor_bound`, the same stability."""
     values = FORCES if control == "force" else DISPLACEMENTS
-    spec = paper_patch(4, 4, friction=friction, control=control,
-                       warp_values=tuple(v[0] for v in values),
-                       weft_values=tuple(v[1] for v in values), tolerance=TOLERANCE)
-    static = FabricStaticSolver(spec)
-    dynamic = FabricDynamicSolver(spec, method="semi_implicit")
+    model = paper_patch_model(4, 4, values, control, friction, tolerance=TOLERANCE)
+    static = FabricStaticSolver(model)
+    dynamic = FabricDynamicSolver(model, method="semi_implicit")
     s_state, d_state = static.initial_state(), dynamic.initial_state()
-    k_c = static.fabric.contact_law[0]
+    k_c = uniform(static.fabric.tie_contact_law)[0]
     for warp_value, weft_value in values:
         anchors = s_state.anchors.copy()
         anchor_gap = float(np.hypot(*(d_state.anchors - s_state.anchors).T).max())
@@ -293,9 +294,9 @@ def test_records_have_the_explicit_solvers_keys_and_runs_repeat_bit_for_bit():
     """The semi-implicit step returns the explicit step's record keys plus its CG iterations
     (those of the step); a second solver on the same step gives identical positions (every
     sum in a fixed order, no atomics)."""
-    spec = paper_patch(2, 2, friction=PAPER_FRICTION, warp_values=(0.1,), tolerance=TOLERANCE)
-    explicit = FabricDynamicSolver(spec)
-    semis = [FabricDynamicSolver(spec, method="semi_implicit") for _ in range(2)]
+    model = paper_patch_model(2, 2, [(0.1, 0.0)], friction=PAPER_FRICTION, tolerance=TOLERANCE)
+    explicit = FabricDynamicSolver(model)
+    semis = [FabricDynamicSolver(model, method="semi_implicit") for _ in range(2)]
     _, e_record = explicit.step(explicit.initial_state(), 0.1, 0.0)
     states = [semi.step(semi.initial_state(), 0.1, 0.0) for semi in semis]
     assert states[0][1].keys() == e_record.keys() | {"cg_iterations"}
@@ -322,8 +323,8 @@ def test_a_semi_implicit_scene_runs_and_matches_the_static_run():
 
 def test_a_semi_implicit_relaxation_that_cannot_finish_raises_one_line():
     """The time-step limit reached: SolverError, one line naming the cause and the residual."""
-    spec = paper_patch(2, 2, warp_values=(0.3,), tolerance=TOLERANCE)
-    solver = FabricDynamicSolver(spec, max_steps=3, method="semi_implicit")
+    model = paper_patch_model(2, 2, [(0.3, 0.0)], tolerance=TOLERANCE)
+    solver = FabricDynamicSolver(model, max_steps=3, method="semi_implicit")
     with pytest.raises(SolverError) as raised:
         solver.step(solver.initial_state(), 0.3, 0.0)
     message = str(raised.value)
