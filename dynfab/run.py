@@ -31,7 +31,8 @@ from dynfab.model import Model, State, build_model, initial_state, width_per_yar
 from dynfab.results import ResultFile, Results, dynfab_version, finished_counts, read_results
 from dynfab.scene import Scene, expand_sweep, scene_to_toml
 from dynfab.solver import Solver, Transient
-from dynfab.xdmf import XdmfSync, nodal_point_data, xdmf_path
+from dynfab.views import add_views
+from dynfab.xdmf import XdmfSync, has_views, nodal_point_data, xdmf_path
 
 def make_solver(model: Model, solver: str, device: str | None = None,
                 progress=None) -> Solver | Transient:
@@ -270,7 +271,7 @@ def _open_sink(model: Model, engine: Solver | Transient, out, *, overwrite: bool
     capacity = ({"frame_capacity": frame_times(model).size} if isinstance(engine, Transient)
                 else {"step_capacity": len(model.load_values)})
     if resume:
-        sink = ResultFile.resume(out, **capacity)
+        sink = ResultFile.resume(out, views=add_views, **capacity)
         if sink.attrs.get("scene") != scene_to_toml(model.scene):
             sink.close(trim=False)
             raise UserError(f"cannot resume '{out}': it was written from a different scene "
@@ -279,9 +280,11 @@ def _open_sink(model: Model, engine: Solver | Transient, out, *, overwrite: bool
             sink.close(trim=False)
             raise UserError(f"cannot resume '{out}': it was written by the "
                              f"{sink.attrs.get('solver')!r} solver, not {engine.name!r}")
+        if not has_views(out):  # written before dynfab.views: add them now
+            sink.flush()
         return sink
     return ResultFile.create(out, attrs=_root_attrs(model, engine), reference=_reference(model),
-                             overwrite=overwrite, **capacity)
+                             overwrite=overwrite, views=add_views, **capacity)
 
 
 def _start_state(model: Model, sink) -> State:

@@ -12,6 +12,7 @@ import re
 from pathlib import Path
 
 import h5py
+import meshio
 import numpy as np
 import pytest
 
@@ -168,8 +169,16 @@ def test_fabric_file_resumes_to_the_uninterrupted_run(tmp_path):
                                               err_msg=name)
     from dynfab.plot import plot_results
     assert [p.name for p in plot_results(part, tmp_path / "plots")] == ["fabric.png"]
-    view = part.with_suffix(".xdmf").read_text()
-    assert view.count('Name="steps ') == 2 * 10 and "weft_positions" in view
+    with meshio.xdmf.TimeSeriesReader(part.with_suffix(".xdmf")) as view, \
+            h5py.File(part, "r") as h5:  # plain meshio: both families' nodes, every step
+        points, _ = view.read_points_cells()
+        assert view.num_steps == 10
+        warp_nodes, weft_nodes = h5["reference/positions"].size // 2, \
+            h5["reference/weft_positions"].size // 2
+        assert points.shape == (warp_nodes + weft_nodes, 3)
+        position = view.read_data(9)[1]["position"]
+        np.testing.assert_array_equal(position[warp_nodes:, 1:],
+                                      h5["steps/weft_positions"][9].reshape(-1, 2))
 
 
 def test_pullout_figure_draws_the_file(tmp_path):
@@ -252,7 +261,6 @@ def test_dynfab_run_on_a_fabric_scene_from_the_command_line(tmp_path):
     """The command a user types: exit 0, the fabric's summary table, the file and its view;
     the wefts of the view lie in the planes x = X_j = (j - 1/2) L / n_we
     (docs/model.md section 10)."""
-    import re
     import subprocess
     import sys
 
@@ -262,14 +270,14 @@ def test_dynfab_run_on_a_fabric_scene_from_the_command_line(tmp_path):
                           capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
     assert "strain wa" in done.stdout and len(done.stdout.strip().splitlines()) == 11
-    view = out.with_suffix(".xdmf").read_text()
-    grid = view[view.index('<Grid Name="as-woven weft yarns"'):]
-    planes = re.findall(r'<DataItem Format="XML" NumberType="Float" Precision="8" '
-                        r'Dimensions="\d+">([^<]*)</DataItem>', grid)[0]
     scene = load_scene(RUNS / "fabric_biaxial.toml")
-    n_we, M = scene.geometry.crossings, scene.weft.segments
+    n_wa, n_we = scene.weft.count, scene.geometry.crossings
+    N, M = scene.geometry.segments, scene.weft.segments
+    with meshio.xdmf.TimeSeriesReader(out.with_suffix(".xdmf")) as view:  # plain meshio
+        points, _ = view.read_points_cells()
+    x = points[n_wa * (N + 1):, 0]  # the wefts follow the warps
     expected = np.repeat((np.arange(n_we) + 0.5) * scene.geometry.length / n_we, M + 1)
-    np.testing.assert_allclose(np.array(planes.split(), float), expected, rtol=1e-15)
+    np.testing.assert_allclose(x, expected, rtol=1e-15)
     relaxed = subprocess.run([sys.executable, "-m", "dynfab.cli", "run",
                               str(RUNS / "fabric_biaxial.toml"), "--out", str(out),
                               "--overwrite", "--solver", "dynamic"], capture_output=True, text=True)
