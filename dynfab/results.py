@@ -159,14 +159,14 @@ UNITS: dict[str, str] = {
     "view/plane": "m",  # (P,) as-woven plane coordinate of each node
     "view/segments": "-",  # (S, 2) the nodes of each line segment
     "view/yarn": "-",  # (S,) each segment's yarn: index into the attribute yarn_labels
-    **{f"view/{group}/{ENTRY}/{name}": units for group in ("steps", "frames")
+    **{f"view/{group}/{name}/{ENTRY}": units for group in ("steps", "frames")
        for name, units in (("points", "m"), ("contact_force", "N"), ("slip", "m"),
                            ("plane", "m"))},  # (P, 3) or (P,): row <entry> in 3D, per node
 }
 """Units of every dataset a result file may hold; the only list of names."""
 
 _ENERGY_PREFIXES = ("steps/energy/", "frames/energy/")
-_VIEW_ROW = re.compile(r"(view/(?:steps|frames)/)[1-9][0-9]*(/[a-z_]+)\Z")
+_VIEW_ROW = re.compile(r"(view/(?:steps|frames)/[a-z_]+/)[1-9][0-9]*\Z")
 _TERM_NAME = re.compile(r"[A-Za-z0-9_]+\Z")
 _REQUIRED_ATTRS = ("scene", "solver")
 
@@ -183,7 +183,7 @@ def units_of(name: str, load_control: str | None = None) -> str:
             if not _TERM_NAME.match(term):
                 raise ValueError(f"bad energy term name {term!r} in dataset {name!r}")
             return UNITS[prefix + ENERGY_TERM]
-    listed = _VIEW_ROW.sub(rf"\g<1>{ENTRY}\g<2>", name)  # view/steps/3/points: its row
+    listed = _VIEW_ROW.sub(rf"\g<1>{ENTRY}", name)  # view/steps/points/3: row 3's
     if listed not in UNITS or ENERGY_TERM in name or ENTRY in name:
         raise ValueError(
             f"dataset {name!r} is not in dynfab.results.UNITS: add it there with its units"

@@ -12,7 +12,7 @@ HDF5 >= 1.10). So every array the view shows is a dataset of its own:
   segments, node pairs; ``view/yarn`` (S,): each segment's yarn, the index
   into the root attribute ``yarn_labels`` (warps, then wefts). Nodes are
   numbered family by family (warps, then a fabric's wefts), yarn by yarn.
-* ``view/<group>/<n>/<name>`` for every row n = 1, 2, ... of ``steps/`` (or
+* ``view/<group>/<name>/<n>`` for every row n = 1, 2, ... of ``steps/`` (or
   ``frames/``) up to its capacity: ``points`` (P, 3) [m]; ``contact_force``
   [N], ``slip`` [m] (P,) where the file has their node arrays
   (``<group>/xdmf/*``); ``plane`` (P,) [m] where the planes move.
@@ -124,6 +124,12 @@ def row_views(h5: h5py.File, group: str, found: list[ViewFamily]) -> list[str]:
     return names
 
 
+def row_name(group: str, name: str, row: int) -> str:
+    """The view ``name`` of row ``row`` (0-based) of a series: ``view/<group>/<name>/<row + 1>``
+    (one group per name, not per row: an HDF5 group of the file's format costs about 0.8 kB)."""
+    return f"view/{group}/{name}/{row + 1}"
+
+
 def rows(h5: h5py.File, group: str) -> int:
     """The rows a series' datasets hold (its capacity; 0 if it has none)."""
     return h5[f"{group}/positions"].shape[0] if f"{group}/positions" in h5 else 0
@@ -138,7 +144,8 @@ def complete(h5: h5py.File) -> bool:
     found = families(h5)
     for group in GROUPS:
         last = rows(h5, group)
-        wanted += [f"view/{group}/{last}/{name}" for name in row_views(h5, group, found) if last]
+        wanted += [row_name(group, name, last - 1) for name in row_views(h5, group, found)
+                   if last]
     return all(name in h5 for name in wanted)
 
 
@@ -152,60 +159,72 @@ def add_views(h5: h5py.File) -> None:
     total = sum(f.size for f in found)
     _physical(h5, "view/plane", np.concatenate([np.repeat(f.planes, f.nodes) for f in found]))
     pairs = [f.offset + np.arange(f.size).reshape(f.yarns, f.nodes) for f in found]
-    _physical(h5, "view/segments",
-              np.concatenate([np.stack([p[:, :-1], p[:, 1:]], -1).reshape(-1, 2) for p in pairs]))
+    _physical(h5, "view/segments", np.concatenate(
+        [np.stack([p[:, :-1], p[:, 1:]], -1).reshape(-1, 2) for p in pairs]).astype(np.int32))
     starts = np.cumsum([0] + [f.yarns for f in found[:-1]])  # warps 0, wefts n_wa
     _physical(h5, "view/yarn", np.concatenate(
-        [start + np.repeat(np.arange(f.yarns), f.nodes - 1) for f, start in zip(found, starts)]))
-    _points(h5, "view/points", found, total, [(f, f"reference/{f.prefix}positions", (), None)
-                                              for f in found])
+        [start + np.repeat(np.arange(f.yarns), f.nodes - 1) for f, start in zip(found, starts)]
+    ).astype(np.int32))
+    source = _Sources(h5)
+    _points(source, "view/points", found, total,
+            [(f, f"reference/{f.prefix}positions", (), None) for f in found])
     for group in GROUPS:
         names = row_views(h5, group, found)
         for row in range(rows(h5, group)):
-            _row(h5, group, row, found, total, names)
+            _row(source, group, row, found, total, names)
 
 
-def _row(h5: h5py.File, group: str, row: int, found: list[ViewFamily], total: int,
+def _row(source: "_Sources", group: str, row: int, found: list[ViewFamily], total: int,
          names: list[str]) -> None:
-    """The views of one row (0-based) of a series, under ``view/<group>/<row + 1>/``."""
-    base = f"view/{group}/{row + 1}"
+    """The views of one row (0-based) of a series (`row_name`)."""
     moving = "plane" in names
-    _points(h5, f"{base}/points", found, total,
+    _points(source, row_name(group, "points", row), found, total,
             [(f, f.column(group, "positions"), (row,),
               f.column(group, "xdmf/plane") if moving else None) for f in found])
     for name in names[1:]:
         layout = h5py.VirtualLayout(shape=(total,), dtype=np.float64)
         for f in found:
-            layout[f.offset:f.offset + f.size] = _source(h5, f.column(group, f"xdmf/{name}"))[row]
-        _virtual(h5, f"{base}/{name}", layout)
+            layout[f.offset:f.offset + f.size] = source[f.column(group, f"xdmf/{name}")][row]
+        source.create(row_name(group, name, row), layout)
 
 
-def _points(h5: h5py.File, name: str, found: list[ViewFamily], total: int, parts: list) -> None:
+def _points(source: "_Sources", name: str, found: list[ViewFamily], total: int,
+            parts: list) -> None:
     """A (P, 3) virtual dataset of 3D points: per family (family, positions dataset, leading
     index, plane dataset of the same leading index or None: ``view/plane``)."""
     layout = h5py.VirtualLayout(shape=(total, 3), dtype=np.float64)
     for family, positions, lead, plane in parts:
         nodes = slice(family.offset, family.offset + family.size)
-        source = _source(h5, positions)
         first, second = (0, 2) if family.plane_axis == 1 else (1, 2)
-        layout[nodes, first] = source[lead + (slice(None), slice(None), 0)]
-        layout[nodes, second] = source[lead + (slice(None), slice(None), 1)]
+        layout[nodes, first] = source[positions][lead + (slice(None), slice(None), 0)]
+        layout[nodes, second] = source[positions][lead + (slice(None), slice(None), 1)]
         if plane is None:
-            layout[nodes, family.plane_axis] = _source(h5, "view/plane")[nodes]
+            layout[nodes, family.plane_axis] = source["view/plane"][nodes]
         else:
-            layout[nodes, family.plane_axis] = _source(h5, plane)[lead]
-    _virtual(h5, name, layout)
+            layout[nodes, family.plane_axis] = source[plane][lead]
+    source.create(name, layout)
 
 
-def _source(h5: h5py.File, name: str) -> h5py.VirtualSource:
-    """A dataset of the same file as the source of a virtual dataset ("." : this file, so the
-    file can be moved or renamed)."""
-    dataset = h5[name]
-    return h5py.VirtualSource(".", name, shape=dataset.shape, dtype=dataset.dtype)
+class _Sources:
+    """The datasets of a file as sources of its virtual datasets (each looked up once), and
+    the virtual datasets made of them."""
 
+    def __init__(self, h5: h5py.File) -> None:
+        self.h5, self.found = h5, {}
 
-def _virtual(h5: h5py.File, name: str, layout: h5py.VirtualLayout) -> None:
-    h5.create_virtual_dataset(name, layout, fillvalue=np.nan).attrs["units"] = units_of(name)
+    def __getitem__(self, name: str) -> h5py.VirtualSource:
+        """Dataset ``name`` of this file as a source: file name ".", this file wherever it is
+        moved or copied."""
+        if name not in self.found:
+            dataset = self.h5[name]
+            self.found[name] = h5py.VirtualSource(".", name, shape=dataset.shape,
+                                                  dtype=dataset.dtype)
+        return self.found[name]
+
+    def create(self, name: str, layout: h5py.VirtualLayout) -> None:
+        """The virtual dataset ``name``, with its units (NaN where no source maps)."""
+        dataset = self.h5.create_virtual_dataset(name, layout, fillvalue=np.nan)
+        dataset.attrs["units"] = units_of(name)
 
 
 def _physical(h5: h5py.File, name: str, values: np.ndarray) -> None:

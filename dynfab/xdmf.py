@@ -56,7 +56,7 @@ import numpy as np
 
 from dynfab.errors import UserError
 from dynfab.results import ResultFile, _remove_stale_tmp, _tmp_path
-from dynfab.views import add_views, complete, families, row_views
+from dynfab.views import add_views, complete, families, row_name, row_views
 
 
 def xdmf_path(result: str | os.PathLike) -> Path:
@@ -127,8 +127,8 @@ def _count(h5: h5py.File, group: str) -> int:
 
 def _item(layout: _Layout, dataset: str, *shape: int, integer: bool = False) -> str:
     """A DataItem naming a whole dataset of the result file (found beside the XDMF file)."""
-    kind = "Int" if integer else "Float"
-    return (f'<DataItem Format="HDF" NumberType="{kind}" Precision="8" '
+    kind, precision = ("Int", 4) if integer else ("Float", 8)  # dynfab.views' dtypes
+    return (f'<DataItem Format="HDF" NumberType="{kind}" Precision="{precision}" '
             f'Dimensions="{" ".join(map(str, shape))}">{escape(layout.h5_name)}:/{dataset}'
             '</DataItem>')
 
@@ -160,16 +160,16 @@ def render(layout: _Layout) -> str:
 
 def _step_grid(layout: _Layout, entry: int) -> str:
     """One finished entry: its time, the topology, its geometry and point data."""
-    P, row = layout.points, f"view/{layout.group}/{entry + 1}"
+    P, group = layout.points, layout.group
     parts = [f'<Grid Name="{layout.group} {entry + 1}" GridType="Uniform">',
              f'<Time Value="{float(layout.times[entry])!r}"/>']
     if layout.loads is not None:
         parts.append(f'<Information Name="load" Value="{float(layout.loads[entry])!r}"/>')
-    parts += [_mesh(layout, f"{row}/points"),
-              _attribute("position", _item(layout, f"{row}/points", P, 3), "Vector"),
-              _attribute("plane", _item(layout, f"{row}/plane" if "plane" in layout.names
-                                        else "view/plane", P))]
-    parts += [_attribute(name, _item(layout, f"{row}/{name}", P))
+    points = row_name(group, "points", entry)
+    parts += [_mesh(layout, points), _attribute("position", _item(layout, points, P, 3), "Vector"),
+              _attribute("plane", _item(layout, row_name(group, "plane", entry)
+                                        if "plane" in layout.names else "view/plane", P))]
+    parts += [_attribute(name, _item(layout, row_name(group, name, entry), P))
               for name in layout.names if name not in ("points", "plane")]
     parts.append("</Grid>")
     return "".join(parts)

@@ -217,7 +217,7 @@ def test_the_view_refers_to_the_hdf5_file_and_copies_no_data(finished):
         nodes = h5["reference/positions"].shape[0] * h5["reference/positions"].shape[1]
         assert max(h5[name].size for name in names if not h5[name].is_virtual) <= 2 * nodes
     assert text.count("<Grid Name=\"steps ") == len(LOADS)
-    assert {int(n.split("/")[2]) for n in names if n.startswith("view/steps/")} == \
+    assert {int(n.split("/")[3]) for n in names if n.startswith("view/steps/")} == \
         set(range(1, len(LOADS) + 1))
 
 
