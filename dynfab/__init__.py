@@ -6,7 +6,7 @@ The public surface::
     results = dynfab.run(scene, solver="static", out="fig3.h5")   # or solver="dynamic"
     results.steps["end_force"]                                  # (steps, yarns) [N]
     dynfab.read_results("fig3.h5")                              # the same arrays, from disk
-    dynfab.write_xdmf("fig3.h5")                                # fig3.xdmf for ParaView (a run writes it)
+    dynfab.write_xdmf("fig3.h5")                                # fig3.xdmf for ParaView, meshio (a run writes it)
     dynfab.fit(scene, "curve.csv", ["warp.EA"])                 # parameters from a measured curve
 
 The names are imported on first use, so that `import dynfab` (and the

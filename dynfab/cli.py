@@ -53,8 +53,8 @@ def _parser() -> argparse.ArgumentParser:
     plot = commands.add_parser("plot", help="draw the PNG figures of a result file")
     plot.add_argument("results", type=Path, help="result file (HDF5)")
     plot.add_argument("--out", type=Path, required=True, help="folder for the PNG files")
-    xdmf = commands.add_parser("xdmf", help="(re)write <result>.xdmf, the ParaView view of a "
-                                            "result file (a run writes it too)")
+    xdmf = commands.add_parser("xdmf", help="(re)write <result>.xdmf, the view of a result file "
+                                            "for ParaView and meshio (a run writes it too)")
     xdmf.add_argument("results", type=Path, help="result file (HDF5)")
     for name, text in REPORTS.items():
         report = commands.add_parser(name, help=text)

@@ -3,7 +3,7 @@ HDF5 datasets under ``view/``, made of the file's own rows without copying them.
 
 Why whole datasets: meshio's XDMF reader (``meshio.xdmf.TimeSeriesReader``)
 reads an HDF5 DataItem only as a whole dataset, and VTK's XDMF reader
-(ParaView's "XDMF Reader") warns on every step whose geometry is a HyperSlab;
+(ParaView's "XDMF Reader") reports errors on geometry that is a HyperSlab;
 both read a whole dataset, virtual ones included (HDF5 virtual datasets,
 HDF5 >= 1.10). So every array the view shows is a dataset of its own:
 
@@ -126,7 +126,8 @@ def row_views(h5: h5py.File, group: str, found: list[ViewFamily]) -> list[str]:
 
 def row_name(group: str, name: str, row: int) -> str:
     """The view ``name`` of row ``row`` (0-based) of a series: ``view/<group>/<name>/<row + 1>``
-    (one group per name, not per row: an HDF5 group of the file's format costs about 0.8 kB)."""
+    (one HDF5 group per name, not per row: a group costs more than a row's views,
+    docs/results.md, "The view's cost")."""
     return f"view/{group}/{name}/{row + 1}"
 
 
@@ -165,66 +166,75 @@ def add_views(h5: h5py.File) -> None:
     _physical(h5, "view/yarn", np.concatenate(
         [start + np.repeat(np.arange(f.yarns), f.nodes - 1) for f, start in zip(found, starts)]
     ).astype(np.int32))
-    source = _Sources(h5)
-    _points(source, "view/points", found, total,
-            [(f, f"reference/{f.prefix}positions", (), None) for f in found])
+    virtual = _Virtual(h5)
+    virtual.create("view/points", (total, 3), _point_maps(found, "reference/{}positions", (),
+                                                        None))
     for group in GROUPS:
         names = row_views(h5, group, found)
         for row in range(rows(h5, group)):
-            _row(source, group, row, found, total, names)
+            _row(virtual, group, row, found, total, names)
 
 
-def _row(source: "_Sources", group: str, row: int, found: list[ViewFamily], total: int,
+def _row(virtual: "_Virtual", group: str, row: int, found: list[ViewFamily], total: int,
          names: list[str]) -> None:
     """The views of one row (0-based) of a series (`row_name`)."""
-    moving = "plane" in names
-    _points(source, row_name(group, "points", row), found, total,
-            [(f, f.column(group, "positions"), (row,),
-              f.column(group, "xdmf/plane") if moving else None) for f in found])
+    moving = f"{group}/xdmf/{{}}plane" if "plane" in names else None
+    virtual.create(row_name(group, "points", row), (total, 3),
+                   _point_maps(found, f"{group}/{{}}positions", (row,), moving))
     for name in names[1:]:
-        layout = h5py.VirtualLayout(shape=(total,), dtype=np.float64)
-        for f in found:
-            layout[f.offset:f.offset + f.size] = source[f.column(group, f"xdmf/{name}")][row]
-        source.create(row_name(group, name, row), layout)
+        virtual.create(row_name(group, name, row), (total,), [
+            ((f.offset,), (f.size,), f.column(group, f"xdmf/{name}"), (row, 0, 0),
+             (1, f.yarns, f.nodes)) for f in found])
 
 
-def _points(source: "_Sources", name: str, found: list[ViewFamily], total: int,
-            parts: list) -> None:
-    """A (P, 3) virtual dataset of 3D points: per family (family, positions dataset, leading
-    index, plane dataset of the same leading index or None: ``view/plane``)."""
-    layout = h5py.VirtualLayout(shape=(total, 3), dtype=np.float64)
-    for family, positions, lead, plane in parts:
-        nodes = slice(family.offset, family.offset + family.size)
-        first, second = (0, 2) if family.plane_axis == 1 else (1, 2)
-        layout[nodes, first] = source[positions][lead + (slice(None), slice(None), 0)]
-        layout[nodes, second] = source[positions][lead + (slice(None), slice(None), 1)]
-        if plane is None:
-            layout[nodes, family.plane_axis] = source["view/plane"][nodes]
-        else:
-            layout[nodes, family.plane_axis] = source[plane][lead]
-    source.create(name, layout)
+def _point_maps(found: list[ViewFamily], positions: str, lead: tuple, plane: str | None) -> list:
+    """The maps (`_Virtual.create`) of a (P, 3) dataset of 3D points: each family's two
+    in-plane coordinates from ``positions`` (its prefix in the braces) after the leading
+    index ``lead``, its plane coordinate from ``plane`` likewise, None: ``view/plane``."""
+    maps = []
+    for f in found:
+        first = 0 if f.plane_axis == 1 else 1  # a warp's x, a weft's y
+        for column, component in ((first, 0), (2, 1)):
+            maps.append(((f.offset, column), (f.size, 1), positions.format(f.prefix),
+                         lead + (0, 0, component), (1,) * len(lead) + (f.yarns, f.nodes, 1)))
+        maps.append(((f.offset, f.plane_axis), (f.size, 1), "view/plane", (f.offset,), (f.size,))
+                    if plane is None else
+                    ((f.offset, f.plane_axis), (f.size, 1), plane.format(f.prefix), lead + (0, 0),
+                     (1,) * len(lead) + (f.yarns, f.nodes)))
+    return maps
 
 
-class _Sources:
-    """The datasets of a file as sources of its virtual datasets (each looked up once), and
-    the virtual datasets made of them."""
+class _Virtual:
+    """Makes the virtual datasets of a file from its own datasets (h5py's low-level API: the
+    high-level one costs several times more per dataset, and a file has a few per row)."""
 
     def __init__(self, h5: h5py.File) -> None:
-        self.h5, self.found = h5, {}
+        self.h5, self.spaces = h5, {}
+        self.links = h5py.h5p.create(h5py.h5p.LINK_CREATE)
+        self.links.set_create_intermediate_group(True)
 
-    def __getitem__(self, name: str) -> h5py.VirtualSource:
-        """Dataset ``name`` of this file as a source: file name ".", this file wherever it is
-        moved or copied."""
-        if name not in self.found:
-            dataset = self.h5[name]
-            self.found[name] = h5py.VirtualSource(".", name, shape=dataset.shape,
-                                                  dtype=dataset.dtype)
-        return self.found[name]
+    def space(self, name: str):
+        """A fresh copy of dataset ``name``'s dataspace (each looked up once)."""
+        if name not in self.spaces:
+            self.spaces[name] = self.h5[name].id.get_space()
+        return self.spaces[name].copy()
 
-    def create(self, name: str, layout: h5py.VirtualLayout) -> None:
-        """The virtual dataset ``name``, with its units (NaN where no source maps)."""
-        dataset = self.h5.create_virtual_dataset(name, layout, fillvalue=np.nan)
-        dataset.attrs["units"] = units_of(name)
+    def create(self, name: str, shape: tuple, maps: list) -> None:
+        """The float64 virtual dataset ``name`` of ``shape``, with its units; ``maps``: (start,
+        count) in it, the source dataset of this file, (start, count) in that. The source file
+        is ".", this file wherever it is moved or copied; NaN where no source maps."""
+        plist = h5py.h5p.create(h5py.h5p.DATASET_CREATE)
+        plist.set_fill_value(np.array(np.nan))
+        whole = h5py.h5s.create_simple(shape)
+        for start, count, source, source_start, source_count in maps:
+            target = h5py.h5s.create_simple(shape)
+            target.select_hyperslab(start, count)
+            selected = self.space(source)
+            selected.select_hyperslab(source_start, source_count)
+            plist.set_virtual(target, b".", source.encode(), selected)
+        dataset = h5py.h5d.create(self.h5.id, name.encode(), h5py.h5t.IEEE_F64LE, whole,
+                                  dcpl=plist, lcpl=self.links)
+        h5py.Dataset(dataset).attrs["units"] = units_of(name)
 
 
 def _physical(h5: h5py.File, name: str, values: np.ndarray) -> None:

@@ -7,8 +7,8 @@ Reader", which is VTK's ``vtkXdmfReader``) and in plain meshio
 fabric's warps and wefts together, over the load steps (tests/test_xdmf.py
 reads it with both and compares with the HDF5 file).
 
-Layout, chosen so that both readers open it (measured: docs/model.md,
-"The view"):
+Layout, chosen so that both readers open it (why: docs/model.md, "The view";
+measured: docs/results.md, "The view"):
 
 * a Uniform grid ``as-woven`` (meshio's mesh): the segments of every yarn as
   a ``Polyline`` of 2 nodes per element (``view/segments``; meshio's "line"
@@ -28,8 +28,8 @@ Layout, chosen so that both readers open it (measured: docs/model.md,
   ``yarn``;
 * every DataItem is a whole HDF5 dataset of the result file's ``view/`` group
   (`dynfab.views`: virtual datasets into its rows, no number copied): meshio
-  reads no HyperSlab and no ``X_Y_Z`` geometry, and VTK warns on HyperSlab
-  geometry. A file written without ``steps/xdmf/*`` (point data per node)
+  reads no HyperSlab and no ``X_Y_Z`` geometry, and VTK reports errors on
+  HyperSlab geometry. A file written without ``steps/xdmf/*`` (point data per node)
   gets geometry, ``position`` and ``plane`` only.
 
 When it is written: by a run after every finished step (`XdmfSync`, atomically:
@@ -225,9 +225,9 @@ class XdmfSync:
     `update` after every finished entry rewrites it unless the last rewrite
     took more than `SHARE` of the time since it ended (short steps, or so many
     that the O(steps) text would dominate). So the view lags the result file by
-    at most the steps finished in the last 1/`SHARE` = 20 rewrite times (8 ms
-    per rewrite at 100 steps, 19 ms at 1000: benchmarks/xdmf.py), and only
-    after a ``kill -9``; `finish` always rewrites it.
+    at most the steps finished in the last 1/`SHARE` = 20 rewrite times (their
+    cost: docs/results.md, "The view"), and only after a ``kill -9``; `finish`
+    always rewrites it.
     """
 
     SHARE = 0.05

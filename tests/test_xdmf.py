@@ -425,7 +425,7 @@ def test_a_fabric_view_draws_both_families_where_their_planes_are(tmp_path, name
     fixed planes (the clamped pull-out) they stay at their as-woven (j - 1/2) L / n_we,
     (k - 1/2) L_we / n_wa. The view, read with meshio and with VTK, holds the warps' nodes then
     the wefts' at those planes at every step, point data ``plane`` = Y_k or X_j, and the slip
-    s = x - X_j - xi (10.7) (y - Y_k - eta for a weft) and contact force R at the crossing
+    s = x - X_j - xi_x (10.7) (y - Y_k - xi_y for a weft) and contact force R at the crossing
     nodes of both families. Moving planes must have moved by far more than rounding."""
     scene = fabric_scene(name)
     out = tmp_path / f"{name}.h5"
