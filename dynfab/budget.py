@@ -43,7 +43,7 @@ FABRIC_STEP_SCALARS = 40
 """A fabric step's scalars and per-family pairs (load, strain, crimp, energies, residual...)."""
 VIEW_BYTES_PER_ENTRY = 3200
 """The XDMF view's datasets of one step or frame (`dynfab.views`: 3 or 4 virtual datasets,
-metadata only) [B]: a bound of the sizes measured in docs/results.md ("The view's cost")."""
+metadata only) [B]: a bound of the sizes measured in docs/results.md ("The view")."""
 VIEW_BYTES_PER_NODE = 20
 """The view's arrays stored once: each node's plane (8 B), each segment's two nodes and
 yarn (int32) [B per node]."""

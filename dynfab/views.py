@@ -32,10 +32,12 @@ lies in ``x = (j - 1/2) L / n_we`` (``length_per_weft``); where its planes move
 ``weft_plane`` hold every node's plane coordinate, and the row's points and
 ``plane`` use them.
 
-`add_views` writes all of them; `dynfab.results.ResultFile` calls it whenever
-it writes the file's structure (create, first entry, growth, close), so they
-are as crash-safe as the structure: published whole, atomically, for every row
-the datasets hold, before any row is written.
+`add_views` writes all of them. A run's `dynfab.results.ResultFile` (given
+``views=add_views``) calls it whenever it writes the file's structure (create,
+first entry, growth, close), so they are as crash-safe as the structure:
+published whole, atomically, for every row the datasets hold, so a row's views
+exist before the row is written; ``dynfab xdmf`` adds them to a file written
+without them (`dynfab.xdmf.write_xdmf`).
 """
 
 from __future__ import annotations
@@ -108,8 +110,8 @@ def families(h5: h5py.File) -> list[ViewFamily]:
     found = [ViewFamily("", 1, (np.arange(yarns) + 0.5) * plane_spacing(h5.attrs), nodes, 0)]
     if "reference/weft_positions" in h5:
         wefts, weft_nodes = h5["reference/weft_positions"].shape[:2]
-        found.append(ViewFamily("weft_", 0, (np.arange(wefts) + 0.5) * float(h5.attrs["length_per_weft"]),
-                            weft_nodes, yarns * nodes))
+        planes = (np.arange(wefts) + 0.5) * float(h5.attrs["length_per_weft"])
+        found.append(ViewFamily("weft_", 0, planes, weft_nodes, yarns * nodes))
     return found
 
 
@@ -126,8 +128,7 @@ def row_views(h5: h5py.File, group: str, found: list[ViewFamily]) -> list[str]:
 
 def row_name(group: str, name: str, row: int) -> str:
     """The view ``name`` of row ``row`` (0-based) of a series: ``view/<group>/<name>/<row + 1>``
-    (one HDF5 group per name, not per row: a group costs more than a row's views,
-    docs/results.md, "The view's cost")."""
+    (one HDF5 group per name, not one per row: each group adds to the file)."""
     return f"view/{group}/{name}/{row + 1}"
 
 

@@ -23,7 +23,7 @@ from vtkmodules.vtkCommonExecutionModel import vtkStreamingDemandDrivenPipeline
 from vtkmodules.vtkIOXdmf2 import vtkXdmfReader
 
 import dynfab
-from dynfab.results import ResultFile, finished_counts
+from dynfab.results import ResultFile, finished_counts, units_of
 from dynfab.run import run_to_file
 
 VTK_POLY_LINE = 4
@@ -216,6 +216,11 @@ def test_the_view_refers_to_the_hdf5_file_and_copies_no_data(finished):
                 assert {source.file_name for source in dataset.virtual_sources()} == {"."}
         nodes = h5["reference/positions"].shape[0] * h5["reference/positions"].shape[1]
         assert max(h5[name].size for name in names if not h5[name].is_virtual) <= 2 * nodes
+        views = []
+        h5["view"].visititems(lambda name, obj: views.append(f"view/{name}")
+                              if isinstance(obj, h5py.Dataset) else None)
+        for name in views:  # every dataset has its units (dynfab.results.UNITS)
+            assert h5[name].attrs["units"] == units_of(name), name
     assert text.count("<Grid Name=\"steps ") == len(LOADS)
     assert {int(n.split("/")[3]) for n in names if n.startswith("view/steps/")} == \
         set(range(1, len(LOADS) + 1))
