@@ -39,7 +39,7 @@ from dynfab.fabric.assembly import TERMS, planes
 from dynfab.fabric.layout import Fabric, build_fabric
 from dynfab.fabric.spec import FabricSpec, Family, Friction
 from dynfab.fabric.static import FabricState, FabricStaticSolver, as_woven_state
-from dynfab.scene import Scene
+from dynfab.scene import Scene, planes_of
 
 DEFAULT_CORE_STIFFNESS = 1e5
 """k_c [N/m] of a fabric scene without contact.core_stiffness (docs/model.md section 10)."""
@@ -68,7 +68,7 @@ def fabric_spec(scene: Scene) -> FabricSpec:
             fiber_radius=friction.fiber_radius, onset_force=friction.onset_force,
             stick_stiffness=friction.stick_stiffness),
         gravity=None if scene.gravity is None else scene.gravity.g,
-        boundary=g.boundary, planes=g.planes, control=load.control,
+        boundary=g.boundary, planes=planes_of(g), control=load.control,
         warp_values=load.values, weft_values=load.weft_values,
         warp_factors=load.warp_factors, weft_factors=load.weft_factors,
         pullout=None if scene.pullout is None else scene.pullout.warp,
