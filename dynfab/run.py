@@ -37,13 +37,14 @@ def make_solver(model: Model, solver: str, device: str | None = None,
                 progress=None) -> Solver | Transient:
     """The solver object named `solver`, built for `model` (its options are the scene's): a
     `Solver` driven by load step, or for dynamic.mode = "transient" a `Transient` driven by
-    time (`dynfab.solver`); the dynamic solver reports each launch to `progress`."""
+    time (`dynfab.solver`); within a step, the dynamic solver reports each launch to
+    `progress`, the static one each yarn solved (a batch's)."""
     if check_solver(solver) == "static":
         if device is not None:
             raise UserError(f"--device {device}: the static solver runs on the CPU (numba); "
                              "a device is for --solver dynamic")
         from dynfab.static import StaticSolver
-        return StaticSolver(model)
+        return StaticSolver(model, status=progress)
     from dynfab.dynamic import DynamicSolver, DynamicTransient
     kind = DynamicTransient if model.scene.dynamic.mode == "transient" else DynamicSolver
     return kind(model, device=device or "cpu", progress=progress)
@@ -65,8 +66,10 @@ def run(scene: Scene, solver: str = "static", out: str | Path | None = None, *,
     `dynfab.scene.Static`, `dynfab.scene.Dynamic`). They are set on the scene,
     so the result file's `scene` attribute is the scene actually run; an option
     the solver does not take is a UserError. `progress` receives one line per
-    finished load step or frame, `status` the dynamic solver's line within a
-    step, once per launch (None: silent).
+    finished load step or frame, `status` the solver's line within a step
+    (None: silent): the static solvers' per Newton iteration (the one-yarn
+    model's per yarn of a batch, whose Newton runs compiled), the dynamic
+    ones' per launch of their kernels (at most about every half second).
     """
     if out is not None:
         run_to_file(scene, solver, out, overwrite=overwrite, resume=resume, progress=progress,
@@ -170,11 +173,11 @@ def _build(scene: Scene, solver: str, out, status, device: str | None, options: 
     """The model and the solver, the run options set on the scene (`dynfab.options`) and the
     run's memory and result file (`out`, None: not checked) estimated first (`dynfab.budget`,
     a fabric's too);
-    the dynamic solver reports its launches to `status`."""
+    the solver reports within each step to `status`."""
     if scene.geometry.model == "fabric":  # docs/model.md section 10
         from dynfab.fabric.from_scene import build_run
         check_budget(scene, out)
-        return build_run(scene, solver, device, options)
+        return build_run(scene, solver, device, options, status)
     scene = apply_run_options(scene, solver, **options)
     check_budget(scene, out)
     model = build_model(scene)
