@@ -91,8 +91,8 @@ def run_to_file(scene: Scene, solver: str, out: str | Path, *, overwrite: bool =
 
     0 with `resume` means the file was already complete and nothing was
     written. The file holds every finished entry at any moment; an interrupt
-    (KeyboardInterrupt) before the first one leaves no file behind (this run
-    made it).
+    (KeyboardInterrupt, which the command raises for SIGTERM too) before the
+    first one leaves no file behind (this run made it).
     """
     if overwrite and resume:
         raise UserError("--overwrite and --resume exclude each other: pick one")
@@ -151,22 +151,26 @@ class _ViewedSink:
 
 @contextlib.contextmanager
 def _interrupts_held_back():
-    """Hold Ctrl-C (SIGINT) back while the block runs; it takes effect right after.
+    """Hold Ctrl-C (SIGINT) and SIGTERM back while the block runs; they take effect right
+    after.
 
     A Python-level handler, not a signal mask: the mask is per thread, and a
-    process-directed SIGINT goes to any thread not masking it (numba's, Warp's).
+    process-directed signal goes to any thread not masking it (numba's, Warp's).
     """
     if threading.current_thread() is not threading.main_thread():
         yield
         return
     caught = []
-    previous = signal.signal(signal.SIGINT, lambda signum, frame: caught.append(signum))
+    held = (signal.SIGINT, signal.SIGTERM)
+    previous = {signum: signal.signal(signum, lambda signum, frame: caught.append(signum))
+                for signum in held}
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, previous)
+        for signum in held:
+            signal.signal(signum, previous[signum])
     if caught:
-        signal.raise_signal(signal.SIGINT)  # to the handler held back (KeyboardInterrupt)
+        signal.raise_signal(caught[0])  # to the handler held back (KeyboardInterrupt)
 
 
 def _build(scene: Scene, solver: str, out, status, device: str | None, options: dict):
