@@ -13,6 +13,11 @@ dynfab.cli``), a Ctrl-C or SIGTERM during the imports ends it at once with that
 line (nothing is written yet); `main` then hands both to its handler.
 Its top-level imports are light, and the heavy ones (numpy, h5py, numba,
 matplotlib) are made inside `main`, under that handler.
+
+Progress (stderr, none with --quiet): a line per finished step or frame; on a
+terminal a live line within a step; and, before kernels are compiled (the first
+run of a scene's kernel variants; later runs load them from the caches), the
+line "compiling kernels (first run only)", on a terminal or not.
 """
 
 from __future__ import annotations
@@ -27,6 +32,7 @@ if __name__ == "__main__":  # python -m dynfab.cli (the console script's is set 
     _catch_while_starting()
 
 import argparse  # noqa: E402 (after the handler, on purpose)
+import contextlib  # noqa: E402
 import io  # noqa: E402
 import shutil  # noqa: E402
 import time  # noqa: E402
@@ -95,9 +101,10 @@ REPORTS = {
 
 
 class _Progress:
-    """Progress on stderr: one line per finished step or frame and, on a terminal only, a
-    live status line within a step (the dynamic solver's time steps and residual against
-    its tolerance, and the time spent in the step), overwritten in place."""
+    """Progress on stderr: one line per finished step or frame, a line before kernels are
+    compiled and, on a terminal only, a live status line within a step (the solver's
+    Newton iterations or time steps and residual against its tolerance, and the time spent
+    in the step), overwritten in place."""
 
     def __init__(self, stream=None) -> None:
         self.stream = sys.stderr if stream is None else stream
@@ -107,9 +114,13 @@ class _Progress:
 
     def line(self, text: str) -> None:
         """A finished step (or frame): a line of its own."""
+        self.notice(text)
+        self.step_started = time.monotonic()
+
+    def notice(self, text: str) -> None:
+        """A line of its own within a step ("compiling kernels"), on a terminal or not."""
         self.clear()
         print(text, file=self.stream, flush=True)
-        self.step_started = time.monotonic()
 
     def status(self, text: str) -> None:
         """Within a step: replace the live line (nothing when stderr is not a terminal)."""
@@ -168,10 +179,12 @@ def _command_run(args, context: dict) -> None:
     _progress = None if args.quiet else _Progress()
     options = {flag[2:].replace("-", "_"): getattr(args, flag[2:].replace("-", "_"))
                for flag in RUN_FLAGS}
-    written = run_to_file(scene, args.solver, out, overwrite=args.overwrite, resume=args.resume,
-                          progress=None if args.quiet else _progress.line,
-                          status=None if args.quiet else _progress.status, device=args.device,
-                          **options)
+    with _compiles_announced(None if args.quiet else _progress.notice):
+        written = run_to_file(scene, args.solver, out, overwrite=args.overwrite,
+                              resume=args.resume,
+                              progress=None if args.quiet else _progress.line,
+                              status=None if args.quiet else _progress.status,
+                              device=args.device, **options)
     if args.quiet:
         return
     _progress.clear()
@@ -180,6 +193,20 @@ def _command_run(args, context: dict) -> None:
         return
     print_summary(read_results(out, only=SUMMARY_DATASETS))
     print(f"wrote {out}", file=sys.stderr)
+
+
+def _compiles_announced(say):
+    """`dynfab.compiling.announcing(say)`: say "compiling kernels (first run only)" before a
+    compile that will really happen; nothing for `say` None (--quiet)."""
+    if say is None:
+        return contextlib.nullcontext()
+    from dynfab.compiling import announcing
+
+    return announcing(say)
+
+
+def _stderr_line(text: str) -> None:
+    print(text, file=sys.stderr, flush=True)
 
 
 SUMMARY_DATASETS = ("steps/load", "steps/end_displacement", "steps/end_force",
@@ -222,9 +249,11 @@ def _command_fit(args, context: dict) -> None:
     from dynfab.fit import fit, parse_bounds
     from dynfab.scene import load_scene
 
-    report = None if args.quiet else (lambda line: print(line, file=sys.stderr, flush=True))
-    result = fit(load_scene(args.scene), args.data, args.fit, bounds=parse_bounds(args.bounds),
-                 substeps=args.substeps, progress=report, out=args.out)
+    report = None if args.quiet else _stderr_line
+    with _compiles_announced(report):
+        result = fit(load_scene(args.scene), args.data, args.fit,
+                     bounds=parse_bounds(args.bounds), substeps=args.substeps, progress=report,
+                     out=args.out)
     print(result.table())
     for name in ("fit.json", "fitted.toml", "fit_curve.png", "fit_correlation.png"):
         print(f"wrote {args.out / name}", file=sys.stderr)
@@ -248,10 +277,11 @@ def _command_report(args, context: dict) -> None:
     import importlib
 
     module = importlib.import_module(f"dynfab.reports.{args.command}")
-    report = None if args.quiet else (lambda line: print(line, file=sys.stderr, flush=True))
+    report = None if args.quiet else _stderr_line
     options = {"scene": args.scene} if getattr(args, "scene", None) is not None else {}
-    summary = getattr(module, f"run_{args.command}")(args.out, quick=args.quick, progress=report,
-                                                      **options)
+    with _compiles_announced(report):
+        summary = getattr(module, f"run_{args.command}")(args.out, quick=args.quick,
+                                                          progress=report, **options)
     for path in summary["files"]:
         print(f"wrote {path}")
     if not args.quiet:
