@@ -168,3 +168,16 @@ def test_a_step_reports_within_itself_and_chunked_launches_keep_the_bits(method)
     assert relaxing[0].startswith(f"fabric dynamic ({method}): 5 time steps, residual ")
     assert not [c for c in quiet if "time steps" in c]  # one launch: nothing between launches
     assert any("stability check" in c for c in calls)
+
+
+@pytest.mark.parametrize("method", ["explicit", "semi_implicit"])
+def test_a_step_in_the_per_step_layout_reports_within_itself(method):
+    """The per-step layouts (a GPU's), whose time loop is in Python, report at most every
+    `chunk_seconds` (here 0: at every residual they read back)."""
+    spec = paper_patch(2, 2, friction=PAPER_FRICTION, warp_values=(0.3,), weft_values=(0.1,),
+                       tolerance=TOLERANCE)
+    calls = []
+    solver = FabricDynamicSolver(spec, method=method, layout="per_step", status=calls.append)
+    solver.relaxation.chunk_seconds = 0.0
+    solver.step(solver.initial_state(), 0.3, 0.1)
+    assert [c for c in calls if c.startswith(f"fabric dynamic ({method}): ")]
