@@ -17,10 +17,12 @@ after a converged one.
 Two layouts (tests/test_fabric_kernels.py checks that they agree: bit for bit with
 `order="gather"`, to rounding with the default scatter order):
 
-- "persistent": one launch per relaxation, one thread running the time loop over
-  every node (CPU). A CPU `wp.launch` runs its threads one after another on one core
+- "persistent": one thread running the time loop over every node (CPU), a chunk of
+  time steps per launch (`fabric_relaxation.PatchRelaxation.chunks`: about half a
+  second each, so that progress shows and Ctrl-C is taken; the same bits as one
+  launch). A CPU `wp.launch` runs its threads one after another on one core
   and costs 10-45 us from Python, so per-step launches on the CPU pay that cost twice
-  per step for no parallelism; the loop inside the kernel pays it once
+  per step for no parallelism; the loop inside the kernel pays it once a chunk
   (`python benchmarks/fabric.py` measures both). One thread needs no gather: by default
   it evaluates each term once and scatters it (`fabric_forces.scatter_forces`), 1.5-1.7x
   faster than the per-node gather measured on 4x4 to 64x64 patches (which recomputes every

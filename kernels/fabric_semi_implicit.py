@@ -80,8 +80,9 @@ before).
 
 Two layouts, the same arithmetic in the same order (bit-identical runs; tests check it):
 
-- "persistent" (the CPU's default): one launch per relaxation, one thread running the time
-  loop and every CG iteration inside, each stage a loop over the per-unit `wp.func`s;
+- "persistent" (the CPU's default): one thread running the time loop and every CG
+  iteration inside, each stage a loop over the per-unit `wp.func`s, a chunk of time steps
+  per launch (`fabric_relaxation.PatchRelaxation.chunks`, the same bits as one launch);
 - "per_step" (the GPU's default): the time loop in Python, a launch per stage with a thread
   per crossing (R, friction, the crossing blocks), node (the force gather, the right side,
   the product A p, the move), yarn (the yarn systems and their LU, the preconditioner, the

@@ -64,7 +64,7 @@ from dynfab.terms import friction as gralen
 
 SCALAR = wp.float64
 MAX_STEPS = 2_000_000
-"""Time steps a relaxation may take per load step (one kernel launch)."""
+"""Time steps a relaxation may take per load step (launched a chunk at a time)."""
 _STATUS = {status.MAX_STEPS: "the time-step limit", status.NON_FINITE: "a non-finite force",
            status.STALLED: "FIRE stalled", status.DIVERGED: "divergence",
            status.NOT_POSITIVE_DEFINITE: "pivots that are not positive at every dt",
