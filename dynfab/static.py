@@ -466,7 +466,7 @@ class StaticSolver:
                            self.tolerance, self.accuracy, at_floor[k], "float64",
                            "static.accuracy", stability.shift[k])
             if self.status is not None:
-                self.status(f"static: yarn {k + 1} of {yarns} solved, {iterations[k]} Newton "
+                self.status(f"yarn {k + 1} of {yarns} solved, {iterations[k]} Newton "
                             f"iterations, residual {residual[k]:.3g} N")
         new_state, record = finish_step(self.model, state, positions, load_value, residual,
                                         iterations)

@@ -370,7 +370,7 @@ def test_a_step_of_several_yarns_reports_each_yarn_within_itself():
     model = build_model(paper_yarn(64, 16, {"control": "force", "values": [0.1]}, yarns=2))
     calls = []
     _, record = StaticSolver(model, status=calls.append).step(initial_state(model), 0.1)
-    assert [c[:25] for c in calls] == ["static: yarn 1 of 2 solve", "static: yarn 2 of 2 solve"]
+    assert [c[:17] for c in calls] == ["yarn 1 of 2 solve", "yarn 2 of 2 solve"]
     for k, call in enumerate(calls):
         assert call.endswith(f"{record['iterations'][k]} Newton iterations, residual "
                              f"{record['residual'][k]:.3g} N")

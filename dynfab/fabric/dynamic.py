@@ -179,8 +179,8 @@ class FabricDynamicSolver:
     def _report(self, steps: int, residual: float) -> None:
         """The relaxation's progress (`PatchRelaxation.report`) as a status line."""
         if self.status is not None:
-            self.status(f"fabric dynamic ({self.method}): {steps} time steps, residual "
-                        f"{residual:.3g} N (tolerance {self.tolerance:.3g} N)")
+            self.status(f"{steps} time steps, residual {residual:.3g} N (tolerance "
+                        f"{self.tolerance:.3g} N)")
 
     def relax(self, pos: np.ndarray, P: np.ndarray, anchors: np.ndarray):
         """Relax from `pos` under end loads P with the (static-convention) anchors held;
@@ -209,7 +209,7 @@ class FabricDynamicSolver:
         while True:
             R, friction_force = self.crossing_forces(pos, anchors + self._plane_shift)
             limit = self.friction_limits(R)
-            ref.say("fabric dynamic: stability check (inertia of the Hessian)")
+            ref.say("stability check (inertia of the Hessian)")
             result = inertia.inertia(ref, pos, anchors, limit)
             nearest = inertia.nearest_eigenvalue(ref.hessian(pos, anchors, limit))
             if result.negatives == 0 or escapes == MAX_ESCAPES:

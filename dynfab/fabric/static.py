@@ -413,8 +413,8 @@ class FabricStaticSolver:
             info.converged = info.at_floor = True
             return None
         self._newton_count += 1
-        self.say(f"fabric static: Newton iteration {self._newton_count}, residual "
-                 f"{residual:.3g} N (tolerance {self.spec.tolerance:.3g} N)")
+        self.say(f"Newton iteration {self._newton_count}, residual {residual:.3g} N "
+                 f"(tolerance {self.spec.tolerance:.3g} N)")
         return H
 
     def say(self, text: str) -> None:
@@ -850,7 +850,7 @@ class FabricStaticSolver:
         a saddle. Returns (info, F_T, solves, escapes, inertia, nearest eigenvalue)."""
         escapes = 0
         while True:
-            self.say("fabric static: stability check (inertia of the Hessian)")
+            self.say("stability check (inertia of the Hessian)")
             result = inertia.inertia(self, pos, anchors, limit)
             nearest = inertia.nearest_eigenvalue(self.hessian(pos, anchors, limit))
             if result.negatives == 0 or escapes == MAX_ESCAPES:
