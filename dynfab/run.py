@@ -38,13 +38,14 @@ def make_solver(model: Model, solver: str, device: str | None = None,
                 progress=None) -> Solver | Transient:
     """The solver object named `solver`, built for `model` (its options are the scene's): a
     `Solver` driven by load step, or for dynamic.mode = "transient" a `Transient` driven by
-    time (`dynfab.solver`); the dynamic solver reports each launch to `progress`."""
+    time (`dynfab.solver`); within a step, the dynamic solver reports each launch to
+    `progress`, the static one each yarn solved (a batch's)."""
     if check_solver(solver) == "static":
         if device is not None:
             raise UserError(f"--device {device}: the static solver runs on the CPU (numba); "
                              "a device is for --solver dynamic")
         from dynfab.static import StaticSolver
-        return StaticSolver(model)
+        return StaticSolver(model, status=progress)
     from dynfab.dynamic import DynamicSolver, DynamicTransient
     kind = DynamicTransient if model.scene.dynamic.mode == "transient" else DynamicSolver
     return kind(model, device=device or "cpu", progress=progress)
@@ -66,8 +67,10 @@ def run(scene: Scene, solver: str = "static", out: str | Path | None = None, *,
     `dynfab.scene.Static`, `dynfab.scene.Dynamic`). They are set on the scene,
     so the result file's `scene` attribute is the scene actually run; an option
     the solver does not take is a UserError. `progress` receives one line per
-    finished load step or frame, `status` the dynamic solver's line within a
-    step, once per launch (None: silent).
+    finished load step or frame, `status` the solver's line within a step
+    (None: silent): the static solvers' per Newton iteration (the one-yarn
+    model's per yarn of a batch, whose Newton runs compiled), the dynamic
+    ones' per launch of their kernels (at most about every half second).
     """
     if out is not None:
         run_to_file(scene, solver, out, overwrite=overwrite, resume=resume, progress=progress,
@@ -89,8 +92,8 @@ def run_to_file(scene: Scene, solver: str, out: str | Path, *, overwrite: bool =
 
     0 with `resume` means the file was already complete and nothing was
     written. The file holds every finished entry at any moment; an interrupt
-    (KeyboardInterrupt) before the first one leaves no file behind (this run
-    made it).
+    (KeyboardInterrupt, which the command raises for SIGTERM too) before the
+    first one leaves no file behind (this run made it).
     """
     if overwrite and resume:
         raise UserError("--overwrite and --resume exclude each other: pick one")
@@ -149,33 +152,37 @@ class _ViewedSink:
 
 @contextlib.contextmanager
 def _interrupts_held_back():
-    """Hold Ctrl-C (SIGINT) back while the block runs; it takes effect right after.
+    """Hold Ctrl-C (SIGINT) and SIGTERM back while the block runs; they take effect right
+    after.
 
     A Python-level handler, not a signal mask: the mask is per thread, and a
-    process-directed SIGINT goes to any thread not masking it (numba's, Warp's).
+    process-directed signal goes to any thread not masking it (numba's, Warp's).
     """
     if threading.current_thread() is not threading.main_thread():
         yield
         return
     caught = []
-    previous = signal.signal(signal.SIGINT, lambda signum, frame: caught.append(signum))
+    held = (signal.SIGINT, signal.SIGTERM)
+    previous = {signum: signal.signal(signum, lambda signum, frame: caught.append(signum))
+                for signum in held}
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, previous)
+        for signum in held:
+            signal.signal(signum, previous[signum])
     if caught:
-        signal.raise_signal(signal.SIGINT)  # to the handler held back (KeyboardInterrupt)
+        signal.raise_signal(caught[0])  # to the handler held back (KeyboardInterrupt)
 
 
 def _build(scene: Scene, solver: str, out, status, device: str | None, options: dict):
     """The model and the solver, the run options set on the scene (`dynfab.options`) and the
     run's memory and result file (`out`, None: not checked) estimated first (`dynfab.budget`,
     a fabric's too);
-    the dynamic solver reports its launches to `status`."""
+    the solver reports within each step to `status`."""
     if scene.geometry.model == "fabric":  # docs/model.md section 10
         from dynfab.fabric.from_scene import build_run
         check_budget(scene, out)
-        return build_run(scene, solver, device, options)
+        return build_run(scene, solver, device, options, status)
     scene = apply_run_options(scene, solver, **options)
     check_budget(scene, out)
     model = build_model(scene)

@@ -39,7 +39,7 @@ from dynfab.fabric.assembly import TERMS, planes
 from dynfab.fabric.layout import Fabric, build_fabric
 from dynfab.fabric.spec import FabricSpec, Family, Friction
 from dynfab.fabric.static import FabricState, FabricStaticSolver, as_woven_state
-from dynfab.scene import Scene
+from dynfab.scene import Scene, planes_of
 
 DEFAULT_CORE_STIFFNESS = 1e5
 """k_c [N/m] of a fabric scene without contact.core_stiffness (docs/model.md section 10)."""
@@ -68,7 +68,7 @@ def fabric_spec(scene: Scene) -> FabricSpec:
             fiber_radius=friction.fiber_radius, onset_force=friction.onset_force,
             stick_stiffness=friction.stick_stiffness),
         gravity=None if scene.gravity is None else scene.gravity.g,
-        boundary=g.boundary, planes=g.planes, control=load.control,
+        boundary=g.boundary, planes=planes_of(g), control=load.control,
         warp_values=load.values, weft_values=load.weft_values,
         warp_factors=load.warp_factors, weft_factors=load.weft_factors,
         pullout=None if scene.pullout is None else scene.pullout.warp,
@@ -175,10 +175,13 @@ class FabricSolver:
     `FabricStaticSolver`, or the dynamic `FabricDynamicSolver` (Warp), which returns the
     same record (plus its time steps)."""
 
-    def __init__(self, model: FabricModel, name: str = "static", device: str = "cpu"):
+    def __init__(self, model: FabricModel, name: str = "static", device: str = "cpu",
+                 status=None):
         self.model, self.name = model, name
         self.solver = FabricStaticSolver(model.spec)
         self.engine = self.solver
+        if name == "static":
+            self.solver.status = status  # per Newton iteration
         if name == "dynamic":
             from dynfab.fabric.dynamic import FabricDynamicSolver  # imports Warp: only here
             from dynfab.kernels.runtime import initialize
@@ -190,7 +193,8 @@ class FabricSolver:
                                               tolerance=dynamic.tolerance,
                                               max_steps=dynamic.max_steps,
                                               method=dynamic.method,
-                                              damping_coefficient=dynamic.damping_coefficient)
+                                              damping_coefficient=dynamic.damping_coefficient,
+                                              status=status)
 
     def attrs(self) -> dict:
         spec = self.model.spec
@@ -249,9 +253,10 @@ class FabricSolver:
         return {f"energy/{term}": float(value) for term, value in zip(TERMS, solver._terms)}
 
 
-def build_run(scene: Scene, solver: str, device: str | None, options: dict):
+def build_run(scene: Scene, solver: str, device: str | None, options: dict, status=None):
     """(model, solver) of a fabric run: `dynfab.run`'s build step for geometry.model =
-    "fabric"; `options` are the run options (`dynfab.options`)."""
+    "fabric"; `options` are the run options (`dynfab.options`); the solver reports within
+    each step to `status` (per Newton iteration, per launch of a relaxation)."""
     from dynfab.errors import UserError
     from dynfab.options import apply_run_options, check_solver
 
@@ -267,7 +272,7 @@ def build_run(scene: Scene, solver: str, device: str | None, options: dict):
     if solver == "dynamic":
         _check_dynamic_keys(scene.dynamic)
     model = FabricModel.from_scene(scene)
-    return model, FabricSolver(model, solver, device or "cpu")
+    return model, FabricSolver(model, solver, device or "cpu", status)
 
 
 _DYNAMIC_SUPPORTED = {"mode": "quasi_static", "method": "explicit", "precision": "float64",

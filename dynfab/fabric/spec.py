@@ -74,7 +74,9 @@ class FabricSpec:
     planes: str = "fixed"
     """"fixed": X_j, Y_k at their as-woven values; "affine": they move with the patch's
     mean stretch, X_j = (j - 1/2)(L + u_wa)/n_we, u_wa the warps' mean end displacement
-    (likewise Y_k). On the periodic cell the planes move with the cell whatever this says."""
+    (likewise Y_k); "cell" (a periodic cell only): they move with the cell. On the periodic
+    cell the planes move with the cell whatever this says (a scene says "cell" there:
+    `dynfab.scene` refuses the others)."""
     control: str = "force"
     """"force" (values are end forces per yarn [N]) or "displacement" (end displacements [m])."""
     warp_values: tuple[float, ...] = ()
@@ -121,8 +123,10 @@ def _check(spec: FabricSpec) -> None:
         raise ValueError("warp.segments must be a multiple of 2 wefts, weft.segments of 2 warps")
     if spec.boundary not in ("clamped", "periodic"):
         raise ValueError(f"boundary must be 'clamped' or 'periodic', not {spec.boundary!r}")
-    if spec.planes not in ("fixed", "affine"):
-        raise ValueError(f"planes must be 'fixed' or 'affine', not {spec.planes!r}")
+    if spec.planes not in ("fixed", "affine", "cell"):
+        raise ValueError(f"planes must be 'fixed', 'affine' or 'cell', not {spec.planes!r}")
+    if spec.planes == "cell" and spec.boundary != "periodic":
+        raise ValueError("planes 'cell' are a periodic cell's (docs/model.md section 10)")
     if spec.pullout is not None and spec.planes != "fixed":
         raise ValueError("a pull-out keeps the planes fixed (docs/model.md section 10)")
     if spec.boundary == "periodic" and spec.gravity is not None:

@@ -225,8 +225,12 @@ def _started(info: NewtonInfo) -> NewtonInfo:
 class FabricStaticSolver:
     """Solves a fabric's load steps one after another (docs/model.md sections 6, 10)."""
 
-    def __init__(self, spec: FabricSpec):
+    def __init__(self, spec: FabricSpec, status=None):
         self.spec = spec
+        self.status = status
+        """Called as status(text) within a step, once per Newton iteration (its count in the
+        step and residual) and before the stability check (the progress line), or None."""
+        self._newton_count = 0  # Newton iterations of the step so far
         self.fabric: Fabric = build_fabric(spec)
         self.pattern = assembly.Pattern(self.fabric)
         self.free = ~self.fabric.fixed
@@ -408,7 +412,15 @@ class FabricStaticSolver:
         if info.floor >= residual > 0.5 * previous:
             info.converged = info.at_floor = True
             return None
+        self._newton_count += 1
+        self.say(f"Newton iteration {self._newton_count}, residual {residual:.3g} N "
+                 f"(tolerance {self.spec.tolerance:.3g} N)")
         return H
+
+    def say(self, text: str) -> None:
+        """Pass `text` to `status`, if set."""
+        if self.status is not None:
+            self.status(text)
 
     def newton(self, pos, P, anchors, limit, law=None, max_iterations=None) -> NewtonInfo:
         """Minimise V + sum H (F_T frozen) from `pos`, in place (docs/model.md section 6), the
@@ -762,6 +774,7 @@ class FabricStaticSolver:
         """Solve one load step from `state`; returns (new state, record) or raises SolverError."""
         f, spec = self.fabric, self.spec
         pos, anchors, P = self.start_of_step(state, warp_value, weft_value)
+        self._newton_count = 0
         info, limit, outer = self.solve(pos, P, anchors)
         if not info.converged:
             raise SolverError(self._failure(pos, P, anchors, info, outer))
@@ -837,6 +850,7 @@ class FabricStaticSolver:
         a saddle. Returns (info, F_T, solves, escapes, inertia, nearest eigenvalue)."""
         escapes = 0
         while True:
+            self.say("stability check (inertia of the Hessian)")
             result = inertia.inertia(self, pos, anchors, limit)
             nearest = inertia.nearest_eigenvalue(self.hessian(pos, anchors, limit))
             if result.negatives == 0 or escapes == MAX_ESCAPES:
