@@ -119,6 +119,12 @@ def test_friction_does_nothing_in_the_uniformly_strained_strip():
     text = re.sub(r"^max = 1\.0\nsteps = 3$", "values = [0.3, 0.6, 0.2]", small_strip(),
                   flags=re.M)
     scene = parse_scene_text(text)
+    # what the scene (its title, on every figure) and the README's scene list say is what
+    # this test checks
+    readme = (RUNS.parent / "README.md").read_text()
+    row = next(line for line in readme.splitlines() if line.startswith("| `runs/fabric_strip"))
+    assert "friction inert (no crossing slips)" in scene.title
+    assert "friction is inert: no crossing slips" in row and "friction on" not in row
     model, results = FabricModel.from_scene(scene), run(scene)
     steps, k_t = results.steps, model.fabric.stick_stiffness
     assert not steps["sliding"].any() and np.all(steps["dissipated"] == 0.0)
