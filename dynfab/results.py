@@ -129,6 +129,8 @@ UNITS: dict[str, str] = {
     "steps/tolerance": "N",  # dynamic solver: the residual each load step had to reach
     "steps/weft_positions": "m",  # fabric: (steps, n_we, M+1, 2) weft node (y, z)
     "steps/strain": "-",  # fabric: (steps, 2) nominal strain (warp, weft)
+    "steps/stress": "N/m",  # fabric: (steps, 2) load per unit width (warp, weft); yarn: (steps, yarns)
+    "steps/slip_ratio": "-",  # fabric: (steps,) largest crossing node slip / segment; yarn: per yarn
     "steps/work": "J",  # fabric: (steps,) work of the end loads so far
     "steps/friction_solves": "-",  # fabric: (steps,) Newton solves of the friction update
     "steps/negative_eigenvalues": "-",  # fabric: (steps,) of the frozen-F_T Hessian

@@ -154,6 +154,17 @@ def test_summary_table_and_plots(tmp_path):
     done = dynfab_cli("run", ROOT / "runs" / "paper_fig3.toml", "--out", out)
     assert done.returncode == 0, done.stderr
     assert "max R [N]" in done.stdout and "[40/40]" in done.stderr
+    # the run's summary after the table: its steps, solver time, each yarn's last state
+    results = dynfab.read_results(out)
+    steps, labels = results.steps, results.attrs["yarn_labels"]
+    summary = done.stdout.strip().splitlines()[-4:]
+    assert summary[0] == f"40 load steps, {steps['wall_time'].sum():.3f} s in the solver"
+    for k, line in enumerate(summary[1:]):
+        assert line == (f"last step, yarn {k + 1} ({labels[k]}): end force "
+                        f"{steps['end_force'][-1, k]:.6g} N, end displacement "
+                        f"{1e3 * steps['end_displacement'][-1, k]:.5f} mm, load per unit width "
+                        f"{steps['stress'][-1, k]:.6g} N/m")
+    assert "end displacement" in done.stderr and "(largest of 3 yarns)" in done.stderr
     plotted = dynfab_cli("plot", out, "--out", tmp_path / "plots")
     assert plotted.returncode == 0, plotted.stderr
     assert {p.name for p in (tmp_path / "plots").iterdir()} >= {"traction.png", "contact_force.png",

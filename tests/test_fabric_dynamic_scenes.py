@@ -179,21 +179,21 @@ scene runs the same code (the static solver's start, one relaxation, the certifi
 return map), so the first steps exercise every term the scene has. Two for the biaxial cells
 (2 x 2, under a second each); one for the 16 x 16 strip (7,200 nodes: its first relaxation
 takes about 16,000 time steps, several seconds, and its ||J^-1|| a dense inverse of 14,000
-unknowns, too slow: see `scene_spec`); two for the pull-out, its steps 5 and 6: the end of
+unknowns, too slow: see `scene_spec`); two for the pull-out, its steps 2 and 3: the end of
 the first stage (the wefts tensioned, pressing the crossings) reached in one step, then the
 first pull of the warp, where the crossings on it slide (`scene_spec`)."""
 
 
 def scene_spec(name: str):
     """The scene's spec at TOLERANCE, its load path cut to SCENES[name] steps (the pull-out's
-    from its step 5). The strip is
+    from its step 2). The strip is
     the same scene on a 4 x 4 patch of the same yarns (pitch, segment length, planes
     "affine", friction, loads per yarn), as tests/test_fabric_scenes.py runs it: the
     bound needs ||J^-1|| by a dense inverse."""
     spec = fabric_spec(load_scene(RUNS / f"{name}.toml"))
     steps = SCENES[name]
     warp_values, weft_values = spec.loads()
-    first = 4 if name == "fabric_pullout" else 0  # the pull-out from its step 5
+    first = 1 if name == "fabric_pullout" else 0  # the pull-out from its step 2
     spec = replace(spec, tolerance=TOLERANCE, warp_values=tuple(warp_values[first:first + steps]),
                    weft_values=tuple(weft_values[first:first + steps]))
     if name == "fabric_strip":

@@ -15,7 +15,10 @@ Record of one fabric step (n_wa warps of N+1 nodes, n_we wefts of M+1 nodes; Y =
 - load (2,): (warp, weft) value [N or m]; end_force, end_displacement (Y,) [N], [m];
 - positions (n_wa, N+1, 2): the warps' (x, z); weft_positions (n_we, M+1, 2): the
   wefts' (y, z) [m];
-- strain, crimp (2,): (warp, weft) nominal strain and mean crimp [-];
+- strain, crimp (2,): (warp, weft) nominal strain and mean crimp [-]; stress (2,):
+  (warp, weft) load per unit width [N/m] (`FabricStaticSolver.stresses`);
+- slip_ratio: the largest slip ratio of the step's crossing nodes [-]
+  (`dynfab.domain.slip_ratios`; a run stops a step above 1/2, docs/model.md section 10);
 - contact_force, friction_limit, sliding (n_wa, n_we); friction_force, anchors
   (n_wa, n_we, 2) [N], [m] (in-plane: warp x, weft y; the anchors relative to the planes);
 - warp_planes (n_wa,): the plane y = Y_k of each warp, weft_planes (n_we,): x = X_j of each
@@ -35,6 +38,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from dynfab.domain import check_crossings_held, fabric_slip_ratios
 from dynfab.fabric.assembly import TERMS, planes
 from dynfab.fabric.layout import Fabric, build_fabric
 from dynfab.fabric.spec import FabricSpec, Family, Friction
@@ -107,12 +111,23 @@ class FabricModel:
     def reference(self) -> dict:
         """The result file's `reference/`: both families as woven, the crossing nodes."""
         warps, wefts = self.split(self.fabric.rest_position)
-        spec = self.spec
+        nodes, weft_nodes = self.crossing_nodes()
         return {"positions": warps, "weft_positions": wefts,
-                "crossing_nodes": (2 * np.arange(spec.wefts) + 1) * spec.warp.segments
-                // (2 * spec.wefts),
-                "weft_crossing_nodes": (2 * np.arange(spec.warps) + 1) * spec.weft.segments
-                // (2 * spec.warps)}
+                "crossing_nodes": nodes, "weft_crossing_nodes": weft_nodes}
+
+    def crossing_nodes(self) -> tuple[np.ndarray, np.ndarray]:
+        """(each warp's node of crossing j (n_we,), each weft's node of crossing k (n_wa,)):
+        (2j-1) N / (2 n_we) and (2k-1) M / (2 n_wa) (docs/model.md section 10)."""
+        spec = self.spec
+        return ((2 * np.arange(spec.wefts) + 1) * spec.warp.segments // (2 * spec.wefts),
+                (2 * np.arange(spec.warps) + 1) * spec.weft.segments // (2 * spec.warps))
+
+    def check_crossings_held(self, record: dict) -> None:
+        """SolverError if the step carried a crossing node more than half a segment from its
+        crossing (`dynfab.domain.check_crossings_held`), for both fabric solvers."""
+        spec = self.spec
+        check_crossings_held(record, *self.crossing_nodes(), suggest_affine=(
+            spec.boundary == "clamped" and spec.planes == "fixed" and spec.pullout is None))
 
     def attrs(self) -> dict:
         """Root attributes of a fabric's result file besides the solver's."""
@@ -218,7 +233,8 @@ class FabricSolver:
             "load": np.array([warp_value, weft_value]),
             "end_force": raw["end_force"], "end_displacement": raw["end_displacement"],
             "positions": warps, "weft_positions": wefts,
-            "strain": raw["strain"], "crimp": raw["crimp"],
+            "strain": raw["strain"], "stress": self.solver.stresses(raw["end_force"]),
+            "crimp": raw["crimp"],
             "contact_force": raw["contact_force"], "friction_limit": raw["friction_limit"],
             "sliding": raw["sliding"], "friction_force": raw["friction_force"].reshape(*shape, 2),
             "anchors": new.anchors.reshape(*shape, 2),
@@ -231,6 +247,8 @@ class FabricSolver:
             "negative_eigenvalues": raw["negative_eigenvalues"],
         }
         record.update(self._energies(new, warp_value, weft_value, raw["friction_limit"]))
+        ratios = fabric_slip_ratios(record, *model.crossing_nodes())
+        record["slip_ratio"] = np.max(np.concatenate([r.ravel() for r in ratios]), initial=0.0)
         for name in ("time_steps", "cg_iterations"):  # the dynamic solver's (the semi-implicit's)
             if name in raw:
                 record[name] = raw[name]

@@ -947,16 +947,38 @@ class FabricStaticSolver:
             crimp[y] = (arc - projected) / projected
         return np.array([crimp[f.is_warp].mean(), crimp[~f.is_warp].mean()])
 
-    def strains(self, pos) -> np.ndarray:
-        """Nominal strains (warp, weft): the mean end displacement of the family's loaded
-        yarns over their length (docs/model.md section 10). Under displacement control a yarn of
-        factor 0 is held, not loaded, and left out (a pull-out's other warps), unless the whole
-        family is; under force control a factor-0 yarn's end is free and counts."""
+    def families(self) -> tuple[np.ndarray, np.ndarray]:
+        """(warp mask, weft mask) (Y,) of the yarns a family's strain and stress average
+        over, its loaded yarns (docs/model.md section 10): under displacement control a
+        yarn of factor 0 is held, not loaded, and left out (a pull-out's other warps), unless
+        the whole family is; under force control a factor-0 yarn's end is free and counts."""
         f, spec = self.fabric, self.spec
-        u = pos[f.load_node, 0] - f.rest_position[f.load_node, 0]
         loaded = (f.load_factor != 0) | (spec.control == "force")
         out = []
-        for family, length in ((f.is_warp, spec.warp.length), (~f.is_warp, spec.weft.length)):
-            chosen = family & loaded if (family & loaded).any() else family
-            out.append(u[chosen].mean() / length)
-        return np.array(out)
+        for family in (f.is_warp, ~f.is_warp):
+            out.append(family & loaded if (family & loaded).any() else family)
+        return out[0], out[1]
+
+    def strains(self, pos) -> np.ndarray:
+        """Nominal strains (warp, weft): the mean end displacement of the family's loaded
+        yarns (`families`) over their length (docs/model.md section 10)."""
+        f, spec = self.fabric, self.spec
+        u = pos[f.load_node, 0] - f.rest_position[f.load_node, 0]
+        return np.array([u[chosen].mean() / length for chosen, length
+                         in zip(self.families(), (spec.warp.length, spec.weft.length))])
+
+    def widths(self) -> np.ndarray:
+        """The width per yarn of each family [m], (warp, weft), as woven: a warp's is the
+        wefts' length over the warps, L_we / n_wa; a weft's L / n_we (docs/model.md
+        section 10)."""
+        spec = self.spec
+        return np.array([spec.weft.length / spec.warps, spec.warp.length / spec.wefts])
+
+    def stresses(self, end_force) -> np.ndarray:
+        """Loads per unit width (warp, weft) [N/m]: the mean end force of the family's
+        loaded yarns (`families`, the yarns of its strain) over its width per yarn
+        (`widths`): on the periodic cell and a patch under force control, the force the
+        family carries over the fabric's width; in a pull-out, the pulled warp's force over
+        its width (docs/model.md section 10)."""
+        end_force = np.asarray(end_force, float)
+        return np.array([end_force[chosen].mean() for chosen in self.families()]) / self.widths()
