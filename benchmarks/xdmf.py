@@ -9,8 +9,13 @@ more than `XdmfSync.SHARE` (5 %) of the time since it ended, so the view costs a
 most about 5 % of a run's time however many steps it has. Measured here: a result file of
 the paper's yarn (N = 224 segments, 16 crossings, one yarn) with S steps written
 by `dynfab.results.ResultFile` (every step dataset of a static run at its real
-size), then `write_xdmf` timed (median of 5, time.perf_counter) and the XDMF
-size. "per step" divides a rewrite by S.
+size) with the view's datasets (`dynfab.views.add_views`, as a run writes it),
+then `write_xdmf` timed (median of 5, time.perf_counter) and the XDMF size.
+"per step" divides a rewrite by S. The cost of ``view/``: the same file written
+without it, its size and the time of all the writes (``write_s``) against those
+with it ("view ... per step": the difference divided by S). Last, the bytes of a
+row's views by layout (`view_bytes_per_row`): `dynfab.views.add_views` on files
+of 100 and 200 rows of made-up datasets, the difference divided by 100.
 """
 
 from __future__ import annotations
@@ -22,9 +27,11 @@ import tempfile
 import time
 from pathlib import Path
 
+import h5py
 import numpy as np
 
 from dynfab.results import ResultFile
+from dynfab.views import add_views
 from dynfab.xdmf import nodal_point_data, write_xdmf
 
 SEGMENTS, CROSSINGS = 224, 16
@@ -44,15 +51,23 @@ def record(nodes: int, load: float) -> dict:
     return step
 
 
-def measure(steps: int, folder: Path) -> dict:
+def write(out: Path, steps: int, views) -> float:
+    """Write the S steps (with or without `views`); the time it took [s]."""
     nodes = SEGMENTS + 1
-    out = folder / f"s{steps}.h5"
     attrs = {"scene": "", "solver": "static", "load_control": "force", "projected_length": 0.1}
     reference = {"positions": record(nodes, 0.0)["positions"],
                  "crossing_nodes": np.arange(CROSSINGS)}
-    with ResultFile.create(out, attrs=attrs, reference=reference, step_capacity=steps) as sink:
+    started = time.perf_counter()
+    with ResultFile.create(out, attrs=attrs, reference=reference, step_capacity=steps,
+                           views=views) as sink:
         for i in range(steps):
             sink.append_step(record(nodes, 1e-3 * (i + 1)))
+    return time.perf_counter() - started
+
+
+def measure(steps: int, folder: Path) -> dict:
+    out, bare = folder / f"s{steps}.h5", folder / f"bare{steps}.h5"
+    write_s, bare_write_s = write(out, steps, add_views), write(bare, steps, None)
     times = []
     for _ in range(5):
         started = time.perf_counter()
@@ -60,7 +75,34 @@ def measure(steps: int, folder: Path) -> dict:
         times.append(time.perf_counter() - started)
     rewrite = statistics.median(times)
     return {"steps": steps, "rewrite_s": rewrite, "per_step_s": rewrite / steps,
-            "xdmf_bytes": path.stat().st_size, "h5_bytes": out.stat().st_size}
+            "xdmf_bytes": path.stat().st_size, "h5_bytes": out.stat().st_size,
+            "h5_bytes_without_view": bare.stat().st_size, "write_s": write_s,
+            "write_s_without_view": bare_write_s}
+
+
+def view_bytes_per_row(folder: Path) -> dict[str, float]:
+    """Bytes of one row's views: one yarn of the paper (N = 224); a 4 x 4 fabric of 56
+    segments per yarn with fixed planes, and with moving planes (4 views a row)."""
+    def size(rows: int, prefixes: tuple, moving: bool) -> int:
+        out = folder / f"views{rows}.h5"
+        with h5py.File(out, "w") as h5:
+            h5.attrs.update(scene="", projected_length=0.025, width_per_yarn=0.00625,
+                            length_per_weft=0.00625)
+            yarns, nodes = (1, SEGMENTS + 1) if prefixes == ("",) else (4, 57)
+            for prefix in prefixes:
+                h5[f"reference/{prefix}positions"] = np.zeros((yarns, nodes, 2))
+                h5.create_dataset(f"steps/{prefix}positions", (rows, yarns, nodes, 2), "f8")
+                for name in ("contact_force", "slip") + (("plane",) if moving else ()):
+                    h5.create_dataset(f"steps/xdmf/{prefix}{name}", (rows, yarns, nodes), "f8")
+        bare = out.stat().st_size
+        with h5py.File(out, "a") as h5:
+            add_views(h5)
+        return out.stat().st_size - bare
+
+    layouts = {"one yarn": (("",), False), "fabric, fixed planes": (("", "weft_"), False),
+               "fabric, moving planes": (("", "weft_"), True)}
+    return {name: (size(200, *layout) - size(100, *layout)) / 100
+            for name, layout in layouts.items()}
 
 
 def main() -> None:
@@ -72,9 +114,15 @@ def main() -> None:
             row = rows[-1]
             print(f"{row['steps']:>6} steps: rewrite {1e3 * row['rewrite_s']:8.2f} ms  "
                   f"({1e6 * row['per_step_s']:6.1f} us per step listed)  xdmf "
-                  f"{row['xdmf_bytes'] / 1e3:9.1f} kB  h5 {row['h5_bytes'] / 1e6:8.2f} MB",
-                  flush=True)
-    Path(__file__).with_name("xdmf.json").write_text(json.dumps(rows, indent=2) + "\n")
+                  f"{row['xdmf_bytes'] / 1e3:9.1f} kB  h5 {row['h5_bytes'] / 1e6:8.2f} MB  view "
+                  f"{(row['h5_bytes'] - row['h5_bytes_without_view']) / steps:6.0f} B and "
+                  f"{1e3 * (row['write_s'] - row['write_s_without_view']) / steps:5.2f} ms "
+                  "per step", flush=True)
+        per_row = view_bytes_per_row(Path(folder))
+    for name, value in per_row.items():
+        print(f"views of a row, {name}: {value:.0f} B")
+    Path(__file__).with_name("xdmf.json").write_text(
+        json.dumps({"rewrites": rows, "view_bytes_per_row": per_row}, indent=2) + "\n")
 
 
 if __name__ == "__main__":

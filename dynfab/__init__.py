@@ -6,13 +6,14 @@ The public surface::
     results = dynfab.run(scene, solver="static", out="fig3.h5")   # or solver="dynamic"
     results.steps["end_force"]                                  # (steps, yarns) [N]
     dynfab.read_results("fig3.h5")                              # the same arrays, from disk
-    dynfab.write_xdmf("fig3.h5")                                # fig3.xdmf for ParaView (a run writes it)
+    dynfab.write_xdmf("fig3.h5")                                # fig3.xdmf for ParaView, meshio (a run writes it)
     dynfab.fit(scene, "curve.csv", ["warp.EA"])                 # parameters from a measured curve
 
 The names are imported on first use, so that `import dynfab` (and the
 `dynfab` command starting up) costs no heavy import. When the process is the
-`dynfab` console script, a Ctrl-C from here until `dynfab.cli.main` takes
-over ends it with one line and exit status 130 (nothing is written yet).
+`dynfab` console script, a Ctrl-C (SIGINT) from here until `dynfab.cli.main` takes
+over ends it with one line and exit status 130, a SIGTERM with 143 (nothing is
+written yet).
 """
 
 import importlib
@@ -23,13 +24,21 @@ import types
 
 
 def _interrupted_while_starting(signum, frame) -> None:
-    """SIGINT while the command line starts: one line, exit status 130, no traceback."""
-    os.write(2, b"dynfab: interrupted; nothing was written\n")
-    os._exit(130)
+    """SIGINT or SIGTERM while the command line starts: one line, exit status 128 + the
+    signal's number (130, 143), no traceback."""
+    word = b"terminated" if signum == signal.SIGTERM else b"interrupted"
+    os.write(2, b"dynfab: " + word + b"; nothing was written\n")
+    os._exit(128 + signum)
+
+
+def _catch_while_starting() -> None:
+    """Send SIGINT and SIGTERM to `_interrupted_while_starting` (the command's start)."""
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, _interrupted_while_starting)
 
 
 if sys.argv and os.path.basename(sys.argv[0]) == "dynfab":
-    signal.signal(signal.SIGINT, _interrupted_while_starting)
+    _catch_while_starting()
 
 from dynfab.errors import DynfabError, UserError, SolverError
 

@@ -41,6 +41,12 @@ FABRIC_CROSSING_DATASETS = 7
 force (2), anchors (2) (`dynfab.fabric.from_scene`)."""
 FABRIC_STEP_SCALARS = 40
 """A fabric step's scalars and per-family pairs (load, strain, crimp, energies, residual...)."""
+VIEW_BYTES_PER_ENTRY = 3200
+"""The XDMF view's datasets of one step or frame (`dynfab.views`: 3 or 4 virtual datasets,
+metadata only) [B]: a bound of the sizes measured in docs/results.md ("The view")."""
+VIEW_BYTES_PER_NODE = 20
+"""The view's arrays stored once: each node's plane (8 B), each segment's two nodes and
+yarn (int32) [B per node]."""
 
 
 def fabric_nodes(scene: Scene) -> int:
@@ -62,19 +68,21 @@ def result_file_bytes(scene: Scene) -> int:
     """Estimated size of the result file of `scene` [B]: positions (x, z) and the XDMF
     view's two point data (`dynfab.xdmf`) per node and step (three node arrays more per
     frame of a transient run), crossings and scalars; a fabric's per step: both families'
-    nodes so, its n_wa x n_we crossings, end force and displacement per yarn."""
+    nodes so, its n_wa x n_we crossings, end force and displacement per yarn; the view's
+    datasets (`VIEW_BYTES_PER_ENTRY`, `VIEW_BYTES_PER_NODE`)."""
     if scene.geometry.model == "fabric":
         yarns, crossings = scene.weft.count + scene.geometry.crossings, \
             scene.weft.count * scene.geometry.crossings
         per_step = 8 * (4 * fabric_nodes(scene) + FABRIC_CROSSING_DATASETS * crossings
-                        + 2 * yarns + FABRIC_STEP_SCALARS)
-        return len(scene.load.values) * per_step
+                        + 2 * yarns + FABRIC_STEP_SCALARS) + VIEW_BYTES_PER_ENTRY
+        return len(scene.load.values) * per_step + VIEW_BYTES_PER_NODE * fabric_nodes(scene)
     yarns, nodes = yarn_count(scene), scene.geometry.segments + 1
     per_yarn = 8 * (4 * nodes + CROSSING_DATASETS * scene.geometry.crossings + STEP_SCALARS)
+    view = VIEW_BYTES_PER_NODE * yarns * nodes
     if scene.dynamic.mode == "transient" and scene.dynamic.output_interval:
         frames = scene.dynamic.duration / scene.dynamic.output_interval + 2
-        return int(frames * yarns * (per_yarn + 8 * 4 * nodes))
-    return len(scene.load.values) * yarns * per_yarn
+        return int(frames * (yarns * (per_yarn + 8 * 4 * nodes) + VIEW_BYTES_PER_ENTRY)) + view
+    return len(scene.load.values) * (yarns * per_yarn + VIEW_BYTES_PER_ENTRY) + view
 
 
 def available_memory_bytes() -> int | None:

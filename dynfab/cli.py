@@ -1,14 +1,23 @@
 """The `dynfab` command line: `dynfab run`, `dynfab plot`, `dynfab fit` and `dynfab xdmf`.
 
 A user's mistake exits with status 2 and one line; a solver failure with
-status 3 and one line (finished steps kept on disk); an interrupt (Ctrl-C),
-at any moment, imports included, with 130 and one line naming what is on disk.
+status 3 and one line (finished steps kept on disk); an interrupt (Ctrl-C,
+SIGINT), at any moment, imports included, with 130 and one line naming what is
+on disk. SIGTERM (`kill`, a batch system's time limit) is taken the same way,
+with the word "terminated" and exit status 143 (128 + 15, what a shell reports
+for a process SIGTERM ended): the finished steps are kept, a file this run made
+holding none is removed.
 
 When the process is the command (the console script, or ``python -m
-dynfab.cli``), a Ctrl-C during the imports ends it at once with that line
-(nothing is written yet); `main` then hands Ctrl-C to its handler.
+dynfab.cli``), a Ctrl-C or SIGTERM during the imports ends it at once with that
+line (nothing is written yet); `main` then hands both to its handler.
 Its top-level imports are light, and the heavy ones (numpy, h5py, numba,
 matplotlib) are made inside `main`, under that handler.
+
+Progress (stderr, none with --quiet): a line per finished step or frame; on a
+terminal a live line within a step; and, before kernels are compiled (the first
+run of a scene's kernel variants; later runs load them from the caches), the
+line "compiling kernels (first run only)", on a terminal or not.
 """
 
 from __future__ import annotations
@@ -17,12 +26,13 @@ import os
 import signal
 import sys
 
-from dynfab import _interrupted_while_starting
+from dynfab import _catch_while_starting
 
 if __name__ == "__main__":  # python -m dynfab.cli (the console script's is set by dynfab)
-    signal.signal(signal.SIGINT, _interrupted_while_starting)
+    _catch_while_starting()
 
 import argparse  # noqa: E402 (after the handler, on purpose)
+import contextlib  # noqa: E402
 import io  # noqa: E402
 import shutil  # noqa: E402
 import time  # noqa: E402
@@ -53,8 +63,8 @@ def _parser() -> argparse.ArgumentParser:
     plot = commands.add_parser("plot", help="draw the PNG figures of a result file")
     plot.add_argument("results", type=Path, help="result file (HDF5)")
     plot.add_argument("--out", type=Path, required=True, help="folder for the PNG files")
-    xdmf = commands.add_parser("xdmf", help="(re)write <result>.xdmf, the ParaView view of a "
-                                            "result file (a run writes it too)")
+    xdmf = commands.add_parser("xdmf", help="(re)write <result>.xdmf, the view of a result file "
+                                            "for ParaView and meshio (a run writes it too)")
     xdmf.add_argument("results", type=Path, help="result file (HDF5)")
     for name, text in REPORTS.items():
         report = commands.add_parser(name, help=text)
@@ -91,9 +101,10 @@ REPORTS = {
 
 
 class _Progress:
-    """Progress on stderr: one line per finished step or frame and, on a terminal only, a
-    live status line within a step (the dynamic solver's time steps and residual against
-    its tolerance, and the time spent in the step), overwritten in place."""
+    """Progress on stderr: one line per finished step or frame, a line before kernels are
+    compiled and, on a terminal only, a live status line within a step (the solver's
+    Newton iterations or time steps and residual against its tolerance, and the time spent
+    in the step), overwritten in place."""
 
     def __init__(self, stream=None) -> None:
         self.stream = sys.stderr if stream is None else stream
@@ -103,9 +114,13 @@ class _Progress:
 
     def line(self, text: str) -> None:
         """A finished step (or frame): a line of its own."""
+        self.notice(text)
+        self.step_started = time.monotonic()
+
+    def notice(self, text: str) -> None:
+        """A line of its own within a step ("compiling kernels"), on a terminal or not."""
         self.clear()
         print(text, file=self.stream, flush=True)
-        self.step_started = time.monotonic()
 
     def status(self, text: str) -> None:
         """Within a step: replace the live line (nothing when stderr is not a terminal)."""
@@ -164,10 +179,12 @@ def _command_run(args, context: dict) -> None:
     _progress = None if args.quiet else _Progress()
     options = {flag[2:].replace("-", "_"): getattr(args, flag[2:].replace("-", "_"))
                for flag in RUN_FLAGS}
-    written = run_to_file(scene, args.solver, out, overwrite=args.overwrite, resume=args.resume,
-                          progress=None if args.quiet else _progress.line,
-                          status=None if args.quiet else _progress.status, device=args.device,
-                          **options)
+    with _compiles_announced(None if args.quiet else _progress.notice):
+        written = run_to_file(scene, args.solver, out, overwrite=args.overwrite,
+                              resume=args.resume,
+                              progress=None if args.quiet else _progress.line,
+                              status=None if args.quiet else _progress.status,
+                              device=args.device, **options)
     if args.quiet:
         return
     _progress.clear()
@@ -178,37 +195,66 @@ def _command_run(args, context: dict) -> None:
     print(f"wrote {out}", file=sys.stderr)
 
 
+def _compiles_announced(say):
+    """`dynfab.compiling.announcing(say)`: say "compiling kernels (first run only)" before a
+    compile that will really happen; nothing for `say` None (--quiet)."""
+    if say is None:
+        return contextlib.nullcontext()
+    from dynfab.compiling import announcing
+
+    return announcing(say)
+
+
+def _stderr_line(text: str) -> None:
+    print(text, file=sys.stderr, flush=True)
+
+
 SUMMARY_DATASETS = ("steps/load", "steps/end_displacement", "steps/end_force",
                     "steps/contact_force", "steps/residual", "steps/wall_time", "frames/time",
-                    "frames/energy/kinetic", "frames/contact_force", "steps/strain")
+                    "frames/energy/kinetic", "frames/contact_force", "steps/strain",
+                    "steps/stress", "steps/slip_ratio")
 """What the summary table reads: not the positions, which may not fit in memory."""
 
 
-def _interrupted_line(context: dict) -> str:
-    """The message after Ctrl-C: what the output file holds, if this command writes one;
-    nothing was written before a command began (the arguments still being parsed)."""
+class Terminated(KeyboardInterrupt):
+    """A SIGTERM, raised where the program stands as a Ctrl-C's KeyboardInterrupt is, so that
+    it takes the same way out (`dynfab.run` keeps the finished steps, removes a file this run
+    made without any), ending with "terminated" and exit status 143."""
+
+
+def _terminate(signum, frame) -> None:
+    """SIGTERM's handler while a command runs."""
+    raise Terminated
+
+
+def _interrupted_line(context: dict, word: str = "interrupted") -> str:
+    """The message after Ctrl-C (`word` "terminated" after SIGTERM): what the output file
+    holds, if this command writes one; nothing was written before a command began (the
+    arguments still being parsed)."""
     out = context.get("out")
     if out is None or not Path(out).is_file():
         wrote_nothing = "out" in context or not context.get("began")
-        return "dynfab: interrupted; nothing was written" if wrote_nothing else "dynfab: interrupted"
+        return f"dynfab: {word}; nothing was written" if wrote_nothing else f"dynfab: {word}"
     from dynfab.results import finished_counts
 
     counts = finished_counts(out) or (0, 0)
     for count, what in zip(counts, ("load step", "frame")):
         if count:
             plural = "s are" if count > 1 else " is"
-            return (f"dynfab: interrupted; {count} finished {what}{plural} in '{out}': "
+            return (f"dynfab: {word}; {count} finished {what}{plural} in '{out}': "
                     f"continue with --resume")
-    return f"dynfab: interrupted; no finished step is in '{out}'"
+    return f"dynfab: {word}; no finished step is in '{out}'"
 
 
 def _command_fit(args, context: dict) -> None:
     from dynfab.fit import fit, parse_bounds
     from dynfab.scene import load_scene
 
-    report = None if args.quiet else (lambda line: print(line, file=sys.stderr, flush=True))
-    result = fit(load_scene(args.scene), args.data, args.fit, bounds=parse_bounds(args.bounds),
-                 substeps=args.substeps, progress=report, out=args.out)
+    report = None if args.quiet else _stderr_line
+    with _compiles_announced(report):
+        result = fit(load_scene(args.scene), args.data, args.fit,
+                     bounds=parse_bounds(args.bounds), substeps=args.substeps, progress=report,
+                     out=args.out)
     print(result.table())
     for name in ("fit.json", "fitted.toml", "fit_curve.png", "fit_correlation.png"):
         print(f"wrote {args.out / name}", file=sys.stderr)
@@ -232,10 +278,11 @@ def _command_report(args, context: dict) -> None:
     import importlib
 
     module = importlib.import_module(f"dynfab.reports.{args.command}")
-    report = None if args.quiet else (lambda line: print(line, file=sys.stderr, flush=True))
+    report = None if args.quiet else _stderr_line
     options = {"scene": args.scene} if getattr(args, "scene", None) is not None else {}
-    summary = getattr(module, f"run_{args.command}")(args.out, quick=args.quick, progress=report,
-                                                      **options)
+    with _compiles_announced(report):
+        summary = getattr(module, f"run_{args.command}")(args.out, quick=args.quick,
+                                                          progress=report, **options)
     for path in summary["files"]:
         print(f"wrote {path}")
     if not args.quiet:
@@ -250,13 +297,14 @@ def _show_warning(message, category, filename, lineno, file=None, line=None) -> 
 
 
 def _redeliver_swallowed_interrupt(unraisable) -> None:
-    """A Ctrl-C that met a C callback (numba's compiler calls back into Python) is printed
-    and dropped there ("Exception ignored ..."): deliver it again, to the code that runs
-    next, so that it interrupts the run instead."""
+    """A Ctrl-C (or SIGTERM) that met a C callback (numba's compiler calls back into Python)
+    is printed and dropped there ("Exception ignored ..."): deliver it again, to the code that
+    runs next, so that it interrupts the run instead."""
     if issubclass(unraisable.exc_type, KeyboardInterrupt):
         import threading  # from another thread, so that it arrives once the callback is over
 
-        threading.Timer(0.05, os.kill, (os.getpid(), signal.SIGINT)).start()
+        signum = signal.SIGTERM if issubclass(unraisable.exc_type, Terminated) else signal.SIGINT
+        threading.Timer(0.05, os.kill, (os.getpid(), signum)).start()
         return
     sys.__unraisablehook__(unraisable)
 
@@ -265,21 +313,26 @@ def main(argv: list[str] | None = None) -> None:
     """Entry point of the `dynfab` console script."""
     context: dict = {}
     signal.signal(signal.SIGINT, signal.default_int_handler)  # Ctrl-C: KeyboardInterrupt
+    signal.signal(signal.SIGTERM, _terminate)  # SIGTERM: Terminated, a KeyboardInterrupt
     sys.unraisablehook = _redeliver_swallowed_interrupt
     try:
         _main(argv, context)
-    except KeyboardInterrupt:
-        signal.signal(signal.SIGINT, signal.SIG_IGN)  # a second Ctrl-C must not cut the message
+    except KeyboardInterrupt as stop:
+        for signum in (signal.SIGINT, signal.SIGTERM):  # a second one must not cut the message
+            signal.signal(signum, signal.SIG_IGN)
         if _progress is not None:
             _progress.clear()
-        print(_interrupted_line(context), file=sys.stderr, flush=True)
+        terminated = isinstance(stop, Terminated)
+        print(_interrupted_line(context, "terminated" if terminated else "interrupted"),
+              file=sys.stderr, flush=True)
         sys.stdout.flush()
         # Not SystemExit: after a Ctrl-C during the imports, the interpreter's shutdown then
         # ended the process by SIGINT (status -2) about once in twelve tries; os._exit never.
-        os._exit(130)
+        os._exit(128 + (signal.SIGTERM if terminated else signal.SIGINT))
     finally:
-        if _is_the_command():  # done and said: a Ctrl-C while Python shuts down changes nothing
-            signal.signal(signal.SIGINT, signal.SIG_IGN)
+        if _is_the_command():  # done and said: a signal while Python shuts down changes nothing
+            for signum in (signal.SIGINT, signal.SIGTERM):
+                signal.signal(signum, signal.SIG_IGN)
 
 
 def _is_the_command() -> bool:

@@ -1,5 +1,7 @@
 """The model's domain: a yarn that has folded back is outside it (docs/model.md, "What
-the model is not").
+the model is not"), and so is a fabric's crossing whose node has slid more than half a
+segment from it (docs/model.md section 10, "Crossings at fixed nodes": `slip_ratios`,
+`check_crossings_held`).
 
 Every yarn is a plane chain that runs along its axis: warps along x, wefts along y
 (docs/model.md sections 1, 10). Its energy cannot tell a segment that points backwards
@@ -51,3 +53,69 @@ def check_not_folded(record: dict, labels: list[str]) -> None:
                 f"along the yarn is {extent:.3g} m): the load has turned the yarn beyond the "
                 f"model's domain (docs/model.md, what the model is not)")
         offset += family.shape[0]
+
+
+SLIP_LIMIT = 0.5
+"""The largest slip ratio (`slip_ratios`) a fabric's step may reach: beyond half a segment
+another node of the yarn is nearer the crossing than the node that carries its contact
+(docs/model.md section 10, "Crossings at fixed nodes")."""
+
+
+def slip_ratios(chains: np.ndarray, crossing_nodes: np.ndarray, planes: np.ndarray) -> np.ndarray:
+    """(yarns, crossings) slip ratio [-] of each crossing node (docs/model.md section 10,
+    "Crossings at fixed nodes"): its in-plane offset from the crossing yarn's plane,
+    |x_n - X|, over the in-plane extent of its segment towards that plane (x_n - x_{n-1}
+    when the node has passed the plane, x_{n+1} - x_n otherwise). As woven every crossing
+    node lies on its plane (0); above 1/2 the node's neighbour is nearer the crossing.
+
+    `chains` (yarns, nodes, 2) [m] holds (in-plane coordinate, z); `crossing_nodes`
+    (crossings,) the node of each crossing; `planes` [m] the crossing yarns' planes where
+    the step leaves them, (crossings,) or (yarns, crossings). A folded segment (extent not
+    positive, `first_fold`) gives inf or NaN, never a small ratio."""
+    x = np.asarray(chains, float)[:, :, 0]
+    nodes = np.asarray(crossing_nodes, np.int64)
+    if nodes.size == 0:
+        return np.zeros((x.shape[0], 0))
+    offset = x[:, nodes] - np.asarray(planes, float)
+    extent = np.where(offset > 0, x[:, nodes] - x[:, nodes - 1], x[:, nodes + 1] - x[:, nodes])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(extent > 0, np.abs(offset) / extent, np.inf)
+
+
+def fabric_slip_ratios(record: dict, crossing_nodes: np.ndarray,
+                       weft_crossing_nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A fabric step's slip ratios (`slip_ratios`): the warps' crossing nodes against the
+    wefts' planes x = X_j, (n_wa, n_we), and the wefts' against the warps' planes y = Y_k,
+    (n_we, n_wa); the record's `positions`, `weft_positions`, `warp_planes`, `weft_planes`."""
+    return (slip_ratios(record["positions"], crossing_nodes, record["weft_planes"]),
+            slip_ratios(record["weft_positions"], weft_crossing_nodes, record["warp_planes"]))
+
+
+def check_crossings_held(record: dict, crossing_nodes: np.ndarray,
+                         weft_crossing_nodes: np.ndarray, suggest_affine: bool = False) -> None:
+    """Raise SolverError if a fabric step has carried a crossing node more than half a
+    segment from the crossing (`fabric_slip_ratios` above SLIP_LIMIT), naming the crossing
+    as the scene counts it, (warp k, weft j), and the yarn whose node slid.
+    `suggest_affine`: a clamped patch on fixed planes, not a pull-out, where a uniform
+    stretch alone slides every crossing node (docs/model.md section 10) and "affine"
+    planes would not: the message says so."""
+    ratio, family, yarn, crossing = 0.0, "warp", 0, 0
+    for name, ratios in zip(("warp", "weft"),
+                            fabric_slip_ratios(record, crossing_nodes, weft_crossing_nodes)):
+        ratios = np.where(np.isnan(ratios), np.inf, ratios)  # never a silent NaN
+        if ratios.size and ratios.max() > ratio:
+            ratio, family = float(ratios.max()), name
+            yarn, crossing = np.unravel_index(np.argmax(ratios), ratios.shape)
+    if ratio <= SLIP_LIMIT:
+        return
+    k, j = (yarn, crossing) if family == "warp" else (crossing, yarn)
+    other, plane = ("weft", f"x = X_{j + 1}") if family == "warp" else ("warp", f"y = Y_{k + 1}")
+    hint = ("; with geometry.planes = \"fixed\" a stretched yarn slides by its strain "
+            "times the plane's distance from its first node: \"affine\" planes move with the "
+            "patch" if suggest_affine else "")
+    raise SolverError(
+        f"crossing (warp {k + 1}, weft {j + 1}): {family} {yarn + 1}'s node there has slid "
+        f"{ratio:.3g} of its segment from the {other}'s plane {plane} (at most "
+        f"{SLIP_LIMIT:g}): another node of the {family} is now nearer the crossing, which the "
+        f"model keeps on a fixed pair of nodes, so its contact and friction no longer act where "
+        f"the yarns cross (docs/model.md section 10, crossings at fixed nodes){hint}")

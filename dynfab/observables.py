@@ -3,7 +3,8 @@
 `finish_step` takes the relaxed positions of a load step, return-maps the
 friction anchors (docs/model.md section 4) and computes the reported quantities: contact
 and friction forces, F_T, sliding flags, energies per term, end force and
-displacement, crimp.
+displacement, crimp, the load per unit width (`stress`, with a weft) and the crossing
+nodes' slip ratio.
 """
 
 from __future__ import annotations
@@ -12,7 +13,8 @@ import numba
 import numpy as np
 
 from dynfab import assembly
-from dynfab.model import Model, State, crimp
+from dynfab.domain import slip_ratios
+from dynfab.model import Model, State, crimp, width_per_yarn
 from dynfab.terms import friction, registry
 
 
@@ -62,9 +64,14 @@ def finish_step(model: Model, state: State, positions: np.ndarray, load_value: f
         for i in reported:
             energies[registry.TERMS[i].dataset][k] = terms[i]
     loads = np.full(yarns, float(load_value))
+    end_force = loads if model.control == "force" else reaction
+    width = width_per_yarn(model.scene)
+    if width is not None:
+        record["stress"] = end_force / width
     record.update({
         "load": loads,
-        "end_force": loads if model.control == "force" else reaction,
+        "end_force": end_force,
+        "slip_ratio": _slip_ratio(model, positions),
         "end_displacement": positions[:, -1, 0] - model.rest_end_x,
         "positions": positions.copy(),
         "anchors": anchors,
@@ -77,6 +84,15 @@ def finish_step(model: Model, state: State, positions: np.ndarray, load_value: f
     new_state = State(positions=positions.copy(), anchors=anchors, dissipated=dissipated,
                       load=loads.copy())
     return new_state, record
+
+
+def _slip_ratio(model: Model, positions: np.ndarray) -> np.ndarray:
+    """(yarns,) the largest slip ratio of each yarn's crossing nodes against the weft, fixed
+    at its as-woven x (`dynfab.domain.slip_ratios`, docs/model.md section 4): recorded, not
+    limited, in the one-yarn model (its crossings ride on their nodes, as the paper's)."""
+    nodes = model.yarns[0].crossing_node
+    rest = model.stacked("rest_position")[:, nodes, 0]
+    return np.max(slip_ratios(positions, nodes, rest), axis=1, initial=0.0)
 
 
 def _reported_terms(model: Model) -> list[int]:

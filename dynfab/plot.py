@@ -12,9 +12,12 @@
   from 1) at each load step, one panel per yarn with friction (only if the
   file has friction).
 
-A fabric's file (docs/model.md section 10) gets ``fabric.png`` (each family's end force
-against strain, and crimps), and a pull-out's also ``pullout.png`` (the pull force
-against end displacement, and the slip front along the pulled warp).
+A fabric's file (docs/model.md section 10) gets ``fabric.png`` (each family's load per unit
+width against its strain, and its crimp against the load, from the as-woven state; each curve
+a family's mean over its loaded yarns, or a pull-out's pulled warp), ``shape.png`` (the
+deformed patch or cell, side and top views, as the ``dynfab fabric`` report draws it), and
+a pull-out's also ``pullout.png`` (the pull force on the pulled warp against its end
+displacement, and the slip front along it).
 
 Matplotlib figures are built with `matplotlib.figure.Figure`, so the global
 pyplot state and backend are never touched; PNGs are written with Agg.
@@ -41,6 +44,11 @@ FONT_SIZE = 9
 """Font size [pt], readable on a printed page at the figure sizes used."""
 FRICTION_STATES = (("open", "#d9d9d9"), ("sticking", "#1f77b4"), ("sliding", "#d62728"))
 """Categories of `friction_states`, in code order, with their colours."""
+FAMILY_STYLE = {"warp": "-", "weft": "--"}
+FAMILY_WIDTH = {"warp": 3.0, "weft": 1.2}
+"""Line widths [pt] of a fabric's families: wide translucent warp lines under thin dashed weft
+lines, so that curves which coincide (a balanced fabric under equal loads) both stay visible."""
+FAMILY_ALPHA = {"warp": 0.55, "weft": 1.0}
 
 
 def plot_results(path: str | os.PathLike, out_dir: str | os.PathLike) -> list[Path]:
@@ -55,8 +63,12 @@ def plot_results(path: str | os.PathLike, out_dir: str | os.PathLike) -> list[Pa
     if results.step_count == 0:
         raise UserError(f"result file '{path}' has no finished load step to plot")
     if results.attrs.get("model") == "fabric":  # docs/model.md section 10
+        if "stress" not in results.steps:
+            raise UserError(f"result file '{path}' lacks dataset steps/stress (written by an "
+                            f"earlier dynfab): run its scene again to plot it")
         out = output_folder(out_dir)
-        written = [save_png(plot_fabric(results), out / "fabric.png")]
+        written = [save_png(plot_fabric(results), out / "fabric.png"),
+                   save_png(plot_fabric_shape(results), out / "shape.png")]
         if "pullout_warp" in results.attrs:
             written.append(save_png(plot_pullout(results), out / "pullout.png"))
         return written
@@ -73,27 +85,82 @@ def plot_results(path: str | os.PathLike, out_dir: str | os.PathLike) -> list[Pa
     return written
 
 
+def family_names(results: Results) -> dict:
+    """What each family's curve of a fabric's file shows (docs/model.md section 10): the
+    mean over its loaded yarns, or in a pull-out the pulled warp and the wefts' mean."""
+    pulled = results.attrs.get("pullout_warp")
+    if pulled is not None:
+        return {"warp": f"warp {pulled} (pulled)", "weft": "wefts (mean)"}
+    return {"warp": "warps (mean of the loaded)", "weft": "wefts (mean of the loaded)"}
+
+
+def as_woven_crimps(results: Results) -> np.ndarray:
+    """(warp, weft) mean crimp [-] of a fabric's as-woven reference (`dynfab.model.crimp`),
+    as `steps/crimp` averages it."""
+    from dynfab.model import crimp
+
+    return np.array([crimp(np.asarray(results.reference[name], float)).mean()
+                     for name in ("positions", "weft_positions")])
+
+
 def plot_fabric(results: Results) -> Figure:
-    """A fabric's run (docs/model.md section 10): each family's mean end force against its
-    nominal strain, and each family's mean crimp over the load steps."""
+    """A fabric's run (docs/model.md section 10): each family's load per unit width
+    (`steps/stress`) against its nominal strain, and each family's mean crimp against the
+    larger of the two loads per unit width, both from the as-woven state (0 load, 0 strain);
+    the legend says whose each curve is (`family_names`)."""
     steps = results.steps
-    warps = int(steps["contact_force"].shape[1])
-    force = steps["end_force"]
+    stress = np.vstack([np.zeros(2), np.asarray(steps["stress"], float)])
+    strain = np.vstack([np.zeros(2), np.asarray(steps["strain"], float)])
+    crimp = np.vstack([as_woven_crimps(results), np.asarray(steps["crimp"], float)])
+    larger = stress.max(axis=1)
     fig = new_figure(10, 4)
-    traction, crimp = fig.subplots(1, 2)
-    step = np.arange(1, results.step_count + 1)
-    for column, (name, yarns) in enumerate((("warps", slice(0, warps)),
-                                            ("wefts", slice(warps, None)))):
-        traction.plot(100 * steps["strain"][:, column], force[:, yarns].mean(axis=1), "o-", ms=3,
-                      label=name)
-        crimp.plot(step, 100 * steps["crimp"][:, column], "o-", ms=3, label=name)
-    traction.set(xlabel="nominal strain [%]", ylabel="mean end force per yarn [N]")
-    crimp.set(xlabel="load step", ylabel="mean crimp [%]")
-    for ax in (traction, crimp):
+    traction, crimp_ax = fig.subplots(1, 2)
+    for column, (family, name) in enumerate(family_names(results).items()):
+        style = dict(linestyle=FAMILY_STYLE[family], linewidth=FAMILY_WIDTH[family],
+                     alpha=FAMILY_ALPHA[family], marker="o" if family == "warp" else "x", ms=3,
+                     label=name)
+        traction.plot(100 * strain[:, column], stress[:, column], gid=family, **style)
+        crimp_ax.plot(larger, 100 * crimp[:, column], gid=family, **style)
+    traction.set(xlabel="nominal strain [%]", ylabel="load per unit width [N/m]")
+    crimp_ax.set(xlabel="larger of the two loads per unit width [N/m]", ylabel="mean crimp [%]")
+    for ax in (traction, crimp_ax):
         style_axes(ax)
         _legend(ax)
-    _suptitle(fig, results, "woven fabric")
+    _suptitle(fig, results, "woven fabric, from the as-woven state (docs/model.md section 10)")
     return fig
+
+
+def plot_fabric_shape(results: Results) -> Figure:
+    """The deformed patch or cell at about four load steps (`shape_steps`), drawn as the
+    `dynfab fabric` report draws its cell (`dynfab.reports.fabric_plots.plot_cell`): side
+    views of one warp (a pull-out's pulled warp, else warp 1) and weft 1 over their
+    as-woven shapes, z exaggerated, and top views with the crossings coloured by contact
+    force, the planes where each step leaves them."""
+    from dynfab.reports.fabric_plots import plot_cell  # it imports this module
+
+    steps, reference = results.steps, results.reference
+    warp = int(results.attrs.get("pullout_warp", 1)) - 1
+    woven_warps = np.asarray(reference["positions"], float)
+    woven_wefts = np.asarray(reference["weft_positions"], float)
+    nodes = np.asarray(reference["crossing_nodes"], int)
+    weft_nodes = np.asarray(reference["weft_crossing_nodes"], int)
+    above = woven_warps[:, nodes, 1] > woven_wefts[:, weft_nodes, 1].T  # (n_wa, n_we)
+    stress = np.asarray(steps["stress"], float)
+    paths = {}
+    for step in shape_steps(results.step_count):
+        warps = np.asarray(steps["positions"][step])
+        wefts = np.asarray(steps["weft_positions"][step])
+        paths[f"step {step + 1}"] = {
+            "label": f"step {step + 1}: {stress[step, 0]:.3g}, {stress[step, 1]:.3g} N/m",
+            "last": {"warp": warps[warp], "weft": wefts[0], "warp_above": above,
+                     "cell_m": [warps[:, -1, 0].max(), wefts[:, -1, 0].max()],
+                     "planes_m": [steps["weft_planes"][step], steps["warp_planes"][step]]},
+            "contact_force_N": [np.asarray(steps["contact_force"][step])]}
+    data = {"as_woven": {"warp": woven_warps[warp], "weft": woven_wefts[0]}, "paths": paths,
+            "shown": {"warp": f"warp {warp + 1}", "weft": "weft 1"}}
+    title = str(results.attrs.get("title", "") or "")
+    what = "the deformed fabric at four load steps: loads per unit width (warp, weft)"
+    return plot_cell(data, heading=f"{title}\n{what}" if title else what)
 
 
 def pullout_curves(results: Results) -> dict:
@@ -120,11 +187,13 @@ def plot_pullout(results: Results) -> Figure:
     curves = pullout_curves(results)
     fig = new_figure(10, 4)
     force_ax, front_ax = fig.subplots(1, 2)
+    k = results.attrs["pullout_warp"]
     mm = 1e3 * curves["displacement"]
-    force_ax.plot(mm, 1e3 * curves["force"], "o-", ms=3, label="pull force")
+    force_ax.plot(np.append(0.0, mm), np.append(0.0, 1e3 * curves["force"]), "o-", ms=3,
+                  label=f"pull force on warp {k}, from the as-woven state")
     force_ax.plot(mm, 1e3 * curves["limit_sum"], "--", color="0.4",
-                  label="sum of the friction limits F_T on the warp")
-    force_ax.set(xlabel="end displacement of the pulled warp [mm], linear below 0.01",
+                  label=f"sum of the friction limits F_T on warp {k}")
+    force_ax.set(xlabel=f"end displacement of warp {k} (pulled) [mm], linear below 0.01",
                  ylabel="force [mN]")
     force_ax.set_xscale("symlog", linthresh=1e-2)  # the slip front: the first 0.1 mm
     share, sliding = curves["share"], curves["sliding"]
@@ -135,7 +204,7 @@ def plot_pullout(results: Results) -> Figure:
     step, crossing = np.nonzero(sliding)
     front_ax.plot(step + 1, crossing + 1, "x", color="w", ms=3, label="anchor moved (sliding)")
     fig.colorbar(image, ax=front_ax, label="|F_x| / F_T")
-    front_ax.set(xlabel="load step", ylabel="crossing (1 = nearest the free end)")
+    front_ax.set(xlabel="load step", ylabel=f"crossing of warp {k} (1 = nearest its free end)")
     front_ax.xaxis.get_major_locator().set_params(integer=True)
     front_ax.yaxis.get_major_locator().set_params(integer=True)
     style_axes(force_ax)

@@ -53,7 +53,12 @@ The layout is a contract (scripts read it; never rename):
   ``[0, steps_done)`` are finished. A file whose run ended (finished, or
   stopped by a solver failure) has exactly ``steps_done`` rows; a file whose
   writer was killed may have more, holding the fill values above (files
-  written before these counts existed have none: every row is finished).
+  written before these counts existed have none: every row is finished);
+* ``view/``: what the XDMF view shows, as whole datasets (`dynfab.views`),
+  mostly virtual datasets into ``reference/`` and the rows of ``steps/`` and
+  ``frames/``; written with the structure, for every row it holds, by the
+  ``views`` function a writer is given (`dynfab.views.add_views`; files
+  written without one have no ``view/``).
 
 Every dataset carries a ``units`` attribute taken from `UNITS`, the one table
 of dataset names; a name not in it is refused at append, so a new dataset
@@ -71,7 +76,7 @@ import re
 import struct
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable, Mapping
+from typing import Any, Callable, Iterable, Mapping
 
 import h5py
 import numpy as np
@@ -85,6 +90,9 @@ LOAD_CONTROL_UNITS = "<load_control>"
 """Placeholder in `UNITS`: the units follow the root attribute ``load_control``."""
 
 LOAD_UNITS = {"force": "N", "displacement": "m"}
+
+ENTRY = "<entry>"
+"""Placeholder in `UNITS` for a row number 1, 2, ... of ``view/steps/`` and ``view/frames/``."""
 """Units of ``steps/load`` for each value of the root attribute ``load_control``."""
 
 UNITS: dict[str, str] = {
@@ -121,6 +129,8 @@ UNITS: dict[str, str] = {
     "steps/tolerance": "N",  # dynamic solver: the residual each load step had to reach
     "steps/weft_positions": "m",  # fabric: (steps, n_we, M+1, 2) weft node (y, z)
     "steps/strain": "-",  # fabric: (steps, 2) nominal strain (warp, weft)
+    "steps/stress": "N/m",  # fabric: (steps, 2) load per unit width (warp, weft); yarn: (steps, yarns)
+    "steps/slip_ratio": "-",  # fabric: (steps,) largest crossing node slip / segment; yarn: per yarn
     "steps/work": "J",  # fabric: (steps,) work of the end loads so far
     "steps/friction_solves": "-",  # fabric: (steps,) Newton solves of the friction update
     "steps/negative_eigenvalues": "-",  # fabric: (steps,) of the frozen-F_T Hessian
@@ -145,10 +155,20 @@ UNITS: dict[str, str] = {
     # Finished rows of steps/ and frames/ (the rest are unwritten: see the layout).
     "steps_done": "-",  # (1,) int64
     "frames_done": "-",  # (1,) int64
+    # The XDMF view's datasets (dynfab.views; P nodes of all yarns, S segments): virtual
+    # datasets into the rows above but view/plane, view/segments, view/yarn.
+    "view/points": "m",  # (P, 3) as-woven nodes in 3D
+    "view/plane": "m",  # (P,) as-woven plane coordinate of each node
+    "view/segments": "-",  # (S, 2) the nodes of each line segment
+    "view/yarn": "-",  # (S,) each segment's yarn: index into the attribute yarn_labels
+    **{f"view/{group}/{name}/{ENTRY}": units for group in ("steps", "frames")
+       for name, units in (("points", "m"), ("contact_force", "N"), ("slip", "m"),
+                           ("plane", "m"))},  # (P, 3) or (P,): row <entry> in 3D, per node
 }
 """Units of every dataset a result file may hold; the only list of names."""
 
 _ENERGY_PREFIXES = ("steps/energy/", "frames/energy/")
+_VIEW_ROW = re.compile(r"(view/(?:steps|frames)/[a-z_]+/)[1-9][0-9]*\Z")
 _TERM_NAME = re.compile(r"[A-Za-z0-9_]+\Z")
 _REQUIRED_ATTRS = ("scene", "solver")
 
@@ -165,11 +185,12 @@ def units_of(name: str, load_control: str | None = None) -> str:
             if not _TERM_NAME.match(term):
                 raise ValueError(f"bad energy term name {term!r} in dataset {name!r}")
             return UNITS[prefix + ENERGY_TERM]
-    if name not in UNITS or ENERGY_TERM in name:
+    listed = _VIEW_ROW.sub(rf"\g<1>{ENTRY}", name)  # view/steps/points/3: row 3's
+    if listed not in UNITS or ENERGY_TERM in name or ENTRY in name:
         raise ValueError(
             f"dataset {name!r} is not in dynfab.results.UNITS: add it there with its units"
         )
-    units = UNITS[name]
+    units = UNITS[listed]
     if units == LOAD_CONTROL_UNITS:
         if load_control not in LOAD_UNITS:
             raise ValueError(
@@ -605,10 +626,11 @@ class ResultFile:
     the finished entries and releases the writer lock.
     """
 
-    def __init__(self, path: Path, attrs: dict[str, Any], steps: _Series, frames: _Series
-                 ) -> None:
+    def __init__(self, path: Path, attrs: dict[str, Any], steps: _Series, frames: _Series,
+                 views: Callable[[h5py.File], None] | None = None) -> None:
         """Use `create` or `resume`."""
         self.path = path
+        self._views = views
         self._attrs = attrs
         self._reference: dict[str, np.ndarray] | None = None
         self._series = {"steps": steps, "frames": frames}
@@ -619,8 +641,8 @@ class ResultFile:
     @classmethod
     def create(cls, path: str | os.PathLike, *, attrs: dict[str, Any],
                reference: dict[str, np.ndarray], overwrite: bool = False,
-               step_capacity: int | None = None, frame_capacity: int | None = None
-               ) -> "ResultFile":
+               step_capacity: int | None = None, frame_capacity: int | None = None,
+               views: Callable[[h5py.File], None] | None = None) -> "ResultFile":
         """Start a new result file and write it at once (no steps yet).
 
         ``attrs`` are root attributes and must include ``scene`` and
@@ -631,6 +653,8 @@ class ResultFile:
         creates at the same moment, or one another dynfab process writes.
         ``step_capacity`` and ``frame_capacity``, the expected numbers of
         entries, size the datasets at the first entry (more still fit).
+        ``views`` (`dynfab.views.add_views`) adds ``view/`` whenever the
+        structure is written, after every other dataset.
         """
         target = Path(path)
         if target.is_dir():
@@ -651,7 +675,7 @@ class ResultFile:
             units_of(f"reference/{name}")
             ref[name] = np.array(value, copy=True)
         result = cls(target, all_attrs, _Series("steps", step_capacity),
-                     _Series("frames", frame_capacity))
+                     _Series("frames", frame_capacity), views)
         result._reference = ref
         _remove_stale_tmp(target)
         try:
@@ -662,8 +686,12 @@ class ResultFile:
 
     @classmethod
     def resume(cls, path: str | os.PathLike, *, step_capacity: int | None = None,
-               frame_capacity: int | None = None) -> "ResultFile":
+               frame_capacity: int | None = None,
+               views: Callable[[h5py.File], None] | None = None) -> "ResultFile":
         """Re-open an existing result file to append to it (only the last entries are read).
+
+        ``views`` as in `create`: the next write of the structure adds them
+        (`flush` writes it now).
 
         UserError if the file is missing, unreadable, not a dynfab result,
         or being written by another dynfab process.
@@ -689,7 +717,7 @@ class ResultFile:
                 raise UserError(f"cannot resume '{path}': {error}") from None
         attrs = {key: _check_attr(key, value) for key, value in attrs.items()}
         _remove_stale_tmp(target)
-        result = cls(target, attrs, series["steps"], series["frames"])
+        result = cls(target, attrs, series["steps"], series["frames"], views)
         result._fd = fd
         return result
 
@@ -830,7 +858,8 @@ class ResultFile:
             os.replace(tmp, self.path)
 
     def _fill(self, h5: h5py.File) -> None:
-        """Attributes, reference, and every series at its capacity with its finished rows."""
+        """Attributes, reference, every series at its capacity with its finished rows, then
+        the views (if any) of them all."""
         for key, value in self._attrs.items():
             h5.attrs[key] = value
         source = h5py.File(self.path, "r") if self._fd is not None else None
@@ -855,6 +884,8 @@ class ResultFile:
                                            units_of(full, self._load_control()))
                     if series.count:
                         _copy_rows(source[full], dataset, series.count)
+            if self._views is not None:
+                self._views(h5)
         finally:
             if source is not None:
                 source.close()

@@ -66,21 +66,28 @@ class _Key:
     model: str = ""
     """"fabric": a key of the woven fabric only; "yarn": of the one-yarn model only (docs/model.md
     section 10); "": both. A scene of the other model refuses it."""
+    default_doc: str = ""
+    """The default as docs/scene.md writes it (Markdown) where it depends on other keys; the
+    field's default is then None, resolved by `validate_scene`."""
 
 
 _POS, _NONNEG = "positive", "nonnegative"
+CELL_PLANES = "cell"
+"""geometry.planes of a periodic cell: its planes move with the cell (docs/model.md section 10)."""
+PLANES = ("fixed", "affine", CELL_PLANES)
 
 
 def _key(doc: str, unit: str = "", rule: str = "", *, choices: tuple[str, ...] = (),
          sweepable: bool = False, option: bool = False, default_from: str = "",
-         model: str = "", default=MISSING):
+         model: str = "", default=MISSING, default_doc: str = ""):
     """A dataclass field that is a scene key: its description, unit, rule and roles.
 
     The key's kind (real, integer, string, list) is its field's type; a field
     without `default` is required (unless `default_from` fills it at parse time).
     """
     spec = _Key(unit=unit, rule=rule, choices=choices, doc=doc, sweepable=sweepable,
-                option=option, default_from=default_from, model=model)
+                option=option, default_from=default_from, model=model,
+                default_doc=default_doc)
     return field(default=default, metadata={"scene_key": spec})
 
 
@@ -103,9 +110,11 @@ class Geometry:
                       choices=("yarn", "fabric"), default="yarn")
     boundary: str = _key("a finite patch, or a periodic unit cell (docs/model.md section 10)",
                          choices=("clamped", "periodic"), default="clamped", model="fabric")
-    planes: str = _key("the yarns' planes X_j, Y_k: as woven, or moving with the patch's mean "
-                       "stretch (docs/model.md section 10)", choices=("fixed", "affine"),
-                       default="fixed", model="fabric")
+    planes: str | None = _key("the yarns' planes X_j, Y_k: as woven, moving with the patch's "
+                              "mean stretch, or with the periodic cell (a periodic cell's only "
+                              "planes; docs/model.md section 10)",
+                              choices=PLANES, default=None, model="fabric",
+                              default_doc=f'`"fixed"`; on a periodic cell `"{CELL_PLANES}"`')
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -413,10 +422,13 @@ def _toml_value(value) -> str:
 
 
 def validate_scene(scene: Scene) -> Scene:
-    """Check every value and every combination of a Scene; return it unchanged.
+    """Check every value and every combination of a Scene; return it, a fabric's
+    geometry.planes left out (None) set to what runs: "fixed" on a clamped patch,
+    "cell" on a periodic cell (`planes_of`), so that a result file stores it.
 
     Runs on parsed scenes and on scenes built in Python alike.
     """
+    scene = _resolve_planes(scene)
     if scene.geometry.model == "fabric" and scene.geometry.crossings == 0:
         raise _bad("geometry.crossings", 0, f"a fabric ({_FABRIC}) needs at least one weft")
     _check_tables_present(scene)
@@ -431,6 +443,22 @@ def validate_scene(scene: Scene) -> Scene:
     _check_dynamic(scene.dynamic)
     _check_sweep(scene)
     return scene
+
+
+def planes_of(geometry: Geometry) -> str:
+    """The planes a fabric runs (docs/model.md section 10): geometry.planes, or where it is
+    left out "fixed" on a clamped patch and CELL_PLANES on a periodic cell."""
+    if geometry.planes is not None:
+        return geometry.planes
+    return CELL_PLANES if geometry.boundary == "periodic" else "fixed"
+
+
+def _resolve_planes(scene: Scene) -> Scene:
+    """A fabric scene with geometry.planes set to `planes_of` (a one-yarn scene as it is)."""
+    g = scene.geometry
+    if g.model != "fabric" or g.planes is not None:
+        return scene
+    return replace(scene, geometry=replace(g, planes=planes_of(g)))
 
 
 def with_key(scene: Scene, dotted_key: str, value) -> Scene:
@@ -882,15 +910,25 @@ def _check_fabric(scene: Scene) -> None:
         step = 2 * weft.count
         raise _bad("weft.segments", weft.segments, f"must be a positive multiple of 2 x "
                    f"weft.count = {step}; nearest valid: {max(step, round(weft.segments / step) * step)}")
-    if g.boundary == "periodic":
-        _check_periodic(scene)
-    _check_fabric_lists(scene)
     if scene.pullout is not None:
         _check_pullout(scene)
+    if g.boundary == "periodic":
+        _check_periodic(scene)
+    elif g.planes == CELL_PLANES:
+        raise _bad("geometry.planes", g.planes, "the planes of a periodic cell "
+                   "(geometry.boundary = \"periodic\"); a clamped patch's are \"fixed\" or "
+                   "\"affine\"")
+    _check_fabric_lists(scene)
 
 
 def _check_periodic(scene: Scene) -> None:
-    """A unit cell: even yarn counts (the 2 x 2 plain-weave repeat), no gravity."""
+    """A unit cell: its planes move with it, even yarn counts (the 2 x 2 plain-weave
+    repeat), no gravity."""
+    planes = scene.geometry.planes
+    if planes != CELL_PLANES:
+        raise _bad("geometry.planes", planes, "a periodic cell's planes always move with the "
+                   f"cell (docs/model.md section 10); leave the key out or write "
+                   f"\"{CELL_PLANES}\"")
     for dotted, count, what in (("weft.count", scene.weft.count, "warps"),
                                 ("geometry.crossings", scene.geometry.crossings, "wefts")):
         if count % 2:
@@ -919,18 +957,20 @@ def _check_fabric_lists(scene: Scene) -> None:
 
 
 def _check_pullout(scene: Scene) -> None:
-    """A pull-out: a warp of the patch, displacement control, clamped, planes fixed."""
+    """A pull-out: a clamped patch with fixed planes (checked first: a pull-out of a periodic
+    cell is refused for its boundary, whatever else it says), a warp of the patch,
+    displacement control."""
     warp, g = scene.pullout.warp, scene.geometry
-    if warp > scene.weft.count:
-        raise _bad("pullout.warp", warp, f"must name a warp 1..weft.count = {scene.weft.count}")
-    if scene.load.control != "displacement":
-        raise _bad("load.control", scene.load.control, "a pull-out is displacement-"
-                   "controlled (docs/model.md section 10); use \"displacement\"")
     if g.boundary != "clamped" or g.planes != "fixed":
         key, value = (("geometry.boundary", g.boundary) if g.boundary != "clamped"
                       else ("geometry.planes", g.planes))
         raise _bad(key, value, "a pull-out is a clamped patch with fixed planes "
                    "(docs/model.md section 10)")
+    if warp > scene.weft.count:
+        raise _bad("pullout.warp", warp, f"must name a warp 1..weft.count = {scene.weft.count}")
+    if scene.load.control != "displacement":
+        raise _bad("load.control", scene.load.control, "a pull-out is displacement-"
+                   "controlled (docs/model.md section 10); use \"displacement\"")
     if scene.load.warp_factors is not None:
         raise _bad("load.warp_factors", scene.load.warp_factors, "a pull-out sets them "
                    "(the pulled warp 1, the others held); remove it")
@@ -1161,6 +1201,8 @@ def _default_text(default, spec: _Key) -> str:
     """A field's default as written in TOML; required, none, or another key's value."""
     if spec.default_from:
         return f"`{spec.default_from}`"
+    if spec.default_doc:
+        return spec.default_doc
     if default is MISSING:
         return "required"
     return "none" if default is None else f"`{_toml_value(default)}`"

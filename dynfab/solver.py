@@ -41,14 +41,16 @@ Frame = dict[str, np.ndarray]
 STEP_KEYS = ("load", "end_force", "end_displacement", "positions", "contact_force",
              "friction_force", "friction_limit", "sliding", "anchors", "dissipated", "crimp",
              "residual", "iterations", "rounding_floor", "stable", "buckled",
-             "lowest_eigenvalue", "error_estimate")
+             "lowest_eigenvalue", "error_estimate", "slip_ratio")
 """Names every `Solver.step` record holds, whatever the solver, besides one
-`energy/<term>` per reported energy term (`dynfab.observables`); shapes
-(yarns, ...) with yarns = model.yarn_count:
+`energy/<term>` per reported energy term (`dynfab.observables`) and, where the scene has a
+weft, stress [N/m] (yarns,), the end force per unit width; shapes (yarns, ...) with
+yarns = model.yarn_count:
 
 - by `dynfab.observables.finish_step`: load [N or m], end_force [N],
-  end_displacement [m], dissipated [J], crimp [-], residual [N] and iterations
-  [-] (yarns,); positions [m] (yarns, N+1, 2); contact_force, friction_force,
+  end_displacement [m], dissipated [J], crimp [-], residual [N], iterations
+  [-] and slip_ratio [-] (the largest over the crossings, `dynfab.domain.slip_ratios`)
+  (yarns,); positions [m] (yarns, N+1, 2); contact_force, friction_force,
   friction_limit [N], sliding [-] (bool) and anchors [m] (yarns, crossings);
 - by the solver's certificate (`dynfab.certificate.StepStability.fields`,
   docs/model.md section 6): stable, buckled [-] (bool), lowest_eigenvalue [N/m] and

@@ -424,14 +424,17 @@ class StaticSolver:
     Every converged step is certified (`dynfab.certificate`): a saddle is left along a
     direction of negative curvature and solved again (at most MAX_ESCAPES times), and the
     step's position error bound must be within `accuracy` of its displacements.
-    `certify=False` skips the escape (the step still reports its stability).
+    `certify=False` skips the escape (the step still reports its stability). `status`, if
+    given, is called as status(text) after each yarn of a step (its Newton iterations and
+    residual): a yarn's Newton runs compiled (numba), in milliseconds, and cannot report.
     """
 
     name = "static"
 
     def __init__(self, model, *, tolerance: float | None = None, max_iterations: int | None = None,
-                 accuracy: float | None = None, certify: bool = True):
+                 accuracy: float | None = None, certify: bool = True, status=None):
         self.model = model
+        self.status = status
         self.tolerance = model.scene.static.tolerance if tolerance is None else tolerance
         self.max_iterations = (model.scene.static.max_iterations if max_iterations is None
                                else max_iterations)
@@ -462,6 +465,9 @@ class StaticSolver:
                            stability.scale(positions[k], yarn.rest_position), residual[k],
                            self.tolerance, self.accuracy, at_floor[k], "float64",
                            "static.accuracy", stability.shift[k])
+            if self.status is not None:
+                self.status(f"yarn {k + 1} of {yarns} solved, {iterations[k]} Newton "
+                            f"iterations, residual {residual[k]:.3g} N")
         new_state, record = finish_step(self.model, state, positions, load_value, residual,
                                         iterations)
         record["rounding_floor"] = at_floor

@@ -17,10 +17,12 @@ after a converged one.
 Two layouts (tests/test_fabric_kernels.py checks that they agree: bit for bit with
 `order="gather"`, to rounding with the default scatter order):
 
-- "persistent": one launch per relaxation, one thread running the time loop over
-  every node (CPU). A CPU `wp.launch` runs its threads one after another on one core
+- "persistent": one thread running the time loop over every node (CPU), a chunk of
+  time steps per launch (`fabric_relaxation.PatchRelaxation.chunks`: about half a
+  second each, so that progress shows and Ctrl-C is taken; the same bits as one
+  launch). A CPU `wp.launch` runs its threads one after another on one core
   and costs 10-45 us from Python, so per-step launches on the CPU pay that cost twice
-  per step for no parallelism; the loop inside the kernel pays it once
+  per step for no parallelism; the loop inside the kernel pays it once a chunk
   (`python benchmarks/fabric.py` measures both). One thread needs no gather: by default
   it evaluates each term once and scatters it (`fabric_forces.scatter_forces`), 1.5-1.7x
   faster than the per-node gather measured on 4x4 to 64x64 patches (which recomputes every
@@ -114,21 +116,36 @@ def persistent_kernel(scalar, damping: str, order: str = "scatter", has_friction
     @wp.kernel(module="unique", module_options=MODULE_OPTIONS)
     def relax(fabric: Fabric, mass: wp.array(dtype=scalar), share: wp.array(dtype=scalar),
               external: wp.array(dtype=vec), anchors: wp.array(dtype=vec), dt: scalar, coefficient: scalar, tolerance: scalar,
-              max_steps: int, pos: wp.array(dtype=vec), vel: wp.array(dtype=vec),
+              max_steps: int, first: int, stop_at: int, carry: wp.array(dtype=scalar),
+              counters: wp.array(dtype=wp.int32), pos: wp.array(dtype=vec),
+              vel: wp.array(dtype=vec),
               force: wp.array(dtype=vec), contact: wp.array(dtype=scalar),
               friction: wp.array(dtype=vec), outcome: wp.array(dtype=wp.int32),
               residual_out: wp.array(dtype=scalar)):
-        """Steps until residual <= tolerance or max_steps; outcome = (status, steps)."""
+        """Steps `first`, first + 1, ... until residual <= tolerance or max_steps (outcome =
+        (status, steps)), or until step `stop_at` (status RUNNING: a later launch from
+        first = stop_at continues with the same bits). What the time loop carries from step
+        to step besides the arrays is kept in `carry` (kinetic energy, FIRE's h and alpha)
+        and `counters` (FIRE's positive and negative step counts)."""
         nodes = pos.shape[0]
         kinetic_energy = scalar(0.0)
         code = int(status.MAX_STEPS)
-        steps = int(0)
+        steps = int(first)
         residual = scalar(0.0)
         h = wp.min(dt, scalar(f.DT_START * stable) * dt)  # FIRE's time step and state
         alpha = scalar(f.ALPHA_START)
         positive = int(0)
         negative = int(0)
-        for step in range(max_steps + 1):
+        if first > 0:  # a continued relaxation
+            kinetic_energy = carry[0]
+            h = carry[1]
+            alpha = carry[2]
+            positive = int(counters[0])
+            negative = int(counters[1])
+        for step in range(first, max_steps + 1):
+            if step == stop_at:
+                code = int(status.RUNNING)
+                break
             if wp.static(gather):
                 shift = ops.plane_shift(pos, fabric)
                 for c in range(contact.shape[0]):
@@ -201,6 +218,11 @@ def persistent_kernel(scalar, damping: str, order: str = "scatter", has_friction
         outcome[0] = code
         outcome[1] = steps
         residual_out[0] = residual
+        carry[0] = kinetic_energy
+        carry[1] = h
+        carry[2] = alpha
+        counters[0] = wp.int32(positive)
+        counters[1] = wp.int32(negative)
 
     return relax
 
@@ -312,15 +334,26 @@ class FabricExplicit(PatchRelaxation):
         return self._per_step(pos, load, tolerance, max_steps)
 
     def _persistent(self, pos, load, tolerance, max_steps) -> Outcome:
+        """The time loop in the kernel, launched for a bounded chunk of steps at a time
+        (`PatchRelaxation.chunks`), the same bits as one launch."""
         code = wp.zeros(2, dtype=wp.int32, device=self.device)
         residual = wp.zeros(1, dtype=self.scalar, device=self.device)
+        carry = wp.zeros(3, dtype=self.scalar, device=self.device)
+        counters = wp.zeros(2, dtype=wp.int32, device=self.device)
         kernel = persistent_kernel(self.scalar, self.damping, self.order, self.has_friction)
-        wp.launch(kernel, dim=1, device=self.device,
-                  inputs=[self.fabric, self.mass, self.share, load, self.anchors, self.scalar(self.dt),
-                          self.scalar(self.coefficient), self.scalar(tolerance), int(max_steps), pos,
-                          self.vel, self.force, self.contact, self.friction, code, residual])
-        status_code, steps = code.numpy()
-        return Outcome(int(status_code), int(steps), float(residual.numpy()[0]))
+        for first, stop_at in self.chunks(max_steps):
+            wp.launch(kernel, dim=1, device=self.device,
+                      inputs=[self.fabric, self.mass, self.share, load, self.anchors,
+                              self.scalar(self.dt), self.scalar(self.coefficient),
+                              self.scalar(tolerance), int(max_steps), first, stop_at, carry,
+                              counters, pos, self.vel, self.force, self.contact, self.friction,
+                              code, residual])
+            status_code, steps = (int(v) for v in code.numpy())
+            outcome = Outcome(status_code, steps, float(residual.numpy()[0]))
+            if status_code != status.RUNNING:
+                return outcome
+            self._report(steps, outcome.residual)
+        raise AssertionError("the last chunk ends at max_steps")
 
     def _per_step(self, pos, load, tolerance, max_steps):
         passes = fabric_forces.kernels(self.scalar, self.has_friction)
@@ -348,6 +381,7 @@ class FabricExplicit(PatchRelaxation):
                     return pos, Outcome(status.CONVERGED, step, residual)
                 if step == max_steps:
                     return pos, Outcome(status.MAX_STEPS, step, residual)
+                self._report_now(step, residual)
             if damping is not None:
                 self._kinetic_damping(damping, node_energy, partial, kinetic, dt, other)
             pos, other = other, pos

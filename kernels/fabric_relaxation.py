@@ -9,9 +9,18 @@ force, contact-force and friction-force arrays the kernels update in place; `rel
 then the subclass's `_run` in its layout) and `return_map` (the anchors' radial return,
 docs/model.md section 4, one thread per crossing). `stop_test` is both relaxation kernels'
 test, at the top of every time step, of whether the relaxation ends.
+
+Progress within a relaxation: the persistent layouts run their time loop inside one thread,
+and a launch cannot be watched or interrupted (Ctrl-C) while it runs, so they launch a
+bounded chunk of time steps at a time (`chunks`), each launch continuing the last one's time
+loop with the same bits (what the loop carries between steps is kept in device arrays). The
+chunks are sized to take about CHUNK_SECONDS each, from the time the last one took; after
+each, `report(time steps, residual [N])` is called, if set. The per-step layouts, whose time
+loop is in Python, call it at most every CHUNK_SECONDS.
 """
 
 import functools
+import time
 
 import numpy as np
 import warp as wp
@@ -41,11 +50,54 @@ def stop_test(scalar):
     return stop
 
 
+CHUNK_SECONDS = 0.5
+"""Wall time [s] a launch of a persistent layout's time loop aims at: the progress line's
+update interval and the longest a Ctrl-C waits for the launch to return."""
+MAX_CHUNK_GROWTH = 4
+"""A chunk is at most this many times the last one (the time per step can change)."""
+
+
 class PatchRelaxation:
     """A patch's device arrays and the relax / return_map interface; subclasses give `_run`."""
 
     has_friction: bool = True
     """Whether the kernels are built with the friction terms (the return map's variant)."""
+    report = None
+    """Called as report(time steps, residual [N]) within a relaxation (module docstring), or
+    None."""
+    first_chunk: int = 1000
+    """Time steps of a persistent layout's first launch of a relaxation (the explicit one's;
+    `FabricSemiImplicit` takes fewer, costlier steps)."""
+    chunk_seconds: float = CHUNK_SECONDS
+    """Wall time [s] each later launch aims at."""
+
+    def chunks(self, max_steps: int):
+        """(first, stop_at) of each launch of a persistent time loop, steps first..stop_at-1,
+        the last one's stop_at past max_steps; each chunk sized from the time the one before
+        took (at most MAX_CHUNK_GROWTH x it, at least one step). The caller stops iterating
+        once a launch ends the relaxation."""
+        first, size = 0, max(1, int(self.first_chunk))
+        while True:
+            stop_at = first + size
+            started = time.perf_counter()
+            yield first, (stop_at if stop_at <= max_steps else max_steps + 1)
+            elapsed = time.perf_counter() - started
+            wanted = size * self.chunk_seconds / elapsed if elapsed > 0 else size * MAX_CHUNK_GROWTH
+            first, size = stop_at, max(1, min(int(wanted), size * MAX_CHUNK_GROWTH))
+
+    def _report(self, steps: int, residual: float) -> None:
+        """Tell `report` where the relaxation stands, if it is set."""
+        if self.report is not None:
+            self.report(int(steps), float(residual))
+
+    def _report_now(self, steps: int, residual: float) -> None:
+        """`_report`, at most every `chunk_seconds` (a per-step layout's time loop)."""
+        if self.report is None:
+            return
+        now = time.perf_counter()
+        if now - getattr(self, "_reported", 0.0) >= self.chunk_seconds:
+            self._reported = now
+            self._report(steps, residual)
 
     def _allocate(self, arrays: fabric_arrays.PatchArrays, device: str, layout: str, scalar,
                   dt: float) -> None:

@@ -80,8 +80,9 @@ before).
 
 Two layouts, the same arithmetic in the same order (bit-identical runs; tests check it):
 
-- "persistent" (the CPU's default): one launch per relaxation, one thread running the time
-  loop and every CG iteration inside, each stage a loop over the per-unit `wp.func`s;
+- "persistent" (the CPU's default): one thread running the time loop and every CG
+  iteration inside, each stage a loop over the per-unit `wp.func`s, a chunk of time steps
+  per launch (`fabric_relaxation.PatchRelaxation.chunks`, the same bits as one launch);
 - "per_step" (the GPU's default): the time loop in Python, a launch per stage with a thread
   per crossing (R, friction, the crossing blocks), node (the force gather, the right side,
   the product A p, the move), yarn (the yarn systems and their LU, the preconditioner, the
@@ -131,6 +132,9 @@ STALL_MIN_STEPS = 2_000
 """Time steps after which a relaxation whose residual has not reached a new low during the
 last half of its steps stops (status.NO_PROGRESS) instead of running to max_steps."""
 WIDTH = 2 * BANDWIDTH + 1
+FIRST_CHUNK = 16
+"""Time steps of a relaxation's first launch in the persistent layout
+(`fabric_relaxation.PatchRelaxation.chunks`; a step is a CG solve)."""
 
 
 @functools.cache
@@ -839,27 +843,52 @@ def relaxation_kernel(scalar):
     def relax(fabric: Fabric, work: Work, mass: wp.array(dtype=scalar),
               external: wp.array(dtype=vec), anchors: wp.array(dtype=vec), dt_start: scalar,
               damping: scalar, tolerance: scalar, cg_tolerance: scalar, max_steps: int,
+              first: int, stop_at: int, carry: wp.array(dtype=scalar),
+              counters: wp.array(dtype=wp.int32),
               backtracks: int, secant: int, pos: wp.array(dtype=vec), vel: wp.array(dtype=vec),
               force: wp.array(dtype=vec), contact: wp.array(dtype=scalar),
               friction: wp.array(dtype=vec), outcome: wp.array(dtype=wp.int32),
               residual_out: wp.array(dtype=scalar)):
-        """Steps until residual <= tolerance or max_steps; outcome = (status, steps, CG
-        iterations, rejected steps, shortened steps, evaluations at shortened lengths)."""
+        """Steps `first`, first + 1, ... until residual <= tolerance or max_steps; outcome =
+        (status, steps, CG iterations, rejected steps, shortened steps, evaluations at
+        shortened lengths); or until step `stop_at` (status RUNNING: a later launch from
+        first = stop_at continues with the same bits, from what the loop carries between
+        steps: `carry` (dt, residual, merit, best residual) and `counters` (steps since the
+        best, CG iterations, rejected, shortened, trials), the forces and the work arrays as
+        the last evaluation left them)."""
         nodes = pos.shape[0]
         dofs = 2 * nodes
         dt = dt_start
-        state = evaluate(fabric, work, mass, external, anchors, pos, force, contact, friction)
-        residual = state[0]
-        merit = state[1]
-        best = residual
+        residual = scalar(0.0)
+        merit = scalar(0.0)
+        best = scalar(0.0)
         since_best = int(0)
         code = int(status.MAX_STEPS)
-        steps = int(0)
+        steps = int(first)
         iterations = int(0)
         rejected = int(0)
         shortened = int(0)
         trials = int(0)
-        for step in range(max_steps + 1):
+        state = vec(scalar(0.0), scalar(0.0))
+        if first == 0:
+            state = evaluate(fabric, work, mass, external, anchors, pos, force, contact, friction)
+            residual = state[0]
+            merit = state[1]
+            best = residual
+        else:  # a continued relaxation
+            dt = carry[0]
+            residual = carry[1]
+            merit = carry[2]
+            best = carry[3]
+            since_best = int(counters[0])
+            iterations = int(counters[1])
+            rejected = int(counters[2])
+            shortened = int(counters[3])
+            trials = int(counters[4])
+        for step in range(first, max_steps + 1):
+            if step == stop_at:
+                code = int(status.RUNNING)
+                break
             code = stop(wp.isfinite(residual) and wp.isfinite(merit), residual, tolerance, step,
                         max_steps)
             if code != int(status.RUNNING):
@@ -920,6 +949,15 @@ def relaxation_kernel(scalar):
         outcome[4] = shortened
         outcome[5] = trials
         residual_out[0] = residual
+        carry[0] = dt
+        carry[1] = residual
+        carry[2] = merit
+        carry[3] = best
+        counters[0] = wp.int32(since_best)
+        counters[1] = wp.int32(iterations)
+        counters[2] = wp.int32(rejected)
+        counters[3] = wp.int32(shortened)
+        counters[4] = wp.int32(trials)
 
     return relax
 
@@ -1120,6 +1158,7 @@ class FabricSemiImplicit(PatchRelaxation):
         self.secant = int(rule != "halving" and arrays.plane_nodes.size > 0)
         """1: sliding crossings' friction blocks are the secant F_T/|s| I (module docstring)."""
         self._allocate(arrays, device, layout, scalar, dt)
+        self.first_chunk = FIRST_CHUNK
         self.coefficient, self.cg_tolerance = coefficient, cg_tolerance
         self.work = allocate(arrays, scalar, device)
 
@@ -1128,17 +1167,28 @@ class FabricSemiImplicit(PatchRelaxation):
         return pos, relax(pos, load, tolerance, max_steps)
 
     def _persistent(self, pos, load, tolerance, max_steps) -> SemiOutcome:
+        """The time loop in the kernel, launched for a bounded chunk of steps at a time
+        (`PatchRelaxation.chunks`), the same bits as one launch."""
         code = wp.zeros(6, dtype=wp.int32, device=self.device)
         residual = wp.zeros(1, dtype=self.scalar, device=self.device)
-        wp.launch(relaxation_kernel(self.scalar), dim=1, device=self.device,
-                  inputs=[self.fabric, self.work, self.mass, load, self.anchors,
-                          self.scalar(self.dt), self.scalar(self.coefficient),
-                          self.scalar(tolerance), self.scalar(self.cg_tolerance), int(max_steps),
-                          self.backtracks, self.secant, pos, self.vel, self.force, self.contact,
-                          self.friction, code, residual])
-        status_code, steps, iterations, rejected, shortened, trials = (int(v) for v in code.numpy())
-        return SemiOutcome(status_code, steps, float(residual.numpy()[0]), iterations, rejected,
-                           shortened, trials)
+        carry = wp.zeros(4, dtype=self.scalar, device=self.device)
+        counters = wp.zeros(5, dtype=wp.int32, device=self.device)
+        for first, stop_at in self.chunks(max_steps):
+            wp.launch(relaxation_kernel(self.scalar), dim=1, device=self.device,
+                      inputs=[self.fabric, self.work, self.mass, load, self.anchors,
+                              self.scalar(self.dt), self.scalar(self.coefficient),
+                              self.scalar(tolerance), self.scalar(self.cg_tolerance),
+                              int(max_steps), first, stop_at, carry, counters, self.backtracks,
+                              self.secant, pos, self.vel, self.force, self.contact,
+                              self.friction, code, residual])
+            status_code, steps, iterations, rejected, shortened, trials = \
+                (int(v) for v in code.numpy())
+            outcome = SemiOutcome(status_code, steps, float(residual.numpy()[0]), iterations,
+                                  rejected, shortened, trials)
+            if status_code != status.RUNNING:
+                return outcome
+            self._report(steps, outcome.residual)
+        raise AssertionError("the last chunk ends at max_steps")
 
     def _per_step(self, pos, load, tolerance, max_steps) -> SemiOutcome:
         """The persistent kernel's time loop driven from Python, a launch per stage (threads
@@ -1222,6 +1272,7 @@ class FabricSemiImplicit(PatchRelaxation):
             else:
                 since_best += 1
             steps = step + 1
+            self._report_now(steps, residual)
         return SemiOutcome(code, steps, residual, iterations, rejected, shortened, trials)
 
     def system(self, positions, external, anchors, velocities=None, *, dt: float = 1.0,

@@ -27,7 +27,8 @@ def initialize(device: str) -> None:
     """wp.init() without the banner and without Warp's native notices (that no CUDA driver
     was found, printed unconditionally), then check that `device` exists: an unknown name
     or a CUDA device on a machine without one is a UserError (one line, exit status 2)
-    naming the devices this machine has, not a traceback from the first array."""
+    naming the devices this machine has, not a traceback from the first array; then the
+    first compile of a kernel is announced if a `dynfab.compiling.announcing` block runs."""
     wp.config.log_level = wp.LOG_WARNING
     with _native_stderr_silenced():
         wp.init()
@@ -37,3 +38,6 @@ def initialize(device: str) -> None:
             available = ", ".join(str(d) for d in wp.get_devices())
             raise UserError(f"--device {device!r}: not available on this machine ({error}); "
                              f"available: {available}") from None
+    from dynfab.compiling import watch_warp
+
+    watch_warp()  # a compile of the kernels is announced (dynfab.compiling), if asked for

@@ -154,6 +154,17 @@ def test_summary_table_and_plots(tmp_path):
     done = dynfab_cli("run", ROOT / "runs" / "paper_fig3.toml", "--out", out)
     assert done.returncode == 0, done.stderr
     assert "max R [N]" in done.stdout and "[40/40]" in done.stderr
+    # the run's summary after the table: its steps, solver time, each yarn's last state
+    results = dynfab.read_results(out)
+    steps, labels = results.steps, results.attrs["yarn_labels"]
+    summary = done.stdout.strip().splitlines()[-4:]
+    assert summary[0] == f"40 load steps, {steps['wall_time'].sum():.3f} s in the solver"
+    for k, line in enumerate(summary[1:]):
+        assert line == (f"last step, yarn {k + 1} ({labels[k]}): end force "
+                        f"{steps['end_force'][-1, k]:.6g} N, end displacement "
+                        f"{1e3 * steps['end_displacement'][-1, k]:.5f} mm, load per unit width "
+                        f"{steps['stress'][-1, k]:.6g} N/m")
+    assert "end displacement" in done.stderr and "(largest of 3 yarns)" in done.stderr
     plotted = dynfab_cli("plot", out, "--out", tmp_path / "plots")
     assert plotted.returncode == 0, plotted.stderr
     assert {p.name for p in (tmp_path / "plots").iterdir()} >= {"traction.png", "contact_force.png",
@@ -315,39 +326,47 @@ def python_startup_time() -> float:
     return time.monotonic() - started
 
 
-@pytest.mark.parametrize("delay", [0.05, 0.2, 0.4])
-def test_ctrl_c_while_starting_is_one_line_and_exit_130(tmp_path, delay):
-    """A SIGINT during the imports (the first half second): no traceback, nothing written."""
+STOPPED = {signal.SIGINT: ("interrupted", 130), signal.SIGTERM: ("terminated", 143)}
+"""Signal -> (the word of the command's last line, its exit status): a SIGTERM is taken as a
+Ctrl-C is, with exit status 128 + 15 (what a shell reports for a process SIGTERM ended)."""
+
+
+@pytest.mark.parametrize("delay, signum", [(0.05, signal.SIGINT), (0.2, signal.SIGINT),
+                                           (0.4, signal.SIGINT), (0.2, signal.SIGTERM)])
+def test_ctrl_c_while_starting_is_one_line_and_exit_130(tmp_path, delay, signum):
+    """A SIGINT (or SIGTERM: exit 143) during the imports (the first half second): no
+    traceback, nothing written."""
+    word, exit_status = STOPPED[signum]
     delay += 1.5 * python_startup_time()
     out = tmp_path / "early.h5"
     child = subprocess.Popen([sys.executable, "-m", "dynfab.cli", "run", str(FIG5), "--out",
                               str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     time.sleep(delay)
-    child.send_signal(signal.SIGINT)
+    child.send_signal(signum)
     stdout, stderr = child.communicate()
-    assert child.returncode == 130, stderr
+    assert child.returncode == exit_status, stderr
     line = one_line(stderr)
     if not out.exists():
-        assert line == "dynfab: interrupted; nothing was written"
+        assert line == f"dynfab: {word}; nothing was written"
     else:  # the run got as far as its first steps: a file exists only with some
         kept = finished_count(out, "steps")
-        assert kept > 0 and line == (f"dynfab: interrupted; {kept} finished load step"
+        assert kept > 0 and line == (f"dynfab: {word}; {kept} finished load step"
                                      f"{'s are' if kept > 1 else ' is'} in '{out}': "
                                      "continue with --resume")
 
 
-def interrupt_after(args, out, group, count):
-    """Start `dynfab ARGS` (progress on), send it a real SIGINT once `out` holds `count`
-    finished rows of `group` ("steps" or "frames"); assert exit status 130 and return
-    (its stderr, the finished rows then on disk)."""
+def interrupt_after(args, out, group, count, signum=signal.SIGINT):
+    """Start `dynfab ARGS` (progress on), send it a real SIGINT (or `signum`) once `out` holds
+    `count` finished rows of `group` ("steps" or "frames"); assert exit status 130 (143 for
+    SIGTERM) and return (its stderr, the finished rows then on disk)."""
     child = subprocess.Popen([sys.executable, "-m", "dynfab.cli", *map(str, args)],
                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 120
     while finished_count(out, group) < count and time.monotonic() < deadline:
         time.sleep(0.001)
-    child.send_signal(signal.SIGINT)
+    child.send_signal(signum)
     _, stderr = child.communicate()
-    assert child.returncode == 130, stderr
+    assert child.returncode == STOPPED[signum][1], stderr
     return stderr, finished_count(out, group)
 
 
@@ -371,3 +390,40 @@ def test_ctrl_c_mid_transient_run_names_the_frames_kept(tmp_path):
     assert "Traceback" not in stderr and 5 <= kept
     assert stderr.strip().splitlines()[-1] == (
         f"dynfab: interrupted; {kept} finished frames are in '{out}': continue with --resume")
+
+
+def test_sigterm_mid_run_is_taken_as_a_ctrl_c_and_names_the_steps_kept(uninterrupted, tmp_path):
+    """`kill` (SIGTERM) mid-run: one line naming the finished steps kept, exit status 143, the
+    steps on disk those of the uninterrupted run (it killed the process without a word)."""
+    expected = step_arrays(uninterrupted)
+    out = tmp_path / "term.h5"
+    stderr, kept = interrupt_after(["run", FIG5, "--out", out], out, "steps", 5, signal.SIGTERM)
+    assert 5 <= kept < 40, "the signal must land mid-run"
+    assert "Traceback" not in stderr
+    assert stderr.strip().splitlines()[-1] == (
+        f"dynfab: terminated; {kept} finished load steps are in '{out}': continue with --resume")
+    for name, value in finished_rows(out).items():
+        np.testing.assert_array_equal(value, expected[name][:kept], err_msg=name)
+
+
+def test_sigterm_within_a_long_first_step_removes_the_file_it_made(tmp_path):
+    """The fabric at the friction onset, relaxed semi-implicitly: its first step runs for
+    minutes (the relaxation cannot finish there, docs/model.md). A SIGTERM within it, once
+    the file exists, is taken between two launches of the relaxation's kernel: one line,
+    exit status 143, and the file this run made, holding no step, removed with its view
+    (it was left behind, without a word)."""
+    out = tmp_path / "onset.h5"
+    child = subprocess.Popen([sys.executable, "-m", "dynfab.cli", "run",
+                              str(ROOT / "runs" / "fabric_onset.toml"), "--solver", "dynamic",
+                              "--method", "semi_implicit", "--out", str(out)],
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 600
+    while not out.exists() and child.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert out.exists(), child.communicate()[1]
+    child.send_signal(signal.SIGTERM)
+    _, stderr = child.communicate()
+    assert child.returncode == 143, stderr
+    assert "Traceback" not in stderr
+    assert stderr.strip().splitlines()[-1] == "dynfab: terminated; nothing was written"
+    assert not out.exists() and not out.with_suffix(".xdmf").exists()

@@ -74,3 +74,41 @@ def test_a_fit_path_that_folds_the_yarn_is_refused(tmp_path):
 
     with pytest.raises(SolverError, match="the yarn folded back at segment"):
         solve_path(load_scene(compressed_yarn(tmp_path)))
+
+
+def test_a_slip_ratio_above_one_half_means_another_node_is_nearer_the_crossing():
+    """`slip_ratios` (docs/model.md section 10, crossings at fixed nodes) against its meaning:
+    on random increasing chains and planes, a crossing node's ratio is at most 1/2 exactly
+    when no other node of its yarn is nearer the crossing yarn's plane."""
+    from dynfab.domain import slip_ratios
+
+    rng = np.random.default_rng(7)
+    x = np.cumsum(rng.uniform(0.5, 1.5, size=(200, 12)), axis=1)
+    nodes = np.array([3, 8])
+    planes = x[:, nodes] + rng.uniform(-1.6, 1.6, size=(200, 2))
+    ratios = slip_ratios(chains(x), nodes, planes)
+    nearest = np.stack([np.argmin(np.abs(x - planes[:, [c]]), axis=1) for c in range(2)], axis=1)
+    assert np.array_equal(ratios <= 0.5, nearest == nodes)
+    assert np.all(slip_ratios(chains(x), nodes, x[:, nodes]) == 0.0)  # on its plane: 0
+
+
+def test_the_one_yarn_model_records_its_slip_ratio_and_runs_on():
+    """The one-yarn model's crossing nodes slide against a weft fixed at their as-woven x
+    (docs/model.md section 4): `steps/slip_ratio` (steps, yarns) records the largest ratio,
+    and the paper's scenes, whose crossings ride on their nodes past half a segment (Fig.
+    5's at 0.5 mm of its 10 mm pull), run on (docs/model.md section 10)."""
+    from dynfab.domain import slip_ratios
+    from dynfab.run import run
+    from dynfab.scene import parse_scene_text
+
+    text = (RUNS / "paper_fig5.toml").read_text().replace("max = 0.01\nsteps = 40",
+                                                          "values = [0.00025, 0.0005]")
+    results = run(parse_scene_text(text))
+    steps, nodes = results.steps, results.reference["crossing_nodes"]
+    assert steps["slip_ratio"].shape == (2, 2) and steps["slip_ratio"][-1].min() > 0.5
+    for i in range(2):
+        expected = slip_ratios(steps["positions"][i], nodes,
+                               results.reference["positions"][:, nodes, 0]).max(axis=1)
+        np.testing.assert_array_equal(steps["slip_ratio"][i], expected)
+    np.testing.assert_array_equal(steps["stress"],
+                                  steps["end_force"] / results.attrs["width_per_yarn"])

@@ -166,3 +166,44 @@ def test_a_relaxation_that_cannot_finish_raises_one_line():
         solver.step(solver.initial_state(), 0.3, 0.0)
     message = str(raised.value)
     assert "\n" not in message and "time-step limit" in message and "10 time steps" in message
+
+
+@pytest.mark.parametrize("method", ["explicit", "semi_implicit"])
+def test_a_step_reports_within_itself_and_chunked_launches_keep_the_bits(method):
+    """The persistent layouts run the time loop inside one kernel thread; they launch it a
+    chunk of time steps at a time (`fabric_relaxation.PatchRelaxation.chunks`) so that the
+    progress line (`status`) updates, and Ctrl-C is taken, within a step. Chunks of a few
+    steps give the very bits of the whole loop in one launch, and `status` is called
+    between them with the steps taken and the residual; the stability check is announced
+    too."""
+    spec = paper_patch(2, 2, friction=PAPER_FRICTION, warp_values=(0.3,), weft_values=(0.1,),
+                       tolerance=TOLERANCE)
+    runs = []
+    for first_chunk in (10**9, 5):
+        calls = []
+        solver = FabricDynamicSolver(spec, method=method, status=calls.append)
+        solver.relaxation.first_chunk, solver.relaxation.chunk_seconds = first_chunk, 0.0
+        state, record = solver.step(solver.initial_state(), 0.3, 0.1)
+        runs.append((state, record, calls))
+    (whole, whole_record, quiet), (chunked, chunked_record, calls) = runs
+    np.testing.assert_array_equal(chunked.positions, whole.positions)
+    np.testing.assert_array_equal(chunked.anchors, whole.anchors)
+    assert chunked_record["time_steps"] == whole_record["time_steps"] > 10
+    relaxing = [c for c in calls if "time steps, residual" in c]
+    assert len(relaxing) >= whole_record["time_steps"] // 5 - 1  # one per chunk of 5 but the last
+    assert relaxing[0].startswith("5 time steps, residual ")
+    assert not [c for c in quiet if "time steps" in c]  # one launch: nothing between launches
+    assert any("stability check" in c for c in calls)
+
+
+@pytest.mark.parametrize("method", ["explicit", "semi_implicit"])
+def test_a_step_in_the_per_step_layout_reports_within_itself(method):
+    """The per-step layouts (a GPU's), whose time loop is in Python, report at most every
+    `chunk_seconds` (here 0: at every residual they read back)."""
+    spec = paper_patch(2, 2, friction=PAPER_FRICTION, warp_values=(0.3,), weft_values=(0.1,),
+                       tolerance=TOLERANCE)
+    calls = []
+    solver = FabricDynamicSolver(spec, method=method, layout="per_step", status=calls.append)
+    solver.relaxation.chunk_seconds = 0.0
+    solver.step(solver.initial_state(), 0.3, 0.1)
+    assert [c for c in calls if "time steps, residual" in c]

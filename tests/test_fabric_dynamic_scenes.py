@@ -178,20 +178,20 @@ scene runs the same code (the static solver's start, one relaxation, the certifi
 return map), so the first steps exercise every term the scene has. Two for the biaxial cells
 (2 x 2, under a second each); one for the 16 x 16 strip (7,200 nodes: its first relaxation
 takes about 16,000 time steps, several seconds, and its ||J^-1|| a dense inverse of 14,000
-unknowns, too slow: see `scene_model`); two for the pull-out, its steps 5 and 6: the end of
+unknowns, too slow: see `scene_model`); two for the pull-out, its steps 2 and 3: the end of
 the first stage (the wefts tensioned, pressing the crossings) reached in one step, then the
 first pull of the warp, where the crossings on it slide (`scene_model`)."""
 
 
 def scene_model(name: str, steps: int | None = None) -> FabricModel:
     """The scene's model at static.tolerance = TOLERANCE, its load path cut to `steps` steps
-    (default SCENES[name]; the pull-out's from its step 5). The strip is
+    (default SCENES[name]; the pull-out's from its step 2). The strip is
     the same scene on a 4 x 4 patch of the same yarns (pitch, segment length, planes
     "affine", friction, loads per yarn), as tests/test_fabric_scenes.py runs it: the
     bound needs ||J^-1|| by a dense inverse."""
     scene = load_scene(RUNS / f"{name}.toml")
     steps = SCENES[name] if steps is None else steps
-    first = 4 if name == "fabric_pullout" else 0  # the pull-out from its step 5
+    first = 1 if name == "fabric_pullout" else 0  # the pull-out from its step 2
     path = FabricModel.from_scene(scene).load_values[first:first + steps]
     tables = {"static": {"tolerance": TOLERANCE},
               "load": {"values": tuple(map(float, path[:, 0])),

@@ -12,6 +12,7 @@ import re
 from pathlib import Path
 
 import h5py
+import meshio
 import numpy as np
 import pytest
 
@@ -105,6 +106,50 @@ def test_strip_shows_crimp_interchange():
     assert np.all(steps["end_force"][:, :4] == steps["load"][:, :1])  # force control: P
     assert np.all(steps["end_force"][:, 4:] == 0.0)  # the weft ends free
     assert np.all(steps["stable"])
+    # loads per unit width (docs/model.md section 10): P over the wefts' pitch, 0 on the wefts
+    np.testing.assert_array_equal(steps["stress"][:, 0],
+                                  steps["load"][:, 0] / results.attrs["width_per_yarn"])
+    assert np.all(steps["stress"][:, 1] == 0.0)
+
+
+def test_friction_does_nothing_in_the_uniformly_strained_strip():
+    """runs/fabric_strip.toml's friction is inert, as its comments and the README say
+    (docs/model.md section 10, what friction does in a patch): with affine planes and every
+    warp under the same load the clamped patch is the periodic cell repeated (its ends at
+    inflection points, as the cell's pinned node 0), so each crossing lies on its yarns'
+    mirror planes and its exact slip is zero, loading and unloading. The computed slips
+    are then the solver's position error: each node within b = position_bound of the
+    exact state, each plane X_j = (j - 1/2)(L + u)/n_we within b too, so |s| <= 2 b per
+    direction and |F| <= 2 sqrt(2) k_t b, far below every friction limit: nothing slides and
+    nothing is dissipated. No edge effect either: the strains are the periodic cell's (the
+    same yarns, no friction) within both states' bounds over the length."""
+    text = re.sub(r"^max = 1\.0\nsteps = 3$", "values = [0.3, 0.6, 0.2]", small_strip(),
+                  flags=re.M)
+    scene = parse_scene_text(text)
+    # what the scene (its title, on every figure) and the README's scene list say is what
+    # this test checks
+    readme = (RUNS.parent / "README.md").read_text()
+    row = next(line for line in readme.splitlines() if line.startswith("| `runs/fabric_strip"))
+    assert "friction inert (no crossing slips)" in scene.title
+    assert "friction is inert: no crossing slips" in row and "friction on" not in row
+    model, results = FabricModel.from_scene(scene), run(scene)
+    steps, k_t = results.steps, model.fabric.stick_stiffness
+    assert not steps["sliding"].any() and np.all(steps["dissipated"] == 0.0)
+    for i in range(results.step_count):
+        bound = 2 * np.sqrt(2) * k_t * position_bound(model, results, i)
+        closed = steps["friction_limit"][i] > 0
+        assert closed.all() and bound < 0.01 * steps["friction_limit"][i].min()  # a real test
+        assert np.linalg.norm(steps["friction_force"][i], axis=-1).max() <= bound
+    cell_text = (RUNS / "fabric_biaxial.toml").read_text()
+    cell_text = re.sub(r"^weft_values = .*$", "weft_values = [0, 0, 0]", cell_text, flags=re.M)
+    cell_text = re.sub(r"^values = .*$", "values = [0.3, 0.6, 0.2]", cell_text, flags=re.M)
+    cell_model, cell = FabricModel.from_scene(parse_scene_text(cell_text)), run(
+        parse_scene_text(cell_text))
+    for i in range(results.step_count):
+        # a strain is an end displacement (each within its state's b) over the length
+        tol = (position_bound(model, results, i) / model.spec.warp.length
+               + position_bound(cell_model, cell, i) / cell_model.spec.warp.length)
+        np.testing.assert_allclose(steps["strain"][i], cell.steps["strain"][i], rtol=0, atol=tol)
 
 
 def test_pullout_is_resisted_by_the_friction_of_the_pressed_crossings():
@@ -130,6 +175,11 @@ def test_pullout_is_resisted_by_the_friction_of_the_pressed_crossings():
                                steps["load"][~stage1, 0] / model.warp.length, rtol=1e-12)
     last = steps["sliding"][~stage1][-5:, k]
     assert last.all()
+    # the load per unit width of the warps is the pulled warp's (docs/model.md section 10)
+    np.testing.assert_array_equal(steps["stress"][:, 0],
+                                  steps["end_force"][:, k] / results.attrs["width_per_yarn"])
+    # the scene stays where the model holds: no crossing node past half its segment
+    assert np.all(steps["slip_ratio"] <= 0.5) and steps["slip_ratio"][-1] > 0.1
     # the plateau is the friction of the pressed crossings, not zero
     assert steps["end_force"][-1, k] > 0.5 * steps["friction_limit"][-1, k].sum()
     # Through the slip front to the peak: every crossing slides along the warp at the last
@@ -173,9 +223,17 @@ def test_fabric_file_resumes_to_the_uninterrupted_run(tmp_path):
                 np.testing.assert_array_equal(a["steps"][name][:], b["steps"][name][:],
                                               err_msg=name)
     from dynfab.plot import plot_results
-    assert [p.name for p in plot_results(part, tmp_path / "plots")] == ["fabric.png"]
-    view = part.with_suffix(".xdmf").read_text()
-    assert view.count('Name="steps ') == 2 * 10 and "weft_positions" in view
+    assert [p.name for p in plot_results(part, tmp_path / "plots")] == ["fabric.png", "shape.png"]
+    with meshio.xdmf.TimeSeriesReader(part.with_suffix(".xdmf")) as view, \
+            h5py.File(part, "r") as h5:  # plain meshio: both families' nodes, every step
+        points, _ = view.read_points_cells()
+        assert view.num_steps == 10
+        warp_nodes, weft_nodes = h5["reference/positions"].size // 2, \
+            h5["reference/weft_positions"].size // 2
+        assert points.shape == (warp_nodes + weft_nodes, 3)
+        position = view.read_data(9)[1]["position"]
+        np.testing.assert_array_equal(position[warp_nodes:, 1:],
+                                      h5["steps/weft_positions"][9].reshape(-1, 2))
 
 
 def test_pullout_figure_draws_the_file(tmp_path):
@@ -187,13 +245,16 @@ def test_pullout_figure_draws_the_file(tmp_path):
     scene = parse_scene_text(small_pullout())
     path = tmp_path / "pullout.h5"
     run_to_file(scene, "static", path)
-    assert [p.name for p in plot_results(path, tmp_path)] == ["fabric.png", "pullout.png"]
+    assert [p.name for p in plot_results(path, tmp_path)] == ["fabric.png", "shape.png",
+                                                              "pullout.png"]
     results, k = read_results(path), scene.pullout.warp - 1
     steps = results.steps
     force_ax, front_ax = plot_pullout(results).axes[:2]
     force, bound = force_ax.get_lines()[:2]
-    np.testing.assert_array_equal(force.get_ydata(), 1e3 * steps["end_force"][:, k])
-    np.testing.assert_array_equal(force.get_xdata(), 1e3 * steps["end_displacement"][:, k])
+    assert force.get_label().startswith(f"pull force on warp {k + 1}")
+    np.testing.assert_array_equal(force.get_ydata(), 1e3 * np.append(0, steps["end_force"][:, k]))
+    np.testing.assert_array_equal(force.get_xdata(),
+                                  1e3 * np.append(0, steps["end_displacement"][:, k]))
     np.testing.assert_array_equal(bound.get_ydata(),
                                   1e3 * steps["friction_limit"][:, k].sum(axis=1))
     limit = steps["friction_limit"][:, k]
@@ -201,17 +262,76 @@ def test_pullout_figure_draws_the_file(tmp_path):
     np.testing.assert_allclose(front_ax.get_images()[0].get_array(), share.T, rtol=1e-15)
 
 
-def small_pullout() -> str:
-    """runs/fabric_pullout.toml as a 4 x 4 patch (half the length, the same segment length),
-    warp 2 pulled 1.5 mm after two steps of weft stretching."""
+def small_pullout(values: str = "0, 0, 5e-5, 1e-4, 1.5e-4") -> str:
+    """runs/fabric_pullout.toml as a 4 x 4 patch (half the length, the same segment length
+    of 0.446 mm), warp 2 pulled to 0.15 mm (`values`) after two steps of weft stretching
+    to 0.1 mm (0.4 %, the scene's strain), within half a segment (docs/model.md section 10,
+    crossings at fixed nodes)."""
     text = (RUNS / "fabric_pullout.toml").read_text()
     for old, new in (("segments = 112", "segments = 56"), ("crossings = 8", "crossings = 4"),
                      ("count = 8", "count = 4"), ("warp = 4", "warp = 2"),
                      ("length = 0.05", "length = 0.025")):
         text = text.replace(old, new)
-    text = re.sub(r"^values = .*$", "values = [0, 0, 0.0005, 0.001, 0.0015]", text, flags=re.M)
-    return re.sub(r"^weft_values = .*$", "weft_values = [1e-4, 2e-4, 2e-4, 2e-4, 2e-4]", text,
-                  flags=re.M)
+    count = len(values.split(","))
+    text = re.sub(r"^values = .*$", f"values = [{values}]", text, flags=re.M)
+    wefts = ", ".join(["5e-5"] + ["1e-4"] * (count - 1))
+    return re.sub(r"^weft_values = .*$", f"weft_values = [{wefts}]", text, flags=re.M)
+
+
+@pytest.mark.parametrize("solver", ["static", "dynamic"])
+def test_a_pull_past_half_a_segment_stops_naming_the_crossing(tmp_path, solver):
+    """A crossing is a fixed pair of nodes: once the pulled warp's node has slid past half
+    a segment from a weft's plane another node is nearer that crossing, so the step stops
+    (SolverError, exit status 3) naming the crossing, with either solver; the finished
+    steps are kept, each within the limit (docs/model.md section 10)."""
+    from dynfab.errors import SolverError
+    from dynfab.results import read_results
+
+    scene = parse_scene_text(small_pullout("0, 0, 1e-4, 3e-4"))
+    out = tmp_path / "past.h5"
+    with pytest.raises(SolverError, match=r"^load step 4/4 \(load 0\.0003 0\.0001 m\): "
+                                          r"crossing \(warp 2, weft \d\): warp 2's node there "
+                                          r"has slid 0\.\d+ of its segment"):
+        run_to_file(scene, solver, out)
+    kept = read_results(out).steps
+    assert kept["load"].shape[0] == 3 and np.all(kept["slip_ratio"] <= 0.5)
+
+
+def test_the_pullout_reports_the_pulled_warp(tmp_path):
+    """What a pull-out prints says whose each number is, and shows the pulled warp: its end
+    displacement and pull force in the progress line and the table, the peak pull force in
+    the summary, not a mean over the warps or the largest end displacement of all yarns
+    (a weft's); fabric.png's warp curve is the pulled warp's, labelled so."""
+    import io
+
+    from dynfab.plot import plot_fabric
+    from dynfab.run import print_summary
+
+    scene, lines = parse_scene_text(small_pullout()), []
+    results = run(scene, progress=lines.append)
+    steps, k = results.steps, scene.pullout.warp - 1
+    for line, u, force in zip(lines, steps["end_displacement"][:, k], steps["end_force"][:, k]):
+        shown = re.search(r"warp 2 \(pulled\): end displacement (\S+) mm, pull force (\S+) N",
+                          line)
+        assert shown is not None, line
+        assert float(shown[1]) == pytest.approx(1e3 * u, abs=5e-5)
+        assert float(shown[2]) == pytest.approx(force, rel=5e-4)
+    # a weft's end displacement is the largest in stage 1: the line is not the largest
+    assert np.any(steps["end_displacement"].max(axis=1) > steps["end_displacement"][:, k])
+    table = io.StringIO()
+    print_summary(results, table)
+    text = table.getvalue()
+    assert "P w2 [N]" in text.splitlines()[0] and "P_wa" not in text
+    for row, force in zip(text.splitlines()[1:], steps["end_force"][:, k]):
+        assert f"{force:.4g}" in row.split()
+    peak = int(np.argmax(steps["end_force"][:, k]))
+    assert (f"pull-out of warp 2: peak pull force {steps['end_force'][peak, k]:.6g} N at step "
+            f"{peak + 1}") in text
+    warp_line = plot_fabric(results).axes[0].get_lines()[0]
+    assert warp_line.get_label() == "warp 2 (pulled)"
+    width = results.attrs["width_per_yarn"]
+    np.testing.assert_array_equal(warp_line.get_ydata(),
+                                  np.append(0, steps["end_force"][:, k]) / width)
 
 
 def test_dynamic_fabric_run_equals_the_static_one_within_their_residual_bounds():
@@ -258,7 +378,6 @@ def test_dynfab_run_on_a_fabric_scene_from_the_command_line(tmp_path):
     """The command a user types: exit 0, the fabric's summary table, the file and its view;
     the wefts of the view lie in the planes x = X_j = (j - 1/2) L / n_we
     (docs/model.md section 10)."""
-    import re
     import subprocess
     import sys
 
@@ -267,20 +386,40 @@ def test_dynfab_run_on_a_fabric_scene_from_the_command_line(tmp_path):
                            str(RUNS / "fabric_biaxial.toml"), "--out", str(out)],
                           capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
-    assert "strain wa" in done.stdout and len(done.stdout.strip().splitlines()) == 11
-    view = out.with_suffix(".xdmf").read_text()
-    grid = view[view.index('<Grid Name="as-woven weft yarns"'):]
-    planes = re.findall(r'<DataItem Format="XML" NumberType="Float" Precision="8" '
-                        r'Dimensions="\d+">([^<]*)</DataItem>', grid)[0]
+    assert_fabric_summary(done.stdout, out)
     scene = load_scene(RUNS / "fabric_biaxial.toml")
-    n_we, M = scene.geometry.crossings, scene.weft.segments
+    n_wa, n_we = scene.weft.count, scene.geometry.crossings
+    N, M = scene.geometry.segments, scene.weft.segments
+    with meshio.xdmf.TimeSeriesReader(out.with_suffix(".xdmf")) as view:  # plain meshio
+        points, _ = view.read_points_cells()
+    x = points[n_wa * (N + 1):, 0]  # the wefts follow the warps
     expected = np.repeat((np.arange(n_we) + 0.5) * scene.geometry.length / n_we, M + 1)
-    np.testing.assert_allclose(np.array(planes.split(), float), expected, rtol=1e-15)
+    np.testing.assert_allclose(x, expected, rtol=1e-15)
     relaxed = subprocess.run([sys.executable, "-m", "dynfab.cli", "run",
                               str(RUNS / "fabric_biaxial.toml"), "--out", str(out),
                               "--overwrite", "--solver", "dynamic"], capture_output=True, text=True)
     assert relaxed.returncode == 0, relaxed.stderr
-    assert "strain wa" in relaxed.stdout and len(relaxed.stdout.strip().splitlines()) == 11
+    assert_fabric_summary(relaxed.stdout, out)
+
+
+def assert_fabric_summary(stdout: str, out) -> None:
+    """A fabric run's stdout: the table (a row per step, the columns saying they are the
+    families' means) and the run's summary: its steps, the solver time and the last step's
+    strains and loads per unit width, as the file holds them (docs/model.md section 10)."""
+    from dynfab.results import read_results
+
+    steps = read_results(out).steps
+    count = steps["load"].shape[0]
+    lines = stdout.strip().splitlines()
+    assert "strain wa" in lines[0] and "N_wa [N/m]" in lines[0]
+    assert [line.split()[0] for line in lines[1:count + 1]] == [str(i + 1) for i in range(count)]
+    assert "mean strain and load per unit width over its loaded yarns" in lines[count + 1]
+    assert lines[count + 2] == (f"{count} load steps, {steps['wall_time'].sum():.3f} s in the "
+                                f"solver")
+    strain, stress = 100 * steps["strain"][-1], steps["stress"][-1]
+    assert lines[count + 3].startswith(
+        f"last step: mean strain {strain[0]:.5g} %, {strain[1]:.5g} % and load per unit width "
+        f"{stress[0]:.6g}, {stress[1]:.6g} N/m (warp, weft: means over each family's loaded")
 
 
 @pytest.mark.parametrize("key, value", [("dynamic.masses", '"physical"'),
@@ -299,8 +438,7 @@ def test_viscous_damping_with_a_given_coefficient_relaxes_to_the_static_solution
     """Explicit with viscous damping, c given (the fabric has no adaptive c): the first two
     steps of the small pull-out agree with the static solver within twice position_bound,
     as the kinetic relaxation does (test_dynamic_fabric_run_equals_the_static_one...)."""
-    text = re.sub(r"^values = .*$", "values = [0, 0.0005]", small_pullout(), flags=re.M)
-    text = re.sub(r"^weft_values = .*$", "weft_values = [1e-4, 2e-4]", text, flags=re.M)
+    text = small_pullout("0, 1e-4")
     viscous = text + '\n[dynamic]\ndamping = "viscous"\ndamping_coefficient = 0.01\n'
     model = FabricModel.from_scene(parse_scene_text(text))
     static, dynamic = run(parse_scene_text(text), "static"), run(parse_scene_text(viscous), "dynamic")

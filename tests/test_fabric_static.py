@@ -222,3 +222,18 @@ def test_inertia_from_the_schur_complement_matches_the_dense_spectrum(planes):
     # the step's estimate of the smallest eigenvalue (shift-invert Lanczos, asked to 1e-10
     # relative): the dense one, within 1e-8 of it
     assert records[-1]["nearest_eigenvalue"] == pytest.approx(eigenvalues[0], rel=1e-8)
+
+
+def test_a_step_reports_each_newton_iteration_within_itself():
+    """`status` is called within a step, once per Newton iteration (the step's count and
+    its residual against the tolerance), and before the stability check: what the progress
+    line shows while a long step runs."""
+    calls = []
+    solver = FabricStaticSolver(fabric_spec("force", FORCES, FRICTION), status=calls.append)
+    _, record = solver.step(solver.initial_state(), FORCES[0], 0.0)
+    newton = [c for c in calls if c.startswith("Newton iteration")]
+    assert len(newton) == record["iterations"] > 1
+    assert newton[0].startswith("Newton iteration 1, residual ")
+    assert newton[-1].startswith(f"Newton iteration {len(newton)}, residual ")
+    assert newton[0].endswith(f"N (tolerance {TOLERANCE:.3g} N)")
+    assert "stability check (inertia of the Hessian)" in calls

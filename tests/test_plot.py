@@ -196,3 +196,46 @@ def test_a_yarn_without_friction_gets_no_panel(tmp_path):
         limit[:, 0] = 0.0
         h5["steps/friction_limit"][...] = limit
     assert friction_yarns(read_results(path)) == [1]
+
+
+def test_a_fabric_file_draws_loads_per_width_from_the_origin_and_its_shape(tmp_path):
+    """`dynfab plot` on a fabric (docs/model.md section 10), the balanced cell at 1:1 whose
+    families coincide: fabric.png draws each family's `steps/stress` [N/m] against its strain
+    and its crimp against the larger of the two loads, from the as-woven state (0, 0), in
+    line styles and markers of their own, so both stay visible; shape.png draws the
+    deformed cell as the `dynfab fabric` report does, from the file's positions."""
+    from dynfab.model import crimp
+    from dynfab.plot import plot_fabric, plot_fabric_shape
+    from dynfab.run import run_to_file
+    from dynfab.scene import load_scene
+
+    path = tmp_path / "cell.h5"
+    run_to_file(load_scene(Path(__file__).resolve().parents[1] / "runs" / "fabric_biaxial.toml"),
+                "static", path)
+    assert [p.name for p in plot_results(path, tmp_path / "plots")] == ["fabric.png", "shape.png"]
+    results = read_results(path)
+    steps = results.steps
+    traction, crimp_ax = plot_fabric(results).axes[:2]
+    lines = traction.get_lines()
+    assert [line.get_label() for line in lines] == ["warps (mean of the loaded)",
+                                                    "wefts (mean of the loaded)"]
+    assert lines[0].get_linestyle() != lines[1].get_linestyle()
+    assert lines[0].get_marker() != lines[1].get_marker()
+    woven = [crimp(results.reference[name]).mean() for name in ("positions", "weft_positions")]
+    for column, (line, crimp_line) in enumerate(zip(lines, crimp_ax.get_lines())):
+        np.testing.assert_array_equal(line.get_xdata(),
+                                      100 * np.append(0, steps["strain"][:, column]))
+        np.testing.assert_array_equal(line.get_ydata(), np.append(0, steps["stress"][:, column]))
+        np.testing.assert_array_equal(crimp_line.get_xdata(),
+                                      np.append(0, steps["stress"].max(axis=1)))
+        np.testing.assert_array_equal(crimp_line.get_ydata(),
+                                      100 * np.append(woven[column], steps["crimp"][:, column]))
+    np.testing.assert_array_equal(steps["stress"], steps["load"] / results.attrs["width_per_yarn"])
+    shape = plot_fabric_shape(results)
+    for step in shape_steps(results.step_count):
+        for family, nodes in (("warp", steps["positions"][step, 0]),
+                              ("weft", steps["weft_positions"][step, 0])):
+            drawn = [line for ax in shape.axes for line in ax.get_lines()
+                     if line.get_gid() == f"step {step + 1} {family} shape"]
+            assert len(drawn) == 1
+            np.testing.assert_array_equal(drawn[0].get_xydata(), 1e3 * nodes)

@@ -103,6 +103,18 @@ def test_round_trip(tmp_path):
     assert results.units["steps/wall_time"] == "s"
 
 
+def test_loads_per_unit_width_and_slip_ratios_are_written_with_their_units(tmp_path):
+    """`steps/stress` [N/m] (a fabric's load per unit width per family, docs/model.md
+    section 10) and `steps/slip_ratio` [-] (a crossing node's slip over its segment) are
+    named in UNITS, so a run can write them."""
+    out = create(tmp_path / "s.h5")
+    out.append_step({"stress": np.array([12.0, 0.0]), "slip_ratio": np.float64(0.25)})
+    out.close()
+    results = read_results(tmp_path / "s.h5")
+    assert results.units["steps/stress"] == "N/m" and results.units["steps/slip_ratio"] == "-"
+    np.testing.assert_array_equal(results.steps["stress"], [[12.0, 0.0]])
+
+
 def test_load_units_follow_load_control(tmp_path):
     out = create(tmp_path / "d.h5", load_control="displacement")
     out.append_step({"load": np.ones(YARNS)})
@@ -238,7 +250,7 @@ def test_unknown_names_and_inconsistent_steps_are_rejected(tmp_path):
     path = tmp_path / "run.h5"
     out = create(path)
     with pytest.raises(ValueError, match="not in dynfab.results.UNITS"):
-        out.append_step({**make_step(0), "stress": np.ones(YARNS)})
+        out.append_step({**make_step(0), "tension": np.ones(YARNS)})
     with pytest.raises(ValueError, match="energy term"):
         out.append_step({"energy/bad-name": np.ones(YARNS)})
     with pytest.raises(ValueError, match="not in dynfab.results.UNITS"):

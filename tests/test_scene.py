@@ -606,9 +606,13 @@ def test_fabric_scene_keys_and_their_defaults():
     assert (scene.weft.EA, scene.weft.segments, scene.weft.linear_density) == (13.72, 32, None)
     assert load.weft_values == (0.0, 0.001) and load.warp_factors is load.weft_factors is None
     assert parse().geometry.model == "yarn" and parse().load.weft_values is None
-    scene = fabric({"geometry.boundary": "periodic", "geometry.planes": "affine",
+    scene = fabric({"geometry.boundary": "periodic",
                     "load.warp_factors": [1, 0, 1, 0], "load.weft_factors": [0, 0, 0, 0],
                     "weft.linear_density": 2e-5})
+    assert scene.geometry.planes == "cell"  # a periodic cell's planes move with it
+    assert 'planes = "cell"' in scene_to_toml(scene)  # what a result file stores: what ran
+    assert fabric({"geometry.boundary": "periodic", "geometry.planes": "cell"}).geometry == \
+        scene.geometry
     assert scene.load.warp_factors == (1.0, 0.0, 1.0, 0.0)
     assert scene.load.weft_factors == (0.0,) * 4 and scene.weft.linear_density == 2e-5
     pull = fabric({"pullout": {"warp": 2}})
@@ -741,3 +745,64 @@ def test_a_pullout_outside_its_rules_is_refused(edits, message):
     with pytest.raises(UserError) as info:
         fabric(edits)
     assert str(info.value) == message
+
+
+PULLOUT_OF_A_CELL = ('geometry.boundary = "periodic": a pull-out is a clamped patch with fixed '
+                     'planes (docs/model.md section 10)')
+CELL_PLANES_ONLY = ('geometry.planes = "{}": a periodic cell\'s planes always move with the cell '
+                    '(docs/model.md section 10); leave the key out or write "cell"')
+PERIODIC_REFUSALS = {
+    "pullout of a cell, force control": (
+        {"geometry.boundary": "periodic", "pullout": {"warp": 1}, "load.control": "force"},
+        PULLOUT_OF_A_CELL),
+    "pullout of a cell, displacement control": (
+        {"geometry.boundary": "periodic", "pullout": {"warp": 1}}, PULLOUT_OF_A_CELL),
+    "pullout of a cell with affine planes": (
+        {"geometry.boundary": "periodic", "pullout": {"warp": 1}, "geometry.planes": "affine",
+         "load.control": "force"}, PULLOUT_OF_A_CELL),
+    "affine planes on a cell": ({"geometry.boundary": "periodic", "geometry.planes": "affine"},
+                                CELL_PLANES_ONLY.format("affine")),
+    "fixed planes on a cell": ({"geometry.boundary": "periodic", "geometry.planes": "fixed"},
+                               CELL_PLANES_ONLY.format("fixed")),
+    "cell planes on a clamped patch": (
+        {"geometry.planes": "cell"},
+        'geometry.planes = "cell": the planes of a periodic cell (geometry.boundary = '
+        '"periodic"); a clamped patch\'s are "fixed" or "affine"'),
+}
+"""A periodic cell's refusals: a pull-out for its boundary whatever its control and planes (it
+was refused for its control under force control), planes other than the cell's (they were
+accepted and ignored)."""
+
+
+@pytest.mark.parametrize("edits, message", PERIODIC_REFUSALS.values(),
+                         ids=PERIODIC_REFUSALS.keys())
+def test_a_periodic_cell_is_refused_for_the_key_that_is_wrong(edits, message):
+    with pytest.raises(UserError) as info:
+        fabric(edits)
+    assert str(info.value) == message
+
+
+@pytest.mark.parametrize("name", ["pullout of a cell, force control", "affine planes on a cell"])
+def test_a_periodic_cell_refused_is_one_line_and_exit_status_2(tmp_path, name):
+    """The command line: one line naming the key, exit status 2, nothing written."""
+    edits, message = PERIODIC_REFUSALS[name]
+    scene = tmp_path / "cell.toml"
+    scene.write_text(edited({**FABRIC, **edits}))
+    done = subprocess.run([sys.executable, "-m", "dynfab.cli", "run", str(scene), "--out",
+                           str(tmp_path / "cell.h5")], capture_output=True, text=True)
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.splitlines() == [f"dynfab: error: {message}"]
+    assert not (tmp_path / "cell.h5").exists()
+
+
+def test_a_periodic_cell_built_in_python_runs_and_stores_the_cell_planes():
+    """Built in Python without planes, a fabric gets the planes it runs (validate_scene):
+    "cell" on a periodic cell, "fixed" on a clamped patch; with_key to a periodic boundary keeps
+    the clamped patch's explicit "fixed", refused."""
+    clamped = fabric()
+    bare = replace(clamped, geometry=replace(clamped.geometry, planes=None))
+    assert validate_scene(bare).geometry.planes == "fixed"
+    periodic = replace(bare, geometry=replace(bare.geometry, boundary="periodic"))
+    assert validate_scene(periodic).geometry.planes == "cell"
+    with pytest.raises(UserError, match=r'^geometry\.planes = "fixed": a periodic cell'):
+        with_key(clamped, "geometry.boundary", "periodic")

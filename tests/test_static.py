@@ -359,3 +359,18 @@ def test_every_step_meets_the_tolerance_and_gralens_law(figure, request):
             sliding = record["sliding"][k]
             assert (np.abs(carried - limit)[sliding] <= slack).all(), (step, k)
             assert (carried[~sliding] <= limit[~sliding] + slack).all(), (step, k)
+
+
+def test_a_step_of_several_yarns_reports_each_yarn_within_itself():
+    """`status` is called within a step after each yarn of a batch (a yarn's Newton runs
+    compiled and cannot report): the progress line of a long sweep step."""
+    from dynfab.model import build_model
+    from dynfab.static import StaticSolver
+
+    model = build_model(paper_yarn(64, 16, {"control": "force", "values": [0.1]}, yarns=2))
+    calls = []
+    _, record = StaticSolver(model, status=calls.append).step(initial_state(model), 0.1)
+    assert [c[:17] for c in calls] == ["yarn 1 of 2 solve", "yarn 2 of 2 solve"]
+    for k, call in enumerate(calls):
+        assert call.endswith(f"{record['iterations'][k]} Newton iterations, residual "
+                             f"{record['residual'][k]:.3g} N")

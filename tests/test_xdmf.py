@@ -1,14 +1,8 @@
-"""The ParaView view of a result file (`dynfab.xdmf`), read back independently with meshio.
-
-meshio's XDMF time-series reader (5.3.5) parses the XML, the temporal
-collection, the times, the Polyline topology and the node-centred attributes,
-but reads an HDF5 DataItem only whole and knows neither ``HyperSlab`` DataItems
-nor ``X_Y_Z`` geometry nor ``xi:include``, which the view uses so that it
-copies no data. `SlabReader` adds exactly those three, following the XDMF 3
-model (a HyperSlab's first child holds start, stride and count per dimension;
-X_Y_Z holds the x, y and z arrays; an include is an XPath into the same file);
-everything else is meshio's. Expected values come from the HDF5 file read with
-h5py and from the scene (plane spacing), never from dynfab.xdmf.
+"""The view of a result file (`dynfab.xdmf`, `dynfab.views`), read back as its users read it:
+with plain meshio (``meshio.xdmf.TimeSeriesReader``, no subclass) and with VTK's XDMF
+reader (``vtkXdmfReader``, ParaView's "XDMF Reader"), each compared with the HDF5 file
+read by h5py. Expected values come from the HDF5 datasets and from the scene (plane
+spacing), never from dynfab.xdmf or dynfab.views.
 """
 
 import re
@@ -17,62 +11,118 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-from xml.etree import ElementTree
 
 import h5py
-import meshio.xdmf as meshio_xdmf
+import meshio
 import numpy as np
 import pytest
 from independent import PAPER_FRICTION, PAPER_WARP, PAPER_WEFT, make_scene
+from vtkmodules.util.numpy_support import vtk_to_numpy
+from vtkmodules.vtkCommonCore import vtkOutputWindow, vtkStringOutputWindow
+from vtkmodules.vtkCommonExecutionModel import vtkStreamingDemandDrivenPipeline
+from vtkmodules.vtkIOXdmf2 import vtkXdmfReader
 
 import dynfab
-from dynfab.results import ResultFile, finished_counts
+from dynfab.results import ResultFile, finished_counts, units_of
 from dynfab.run import run_to_file
 
-XINCLUDE = "{http://www.w3.org/2001/XInclude}include"
+VTK_POLY_LINE = 4
+"""VTK's cell type of an XDMF Polyline (here of 2 nodes: one segment)."""
 
 
-class SlabReader(meshio_xdmf.TimeSeriesReader):
-    """meshio's reader plus HyperSlab DataItems, X_Y_Z geometry and xi:include (see above)."""
+def read_meshio(view: Path) -> dict:
+    """The view as plain meshio reads a time series: the mesh (as-woven points, cells) and
+    each step's (time, point data, cell data)."""
+    with meshio.xdmf.TimeSeriesReader(view) as reader:
+        points, cells = reader.read_points_cells()
+        steps = [reader.read_data(k) for k in range(reader.num_steps)]
+    return {"points": points, "cells": cells, "steps": steps}
 
-    def __init__(self, filename):
-        super().__init__(filename)
-        self.root = ElementTree.parse(filename).getroot()
 
-    def resolve(self, element):
-        """The element an ``xi:include`` points to (itself otherwise)."""
-        if element.tag != XINCLUDE:
-            return element
-        xpath = re.fullmatch(r"xpointer\((.*)\)", element.get("xpointer")).group(1)
-        found = self.root.findall("." + xpath)
-        assert len(found) == 1, xpath
-        return found[0]
+def _vtk_grid(grid) -> dict:
+    """Points, segments (node pairs), cell types, point and cell data of a VTK grid."""
+    cells = grid.GetCells()
+    assert set(np.diff(vtk_to_numpy(cells.GetOffsetsArray()))) <= {2}
+    data = {}
+    for arrays in (grid.GetPointData(), grid.GetCellData()):
+        data.update({arrays.GetArrayName(i): vtk_to_numpy(arrays.GetArray(i))
+                     for i in range(arrays.GetNumberOfArrays())})
+    return {"points": vtk_to_numpy(grid.GetPoints().GetData()),
+            "segments": vtk_to_numpy(cells.GetConnectivityArray()).reshape(-1, 2),
+            "types": {grid.GetCellType(i) for i in range(grid.GetNumberOfCells())}, "data": data}
 
-    def _read_data_item(self, data_item):
-        data_item = self.resolve(data_item)
-        if data_item.get("ItemType") != "HyperSlab":
-            return super()._read_data_item(data_item)
-        selection, source = list(data_item)
-        start, stride, count = np.array(selection.text.split(), dtype=int).reshape(3, -1)
-        whole = super()._read_data_item(source)
-        assert whole.shape == tuple(int(d) for d in source.get("Dimensions").split())
-        return whole[tuple(slice(b, b + s * c, s) for b, s, c in zip(start, stride, count))]
 
-    def points(self, grid) -> np.ndarray:
-        """The (points, 3) coordinates of a grid (X_Y_Z: three arrays, one per axis)."""
-        geometry = grid.find("Geometry")
-        assert geometry.get("GeometryType") == "X_Y_Z"
-        return np.column_stack([self._read_data_item(item).ravel() for item in geometry])
+def read_vtk(view: Path) -> dict:
+    """The view as ParaView's "XDMF Reader" (VTK) reads it: its time values, the as-woven
+    block and the step block at every time. VTK must report no error or warning (ParaView
+    shows them to the user; HyperSlab geometry made one per step)."""
+    window, previous = vtkStringOutputWindow(), vtkOutputWindow.GetInstance()
+    vtkOutputWindow.SetInstance(window)
+    try:
+        reader = vtkXdmfReader()
+        reader.SetFileName(str(view))
+        reader.UpdateInformation()
+        info = reader.GetOutputInformation(0)
+        times = list(info.Get(vtkStreamingDemandDrivenPipeline.TIME_STEPS()) or [])
+        steps = []
+        for value in times:
+            reader.UpdateTimeStep(value)
+            steps.append(_vtk_grid(reader.GetOutputDataObject(0).GetBlock(1)))
+        reader.Update()
+        blocks = reader.GetOutputDataObject(0)
+    finally:
+        vtkOutputWindow.SetInstance(previous)
+    assert window.GetOutput() == ""
+    assert blocks.GetNumberOfBlocks() == 2  # the as-woven grid, the steps
+    return {"times": times, "as_woven": _vtk_grid(blocks.GetBlock(0)), "steps": steps}
 
-    def read_points_cells(self):
-        """meshio's topology; the points of the mesh grid through `points`."""
-        geometry = self.mesh_grid.find("Geometry")
-        self.mesh_grid.remove(geometry)  # meshio refuses X_Y_Z: read it here instead
-        try:
-            _, cells = super().read_points_cells()
-        finally:
-            self.mesh_grid.append(geometry)
-        return self.points(self.mesh_grid), cells
+
+def chains(sizes) -> np.ndarray:
+    """The segments of yarns numbered one after the other: (yarns, nodes) per family."""
+    pairs, first = [], 0
+    for yarns, nodes in sizes:
+        for _ in range(yarns):
+            pairs += [(first + i, first + i + 1) for i in range(nodes - 1)]
+            first += nodes
+    return np.array(pairs)
+
+
+def check_both(view: Path, expected: dict) -> int:
+    """Compare the view, read with meshio and with VTK, with `expected` (HDF5 data): ``as_woven``
+    (P, 3) points, ``segments`` and ``yarn`` per segment, ``times``, and per step ``points`` and
+    the point data by name (``plane``, ``contact_force``, ``slip``; the names the view must
+    have; ``atol`` by name where the test recomputes one with other roundings); returns the
+    number of steps. Every other value is a copy of a file number (or the scene's plane), so
+    those comparisons are exact."""
+    mesh, vtk = read_meshio(view), read_vtk(view)
+    count = len(expected["times"])
+    np.testing.assert_array_equal(mesh["points"], expected["as_woven"])
+    assert [block.type for block in mesh["cells"]] == ["line"]
+    np.testing.assert_array_equal(mesh["cells"][0].data, expected["segments"])
+    np.testing.assert_array_equal(vtk["as_woven"]["points"], expected["as_woven"])
+    np.testing.assert_array_equal(vtk["as_woven"]["segments"], expected["segments"])
+    np.testing.assert_array_equal(vtk["as_woven"]["data"]["plane"], expected["as_woven_plane"])
+    assert len(mesh["steps"]) == len(vtk["steps"]) == count
+    np.testing.assert_array_equal(vtk["times"], expected["times"])
+    for k in range(count):
+        time, point_data, cell_data = mesh["steps"][k]
+        grid = vtk["steps"][k]
+        assert time == expected["times"][k]
+        assert grid["types"] == {VTK_POLY_LINE}
+        np.testing.assert_array_equal(grid["segments"], expected["segments"])
+        np.testing.assert_array_equal(cell_data["yarn"][0], expected["yarn"])
+        np.testing.assert_array_equal(grid["data"]["yarn"], expected["yarn"])
+        np.testing.assert_array_equal(point_data["position"], expected["points"][k])
+        np.testing.assert_array_equal(grid["points"], expected["points"][k])
+        np.testing.assert_array_equal(grid["data"]["position"], expected["points"][k])
+        for name, values in expected["point_data"].items():
+            atol = expected.get("atol", {}).get(name, 0)
+            np.testing.assert_allclose(point_data[name], values[k], rtol=0, atol=atol, err_msg=name)
+            np.testing.assert_allclose(grid["data"][name], values[k], rtol=0, atol=atol,
+                                       err_msg=name)
+        names = {"position", "yarn", *expected["point_data"]}
+        assert set(point_data) | set(cell_data) == set(grid["data"]) == names
+    return count
 
 
 def scene(values, yarns=2, **geometry):
@@ -103,38 +153,40 @@ def to_3d(positions, planes):
 
 
 def check_view(result: Path, planes: np.ndarray, behind: bool = False) -> int:
-    """Read `result`'s XDMF with `SlabReader` and compare every grid with the HDF5 file; the
-    number of time steps: the finished steps, or (`behind`, after a kill -9) at most those."""
+    """Read `result`'s view with meshio and VTK and compare every grid with the HDF5 file (one
+    family: yarn k in the plane y = `planes`[k]); the number of time steps: the finished
+    steps, or (`behind`, after a kill -9) at most those."""
+    view = result.with_suffix(".xdmf")
     with h5py.File(result, "r") as h5:
         count = int(h5["steps_done"][0])
         if behind:
-            listed = SlabReader(result.with_suffix(".xdmf")).num_steps
+            listed = len(read_meshio(view)["steps"])
             assert 1 <= listed <= count
             count = listed
         steps = {name: h5[f"steps/{name}"][:count] for name in
-                 ("positions", "contact_force", "anchors")}
+                 ("positions", "contact_force", "anchors", "load")}
         reference = h5["reference/positions"][()]
         crossings = h5["reference/crossing_nodes"][()]
+        has_point_data = "xdmf" in h5["steps"]
     yarns, nodes = reference.shape[:2]
-    with SlabReader(result.with_suffix(".xdmf")) as reader:
-        assert reader.num_steps == count
-        points, cells = reader.read_points_cells()
-        np.testing.assert_array_equal(points, to_3d(reference, planes))
-        assert [block.type for block in cells] == ["line"]  # meshio's name of Polyline
-        np.testing.assert_array_equal(cells[0].data,
-                                      np.arange(yarns * nodes).reshape(yarns, nodes))
-        others = np.setdiff1d(np.arange(nodes), crossings)
-        for k in range(count):
-            time, point_data, _ = reader.read_data(k)
-            assert time == k + 1  # the step number
-            np.testing.assert_array_equal(reader.points(reader.collection[k]),
-                                          to_3d(steps["positions"][k], planes))
-            force = point_data["contact_force"].reshape(yarns, nodes)
-            slip = point_data["slip"].reshape(yarns, nodes)
-            np.testing.assert_array_equal(force[:, crossings], steps["contact_force"][k])
-            np.testing.assert_array_equal(
-                slip[:, crossings], steps["positions"][k][:, crossings, 0] - steps["anchors"][k])
-            assert not force[:, others].any() and not slip[:, others].any()
+    force = np.zeros((count, yarns, nodes))
+    slip = np.zeros((count, yarns, nodes))
+    force[:, :, crossings] = steps["contact_force"]
+    slip[:, :, crossings] = steps["positions"][:, :, crossings, 0] - steps["anchors"]
+    plane = np.repeat(planes, nodes)
+    point_data = {"plane": [plane] * count}
+    if has_point_data:
+        point_data.update(contact_force=force.reshape(count, -1), slip=slip.reshape(count, -1))
+    expected = {"as_woven": to_3d(reference, planes), "as_woven_plane": plane,
+                "segments": chains([(yarns, nodes)]),
+                "yarn": np.repeat(np.arange(yarns), nodes - 1),
+                "times": np.arange(1, count + 1, dtype=float),
+                "points": [to_3d(p, planes) for p in steps["positions"]],
+                "point_data": point_data}
+    assert check_both(view, expected) == count
+    text = view.read_text()  # each step's load value, for a reader that shows it
+    assert re.findall(r'<Information Name="load" Value="([^"]*)"', text) == \
+        [repr(float(v)) for v in steps["load"][:, 0]]
     return count
 
 
@@ -147,13 +199,31 @@ def test_the_view_holds_every_step_of_a_run(finished):
 
 
 def test_the_view_refers_to_the_hdf5_file_and_copies_no_data(finished):
+    """Every DataItem of the view is a whole dataset of the result file (no inline numbers, no
+    HyperSlab, which meshio cannot read); the step arrays are HDF5 virtual datasets into the
+    file's rows, so the view stores no number twice; only finished steps are listed."""
     text = finished.with_suffix(".xdmf").read_text()
-    assert f"{finished.name}:/steps/positions" in text
-    largest_inline = max(len(m) for m in re.findall(r'Format="XML"[^>]*>([^<]*)<', text))
-    with h5py.File(finished, "r") as h5:  # inline XML: topology and planes, not the steps
+    items = re.findall(r"<DataItem ([^>]*)>([^<]*)</DataItem>", text)
+    assert items and all('Format="HDF"' in attrs for attrs, _ in items)
+    assert "HyperSlab" not in text and "X_Y_Z" not in text and "xi:include" not in text
+    names = {path.split(":/")[1] for _, path in items}
+    assert {path.split(":")[0] for _, path in items} == {finished.name}
+    with h5py.File(finished, "r") as h5:
+        for name in names:
+            dataset = h5[name]
+            assert dataset.is_virtual == (name not in ("view/plane", "view/segments", "view/yarn"))
+            if dataset.is_virtual:
+                assert {source.file_name for source in dataset.virtual_sources()} == {"."}
         nodes = h5["reference/positions"].shape[0] * h5["reference/positions"].shape[1]
-    assert largest_inline < 40 * nodes
+        assert max(h5[name].size for name in names if not h5[name].is_virtual) <= 2 * nodes
+        views = []
+        h5["view"].visititems(lambda name, obj: views.append(f"view/{name}")
+                              if isinstance(obj, h5py.Dataset) else None)
+        for name in views:  # every dataset has its units (dynfab.results.UNITS)
+            assert h5[name].attrs["units"] == units_of(name), name
     assert text.count("<Grid Name=\"steps ") == len(LOADS)
+    assert {int(n.split("/")[3]) for n in names if n.startswith("view/steps/")} == \
+        set(range(1, len(LOADS) + 1))
 
 
 def interrupt_after(count: int):
@@ -231,6 +301,9 @@ def test_the_xdmf_command_rewrites_the_view_and_refuses_a_missing_file(finished,
     assert done.stdout.strip() == f"wrote {copy.with_suffix('.xdmf')}"
     assert copy.with_suffix(".xdmf").read_text() == finished.with_suffix(".xdmf").read_text() \
         .replace(finished.name, copy.name)
+    with h5py.File(copy, "r+") as h5:  # the copy's views read the copy, not the original
+        h5["steps/positions"][0, :, :, 1] += 1e-3  # z: the slip stays that of x
+    assert check_view(copy, (np.arange(2) + 0.5) * (0.012 / 4)) == len(LOADS)
     missing = subprocess.run([sys.executable, "-m", "dynfab.cli", "xdmf", str(tmp_path / "no.h5")],
                              capture_output=True, text=True)
     assert missing.returncode == 2 and "Traceback" not in missing.stderr
@@ -238,58 +311,38 @@ def test_the_xdmf_command_rewrites_the_view_and_refuses_a_missing_file(finished,
         f"dynfab: error: result file '{tmp_path / 'no.h5'}' does not exist"]
 
 
-def test_a_file_written_before_the_point_data_resumes_and_gets_geometry_only(finished, tmp_path):
-    """An older file (no steps/xdmf/*) keeps its keys on --resume; its view has no point data."""
+def test_a_file_written_before_the_views_and_point_data_resumes_and_gets_its_views(
+        finished, tmp_path):
+    """An older file (no view/, no steps/xdmf/*, stress or slip_ratio: `ResultFile` without
+    `views`) keeps its keys on --resume and gets view/ (one rewrite): its view shows the
+    geometry, ``position`` and ``plane``, no contact_force or slip."""
     full = dynfab.read_results(finished)
-    first = {name: rows[0] for name, rows in full.steps.items() if not name.startswith("xdmf/")}
+    first = {name: rows[0] for name, rows in full.steps.items()
+             if not name.startswith("xdmf/") and name not in ("stress", "slip_ratio")}
     old = tmp_path / "old.h5"
     with ResultFile.create(old, attrs=full.attrs, reference=full.reference,
                            step_capacity=len(LOADS)) as f:
         f.append_step(first)
+    with h5py.File(old, "r") as h5:
+        assert "view" not in h5
     run_to_file(scene(LOADS), "static", old, resume=True)
     with h5py.File(old, "r") as h5:
         assert "xdmf" not in h5["steps"] and h5["steps_done"][0] == len(LOADS)
-    text = old.with_suffix(".xdmf").read_text()
-    assert text.count('<Grid Name="steps ') == len(LOADS) and "<Attribute" not in text
+        assert "stress" not in h5["steps"] and "slip_ratio" not in h5["steps"]
+    assert check_view(old, (np.arange(2) + 0.5) * (0.012 / 4)) == len(LOADS)
 
 
-def test_paraview_reader_of_vtk_reads_the_view(finished):
-    """ParaView's "XDMF Reader" (VTK's Xdmf2 reader), where the vtk package is installed:
-    the same points, polylines and point data per time step."""
-    xdmf2 = pytest.importorskip("vtkmodules.vtkIOXdmf2")
-    from vtkmodules.util.numpy_support import vtk_to_numpy
-    from vtkmodules.vtkCommonExecutionModel import vtkStreamingDemandDrivenPipeline
-
-    reader = xdmf2.vtkXdmfReader()
-    reader.SetFileName(str(finished.with_suffix(".xdmf")))
-    reader.UpdateInformation()
-    times = reader.GetOutputInformation(0).Get(vtkStreamingDemandDrivenPipeline.TIME_STEPS())
-    assert list(times) == [1.0, 2.0, 3.0, 4.0]
-    with h5py.File(finished, "r") as h5:
-        positions, force = h5["steps/positions"][()], h5["steps/contact_force"][()]
-        crossings = h5["reference/crossing_nodes"][()]
-    planes = (np.arange(2) + 0.5) * (0.012 / 4)
-    for k, time in enumerate(times):
-        reader.UpdateTimeStep(time)
-        yarns = reader.GetOutputDataObject(0).GetBlock(1)  # block 0: the as-woven state
-        np.testing.assert_array_equal(vtk_to_numpy(yarns.GetPoints().GetData()),
-                                      to_3d(positions[k], planes))
-        assert yarns.GetNumberOfCells() == 2 and yarns.GetCellType(0) == 4  # VTK_POLY_LINE
-        nodal = vtk_to_numpy(yarns.GetPointData().GetArray("contact_force")).reshape(2, -1)
-        np.testing.assert_array_equal(nodal[:, crossings], force[k])
-
-
-def test_a_transient_file_lists_its_frames_at_their_times(tmp_path):
-    """Frames (a transient run, `frames/*`): one grid per finished frame, Time = its time [s];
-    written here with `ResultFile` (frame data made up, nodal data by the test's own rule)."""
+def write_frames(out: Path, times, capacity: int) -> list[dict]:
+    """A transient file (`frames/*`) written with `ResultFile` alone (no views), as a file of
+    an older dynfab: one yarn of 9 nodes, frame data made up, nodal data by the test's own
+    rule; the frames written."""
     rng = np.random.default_rng(7)
     yarns, nodes, crossings = 1, 9, np.array([2, 6])
-    out = tmp_path / "transient.h5"
     attrs = {"scene": "", "solver": "dynamic", "projected_length": 0.02}
     reference = {"positions": rng.normal(size=(yarns, nodes, 2)), "crossing_nodes": crossings}
     frames = []
-    with ResultFile.create(out, attrs=attrs, reference=reference, frame_capacity=5) as f:
-        for time in (0.0, 1e-4, 3e-4):
+    with ResultFile.create(out, attrs=attrs, reference=reference, frame_capacity=capacity) as f:
+        for time in times:
             frame = {"time": time, "positions": rng.normal(size=(yarns, nodes, 2)),
                      "contact_force": rng.random((yarns, 2)), "anchors": rng.normal(size=(yarns, 2))}
             force, slip = np.zeros((yarns, nodes)), np.zeros((yarns, nodes))
@@ -298,35 +351,71 @@ def test_a_transient_file_lists_its_frames_at_their_times(tmp_path):
             frame.update({"xdmf/contact_force": force, "xdmf/slip": slip})
             f.append_frame(frame)
             frames.append(frame)
+    return frames
+
+
+def test_a_transient_file_lists_its_frames_at_their_times(tmp_path):
+    """Frames (a transient run, `frames/*`): one grid per finished frame, Time = its time [s].
+    The file has no views yet: `write_xdmf` adds them (one atomic rewrite), its frames and
+    counts unchanged."""
+    out = tmp_path / "transient.h5"
+    frames = write_frames(out, (0.0, 1e-4, 3e-4), capacity=5)
+    before = dynfab.read_results(out)
     view = dynfab.write_xdmf(out)
-    with SlabReader(view) as reader:
-        assert reader.num_steps == 3
-        reader.read_points_cells()
-        for k, frame in enumerate(frames):
-            time, point_data, _ = reader.read_data(k)
-            assert time == frame["time"]
-            np.testing.assert_array_equal(reader.points(reader.collection[k]),
-                                          to_3d(frame["positions"], np.array([0.5 * (0.02 / 10)])))
-            np.testing.assert_array_equal(point_data["contact_force"].ravel(),
-                                          frame["xdmf/contact_force"].ravel())
-            np.testing.assert_array_equal(point_data["slip"].ravel(), frame["xdmf/slip"].ravel())
+    after = dynfab.read_results(out)
+    assert after.frame_count == 3 and set(after.frames) == set(before.frames)
+    for name, values in before.frames.items():
+        np.testing.assert_array_equal(after.frames[name], values, err_msg=name)
+    plane = np.array([0.5 * (0.02 / 10)])  # one yarn, no width: L / 10
+    reference = before.reference["positions"]
+    expected = {"as_woven": to_3d(reference, plane), "as_woven_plane": np.repeat(plane, 9),
+                "segments": chains([(1, 9)]), "yarn": np.zeros(8),
+                "times": [f["time"] for f in frames],
+                "points": [to_3d(f["positions"], plane) for f in frames],
+                "point_data": {"plane": [np.repeat(plane, 9)] * 3,
+                               "contact_force": [f["xdmf/contact_force"].ravel() for f in frames],
+                               "slip": [f["xdmf/slip"].ravel() for f in frames]}}
+    assert check_both(view, expected) == 3
+
+
+def test_a_file_being_written_without_views_is_refused_in_one_line(tmp_path):
+    """Adding views needs the writer lock: a file another writer holds (here a `ResultFile`
+    open in this process, an older dynfab's run elsewhere) is refused, the file untouched."""
+    out = tmp_path / "busy.h5"
+    write_frames(out, (0.0,), capacity=1)
+    data = out.read_bytes()
+    writer = ResultFile.resume(out)
+    try:
+        with pytest.raises(dynfab.UserError, match="being written by another dynfab process"):
+            dynfab.write_xdmf(out)
+    finally:
+        writer.close(trim=False)
+    assert out.read_bytes() == data and not out.with_suffix(".xdmf").exists()
 
 
 RUNS = Path(__file__).resolve().parents[1] / "runs"
 
 
 def fabric_scene(name: str):
-    """A fabric scene of runs/ whose planes move, cut for speed (static runs of a few steps):
-    the periodic biaxial cell (3 steps of its path), the affine strip as a 4 x 4 patch of the
-    same yarns and pitch (2 steps of 0.5 N, weft ends free)."""
+    """A fabric scene of runs/, cut for speed (static runs of a few steps): the periodic
+    biaxial cell (3 steps of its path); the affine strip as a 4 x 4 patch of the same yarns
+    and pitch (2 steps of 0.5 N, weft ends free); the pull-out (fixed planes) as a 4 x 4 patch
+    of the same segment length, warp 2 pulled 0.5 mm after two steps of weft stretching."""
     from dynfab.scene import parse_scene_text
 
     text = (RUNS / f"{name}.toml").read_text()
     if name == "fabric_strip":
         for old, new in (("segments = 224", "segments = 56"), ("crossings = 16", "crossings = 4"),
                          ("count = 16", "count = 4"), ("length = 0.1", "length = 0.025"),
-                         ("max = 1.0", "max = 1.0"), ("steps = 10", "steps = 2")):
+                         ("steps = 10", "steps = 2")):
             text = text.replace(old, new)
+    elif name == "fabric_pullout":
+        for old, new in (("segments = 112", "segments = 56"), ("crossings = 8", "crossings = 4"),
+                         ("count = 8", "count = 4"), ("warp = 4", "warp = 2"),
+                         ("length = 0.05", "length = 0.025")):
+            text = text.replace(old, new)
+        text = re.sub(r"^values = .*$", "values = [0, 0, 1e-4]", text, flags=re.M)
+        text = re.sub(r"^weft_values = .*$", "weft_values = [5e-5, 1e-4, 1e-4]", text, flags=re.M)
     else:
         text = re.sub(r"^values = \[([^,]*),([^,]*),([^,]*),.*$", r"values = [\1,\2,\3]", text,
                       flags=re.M)
@@ -335,28 +424,16 @@ def fabric_scene(name: str):
     return parse_scene_text(text)
 
 
-def grids_of(reader: SlabReader, collection: str) -> list:
-    """The step grids of the temporal collection named `collection`."""
-    found = [g for g in reader.root.iter("Grid") if g.get("Name") == collection]
-    assert len(found) == 1
-    return list(found[0])
-
-
-def node_attribute(reader: SlabReader, grid, name: str) -> np.ndarray:
-    attributes = [a for a in grid.iter("Attribute") if a.get("Name") == name]
-    assert len(attributes) == 1
-    return reader._read_data_item(list(attributes[0])[0]).ravel()
-
-
-@pytest.mark.parametrize("name", ["fabric_biaxial", "fabric_strip"])
-def test_a_fabric_view_draws_moving_planes_where_they_are(tmp_path, name):
-    """docs/model.md section 10: with "affine" planes and on the periodic cell the planes move,
-    X_j = (j - 1/2)(L + u_wa)/n_we with u_wa the warps' mean end displacement (on the cell the
-    stretched cell length), Y_k likewise. Each step's grid of the view (read back with
-    `SlabReader`) draws warp k in y = Y_k and weft j in x = X_j, computed here from the
-    file's end displacements and the scene's lengths, and its point data `slip` at the
-    crossing nodes is the slip s = x - X_j - xi (10.7) of the file's anchors; the as-woven
-    grids keep the as-woven planes. The planes must have moved by far more than rounding."""
+@pytest.mark.parametrize("name", ["fabric_biaxial", "fabric_strip", "fabric_pullout"])
+def test_a_fabric_view_draws_both_families_where_their_planes_are(tmp_path, name):
+    """docs/model.md section 10: warp k lies in y = Y_k, weft j in x = X_j. With "affine" planes
+    and on the periodic cell the planes move, X_j = (j - 1/2)(L + u_wa)/n_we with u_wa the
+    warps' mean end displacement (on the cell the stretched cell length), Y_k likewise; with
+    fixed planes (the clamped pull-out) they stay at their as-woven (j - 1/2) L / n_we,
+    (k - 1/2) L_we / n_wa. The view, read with meshio and with VTK, holds the warps' nodes then
+    the wefts' at those planes at every step, point data ``plane`` = Y_k or X_j, and the slip
+    s = x - X_j - xi_x (10.7) (y - Y_k - xi_y for a weft) and contact force R at the crossing
+    nodes of both families. Moving planes must have moved by far more than rounding."""
     scene = fabric_scene(name)
     out = tmp_path / f"{name}.h5"
     run_to_file(scene, "static", out)
@@ -367,35 +444,62 @@ def test_a_fabric_view_draws_moving_planes_where_they_are(tmp_path, name):
         count = int(h5["steps_done"][0])
         steps = {key: h5[f"steps/{key}"][:count] for key in
                  ("positions", "weft_positions", "end_displacement", "anchors", "warp_planes",
-                  "weft_planes")}
+                  "weft_planes", "contact_force", "load")}
         crossings = h5["reference/crossing_nodes"][()]
+        weft_crossings = h5["reference/weft_crossing_nodes"][()]
+        reference = h5["reference/positions"][()], h5["reference/weft_positions"][()]
         assert h5["steps/warp_planes"].attrs["units"] == "m"
-    u = steps["end_displacement"]
-    X = (np.arange(n_we) + 0.5) * (L + u[:, :n_wa].mean(axis=1, keepdims=True)) / n_we
-    Y = (np.arange(n_wa) + 0.5) * (L_we + u[:, n_wa:].mean(axis=1, keepdims=True)) / n_wa
-    np.testing.assert_allclose(steps["weft_planes"], X, rtol=0, atol=4 * EPS_M * L)
-    np.testing.assert_allclose(steps["warp_planes"], Y, rtol=0, atol=4 * EPS_M * L_we)
-    assert np.abs(X[-1] - (np.arange(n_we) + 0.5) * L / n_we).min() > 1e6 * EPS_M * L  # moved
-    reader = SlabReader(out.with_suffix(".xdmf"))
-    warp_grids, weft_grids = grids_of(reader, "warp yarns"), grids_of(reader, "weft yarns")
-    assert len(warp_grids) == len(weft_grids) == count == len(scene.load.values)
+    assert count == len(scene.load.values)
+    X0 = (np.arange(n_we) + 0.5) * (L / n_we)  # the as-woven planes
+    Y0 = (np.arange(n_wa) + 0.5) * (L_we / n_wa)
+    if name == "fabric_pullout":  # fixed planes
+        X, Y = np.tile(X0, (count, 1)), np.tile(Y0, (count, 1))
+        np.testing.assert_allclose(steps["weft_planes"], X, rtol=0, atol=4 * EPS_M * L)
+        assert np.abs(steps["positions"][-1] - reference[0]).max() > 1e6 * EPS_M * L  # pulled
+    else:
+        u = steps["end_displacement"]
+        X = (np.arange(n_we) + 0.5) * (L + u[:, :n_wa].mean(axis=1, keepdims=True)) / n_we
+        Y = (np.arange(n_wa) + 0.5) * (L_we + u[:, n_wa:].mean(axis=1, keepdims=True)) / n_wa
+        np.testing.assert_allclose(steps["weft_planes"], X, rtol=0, atol=4 * EPS_M * L)
+        np.testing.assert_allclose(steps["warp_planes"], Y, rtol=0, atol=4 * EPS_M * L_we)
+        assert np.abs(X[-1] - X0).min() > 1e6 * EPS_M * L  # moved
+        X, Y = steps["weft_planes"], steps["warp_planes"]  # the file's, to the last bit
+    (_, N1, _), (_, M1, _) = reference[0].shape, reference[1].shape
+
+    def nodes(warps, wefts, y, x):
+        """(P, 3): warp k at (x, y_k, z), then weft j at (x_j, y, z)."""
+        return np.concatenate([
+            np.column_stack([warps[..., 0].ravel(), np.repeat(y, N1), warps[..., 1].ravel()]),
+            np.column_stack([np.repeat(x, M1), wefts[..., 0].ravel(), wefts[..., 1].ravel()])])
+
+    force, slip = np.zeros((count, n_wa * N1 + n_we * M1)), np.zeros((count, n_wa * N1 + n_we * M1))
     for k in range(count):
         warps, wefts = steps["positions"][k], steps["weft_positions"][k]
-        nodes_wa, nodes_we = warps.shape[1], wefts.shape[1]
-        expected = np.column_stack([warps[..., 0].ravel(), np.repeat(steps["warp_planes"][k], nodes_wa),
-                                    warps[..., 1].ravel()])
-        np.testing.assert_array_equal(reader.points(warp_grids[k]), expected)
-        expected = np.column_stack([np.repeat(steps["weft_planes"][k], nodes_we),
-                                    wefts[..., 0].ravel(), wefts[..., 1].ravel()])
-        np.testing.assert_array_equal(reader.points(weft_grids[k]), expected)
-        slip = node_attribute(reader, warp_grids[k], "slip").reshape(n_wa, nodes_wa)
-        np.testing.assert_allclose(
-            slip[:, crossings],
-            warps[:, crossings, 0] - steps["weft_planes"][k] - steps["anchors"][k][..., 0],
-            rtol=0, atol=4 * EPS_M * L)
-    as_woven = [g for g in reader.root.iter("Grid") if g.get("Name") == "as-woven weft yarns"][0]
-    x = reader.points(as_woven)[:, 0]
-    np.testing.assert_allclose(np.unique(x), (np.arange(n_we) + 0.5) * L / n_we, rtol=1e-15)
+        f_wa, f_we, s_wa, s_we = (np.zeros((n_wa, N1)), np.zeros((n_we, M1)),
+                                  np.zeros((n_wa, N1)), np.zeros((n_we, M1)))
+        f_wa[:, crossings] = steps["contact_force"][k]
+        f_we[:, weft_crossings] = steps["contact_force"][k].T
+        s_wa[:, crossings] = warps[:, crossings, 0] - X[k] - steps["anchors"][k][..., 0]
+        s_we[:, weft_crossings] = (wefts[:, weft_crossings, 0] - Y[k]
+                                   - steps["anchors"][k][..., 1].T)
+        force[k] = np.concatenate([f_wa.ravel(), f_we.ravel()])
+        slip[k] = np.concatenate([s_wa.ravel(), s_we.ravel()])
+    expected = {
+        "as_woven": nodes(*reference, Y0, X0),
+        "as_woven_plane": np.concatenate([np.repeat(Y0, N1), np.repeat(X0, M1)]),
+        "segments": chains([(n_wa, N1), (n_we, M1)]),
+        "yarn": np.concatenate([np.repeat(np.arange(n_wa), N1 - 1),
+                                np.repeat(n_wa + np.arange(n_we), M1 - 1)]),
+        "times": np.arange(1, count + 1, dtype=float),
+        "points": [nodes(steps["positions"][k], steps["weft_positions"][k], Y[k], X[k])
+                   for k in range(count)],
+        "point_data": {"plane": [np.concatenate([np.repeat(Y[k], N1), np.repeat(X[k], M1)])
+                                 for k in range(count)],
+                       "contact_force": force, "slip": slip},
+        "atol": {"slip": 4 * EPS_M * max(L, L_we)},  # (10.7): the file's three-term sum
+    }
+    assert check_both(out.with_suffix(".xdmf"), expected) == count
+    assert np.any(slip != 0) and np.any(force != 0)
 
 
 EPS_M = np.finfo(float).eps

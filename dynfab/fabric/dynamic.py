@@ -62,7 +62,7 @@ from dynfab.terms import friction as gralen
 
 SCALAR = wp.float64
 MAX_STEPS = 2_000_000
-"""Time steps a relaxation may take per load step (one kernel launch)."""
+"""Time steps a relaxation may take per load step (launched a chunk at a time)."""
 _STATUS = {status.MAX_STEPS: "the time-step limit", status.NON_FINITE: "a non-finite force",
            status.STALLED: "FIRE stalled", status.DIVERGED: "divergence",
            status.NOT_POSITIVE_DEFINITE: "pivots that are not positive at every dt",
@@ -79,7 +79,7 @@ class FabricDynamicSolver:
     def __init__(self, model, device: str = "cpu", damping: str = "kinetic",
                  tolerance: float | None = None, max_steps: int = MAX_STEPS,
                  layout: str | None = None, method: str = "explicit",
-                 damping_coefficient: float | None = None):
+                 damping_coefficient: float | None = None, status=None):
         if method not in METHODS:
             raise UserError(f"fabric: dynamic.method = {method!r} unknown; one of {METHODS}")
         self.model = model
@@ -97,10 +97,15 @@ class FabricDynamicSolver:
             coefficient=damping_coefficient or 0.0) \
             if method == "explicit" else fabric_semi_implicit.FabricSemiImplicit(
                 self.arrays, device=device, layout=layout)
+        self.relaxation.report = self._report
+        self.status = status
+        """Called as status(text) within a step: at every launch of a relaxation (at most
+        every `fabric_relaxation.CHUNK_SECONDS`; its time steps and residual) and before the
+        stability check; or None."""
         self.method = method
         self.linear_iterations = 0
         """CG iterations of every relaxation so far (0 with the explicit method)."""
-        self.reference = FabricStaticSolver(model)
+        self.reference = FabricStaticSolver(model, status)
         """The static solver: its state conventions, load path, prescribed start, strains and
         certificate (inertia, escape), never its forces."""
         self.fabric = self.reference.fabric
@@ -170,6 +175,12 @@ class FabricDynamicSolver:
 
     # ------------------------------------------------------------------ steps
 
+    def _report(self, steps: int, residual: float) -> None:
+        """The relaxation's progress (`PatchRelaxation.report`) as a status line."""
+        if self.status is not None:
+            self.status(f"{steps} time steps, residual {residual:.3g} N (tolerance "
+                        f"{self.tolerance:.3g} N)")
+
     def relax(self, pos: np.ndarray, P: np.ndarray, anchors: np.ndarray):
         """Relax from `pos` under end loads P with the (static-convention) anchors held;
         returns (positions, outcome) or raises SolverError."""
@@ -197,6 +208,7 @@ class FabricDynamicSolver:
         while True:
             R, friction_force = self.crossing_forces(pos, anchors + self._plane_shift)
             limit = self.friction_limits(R)
+            ref.say("stability check (inertia of the Hessian)")
             result = inertia.inertia(ref, pos, anchors, limit)
             nearest = inertia.nearest_eigenvalue(ref.hessian(pos, anchors, limit))
             if result.negatives == 0 or escapes == MAX_ESCAPES:

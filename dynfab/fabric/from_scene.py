@@ -1,11 +1,11 @@
-"""A fabric scene (geometry.model = "fabric", docs/model.md section 10) as a run: its
-`FabricSpec`, its model, and the static solver under the run's contract.
+"""A fabric scene (geometry.model = "fabric", docs/model.md section 10) as a run: its model
+and its solvers under the run's contract.
 
-`fabric_spec(scene)` maps a validated scene to a `FabricSpec`; `FabricModel` is what a
-run needs of it (the load path, the as-woven reference, the root attributes, the start
-state and a resumed state); `FabricSolver` wraps `FabricStaticSolver` so that it
-conforms to `dynfab.solver.Solver`: `step(state, load)` with `load` the step's pair
-(warp value, weft value) of the path, the same kind of thing the one-yarn model's load
+`FabricModel` is what a run needs of a fabric scene: its structure (`dynfab.build.fabric`),
+its yarn families, the load path, the as-woven reference, the root attributes, the start
+state and a resumed state; `FabricSolver` wraps `FabricStaticSolver` (or the dynamic one)
+so that it conforms to `dynfab.solver.Solver`: `step(state, load)` with `load` the step's
+pair (warp value, weft value) of the path, the same kind of thing the one-yarn model's load
 value is (a value of the path, not an index into it), returning a record of the names
 below, written as `steps/<name>` (units in `dynfab.results.UNITS`).
 
@@ -15,7 +15,10 @@ Record of one fabric step (n_wa warps of N+1 nodes, n_we wefts of M+1 nodes; Y =
 - load (2,): (warp, weft) value [N or m]; end_force, end_displacement (Y,) [N], [m];
 - positions (n_wa, N+1, 2): the warps' (x, z); weft_positions (n_we, M+1, 2): the
   wefts' (y, z) [m];
-- strain, crimp (2,): (warp, weft) nominal strain and mean crimp [-];
+- strain, crimp (2,): (warp, weft) nominal strain and mean crimp [-]; stress (2,):
+  (warp, weft) load per unit width [N/m] (`FabricStaticSolver.stresses`);
+- slip_ratio: the largest slip ratio of the step's crossing nodes [-]
+  (`dynfab.domain.slip_ratios`; a run stops a step above 1/2, docs/model.md section 10);
 - contact_force, friction_limit, sliding (n_wa, n_we); friction_force, anchors
   (n_wa, n_we, 2) [N], [m] (in-plane: warp x, weft y; the anchors relative to the planes);
 - warp_planes (n_wa,): the plane y = Y_k of each warp, weft_planes (n_we,): x = X_j of each
@@ -36,6 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dynfab.build.fabric import Family, families, fabric_structure
+from dynfab.domain import check_crossings_held, fabric_slip_ratios
 from dynfab.fabric.assembly import TERMS, planes
 from dynfab.fabric.static import FabricState, FabricStaticSolver, as_woven_state
 from dynfab.scene import Scene
@@ -93,11 +97,22 @@ class FabricModel:
     def reference(self) -> dict:
         """The result file's `reference/`: both families as woven, the crossing nodes."""
         warps, wefts = self.split(self.structure.rest_position)
+        nodes, weft_nodes = self.crossing_nodes()
         return {"positions": warps, "weft_positions": wefts,
-                "crossing_nodes": (2 * np.arange(self.wefts) + 1) * self.warp.segments
-                // (2 * self.wefts),
-                "weft_crossing_nodes": (2 * np.arange(self.warps) + 1) * self.weft.segments
-                // (2 * self.warps)}
+                "crossing_nodes": nodes, "weft_crossing_nodes": weft_nodes}
+
+    def crossing_nodes(self) -> tuple[np.ndarray, np.ndarray]:
+        """(each warp's node of crossing j (n_we,), each weft's node of crossing k (n_wa,)):
+        (2j-1) N / (2 n_we) and (2k-1) M / (2 n_wa) (docs/model.md section 10)."""
+        return ((2 * np.arange(self.wefts) + 1) * self.warp.segments // (2 * self.wefts),
+                (2 * np.arange(self.warps) + 1) * self.weft.segments // (2 * self.warps))
+
+    def check_crossings_held(self, record: dict) -> None:
+        """SolverError if the step carried a crossing node more than half a segment from its
+        crossing (`dynfab.domain.check_crossings_held`), for both fabric solvers."""
+        g = self.scene.geometry
+        check_crossings_held(record, *self.crossing_nodes(), suggest_affine=(
+            g.boundary == "clamped" and g.planes == "fixed" and self.pullout is None))
 
     def attrs(self) -> dict:
         """Root attributes of a fabric's result file besides the solver's."""
@@ -160,10 +175,13 @@ class FabricSolver:
     `FabricStaticSolver`, or the dynamic `FabricDynamicSolver` (Warp), which returns the
     same record (plus its time steps)."""
 
-    def __init__(self, model: FabricModel, name: str = "static", device: str = "cpu"):
+    def __init__(self, model: FabricModel, name: str = "static", device: str = "cpu",
+                 status=None):
         self.model, self.name = model, name
         self.solver = FabricStaticSolver(model)
         self.engine = self.solver
+        if name == "static":
+            self.solver.status = status  # per Newton iteration
         if name == "dynamic":
             from dynfab.fabric.dynamic import FabricDynamicSolver  # imports Warp: only here
             from dynfab.kernels.runtime import initialize
@@ -175,7 +193,8 @@ class FabricSolver:
                                               tolerance=dynamic.tolerance,
                                               max_steps=dynamic.max_steps,
                                               method=dynamic.method,
-                                              damping_coefficient=dynamic.damping_coefficient)
+                                              damping_coefficient=dynamic.damping_coefficient,
+                                              status=status)
 
     def attrs(self) -> dict:
         static = self.model.scene.static
@@ -199,7 +218,8 @@ class FabricSolver:
             "load": np.array([warp_value, weft_value]),
             "end_force": raw["end_force"], "end_displacement": raw["end_displacement"],
             "positions": warps, "weft_positions": wefts,
-            "strain": raw["strain"], "crimp": raw["crimp"],
+            "strain": raw["strain"], "stress": self.solver.stresses(raw["end_force"]),
+            "crimp": raw["crimp"],
             "contact_force": raw["contact_force"], "friction_limit": raw["friction_limit"],
             "sliding": raw["sliding"], "friction_force": raw["friction_force"].reshape(*shape, 2),
             "anchors": new.anchors.reshape(*shape, 2),
@@ -212,6 +232,8 @@ class FabricSolver:
             "negative_eigenvalues": raw["negative_eigenvalues"],
         }
         record.update(self._energies(new, warp_value, weft_value, raw["friction_limit"]))
+        ratios = fabric_slip_ratios(record, *model.crossing_nodes())
+        record["slip_ratio"] = np.max(np.concatenate([r.ravel() for r in ratios]), initial=0.0)
         for name in ("time_steps", "cg_iterations"):  # the dynamic solver's (the semi-implicit's)
             if name in raw:
                 record[name] = raw[name]
@@ -234,9 +256,10 @@ class FabricSolver:
         return {f"energy/{term}": float(value) for term, value in zip(TERMS, solver._terms)}
 
 
-def build_run(scene: Scene, solver: str, device: str | None, options: dict):
+def build_run(scene: Scene, solver: str, device: str | None, options: dict, status=None):
     """(model, solver) of a fabric run: `dynfab.run`'s build step for geometry.model =
-    "fabric"; `options` are the run options (`dynfab.options`)."""
+    "fabric"; `options` are the run options (`dynfab.options`); the solver reports within
+    each step to `status` (per Newton iteration, per launch of a relaxation)."""
     from dynfab.errors import UserError
     from dynfab.options import apply_run_options, check_solver
 
@@ -252,7 +275,7 @@ def build_run(scene: Scene, solver: str, device: str | None, options: dict):
     if solver == "dynamic":
         _check_dynamic_keys(scene.dynamic)
     model = FabricModel.from_scene(scene)
-    return model, FabricSolver(model, solver, device or "cpu")
+    return model, FabricSolver(model, solver, device or "cpu", status)
 
 
 _DYNAMIC_SUPPORTED = {"mode": "quasi_static", "method": "explicit", "precision": "float64",

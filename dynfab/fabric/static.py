@@ -235,10 +235,14 @@ def _started(info: NewtonInfo) -> NewtonInfo:
 class FabricStaticSolver:
     """Solves a fabric's load steps one after another (docs/model.md sections 6, 10)."""
 
-    def __init__(self, model):
+    def __init__(self, model, status=None):
         self.model = model
         """The fabric's model (`dynfab.fabric.from_scene.FabricModel`): its structure, load
         path and the scene's static options."""
+        self.status = status
+        """Called as status(text) within a step, once per Newton iteration (its count in the
+        step and residual) and before the stability check (the progress line), or None."""
+        self._newton_count = 0  # Newton iterations of the step so far
         self.fabric: Structure = model.structure
         self.pattern = assembly.Pattern(self.fabric)
         self.free = ~self.fabric.fixed
@@ -426,7 +430,15 @@ class FabricStaticSolver:
         if info.floor >= residual > 0.5 * previous:
             info.converged = info.at_floor = True
             return None
+        self._newton_count += 1
+        self.say(f"Newton iteration {self._newton_count}, residual {residual:.3g} N "
+                 f"(tolerance {self.tolerance:.3g} N)")
         return H
+
+    def say(self, text: str) -> None:
+        """Pass `text` to `status`, if set."""
+        if self.status is not None:
+            self.status(text)
 
     def newton(self, pos, P, anchors, limit, law=None, max_iterations=None) -> NewtonInfo:
         """Minimise V + sum H (F_T frozen) from `pos`, in place (docs/model.md section 6), the
@@ -782,6 +794,7 @@ class FabricStaticSolver:
         """Solve one load step from `state`; returns (new state, record) or raises SolverError."""
         f, model = self.fabric, self.model
         pos, anchors, P = self.start_of_step(state, warp_value, weft_value)
+        self._newton_count = 0
         info, limit, outer = self.solve(pos, P, anchors)
         if not info.converged:
             raise SolverError(self._failure(pos, P, anchors, info, outer))
@@ -858,6 +871,7 @@ class FabricStaticSolver:
         a saddle. Returns (info, F_T, solves, escapes, inertia, nearest eigenvalue)."""
         escapes = 0
         while True:
+            self.say("stability check (inertia of the Hessian)")
             result = inertia.inertia(self, pos, anchors, limit)
             nearest = inertia.nearest_eigenvalue(self.hessian(pos, anchors, limit))
             if result.negatives == 0 or escapes == MAX_ESCAPES:
@@ -955,17 +969,39 @@ class FabricStaticSolver:
         warp = f.chain_family == 0
         return np.array([crimp[warp].mean(), crimp[~warp].mean()])
 
-    def strains(self, pos) -> np.ndarray:
-        """Nominal strains (warp, weft): the mean end displacement of the family's loaded
-        yarns over their length (docs/model.md section 10). Under displacement control a yarn of
-        factor 0 is held, not loaded, and left out (a pull-out's other warps), unless the whole
-        family is; under force control a factor-0 yarn's end is free and counts."""
-        f, model = self.fabric, self.model
-        u = pos[f.load_node, 0] - f.rest_position[f.load_node, 0]
-        loaded = (f.load_factor != 0) | (model.control == "force")
+    def families(self) -> tuple[np.ndarray, np.ndarray]:
+        """(warp mask, weft mask) (Y,) of the yarns a family's strain and stress average
+        over, its loaded yarns (docs/model.md section 10): under displacement control a
+        yarn of factor 0 is held, not loaded, and left out (a pull-out's other warps), unless
+        the whole family is; under force control a factor-0 yarn's end is free and counts."""
+        f = self.fabric
+        loaded = (f.load_factor != 0) | (self.model.control == "force")
         warp = f.chain_family == 0
         out = []
-        for family, length in ((warp, model.warp.length), (~warp, model.weft.length)):
-            chosen = family & loaded if (family & loaded).any() else family
-            out.append(u[chosen].mean() / length)
-        return np.array(out)
+        for family in (warp, ~warp):
+            out.append(family & loaded if (family & loaded).any() else family)
+        return out[0], out[1]
+
+    def strains(self, pos) -> np.ndarray:
+        """Nominal strains (warp, weft): the mean end displacement of the family's loaded
+        yarns (`families`) over their length (docs/model.md section 10)."""
+        f, model = self.fabric, self.model
+        u = pos[f.load_node, 0] - f.rest_position[f.load_node, 0]
+        return np.array([u[chosen].mean() / length for chosen, length
+                         in zip(self.families(), (model.warp.length, model.weft.length))])
+
+    def widths(self) -> np.ndarray:
+        """The width per yarn of each family [m], (warp, weft), as woven: a warp's is the
+        wefts' length over the warps, L_we / n_wa; a weft's L / n_we (docs/model.md
+        section 10)."""
+        model = self.model
+        return np.array([model.weft.length / model.warps, model.warp.length / model.wefts])
+
+    def stresses(self, end_force) -> np.ndarray:
+        """Loads per unit width (warp, weft) [N/m]: the mean end force of the family's
+        loaded yarns (`families`, the yarns of its strain) over its width per yarn
+        (`widths`): on the periodic cell and a patch under force control, the force the
+        family carries over the fabric's width; in a pull-out, the pulled warp's force over
+        its width (docs/model.md section 10)."""
+        end_force = np.asarray(end_force, float)
+        return np.array([end_force[chosen].mean() for chosen in self.families()]) / self.widths()

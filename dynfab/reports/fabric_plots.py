@@ -18,18 +18,13 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Rectangle
 
-from dynfab.plot import DPI, FONT_SIZE, new_figure
+from dynfab.plot import DPI, FAMILY_ALPHA, FAMILY_STYLE, FAMILY_WIDTH, FONT_SIZE, new_figure
 from dynfab.plot import style_axes as _plot_style
 from dynfab.reports.fabric_data import (PATHS, crimp_percent, larger_load, load_per_width,
                                         strain_percent)
 
 FONT = 8.5
 """Tick-label and legend font size [pt]."""
-FAMILY_STYLE = {"warp": "-", "weft": "--"}
-FAMILY_WIDTH = {"warp": 3.0, "weft": 1.2}
-"""Line widths [pt]: wide translucent warp lines under thin dashed weft lines, so that curves
-which coincide (the balanced fabric's mirror paths) both stay visible."""
-FAMILY_ALPHA = {"warp": 0.55, "weft": 1.0}
 ZOOM_SHARE = 0.15
 """The zoomed panel of the biaxial figure shows loads up to this share of the largest."""
 
@@ -46,8 +41,9 @@ def draw_figures(out_dir, data: dict) -> list[Path]:
     return [out / name for name in figures]
 
 
-def path_colors() -> dict:
-    return {name: colormaps["tab10"](i) for i, name in enumerate(PATHS)}
+def path_colors(names=PATHS) -> dict:
+    """A colour per path (the report's PATHS, or the steps `dynfab plot` draws)."""
+    return {name: colormaps["tab10"](i) for i, name in enumerate(names)}
 
 
 def _legend_handles(colors: dict) -> list:
@@ -121,14 +117,18 @@ def plot_crimp(data: dict) -> Figure:
     return fig
 
 
-def plot_cell(data: dict) -> Figure:
-    """Side views of warp 1 and weft 1 at the last step of every path over the as-woven
-    shapes (z exaggerated), and a top view of each path's last step, crossings coloured by
-    contact force (the upper yarn drawn over the crossing)."""
+def plot_cell(data: dict, heading: str | None = None) -> Figure:
+    """Side views of one warp and one weft (`data["shown"]`, default warp 1 and weft 1) at
+    the last step of every path over their as-woven shapes (z exaggerated), and a top view
+    of each path's last step, crossings coloured by contact force (the upper yarn drawn over
+    the crossing). `heading`: the figure's title (default: the report's cell, `_title`);
+    `dynfab plot` draws a result file's steps as the paths (`dynfab.plot.plot_fabric_shape`),
+    each with its curves' `label`."""
     paths = data["paths"]
     fig = new_figure(8.0, 7.2)
     grid = fig.add_gridspec(3, len(paths))
-    colors = path_colors()
+    colors = path_colors(paths)
+    shown = data.get("shown", {"warp": "warp 1", "weft": "weft 1"})
     for row, family in enumerate(("warp", "weft")):
         ax = fig.add_subplot(grid[row, :])
         woven = 1e3 * np.asarray(data["as_woven"][family])
@@ -136,11 +136,12 @@ def plot_cell(data: dict) -> Figure:
         for name, path in paths.items():
             nodes = 1e3 * np.asarray(path["last"][family])
             ax.plot(nodes[:, 0], nodes[:, 1], color=colors[name], marker=".", markersize=2,
-                    label=f"{name}, last step", gid=f"{name} {family} shape")
+                    label=path.get("label", f"{name}, last step"),
+                    gid=f"{name} {family} shape")
         along = "x" if family == "warp" else "y"
         ax.set_xlabel(f"{along} [mm]")
         ax.set_ylabel("z [mm]")
-        ax.set_title(f"side view of {family} 1 (z exaggerated)")
+        ax.set_title(f"side view of {shown[family]} (z exaggerated)")
         style_axes(ax)
         # the as-woven crest's quarter away from the curves: below on the warp, above on the weft
         ax.legend(fontsize=FONT - 2, ncols=2,
@@ -153,14 +154,18 @@ def plot_cell(data: dict) -> Figure:
         ax.set_title(f"top view, {name}", fontsize=FONT)
     fig.colorbar(ScalarMappable(norm=norm, cmap=colormaps["viridis"]), ax=fig.axes[-len(paths):],
                  label="contact force [N]", shrink=0.9)
-    _title(fig, data, "The deformed cell at the last load step")
+    if heading is None:
+        _title(fig, data, "The deformed cell at the last load step")
+    else:
+        fig.suptitle(heading, fontsize=9)
     return fig
 
 
 def _top_view(ax, path: dict, norm) -> None:
     """The cell in plan [mm]: warps along x at Y_k, wefts along y at X_j (the planes moving
-    with the cell, docs/model.md section 10), grey bands; each crossing's upper yarn drawn over it
-    in the colour of its contact force."""
+    with the cell, docs/model.md section 10, or where `path["last"]["planes_m"]` = (X_j, Y_k)
+    puts them), grey bands; each crossing's upper yarn drawn over it in the colour of its
+    contact force."""
     length_x, length_y = (1e3 * c for c in path["last"]["cell_m"])
     forces = np.asarray(path["contact_force_N"][-1])
     above = np.asarray(path["last"]["warp_above"])
@@ -168,6 +173,8 @@ def _top_view(ax, path: dict, norm) -> None:
     band = 0.5 * min(length_x / wefts, length_y / warps)
     plane_y = (np.arange(warps) + 0.5) * length_y / warps
     plane_x = (np.arange(wefts) + 0.5) * length_x / wefts
+    if "planes_m" in path["last"]:
+        plane_x, plane_y = (1e3 * np.asarray(p) for p in path["last"]["planes_m"])
     for y in plane_y:
         ax.add_patch(Rectangle((0.0, y - band / 2), length_x, band, color="0.8"))
     for x in plane_x:
