@@ -23,6 +23,8 @@ from dynfab import cli
 from dynfab.compiling import MESSAGE, announcing, will_compile
 from dynfab.kernels import fabric_arrays, fabric_explicit
 from dynfab.kernels.runtime import initialize
+from dynfab.fabric.from_scene import FabricModel
+from dynfab.reports.fabric_data import paper_patch_scene
 
 ROOT = Path(__file__).resolve().parents[1]
 FIG5 = ROOT / "runs" / "paper_fig5.toml"
@@ -106,7 +108,8 @@ def test_a_loaded_warp_module_is_not_announced(warp_ready):
     """A kernel already compiled (launched before: loaded from the kernel cache, or compiled
     then) launches again without a word: the fabric's return map (the variant the fabric
     tests build)."""
-    arrays = fabric_arrays.build(fabric_arrays.paper_patch(2, 2))
+    scene = paper_patch_scene(2, 2, load={"values": [0.1]})
+    arrays = fabric_arrays.build(FabricModel.from_scene(scene).structure)
     relaxation = fabric_explicit.FabricExplicit(arrays, friction=True)
     anchors = np.zeros((arrays.crossings, 2))
     before = relaxation.return_map(arrays.rest_position, anchors)

@@ -176,12 +176,11 @@ def test_a_step_reports_within_itself_and_chunked_launches_keep_the_bits(method)
     steps give the very bits of the whole loop in one launch, and `status` is called
     between them with the steps taken and the residual; the stability check is announced
     too."""
-    spec = paper_patch(2, 2, friction=PAPER_FRICTION, warp_values=(0.3,), weft_values=(0.1,),
-                       tolerance=TOLERANCE)
+    model = paper_patch_model(2, 2, [(0.3, 0.1)], friction=PAPER_FRICTION, tolerance=TOLERANCE)
     runs = []
     for first_chunk in (10**9, 5):
         calls = []
-        solver = FabricDynamicSolver(spec, method=method, status=calls.append)
+        solver = FabricDynamicSolver(model, method=method, status=calls.append)
         solver.relaxation.first_chunk, solver.relaxation.chunk_seconds = first_chunk, 0.0
         state, record = solver.step(solver.initial_state(), 0.3, 0.1)
         runs.append((state, record, calls))
@@ -200,10 +199,9 @@ def test_a_step_reports_within_itself_and_chunked_launches_keep_the_bits(method)
 def test_a_step_in_the_per_step_layout_reports_within_itself(method):
     """The per-step layouts (a GPU's), whose time loop is in Python, report at most every
     `chunk_seconds` (here 0: at every residual they read back)."""
-    spec = paper_patch(2, 2, friction=PAPER_FRICTION, warp_values=(0.3,), weft_values=(0.1,),
-                       tolerance=TOLERANCE)
+    model = paper_patch_model(2, 2, [(0.3, 0.1)], friction=PAPER_FRICTION, tolerance=TOLERANCE)
     calls = []
-    solver = FabricDynamicSolver(spec, method=method, layout="per_step", status=calls.append)
+    solver = FabricDynamicSolver(model, method=method, layout="per_step", status=calls.append)
     solver.relaxation.chunk_seconds = 0.0
     solver.step(solver.initial_state(), 0.3, 0.1)
     assert [c for c in calls if "time steps, residual" in c]

@@ -133,7 +133,7 @@ def test_friction_does_nothing_in_the_uniformly_strained_strip():
     assert "friction inert (no crossing slips)" in scene.title
     assert "friction is inert: no crossing slips" in row and "friction on" not in row
     model, results = FabricModel.from_scene(scene), run(scene)
-    steps, k_t = results.steps, model.fabric.stick_stiffness
+    steps, k_t = results.steps, model.structure.tie_friction_law[0, 3]
     assert not steps["sliding"].any() and np.all(steps["dissipated"] == 0.0)
     for i in range(results.step_count):
         bound = 2 * np.sqrt(2) * k_t * position_bound(model, results, i)
@@ -147,8 +147,8 @@ def test_friction_does_nothing_in_the_uniformly_strained_strip():
         parse_scene_text(cell_text))
     for i in range(results.step_count):
         # a strain is an end displacement (each within its state's b) over the length
-        tol = (position_bound(model, results, i) / model.spec.warp.length
-               + position_bound(cell_model, cell, i) / cell_model.spec.warp.length)
+        tol = (position_bound(model, results, i) / model.warp.length
+               + position_bound(cell_model, cell, i) / cell_model.warp.length)
         np.testing.assert_allclose(steps["strain"][i], cell.steps["strain"][i], rtol=0, atol=tol)
 
 

@@ -229,7 +229,7 @@ def test_a_step_reports_each_newton_iteration_within_itself():
     its residual against the tolerance), and before the stability check: what the progress
     line shows while a long step runs."""
     calls = []
-    solver = FabricStaticSolver(fabric_spec("force", FORCES, FRICTION), status=calls.append)
+    solver = FabricStaticSolver(patch_model("force", FORCES, FRICTION), status=calls.append)
     _, record = solver.step(solver.initial_state(), FORCES[0], 0.0)
     newton = [c for c in calls if c.startswith("Newton iteration")]
     assert len(newton) == record["iterations"] > 1

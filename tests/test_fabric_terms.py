@@ -45,7 +45,7 @@ P = np.array([0.3, -0.2, 0.1, 0.05])
 """End forces of the 2 warps and 2 wefts [N] (the load term)."""
 
 
-def two_by_two_fabric(core_stiffness=1e5, boundary="clamped", planes="fixed") -> Structure:
+def two_by_two_fabric(core_stiffness=1e5, boundary="clamped", planes=None) -> Structure:
     """The structure of the 2 x 2 test fabric, every term on (gravity on the patch only: the
     cell refuses it); `core_stiffness` k_c [N/m], inf: none (`independent.without_core_spring`)."""
     tables = dict(friction=FRICTION, load=dict(control="force", values=[0.1]))
@@ -53,8 +53,8 @@ def two_by_two_fabric(core_stiffness=1e5, boundary="clamped", planes="fixed") ->
         tables["gravity"] = dict(g=9.81)
     if np.isfinite(core_stiffness):
         tables["contact"] = dict(core_stiffness=core_stiffness)
-    scene = fabric_scene(WARP, WEFT, 2, 2, geometry=dict(boundary=boundary, planes=planes),
-                         **tables)
+    geometry = dict(boundary=boundary) if planes is None else dict(boundary=boundary, planes=planes)
+    scene = fabric_scene(WARP, WEFT, 2, 2, geometry=geometry, **tables)
     model = (FabricModel.from_scene(scene) if np.isfinite(core_stiffness)
              else without_core_spring(scene))
     return model.structure
