@@ -173,7 +173,8 @@ def _command_run(args, context: dict) -> None:
     out = args.out or Path(args.scene.stem + ".h5")
     _check_run_output(out, args)
     context["out"] = out
-    from dynfab.run import print_summary, run_to_file
+    from dynfab.run import run_to_file
+    from dynfab.summary import print_summary
     from dynfab.results import read_results
 
     _progress = None if args.quiet else _Progress()

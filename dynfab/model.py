@@ -14,6 +14,8 @@ from typing import NamedTuple
 import numpy as np
 
 from dynfab.build.yarn import yarn_structure
+from dynfab.domain import check_not_folded
+from dynfab.errors import UserError
 from dynfab.scene import Scene
 from dynfab.structure import Structure, chain_nodes, chain_segments, tie_layout, uniform
 from dynfab.terms import registry
@@ -68,9 +70,12 @@ TERMS = registry.NAMES
 
 @dataclass(frozen=True)
 class Model:
-    """A scene's yarns and the terms it uses; shared by the static and dynamic solvers."""
+    """A one-yarn scene's structure, its yarns as banded views, the terms it uses; shared by the
+    static and dynamic solvers. It fulfils `dynfab.solver.RunModel`, as a fabric's model does."""
 
     scene: Scene
+    structure: Structure
+    """The scene's chains and ties to ground (`dynfab.build.yarn`)."""
     yarns: tuple[Yarn, ...]
     terms: tuple[str, ...]
     """The active energy terms, a subset of TERMS in that order."""
@@ -99,6 +104,70 @@ class Model:
     def stacked(self, field: str) -> np.ndarray:
         """A Yarn field stacked over yarns, shape (yarns, ...)."""
         return np.stack([np.asarray(getattr(y, field)) for y in self.yarns])
+
+    @property
+    def labels(self) -> list[str]:
+        """One label per simulated yarn: its sweep entry, or its index and phase s_k."""
+        scene = self.scene
+        if scene.sweep:
+            return [", ".join(f"{key}={values[i]:g}" for key, values in scene.sweep)
+                    for i in range(self.yarn_count)]
+        return [f"yarn {k + 1} (s={'+' if k % 2 == 0 else '-'}1)" for k in range(self.yarn_count)]
+
+    def step_load(self, index: int) -> float:
+        """The load of step `index` of the path [N or m]: what `Solver.step` takes."""
+        return float(self.load_values[index])
+
+    def attrs(self) -> dict:
+        """Root attributes of the model's result file besides the run's and the solver's."""
+        scene = self.scene
+        attrs = {"projected_length": scene.geometry.length,
+                 "reference_state": scene.geometry.reference, "yarn_labels": self.labels,
+                 "terms": list(self.terms)}
+        width = width_per_yarn(scene)
+        if width is not None:
+            attrs["width_per_yarn"] = width
+        return attrs
+
+    def reference(self) -> dict:
+        """The result file's `reference/`: the yarns as woven, the crossing nodes."""
+        return {"positions": self.stacked("rest_position"),
+                "crossing_nodes": self.yarns[0].crossing_node}
+
+    def initial_state(self) -> "State":
+        """The as-woven start (`initial_state`)."""
+        return initial_state(self)
+
+    def state_from_step(self, last: dict) -> "State":
+        """The state a finished step left (a resumed run continues from it)."""
+        return State(positions=np.array(last["positions"]), anchors=np.array(last["anchors"]),
+                     dissipated=np.array(last["dissipated"]), load=np.array(last["load"]))
+
+    def point_data(self, entry: dict) -> dict:
+        """A step's or frame's nodal point data of the XDMF view (`dynfab.xdmf.nodal_point_data`)."""
+        from dynfab.xdmf import nodal_point_data
+
+        return nodal_point_data(np.asarray(entry["positions"]), np.asarray(entry["anchors"]),
+                                np.asarray(entry["contact_force"]), self.yarns[0].crossing_node)
+
+    def check_step(self, record: dict) -> None:
+        """SolverError if the step left the model's domain: a yarn folded back
+        (`dynfab.domain.check_not_folded`)."""
+        check_not_folded(record, self.labels)
+
+    def solver(self, name: str, device: str | None = None, status=None):
+        """The solver `name` ("static", "dynamic") for this model: a `dynfab.solver.Solver`, or
+        for dynamic.mode = "transient" a `Transient`; within a step the dynamic solver
+        reports each launch to `status`, the static one each yarn solved (a batch's)."""
+        if name == "static":
+            if device is not None:
+                raise UserError(f"--device {device}: the static solver runs on the CPU (numba); "
+                                "a device is for --solver dynamic")
+            from dynfab.static import StaticSolver
+            return StaticSolver(self, status=status)
+        from dynfab.dynamic import DynamicSolver, DynamicTransient
+        kind = DynamicTransient if self.scene.dynamic.mode == "transient" else DynamicSolver
+        return kind(self, device=device or "cpu", progress=status)
 
     def fixed_dofs(self) -> np.ndarray:
         """Fixed dofs (2 (N+1),) bool: node 0 pinned, z_N fixed, x_N under displacement control."""
@@ -145,7 +214,8 @@ def build_model(scene: Scene) -> Model:
     structure = yarn_structure(scene)
     yarns = tuple(chain_view(structure, k, registry.active_mask(scene))
                   for k in range(structure.chain_start.size - 1))
-    return Model(scene=scene, yarns=yarns, terms=registry.active_terms(scene),
+    return Model(scene=scene, structure=structure, yarns=yarns,
+                 terms=registry.active_terms(scene),
                  control=scene.load.control, load_values=np.asarray(scene.load.values, float))
 
 

@@ -24,31 +24,23 @@ from typing import Callable
 import numpy as np
 
 from dynfab.budget import check_budget
-from dynfab.domain import SLIP_LIMIT, check_not_folded
 from dynfab.errors import DynfabError, SolverError, UserError
 from dynfab.options import apply_run_options, check_solver
-from dynfab.model import Model, State, build_model, initial_state, width_per_yarn
+from dynfab.model import build_model
 from dynfab.results import ResultFile, Results, dynfab_version, finished_counts, read_results
-from dynfab.scene import Scene, expand_sweep, scene_to_toml
-from dynfab.solver import Solver, Transient
+from dynfab.scene import Scene, scene_to_toml
+from dynfab.solver import RunModel, Solver, Transient
+from dynfab.summary import step_line
 from dynfab.views import add_views
-from dynfab.xdmf import XdmfSync, has_views, nodal_point_data, xdmf_path
+from dynfab.xdmf import XdmfSync, has_views, xdmf_path
 
-def make_solver(model: Model, solver: str, device: str | None = None,
+def make_solver(model: RunModel, solver: str, device: str | None = None,
                 progress=None) -> Solver | Transient:
-    """The solver object named `solver`, built for `model` (its options are the scene's): a
-    `Solver` driven by load step, or for dynamic.mode = "transient" a `Transient` driven by
-    time (`dynfab.solver`); within a step, the dynamic solver reports each launch to
-    `progress`, the static one each yarn solved (a batch's)."""
-    if check_solver(solver) == "static":
-        if device is not None:
-            raise UserError(f"--device {device}: the static solver runs on the CPU (numba); "
-                             "a device is for --solver dynamic")
-        from dynfab.static import StaticSolver
-        return StaticSolver(model, status=progress)
-    from dynfab.dynamic import DynamicSolver, DynamicTransient
-    kind = DynamicTransient if model.scene.dynamic.mode == "transient" else DynamicSolver
-    return kind(model, device=device or "cpu", progress=progress)
+    """The solver object named `solver` ("static", "dynamic"), built for `model` by the model
+    (`RunModel.solver`; its options are the scene's): a `Solver` driven by load step, or for
+    dynamic.mode = "transient" a `Transient` driven by time (`dynfab.solver`); it reports
+    within a step to `progress`."""
+    return model.solver(check_solver(solver), device, progress)
 
 
 def run(scene: Scene, solver: str = "static", out: str | Path | None = None, *,
@@ -176,37 +168,28 @@ def _interrupts_held_back():
 
 def _build(scene: Scene, solver: str, out, status, device: str | None, options: dict):
     """The model and the solver, the run options set on the scene (`dynfab.options`) and the
-    run's memory and result file (`out`, None: not checked) estimated first (`dynfab.budget`,
-    a fabric's too);
+    run's memory and result file (`out`, None: not checked) estimated first (`dynfab.budget`);
     the solver reports within each step to `status`."""
-    if scene.geometry.model == "fabric":  # docs/model.md section 10
-        from dynfab.fabric.from_scene import build_run
-        check_budget(scene, out)
-        return build_run(scene, solver, device, options, status)
     scene = apply_run_options(scene, solver, **options)
     check_budget(scene, out)
     model = build_model(scene)
     return model, make_solver(model, solver, device, status)
 
 
-def _solve(model: Model, engine: Solver | Transient, sink, progress) -> int:
+def _solve(model: RunModel, engine: Solver | Transient, sink, progress) -> int:
     """Solve the load steps (or the transient) the sink lacks; the number of entries added."""
     if isinstance(engine, Transient):
         return _run_transient(model, engine, sink, progress)
     state = _start_state(model, sink)
-    values = model.load_values
     unit = "N" if model.control == "force" else "m"
-    first, floors, total = sink.step_count, [], len(values)
-    attrs = model.attrs() if _is_fabric(model) else {}
-    labels = attrs["yarn_labels"] if attrs else yarn_labels(model.scene)
+    first, floors, total = sink.step_count, [], len(model.load_values)
+    attrs = model.attrs()
     for index in range(first, total):
         started = time.perf_counter()
-        load = float(values[index]) if values.ndim == 1 else values[index]  # fabric: (warp, weft)
+        load = model.step_load(index)
         try:
             state, record = engine.step(state, load)
-            check_not_folded(record, labels)
-            if _is_fabric(model):
-                model.check_crossings_held(record)  # docs/model.md section 10
+            model.check_step(record)  # the model's domain (docs/model.md, section 10)
         except SolverError as error:
             shown = " ".join(f"{v:.6g}" for v in np.atleast_1d(load))
             raise SolverError(f"load step {index + 1}/{total} (load {shown} {unit}): "
@@ -216,16 +199,9 @@ def _solve(model: Model, engine: Solver | Transient, sink, progress) -> int:
         sink.append_step(_like_previous(record, sink.last_step() if sink.step_count else None))
         floors.append(np.any(record["rounding_floor"]))
         if progress is not None:
-            progress(_progress_line(index, total, record, unit,
-                                    _step_quantities(attrs, record, unit)))
+            progress(step_line(index, total, record, attrs, unit))
     _warn_rounding_floor(floors)
     return sink.step_count - first
-
-
-def _is_fabric(model) -> bool:
-    """A fabric's run (docs/model.md section 10): its model is
-    `dynfab.fabric.from_scene.FabricModel`."""
-    return model.scene.geometry.model == "fabric"
 
 
 def _like_previous(entry: dict, previous: dict | None) -> dict:
@@ -237,15 +213,10 @@ def _like_previous(entry: dict, previous: dict | None) -> dict:
     return {name: value for name, value in entry.items() if name in previous}
 
 
-def _add_point_data(model: Model, entry: dict) -> None:
-    """Add the nodal point data of the XDMF view (`dynfab.xdmf.nodal_point_data`) to a step
-    or frame (`_like_previous` drops them where the file continued has none)."""
-    if _is_fabric(model):
-        entry.update(model.point_data(entry))
-        return
-    entry.update(nodal_point_data(np.asarray(entry["positions"]), np.asarray(entry["anchors"]),
-                                  np.asarray(entry["contact_force"]),
-                                  model.yarns[0].crossing_node))
+def _add_point_data(model: RunModel, entry: dict) -> None:
+    """Add the nodal point data of the XDMF view (`RunModel.point_data`) to a step or frame
+    (`_like_previous` drops them where the file continued has none)."""
+    entry.update(model.point_data(entry))
 
 
 def _warn_rounding_floor(floors: list) -> None:
@@ -259,13 +230,13 @@ def _warn_rounding_floor(floors: list) -> None:
                       f"steps/error_estimate", RuntimeWarning, stacklevel=3)
 
 
-def frame_times(model: Model) -> np.ndarray:
+def frame_times(model: RunModel) -> np.ndarray:
     """The output times of a transient run [s]: 0, every output_interval, and the duration."""
     options = model.scene.dynamic
     return np.append(np.arange(0.0, options.duration, options.output_interval), options.duration)
 
 
-def _run_transient(model: Model, engine: Transient, sink, progress) -> int:
+def _run_transient(model: RunModel, engine: Transient, sink, progress) -> int:
     """A transient run (docs/model.md section 5): append every frame as it comes; resume from the
     last one."""
     resume_from = sink.last_frame() if sink.frame_count else None
@@ -273,7 +244,7 @@ def _run_transient(model: Model, engine: Transient, sink, progress) -> int:
     if resume_from is not None and float(resume_from["time"]) >= duration:
         return 0
     first = sink.frame_count
-    for frame in engine.advance(initial_state(model), resume_from):
+    for frame in engine.advance(model.initial_state(), resume_from):
         _add_point_data(model, frame)
         sink.append_frame(_like_previous(frame, sink.last_frame() if sink.frame_count else None))
         if progress is not None:
@@ -283,7 +254,7 @@ def _run_transient(model: Model, engine: Transient, sink, progress) -> int:
     return sink.frame_count - first
 
 
-def _open_sink(model: Model, engine: Solver | Transient, out, *, overwrite: bool,
+def _open_sink(model: RunModel, engine: Solver | Transient, out, *, overwrite: bool,
                resume: bool) -> ResultFile:
     """The result file: created, overwritten or resumed, sized for the run's entries."""
     capacity = ({"frame_capacity": frame_times(model).size} if isinstance(engine, Transient)
@@ -305,89 +276,23 @@ def _open_sink(model: Model, engine: Solver | Transient, out, *, overwrite: bool
                              overwrite=overwrite, views=add_views, **capacity)
 
 
-def _start_state(model: Model, sink) -> State:
+def _start_state(model: RunModel, sink):
     """The as-woven start, or the last finished step of a resumed file."""
-    if _is_fabric(model):
-        return model.state_from_step(sink.last_step()) if sink.step_count else \
-            model.initial_state()
-    if sink.step_count == 0:
-        return initial_state(model)
-    last = sink.last_step()
-    return State(positions=np.array(last["positions"]), anchors=np.array(last["anchors"]),
-                 dissipated=np.array(last["dissipated"]), load=np.array(last["load"]))
+    return model.state_from_step(sink.last_step()) if sink.step_count else model.initial_state()
 
 
-def _root_attrs(model: Model, engine: Solver | Transient) -> dict:
-    """Root attributes of the result file (HDF5 layout in dynfab/results.py)."""
+def _root_attrs(model: RunModel, engine: Solver | Transient) -> dict:
+    """Root attributes of the result file (HDF5 layout in dynfab/results.py): the run's, the
+    model's (`RunModel.attrs`) and the solver's."""
     scene = model.scene
     attrs = {"scene": scene_to_toml(scene), "scene_source": scene.text,
              "solver": engine.name, "dynfab_version": dynfab_version(),
              "title": scene.title, "load_control": model.control}
-    if _is_fabric(model):
-        return {**attrs, **model.attrs(), **engine.attrs()}
-    attrs = {**attrs,
-             "projected_length": scene.geometry.length,
-             "reference_state": scene.geometry.reference, "yarn_labels": yarn_labels(scene),
-             "terms": list(model.terms)}
-    width = width_per_yarn(scene)
-    if width is not None:
-        attrs["width_per_yarn"] = width
-    attrs.update(engine.attrs())
-    return attrs
+    return {**attrs, **model.attrs(), **engine.attrs()}
 
 
-def _reference(model: Model) -> dict:
-    if _is_fabric(model):
-        return model.reference()
-    return {"positions": model.stacked("rest_position"),
-            "crossing_nodes": model.yarns[0].crossing_node}
-
-
-def yarn_labels(scene: Scene) -> list[str]:
-    """One label per simulated yarn: its sweep entry, or its index and phase s_k."""
-    if scene.sweep:
-        return [", ".join(f"{key}={values[i]:g}" for key, values in scene.sweep)
-                for i in range(len(expand_sweep(scene)))]
-    return [f"yarn {k + 1} (s={'+' if k % 2 == 0 else '-'}1)" for k in range(scene.geometry.yarns)]
-
-
-def _progress_line(index: int, total: int, record: dict, unit: str, quantities: str) -> str:
-    """One line per finished load step: the step's `quantities` (`_step_quantities`), worst
-    residual, iterations, time."""
-    steps = record.get("time_steps", record["iterations"])
-    what = "time steps" if "time_steps" in record else "iterations"
-    buckled, stable = record.get("buckled"), record.get("stable")
-    note = ("  (buckled: left an unstable state)" if buckled is not None and buckled.any() else "")
-    if stable is not None and not stable.all():
-        note += "  (unstable: no escape lowered the energy; see steps/lowest_eigenvalue)"
-    return (f"[{index + 1:>{len(str(total))}}/{total}] {quantities}  "
-            f"residual {np.max(record['residual']):.2e} N  {what} {int(np.max(steps))}  "
-            f"{record['wall_time']:.3f} s{note}")
-
-
-def _step_quantities(attrs: dict, record: dict, unit: str) -> str:
-    """What a progress line shows of a step, each quantity saying whose it is: the load and
-    end displacement of the one-yarn model (the largest over its yarns when it has several);
-    a fabric's loads (warp, weft) and then, in a pull-out (`attrs["pullout_warp"]`), the
-    pulled warp's end displacement and pull force and the wefts' mean strain, otherwise
-    both families' strain and stress (means over their loaded yarns, docs/model.md
-    section 10), and its largest slip ratio (`dynfab.domain.slip_ratios`)."""
-    load = np.atleast_1d(record["load"])
-    if attrs.get("model") != "fabric":
-        u = 1e3 * np.atleast_1d(record["end_displacement"])
-        whose = f" (largest of {u.size} yarns)" if u.size > 1 else ""
-        return f"load {load[0]:.6g} {unit}  end displacement {u.max():.4f} mm{whose}"
-    text = f"load {load[0]:.6g}, {load[1]:.6g} {unit} (warp, weft)  "
-    strain, stress = 100 * np.asarray(record["strain"]), np.asarray(record["stress"])
-    if "pullout_warp" in attrs:
-        k = int(attrs["pullout_warp"])
-        text += (f"warp {k} (pulled): end displacement "
-                 f"{1e3 * record['end_displacement'][k - 1]:.4f} mm, pull force "
-                 f"{record['end_force'][k - 1]:.4g} N  wefts' mean strain {strain[1]:.4f} %")
-    else:
-        text += (f"mean strain {strain[0]:.4f}, {strain[1]:.4f} %, stress {stress[0]:.4g}, "
-                 f"{stress[1]:.4g} N/m (warp, weft)")
-    return text + f"  slip {float(record['slip_ratio']):.3f} of a segment"
+def _reference(model: RunModel) -> dict:
+    return model.reference()
 
 
 class _MemorySink:
@@ -427,139 +332,3 @@ def _stack(records: list[dict]) -> dict:
     return {name: np.stack([r[name] for r in records]) for name in names}
 
 
-def print_summary(results: Results, file=sys.stdout) -> None:
-    """The summary table (per step, or per frame of a transient run), then the run's summary
-    (`run_summary`): its steps, solver time and final state."""
-    if results.step_count == 0:
-        _print_frames_summary(results, file)
-    elif results.attrs.get("model") == "fabric":
-        _print_fabric_summary(results, file)
-    else:
-        _print_yarn_summary(results, file)
-    for line in run_summary(results):
-        print(line, file=file)
-
-
-def _print_yarn_summary(results: Results, file) -> None:
-    """The one-yarn model's table: per step and yarn, load, end displacement, end force,
-    largest contact force, residual, time."""
-    steps = results.steps
-    unit = "N" if results.attrs.get("load_control") == "force" else "m"
-    labels = results.attrs.get("yarn_labels") or []
-    header = (f"{'step':>4} {'yarn':>4} {'load [' + unit + ']':>12} {'u_end [mm]':>11} "
-              f"{'P [N]':>11} {'max R [N]':>11} {'residual [N]':>12} {'time [s]':>9}")
-    print(header, file=file)
-    contact = steps.get("contact_force")
-    for i in range(results.step_count):
-        for k in range(steps["load"].shape[1]):
-            largest = float(contact[i, k].max()) if contact is not None and contact.shape[-1] else 0.0
-            print(f"{i + 1:>4} {k + 1:>4} {steps['load'][i, k]:>12.6g} "
-                  f"{1e3 * steps['end_displacement'][i, k]:>11.5f} {steps['end_force'][i, k]:>11.5g} "
-                  f"{largest:>11.5g} {steps['residual'][i, k]:>12.3e} {steps['wall_time'][i]:>9.4f}",
-                  file=file)
-    for k, label in enumerate(labels):
-        print(f"yarn {k + 1}: {label}", file=file)
-
-
-def _print_fabric_summary(results: Results, file) -> None:
-    """A fabric's table (docs/model.md section 10), each column saying whose it is: per step
-    the (warp, weft) loads; in a pull-out the pulled warp's end displacement and pull force
-    and the wefts' mean strain and stress, otherwise each family's strain and stress (means
-    over its loaded yarns); the largest contact force and slip ratio, the residual, the time."""
-    steps, attrs = results.steps, results.attrs
-    unit = "N" if attrs.get("load_control") == "force" else "m"
-    pulled = attrs.get("pullout_warp")
-    strain, stress = _family_arrays(results, "strain"), _family_arrays(results, "stress")
-    slip = np.asarray(steps.get("slip_ratio", np.full(results.step_count, np.nan)), float)
-    if pulled is not None:
-        k = int(pulled)
-        middle = (f"{f'u w{k} [mm]':>10} {f'P w{k} [N]':>10} {'strain we':>10} "
-                  f"{'N_we [N/m]':>10}")
-        key = (f"w{k}: the pulled warp {k} (end displacement u, pull force P); strain we, "
-               f"N_we: the wefts' mean strain and load per unit width")
-    else:
-        middle = f"{'strain wa':>10} {'strain we':>10} {'N_wa [N/m]':>10} {'N_we [N/m]':>10}"
-        key = ("strain, N [N/m]: each family's mean strain and load per unit width over its "
-               "loaded yarns (wa: warps, we: wefts)")
-    print(f"{'step':>4} {'warp load':>11} {'weft load':>11} {middle} {'max R [N]':>10} "
-          f"{'slip/seg':>8} {'residual':>10} {'time [s]':>9}", file=file)
-    for i in range(results.step_count):
-        if pulled is not None:
-            values = (f"{1e3 * steps['end_displacement'][i, k - 1]:>10.5f} "
-                      f"{steps['end_force'][i, k - 1]:>10.4g} {strain[i, 1]:>10.4g} "
-                      f"{stress[i, 1]:>10.4g}")
-        else:
-            values = (f"{strain[i, 0]:>10.4g} {strain[i, 1]:>10.4g} {stress[i, 0]:>10.4g} "
-                      f"{stress[i, 1]:>10.4g}")
-        print(f"{i + 1:>4} {steps['load'][i, 0]:>11.5g} {steps['load'][i, 1]:>11.5g} {values} "
-              f"{steps['contact_force'][i].max():>10.4g} {slip[i]:>8.3f} "
-              f"{float(steps['residual'][i]):>10.2e} {steps['wall_time'][i]:>9.3f}", file=file)
-    print(f"loads in {unit}; {key}; slip/seg: the largest slip ratio of a crossing node "
-          f"(docs/model.md section 10)", file=file)
-
-
-def _family_arrays(results: Results, name: str) -> np.ndarray:
-    """(steps, 2) a fabric's per-family `steps/<name>`; NaN where the file lacks it (a file
-    written before `stress` was recorded)."""
-    value = results.steps.get(name)
-    return np.full((results.step_count, 2), np.nan) if value is None else np.asarray(value, float)
-
-
-def run_summary(results: Results) -> list[str]:
-    """The lines printed after a run's table: its load steps (or frames) and the solver time
-    summed over them (`steps/wall_time`), then the last step's state, each quantity saying
-    whose it is: a fabric's strains and stresses per family (means over the loaded yarns),
-    a pull-out's pulled warp and its peak pull force, the largest slip ratio; the one-yarn
-    model's end force and displacement per yarn (and load per unit width, with a weft)."""
-    if results.step_count == 0:
-        times = results.frames.get("time", [])
-        return [f"{len(times)} frames to t = {float(times[-1]) if len(times) else 0.0:.6g} s"]
-    steps, attrs = results.steps, results.attrs
-    lines = [f"{results.step_count} load steps, {float(np.sum(steps['wall_time'])):.3f} s "
-             f"in the solver"]
-    if attrs.get("model") == "fabric":
-        return lines + _fabric_summary(results)
-    labels = attrs.get("yarn_labels") or []
-    stress = steps.get("stress")
-    for k in range(np.asarray(steps["end_force"]).shape[1]):
-        label = labels[k] if k < len(labels) else f"yarn {k + 1}"
-        line = (f"last step, yarn {k + 1} ({label}): end force {steps['end_force'][-1, k]:.6g} N, "
-                f"end displacement {1e3 * steps['end_displacement'][-1, k]:.5f} mm")
-        if stress is not None:
-            line += f", load per unit width {stress[-1, k]:.6g} N/m"
-        lines.append(line)
-    return lines
-
-
-def _fabric_summary(results: Results) -> list[str]:
-    """`run_summary`'s lines on a fabric's last step, its pull-out and its slips."""
-    steps, attrs = results.steps, results.attrs
-    strain, stress = _family_arrays(results, "strain")[-1], _family_arrays(results, "stress")[-1]
-    lines = [f"last step: mean strain {100 * strain[0]:.5g} %, {100 * strain[1]:.5g} % and load "
-             f"per unit width {stress[0]:.6g}, {stress[1]:.6g} N/m (warp, weft: means over each "
-             f"family's loaded yarns)"]
-    if "pullout_warp" in attrs:
-        k = int(attrs["pullout_warp"])
-        force, u = steps["end_force"][:, k - 1], steps["end_displacement"][:, k - 1]
-        peak = int(np.argmax(force))
-        lines.append(f"pull-out of warp {k}: peak pull force {force[peak]:.6g} N at step "
-                     f"{peak + 1} (end displacement {1e3 * u[peak]:.5f} mm); last step "
-                     f"{force[-1]:.6g} N at {1e3 * u[-1]:.5f} mm")
-    if "slip_ratio" in steps:
-        slip = np.asarray(steps["slip_ratio"], float)
-        worst = int(np.argmax(slip))
-        lines.append(f"largest slip of a crossing node: {slip[worst]:.3f} of its segment, at "
-                     f"step {worst + 1} (a step stops above {SLIP_LIMIT:g}: docs/model.md "
-                     f"section 10)")
-    return lines
-
-
-def _print_frames_summary(results: Results, file) -> None:
-    """A transient run's table: per frame, time, kinetic energy and largest contact force."""
-    frames = results.frames
-    print(f"{'frame':>5} {'time [s]':>11} {'kinetic [J]':>12} {'max R [N]':>11}", file=file)
-    contact = frames.get("contact_force")
-    for i, time_s in enumerate(frames.get("time", [])):
-        largest = float(contact[i].max()) if contact is not None and contact[i].size else 0.0
-        print(f"{i:>5} {time_s:>11.6g} {frames['energy/kinetic'][i].max():>12.4g} {largest:>11.5g}",
-              file=file)

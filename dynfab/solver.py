@@ -30,6 +30,8 @@ from typing import Iterator, Mapping, Protocol, runtime_checkable
 import numpy as np
 
 from dynfab.model import State
+from dynfab.scene import Scene
+from dynfab.structure import Structure
 
 Record = dict[str, np.ndarray]
 """One finished load step: dataset name -> array, written as `steps/<name>` (one row per
@@ -66,6 +68,47 @@ FRAME_KEYS = ("time", "positions", "velocities", "force", "contact_force", "anch
 """Names every `Transient` frame holds, besides `energy/<term>` per reported term: time [s]
 (scalar), positions [m], velocities [m/s] and force [N] (yarns, N+1, 2), contact_force [N]
 and anchors [m] (yarns, crossings), energy/kinetic [J] (yarns,)."""
+
+
+@runtime_checkable
+class RunModel(Protocol):
+    """What a run (`dynfab.run`) needs of a model, whatever its kind: the one-yarn model
+    (`dynfab.model.Model`) and the woven fabric's (`dynfab.fabric.from_scene.FabricModel`) both
+    fulfil it, built by `dynfab.model.build_model` from a scene, so the run never asks which
+    model it drives. (Members looked up by name, as for the solvers below.)"""
+
+    scene: Scene
+    structure: Structure
+    """The scene's chains, ties and held dofs (`dynfab.structure`)."""
+    control: str
+    """"force" or "displacement"."""
+    load_values: np.ndarray
+    """The load path, one row (or value) per step [N or m]."""
+
+    def step_load(self, index: int):
+        """The load of step `index`: what the model's `Solver.step` takes."""
+
+    def attrs(self) -> dict:
+        """The model's root attributes of a result file (`yarn_labels`, lengths, terms, ...)."""
+
+    def reference(self) -> dict:
+        """The result file's `reference/` group: the as-woven state and the crossing nodes."""
+
+    def initial_state(self):
+        """The as-woven state a run starts from."""
+
+    def state_from_step(self, last: dict):
+        """The state a finished step (a record read back from a file) left."""
+
+    def point_data(self, entry: dict) -> dict:
+        """The XDMF view's nodal point data of a step or frame (`dynfab.xdmf`)."""
+
+    def check_step(self, record: dict) -> None:
+        """Raise `dynfab.errors.SolverError` if the step left the model's domain."""
+
+    def solver(self, name: str, device: str | None = None, status=None):
+        """The solver `name` ("static" or "dynamic") for this model, reporting within a step
+        to `status`."""
 
 
 @runtime_checkable

@@ -305,7 +305,7 @@ def test_the_pullout_reports_the_pulled_warp(tmp_path):
     import io
 
     from dynfab.plot import plot_fabric
-    from dynfab.run import print_summary
+    from dynfab.summary import print_summary
 
     scene, lines = parse_scene_text(small_pullout()), []
     results = run(scene, progress=lines.append)
@@ -369,8 +369,8 @@ def test_the_dynamic_fabric_solver_runs_the_periodic_cell():
 
 def test_fabric_refuses_the_accuracy_option_it_cannot_honour():
     scene = load_scene(RUNS / "fabric_biaxial.toml")
-    with pytest.raises(UserError, match=r"^--accuracy 0\.01: the fabric's solvers have no "
-                                        r"error estimate"):
+    with pytest.raises(UserError, match=r"^static\.accuracy = 0\.01: means nothing in a "
+                                        r"fabric .* no position error estimate"):
         run(scene, accuracy=0.01)
 
 

@@ -39,7 +39,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from dynfab.build.fabric import Family, families, fabric_structure
-from dynfab.domain import check_crossings_held, fabric_slip_ratios
+from dynfab.domain import check_crossings_held, check_not_folded, fabric_slip_ratios
+from dynfab.errors import UserError
 from dynfab.fabric.assembly import TERMS, planes
 from dynfab.fabric.static import FabricState, FabricStaticSolver, as_woven_state
 from dynfab.scene import Scene
@@ -107,12 +108,36 @@ class FabricModel:
         return ((2 * np.arange(self.wefts) + 1) * self.warp.segments // (2 * self.wefts),
                 (2 * np.arange(self.warps) + 1) * self.weft.segments // (2 * self.warps))
 
-    def check_crossings_held(self, record: dict) -> None:
-        """SolverError if the step carried a crossing node more than half a segment from its
-        crossing (`dynfab.domain.check_crossings_held`), for both fabric solvers."""
+    @property
+    def labels(self) -> list[str]:
+        """One label per yarn, warps first."""
+        return ([f"warp {k + 1}" for k in range(self.warps)]
+                + [f"weft {j + 1}" for j in range(self.wefts)])
+
+    def step_load(self, index: int) -> np.ndarray:
+        """The load of step `index` of the path, (warp value, weft value) [N or m]: what
+        `FabricSolver.step` takes."""
+        return self.load_values[index]
+
+    def check_step(self, record: dict) -> None:
+        """SolverError if the step left the model's domain: a yarn folded back
+        (`dynfab.domain.check_not_folded`), or a crossing node carried more than half a
+        segment from its crossing (`dynfab.domain.check_crossings_held`); for every solver."""
+        check_not_folded(record, self.labels)
         g = self.scene.geometry
         check_crossings_held(record, *self.crossing_nodes(), suggest_affine=(
             g.boundary == "clamped" and g.planes == "fixed" and self.pullout is None))
+
+    def solver(self, name: str, device: str | None = None, status=None) -> "FabricSolver":
+        """The solver `name` ("static", "dynamic") for this model under `dynfab.solver.Solver`;
+        it reports within each step to `status` (per Newton iteration, per launch of a
+        relaxation)."""
+        if device is not None and name == "static":
+            raise UserError(f"--device {device}: the static solver runs on the CPU (numba); "
+                            "a device is for --solver dynamic")
+        if name == "dynamic":
+            _check_dynamic_keys(self.scene.dynamic)
+        return FabricSolver(self, name, device or "cpu", status)
 
     def attrs(self) -> dict:
         """Root attributes of a fabric's result file besides the solver's."""
@@ -123,8 +148,7 @@ class FabricModel:
                 "width_per_yarn": self.weft.length / self.warps,
                 "length_per_weft": self.warp.length / self.wefts,
                 "reference_state": scene.geometry.reference, "load_control": self.control,
-                "yarn_labels": [f"warp {k + 1}" for k in range(self.warps)]
-                + [f"weft {j + 1}" for j in range(self.wefts)],
+                "yarn_labels": self.labels,
                 "terms": list(TERMS), **({} if self.pullout is None
                                           else {"pullout_warp": int(self.pullout)})}
 
@@ -256,28 +280,6 @@ class FabricSolver:
         return {f"energy/{term}": float(value) for term, value in zip(TERMS, solver._terms)}
 
 
-def build_run(scene: Scene, solver: str, device: str | None, options: dict, status=None):
-    """(model, solver) of a fabric run: `dynfab.run`'s build step for geometry.model =
-    "fabric"; `options` are the run options (`dynfab.options`); the solver reports within
-    each step to `status` (per Newton iteration, per launch of a relaxation)."""
-    from dynfab.errors import UserError
-    from dynfab.options import apply_run_options, check_solver
-
-    solver = check_solver(solver)
-    if device is not None and solver == "static":
-        raise UserError(f"--device {device}: the static solver runs on the CPU (numba); "
-                        "a device is for --solver dynamic")
-    if options.get("accuracy") is not None:
-        raise UserError(f"--accuracy {options['accuracy']}: the fabric's solvers have no "
-                        "error estimate to hold to it (their steps are certified by their "
-                        "residual and inertia); drop it")
-    scene = apply_run_options(scene, solver, **options)
-    if solver == "dynamic":
-        _check_dynamic_keys(scene.dynamic)
-    model = FabricModel.from_scene(scene)
-    return model, FabricSolver(model, solver, device or "cpu", status)
-
-
 _DYNAMIC_SUPPORTED = {"mode": "quasi_static", "method": "explicit", "precision": "float64",
                       "masses": None, "dt": None, "safety": 0.9}
 """The [dynamic] settings the fabric's dynamic solver runs (`FabricDynamicSolver`: a
@@ -288,8 +290,6 @@ any other value is refused rather than ignored; method "semi_implicit" is accept
 
 def _check_dynamic_keys(dynamic) -> None:
     """Refuse, in one line, a [dynamic] setting the fabric's dynamic solver would ignore."""
-    from dynfab.errors import UserError
-
     for key, supported in _DYNAMIC_SUPPORTED.items():
         value = getattr(dynamic, key)
         if key == "method" and value == "semi_implicit":  # FabricSemiImplicit
