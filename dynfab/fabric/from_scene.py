@@ -24,7 +24,8 @@ Record of one fabric step (n_wa warps of N+1 nodes, n_we wefts of M+1 nodes; Y =
 - warp_planes (n_wa,): the plane y = Y_k of each warp, weft_planes (n_we,): x = X_j of each
   weft [m], where they are at the step's end (they move with "affine" planes and on the
   periodic cell, docs/model.md section 10);
-- dissipated, work [J]; energy/<term> [J] per term of `dynfab.fabric.assembly.TERMS`;
+- dissipated, work [J]; energy/<term> [J] per active term of the registry
+  (`dynfab.terms.registry`, its dataset names and order, as the one-yarn model's);
 - residual [N], iterations, friction_solves, rounding_floor, stable, buckled (an escape
   from a saddle was taken), lowest_eigenvalue [N/m] (the eigenvalue nearest zero of the
   frozen-F_T Hessian: the lowest when none is negative), negative_eigenvalues; scalars;
@@ -45,6 +46,7 @@ from dynfab.fabric.assembly import TERMS, planes
 from dynfab.fabric.static import FabricState, FabricStaticSolver, as_woven_state
 from dynfab.scene import Scene
 from dynfab.structure import Structure
+from dynfab.terms import registry
 
 
 @dataclass
@@ -149,7 +151,7 @@ class FabricModel:
                 "length_per_weft": self.warp.length / self.wefts,
                 "reference_state": scene.geometry.reference, "load_control": self.control,
                 "yarn_labels": self.labels,
-                "terms": list(TERMS), **({} if self.pullout is None
+                "terms": list(registry.active_terms(scene)), **({} if self.pullout is None
                                           else {"pullout_warp": int(self.pullout)})}
 
     def initial_state(self) -> FabricState:
@@ -277,7 +279,9 @@ class FabricSolver:
         P = (solver.yarn_loads(warp_value, weft_value) if self.model.control == "force"
              else np.zeros(solver.yarns))
         solver.energy(state.positions, P, state.anchors, np.asarray(limit).ravel())
-        return {f"energy/{term}": float(value) for term, value in zip(TERMS, solver._terms)}
+        values = dict(zip(TERMS, solver._terms))  # the assembly's energy vector, by term name
+        return {registry.TERMS[registry.index(term)].dataset: float(values[term])
+                for term in registry.active_terms(self.model.scene)}
 
 
 _DYNAMIC_SUPPORTED = {"mode": "quasi_static", "method": "explicit", "precision": "float64",
