@@ -29,7 +29,7 @@ from dynfab.errors import DynfabError, SolverError, UserError
 from dynfab.options import apply_run_options, check_solver
 from dynfab.model import Model, State, build_model, initial_state, width_per_yarn
 from dynfab.results import ResultFile, Results, dynfab_version, finished_counts, read_results
-from dynfab.scene import Scene, expand_sweep, scene_to_toml
+from dynfab.scene import Scene, scene_to_toml, yarn_count
 from dynfab.solver import Solver, Transient
 from dynfab.xdmf import XdmfSync, nodal_point_data, xdmf_path
 
@@ -183,13 +183,14 @@ def _build(scene: Scene, solver: str, out, status, device: str | None, options: 
 
 def _solve(model: Model, engine: Solver | Transient, sink, progress) -> int:
     """Solve the load steps (or the transient) the sink lacks; the number of entries added."""
-    if isinstance(engine, Transient):
+    if _is_transient(engine):
         return _run_transient(model, engine, sink, progress)
     state = _start_state(model, sink)
     values = model.load_values
     unit = "N" if model.control == "force" else "m"
     first, floors, total = sink.step_count, [], len(values)
-    labels = model.attrs()["yarn_labels"] if _is_fabric(model) else yarn_labels(model.scene)
+    labels = ((lambda: model.attrs()["yarn_labels"]) if _is_fabric(model)
+              else (lambda: yarn_labels(model.scene)))  # made only for a folded yarn's message
     for index in range(first, total):
         started = time.perf_counter()
         load = float(values[index]) if values.ndim == 1 else values[index]  # fabric: (warp, weft)
@@ -203,11 +204,25 @@ def _solve(model: Model, engine: Solver | Transient, sink, progress) -> int:
         record["wall_time"] = time.perf_counter() - started
         _add_point_data(model, record, sink.last_step() if sink.step_count else None)
         sink.append_step(record)
-        floors.append(np.any(record["rounding_floor"]))
+        floors.append(bool(np.any(record["rounding_floor"])))
         if progress is not None:
             progress(_progress_line(index, total, record, unit, pair=values.ndim == 2))
     _warn_rounding_floor(floors)
     return sink.step_count - first
+
+
+_TRANSIENT_KINDS: dict[type, bool] = {}
+"""Whether each solver class met is a `Transient` (a Protocol's isinstance check costs more
+than a small run's bookkeeping)."""
+
+
+def _is_transient(engine: Solver | Transient) -> bool:
+    """`isinstance(engine, Transient)`, looked at once per solver class: driven in time (a
+    transient run) or by load step (`dynfab.solver`)."""
+    kind = type(engine)
+    if kind not in _TRANSIENT_KINDS:
+        _TRANSIENT_KINDS[kind] = isinstance(engine, Transient)
+    return _TRANSIENT_KINDS[kind]
 
 
 def _is_fabric(model) -> bool:
@@ -233,7 +248,7 @@ def _warn_rounding_floor(floors: list) -> None:
     """One warning at the end of a run for the steps whose residual stopped falling above the
     tolerance (docs/model.md sections 5, 6); each such step also passed the accuracy check of its
     solver."""
-    count = int(np.sum(floors))
+    count = sum(floors)
     if count:
         warnings.warn(f"{count} of {len(floors)} load steps stopped at the rounding floor, above "
                       f"their tolerance (steps/rounding_floor); their error bounds are in "
@@ -267,7 +282,7 @@ def _run_transient(model: Model, engine: Transient, sink, progress) -> int:
 def _open_sink(model: Model, engine: Solver | Transient, out, *, overwrite: bool,
                resume: bool) -> ResultFile:
     """The result file: created, overwritten or resumed, sized for the run's entries."""
-    capacity = ({"frame_capacity": frame_times(model).size} if isinstance(engine, Transient)
+    capacity = ({"frame_capacity": frame_times(model).size} if _is_transient(engine)
                 else {"step_capacity": len(model.load_values)})
     if resume:
         sink = ResultFile.resume(out, **capacity)
@@ -326,7 +341,7 @@ def yarn_labels(scene: Scene) -> list[str]:
     """One label per simulated yarn: its sweep entry, or its index and phase s_k."""
     if scene.sweep:
         return [", ".join(f"{key}={values[i]:g}" for key, values in scene.sweep)
-                for i in range(len(expand_sweep(scene)))]
+                for i in range(yarn_count(scene))]
     return [f"yarn {k + 1} (s={'+' if k % 2 == 0 else '-'}1)" for k in range(scene.geometry.yarns)]
 
 
@@ -379,9 +394,10 @@ class _MemorySink:
 
 
 def _stack(records: list[dict]) -> dict:
-    """Records of equal keys stacked along a new first axis."""
+    """Records of equal keys stacked along a new first axis (as np.stack, which costs several
+    times more for a few records)."""
     names = records[0].keys() if records else ()
-    return {name: np.stack([r[name] for r in records]) for name in names}
+    return {name: np.array([r[name] for r in records]) for name in names}
 
 
 def print_summary(results: Results, file=sys.stdout) -> None:
