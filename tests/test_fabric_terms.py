@@ -45,15 +45,13 @@ P = np.array([0.3, -0.2, 0.1, 0.05])
 """End forces of the 2 warps and 2 wefts [N] (the load term)."""
 
 
-def test_fabric(core_stiffness=1e5, boundary="clamped", planes="fixed"):
+def two_by_two_fabric(core_stiffness=1e5, boundary="clamped", planes="fixed"):
     """The 2 x 2 test fabric, every term on (gravity on the patch only: the cell refuses it)."""
     spec = FabricSpec(warp=WARP, weft=WEFT, warps=2, wefts=2, friction=FRICTION,
                       core_stiffness=core_stiffness, warp_values=(0.1,), boundary=boundary,
                       planes=planes, gravity=9.81 if boundary == "clamped" else None)
     return build_fabric(spec)
 
-
-test_fabric.__test__ = False  # a builder, not a test
 
 
 def perturbed_state(fabric, seed=7):
@@ -190,7 +188,7 @@ def term_functions(fabric, anchors, limit):
 
 @pytest.fixture(scope="module")
 def state():
-    fabric = test_fabric()
+    fabric = two_by_two_fabric()
     r, anchors, limit, g = perturbed_state(fabric)
     return fabric, r, anchors, limit, g
 
@@ -201,9 +199,9 @@ def periodic_state(request):
     end nodes; or the clamped patch with planes "affine" (moving, no wrap). Every node
     perturbed (ends too: the FD runs over every dof)."""
     if request.param == "periodic":
-        fabric = test_fabric(boundary="periodic")
+        fabric = two_by_two_fabric(boundary="periodic")
     else:
-        fabric = test_fabric(planes="affine")
+        fabric = two_by_two_fabric(planes="affine")
     r, anchors, limit, g = perturbed_state(fabric)
     return fabric, r, anchors, limit, g
 
@@ -366,7 +364,7 @@ def test_without_a_core_spring_kawabata_is_a_hard_wall():
     # k_c = inf (docs/model.md section 10): the closure C_wa + C_we is the wall. Just below it the
     # force solves C_wa (1 - e^-a_wa R) + C_we (1 - e^-a_we R) = g (to the rounding of g) and is
     # large but finite; at and beyond it the energy is +inf, so a line search rejects it.
-    fabric = test_fabric(core_stiffness=np.inf)
+    fabric = two_by_two_fabric(core_stiffness=np.inf)
     law = fabric.contact_law
     wall = law[1] + law[3]
     assert contact.wall(law) == wall
@@ -378,5 +376,5 @@ def test_without_a_core_spring_kawabata_is_a_hard_wall():
         assert np.isfinite(contact.crossing_energy(g, law))
     for g in (wall, 1.01 * wall):
         assert contact.crossing_energy(g, law) == np.inf
-    r, anchors, limit, _ = perturbed_state(test_fabric())  # crossing 1 sits past the wall
+    r, anchors, limit, _ = perturbed_state(two_by_two_fabric())  # crossing 1 sits past the wall
     assert assembly.total_energy(r, fabric, P, anchors, limit, np.zeros(len(assembly.TERMS))) == np.inf
