@@ -24,14 +24,14 @@ import sys
 
 import numpy as np
 import pytest
-from scipy.optimize import brentq
 
 from dynfab import assembly, static
 from dynfab.banded import zeros_band
 from dynfab.model import build_model, initial_state
 from dynfab.scene import with_key
 from dynfab.terms import contact, friction
-from independent import EPS, PAPER_FRICTION, PAPER_WARP, PAPER_WEFT, dense, make_scene
+from independent import (EPS, PAPER_FRICTION, PAPER_WARP, PAPER_WEFT, contact_force, dense,
+                         gralen, make_scene, scene_gralen)
 
 ALPHA, CONSTANT = 0.2, 1e3 * 2e-3 * 1e-3
 """The paper's Gralen alpha and beta ell r_f [N] (docs/model.md section 7)."""
@@ -57,8 +57,8 @@ def onset_scene(segments=32, onset=ONSET, values=(0.005,), core_stiffness=None):
 
 @pytest.mark.parametrize("R", [1e-9, 1e-7, 3e-6, 1e-5, 4e-5, 3e-4, 2e-2])
 def test_onset_law_and_its_slope(R):
-    # F_T = alpha R + c (1 - exp(-R/R_0)), written with math.expm1 (independent of numba's).
-    expected = ALPHA * R - CONSTANT * math.expm1(-R / ONSET)
+    # F_T = alpha R + c (1 - exp(-R/R_0)), the tests' reference (numpy's expm1, not numba's).
+    expected = float(gralen(R, ONSET, ALPHA, CONSTANT))
     assert friction.limit(R, ALPHA, CONSTANT, ONSET) == pytest.approx(expected, rel=4 * EPS)
     # dF_T/dR by central differences, h = 1e-3 min(R, R_0): truncation h^2 |F'''| / 6 with
     # |F'''| <= c / R_0^3, rounding 2 eps F / h (two evaluations of F, each to eps F).
@@ -137,9 +137,9 @@ def test_coupled_jacobian_entry_at_the_onset_is_the_derivative_through_R():
 
 @pytest.mark.parametrize("g", [1e-7, 3e-5, 2e-4, 5e-4])
 def test_core_stiffness_is_a_spring_in_series(g):
-    # docs/model.md section 3: R / k_we + R / k_c + delta_wa(R) + delta_we(R) = g, solved here by
-    # brentq on the left side written out; the model's R to 1e-12 relative (the left side
-    # is monotone, its root found to rounding). dE/dg = R by central differences,
+    # docs/model.md section 3: R / k_we + R / k_c + delta_wa(R) + delta_we(R) = g, solved by
+    # the tests' reference (brentq, tests/independent.py) with the two springs in series; the
+    # model's R to 1e-12 relative (the left side is monotone, its root found to rounding). dE/dg = R by central differences,
     # h = 1e-4 g: truncation h^2 |dR/dg''|/6 ~ h^2 k^3 sum C a^2 / 6, rounding 2 eps E / h.
     k_core = 50.0  # N/m, comparable to k_we so that it matters
     scene = onset_scene(core_stiffness=k_core)
@@ -147,10 +147,8 @@ def test_core_stiffness_is_a_spring_in_series(g):
     plain = build_model(onset_scene()).yarns[0].contact_law
     k_we, C_wa, a_wa, C_we, a_we = plain
 
-    def left(R):
-        return R / k_we + R / k_core + C_wa * (1 - math.exp(-a_wa * R)) + C_we * (1 - math.exp(-a_we * R))
-
-    R_expected = brentq(lambda R: left(R) - g, 0.0, 10.0, xtol=1e-300, rtol=4 * EPS)
+    in_series = 1 / (1 / k_we + 1 / k_core)  # R / k_we + R / k_c = R / in_series
+    R_expected = contact_force(g, (in_series, C_wa, a_wa, C_we, a_we))
     R = contact.force_from_closure(g, law)
     assert R == pytest.approx(R_expected, rel=1e-12)
     h = 1e-4 * g
@@ -239,13 +237,12 @@ def test_literal_law_still_stops_at_the_first_step_naming_the_crossing(tmp_path)
 
 def assert_steps_obey_the_law(scene, records):
     """Every step converged to the static tolerance, and every F_T equals the regularised
-    law (docs/model.md section 4) at the step's R to 1e-12 N, the law evaluated independently with
-    numpy's expm1."""
-    f = scene.friction
+    law (docs/model.md section 4) at the step's R to 1e-12 N, the law evaluated by the tests'
+    reference (tests/independent.py, numpy's expm1)."""
     for record in records:
         assert record["residual"].max() <= scene.static.tolerance
         R = record["contact_force"][0]
-        law = np.where(R > 0, f.alpha * R - CONSTANT * np.expm1(-R / f.onset_force), 0.0)
+        law = scene_gralen(scene, R)
         assert np.abs(record["friction_limit"][0] - law).max() <= 1e-12
 
 
