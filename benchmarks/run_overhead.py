@@ -11,13 +11,14 @@ the as-woven state). A fit or a study calls `run` thousands of times on such sce
 what `run` adds to the step counts as much as the step.
 
 Measured in one process, warm (two untimed rounds first), each figure the median of
-`REPEATS` calls, the three calls below taken in turn so that each sees the same machine:
+`REPEATS` rounds, each round taking the three calls below in turn so that they see the same
+machine:
 
 - step: `StaticSolver.step` from the as-woven state (what the solver costs);
 - build: `build_model` and `make_solver` (the model's arrays and the solver);
 - total: `dynfab.run(scene, solver="static")`;
-- outside: total - step, everything `run` does around the step (build included), and
-  its ratio to the step.
+- outside: total - step, everything `run` does around the step (build included): the
+  median over the rounds of each round's difference, and its ratio to the step's median.
 
 Each in wall time (time.perf_counter) and in this thread's CPU time (time.thread_time):
 on a machine shared with other processes, a call of a few ms is often descheduled for
@@ -58,10 +59,10 @@ def equilibrium_scene():
     return validate_scene(replace(entry, load=Load(control=entry.load.control, values=(first,))))
 
 
-def medians(calls: dict, repeats: int = REPEATS) -> dict:
-    """{name: (median wall time [s], median CPU time of this thread [s])} of `repeats` calls
-    of each of `calls`, taken in turn (so that each sees the same machine), after two
-    untimed rounds."""
+def timed_rounds(calls: dict, repeats: int = REPEATS) -> dict:
+    """{name: (wall times [s], CPU times of this thread [s])} of `repeats` rounds of `calls`,
+    each round calling each in turn (so that the calls of a round see the same machine),
+    after two untimed rounds."""
     times = {name: ([], []) for name in calls}
     for round_ in range(repeats + 2):
         for name, call in calls.items():
@@ -71,7 +72,7 @@ def medians(calls: dict, repeats: int = REPEATS) -> dict:
             if round_ >= 2:
                 times[name][0].append(wall)
                 times[name][1].append(cpu)
-    return {name: (statistics.median(w), statistics.median(c)) for name, (w, c) in times.items()}
+    return times
 
 
 def measure() -> dict:
@@ -81,17 +82,19 @@ def measure() -> dict:
     solver = make_solver(model, "static")
     start = initial_state(model)
     load = float(model.load_values[0])
-    figures = medians({"step": lambda: solver.step(start, load),
-                       "build": lambda: make_solver(build_model(scene), "static"),
-                       "total": lambda: dynfab.run(scene, solver="static")})
+    times = timed_rounds({"step": lambda: solver.step(start, load),
+                          "build": lambda: make_solver(build_model(scene), "static"),
+                          "total": lambda: dynfab.run(scene, solver="static")})
     results = dynfab.run(scene, solver="static")
     _, record = solver.step(start, load)
     assert np.array_equal(results.steps["positions"][0], record["positions"])
     out = {"segments": scene.geometry.segments, "load_m": load, "repeats": REPEATS, "aim": AIM}
     for clock, column in (("wall", 0), ("cpu", 1)):
-        step, build, total = (figures[name][column] for name in ("step", "build", "total"))
-        out[clock] = {"step_s": step, "build_s": build, "total_s": total,
-                      "outside_s": total - step, "outside_over_step": (total - step) / step}
+        step, build, total = (times[name][column] for name in ("step", "build", "total"))
+        outside = statistics.median(t - s for t, s in zip(total, step))  # paired by round
+        out[clock] = {"step_s": statistics.median(step), "build_s": statistics.median(build),
+                      "total_s": statistics.median(total), "outside_s": outside,
+                      "outside_over_step": outside / statistics.median(step)}
     return out
 
 
@@ -103,7 +106,7 @@ def main() -> None:
     print(f"dynfab from {Path(dynfab.__file__).parent}")
     print(f"{'median of ' + str(REPEATS):<14} {'wall [ms]':>10} {'CPU [ms]':>10}")
     rows = (("step", "step_s", "StaticSolver.step"), ("build", "build_s", "build_model + make_solver"),
-            ("total", "total_s", "dynfab.run, in memory"), ("outside", "outside_s", "total - step"))
+            ("total", "total_s", "dynfab.run, in memory"), ("outside", "outside_s", "total - step, per round"))
     for name, key, what in rows:
         print(f"{name:<14} {1e3 * figures['wall'][key]:>10.3f} {1e3 * figures['cpu'][key]:>10.3f}"
               f"   ({what})")
