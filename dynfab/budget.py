@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import os
 import shutil
+import time
 from pathlib import Path
 
 from dynfab.errors import UserError
@@ -85,7 +86,25 @@ def result_file_bytes(scene: Scene) -> int:
     return len(scene.load.values) * (yarns * per_yarn + VIEW_BYTES_PER_ENTRY) + view
 
 
+MEMORY_READING_AGE = 1.0
+"""How long one reading of the available memory is reused [s]: a study's many small runs
+read /proc/meminfo once a second, not once a run (the kernel's summing of it costs a
+sizeable part of a small run's bookkeeping)."""
+_last_reading: tuple[float, int | None] | None = None
+"""(time.monotonic() [s], value [B]) of the last reading of /proc/meminfo."""
+
+
 def available_memory_bytes() -> int | None:
+    """MemAvailable of /proc/meminfo [B] (a reading at most MEMORY_READING_AGE old), or
+    None where it cannot be read."""
+    global _last_reading
+    now = time.monotonic()
+    if _last_reading is None or now - _last_reading[0] > MEMORY_READING_AGE:
+        _last_reading = (now, _read_available_memory())
+    return _last_reading[1]
+
+
+def _read_available_memory() -> int | None:
     """MemAvailable of /proc/meminfo [B], or None where it cannot be read."""
     try:
         with open("/proc/meminfo") as meminfo:

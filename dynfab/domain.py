@@ -18,6 +18,8 @@ writing it as a result.
 
 from __future__ import annotations
 
+from typing import Callable, Sequence
+
 import numpy as np
 
 from dynfab.errors import SolverError
@@ -35,11 +37,13 @@ def first_fold(chains: np.ndarray) -> tuple[int, int, float] | None:
     return int(yarn), int(segment), float(extent[yarn, segment])
 
 
-def check_not_folded(record: dict, labels: list[str]) -> None:
+def check_not_folded(record: dict, labels: Sequence[str] | Callable[[], Sequence[str]]) -> None:
     """Raise SolverError if a yarn of the step's record has folded back (`first_fold`).
 
     `record["positions"]` holds the yarns of the one-yarn model or a fabric's warps, and
-    a fabric's record also `weft_positions`; `labels` names them in that order."""
+    a fabric's record also `weft_positions`; `labels` names them in that order (or makes
+    them: called only when a yarn has folded, so that a run does not build every yarn's
+    label at every step)."""
     chains = [np.asarray(record["positions"], float)]
     if "weft_positions" in record:
         chains.append(np.asarray(record["weft_positions"], float))
@@ -48,8 +52,9 @@ def check_not_folded(record: dict, labels: list[str]) -> None:
         fold = first_fold(family)
         if fold is not None:
             yarn, segment, extent = fold
+            names = labels() if callable(labels) else labels
             raise SolverError(
-                f"{labels[offset + yarn]} folded back at segment {segment + 1} (its extent "
+                f"{names[offset + yarn]} folded back at segment {segment + 1} (its extent "
                 f"along the yarn is {extent:.3g} m): the load has turned the yarn beyond the "
                 f"model's domain (docs/model.md, what the model is not)")
         offset += family.shape[0]

@@ -153,7 +153,7 @@ class Model:
     def check_step(self, record: dict) -> None:
         """SolverError if the step left the model's domain: a yarn folded back
         (`dynfab.domain.check_not_folded`)."""
-        check_not_folded(record, self.labels)
+        check_not_folded(record, lambda: self.labels)  # labels made only for the message
 
     def solver(self, name: str, device: str | None = None, status=None):
         """The solver `name` ("static", "dynamic") for this model: a `dynfab.solver.Solver`, or

@@ -69,6 +69,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import functools
 import glob
 import importlib.metadata
 import os
@@ -201,8 +202,12 @@ def units_of(name: str, load_control: str | None = None) -> str:
     return units
 
 
+@functools.cache
 def dynfab_version() -> str:
-    """The installed dynfab version, or "unknown" when run from a source tree."""
+    """The installed dynfab version, or "unknown" when run from a source tree.
+
+    Looked up once per process: the installed metadata does not change under a running
+    process, and reading it (`importlib.metadata`) costs more than a small run's step."""
     try:
         return importlib.metadata.version("dynfab")
     except importlib.metadata.PackageNotFoundError:

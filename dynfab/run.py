@@ -178,12 +178,12 @@ def _build(scene: Scene, solver: str, out, status, device: str | None, options: 
 
 def _solve(model: RunModel, engine: Solver | Transient, sink, progress) -> int:
     """Solve the load steps (or the transient) the sink lacks; the number of entries added."""
-    if isinstance(engine, Transient):
+    if _is_transient(engine):
         return _run_transient(model, engine, sink, progress)
     state = _start_state(model, sink)
     unit = "N" if model.control == "force" else "m"
     first, floors, total = sink.step_count, [], len(model.load_values)
-    attrs = model.attrs()
+    attrs = model.attrs() if progress is not None else {}  # the progress line's only
     for index in range(first, total):
         started = time.perf_counter()
         load = model.step_load(index)
@@ -197,7 +197,7 @@ def _solve(model: RunModel, engine: Solver | Transient, sink, progress) -> int:
         record["wall_time"] = time.perf_counter() - started
         _add_point_data(model, record)
         sink.append_step(_like_previous(record, sink.last_step() if sink.step_count else None))
-        floors.append(np.any(record["rounding_floor"]))
+        floors.append(bool(np.any(record["rounding_floor"])))
         if progress is not None:
             progress(step_line(index, total, record, attrs, unit))
     _warn_rounding_floor(floors)
@@ -213,6 +213,20 @@ def _like_previous(entry: dict, previous: dict | None) -> dict:
     return {name: value for name, value in entry.items() if name in previous}
 
 
+_TRANSIENT_KINDS: dict[type, bool] = {}
+"""Whether each solver class met is a `Transient` (a Protocol's isinstance check costs more
+than a small run's bookkeeping)."""
+
+
+def _is_transient(engine: Solver | Transient) -> bool:
+    """`isinstance(engine, Transient)`, looked at once per solver class: driven in time (a
+    transient run) or by load step (`dynfab.solver`)."""
+    kind = type(engine)
+    if kind not in _TRANSIENT_KINDS:
+        _TRANSIENT_KINDS[kind] = isinstance(engine, Transient)
+    return _TRANSIENT_KINDS[kind]
+
+
 def _add_point_data(model: RunModel, entry: dict) -> None:
     """Add the nodal point data of the XDMF view (`RunModel.point_data`) to a step or frame
     (`_like_previous` drops them where the file continued has none)."""
@@ -223,7 +237,7 @@ def _warn_rounding_floor(floors: list) -> None:
     """One warning at the end of a run for the steps whose residual stopped falling above the
     tolerance (docs/model.md sections 5, 6); each such step also passed the accuracy check of its
     solver."""
-    count = int(np.sum(floors))
+    count = sum(floors)
     if count:
         warnings.warn(f"{count} of {len(floors)} load steps stopped at the rounding floor, above "
                       f"their tolerance (steps/rounding_floor); their error bounds are in "
@@ -257,7 +271,7 @@ def _run_transient(model: RunModel, engine: Transient, sink, progress) -> int:
 def _open_sink(model: RunModel, engine: Solver | Transient, out, *, overwrite: bool,
                resume: bool) -> ResultFile:
     """The result file: created, overwritten or resumed, sized for the run's entries."""
-    capacity = ({"frame_capacity": frame_times(model).size} if isinstance(engine, Transient)
+    capacity = ({"frame_capacity": frame_times(model).size} if _is_transient(engine)
                 else {"step_capacity": len(model.load_values)})
     if resume:
         sink = ResultFile.resume(out, views=add_views, **capacity)
@@ -327,8 +341,9 @@ class _MemorySink:
 
 
 def _stack(records: list[dict]) -> dict:
-    """Records of equal keys stacked along a new first axis."""
+    """Records of equal keys stacked along a new first axis (as np.stack, which costs several
+    times more for a few records)."""
     names = records[0].keys() if records else ()
-    return {name: np.stack([r[name] for r in records]) for name in names}
+    return {name: np.array([r[name] for r in records]) for name in names}
 
 

@@ -31,10 +31,12 @@ from __future__ import annotations
 
 import datetime
 import difflib
+import functools
 import json
 import math
 import numbers
 import tomllib
+import weakref
 from dataclasses import MISSING, dataclass, field, fields, replace
 from pathlib import Path
 
@@ -388,26 +390,42 @@ def scene_to_toml(scene: Scene) -> str:
     lines = [f"title = {_toml_value(scene.title)}"] if scene.title else []
     for name in SCENE_TABLES:
         table = getattr(scene, name)
-        if table is None:
-            continue
-        lines.append(f"\n[{name}]")
-        lines += [f"{f.name} = {_toml_value(getattr(table, f.name))}" for f in fields(table)
-                  if getattr(table, f.name) is not None and _written(scene, f)]
+        if table is not None:
+            lines.append(f"\n[{name}]")
+            lines += _table_lines(table, scene.geometry.model)
     if scene.sweep:
         lines.append("\n[sweep]")
         lines += [f"{json.dumps(key)} = {_toml_value(list(values))}" for key, values in scene.sweep]
     return "\n".join(lines) + "\n"
 
 
-def _written(scene: Scene, f) -> bool:
-    """Whether `scene_to_toml` writes field f: not a key of the other model (at its default
+_TABLE_LINES: dict[tuple[int, str], tuple[weakref.ref, tuple[str, ...]]] = {}
+"""`_table_lines` of the tables alive, by (id, geometry.model): the scenes that `with_key`
+makes share every table but the one changed, so a study's runs write only that one anew."""
+
+
+def _table_lines(table, model: str) -> tuple[str, ...]:
+    """The `key = value` lines of one (frozen) table of a scene of geometry.model `model`."""
+    index = (id(table), model)
+    known = _TABLE_LINES.get(index)
+    if known is not None and known[0]() is table:
+        return known[1]
+    values = ((key, getattr(table, key)) for key in _written_keys(type(table), model))
+    lines = tuple(f"{key} = {_toml_value(value)}" for key, value in values if value is not None)
+    _TABLE_LINES[index] = (weakref.ref(table, lambda _, index=index: _TABLE_LINES.pop(index, None)),
+                           lines)
+    return lines
+
+
+@functools.cache
+def _written_keys(table: type, model: str) -> tuple[str, ...]:
+    """The keys of a table class that `scene_to_toml` writes (when not None) for a scene of
+    geometry.model `model`, in field order: not a key of the other model (at its default
     there, and refused if written), nor geometry.model = "yarn" (so a one-yarn scene's text
     is what it was before the fabric existed)."""
-    spec = f.metadata["scene_key"]
-    model = scene.geometry.model
-    if f.name == "model" and model == "yarn":
-        return False
-    return spec.model in ("", model)
+    return tuple(f.name for f in fields(table)
+                 if not (f.name == "model" and model == "yarn")
+                 and f.metadata["scene_key"].model in ("", model))
 
 
 def _toml_value(value) -> str:
@@ -421,14 +439,29 @@ def _toml_value(value) -> str:
     return repr(value)
 
 
+_VALIDATED: weakref.WeakValueDictionary[int, Scene] = weakref.WeakValueDictionary()
+"""The scenes `validate_scene` passed, by id (an entry goes with its scene)."""
+
+
 def validate_scene(scene: Scene) -> Scene:
     """Check every value and every combination of a Scene; return it, a fabric's
     geometry.planes left out (None) set to what runs: "fixed" on a clamped patch,
     "cell" on a periodic cell (`planes_of`), so that a result file stores it.
 
-    Runs on parsed scenes and on scenes built in Python alike.
+    Runs on parsed scenes and on scenes built in Python alike. A scene is checked once: the
+    very same (frozen) object passed again returns at once, so that `run` re-checking a scene
+    that `load_scene` or `with_key` made costs nothing.
     """
+    if _VALIDATED.get(id(scene)) is scene:
+        return scene
     scene = _resolve_planes(scene)
+    _check_scene(scene)
+    _VALIDATED[id(scene)] = scene
+    return scene
+
+
+def _check_scene(scene: Scene) -> None:
+    """The checks of `validate_scene`: UserError naming the first key that fails."""
     if scene.geometry.model == "fabric" and scene.geometry.crossings == 0:
         raise _bad("geometry.crossings", 0, f"a fabric ({_FABRIC}) needs at least one weft")
     _check_tables_present(scene)
@@ -442,7 +475,6 @@ def validate_scene(scene: Scene) -> Scene:
         _check_no_fabric_keys(scene)
     _check_dynamic(scene.dynamic)
     _check_sweep(scene)
-    return scene
 
 
 def planes_of(geometry: Geometry) -> str:

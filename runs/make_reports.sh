@@ -16,3 +16,4 @@ dynfab plot "$pullout/pullout.h5" --out "$pullout" >/dev/null
 cp "$pullout/pullout.png" docs/figures/fabric/pullout.png
 python benchmarks/static.py
 python benchmarks/dynamic.py
+python benchmarks/run_overhead.py

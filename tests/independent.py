@@ -3,10 +3,10 @@
 Scene building through the TOML parser (as a user's scene file), fabric scenes and
 their models (a held family, no core spring), a load-path driver, the dense matrix of a
 banded one (`dynfab.banded.to_dense`, checked against `band_matvec` in
-test_certificate.py), and the series contact law of
-docs/model.md section 3 solved here with scipy (brentq on g(R), arc lengths from ellipe),
-independently of dynfab.terms.contact. Import with `from independent import ...`
-(pytest puts tests/ on sys.path).
+test_certificate.py), and the tests' one reference of the contact and friction laws,
+written from docs/model.md independently of dynfab.terms: the series contact law of
+section 3 solved with scipy (brentq on g(R), arc lengths from ellipe) and Gralen's law of
+section 4. Import with `from independent import ...` (pytest puts tests/ on sys.path).
 """
 
 from __future__ import annotations
@@ -129,15 +129,56 @@ def series_law(scene):
             weft.kawabata_C, weft.kawabata_K / lc_we)
 
 
+def closure_of_force(R, law):
+    """g(R) = R/k + sum_m C_m (1 - exp(-a_m R)) [m], law = (k, C_wa, a_wa, C_we, a_we)
+    (docs/model.md section 3; k the weft's k_we, or k_we and a core spring in series)."""
+    k, c_wa, a_wa, c_we, a_we = law
+    return R / k - c_wa * math.expm1(-a_wa * R) - c_we * math.expm1(-a_we * R)
+
+
+def contact_force(g, law):
+    """R(g) [N] of a crossing closed by g [m]: the root of closure_of_force(R, law) = g by
+    brentq (0 for g <= 0), to rtol 4 eps: exact to ~1e-15 relative. The root lies in
+    [0, k g] since g(R) >= R / k."""
+    if g <= 0:
+        return 0.0
+    return brentq(lambda R: closure_of_force(R, law) - g, 0.0, law[0] * g, xtol=1e-300,
+                  rtol=4 * EPS, maxiter=500)
+
+
+def contact_energy(R, law):
+    """E(R) = R^2/(2 k) + sum_m (C_m/a_m)(1 - exp(-a_m R)(1 + a_m R)) [J] of a crossing carrying
+    R [N], the integral of R dg along the series law (docs/model.md section 3)."""
+    k, c_wa, a_wa, c_we, a_we = law
+    return R * R / (2 * k) + sum(c / a * (1 - math.exp(-a * R) * (1 + a * R))
+                                 for c, a in ((c_wa, a_wa), (c_we, a_we)))
+
+
+def gralen(R, onset, alpha=PAPER_FRICTION["alpha"],
+           constant=PAPER_FRICTION["beta"] * PAPER_FRICTION["contact_length"]
+           * PAPER_FRICTION["fiber_radius"]):
+    """F_T = alpha R + beta ell r_f (1 - exp(-R / R_0)) [N] where R > 0, else 0, with
+    `constant` = beta ell r_f and `onset` = R_0 (0: the literal law, the jump at R = 0+)
+    (docs/model.md section 4, paper eq. 20); the paper's alpha and beta ell r_f by default."""
+    R = np.asarray(R, dtype=float)
+    rise = -np.expm1(-R / onset) if onset > 0 else np.ones_like(R)
+    return np.where(R > 0, alpha * R + constant * rise, 0.0)
+
+
+def scene_gralen(scene, R):
+    """`gralen` with the scene's [friction] constants."""
+    f = scene.friction
+    return gralen(R, f.onset_force, f.alpha, f.beta * f.contact_length * f.fiber_radius)
+
+
 def contact_forces(scene, positions, phase=1.0):
-    """R_j [N] of every crossing from node positions (N+1, 2), solved here with brentq.
+    """R_j [N] of every crossing from node positions (N+1, 2), by `contact_force`.
 
     g_j = c_j - s_j z_{n_j}, s_j = s_k (-1)^(j+1), c_j = s_j z0_{n_j} (as woven) or
-    A_wa + A_we (prestressed); R solves R/k + sum_m C_m (1 - exp(-a_m R)) = g for g > 0.
-    brentq to rtol 4.5 eps: R is then exact to ~1e-15 relative.
+    A_wa + A_we (prestressed).
     """
     geo = scene.geometry
-    k, cwa, awa, cwe, awe = series_law(scene)
+    law = series_law(scene)
     j = np.arange(1, geo.crossings + 1)
     nodes = (2 * j - 1) * geo.segments // (2 * geo.crossings)
     sides = phase * (-1.0) ** (j + 1)
@@ -145,12 +186,7 @@ def contact_forces(scene, positions, phase=1.0):
     z0 = phase * geo.amplitude * np.sin(geo.crossings * math.pi * x0 / geo.length)
     offset = (np.full(j.size, geo.amplitude + scene.weft.amplitude)
               if geo.reference == "prestressed" else sides * z0)
-    forces = np.zeros(j.size)
-    for i, g in enumerate(offset - sides * positions[nodes, 1]):
-        if g > 0:
-            law = lambda R, g=g: R / k - cwa * math.expm1(-awa * R) - cwe * math.expm1(-awe * R) - g
-            forces[i] = brentq(law, 0.0, k * g, xtol=1e-300, rtol=4.5 * EPS, maxiter=500)
-    return forces
+    return np.array([contact_force(g, law) for g in offset - sides * positions[nodes, 1]])
 
 
 def pull(yarn, positions):
@@ -192,3 +228,56 @@ def fd_jacobian(gradient, r, h):
         out[:, k] = (gradient(plus.reshape(r.shape)) - gradient(minus.reshape(r.shape))).ravel() \
             / (plus[k] - minus[k])
     return out
+
+
+# --------------------------------------------------------------------------
+# The one-yarn model's energy, term by term (docs/model.md sections 1-4).
+
+
+def turning_angles(r):
+    """phi_i = atan2(e_{i-1} x e_i, e_{i-1} . e_i) at the interior nodes of r (N+1, 2)."""
+    e = np.diff(r, axis=0)
+    a, b = e[:-1], e[1:]
+    return np.arctan2(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0], (a * b).sum(axis=1))
+
+
+def yarn_energies(scene, r, phase, P, anchors, friction_limit):
+    """Each term of V = E_stretch + E_bend + sum E_contact + sum H - W_load - W_gravity [J] of
+    one yarn of phase s_k at positions r (N+1, 2), written from docs/model.md sections 1-4
+    with numpy: as-woven r0_i = (i L/N, s_k A sin(N_we pi x_i / L)); springs EA/l0 and
+    EI/lbar (lbar the Voronoi lengths, the ends' halves); crossings n_j = (2j - 1) N / (2 N_we)
+    closed by g_j = s_j (z0 - z) (as woven) or A_wa + A_we - s_j z (prestressed), their
+    energy `contact_energy` at `contact_force`; the stick springs k_t = EA / (L/N) (or the
+    scene's) as the Huber energy at the frozen limits `friction_limit`; gravity
+    rho_l lbar g (z - z0); the end force P times the end's x displacement.
+    """
+    geo, warp = scene.geometry, scene.warp
+    N, L = geo.segments, geo.length
+    x = np.arange(N + 1) * L / N
+    r0 = np.stack([x, phase * geo.amplitude * np.sin(geo.crossings * math.pi * x / L)], axis=1)
+    l0 = np.hypot(*np.diff(r0, axis=0).T)
+    lbar = np.concatenate([[l0[0] / 2], (l0[:-1] + l0[1:]) / 2, [l0[-1] / 2]])
+    phi0 = turning_angles(r0) if geo.reference == "as_woven" else np.zeros(N - 1)
+    j = np.arange(1, geo.crossings + 1)
+    nodes, sides = (2 * j - 1) * N // (2 * geo.crossings), phase * (-1.0) ** (j + 1)
+    if geo.reference == "as_woven":
+        g = sides * (r0[nodes, 1] - r[nodes, 1])
+    else:
+        g = geo.amplitude + scene.weft.amplitude - sides * r[nodes, 1]
+    law = series_law(scene)
+    energies = {
+        "stretch": np.sum(0.5 * warp.EA / l0 * (np.hypot(*np.diff(r, axis=0).T) - l0) ** 2),
+        "bending": np.sum(0.5 * warp.EI / lbar[1:-1] * (turning_angles(r) - phi0) ** 2),
+        "contact": sum(contact_energy(contact_force(gj, law), law) for gj in g),
+        "load": -P * (r[-1, 0] - r0[-1, 0]),
+    }
+    if scene.friction is not None:
+        k_t = scene.friction.stick_stiffness or warp.EA / (L / N)
+        slip = np.abs(r[nodes, 0] - anchors)
+        F = friction_limit
+        energies["friction"] = np.sum(np.where(k_t * slip <= F, 0.5 * k_t * slip ** 2,
+                                               F * slip - F ** 2 / (2 * k_t)))
+    if scene.gravity is not None:
+        energies["gravity"] = np.sum(warp.linear_density * lbar * scene.gravity.g
+                                     * (r[:, 1] - r0[:, 1]))
+    return energies

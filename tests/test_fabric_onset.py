@@ -16,12 +16,11 @@ import sys
 
 import h5py
 import numpy as np
-import scipy.optimize
 
 from dynfab.fabric.from_scene import FabricModel
 from dynfab.fabric.static import FabricStaticSolver, NewtonInfo
 from dynfab.scene import parse_scene_text
-from independent import scene_toml
+from independent import contact_force, gralen, scene_toml
 
 ALPHA, BETA, ELL, R_F = 0.2, 1e3, 2e-3, 1e-3
 """The paper's Gralen constants (docs/model.md section 7): beta ell r_f = 2 mN."""
@@ -46,23 +45,6 @@ def patch(n: int, onset: float, control: str, values, weft_values) -> str:
 def patch_solver(text: str) -> FabricStaticSolver:
     """The static solver of a scene's text (`patch`)."""
     return FabricStaticSolver(FabricModel.from_scene(parse_scene_text(text)))
-
-
-def gralen(R: np.ndarray, onset: float) -> np.ndarray:
-    """F_T = alpha R + beta ell r_f (1 - exp(-R / R_0)) for R > 0, else 0 (docs/model.md (4.1))."""
-    R = np.asarray(R, float)
-    jump = (-np.expm1(-R / onset)) if onset > 0 else np.ones_like(R)
-    return np.where(R > 0, ALPHA * R + BETA * ELL * R_F * jump, 0.0)
-
-
-def contact_force(g: float, law) -> float:
-    """R(g) by bracketing the series law R/k_c + sum C (1 - exp(-a R)) = g (docs/model.md
-    (10.6)), not the solver's Newton inversion."""
-    if g <= 0:
-        return 0.0
-    k_c, c1, a1, c2, a2 = law
-    closure = lambda R: R / k_c + c1 * -np.expm1(-a1 * R) + c2 * -np.expm1(-a2 * R) - g
-    return scipy.optimize.brentq(closure, 0.0, k_c * g, xtol=1e-300, rtol=4 * EPS)
 
 
 def check_consistent(solver: FabricStaticSolver, before, after, record, load) -> None:

@@ -24,7 +24,7 @@ from dynfab import assembly
 from dynfab.banded import BANDWIDTH
 from dynfab.terms.friction import INDEX as FRICTION
 from independent import (EPS, PAPER_FRICTION, PAPER_WARP, PAPER_WEFT, contact_forces, dense,
-                         make_scene, pull, run, series_law)
+                         make_scene, pull, run, scene_gralen, series_law)
 
 GRALEN_TOLERANCE = 1e-12
 """docs/model.md section 4: at the solution every F_T equals Gralen's law at the solution's R to
@@ -57,15 +57,6 @@ def quarter_yarn(values, friction=PAPER_FRICTION):
                   "reference": "prestressed"},
         warp=PAPER_WARP, weft=PAPER_WEFT, friction=friction,
         load={"control": "force", "values": list(values)})
-
-
-def gralen(scene, contact_force):
-    """F_T = alpha R + beta ell r_f (1 - exp(-R / R_0)) where R > 0, else 0
-    (docs/model.md section 4, paper eq. 20 with its onset regularised; R_0 = 0 the literal law)."""
-    f = scene.friction
-    R = np.asarray(contact_force, dtype=float)
-    onset = 1.0 if f.onset_force == 0 else -np.expm1(-R / max(f.onset_force, 1e-300))
-    return np.where(R > 0, f.alpha * R + f.beta * f.contact_length * f.fiber_radius * onset, 0.0)
 
 
 def friction_rounding(stick_stiffness, x, limit):
@@ -106,7 +97,7 @@ def test_single_crossing_sticks_below_the_limit_and_slides_at_gralens_limit():
         positions = record["positions"][0]
         x = positions[node, 0]
         R = contact_forces(scene, positions)[0]
-        limit = gralen(scene, np.array([R]))[0]
+        limit = scene_gralen(scene, np.array([R]))[0]
         assert R > 0  # the tension straightens the crimp onto the weft: the contact is closed
         assert abs(record["friction_limit"][0, 0] - limit) <= GRALEN_TOLERANCE
         friction = record["friction_force"][0, 0]
@@ -318,7 +309,7 @@ def test_sliding_crossings_carry_exactly_gralens_limit_at_any_stick_stiffness():
         for record in records:
             positions = record["positions"][0]
             sliding = record["sliding"][0]
-            limit = gralen(scene, contact_forces(scene, positions))
+            limit = scene_gralen(scene, contact_forces(scene, positions))
             x = positions[yarn.crossing_node, 0]
             force = np.abs(record["friction_force"][0])
             np.testing.assert_array_less(np.abs(record["friction_limit"][0] - limit),

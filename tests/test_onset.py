@@ -13,7 +13,10 @@
   beta ell r_f; the literal law (R_0 = 0) still stops at step 1 with the exit-3 message;
 - the semismooth fallback (contact forces as unknowns; a scalar root on one crossing)
   against the active-set state, and the path through the step (19, at 512 segments)
-  where the active set with the R_0 continuation stopped.
+  where the active set with the R_0 continuation stopped;
+- runs/onset_path.toml itself, cut to every 10th load value: the laws hold at every step,
+  the traction curve rises, friction stiffens it against the frictionless yarn and
+  dissipates ever more, and the pull presses every crossing shut.
 """
 
 from __future__ import annotations
@@ -21,18 +24,22 @@ from __future__ import annotations
 import math
 import subprocess
 import sys
+from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
-from scipy.optimize import brentq
 
 from dynfab import assembly, static
 from dynfab.banded import zeros_band
 from dynfab.model import build_model, initial_state
-from dynfab.scene import with_key
+from dynfab.run import run as run_scene
+from dynfab.scene import load_scene, with_key
 from dynfab.terms import contact, friction
-from independent import EPS, PAPER_FRICTION, PAPER_WARP, PAPER_WEFT, dense, make_scene
+from independent import (EPS, PAPER_FRICTION, PAPER_WARP, PAPER_WEFT, contact_force, dense,
+                         contact_forces, gralen, make_scene, scene_gralen)
 
+RUNS = Path(__file__).resolve().parents[1] / "runs"
 ALPHA, CONSTANT = 0.2, 1e3 * 2e-3 * 1e-3
 """The paper's Gralen alpha and beta ell r_f [N] (docs/model.md section 7)."""
 ONSET = 1e-5
@@ -57,8 +64,8 @@ def onset_scene(segments=32, onset=ONSET, values=(0.005,), core_stiffness=None):
 
 @pytest.mark.parametrize("R", [1e-9, 1e-7, 3e-6, 1e-5, 4e-5, 3e-4, 2e-2])
 def test_onset_law_and_its_slope(R):
-    # F_T = alpha R + c (1 - exp(-R/R_0)), written with math.expm1 (independent of numba's).
-    expected = ALPHA * R - CONSTANT * math.expm1(-R / ONSET)
+    # F_T = alpha R + c (1 - exp(-R/R_0)), the tests' reference (numpy's expm1, not numba's).
+    expected = float(gralen(R, ONSET, ALPHA, CONSTANT))
     assert friction.limit(R, ALPHA, CONSTANT, ONSET) == pytest.approx(expected, rel=4 * EPS)
     # dF_T/dR by central differences, h = 1e-3 min(R, R_0): truncation h^2 |F'''| / 6 with
     # |F'''| <= c / R_0^3, rounding 2 eps F / h (two evaluations of F, each to eps F).
@@ -137,9 +144,9 @@ def test_coupled_jacobian_entry_at_the_onset_is_the_derivative_through_R():
 
 @pytest.mark.parametrize("g", [1e-7, 3e-5, 2e-4, 5e-4])
 def test_core_stiffness_is_a_spring_in_series(g):
-    # docs/model.md section 3: R / k_we + R / k_c + delta_wa(R) + delta_we(R) = g, solved here by
-    # brentq on the left side written out; the model's R to 1e-12 relative (the left side
-    # is monotone, its root found to rounding). dE/dg = R by central differences,
+    # docs/model.md section 3: R / k_we + R / k_c + delta_wa(R) + delta_we(R) = g, solved by
+    # the tests' reference (brentq, tests/independent.py) with the two springs in series; the
+    # model's R to 1e-12 relative (the left side is monotone, its root found to rounding). dE/dg = R by central differences,
     # h = 1e-4 g: truncation h^2 |dR/dg''|/6 ~ h^2 k^3 sum C a^2 / 6, rounding 2 eps E / h.
     k_core = 50.0  # N/m, comparable to k_we so that it matters
     scene = onset_scene(core_stiffness=k_core)
@@ -147,10 +154,8 @@ def test_core_stiffness_is_a_spring_in_series(g):
     plain = build_model(onset_scene()).yarns[0].contact_law
     k_we, C_wa, a_wa, C_we, a_we = plain
 
-    def left(R):
-        return R / k_we + R / k_core + C_wa * (1 - math.exp(-a_wa * R)) + C_we * (1 - math.exp(-a_we * R))
-
-    R_expected = brentq(lambda R: left(R) - g, 0.0, 10.0, xtol=1e-300, rtol=4 * EPS)
+    in_series = 1 / (1 / k_we + 1 / k_core)  # R / k_we + R / k_c = R / in_series
+    R_expected = contact_force(g, (in_series, C_wa, a_wa, C_we, a_we))
     R = contact.force_from_closure(g, law)
     assert R == pytest.approx(R_expected, rel=1e-12)
     h = 1e-4 * g
@@ -239,13 +244,12 @@ def test_literal_law_still_stops_at_the_first_step_naming_the_crossing(tmp_path)
 
 def assert_steps_obey_the_law(scene, records):
     """Every step converged to the static tolerance, and every F_T equals the regularised
-    law (docs/model.md section 4) at the step's R to 1e-12 N, the law evaluated independently with
-    numpy's expm1."""
-    f = scene.friction
+    law (docs/model.md section 4) at the step's R to 1e-12 N, the law evaluated by the tests'
+    reference (tests/independent.py, numpy's expm1)."""
     for record in records:
         assert record["residual"].max() <= scene.static.tolerance
         R = record["contact_force"][0]
-        law = np.where(R > 0, f.alpha * R - CONSTANT * np.expm1(-R / f.onset_force), 0.0)
+        law = scene_gralen(scene, R)
         assert np.abs(record["friction_limit"][0] - law).max() <= 1e-12
 
 
@@ -310,3 +314,45 @@ def test_onset_path_passes_the_step_the_set_updates_could_not_solve():
     assert_steps_obey_the_law(scene, records)
     R = records[-1]["contact_force"][0]
     assert np.any((R > 0) & (R < scene.friction.onset_force))
+
+
+def test_the_onset_path_scene_file():
+    # runs/onset_path.toml, static, cut to every 10th of its 400 load values and its last
+    # (41 steps, 5 mN to 0.6 N; the whole path costs several times more, most of it in its first
+    # 20 steps, which the cut crosses in two). Checked at every step: the residual within
+    # the tolerance; R equal to the series law at the step's closures (tests/independent.py,
+    # brentq) and F_T to Gralen's law at that R, to 1e-12 N (docs/model.md section 4). The
+    # path starts at the onset: every crossing at g = 0 in the as-woven reference, and at
+    # the first step crossings closed with 0 < R < R_0. Then the traction curve rises
+    # (force control: the end moves on at every step), friction stiffens it against the same
+    # yarn without friction (it resists the slip, so the end moves less at every load) and
+    # only dissipates (steps/dissipated never falls), and at the last step the pull has
+    # pressed every crossing shut, each sliding at its limit (to the rounding of the return
+    # map's xi = fl(x - F_T / k_t): k_t eps |x| / 2, doubled, plus a few ulps of F_T).
+    scene = load_scene(RUNS / "onset_path.toml")
+    values = list(scene.load.values[::10]) + [scene.load.values[-1]]
+    scene = with_key(scene, "load.values", values)
+    steps = run_scene(scene, solver="static").steps
+    assert len(steps["load"]) == len(values)
+    assert scene.geometry.reference == "as_woven"
+    yarn = build_model(scene).yarns[0]
+    reference = yarn.rest_position
+    assert not contact_forces(scene, reference).any()  # g = 0: no crossing pressed at rest
+    for i in range(len(values)):
+        assert steps["residual"][i, 0] <= scene.static.tolerance or steps["rounding_floor"][i, 0]
+        R = contact_forces(scene, steps["positions"][i, 0])
+        np.testing.assert_allclose(steps["contact_force"][i, 0], R, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(steps["friction_limit"][i, 0], scene_gralen(scene, R),
+                                   rtol=0, atol=1e-12)
+    first = steps["contact_force"][0, 0]
+    assert np.any((first > 0) & (first < scene.friction.onset_force))
+    end = steps["end_displacement"][:, 0]
+    assert np.all(np.diff(end) > 0)
+    frictionless = run_scene(replace(scene, friction=None), solver="static").steps
+    assert np.all(end < frictionless["end_displacement"][:, 0])
+    assert np.all(np.diff(steps["dissipated"][:, 0]) >= 0) and steps["dissipated"][-1, 0] > 0
+    assert np.all(steps["contact_force"][-1, 0] > 0) and steps["sliding"][-1, 0].all()
+    limit = steps["friction_limit"][-1, 0]
+    x = steps["positions"][-1, 0][yarn.crossing_node, 0]
+    rounding = yarn.stick_stiffness * EPS * np.abs(x) + 4 * EPS * limit
+    assert np.all(np.abs(np.abs(steps["friction_force"][-1, 0]) - limit) <= rounding)

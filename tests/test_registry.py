@@ -1,9 +1,13 @@
 """The term registry (dynfab/terms/registry.py) drives the numba assembly and the reported energies.
 
-- Every registry term has the three numba entry points, with the same arguments, and
-  the assembly calls exactly those of the terms a yarn has, in registry order: its
-  energy vector, gradient and Hessian equal, bit for bit, the sums of the entry points
-  of the active terms taken in that order (the same floating-point additions).
+- Terms switched off in a yarn (`Yarn.active`) add nothing, and the others add their
+  docs/model.md energies: the energy vector holds 0 for the former and each closed form
+  (tests/independent.py, `yarn_energies`) for the latter; the gradient is the central
+  difference of the sum of the active terms' closed forms, the Hessian that of the gradient.
+  (That every registry term's entry points are the ones the assembly calls is what this
+  check and tests/test_terms.py, every term's energy at its registry index against its
+  closed form and the total gradient and Hessian against central differences, show from
+  outside; the registry's own tuples are not compared with themselves.)
 - The energies a step reports are the registry datasets of the model's terms, and
   friction's `energy/stick` is the stick springs' energy 1/2 k_t (x - xi)^2 after the
   return map (docs/model.md section 4), as written independently here.
@@ -11,8 +15,6 @@
   test module and an entry added at run time, in a separate process with its own numba
   cache) appears in the energy vector, the gradient, the Hessian and the result datasets.
 """
-
-import inspect
 import json
 import os
 import subprocess
@@ -28,10 +30,8 @@ from dynfab.model import build_model, initial_state
 from dynfab.observables import finish_step
 from dynfab.terms import registry
 from dynfab.terms.friction import INDEX as FRICTION
-
-ENTRY_POINTS = {"yarn_energy": ["pos", "yarn", "frozen"],
-                "add_yarn_gradient": ["pos", "yarn", "frozen", "grad"],
-                "add_yarn_hessian": ["pos", "yarn", "frozen", "band"]}
+from independent import (EPS, contact_forces, dense, fd_gradient, fd_jacobian, scene_gralen,
+                         yarn_energies)
 
 PAPER_TABLES = dict(
     geometry=dict(length=0.1, segments=16, crossings=4, amplitude=0.5e-3, yarns=2),
@@ -59,55 +59,66 @@ def perturbed(yarn, seed):
     return pos
 
 
-def test_every_term_has_the_entry_points_the_assembly_calls():
-    # The assembly's tuples are the registry terms' own functions, in registry order,
-    # and every entry point takes the same arguments (dynfab/terms/__init__.py).
-    tuples = {"yarn_energy": assembly.ENERGIES, "add_yarn_gradient": assembly.GRADIENTS,
-              "add_yarn_hessian": assembly.HESSIANS}
-    for name, functions in tuples.items():
-        assert len(functions) == len(registry.TERMS) == assembly.TERM_COUNT
-        for term, function in zip(registry.TERMS, functions):
-            module = sys.modules[f"dynfab.terms.{term.name}"]
-            assert getattr(module, name) is function, (term.name, name)
-            assert list(inspect.signature(function.py_func).parameters) == ENTRY_POINTS[name]
-
-
 @pytest.mark.parametrize("switched_off", [(), ("friction",), ("contact", "gravity", "load")])
-def test_the_assembly_is_the_sum_of_the_active_terms(make_scene, switched_off):
-    # Terms switched off in Yarn.active give 0 in the energy vector and nothing in the
-    # gradient or Hessian; the others are their entry points' values, added in registry order.
-    model = build_model(all_terms_scene(make_scene))
-    yarn = model.yarns[0]
+def test_switched_off_terms_add_nothing_and_the_others_their_closed_forms(make_scene,
+                                                                           switched_off):
+    # Tolerances as in tests/test_terms.py: energies to 1e-11 relative (its rounding budget);
+    # a central difference with step h (as rounded) errs by eps S / h (S = n |E| + sum |dE/dr_i|
+    # |r_i|) plus h^2 K / (6 ell) for a gradient, eps K r / h plus h^2 K / (6 ell^2) for a
+    # Hessian, K bounding the stiffness (2 EA/l0 + 16 EI/(lbar l0^2) + k_we + k_t, all terms)
+    # and ell the length over which it varies (l0, or the contact law's); asserted with a
+    # factor 10. The friction limits are frozen at Gralen's law of the closed-form contact
+    # forces (independent of the contact term being on).
+    scene = all_terms_scene(make_scene)
+    yarn = build_model(scene).yarns[0]
     active = yarn.active.copy()
     for name in switched_off:
         active[registry.index(name)] = False
     yarn = yarn._replace(active=active)
+    on = [term.name for term, a in zip(registry.TERMS, active) if a]
     pos = perturbed(yarn, seed=7)
-    c = yarn.crossing_node.size
     P, anchors = 0.05, pos[yarn.crossing_node, 0] - 1e-7
-    force, limit, tangent = np.zeros(c), np.zeros(c), np.zeros(c)
-    assembly.contact_state(pos, yarn, force, limit, tangent)
-    assert (force > 0).any() and (force == 0).any()  # both contact regimes
-    frozen = assembly.Frozen(P, anchors, limit, tangent, None, True, False)
+    limit = scene_gralen(scene, contact_forces(scene, pos))
+    assert (limit > 0).any() and (limit == 0).any()  # closed and open crossings
+
+    def closed_forms(r):
+        return yarn_energies(scene, r, 1.0, P, anchors, limit)
 
     energies = assembly.energy_vector()
     assembly.energies(pos, yarn, P, anchors, limit, energies)
-    grad = np.zeros_like(pos)
-    assembly.gradient(pos, yarn, P, anchors, limit, grad)
-    band = zeros_band(pos.size)
-    assembly.hessian(pos, yarn, anchors, limit, tangent, True, band)
-
-    expected_grad, expected_band = np.zeros_like(pos), zeros_band(pos.size)
+    expected = closed_forms(pos)
     for k, term in enumerate(registry.TERMS):
-        module = sys.modules[f"dynfab.terms.{term.name}"]
-        if not active[k]:
-            assert energies[k] == 0.0
-            continue
-        assert energies[k] == module.yarn_energy(pos, yarn, frozen) != 0.0, term.name
-        module.add_yarn_gradient(pos, yarn, frozen, expected_grad)
-        module.add_yarn_hessian(pos, yarn, frozen, expected_band)
-    assert np.array_equal(grad, expected_grad)
-    assert np.array_equal(band, expected_band)
+        if term.name in on:
+            assert expected[term.name] != 0.0, term.name  # every active term is exercised
+            assert energies[k] == pytest.approx(expected[term.name], rel=1e-11, abs=0), term.name
+        else:
+            assert energies[k] == 0.0, term.name
+
+    def gradient(r):
+        out = np.zeros_like(r)
+        assembly.gradient(r, yarn, P, anchors, limit, out)
+        return out
+
+    law, l0 = yarn.contact_law, scene.geometry.length / scene.geometry.segments
+    K = (2 * yarn.stretch_stiffness.max() + 16 * yarn.bend_stiffness.max() / l0 ** 2 + law[0]
+         + yarn.stick_stiffness)
+    ell = min(l0, 1.0 / (law[0] ** 2 * (law[1] * law[2] ** 2 + law[3] * law[4] ** 2)))
+    h = 1e-6 * l0
+    total = lambda r: sum(closed_forms(r)[name] for name in on)
+    fd = fd_gradient(total, pos, h)
+    S = (6 + 2 * pos.shape[0]) * abs(total(pos)) + np.sum(np.abs(fd) * np.abs(pos))
+    tolerance = 10 * (EPS * S / h + h ** 2 * K / (6 * ell))
+    assert np.abs(fd).max() > 1e3 * tolerance
+    assert np.abs(gradient(pos) - fd).max() <= tolerance
+
+    h = 1e-5 * l0
+    band = zeros_band(pos.size)
+    c = yarn.crossing_node.size
+    assembly.hessian(pos, yarn, anchors, limit, np.zeros(c), False, band)
+    fd = fd_jacobian(gradient, pos, h)
+    tolerance = 10 * (EPS * K * np.abs(pos).max() / h + h ** 2 * K / (6 * ell ** 2))
+    assert np.abs(fd).max() > 1e3 * tolerance
+    assert np.abs(dense(band) - fd).max() <= tolerance
 
 
 def test_reported_energies_are_the_registry_datasets(make_scene):

@@ -23,7 +23,7 @@ from dynfab import assembly
 from dynfab.model import initial_state
 from dynfab.scene import expand_sweep, load_scene
 from independent import (EPS, PAPER_FRICTION, PAPER_WARP, PAPER_WEFT, contact_forces, dense,
-                         make_scene, pull, run)
+                         make_scene, pull, run, scene_gralen)
 
 RUNS = Path(__file__).resolve().parent.parent / "runs"
 GRALEN_TOLERANCE = 1e-12
@@ -350,8 +350,7 @@ def test_every_step_meets_the_tolerance_and_gralens_law(figure, request):
             if entry.friction is None:
                 assert (record["friction_limit"][k] == 0).all()
                 continue
-            f = entry.friction
-            limit = np.where(R > 0, f.alpha * R + f.beta * f.contact_length * f.fiber_radius, 0.0)
+            limit = scene_gralen(entry, R)
             np.testing.assert_allclose(record["friction_limit"][k], limit, rtol=0,
                                        atol=GRALEN_TOLERANCE)
             carried = np.abs(pull(yarn, positions))

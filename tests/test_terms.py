@@ -26,7 +26,6 @@ import math
 
 import numpy as np
 import pytest
-from scipy.optimize import brentq
 from scipy.special import ellipe
 
 from dynfab import assembly, geometry
@@ -34,7 +33,8 @@ from dynfab.banded import zeros_band
 from dynfab.model import build_model
 from dynfab.scene import with_key
 from dynfab.terms import bending, contact, friction, gravity, load, registry, stretch
-from independent import dense, fd_gradient, fd_jacobian
+from independent import (closure_of_force, contact_energy, dense, fd_gradient, fd_jacobian,
+                         yarn_energies)
 
 EPS = np.finfo(float).eps
 
@@ -59,7 +59,8 @@ SLIP = {"stick": 0.4, "slide+": 2.5, "slide-": -2.5, "open": 1.0}
 
 
 def paper_scene(make_scene, reference):
-    """The small test fabric with every term on: contact, friction, gravity, force load."""
+    """The small one-yarn test model (two adjacent warp yarns) with every term on: contact,
+    friction, gravity, force load."""
     return make_scene(
         geometry=dict(length=L, segments=N, crossings=CROSSINGS, amplitude=A_WA,
                       reference=reference, yarns=2),
@@ -72,7 +73,8 @@ def paper_scene(make_scene, reference):
 
 
 # --------------------------------------------------------------------------
-# The model as docs/model.md writes it, independently of dynfab (numpy and scipy).
+# The model as docs/model.md writes it, independently of dynfab (numpy and scipy; each term's
+# energy is tests/independent.py's yarn_energies).
 
 
 def as_woven(phase):
@@ -89,12 +91,6 @@ def crossing_nodes():
 def crossing_sides(phase):
     """s_j = s_k (-1)^(j+1)."""
     return np.array([phase * (-1.0) ** (j + 1) for j in range(1, CROSSINGS + 1)])
-
-
-def turning_angles(r):
-    e = np.diff(r, axis=0)
-    a, b = e[:-1], e[1:]
-    return np.arctan2(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0], (a * b).sum(axis=1))
 
 
 def half_wave_arc_length(p, A):
@@ -115,51 +111,6 @@ def paper_law():
     k_we = math.pi ** 4 / 2 * EI_WE / (L / N_WA) ** 3  # P_we = 0
     return np.array([k_we, C_WA, K_WA / half_wave_arc_length(L / CROSSINGS, A_WA),
                      C_WE, K_WE / half_wave_arc_length(L / N_WA, A_WE)])
-
-
-def closure_of_force(R, law):
-    """g(R) = R/k_we + sum_m C_m (1 - exp(-a_m R)) (docs/model.md section 3)."""
-    k, c1, a1, c2, a2 = law
-    return R / k - c1 * math.expm1(-a1 * R) - c2 * math.expm1(-a2 * R)
-
-
-def contact_energy(R, law):
-    """R^2/(2 k_we) + sum_m (C_m/a_m)(1 - exp(-a_m R)(1 + a_m R)) (docs/model.md section 3)."""
-    k, c1, a1, c2, a2 = law
-    return R * R / (2 * k) + sum(c / a * (1 - math.exp(-a * R) * (1 + a * R))
-                                 for c, a in ((c1, a1), (c2, a2)))
-
-
-def model_energies(r, phase, reference, anchors, friction_limit):
-    """Each term of V (docs/model.md sections 2-4) written from the spec, with numpy."""
-    r0 = as_woven(phase)
-    l0 = np.hypot(*np.diff(r0, axis=0).T)
-    lbar = np.concatenate([[l0[0] / 2], (l0[:-1] + l0[1:]) / 2, [l0[-1] / 2]])
-    phi0 = turning_angles(r0) if reference == "as_woven" else np.zeros(N - 1)
-    nodes, sides = crossing_nodes(), crossing_sides(phase)
-    if reference == "as_woven":
-        g = sides * (r0[nodes, 1] - r[nodes, 1])
-    else:
-        g = A_WA + A_WE - sides * r[nodes, 1]
-    law = paper_law()
-    E_contact = 0.0
-    for gj in g:
-        if gj > 0:
-            R = brentq(lambda R: closure_of_force(R, law) - gj, 0.0, law[0] * gj,
-                       xtol=1e-300, rtol=4 * EPS)
-            E_contact += contact_energy(R, law)
-    k_t = EA / (L / N)
-    slip = r[nodes, 0] - anchors
-    huber = np.where(k_t * abs(slip) <= friction_limit, 0.5 * k_t * slip ** 2,
-                     friction_limit * abs(slip) - friction_limit ** 2 / (2 * k_t))
-    return {
-        "stretch": np.sum(0.5 * EA / l0 * (np.hypot(*np.diff(r, axis=0).T) - l0) ** 2),
-        "bending": np.sum(0.5 * EI / lbar[1:-1] * (turning_angles(r) - phi0) ** 2),
-        "contact": E_contact,
-        "friction": huber.sum(),
-        "gravity": np.sum(RHO * lbar * G * (r[:, 1] - r0[:, 1])),
-        "load": -P * (r[-1, 0] - r0[-1, 0]),
-    }
 
 
 # --------------------------------------------------------------------------
@@ -275,8 +226,9 @@ REFERENCES = ("as_woven", "prestressed")
 
 
 @pytest.fixture(scope="module", params=REFERENCES)
-def fabric(request, make_scene):
-    """(model, reference) of the test fabric in each reference state."""
+def yarn_model(request, make_scene):
+    """(model, reference): the one-yarn model of `paper_scene` (two adjacent warp yarns) in
+    each reference state."""
     return build_model(paper_scene(make_scene, request.param)), request.param
 
 
@@ -288,17 +240,18 @@ def yarn_states(model, reference):
         yield yarn, phase, r, anchors, F_T, g
 
 
-def test_energies_match_the_formulas_of_model_md(fabric):
+def test_energies_match_the_formulas_of_model_md(yarn_model):
     # Each term of V = E_stretch + E_bend + sum E_contact - W_load - W_gravity + sum H
-    # (docs/model.md sections 2-4) against the same formula written independently above, in
-    # every regime. Tolerance: the worst-conditioned operation is l - l0 at strains
-    # ~ 1e-2 (condition ~ 1e2), summed over N = 16 terms: 1e2 x 16 x eps ~ 4e-13 of
-    # the term; 1e-11 relative leaves a factor 20 (contact: brentq to 4 eps in R).
-    model, reference = fabric
+    # (docs/model.md sections 2-4) against the same formula written independently
+    # (tests/independent.py, yarn_energies), in every regime. Tolerance: the worst-conditioned
+    # operation is l - l0 at strains ~ 1e-2 (condition ~ 1e2), summed over N = 16 terms:
+    # 1e2 x 16 x eps ~ 4e-13 of the term; 1e-11 relative leaves a factor 20 (contact:
+    # brentq to 4 eps in R).
+    model, reference = yarn_model
     out = np.zeros(6)
     for yarn, phase, r, anchors, F_T, g in yarn_states(model, reference):
         assembly.energies(r, yarn, P, anchors, F_T, out)
-        expected = model_energies(r, phase, reference, anchors, F_T)
+        expected = yarn_energies(model.scene, r, phase, P, anchors, F_T)
         for name, index in ((name, registry.index(name)) for name in
                             ("stretch", "bending", "contact", "friction", "gravity", "load")):
             assert expected[name] != 0.0, name  # every term is exercised
@@ -306,10 +259,10 @@ def test_energies_match_the_formulas_of_model_md(fabric):
 
 
 @pytest.mark.parametrize("term", TERM_NAMES)
-def test_gradient_is_the_derivative_of_the_energy(fabric, term):
+def test_gradient_is_the_derivative_of_the_energy(yarn_model, term):
     # dE/dr_i = (E(r + h e_i) - E(r - h e_i)) / 2h + O(h^2 K/ell) + O(eps S/h)
     # (module docstring: h = 1e-6 l0, tolerance 10 x (rounding + truncation)).
-    model, reference = fabric
+    model, reference = yarn_model
     for yarn, _, r, anchors, F_T, _ in yarn_states(model, reference):
         energy, grad, _, K, ell, n = term_functions(yarn, anchors, F_T)[term]
         expected = fd_gradient(energy, r, H_GRAD)
@@ -320,11 +273,11 @@ def test_gradient_is_the_derivative_of_the_energy(fabric, term):
 
 
 @pytest.mark.parametrize("term", TERM_NAMES)
-def test_hessian_is_the_derivative_of_the_gradient(fabric, term):
+def test_hessian_is_the_derivative_of_the_gradient(yarn_model, term):
     # d2E/dr_i dr_j = (g_i(r + h e_j) - g_i(r - h e_j)) / 2h + O(h^2 K/ell^2) + O(eps K r/h),
     # the banded Hessian compared as the dense matrix it stores (entries outside the
     # band must then be 0 in the differences too). h = 1e-5 l0 (module docstring).
-    model, reference = fabric
+    model, reference = yarn_model
     for yarn, _, r, anchors, F_T, _ in yarn_states(model, reference):
         _, grad, hess, K, ell, _ = term_functions(yarn, anchors, F_T)[term]
         expected = fd_jacobian(grad, r, H_HESS)
@@ -336,12 +289,12 @@ def test_hessian_is_the_derivative_of_the_gradient(fabric, term):
         assert np.abs(expected).max() > 1e3 * tolerance
 
 
-def test_friction_regimes_and_contact_stiffness_are_exercised(fabric):
+def test_friction_regimes_and_contact_stiffness_are_exercised(yarn_model):
     # The states above really have both friction regimes and both contact regimes:
     # the Huber Hessian is k_t exactly where |s| k_t < F_T (sticking) and 0 where
     # sliding (H is linear there), and the contact Hessian is dR/dg > 0 on closed and
     # 0 on open crossings.
-    model, reference = fabric
+    model, reference = yarn_model
     for yarn, _, r, anchors, F_T, g in yarn_states(model, reference):
         functions = term_functions(yarn, anchors, F_T)
         nodes = yarn.crossing_node
@@ -354,14 +307,14 @@ def test_friction_regimes_and_contact_stiffness_are_exercised(fabric):
             assert contact_diag[j] <= yarn.contact_law[0]
 
 
-def test_friction_coupling_is_the_derivative_through_the_contact_force(fabric):
+def test_friction_coupling_is_the_derivative_through_the_contact_force(yarn_model):
     # The coupled Jacobian (hessian(..., coupled=True)) is the derivative of the gradient
     # with F_T recomputed from R(g(z)) at every evaluation (contact_state): on a
     # sliding, closed crossing d(dH/ds)/dz = sign(s) alpha dR/dg dg/dz, with
     # dg/dz = -s_j. Whole matrix against central differences, h = 1e-5 l0, tolerance
     # as for the total Hessian (F_T(z) is as smooth as R(g)). The regimes do not change
     # within h (module constants), so the Jacobian is that of a smooth function.
-    model, reference = fabric
+    model, reference = yarn_model
     for yarn, _, r, anchors, F_T, g in yarn_states(model, reference):
         c = yarn.crossing_node.size
 

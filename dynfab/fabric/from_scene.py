@@ -125,7 +125,7 @@ class FabricModel:
         """SolverError if the step left the model's domain: a yarn folded back
         (`dynfab.domain.check_not_folded`), or a crossing node carried more than half a
         segment from its crossing (`dynfab.domain.check_crossings_held`); for every solver."""
-        check_not_folded(record, self.labels)
+        check_not_folded(record, lambda: self.labels)  # labels made only for the message
         g = self.scene.geometry
         check_crossings_held(record, *self.crossing_nodes(), suggest_affine=(
             g.boundary == "clamped" and g.planes == "fixed" and self.pullout is None))
