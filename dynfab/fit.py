@@ -55,7 +55,7 @@ from dynfab.scene import scene_to_toml, validate_scene, with_key
 RANK_TOLERANCE = {"exact": 1e-6, "finite-difference": 1e-4}
 """Singular value ratio of the column-scaled Jacobian below which a direction is rank deficient,
 by how the Jacobian was computed: exact to about 1e-8, or by forward differences, whose error
-is up to ~1e-5 of a column (FD_STEP)."""
+is up to a few 1e-5 of a column (FD_STEP)."""
 FD_STEP = 1e-6
 """Forward-difference step of a whole path solve in the fitted coordinates: a relative change
 1e-6 of a log-fitted key, 1e-6 of its scale for the others. It balances the truncation, 1e-6
