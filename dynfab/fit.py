@@ -1,11 +1,15 @@
 """Identify scene parameters from a measured traction curve (`dynfab fit`, docs/model.md "Fitting").
 
-`fit(scene, data, keys)` replaces the scene's load path by the curve's first
-column (refined by `substeps`), and minimises the weighted residuals of the
-measured columns with `scipy.optimize.least_squares` (trust region
-reflective, bounds), its Jacobian the exact sensitivities of
-`dynfab.sensitivity` (no finite differences of whole runs). Positive keys are
-fitted in log space, the others as they are.
+`fit(scene, data, keys)` replaces the scene's load path by the curve's load
+column(s) (a fabric's warp and weft columns; refined by `substeps`), and
+minimises the weighted residuals of the measured columns with
+`scipy.optimize.least_squares` (trust region reflective, bounds). The
+Jacobian of the one-yarn model is the exact sensitivities of
+`dynfab.sensitivity`; the fabric has none and uses forward differences of
+whole path solves (`FD_STEP`; fit.json says "jacobian": "finite-difference"
+and a warning says why). What each model offers the fit is
+`dynfab.fit_models`. Positive keys are fitted in log space, the others as
+they are.
 
 Statistics at the solution (`statistics`), with J the Jacobian of the
 weighted residuals in the fitted coordinates theta (log p or p):
@@ -20,7 +24,8 @@ weighted residuals in the fitted coordinates theta (log p or p):
   p x se(log p).
 - identifiability: the singular values of J with unit-norm columns; a
   direction whose singular value is below RANK_TOLERANCE x the largest is
-  numerically rank deficient (the Jacobian is exact to about 1e-8), and a
+  numerically rank deficient (1e-6 for the exact Jacobian, exact to about
+  1e-8; 1e-4 for forward differences, exact to about 1e-5), and a
   log-fitted key whose log-space standard error exceeds LOG_SE_LIMIT is not
   determined by the curve either (its 95 % interval would span more than a
   factor e^(2 q LOG_SE_LIMIT), 7 to 10). Either way the keys of the
@@ -40,14 +45,26 @@ import numpy as np
 
 from dynfab import scene as scene_module
 from dynfab.errors import UserError, SolverError
-from dynfab.fit_data import CurveData, read_curve
-from dynfab.scene import Load, scene_to_toml, validate_scene, with_key
+from dynfab.fit_data import MODELS, CurveData, read_curve
+from dynfab.fit_models import fit_model, start_value
+from dynfab.scene import scene_to_toml, validate_scene, with_key
 
 # scipy.optimize, scipy.stats and the solver (numba) are imported where used: `import dynfab`
 # stays light.
 
-RANK_TOLERANCE = 1e-6
-"""Singular value ratio of the column-scaled Jacobian below which a direction is rank deficient."""
+RANK_TOLERANCE = {"exact": 1e-6, "finite-difference": 1e-4}
+"""Singular value ratio of the column-scaled Jacobian below which a direction is rank deficient,
+by how the Jacobian was computed: exact to about 1e-8, or by forward differences, whose error
+is up to a few 1e-5 of a column (FD_STEP)."""
+FD_STEP = 1e-6
+"""Forward-difference step of a whole path solve in the fitted coordinates: a relative change
+1e-6 of a log-fitted key, 1e-6 of its scale for the others. It balances the truncation, 1e-6
+of the curve's relative curvature in the key, against the solver's noise (residual 1e-11 N)
+over the step; tests/test_fit_fabric.py checks the result against central differences."""
+FD_WARNING = ("finite-difference Jacobian (forward differences of whole path solves, step "
+              "{step:g} in the fitted coordinates, {solves} extra solves per iteration): exact "
+              "path sensitivities exist for the one-yarn model only")
+"""The warning of a fit whose Jacobian is a finite difference (fit.json, the printed table)."""
 LOG_SE_LIMIT = 0.5
 """Largest log-space standard error of an identified log-fitted key (a factor ~ 7 at 95 %)."""
 MIN_PATH_STEPS = 16
@@ -91,10 +108,13 @@ class FitResult:
     fitted: dict
     """name -> the model's curve at the data points (fitted parameters)."""
     cost_history: list = field(default_factory=list)
+    jacobian: str = "exact"
+    """"exact" or "finite-difference": the Jacobian the optimiser used."""
 
     def report(self) -> dict:
         """The JSON report (fit.json)."""
-        return {"parameters": self.parameters, "correlation": self.correlation,
+        return {"parameters": self.parameters, "jacobian": self.jacobian,
+                "correlation": self.correlation,
                 "residual_rms": self.residual_rms, "dof": self.dof,
                 "iterations": self.iterations, "identifiable": self.identifiable,
                 "converged": self.converged, "noise": self.noise, "warnings": self.warnings}
@@ -123,8 +143,10 @@ class FitResult:
 
 
 def fittable_keys(scene) -> tuple[str, ...]:
-    """Numeric, sweepable keys whose table the scene has (docs/model.md section 1)."""
-    return tuple(k for k in scene_module._SWEEPABLE if getattr(scene, k.split(".")[0]) is not None)
+    """The keys a fit of the scene may vary (`dynfab.fit_models`): for the one-yarn model the
+    numeric, sweepable keys whose table the scene has (docs/model.md section 1); for a fabric
+    the real keys of [warp], [weft], [friction], [contact], [gravity] that it has."""
+    return fit_model(scene).fittable_keys(scene)
 
 
 def parse_keys(keys) -> list[str]:
@@ -160,20 +182,21 @@ def make_parameters(scene, keys, bounds=None, start=None) -> list[Parameter]:
         raise UserError("a fit takes one simulated yarn: remove the [sweep] and set "
                          "geometry.yarns = 1")
     allowed = fittable_keys(scene)
+    model = scene.geometry.model
     bounds, start = dict(bounds or {}), dict(start or {})
     parameters = []
     for key in keys:
         if key not in allowed:
-            raise UserError(f"--fit {key}: cannot be fitted; a fitted key is numeric and "
-                             f"sweepable, in a table of the scene: {', '.join(allowed)}")
+            raise UserError(f"--fit {key}: cannot be fitted; a fitted key of {MODELS[model][0]} "
+                             f"is one of: {', '.join(allowed)}")
         if key in (p.key for p in parameters):
             raise UserError(f"--fit {key}: given twice")
-        if key == "warp.linear_density" and scene.gravity is None:
+        if key.endswith(".linear_density") and scene.gravity is None:
             raise UserError(f"--fit {key}: a static curve does not depend on the mass without "
                              "[gravity]; it cannot be fitted from this scene")
         table, name = key.split(".")
         rule = scene_module._SCHEMA[table][1][name].rule
-        value = start.get(key, _current_value(scene, key))
+        value = start[key] if key in start else start_value(scene, key)
         log = rule == "positive"
         lower, upper = bounds.pop(key, (-math.inf, math.inf))
         if rule in ("positive", "nonnegative"):
@@ -187,37 +210,38 @@ def make_parameters(scene, keys, bounds=None, start=None) -> list[Parameter]:
     return parameters
 
 
-def _current_value(scene, key: str) -> float:
-    table, name = key.split(".")
-    value = getattr(getattr(scene, table), name)
-    if value is None and key == "friction.stick_stiffness":  # its default, EA / (L/N)
-        from dynfab.model import build_model
-        value = build_model(scene).yarns[0].stick_stiffness
-    return float(value)
-
-
 def default_substeps(points: int) -> int:
     """Steps per data interval: enough for a path of MIN_PATH_STEPS steps."""
     return max(1, math.ceil(MIN_PATH_STEPS / points))
 
 
 def refined_path(load: np.ndarray, substeps: int) -> tuple[np.ndarray, np.ndarray]:
-    """The load path (each data interval, from 0, cut in `substeps` equal steps) and the
-    indices of the data points in it."""
-    previous, path, index = 0.0, [], []
-    for value in load:
-        cuts = substeps if value != previous else 1  # a first point at 0: one (relaxing) step
-        path.extend(previous + (value - previous) * np.arange(1, cuts + 1) / cuts)
+    """The load path (each data interval, from 0, cut in `substeps` equal steps, every column
+    in proportion) and the indices of the data points in it. `load` is (points,) or, a
+    fabric's (warp value, weft value), (points, 2); the path is the same shape."""
+    load = np.asarray(load, float)
+    rows = load.reshape(load.shape[0], -1)
+    previous, path, index = np.zeros(rows.shape[1]), [], []
+    for value in rows:
+        cuts = substeps if (value != previous).any() else 1  # a first point at 0: one step
+        fractions = np.arange(1, cuts + 1)[:, None] / cuts
+        path.extend(previous + (value - previous) * fractions)
         path[-1] = value  # exactly the data's value
         index.append(len(path) - 1)
         previous = value
-    return np.asarray(path), np.asarray(index)
+    path = np.asarray(path)
+    return (path[:, 0] if load.ndim == 1 else path), np.asarray(index)
 
 
-def with_path(scene, path: np.ndarray):
-    """The scene with its load path replaced (control unchanged)."""
-    return validate_scene(replace(scene, load=Load(control=scene.load.control,
-                                                   values=tuple(float(v) for v in path))))
+def with_path(scene, path: np.ndarray, weft: bool = True):
+    """The scene with its load path replaced (control and factors unchanged): `path` (steps,)
+    the values, or a fabric's (steps, 2) values and weft_values (`weft` False: no
+    weft_values, the wefts' load 0, the scene's default)."""
+    path = np.asarray(path, float)
+    values = tuple(float(v) for v in (path if path.ndim == 1 else path[:, 0]))
+    weft_values = (tuple(float(v) for v in path[:, 1]) if path.ndim == 2 and weft else None)
+    return validate_scene(replace(scene, load=replace(scene.load, values=values,
+                                                      weft_values=weft_values)))
 
 
 # --------------------------------------------------------------------------
@@ -225,11 +249,14 @@ def with_path(scene, path: np.ndarray):
 
 
 class _Problem:
-    """Residuals and their exact Jacobian in the fitted coordinates, one forward solve per point."""
+    """Residuals and their Jacobian in the fitted coordinates: the exact sensitivities of the
+    one-yarn model, forward differences of whole path solves for the fabric
+    (`dynfab.fit_models`)."""
 
     def __init__(self, scene, data: CurveData, parameters, data_index, progress):
         self.scene, self.data, self.parameters = scene, data, parameters
         self.data_index, self.progress = data_index, progress
+        self.model = fit_model(scene)
         self.names = list(data.measured)
         self.sigma_given = bool(data.sigma)
         self.weights = [data.sigma[n] if self.sigma_given else
@@ -237,6 +264,11 @@ class _Problem:
                         for n in self.names]
         self.cache = {}
         self.iteration, self.last_theta, self.costs = 0, None, []
+
+    @property
+    def jacobian_kind(self) -> str:
+        """"exact" or "finite-difference": what `jacobian` computes."""
+        return "exact" if self.model.exact else "finite-difference"
 
     def values(self, theta):
         return [p.from_theta(t) for p, t in zip(self.parameters, theta)]
@@ -247,17 +279,19 @@ class _Problem:
             scene = with_key(scene, p.key, value)
         return scene
 
-    def solve(self, theta):
-        """(solution, residuals) at theta; cached. A solver failure raises."""
-        from dynfab.sensitivity import solve_path
+    def evaluate(self, theta):
+        """(solution, weighted residuals) at theta, solved afresh; a solver failure raises."""
+        solution = self.model.solve(self.scene_at(theta), self.names)
+        residual = np.concatenate([
+            (solution.observables[n][self.data_index] - self.data.measured[n]) / w
+            for n, w in zip(self.names, self.weights)])
+        return solution, residual
 
+    def solve(self, theta):
+        """`evaluate`, cached at the last theta asked."""
         key = tuple(np.asarray(theta, float))
         if key not in self.cache:
-            solution = solve_path(self.scene_at(theta))
-            residual = np.concatenate([
-                (solution.observables[n][self.data_index] - self.data.measured[n]) / w
-                for n, w in zip(self.names, self.weights)])
-            self.cache = {key: (solution, residual)}
+            self.cache = {key: self.evaluate(theta)}
         return self.cache[key]
 
     def residuals(self, theta):
@@ -268,17 +302,41 @@ class _Problem:
 
     def jacobian(self, theta, report=True):
         """d(weighted residuals)/d(theta); `report`: one progress line (an optimiser iteration)."""
+        solution, residual = self.solve(theta)
+        jac = (self._exact(theta, solution) if self.model.exact
+               else self._forward_difference(theta, residual))
+        if report:
+            self._report(theta, residual)
+        return jac
+
+    def _exact(self, theta, solution):
+        """The sensitivities of `dynfab.sensitivity`, times dp/dtheta, over the weights."""
         from dynfab.sensitivity import path_sensitivities
 
-        solution, residual = self.solve(theta)
         values = self.values(theta)
         keys = [p.key for p in self.parameters]
         sens = path_sensitivities(solution, keys, values, self.names)
         chain = np.array([v if p.log else 1.0 for p, v in zip(self.parameters, values)])
-        jac = np.concatenate([sens[n][self.data_index] * chain[None, :] / w[:, None]
-                              for n, w in zip(self.names, self.weights)])
-        if report:
-            self._report(theta, residual)
+        return np.concatenate([sens[n][self.data_index] * chain[None, :] / w[:, None]
+                               for n, w in zip(self.names, self.weights)])
+
+    def _forward_difference(self, theta, residual):
+        """(r(theta + h_k e_k) - r(theta)) / h_k, one whole path solve per parameter, h_k =
+        FD_STEP in log p, FD_STEP x the key's scale in p (`sensitivity.parameter_scale`),
+        taken backward where the forward step would leave the upper bound. A solve that fails
+        at the step is the user's to know of: SolverError."""
+        from dynfab.sensitivity import parameter_scale
+
+        jac = np.empty((residual.size, theta.size))
+        for k, p in enumerate(self.parameters):
+            value = p.from_theta(theta[k])
+            h = FD_STEP * (1.0 if p.log else parameter_scale(self.scene, p.key, value))
+            if p.to_theta(p.upper) < theta[k] + h:
+                h = -h
+            shifted = np.array(theta, float)
+            shifted[k] += h
+            h = shifted[k] - theta[k]  # the step as represented
+            jac[:, k] = (self.evaluate(shifted)[1] - residual) / h
         return jac
 
     def _report(self, theta, residual):
@@ -296,15 +354,17 @@ class _Problem:
 
 def fit(scene, data, keys, *, bounds=None, substeps: int | None = None, start=None,
         progress: Callable[[str], None] | None = None, out=None, max_iterations: int = 50,
-        jacobian: str = "exact") -> FitResult:
+        jacobian: str | None = None) -> FitResult:
     """Fit `keys` of `scene` (a Scene or a scene file) to the measured curve `data` (a CSV path
     or a CurveData).
 
     `bounds`: {key: (lower, upper)} in the value; `start`: {key: value} instead of the
     scene's; `substeps`: load steps per data interval (default `default_substeps`);
     `progress`: receives a line per optimiser iteration; `out`: a folder for fit.json,
-    fitted.toml and the figures; `jacobian`: "exact" (the sensitivities) or "finite-difference"
-    (scipy's forward differences of whole runs, for comparison).
+    fitted.toml and the figures; `jacobian`: "exact" (the sensitivities, the one-yarn
+    model's default and only there) or "finite-difference" (the fabric's default and only
+    Jacobian: `_Problem._forward_difference`; for the one-yarn model a comparison, scipy's
+    "2-point" differences of whole runs for the optimiser, the statistics still exact).
     """
     from scipy.optimize import least_squares
 
@@ -312,10 +372,13 @@ def fit(scene, data, keys, *, bounds=None, substeps: int | None = None, start=No
         from dynfab.scene import load_scene
         scene = load_scene(scene)
     keys = parse_keys(keys)
-    if jacobian not in ("exact", "finite-difference"):
-        raise UserError(f"jacobian={jacobian!r}: 'exact' or 'finite-difference'")
+    jacobian = _jacobian_for(scene, jacobian)
+    model = scene.geometry.model
     if not isinstance(data, CurveData):
-        data = read_curve(data, scene.load.control)
+        data = read_curve(data, scene.load.control, model)
+    if data.model != model:
+        raise UserError(f"{data.source}: a curve of {MODELS[data.model][0]} for a scene of "
+                         f"{MODELS[model][0]}")
     if data.control != scene.load.control:
         raise UserError(f"{data.source}: a curve under {data.control} control for a scene under "
                          f"{scene.load.control} control")
@@ -324,21 +387,38 @@ def fit(scene, data, keys, *, bounds=None, substeps: int | None = None, start=No
     substeps = default_substeps(data.points) if substeps is None else int(substeps)
     if substeps < 1:
         raise UserError(f"--substeps {substeps}: must be at least 1")
-    path, data_index = refined_path(data.load, substeps)
-    problem = _Problem(with_path(scene, path), data, parameters, data_index, progress)
+    path, data_index = refined_path(data.path, substeps)
+    problem = _Problem(with_path(scene, path, weft=data.weft_load is not None), data,
+                       parameters, data_index, progress)
     theta0 = np.array([p.to_theta(p.start) for p in parameters])
     problem.solve(theta0)  # a start the solver cannot run is the user's to fix: raise here
     lower = np.array([p.to_theta(p.lower) if p.lower > 0 or not p.log else -np.inf
                       for p in parameters])
     upper = np.array([p.to_theta(p.upper) for p in parameters])
     result = least_squares(problem.residuals, theta0,
-                           jac=problem.jacobian if jacobian == "exact" else "2-point",
+                           jac=problem.jacobian if jacobian == problem.jacobian_kind
+                           else "2-point",
                            bounds=(lower, upper), method="trf", x_scale="jac",
                            max_nfev=max_iterations * (len(parameters) + 2))
-    fitted = _finish(problem, result, parameters)
+    fitted = _finish(problem, result, parameters, jacobian)
     if out is not None:
         write_outputs(fitted, out)
     return fitted
+
+
+def _jacobian_for(scene, jacobian: str | None) -> str:
+    """The Jacobian a fit of the scene uses: `jacobian` as asked, or the model's own (exact
+    for the one-yarn model, finite differences for the fabric, which has no exact one)."""
+    own = "exact" if fit_model(scene).exact else "finite-difference"
+    if jacobian is None:
+        return own
+    if jacobian not in ("exact", "finite-difference"):
+        raise UserError(f"jacobian={jacobian!r}: 'exact' or 'finite-difference'")
+    if jacobian == "exact" and own != "exact":
+        raise UserError(f"jacobian='exact': exact path sensitivities exist for the one-yarn "
+                         f"model only; a fit of {MODELS[scene.geometry.model][0]} uses "
+                         "'finite-difference'")
+    return jacobian
 
 
 def _check_counts(data: CurveData, parameters) -> None:
@@ -350,14 +430,17 @@ def _check_counts(data: CurveData, parameters) -> None:
         raise UserError(f"{data.source}: {m} measured values for {p} parameters: too few")
 
 
-def _finish(problem: _Problem, result, parameters) -> FitResult:
+def _finish(problem: _Problem, result, parameters, jacobian: str) -> FitResult:
     theta = result.x
     solution, residual = problem.solve(theta)
     jac = problem.jacobian(theta, report=False)
     active = np.asarray(result.active_mask) != 0
     values = problem.values(theta)
-    report = statistics(jac, residual, theta, parameters, problem.sigma_given, active)
+    report = statistics(jac, residual, theta, parameters, problem.sigma_given, active,
+                        RANK_TOLERANCE[problem.jacobian_kind])
     warnings = report.pop("warnings")
+    if problem.jacobian_kind == "finite-difference":
+        warnings.insert(0, FD_WARNING.format(step=FD_STEP, solves=len(parameters)))
     if not result.success:
         warnings.insert(0, f"the optimiser did not converge: {result.message}")
     fitted_scene = problem.scene_at(theta)
@@ -374,15 +457,18 @@ def _finish(problem: _Problem, result, parameters) -> FitResult:
                      residual_rms=rms, dof=report["dof"], iterations=int(result.njev or 0),
                      identifiable=report["identifiable"], converged=bool(result.success),
                      warnings=warnings, noise=report["noise"], scene=fitted_scene,
-                     data=problem.data, fitted=curves, cost_history=problem.costs)
+                     data=problem.data, fitted=curves, cost_history=problem.costs,
+                     jacobian=jacobian)
 
 
 # --------------------------------------------------------------------------
 # Statistics.
 
 
-def statistics(jac, residual, theta, parameters, sigma_given: bool, active) -> dict:
-    """Standard errors, 95 % intervals, correlation and identifiability (module docstring)."""
+def statistics(jac, residual, theta, parameters, sigma_given: bool, active,
+               rank_tolerance: float = RANK_TOLERANCE["exact"]) -> dict:
+    """Standard errors, 95 % intervals, correlation and identifiability (module docstring);
+    `rank_tolerance`: RANK_TOLERANCE of how `jac` was computed."""
     from scipy import stats as scipy_stats
 
     m, n = jac.shape
@@ -422,13 +508,13 @@ def statistics(jac, residual, theta, parameters, sigma_given: bool, active) -> d
                          else f" {'-' if c < 0 else '+'} {abs(c):.3g} {name}")
             return text
 
-        for i in np.flatnonzero(ratio < RANK_TOLERANCE):
+        for i in np.flatnonzero(ratio < rank_tolerance):
             members = idx[np.abs(vt[i]) > 0.1]
             undetermined[members] = True
             warnings.append(
                 f"not identifiable: {', '.join(keys[k] for k in members)}; the curve does not "
                 f"determine the combination ({combination(i)}) of the column-scaled Jacobian "
-                f"(singular value ratio {ratio[i]:.2g} < {RANK_TOLERANCE:g})")
+                f"(singular value ratio {ratio[i]:.2g} < {rank_tolerance:g})")
         loose = {}  # weakest direction -> keys whose log-space error is too large
         for j, k in enumerate(idx):
             se_log = math.sqrt(cov[k, k]) if np.isfinite(cov[k, k]) else math.inf

@@ -1,8 +1,10 @@
 """Figures of a fit (`dynfab fit`): the data against the fitted curve, and the correlations.
 
-* ``fit_curve.png``: per measured column, the data (markers, with +-sigma bars
-  when given) and the fitted model's curve at the data points, with the
-  residuals (data - model) in a panel below;
+* ``fit_curve.png``: per measured quantity, the data (markers, with +-sigma bars
+  when given) and the fitted model's curve at the data points against the load,
+  with the residuals (data - model) in a panel below; a fabric's warp and weft
+  columns of one quantity (warp_strain and weft_strain, say) share a panel, each
+  curve labelled with its family;
 * ``fit_correlation.png``: the parameters' correlation matrix (blank where a
   parameter has none: not identified, or at a bound).
 
@@ -17,8 +19,11 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
-from dynfab.fit_data import LOAD_COLUMN, MEASURABLE
+from dynfab.fit_data import LOAD_COLUMN, WEFT_LOAD_COLUMN
 from dynfab.plot import FONT_SIZE, save_png
+
+FAMILY_COLOURS = {"": ("k", "C3"), "warp": ("C0", "C0"), "weft": ("C1", "C1")}
+"""(data, fitted) colours of a column's family."""
 
 
 def plot_fit(result, out) -> list[Path]:
@@ -28,26 +33,51 @@ def plot_fit(result, out) -> list[Path]:
             save_png(plot_correlation(result), out / "fit_correlation.png")]
 
 
+def load_axis(data) -> tuple[np.ndarray, str]:
+    """The load the curves are drawn against and its label: the first column, or a fabric
+    curve's weft column where the warps' load stays 0."""
+    if data.weft_load is not None and not data.load.any():
+        name, unit = WEFT_LOAD_COLUMN[data.control]
+        return data.weft_load, f"{name} [{unit}]"
+    name, unit = LOAD_COLUMN[data.control]
+    return data.load, f"{name} [{unit}]" + (" (warps)" if data.weft_load is not None else "")
+
+
+def panels(data) -> dict:
+    """(dataset, unit) -> the measured names drawn in that panel, in the curve's order."""
+    out = {}
+    for name in data.measured:
+        column = data.column(name)
+        out.setdefault((column.dataset, column.unit), []).append(name)
+    return out
+
+
 def plot_curve(result) -> Figure:
     data = result.data
-    names = list(data.measured)
-    fig = Figure(figsize=(4.2 * len(names), 5.0), layout="constrained")
-    grid = fig.add_gridspec(2, len(names), height_ratios=(3, 1))
-    control = result.scene.load.control
-    load_name, load_unit = LOAD_COLUMN[control]
-    for c, name in enumerate(names):
+    groups = panels(data)
+    load, load_label = load_axis(data)
+    fig = Figure(figsize=(4.2 * len(groups), 5.0), layout="constrained")
+    grid = fig.add_gridspec(2, len(groups), height_ratios=(3, 1))
+    for c, ((dataset, unit), names) in enumerate(groups.items()):
         top = fig.add_subplot(grid[0, c])
         bottom = fig.add_subplot(grid[1, c], sharex=top)
-        measured, model = data.measured[name], result.fitted[name]
-        sigma = data.sigma.get(name)
-        top.errorbar(data.load, measured, yerr=sigma, fmt="o", ms=3, color="k", label="data")
-        top.plot(data.load, model, "-", color="C3", label="fitted")
-        top.set_ylabel(f"{name} [{MEASURABLE[name]}]", fontsize=FONT_SIZE)
-        top.legend(fontsize=FONT_SIZE)
         bottom.axhline(0.0, color="0.6", lw=0.8)
-        bottom.errorbar(data.load, measured - model, yerr=sigma, fmt="o", ms=3, color="k")
-        bottom.set_ylabel(f"residual [{MEASURABLE[name]}]", fontsize=FONT_SIZE)
-        bottom.set_xlabel(f"{load_name} [{load_unit}]", fontsize=FONT_SIZE)
+        for name in names:
+            family = data.column(name).family
+            data_colour, model_colour = FAMILY_COLOURS[family]
+            prefix = f"{family} " if family else ""
+            measured, model = data.measured[name], result.fitted[name]
+            sigma = data.sigma.get(name)
+            top.errorbar(load, measured, yerr=sigma, fmt="o", ms=3, color=data_colour,
+                         label=f"{prefix}data")
+            top.plot(load, model, "-", color=model_colour, label=f"{prefix}fitted")
+            bottom.errorbar(load, measured - model, yerr=sigma, fmt="o", ms=3,
+                            color=data_colour, label=family or None)
+        quantity = names[0] if len(names) == 1 else dataset
+        top.set_ylabel(f"{quantity} [{unit}]", fontsize=FONT_SIZE)
+        top.legend(fontsize=FONT_SIZE)
+        bottom.set_ylabel(f"residual [{unit}]", fontsize=FONT_SIZE)
+        bottom.set_xlabel(load_label, fontsize=FONT_SIZE)
     shown = ", ".join(f"{k} = {v['value']:.4g}" for k, v in result.parameters.items())
     fig.suptitle(f"fit: {shown}", fontsize=FONT_SIZE)
     return fig

@@ -79,3 +79,32 @@ def test_example_curve_is_the_documented_one():
     force = solve_path(with_key(scene, "load.values", list(data.load))).observables["end_force"]
     sigma = 2e-3 * np.abs(force).max()
     assert np.abs(force - data.measured["end_force"]).max() < 5 * sigma
+
+
+def test_fabric_example_writes_report_scene_and_figures(tmp_path, capsys):
+    """`dynfab fit` on the fabric example (runs/fit_example/fabric_scene.toml, a periodic 2 x 2
+    cell; fabric_curve.csv): exits normally, writes the four files, says in fit.json and in a
+    warning that its Jacobian is a finite difference; the fitted scene runs."""
+    out = tmp_path / "fabric_fit"
+    main(["fit", str(EXAMPLE / "fabric_scene.toml"), "--data", str(EXAMPLE / "fabric_curve.csv"),
+          "--fit", "warp.EA,weft.EA", "--out", str(out)])
+    captured = capsys.readouterr()
+    assert "weft.EA" in captured.out and "95 % interval" in captured.out
+    report = json.loads((out / "fit.json").read_text())
+    assert report["jacobian"] == "finite-difference"
+    assert report["warnings"][0].startswith("finite-difference Jacobian")
+    assert report["identifiable"] and report["dof"] == 4 * 10 - 2
+    progress = [line for line in captured.err.splitlines() if line.startswith("fit iteration")]
+    assert len(progress) >= report["iterations"] >= 1
+    # the README quotes this command's output: each table line as printed here
+    readme = (EXAMPLE.parent.parent / "README.md").read_text()
+    assert "--fit warp.EA,weft.EA --out fabric_fit" in readme
+    for line in captured.out.splitlines():
+        assert line in readme, line
+    for name in ("fit_curve.png", "fit_correlation.png"):
+        assert (out / name).stat().st_size > 0
+    fitted = load_scene(out / "fitted.toml")
+    assert fitted.weft.EA == report["parameters"]["weft.EA"]["value"]
+    assert len(fitted.load.weft_values) == len(fitted.load.values)  # the refined path
+    main(["run", str(out / "fitted.toml"), "--out", str(tmp_path / "fitted.h5"), "--quiet"])
+    assert (tmp_path / "fitted.h5").exists()
