@@ -23,14 +23,14 @@ def functions(scalar) -> SimpleNamespace:
     """The band `wp.func`s for one scalar type."""
     mat = wp.types.matrix((2, 2), scalar)
 
-    @wp.func
+    @wp.func(inline=True)
     def add_block(band: wp.array2d(dtype=scalar), node_p: int, node_q: int, block: mat):
         """A[(p's 2 dofs), (q's 2 dofs)] += block."""
         for c in range(2):
             for d in range(2):
                 band[2 * node_p + c, 2 * (node_q - node_p) + d - c + BANDWIDTH] += block[c, d]
 
-    @wp.func
+    @wp.func(inline=True)
     def add_pair(band: wp.array2d(dtype=scalar), start: int, end: int, block: mat):
         """block on (start, start) and (end, end), -block on (start, end) and (end, start)."""
         add_block(band, start, start, block)
@@ -38,14 +38,14 @@ def functions(scalar) -> SimpleNamespace:
         add_block(band, start, end, -block)
         add_block(band, end, start, -block)
 
-    @wp.func
+    @wp.func(inline=True)
     def clear(band: wp.array2d(dtype=scalar), lo: int, hi: int):
         """Rows lo..hi-1 = 0."""
         for row in range(lo, hi):
             for k in range(2 * BANDWIDTH + 1):
                 band[row, k] = scalar(0.0)
 
-    @wp.func
+    @wp.func(inline=True)
     def row_product(band: wp.array2d(dtype=scalar), row: int, lo: int, hi: int,
                     x: wp.array(dtype=scalar)) -> scalar:
         """sum_j A[row, j] x_j over the band within dofs lo..hi-1."""
@@ -54,7 +54,7 @@ def functions(scalar) -> SimpleNamespace:
             total += band[row, j - row + BANDWIDTH] * x[j]
         return total
 
-    @wp.func
+    @wp.func(inline=True)
     def absolute_row_sum(band: wp.array2d(dtype=scalar), row: int) -> scalar:
         """sum_j |A[row, j]| [N/m]."""
         total = scalar(0.0)
@@ -62,7 +62,7 @@ def functions(scalar) -> SimpleNamespace:
             total += wp.abs(band[row, k])
         return total
 
-    @wp.func
+    @wp.func(inline=True)
     def constrain(band: wp.array2d(dtype=scalar), lo: int, hi: int, i: int):
         """Row and column i (dofs lo..hi-1) replaced by the identity's."""
         for j in range(wp.max(lo, i - BANDWIDTH), wp.min(hi, i + BANDWIDTH + 1)):
@@ -70,7 +70,7 @@ def functions(scalar) -> SimpleNamespace:
             band[j, i - j + BANDWIDTH] = scalar(0.0)
         band[i, BANDWIDTH] = scalar(1.0)
 
-    @wp.func
+    @wp.func(inline=True)
     def factor(band: wp.array2d(dtype=scalar), lo: int, hi: int) -> int:
         """A = L U in place over dofs lo..hi-1; the first pivot that is not positive, or -1."""
         failed = int(-1)
@@ -88,7 +88,7 @@ def functions(scalar) -> SimpleNamespace:
                             - multiplier * band[k, j - k + BANDWIDTH]
         return failed
 
-    @wp.func
+    @wp.func(inline=True)
     def solve(band: wp.array2d(dtype=scalar), lo: int, hi: int, rhs: wp.array(dtype=scalar)):
         """rhs[lo:hi] = A^-1 rhs[lo:hi] with the factors of `factor`."""
         for i in range(lo, hi):

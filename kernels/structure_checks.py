@@ -18,9 +18,10 @@ DIVERGENCE_FACTOR x its start), at the rounding floor, out of steps; explicit in
 ENERGY_CHECK_INTERVAL steps), the semi-implicit one `check_progress` (no new low of the residual
 during the last half of at least STALL_MIN_STEPS steps).
 
-Group sums: every node writes its terms into `node_values` (vec4) and its residual into
-`node_residual`; `block_stage` sums a block in node order; `group_sum` adds the group's
-blocks in order (both layouts: the same bits).
+Group sums: every node writes its terms into `node_values` (vec4; a force pass's last component
+the node's residual); `block_stage` sums a block in node order (and keeps the largest residual);
+`group_sum` adds the group's blocks in order (both layouts: the same bits; the grouped layout's
+scatter order sums straight into the blocks, `values_blocks`).
 """
 
 import functools
@@ -60,7 +61,7 @@ def functions(scalar, friction: bool, boundary: bool, merit: bool = False) -> Si
     band_ops = band_lu.functions(scalar)
     floor_scale = ROUNDING_FLOOR_FACTOR * epsilon(scalar)
 
-    @wp.func
+    @wp.func(inline=True)
     def larger(worst: scalar, value: scalar) -> scalar:
         """max(worst, |value|); a NaN, once met, stays."""
         result = worst
@@ -70,19 +71,20 @@ def functions(scalar, friction: bool, boundary: bool, merit: bool = False) -> Si
 
     # ------------------------------------------------------------- sums
 
-    @wp.func
+    @wp.func(inline=True)
     def block_stage(b: int, data: Data, state: State):
-        """block_values[b], block_max[b]: the block's node_values summed and its largest
-        node_residual, in node order."""
+        """block_values[b]: the block's node_values summed in node order; block_max[b]: the
+        largest of their last component (the residual, where a force pass wrote them)."""
         total = vec4(scalar(0.0), scalar(0.0), scalar(0.0), scalar(0.0))
         worst = scalar(0.0)
         for i in range(data.block_start[b], data.block_start[b + 1]):
-            total = total + state.node_values[i]
-            worst = larger(worst, state.node_residual[i])
+            value = state.node_values[i]
+            total = total + value
+            worst = larger(worst, value[3])
         state.block_values[b] = total
         state.block_max[b] = worst
 
-    @wp.func
+    @wp.func(inline=True)
     def group_sum(g: int, data: Data, state: State) -> vec4:
         """The group's blocks' sums, in block order."""
         total = vec4(scalar(0.0), scalar(0.0), scalar(0.0), scalar(0.0))
@@ -90,9 +92,9 @@ def functions(scalar, friction: bool, boundary: bool, merit: bool = False) -> Si
             total = total + state.block_values[b]
         return total
 
-    @wp.func
+    @wp.func(inline=True)
     def group_max(g: int, data: Data, state: State) -> scalar:
-        """The group's largest node_residual [N]."""
+        """The group's largest residual [N] (`block_max`)."""
         worst = scalar(0.0)
         for b in range(data.group_block[g], data.group_block[g + 1]):
             worst = larger(worst, state.block_max[b])
@@ -100,46 +102,62 @@ def functions(scalar, friction: bool, boundary: bool, merit: bool = False) -> Si
 
     # ------------------------------------------------------------- evaluation
 
-    @wp.func
+    @wp.func(inline=True)
     def energy_step(g: int, state: State, settings: Settings) -> bool:
         """The check after this time step tests the energy (`check_energy`)."""
         upcoming = state.steps[g] + 1
         return upcoming % ENERGY_CHECK_INTERVAL == 0 or upcoming >= settings.max_steps
 
-    @wp.func
-    def force_values(i: int, data: Data, state: State, settings: Settings):
-        """node_residual[i] = max |force component| [N]; node_values[i] = (1/2 m v^2 [J],
-        f0 . (x - x0) [J] on an energy-check step, f^T f / m [N^2/kg] with `merit`, 0), each
-        counted at the node's share."""
-        f = state.force[i]
-        state.node_residual[i] = larger(larger(scalar(0.0), f[0]), f[1])
+    @wp.func(inline=True)
+    def force_values(i: int, data: Data, state: State, energy: bool) -> vec4:
+        """Node i's force masked to its free dofs (in place) and its values: (1/2 m v^2 [J],
+        f0 . (x - x0) [J] with `energy`, f^T f / m [N^2/kg] with `merit`, the largest force
+        component [N]), the sums' terms counted at the node's share."""
+        f = wp.cw_mul(state.force[i], data.free[i])
+        state.force[i] = f
         v = state.velocity[i]
         share = data.share[i]
         work = scalar(0.0)
-        if energy_step(data.node_group[i], state, settings):
+        if energy:
             work = share * wp.dot(state.start_force[i], state.position[i] - state.start_position[i])
         merit_term = scalar(0.0)
         if wp.static(merit):
             merit_term = share * (wp.dot(f, f) / state.mass[i])
-        state.node_values[i] = vec4(scalar(0.5) * (state.mass[i] * share) * wp.dot(v, v), work,
-                                    merit_term, scalar(0.0))
+        return vec4(scalar(0.5) * (state.mass[i] * share) * wp.dot(v, v), work, merit_term,
+                    larger(larger(scalar(0.0), f[0]), f[1]))
 
-    @wp.func
+    @wp.func(inline=True)
     def gather_node(i: int, data: Data, state: State, settings: Settings):
-        """Node i's force gathered at the current positions, and its `force_values`."""
+        """Node i's force gathered at the current positions, its values into node_values."""
         state.force[i] = forces.node_force(i, state.position, data, state)
-        force_values(i, data, state, settings)
+        state.node_values[i] = force_values(i, data, state,
+                                            energy_step(data.node_group[i], state, settings))
 
-    @wp.func
+    @wp.func(inline=True)
+    def values_blocks(g: int, data: Data, state: State, settings: Settings):
+        """Every node's `force_values` summed straight into its block's sums (the grouped
+        layout's scatter order: what `block_stage` sums, without storing the node values)."""
+        energy = energy_step(g, state, settings)
+        for b in range(data.group_block[g], data.group_block[g + 1]):
+            total = vec4(scalar(0.0), scalar(0.0), scalar(0.0), scalar(0.0))
+            worst = scalar(0.0)
+            for i in range(data.block_start[b], data.block_start[b + 1]):
+                value = force_values(i, data, state, energy)
+                total = total + value
+                worst = larger(worst, value[3])
+            state.block_values[b] = total
+            state.block_max[b] = worst
+
+    @wp.func(inline=True)
     def scatter_group(g: int, data: Data, state: State, settings: Settings):
-        """The group's forces by `scatter_forces` (ties included), then every node's values."""
-        forces.scatter_forces(g, state.position, data, state)
-        for i in range(data.group_node[g], data.group_node[g + 1]):
-            force_values(i, data, state, settings)
+        """The group's forces in scatter order (ties included), its values and block sums."""
+        forces.scatter_init(g, data, state)
+        forces.scatter_terms(g, state.position, data, state)
+        values_blocks(g, data, state, settings)
 
     # ------------------------------------------------------------- start
 
-    @wp.func
+    @wp.func(inline=True)
     def plane_rows(i: int, data: Data, state: State) -> scalar:
         """sum_j |K_ij| of the moving planes' friction coupling at node i's in-plane dof
         beyond its ties' own k_t, every tie sticking [N/m] (J^T k_t J, J carrying -w on the
@@ -163,17 +181,17 @@ def functions(scalar, friction: bool, boundary: bool, merit: bool = False) -> Si
                                                                     + wp.abs(w) * counts[family])
         return rows
 
-    @wp.func
+    @wp.func(inline=True)
     def stiffest_tie(t: int, data: Data, state: State):
         """The tie's stiffest blocks (`structure_tangent.stiffest_blocks`)."""
         tangent.stiffest_blocks(t, data, state)
 
-    @wp.func
+    @wp.func(inline=True)
     def stiffest_chain(c: int, data: Data, state: State):
         """Chain c's stiffest band into state.band."""
         tangent.assemble_chain(c, state.position, data, state, state.band, 0)
 
-    @wp.func
+    @wp.func(inline=True)
     def rows_node(i: int, data: Data, state: State, settings: Settings):
         """Node i's Gershgorin row sum [N/m] into node_values[i][0], its own mass into
         state.mass[i] (module docstring) and, with physical masses, 2 sqrt(m / rows) [s] into
@@ -196,7 +214,7 @@ def functions(scalar, friction: bool, boundary: bool, merit: bool = False) -> Si
                 bound = scalar(2.0) * wp.sqrt(data.mass[i] / rows)
         state.node_values[i] = vec4(rows, bound, scalar(0.0), scalar(0.0))
 
-    @wp.func
+    @wp.func(inline=True)
     def tie_families(g: int, data: Data, state: State):
         """A tied family's nodes in group g take the family's summed mass."""
         if wp.static(boundary):
@@ -212,7 +230,7 @@ def functions(scalar, friction: bool, boundary: bool, merit: bool = False) -> Si
                         for m in range(begin, end):
                             state.mass[data.plane_nodes[m]] = total
 
-    @wp.func
+    @wp.func(inline=True)
     def force_scale(g: int, data: Data, state: State) -> scalar:
         """The group's force scale [N]: the largest end load component, contact force and
         segment tension |k (l - l0)|."""
@@ -228,7 +246,7 @@ def functions(scalar, friction: bool, boundary: bool, merit: bool = False) -> Si
             scale = wp.max(scale, wp.abs(state.contact[t]))
         return scale
 
-    @wp.func
+    @wp.func(inline=True)
     def start_group(g: int, data: Data, state: State, settings: Settings):
         """The group's masses, time step, rounding floor, tolerance and bookkeeping at the
         step's start (after the tie and node passes and their block sums, `stiffest_chain` and
@@ -300,14 +318,14 @@ def functions(scalar, friction: bool, boundary: bool, merit: bool = False) -> Si
 
     # ------------------------------------------------------------- checks
 
-    @wp.func
+    @wp.func(inline=True)
     def at_rounding_floor(g: int, state: State) -> bool:
         """The best residual is within the rounding floor and has not fallen for half the steps."""
         return (state.best_residual[g] <= state.rounding_floor[g]
                 and state.steps[g] >= FLOOR_MIN_STEPS
                 and 2 * state.steps_since_best[g] > state.steps[g])
 
-    @wp.func
+    @wp.func(inline=True)
     def check(g: int, data: Data, state: State, settings: Settings) -> int:
         """Count the step just taken; the residual (group_max), the kinetic energy
         (group_sum[0]) and the status after it."""
@@ -337,7 +355,7 @@ def functions(scalar, friction: bool, boundary: bool, merit: bool = False) -> Si
         state.status[g] = code
         return code
 
-    @wp.func
+    @wp.func(inline=True)
     def check_energy(g: int, data: Data, state: State, code: int) -> int:
         """`code`, or DIVERGED when the kinetic energy exceeds ENERGY_FACTOR x the largest
         f0 . (x - x0) of the step so far, tested every ENERGY_CHECK_INTERVAL steps on the
@@ -361,7 +379,7 @@ def functions(scalar, friction: bool, boundary: bool, merit: bool = False) -> Si
             state.energy_ratio[g] = wp.max(state.energy_ratio[g], energy / bound)
         return code
 
-    @wp.func
+    @wp.func(inline=True)
     def check_progress(g: int, state: State, code: int) -> int:
         """`code`, or NO_PROGRESS where the best residual has not fallen during the last half
         of at least STALL_MIN_STEPS steps (above the rounding floor)."""
@@ -375,6 +393,7 @@ def functions(scalar, friction: bool, boundary: bool, merit: bool = False) -> Si
 
     return SimpleNamespace(larger=larger, block_stage=block_stage, group_sum=group_sum,
                            group_max=group_max, force_values=force_values, gather_node=gather_node,
+                           values_blocks=values_blocks,
                            scatter_group=scatter_group, stiffest_tie=stiffest_tie,
                            stiffest_chain=stiffest_chain, rows_node=rows_node,
                            start_group=start_group, check=check, check_energy=check_energy,
@@ -394,12 +413,12 @@ def group_functions(scalar, friction: bool, boundary: bool, order: str,
     forces = structure_forces.functions(scalar, friction, boundary)
     scatter = order == "scatter"
 
-    @wp.func
+    @wp.func(inline=True)
     def blocks(g: int, data: Data, state: State):
         for b in range(data.group_block[g], data.group_block[g + 1]):
             checks.block_stage(b, data, state)
 
-    @wp.func
+    @wp.func(inline=True)
     def evaluate(g: int, data: Data, state: State, settings: Settings):
         if wp.static(scatter):
             checks.scatter_group(g, data, state, settings)
@@ -408,9 +427,18 @@ def group_functions(scalar, friction: bool, boundary: bool, order: str,
                 forces.tie_pass(t, state.position, data, state)
             for i in range(data.group_node[g], data.group_node[g + 1]):
                 checks.gather_node(i, data, state, settings)
-        blocks(g, data, state)
+            blocks(g, data, state)
 
-    @wp.func
+    @wp.func(inline=True)
+    def evaluate_set(g: int, data: Data, state: State, settings: Settings):
+        """`evaluate` where the scatter's initial forces (the external ones) are set already."""
+        if wp.static(scatter):
+            forces.scatter_terms(g, state.position, data, state)
+            checks.values_blocks(g, data, state, settings)
+        else:
+            evaluate(g, data, state, settings)
+
+    @wp.func(inline=True)
     def start(g: int, data: Data, state: State, settings: Settings):
         evaluate(g, data, state, settings)
         for t in range(data.group_tie[g], data.group_tie[g + 1]):
@@ -421,4 +449,5 @@ def group_functions(scalar, friction: bool, boundary: bool, order: str,
             checks.rows_node(i, data, state, settings)
         checks.start_group(g, data, state, settings)
 
-    return SimpleNamespace(blocks=blocks, evaluate=evaluate, start=start)
+    return SimpleNamespace(blocks=blocks, evaluate=evaluate, evaluate_set=evaluate_set,
+                           start=start)

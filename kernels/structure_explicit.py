@@ -111,11 +111,11 @@ def functions(scalar, friction: bool, boundary: bool, damping: str) -> SimpleNam
     fire = damping == "fire"
     viscous = damping == "viscous"
 
-    @wp.func
+    @wp.func(inline=True)
     def running(state: State, g: int) -> bool:
         return state.status[g] == int(status.RUNNING)
 
-    @wp.func
+    @wp.func(inline=True)
     def start_damping(g: int, state: State):
         """The damping's state at the step's start (FIRE: dt at most DT_START x stable)."""
         if wp.static(fire):
@@ -124,9 +124,9 @@ def functions(scalar, friction: bool, boundary: bool, damping: str) -> SimpleNam
             state.fire_positive[g] = 0
             state.fire_negative[g] = 0
 
-    @wp.func
-    def pre_node(i: int, data: Data, state: State, settings: Settings):
-        """node_values[i]: the damping's terms of node i (module docstring)."""
+    @wp.func(inline=True)
+    def pre_values(i: int, data: Data, state: State) -> vec4:
+        """The damping's terms of node i (module docstring)."""
         g = data.node_group[i]
         share = data.share[i]
         values = vec4(scalar(0.0), scalar(0.0), scalar(0.0), scalar(0.0))
@@ -147,9 +147,19 @@ def functions(scalar, friction: bool, boundary: bool, damping: str) -> SimpleNam
                           share * (wp.dot(u, u) * state.mass[i]), scalar(0.0))
         if wp.static(fire):
             values[0] = share * wp.dot(state.force[i], state.velocity[i])
-        state.node_values[i] = values
+        return values
 
-    @wp.func
+    @wp.func(inline=True)
+    def pre_blocks(g: int, data: Data, state: State):
+        """Every node's `pre_values` summed straight into its block's sums (what the
+        node-parallel layout's PRE and BLOCKS stages store and sum)."""
+        for b in range(data.group_block[g], data.group_block[g + 1]):
+            total = vec4(scalar(0.0), scalar(0.0), scalar(0.0), scalar(0.0))
+            for i in range(data.block_start[b], data.block_start[b + 1]):
+                total = total + pre_values(i, data, state)
+            state.block_values[b] = total
+
+    @wp.func(inline=True)
     def decide(g: int, data: Data, state: State, settings: Settings):
         """The damping's decision for the step from the group's sums (module docstring)."""
         sums = checks.group_sum(g, data, state)
@@ -187,38 +197,56 @@ def functions(scalar, friction: bool, boundary: bool, damping: str) -> SimpleNam
                 state.decision[g] = scalar(1.0)
             state.dt[g] = dt
 
-    @wp.func
-    def viscous_move(i: int, state: State, dt: scalar, c: scalar):
-        """v = keep v + (gain / m) f, x += dt v (module docstring)."""
+    @wp.func(inline=True)
+    def viscous_factors(dt: scalar, c: scalar, store: scalar) -> vec4:
+        """(dt [s], keep [-], gain [s], store) of the centred viscous step at c [1/s]; `store`
+        1 keeps the step's force (the adaptive c's next estimate)."""
         half = scalar(0.5) * c * dt
-        keep = (scalar(1.0) - half) / (scalar(1.0) + half)
-        gain = dt / (scalar(1.0) + half)
-        v = keep * state.velocity[i] + (gain / state.mass[i]) * state.force[i]
-        state.velocity[i] = v
-        state.position[i] = state.position[i] + dt * v
-        state.previous_force[i] = state.force[i]
+        return vec4(dt, (scalar(1.0) - half) / (scalar(1.0) + half), dt / (scalar(1.0) + half),
+                    store)
 
-    @wp.func
-    def move_node(i: int, data: Data, state: State, settings: Settings):
-        """Node i's update (module docstring); FIRE: node_values = (|v|^2, |f|^2) for `mix`."""
-        g = data.node_group[i]
+    @wp.func(inline=True)
+    def step_factors(g: int, state: State, settings: Settings) -> vec4:
+        """The group's `viscous_factors` for this step: the given or adaptive c (viscous), the
+        fallback's c or none (kinetic: keep 1, gain dt), none (FIRE)."""
         dt = state.dt[g]
+        factors = vec4(dt, scalar(1.0), dt, scalar(0.0))
         if wp.static(kinetic):
             c = state.damping_coefficient[g]
             if c > scalar(0.0):
-                viscous_move(i, state, dt, c)
-            elif state.decision[g] != scalar(0.0):
+                factors = viscous_factors(dt, c, scalar(0.0))
+        if wp.static(viscous):
+            c = settings.damping_coefficient
+            store = scalar(0.0)
+            if c < scalar(0.0):
+                c = state.damping_coefficient[g]
+                store = scalar(1.0)
+            factors = viscous_factors(dt, c, store)
+        return factors
+
+    @wp.func(inline=True)
+    def viscous_move(i: int, state: State, factors: vec4):
+        """v = keep v + (gain / m) f, x += dt v (module docstring)."""
+        v = factors[1] * state.velocity[i] + (factors[2] / state.mass[i]) * state.force[i]
+        state.velocity[i] = v
+        state.position[i] = state.position[i] + factors[0] * v
+        if factors[3] != scalar(0.0):
+            state.previous_force[i] = state.force[i]
+
+    @wp.func(inline=True)
+    def move_node(i: int, data: Data, state: State, factors: vec4):
+        """Node i's update with its group's `step_factors` (module docstring); FIRE:
+        node_values = (|v|^2, |f|^2) for `mix`."""
+        g = data.node_group[i]
+        dt = factors[0]
+        if wp.static(kinetic):
+            if state.damping_coefficient[g] == scalar(0.0) and state.decision[g] != scalar(0.0):
                 state.position[i] = state.position[i] - (scalar(0.5) * dt) * state.velocity[i]
                 state.velocity[i] = vec(scalar(0.0), scalar(0.0))
             else:
-                v = state.velocity[i] + (dt / state.mass[i]) * state.force[i]
-                state.velocity[i] = v
-                state.position[i] = state.position[i] + dt * v
+                viscous_move(i, state, factors)
         if wp.static(viscous):
-            c = settings.damping_coefficient
-            if c < scalar(0.0):
-                c = state.damping_coefficient[g]
-            viscous_move(i, state, dt, c)
+            viscous_move(i, state, factors)
         if wp.static(fire):
             if state.decision[g] != scalar(0.0):
                 state.position[i] = state.position[i] - (scalar(0.5) * dt) * state.velocity[i]
@@ -230,7 +258,7 @@ def functions(scalar, friction: bool, boundary: bool, damping: str) -> SimpleNam
                                         share * wp.dot(state.force[i], state.force[i]),
                                         scalar(0.0), scalar(0.0))
 
-    @wp.func
+    @wp.func(inline=True)
     def mix(g: int, data: Data, state: State):
         """FIRE's mixing alpha |v| / |f| from the group's sums."""
         sums = checks.group_sum(g, data, state)
@@ -239,7 +267,7 @@ def functions(scalar, friction: bool, boundary: bool, damping: str) -> SimpleNam
             mixing = state.fire_alpha[g] * wp.sqrt(sums[0] / sums[1])
         state.mixing[g] = mixing
 
-    @wp.func
+    @wp.func(inline=True)
     def mix_move(i: int, data: Data, state: State):
         """FIRE: v = (1 - alpha) v + mixing f, x += dt v."""
         g = data.node_group[i]
@@ -247,7 +275,7 @@ def functions(scalar, friction: bool, boundary: bool, damping: str) -> SimpleNam
         state.velocity[i] = v
         state.position[i] = state.position[i] + state.dt[g] * v
 
-    @wp.func
+    @wp.func(inline=True)
     def escalate(g: int, data: Data, state: State):
         """Kinetic damping's viscous fallback (module docstring), from rest."""
         c = state.damping_coefficient[g]
@@ -268,7 +296,7 @@ def functions(scalar, friction: bool, boundary: bool, damping: str) -> SimpleNam
             state.best_residual[g] = state.residual[g]
             state.steps_since_best[g] = 0
 
-    @wp.func
+    @wp.func(inline=True)
     def check_step(g: int, data: Data, state: State, settings: Settings):
         """`structure_checks.check`, the energy test, kinetic damping's fallback."""
         code = checks.check_energy(g, data, state, checks.check(g, data, state, settings))
@@ -276,7 +304,7 @@ def functions(scalar, friction: bool, boundary: bool, damping: str) -> SimpleNam
             if code == int(status.RUNNING):
                 escalate(g, data, state)
 
-    @wp.func
+    @wp.func(inline=True)
     def unit_stage(stage: int, u: int, data: Data, state: State, settings: Settings):
         """Stage `stage` on unit u (a node, tie, block, chain or group), if its group runs."""
         if stage == START_TIES:
@@ -297,7 +325,7 @@ def functions(scalar, friction: bool, boundary: bool, damping: str) -> SimpleNam
             start_damping(u, state)
         elif stage == PRE:
             if running(state, data.node_group[u]):
-                pre_node(u, data, state, settings)
+                state.node_values[u] = pre_values(u, data, state)
         elif stage == BLOCKS:
             if running(state, data.block_group[u]):
                 checks.block_stage(u, data, state)
@@ -305,8 +333,9 @@ def functions(scalar, friction: bool, boundary: bool, damping: str) -> SimpleNam
             if running(state, u):
                 decide(u, data, state, settings)
         elif stage == MOVE:
-            if running(state, data.node_group[u]):
-                move_node(u, data, state, settings)
+            g = data.node_group[u]
+            if running(state, g):
+                move_node(u, data, state, step_factors(g, state, settings))
         elif stage == MIX:
             if running(state, u):
                 mix(u, data, state)
@@ -323,9 +352,10 @@ def functions(scalar, friction: bool, boundary: bool, damping: str) -> SimpleNam
             if running(state, u):
                 check_step(u, data, state, settings)
 
-    return SimpleNamespace(running=running, start_damping=start_damping, pre_node=pre_node,
+    return SimpleNamespace(running=running, start_damping=start_damping, pre_blocks=pre_blocks,
                            decide=decide, move_node=move_node, mix=mix, mix_move=mix_move,
-                           check_step=check_step, unit_stage=unit_stage, viscous_move=viscous_move)
+                           check_step=check_step, unit_stage=unit_stage, viscous_move=viscous_move,
+                           viscous_factors=viscous_factors, step_factors=step_factors)
 
 
 @functools.cache
@@ -355,13 +385,14 @@ def grouped_kernel(scalar, friction: bool, boundary: bool, damping: str, order: 
 
     group = structure_checks.group_functions(scalar, friction, boundary, order)
     blocks, evaluate = group.blocks, group.evaluate
+    scatter = order == "scatter"
 
-    @wp.func
+    @wp.func(inline=True)
     def start(g: int, data: Data, state: State, settings: Settings):
         group.start(g, data, state, settings)
         ops.start_damping(g, state)
 
-    @wp.func
+    @wp.func(inline=True)
     def step(g: int, data: Data, state: State, settings: Settings):
         lo = data.group_node[g]
         hi = data.group_node[g + 1]
@@ -371,19 +402,24 @@ def grouped_kernel(scalar, friction: bool, boundary: bool, damping: str, order: 
         if wp.static(viscous):
             pre = settings.damping_coefficient < scalar(0.0)
         if pre:
-            for i in range(lo, hi):
-                ops.pre_node(i, data, state, settings)
-            blocks(g, data, state)
+            ops.pre_blocks(g, data, state)
             ops.decide(g, data, state, settings)
         if ops.running(state, g):
-            for i in range(lo, hi):
-                ops.move_node(i, data, state, settings)
+            factors = ops.step_factors(g, state, settings)
             if wp.static(fire):
+                for i in range(lo, hi):
+                    ops.move_node(i, data, state, factors)
                 blocks(g, data, state)
                 ops.mix(g, data, state)
                 for i in range(lo, hi):
                     ops.mix_move(i, data, state)
-            evaluate(g, data, state, settings)
+                evaluate(g, data, state, settings)
+            else:  # the move and the scatter's start in one pass
+                for i in range(lo, hi):
+                    ops.move_node(i, data, state, factors)
+                    if wp.static(scatter):
+                        state.force[i] = state.load[i] + data.weight[i]
+                group.evaluate_set(g, data, state, settings)
             ops.check_step(g, data, state, settings)
 
     @wp.kernel(module="unique", module_options=MODULE_OPTIONS)

@@ -22,8 +22,8 @@ The terms, each written once (f = -dV/dr, the friction force beside it):
 Two orders of the same sums. Gather (`tie_pass` per tie, then `node_force` per node: every
 thread writes only its own slots, no atomics; a segment is evaluated at both its nodes and a
 bending spring at three): the node-parallel layout, bit for bit repeatable on any device, and
-the grouped layout's "gather" order (the same bits). Scatter (`scatter_forces`, one thread for
-a group: each term once, added to its nodes): the grouped layout's default, within rounding of
+the grouped layout's "gather" order (the same bits). Scatter (`scatter_init`, `scatter_terms`,
+one thread for a group: each term once, added to its nodes; the caller masks the held dofs): the grouped layout's default, within rounding of
 the gather order.
 
 Variants: `friction` compiles the friction terms (without, F_T = 0 is never evaluated);
@@ -47,24 +47,24 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
     Data = structure_arrays.struct(scalar)
     State = structure_state.struct(scalar)
     laws = tie_law.functions(scalar)
-    @wp.func
+    @wp.func(inline=True)
     def turning_angle(a: vec, b: vec) -> scalar:
         """phi [rad] from segment a to segment b."""
         return wp.atan2(a[0] * b[1] - a[1] * b[0], wp.dot(a, b))
 
-    @wp.func
+    @wp.func(inline=True)
     def segment_pull(pos: wp.array(dtype=vec), data: Data, i: int) -> vec:
         """k (l - l0) e / l [N] of segment (i, next): the force on node i."""
         e = pos[data.next[i]] - pos[i]
         length = wp.length(e)
         return (data.stretch_stiffness[i] * (length - data.rest_length[i]) / length) * e
 
-    @wp.func
+    @wp.func(inline=True)
     def bend_moment(data: Data, m: int, a: vec, b: vec) -> scalar:
         """k (phi - phi0) [N m] of the bending spring at node m."""
         return data.bend_stiffness[m] * (turning_angle(a, b) - data.rest_angle[m])
 
-    @wp.func
+    @wp.func(inline=True)
     def wrap_forces(pos: wp.array(dtype=vec), data: Data, first: int) -> mat:
         """Rows (m g_a, m g_b) [N] of the wrap spring at chain node `first`."""
         last = data.chain_last[first]
@@ -75,7 +75,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
         gb = moment * vec(-b[1], b[0]) / wp.dot(b, b)
         return mat(ga[0], ga[1], gb[0], gb[1])
 
-    @wp.func
+    @wp.func(inline=True)
     def plane_shift(pos: wp.array(dtype=vec), data: Data) -> vec:
         """(U_0, U_1) [m]: each plane family's summed end displacement, in plane-node order;
         zero without moving planes."""
@@ -89,7 +89,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
                 shift[family] = total
         return shift
 
-    @wp.func
+    @wp.func(inline=True)
     def closure(pos: wp.array(dtype=vec), data: Data, t: int) -> scalar:
         """g = c - sigma (z_a - z_b) [m] of tie t, z_b = 0 for ground."""
         b = data.tie_b[t]
@@ -98,7 +98,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
             z_b = pos[b][1]
         return data.tie_offset[t] - data.tie_side[t] * (pos[data.tie_a[t]][1] - z_b)
 
-    @wp.func
+    @wp.func(inline=True)
     def slip(pos: wp.array(dtype=vec), data: Data, anchors: wp.array(dtype=vec), t: int,
              shift: vec) -> vec:
         """s [m] of tie t (module docstring of `structure_arrays`); (s_x, 0) for ground."""
@@ -109,7 +109,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
             along_b = pos[b][0] - planes[1] - anchors[t][1]
         return vec(pos[data.tie_a[t]][0] - planes[0] - anchors[t][0], along_b)
 
-    @wp.func
+    @wp.func(inline=True)
     def tie_pass_at(t: int, pos: wp.array(dtype=vec), data: Data, state: State, shift: vec):
         """R, dR/dg (and F_T, the friction force) of tie t into the state's tie arrays."""
         at_g = laws.contact(closure(pos, data, t), data.contact_law, t)
@@ -121,12 +121,12 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
             state.friction[t] = laws.huber_force(slip(pos, data, state.anchors, t, shift), bound,
                                                  data.friction_law[t, 3])
 
-    @wp.func
+    @wp.func(inline=True)
     def tie_pass(t: int, pos: wp.array(dtype=vec), data: Data, state: State):
         """`tie_pass_at` with the planes' shift summed by this thread."""
         tie_pass_at(t, pos, data, state, plane_shift(pos, data))
 
-    @wp.func
+    @wp.func(inline=True)
     def own_force(i: int, pos: wp.array(dtype=vec), data: Data, state: State) -> vec:
         """-dV/dr_i (+ friction) [N] of node i alone, unmasked, without the planes' reaction."""
         before = data.previous[i]
@@ -184,7 +184,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
                     force = force + vec(g[1, 0], g[1, 1])
         return force
 
-    @wp.func
+    @wp.func(inline=True)
     def plane_reaction(data: Data, state: State, group: int, family: int) -> scalar:
         """-sum_t w_t f_t [N] along the chain on each plane node of `family`, in tie order."""
         total = scalar(0.0)
@@ -192,7 +192,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
             total += data.tie_weight[t][family] * state.friction[t][family]
         return -total
 
-    @wp.func
+    @wp.func(inline=True)
     def node_force(i: int, pos: wp.array(dtype=vec), data: Data, state: State) -> vec:
         """-dV/dr_i [N] on node i's free dofs, gathered; on a plane node the planes' reaction;
         on a tied node its family's summed force (module docstring)."""
@@ -215,15 +215,20 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
             force = own_force(i, pos, data, state)
         return wp.cw_mul(force, data.free[i])
 
-    @wp.func
-    def scatter_forces(group: int, pos: wp.array(dtype=vec), data: Data, state: State):
-        """state.force = -dV/dr [N] on the group's free dofs (and every tie's R, dR/dg, F_T,
-        friction force), each term evaluated once and added to its nodes (module docstring)."""
+    @wp.func(inline=True)
+    def scatter_init(group: int, data: Data, state: State):
+        """state.force = the external force on the group's nodes (the scatter's start)."""
+        for i in range(data.group_node[group], data.group_node[group + 1]):
+            state.force[i] = state.load[i] + data.weight[i]
+
+    @wp.func(inline=True)
+    def scatter_terms(group: int, pos: wp.array(dtype=vec), data: Data, state: State):
+        """state.force += -dV/dr [N] of every term on the group's nodes (and every tie's R,
+        dR/dg, F_T, friction force), each term evaluated once and added to its nodes (module
+        docstring), unmasked: after `scatter_init`; the held dofs are masked by the caller."""
         force = state.force
         lo = data.group_node[group]
         hi = data.group_node[group + 1]
-        for i in range(lo, hi):
-            force[i] = state.load[i] + data.weight[i]
         for i in range(lo, hi):
             j = data.next[i]
             if j >= 0:  # segment (i, j), then the bending spring at j
@@ -280,10 +285,8 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
                             total = total + force[data.plane_nodes[m]]
                         for m in range(begin, end):
                             force[data.plane_nodes[m]] = total
-        for i in range(lo, hi):
-            force[i] = wp.cw_mul(force[i], data.free[i])
 
-    @wp.func
+    @wp.func(inline=True)
     def node_energy(i: int, pos: wp.array(dtype=vec), data: Data, state: State) -> scalar:
         """Energy [J] owned by node i: its segment (i, next), its bending spring, its wrap
         spring (at a chain's first node), minus the work of its external force."""
@@ -304,7 +307,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
             energy += scalar(0.5) * data.wrap_stiffness[i] * turn * turn
         return energy
 
-    @wp.func
+    @wp.func(inline=True)
     def tie_energy(t: int, pos: wp.array(dtype=vec), data: Data, state: State) -> scalar:
         """Contact energy [J] of tie t, plus its Huber term with F_T at the current R."""
         R = laws.contact(closure(pos, data, t), data.contact_law, t)[0]
@@ -315,7 +318,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
                                         data.friction_law[t, 3])
         return energy
 
-    @wp.func
+    @wp.func(inline=True)
     def return_map(t: int, pos: wp.array(dtype=vec), data: Data, state: State) -> scalar:
         """Radial return of tie t's anchor at `pos` (docs/model.md sections 4, 10): where
         k_t |s| > F_T the anchor moves along s until k_t |s| = F_T; the energy dissipated
@@ -333,5 +336,5 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
     return SimpleNamespace(turning_angle=turning_angle, closure=closure, slip=slip,
                            plane_shift=plane_shift, tie_pass=tie_pass, tie_pass_at=tie_pass_at,
                            own_force=own_force, node_force=node_force,
-                           scatter_forces=scatter_forces, node_energy=node_energy,
+                           scatter_init=scatter_init, scatter_terms=scatter_terms, node_energy=node_energy,
                            tie_energy=tie_energy, return_map=return_map, wrap_forces=wrap_forces)

@@ -23,8 +23,11 @@ factored by `band_lu`, a tied dof's row the identity there): block-diagonal over
 SPD. It stops at sqrt(r^T P^-1 r / b^T P^-1 b) <= cg_tolerance (CG_TOLERANCE, the fabric's
 choice), or after as many iterations as the group's dofs. Where the group's matrix is its
 band alone (`StructureArrays.group_exact`: one chain, its ties to ground, no wrap, planes or
-tied dofs; every one-yarn scene) P = A: the first iterate x = P^-1 b is the solution, taken
-directly as one iteration (`settings.direct`; without it CG finds it in one iteration).
+tied dofs; every one-yarn scene) P = A: the first iterate x = P^-1 b is the solution, so with
+`settings.direct` the band is factored in place and solved at once, the right side
+dt (f - dt K v - c M v) taken from the band of K as the one-yarn solver takes it
+(`kernels/semi_implicit.py`), counted as one CG iteration; without it CG finds the solution in
+one iteration.
 
 Time step rule (the fabric's, `kernels/fabric_semi_implicit.py` and docs/results.md): dt
 starts at the masses' dt (1 s with fictitious masses); a step that lowers f^T M^-1 f is
@@ -95,15 +98,15 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
     checks = structure_checks.functions(scalar, friction, boundary, True)
     band_ops = band_lu.functions(scalar)
 
-    @wp.func
+    @wp.func(inline=True)
     def running(state: State, g: int) -> bool:
         return state.status[g] == int(status.RUNNING)
 
-    @wp.func
+    @wp.func(inline=True)
     def free_dof(data: Data, row: int) -> scalar:
         return data.free[row / 2][row % 2]
 
-    @wp.func
+    @wp.func(inline=True)
     def members(data: Data, i: int) -> int:
         """m for a node of a tied family of m (one dof, its copies on m nodes), else 1."""
         count = int(1)
@@ -115,16 +118,28 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
 
     # ------------------------------------------------------------- the system
 
-    @wp.func
+    @wp.func(inline=True)
     def tie_blocks(t: int, data: Data, state: State, settings: Settings):
         tangent.tie_blocks(t, state.position, data, state,
                            forces.plane_shift(state.position, data), settings.secant)
 
-    @wp.func
+    @wp.func(inline=True)
+    def is_direct(g: int, data: Data, settings: Settings) -> bool:
+        """The group's matrix is its one chain's band, solved directly (module docstring)."""
+        return settings.direct != 0 and data.group_exact[g] != 0
+
+    @wp.func(inline=True)
+    def direct_done(g: int, state: State) -> bool:
+        """This step's x was solved directly at the build (`build_chain`)."""
+        return state.cg[g, CG_DONE] == scalar(2.0)
+
+    @wp.func(inline=True)
     def build_chain(c: int, data: Data, state: State, settings: Settings):
         """Chain c's rows of A = M (1 + dt c) + dt^2 K in the band (held dofs: identity; a tied
         node's mass its share), their copy factored into P (a tied dof's row the identity);
-        chain_failed[c] = the first pivot that is not positive, or -1."""
+        chain_failed[c] = the first pivot that is not positive, or -1. Where the group is
+        `is_direct`: the right side from the band of K first (as the one-yarn solver), then the
+        band factored in place and x = A^-1 b solved."""
         g = data.chain_group[c]
         dt = state.dt[g]
         damping = wp.max(settings.damping_coefficient, scalar(0.0))
@@ -134,6 +149,17 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
         hi = 2 * b
         band = state.band
         tangent.assemble_chain(c, state.position, data, state, band, 1)
+        direct = is_direct(g, data, settings)
+        if direct:  # A is this band: x = dt (f - dt K v - c M v), K v from the band of K
+            for row in range(lo, hi):
+                i = row / 2
+                comp = row % 2
+                stiffness_velocity = scalar(0.0)
+                for j in range(wp.max(lo, row - BANDWIDTH), wp.min(hi, row + BANDWIDTH + 1)):
+                    stiffness_velocity += band[row, j - row + BANDWIDTH] * state.velocity[j / 2][j % 2]
+                state.x[row] = free_dof(data, row) * dt * (
+                    state.force[i][comp] - dt * stiffness_velocity
+                    - damping * state.mass[i] * state.velocity[i][comp])
         dt2 = dt * dt
         for row in range(lo, hi):
             for k in range(2 * BANDWIDTH + 1):
@@ -143,19 +169,25 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
         for row in range(lo, hi):
             if free_dof(data, row) == scalar(0.0):
                 band_ops.constrain(band, lo, hi, row)
-        for row in range(lo, hi):
-            for k in range(2 * BANDWIDTH + 1):
-                state.factor[row, k] = band[row, k]
-        if wp.static(boundary):
-            for i in range(a, b):
-                if data.node_tie[i] >= 0:
-                    band_ops.constrain(state.factor, lo, hi, 2 * i)
-        state.chain_failed[c] = band_ops.factor(state.factor, lo, hi)
+        if direct:  # factored in place and solved: x = A^-1 b
+            failed = band_ops.factor(band, lo, hi)
+            if failed < 0:
+                band_ops.solve(band, lo, hi, state.x)
+            state.chain_failed[c] = failed
+        else:
+            for row in range(lo, hi):
+                for k in range(2 * BANDWIDTH + 1):
+                    state.factor[row, k] = band[row, k]
+            if wp.static(boundary):
+                for i in range(a, b):
+                    if data.node_tie[i] >= 0:
+                        band_ops.constrain(state.factor, lo, hi, 2 * i)
+            state.chain_failed[c] = band_ops.factor(state.factor, lo, hi)
 
-    @wp.func
-    def factored(g: int, data: Data, state: State):
-        """Every chain of g factored: on; else dt halved for a rebuild (NOT_POSITIVE_DEFINITE
-        after MAX_REFACTORISATIONS)."""
+    @wp.func(inline=True)
+    def factored(g: int, data: Data, state: State, settings: Settings):
+        """Every chain of g factored: on (a direct group's x solved: CG done in one iteration);
+        else dt halved for a rebuild (NOT_POSITIVE_DEFINITE after MAX_REFACTORISATIONS)."""
         failed = bool(False)
         for c in range(data.group_chain[g], data.group_chain[g + 1]):
             if state.chain_failed[c] >= 0:
@@ -167,8 +199,11 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
                 state.status[g] = int(status.NOT_POSITIVE_DEFINITE)
         else:
             state.factored[g] = 1
+            if is_direct(g, data, settings):
+                state.cg[g, CG_DONE] = scalar(2.0)
+                state.cg[g, CG_ITERATIONS] = scalar(1.0)
 
-    @wp.func
+    @wp.func(inline=True)
     def boundary_sums(g: int, x: wp.array(dtype=scalar), data: Data, state: State):
         """boundary[g] = (U_0, U_1, G_0, G_1, ...) of x where the planes move (module docstring):
         U_f the sum of x over family f's plane nodes, G_f = sum_t w_t,f (H_t ds_t)_f with
@@ -196,7 +231,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
                 state.boundary[g, 2] = G[0]
                 state.boundary[g, 3] = G[1]
 
-    @wp.func
+    @wp.func(inline=True)
     def tie_diagonals(g: int, data: Data, state: State):
         """boundary[g, 4 + f] = P's entry of tied family f's dof: its nodes' band diagonals plus
         dt^2 sum_t (m w_t,f)^2 h_t,ff."""
@@ -217,7 +252,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
                             planes += w * w * state.coupling[t][1 + 2 * family]
                         state.boundary[g, 4 + family] = total + dt * dt * planes
 
-    @wp.func
+    @wp.func(inline=True)
     def plane_row(i: int, comp: int, data: Data, state: State) -> scalar:
         """The moving planes' part of the ties' J^T H J times x at dof (node i, comp) [N], from
         `boundary_sums` of x: -H (w o U) on a tie's slip dofs, -G_f on family f's plane nodes."""
@@ -239,7 +274,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
                     value = value - state.boundary[g, 2 + family]
         return value
 
-    @wp.func
+    @wp.func(inline=True)
     def own_row(i: int, comp: int, x: wp.array(dtype=scalar), data: Data,
                 state: State) -> scalar:
         """(A x) at dof (node i, comp) from node i's own row (`boundary_sums` of x done)."""
@@ -254,7 +289,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
                 + tangent.wrap_cross(state.position, data, i, x, comp)
         return value + dt * dt * free_dof(data, row) * coupled
 
-    @wp.func
+    @wp.func(inline=True)
     def product_value(i: int, comp: int, x: wp.array(dtype=scalar), data: Data,
                       state: State) -> scalar:
         """(A x) at dof (node i, comp); a tied node's in-plane dof: its family's rows summed in
@@ -271,7 +306,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
             value = own_row(i, comp, x, data, state)
         return value
 
-    @wp.func
+    @wp.func(inline=True)
     def rhs_node(i: int, data: Data, state: State):
         """rhs = dt f + M v - A v at node i's dofs (0 on held ones), A v from x = v."""
         dt = state.dt[data.node_group[i]]
@@ -283,7 +318,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
 
     # ------------------------------------------------------------- PCG
 
-    @wp.func
+    @wp.func(inline=True)
     def precondition_chain(c: int, data: Data, state: State):
         """z = P^-1 r on chain c's dofs (a tied dof: r over its `tie_diagonals` entry);
         chain_partial[c] = r . z there."""
@@ -300,7 +335,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
                     state.z[2 * i] = state.r[2 * i] / state.boundary[g, 4 + family]
         state.chain_partial[c] = chain_dot(c, state.r, state.z, data)
 
-    @wp.func
+    @wp.func(inline=True)
     def chain_dot(c: int, u: wp.array(dtype=scalar), w: wp.array(dtype=scalar),
                   data: Data) -> scalar:
         """sum of u w over chain c's dofs, in order, a tied copy counted at its share."""
@@ -310,21 +345,21 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
             total += u[2 * i + 1] * w[2 * i + 1]
         return total
 
-    @wp.func
+    @wp.func(inline=True)
     def chain_sum(g: int, data: Data, state: State) -> scalar:
         total = scalar(0.0)
         for c in range(data.group_chain[g], data.group_chain[g + 1]):
             total += state.chain_partial[c]
         return total
 
-    @wp.func
+    @wp.func(inline=True)
     def cg_start(d: int, state: State):
         state.x[d] = scalar(0.0)
         state.r[d] = state.rhs[d]
 
-    @wp.func
+    @wp.func(inline=True)
     def first_sum(g: int, data: Data, state: State, settings: Settings):
-        """r^T z and the stop value; an exact group (`settings.direct`) is done: x = z."""
+        """r^T z and the stop value."""
         total = chain_sum(g, data, state)
         state.cg[g, CG_RZ] = total
         state.cg[g, CG_STOP] = settings.cg_tolerance * settings.cg_tolerance * total
@@ -332,32 +367,27 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
         state.cg[g, CG_ITERATIONS] = scalar(0.0)
         if not total > state.cg[g, CG_STOP]:
             state.cg[g, CG_DONE] = scalar(1.0)
-        elif settings.direct != 0 and data.group_exact[g] != 0:
-            state.cg[g, CG_DONE] = scalar(2.0)
-            state.cg[g, CG_ITERATIONS] = scalar(1.0)
 
-    @wp.func
+    @wp.func(inline=True)
     def copy_direction(d: int, data: Data, state: State):
-        """p = z (and x = z where the group is exact and direct)."""
+        """p = z."""
         state.p[d] = state.z[d]
-        if state.cg[data.node_group[d / 2], CG_DONE] == scalar(2.0):
-            state.x[d] = state.z[d]
 
-    @wp.func
+    @wp.func(inline=True)
     def cg_done(g: int, state: State) -> bool:
         return state.cg[g, CG_DONE] != scalar(0.0)
 
-    @wp.func
+    @wp.func(inline=True)
     def product_node(i: int, data: Data, state: State):
         """q = A p at node i's dofs."""
         for comp in range(2):
             state.q[2 * i + comp] = product_value(i, comp, state.p, data, state)
 
-    @wp.func
+    @wp.func(inline=True)
     def curvature_chain(c: int, data: Data, state: State):
         state.chain_partial[c] = chain_dot(c, state.p, state.q, data)
 
-    @wp.func
+    @wp.func(inline=True)
     def step_length(g: int, data: Data, state: State):
         """alpha = r^T z / p^T A p; done where p^T A p is not positive."""
         total = chain_sum(g, data, state)
@@ -366,7 +396,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
         else:
             state.cg[g, CG_DONE] = scalar(1.0)
 
-    @wp.func
+    @wp.func(inline=True)
     def update_dof(d: int, data: Data, state: State):
         """x += alpha p, r -= alpha q (until done)."""
         g = data.node_group[d / 2]
@@ -375,7 +405,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
             state.x[d] = state.x[d] + alpha * state.p[d]
             state.r[d] = state.r[d] - alpha * state.q[d]
 
-    @wp.func
+    @wp.func(inline=True)
     def next_sum(g: int, data: Data, state: State):
         """beta = new r^T z / old; one more iteration counted; done at the stop or after as
         many iterations as the group's dofs."""
@@ -389,7 +419,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
             if not total > state.cg[g, CG_STOP] or iterations >= dofs:
                 state.cg[g, CG_DONE] = scalar(1.0)
 
-    @wp.func
+    @wp.func(inline=True)
     def direction_dof(d: int, data: Data, state: State):
         """p = z + beta p (until done)."""
         g = data.node_group[d / 2]
@@ -398,7 +428,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
 
     # ------------------------------------------------------------- the step
 
-    @wp.func
+    @wp.func(inline=True)
     def move_node(i: int, data: Data, state: State):
         """previous = x, v += dv, x += dt v at node i."""
         dt = state.dt[data.node_group[i]]
@@ -407,7 +437,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
         state.velocity[i] = v
         state.position[i] = state.position[i] + dt * v
 
-    @wp.func
+    @wp.func(inline=True)
     def search(g: int, data: Data, state: State, settings: Settings):
         """The line search's decision on the positions just evaluated: ACCEPT where the merit
         fell, else TRIAL at half the length while halvings remain, else UNDO."""
@@ -422,7 +452,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
         else:
             state.decision[g] = scalar(UNDO)
 
-    @wp.func
+    @wp.func(inline=True)
     def trial_node(i: int, data: Data, state: State):
         """x = previous + alpha dt v where the group tries a shorter step."""
         g = data.node_group[i]
@@ -430,7 +460,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
             state.position[i] = state.previous_position[i] \
                 + (state.step_length[g] * state.dt[g]) * state.velocity[i]
 
-    @wp.func
+    @wp.func(inline=True)
     def finish_node(i: int, data: Data, state: State):
         """Accepted at alpha < 1: v *= alpha; undone: back at rest."""
         g = data.node_group[i]
@@ -440,7 +470,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
         elif state.step_length[g] < scalar(1.0):
             state.velocity[i] = state.step_length[g] * state.velocity[i]
 
-    @wp.func
+    @wp.func(inline=True)
     def finish_group(g: int, data: Data, state: State):
         """dt and the counters after the line search; the accepted merit."""
         if state.decision[g] == scalar(UNDO):
@@ -454,22 +484,23 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
                 state.dt[g] = wp.min(state.dt[g] * scalar(DT_GROWTH), scalar(DT_MAX))
         state.cg_iterations[g] = state.cg_iterations[g] + int(state.cg[g, CG_ITERATIONS])
 
-    @wp.func
+    @wp.func(inline=True)
     def reset_flags(g: int, state: State):
-        """A new time step: not factored, no halving, full length, no decision."""
+        """A new time step: not factored, CG not done, no halving, full length, no decision."""
         state.factored[g] = 0
+        state.cg[g, CG_DONE] = scalar(0.0)
         state.refactorisations[g] = 0
         state.search[g] = 0
         state.step_length[g] = scalar(1.0)
         state.decision[g] = scalar(0.0)
 
-    @wp.func
+    @wp.func(inline=True)
     def check_step(g: int, data: Data, state: State, settings: Settings):
         """`structure_checks.check` and the progress test; the next step's flags reset."""
         checks.check_progress(g, state, checks.check(g, data, state, settings))
         reset_flags(g, state)
 
-    @wp.func
+    @wp.func(inline=True)
     def unit_stage(stage: int, u: int, data: Data, state: State, settings: Settings):
         """Stage `stage` on unit u, if its group runs (and, where it applies, still searches,
         still factors or is undone)."""
@@ -482,29 +513,33 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
                 build_chain(u, data, state, settings)
         elif stage == FACTORED:
             if running(state, u) and state.factored[u] == 0:
-                factored(u, data, state)
+                factored(u, data, state, settings)
         elif stage == VELOCITY:
-            if running(state, data.node_group[u / 2]):
+            g = data.node_group[u / 2]
+            if running(state, g) and not direct_done(g, state):
                 state.x[u] = state.velocity[u / 2][u % 2]
         elif stage == BOUNDARY:
-            if running(state, u):
+            if running(state, u) and not direct_done(u, state):
                 boundary_sums(u, state.x, data, state)
                 tie_diagonals(u, data, state)
         elif stage == RHS:
-            if running(state, data.node_group[u]):
+            g = data.node_group[u]
+            if running(state, g) and not direct_done(g, state):
                 rhs_node(u, data, state)
         elif stage == CG_START:
-            if running(state, data.node_group[u / 2]):
+            g = data.node_group[u / 2]
+            if running(state, g) and not direct_done(g, state):
                 cg_start(u, state)
         elif stage == PRECONDITION:
             g = data.chain_group[u]
             if running(state, g) and not cg_done(g, state):
                 precondition_chain(u, data, state)
         elif stage == FIRST_SUM:
-            if running(state, u):
+            if running(state, u) and not direct_done(u, state):
                 first_sum(u, data, state, settings)
         elif stage == COPY:
-            if running(state, data.node_group[u / 2]):
+            g = data.node_group[u / 2]
+            if running(state, g) and not direct_done(g, state):
                 copy_direction(u, data, state)
         elif stage == CG_BOUNDARY:
             if running(state, u) and not cg_done(u, state):
@@ -586,7 +621,8 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
                            direction_dof=direction_dof, move_node=move_node, search=search,
                            trial_node=trial_node, finish_node=finish_node,
                            finish_group=finish_group, check_step=check_step, reset_flags=reset_flags,
-                           unit_stage=unit_stage, product_value=product_value)
+                           unit_stage=unit_stage, product_value=product_value,
+                           direct_done=direct_done)
 
 
 @functools.cache
@@ -629,7 +665,7 @@ def stage_kernel(scalar, friction: bool, boundary: bool):
 def grouped_kernel(scalar, friction: bool, boundary: bool, order: str):
     """The grouped layout's kernel: thread g runs group first + g, the start (`begin` != 0) or
     up to settings.chunk time steps. `order` "gather" evaluates the forces as the node-parallel
-    layout does (the same bits); "scatter" by `scatter_forces`."""
+    layout does (the same bits); "scatter" in scatter order."""
     Data = structure_arrays.struct(scalar)
     State = structure_state.struct(scalar)
     Settings = structure_settings.struct(scalar)
@@ -638,12 +674,12 @@ def grouped_kernel(scalar, friction: bool, boundary: bool, order: str):
     group = structure_checks.group_functions(scalar, friction, boundary, order, True)
     evaluate = group.evaluate
 
-    @wp.func
+    @wp.func(inline=True)
     def start(g: int, data: Data, state: State, settings: Settings):
         group.start(g, data, state, settings)
         ops.reset_flags(g, state)
 
-    @wp.func
+    @wp.func(inline=True)
     def solve(g: int, data: Data, state: State, settings: Settings):
         """x = A^-1 rhs by PCG from x = 0 (module docstring)."""
         lo = 2 * data.group_node[g]
@@ -673,7 +709,7 @@ def grouped_kernel(scalar, friction: bool, boundary: bool, order: str):
             for d in range(lo, hi):
                 ops.direction_dof(d, data, state)
 
-    @wp.func
+    @wp.func(inline=True)
     def step(g: int, data: Data, state: State, settings: Settings):
         lo = data.group_node[g]
         hi = data.group_node[g + 1]
@@ -682,15 +718,16 @@ def grouped_kernel(scalar, friction: bool, boundary: bool, order: str):
         while ops.running(state, g) and state.factored[g] == 0:
             for c in range(data.group_chain[g], data.group_chain[g + 1]):
                 ops.build_chain(c, data, state, settings)
-            ops.factored(g, data, state)
+            ops.factored(g, data, state, settings)
         if ops.running(state, g):
-            for d in range(2 * lo, 2 * hi):
-                state.x[d] = state.velocity[d / 2][d % 2]
-            ops.boundary_sums(g, state.x, data, state)
-            ops.tie_diagonals(g, data, state)
-            for i in range(lo, hi):
-                ops.rhs_node(i, data, state)
-            solve(g, data, state, settings)
+            if not ops.direct_done(g, state):
+                for d in range(2 * lo, 2 * hi):
+                    state.x[d] = state.velocity[d / 2][d % 2]
+                ops.boundary_sums(g, state.x, data, state)
+                ops.tie_diagonals(g, data, state)
+                for i in range(lo, hi):
+                    ops.rhs_node(i, data, state)
+                solve(g, data, state, settings)
             for i in range(lo, hi):
                 ops.move_node(i, data, state)
             evaluate(g, data, state, settings)

@@ -46,7 +46,6 @@ def struct(scalar):
         start_force: wp.array(dtype=vec)
         load: wp.array(dtype=vec)
         mass: wp.array(dtype=scalar)
-        node_residual: wp.array(dtype=scalar)
         node_values: wp.array(dtype=vec4)
         # ---- per tie (T)
         anchors: wp.array(dtype=vec)
@@ -112,7 +111,7 @@ def struct(scalar):
 
 NODE_VECTORS = ("position", "velocity", "force", "previous_force", "previous_position",
                 "start_position", "start_force", "load")
-NODE_SCALARS = ("mass", "node_residual")
+NODE_SCALARS = ("mass",)
 TIE_SCALARS = ("contact", "tangent", "limit", "dissipated")
 GROUP_SCALARS = ("dt", "stable_dt", "kinetic_energy", "damping_coefficient", "fire_alpha",
                  "decision", "residual", "merit", "tolerance", "start_residual", "best_residual",

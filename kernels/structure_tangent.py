@@ -45,7 +45,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
     forces = structure_forces.functions(scalar, friction, boundary)
     laws = tie_law.functions(scalar)
 
-    @wp.func
+    @wp.func(inline=True)
     def theta_hessian(v: vec) -> mat:
         """d2theta/dv2 [1/m^2]."""
         n2 = wp.dot(v, v) * wp.dot(v, v)
@@ -53,7 +53,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
         hxz = (v[1] * v[1] - v[0] * v[0]) / n2
         return mat(hxx, hxz, hxz, -hxx)
 
-    @wp.func
+    @wp.func(inline=True)
     def add_stretch(band: wp.array2d(dtype=scalar), pos: wp.array(dtype=vec), data: Data,
                     i: int, definite: int):
         """Segment (i, i+1)'s block."""
@@ -66,7 +66,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
         block = data.stretch_stiffness[i] * (axial + geometric * (wp.identity(2, scalar) - axial))
         band_ops.add_pair(band, i, i + 1, block)
 
-    @wp.func
+    @wp.func(inline=True)
     def add_bending(band: wp.array2d(dtype=scalar), pos: wp.array(dtype=vec), data: Data,
                     i: int, definite: int):
         """The spring at node i over (i-1, i, i+1)."""
@@ -93,7 +93,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
         band_ops.add_block(band, i + 1, i, k * wp.outer(g2, g1) - hb)
         band_ops.add_block(band, i + 1, i + 1, k * wp.outer(g2, g2) + hb)
 
-    @wp.func
+    @wp.func(inline=True)
     def wrap_gradients(pos: wp.array(dtype=vec), data: Data, first: int) -> mat:
         """Rows (g_a, g_b) [1/m]: dphi/dr = (-g_a, g_a, -g_b, g_b) on (r_{N-1}, r_N, r_0, r_1)."""
         last = data.chain_last[first]
@@ -103,7 +103,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
         gb = vec(-b[1], b[0]) / wp.dot(b, b)
         return mat(ga[0], ga[1], gb[0], gb[1])
 
-    @wp.func
+    @wp.func(inline=True)
     def add_wrap(band: wp.array2d(dtype=scalar), pos: wp.array(dtype=vec), data: Data,
                  first: int, definite: int):
         """The wrap spring's blocks within its two pairs of nodes (module docstring)."""
@@ -120,7 +120,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
         band_ops.add_pair(band, last - 1, last, k * wp.outer(ga, ga) - moment * theta_hessian(a))
         band_ops.add_pair(band, first, first + 1, k * wp.outer(gb, gb) + moment * theta_hessian(b))
 
-    @wp.func
+    @wp.func(inline=True)
     def wrap_node_gradient(pos: wp.array(dtype=vec), data: Data, i: int) -> vec:
         """dphi/dr_i [1/m] of the wrap spring node i belongs to (`data.node_wrap`)."""
         first = data.node_wrap[i]
@@ -135,7 +135,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
             value = -vec(g[1, 0], g[1, 1])
         return value
 
-    @wp.func
+    @wp.func(inline=True)
     def wrap_partner(data: Data, i: int) -> int:
         """The first node of the other pair of node i's wrap spring."""
         first = data.node_wrap[i]
@@ -144,7 +144,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
             other = data.chain_last[first] - 1
         return other
 
-    @wp.func
+    @wp.func(inline=True)
     def wrap_cross(pos: wp.array(dtype=vec), data: Data, i: int, x: wp.array(dtype=scalar),
                    comp: int) -> scalar:
         """The wrap spring's k dphi dphi^T between its pairs times x (flat dofs), at dof
@@ -160,7 +160,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
                 * along
         return value
 
-    @wp.func
+    @wp.func(inline=True)
     def wrap_cross_rows(pos: wp.array(dtype=vec), data: Data, i: int) -> vec:
         """sum_j |(k dphi dphi^T)_ij| over the other pair's dofs, per component [N/m]."""
         rows = vec(scalar(0.0), scalar(0.0))
@@ -174,7 +174,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
             rows = vec(k * wp.abs(own[0]) * spread, k * wp.abs(own[1]) * spread)
         return rows
 
-    @wp.func
+    @wp.func(inline=True)
     def tie_blocks(t: int, pos: wp.array(dtype=vec), data: Data, state: State, shift: vec,
                    secant: int):
         """coupling[t] = (dR/dg, h_xx, h_xy, h_yy) [N/m] at the tie pass's R and F_T (F_T
@@ -191,7 +191,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
                 h = vec3(h[0], scalar(0.0), scalar(0.0))
         state.coupling[t] = vec4(tangent, h[0], h[1], h[2])
 
-    @wp.func
+    @wp.func(inline=True)
     def stiffest_blocks(t: int, data: Data, state: State):
         """coupling[t] = (k_s, k_t, 0, k_t): every contact at its bound, every tie sticking
         (k_t's y part 0 for a tie to ground)."""
@@ -203,7 +203,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
             other = scalar(0.0)
         state.coupling[t] = vec4(data.contact_law[t, 0], stick, scalar(0.0), other)
 
-    @wp.func
+    @wp.func(inline=True)
     def add_tie_diagonals(band: wp.array2d(dtype=scalar), data: Data, state: State, i: int):
         """Node i's diagonal parts of its ties' blocks (module docstring)."""
         for k in range(data.node_tie_start[i], data.node_tie_start[i + 1]):
@@ -215,7 +215,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
             else:
                 band[2 * i, BANDWIDTH] += blk[3]
 
-    @wp.func
+    @wp.func(inline=True)
     def assemble_chain(c: int, pos: wp.array(dtype=vec), data: Data, state: State,
                        band: wp.array2d(dtype=scalar), definite: int):
         """band = chain c's K [N/m] in its rows (module docstring); the ties' blocks from
@@ -233,7 +233,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
         for i in range(a, b):
             add_tie_diagonals(band, data, state, i)
 
-    @wp.func
+    @wp.func(inline=True)
     def coupling_row(i: int, comp: int, x: wp.array(dtype=scalar), data: Data,
                      state: State) -> scalar:
         """The ties' off-diagonal parts times x (flat dofs) at dof (node i, comp) [N]:
@@ -253,7 +253,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
                     total += blk[2] * x[2 * partner]
         return total
 
-    @wp.func
+    @wp.func(inline=True)
     def coupling_rows(i: int, data: Data, state: State) -> vec:
         """sum_j |K_ij| of the ties' off-diagonal parts at node i's dofs [N/m]."""
         rows = vec(scalar(0.0), scalar(0.0))

@@ -15,7 +15,7 @@ Gershgorin bound x safety (`structure_checks`' start with fictitious = 0); the h
 to land on the output times. A non-finite kinetic energy stops the group (NON_FINITE).
 
 Stages (both layouts, as `structure_explicit`): `T_MOVE` (per node), `T_TIES` (per tie),
-`T_GATHER` (per node), `T_RETURN` (per tie), `T_BLOCKS` (per block), `T_CHECK` (per group).
+`T_GATHER` (per node), `T_BLOCKS` (per block), `T_RETURN` (per tie), `T_CHECK` (per group).
 """
 
 import functools
@@ -28,13 +28,13 @@ from dynfab.kernels import structure_forces, structure_settings, structure_state
 from dynfab.kernels.configuration import MODULE_OPTIONS
 from dynfab.kernels.precision import VECTORS
 
-T_MOVE, T_TIES, T_GATHER, T_RETURN, T_BLOCKS, T_CHECK = range(200, 206)
+T_MOVE, T_TIES, T_GATHER, T_BLOCKS, T_RETURN, T_CHECK = range(200, 206)
 """Stages of a transient time step (`stage_kernel`; the start's are `structure_explicit`'s)."""
 NODE, TIE, BLOCK, GROUP = (structure_explicit.NODE, structure_explicit.TIE, structure_explicit.BLOCK,
                           structure_explicit.GROUP)
 KINDS = {T_MOVE: NODE, T_TIES: TIE, T_GATHER: NODE, T_RETURN: TIE, T_BLOCKS: BLOCK,
          T_CHECK: GROUP}
-STEP_STAGES = (T_MOVE, T_TIES, T_GATHER, T_RETURN, T_BLOCKS, T_CHECK)
+STEP_STAGES = (T_MOVE, T_TIES, T_GATHER, T_BLOCKS, T_RETURN, T_CHECK)
 
 
 @functools.cache
@@ -48,7 +48,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
     checks = structure_checks.functions(scalar, friction, boundary)
     explicit = structure_explicit.functions(scalar, friction, boundary, "viscous")
 
-    @wp.func
+    @wp.func(inline=True)
     def load_at(time: scalar, path: wp.array2d(dtype=scalar), family: int,
                 duration: scalar) -> scalar:
         """Family `family`'s load value [N or m] at `time` [s] (module docstring)."""
@@ -60,7 +60,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
             before = path[family, k - 1]
         return before + (position - scalar(k)) * (path[family, k] - before)
 
-    @wp.func
+    @wp.func(inline=True)
     def drive(i: int, data: Data, state: State, path: wp.array2d(dtype=scalar), time: scalar,
               dt: scalar, duration: scalar):
         """Node i's load at time + dt: an end force on a free dof, a prescribed displacement
@@ -79,20 +79,21 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
                                         position[1])
                 state.velocity[i] = vec((after - before) * direction[0] / dt, velocity[1])
 
-    @wp.func
+    @wp.func(inline=True)
     def move_node(i: int, data: Data, state: State, settings: Settings,
                   path: wp.array2d(dtype=scalar), k: int):
         """The viscous step at step k of the launch, then the loads at its end."""
         dt = settings.fixed_dt
-        explicit.viscous_move(i, state, dt, settings.damping_coefficient)
+        explicit.viscous_move(i, state, explicit.viscous_factors(dt, settings.damping_coefficient,
+                                                                 scalar(0.0)))
         drive(i, data, state, path, settings.time + scalar(k) * dt, dt, settings.duration)
 
-    @wp.func
+    @wp.func(inline=True)
     def return_tie(t: int, data: Data, state: State):
         state.dissipated[t] = state.dissipated[t] + forces.return_map(t, state.position, data,
                                                                       state)
 
-    @wp.func
+    @wp.func(inline=True)
     def check(g: int, data: Data, state: State, settings: Settings):
         """Count the step; the kinetic energy; NON_FINITE where it is not finite."""
         state.steps[g] = state.steps[g] + 1
@@ -104,7 +105,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
         if not wp.isfinite(energy):
             state.status[g] = int(status.NON_FINITE)
 
-    @wp.func
+    @wp.func(inline=True)
     def unit_stage(stage: int, u: int, data: Data, state: State, settings: Settings,
                    path: wp.array2d(dtype=scalar), k: int):
         if stage == T_MOVE:
@@ -160,10 +161,7 @@ def grouped_kernel(scalar, friction: bool, boundary: bool, order: str):
     State = structure_state.struct(scalar)
     Settings = structure_settings.struct(scalar)
     ops = functions(scalar, friction, boundary)
-    checks = structure_checks.functions(scalar, friction, boundary)
-    forces = structure_forces.functions(scalar, friction, boundary)
     group = structure_checks.group_functions(scalar, friction, boundary, order)
-    scatter = order == "scatter"
 
     @wp.kernel(module="unique", module_options=MODULE_OPTIONS)
     def advance(data: Data, state: State, settings: Settings, path: wp.array2d(dtype=scalar),
@@ -179,16 +177,9 @@ def grouped_kernel(scalar, friction: bool, boundary: bool, order: str):
                 break
             for i in range(lo, hi):
                 ops.move_node(i, data, state, settings, path, k)
-            if wp.static(scatter):
-                checks.scatter_group(g, data, state, settings)
-            else:
-                for t in range(data.group_tie[g], data.group_tie[g + 1]):
-                    forces.tie_pass(t, state.position, data, state)
-                for i in range(lo, hi):
-                    checks.gather_node(i, data, state, settings)
+            group.evaluate(g, data, state, settings)
             for t in range(data.group_tie[g], data.group_tie[g + 1]):
                 ops.return_tie(t, data, state)
-            group.blocks(g, data, state)
             ops.check(g, data, state, settings)
 
     return advance

@@ -43,7 +43,7 @@ def functions(scalar) -> SimpleNamespace:
     vec3 = wp.types.vector(3, scalar)
     newton_stop = NEWTON_STOP * epsilon(scalar)
 
-    @wp.func
+    @wp.func(inline=True)
     def expm1(x: scalar, u: scalar) -> scalar:
         """exp(x) - 1 from u = exp(x), to a few ulps near 0 (Kahan)."""
         result = x
@@ -53,7 +53,7 @@ def functions(scalar) -> SimpleNamespace:
                 result = scalar(-1.0)
         return result
 
-    @wp.func
+    @wp.func(inline=True)
     def series_law(R: scalar, law: wp.array2d(dtype=scalar), t: int) -> vec:
         """(g(R) [m], dR/dg [N/m]) at force R, sharing the exponentials."""
         decay_a = wp.exp(-law[t, 2] * R)
@@ -64,7 +64,7 @@ def functions(scalar) -> SimpleNamespace:
                                  + law[t, 3] * law[t, 4] * decay_b)
         return vec(g, tangent)
 
-    @wp.func
+    @wp.func(inline=True)
     def contact(g: scalar, law: wp.array2d(dtype=scalar), t: int) -> vec:
         """(R(g) [N], dR/dg [N/m] at R); (0, 0) where open (g <= 0)."""
         R = scalar(0.0)
@@ -80,7 +80,7 @@ def functions(scalar) -> SimpleNamespace:
                 R += step
         return vec(R, tangent)
 
-    @wp.func
+    @wp.func(inline=True)
     def kawabata_energy(C: scalar, a: scalar, R: scalar) -> scalar:
         """(C / a)(1 - exp(-x)(1 + x)), x = a R [J]; the series below x = 0.5."""
         x = a * R
@@ -99,13 +99,13 @@ def functions(scalar) -> SimpleNamespace:
             result = (C / a) * total
         return result
 
-    @wp.func
+    @wp.func(inline=True)
     def contact_energy(R: scalar, law: wp.array2d(dtype=scalar), t: int) -> scalar:
         """The series springs' energy at the common force R [J]."""
         return (R * R / (scalar(2.0) * law[t, 0]) + kawabata_energy(law[t, 1], law[t, 2], R)
                 + kawabata_energy(law[t, 3], law[t, 4], R))
 
-    @wp.func
+    @wp.func(inline=True)
     def limit(R: scalar, law: wp.array2d(dtype=scalar), t: int) -> scalar:
         """F_T [N] at contact force R (Gralen with its onset; 0 where open)."""
         value = scalar(0.0)
@@ -118,7 +118,7 @@ def functions(scalar) -> SimpleNamespace:
             value = law[t, 0] * R + law[t, 1] * onset_factor
         return value
 
-    @wp.func
+    @wp.func(inline=True)
     def huber_force(s: vec, bound: scalar, stick: scalar) -> vec:
         """-dH/ds [N]: -k_t s sticking, -F_T s / |s| sliding."""
         trial = -stick * s
@@ -127,7 +127,7 @@ def functions(scalar) -> SimpleNamespace:
             trial = trial * (bound / size)
         return trial
 
-    @wp.func
+    @wp.func(inline=True)
     def huber_energy(s: vec, bound: scalar, stick: scalar) -> scalar:
         """H(s) [J] (0 where k_t = 0)."""
         energy = scalar(0.0)
@@ -139,7 +139,7 @@ def functions(scalar) -> SimpleNamespace:
                 energy = bound * size - bound * bound / (scalar(2.0) * stick)
         return energy
 
-    @wp.func
+    @wp.func(inline=True)
     def huber_hessian(s: vec, bound: scalar, stick: scalar, secant: int) -> vec3:
         """(h_xx, h_xy, h_yy) [N/m] of d2H/ds2, F_T frozen; with `secant` != 0 the secant
         (F_T / |s|) I while sliding; zeros where F_T = 0 or k_t = 0."""
@@ -155,7 +155,7 @@ def functions(scalar) -> SimpleNamespace:
                 h = vec3(scale * s[1] * s[1], -scale * s[0] * s[1], scale * s[0] * s[0])
         return h
 
-    @wp.func
+    @wp.func(inline=True)
     def return_anchor(s: vec, bound: scalar, stick: scalar) -> vec:
         """The anchor's move [m]: (1 - F_T / (k_t |s|)) s where k_t |s| > F_T, else 0."""
         move = vec(scalar(0.0), scalar(0.0))
