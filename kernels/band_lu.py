@@ -91,18 +91,25 @@ def functions(scalar) -> SimpleNamespace:
     @wp.func(inline=True)
     def solve(band: wp.array2d(dtype=scalar), lo: int, hi: int, rhs: wp.array(dtype=scalar)):
         """rhs[lo:hi] = A^-1 rhs[lo:hi] with the factors of `factor`."""
+        solve_into(band, lo, hi, rhs, rhs)
+
+    @wp.func(inline=True)
+    def solve_into(band: wp.array2d(dtype=scalar), lo: int, hi: int, rhs: wp.array(dtype=scalar),
+                   out: wp.array(dtype=scalar)):
+        """out[lo:hi] = A^-1 rhs[lo:hi] with the factors of `factor` (rhs unchanged unless it
+        is out)."""
         for i in range(lo, hi):
             total = rhs[i]
             for j in range(wp.max(lo, i - BANDWIDTH), i):
-                total -= band[i, j - i + BANDWIDTH] * rhs[j]
-            rhs[i] = total
+                total -= band[i, j - i + BANDWIDTH] * out[j]
+            out[i] = total
         for step in range(hi - lo):
             i = hi - 1 - step
-            total = rhs[i]
+            total = out[i]
             for j in range(i + 1, wp.min(hi, i + BANDWIDTH + 1)):
-                total -= band[i, j - i + BANDWIDTH] * rhs[j]
-            rhs[i] = total / band[i, BANDWIDTH]
+                total -= band[i, j - i + BANDWIDTH] * out[j]
+            out[i] = total / band[i, BANDWIDTH]
 
     return SimpleNamespace(add_block=add_block, add_pair=add_pair, clear=clear,
                            row_product=row_product, absolute_row_sum=absolute_row_sum,
-                           constrain=constrain, factor=factor, solve=solve)
+                           constrain=constrain, factor=factor, solve=solve, solve_into=solve_into)

@@ -49,6 +49,9 @@ from dynfab.kernels.configuration import MODULE_OPTIONS
 from dynfab.kernels.precision import VECTORS
 
 DAMPINGS = ("viscous", "kinetic", "fire")
+"""`settings.damping` is the index of the damping in DAMPINGS: a kernel holds all three (one
+compile for any damping; the choice, one per run, is a branch the CPU predicts)."""
+VISCOUS, KINETIC, FIRE = range(3)
 ORDERS = ("scatter", "gather")
 KINETIC_STEPS = 200_000
 """Time steps of kinetic damping before the viscous fallback (docs/model.md, kinetic damping)."""
@@ -98,7 +101,7 @@ def step_stages(damping: str, adaptive: bool) -> tuple:
 
 
 @functools.cache
-def functions(scalar, friction: bool, boundary: bool, damping: str) -> SimpleNamespace:
+def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
     """The stage `wp.func`s of one variant (module docstring)."""
     vec = VECTORS[scalar]
     vec4 = wp.types.vector(4, scalar)
@@ -107,34 +110,31 @@ def functions(scalar, friction: bool, boundary: bool, damping: str) -> SimpleNam
     Settings = structure_settings.struct(scalar)
     forces = structure_forces.functions(scalar, friction, boundary)
     checks = structure_checks.functions(scalar, friction, boundary)
-    kinetic = damping == "kinetic"
-    fire = damping == "fire"
-    viscous = damping == "viscous"
 
     @wp.func(inline=True)
     def running(state: State, g: int) -> bool:
         return state.status[g] == int(status.RUNNING)
 
     @wp.func(inline=True)
-    def start_damping(g: int, state: State):
+    def start_damping(g: int, state: State, settings: Settings):
         """The damping's state at the step's start (FIRE: dt at most DT_START x stable)."""
-        if wp.static(fire):
+        if settings.damping == FIRE:
             state.dt[g] = wp.min(state.dt[g], scalar(DT_START) * state.stable_dt[g])
             state.fire_alpha[g] = scalar(ALPHA_START)
             state.fire_positive[g] = 0
             state.fire_negative[g] = 0
 
     @wp.func(inline=True)
-    def pre_values(i: int, data: Data, state: State) -> vec4:
+    def pre_values(i: int, data: Data, state: State, settings: Settings) -> vec4:
         """The damping's terms of node i (module docstring)."""
         g = data.node_group[i]
         share = data.share[i]
         values = vec4(scalar(0.0), scalar(0.0), scalar(0.0), scalar(0.0))
-        if wp.static(kinetic):
+        if settings.damping == KINETIC:
             m = state.mass[i]
             v = state.velocity[i] + (state.dt[g] / m) * state.force[i]
             values[0] = share * (scalar(0.5) * m * wp.dot(v, v))
-        if wp.static(viscous):
+        if settings.damping == VISCOUS:
             u = state.position[i] - state.start_position[i]
             change = state.force[i] - state.previous_force[i]
             underwood = scalar(0.0)
@@ -145,29 +145,29 @@ def functions(scalar, friction: bool, boundary: bool, damping: str) -> SimpleNam
             secant = -wp.dot(u, state.force[i] - state.start_force[i])
             values = vec4(share * underwood, share * secant,
                           share * (wp.dot(u, u) * state.mass[i]), scalar(0.0))
-        if wp.static(fire):
+        if settings.damping == FIRE:
             values[0] = share * wp.dot(state.force[i], state.velocity[i])
         return values
 
     @wp.func(inline=True)
-    def pre_blocks(g: int, data: Data, state: State):
+    def pre_blocks(g: int, data: Data, state: State, settings: Settings):
         """Every node's `pre_values` summed straight into its block's sums (what the
         node-parallel layout's PRE and BLOCKS stages store and sum)."""
         for b in range(data.group_block[g], data.group_block[g + 1]):
             total = vec4(scalar(0.0), scalar(0.0), scalar(0.0), scalar(0.0))
             for i in range(data.block_start[b], data.block_start[b + 1]):
-                total = total + pre_values(i, data, state)
+                total = total + pre_values(i, data, state, settings)
             state.block_values[b] = total
 
     @wp.func(inline=True)
     def decide(g: int, data: Data, state: State, settings: Settings):
         """The damping's decision for the step from the group's sums (module docstring)."""
         sums = checks.group_sum(g, data, state)
-        if wp.static(kinetic):
+        if settings.damping == KINETIC:
             state.decision[g] = scalar(0.0)
             if sums[0] < state.kinetic_energy[g]:
                 state.decision[g] = scalar(1.0)
-        if wp.static(viscous):
+        if settings.damping == VISCOUS:
             stiffness = sums[1]
             if sums[0] > scalar(0.0) and sums[0] < sums[1]:
                 stiffness = sums[0]
@@ -175,7 +175,7 @@ def functions(scalar, friction: bool, boundary: bool, damping: str) -> SimpleNam
             if stiffness > scalar(0.0) and sums[2] > scalar(0.0):
                 c = wp.min(scalar(2.0) * wp.sqrt(stiffness / sums[2]), scalar(2.0) / state.dt[g])
             state.damping_coefficient[g] = c
-        if wp.static(fire):
+        if settings.damping == FIRE:
             dt = state.dt[g]
             stable = state.stable_dt[g]
             state.decision[g] = scalar(0.0)
@@ -211,11 +211,11 @@ def functions(scalar, friction: bool, boundary: bool, damping: str) -> SimpleNam
         fallback's c or none (kinetic: keep 1, gain dt), none (FIRE)."""
         dt = state.dt[g]
         factors = vec4(dt, scalar(1.0), dt, scalar(0.0))
-        if wp.static(kinetic):
+        if settings.damping == KINETIC:
             c = state.damping_coefficient[g]
             if c > scalar(0.0):
                 factors = viscous_factors(dt, c, scalar(0.0))
-        if wp.static(viscous):
+        if settings.damping == VISCOUS:
             c = settings.damping_coefficient
             store = scalar(0.0)
             if c < scalar(0.0):
@@ -234,20 +234,20 @@ def functions(scalar, friction: bool, boundary: bool, damping: str) -> SimpleNam
             state.previous_force[i] = state.force[i]
 
     @wp.func(inline=True)
-    def move_node(i: int, data: Data, state: State, factors: vec4):
+    def move_node(i: int, data: Data, state: State, settings: Settings, factors: vec4):
         """Node i's update with its group's `step_factors` (module docstring); FIRE:
         node_values = (|v|^2, |f|^2) for `mix`."""
         g = data.node_group[i]
         dt = factors[0]
-        if wp.static(kinetic):
+        if settings.damping == KINETIC:
             if state.damping_coefficient[g] == scalar(0.0) and state.decision[g] != scalar(0.0):
                 state.position[i] = state.position[i] - (scalar(0.5) * dt) * state.velocity[i]
                 state.velocity[i] = vec(scalar(0.0), scalar(0.0))
             else:
                 viscous_move(i, state, factors)
-        if wp.static(viscous):
+        if settings.damping == VISCOUS:
             viscous_move(i, state, factors)
-        if wp.static(fire):
+        if settings.damping == FIRE:
             if state.decision[g] != scalar(0.0):
                 state.position[i] = state.position[i] - (scalar(0.5) * dt) * state.velocity[i]
                 state.velocity[i] = vec(scalar(0.0), scalar(0.0))
@@ -300,7 +300,7 @@ def functions(scalar, friction: bool, boundary: bool, damping: str) -> SimpleNam
     def check_step(g: int, data: Data, state: State, settings: Settings):
         """`structure_checks.check`, the energy test, kinetic damping's fallback."""
         code = checks.check_energy(g, data, state, checks.check(g, data, state, settings))
-        if wp.static(kinetic):
+        if settings.damping == KINETIC:
             if code == int(status.RUNNING):
                 escalate(g, data, state)
 
@@ -322,10 +322,10 @@ def functions(scalar, friction: bool, boundary: bool, damping: str) -> SimpleNam
         elif stage == START:
             checks.start_group(u, data, state, settings)
         elif stage == START_DAMPING:
-            start_damping(u, state)
+            start_damping(u, state, settings)
         elif stage == PRE:
             if running(state, data.node_group[u]):
-                state.node_values[u] = pre_values(u, data, state)
+                state.node_values[u] = pre_values(u, data, state, settings)
         elif stage == BLOCKS:
             if running(state, data.block_group[u]):
                 checks.block_stage(u, data, state)
@@ -335,7 +335,7 @@ def functions(scalar, friction: bool, boundary: bool, damping: str) -> SimpleNam
         elif stage == MOVE:
             g = data.node_group[u]
             if running(state, g):
-                move_node(u, data, state, step_factors(g, state, settings))
+                move_node(u, data, state, settings, step_factors(g, state, settings))
         elif stage == MIX:
             if running(state, u):
                 mix(u, data, state)
@@ -359,12 +359,12 @@ def functions(scalar, friction: bool, boundary: bool, damping: str) -> SimpleNam
 
 
 @functools.cache
-def stage_kernel(scalar, friction: bool, boundary: bool, damping: str):
+def stage_kernel(scalar, friction: bool, boundary: bool):
     """The node-parallel layout's kernel: one launch per stage, a thread per unit."""
     Data = structure_arrays.struct(scalar)
     State = structure_state.struct(scalar)
     Settings = structure_settings.struct(scalar)
-    ops = functions(scalar, friction, boundary, damping)
+    ops = functions(scalar, friction, boundary)
 
     @wp.kernel(module="unique", module_options=MODULE_OPTIONS)
     def stage_pass(data: Data, state: State, settings: Settings, stage: int):
@@ -374,14 +374,13 @@ def stage_kernel(scalar, friction: bool, boundary: bool, damping: str):
 
 
 @functools.cache
-def grouped_kernel(scalar, friction: bool, boundary: bool, damping: str, order: str):
+def grouped_kernel(scalar, friction: bool, boundary: bool, order: str):
     """The grouped layout's kernel: thread g runs group first + g, the start (`start` != 0)
     or up to settings.chunk time steps."""
     Data = structure_arrays.struct(scalar)
     State = structure_state.struct(scalar)
     Settings = structure_settings.struct(scalar)
-    ops = functions(scalar, friction, boundary, damping)
-    kinetic, fire, viscous = damping == "kinetic", damping == "fire", damping == "viscous"
+    ops = functions(scalar, friction, boundary)
 
     group = structure_checks.group_functions(scalar, friction, boundary, order)
     blocks, evaluate = group.blocks, group.evaluate
@@ -390,25 +389,25 @@ def grouped_kernel(scalar, friction: bool, boundary: bool, damping: str, order: 
     @wp.func(inline=True)
     def start(g: int, data: Data, state: State, settings: Settings):
         group.start(g, data, state, settings)
-        ops.start_damping(g, state)
+        ops.start_damping(g, state, settings)
 
     @wp.func(inline=True)
     def step(g: int, data: Data, state: State, settings: Settings):
         lo = data.group_node[g]
         hi = data.group_node[g + 1]
-        pre = bool(wp.static(kinetic or fire))
-        if wp.static(kinetic):
+        pre = settings.damping == FIRE
+        if settings.damping == KINETIC:
             pre = state.damping_coefficient[g] == scalar(0.0)
-        if wp.static(viscous):
+        if settings.damping == VISCOUS:
             pre = settings.damping_coefficient < scalar(0.0)
         if pre:
-            ops.pre_blocks(g, data, state)
+            ops.pre_blocks(g, data, state, settings)
             ops.decide(g, data, state, settings)
         if ops.running(state, g):
             factors = ops.step_factors(g, state, settings)
-            if wp.static(fire):
+            if settings.damping == FIRE:
                 for i in range(lo, hi):
-                    ops.move_node(i, data, state, factors)
+                    ops.move_node(i, data, state, settings, factors)
                 blocks(g, data, state)
                 ops.mix(g, data, state)
                 for i in range(lo, hi):
@@ -416,7 +415,7 @@ def grouped_kernel(scalar, friction: bool, boundary: bool, damping: str, order: 
                 evaluate(g, data, state, settings)
             else:  # the move and the scatter's start in one pass
                 for i in range(lo, hi):
-                    ops.move_node(i, data, state, factors)
+                    ops.move_node(i, data, state, settings, factors)
                     if wp.static(scatter):
                         state.force[i] = state.load[i] + data.weight[i]
                 group.evaluate_set(g, data, state, settings)

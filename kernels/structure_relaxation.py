@@ -165,8 +165,8 @@ class StructureRelaxation:
         key = (self.scalar, self.friction, self.boundary)
         if self.method == "explicit":
             if self.layout == "grouped":
-                return structure_explicit.grouped_kernel(*key, self.damping, self.order)
-            return structure_explicit.stage_kernel(*key, self.damping)
+                return structure_explicit.grouped_kernel(*key, self.order)
+            return structure_explicit.stage_kernel(*key)
         if self.layout == "grouped":
             return semi.grouped_kernel(*key, self.order)
         return semi.stage_kernel(*key)
@@ -248,8 +248,9 @@ class StructureRelaxation:
         coefficient = self.coefficient
         if coefficient is None:
             coefficient = -1.0 if self.damping == "viscous" else 0.0
+        damping = structure_explicit.DAMPINGS.index(self.damping) if self.damping else 0
         base = dict(safety=self.safety, fixed_dt=self.dt or 0.0, fictitious=fictitious,
-                    damping_coefficient=coefficient, cg_tolerance=self.cg_tolerance,
+                    damping=damping, damping_coefficient=coefficient, cg_tolerance=self.cg_tolerance,
                     backtracks=self.backtracks, secant=int(self.secant), direct=int(self.direct),
                     chunk=self.chunk)
         base.update(values)
@@ -464,7 +465,8 @@ class StructureRelaxation:
         self.state.dissipated.zero_()
         coefficient = self.coefficient or 0.0
         base = dict(tolerance=-1.0, max_steps=RUNNING_FOREVER, fictitious=0,
-                    damping_coefficient=coefficient, duration=duration)
+                    damping=structure_explicit.VISCOUS, damping_coefficient=coefficient,
+                    duration=duration)
         settings = self._settings(**base)
         grouped = self.layout == "grouped"
         kernel = (structure_transient.grouped_kernel(*kernel_key, self.order) if grouped

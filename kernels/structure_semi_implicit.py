@@ -275,23 +275,23 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
         return value
 
     @wp.func(inline=True)
-    def own_row(i: int, comp: int, x: wp.array(dtype=scalar), data: Data,
-                state: State) -> scalar:
-        """(A x) at dof (node i, comp) from node i's own row (`boundary_sums` of x done)."""
+    def own_row(i: int, comp: int, x: wp.array(dtype=scalar), data: Data, state: State,
+                dt2: scalar) -> scalar:
+        """(A x) at dof (node i, comp) from node i's own row (`boundary_sums` of x done);
+        dt2 = dt^2 [s^2] of its group."""
         row = 2 * i + comp
-        a = data.chain_start[data.node_chain[i]]
-        b = data.chain_start[data.node_chain[i] + 1]
-        dt = state.dt[data.node_group[i]]
-        value = band_ops.row_product(state.band, row, 2 * a, 2 * b, x)
+        chain = data.node_chain[i]
+        value = band_ops.row_product(state.band, row, 2 * data.chain_start[chain],
+                                     2 * data.chain_start[chain + 1], x)
         coupled = tangent.coupling_row(i, comp, x, data, state)
         if wp.static(boundary):
             coupled = coupled + plane_row(i, comp, data, state) \
                 + tangent.wrap_cross(state.position, data, i, x, comp)
-        return value + dt * dt * free_dof(data, row) * coupled
+        return value + dt2 * free_dof(data, row) * coupled
 
     @wp.func(inline=True)
-    def product_value(i: int, comp: int, x: wp.array(dtype=scalar), data: Data,
-                      state: State) -> scalar:
+    def product_value(i: int, comp: int, x: wp.array(dtype=scalar), data: Data, state: State,
+                      dt2: scalar) -> scalar:
         """(A x) at dof (node i, comp); a tied node's in-plane dof: its family's rows summed in
         plane-node order (T^T A T x, the same on every copy)."""
         value = scalar(0.0)
@@ -301,9 +301,9 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
                 tied = data.node_tie[i]
         if tied >= 0:
             for m in range(data.plane_offsets[tied], data.plane_offsets[tied + 1]):
-                value += own_row(data.plane_nodes[m], 0, x, data, state)
+                value += own_row(data.plane_nodes[m], 0, x, data, state, dt2)
         else:
-            value = own_row(i, comp, x, data, state)
+            value = own_row(i, comp, x, data, state, dt2)
         return value
 
     @wp.func(inline=True)
@@ -314,7 +314,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
             row = 2 * i + comp
             state.rhs[row] = free_dof(data, row) * (
                 dt * state.force[i][comp] + state.mass[i] * state.velocity[i][comp]
-                - product_value(i, comp, state.x, data, state))
+                - product_value(i, comp, state.x, data, state, dt * dt))
 
     # ------------------------------------------------------------- PCG
 
@@ -324,9 +324,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
         chain_partial[c] = r . z there."""
         a = data.chain_start[c]
         b = data.chain_start[c + 1]
-        for row in range(2 * a, 2 * b):
-            state.z[row] = state.r[row]
-        band_ops.solve(state.factor, 2 * a, 2 * b, state.z)
+        band_ops.solve_into(state.factor, 2 * a, 2 * b, state.r, state.z)
         if wp.static(boundary):
             g = data.chain_group[c]
             for i in range(a, b):
@@ -378,10 +376,10 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
         return state.cg[g, CG_DONE] != scalar(0.0)
 
     @wp.func(inline=True)
-    def product_node(i: int, data: Data, state: State):
-        """q = A p at node i's dofs."""
+    def product_node(i: int, data: Data, state: State, dt2: scalar):
+        """q = A p at node i's dofs (dt2 = dt^2 of its group)."""
         for comp in range(2):
-            state.q[2 * i + comp] = product_value(i, comp, state.p, data, state)
+            state.q[2 * i + comp] = product_value(i, comp, state.p, data, state, dt2)
 
     @wp.func(inline=True)
     def curvature_chain(c: int, data: Data, state: State):
@@ -397,13 +395,13 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
             state.cg[g, CG_DONE] = scalar(1.0)
 
     @wp.func(inline=True)
-    def update_dof(d: int, data: Data, state: State):
-        """x += alpha p, r -= alpha q (until done)."""
-        g = data.node_group[d / 2]
+    def update_range(g: int, lo: int, hi: int, state: State):
+        """x += alpha p, r -= alpha q over dofs lo..hi-1 of group g (until done)."""
         if not cg_done(g, state):
             alpha = state.cg[g, CG_ALPHA]
-            state.x[d] = state.x[d] + alpha * state.p[d]
-            state.r[d] = state.r[d] - alpha * state.q[d]
+            for d in range(lo, hi):
+                state.x[d] = state.x[d] + alpha * state.p[d]
+                state.r[d] = state.r[d] - alpha * state.q[d]
 
     @wp.func(inline=True)
     def next_sum(g: int, data: Data, state: State):
@@ -420,11 +418,12 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
                 state.cg[g, CG_DONE] = scalar(1.0)
 
     @wp.func(inline=True)
-    def direction_dof(d: int, data: Data, state: State):
-        """p = z + beta p (until done)."""
-        g = data.node_group[d / 2]
+    def direction_range(g: int, lo: int, hi: int, state: State):
+        """p = z + beta p over dofs lo..hi-1 of group g (until done)."""
         if not cg_done(g, state):
-            state.p[d] = state.z[d] + state.cg[g, CG_BETA] * state.p[d]
+            beta = state.cg[g, CG_BETA]
+            for d in range(lo, hi):
+                state.p[d] = state.z[d] + beta * state.p[d]
 
     # ------------------------------------------------------------- the step
 
@@ -547,7 +546,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
         elif stage == PRODUCT:
             g = data.node_group[u]
             if running(state, g) and not cg_done(g, state):
-                product_node(u, data, state)
+                product_node(u, data, state, state.dt[g] * state.dt[g])
         elif stage == CURVATURE:
             g = data.chain_group[u]
             if running(state, g) and not cg_done(g, state):
@@ -556,14 +555,16 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
             if running(state, u) and not cg_done(u, state):
                 step_length(u, data, state)
         elif stage == UPDATE:
-            if running(state, data.node_group[u / 2]):
-                update_dof(u, data, state)
+            g = data.node_group[u / 2]
+            if running(state, g):
+                update_range(g, u, u + 1, state)
         elif stage == NEXT_SUM:
             if running(state, u):
                 next_sum(u, data, state)
         elif stage == DIRECTION:
-            if running(state, data.node_group[u / 2]):
-                direction_dof(u, data, state)
+            g = data.node_group[u / 2]
+            if running(state, g):
+                direction_range(g, u, u + 1, state)
         elif stage == MOVE:
             if running(state, data.node_group[u]):
                 move_node(u, data, state)
@@ -617,8 +618,8 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
                            precondition_chain=precondition_chain, cg_start=cg_start,
                            first_sum=first_sum, copy_direction=copy_direction, cg_done=cg_done,
                            product_node=product_node, curvature_chain=curvature_chain,
-                           step_length=step_length, update_dof=update_dof, next_sum=next_sum,
-                           direction_dof=direction_dof, move_node=move_node, search=search,
+                           step_length=step_length, update_range=update_range, next_sum=next_sum,
+                           direction_range=direction_range, move_node=move_node, search=search,
                            trial_node=trial_node, finish_node=finish_node,
                            finish_group=finish_group, check_step=check_step, reset_flags=reset_flags,
                            unit_stage=unit_stage, product_value=product_value,
@@ -693,21 +694,20 @@ def grouped_kernel(scalar, friction: bool, boundary: bool, order: str):
         ops.first_sum(g, data, state, settings)
         for d in range(lo, hi):
             ops.copy_direction(d, data, state)
+        dt2 = state.dt[g] * state.dt[g]
         while not ops.cg_done(g, state):
             ops.boundary_sums(g, state.p, data, state)
             for i in range(lo / 2, hi / 2):
-                ops.product_node(i, data, state)
+                ops.product_node(i, data, state, dt2)
             for c in range(c0, c1):
                 ops.curvature_chain(c, data, state)
             ops.step_length(g, data, state)
-            for d in range(lo, hi):
-                ops.update_dof(d, data, state)
+            ops.update_range(g, lo, hi, state)
             if not ops.cg_done(g, state):
                 for c in range(c0, c1):
                     ops.precondition_chain(c, data, state)
             ops.next_sum(g, data, state)
-            for d in range(lo, hi):
-                ops.direction_dof(d, data, state)
+            ops.direction_range(g, lo, hi, state)
 
     @wp.func(inline=True)
     def step(g: int, data: Data, state: State, settings: Settings):

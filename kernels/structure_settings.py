@@ -28,6 +28,8 @@ def struct(scalar):
         """Time step asked for [s]; 0: 1 s with fictitious masses, safety x bound with physical."""
         fictitious: wp.int32
         """1: fictitious Gershgorin masses; 0: physical masses."""
+        damping: wp.int32
+        """explicit: the damping, its index in `structure_explicit.DAMPINGS`."""
         damping_coefficient: scalar
         """Viscous c [1/s]; negative: adaptive (explicit viscous damping)."""
         max_steps: wp.int32

@@ -46,7 +46,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
     Settings = structure_settings.struct(scalar)
     forces = structure_forces.functions(scalar, friction, boundary)
     checks = structure_checks.functions(scalar, friction, boundary)
-    explicit = structure_explicit.functions(scalar, friction, boundary, "viscous")
+    explicit = structure_explicit.functions(scalar, friction, boundary)
 
     @wp.func(inline=True)
     def load_at(time: scalar, path: wp.array2d(dtype=scalar), family: int,
@@ -139,7 +139,7 @@ def stage_kernel(scalar, friction: bool, boundary: bool):
     State = structure_state.struct(scalar)
     Settings = structure_settings.struct(scalar)
     ops = functions(scalar, friction, boundary)
-    start_ops = structure_explicit.functions(scalar, friction, boundary, "viscous")
+    start_ops = structure_explicit.functions(scalar, friction, boundary)
 
     @wp.kernel(module="unique", module_options=MODULE_OPTIONS)
     def stage_pass(data: Data, state: State, settings: Settings, path: wp.array2d(dtype=scalar),

@@ -6,8 +6,9 @@ The one Warp form of each law, for every structure (`structure_forces`) and ever
 - contact: for a closure g > 0 the force R >= 0 solves
   g(R) = R / k_s - C_a expm1(-a_a R) - C_b expm1(-a_b R) (increasing and concave), by Newton
   from the lower bound k_s (g - C_a - C_b), stopping when a step no longer increases R (as
-  `dynfab.terms.contact.force_from_closure`); R = 0 where open. expm1 from exp by Kahan's
-  (u - 1) x / log u, accurate to a few ulps near 0. The tangent
+  `dynfab.terms.contact.force_from_closure`); R = 0 where open. expm1 by its Taylor series
+  below |x| = 1/2 (u - 1 above), accurate to a few ulps near 0 (as np.expm1 and Kahan's
+  (u - 1) x / log u of `kernels/contact.py`, without a logarithm). The tangent
   dR/dg = 1 / (1/k_s + sum_m C_m a_m exp(-a_m R)) <= k_s (0 where open); the energy
   R^2 / (2 k_s) + sum_m (C_m / a_m)(1 - exp(-x)(1 + x)), x = a_m R, below x = 0.5 by the
   series sum_{n>=2} (-1)^n (n - 1) x^n / n! against cancellation (docs/model.md (3.5)-(3.7)).
@@ -45,12 +46,26 @@ def functions(scalar) -> SimpleNamespace:
 
     @wp.func(inline=True)
     def expm1(x: scalar, u: scalar) -> scalar:
-        """exp(x) - 1 from u = exp(x), to a few ulps near 0 (Kahan)."""
-        result = x
-        if u != scalar(1.0):
-            result = (u - scalar(1.0)) * x / wp.log(u)
-            if u - scalar(1.0) == scalar(-1.0):
-                result = scalar(-1.0)
+        """exp(x) - 1 [-] from u = exp(x), to a few ulps: for |x| < 1/2 its Taylor series to
+        x^15 / 15! by Horner's rule (the remainder below 1e-16 of the value there), else u - 1
+        (whose rounding is then at most 2.6 eps of the value)."""
+        result = u - scalar(1.0)
+        if wp.abs(x) < scalar(0.5):  # x (1 + x/2 (1 + x/3 (... (1 + x/15))))
+            term = scalar(1.0) + x * scalar(0.06666666666666667)  # 1/15
+            term = scalar(1.0) + x * term * scalar(0.07142857142857142)  # 1/14
+            term = scalar(1.0) + x * term * scalar(0.07692307692307693)  # 1/13
+            term = scalar(1.0) + x * term * scalar(0.08333333333333333)  # 1/12
+            term = scalar(1.0) + x * term * scalar(0.09090909090909091)  # 1/11
+            term = scalar(1.0) + x * term * scalar(0.1)  # 1/10
+            term = scalar(1.0) + x * term * scalar(0.1111111111111111)  # 1/9
+            term = scalar(1.0) + x * term * scalar(0.125)  # 1/8
+            term = scalar(1.0) + x * term * scalar(0.14285714285714285)  # 1/7
+            term = scalar(1.0) + x * term * scalar(0.16666666666666666)  # 1/6
+            term = scalar(1.0) + x * term * scalar(0.2)  # 1/5
+            term = scalar(1.0) + x * term * scalar(0.25)  # 1/4
+            term = scalar(1.0) + x * term * scalar(0.3333333333333333)  # 1/3
+            term = scalar(1.0) + x * term * scalar(0.5)  # 1/2
+            result = x * term
         return result
 
     @wp.func(inline=True)
