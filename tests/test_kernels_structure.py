@@ -356,3 +356,43 @@ def test_groups_split_over_cores_give_the_same_bits():
         assert outcome.succeeded
         runs.append(positions)
     assert np.array_equal(runs[0], runs[1])
+
+
+@pytest.mark.parametrize("precision", ["float64", "float32"])
+def test_the_tie_law_is_cancellation_safe(precision):
+    """The tie law's expm1 within 2 ulps of numpy's over |x| from 1e-20 to 10, and the contact
+    force and energy at closures from 1e-16 m to 1e-4 m (R from about 1e-11 N, where
+    1 - exp(-a R) and the energy's 1 - exp(-x)(1 + x) cancel) within a few ulps of the static
+    reference's (`dynfab.terms.contact`, np.expm1 and its series), relative to their size."""
+    import warp as wp
+
+    from dynfab.kernels import tie_law
+    from dynfab.kernels.precision import SCALARS, numpy_dtype
+    from dynfab.terms import contact
+
+    scalar, dtype = SCALARS[precision], numpy_dtype(SCALARS[precision])
+    ops = tie_law.functions(scalar)
+    vec = wp.types.vector(3, scalar)
+
+    @wp.kernel(module="unique")
+    def evaluate(x: wp.array(dtype=scalar), g: wp.array(dtype=scalar),
+                 law: wp.array2d(dtype=scalar), out: wp.array(dtype=vec)):
+        i = wp.tid()
+        R = ops.contact(g[i], law, 0)[0]
+        out[i] = vec(ops.expm1(x[i], wp.exp(x[i])), R, ops.contact_energy(R, law, 0))
+
+    law = np.array([[1e5, 0.2e-3, 62.0, 0.2e-3, 62.0]])
+    x = np.concatenate([-np.logspace(-20, 1, 500), np.logspace(-20, 1, 500)]).astype(dtype)
+    g = np.logspace(-16, -4, 1000).astype(dtype)
+    out = wp.zeros(x.size, dtype=vec)
+    wp.launch(evaluate, dim=x.size, inputs=[wp.array(x, dtype=scalar), wp.array(g, dtype=scalar),
+                                           wp.array(law.astype(dtype), dtype=scalar), out])
+    values = out.numpy().astype(float)
+    eps = np.finfo(dtype).eps
+    exact = np.expm1(x.astype(float))
+    assert np.all(np.abs(values[:, 0] - exact) <= 2 * eps * np.abs(exact))
+    R = np.array([contact.force_from_closure(float(v), law[0]) for v in g])
+    E = np.array([contact.energy_of_force(r, law[0]) for r in R])
+    assert np.all(np.abs(values[:, 1] - R) <= 16 * eps * R)
+    assert np.all(np.abs(values[:, 2] - E) <= 32 * eps * E)
+    assert R.min() < 1e-10  # down where the cancellation would cost every digit
