@@ -85,7 +85,8 @@ START_TIES, START_GATHER, START_BLOCKS, STIFFEST_TIES, STIFFEST_CHAINS, ROWS, ST
 """Stages (`stage_kernel`)."""
 NODE, TIE, BLOCK, CHAIN, GROUP = range(5)
 """What a stage's threads run over."""
-KINDS = {START_TIES: TIE, START_GATHER: NODE, START_BLOCKS: BLOCK, STIFFEST_TIES: TIE, STIFFEST_CHAINS: CHAIN,
+KINDS = {START_TIES: TIE, START_GATHER: NODE, START_BLOCKS: BLOCK, STIFFEST_TIES: TIE,
+         STIFFEST_CHAINS: CHAIN,
          ROWS: NODE, START: GROUP, START_DAMPING: GROUP, PRE: NODE, BLOCKS: BLOCK,
          DECIDE: GROUP, MOVE: NODE, MIX: GROUP, MIX_MOVE: NODE, TIES: TIE, GATHER: NODE,
          CHECK: GROUP}
@@ -271,7 +272,8 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
     def mix_move(i: int, data: Data, state: State):
         """FIRE: v = (1 - alpha) v + mixing f, x += dt v."""
         g = data.node_group[i]
-        v = (scalar(1.0) - state.fire_alpha[g]) * state.velocity[i] + state.mixing[g] * state.force[i]
+        v = (scalar(1.0) - state.fire_alpha[g]) * state.velocity[i] \
+            + state.mixing[g] * state.force[i]
         state.velocity[i] = v
         state.position[i] = state.position[i] + state.dt[g] * v
 

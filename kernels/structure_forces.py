@@ -23,7 +23,8 @@ Two orders of the same sums. Gather (`tie_pass` per tie, then `node_force` per n
 thread writes only its own slots, no atomics; a segment is evaluated at both its nodes and a
 bending spring at three): the node-parallel layout, bit for bit repeatable on any device, and
 the grouped layout's "gather" order (the same bits). Scatter (`scatter_init`, `scatter_terms`,
-one thread for a group: each term once, added to its nodes; the caller masks the held dofs): the grouped layout's default, within rounding of
+one thread for a group: each term once, added to its nodes; the caller masks the held dofs):
+the grouped layout's default, within rounding of
 the gather order.
 
 Variants: `friction` compiles the friction terms (without, F_T = 0 is never evaluated);
@@ -336,5 +337,6 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
     return SimpleNamespace(turning_angle=turning_angle, closure=closure, slip=slip,
                            plane_shift=plane_shift, tie_pass=tie_pass, tie_pass_at=tie_pass_at,
                            own_force=own_force, node_force=node_force,
-                           scatter_init=scatter_init, scatter_terms=scatter_terms, node_energy=node_energy,
+                           scatter_init=scatter_init, scatter_terms=scatter_terms,
+                           node_energy=node_energy,
                            tie_energy=tie_energy, return_map=return_map, wrap_forces=wrap_forces)

@@ -38,6 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
+from dynfab.errors import SolverError
 from dynfab.kernels import status, structure_arrays, structure_explicit, structure_passes
 from dynfab.kernels import structure_semi_implicit as semi
 from dynfab.kernels import structure_settings, structure_state, structure_transient
@@ -250,7 +251,8 @@ class StructureRelaxation:
             coefficient = -1.0 if self.damping == "viscous" else 0.0
         damping = structure_explicit.DAMPINGS.index(self.damping) if self.damping else 0
         base = dict(safety=self.safety, fixed_dt=self.dt or 0.0, fictitious=fictitious,
-                    damping=damping, damping_coefficient=coefficient, cg_tolerance=self.cg_tolerance,
+                    damping=damping, damping_coefficient=coefficient,
+                    cg_tolerance=self.cg_tolerance,
                     backtracks=self.backtracks, secant=int(self.secant), direct=int(self.direct),
                     chunk=self.chunk)
         base.update(values)
@@ -501,8 +503,12 @@ class StructureRelaxation:
                                         settings, path_wp, k)
                 codes = self.state.status.numpy()
                 if (codes != status.RUNNING).any():
-                    raise FloatingPointError(f"transient: a group stopped with status "
-                                             f"{int(codes[codes != status.RUNNING][0])}")
+                    group = int(np.flatnonzero(codes != status.RUNNING)[0])
+                    raise SolverError(f"transient: group {group} stopped at t = "
+                                      f"{begin + (done + run) * dt:.6g} s (status "
+                                      f"{int(codes[group])}: a non-finite state; dt = {dt:.3g} s "
+                                      f"against the predicted stable "
+                                      f"{float(self.group_values('stable_dt')[group]):.3g} s)")
             yield self._frame(end)
 
     def _frame(self, time: float) -> dict:

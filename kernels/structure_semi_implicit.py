@@ -156,7 +156,8 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
                 comp = row % 2
                 stiffness_velocity = scalar(0.0)
                 for j in range(wp.max(lo, row - BANDWIDTH), wp.min(hi, row + BANDWIDTH + 1)):
-                    stiffness_velocity += band[row, j - row + BANDWIDTH] * state.velocity[j / 2][j % 2]
+                    stiffness_velocity += band[row, j - row + BANDWIDTH] \
+                        * state.velocity[j / 2][j % 2]
                 state.x[row] = free_dof(data, row) * dt * (
                     state.force[i][comp] - dt * stiffness_velocity
                     - damping * state.mass[i] * state.velocity[i][comp])
@@ -621,7 +622,8 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
                            step_length=step_length, update_range=update_range, next_sum=next_sum,
                            direction_range=direction_range, move_node=move_node, search=search,
                            trial_node=trial_node, finish_node=finish_node,
-                           finish_group=finish_group, check_step=check_step, reset_flags=reset_flags,
+                           finish_group=finish_group, check_step=check_step,
+                           reset_flags=reset_flags,
                            unit_stage=unit_stage, product_value=product_value,
                            direct_done=direct_done)
 

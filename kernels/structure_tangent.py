@@ -156,8 +156,8 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
                             vec(x[2 * other], x[2 * other + 1]))
                      + wp.dot(wrap_node_gradient(pos, data, other + 1),
                               vec(x[2 * other + 2], x[2 * other + 3])))
-            value = data.wrap_stiffness[data.node_wrap[i]] * wrap_node_gradient(pos, data, i)[comp] \
-                * along
+            stiffness = data.wrap_stiffness[data.node_wrap[i]]
+            value = stiffness * wrap_node_gradient(pos, data, i)[comp] * along
         return value
 
     @wp.func(inline=True)

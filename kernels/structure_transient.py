@@ -30,8 +30,8 @@ from dynfab.kernels.precision import VECTORS
 
 T_MOVE, T_TIES, T_GATHER, T_BLOCKS, T_RETURN, T_CHECK = range(200, 206)
 """Stages of a transient time step (`stage_kernel`; the start's are `structure_explicit`'s)."""
-NODE, TIE, BLOCK, GROUP = (structure_explicit.NODE, structure_explicit.TIE, structure_explicit.BLOCK,
-                          structure_explicit.GROUP)
+NODE, TIE, BLOCK, GROUP = (structure_explicit.NODE, structure_explicit.TIE,
+                          structure_explicit.BLOCK, structure_explicit.GROUP)
 KINDS = {T_MOVE: NODE, T_TIES: TIE, T_GATHER: NODE, T_RETURN: TIE, T_BLOCKS: BLOCK,
          T_CHECK: GROUP}
 STEP_STAGES = (T_MOVE, T_TIES, T_GATHER, T_BLOCKS, T_RETURN, T_CHECK)

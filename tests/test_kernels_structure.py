@@ -21,7 +21,7 @@ from dynfab import assembly
 from dynfab.build import build_structure
 from dynfab.fabric import assembly as fabric_assembly
 from dynfab.fabric import contact as tie_contact
-from dynfab.fabric.static import FabricStaticSolver, as_woven_state
+from dynfab.fabric.static import FabricStaticSolver
 from dynfab.kernels import status, structure_arrays
 from dynfab.kernels.structure_relaxation import StructureRelaxation
 from dynfab.model import chain_view

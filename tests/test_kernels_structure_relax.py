@@ -31,7 +31,6 @@ from dynfab.build import build_structure
 from dynfab.fabric import contact
 from dynfab.fabric.static import FabricStaticSolver
 from dynfab.kernels import status
-from dynfab.kernels.structure_relaxation import StructureRelaxation
 from dynfab.model import build_model, initial_state
 from dynfab.scene import load_scene, with_key
 from dynfab.static import StaticSolver
