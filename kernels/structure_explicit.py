@@ -45,7 +45,6 @@ import warp as wp
 
 from dynfab.kernels import status, structure_arrays, structure_checks, structure_forces
 from dynfab.kernels import structure_settings, structure_state
-from dynfab.kernels.configuration import MODULE_OPTIONS
 from dynfab.kernels.precision import VECTORS
 
 DAMPINGS = ("viscous", "kinetic", "fire")
@@ -368,7 +367,7 @@ def stage_kernel(scalar, friction: bool, boundary: bool):
     Settings = structure_settings.struct(scalar)
     ops = functions(scalar, friction, boundary)
 
-    @wp.kernel(module="unique", module_options=MODULE_OPTIONS)
+    @wp.kernel(module="unique", module_options=structure_settings.MODULE_OPTIONS)
     def stage_pass(data: Data, state: State, settings: Settings, stage: int):
         ops.unit_stage(stage, wp.tid(), data, state, settings)
 
@@ -423,7 +422,7 @@ def grouped_kernel(scalar, friction: bool, boundary: bool, order: str):
                 group.evaluate_set(g, data, state, settings)
             ops.check_step(g, data, state, settings)
 
-    @wp.kernel(module="unique", module_options=MODULE_OPTIONS)
+    @wp.kernel(module="unique", module_options=structure_settings.MODULE_OPTIONS)
     def relax(data: Data, state: State, settings: Settings, first: int, begin: int):
         g = first + wp.tid()
         if begin != 0:

@@ -8,8 +8,7 @@ import functools
 
 import warp as wp
 
-from dynfab.kernels import structure_arrays, structure_forces, structure_state
-from dynfab.kernels.configuration import MODULE_OPTIONS
+from dynfab.kernels import structure_arrays, structure_forces, structure_settings, structure_state
 
 TIES, FORCES, NODE_ENERGY, TIE_ENERGY, RETURN_MAP = range(5)
 """Passes (`pass_kernel`'s `which`): a thread per tie, node, node, tie, tie."""
@@ -25,7 +24,7 @@ def pass_kernel(scalar, friction: bool, boundary: bool):
     State = structure_state.struct(scalar)
     forces = structure_forces.functions(scalar, friction, boundary)
 
-    @wp.kernel(module="unique", module_options=MODULE_OPTIONS)
+    @wp.kernel(module="unique", module_options=structure_settings.MODULE_OPTIONS)
     def run(data: Data, state: State, which: int, out: wp.array(dtype=scalar)):
         u = wp.tid()
         if which == TIES:

@@ -52,7 +52,6 @@ import warp as wp
 from dynfab.banded import BANDWIDTH
 from dynfab.kernels import band_lu, status, structure_arrays, structure_checks, structure_forces
 from dynfab.kernels import structure_settings, structure_state, structure_tangent
-from dynfab.kernels.configuration import MODULE_OPTIONS
 from dynfab.kernels.precision import VECTORS
 
 CG_TOLERANCE = 1e-2
@@ -640,7 +639,7 @@ def stage_kernel(scalar, friction: bool, boundary: bool):
     forces = structure_forces.functions(scalar, friction, boundary)
     from dynfab.kernels import structure_explicit as explicit
 
-    @wp.kernel(module="unique", module_options=MODULE_OPTIONS)
+    @wp.kernel(module="unique", module_options=structure_settings.MODULE_OPTIONS)
     def stage_pass(data: Data, state: State, settings: Settings, stage: int):
         u = wp.tid()
         if stage >= 100:
@@ -746,7 +745,7 @@ def grouped_kernel(scalar, friction: bool, boundary: bool, order: str):
             ops.finish_group(g, data, state)
             ops.check_step(g, data, state, settings)
 
-    @wp.kernel(module="unique", module_options=MODULE_OPTIONS)
+    @wp.kernel(module="unique", module_options=structure_settings.MODULE_OPTIONS)
     def relax(data: Data, state: State, settings: Settings, first: int, begin: int):
         g = first + wp.tid()
         if begin != 0:

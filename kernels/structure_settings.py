@@ -5,6 +5,8 @@ import functools
 
 import warp as wp
 
+MODULE_OPTIONS = {"enable_backward": False}
+"""Every structure kernel is forward-only: no adjoint code to generate and compile."""
 RELATIVE_TOLERANCE = 1e-6
 """The default tolerance's share of the load step's force scale [-] (docs/model.md, the
 dynamic solver's default tolerance: min(D, max(1e-6 F, floor)))."""

@@ -25,7 +25,6 @@ import warp as wp
 
 from dynfab.kernels import status, structure_arrays, structure_checks, structure_explicit
 from dynfab.kernels import structure_forces, structure_settings, structure_state
-from dynfab.kernels.configuration import MODULE_OPTIONS
 from dynfab.kernels.precision import VECTORS
 
 T_MOVE, T_TIES, T_GATHER, T_BLOCKS, T_RETURN, T_CHECK = range(200, 206)
@@ -141,7 +140,7 @@ def stage_kernel(scalar, friction: bool, boundary: bool):
     ops = functions(scalar, friction, boundary)
     start_ops = structure_explicit.functions(scalar, friction, boundary)
 
-    @wp.kernel(module="unique", module_options=MODULE_OPTIONS)
+    @wp.kernel(module="unique", module_options=structure_settings.MODULE_OPTIONS)
     def stage_pass(data: Data, state: State, settings: Settings, path: wp.array2d(dtype=scalar),
                    stage: int, k: int):
         if stage >= T_MOVE:
@@ -163,7 +162,7 @@ def grouped_kernel(scalar, friction: bool, boundary: bool, order: str):
     ops = functions(scalar, friction, boundary)
     group = structure_checks.group_functions(scalar, friction, boundary, order)
 
-    @wp.kernel(module="unique", module_options=MODULE_OPTIONS)
+    @wp.kernel(module="unique", module_options=structure_settings.MODULE_OPTIONS)
     def advance(data: Data, state: State, settings: Settings, path: wp.array2d(dtype=scalar),
                 first: int, begin: int):
         g = first + wp.tid()

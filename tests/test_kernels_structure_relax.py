@@ -260,3 +260,36 @@ def test_transient_friction_follows_the_ramp_and_return_maps_every_step():
     assert resumed[0]["time"] == frames[5]["time"]
     for name in ("positions", "velocities", "anchors", "force"):
         assert np.array_equal(resumed[-1][name], frames[-1][name])
+
+
+def test_displacement_control_reactions_are_the_static_ones():
+    """The affine 3 x 3 patch under displacement control (the ends prescribed, the planes moving
+    with them): the relaxed positions within `agreement_bound` of the static step's, and each
+    end's reaction, minus the in-plane internal force on its held dof (`internal_force`: no
+    external load, every dof unmasked), within the bound times the sum of |H| over that dof's
+    row (the reaction's change to first order in the positions: the Hessian's row, F_T frozen;
+    no tie on an end node)."""
+    from dynfab.fabric import assembly
+
+    scene = with_key(fabric_scene(3, "clamped", "affine", load=(2e-4, 5e-5),
+                                  control="displacement"), "static.tolerance", TOLERANCE / 10)
+    model = build_model(scene)
+    static = FabricStaticSolver(model)
+    start = static.initial_state()
+    state, record = static.step(start.copy(), *model.load_values[0])
+    s = model.structure
+    positions, anchors, P = static.start_of_step(start, *model.load_values[0])
+    kernels = relaxation(s, damping="kinetic")
+    relaxed, outcome = kernels.relax(positions, P, anchors, tolerance=TOLERANCE,
+                                     max_steps=500_000)
+    assert list(outcome.status) == [status.CONVERGED]
+    bound = jacobian_norm(s, state.positions, anchors) * (outcome.residual[0] + record["residual"])
+    assert np.abs(relaxed - state.positions).max() <= bound
+    reaction = -kernels.internal_force(relaxed, anchors)[s.load_node, 0]
+    values = np.zeros(static.pattern.size)
+    assembly.hessian_values(state.positions, s, anchors, static.friction_limits(state.positions),
+                            values)
+    H = static.pattern.full_matrix(values)
+    rows = np.abs(H[2 * s.load_node]).sum(axis=1)
+    assert np.all(np.abs(reaction - record["end_force"]) <= rows * bound)
+    assert np.abs(record["end_force"]).max() > 1e3 * (rows * bound).max()
