@@ -22,4 +22,20 @@ One module per concept, mirroring `dynfab.terms` for the physics:
 
 Every `wp.func` is built per scalar type by a cached factory `functions(scalar, ...)`,
 because Warp refuses to mix float32 literals with float64 values.
+
+The kernel layer for any `dynfab.structure.Structure`, meant to replace the one-yarn stack
+above and the fabric's (`fabric_*`) once both solvers drive it (docs/model.md, the dynamic
+solver's decisions):
+
+- `structure_arrays`, `structure_state`, `structure_settings`: the structure's flat arrays
+  with its groups and blocks, the state the kernels update, the options of a launch;
+- `tie_law`: the series contact law, Gralen's limit and the Huber term, written once;
+  `structure_forces`: every term's force and energy (gather and scatter orders);
+  `structure_tangent`: the chains' bands and the couplings outside them; `band_lu`: the
+  banded LU of a chain's dofs;
+- `structure_checks`: masses, time step, group sums and the convergence tests;
+  `structure_explicit`, `structure_semi_implicit`, `structure_transient`: the integrators'
+  stages in the grouped (CPU) and node-parallel (GPU) layouts; `structure_passes`: one-pass
+  kernels (tie forces, gathered forces, energy, return map);
+- `structure_relaxation`: the host side, `StructureRelaxation`.
 """

@@ -1,0 +1,425 @@
+"""Any `dynfab.structure.Structure` as flat arrays for the Warp kernels: per node, per tie, per
+chain, and the groups and blocks the two layouts run on (docs/model.md sections 2-5, 10).
+
+Every node of every chain is one entry of one flat array, in the structure's order (chain after
+chain). A node knows its chain neighbours (`previous`, `next`, -1 past an end), so a thread can
+gather its own stretch and bending forces, and its incident ties (`node_tie_start`,
+`node_ties`: a CSR list, in tie order), so it can gather their contact and friction forces.
+Per node, the segment (node, next) carries its rest length and stiffness (0 at a last node).
+
+Ties (docs/model.md sections 3, 4, 10): tie t joins node a to node b, or to ground (b = -1:
+the closure with z_b = 0, its forces on node a only, its slip along node a's chain alone, from
+plane 0: the anchor is a position). Each tie has its own contact law (T, 5) = (k_s, C_a, a_a,
+C_b, a_b) and friction law (T, 4) = (alpha, beta ell r_f, R_0, k_t). The slip of tie t is
+s = (x_a - X_t - w_a U_a - xi_x, y_b - Y_t - w_b U_b - xi_y), (X_t, Y_t) = `tie_plane`, U_f the
+summed end displacements of the plane nodes of family f (0: those moving the a slips' planes,
+1: the b slips'), w_f = `tie_plane_weight` / the family's node count; anchors xi in the
+structure's convention (from the planes).
+
+The boundary couplings, as `dynfab.kernels.fabric_arrays` lays them out (its docstring):
+moving planes (`plane_nodes` split at `plane_offsets`, `node_plane`), wrap springs
+(`node_wrap`, `chain_last`, `wrap_stiffness` and `wrap_rest_angle` at each chain's first
+node), and tied dofs: a family's plane nodes whose in-plane dofs move as one (`node_tie`, the
+periodic cell's length under force control); other dof ties are refused.
+
+Groups: the chains split into connected groups, chains joined by ties, tied dofs, the planes
+(every chain with a plane node or a tie whose slip the planes move) or a wrap, widened to
+contiguous ranges of chains whose ties are contiguous too (a one-yarn [sweep] of 64 yarns is
+64 groups, a fabric patch one). A group converges and stops on its own. Blocks: each group's
+nodes cut into runs of at most BLOCK nodes; a sum over a group's nodes is the sum over its
+blocks of each block's sum in node order, in both layouts (the same bits).
+"""
+
+
+import functools
+from dataclasses import dataclass
+
+import numpy as np
+import warp as wp
+
+from dynfab.kernels.precision import VECTORS, numpy_dtype
+from dynfab.structure import GROUND, Structure, chain_count, chain_of_node
+
+BLOCK = 256
+"""Nodes per block of a group's sums (module docstring)."""
+
+
+@dataclass
+class StructureArrays:
+    """The numpy arrays of a structure for the kernels (float64; indices int32).
+    n nodes, T ties, Y chains, G groups, B blocks."""
+
+    rest_position: np.ndarray
+    """(n, 2) stress-free (along the chain, z) [m]."""
+    previous: np.ndarray
+    """(n,) chain neighbour before the node, -1 at a first node."""
+    next: np.ndarray
+    """(n,) chain neighbour after the node, -1 at a last node."""
+    rest_length: np.ndarray
+    """(n,) l0 of segment (node, next) [m]; 0 at a last node."""
+    stretch_stiffness: np.ndarray
+    """(n,) EA / l0 of segment (node, next) [N/m]; 0 at a last node."""
+    bend_stiffness: np.ndarray
+    """(n,) EI / lbar [N m]; 0 at the end nodes."""
+    rest_angle: np.ndarray
+    """(n,) rest turning angle phi0 [rad]."""
+    free: np.ndarray
+    """(n, 2) 1 for a free dof, 0 for a held one."""
+    mass: np.ndarray
+    """(n,) physical masses rho_l lbar [kg] (docs/model.md (5.1))."""
+    weight: np.ndarray
+    """(n, 2) gravity's constant force (0, -m g) [N] (docs/model.md (2.6)); zeros without it."""
+    load_direction: np.ndarray
+    """(n, 2) each chain's load factor on its last node's coordinate 0 [-]."""
+    load_family: np.ndarray
+    """(n,) the family whose load value drives the node (its chain's, at a load node), else -1."""
+    node_chain: np.ndarray
+    """(n,) the node's chain."""
+    node_tie_start: np.ndarray
+    """(n + 1,) node i's incident ties are node_ties[node_tie_start[i]:node_tie_start[i+1]]."""
+    node_ties: np.ndarray
+    """The incident ties of every node, in tie order."""
+    chain_last: np.ndarray
+    """(n,) the last node of the node's chain."""
+    node_wrap: np.ndarray
+    """(n,) first node of the chain whose wrap spring joins the node (N-1, N, 0, 1), else -1."""
+    wrap_stiffness: np.ndarray
+    """(n,) EI / lbar_0 of the wrap spring at each chain's first node [N m], 0 elsewhere."""
+    wrap_rest_angle: np.ndarray
+    """(n,) rest angle across the wrap at each chain's first node [rad]."""
+    plane_nodes: np.ndarray
+    """Plane nodes of family 0 then family 1 (module docstring)."""
+    plane_offsets: np.ndarray
+    """(3,) family f's plane nodes are plane_nodes[plane_offsets[f]:plane_offsets[f+1]]."""
+    node_plane: np.ndarray
+    """(n,) the plane family the node moves, -1 for none."""
+    node_tie: np.ndarray
+    """(n,) the family whose plane nodes' in-plane dofs move as one with this node's, -1."""
+    share: np.ndarray
+    """(n,) 1, or 1 / m on each of the m nodes of a tied family: one dof counted once."""
+    tie_a: np.ndarray
+    """(T,) node a."""
+    tie_b: np.ndarray
+    """(T,) node b, -1 for ground."""
+    tie_side: np.ndarray
+    """(T,) sigma [-]."""
+    tie_offset: np.ndarray
+    """(T,) c of g = c - sigma (z_a - z_b) [m]."""
+    contact_law: np.ndarray
+    """(T, 5) (k_s [N/m], C_a [m], a_a [1/N], C_b [m], a_b [1/N])."""
+    friction_law: np.ndarray
+    """(T, 4) (alpha [-], beta ell r_f [N], R_0 [N], k_t [N/m])."""
+    tie_plane: np.ndarray
+    """(T, 2) (X, Y) as woven [m]; 0 for ground ties."""
+    tie_weight: np.ndarray
+    """(T, 2) plane weights over the family's node count [-] (module docstring)."""
+    chain_start: np.ndarray
+    """(Y + 1,) first node of each chain, then n."""
+    group_chain: np.ndarray
+    """(G + 1,) group g holds chains group_chain[g]..group_chain[g+1]-1."""
+    group_node: np.ndarray
+    """(G + 1,) group g's nodes."""
+    group_tie: np.ndarray
+    """(G + 1,) group g's ties."""
+    group_block: np.ndarray
+    """(G + 1,) group g's blocks."""
+    group_exact: np.ndarray
+    """(G,) 1 where the group is one chain without couplings outside its band (its ties
+    grounded, no wrap, planes or tied dofs): the banded preconditioner is its whole matrix."""
+    block_start: np.ndarray
+    """(B + 1,) block b holds nodes block_start[b]..block_start[b+1]-1."""
+    node_group: np.ndarray
+    """(n,) the node's group."""
+    tie_group: np.ndarray
+    """(T,) the tie's group."""
+    chain_group: np.ndarray
+    """(Y,) the chain's group."""
+    block_group: np.ndarray
+    """(B,) the block's group."""
+    families: int
+    """Load families (1 + the largest chain family)."""
+
+    @property
+    def nodes(self) -> int:
+        return self.rest_position.shape[0]
+
+    @property
+    def ties(self) -> int:
+        return self.tie_a.shape[0]
+
+    @property
+    def chains(self) -> int:
+        return self.chain_start.shape[0] - 1
+
+    @property
+    def groups(self) -> int:
+        return self.group_chain.shape[0] - 1
+
+    @property
+    def blocks(self) -> int:
+        return self.block_start.shape[0] - 1
+
+    @property
+    def has_friction(self) -> bool:
+        return bool(np.any(self.friction_law[:, 3] > 0.0))
+
+    @property
+    def has_boundary(self) -> bool:
+        """Moving planes, wrap springs or tied dofs: the boundary couplings are compiled in."""
+        return bool(self.plane_nodes.size or np.any(self.wrap_stiffness > 0.0)
+                    or np.any(self.node_tie >= 0))
+
+
+def build(structure: Structure) -> StructureArrays:
+    """The arrays of `structure` (module docstring); a ValueError for what the kernels do not
+    take: nodes with other than 2 coordinates, dof ties other than a family's plane nodes."""
+    if structure.rest_position.shape[1] != 2:
+        raise ValueError("the kernels take chains moving in their plane (2 coordinates per node)")
+    start = np.asarray(structure.chain_start, np.int64)
+    n = int(start[-1])
+    node_chain = chain_of_node(structure)
+    first, last = start[:-1], start[1:] - 1
+    index = np.arange(n)
+    previous = np.where(np.isin(index, first), -1, index - 1)
+    following = np.where(np.isin(index, last), -1, index + 1)
+    has_segment = following >= 0
+    rest_length, stretch = np.zeros(n), np.zeros(n)
+    segment = index[has_segment] - node_chain[has_segment]
+    rest_length[has_segment] = structure.rest_length[segment]
+    stretch[has_segment] = structure.stretch_stiffness[segment]
+    tie_a = np.asarray(structure.tie_a, np.int64)
+    tie_b = np.asarray(structure.tie_b, np.int64)
+    T = tie_a.size
+    incident = [tie_a, tie_b[tie_b != GROUND]]
+    owners = np.concatenate(incident)
+    which = np.concatenate([np.arange(T), np.flatnonzero(tie_b != GROUND)])
+    order = np.lexsort((which, owners))
+    node_ties = which[order]
+    node_tie_start = np.searchsorted(owners[order], np.arange(n + 1))
+    weight = np.zeros((n, 2))
+    weight[:, 1] = -structure.mass * structure.gravity
+    load_direction = np.zeros((n, 2))
+    load_direction[structure.load_node, 0] = structure.load_factor
+    load_family = np.full(n, -1)
+    load_family[structure.load_node] = structure.chain_family
+    boundary = _boundary(structure, node_chain)
+    grouping = _groups(structure, node_chain, boundary)
+    return StructureArrays(
+        rest_position=np.array(structure.rest_position, float), previous=previous,
+        next=following, rest_length=rest_length, stretch_stiffness=stretch,
+        bend_stiffness=np.array(structure.bend_stiffness, float),
+        rest_angle=np.array(structure.rest_angle, float),
+        free=(~structure.fixed).reshape(n, 2).astype(float), mass=np.array(structure.mass, float),
+        weight=weight, load_direction=load_direction, load_family=load_family,
+        node_chain=node_chain, node_tie_start=node_tie_start, node_ties=node_ties,
+        tie_a=tie_a, tie_b=tie_b, tie_side=np.array(structure.tie_side, float),
+        tie_offset=np.array(structure.tie_gap_offset, float),
+        contact_law=np.array(structure.tie_contact_law, float).reshape(T, 5),
+        friction_law=np.array(structure.tie_friction_law, float).reshape(T, 4),
+        tie_plane=np.array(structure.tie_plane, float).reshape(T, 2),
+        chain_start=start, families=int(np.max(structure.chain_family, initial=0)) + 1,
+        **boundary, **grouping)
+
+
+def _boundary(s: Structure, node_chain: np.ndarray) -> dict:
+    """The wrap springs, moving planes and tied dofs as per-node and per-tie data."""
+    start = s.chain_start
+    n = int(start[-1])
+    first, last = start[:-1], start[1:] - 1
+    wrap_k, wrap_angle = np.zeros(n), np.zeros(n)
+    wrap_k[first], wrap_angle[first] = s.wrap_stiffness, s.wrap_rest_angle
+    node_wrap = np.full(n, -1)
+    wraps = s.wrap_stiffness > 0
+    if np.any(last[wraps] - first[wraps] < 3):
+        raise ValueError("a wrap spring on a chain of fewer than 4 nodes")
+    for a, b in zip(first[wraps], last[wraps]):
+        node_wrap[[b - 1, b, a, a + 1]] = a
+    nx, ny = s.plane_nodes_a.size, s.plane_nodes_b.size
+    plane_nodes = np.concatenate([s.plane_nodes_a, s.plane_nodes_b]).astype(np.int64)
+    node_plane = np.full(n, -1)
+    node_plane[s.plane_nodes_a], node_plane[s.plane_nodes_b] = 0, 1
+    weight = np.zeros((s.tie_a.size, 2))
+    if nx:
+        weight[:, 0] = s.tie_plane_weight[:, 0] / nx
+    if ny:
+        weight[:, 1] = s.tie_plane_weight[:, 1] / ny
+    node_tie = np.full(n, -1)
+    tie = np.asarray(s.dof_tie).reshape(n, 2)
+    if np.any(tie[:, 1] >= 0):
+        raise ValueError("tied z dofs: the kernels tie a family's plane nodes' in-plane dofs only")
+    claimed = np.zeros(n, np.bool_)
+    for family, nodes in enumerate((s.plane_nodes_a, s.plane_nodes_b)):
+        tied = nodes[tie[nodes, 0] >= 0]
+        if tied.size:
+            if not (np.array_equal(tied, nodes[1:]) and np.all(tie[tied, 0] == 2 * nodes[0])):
+                raise ValueError("tied dofs other than a family's plane nodes")
+            node_tie[nodes] = family
+            claimed[nodes[1:]] = True
+    if np.any((tie[:, 0] >= 0) & ~claimed):
+        raise ValueError("tied dofs other than a family's plane nodes")
+    share = np.ones(n)
+    for family in (0, 1):
+        members = node_tie == family
+        if members.any():
+            share[members] = 1.0 / members.sum()
+    return dict(chain_last=last[node_chain], node_wrap=node_wrap, wrap_stiffness=wrap_k,
+                wrap_rest_angle=wrap_angle, plane_nodes=plane_nodes,
+                plane_offsets=np.array([0, nx, nx + ny]), node_plane=node_plane,
+                node_tie=node_tie, share=share, tie_weight=weight)
+
+
+def _groups(s: Structure, node_chain: np.ndarray, boundary: dict) -> dict:
+    """Groups of chains and blocks of nodes (module docstring)."""
+    Y = chain_count(s)
+    root = np.arange(Y)
+
+    def find(y):
+        while root[y] != y:
+            root[y] = root[root[y]]
+            y = root[y]
+        return y
+
+    def join(a, b):
+        root[find(a)] = find(b)
+
+    for a, b in zip(s.tie_a, s.tie_b):
+        if b != GROUND:
+            join(node_chain[a], node_chain[b])
+    tied = np.flatnonzero(np.asarray(s.dof_tie) >= 0)
+    for d in tied:
+        join(node_chain[d // 2], node_chain[s.dof_tie[d] // 2])
+    planes = np.concatenate([s.plane_nodes_a, s.plane_nodes_b]).astype(np.int64)
+    moved = np.flatnonzero(np.any(np.asarray(s.tie_plane_weight) != 0.0, axis=1))
+    coupled = np.concatenate([node_chain[planes], node_chain[s.tie_a[moved]]])
+    for y in coupled[1:]:
+        join(coupled[0], y)
+    component = np.array([find(y) for y in range(Y)])
+    # contiguous ranges: a group ends at chain y when no component seen so far continues past y
+    reach = {}
+    for y in range(Y):
+        reach[component[y]] = y
+    bounds, end = [0], -1
+    for y in range(Y):
+        end = max(end, reach[component[y]])
+        if end == y:
+            bounds.append(y + 1)
+    group_chain = np.array(bounds)
+    chain_group = np.repeat(np.arange(group_chain.size - 1), np.diff(group_chain))
+    tie_group = chain_group[node_chain[s.tie_a]] if s.tie_a.size else np.zeros(0, np.int64)
+    if np.any(np.diff(tie_group) < 0):  # ties not in group order: one group
+        group_chain = np.array([0, Y])
+        chain_group = np.zeros(Y, np.int64)
+        tie_group = np.zeros(s.tie_a.size, np.int64)
+    G = group_chain.size - 1
+    start = np.asarray(s.chain_start, np.int64)
+    group_node = start[group_chain]
+    group_tie = np.searchsorted(tie_group, np.arange(G + 1))
+    block_start, block_group, group_block = [], [], [0]
+    for g in range(G):
+        lo, hi = group_node[g], group_node[g + 1]
+        cuts = list(range(lo, hi, BLOCK))
+        block_start += cuts
+        block_group += [g] * len(cuts)
+        group_block.append(len(block_start))
+    block_start.append(int(start[-1]))
+    chains = np.diff(group_chain)
+    exact = np.zeros(G, np.int64)
+    wraps = np.asarray(s.wrap_stiffness) > 0.0
+    for g in range(G):
+        ties = slice(group_tie[g], group_tie[g + 1])
+        exact[g] = (chains[g] == 1 and np.all(s.tie_b[ties] == GROUND)
+                    and not wraps[group_chain[g]]
+                    and not np.any(boundary["node_plane"][group_node[g]:group_node[g + 1]] >= 0)
+                    and not np.any(boundary["node_tie"][group_node[g]:group_node[g + 1]] >= 0))
+    return dict(group_chain=group_chain, group_node=group_node, group_tie=group_tie,
+                group_block=np.array(group_block), group_exact=exact,
+                block_start=np.array(block_start), node_group=chain_group[node_chain],
+                tie_group=tie_group, chain_group=chain_group, block_group=np.array(block_group))
+
+
+@functools.cache
+def struct(scalar):
+    """The `StructureData` Warp struct for one scalar type."""
+    vec = VECTORS[scalar]
+
+    @wp.struct
+    class StructureData:
+        """Everything a kernel knows of the structure; constant during a run."""
+
+        rest_position: wp.array(dtype=vec)
+        previous: wp.array(dtype=wp.int32)
+        next: wp.array(dtype=wp.int32)
+        rest_length: wp.array(dtype=scalar)
+        stretch_stiffness: wp.array(dtype=scalar)
+        bend_stiffness: wp.array(dtype=scalar)
+        rest_angle: wp.array(dtype=scalar)
+        free: wp.array(dtype=vec)
+        mass: wp.array(dtype=scalar)
+        weight: wp.array(dtype=vec)
+        load_direction: wp.array(dtype=vec)
+        load_family: wp.array(dtype=wp.int32)
+        node_chain: wp.array(dtype=wp.int32)
+        node_tie_start: wp.array(dtype=wp.int32)
+        node_ties: wp.array(dtype=wp.int32)
+        chain_last: wp.array(dtype=wp.int32)
+        node_wrap: wp.array(dtype=wp.int32)
+        wrap_stiffness: wp.array(dtype=scalar)
+        wrap_rest_angle: wp.array(dtype=scalar)
+        plane_nodes: wp.array(dtype=wp.int32)
+        plane_offsets: wp.array(dtype=wp.int32)
+        node_plane: wp.array(dtype=wp.int32)
+        node_tie: wp.array(dtype=wp.int32)
+        share: wp.array(dtype=scalar)
+        tie_a: wp.array(dtype=wp.int32)
+        tie_b: wp.array(dtype=wp.int32)
+        tie_side: wp.array(dtype=scalar)
+        tie_offset: wp.array(dtype=scalar)
+        contact_law: wp.array2d(dtype=scalar)
+        friction_law: wp.array2d(dtype=scalar)
+        tie_plane: wp.array(dtype=vec)
+        tie_weight: wp.array(dtype=vec)
+        chain_start: wp.array(dtype=wp.int32)
+        group_chain: wp.array(dtype=wp.int32)
+        group_node: wp.array(dtype=wp.int32)
+        group_tie: wp.array(dtype=wp.int32)
+        group_block: wp.array(dtype=wp.int32)
+        group_exact: wp.array(dtype=wp.int32)
+        block_start: wp.array(dtype=wp.int32)
+        node_group: wp.array(dtype=wp.int32)
+        tie_group: wp.array(dtype=wp.int32)
+        chain_group: wp.array(dtype=wp.int32)
+        block_group: wp.array(dtype=wp.int32)
+
+    return StructureData
+
+
+VECTOR_FIELDS = ("rest_position", "free", "weight", "load_direction", "tie_plane", "tie_weight")
+MATRIX_FIELDS = ("contact_law", "friction_law")
+SCALAR_FIELDS = ("rest_length", "stretch_stiffness", "bend_stiffness", "rest_angle", "mass",
+                 "wrap_stiffness", "wrap_rest_angle", "share", "tie_side", "tie_offset")
+INDEX_FIELDS = ("previous", "next", "load_family", "node_chain", "node_tie_start", "node_ties",
+                "chain_last", "node_wrap", "plane_nodes", "plane_offsets", "node_plane",
+                "node_tie", "tie_a", "tie_b", "chain_start", "group_chain", "group_node",
+                "group_tie", "group_block", "group_exact", "block_start", "node_group",
+                "tie_group", "chain_group", "block_group")
+
+
+def upload(arrays: StructureArrays, scalar, device: str, **replaced):
+    """The StructureData of `arrays` on `device` in precision `scalar`; `replaced` fields
+    (numpy arrays) instead of the arrays' own (the reactions' unmasked `free`)."""
+    dtype, vec = numpy_dtype(scalar), VECTORS[scalar]
+    data = struct(scalar)()
+
+    def value(name):
+        return np.asarray(replaced.get(name, getattr(arrays, name)))
+
+    for name in VECTOR_FIELDS:
+        setattr(data, name, wp.array(value(name).reshape(-1, 2).astype(dtype), dtype=vec,
+                                     device=device))
+    for name in MATRIX_FIELDS:
+        setattr(data, name, wp.array(value(name).astype(dtype), dtype=scalar, device=device))
+    for name in SCALAR_FIELDS:
+        setattr(data, name, wp.array(value(name).astype(dtype), dtype=scalar, device=device))
+    for name in INDEX_FIELDS:
+        setattr(data, name, wp.array(value(name).astype(np.int32), dtype=wp.int32, device=device))
+    return data

@@ -1,0 +1,527 @@
+"""Dynamic relaxation and transient dynamics of any structure with the Warp kernels: the host
+side (docs/model.md sections 4, 5, 10; "The dynamic solver (decisions)").
+
+`StructureRelaxation(structure, ...)` lays a `dynfab.structure.Structure` out
+(`structure_arrays`), uploads it once and drives the kernels of one method:
+
+- `relax(positions, loads, anchors, tolerance, max_steps)`: a quasi-static load step from rest,
+  the anchors held, the end loads given per chain or per dof (gravity is the structure's own),
+  each group of chains relaxed until its largest free force component is within the
+  tolerance (or a failure: `dynfab.kernels.status`); returns the positions and an `Outcome`
+  per group;
+- `return_map(positions, anchors)`: the anchors after the radial return map and the energy
+  each tie dissipated (docs/model.md section 4);
+- `tie_forces`, `forces`, `internal_force`, `energies`: contact and friction forces, the
+  force on the free dofs, the reaction-side internal force (end dofs unmasked, no external
+  load), each unit's energy;
+- `transient(positions, anchors, path, duration, output_interval)`: frames of a transient in
+  physical time (the load ramped through `path`, one row per load family).
+
+Methods: "explicit" (damping "viscous" with a given c or, c None, the adaptive c; "kinetic";
+"fire") and "semi_implicit" (`structure_semi_implicit`; a viscous c only if given). Masses
+"fictitious" (Gershgorin, dt = 1 s or the dt given) or "physical" (dt = safety x the
+Gershgorin bound, or the dt given). Layouts: "grouped" (the CPU's: a thread per group, the
+time loop in the kernel, `chunk` steps per launch; the groups split into contiguous ranges
+launched at once on up to `cores` cores, each range a launch of its own, bit-identical
+whatever the split) and "node_parallel" (the GPU's: a launch per stage, the time loop here,
+the statuses read back every `check_interval` steps). The grouped layout evaluates forces in
+"scatter" order (each term once) or "gather" order (bit-identical to node_parallel).
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import os
+import threading
+from dataclasses import dataclass
+
+import numpy as np
+import warp as wp
+
+from dynfab.errors import SolverError
+from dynfab.kernels import status, structure_arrays, structure_explicit, structure_passes
+from dynfab.kernels import structure_semi_implicit as semi
+from dynfab.kernels import structure_settings, structure_state, structure_transient
+from dynfab.kernels.precision import SCALARS, VECTORS, numpy_dtype
+from dynfab.structure import Structure
+
+METHODS = ("explicit", "semi_implicit")
+LAYOUTS = ("grouped", "node_parallel")
+MASSES = ("fictitious", "physical")
+STEPS_PER_LAUNCH = 2000
+"""Time steps a grouped launch may take before Python regains control (progress, Ctrl-C)."""
+SAFETY = 0.9
+"""dt / the Gershgorin stable time step by default [-] (docs/model.md section 5)."""
+RUNNING_FOREVER = 2 ** 31 - 1
+"""max_steps of a transient: it ends by time, not by a step count."""
+
+
+@dataclass
+class Outcome:
+    """What a relaxation reached, per group (`StructureArrays` groups)."""
+
+    status: np.ndarray
+    """(G,) `dynfab.kernels.status` codes."""
+    steps: np.ndarray
+    """(G,) time steps taken (undone ones included)."""
+    residual: np.ndarray
+    """(G,) the largest free force component at the final positions [N]."""
+    tolerance: np.ndarray
+    """(G,) the residual each group was to reach [N]."""
+    cg_iterations: np.ndarray
+    """(G,) CG iterations (semi-implicit; 0 otherwise)."""
+    rejected: np.ndarray
+    """(G,) undone steps (semi-implicit)."""
+    shortened: np.ndarray
+    """(G,) steps accepted at a fraction of their length (semi-implicit)."""
+
+    @property
+    def succeeded(self) -> bool:
+        """Every group converged or reached its rounding floor."""
+        return bool(np.isin(self.status, status.SUCCESS).all())
+
+
+def default_layout(device: str) -> str:
+    """"grouped" on the CPU, "node_parallel" on a CUDA device."""
+    return "node_parallel" if wp.get_device(device).is_cuda else "grouped"
+
+
+def available_cores() -> int:
+    """CPU cores this process may run on."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
+
+
+_POOL: concurrent.futures.ThreadPoolExecutor | None = None
+_POOL_LOCK = threading.Lock()
+
+
+def _worker_pool() -> concurrent.futures.ThreadPoolExecutor:
+    """The process's pool of launch threads, made on first use."""
+    global _POOL
+    with _POOL_LOCK:
+        if _POOL is None:
+            _POOL = concurrent.futures.ThreadPoolExecutor(
+                max_workers=max(1, available_cores() - 1), thread_name_prefix="dynfab-groups")
+        return _POOL
+
+
+class StructureRelaxation:
+    """One structure's kernels on one device (module docstring)."""
+
+    def __init__(self, structure: Structure, *, precision: str = "float64",
+                 method: str = "explicit", damping: str | None = "kinetic",
+                 damping_coefficient: float | None = None, masses: str = "fictitious",
+                 dt: float | None = None, safety: float = SAFETY, layout: str | None = None,
+                 order: str = "scatter", device: str = "cpu",
+                 cg_tolerance: float = semi.CG_TOLERANCE, backtracks: int = semi.MAX_BACKTRACKS,
+                 secant: bool | None = None, direct: bool = True,
+                 chunk: int = STEPS_PER_LAUNCH, check_interval: int = 16,
+                 friction: bool | None = None, boundary: bool | None = None,
+                 cores: int | None = 1):
+        layout = default_layout(device) if layout is None else layout
+        if method not in METHODS or layout not in LAYOUTS or masses not in MASSES \
+                or order not in structure_explicit.ORDERS or precision not in SCALARS:
+            raise ValueError(f"method {method!r}, layout {layout!r}, masses {masses!r}, order "
+                             f"{order!r} or precision {precision!r} unknown")
+        if method == "explicit" and damping not in structure_explicit.DAMPINGS:
+            raise ValueError(f"damping {damping!r} unknown; one of {structure_explicit.DAMPINGS}")
+        self.arrays = arrays = structure_arrays.build(structure)
+        self.method, self.layout, self.order, self.device = method, layout, order, device
+        self.damping = damping if method == "explicit" else None
+        self.coefficient = damping_coefficient
+        self.masses, self.dt, self.safety = masses, dt, safety
+        self.cg_tolerance, self.backtracks, self.direct = cg_tolerance, backtracks, direct
+        self.secant = arrays.plane_nodes.size > 0 if secant is None else secant
+        self.chunk, self.check_interval = int(chunk), int(check_interval)
+        self.friction = arrays.has_friction if friction is None else friction
+        self.boundary = arrays.has_boundary if boundary is None else boundary
+        if arrays.has_friction and not self.friction or arrays.has_boundary and not self.boundary:
+            raise ValueError("the structure has friction or boundary couplings the variant lacks")
+        self.scalar = SCALARS[precision]
+        self.dtype, self.vec = numpy_dtype(self.scalar), VECTORS[self.scalar]
+        self.data = structure_arrays.upload(arrays, self.scalar, device)
+        self.state = structure_state.allocate(arrays, self.scalar, device,
+                                              method == "semi_implicit")
+        self._scratch = None
+        self._reaction_data = None
+        self._loaded = set()
+        self.use_cores(cores)
+
+    # ------------------------------------------------------------------ layout
+
+    def use_cores(self, cores: int | None = None) -> None:
+        """Launch the grouped layout's groups on up to `cores` CPU cores (None: every core
+        this process may run on), in contiguous ranges of nearly equal size."""
+        groups = self.arrays.groups
+        self.cores = available_cores() if cores is None else max(1, int(cores))
+        splits = self.layout == "grouped" and str(self.device).startswith("cpu") and groups > 1
+        count = min(self.cores, groups) if splits else 1
+        bounds = np.linspace(0, groups, count + 1).round().astype(int)
+        self.ranges = [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]
+
+    def _kernels(self):
+        key = (self.scalar, self.friction, self.boundary)
+        if self.method == "explicit":
+            if self.layout == "grouped":
+                return structure_explicit.grouped_kernel(*key, self.order)
+            return structure_explicit.stage_kernel(*key)
+        if self.layout == "grouped":
+            return semi.grouped_kernel(*key, self.order)
+        return semi.stage_kernel(*key)
+
+    def _launch_groups(self, kernel, inputs, tail=(), groups=None) -> None:
+        """One launch of a grouped kernel per range of groups (`use_cores`), at once, each
+        thread given its group offset; `groups` (G,) bool limits them to ranges holding one."""
+        ranges = self.ranges
+        if groups is not None:
+            ranges = [(a, b) for a, b in ranges if groups[a:b].any()]
+        if len(ranges) == 1:
+            a, b = ranges[0]
+            wp.launch(kernel, dim=b - a, inputs=[*inputs, a, *tail], device=self.device)
+            return
+        if kernel not in self._loaded:  # load (or compile) once, not from two threads at once
+            wp.load_module(kernel.module, device=self.device, block_dim=1)
+            self._loaded.add(kernel)
+
+        def launch(bounds):
+            wp.launch(kernel, dim=bounds[1] - bounds[0], block_dim=1,
+                      inputs=[*inputs, bounds[0], *tail], device=self.device)
+
+        pool = _worker_pool()
+        futures = [pool.submit(launch, bounds) for bounds in ranges[1:]]
+        try:
+            launch(ranges[0])
+        finally:
+            for future in futures:
+                future.result()
+
+    def _stage(self, kernel, stage: int, kind_count: int, settings, *extra) -> None:
+        if kind_count:
+            wp.launch(kernel, dim=kind_count, device=self.device,
+                      inputs=[self.data, self.state, settings, *extra[:-1], stage, *extra[-1:]]
+                      if extra else [self.data, self.state, settings, stage])
+
+    def _count(self, kind) -> int:
+        a = self.arrays
+        return {0: a.nodes, 1: a.ties, 2: a.blocks, 3: a.chains, 4: a.groups}[kind]
+
+    # ------------------------------------------------------------------ inputs
+
+    def _vectors(self, values, shape=None):
+        values = np.asarray(values, float).reshape(-1, 2)
+        return wp.array(values.astype(self.dtype), dtype=self.vec, device=self.device)
+
+    def node_loads(self, loads) -> np.ndarray:
+        """End loads (n, 2) [N] from loads per chain (Y,) (each on its chain's last node along
+        the chain) or per dof ((n, 2) or (2 n,)); zeros for None."""
+        a = self.arrays
+        if loads is None:
+            return np.zeros((a.nodes, 2))
+        loads = np.asarray(loads, float)
+        if loads.shape == (a.chains,):
+            out = np.zeros((a.nodes, 2))
+            out[a.chain_start[1:] - 1, 0] = loads
+            return out
+        return loads.reshape(a.nodes, 2).copy()
+
+    def chain_loads(self, values) -> np.ndarray:
+        """Loads per chain (Y,) [N or m] from one value per family: value x the load factor."""
+        a = self.arrays
+        last = a.chain_start[1:] - 1
+        factors = a.load_direction[last, 0]
+        return np.asarray(values, float)[a.load_family[last]] * factors
+
+    def as_woven_anchors(self) -> np.ndarray:
+        """Anchors (T, 2) [m] at zero slip in the as-woven state (the structure's convention:
+        from the planes; a ground tie's first component the node's x, its second 0)."""
+        a = self.arrays
+        anchors = np.zeros((a.ties, 2))
+        anchors[:, 0] = a.rest_position[a.tie_a, 0] - a.tie_plane[:, 0]
+        node_b = a.tie_b >= 0
+        anchors[node_b, 1] = a.rest_position[a.tie_b[node_b], 0] - a.tie_plane[node_b, 1]
+        return anchors
+
+    def _settings(self, **values):
+        fictitious = int(self.masses == "fictitious")
+        coefficient = self.coefficient
+        if coefficient is None:
+            coefficient = -1.0 if self.damping == "viscous" else 0.0
+        damping = structure_explicit.DAMPINGS.index(self.damping) if self.damping else 0
+        base = dict(safety=self.safety, fixed_dt=self.dt or 0.0, fictitious=fictitious,
+                    damping=damping, damping_coefficient=coefficient,
+                    cg_tolerance=self.cg_tolerance,
+                    backtracks=self.backtracks, secant=int(self.secant), direct=int(self.direct),
+                    chunk=self.chunk)
+        base.update(values)
+        return structure_settings.fill(self.scalar, **base)
+
+    def _load_state(self, positions, loads, anchors, velocities=None) -> None:
+        s = self.state
+        s.position.assign(self._vectors(positions))
+        s.load.assign(self._vectors(self.node_loads(loads)))
+        s.anchors.assign(self._vectors(self.as_woven_anchors() if anchors is None else anchors))
+        if velocities is None:
+            s.velocity.zero_()
+        else:
+            s.velocity.assign(self._vectors(velocities))
+        s.previous_force.zero_()
+        s.status.fill_(status.RUNNING)
+
+    # ------------------------------------------------------------------ relaxation
+
+    def relax(self, positions, loads=None, anchors=None, *, tolerance: float,
+              max_steps: int, relative_tolerance: float = 0.0, progress=None):
+        """Relax from `positions` (n, 2) [m] at rest under `loads` (`node_loads`) with the
+        `anchors` (T, 2) [m] held (default `as_woven_anchors`) until every group's residual is
+        within `tolerance` [N] (with `relative_tolerance` > 0, the default rule of
+        `structure_checks`) or it stops otherwise; `progress(self)` after every launch.
+        Returns (positions (n, 2) [m], Outcome)."""
+        self._load_state(positions, loads, anchors)
+        settings = self._settings(tolerance=tolerance, relative_tolerance=relative_tolerance,
+                                  max_steps=int(max_steps))
+        self._start(settings)
+        codes = self.state.status.numpy()
+        while (codes == status.RUNNING).any():
+            self._advance(settings, codes == status.RUNNING)
+            codes = self.state.status.numpy()
+            if progress is not None:
+                progress(self)
+        return self.positions(), self.outcome()
+
+    def start(self, positions, loads=None, anchors=None) -> None:
+        """Only a relaxation's start: forces, masses, time steps (`group_values("dt")`,
+        "stable_dt"), tolerances at `positions`."""
+        self._load_state(positions, loads, anchors)
+        self._start(self._settings(tolerance=0.0, max_steps=1))
+
+    def _start(self, settings) -> None:
+        kernel = self._kernels()
+        if self.layout == "grouped":
+            self._launch_groups(kernel, [self.data, self.state, settings], (1,))
+            return
+        for stage in structure_explicit.START_STAGES:
+            if self.method == "semi_implicit" and stage == structure_explicit.START_DAMPING:
+                continue
+            self._stage(kernel, stage, self._count(structure_explicit.KINDS[stage]), settings)
+
+    def _advance(self, settings, running: np.ndarray) -> None:
+        """Up to `chunk` time steps of every running group."""
+        if self.layout == "grouped":
+            self._launch_groups(self._kernels(), [self.data, self.state, settings], (0,),
+                                groups=running)
+        elif self.method == "explicit":
+            self._explicit_steps(settings)
+        else:
+            self._semi_steps(settings)
+
+    def _explicit_steps(self, settings) -> None:
+        kernel = self._kernels()
+        adaptive = self.damping == "viscous" and settings.damping_coefficient < 0.0
+        stages = [(stage, self._count(structure_explicit.KINDS[stage]))
+                  for stage in structure_explicit.step_stages(self.damping, adaptive)]
+        for step in range(self.chunk):
+            for stage, count in stages:
+                self._stage(kernel, stage, count, settings)
+            if (step + 1) % self.check_interval == 0 and \
+                    not (self.state.status.numpy() == status.RUNNING).any():
+                return
+
+    def _semi_steps(self, settings) -> None:
+        kernel = self._kernels()
+        a = self.arrays
+        counts = {semi.NODE: a.nodes, semi.TIE: a.ties, semi.BLOCK: a.blocks,
+                  semi.CHAIN: a.chains, semi.GROUP: a.groups, semi.DOF: 2 * a.nodes}
+
+        def run(*stages):
+            for stage in stages:
+                self._stage(kernel, stage, counts[semi.KINDS[stage]], settings)
+
+        def running():
+            return self.state.status.numpy() == status.RUNNING
+
+        for _ in range(self.chunk):
+            if not running().any():
+                return
+            run(semi.TIE_BLOCKS)
+            for _ in range(semi.MAX_REFACTORISATIONS):
+                run(semi.BUILD, semi.FACTORED)
+                live = running()
+                if (self.state.factored.numpy()[live] != 0).all():
+                    break
+            run(semi.VELOCITY, semi.BOUNDARY, semi.RHS, semi.CG_START, semi.PRECONDITION,
+                semi.FIRST_SUM, semi.COPY)
+            while True:
+                live = running()
+                if (self.state.cg.numpy()[live, semi.CG_DONE] != 0).all():
+                    break
+                run(semi.CG_BOUNDARY, semi.PRODUCT, semi.CURVATURE, semi.STEP_LENGTH,
+                    semi.UPDATE, semi.PRECONDITION, semi.NEXT_SUM, semi.DIRECTION)
+            run(semi.MOVE, semi.TIES, semi.GATHER, semi.BLOCKS, semi.SEARCH)
+            for _ in range(self.backtracks):
+                if not (self.state.decision.numpy()[running()] == semi.TRIAL).any():
+                    break
+                run(semi.TRIAL_MOVE, semi.TIES, semi.GATHER, semi.BLOCKS, semi.SEARCH)
+            run(semi.FINISH, semi.RE_TIES, semi.RE_GATHER, semi.RE_BLOCKS, semi.FINISH_GROUP,
+                semi.CHECK)
+
+    # ------------------------------------------------------------------ results
+
+    def positions(self) -> np.ndarray:
+        """Node positions (n, 2) [m], float64."""
+        return self.state.position.numpy().astype(np.float64)
+
+    def group_values(self, name: str) -> np.ndarray:
+        """A per-group (or other) field of the state, as float64 or int (copies): "dt",
+        "stable_dt", "residual", "tolerance", "steps", "energy_ratio", "mass", ..."""
+        return structure_state.read(self.state, name)
+
+    def outcome(self) -> Outcome:
+        read = self.group_values
+        return Outcome(status=read("status"), steps=read("steps"), residual=read("residual"),
+                       tolerance=read("tolerance"), cg_iterations=read("cg_iterations"),
+                       rejected=read("rejected"), shortened=read("shortened"))
+
+    # ------------------------------------------------------------------ passes
+
+    def _passes(self, positions, anchors, loads=None, data=None):
+        """A scratch state at `positions` with `anchors` and `loads`, its tie pass done."""
+        if self._scratch is None:
+            self._scratch = structure_state.allocate(self.arrays, self.scalar, self.device, False)
+        s = self._scratch
+        s.position.assign(self._vectors(positions))
+        s.anchors.assign(self._vectors(self.as_woven_anchors() if anchors is None else anchors))
+        s.load.assign(self._vectors(self.node_loads(loads)))
+        self._pass(structure_passes.TIES, self.arrays.ties, data)
+        return s
+
+    def _pass(self, which: int, count: int, data=None, out=None):
+        kernel = structure_passes.pass_kernel(self.scalar, self.friction, self.boundary)
+        if out is None:
+            out = wp.zeros(max(count, 1), dtype=self.scalar, device=self.device)
+        if count:
+            wp.launch(kernel, dim=count, device=self.device,
+                      inputs=[self.data if data is None else data, self._scratch, which, out])
+        return out
+
+    def tie_forces(self, positions, anchors=None):
+        """(R (T,) [N], friction force on the slips (T, 2) [N], F_T (T,) [N]) at `positions`."""
+        s = self._passes(positions, anchors)
+        return (structure_state.read(s, "contact"), structure_state.read(s, "friction"),
+                structure_state.read(s, "limit"))
+
+    def forces(self, positions, loads=None, anchors=None) -> np.ndarray:
+        """-dV/dr + the friction forces (n, 2) [N] on the free dofs (a tied family's summed on
+        each of its nodes), the gather order's bits."""
+        self._passes(positions, anchors, loads)
+        self._pass(structure_passes.FORCES, self.arrays.nodes)
+        return structure_state.read(self._scratch, "force")
+
+    def internal_force(self, positions, anchors=None) -> np.ndarray:
+        """-dV/dr (+ friction) (n, 2) [N] without external loads or gravity, every dof
+        unmasked (an end's reaction is minus its in-plane component)."""
+        if self._reaction_data is None:
+            a = self.arrays
+            self._reaction_data = structure_arrays.upload(
+                a, self.scalar, self.device, free=np.ones_like(a.free),
+                weight=np.zeros_like(a.weight))
+        self._passes(positions, anchors, None, self._reaction_data)
+        self._pass(structure_passes.FORCES, self.arrays.nodes, self._reaction_data)
+        return structure_state.read(self._scratch, "force")
+
+    def energies(self, positions, loads=None, anchors=None):
+        """(per node (n,), per tie (T,)) energies [J] (`structure_forces.node_energy`,
+        `tie_energy`); their sum is V plus the Huber terms at F_T of the current R."""
+        self._passes(positions, anchors, loads)
+        nodes = self._pass(structure_passes.NODE_ENERGY, self.arrays.nodes).numpy()
+        ties = self._pass(structure_passes.TIE_ENERGY, self.arrays.ties).numpy()
+        return nodes[:self.arrays.nodes].astype(float), ties[:self.arrays.ties].astype(float)
+
+    def return_map(self, positions, anchors):
+        """(anchors (T, 2) [m] after the radial return map at `positions`, the energy each tie
+        dissipated (T,) [J]) (docs/model.md sections 4, 10)."""
+        self._passes(positions, anchors)
+        lost = self._pass(structure_passes.RETURN_MAP, self.arrays.ties).numpy()
+        return structure_state.read(self._scratch, "anchors"), lost[:self.arrays.ties].astype(float)
+
+    # ------------------------------------------------------------------ transient
+
+    def transient(self, positions, anchors, path, duration: float, output_interval: float,
+                  resume_from: dict | None = None):
+        """Frames of a transient from `positions` at rest (docs/model.md section 5): physical
+        masses, the viscous c given (default 0), anchors return-mapped every step, the loads
+        ramped through `path` (families, K) [N or m] over `duration` [s]; a frame at t = 0
+        (unless resumed) and every `output_interval`, the last at `duration`, the time step
+        (at most the Gershgorin dt x safety, or the dt given) shortened to land on each.
+        `resume_from`, a frame of this run, continues from it bit for bit (its positions,
+        velocities, forces, anchors and dissipation replace those at the start)."""
+        if self.method != "explicit":
+            raise ValueError("a transient runs the explicit integrator")
+        a = self.arrays
+        kernel_key = (self.scalar, self.friction, self.boundary)
+        path = np.asarray(path, float).reshape(a.families, -1)
+        path_wp = wp.array(path.astype(self.dtype), dtype=self.scalar, device=self.device)
+        self._load_state(positions, None, anchors)
+        self.state.dissipated.zero_()
+        coefficient = self.coefficient or 0.0
+        base = dict(tolerance=-1.0, max_steps=RUNNING_FOREVER, fictitious=0,
+                    damping=structure_explicit.VISCOUS, damping_coefficient=coefficient,
+                    duration=duration)
+        settings = self._settings(**base)
+        grouped = self.layout == "grouped"
+        kernel = (structure_transient.grouped_kernel(*kernel_key, self.order) if grouped
+                  else structure_transient.stage_kernel(*kernel_key))
+        if grouped:
+            self._launch_groups(kernel, [self.data, self.state, settings, path_wp], (1,))
+        else:
+            for stage in structure_explicit.START_STAGES:
+                self._stage(kernel, stage, self._count(structure_explicit.KINDS[stage]),
+                            settings, path_wp, 0)
+        largest_dt = float(self.group_values("dt").min())
+        times = np.append(np.arange(0.0, duration, output_interval), duration)
+        first = 0
+        if resume_from is None:
+            yield self._frame(0.0)
+        else:
+            first = int(np.argmin(np.abs(times - float(resume_from["time"]))))
+            self._restore(resume_from)
+        for begin, end in zip(times[first:-1], times[first + 1:]):
+            steps = int(np.ceil((end - begin) / largest_dt * (1 - 1e-12)))
+            dt = (end - begin) / steps
+            for done in range(0, steps, self.chunk):
+                run = min(self.chunk, steps - done)
+                settings = self._settings(**base, fixed_dt=dt, time=begin + done * dt, chunk=run)
+                if grouped:
+                    self._launch_groups(kernel, [self.data, self.state, settings, path_wp], (0,))
+                else:
+                    for k in range(run):
+                        for stage in structure_transient.STEP_STAGES:
+                            self._stage(kernel, stage,
+                                        self._count(structure_transient.KINDS[stage]),
+                                        settings, path_wp, k)
+                codes = self.state.status.numpy()
+                if (codes != status.RUNNING).any():
+                    group = int(np.flatnonzero(codes != status.RUNNING)[0])
+                    raise SolverError(f"transient: group {group} stopped at t = "
+                                      f"{begin + (done + run) * dt:.6g} s (status "
+                                      f"{int(codes[group])}: a non-finite state; dt = {dt:.3g} s "
+                                      f"against the predicted stable "
+                                      f"{float(self.group_values('stable_dt')[group]):.3g} s)")
+            yield self._frame(end)
+
+    def _frame(self, time: float) -> dict:
+        read = self.group_values
+        return {"time": time, "positions": self.positions(), "velocities": read("velocity"),
+                "force": read("force"), "contact_force": read("contact"),
+                "friction_force": read("friction"), "anchors": read("anchors"),
+                "dissipated": read("dissipated"), "kinetic_energy": read("kinetic_energy")}
+
+    def _restore(self, frame: dict) -> None:
+        s = self.state
+        for name, field in (("positions", "position"), ("velocities", "velocity"),
+                            ("force", "force"), ("anchors", "anchors")):
+            getattr(s, field).assign(self._vectors(frame[name]))
+        s.dissipated.assign(wp.array(np.asarray(frame["dissipated"]).astype(self.dtype),
+                                     dtype=self.scalar, device=self.device))
