@@ -283,7 +283,7 @@ def newton_costs(n: int, friction=None):
     no certificate), its time per iteration."""
     solver = FabricStaticSolver(patch_model(n, friction))
     start = solver.initial_state()
-    P = solver.yarn_loads(*LOAD)
+    P = solver.model.yarn_loads(*LOAD)
 
     def newton():
         pos, anchors = start.positions.copy(), start.anchors.copy()
@@ -303,7 +303,7 @@ def static_costs(n: int, friction=None):
     start = solver.initial_state()
     step_s, (state, record) = timed(lambda: solver.step(start, *LOAD))
     limit = solver.friction_limits(state.positions)
-    inertia_s, result = timed(lambda: inertia.inertia(solver, state.positions, state.anchors, limit))
+    inertia_s, result = timed(lambda: inertia.inertia(solver.model, state.positions, state.anchors, limit))
     nearest_s, nearest = timed(lambda: inertia.nearest_eigenvalue(
         solver.hessian(state.positions, state.anchors, limit)))
     row = {"step_s": step_s, "step_iterations": int(record["iterations"]),
@@ -435,7 +435,7 @@ def semi_costs(n: int, static_positions=None, friction=None, newton_s=None) -> d
     semi = solver.relaxation
     semi.cg_tolerance = LAYOUT_CG_TOLERANCE
     anchors = start.anchors + solver._plane_shift
-    P = solver.reference.yarn_loads(*LOAD)
+    P = solver.model.yarn_loads(*LOAD)
     dt = 1e4
     semi.system(state.positions, solver.external_force(P), anchors, dt=dt)
 
@@ -450,7 +450,7 @@ def semi_costs(n: int, static_positions=None, friction=None, newton_s=None) -> d
     launches, _ = per_iteration(lambda: fabric_semi_implicit.pcg_launches(semi, dt))
     per_step = FabricDynamicSolver(patch_model(n, friction), method="semi_implicit",
                                    layout="per_step")
-    pos, held, loads = per_step.reference.start_of_step(start, *LOAD)
+    pos, held, loads = per_step.model.start_of_step(start, *LOAD)
     began = time.perf_counter()
     per_step.relax(pos, loads, held)
     row["per_step_relax_s"] = time.perf_counter() - began  # one run: the whole time loop
@@ -472,7 +472,7 @@ def newton_pieces(n: int, positions) -> dict:
     solver = FabricStaticSolver(patch_model(n))
     pos, anchors = positions, solver.initial_state().anchors
     limit = np.zeros(n * n)
-    P = solver.yarn_loads(*LOAD)
+    P = solver.model.yarn_loads(*LOAD)
     H = solver.hessian(pos, anchors, limit)
     g = solver.pattern.reduce(solver.gradient(pos, P, anchors, limit))
     row = {"hessian_nonzeros": int(H.nnz),
@@ -482,7 +482,7 @@ def newton_pieces(n: int, positions) -> dict:
            "splu_symmetric_s": timed(lambda: _sparse_solve(H, -g, order=ordering.fabric_order(
                solver.fabric, solver.pattern)))[0]}
     row.update(ordering_pieces(solver, H, g))
-    row["inertia_s"], result = timed(lambda: inertia.inertia(solver, pos, anchors, limit))
+    row["inertia_s"], result = timed(lambda: inertia.inertia(solver.model, pos, anchors, limit))
     row["inertia_negatives"], row["inertia_method"] = int(result.negatives), result.method
     row.update(nearest_eigenvalue_pieces(H))
     if n <= 8:

@@ -48,13 +48,18 @@ Both solvers call `certify` on every converged yarn, in float64 on the host:
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numba
 import numpy as np
 
 from dynfab import assembly
 from dynfab.banded import BANDWIDTH, band_add, band_matvec, constrain
 from dynfab.errors import SolverError
+from dynfab.fabric import assembly as fabric_assembly
+from dynfab.fabric import inertia
 from dynfab.ldlt import TINY_PIVOT, inverse_norm_1, ldlt_factor, ldlt_solve, negative_direction
+from dynfab.structure import Structure
 from dynfab.terms import friction
 
 EPS = np.finfo(np.float64).eps
@@ -69,7 +74,10 @@ MAX_CANDIDATES = 64
 """Negative pivots whose vectors `escape` tries (the most negative Rayleigh quotients are not
 the best escapes: far past a buckling load the lowest mode releases the most energy)."""
 MAX_ESCAPES = 12
-"""Escapes per yarn and load step before a solver accepts the state it has."""
+"""Escapes per yarn (per patch, on the sparse route) and load step before a solver accepts
+the state it has."""
+ESCAPE_CANDIDATES = 16
+"""The sparse route's escape directions per escape, at most: the lowest eigenvectors."""
 STEP_HALVINGS = 53
 """Steps t = L 2^-k, k < STEP_HALVINGS, tried along each escape vector (down to rounding)."""
 NEGATIVES, LOWEST, LOWEST_ERROR, INVERSE_NORM, SHIFT = range(5)
@@ -407,3 +415,66 @@ class StepStability:
         return {"stable": self.stable.copy(), "buckled": self.buckled.copy(),
                 "lowest_eigenvalue": self.lowest_eigenvalue.copy(),
                 "error_estimate": self.error_estimate.copy()}
+
+
+# --------------------------------------------------------------------------
+# The sparse route: chains tied to each other (the woven fabric, docs/model.md section 10).
+
+
+@dataclass
+class PatchCertificate:
+    """The certificate of a patch's converged state (`certify_patch`)."""
+
+    negatives: int
+    """Negative eigenvalues of the frozen-F_T Hessian on the unknowns (with `shift`)."""
+    shift: float
+    """The rounding-level shift tau [N/m] the inertia count needed (0 unless a pivot vanished)."""
+    nearest: float
+    """The eigenvalue nearest zero [N/m] (ARPACK shift-invert at 0): the lowest when
+    `negatives` is 0; NaN if ARPACK failed."""
+
+
+def certify_patch(model, pos, anchors, limit) -> PatchCertificate:
+    """Certify a patch's converged state: the inertia of the Hessian with F_T = `limit` frozen
+    (`dynfab.fabric.inertia.inertia`: SuperLU's symmetric-mode pivots, else Haynsworth's
+    Schur route) and the eigenvalue nearest zero. `model` is the fabric's
+    (`dynfab.fabric.model.FabricModel`: its structure, Hessian on the unknowns and pattern)."""
+    counted = inertia.inertia(model, pos, anchors, limit)
+    nearest = inertia.nearest_eigenvalue(model.hessian(pos, anchors, limit))
+    return PatchCertificate(counted.negatives, counted.shift, nearest)
+
+
+def longest_chain(structure: Structure) -> float:
+    """The largest as-woven extent of a chain along itself [m] (a fabric's longer family)."""
+    first, last = structure.chain_start[:-1], structure.load_node
+    return float(np.max(structure.rest_position[last, 0] - structure.rest_position[first, 0]))
+
+
+def escape_patch(model, pos, P, anchors, limit, checked: PatchCertificate):
+    """The sparse route's escape from a saddle (docs/model.md section 6): the positions of
+    lowest V + H (F_T = `limit` frozen) along the lowest eigenvectors (at most
+    ESCAPE_CANDIDATES, `dynfab.fabric.inertia.lowest_eigenvectors`), steps +-t v with t
+    from the longest chain's length halving STEP_HALVINGS times, a trial taken only when
+    lower by more than the energy's rounding (64 eps times the sum of |terms| and the
+    positions' rounding scale, `dynfab.fabric.assembly.rounding_scale`); ties keep the
+    larger step, the + sign, the lower eigenvector. None when no trial lowers the energy.
+    P: the end loads (Y,) [N]."""
+    f = model.structure
+    count = min(checked.negatives, ESCAPE_CANDIDATES, model.pattern.free_count - 1)
+    _, vectors = inertia.lowest_eigenvectors(model, pos, anchors, limit, count, checked.nearest)
+    terms = np.zeros(len(fabric_assembly.TERMS))
+    e0 = fabric_assembly.total_energy(pos, f, P, anchors, limit, terms)
+    rounding = 64.0 * EPS * (np.abs(terms).sum() + fabric_assembly.rounding_scale(pos, f, P, limit))
+    length = longest_chain(f)
+    best, best_pos = e0 - rounding, None
+    for k in range(count):
+        d = model.pattern.expand(vectors[:, k]).reshape(pos.shape)
+        t = length
+        for _ in range(STEP_HALVINGS):
+            for sign in (1.0, -1.0):
+                trial = pos + (sign * t) * d
+                e = fabric_assembly.total_energy(trial, f, P, anchors, limit, terms)
+                if e < best - rounding:
+                    best, best_pos = e, trial
+            t *= 0.5
+    return best_pos

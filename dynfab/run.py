@@ -224,7 +224,7 @@ def _solve(model: Model, engine: Solver | Transient, sink, progress) -> int:
 
 def _is_fabric(model) -> bool:
     """A fabric's run (docs/model.md section 10): its model is
-    `dynfab.fabric.from_scene.FabricModel`."""
+    `dynfab.fabric.model.FabricModel`."""
     return model.scene.geometry.model == "fabric"
 
 

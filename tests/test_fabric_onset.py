@@ -77,7 +77,7 @@ def check_consistent(solver: FabricStaticSolver, before, after, record, load) ->
     # R agrees with the solver's to the bracketing's rounding (4 eps relative)
     np.testing.assert_allclose(np.ravel(record["contact_force"]), R, rtol=1e-12, atol=0)
     assert np.abs(np.ravel(record["friction_limit"]) - law).max() <= 1e-12
-    _, anchors, P = solver.start_of_step(before, *load)
+    _, anchors, P = solver.model.start_of_step(before, *load)
     residual = solver.residual(solver.gradient(pos, P, anchors, law))
     H = solver.hessian(pos, anchors, law)
     floor = 4 * EPS * np.abs(H.diagonal()).max() * np.abs(pos).max()  # docs/model.md section 6
@@ -123,7 +123,7 @@ def assert_same_state(solver, before, load, states) -> None:
     ||H^-1||_inf (r_1 + r_2), each r at least the tolerance; the step moves the patch far
     beyond that."""
     (first, first_record), *others = states
-    _, anchors, _ = solver.start_of_step(before, *load)
+    _, anchors, _ = solver.model.start_of_step(before, *load)
     limit = solver.friction_limits(first.positions)
     H = solver.hessian(first.positions, anchors, limit).toarray()
     inverse = np.abs(np.linalg.inv(H)).sum(axis=1).max()
@@ -264,7 +264,7 @@ def test_a_fixed_point_on_friction_that_cycles_is_relaxed(monkeypatch):
     text = patch(5, 1e-5, "force", [1e-4], [5e-5])
     solver = patch_solver(text)
     state = solver.initial_state()
-    pos, anchors, P = solver.start_of_step(state, 1e-4, 5e-5)
+    pos, anchors, P = solver.model.start_of_step(state, 1e-4, 5e-5)
     limit = solver.friction_limits(pos)
     closed = []
     for _ in range(30):  # the plain update, F_T = the law at the last solution
@@ -299,7 +299,7 @@ def test_the_relaxed_fixed_point_and_the_active_set_reach_the_same_state():
     state, _ = solver.step(solver.initial_state(), 0.0, 0.0)
     solved = []
     for fallback in (solver.solve_relaxed, solver.solve_on_sets):
-        pos, anchors, P = solver.start_of_step(state, 1e-4, 5e-5)
+        pos, anchors, P = solver.model.start_of_step(state, 1e-4, 5e-5)
         solver._budget = fabric_static.FALLBACK_BUDGET * solver.max_iterations
         assert fallback(pos, P, anchors)[0].converged
         assert solver.law_residual(pos, P, anchors) <= solver.tolerance

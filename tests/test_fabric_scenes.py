@@ -17,7 +17,8 @@ import numpy as np
 import pytest
 
 from dynfab.errors import UserError
-from dynfab.fabric.from_scene import FabricModel, FabricSolver
+from dynfab.fabric.from_scene import FabricModel
+from dynfab.fabric.static import FabricStaticSolver
 from dynfab.run import run, run_to_file
 from dynfab.scene import load_scene, parse_scene_text
 from dynfab.structure import uniform
@@ -40,7 +41,7 @@ def position_bound(model: FabricModel, results, step: int = -1) -> float:
     """4 ||H^-1||_inf max(r, tolerance) [m]: how far a state with residual r may lie from the
     exact one (F_T-frozen Hessian; factor 4 for the friction limit's coupling, as in
     tests/test_fabric_symmetry.py). Two states compared: twice this."""
-    solver = FabricSolver(model).solver
+    solver = FabricStaticSolver(model)
     last = {name: values[step] for name, values in results.steps.items()}
     state = model.state_from_step(last)
     H = solver.hessian(state.positions, state.anchors, np.ravel(last["friction_limit"]))
@@ -99,7 +100,7 @@ def test_strip_shows_crimp_interchange():
     results = run(scene)
     steps = results.steps
     as_woven = FabricModel.from_scene(scene).initial_state()
-    crimp0 = FabricSolver(FabricModel.from_scene(scene)).solver.crimps(as_woven.positions)
+    crimp0 = FabricModel.from_scene(scene).crimps(as_woven.positions)
     crimp = np.vstack([crimp0, steps["crimp"]])
     assert np.all(np.diff(crimp[:, 0]) < 0) and np.all(np.diff(crimp[:, 1]) > 0)
     assert np.all(steps["strain"][:, 0] > 0) and np.all(np.diff(steps["strain"][:, 1]) < 0)

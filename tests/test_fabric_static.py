@@ -217,7 +217,7 @@ def test_inertia_from_the_schur_complement_matches_the_dense_spectrum(planes):
     for m in (1, 5, 17, 60, H.shape[0] // 2):
         assert gaps[m - 1] > 1e6 * np.finfo(float).eps * np.abs(eigenvalues).max()
         shift = -0.5 * (eigenvalues[m - 1] + eigenvalues[m])
-        result = inertia.inertia(solver, state.positions, anchors, limit, shift=shift)
+        result = inertia.inertia(solver.model, state.positions, anchors, limit, shift=shift)
         assert result.negatives == m
     # the step's estimate of the smallest eigenvalue (shift-invert Lanczos, asked to 1e-10
     # relative): the dense one, within 1e-8 of it

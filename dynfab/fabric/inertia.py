@@ -110,22 +110,23 @@ def start_vector(n: int) -> np.ndarray:
     return np.random.default_rng(20070101).standard_normal(n)
 
 
-def lowest_eigenvectors(solver, pos, anchors, limit, count: int, nearest: float):
+def lowest_eigenvectors(model, pos, anchors, limit, count: int, nearest: float):
     """The `count` lowest eigenpairs of the Hessian on the unknowns, (values, vectors).
 
     Shift-invert Lanczos at a shift sigma below the whole spectrum, found by the inertia:
     sigma = 2 nearest (the eigenvalue nearest zero), doubled until H - sigma I has no
     negative eigenvalue; the `count` eigenvalues nearest such a sigma are the lowest.
     Each vector's sign is fixed (its largest component positive) and the start vector too
-    (`start_vector`), so the choice is deterministic.
+    (`start_vector`), so the choice is deterministic. `model` is the fabric's
+    (`dynfab.fabric.model.FabricModel`: its structure, Hessian and pattern).
     """
     sigma = 2.0 * min(nearest, -1e-12)
     for _ in range(60):
-        if inertia(solver, pos, anchors, limit, shift=-sigma).negatives == 0:
+        if inertia(model, pos, anchors, limit, shift=-sigma).negatives == 0:
             break
         sigma *= 2.0
-    H = solver.hessian(pos, anchors, limit)
-    dissection = ordering.fabric_order(solver.fabric, solver.pattern)
+    H = model.hessian(pos, anchors, limit)
+    dissection = ordering.fabric_order(model.structure, model.pattern)
     values, vectors = scipy.sparse.linalg.eigsh(H, k=count, sigma=sigma, which="LM", tol=EIGEN_TOL,
                                                 OPinv=shift_inverse(H, sigma, dissection),
                                                 v0=start_vector(H.shape[0]))
@@ -147,15 +148,16 @@ def crossing_mask(fabric) -> np.ndarray:
     return mask
 
 
-def inertia(solver, pos, anchors, limit, shift: float = 0.0) -> Inertia:
+def inertia(model, pos, anchors, limit, shift: float = 0.0) -> Inertia:
     """In(H - (-shift) I) on the free dofs: the negatives of H + shift I (module docstring):
     the sparse route in the pattern's nested-dissection order (`ordering.fabric_order`), else
     the Schur (or, for the periodic cell, dense) route, at the shift asked and then at two
-    rounding-level shifts above it."""
-    fabric = solver.fabric
-    H = solver.hessian(pos, anchors, limit)
+    rounding-level shifts above it. `model` is the fabric's (`dynfab.fabric.model.FabricModel`:
+    its structure, Hessian and pattern)."""
+    fabric = model.structure
+    H = model.hessian(pos, anchors, limit)
     scale = float(np.abs(H.diagonal()).max())
-    order = ordering.fabric_order(fabric, solver.pattern)
+    order = ordering.fabric_order(fabric, model.pattern)
     for tau in (shift, shift + 1e3 * EPS * scale, shift + 1e6 * EPS * scale):
         result = sparse_inertia(H, tau, scale, order)
         if result is None:
