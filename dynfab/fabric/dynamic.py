@@ -57,7 +57,8 @@ import time
 import numpy as np
 import warp as wp
 
-from dynfab.certificate import MAX_ESCAPES, certify_patch, escape_patch
+from dynfab.certificate import (MAX_ESCAPES, certify_patch, check_patch_accuracy, escape_patch,
+                                patch_stability)
 from dynfab.errors import SolverError, UserError
 from dynfab.fabric.model import FabricState, run_load_path
 from dynfab.structure import chain_count
@@ -84,13 +85,18 @@ class FabricDynamicSolver:
     def __init__(self, model, device: str = "cpu", damping: str = "kinetic",
                  tolerance: float | None = None, max_steps: int = MAX_STEPS,
                  layout: str | None = None, method: str = "explicit",
-                 damping_coefficient: float | None = None, status=None):
+                 damping_coefficient: float | None = None, accuracy: float | None = None,
+                 status=None):
         if method not in METHODS:
             raise UserError(f"fabric: dynamic.method = {method!r} unknown; one of {METHODS}")
         self.model = model
         self.tolerance = (model.scene.static.tolerance if tolerance is None
                           else float(tolerance))
         """Residual tolerance [N] of a relaxation (the static Newton tolerance by default)."""
+        self.accuracy = model.scene.dynamic.accuracy if accuracy is None else float(accuracy)
+        """Largest accepted error bound of a step relative to its largest displacement
+        (docs/model.md, "Stability and accuracy of a converged step"; the scene's
+        dynamic.accuracy by default)."""
         self.max_steps = int(max_steps)
         self.arrays = fabric_arrays.build(model.structure)
         # the kernels built with friction in every case (F_T = k_t = 0 without it): one
@@ -223,6 +229,9 @@ class FabricDynamicSolver:
             pos, outcome = self.relax(escaped, P, anchors)
             relax_time += time.perf_counter() - began
             steps += outcome.steps
+        stability = patch_stability(checked, outcome.residual, escapes)
+        check_patch_accuracy(model, checked, stability, pos, outcome.residual, self.tolerance,
+                             self.accuracy, False, "dynamic.accuracy")
         new_anchors, sliding, lost = self._return_map(pos, anchors, limit)
         end_force = self._end_force(pos, P, anchors)
         new, u_new = model.end_of_step(state, pos, new_anchors, end_force, lost)
@@ -231,8 +240,9 @@ class FabricDynamicSolver:
                       rounding_floor=False, contact_force=R.reshape(shape),
                       friction_limit=limit.reshape(shape), sliding=sliding.reshape(shape),
                       friction_force=friction_force,
-                      negative_eigenvalues=checked.negatives, stable=checked.negatives == 0,
-                      nearest_eigenvalue=checked.nearest, escapes=escapes, end_force=end_force,
+                      negative_eigenvalues=checked.negatives, escapes=escapes,
+                      **{name: value[0] for name, value in stability.fields().items()},
+                      end_force=end_force,
                       end_displacement=u_new, strain=model.strains(pos), crimp=model.crimps(pos),
                       time_steps=steps, relax_time=relax_time)
         if self.method == "semi_implicit":

@@ -26,9 +26,13 @@ Record of one fabric step (n_wa warps of N+1 nodes, n_we wefts of M+1 nodes; Y =
   weft [m], where they are at the step's end (they move with "affine" planes and on the
   periodic cell, docs/model.md section 10);
 - dissipated, work [J]; energy/<term> [J] per term of `dynfab.fabric.assembly.TERMS`;
-- residual [N], iterations, friction_solves, rounding_floor, stable, buckled (an escape
-  from a saddle was taken), lowest_eigenvalue [N/m] (the eigenvalue nearest zero of the
-  frozen-F_T Hessian: the lowest when none is negative), negative_eigenvalues; scalars;
+- residual [N], iterations, friction_solves, rounding_floor; the certificate
+  (`dynfab.certificate.StepStability`, docs/model.md section 6): stable, buckled (an escape
+  from a saddle was taken), lowest_eigenvalue [N/m] (the lowest eigenvalue of the
+  frozen-F_T Hessian on the unknowns), lowest_eigenvalue_error [N/m] (lambda_min lies in
+  [lowest_eigenvalue - error, lowest_eigenvalue]), error_estimate [m] (residual x est
+  ||H^-1||_inf, the position error bound the accuracy check holds to static.accuracy or
+  dynamic.accuracy of the step's largest displacement), negative_eigenvalues; scalars;
 - with the dynamic solver, time_steps (the time steps of the step's relaxations, also its
   iterations), and with the semi-implicit method cg_iterations (their CG iterations).
 """
@@ -37,6 +41,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from dynfab.certificate import CERTIFICATE_KEYS
 from dynfab.domain import fabric_slip_ratios
 from dynfab.fabric.assembly import TERMS
 from dynfab.fabric.model import FabricModel, FabricState
@@ -63,7 +68,7 @@ class FabricSolver:
                                               max_steps=dynamic.max_steps,
                                               method=dynamic.method,
                                               damping_coefficient=dynamic.damping_coefficient,
-                                              status=status)
+                                              accuracy=dynamic.accuracy, status=status)
         else:
             from dynfab.fabric.static import FabricStaticSolver
 
@@ -100,8 +105,7 @@ class FabricSolver:
             "dissipated": new.dissipated, "work": new.work,
             "residual": raw["residual"], "iterations": raw["iterations"],
             "friction_solves": raw["friction_solves"], "rounding_floor": raw["rounding_floor"],
-            "stable": raw["stable"], "buckled": raw["escapes"] > 0,
-            "lowest_eigenvalue": raw["nearest_eigenvalue"],
+            **{name: raw[name] for name in CERTIFICATE_KEYS},
             "negative_eigenvalues": raw["negative_eigenvalues"],
         }
         record.update(self._energies(new, warp_value, weft_value, raw["friction_limit"]))

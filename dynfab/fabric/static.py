@@ -62,7 +62,8 @@ import scipy.sparse.linalg
 from dynfab.active_set import (CONTINUATION_FACTORS, CONTINUATION_START, DIRECT_ITERATIONS,
                                DIRECT_SET_UPDATES, MAX_FLIPS, MAX_SET_UPDATES, onset_stages,
                                update_set)
-from dynfab.certificate import MAX_ESCAPES, certify_patch, escape_patch
+from dynfab.certificate import (MAX_ESCAPES, certify_patch, check_patch_accuracy, escape_patch,
+                                patch_stability)
 from dynfab.errors import SolverError
 from dynfab.fabric import assembly, contact, friction, ordering
 from dynfab.fabric.model import FabricState, run_load_path
@@ -203,6 +204,9 @@ class FabricStaticSolver:
         """Newton's residual tolerance [N] (docs/model.md section 6), or the rounding floor
         where higher."""
         self.max_iterations = model.scene.static.max_iterations
+        self.accuracy = model.scene.static.accuracy
+        """Largest accepted error bound of a step relative to its largest displacement
+        (docs/model.md, "Stability and accuracy of a converged step")."""
         self._terms = np.zeros(len(assembly.TERMS))
         self._budget = 0  # Newton iterations left to the active-set fallback (`solve_on_sets`)
 
@@ -745,6 +749,9 @@ class FabricStaticSolver:
             raise SolverError(self._failure(pos, P, anchors, info, outer))
         info, limit, outer, escapes, checked = self._certified(pos, P, anchors, info, limit,
                                                                outer)
+        stability = patch_stability(checked, info.residual, escapes)
+        check_patch_accuracy(model, checked, stability, pos, info.residual, self.tolerance,
+                             self.accuracy, info.at_floor, "static.accuracy")
         R = self.contact_forces(pos)
         end_force = self._end_force(pos, P, anchors, limit)
         sliding = np.zeros(f.tie_a.size, np.bool_)
@@ -759,9 +766,8 @@ class FabricStaticSolver:
                       rounding_floor=info.at_floor, contact_force=R.reshape(shape),
                       friction_limit=limit.reshape(shape),
                       sliding=sliding.reshape(shape), friction_force=friction_force,
-                      negative_eigenvalues=checked.negatives,
-                      stable=checked.negatives == 0, nearest_eigenvalue=checked.nearest,
-                      escapes=escapes,
+                      negative_eigenvalues=checked.negatives, escapes=escapes,
+                      **{name: value[0] for name, value in stability.fields().items()},
                       end_force=end_force,
                       end_displacement=u_new, strain=model.strains(pos), crimp=model.crimps(pos))
         return new, record
