@@ -368,11 +368,30 @@ def test_the_dynamic_fabric_solver_runs_the_periodic_cell():
                                        rtol=0, atol=tol)
 
 
-def test_fabric_refuses_the_accuracy_option_it_cannot_honour():
-    scene = load_scene(RUNS / "fabric_biaxial.toml")
-    with pytest.raises(UserError, match=r"^--accuracy 0\.01: the fabric's solvers have no "
-                                        r"error estimate"):
-        run(scene, accuracy=0.01)
+def test_a_fabric_step_whose_bound_exceeds_its_accuracy_stops_with_exit_3(tmp_path):
+    """The honest stop (docs/model.md, "Stability and accuracy of a converged step"): a
+    fabric step is held to error_estimate <= accuracy x its largest displacement, as a
+    yarn's. At --accuracy 1e-12 no step of the small strip can pass (its bound,
+    residual x ||H^-1||_inf, is far above 1e-12 of its displacements): exit status 3, one
+    line naming the yarn and node where the bound is largest and what to change; no step
+    finished. At the default the same scene runs (test_strip_shows_crimp_interchange)."""
+    import subprocess
+    import sys
+
+    path, out = tmp_path / "strip.toml", tmp_path / "strip.h5"
+    path.write_text(small_strip())
+    done = subprocess.run([sys.executable, "-m", "dynfab.cli", "run", str(path), "--out",
+                           str(out), "--accuracy", "1e-12", "--quiet"],
+                          capture_output=True, text=True)
+    assert done.returncode == 3, done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1, lines
+    assert re.match(r"dynfab: error: load step 1/3 \(load 0\.333\d* 0 N\): fabric \((warp|weft) "
+                    r"\d, node \d+: where the bound is largest\): the residual .* N \(tolerance "
+                    r"1e-11 N\) leaves a position error up to .* m \(residual x \|\|H\^-1\|\|_inf "
+                    r"= .* m/N\), above static\.accuracy = 1e-12 of the step's largest "
+                    r"displacement .* m: tighten the tolerance to below .* N, or loosen "
+                    r"static\.accuracy; the 0 finished steps are kept$", lines[0]), lines[0]
 
 
 def test_dynfab_run_on_a_fabric_scene_from_the_command_line(tmp_path):
@@ -451,30 +470,19 @@ def test_viscous_damping_with_a_given_coefficient_relaxes_to_the_static_solution
 
 
 @pytest.mark.parametrize("key", ["static.accuracy", "dynamic.accuracy"])
-def test_a_fabric_refuses_the_accuracy_key_it_would_ignore(key, tmp_path):
-    """Neither fabric solver has a position error estimate, so [static] or [dynamic]
-    accuracy in a fabric scene is refused in one line naming it (exit 2), in the file and
-    in a scene built in Python, not silently ignored; and a fabric scene's written text
-    (the result file's `scene`) leaves it out."""
-    import subprocess
-    import sys
-    from dataclasses import replace
-
-    from dynfab.scene import scene_to_toml, validate_scene
+def test_a_fabric_holds_its_steps_to_the_accuracy_key(key):
+    """[static] and [dynamic] accuracy are a fabric's keys too (its steps carry an error
+    bound, steps/error_estimate): written in the scene text a result file stores, and the
+    solver that reads it stops a step whose bound exceeds it (SolverError, exit 3 at the
+    command line), naming the key."""
+    from dynfab.errors import SolverError
+    from dynfab.scene import scene_to_toml
 
     table, name = key.split(".")
-    text = small_strip() + f"\n[{table}]\n{name} = 0.05\n"
-    with pytest.raises(UserError, match=rf"^{key} = 0\.05: means nothing in a fabric"):
-        parse_scene_text(text)
-    path = tmp_path / "strip.toml"
-    path.write_text(text)
-    done = subprocess.run([sys.executable, "-m", "dynfab.cli", "run", str(path), "--out",
-                           str(tmp_path / "strip.h5")], capture_output=True, text=True)
-    assert done.returncode == 2
-    assert len(done.stderr.strip().splitlines()) == 1
-    assert done.stderr.startswith(f"dynfab: error: {key} = 0.05: means nothing in a fabric")
-    scene = parse_scene_text(small_strip())
-    assert "accuracy" not in scene_to_toml(scene)
-    built = replace(scene, **{table: replace(getattr(scene, table), accuracy=0.05)})
-    with pytest.raises(UserError, match=rf"^{key} = 0\.05: means nothing in a fabric"):
-        validate_scene(built)
+    scene = parse_scene_text(small_strip() + f"\n[{table}]\n{name} = 1e-12\n")
+    assert getattr(getattr(scene, table), name) == 1e-12
+    assert f"{name} = 1e-12" in scene_to_toml(scene)
+    with pytest.raises(SolverError, match=rf"^load step 1/3 .*: fabric \((warp|weft) \d, node "
+                                          rf"\d+: where the bound is largest\): .* above {key} "
+                                          rf"= 1e-12 of"):
+        run(scene, table)

@@ -137,10 +137,6 @@ def build_run(scene: Scene, solver: str, device: str | None, options: dict, stat
     if device is not None and solver == "static":
         raise UserError(f"--device {device}: the static solver runs on the CPU (numba); "
                         "a device is for --solver dynamic")
-    if options.get("accuracy") is not None:
-        raise UserError(f"--accuracy {options['accuracy']}: the fabric's solvers have no "
-                        "error estimate to hold to it (their steps are certified by their "
-                        "residual and inertia); drop it")
     scene = apply_run_options(scene, solver, **options)
     if solver == "dynamic":
         _check_dynamic_keys(scene.dynamic)
