@@ -21,7 +21,7 @@ from dynfab import assembly as one_yarn_assembly
 from dynfab.certificate import NEGATIVES, certify_yarn
 from dynfab.model import build_model, initial_state
 from dynfab.static import StaticSolver
-from independent import fabric_scene, held_family, make_scene
+from independent import fabric_scene, held_family, make_scene, record_inverse_norm
 
 L, N, WEFTS, WARPS = 0.1, 24, 4, 3
 WARP = dict(length=L, segments=N, amplitude=0.5e-3, EA=13.72, EI=1.47e-7, kawabata_C=0.2e-3,
@@ -91,12 +91,6 @@ def one_yarn_run(control, values, friction, stick_stiffness, gravity=None, with_
     return (records, model) if with_model else records
 
 
-def inverse_norm(solver, state, limit):
-    """||H^-1||_inf [m/N] of the fabric's Hessian (F_T frozen) at a converged state."""
-    H = solver.hessian(state.positions, state.anchors, limit).toarray()
-    return np.abs(np.linalg.inv(H)).sum(axis=1).max()
-
-
 @pytest.mark.parametrize("control, values", [("force", FORCES), ("displacement", DISPLACEMENTS)])
 @pytest.mark.parametrize("friction", [None, FRICTION], ids=["frictionless", "friction"])
 def test_held_wefts_give_the_one_yarn_model(control, values, friction):
@@ -141,10 +135,10 @@ def compare_with_one_yarn(control, values, friction, gravity=None):
         state, record = solver.step(state, value, 0.0)
         records.append(record)
         # Both solves stop at a residual <= TOLERANCE (or the rounding floor); two states whose
-        # residuals are r1, r2 differ by at most ||H^-1|| (r1 + r2) (H the Hessian; the
-        # friction limit's coupling is of the order of the contact tangent times alpha,
-        # covered by the factor 4).
-        bound = inverse_norm(solver, state, record["friction_limit"].ravel())
+        # residuals are r1, r2 differ by at most ||H^-1|| (r1 + r2) (H the Hessian, its norm
+        # the step's record's, `record_inverse_norm`; the friction limit's coupling is of the
+        # order of the contact tangent times alpha, covered by the factor 4).
+        bound = record_inverse_norm(record)
         residuals = record["residual"] + expected["residual"].max()
         tolerance = 4 * bound * max(residuals, TOLERANCE)
         for k in range(WARPS):
