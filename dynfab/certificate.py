@@ -457,12 +457,6 @@ class PatchCertificate:
         return int(self.result[NEGATIVES])
 
 
-NORM_SEED = 20070101
-"""Seed of the random columns of Higham-Tisseur's block estimate (scipy's onenormest draws
-them from numpy's global generator, whose state is restored after): the estimate, and a
-step's stop by the accuracy check, are the same from run to run."""
-
-
 def certify_patch(model, pos, anchors, limit) -> PatchCertificate:
     """Certify a patch's converged state (docs/model.md section 6, "Stability and accuracy of
     a converged step"). `model` is the fabric's (`dynfab.fabric.model.FabricModel`: its
@@ -475,9 +469,9 @@ def certify_patch(model, pos, anchors, limit) -> PatchCertificate:
       ARPACK's shift-invert Lanczos at 0 with that factor; on a saddle the lowest of the
       shift-invert Lanczos below the spectrum that the escape runs
       (`dynfab.fabric.inertia.lowest_eigenvectors`).
-    - est ||H^-1||_inf (`_inverse_norm`): Hager-Higham (scipy's onenormest) with the
-      factor's solves; infinite where the count needed a shift (H singular to rounding) or
-      no factorisation of H exists.
+    - est ||H^-1||_inf (`_inverse_norm`): Hager-Higham (scipy's onenormest and Higham's
+      alternating vector) with the factor's solves; infinite where the count needed a shift
+      (H singular to rounding) or no factorisation of H exists.
     """
     f = model.structure
     H = model.hessian(pos, anchors, limit)
@@ -527,9 +521,8 @@ def _bracket(H, y, scale, order, proved) -> tuple[float, float]:
     Where that count is refused or finds a negative, l is `proved`, the lower bound the
     certificate's inertia count already proves (0 less its rounding shift on a stable
     state, the escape's shift below the spectrum on a saddle)."""
-    A = 0.5 * (H + H.T)
     y = y / np.linalg.norm(y)
-    Ay = A @ y
+    Ay = 0.5 * (H @ y + H.T @ y)
     value = float(y @ Ay)
     residual = float(np.linalg.norm(Ay - value * y))
     lower = value - residual - 1e3 * EPS * scale
@@ -540,21 +533,23 @@ def _bracket(H, y, scale, order, proved) -> tuple[float, float]:
 
 
 def _inverse_norm(solve, n: int) -> tuple[float, int]:
-    """(est ||H^-1||_inf [m/N], the unknown whose row has the largest 1-norm): Higham and
-    Tisseur's block 1-norm estimate (scipy.sparse.linalg.onenormest, two columns, at most 5
-    sweeps; a lower bound of the norm, in practice within a factor 3) with the factor's
-    solves; H symmetric, so the 1- and inf-norms agree, and H^-T = H^-1."""
+    """(est ||H^-1||_inf [m/N], the unknown whose row has the largest 1-norm) with the
+    factor's solves, H symmetric (H^-T = H^-1; the 1- and inf-norms agree): Hager's estimate
+    (scipy.sparse.linalg.onenormest with one column, at most 5 sweeps of two solves;
+    deterministic) and Higham's alternating vector x_i = (-1)^i (1 + i / (n - 1)), whose
+    2 |H^-1 x|_1 / (3 n) is taken if larger, as the one-yarn model's `inverse_norm_1`. A
+    lower bound of the norm, in practice within a factor 3. (Two columns, scipy's default,
+    draw their second from numpy's global generator and cost as much again in its checks
+    for parallel columns as in solves.)"""
     if n == 0:
         return 0.0, -1
     inverse = scipy.sparse.linalg.LinearOperator((n, n), matvec=solve, rmatvec=solve,
                                                  matmat=solve, rmatmat=solve, dtype=float)
-    state = np.random.get_state()
-    np.random.seed(NORM_SEED)
-    try:
-        estimate, v = scipy.sparse.linalg.onenormest(inverse, compute_v=True)
-    finally:
-        np.random.set_state(state)
-    return float(estimate), int(np.argmax(np.abs(v)))
+    estimate, v = scipy.sparse.linalg.onenormest(inverse, t=1, compute_v=True)
+    i = np.arange(n)
+    alternating = np.where(i % 2 == 0, 1.0, -1.0) * (1.0 + i / max(n - 1, 1))
+    estimate = max(float(estimate), 2.0 * np.abs(solve(alternating)).sum() / (3.0 * n))
+    return estimate, int(np.argmax(np.abs(v)))
 
 
 def longest_chain(structure: Structure) -> float:
