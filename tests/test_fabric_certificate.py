@@ -113,9 +113,12 @@ def test_the_error_estimate_bounds_the_distance_to_a_tighter_solve(control):
 def test_a_fabric_step_records_every_step_key():
     """The contract's names (`dynfab.solver.STEP_KEYS`: the certificate's stable, buckled,
     lowest_eigenvalue, lowest_eigenvalue_error and error_estimate among them), each with its
-    units, whatever the model."""
+    units, whatever the model; the result file's root attributes say the accuracy the steps
+    were held to, as a one-yarn run's."""
     model = frictionless_patch("force", 1e-10)
-    _, record = FabricSolver(model).step(model.initial_state(), model.load_values[0])
+    solver = FabricSolver(model)
+    assert solver.attrs()["static_accuracy"] == model.scene.static.accuracy == 0.1  # the default
+    _, record = solver.step(model.initial_state(), model.load_values[0])
     assert set(STEP_KEYS) <= set(record)
     for name in record:
         units_of(f"steps/{name}", model.control)  # raises for an undocumented name

@@ -78,9 +78,12 @@ class FabricSolver:
         static = self.model.scene.static
         attrs = {"solver": self.name, "static_tolerance": static.tolerance,
                  "static_max_iterations": static.max_iterations}
+        if self.name == "static":
+            attrs["static_accuracy"] = static.accuracy  # as the one-yarn run's
         if self.name == "dynamic":
             attrs["dynamic_damping"] = self.model.scene.dynamic.damping_used()
             attrs["dynamic_method"] = self.model.scene.dynamic.method  # as the one-yarn run's
+            attrs["dynamic_accuracy"] = self.model.scene.dynamic.accuracy
         return attrs
 
     def step(self, state: FabricState, load) -> tuple[FabricState, dict]:
