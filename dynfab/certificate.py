@@ -1,7 +1,18 @@
 """Certificate of a converged load step: stable minimum or saddle, and its error bound
-(docs/model.md section 6).
+(docs/model.md section 6), for every model and solver.
 
-Both solvers call `certify` on every converged yarn, in float64 on the host:
+One certificate, two routes to it, one record (`StepStability`: stable, buckled,
+lowest_eigenvalue, lowest_eigenvalue_error, error_estimate) and one accuracy check
+(`check_accuracy`):
+
+- the banded route, where the chains are independent (the one-yarn model): an unpivoted
+  LDL^T per chain, below;
+- the sparse route, where they are tied (the woven fabric): SuperLU's factorisation of the
+  whole patch (`certify_patch`, `escape_patch`, with `dynfab.fabric.inertia`; at the end of
+  this module, and docs/model.md, "Stability and accuracy of a converged step").
+
+On the banded route both solvers call `certify` on every converged yarn, in float64 on the
+host:
 
 - The matrix (`certificate_matrix`): the symmetric Hessian of V plus the Huber
   friction terms with F_T frozen at the state's values (not the coupled

@@ -1,4 +1,5 @@
-"""The fabric's stability check: the inertia of its Hessian (docs/model.md sections 6, 10).
+"""The fabric's inertia count and eigen-solves: the sparse route of the step certificate
+(`dynfab.certificate.certify_patch`, docs/model.md sections 6, 10).
 
 First route (`sparse_inertia`): SuperLU in symmetric mode, the Newton solve's factorisation
 (the pattern's nested-dissection order, `dynfab.fabric.ordering`, or without one SuperLU's
