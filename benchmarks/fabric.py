@@ -19,8 +19,9 @@ every part untimed on a 4 x 4 patch (compiles; loads the numba and Warp caches),
    1.5x numba); the launch cost per step; |Warp - numba| after the same steps.
 2. `newton_costs`: the Newton solve alone (`FabricStaticSolver.solve`: time per Newton
    iteration); later `static_costs`: `FabricStaticSolver.step` whole (Newton and the
-   certificate) and the certificate's parts, the inertia count and the nearest
-   eigenvalue (MODEL.md 6), each timed on its own.
+   certificate), the certificate (`dynfab.certificate.certify_patch`: inertia, lowest
+   eigenvalue and its bracket, the norm estimate of the error bound) and two of its parts,
+   the inertia count and the nearest eigenvalue (MODEL.md 6), each timed on its own.
 3. `pcg_costs`: the semi-implicit solver's linear algebra inside Newton (the solver itself
    is part 6); its linear solve ((M/h^2 + H) dx = f, Newton as h -> inf) is measured inside the static
    solver: `PCGStatic`, Newton with its direction by CG preconditioned with each yarn's
@@ -76,6 +77,7 @@ import scipy.linalg
 import scipy.sparse
 import scipy.sparse.linalg
 
+from dynfab import certificate
 from dynfab.fabric import inertia, ordering
 from dynfab.fabric.dynamic import FabricDynamicSolver
 from dynfab.fabric.from_scene import FabricModel
@@ -283,7 +285,7 @@ def newton_costs(n: int, friction=None):
     no certificate), its time per iteration."""
     solver = FabricStaticSolver(patch_model(n, friction))
     start = solver.initial_state()
-    P = solver.yarn_loads(*LOAD)
+    P = solver.model.yarn_loads(*LOAD)
 
     def newton():
         pos, anchors = start.positions.copy(), start.anchors.copy()
@@ -297,20 +299,29 @@ def newton_costs(n: int, friction=None):
 
 def static_costs(n: int, friction=None):
     """(row, state, record): FabricStaticSolver.step on the load step (Newton and the
-    certificate), and the certificate's two parts on their own at its solution: the
-    inertia count and the nearest eigenvalue (MODEL.md 6)."""
+    certificate), the certificate (`dynfab.certificate.certify_patch`: the inertia, the
+    lowest eigenvalue with its proved bracket, est ||H^-1||_inf) on its own at its
+    solution, and parts of it timed alone: the inertia count and the nearest eigenvalue
+    (MODEL.md 6)."""
     solver = FabricStaticSolver(patch_model(n, friction))
     start = solver.initial_state()
     step_s, (state, record) = timed(lambda: solver.step(start, *LOAD))
     limit = solver.friction_limits(state.positions)
-    inertia_s, result = timed(lambda: inertia.inertia(solver, state.positions, state.anchors, limit))
+    certificate_s, checked = timed(lambda: certificate.certify_patch(
+        solver.model, state.positions, state.anchors, limit))
+    inertia_s, result = timed(lambda: inertia.inertia(solver.model, state.positions, state.anchors, limit))
     nearest_s, nearest = timed(lambda: inertia.nearest_eigenvalue(
         solver.hessian(state.positions, state.anchors, limit)))
     row = {"step_s": step_s, "step_iterations": int(record["iterations"]),
-           "escapes": int(record["escapes"]), "certificate_s": inertia_s + nearest_s,
+           "escapes": int(record["escapes"]), "certificate_s": certificate_s,
            "inertia_s": inertia_s, "nearest_eigenvalue_s": nearest_s,
            "schur_size": result.schur_size, "negative_eigenvalues": int(result.negatives),
-           "nearest_eigenvalue_N_per_m": nearest, "residual_N": float(record["residual"])}
+           "nearest_eigenvalue_N_per_m": nearest,
+           "lowest_eigenvalue_N_per_m": float(checked.result[certificate.LOWEST]),
+           "lowest_eigenvalue_error_N_per_m": float(checked.result[certificate.LOWEST_ERROR]),
+           "inverse_norm_m_per_N": float(checked.result[certificate.INVERSE_NORM]),
+           "error_estimate_m": float(record["error_estimate"]),
+           "residual_N": float(record["residual"])}
     return row, state, record
 
 
@@ -435,7 +446,7 @@ def semi_costs(n: int, static_positions=None, friction=None, newton_s=None) -> d
     semi = solver.relaxation
     semi.cg_tolerance = LAYOUT_CG_TOLERANCE
     anchors = start.anchors + solver._plane_shift
-    P = solver.reference.yarn_loads(*LOAD)
+    P = solver.model.yarn_loads(*LOAD)
     dt = 1e4
     semi.system(state.positions, solver.external_force(P), anchors, dt=dt)
 
@@ -450,7 +461,7 @@ def semi_costs(n: int, static_positions=None, friction=None, newton_s=None) -> d
     launches, _ = per_iteration(lambda: fabric_semi_implicit.pcg_launches(semi, dt))
     per_step = FabricDynamicSolver(patch_model(n, friction), method="semi_implicit",
                                    layout="per_step")
-    pos, held, loads = per_step.reference.start_of_step(start, *LOAD)
+    pos, held, loads = per_step.model.start_of_step(start, *LOAD)
     began = time.perf_counter()
     per_step.relax(pos, loads, held)
     row["per_step_relax_s"] = time.perf_counter() - began  # one run: the whole time loop
@@ -472,7 +483,7 @@ def newton_pieces(n: int, positions) -> dict:
     solver = FabricStaticSolver(patch_model(n))
     pos, anchors = positions, solver.initial_state().anchors
     limit = np.zeros(n * n)
-    P = solver.yarn_loads(*LOAD)
+    P = solver.model.yarn_loads(*LOAD)
     H = solver.hessian(pos, anchors, limit)
     g = solver.pattern.reduce(solver.gradient(pos, P, anchors, limit))
     row = {"hessian_nonzeros": int(H.nnz),
@@ -482,7 +493,7 @@ def newton_pieces(n: int, positions) -> dict:
            "splu_symmetric_s": timed(lambda: _sparse_solve(H, -g, order=ordering.fabric_order(
                solver.fabric, solver.pattern)))[0]}
     row.update(ordering_pieces(solver, H, g))
-    row["inertia_s"], result = timed(lambda: inertia.inertia(solver, pos, anchors, limit))
+    row["inertia_s"], result = timed(lambda: inertia.inertia(solver.model, pos, anchors, limit))
     row["inertia_negatives"], row["inertia_method"] = int(result.negatives), result.method
     row.update(nearest_eigenvalue_pieces(H))
     if n <= 8:

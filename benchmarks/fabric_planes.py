@@ -135,7 +135,7 @@ def first_step_relaxer(model, rule: str):
     dynamic.relaxation = fabric_semi_implicit.FabricSemiImplicit(dynamic.arrays,
                                                                  layout="persistent", rule=rule)
     warp, weft = model.load_values[0]
-    pos, anchors, P = dynamic.reference.start_of_step(dynamic.initial_state(), warp, weft)
+    pos, anchors, P = dynamic.model.start_of_step(dynamic.initial_state(), warp, weft)
     return lambda: dynamic.relax(pos, P, anchors)[1]
 
 

@@ -1,7 +1,18 @@
 """Certificate of a converged load step: stable minimum or saddle, and its error bound
-(docs/model.md section 6).
+(docs/model.md section 6), for every model and solver.
 
-Both solvers call `certify` on every converged yarn, in float64 on the host:
+One certificate, two routes to it, one record (`StepStability`: stable, buckled,
+lowest_eigenvalue, lowest_eigenvalue_error, error_estimate) and one accuracy check
+(`check_accuracy`):
+
+- the banded route, where the chains are independent (the one-yarn model): an unpivoted
+  LDL^T per chain, below;
+- the sparse route, where they are tied (the woven fabric): SuperLU's factorisation of the
+  whole patch (`certify_patch`, `escape_patch`, with `dynfab.fabric.inertia`; at the end of
+  this module, and docs/model.md, "Stability and accuracy of a converged step").
+
+On the banded route both solvers call `certify` on every converged yarn, in float64 on the
+host:
 
 - The matrix (`certificate_matrix`): the symmetric Hessian of V plus the Huber
   friction terms with F_T frozen at the state's values (not the coupled
@@ -48,13 +59,20 @@ Both solvers call `certify` on every converged yarn, in float64 on the host:
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numba
 import numpy as np
+import scipy.sparse.linalg
 
 from dynfab import assembly
 from dynfab.banded import BANDWIDTH, band_add, band_matvec, constrain
 from dynfab.errors import SolverError
+from dynfab.fabric import assembly as fabric_assembly
+from dynfab.fabric import inertia
+from dynfab.fabric import ordering as fabric_ordering
 from dynfab.ldlt import TINY_PIVOT, inverse_norm_1, ldlt_factor, ldlt_solve, negative_direction
+from dynfab.structure import Structure
 from dynfab.terms import friction
 
 EPS = np.finfo(np.float64).eps
@@ -69,11 +87,17 @@ MAX_CANDIDATES = 64
 """Negative pivots whose vectors `escape` tries (the most negative Rayleigh quotients are not
 the best escapes: far past a buckling load the lowest mode releases the most energy)."""
 MAX_ESCAPES = 12
-"""Escapes per yarn and load step before a solver accepts the state it has."""
+"""Escapes per yarn (per patch, on the sparse route) and load step before a solver accepts
+the state it has."""
+ESCAPE_CANDIDATES = 16
+"""The sparse route's escape directions per escape, at most: the lowest eigenvectors."""
 STEP_HALVINGS = 53
 """Steps t = L 2^-k, k < STEP_HALVINGS, tried along each escape vector (down to rounding)."""
 NEGATIVES, LOWEST, LOWEST_ERROR, INVERSE_NORM, SHIFT = range(5)
 """Fields of `certify`'s result array."""
+CERTIFICATE_KEYS = ("stable", "buckled", "lowest_eigenvalue", "lowest_eigenvalue_error",
+                    "error_estimate")
+"""The record entries of the certificate (`StepStability.fields`), every model's."""
 
 
 @numba.njit(cache=True)
@@ -340,21 +364,24 @@ def displacement_scale(positions, rest_positions):
     return float(np.max(np.abs(positions - rest_positions)))
 
 
-def check_accuracy(yarn_index: int, error_estimate: float, scale: float, residual: float,
+def check_accuracy(where: str, error_estimate: float, scale: float, residual: float,
                    tolerance: float, accuracy: float, at_floor: bool, precision: str,
                    key: str, singular_shift: float = 0.0) -> None:
     """SolverError (one line) when the error bound is not small against the step's displacements.
 
     Accepted: error_estimate <= accuracy x max(scale, sqrt(eps) L) is checked by the caller
-    through `scale` (already floored). The message says what the residual implies and what to
-    change (docs/model.md section 6, docs/model.md "Stability and accuracy of a converged step").
+    through `scale` (already floored, `StepStability.scale`). The message starts with `where`
+    (the one-yarn model: "yarn k"; a fabric: the patch and the yarn where the bound is
+    largest, `patch_location`), says what the residual implies and what to change
+    (docs/model.md section 6, docs/model.md "Stability and accuracy of a converged step").
     An infinite estimate means the matrix needed the shift `singular_shift` [N/m] to factor.
+    Every solver of every model calls it.
     """
     if error_estimate <= accuracy * scale:
         return
     if np.isinf(error_estimate):
         raise SolverError(
-            f"yarn {yarn_index + 1}: the stiffness matrix is singular to rounding (a pivot within "
+            f"{where}: the stiffness matrix is singular to rounding (a pivot within "
             f"{singular_shift:.3g} N/m of zero, 64 eps of its largest diagonal entry), so the "
             f"residual {residual:.3g} N bounds no position error: use a coarser mesh or softer "
             f"data")
@@ -369,41 +396,238 @@ def check_accuracy(yarn_index: int, error_estimate: float, scale: float, residua
                   f"use float64, or a tolerance below {needed:.2g} N if float32 reaches it")
         reached = f"the residual {residual:.3g} N (tolerance {tolerance:.3g} N)"
     raise SolverError(
-        f"yarn {yarn_index + 1}: {reached} leaves a position error up to {error_estimate:.3g} m "
+        f"{where}: {reached} leaves a position error up to {error_estimate:.3g} m "
         f"(residual x ||H^-1||_inf = {inverse_norm:.3g} m/N), above {key} = {accuracy:g} of the "
         f"step's largest displacement {scale:.3g} m: {change}, or loosen {key}")
 
 
 class StepStability:
-    """The certificate fields of one load step's record, filled yarn by yarn.
+    """The certificate fields of one load step's record, filled certified unit by unit (the
+    one-yarn model's yarns; a fabric's one patch), for every solver of every model.
 
-    `stable` (no negative pivot), `lowest_eigenvalue` [N/m], `error_estimate` [m]
-    (residual x est ||H^-1||_inf) and `buckled` (an escape left a saddle in this step).
+    `stable` (no negative pivot), `buckled` (an escape left a saddle in this step),
+    `lowest_eigenvalue` [N/m] (the lowest eigenvalue of the frozen-F_T Hessian on the free
+    dofs), `lowest_eigenvalue_error` [N/m] (lambda_min lies in [lowest_eigenvalue - error,
+    lowest_eigenvalue]) and `error_estimate` [m] (residual x est ||H^-1||_inf).
     """
 
-    def __init__(self, yarns: int):
-        self.stable = np.zeros(yarns, np.bool_)
-        self.buckled = np.zeros(yarns, np.bool_)
-        self.lowest_eigenvalue = np.full(yarns, np.nan)
-        self.error_estimate = np.full(yarns, np.nan)
-        self.shift = np.zeros(yarns)
+    def __init__(self, units: int):
+        self.stable = np.zeros(units, np.bool_)
+        self.buckled = np.zeros(units, np.bool_)
+        self.lowest_eigenvalue = np.full(units, np.nan)
+        self.lowest_eigenvalue_error = np.full(units, np.nan)
+        self.error_estimate = np.full(units, np.nan)
+        self.shift = np.zeros(units)
 
     def record(self, k: int, result: np.ndarray, residual: float) -> None:
-        """Yarn k's certificate `result` (`certify`) at its final residual [N]."""
+        """Unit k's certificate `result` (`certify`, `PatchCertificate.result`) at its final
+        residual [N]."""
         self.stable[k] = result[NEGATIVES] == 0
         self.lowest_eigenvalue[k] = result[LOWEST]
+        self.lowest_eigenvalue_error[k] = result[LOWEST_ERROR]
         self.shift[k] = result[SHIFT]
         self.error_estimate[k] = residual * result[INVERSE_NORM] if residual > 0 else 0.0
 
     @staticmethod
-    def scale(positions: np.ndarray, rest_positions: np.ndarray) -> float:
+    def scale(positions: np.ndarray, rest_positions: np.ndarray,
+              length: float | None = None) -> float:
         """The step's displacement scale [m]: max |r - r0| over nodes and coordinates, at least
-        sqrt(eps) L (a step that barely moves is not asked for relative accuracy below that)."""
-        length = abs(rest_positions[-1, 0] - rest_positions[0, 0])
+        sqrt(eps) L (a step that barely moves is not asked for relative accuracy below that);
+        L = `length`, else the extent of `rest_positions` along coordinate 0 (a yarn's)."""
+        if length is None:
+            length = abs(rest_positions[-1, 0] - rest_positions[0, 0])
         return max(displacement_scale(positions, rest_positions), np.sqrt(EPS) * length)
 
     def fields(self) -> dict:
-        """The record entries (`steps/<name>` of the result file)."""
-        return {"stable": self.stable.copy(), "buckled": self.buckled.copy(),
-                "lowest_eigenvalue": self.lowest_eigenvalue.copy(),
-                "error_estimate": self.error_estimate.copy()}
+        """The record entries (`steps/<name>` of the result file), arrays (units,)."""
+        return {name: getattr(self, name).copy() for name in CERTIFICATE_KEYS}
+
+
+# --------------------------------------------------------------------------
+# The sparse route: chains tied to each other (the woven fabric, docs/model.md section 10).
+
+
+@dataclass
+class PatchCertificate:
+    """The certificate of a patch's converged state (`certify_patch`)."""
+
+    result: np.ndarray
+    """(5,): NEGATIVES, LOWEST, LOWEST_ERROR, INVERSE_NORM, SHIFT, as `certify`'s."""
+    nearest: float
+    """The eigenvalue nearest zero [N/m] (ARPACK shift-invert at 0; NaN if ARPACK failed):
+    on a saddle, where the escape's search for a shift below the spectrum starts."""
+    vectors: np.ndarray | None
+    """On a saddle, the lowest eigenvectors on the unknowns (the escape's candidates, at
+    most ESCAPE_CANDIDATES, `dynfab.fabric.inertia.lowest_eigenvectors`); else None."""
+    worst: int
+    """The unknown whose row of H^-1 has the largest 1-norm (where the error bound is
+    largest; Hager-Higham's maximising column, H symmetric), -1 if none."""
+
+    @property
+    def negatives(self) -> int:
+        return int(self.result[NEGATIVES])
+
+
+def certify_patch(model, pos, anchors, limit) -> PatchCertificate:
+    """Certify a patch's converged state (docs/model.md section 6, "Stability and accuracy of
+    a converged step"). `model` is the fabric's (`dynfab.fabric.model.FabricModel`: its
+    structure, its Hessian on the unknowns, F_T = `limit` frozen, and their pattern).
+
+    - The inertia: SuperLU's symmetric-mode pivots in the pattern's nested-dissection order
+      (`dynfab.fabric.inertia.sparse_factor`), else the Schur (or dense) route with a
+      rounding-level shift where a pivot vanishes (`dynfab.fabric.inertia.inertia`).
+    - The lowest eigenvalue and its bracket (`_bracket`): on a stable state the Ritz pair of
+      ARPACK's shift-invert Lanczos at 0 with that factor; on a saddle the lowest of the
+      shift-invert Lanczos below the spectrum that the escape runs
+      (`dynfab.fabric.inertia.lowest_eigenvectors`).
+    - est ||H^-1||_inf (`_inverse_norm`): Hager-Higham (scipy's onenormest and Higham's
+      alternating vector) with the factor's solves; infinite where the count needed a shift
+      (H singular to rounding) or no factorisation of H exists.
+    """
+    f = model.structure
+    H = model.hessian(pos, anchors, limit)
+    n = H.shape[0]
+    scale = float(np.abs(H.diagonal()).max()) if n else 0.0
+    order = fabric_ordering.fabric_order(f, model.pattern)
+    counted, solve = inertia.sparse_factor(H, 0.0, scale, order)
+    if counted is None:
+        counted = inertia.inertia(model, pos, anchors, limit)
+        solve = inertia.shifted_solve(H, 0.0, order) if counted.shift == 0.0 else None
+    result = np.full(5, np.nan)
+    result[NEGATIVES], result[SHIFT] = counted.negatives, counted.shift
+    norm, worst = _inverse_norm(solve, n) if solve is not None and counted.shift == 0.0 \
+        else (np.inf, -1)
+    result[INVERSE_NORM] = norm
+    nearest, vectors = np.nan, None
+    if counted.negatives == 0:
+        start = inertia.start_vector(n)
+        inverse = None if solve is None else scipy.sparse.linalg.LinearOperator(
+            H.shape, matvec=solve, dtype=float)
+        try:
+            values, ritz = scipy.sparse.linalg.eigsh(H, k=1, sigma=0.0, which="LM",
+                                                     tol=inertia.EIGEN_TOL, OPinv=inverse,
+                                                     v0=start)
+            nearest = float(values[0])
+            result[LOWEST], result[LOWEST_ERROR] = _bracket(H, ritz[:, 0], scale, order,
+                                                            -counted.shift)
+        except (RuntimeError, scipy.sparse.linalg.ArpackNoConvergence):
+            pass  # no eigenvalue: the fields stay NaN
+    else:
+        nearest = inertia.nearest_eigenvalue(H)
+        count = min(counted.negatives, ESCAPE_CANDIDATES, n - 1)
+        _, vectors, bound = inertia.lowest_eigenvectors(model, pos, anchors, limit, count, nearest)
+        result[LOWEST], result[LOWEST_ERROR] = _bracket(H, vectors[:, 0], scale, order, bound)
+    return PatchCertificate(result, nearest, vectors, worst)
+
+
+def _bracket(H, y, scale, order, proved) -> tuple[float, float]:
+    """(lambda, e): lambda_min of H lies in [lambda - e, lambda] (docs/model.md section 6).
+
+    lambda = y^T A y / y^T y (A = (H + H^T)/2, the matrix the inertia counts), a Rayleigh
+    quotient, so lambda >= lambda_min; r = |A y - lambda y| (|y| = 1) puts an eigenvalue in
+    [lambda - r, lambda]. That it is the lowest is proved by Sylvester: A - l I without a
+    negative pivot (SuperLU's symmetric-mode count, `inertia.sparse_inertia`), at
+    l = lambda - r - 1e3 eps max|H_ii| (a margin that keeps the count's smallest pivot
+    above its guard, 64 eps max|H_ii|, where lambda - r is within rounding of lambda_min).
+    Where that count is refused or finds a negative, l is `proved`, the lower bound the
+    certificate's inertia count already proves (0 less its rounding shift on a stable
+    state, the escape's shift below the spectrum on a saddle)."""
+    y = y / np.linalg.norm(y)
+    Ay = 0.5 * (H @ y + H.T @ y)
+    value = float(y @ Ay)
+    residual = float(np.linalg.norm(Ay - value * y))
+    lower = value - residual - 1e3 * EPS * scale
+    counted = inertia.sparse_inertia(H, -lower, scale, order)
+    if counted is None or counted.negatives > 0:
+        lower = proved
+    return value, value - lower
+
+
+def _inverse_norm(solve, n: int) -> tuple[float, int]:
+    """(est ||H^-1||_inf [m/N], the unknown whose row has the largest 1-norm) with the
+    factor's solves, H symmetric (H^-T = H^-1; the 1- and inf-norms agree): Hager's estimate
+    (scipy.sparse.linalg.onenormest with one column, at most 5 sweeps of two solves;
+    deterministic) and Higham's alternating vector x_i = (-1)^i (1 + i / (n - 1)), whose
+    2 |H^-1 x|_1 / (3 n) is taken if larger, as the one-yarn model's `inverse_norm_1`. A
+    lower bound of the norm, in practice within a factor 3. (Two columns, scipy's default,
+    draw their second from numpy's global generator and cost as much again in its checks
+    for parallel columns as in solves.)"""
+    if n == 0:
+        return 0.0, -1
+    inverse = scipy.sparse.linalg.LinearOperator((n, n), matvec=solve, rmatvec=solve,
+                                                 matmat=solve, rmatmat=solve, dtype=float)
+    estimate, v = scipy.sparse.linalg.onenormest(inverse, t=1, compute_v=True)
+    i = np.arange(n)
+    alternating = np.where(i % 2 == 0, 1.0, -1.0) * (1.0 + i / max(n - 1, 1))
+    estimate = max(float(estimate), 2.0 * np.abs(solve(alternating)).sum() / (3.0 * n))
+    return estimate, int(np.argmax(np.abs(v)))
+
+
+def longest_chain(structure: Structure) -> float:
+    """The largest as-woven extent of a chain along itself [m] (a fabric's longer family)."""
+    first, last = structure.chain_start[:-1], structure.load_node
+    return float(np.max(structure.rest_position[last, 0] - structure.rest_position[first, 0]))
+
+
+def escape_patch(model, pos, P, anchors, limit, checked: PatchCertificate):
+    """The sparse route's escape from a saddle (docs/model.md section 6): the positions of
+    lowest V + H (F_T = `limit` frozen) along the certificate's lowest eigenvectors, steps
+    +-t v with t from the longest chain's length halving STEP_HALVINGS times, a trial taken
+    only when lower by more than the energy's rounding (64 eps times the sum of |terms| and
+    the positions' rounding scale, `dynfab.fabric.assembly.rounding_scale`); ties keep the
+    larger step, the + sign, the lower eigenvector. None when no trial lowers the energy.
+    P: the end loads (Y,) [N]."""
+    f = model.structure
+    terms = np.zeros(len(fabric_assembly.TERMS))
+    e0 = fabric_assembly.total_energy(pos, f, P, anchors, limit, terms)
+    rounding = 64.0 * EPS * (np.abs(terms).sum() + fabric_assembly.rounding_scale(pos, f, P, limit))
+    length = longest_chain(f)
+    best, best_pos = e0 - rounding, None
+    for k in range(checked.vectors.shape[1]):
+        d = model.pattern.expand(checked.vectors[:, k]).reshape(pos.shape)
+        t = length
+        for _ in range(STEP_HALVINGS):
+            for sign in (1.0, -1.0):
+                trial = pos + (sign * t) * d
+                e = fabric_assembly.total_energy(trial, f, P, anchors, limit, terms)
+                if e < best - rounding:
+                    best, best_pos = e, trial
+            t *= 0.5
+    return best_pos
+
+
+def check_patch_accuracy(model, checked: PatchCertificate, stability: StepStability, pos,
+                         residual: float, tolerance: float, accuracy: float, at_floor: bool,
+                         key: str) -> None:
+    """`check_accuracy` for a patch whose certificate `stability` recorded (unit 0) at
+    positions `pos` (nodes, 2) [m]: the scale is the largest displacement of any node, at
+    least sqrt(eps) times the longest chain; the message names the yarn and node where the
+    bound is largest (`patch_location`); float64."""
+    f = model.structure
+    scale = StepStability.scale(pos, f.rest_position, longest_chain(f))
+    if stability.error_estimate[0] <= accuracy * scale:
+        return
+    where = ("fabric" if checked.worst < 0 else
+             f"fabric ({patch_location(model, checked.worst)}: where the bound is largest)")
+    check_accuracy(where, stability.error_estimate[0], scale, residual, tolerance, accuracy,
+                   at_floor, "float64", key, stability.shift[0])
+
+
+def patch_stability(checked: PatchCertificate, residual: float, escapes: int) -> StepStability:
+    """The certificate fields of a patch's step (one unit): `checked` at the final residual
+    [N], buckled where the step took an escape."""
+    stability = StepStability(1)
+    stability.record(0, checked.result, residual)
+    stability.buckled[0] = escapes > 0
+    return stability
+
+
+def patch_location(model, unknown: int) -> str:
+    """Where unknown `unknown` of the patch lies, in words: "warp k, node i" (1-based k, the
+    node counted from 0 along the yarn), the first of its dofs (a periodic cell's tied cell
+    length is one unknown of several yarns)."""
+    f = model.structure
+    dof = int(np.flatnonzero(model.pattern.index == unknown)[0])
+    node = dof // f.rest_position.shape[1]
+    y = int(np.searchsorted(f.chain_start, node, side="right") - 1)
+    return f"{model.yarn_name(y)}, node {node - int(f.chain_start[y])}"

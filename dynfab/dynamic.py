@@ -225,7 +225,7 @@ class DynamicSolver:
             steps = steps + self.motion.steps.numpy().astype(np.int64)
         tolerance = self.motion.tolerance.numpy().astype(float)  # each yarn's, for this step
         for k in range(model.yarn_count):
-            check_accuracy(k, stability.error_estimate[k],
+            check_accuracy(f"yarn {k + 1}", stability.error_estimate[k],
                            stability.scale(positions[k], model.yarns[k].rest_position),
                            residual[k], tolerance[k], self.options.accuracy, bool(at_floor[k]),
                            self.options.precision, "dynamic.accuracy", stability.shift[k])

@@ -204,11 +204,11 @@ def initial_state(model: Model) -> State:
 
 
 def build_model(scene: Scene) -> Model:
-    """The model of a validated scene: a fabric's (`dynfab.fabric.from_scene.FabricModel`), or
+    """The model of a validated scene: a fabric's (`dynfab.fabric.model.FabricModel`), or
     the one-yarn model's structure (`dynfab.build.yarn`) with one Yarn view per simulated warp
     yarn."""
     if scene.geometry.model == "fabric":
-        from dynfab.fabric.from_scene import FabricModel
+        from dynfab.fabric.model import FabricModel
 
         return FabricModel.from_scene(scene)
     structure = yarn_structure(scene)

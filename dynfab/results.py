@@ -125,7 +125,8 @@ UNITS: dict[str, str] = {
     "steps/dt": "s",  # dynamic solver time step
     "steps/stable": "-",  # (steps, yarns) bool: no negative pivot of the frozen-F_T Hessian
     "steps/buckled": "-",  # (steps, yarns) bool: the step left a saddle (an escape was taken)
-    "steps/lowest_eigenvalue": "N/m",  # (steps, yarns) estimate of lambda_min of that Hessian
+    "steps/lowest_eigenvalue": "N/m",  # (steps, yarns) lambda_min of that Hessian, an upper bound
+    "steps/lowest_eigenvalue_error": "N/m",  # (steps, yarns) lambda_min >= lowest_eigenvalue - this
     "steps/error_estimate": "m",  # (steps, yarns) residual x est ||H^-1||_inf, position error bound
     "steps/tolerance": "N",  # dynamic solver: the residual each load step had to reach
     "steps/weft_positions": "m",  # fabric: (steps, n_we, M+1, 2) weft node (y, z)

@@ -224,7 +224,7 @@ class Static:
                             _POS, option=True, default=1e-11)
     max_iterations: int = _key("Newton iterations per load step before the step is declared "
                                "failed", rule=_POS, option=True, default=200)
-    accuracy: float = _key(_ACCURACY, "-", _POS, option=True, default=0.1, model="yarn")
+    accuracy: float = _key(_ACCURACY, "-", _POS, option=True, default=0.1)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -255,7 +255,7 @@ class Dynamic:
                           default=1_000_000)
     precision: str = _key("floating-point precision of the kernels",
                           choices=("float64", "float32"), option=True, default="float64")
-    accuracy: float = _key(_ACCURACY, "-", _POS, option=True, default=0.1, model="yarn")
+    accuracy: float = _key(_ACCURACY, "-", _POS, option=True, default=0.1)
     duration: float | None = _key("transient: simulated time", "s", _POS, default=None)
     output_interval: float | None = _key("transient: time between frames", "s", _POS,
                                          default=None)
@@ -857,10 +857,6 @@ _FABRIC, _YARN = 'geometry.model = "fabric"', 'geometry.model = "yarn"'
 _YARN_KEY_IN_FABRIC = {
     "weft.tension": "the wefts are chains, loaded by load.weft_values",
     "geometry.yarns": "the fabric simulates weft.count warps and geometry.crossings wefts",
-    "static.accuracy": "the fabric's static steps are held to their residual and certified by "
-                       "their inertia; it has no position error estimate to hold to it",
-    "dynamic.accuracy": "the fabric's dynamic steps are held to their residual; it has no "
-                        "position error estimate to hold to it",
 }
 """Why each one-yarn key means nothing in a fabric (docs/model.md section 10)."""
 

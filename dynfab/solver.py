@@ -43,7 +43,7 @@ Frame = dict[str, np.ndarray]
 STEP_KEYS = ("load", "end_force", "end_displacement", "positions", "contact_force",
              "friction_force", "friction_limit", "sliding", "anchors", "dissipated", "crimp",
              "residual", "iterations", "rounding_floor", "stable", "buckled",
-             "lowest_eigenvalue", "error_estimate", "slip_ratio")
+             "lowest_eigenvalue", "lowest_eigenvalue_error", "error_estimate", "slip_ratio")
 """Names every `Solver.step` record holds, whatever the solver, besides one
 `energy/<term>` per reported energy term (`dynfab.observables`) and, where the scene has a
 weft, stress [N/m] (yarns,), the end force per unit width; shapes (yarns, ...) with
@@ -55,9 +55,13 @@ yarns = model.yarn_count:
   (yarns,); positions [m] (yarns, N+1, 2); contact_force, friction_force,
   friction_limit [N], sliding [-] (bool) and anchors [m] (yarns, crossings);
 - by the solver's certificate (`dynfab.certificate.StepStability.fields`,
-  docs/model.md section 6): stable, buckled [-] (bool), lowest_eigenvalue [N/m] and
-  error_estimate [m] (yarns,); rounding_floor [-] (yarns,) bool: the residual
-  stopped falling above the tolerance.
+  docs/model.md section 6): stable, buckled [-] (bool), lowest_eigenvalue [N/m] (the
+  lowest eigenvalue of the frozen-F_T Hessian on the free dofs, an upper bound of it),
+  lowest_eigenvalue_error [N/m] (lambda_min lies in [lowest_eigenvalue - error,
+  lowest_eigenvalue]) and error_estimate [m] (residual x est ||H^-1||_inf) (yarns,);
+  rounding_floor [-] (yarns,) bool: the residual stopped falling above the tolerance.
+  (A fabric's record holds them too, one scalar per step for its patch,
+  `dynfab.fabric.from_scene`.)
 
 A solver may add its own names (the dynamic solver: time_steps, force_evaluations,
 dt [s], tolerance [N]), each listed in `dynfab.results.UNITS`. `dynfab.run` adds

@@ -461,7 +461,7 @@ class StaticSolver:
             residual[k] = info[RESIDUAL]
             at_floor[k] = info[STATUS] == ROUNDING_FLOOR
             stability.record(k, result, residual[k])
-            check_accuracy(k, stability.error_estimate[k],
+            check_accuracy(f"yarn {k + 1}", stability.error_estimate[k],
                            stability.scale(positions[k], yarn.rest_position), residual[k],
                            self.tolerance, self.accuracy, at_floor[k], "float64",
                            "static.accuracy", stability.shift[k])

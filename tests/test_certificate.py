@@ -2,9 +2,10 @@
 dynfab/ldlt.py).
 
 - The banded LDL^T: inertia, solve and the Hager-Higham norm estimate against dense numpy.
-- A stable paper yarn: stable, and its lowest eigenvalue within the estimator's stated
-  accuracy of numpy.linalg.eigvalsh of the dense certificate matrix; the error bound is
-  the residual times the dense ||H^-1||_inf, within Hager's factor.
+- A stable paper yarn: stable, and numpy.linalg.eigvalsh's lowest eigenvalue of the dense
+  certificate matrix within the bracket the record writes (lowest_eigenvalue,
+  lowest_eigenvalue_error); the error bound is the residual times the dense ||H^-1||_inf,
+  within Hager's factor. A saddle's bracket (bisection on the inertia) holds it too.
 - A straight rod shortened far beyond Euler's load: both solvers leave the straight
   saddle (exactly zero lateral perturbation) for the buckled shape, and the end
   reaction converges at the measured (second) order to the inextensible elastica.
@@ -145,7 +146,10 @@ def test_paper_yarn_is_stable_and_its_lowest_eigenvalue_matches_dense(scene_file
         result, _ = certificate.certify_yarn(positions, yarn, anchors, solver.fixed, residual)
         estimate, accuracy = result[certificate.LOWEST], result[certificate.LOWEST_ERROR]
         assert record["lowest_eigenvalue"][0] == estimate > 0
-        assert estimate - accuracy <= lowest <= estimate + 1e3 * EPS * np.abs(matrix).max()
+        # the record writes the proved bracket: lambda_min in [lowest - error, lowest]
+        assert record["lowest_eigenvalue_error"][0] == accuracy
+        error = record["lowest_eigenvalue_error"][0]
+        assert estimate - error <= lowest <= estimate + 1e3 * EPS * np.abs(matrix).max()
         assert accuracy <= 1e-2 * estimate
         norm = np.abs(np.linalg.inv(matrix)).sum(axis=1).max()
         assert residual * norm / 3 <= record["error_estimate"][0] <= residual * norm * (1 + 1e-8)
@@ -257,6 +261,12 @@ def test_pushed_in_yarn_leaves_its_saddle_in_both_solvers(make_scene):
     lowest = np.linalg.eigvalsh(matrix)[0]
     assert abs(saddle_steps[-1]["lowest_eigenvalue"][0] - lowest) <= (
         1e-6 * abs(lowest) + 1e3 * EPS * np.abs(matrix).max())
+    # the record's bracket, the bisection's: [lowest - error, lowest] holds numpy's
+    estimate, error = (saddle_steps[-1][name][0] for name in ("lowest_eigenvalue",
+                                                              "lowest_eigenvalue_error"))
+    rounding = 1e3 * EPS * np.abs(matrix).max()
+    assert estimate - error - rounding <= lowest <= estimate + rounding
+    assert 0 < error <= 1e-6 * abs(estimate)
     static = run(scene).steps
     assert static["stable"].all() and static["buckled"][0, 0]
     # Lower energy than the saddle at the last step, beyond any rounding (1e-6 relative).

@@ -124,7 +124,7 @@ def test_moving_plane_forces_are_the_numba_gradient(case):
     anchors = mixed_anchors(static, pos)
     limit = static.friction_limits(pos)
     assert (limit > 0).any()  # closed crossings: friction acts
-    P = static.yarn_loads(*LOADS)
+    P = model.yarn_loads(*LOADS)
     grad = np.zeros_like(pos)
     assembly.gradient(pos, f, P, anchors, limit, grad)
     expected = -static.pattern.expand(static.pattern.reduce(grad)).reshape(pos.shape)
@@ -153,7 +153,7 @@ def test_tied_cell_lengths_move_as_one_in_both_layouts(damping):
     model = paper_patch_model(2, 2, [LOADS], friction=PAPER_FRICTION, boundary="periodic")
     dynamic = FabricDynamicSolver(model)
     arrays = dynamic.arrays
-    external = dynamic.external_force(dynamic.reference.yarn_loads(*LOADS))
+    external = dynamic.external_force(dynamic.model.yarn_loads(*LOADS))
     anchors = dynamic.initial_state().anchors + dynamic._plane_shift
     runs = {}
     for layout, order in (("persistent", "scatter"), ("persistent", "gather"), ("per_step", "gather")):

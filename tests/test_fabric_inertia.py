@@ -68,7 +68,7 @@ def test_sparse_count_matches_schur_and_dense_across_the_spectrum(planes):
         assert sparse is not None, f"the sparse route refused the shift below eigenvalue {m}"
         assert sparse.negatives == m and sparse.method == "superlu"
         assert schur.negatives == m
-        result = inertia.inertia(solver, pos, anchors, limit, shift=shift)
+        result = inertia.inertia(solver.model, pos, anchors, limit, shift=shift)
         assert result.method == "superlu" and result.negatives == m and result.shift == shift
 
 
@@ -79,7 +79,7 @@ def test_sparse_count_of_a_saddle_under_compression():
     solver = FabricStaticSolver(patch_model("displacement", (-3e-4,), None, hold="weft"))
     state = solver.initial_state()
     pos, anchors = state.positions.copy(), state.anchors.copy()
-    solver._prescribe(pos, solver.yarn_loads(-3e-4, 0.0))
+    solver.model.prescribe(pos, solver.model.yarn_loads(-3e-4, 0.0))
     info, limit, _ = solver.solve(pos, np.zeros(solver.yarns), anchors)
     assert info.converged
     H = solver.hessian(pos, anchors, limit).toarray()
@@ -88,7 +88,7 @@ def test_sparse_count_of_a_saddle_under_compression():
     sparse, schur = both_routes(solver, pos, anchors, limit, 0.0)
     assert sparse is not None and sparse.negatives == count
     assert schur.negatives == count
-    assert inertia.inertia(solver, pos, anchors, limit).negatives == count
+    assert inertia.inertia(solver.model, pos, anchors, limit).negatives == count
 
 
 def minimum_degree_first(A):
@@ -143,7 +143,7 @@ def test_an_exactly_zero_pivot_falls_back_to_the_schur_route(ordered):
         return
     count, gap = dense_count(H.toarray(), shift)
     assert gap > 1e6 * EPS * scale  # the shifted matrix itself is far from singular
-    result = inertia.inertia(solver, pos, anchors, limit, shift=shift)
+    result = inertia.inertia(solver.model, pos, anchors, limit, shift=shift)
     assert result.method == "schur" and result.shift == shift and result.negatives == count
 
 

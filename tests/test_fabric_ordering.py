@@ -44,7 +44,7 @@ def compressed_saddle():
     solver = FabricStaticSolver(patch_model("displacement", (-3e-4,), None))
     state = solver.initial_state()
     pos, anchors = state.positions.copy(), state.anchors.copy()
-    solver._prescribe(pos, solver.yarn_loads(-3e-4, 0.0))
+    solver.model.prescribe(pos, solver.model.yarn_loads(-3e-4, 0.0))
     info, limit, _ = solver.solve(pos, np.zeros(solver.yarns), anchors)
     assert info.converged
     H = solver.hessian(pos, anchors, limit)

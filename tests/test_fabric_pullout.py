@@ -20,7 +20,7 @@ import numpy as np
 
 from dynfab.fabric.from_scene import FabricModel
 from dynfab.fabric.static import FabricStaticSolver
-from independent import fabric_scene
+from independent import fabric_scene, record_inverse_norm
 
 WARP = dict(length=0.04, segments=24, amplitude=0.5e-3, EA=13.72, EI=1.47e-7, kawabata_C=0.2e-3,
             kawabata_K=0.2)
@@ -58,10 +58,10 @@ def test_pullout_force_is_the_friction_on_the_pulled_warp():
     assert state.positions[f.chain_start[k], 0] > f.rest_position[f.chain_start[k], 0] + 1e-4
     # The plateau: each pull within nodes x r of its friction sum; each F_T,j within
     # dF_T/dR x k_c x |dz| of the next step's, |dz| <= ||H^-1|| r (dF_T/dR <= alpha +
-    # beta ell r_f / R_0, the contact tangent <= k_c).
+    # beta ell r_f / R_0, the contact tangent <= k_c; ||H^-1|| the last step's record's,
+    # `record_inverse_norm`).
     residual = max(max(r for _, _, r in forces[-5:]), solver.tolerance)
-    H = solver.hessian(state.positions, state.anchors, record["friction_limit"].ravel())
-    inverse = np.abs(np.linalg.inv(H.toarray())).sum(axis=1).max()
+    inverse = record_inverse_norm(record)
     slope = FRICTION["alpha"] + (FRICTION["beta"] * FRICTION["contact_length"]
                                  * FRICTION["fiber_radius"] / FRICTION["onset_force"])
     bound = 2 * (nodes * residual + WEFTS * slope * K_C * inverse * residual)

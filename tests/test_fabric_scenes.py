@@ -17,10 +17,11 @@ import numpy as np
 import pytest
 
 from dynfab.errors import UserError
-from dynfab.fabric.from_scene import FabricModel, FabricSolver
+from dynfab.fabric.from_scene import FabricModel
 from dynfab.run import run, run_to_file
 from dynfab.scene import load_scene, parse_scene_text
 from dynfab.structure import uniform
+from independent import record_inverse_norm
 
 RUNS = Path(__file__).resolve().parent.parent / "runs"
 
@@ -38,14 +39,13 @@ def solved(name: str):
 
 def position_bound(model: FabricModel, results, step: int = -1) -> float:
     """4 ||H^-1||_inf max(r, tolerance) [m]: how far a state with residual r may lie from the
-    exact one (F_T-frozen Hessian; factor 4 for the friction limit's coupling, as in
-    tests/test_fabric_symmetry.py). Two states compared: twice this."""
-    solver = FabricSolver(model).solver
+    exact one, ||H^-1||_inf the step's record's (`record_inverse_norm`: its error_estimate,
+    residual x est ||H^-1||_inf, over its residual; the F_T-frozen Hessian of its
+    certificate). Factor 4 for the friction limit's coupling, as in
+    tests/test_fabric_symmetry.py. Two states compared: twice this."""
     last = {name: values[step] for name, values in results.steps.items()}
-    state = model.state_from_step(last)
-    H = solver.hessian(state.positions, state.anchors, np.ravel(last["friction_limit"]))
-    inverse = np.abs(np.linalg.inv(H.toarray())).sum(axis=1).max()
-    return 4 * inverse * max(float(last["residual"]), model.scene.static.tolerance)
+    residual = float(last["residual"])
+    return 4 * record_inverse_norm(last) * max(residual, model.scene.static.tolerance)
 
 
 def test_balanced_cell_under_equal_loads_responds_alike_in_both_families():
@@ -99,7 +99,7 @@ def test_strip_shows_crimp_interchange():
     results = run(scene)
     steps = results.steps
     as_woven = FabricModel.from_scene(scene).initial_state()
-    crimp0 = FabricSolver(FabricModel.from_scene(scene)).solver.crimps(as_woven.positions)
+    crimp0 = FabricModel.from_scene(scene).crimps(as_woven.positions)
     crimp = np.vstack([crimp0, steps["crimp"]])
     assert np.all(np.diff(crimp[:, 0]) < 0) and np.all(np.diff(crimp[:, 1]) > 0)
     assert np.all(steps["strain"][:, 0] > 0) and np.all(np.diff(steps["strain"][:, 1]) < 0)
@@ -367,11 +367,30 @@ def test_the_dynamic_fabric_solver_runs_the_periodic_cell():
                                        rtol=0, atol=tol)
 
 
-def test_fabric_refuses_the_accuracy_option_it_cannot_honour():
-    scene = load_scene(RUNS / "fabric_biaxial.toml")
-    with pytest.raises(UserError, match=r"^static\.accuracy = 0\.01: means nothing in a "
-                                        r"fabric .* no position error estimate"):
-        run(scene, accuracy=0.01)
+def test_a_fabric_step_whose_bound_exceeds_its_accuracy_stops_with_exit_3(tmp_path):
+    """The honest stop (docs/model.md, "Stability and accuracy of a converged step"): a
+    fabric step is held to error_estimate <= accuracy x its largest displacement, as a
+    yarn's. At --accuracy 1e-12 no step of the small strip can pass (its bound,
+    residual x ||H^-1||_inf, is far above 1e-12 of its displacements): exit status 3, one
+    line naming the yarn and node where the bound is largest and what to change; no step
+    finished. At the default the same scene runs (test_strip_shows_crimp_interchange)."""
+    import subprocess
+    import sys
+
+    path, out = tmp_path / "strip.toml", tmp_path / "strip.h5"
+    path.write_text(small_strip())
+    done = subprocess.run([sys.executable, "-m", "dynfab.cli", "run", str(path), "--out",
+                           str(out), "--accuracy", "1e-12", "--quiet"],
+                          capture_output=True, text=True)
+    assert done.returncode == 3, done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1, lines
+    assert re.match(r"dynfab: error: load step 1/3 \(load 0\.333\d* 0 N\): fabric \((warp|weft) "
+                    r"\d, node \d+: where the bound is largest\): the residual .* N \(tolerance "
+                    r"1e-11 N\) leaves a position error up to .* m \(residual x \|\|H\^-1\|\|_inf "
+                    r"= .* m/N\), above static\.accuracy = 1e-12 of the step's largest "
+                    r"displacement .* m: tighten the tolerance to below .* N, or loosen "
+                    r"static\.accuracy; the 0 finished steps are kept$", lines[0]), lines[0]
 
 
 def test_dynfab_run_on_a_fabric_scene_from_the_command_line(tmp_path):
@@ -450,30 +469,19 @@ def test_viscous_damping_with_a_given_coefficient_relaxes_to_the_static_solution
 
 
 @pytest.mark.parametrize("key", ["static.accuracy", "dynamic.accuracy"])
-def test_a_fabric_refuses_the_accuracy_key_it_would_ignore(key, tmp_path):
-    """Neither fabric solver has a position error estimate, so [static] or [dynamic]
-    accuracy in a fabric scene is refused in one line naming it (exit 2), in the file and
-    in a scene built in Python, not silently ignored; and a fabric scene's written text
-    (the result file's `scene`) leaves it out."""
-    import subprocess
-    import sys
-    from dataclasses import replace
-
-    from dynfab.scene import scene_to_toml, validate_scene
+def test_a_fabric_holds_its_steps_to_the_accuracy_key(key):
+    """[static] and [dynamic] accuracy are a fabric's keys too (its steps carry an error
+    bound, steps/error_estimate): written in the scene text a result file stores, and the
+    solver that reads it stops a step whose bound exceeds it (SolverError, exit 3 at the
+    command line), naming the key."""
+    from dynfab.errors import SolverError
+    from dynfab.scene import scene_to_toml
 
     table, name = key.split(".")
-    text = small_strip() + f"\n[{table}]\n{name} = 0.05\n"
-    with pytest.raises(UserError, match=rf"^{key} = 0\.05: means nothing in a fabric"):
-        parse_scene_text(text)
-    path = tmp_path / "strip.toml"
-    path.write_text(text)
-    done = subprocess.run([sys.executable, "-m", "dynfab.cli", "run", str(path), "--out",
-                           str(tmp_path / "strip.h5")], capture_output=True, text=True)
-    assert done.returncode == 2
-    assert len(done.stderr.strip().splitlines()) == 1
-    assert done.stderr.startswith(f"dynfab: error: {key} = 0.05: means nothing in a fabric")
-    scene = parse_scene_text(small_strip())
-    assert "accuracy" not in scene_to_toml(scene)
-    built = replace(scene, **{table: replace(getattr(scene, table), accuracy=0.05)})
-    with pytest.raises(UserError, match=rf"^{key} = 0\.05: means nothing in a fabric"):
-        validate_scene(built)
+    scene = parse_scene_text(small_strip() + f"\n[{table}]\n{name} = 1e-12\n")
+    assert getattr(getattr(scene, table), name) == 1e-12
+    assert f"{name} = 1e-12" in scene_to_toml(scene)
+    with pytest.raises(SolverError, match=rf"^load step 1/3 .*: fabric \((warp|weft) \d, node "
+                                          rf"\d+: where the bound is largest\): .* above {key} "
+                                          rf"= 1e-12 of"):
+        run(scene, table)

@@ -58,7 +58,7 @@ def assembled(dynamic, pos, anchors, **options):
     bad, iterations = semi.system(pos, np.zeros_like(pos), anchors + dynamic._plane_shift,
                                   **options)
     assert bad < 0
-    return semi.dense(dynamic.reference.pattern.index), iterations
+    return semi.dense(dynamic.model.pattern.index), iterations
 
 
 def test_the_tangent_is_the_exact_hessian_without_its_psd_modifications():
@@ -165,7 +165,7 @@ def test_preconditioned_cg_meets_its_stopping_bound_against_a_dense_solve(dt, ca
     static, dynamic, pos, anchors = loaded_state(**more[case])
     semi = dynamic.relaxation
     rng = np.random.default_rng(7)
-    index = dynamic.reference.pattern.index
+    index = dynamic.model.pattern.index
     step = rng.standard_normal(index.max() + 1) * 1e-6
     velocities = np.where(index >= 0, step[index], 0.0).reshape(pos.shape)  # copies alike
     _, iterations = assembled(dynamic, pos, anchors, dt=dt, solve=True, velocities=velocities)
@@ -226,7 +226,7 @@ def test_the_per_step_layout_relaxes_as_the_persistent_one_bit_for_bit(case):
     ends = []
     for layout in ("persistent", "per_step"):
         dynamic = FabricDynamicSolver(model, method="semi_implicit", layout=layout)
-        pos, anchors, P = dynamic.reference.start_of_step(dynamic.initial_state(), warp, weft)
+        pos, anchors, P = dynamic.model.start_of_step(dynamic.initial_state(), warp, weft)
         ends.append(dynamic.relax(pos, P, anchors))
     (x_persistent, persistent), (x_per_step, per_step) = ends
     assert persistent.cg_iterations > persistent.steps

@@ -126,11 +126,16 @@ def test_a_run_needs_nothing_of_a_solver_but_its_contract(fig3, monkeypatch):
 
 def test_no_solver_module_imports_another():
     """The static and dynamic solvers share the model side (model, loading, observables,
-    certificate), never each other."""
-    solvers = {"dynfab.static", "dynfab.dynamic"}
-    for module in solvers:
+    certificate), never each other; so do the fabric's two solvers (its model, the shared
+    certificate), and no module of the model side imports a solver."""
+    solvers = {"dynfab.static", "dynfab.dynamic", "dynfab.fabric.static", "dynfab.fabric.dynamic"}
+    model_side = {"dynfab.model", "dynfab.loading", "dynfab.observables", "dynfab.certificate",
+                  "dynfab.fabric.model", "dynfab.fabric.inertia", "dynfab.fabric.assembly"}
+    for module in solvers | model_side:
         tree = ast.parse((ROOT / (module.replace(".", "/") + ".py")).read_text())
         imported = {node.module for node in ast.walk(tree) if isinstance(node, ast.ImportFrom)}
+        imported |= {f"{node.module}.{alias.name}" for node in ast.walk(tree)
+                     if isinstance(node, ast.ImportFrom) for alias in node.names}
         imported |= {alias.name for node in ast.walk(tree) if isinstance(node, ast.Import)
                      for alias in node.names}
         assert not imported & (solvers - {module}), module

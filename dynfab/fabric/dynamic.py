@@ -2,10 +2,11 @@
 (docs/model.md sections 5, 10).
 
 `FabricDynamicSolver.step(state, warp_value, weft_value)` takes the same state
-(`dynfab.fabric.static.FabricState`) and returns the same record keys as
+(`dynfab.fabric.model.FabricState`) and returns the same record keys as
 `FabricStaticSolver.step`, so the two are interchangeable and comparable step by step
-(tests/test_fabric_dynamic.py). The geometry and parameters are the static
-reference's (`dynfab.kernels.fabric_arrays.build` lays out the model's structure); the physics of the relaxation is the Warp twin's own
+(tests/test_fabric_dynamic.py). The geometry and parameters are the model's structure
+(`dynfab.kernels.fabric_arrays.build` lays it out); the physics of the relaxation is the Warp
+twin's own
 (`dynfab.kernels.fabric_forces`, `fabric_explicit.FabricExplicit`): forces, contact
 forces, friction forces, the reaction at a prescribed end and the anchors' return map.
 
@@ -26,9 +27,12 @@ solver's. (A relaxation is not a descent on one potential when F_T moves with R;
 converges where the contact forces settle, which the tests check on small patches.)
 
 Stability (docs/model.md section 6): as the one-yarn dynamic solver uses the shared certificate, the
-relaxed state is checked with the static solver's inertia count of its Hessian (F_T
-frozen); from a saddle the static solver's escape direction is taken and the step
-relaxed again from there (at most `static.MAX_ESCAPES` times).
+relaxed state is certified by the model side (`dynfab.certificate.certify_patch`: the
+inertia of its Hessian with F_T frozen); from a saddle the certificate's escape
+(`dynfab.certificate.escape_patch`) is taken and the step relaxed again from there (at most
+`dynfab.certificate.MAX_ESCAPES` times). The load prescription at a step's start, its end
+(end displacements, the loads' work, the dissipation), strains and crimps are the model's
+(`dynfab.fabric.model.FabricModel`), as the static solver's are: no solver imports another.
 
 Every boundary of docs/model.md section 10 (the clamped patch with fixed or "affine" planes,
 the periodic cell under force or displacement control) is data to the kernels
@@ -53,9 +57,11 @@ import time
 import numpy as np
 import warp as wp
 
+from dynfab.certificate import (MAX_ESCAPES, certify_patch, check_patch_accuracy, escape_patch,
+                                patch_stability)
 from dynfab.errors import SolverError, UserError
-from dynfab.fabric import inertia
-from dynfab.fabric.static import MAX_ESCAPES, FabricState, FabricStaticSolver, run_load_path
+from dynfab.fabric.model import FabricState, run_load_path
+from dynfab.structure import chain_count
 from dynfab.kernels import (fabric_arrays, fabric_explicit, fabric_forces, fabric_semi_implicit,
                             status)
 from dynfab.terms import friction as gralen
@@ -79,13 +85,18 @@ class FabricDynamicSolver:
     def __init__(self, model, device: str = "cpu", damping: str = "kinetic",
                  tolerance: float | None = None, max_steps: int = MAX_STEPS,
                  layout: str | None = None, method: str = "explicit",
-                 damping_coefficient: float | None = None, status=None):
+                 damping_coefficient: float | None = None, accuracy: float | None = None,
+                 status=None):
         if method not in METHODS:
             raise UserError(f"fabric: dynamic.method = {method!r} unknown; one of {METHODS}")
         self.model = model
         self.tolerance = (model.scene.static.tolerance if tolerance is None
                           else float(tolerance))
         """Residual tolerance [N] of a relaxation (the static Newton tolerance by default)."""
+        self.accuracy = model.scene.dynamic.accuracy if accuracy is None else float(accuracy)
+        """Largest accepted error bound of a step relative to its largest displacement
+        (docs/model.md, "Stability and accuracy of a converged step"; the scene's
+        dynamic.accuracy by default)."""
         self.max_steps = int(max_steps)
         self.arrays = fabric_arrays.build(model.structure)
         # the kernels built with friction in every case (F_T = k_t = 0 without it): one
@@ -105,11 +116,8 @@ class FabricDynamicSolver:
         self.method = method
         self.linear_iterations = 0
         """CG iterations of every relaxation so far (0 with the explicit method)."""
-        self.reference = FabricStaticSolver(model, status)
-        """The static solver: its state conventions, load path, prescribed start, strains and
-        certificate (inertia, escape), never its forces."""
-        self.fabric = self.reference.fabric
-        self.yarns = self.reference.yarns
+        self.fabric = model.structure
+        self.yarns = chain_count(self.fabric)
         f = self.fabric
         self._plane_shift = np.stack([f.tie_plane[:, 0] - f.rest_position[f.tie_a, 0],
                                       f.tie_plane[:, 1] - f.rest_position[f.tie_b, 0]], axis=1)
@@ -123,8 +131,8 @@ class FabricDynamicSolver:
         self.device = device
 
     def initial_state(self) -> FabricState:
-        """As woven, anchors at zero slip, nothing dissipated (the static solver's)."""
-        return self.reference.initial_state()
+        """As woven, anchors at zero slip, nothing dissipated (the model's)."""
+        return self.model.initial_state()
 
     # ------------------------------------------------------------------ pieces
 
@@ -198,8 +206,8 @@ class FabricDynamicSolver:
         """Relax one load step from `state`; returns (new state, record) or raises SolverError.
         The record holds FabricStaticSolver.step's keys, iterations counting time steps, plus
         time_steps and relax_time [s] (the relaxations' wall time)."""
-        model, ref = self.model, self.reference
-        pos, anchors, P = ref.start_of_step(state, warp_value, weft_value)
+        model = self.model
+        pos, anchors, P = model.start_of_step(state, warp_value, weft_value)
         linear = self.linear_iterations
         began = time.perf_counter()
         pos, outcome = self.relax(pos, P, anchors)
@@ -208,12 +216,12 @@ class FabricDynamicSolver:
         while True:
             R, friction_force = self.crossing_forces(pos, anchors + self._plane_shift)
             limit = self.friction_limits(R)
-            ref.say("stability check (inertia of the Hessian)")
-            result = inertia.inertia(ref, pos, anchors, limit)
-            nearest = inertia.nearest_eigenvalue(ref.hessian(pos, anchors, limit))
-            if result.negatives == 0 or escapes == MAX_ESCAPES:
+            if self.status is not None:
+                self.status("stability check (inertia of the Hessian)")
+            checked = certify_patch(model, pos, anchors, limit)
+            if checked.negatives == 0 or escapes == MAX_ESCAPES:
                 break
-            escaped = ref._escape(pos, P, anchors, limit, result.negatives, nearest)
+            escaped = escape_patch(model, pos, P, anchors, limit, checked)
             if escaped is None:
                 break
             escapes += 1
@@ -221,17 +229,21 @@ class FabricDynamicSolver:
             pos, outcome = self.relax(escaped, P, anchors)
             relax_time += time.perf_counter() - began
             steps += outcome.steps
+        stability = patch_stability(checked, outcome.residual, escapes)
+        check_patch_accuracy(model, checked, stability, pos, outcome.residual, self.tolerance,
+                             self.accuracy, False, "dynamic.accuracy")
         new_anchors, sliding, lost = self._return_map(pos, anchors, limit)
         end_force = self._end_force(pos, P, anchors)
-        new, u_new = ref.end_of_step(state, pos, new_anchors, end_force, lost)
+        new, u_new = model.end_of_step(state, pos, new_anchors, end_force, lost)
         shape = (model.warps, model.wefts)
         record = dict(residual=outcome.residual, iterations=steps, friction_solves=1 + escapes,
                       rounding_floor=False, contact_force=R.reshape(shape),
                       friction_limit=limit.reshape(shape), sliding=sliding.reshape(shape),
                       friction_force=friction_force,
-                      negative_eigenvalues=result.negatives, stable=result.negatives == 0,
-                      nearest_eigenvalue=nearest, escapes=escapes, end_force=end_force,
-                      end_displacement=u_new, strain=ref.strains(pos), crimp=ref.crimps(pos),
+                      negative_eigenvalues=checked.negatives, escapes=escapes,
+                      **{name: value[0] for name, value in stability.fields().items()},
+                      end_force=end_force,
+                      end_displacement=u_new, strain=model.strains(pos), crimp=model.crimps(pos),
                       time_steps=steps, relax_time=relax_time)
         if self.method == "semi_implicit":
             record["cg_iterations"] = self.linear_iterations - linear

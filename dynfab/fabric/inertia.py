@@ -1,4 +1,5 @@
-"""The fabric's stability check: the inertia of its Hessian (docs/model.md sections 6, 10).
+"""The fabric's inertia count and eigen-solves: the sparse route of the step certificate
+(`dynfab.certificate.certify_patch`, docs/model.md sections 6, 10).
 
 First route (`sparse_inertia`): SuperLU in symmetric mode, the Newton solve's factorisation
 (the pattern's nested-dissection order, `dynfab.fabric.ordering`, or without one SuperLU's
@@ -88,10 +89,18 @@ def nearest_eigenvalue(H, order=None) -> float:
 def shift_inverse(H, sigma, order=None):
     """(H - sigma I)^-1 as a LinearOperator for ARPACK's shift-invert mode, or None (ARPACK
     then factors H - sigma I itself, with SuperLU's default column ordering and partial
-    pivoting). SuperLU in symmetric mode, in `order` (`ordering.OrderedLU`) or, without
-    one, minimum degree on A^T + A; the same guards as `sparse_inertia` (diagonal pivots, none
-    within 64 eps of zero, growth at most GROWTH), else SuperLU with partial pivoting,
-    else None (singular)."""
+    pivoting): `shifted_solve`'s."""
+    solve = shifted_solve(H, sigma, order)
+    if solve is None:
+        return None
+    return scipy.sparse.linalg.LinearOperator(H.shape, matvec=solve, dtype=float)
+
+
+def shifted_solve(H, sigma, order=None):
+    """The solve x = A^-1 b of A = (H + H^T)/2 - sigma I, or None (singular). SuperLU in
+    symmetric mode, in `order` (`ordering.OrderedLU`) or, without one, minimum degree on
+    A^T + A; the same guards as `sparse_inertia` (diagonal pivots, none within 64 eps of
+    zero, growth at most GROWTH), else SuperLU with partial pivoting."""
     A = (0.5 * (H + H.T) - sigma * scipy.sparse.identity(H.shape[0])).tocsc()
     scale = float(np.abs(H.diagonal()).max()) if H.shape[0] else 0.0
     lu, solve = _symmetric_lu(A, order)
@@ -100,7 +109,7 @@ def shift_inverse(H, sigma, order=None):
             solve = scipy.sparse.linalg.splu(A).solve
         except RuntimeError:
             return None
-    return scipy.sparse.linalg.LinearOperator(A.shape, matvec=solve, dtype=float)
+    return solve
 
 
 def start_vector(n: int) -> np.ndarray:
@@ -110,22 +119,28 @@ def start_vector(n: int) -> np.ndarray:
     return np.random.default_rng(20070101).standard_normal(n)
 
 
-def lowest_eigenvectors(solver, pos, anchors, limit, count: int, nearest: float):
-    """The `count` lowest eigenpairs of the Hessian on the unknowns, (values, vectors).
+def lowest_eigenvectors(model, pos, anchors, limit, count: int, nearest: float):
+    """The `count` lowest eigenpairs of the Hessian on the unknowns and a proved lower bound
+    of its eigenvalues, (values, vectors, bound [N/m]).
 
     Shift-invert Lanczos at a shift sigma below the whole spectrum, found by the inertia:
     sigma = 2 nearest (the eigenvalue nearest zero), doubled until H - sigma I has no
-    negative eigenvalue; the `count` eigenvalues nearest such a sigma are the lowest.
+    negative eigenvalue, which proves lambda_min >= bound = sigma (less the rounding-level
+    shift the count needed; -inf if 60 doublings found none); the `count` eigenvalues
+    nearest such a sigma are the lowest.
     Each vector's sign is fixed (its largest component positive) and the start vector too
-    (`start_vector`), so the choice is deterministic.
+    (`start_vector`), so the choice is deterministic. `model` is the fabric's
+    (`dynfab.fabric.model.FabricModel`: its structure, Hessian and pattern).
     """
-    sigma = 2.0 * min(nearest, -1e-12)
+    sigma, bound = 2.0 * min(nearest, -1e-12), -np.inf
     for _ in range(60):
-        if inertia(solver, pos, anchors, limit, shift=-sigma).negatives == 0:
+        counted = inertia(model, pos, anchors, limit, shift=-sigma)
+        if counted.negatives == 0:
+            bound = -counted.shift
             break
         sigma *= 2.0
-    H = solver.hessian(pos, anchors, limit)
-    dissection = ordering.fabric_order(solver.fabric, solver.pattern)
+    H = model.hessian(pos, anchors, limit)
+    dissection = ordering.fabric_order(model.structure, model.pattern)
     values, vectors = scipy.sparse.linalg.eigsh(H, k=count, sigma=sigma, which="LM", tol=EIGEN_TOL,
                                                 OPinv=shift_inverse(H, sigma, dissection),
                                                 v0=start_vector(H.shape[0]))
@@ -134,7 +149,7 @@ def lowest_eigenvectors(solver, pos, anchors, limit, count: int, nearest: float)
     for k in range(count):
         if vectors[np.argmax(np.abs(vectors[:, k])), k] < 0:
             vectors[:, k] *= -1.0
-    return values, vectors
+    return values, vectors, bound
 
 
 def crossing_mask(fabric) -> np.ndarray:
@@ -147,15 +162,16 @@ def crossing_mask(fabric) -> np.ndarray:
     return mask
 
 
-def inertia(solver, pos, anchors, limit, shift: float = 0.0) -> Inertia:
+def inertia(model, pos, anchors, limit, shift: float = 0.0) -> Inertia:
     """In(H - (-shift) I) on the free dofs: the negatives of H + shift I (module docstring):
     the sparse route in the pattern's nested-dissection order (`ordering.fabric_order`), else
     the Schur (or, for the periodic cell, dense) route, at the shift asked and then at two
-    rounding-level shifts above it."""
-    fabric = solver.fabric
-    H = solver.hessian(pos, anchors, limit)
+    rounding-level shifts above it. `model` is the fabric's (`dynfab.fabric.model.FabricModel`:
+    its structure, Hessian and pattern)."""
+    fabric = model.structure
+    H = model.hessian(pos, anchors, limit)
     scale = float(np.abs(H.diagonal()).max())
-    order = ordering.fabric_order(fabric, solver.pattern)
+    order = ordering.fabric_order(fabric, model.pattern)
     for tau in (shift, shift + 1e3 * EPS * scale, shift + 1e6 * EPS * scale):
         result = sparse_inertia(H, tau, scale, order)
         if result is None:
@@ -171,13 +187,19 @@ def sparse_inertia(H, tau, scale, order=None):
     (`ordering.OrderedLU`) or without one in SuperLU's minimum degree on A^T + A, or None
     when a guard fails (module docstring): no off-diagonal pivot, none within 64 eps scale
     of zero, element growth at most GROWTH."""
+    return sparse_factor(H, tau, scale, order)[0]
+
+
+def sparse_factor(H, tau, scale, order=None):
+    """(`sparse_inertia`'s count, the solve x = A^-1 b of its factors, b (n,) or (n, k)),
+    A = (H + H^T)/2 + tau I; (None, None) when a guard fails."""
     A = (0.5 * (H + H.T) + tau * scipy.sparse.identity(H.shape[0])).tocsc()
     if A.shape[0] == 0:
-        return Inertia(0, tau, 0, "superlu")
-    lu, _ = _symmetric_lu(A, order)
+        return Inertia(0, tau, 0, "superlu"), lambda b: np.array(b, float)
+    lu, solve = _symmetric_lu(A, order)
     if lu is None or _unsafe(lu, scale):
-        return None
-    return Inertia(int(np.count_nonzero(lu.U.diagonal() < 0.0)), tau, 0, "superlu")
+        return None, None
+    return Inertia(int(np.count_nonzero(lu.U.diagonal() < 0.0)), tau, 0, "superlu"), solve
 
 
 def _symmetric_lu(A, order):

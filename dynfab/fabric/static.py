@@ -43,15 +43,12 @@ solver), so a step cannot overshoot a crossing about to stick again. A step reac
 Kawabata's wall (k_c = inf) has energy +inf and is halved. If the Newton direction is not a descent direction (an indefinite Hessian), the matrix
 is shifted by mu I, mu growing tenfold from 1e-10 max|diag|, until it is.
 
-Each converged step is checked for stability (`dynfab.fabric.inertia`): the number of
-negative eigenvalues of the Hessian with F_T frozen, from the signs of the pivots of
-SuperLU's symmetric-mode factorisation (Sylvester's law), or where that is not safe by
-Haynsworth's inertia additivity over the per-yarn banded LDL^T blocks (on the small
-periodic cell, a dense Bunch-Kaufman LDL^T), and the eigenvalue nearest zero (the smallest
-when there is no negative one). From a saddle the step leaves along the lowest
-eigenvectors (shift-invert Lanczos below the spectrum, the shift placed by the inertia)
-and is solved again (`_certified`), as the one-yarn solver does along its LDL^T's
-negative-pivot directions (docs/model.md section 6).
+Each converged step is certified by the model side (`dynfab.certificate.certify_patch`,
+docs/model.md section 6): the number of negative eigenvalues of the Hessian with F_T
+frozen (`dynfab.fabric.inertia`), and the eigenvalue nearest zero (the smallest when there
+is no negative one). From a saddle the step leaves along the lowest eigenvectors
+(`dynfab.certificate.escape_patch`) and is solved again (`_certified`), as the one-yarn
+solver does along its LDL^T's negative-pivot directions (docs/model.md section 6).
 """
 
 from __future__ import annotations
@@ -65,8 +62,11 @@ import scipy.sparse.linalg
 from dynfab.active_set import (CONTINUATION_FACTORS, CONTINUATION_START, DIRECT_ITERATIONS,
                                DIRECT_SET_UPDATES, MAX_FLIPS, MAX_SET_UPDATES, onset_stages,
                                update_set)
+from dynfab.certificate import (MAX_ESCAPES, certify_patch, check_patch_accuracy, escape_patch,
+                                patch_stability)
 from dynfab.errors import SolverError
-from dynfab.fabric import assembly, contact, friction, inertia, ordering
+from dynfab.fabric import assembly, contact, friction, ordering
+from dynfab.fabric.model import FabricState, run_load_path
 from dynfab.structure import Structure, chain_count
 from dynfab.terms import contact as contact_1d
 from dynfab.terms import friction as gralen
@@ -81,10 +81,6 @@ decisions); 1 left the coupled Newton too far from the solution on the small-loa
 tests/test_fabric_energy.py."""
 MAX_FROZEN = 50
 """Further frozen solves when the coupled Newton fails."""
-MAX_ESCAPES = 12
-"""Saddles left per load step (docs/model.md section 6) before the state is accepted as it is."""
-ESCAPE_CANDIDATES = 16
-"""Directions of negative curvature tried per escape (the lowest eigenvectors)."""
 HALVINGS = 60
 """Line-search halvings (8 at the rounding floor, where a step is lost in rounding)."""
 COUPLED_FIRST = 20
@@ -135,49 +131,6 @@ def _sparse_solve(A, rhs, symmetric=True, order=None):
         return scipy.sparse.linalg.splu(A).solve(rhs)
     except RuntimeError:  # exactly singular
         return None
-
-
-@dataclass
-class FabricState:
-    """What changes during a run (docs/model.md section 10)."""
-
-    positions: np.ndarray
-    """(in-plane coordinate, z) of every node (nodes, 2) [m]."""
-    anchors: np.ndarray
-    """Friction anchors xi per crossing (C, 2) [m], relative to the as-woven slip."""
-    dissipated: float = 0.0
-    """Cumulative friction dissipation [J]."""
-    work: float = 0.0
-    """Work of the end loads, trapezoid rule over the load steps [J]."""
-    end_force: np.ndarray | None = None
-    """End force along each yarn (Y,) [N]: the load (force control) or the reaction."""
-
-    def copy(self) -> "FabricState":
-        return FabricState(self.positions.copy(), self.anchors.copy(), self.dissipated,
-                           self.work, None if self.end_force is None else self.end_force.copy())
-
-
-def as_woven_state(structure: Structure) -> FabricState:
-    """As woven, anchors at zero slip, nothing dissipated, no end force."""
-    pos = structure.rest_position.copy()
-    anchors = np.zeros((structure.tie_a.size, 2))
-    anchors[:, 0] = pos[structure.tie_a, 0] - structure.tie_plane[:, 0]
-    grounded = structure.tie_b < 0
-    anchors[:, 1] = np.where(grounded, 0.0, pos[np.where(grounded, 0, structure.tie_b), 0]
-                             - structure.tie_plane[:, 1])
-    return FabricState(pos, anchors, end_force=np.zeros(chain_count(structure)))
-
-
-def run_load_path(solver, state: FabricState | None = None):
-    """Every load step of `solver.model` in sequence by `solver.step(state, warp value, weft
-    value)` (the static or the dynamic fabric solver), from `state` or the solver's initial
-    one; returns (final state, records)."""
-    state = solver.initial_state() if state is None else state
-    records = []
-    for warp_value, weft_value in solver.model.load_values:
-        state, record = solver.step(state, warp_value, weft_value)
-        records.append(record)
-    return state, records
 
 
 @dataclass
@@ -237,20 +190,23 @@ class FabricStaticSolver:
 
     def __init__(self, model, status=None):
         self.model = model
-        """The fabric's model (`dynfab.fabric.from_scene.FabricModel`): its structure, load
-        path and the scene's static options."""
+        """The fabric's model (`dynfab.fabric.model.FabricModel`): its structure, load path,
+        Hessian, load prescription and observables, and the scene's static options."""
         self.status = status
         """Called as status(text) within a step, once per Newton iteration (its count in the
         step and residual) and before the stability check (the progress line), or None."""
         self._newton_count = 0  # Newton iterations of the step so far
         self.fabric: Structure = model.structure
-        self.pattern = assembly.Pattern(self.fabric)
+        self.pattern = model.pattern
         self.free = ~self.fabric.fixed
         self.yarns = chain_count(self.fabric)
         self.tolerance = model.scene.static.tolerance
         """Newton's residual tolerance [N] (docs/model.md section 6), or the rounding floor
         where higher."""
         self.max_iterations = model.scene.static.max_iterations
+        self.accuracy = model.scene.static.accuracy
+        """Largest accepted error bound of a step relative to its largest displacement
+        (docs/model.md, "Stability and accuracy of a converged step")."""
         self._terms = np.zeros(len(assembly.TERMS))
         self._budget = 0  # Newton iterations left to the active-set fallback (`solve_on_sets`)
 
@@ -258,12 +214,7 @@ class FabricStaticSolver:
 
     def initial_state(self) -> FabricState:
         """As woven, anchors at zero slip, nothing dissipated (`as_woven_state`)."""
-        return as_woven_state(self.fabric)
-
-    def yarn_loads(self, warp_value: float, weft_value: float) -> np.ndarray:
-        """The load of each yarn (Y,) [N or m]: the family's value times its factor."""
-        f = self.fabric
-        return np.where(f.chain_family == 0, warp_value, weft_value) * f.load_factor
+        return self.model.initial_state()
 
     # ------------------------------------------------------------------ pieces
 
@@ -320,9 +271,7 @@ class FabricStaticSolver:
                 law: SetLaw | None = None) -> scipy.sparse.csc_matrix:
         """The Hessian on the free dofs, F_T frozen (`secant`: see `friction.huber_hessian`);
         on `law`'s branches, the contact tangent of `branch_tangents`."""
-        values = np.zeros(self.pattern.size)
-        assembly.hessian_values(pos, self.fabric, anchors, limit, values, secant)
-        H = self.pattern.matrix(values)
+        H = self.model.hessian(pos, anchors, limit, secant)
         if law is None or law.branch is None:
             return H
         natural = np.zeros(self.fabric.tie_a.size)
@@ -793,13 +742,16 @@ class FabricStaticSolver:
     def step(self, state: FabricState, warp_value: float, weft_value: float):
         """Solve one load step from `state`; returns (new state, record) or raises SolverError."""
         f, model = self.fabric, self.model
-        pos, anchors, P = self.start_of_step(state, warp_value, weft_value)
+        pos, anchors, P = model.start_of_step(state, warp_value, weft_value)
         self._newton_count = 0
         info, limit, outer = self.solve(pos, P, anchors)
         if not info.converged:
             raise SolverError(self._failure(pos, P, anchors, info, outer))
-        info, limit, outer, escapes, inertia_result, nearest = self._certified(
-            pos, P, anchors, info, limit, outer)
+        info, limit, outer, escapes, checked = self._certified(pos, P, anchors, info, limit,
+                                                               outer)
+        stability = patch_stability(checked, info.residual, escapes)
+        check_patch_accuracy(model, checked, stability, pos, info.residual, self.tolerance,
+                             self.accuracy, info.at_floor, "static.accuracy")
         R = self.contact_forces(pos)
         end_force = self._end_force(pos, P, anchors, limit)
         sliding = np.zeros(f.tie_a.size, np.bool_)
@@ -808,23 +760,17 @@ class FabricStaticSolver:
         if f.has_friction:
             px, py = assembly.planes(pos, f)
             lost = friction.return_map(pos, anchors, f, px, py, limit, sliding, friction_force)
-        new, u_new = self.end_of_step(state, pos, anchors, end_force, lost)
+        new, u_new = model.end_of_step(state, pos, anchors, end_force, lost)
         shape = (model.warps, model.wefts)
         record = dict(residual=info.residual, iterations=info.iterations, friction_solves=outer,
                       rounding_floor=info.at_floor, contact_force=R.reshape(shape),
                       friction_limit=limit.reshape(shape),
                       sliding=sliding.reshape(shape), friction_force=friction_force,
-                      negative_eigenvalues=inertia_result.negatives,
-                      stable=inertia_result.negatives == 0, nearest_eigenvalue=nearest,
-                      escapes=escapes,
+                      negative_eigenvalues=checked.negatives, escapes=escapes,
+                      **{name: value[0] for name, value in stability.fields().items()},
                       end_force=end_force,
-                      end_displacement=u_new, strain=self.strains(pos), crimp=self.crimps(pos))
+                      end_displacement=u_new, strain=model.strains(pos), crimp=model.crimps(pos))
         return new, record
-
-    def crossing_name(self, c: int) -> str:
-        """Crossing c as the scene counts it: "(warp k, weft j)", 1-based."""
-        k, j = divmod(int(c), self.model.wefts)
-        return f"(warp {k + 1}, weft {j + 1})"
 
     def _worst_crossing(self, pos, P, anchors) -> tuple[int, float]:
         """(c, force [N]): the crossing whose two nodes carry the largest component of the
@@ -843,13 +789,13 @@ class FabricStaticSolver:
         f, tolerance = self.fabric, self.tolerance
         reached = f"residual {info.residual:.3g} N, tolerance {tolerance:.3g} N"
         if info.reason == CYCLING_REASON:
-            return (f"fabric: crossing {self.crossing_name(info.crossing)} keeps opening and "
+            return (f"fabric: crossing {self.model.crossing_name(info.crossing)} keeps opening and "
                     f"closing at g = 0, where Gralen's friction limit jumps by beta*ell*r_f = "
                     f"{f.tie_friction_law[info.crossing, 1]:.3g} N (R_0 = {scene_onset(f):.3g} N); no "
                     f"open/closed state consistent with the contact and friction laws was "
                     f"found ({reached})")
         if info.reason == ONSET_REASON:
-            return (f"fabric: crossing {self.crossing_name(info.crossing)} at the friction onset "
+            return (f"fabric: crossing {self.model.crossing_name(info.crossing)} at the friction onset "
                     f"(R_0 = {scene_onset(f):.3g} N): no open/closed state consistent with the "
                     f"contact and friction laws was found, also by continuation in R_0 from "
                     f"{CONTINUATION_START:.3g} N ({info.iterations} Newton iterations, at most "
@@ -857,28 +803,23 @@ class FabricStaticSolver:
         c, force = self._worst_crossing(pos, P, anchors)
         return (f"fabric: no convergence ({info.iterations} Newton iterations, {outer} friction "
                 f"solves); {reached}; the largest residual at a crossing: {force:.3g} N at "
-                f"crossing {self.crossing_name(c)}")
+                f"crossing {self.model.crossing_name(c)}")
 
     def _certified(self, pos, P, anchors, info, limit, outer):
-        """The step's stability check, and the escape from a saddle (docs/model.md section 6), in
-        place.
-
-        With negative eigenvalues (F_T frozen), the lowest eigenvectors (at most
-        ESCAPE_CANDIDATES) are tried as directions: steps of +-t v, t from the patch
-        length halving 53 times, and the trial of lowest V + H (beyond its rounding) is
-        taken; the step is then solved again and checked again, at most MAX_ESCAPES
-        times. If no direction lowers the energy the state is accepted and reported as
-        a saddle. Returns (info, F_T, solves, escapes, inertia, nearest eigenvalue)."""
+        """The step's certificate (`dynfab.certificate.certify_patch`), and the escape from a
+        saddle (`dynfab.certificate.escape_patch`, docs/model.md section 6), in place: from
+        an escape the step is solved again and certified again, at most MAX_ESCAPES times.
+        If no direction lowers the energy the state is accepted and reported as a saddle.
+        Returns (info, F_T, solves, escapes, certificate)."""
         escapes = 0
         while True:
             self.say("stability check (inertia of the Hessian)")
-            result = inertia.inertia(self, pos, anchors, limit)
-            nearest = inertia.nearest_eigenvalue(self.hessian(pos, anchors, limit))
-            if result.negatives == 0 or escapes == MAX_ESCAPES:
-                return info, limit, outer, escapes, result, nearest
-            escaped = self._escape(pos, P, anchors, limit, result.negatives, nearest)
+            checked = certify_patch(self.model, pos, anchors, limit)
+            if checked.negatives == 0 or escapes == MAX_ESCAPES:
+                return info, limit, outer, escapes, checked
+            escaped = escape_patch(self.model, pos, P, anchors, limit, checked)
             if escaped is None:
-                return info, limit, outer, escapes, result, nearest
+                return info, limit, outer, escapes, checked
             pos[:, :] = escaped
             escapes += 1
             iterations = info.iterations
@@ -886,66 +827,11 @@ class FabricStaticSolver:
             info.iterations += iterations
             outer += more
             if not info.converged:
-                return info, limit, outer, escapes, result, nearest
-
-    def _escape(self, pos, P, anchors, limit, negatives, nearest):
-        """The trial of lowest V + H along the lowest eigenvectors, or None (no drop)."""
-        count = min(negatives, ESCAPE_CANDIDATES, self.pattern.free_count - 1)
-        _, vectors = inertia.lowest_eigenvectors(self, pos, anchors, limit, count, nearest)
-        e0 = self.energy(pos, P, anchors, limit)
-        rounding = 64.0 * EPS * (np.abs(self._terms).sum()
-                                 + assembly.rounding_scale(pos, self.fabric, P, limit))
-        length = max(self.model.warp.length, self.model.weft.length)
-        best, best_pos = e0 - rounding, None
-        for k in range(count):
-            d = self.pattern.expand(vectors[:, k]).reshape(pos.shape)
-            t = length
-            for _ in range(53):
-                for sign in (1.0, -1.0):
-                    trial = pos + (sign * t) * d
-                    e = self.energy(trial, P, anchors, limit)
-                    if e < best - rounding:
-                        best, best_pos = e, trial
-                t *= 0.5
-        return best_pos
+                return info, limit, outer, escapes, checked
 
     def run(self, state: FabricState | None = None):
         """Every load step of the model in sequence; returns (final state, records)."""
         return run_load_path(self, state)
-
-    def start_of_step(self, state: FabricState, warp_value: float, weft_value: float):
-        """(positions, anchors, end loads P [N]) a load step starts from, copies of the state's:
-        under force control P is each yarn's load; under displacement control P = 0 and the
-        ends are moved to their prescribed displacements (`_prescribe`). Shared by the static
-        and the dynamic fabric solvers."""
-        loads = self.yarn_loads(warp_value, weft_value)
-        pos, anchors = state.positions.copy(), state.anchors.copy()
-        if self.model.control == "force":
-            return pos, anchors, loads
-        self._prescribe(pos, loads)
-        return pos, anchors, np.zeros(self.yarns)
-
-    def end_of_step(self, state: FabricState, pos, anchors, end_force, lost: float):
-        """(the state a step from `state` ends in, the end displacements u (Y,) [m]): its
-        positions, return-mapped anchors and end forces [N]; the dissipation plus `lost` [J],
-        and the end loads' work by the trapezoid rule over the step [J]. Shared by the static
-        and the dynamic fabric solvers."""
-        f = self.fabric
-        u_old = state.positions[f.load_node, 0] - f.rest_position[f.load_node, 0]
-        u_new = pos[f.load_node, 0] - f.rest_position[f.load_node, 0]
-        work = state.work + float(0.5 * (state.end_force + end_force) @ (u_new - u_old))
-        return FabricState(pos, anchors, state.dissipated + lost, work, end_force), u_new
-
-    def _prescribe(self, pos, loads) -> None:
-        """Displacement control: u_N = load on each yarn, the increment spread linearly along
-        the yarn (a better start than the end node alone)."""
-        f = self.fabric
-        for y in range(self.yarns):
-            a, b = f.chain_start[y], f.chain_start[y + 1]
-            rest = f.rest_position[a:b, 0]
-            increment = loads[y] - (pos[b - 1, 0] - rest[-1])
-            pos[a:b, 0] += increment * (rest - rest[0]) / (rest[-1] - rest[0])
-            pos[b - 1, 0] = rest[-1] + loads[y]
 
     def _end_force(self, pos, P, anchors, limit) -> np.ndarray:
         """End force along each yarn [N]: P under force control; under displacement control
@@ -954,54 +840,3 @@ class FabricStaticSolver:
             return np.asarray(P, float).copy()
         grad = self.gradient(pos, np.zeros(self.yarns), anchors, limit)
         return grad[self.fabric.load_node, 0].copy()
-
-    def crimps(self, pos) -> np.ndarray:
-        """Mean crimps (warp, weft) [-]: (arc length - projected length) / projected length of
-        each yarn (`dynfab.model.crimp`, the projected length its end-to-end extent along
-        itself), averaged over the family (docs/model.md section 10)."""
-        f = self.fabric
-        crimp = np.empty(self.yarns)
-        for y in range(self.yarns):
-            chain = pos[f.chain_start[y]:f.chain_start[y + 1]]
-            arc = np.hypot(*np.diff(chain, axis=0).T).sum()
-            projected = chain[-1, 0] - chain[0, 0]
-            crimp[y] = (arc - projected) / projected
-        warp = f.chain_family == 0
-        return np.array([crimp[warp].mean(), crimp[~warp].mean()])
-
-    def families(self) -> tuple[np.ndarray, np.ndarray]:
-        """(warp mask, weft mask) (Y,) of the yarns a family's strain and stress average
-        over, its loaded yarns (docs/model.md section 10): under displacement control a
-        yarn of factor 0 is held, not loaded, and left out (a pull-out's other warps), unless
-        the whole family is; under force control a factor-0 yarn's end is free and counts."""
-        f = self.fabric
-        loaded = (f.load_factor != 0) | (self.model.control == "force")
-        warp = f.chain_family == 0
-        out = []
-        for family in (warp, ~warp):
-            out.append(family & loaded if (family & loaded).any() else family)
-        return out[0], out[1]
-
-    def strains(self, pos) -> np.ndarray:
-        """Nominal strains (warp, weft): the mean end displacement of the family's loaded
-        yarns (`families`) over their length (docs/model.md section 10)."""
-        f, model = self.fabric, self.model
-        u = pos[f.load_node, 0] - f.rest_position[f.load_node, 0]
-        return np.array([u[chosen].mean() / length for chosen, length
-                         in zip(self.families(), (model.warp.length, model.weft.length))])
-
-    def widths(self) -> np.ndarray:
-        """The width per yarn of each family [m], (warp, weft), as woven: a warp's is the
-        wefts' length over the warps, L_we / n_wa; a weft's L / n_we (docs/model.md
-        section 10)."""
-        model = self.model
-        return np.array([model.weft.length / model.warps, model.warp.length / model.wefts])
-
-    def stresses(self, end_force) -> np.ndarray:
-        """Loads per unit width (warp, weft) [N/m]: the mean end force of the family's
-        loaded yarns (`families`, the yarns of its strain) over its width per yarn
-        (`widths`): on the periodic cell and a patch under force control, the force the
-        family carries over the fabric's width; in a pull-out, the pulled warp's force over
-        its width (docs/model.md section 10)."""
-        end_force = np.asarray(end_force, float)
-        return np.array([end_force[chosen].mean() for chosen in self.families()]) / self.widths()

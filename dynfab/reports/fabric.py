@@ -113,7 +113,7 @@ def solve_path(plan: Plan, ratio: tuple[float, float]) -> dict:
     f, path = solver.fabric, solver.model.load_values
     state = solver.initial_state()
     warp_loads, weft_loads = (np.concatenate([[0.0], v]) for v in path.T)
-    strain, crimp = [np.zeros(2)], [solver.crimps(state.positions)]
+    strain, crimp = [np.zeros(2)], [solver.model.crimps(state.positions)]
     contact, residual, stable, bound = [np.zeros((YARNS, YARNS))], [0.0], [True], [0.0]
     for warp_value, weft_value in path:
         state, record = solver.step(state, warp_value, weft_value)

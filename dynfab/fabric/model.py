@@ -1,0 +1,361 @@
+"""The woven fabric's model side (docs/model.md section 10): what both fabric solvers share
+and neither owns.
+
+- `FabricState`: what changes during a run (positions, anchors, dissipation, work, end
+  forces); `as_woven_state`, the start of a run.
+- `FabricModel`: a fabric scene as the solvers see it, its structure (`dynfab.build.fabric`),
+  yarn families and load path, and the model's own functions of a state: the sparse
+  Hessian with F_T frozen (`dynfab.fabric.assembly`, on the unknowns of its `Pattern`) that
+  the Newton solve and the certificate (`dynfab.certificate`) both factor; the load a step
+  prescribes at its start (`start_of_step`) and the state it ends in (`end_of_step`: the end
+  displacements, the loads' work, the dissipation); and the observables of a record:
+  strains, crimps, stresses per unit width, the loaded families, the widths per yarn, the
+  planes, the energy terms.
+- `run_load_path`: every load step of a model with either solver.
+
+The static solver (`dynfab.fabric.static`) and the dynamic one (`dynfab.fabric.dynamic`)
+import this module, never each other (`dynfab.solver`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+import scipy.sparse
+
+from dynfab.build.fabric import Family, families, fabric_structure
+from dynfab.domain import check_crossings_held, check_not_folded
+from dynfab.errors import UserError
+from dynfab.fabric import assembly
+from dynfab.fabric.assembly import TERMS
+from dynfab.scene import Scene
+from dynfab.structure import Structure, chain_count
+from dynfab.terms import registry
+
+
+@dataclass
+class FabricState:
+    """What changes during a run (docs/model.md section 10)."""
+
+    positions: np.ndarray
+    """(in-plane coordinate, z) of every node (nodes, 2) [m]."""
+    anchors: np.ndarray
+    """Friction anchors xi per crossing (C, 2) [m], relative to the as-woven slip."""
+    dissipated: float = 0.0
+    """Cumulative friction dissipation [J]."""
+    work: float = 0.0
+    """Work of the end loads, trapezoid rule over the load steps [J]."""
+    end_force: np.ndarray | None = None
+    """End force along each yarn (Y,) [N]: the load (force control) or the reaction."""
+
+    def copy(self) -> "FabricState":
+        return FabricState(self.positions.copy(), self.anchors.copy(), self.dissipated,
+                           self.work, None if self.end_force is None else self.end_force.copy())
+
+
+def as_woven_state(structure: Structure) -> FabricState:
+    """As woven, anchors at zero slip, nothing dissipated, no end force."""
+    pos = structure.rest_position.copy()
+    anchors = np.zeros((structure.tie_a.size, 2))
+    anchors[:, 0] = pos[structure.tie_a, 0] - structure.tie_plane[:, 0]
+    grounded = structure.tie_b < 0
+    anchors[:, 1] = np.where(grounded, 0.0, pos[np.where(grounded, 0, structure.tie_b), 0]
+                             - structure.tie_plane[:, 1])
+    return FabricState(pos, anchors, end_force=np.zeros(chain_count(structure)))
+
+
+def run_load_path(solver, state: FabricState | None = None):
+    """Every load step of `solver.model` in sequence by `solver.step(state, warp value, weft
+    value)` (the static or the dynamic fabric solver), from `state` or the solver's initial
+    one; returns (final state, records)."""
+    state = solver.initial_state() if state is None else state
+    records = []
+    for warp_value, weft_value in solver.model.load_values:
+        state, record = solver.step(state, warp_value, weft_value)
+        records.append(record)
+    return state, records
+
+
+@dataclass
+class FabricModel:
+    """A fabric scene as the solvers see it: its structure (`dynfab.build.fabric`), its yarn
+    families and its load path (docs/model.md section 10)."""
+
+    scene: Scene
+    structure: Structure
+    warp: Family
+    weft: Family
+
+    @classmethod
+    def from_scene(cls, scene: Scene, structure: Structure | None = None) -> "FabricModel":
+        """The model of a validated fabric scene; `structure` replaces the scene's own (a test
+        holding more dofs, say)."""
+        warp, weft = families(scene)
+        return cls(scene, fabric_structure(scene) if structure is None else structure, warp,
+                   weft)
+
+    @property
+    def warps(self) -> int:
+        return self.warp.count
+
+    @property
+    def wefts(self) -> int:
+        return self.weft.count
+
+    @property
+    def control(self) -> str:
+        return self.scene.load.control
+
+    @property
+    def pullout(self) -> int | None:
+        """The pulled warp (1-based), or None."""
+        return None if self.scene.pullout is None else self.scene.pullout.warp
+
+    @property
+    def load_values(self) -> np.ndarray:
+        """The load path (steps, 2): (warp value, weft value) per step [N or m]."""
+        load = self.scene.load
+        weft = load.weft_values if load.weft_values is not None else (0.0,) * len(load.values)
+        return np.column_stack([load.values, weft]).astype(float)
+
+    def split(self, nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """All nodes (nodes, 2) -> (warps (n_wa, N+1, 2), wefts (n_we, M+1, 2))."""
+        cut = self.warps * (self.warp.segments + 1)
+        return (nodes[:cut].reshape(self.warps, self.warp.segments + 1, 2),
+                nodes[cut:].reshape(self.wefts, self.weft.segments + 1, 2))
+
+    def reference(self) -> dict:
+        """The result file's `reference/`: both families as woven, the crossing nodes."""
+        warps, wefts = self.split(self.structure.rest_position)
+        nodes, weft_nodes = self.crossing_nodes()
+        return {"positions": warps, "weft_positions": wefts,
+                "crossing_nodes": nodes, "weft_crossing_nodes": weft_nodes}
+
+    def crossing_nodes(self) -> tuple[np.ndarray, np.ndarray]:
+        """(each warp's node of crossing j (n_we,), each weft's node of crossing k (n_wa,)):
+        (2j-1) N / (2 n_we) and (2k-1) M / (2 n_wa) (docs/model.md section 10)."""
+        return ((2 * np.arange(self.wefts) + 1) * self.warp.segments // (2 * self.wefts),
+                (2 * np.arange(self.warps) + 1) * self.weft.segments // (2 * self.warps))
+
+    @property
+    def labels(self) -> list[str]:
+        """One label per yarn, warps first."""
+        return ([f"warp {k + 1}" for k in range(self.warps)]
+                + [f"weft {j + 1}" for j in range(self.wefts)])
+
+    def step_load(self, index: int) -> np.ndarray:
+        """The load of step `index` of the path, (warp value, weft value) [N or m]: what
+        `FabricSolver.step` takes."""
+        return self.load_values[index]
+
+    def check_step(self, record: dict) -> None:
+        """SolverError if the step left the model's domain: a yarn folded back
+        (`dynfab.domain.check_not_folded`), or a crossing node carried more than half a
+        segment from its crossing (`dynfab.domain.check_crossings_held`); for every solver."""
+        check_not_folded(record, lambda: self.labels)  # labels made only for the message
+        g = self.scene.geometry
+        check_crossings_held(record, *self.crossing_nodes(), suggest_affine=(
+            g.boundary == "clamped" and g.planes == "fixed" and self.pullout is None))
+
+    def solver(self, name: str, device: str | None = None, status=None):
+        """The solver `name` ("static", "dynamic") for this model under `dynfab.solver.Solver`
+        (`dynfab.fabric.from_scene.FabricSolver`); it reports within each step to `status`
+        (per Newton iteration, per launch of a relaxation)."""
+        from dynfab.fabric.from_scene import FabricSolver, check_dynamic_keys
+
+        if device is not None and name == "static":
+            raise UserError(f"--device {device}: the static solver runs on the CPU (numba); "
+                            "a device is for --solver dynamic")
+        if name == "dynamic":
+            check_dynamic_keys(self.scene.dynamic)
+        return FabricSolver(self, name, device or "cpu", status)
+
+    def attrs(self) -> dict:
+        """Root attributes of a fabric's result file besides the solver's."""
+        scene = self.scene
+        return {"model": "fabric", "boundary": scene.geometry.boundary,
+                "planes": scene.geometry.planes,
+                "projected_length": self.warp.length, "weft_length": self.weft.length,
+                "width_per_yarn": self.weft.length / self.warps,
+                "length_per_weft": self.warp.length / self.wefts,
+                "reference_state": scene.geometry.reference, "load_control": self.control,
+                "yarn_labels": self.labels,
+                "terms": list(registry.active_terms(scene)), **({} if self.pullout is None
+                                          else {"pullout_warp": int(self.pullout)})}
+
+    def initial_state(self) -> FabricState:
+        """As woven, anchors at zero slip, nothing dissipated (`as_woven_state`)."""
+        return as_woven_state(self.structure)
+
+    def state_from_step(self, last: dict) -> FabricState:
+        """The state a finished step left (a resumed run continues from it)."""
+        nodes = np.concatenate([np.asarray(last["positions"]).reshape(-1, 2),
+                                np.asarray(last["weft_positions"]).reshape(-1, 2)])
+        return FabricState(nodes, np.array(last["anchors"]).reshape(self.warps * self.wefts, 2),
+                           float(last["dissipated"]), float(last["work"]),
+                           np.array(last["end_force"], float))
+
+    @property
+    def planes_move(self) -> bool:
+        """The planes X_j, Y_k follow the ends ("affine" planes, the periodic cell)."""
+        return bool(self.structure.plane_nodes_a.size or self.structure.plane_nodes_b.size)
+
+    def point_data(self, record: dict) -> dict:
+        """The XDMF view's nodal point data of a step (`dynfab.xdmf`): contact force and
+        the slip s (docs/model.md (10.7): in-plane coordinate - plane - anchor) at each
+        family's crossing nodes, 0 elsewhere; where the planes move, each node's plane
+        coordinate (`xdmf/plane`: the warps' y, `xdmf/weft_plane`: the wefts' x), which the
+        view draws them at."""
+        ref = self.reference()
+        R = np.asarray(record["contact_force"])
+        anchors = np.asarray(record["anchors"])
+        warp_planes, weft_planes = np.asarray(record["warp_planes"]), np.asarray(record["weft_planes"])
+        out = {}
+        for prefix, positions, nodes, force, anchor, crossed, own in (
+                ("", record["positions"], ref["crossing_nodes"], R, anchors[..., 0],
+                 weft_planes[None, :], warp_planes),
+                ("weft_", record["weft_positions"], ref["weft_crossing_nodes"], R.T,
+                 anchors[..., 1].T, warp_planes[None, :], weft_planes)):
+            positions = np.asarray(positions)
+            f, slip = np.zeros(positions.shape[:2]), np.zeros(positions.shape[:2])
+            f[:, nodes] = force
+            slip[:, nodes] = positions[:, nodes, 0] - crossed - anchor
+            out[f"xdmf/{prefix}contact_force"], out[f"xdmf/{prefix}slip"] = f, slip
+            if self.planes_move:
+                out[f"xdmf/{prefix}plane"] = np.repeat(own[:, None], positions.shape[1], axis=1)
+        return out
+
+    # ------------------------------------------------------------------ the Hessian
+
+    @cached_property
+    def pattern(self) -> assembly.Pattern:
+        """The order of the Hessian's entries and its unknowns (`assembly.Pattern`)."""
+        return assembly.Pattern(self.structure)
+
+    def hessian(self, pos, anchors, limit, secant: bool = False) -> scipy.sparse.csc_matrix:
+        """The Hessian of V plus the Huber terms on the unknowns [N/m], F_T = `limit` frozen
+        (docs/model.md (6.1)); `secant`: the sliding crossings' secant stiffness instead
+        (`dynfab.fabric.friction.huber_hessian`)."""
+        values = np.zeros(self.pattern.size)
+        assembly.hessian_values(pos, self.structure, anchors, limit, values, secant)
+        return self.pattern.matrix(values)
+
+    def energies(self, pos, P, anchors, limit) -> np.ndarray:
+        """Each term's energy [J] (`assembly.TERMS`) at `pos` under end loads P (Y,) [N] with
+        F_T = `limit` frozen."""
+        out = np.zeros(len(TERMS))
+        assembly.energies(pos, self.structure, np.asarray(P, float), anchors, limit, out)
+        return out
+
+    # ------------------------------------------------------------------ a load step
+
+    @property
+    def yarns(self) -> int:
+        """Warps and wefts, Y."""
+        return chain_count(self.structure)
+
+    def yarn_loads(self, warp_value: float, weft_value: float) -> np.ndarray:
+        """The load of each yarn (Y,) [N or m]: the family's value times its factor."""
+        f = self.structure
+        return np.where(f.chain_family == 0, warp_value, weft_value) * f.load_factor
+
+    def start_of_step(self, state: FabricState, warp_value: float, weft_value: float):
+        """(positions, anchors, end loads P [N]) a load step starts from, copies of the state's:
+        under force control P is each yarn's load; under displacement control P = 0 and the
+        ends are moved to their prescribed displacements (`prescribe`)."""
+        loads = self.yarn_loads(warp_value, weft_value)
+        pos, anchors = state.positions.copy(), state.anchors.copy()
+        if self.control == "force":
+            return pos, anchors, loads
+        self.prescribe(pos, loads)
+        return pos, anchors, np.zeros(self.yarns)
+
+    def prescribe(self, pos, loads) -> None:
+        """Displacement control, in place: u_N = load on each yarn, the increment spread
+        linearly along the yarn (a better start than the end node alone)."""
+        f = self.structure
+        for y in range(self.yarns):
+            a, b = f.chain_start[y], f.chain_start[y + 1]
+            rest = f.rest_position[a:b, 0]
+            increment = loads[y] - (pos[b - 1, 0] - rest[-1])
+            pos[a:b, 0] += increment * (rest - rest[0]) / (rest[-1] - rest[0])
+            pos[b - 1, 0] = rest[-1] + loads[y]
+
+    def end_of_step(self, state: FabricState, pos, anchors, end_force, lost: float):
+        """(the state a step from `state` ends in, the end displacements u (Y,) [m]): its
+        positions, return-mapped anchors and end forces [N]; the dissipation plus `lost` [J],
+        and the end loads' work by the trapezoid rule over the step [J]."""
+        f = self.structure
+        u_old = state.positions[f.load_node, 0] - f.rest_position[f.load_node, 0]
+        u_new = pos[f.load_node, 0] - f.rest_position[f.load_node, 0]
+        work = state.work + float(0.5 * (state.end_force + end_force) @ (u_new - u_old))
+        return FabricState(pos, anchors, state.dissipated + lost, work, end_force), u_new
+
+    def crossing_name(self, c: int) -> str:
+        """Crossing c as the scene counts it: "(warp k, weft j)", 1-based."""
+        k, j = divmod(int(c), self.wefts)
+        return f"(warp {k + 1}, weft {j + 1})"
+
+    def yarn_name(self, y: int) -> str:
+        """Yarn y (0-based, warps first) as the scene counts it: "warp k" or "weft j"."""
+        return f"warp {y + 1}" if y < self.warps else f"weft {y - self.warps + 1}"
+
+    # ------------------------------------------------------------------ observables
+
+    def crimps(self, pos) -> np.ndarray:
+        """Mean crimps (warp, weft) [-]: (arc length - projected length) / projected length of
+        each yarn (`dynfab.model.crimp`, the projected length its end-to-end extent along
+        itself), averaged over the family (docs/model.md section 10)."""
+        f = self.structure
+        crimp = np.empty(self.yarns)
+        for y in range(self.yarns):
+            chain = pos[f.chain_start[y]:f.chain_start[y + 1]]
+            arc = np.hypot(*np.diff(chain, axis=0).T).sum()
+            projected = chain[-1, 0] - chain[0, 0]
+            crimp[y] = (arc - projected) / projected
+        warp = f.chain_family == 0
+        return np.array([crimp[warp].mean(), crimp[~warp].mean()])
+
+    def families(self) -> tuple[np.ndarray, np.ndarray]:
+        """(warp mask, weft mask) (Y,) of the yarns a family's strain and stress average
+        over, its loaded yarns (docs/model.md section 10): under displacement control a
+        yarn of factor 0 is held, not loaded, and left out (a pull-out's other warps), unless
+        the whole family is; under force control a factor-0 yarn's end is free and counts."""
+        f = self.structure
+        loaded = (f.load_factor != 0) | (self.control == "force")
+        warp = f.chain_family == 0
+        out = []
+        for family in (warp, ~warp):
+            out.append(family & loaded if (family & loaded).any() else family)
+        return out[0], out[1]
+
+    def strains(self, pos) -> np.ndarray:
+        """Nominal strains (warp, weft): the mean end displacement of the family's loaded
+        yarns (`families`) over their length (docs/model.md section 10)."""
+        f = self.structure
+        u = pos[f.load_node, 0] - f.rest_position[f.load_node, 0]
+        return np.array([u[chosen].mean() / length for chosen, length
+                         in zip(self.families(), (self.warp.length, self.weft.length))])
+
+    def widths(self) -> np.ndarray:
+        """The width per yarn of each family [m], (warp, weft), as woven: a warp's is the
+        wefts' length over the warps, L_we / n_wa; a weft's L / n_we (docs/model.md
+        section 10)."""
+        return np.array([self.weft.length / self.warps, self.warp.length / self.wefts])
+
+    def stresses(self, end_force) -> np.ndarray:
+        """Loads per unit width (warp, weft) [N/m]: the mean end force of the family's
+        loaded yarns (`families`, the yarns of its strain) over its width per yarn
+        (`widths`): on the periodic cell and a patch under force control, the force the
+        family carries over the fabric's width; in a pull-out, the pulled warp's force over
+        its width (docs/model.md section 10)."""
+        end_force = np.asarray(end_force, float)
+        return np.array([end_force[chosen].mean() for chosen in self.families()]) / self.widths()
+
+    def planes(self, positions) -> dict:
+        """warp_planes (n_wa,) Y_k and weft_planes (n_we,) X_j [m] at `positions`
+        (`assembly.planes`: as woven, or moved with the ends)."""
+        x, y = assembly.planes(positions, self.structure)  # per crossing c = k n_we + j
+        return {"warp_planes": y[::self.wefts].copy(), "weft_planes": x[:self.wefts].copy()}
