@@ -68,7 +68,7 @@ PAPER_FRICTION = {"alpha": 0.2, "beta": 1e3, "contact_length": 2e-3, "fiber_radi
 
 def patch(n: int, mode: str):
     """The n x n patch's `FabricModel` in one boundary mode (module docstring)."""
-    from dynfab.fabric.from_scene import FabricModel
+    from dynfab.fabric.model import FabricModel
     from dynfab.reports.fabric_data import paper_patch_scene
 
     more = {"fixed": {}, "affine": {"planes": "affine"}, "periodic": {"boundary": "periodic"}}[mode]
@@ -135,13 +135,14 @@ def first_step_relaxer(model, rule: str):
     dynamic.relaxation = fabric_semi_implicit.FabricSemiImplicit(dynamic.arrays,
                                                                  layout="persistent", rule=rule)
     warp, weft = model.load_values[0]
-    pos, anchors, P = dynamic.model.start_of_step(dynamic.initial_state(), warp, weft)
+    begun = dynamic.model.start_of_step(dynamic.initial_state(), (warp, weft))
+    pos, anchors, P = begun.positions, begun.anchors, begun.chain_loads
     return lambda: dynamic.relax(pos, P, anchors)[1]
 
 
 def semi_rules(sizes, modes) -> list[dict]:
     """Per case and time step rule: the first load step's time steps, CG iterations, wall time."""
-    from dynfab.fabric.from_scene import FabricModel
+    from dynfab.fabric.model import FabricModel
     from dynfab.kernels import fabric_semi_implicit
     from dynfab.scene import load_scene
 

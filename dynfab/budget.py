@@ -39,7 +39,7 @@ solver's sparse LU factors and the step's certificate on the patch's two-dimensi
 65 and 82 B nodes^1.5; 100 bounds both."""
 FABRIC_CROSSING_DATASETS = 7
 """A fabric step's numbers per crossing: contact force, friction limit, sliding, friction
-force (2), anchors (2) (`dynfab.fabric.from_scene`)."""
+force (2), anchors (2) (`dynfab.fabric.model`)."""
 FABRIC_STEP_SCALARS = 40
 """A fabric step's scalars and per-family pairs (load, strain, crimp, energies, residual...)."""
 VIEW_BYTES_PER_ENTRY = 3200

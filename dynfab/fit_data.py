@@ -13,7 +13,7 @@ model, each optionally followed by its noise level `<name> sigma [unit]`
   [m]` (absent: the wefts' load is 0 at every step, the scene's default without
   load.weft_values); measured `warp_strain [-]`, `weft_strain [-]`, `warp_crimp
   [-]`, `weft_crimp [-]`, `warp_stress [N/m]`, `weft_stress [N/m]` (each family's
-  entry of the step record's strain, crimp, stress; `dynfab.fabric.from_scene`).
+  entry of the step record's strain, crimp, stress; `dynfab.fabric.model`).
 
 A column that is the load itself under the scene's control (a strain under
 displacement control, a stress or end force under force control) is refused.
@@ -73,7 +73,7 @@ FABRIC_MEASURABLE = {
     "weft_stress": Column("N/m", "stress", 1, "force", "weft"),
 }
 """The woven fabric's measured columns: each family's entry of the record's strain, crimp
-and stress (`dynfab.fabric.from_scene`)."""
+and stress (`dynfab.fabric.model`)."""
 
 LOAD_COLUMN = {"force": ("load", "N"), "displacement": ("end_displacement", "m")}
 """The first column under each control: the load-path variable (of the warps, in a fabric)."""

@@ -4,7 +4,7 @@ the start value of a key the scene leaves to a default, and the solve of a load 
 - the one-yarn model (`YarnFit`): the path solved by `dynfab.sensitivity.solve_path`, whose
   exact sensitivities give the Jacobian;
 - the woven fabric (`FabricFit`): the path solved through the run contract
-  (`dynfab.solver.RunModel`: `build_model(scene).solver("static")`, one step per load of
+  (`dynfab.solver.RunModel`: `make_solver(build_model(scene), "static")`, one step per load of
   the path, the model's domain check after each, as a run), the measured columns read from
   the step records (`dynfab.fit_data.Column.read`). It has no exact sensitivities: its
   Jacobian is a forward difference of whole path solves (`dynfab.fit`).
@@ -100,10 +100,11 @@ class FabricFit:
         through the run contract; a step that leaves the model's domain raises SolverError
         (`FabricModel.check_step`), as in a run."""
         from dynfab.model import build_model
+        from dynfab.solvers import make_solver
 
         columns = {name: measurable("fabric")[name] for name in names}
         model = build_model(scene)
-        solver = model.solver("static")
+        solver = make_solver(model, "static")
         state = model.initial_state()
         values = {name: [] for name in names}
         for index in range(len(model.load_values)):

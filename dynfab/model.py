@@ -15,8 +15,8 @@ import numpy as np
 
 from dynfab.build.yarn import yarn_structure
 from dynfab.domain import check_not_folded
-from dynfab.errors import UserError
 from dynfab.scene import Scene
+from dynfab.step import StepSolution, StepStart
 from dynfab.structure import Structure, chain_nodes, chain_segments, tie_layout, uniform
 from dynfab.terms import registry
 
@@ -150,24 +150,42 @@ class Model:
         return nodal_point_data(np.asarray(entry["positions"]), np.asarray(entry["anchors"]),
                                 np.asarray(entry["contact_force"]), self.yarns[0].crossing_node)
 
+    @property
+    def groups(self) -> list[np.ndarray]:
+        """The structure's independent groups of chains: each yarn is one."""
+        return [np.array([k]) for k in range(self.yarn_count)]
+
+    def start_of_step(self, state: "State", load) -> StepStart:
+        """Where the step to `load` [N or m] starts (`dynfab.loading.prescribe_load`), as the
+        structure's flat arrays (`dynfab.step.StepStart`): the anchors are the slips' (column
+        0; a tie to ground has no second), the end forces the load under force control."""
+        from dynfab.loading import prescribe_load
+
+        value = float(load)
+        positions = prescribe_load(self, state, value).reshape(-1, 2)
+        anchors = np.zeros((state.anchors.size, 2))
+        anchors[:, 0] = state.anchors.ravel()
+        loads = np.full(self.yarn_count, value if self.control == "force" else 0.0)
+        return StepStart(np.asarray(value), positions, anchors, loads)
+
+    def finish_step(self, state: "State", start: StepStart, solution: StepSolution):
+        """(new state, record) of the step `start` began, from the solver's `solution`
+        (`dynfab.solver.RunModel.finish_step`): the return map and the observables of
+        `dynfab.observables.finish_step`, and the solver's fields, one per yarn."""
+        from dynfab.observables import finish_step
+
+        positions = solution.positions.reshape(self.yarn_count, self.segments + 1, 2)
+        fields = solution.fields
+        new_state, record = finish_step(self, state, positions, float(start.load),
+                                        fields["residual"], fields["iterations"])
+        record.update({name: np.asarray(value) for name, value in fields.items()
+                       if name not in ("residual", "iterations")})
+        return new_state, record
+
     def check_step(self, record: dict) -> None:
         """SolverError if the step left the model's domain: a yarn folded back
         (`dynfab.domain.check_not_folded`)."""
         check_not_folded(record, lambda: self.labels)  # labels made only for the message
-
-    def solver(self, name: str, device: str | None = None, status=None):
-        """The solver `name` ("static", "dynamic") for this model: a `dynfab.solver.Solver`, or
-        for dynamic.mode = "transient" a `Transient`; within a step the dynamic solver
-        reports each launch to `status`, the static one each yarn solved (a batch's)."""
-        if name == "static":
-            if device is not None:
-                raise UserError(f"--device {device}: the static solver runs on the CPU (numba); "
-                                "a device is for --solver dynamic")
-            from dynfab.static import StaticSolver
-            return StaticSolver(self, status=status)
-        from dynfab.dynamic import DynamicSolver, DynamicTransient
-        kind = DynamicTransient if self.scene.dynamic.mode == "transient" else DynamicSolver
-        return kind(self, device=device or "cpu", progress=status)
 
     def fixed_dofs(self) -> np.ndarray:
         """Fixed dofs (2 (N+1),) bool: node 0 pinned, z_N fixed, x_N under displacement control."""

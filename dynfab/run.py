@@ -25,23 +25,15 @@ import numpy as np
 
 from dynfab.budget import check_budget
 from dynfab.errors import DynfabError, SolverError, UserError
-from dynfab.options import apply_run_options, check_solver
+from dynfab.options import apply_run_options
 from dynfab.model import build_model
 from dynfab.results import ResultFile, Results, dynfab_version, finished_counts, read_results
 from dynfab.scene import Scene, scene_to_toml
 from dynfab.solver import RunModel, Solver, Transient
+from dynfab.solvers import make_solver
 from dynfab.summary import step_line
 from dynfab.views import add_views
 from dynfab.xdmf import XdmfSync, has_views, xdmf_path
-
-def make_solver(model: RunModel, solver: str, device: str | None = None,
-                progress=None) -> Solver | Transient:
-    """The solver object named `solver` ("static", "dynamic"), built for `model` by the model
-    (`RunModel.solver`; its options are the scene's): a `Solver` driven by load step, or for
-    dynamic.mode = "transient" a `Transient` driven by time (`dynfab.solver`); it reports
-    within a step to `progress`."""
-    return model.solver(check_solver(solver), device, progress)
-
 
 def run(scene: Scene, solver: str = "static", out: str | Path | None = None, *,
         overwrite: bool = False, resume: bool = False,

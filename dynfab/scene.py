@@ -377,6 +377,13 @@ def scene_from_tables(tables: dict) -> Scene:
     return replace(scene, text=scene_to_toml(scene))
 
 
+def scene_keys() -> dict:
+    """Every scene key, "table.key" -> its declaration (meaning, unit, rule, choices,
+    default_from, model, ...): the schema that parsing, validation, the run options and
+    docs/scene.md are read from."""
+    return {f"{t}.{k}": spec for t, (_, keys) in _SCHEMA.items() for k, spec in keys.items()}
+
+
 SCENE_TABLES = tuple(_SCHEMA)
 """The tables of a scene file, in the order `scene_to_toml` writes them."""
 

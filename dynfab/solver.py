@@ -31,6 +31,7 @@ import numpy as np
 
 from dynfab.model import State
 from dynfab.scene import Scene
+from dynfab.step import StepSolution, StepStart
 from dynfab.structure import Structure
 
 Record = dict[str, np.ndarray]
@@ -61,7 +62,7 @@ yarns = model.yarn_count:
   lowest_eigenvalue]) and error_estimate [m] (residual x est ||H^-1||_inf) (yarns,);
   rounding_floor [-] (yarns,) bool: the residual stopped falling above the tolerance.
   (A fabric's record holds them too, one scalar per step for its patch,
-  `dynfab.fabric.from_scene`.)
+  `dynfab.fabric.model`.)
 
 A solver may add its own names (the dynamic solver: time_steps, force_evaluations,
 dt [s], tolerance [N]), each listed in `dynfab.results.UNITS`. `dynfab.run` adds
@@ -77,9 +78,9 @@ and anchors [m] (yarns, crossings), energy/kinetic [J] (yarns,)."""
 @runtime_checkable
 class RunModel(Protocol):
     """What a run (`dynfab.run`) needs of a model, whatever its kind: the one-yarn model
-    (`dynfab.model.Model`) and the woven fabric's (`dynfab.fabric.from_scene.FabricModel`) both
+    (`dynfab.model.Model`) and the woven fabric's (`dynfab.fabric.model.FabricModel`) both
     fulfil it, built by `dynfab.model.build_model` from a scene, so the run never asks which
-    model it drives. (Members looked up by name, as for the solvers below.)"""
+    model it drives (its solvers come from `dynfab.solvers.make_solver`). (Members looked up by name, as for the solvers below.)"""
 
     scene: Scene
     structure: Structure
@@ -110,9 +111,13 @@ class RunModel(Protocol):
     def check_step(self, record: dict) -> None:
         """Raise `dynfab.errors.SolverError` if the step left the model's domain."""
 
-    def solver(self, name: str, device: str | None = None, status=None):
-        """The solver `name` ("static" or "dynamic") for this model, reporting within a step
-        to `status`."""
+    def start_of_step(self, state, load) -> StepStart:
+        """Where the step to `load` starts from `state` (not modified)."""
+
+    def finish_step(self, state, start: StepStart, solution: StepSolution):
+        """(the new state, the step's record) from the solver's `solution` of the step that
+        `start` began: the anchors return-mapped (docs/model.md section 4), the observables
+        (`STEP_KEYS`), the solver's fields, in the model's record layout."""
 
 
 @runtime_checkable

@@ -26,8 +26,7 @@ from dynfab.banded import BANDWIDTH, band_add, constrain, lu_factor, lu_solve
 from dynfab.certificate import (MAX_ESCAPES, NEGATIVES, StepStability, certify_yarn, check_accuracy,
                                 escape_yarn)
 from dynfab.errors import SolverError
-from dynfab.loading import prescribe_load
-from dynfab.observables import finish_step
+from dynfab.step import StepSolution
 from dynfab.terms import contact, friction
 
 CONVERGED, ROUNDING_FLOOR, STALLED, MAX_ITERATIONS, CYCLING, ONSET_FAILED = range(6)
@@ -449,10 +448,11 @@ class StaticSolver:
 
     def step(self, state, load_value: float):
         """Relax every yarn under `load_value`; returns (new state, record) or raises SolverError."""
-        positions = prescribe_load(self.model, state, load_value)
+        start = self.model.start_of_step(state, load_value)
+        yarns = self.model.yarn_count
+        positions = start.positions.reshape(yarns, -1, 2).copy()  # solved in place, yarn by yarn
         P = load_value if self.model.control == "force" else 0.0
         info = np.zeros(4)
-        yarns = self.model.yarn_count
         residual, iterations = np.zeros(yarns), np.zeros(yarns, np.int64)
         at_floor, stability = np.zeros(yarns, np.bool_), StepStability(yarns)
         for k, yarn in enumerate(self.model.yarns):
@@ -468,11 +468,10 @@ class StaticSolver:
             if self.status is not None:
                 self.status(f"yarn {k + 1} of {yarns} solved, {iterations[k]} Newton "
                             f"iterations, residual {residual[k]:.3g} N")
-        new_state, record = finish_step(self.model, state, positions, load_value, residual,
-                                        iterations)
-        record["rounding_floor"] = at_floor
-        record.update(stability.fields())
-        return new_state, record
+        fields = {"residual": residual, "iterations": iterations, "rounding_floor": at_floor,
+                  **stability.fields()}
+        return self.model.finish_step(state, start,
+                                      StepSolution(positions.reshape(-1, 2), None, fields))
 
 
     def _solve_certified(self, pos, k: int, yarn, P: float, anchors, info):

@@ -20,7 +20,7 @@ from scipy.special import ellipe
 
 from dynfab import assembly
 from dynfab.banded import to_dense as dense  # noqa: F401 (the tests' name for it)
-from dynfab.fabric.from_scene import FabricModel
+from dynfab.fabric.model import FabricModel
 from dynfab.model import build_model, initial_state
 from dynfab.scene import Scene, parse_scene_text, validate_scene
 from dynfab.structure import chain_of_node, dim

@@ -23,7 +23,7 @@ from dynfab import cli
 from dynfab.compiling import MESSAGE, announcing, will_compile
 from dynfab.kernels import fabric_arrays, fabric_explicit
 from dynfab.kernels.runtime import initialize
-from dynfab.fabric.from_scene import FabricModel
+from dynfab.fabric.model import FabricModel
 from dynfab.reports.fabric_data import paper_patch_scene
 
 ROOT = Path(__file__).resolve().parents[1]

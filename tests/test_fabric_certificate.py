@@ -20,7 +20,8 @@ import numpy as np
 import pytest
 
 from dynfab import certificate
-from dynfab.fabric.from_scene import FabricModel, FabricSolver
+from dynfab.fabric.model import FabricModel
+from dynfab.solvers import make_solver
 from dynfab.fabric.static import FabricStaticSolver
 from dynfab.results import units_of
 from dynfab.solver import STEP_KEYS
@@ -48,7 +49,7 @@ def test_a_stable_step_brackets_the_dense_lowest_eigenvalue_and_bounds_its_error
     solver = FabricStaticSolver(patch_model("force", (0.2,), FRICTION, weft_values=(0.05,),
                                             planes="affine"))
     start = solver.initial_state()
-    state, record = solver.step(start, 0.2, 0.05)
+    state, record = solver.step(start, (0.2, 0.05))
     assert record["stable"] and record["negative_eigenvalues"] == 0
     # the matrix the step certified: F_T frozen at its limits, the step's own anchors
     H = solver.hessian(state.positions, start.anchors, record["friction_limit"].ravel()).toarray()
@@ -96,7 +97,7 @@ def test_the_error_estimate_bounds_the_distance_to_a_tighter_solve(control):
     the sum of both bounds of the same step solved to 1e-10 N (the test patch's floor is
     about 1e-11 N). Frictionless: the Hessian is then the Jacobian of the residual. The
     dynamic relaxation, stopped at 1e-8 N, the same."""
-    loose, tight = (FabricSolver(frictionless_patch(control, tolerance))
+    loose, tight = (make_solver(frictionless_patch(control, tolerance), "static")
                     for tolerance in (1e-6, 1e-10))
     _, rough = loose.step(loose.model.initial_state(), loose.model.load_values[0])
     _, exact = tight.step(tight.model.initial_state(), tight.model.load_values[0])
@@ -104,7 +105,7 @@ def test_the_error_estimate_bounds_the_distance_to_a_tighter_solve(control):
     gap = max(np.abs(rough[name] - exact[name]).max() for name in ("positions", "weft_positions"))
     assert 0 < gap <= rough["error_estimate"] + exact["error_estimate"]
     model = frictionless_patch(control, 1e-8)
-    relaxed = FabricSolver(model, "dynamic")
+    relaxed = make_solver(model, "dynamic")
     _, dynamic = relaxed.step(model.initial_state(), model.load_values[0])
     gap = max(np.abs(dynamic[name] - exact[name]).max() for name in ("positions", "weft_positions"))
     assert 0 < gap <= dynamic["error_estimate"] + exact["error_estimate"]
@@ -116,7 +117,7 @@ def test_a_fabric_step_records_every_step_key():
     units, whatever the model; the result file's root attributes say the accuracy the steps
     were held to, as a one-yarn run's."""
     model = frictionless_patch("force", 1e-10)
-    solver = FabricSolver(model)
+    solver = make_solver(model, "static")
     assert solver.attrs()["static_accuracy"] == model.scene.static.accuracy == 0.1  # the default
     _, record = solver.step(model.initial_state(), model.load_values[0])
     assert set(STEP_KEYS) <= set(record)

@@ -11,7 +11,7 @@ about 10 times their value at first touch).
 import numpy as np
 
 from dynfab.fabric import contact
-from dynfab.fabric.from_scene import FabricModel
+from dynfab.fabric.model import FabricModel
 from dynfab.fabric.static import FabricStaticSolver
 from independent import without_core_spring
 from test_fabric_static import patch_scene

@@ -16,7 +16,7 @@ import pytest
 
 from dynfab.errors import SolverError
 from dynfab.fabric.dynamic import FabricDynamicSolver
-from dynfab.fabric.from_scene import FabricModel
+from dynfab.fabric.model import FabricModel
 from dynfab.fabric.static import FabricStaticSolver
 from dynfab.kernels.fabric_arrays import gershgorin_masses
 from dynfab.reports.fabric_data import paper_patch_scene
@@ -127,8 +127,8 @@ def test_dynamic_solver_agrees_with_the_static_one(n, control, friction, gravity
         anchors = s_state.anchors.copy()  # held during the step
         anchor_gap = float(np.hypot(*(d_state.anchors - s_state.anchors).T).max())
         start = s_state.positions
-        s_state, s_record = static.step(s_state, warp_value, weft_value)
-        d_state, d_record = dynamic.step(d_state, warp_value, weft_value)
+        s_state, s_record = static.step(s_state, (warp_value, weft_value))
+        d_state, d_record = dynamic.step(d_state, (warp_value, weft_value))
         assert d_record.keys() >= s_record.keys()
         assert d_record["residual"] <= TOLERANCE
         bound = agreement_bound(static, s_state, anchors, s_record, d_record["residual"],
@@ -163,7 +163,7 @@ def test_a_relaxation_that_cannot_finish_raises_one_line():
     model = paper_patch_model(2, 2, [(0.3, 0.0)], tolerance=TOLERANCE)
     solver = FabricDynamicSolver(model, max_steps=10)
     with pytest.raises(SolverError) as raised:
-        solver.step(solver.initial_state(), 0.3, 0.0)
+        solver.step(solver.initial_state(), (0.3, 0.0))
     message = str(raised.value)
     assert "\n" not in message and "time-step limit" in message and "10 time steps" in message
 
@@ -182,7 +182,7 @@ def test_a_step_reports_within_itself_and_chunked_launches_keep_the_bits(method)
         calls = []
         solver = FabricDynamicSolver(model, method=method, status=calls.append)
         solver.relaxation.first_chunk, solver.relaxation.chunk_seconds = first_chunk, 0.0
-        state, record = solver.step(solver.initial_state(), 0.3, 0.1)
+        state, record = solver.step(solver.initial_state(), (0.3, 0.1))
         runs.append((state, record, calls))
     (whole, whole_record, quiet), (chunked, chunked_record, calls) = runs
     np.testing.assert_array_equal(chunked.positions, whole.positions)
@@ -203,5 +203,5 @@ def test_a_step_in_the_per_step_layout_reports_within_itself(method):
     calls = []
     solver = FabricDynamicSolver(model, method=method, layout="per_step", status=calls.append)
     solver.relaxation.chunk_seconds = 0.0
-    solver.step(solver.initial_state(), 0.3, 0.1)
+    solver.step(solver.initial_state(), (0.3, 0.1))
     assert [c for c in calls if "time steps, residual" in c]

@@ -26,7 +26,7 @@ import warp as wp
 
 from dynfab.fabric import assembly
 from dynfab.fabric.dynamic import FabricDynamicSolver
-from dynfab.fabric.from_scene import FabricModel
+from dynfab.fabric.model import FabricModel
 from dynfab.fabric.static import FabricStaticSolver
 from dynfab.kernels import fabric_explicit, fabric_forces, status
 from dynfab.scene import load_scene
@@ -232,8 +232,8 @@ def test_every_fabric_scene_agrees_with_the_static_solver(name, method):
     k_c = uniform(static.fabric.tie_contact_law)[0]
     for warp_value, weft_value in model.load_values:
         start = state.copy()
-        s_state, s_record = static.step(start.copy(), warp_value, weft_value)
-        state, d_record = dynamic.step(start, warp_value, weft_value)
+        s_state, s_record = static.step(start.copy(), (warp_value, weft_value))
+        state, d_record = dynamic.step(start, (warp_value, weft_value))
         assert d_record["residual"] <= TOLERANCE
         bound = agreement_bound(static, s_state, start.anchors, s_record, d_record["residual"], 0.0)
         assert np.abs(s_state.positions - start.positions).max() > 1e3 * bound
@@ -261,8 +261,8 @@ def test_the_other_dampings_and_layouts_reach_the_same_step(name, damping, layou
     dynamic = FabricDynamicSolver(model, damping=damping, layout=layout)
     start = dynamic.initial_state()
     load = tuple(model.load_values[0])
-    s_state, s_record = static.step(start.copy(), *load)
-    state, d_record = dynamic.step(start, *load)
+    s_state, s_record = static.step(start.copy(), load)
+    state, d_record = dynamic.step(start, load)
     bound = agreement_bound(static, s_state, start.anchors, s_record, d_record["residual"], 0.0)
     assert np.abs(s_state.positions - start.positions).max() > 1e3 * bound
     assert np.abs(state.positions - s_state.positions).max() <= bound
@@ -315,8 +315,8 @@ def test_displacement_control_moves_the_planes_with_the_prescribed_ends(boundary
     f = static.fabric
     for warp_value, weft_value in values:
         start = state.copy()
-        s_state, s_record = static.step(start.copy(), warp_value, weft_value)
-        state, d_record = dynamic.step(start, warp_value, weft_value)
+        s_state, s_record = static.step(start.copy(), (warp_value, weft_value))
+        state, d_record = dynamic.step(start, (warp_value, weft_value))
         bound = agreement_bound(static, s_state, start.anchors, s_record, d_record["residual"], 0.0)
         assert np.abs(s_state.positions - start.positions).max() > 1e3 * bound
         assert np.abs(state.positions - s_state.positions).max() <= bound

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from dynfab.fabric import assembly
-from dynfab.fabric.from_scene import FabricModel
+from dynfab.fabric.model import FabricModel
 from dynfab.fabric.static import FabricStaticSolver
 from independent import fabric_scene
 

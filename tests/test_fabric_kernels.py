@@ -17,7 +17,7 @@ import warp as wp
 
 from dynfab import assembly
 from dynfab.banded import zeros_band
-from dynfab.fabric.from_scene import FabricModel
+from dynfab.fabric.model import FabricModel
 from dynfab.kernels import fabric_arrays, fabric_explicit, fabric_forces, status
 from dynfab.model import build_model, initial_state
 from dynfab.reports.fabric_data import paper_patch_scene

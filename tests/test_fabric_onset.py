@@ -17,7 +17,7 @@ import sys
 import h5py
 import numpy as np
 
-from dynfab.fabric.from_scene import FabricModel
+from dynfab.fabric.model import FabricModel
 from dynfab.fabric.static import FabricStaticSolver, NewtonInfo
 from dynfab.scene import parse_scene_text
 from independent import contact_force, gralen, record_inverse_norm, scene_toml
@@ -59,7 +59,8 @@ def check_consistent(solver: FabricStaticSolver, before, after, record, load) ->
     # R agrees with the solver's to the bracketing's rounding (4 eps relative)
     np.testing.assert_allclose(np.ravel(record["contact_force"]), R, rtol=1e-12, atol=0)
     assert np.abs(np.ravel(record["friction_limit"]) - law).max() <= 1e-12
-    _, anchors, P = solver.model.start_of_step(before, *load)
+    begun = solver.model.start_of_step(before, load)
+    anchors, P = begun.anchors, begun.chain_loads
     residual = solver.residual(solver.gradient(pos, P, anchors, law))
     H = solver.hessian(pos, anchors, law)
     floor = 4 * EPS * np.abs(H.diagonal()).max() * np.abs(pos).max()  # docs/model.md section 6
@@ -122,14 +123,14 @@ def solve_path(text: str, fallback_steps: set[int], monkeypatch):
     solver = patch_solver(text)
     state = solver.initial_state()
     for index, load in enumerate(solver.model.load_values, start=1):
-        new, record = solver.step(state, *load)
+        new, record = solver.step(state, load)
         check_consistent(solver, state, new, record, load)
         if index in fallback_steps:
             solved = [(new, record)]
             for fallback in STAGES[1:]:
                 with monkeypatch.context() as patched:
                     force_fallback(patched, solver, fallback)
-                    solved.append(solver.step(state, *load))
+                    solved.append(solver.step(state, load))
                 check_consistent(solver, state, *solved[-1], load)
             assert_same_state(solver, state, solved)
         state = new
@@ -214,9 +215,9 @@ def test_a_step_the_fallback_cannot_solve_names_its_crossing(monkeypatch):
 
     monkeypatch.setattr(fabric_static, "FALLBACK_BUDGET", 1)
     solver = patch_solver(patch(4, 1e-7, "force", [0.0, 1e-4], [0.0, 5e-5]))
-    state, _ = solver.step(solver.initial_state(), 0.0, 0.0)
+    state, _ = solver.step(solver.initial_state(), (0.0, 0.0))
     try:
-        solver.step(state, 1e-4, 5e-5)
+        solver.step(state, (1e-4, 5e-5))
     except SolverError as error:
         message = str(error)
     else:
@@ -242,7 +243,8 @@ def test_a_fixed_point_on_friction_that_cycles_is_relaxed(monkeypatch):
     text = patch(5, 1e-5, "force", [1e-4], [5e-5])
     solver = patch_solver(text)
     state = solver.initial_state()
-    pos, anchors, P = solver.model.start_of_step(state, 1e-4, 5e-5)
+    begun = solver.model.start_of_step(state, (1e-4, 5e-5))
+    pos, anchors, P = begun.positions, begun.anchors, begun.chain_loads
     limit = solver.friction_limits(pos)
     closed = []
     for _ in range(30):  # the plain update, F_T = the law at the last solution
@@ -254,12 +256,12 @@ def test_a_fixed_point_on_friction_that_cycles_is_relaxed(monkeypatch):
     assert solver.law_residual(pos, P, anchors) > 1e3 * solver.tolerance
 
     load = (1e-4, 5e-5)
-    new, record = solver.step(state, *load)  # the default path
+    new, record = solver.step(state, load)  # the default path
     check_consistent(solver, state, new, record, load)
 
     with monkeypatch.context() as patched:
         force_fallback(patched, solver, "solve_relaxed")
-        relaxed = solver.step(state, *load)
+        relaxed = solver.step(state, load)
     check_consistent(solver, state, *relaxed, load)
     assert_same_state(solver, state, [(new, record), relaxed])
 
@@ -274,10 +276,11 @@ def test_the_relaxed_fixed_point_and_the_active_set_reach_the_same_state():
     import dynfab.fabric.static as fabric_static
 
     solver = patch_solver(patch(4, 1e-7, "force", [0.0, 1e-4], [0.0, 5e-5]))
-    state, _ = solver.step(solver.initial_state(), 0.0, 0.0)
+    state, _ = solver.step(solver.initial_state(), (0.0, 0.0))
     solved = []
     for fallback in (solver.solve_relaxed, solver.solve_on_sets):
-        pos, anchors, P = solver.model.start_of_step(state, 1e-4, 5e-5)
+        begun = solver.model.start_of_step(state, (1e-4, 5e-5))
+        pos, anchors, P = begun.positions, begun.anchors, begun.chain_loads
         solver._budget = fabric_static.FALLBACK_BUDGET * solver.max_iterations
         assert fallback(pos, P, anchors)[0].converged
         assert solver.law_residual(pos, P, anchors) <= solver.tolerance

@@ -19,7 +19,7 @@ import scipy.sparse
 import scipy.sparse.linalg
 
 from dynfab.fabric import inertia, ordering
-from dynfab.fabric.from_scene import FabricModel
+from dynfab.fabric.model import FabricModel
 from dynfab.fabric.static import FabricStaticSolver, _sparse_solve
 from dynfab.reports.fabric_data import paper_patch_scene
 from test_fabric_periodic import cell
@@ -67,7 +67,7 @@ def test_the_order_is_a_permutation_of_the_unknowns(case):
     assert order.order.dtype.kind == "i"
     assert np.array_equal(np.sort(order.order), np.arange(solver.pattern.free_count))
     # computed once per pattern: found again from the Hessian of another state
-    state, _ = solver.step(solver.initial_state(), *((0.1, 0.05) if case == "periodic" else (0.2, 0.05)))
+    state, _ = solver.step(solver.initial_state(), (0.1, 0.05) if case == "periodic" else (0.2, 0.05))
     again = solver.hessian(state.positions, state.anchors, np.zeros(solver.fabric.tie_a.size))
     assert ordering.known_order(again) is order
     assert ordering.fabric_order(solver.fabric, solver.pattern) is order

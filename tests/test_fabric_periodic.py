@@ -9,7 +9,7 @@
 import numpy as np
 import pytest
 
-from dynfab.fabric.from_scene import FabricModel
+from dynfab.fabric.model import FabricModel
 from dynfab.fabric.static import FabricStaticSolver
 from independent import fabric_scene, record_inverse_norm
 
@@ -51,8 +51,8 @@ def test_friction_on_and_off_agree_on_the_cell(control):
     with_friction = cell(2, 4, control, FRICTION)
     s0, s1 = without.initial_state(), with_friction.initial_state()
     for a, b in zip(*PATHS[control]):
-        s0, r0 = without.step(s0, a, b)
-        s1, r1 = with_friction.step(s1, a, b)
+        s0, r0 = without.step(s0, (a, b))
+        s1, r1 = with_friction.step(s1, (a, b))
         tol = position_tolerance(with_friction, r1, r0["residual"])
         assert np.abs(s0.positions - s1.positions).max() <= tol
         assert r1["friction_limit"].min() > 0  # every crossing closed, friction active
@@ -69,8 +69,8 @@ def test_two_repeats_are_the_cell_tiled(control):
     scale = 1.0 if control == "force" else 2.0
     s_small, s_large = small.initial_state(), large.initial_state()
     for a, b in zip(*PATHS[control]):
-        s_small, r_small = small.step(s_small, a, b)
-        s_large, r_large = large.step(s_large, scale * a, scale * b)
+        s_small, r_small = small.step(s_small, (a, b))
+        s_large, r_large = large.step(s_large, (scale * a, scale * b))
         tol = position_tolerance(large, r_large, r_small["residual"])
         # strains: end displacements (each within tol) over lengths; R: k_c per closure
         spacing = min(SPACING_WARP, SPACING_WEFT)

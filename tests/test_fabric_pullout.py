@@ -18,7 +18,7 @@ frozen-F_T solves).
 
 import numpy as np
 
-from dynfab.fabric.from_scene import FabricModel
+from dynfab.fabric.model import FabricModel
 from dynfab.fabric.static import FabricStaticSolver
 from independent import fabric_scene, record_inverse_norm
 
@@ -44,7 +44,7 @@ def test_pullout_force_is_the_friction_on_the_pulled_warp():
     nodes = f.chain_start[k + 1] - f.chain_start[k]
     state, forces = solver.initial_state(), []
     for value in values:
-        state, record = solver.step(state, value, 0.0)
+        state, record = solver.step(state, (value, 0.0))
         pull = record["end_force"][k]
         friction_x = record["friction_force"].reshape(WARPS, WEFTS, 2)[k, :, 0]
         limits = record["friction_limit"][k]

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from dynfab.errors import UserError
-from dynfab.fabric.from_scene import FabricModel
+from dynfab.fabric.model import FabricModel
 from dynfab.run import run, run_to_file
 from dynfab.scene import load_scene, parse_scene_text
 from dynfab.structure import uniform

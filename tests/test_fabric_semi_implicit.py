@@ -40,7 +40,7 @@ def loaded_state(n=2, friction=PAPER_FRICTION, value=0.3, **more):
     static = FabricStaticSolver(model)
     dynamic = FabricDynamicSolver(model, method="semi_implicit")
     start = static.initial_state()
-    state, _ = static.step(start, value, 0.1 * value)
+    state, _ = static.step(start, (value, 0.1 * value))
     f, pos = static.fabric, state.positions
     anchors = start.anchors.copy()
     plane_x, plane_y = assembly.planes(pos, f)
@@ -226,7 +226,8 @@ def test_the_per_step_layout_relaxes_as_the_persistent_one_bit_for_bit(case):
     ends = []
     for layout in ("persistent", "per_step"):
         dynamic = FabricDynamicSolver(model, method="semi_implicit", layout=layout)
-        pos, anchors, P = dynamic.model.start_of_step(dynamic.initial_state(), warp, weft)
+        begun = dynamic.model.start_of_step(dynamic.initial_state(), (warp, weft))
+        pos, anchors, P = begun.positions, begun.anchors, begun.chain_loads
         ends.append(dynamic.relax(pos, P, anchors))
     (x_persistent, persistent), (x_per_step, per_step) = ends
     assert persistent.cg_iterations > persistent.steps
@@ -270,8 +271,8 @@ def test_semi_implicit_load_steps_agree_with_the_static_ones(control, friction):
         anchors = s_state.anchors.copy()
         anchor_gap = float(np.hypot(*(d_state.anchors - s_state.anchors).T).max())
         start = s_state.positions
-        s_state, s_record = static.step(s_state, warp_value, weft_value)
-        d_state, d_record = dynamic.step(d_state, warp_value, weft_value)
+        s_state, s_record = static.step(s_state, (warp_value, weft_value))
+        d_state, d_record = dynamic.step(d_state, (warp_value, weft_value))
         assert d_record["residual"] <= TOLERANCE
         bound = agreement_bound(static, s_state, anchors, s_record, d_record["residual"],
                                 anchor_gap)
@@ -297,8 +298,8 @@ def test_records_have_the_explicit_solvers_keys_and_runs_repeat_bit_for_bit():
     model = paper_patch_model(2, 2, [(0.1, 0.0)], friction=PAPER_FRICTION, tolerance=TOLERANCE)
     explicit = FabricDynamicSolver(model)
     semis = [FabricDynamicSolver(model, method="semi_implicit") for _ in range(2)]
-    _, e_record = explicit.step(explicit.initial_state(), 0.1, 0.0)
-    states = [semi.step(semi.initial_state(), 0.1, 0.0) for semi in semis]
+    _, e_record = explicit.step(explicit.initial_state(), (0.1, 0.0))
+    states = [semi.step(semi.initial_state(), (0.1, 0.0)) for semi in semis]
     assert states[0][1].keys() == e_record.keys() | {"cg_iterations"}
     assert 0 < states[0][1]["cg_iterations"] == semis[0].linear_iterations
     np.testing.assert_array_equal(states[0][0].positions, states[1][0].positions)
@@ -309,7 +310,7 @@ def test_a_semi_implicit_scene_runs_and_matches_the_static_run():
     and gravity) runs, each step within twice `position_bound` of the static run's."""
     text = small_pullout() + '\n[dynamic]\nmethod = "semi_implicit"\n'
     scene = parse_scene_text(text)
-    from dynfab.fabric.from_scene import FabricModel
+    from dynfab.fabric.model import FabricModel
 
     model = FabricModel.from_scene(scene)
     static, semi = run(scene, "static"), run(scene, "dynamic")
@@ -326,6 +327,6 @@ def test_a_semi_implicit_relaxation_that_cannot_finish_raises_one_line():
     model = paper_patch_model(2, 2, [(0.3, 0.0)], tolerance=TOLERANCE)
     solver = FabricDynamicSolver(model, max_steps=3, method="semi_implicit")
     with pytest.raises(SolverError) as raised:
-        solver.step(solver.initial_state(), 0.3, 0.0)
+        solver.step(solver.initial_state(), (0.3, 0.0))
     message = str(raised.value)
     assert "\n" not in message and "time-step limit" in message and "3 time steps" in message

@@ -10,7 +10,7 @@ matrix), and swapping the loads swaps the results, to solver tolerance.
 import numpy as np
 import pytest
 
-from dynfab.fabric.from_scene import FabricModel
+from dynfab.fabric.model import FabricModel
 from dynfab.fabric.static import FabricStaticSolver
 from independent import fabric_scene, record_inverse_norm
 
@@ -31,7 +31,7 @@ def solve(control, warp_values, weft_values, friction, boundary="clamped", plane
         **tables)))
     state, steps = solver.initial_state(), []
     for a, b in zip(warp_values, weft_values):
-        state, record = solver.step(state, a, b)
+        state, record = solver.step(state, (a, b))
         steps.append((state, record))
     return solver, steps
 

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from dynfab.fabric import assembly, contact, friction
-from dynfab.fabric.from_scene import FabricModel
+from dynfab.fabric.model import FabricModel
 from dynfab.structure import Structure, chain_count, uniform
 from dynfab.terms import friction as gralen
 from dynfab.terms.contact import closure_from_force

@@ -120,8 +120,8 @@ def fabric_step(name):
     static = FabricStaticSolver(model)
     start = static.initial_state()
     values = model.load_values[0]
-    state, record = static.step(start.copy(), *values)
-    return model.structure, start, state, record, static.yarn_loads(*values)
+    state, record = static.step(start.copy(), values)
+    return model.structure, start, state, record, model.yarn_loads(*values)
 
 
 @pytest.mark.parametrize("method", METHODS)
@@ -276,9 +276,10 @@ def test_displacement_control_reactions_are_the_static_ones():
     model = build_model(scene)
     static = FabricStaticSolver(model)
     start = static.initial_state()
-    state, record = static.step(start.copy(), *model.load_values[0])
+    state, record = static.step(start.copy(), model.load_values[0])
     s = model.structure
-    positions, anchors, P = static.start_of_step(start, *model.load_values[0])
+    begun = model.start_of_step(start, model.load_values[0])
+    positions, anchors, P = begun.positions, begun.anchors, begun.chain_loads
     kernels = relaxation(s, damping="kinetic")
     relaxed, outcome = kernels.relax(positions, P, anchors, tolerance=TOLERANCE,
                                      max_steps=500_000)

@@ -378,3 +378,37 @@ def rounding_scale(pos, fabric, P, limit):
         total += contact.force(g, fabric.tie_contact_law[c]) * (abs(pos[a, 1]) + zb + abs(g))
         total += limit[c] * (abs(pos[a, 0]) + xb)
     return total
+
+
+_PATTERNS: dict[int, tuple] = {}
+"""The last few structures' `Pattern`s, by id (the structure kept alive beside it)."""
+PATTERNS_KEPT = 8
+
+
+def pattern_of(structure) -> Pattern:
+    """The `Pattern` of a structure, made once (the static solver, the certificate and the
+    model share it, and with it the nested-dissection order, `dynfab.fabric.ordering`)."""
+    entry = _PATTERNS.get(id(structure))
+    if entry is None or entry[0] is not structure:
+        if len(_PATTERNS) >= PATTERNS_KEPT:
+            _PATTERNS.pop(next(iter(_PATTERNS)))
+        entry = _PATTERNS[id(structure)] = (structure, Pattern(structure))
+    return entry[1]
+
+
+def sparse_hessian(structure, pos, anchors, limit, secant: bool = False):
+    """The Hessian of V plus the Huber terms on the structure's unknowns [N/m] (CSC), F_T =
+    `limit` frozen (docs/model.md (6.1)); `secant`: the sliding ties' secant stiffness instead
+    (`dynfab.fabric.friction.huber_hessian`)."""
+    pattern = pattern_of(structure)
+    values = np.zeros(pattern.size)
+    hessian_values(pos, structure, anchors, limit, values, secant)
+    return pattern.matrix(values)
+
+
+def energy_vector(structure, pos, P, anchors, limit) -> np.ndarray:
+    """Each term's energy [J] (`TERMS`) at `pos` under end loads P (Y,) [N], F_T = `limit`
+    frozen."""
+    out = np.zeros(len(TERMS))
+    energies(pos, structure, np.asarray(P, float), anchors, limit, out)
+    return out

@@ -61,7 +61,9 @@ from dynfab.certificate import (MAX_ESCAPES, certify_patch, check_patch_accuracy
                                 patch_stability)
 from dynfab.errors import SolverError, UserError
 from dynfab.fabric.model import FabricState, run_load_path
+from dynfab.step import StepSolution
 from dynfab.structure import chain_count
+from dynfab.kernels.runtime import initialize
 from dynfab.kernels import (fabric_arrays, fabric_explicit, fabric_forces, fabric_semi_implicit,
                             status)
 from dynfab.terms import friction as gralen
@@ -202,19 +204,41 @@ class FabricDynamicSolver:
                 f"residual {outcome.residual:.3g} N, tolerance {self.tolerance:.3g} N")
         return positions, outcome
 
-    def step(self, state: FabricState, warp_value: float, weft_value: float):
-        """Relax one load step from `state`; returns (new state, record) or raises SolverError.
-        The record holds FabricStaticSolver.step's keys, iterations counting time steps, plus
-        time_steps and relax_time [s] (the relaxations' wall time)."""
+    name = "dynamic"
+
+    @classmethod
+    def from_scene(cls, model, device: str = "cpu", status=None) -> "FabricDynamicSolver":
+        """The solver of `model` with its scene's [dynamic] options (`check_dynamic_keys`)."""
+        dynamic = model.scene.dynamic
+        check_dynamic_keys(dynamic)
+        initialize(device)
+        return cls(model, device=device, damping=dynamic.damping_used(),
+                   tolerance=dynamic.tolerance, max_steps=dynamic.max_steps,
+                   method=dynamic.method, damping_coefficient=dynamic.damping_coefficient,
+                   accuracy=dynamic.accuracy, status=status)
+
+    def attrs(self) -> dict:
+        """Root attributes of the result file describing the solver and its options."""
+        static, dynamic = self.model.scene.static, self.model.scene.dynamic
+        return {"solver": self.name, "static_tolerance": static.tolerance,
+                "static_max_iterations": static.max_iterations,
+                "dynamic_damping": dynamic.damping_used(), "dynamic_method": dynamic.method,
+                "dynamic_accuracy": dynamic.accuracy}
+
+    def step(self, state: FabricState, load):
+        """Relax the step under `load` = (warp value, weft value) from `state`; returns (new
+        state, record) (`dynfab.solver.Solver`) or raises SolverError. The record holds the
+        static solver's keys, iterations counting time steps, plus time_steps and, with the
+        semi-implicit method, cg_iterations."""
         model = self.model
-        pos, anchors, P = model.start_of_step(state, warp_value, weft_value)
+        start = model.start_of_step(state, load)
+        pos, anchors, P = start.positions, start.anchors, start.chain_loads
         linear = self.linear_iterations
         began = time.perf_counter()
         pos, outcome = self.relax(pos, P, anchors)
-        relax_time = time.perf_counter() - began
         steps, escapes = outcome.steps, 0
         while True:
-            R, friction_force = self.crossing_forces(pos, anchors + self._plane_shift)
+            R, _ = self.crossing_forces(pos, anchors + self._plane_shift)
             limit = self.friction_limits(R)
             if self.status is not None:
                 self.status("stability check (inertia of the Hessian)")
@@ -225,49 +249,44 @@ class FabricDynamicSolver:
             if escaped is None:
                 break
             escapes += 1
-            began = time.perf_counter()
             pos, outcome = self.relax(escaped, P, anchors)
-            relax_time += time.perf_counter() - began
             steps += outcome.steps
+        self.relax_time = time.perf_counter() - began
+        """The wall time of the last step's relaxations and stability checks [s]."""
         stability = patch_stability(checked, outcome.residual, escapes)
         check_patch_accuracy(model, checked, stability, pos, outcome.residual, self.tolerance,
                              self.accuracy, False, "dynamic.accuracy")
-        new_anchors, sliding, lost = self._return_map(pos, anchors, limit)
-        end_force = self._end_force(pos, P, anchors)
-        new, u_new = model.end_of_step(state, pos, new_anchors, end_force, lost)
-        shape = (model.warps, model.wefts)
-        record = dict(residual=outcome.residual, iterations=steps, friction_solves=1 + escapes,
-                      rounding_floor=False, contact_force=R.reshape(shape),
-                      friction_limit=limit.reshape(shape), sliding=sliding.reshape(shape),
-                      friction_force=friction_force,
-                      negative_eigenvalues=checked.negatives, escapes=escapes,
-                      **{name: value[0] for name, value in stability.fields().items()},
-                      end_force=end_force,
-                      end_displacement=u_new, strain=model.strains(pos), crimp=model.crimps(pos),
-                      time_steps=steps, relax_time=relax_time)
+        fields = dict(residual=[outcome.residual], iterations=[steps],
+                      friction_solves=[1 + escapes], rounding_floor=[False],
+                      negative_eigenvalues=[checked.negatives], **stability.fields(),
+                      time_steps=[steps])
         if self.method == "semi_implicit":
-            record["cg_iterations"] = self.linear_iterations - linear
-        return new, record
-
-    def _return_map(self, pos, anchors, limit):
-        """(anchors, sliding (C,), energy lost [J]) after the kernels' radial return map
-        (docs/model.md section 4): lost = F_T |delta xi| per sliding crossing."""
-        if not self.fabric.has_friction:
-            return anchors.copy(), np.zeros(anchors.shape[0], np.bool_), 0.0
-        kernel_anchors = anchors + self._plane_shift
-        mapped = self.relaxation.return_map(pos, kernel_anchors)
-        moved = np.hypot(*(mapped - kernel_anchors).T)
-        sliding = moved > 0.0
-        return mapped - self._plane_shift, sliding, float(limit @ moved)
-
-    def _end_force(self, pos, P, anchors) -> np.ndarray:
-        """P under force control; under displacement control the reaction dV/du_N, minus the
-        kernels' internal force on each yarn's end dof."""
-        if self.model.control == "force":
-            return np.asarray(P, float).copy()
-        force = self.internal_force(pos, anchors + self._plane_shift)
-        return -force[self.fabric.load_node, 0]
+            fields["cg_iterations"] = [self.linear_iterations - linear]
+        return model.finish_step(state, start, StepSolution(pos, limit, fields))
 
     def run(self, state: FabricState | None = None):
         """Every load step of the model in sequence; returns (final state, records)."""
         return run_load_path(self, state)
+
+
+_DYNAMIC_SUPPORTED = {"mode": "quasi_static", "method": "explicit", "precision": "float64",
+                      "masses": None, "dt": None, "safety": 0.9}
+"""The [dynamic] settings the fabric's dynamic solver runs (`FabricDynamicSolver`: a
+quasi-static explicit relaxation in float64 with its own fictitious masses and time step);
+any other value is refused rather than ignored; method "semi_implicit" is accepted too
+(`fabric_semi_implicit.FabricSemiImplicit`, docs/model.md section 10)."""
+
+
+def check_dynamic_keys(dynamic) -> None:
+    """Refuse, in one line, a [dynamic] setting the fabric's dynamic solver would ignore."""
+    for key, supported in _DYNAMIC_SUPPORTED.items():
+        value = getattr(dynamic, key)
+        if key == "method" and value == "semi_implicit":  # FabricSemiImplicit
+            continue
+        if value != supported:
+            raise UserError(f"dynamic.{key} = {value!r}: the fabric's dynamic solver runs "
+                            f"{key} = {supported!r} only (docs/model.md section 10)")
+    if dynamic.damping_used() == "viscous" and dynamic.damping_coefficient is None:
+        raise UserError("dynamic.damping = 'viscous': the fabric's dynamic solver has no "
+                        "adaptive viscous coefficient; give dynamic.damping_coefficient [1/s] "
+                        "or use \"kinetic\" or \"fire\"")

@@ -14,23 +14,51 @@ and neither owns.
 - `run_load_path`: every load step of a model with either solver.
 
 The static solver (`dynfab.fabric.static`) and the dynamic one (`dynfab.fabric.dynamic`)
-import this module, never each other (`dynfab.solver`).
+import this module, never each other (`dynfab.solver`); each solves a step from
+`FabricModel.start_of_step` and hands its solution to `FabricModel.finish_step`, which
+makes the state and the record (`dynfab.step`).
+
+Record of one fabric step (n_wa warps of N+1 nodes, n_we wefts of M+1 nodes; Y = n_wa
++ n_we yarns, warps first):
+
+- load (2,): (warp, weft) value [N or m]; end_force, end_displacement (Y,) [N], [m];
+- positions (n_wa, N+1, 2): the warps' (x, z); weft_positions (n_we, M+1, 2): the
+  wefts' (y, z) [m];
+- strain, crimp (2,): (warp, weft) nominal strain and mean crimp [-]; stress (2,):
+  (warp, weft) load per unit width [N/m] (`FabricModel.stresses`);
+- slip_ratio: the largest slip ratio of the step's crossing nodes [-]
+  (`dynfab.domain.slip_ratios`; a run stops a step above 1/2, docs/model.md section 10);
+- contact_force, friction_limit, sliding (n_wa, n_we); friction_force, anchors
+  (n_wa, n_we, 2) [N], [m] (in-plane: warp x, weft y; the anchors relative to the planes);
+- warp_planes (n_wa,): the plane y = Y_k of each warp, weft_planes (n_we,): x = X_j of each
+  weft [m], where they are at the step's end (they move with "affine" planes and on the
+  periodic cell, docs/model.md section 10);
+- dissipated, work [J]; energy/<term> [J] per active term of the registry
+  (`dynfab.terms.registry`, its dataset names and order, as the one-yarn model's);
+- residual [N], iterations, friction_solves, rounding_floor; the certificate
+  (`dynfab.certificate.StepStability`, docs/model.md section 6): stable, buckled (an escape
+  from a saddle was taken), lowest_eigenvalue [N/m] (the lowest eigenvalue of the
+  frozen-F_T Hessian on the unknowns), lowest_eigenvalue_error [N/m] (lambda_min lies in
+  [lowest_eigenvalue - error, lowest_eigenvalue]), error_estimate [m] (residual x est
+  ||H^-1||_inf, the position error bound the accuracy check holds to static.accuracy or
+  dynamic.accuracy of the step's largest displacement), negative_eigenvalues; scalars;
+- with the dynamic solver, time_steps (the time steps of the step's relaxations, also its
+  iterations), and with the semi-implicit method cg_iterations (their CG iterations).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import cached_property
 
 import numpy as np
 import scipy.sparse
 
 from dynfab.build.fabric import Family, families, fabric_structure
-from dynfab.domain import check_crossings_held, check_not_folded
-from dynfab.errors import UserError
-from dynfab.fabric import assembly
+from dynfab.domain import check_crossings_held, check_not_folded, fabric_slip_ratios
+from dynfab.fabric import assembly, contact, friction
 from dynfab.fabric.assembly import TERMS
 from dynfab.scene import Scene
+from dynfab.step import StepSolution, StepStart
 from dynfab.structure import Structure, chain_count
 from dynfab.terms import registry
 
@@ -67,13 +95,13 @@ def as_woven_state(structure: Structure) -> FabricState:
 
 
 def run_load_path(solver, state: FabricState | None = None):
-    """Every load step of `solver.model` in sequence by `solver.step(state, warp value, weft
-    value)` (the static or the dynamic fabric solver), from `state` or the solver's initial
-    one; returns (final state, records)."""
+    """Every load step of `solver.model` in sequence by `solver.step(state, load)` (the static or
+    the dynamic fabric solver), from `state` or the solver's initial one; returns (final
+    state, records)."""
     state = solver.initial_state() if state is None else state
     records = []
-    for warp_value, weft_value in solver.model.load_values:
-        state, record = solver.step(state, warp_value, weft_value)
+    for load in solver.model.load_values:
+        state, record = solver.step(state, load)
         records.append(record)
     return state, records
 
@@ -147,7 +175,7 @@ class FabricModel:
 
     def step_load(self, index: int) -> np.ndarray:
         """The load of step `index` of the path, (warp value, weft value) [N or m]: what
-        `FabricSolver.step` takes."""
+        the fabric solvers take."""
         return self.load_values[index]
 
     def check_step(self, record: dict) -> None:
@@ -158,19 +186,6 @@ class FabricModel:
         g = self.scene.geometry
         check_crossings_held(record, *self.crossing_nodes(), suggest_affine=(
             g.boundary == "clamped" and g.planes == "fixed" and self.pullout is None))
-
-    def solver(self, name: str, device: str | None = None, status=None):
-        """The solver `name` ("static", "dynamic") for this model under `dynfab.solver.Solver`
-        (`dynfab.fabric.from_scene.FabricSolver`); it reports within each step to `status`
-        (per Newton iteration, per launch of a relaxation)."""
-        from dynfab.fabric.from_scene import FabricSolver, check_dynamic_keys
-
-        if device is not None and name == "static":
-            raise UserError(f"--device {device}: the static solver runs on the CPU (numba); "
-                            "a device is for --solver dynamic")
-        if name == "dynamic":
-            check_dynamic_keys(self.scene.dynamic)
-        return FabricSolver(self, name, device or "cpu", status)
 
     def attrs(self) -> dict:
         """Root attributes of a fabric's result file besides the solver's."""
@@ -229,25 +244,18 @@ class FabricModel:
 
     # ------------------------------------------------------------------ the Hessian
 
-    @cached_property
+    @property
     def pattern(self) -> assembly.Pattern:
-        """The order of the Hessian's entries and its unknowns (`assembly.Pattern`)."""
-        return assembly.Pattern(self.structure)
+        """The order of the Hessian's entries and its unknowns (`assembly.pattern_of`)."""
+        return assembly.pattern_of(self.structure)
 
     def hessian(self, pos, anchors, limit, secant: bool = False) -> scipy.sparse.csc_matrix:
-        """The Hessian of V plus the Huber terms on the unknowns [N/m], F_T = `limit` frozen
-        (docs/model.md (6.1)); `secant`: the sliding crossings' secant stiffness instead
-        (`dynfab.fabric.friction.huber_hessian`)."""
-        values = np.zeros(self.pattern.size)
-        assembly.hessian_values(pos, self.structure, anchors, limit, values, secant)
-        return self.pattern.matrix(values)
+        """The Hessian on the unknowns, F_T frozen (`assembly.sparse_hessian`)."""
+        return assembly.sparse_hessian(self.structure, pos, anchors, limit, secant)
 
     def energies(self, pos, P, anchors, limit) -> np.ndarray:
-        """Each term's energy [J] (`assembly.TERMS`) at `pos` under end loads P (Y,) [N] with
-        F_T = `limit` frozen."""
-        out = np.zeros(len(TERMS))
-        assembly.energies(pos, self.structure, np.asarray(P, float), anchors, limit, out)
-        return out
+        """Each term's energy [J] (`assembly.energy_vector`)."""
+        return assembly.energy_vector(self.structure, pos, P, anchors, limit)
 
     # ------------------------------------------------------------------ a load step
 
@@ -261,16 +269,67 @@ class FabricModel:
         f = self.structure
         return np.where(f.chain_family == 0, warp_value, weft_value) * f.load_factor
 
-    def start_of_step(self, state: FabricState, warp_value: float, weft_value: float):
-        """(positions, anchors, end loads P [N]) a load step starts from, copies of the state's:
-        under force control P is each yarn's load; under displacement control P = 0 and the
-        ends are moved to their prescribed displacements (`prescribe`)."""
+    def start_of_step(self, state: FabricState, load) -> StepStart:
+        """Where the step to `load` = (warp value, weft value) starts (`dynfab.step.StepStart`),
+        copies of the state's arrays: under force control the end forces are each yarn's load;
+        under displacement control they are 0 and the ends are moved to their prescribed
+        displacements (`prescribe`)."""
+        warp_value, weft_value = (float(v) for v in load)
         loads = self.yarn_loads(warp_value, weft_value)
         pos, anchors = state.positions.copy(), state.anchors.copy()
+        if self.control != "force":
+            self.prescribe(pos, loads)
+            loads = np.zeros(self.yarns)
+        return StepStart(np.array([warp_value, weft_value]), pos, anchors, loads)
+
+    @property
+    def groups(self) -> list[np.ndarray]:
+        """The structure's independent groups of chains: a patch or a cell is one."""
+        return [np.arange(self.yarns)]
+
+    def finish_step(self, state: FabricState, start: StepStart, solution: StepSolution):
+        """(new state, record) of the step `start` began, from the solver's `solution`
+        (`dynfab.solver.RunModel.finish_step`): the contact forces, the end forces (the load
+        under force control, else the reaction dV/du_N of the elastic terms and the friction
+        at F_T frozen), the anchors' radial return map and its dissipation, the loads' work,
+        and the record of the module docstring."""
+        f, pos, limit = self.structure, solution.positions, solution.limit
+        anchors = start.anchors.copy()
+        R = np.zeros(f.tie_a.size)
+        contact.forces(pos, f, R)
         if self.control == "force":
-            return pos, anchors, loads
-        self.prescribe(pos, loads)
-        return pos, anchors, np.zeros(self.yarns)
+            end_force = np.asarray(start.chain_loads, float).copy()
+        else:
+            grad = np.zeros_like(pos)
+            assembly.gradient(pos, f, np.zeros(self.yarns), anchors, limit, grad)
+            end_force = grad[f.load_node, 0].copy()
+        sliding = np.zeros(f.tie_a.size, np.bool_)
+        friction_force = np.zeros((f.tie_a.size, 2))
+        lost = 0.0
+        if f.has_friction:
+            px, py = assembly.planes(pos, f)
+            lost = friction.return_map(pos, anchors, f, px, py, limit, sliding, friction_force)
+        new, u_new = self.end_of_step(state, pos, anchors, end_force, lost)
+        warps, wefts = self.split(pos)
+        shape = (self.warps, self.wefts)
+        record = {
+            "load": start.load.copy(), "end_force": end_force, "end_displacement": u_new,
+            "positions": warps, "weft_positions": wefts,
+            "strain": self.strains(pos), "stress": self.stresses(end_force),
+            "crimp": self.crimps(pos),
+            "contact_force": R.reshape(shape), "friction_limit": np.asarray(limit).reshape(shape),
+            "sliding": sliding.reshape(shape), "friction_force": friction_force.reshape(*shape, 2),
+            "anchors": anchors.reshape(*shape, 2), **self.planes(pos),
+            "dissipated": new.dissipated, "work": new.work,
+            **{name: np.asarray(value)[0] for name, value in solution.fields.items()},
+        }
+        P = end_force if self.control == "force" else np.zeros(self.yarns)
+        values = dict(zip(TERMS, self.energies(pos, P, anchors, limit)))
+        record.update({registry.TERMS[registry.index(term)].dataset: float(values[term])
+                       for term in registry.active_terms(self.scene)})
+        ratios = fabric_slip_ratios(record, *self.crossing_nodes())
+        record["slip_ratio"] = np.max(np.concatenate([r.ravel() for r in ratios]), initial=0.0)
+        return new, {name: np.asarray(value) for name, value in record.items()}
 
     def prescribe(self, pos, loads) -> None:
         """Displacement control, in place: u_N = load on each yarn, the increment spread

@@ -67,6 +67,7 @@ from dynfab.certificate import (MAX_ESCAPES, certify_patch, check_patch_accuracy
 from dynfab.errors import SolverError
 from dynfab.fabric import assembly, contact, friction, ordering
 from dynfab.fabric.model import FabricState, run_load_path
+from dynfab.step import StepSolution
 from dynfab.structure import Structure, chain_count
 from dynfab.terms import contact as contact_1d
 from dynfab.terms import friction as gralen
@@ -197,7 +198,7 @@ class FabricStaticSolver:
         step and residual) and before the stability check (the progress line), or None."""
         self._newton_count = 0  # Newton iterations of the step so far
         self.fabric: Structure = model.structure
-        self.pattern = model.pattern
+        self.pattern = assembly.pattern_of(self.fabric)
         self.free = ~self.fabric.fixed
         self.yarns = chain_count(self.fabric)
         self.tolerance = model.scene.static.tolerance
@@ -271,7 +272,7 @@ class FabricStaticSolver:
                 law: SetLaw | None = None) -> scipy.sparse.csc_matrix:
         """The Hessian on the free dofs, F_T frozen (`secant`: see `friction.huber_hessian`);
         on `law`'s branches, the contact tangent of `branch_tangents`."""
-        H = self.model.hessian(pos, anchors, limit, secant)
+        H = assembly.sparse_hessian(self.fabric, pos, anchors, limit, secant)
         if law is None or law.branch is None:
             return H
         natural = np.zeros(self.fabric.tie_a.size)
@@ -739,10 +740,19 @@ class FabricStaticSolver:
 
     # ------------------------------------------------------------------ steps
 
-    def step(self, state: FabricState, warp_value: float, weft_value: float):
-        """Solve one load step from `state`; returns (new state, record) or raises SolverError."""
-        f, model = self.fabric, self.model
-        pos, anchors, P = model.start_of_step(state, warp_value, weft_value)
+    name = "static"
+
+    def attrs(self) -> dict:
+        """Root attributes of the result file describing the solver and its options."""
+        return {"solver": self.name, "static_tolerance": self.tolerance,
+                "static_max_iterations": self.max_iterations, "static_accuracy": self.accuracy}
+
+    def step(self, state: FabricState, load):
+        """Solve the step under `load` = (warp value, weft value) from `state` (not modified);
+        returns (new state, record) (`dynfab.solver.Solver`) or raises SolverError."""
+        model = self.model
+        start = model.start_of_step(state, load)
+        pos, anchors, P = start.positions, start.anchors, start.chain_loads
         self._newton_count = 0
         info, limit, outer = self.solve(pos, P, anchors)
         if not info.converged:
@@ -752,25 +762,10 @@ class FabricStaticSolver:
         stability = patch_stability(checked, info.residual, escapes)
         check_patch_accuracy(model, checked, stability, pos, info.residual, self.tolerance,
                              self.accuracy, info.at_floor, "static.accuracy")
-        R = self.contact_forces(pos)
-        end_force = self._end_force(pos, P, anchors, limit)
-        sliding = np.zeros(f.tie_a.size, np.bool_)
-        friction_force = np.zeros((f.tie_a.size, 2))
-        lost = 0.0
-        if f.has_friction:
-            px, py = assembly.planes(pos, f)
-            lost = friction.return_map(pos, anchors, f, px, py, limit, sliding, friction_force)
-        new, u_new = model.end_of_step(state, pos, anchors, end_force, lost)
-        shape = (model.warps, model.wefts)
-        record = dict(residual=info.residual, iterations=info.iterations, friction_solves=outer,
-                      rounding_floor=info.at_floor, contact_force=R.reshape(shape),
-                      friction_limit=limit.reshape(shape),
-                      sliding=sliding.reshape(shape), friction_force=friction_force,
-                      negative_eigenvalues=checked.negatives, escapes=escapes,
-                      **{name: value[0] for name, value in stability.fields().items()},
-                      end_force=end_force,
-                      end_displacement=u_new, strain=model.strains(pos), crimp=model.crimps(pos))
-        return new, record
+        fields = dict(residual=[info.residual], iterations=[info.iterations],
+                      friction_solves=[outer], rounding_floor=[info.at_floor],
+                      negative_eigenvalues=[checked.negatives], **stability.fields())
+        return model.finish_step(state, start, StepSolution(pos, limit, fields))
 
     def _worst_crossing(self, pos, P, anchors) -> tuple[int, float]:
         """(c, force [N]): the crossing whose two nodes carry the largest component of the
@@ -833,10 +828,3 @@ class FabricStaticSolver:
         """Every load step of the model in sequence; returns (final state, records)."""
         return run_load_path(self, state)
 
-    def _end_force(self, pos, P, anchors, limit) -> np.ndarray:
-        """End force along each yarn [N]: P under force control; under displacement control
-        the reaction dV/du_N of the elastic terms."""
-        if self.model.control == "force":
-            return np.asarray(P, float).copy()
-        grad = self.gradient(pos, np.zeros(self.yarns), anchors, limit)
-        return grad[self.fabric.load_node, 0].copy()

@@ -38,7 +38,7 @@ from typing import Callable
 
 import numpy as np
 
-from dynfab.fabric.from_scene import FabricModel
+from dynfab.fabric.model import FabricModel
 from dynfab.fabric.static import FabricStaticSolver
 from dynfab.reports.common import machine, output_folder, write_json, write_text
 from dynfab.reports.fabric_data import (eq4_against_beam, FULL, PATHS, QUICK, YARNS, Plan, cell_scene, crimp_percent,
@@ -116,11 +116,11 @@ def solve_path(plan: Plan, ratio: tuple[float, float]) -> dict:
     strain, crimp = [np.zeros(2)], [solver.model.crimps(state.positions)]
     contact, residual, stable, bound = [np.zeros((YARNS, YARNS))], [0.0], [True], [0.0]
     for warp_value, weft_value in path:
-        state, record = solver.step(state, warp_value, weft_value)
+        state, record = solver.step(state, (warp_value, weft_value))
         strain.append(record["strain"])
         crimp.append(record["crimp"])
         contact.append(record["contact_force"])
-        residual.append(record["residual"])
+        residual.append(float(record["residual"]))
         stable.append(bool(record["stable"]))
         bound.append(position_bound(solver, state, record))
     strain, crimp = 100 * np.array(strain), 100 * np.array(crimp)

@@ -1,0 +1,35 @@
+"""The solvers of every model, by name: `make_solver(model, "static" | "dynamic")`.
+
+Neither a solver nor the model side: the one place that knows which solver classes drive
+which model (`dynfab.solver` states their contracts). The static solvers are numba and
+scipy; a dynamic one imports Warp, so it is imported only when asked for.
+"""
+
+from __future__ import annotations
+
+from dynfab.errors import UserError
+from dynfab.options import check_solver
+
+
+def make_solver(model, name: str, device: str | None = None, status=None):
+    """The solver `name` ("static" or "dynamic") built for `model` (its options are the
+    scene's): a `dynfab.solver.Solver` driven by load step or, for dynamic.mode =
+    "transient", a `Transient` driven by time; it reports within a step to `status` (per
+    Newton iteration or yarn solved, per launch of a relaxation)."""
+    name = check_solver(name)
+    fabric = model.scene.geometry.model == "fabric"
+    if name == "static":
+        if device is not None:
+            raise UserError(f"--device {device}: the static solver runs on the CPU (numba); "
+                            "a device is for --solver dynamic")
+        if fabric:
+            from dynfab.fabric.static import FabricStaticSolver
+            return FabricStaticSolver(model, status)
+        from dynfab.static import StaticSolver
+        return StaticSolver(model, status=status)
+    if fabric:
+        from dynfab.fabric.dynamic import FabricDynamicSolver
+        return FabricDynamicSolver.from_scene(model, device or "cpu", status)
+    from dynfab.dynamic import DynamicSolver, DynamicTransient
+    kind = DynamicTransient if model.scene.dynamic.mode == "transient" else DynamicSolver
+    return kind(model, device=device or "cpu", progress=status)
