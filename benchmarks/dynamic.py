@@ -46,7 +46,6 @@ import warp as wp
 
 from dynfab import assembly
 from dynfab.dynamic import DynamicSolver, available_cores
-from dynfab.kernels import explicit, settings as settings_module
 from dynfab.model import build_model, initial_state
 from dynfab.scene import Dynamic, load_scene, validate_scene, with_key
 from dynfab.static import StaticSolver
@@ -218,7 +217,7 @@ def sweep():
             row = {"N": segments, "yarns": yarns, "one_yarn_run_s": one_yarn}
             for label, solver in (("one_core", one_core), ("split", split)):
                 wall, cpu, (_, record) = timed[label]
-                row[label] = {"groups": len(solver.groups), "wall_time_s": wall,
+                row[label] = {"groups": len(solver.ranges), "wall_time_s": wall,
                               "per_yarn_s": wall / yarns,
                               "per_yarn_over_one_yarn_run": wall / yarns / one_yarn,
                               "cores_in_use": cpu / wall,
@@ -237,20 +236,20 @@ def sweep_row(rows, segments: int, yarns: int) -> dict:
 
 def warp_step_cost(model, start) -> float:
     """ns per node per explicit kinetic-damping time step of the Warp kernel (one launch of
-    STEPS_TIMED steps from the load step's start), fastest of REPEATS."""
+    STEPS_TIMED steps from the load step's start, to a zero tolerance: the kernel's start and
+    that launch, `StructureRelaxation.relax`), fastest of REPEATS."""
     solver = DynamicSolver(model, Dynamic(damping="kinetic"))
-    kernel = explicit.relaxation_kernel(solver.configuration)
-    settings = settings_module.fill(solver.scalar, end_load=0.3, tolerance=0.0, safety=0.9,
-                                    fixed_dt=0.0, fictitious=1, damping_coefficient=-1.0,
-                                    max_steps=STEPS_TIMED, chunk=STEPS_TIMED)
+    relaxation = solver.relaxation
+    relaxation.chunk = STEPS_TIMED
+    begun = model.start_of_step(start, 0.3)
     costs = []
     for _ in range(1 + REPEATS):  # the first launch loads the kernel
-        solver.predicted_stable_dt(start, 0.3)  # the state, forces, masses and dt
         began = time.perf_counter()
-        wp.launch(kernel, dim=1, inputs=[solver.yarn, solver.motion, settings])
+        _, outcome = relaxation.relax(begun.positions, begun.chain_loads, begun.anchors,
+                                      tolerance=0.0, max_steps=STEPS_TIMED)
         wp.synchronize()
         elapsed = time.perf_counter() - began
-        steps = int(solver.motion.steps.numpy()[0])  # fewer if it stalled at the rounding floor
+        steps = int(outcome.steps[0])  # fewer if it stalled at the rounding floor
         costs.append(elapsed / (steps * (model.segments + 1)) * 1e9)
     return min(costs[1:])
 
@@ -312,7 +311,7 @@ def step_cost():
     start = static_start(model)
     probe = DynamicSolver(model, Dynamic(damping="kinetic"))
     probe.predicted_stable_dt(start, END_LOAD)
-    masses = probe.last_relaxation()["masses"][0].astype(float)
+    masses = probe.last_relaxation()["masses"]  # the one yarn's nodes
     warp_ns, numba_ns = warp_step_cost(model, start), numba_step_cost(model, start, masses)
     return {"warp": warp_ns, "numba": numba_ns, "ratio": warp_ns / numba_ns}
 

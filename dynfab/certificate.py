@@ -72,7 +72,7 @@ from dynfab.fabric import assembly as fabric_assembly
 from dynfab.fabric import inertia
 from dynfab.fabric import ordering as fabric_ordering
 from dynfab.ldlt import TINY_PIVOT, inverse_norm_1, ldlt_factor, ldlt_solve, negative_direction
-from dynfab.structure import Structure
+from dynfab.structure import Structure, chain_nodes, dim, grounded, tie_layout
 from dynfab.terms import friction
 
 EPS = np.finfo(np.float64).eps
@@ -631,3 +631,127 @@ def patch_location(model, unknown: int) -> str:
     node = dof // f.rest_position.shape[1]
     y = int(np.searchsorted(f.chain_start, node, side="right") - 1)
     return f"{model.yarn_name(y)}, node {node - int(f.chain_start[y])}"
+
+
+# --------------------------------------------------------------------------
+# One certificate for a step of any structure: the route chosen by the structure.
+
+
+class GroupCertificates:
+    """The certificate of every group of a converged load step (`certify_groups`), for any
+    model (`dynfab.solver.RunModel`: its `groups`, `group_name`), on the route its structure
+    allows: banded per chain where the chains are independent (`dynfab.structure.grounded`:
+    `certify_yarn` on the model's `yarns` views, one chain per group), the sparse route of the
+    whole patch otherwise (`certify_patch`: one group).
+
+    `stability` holds the record's fields (`StepStability`, one unit per group); `escaped` gives
+    the positions each group on a saddle moves to (`escape_yarn`, `escape_patch`); `check` is
+    the accuracy check (`check_accuracy`) of every group; `scales` the displacement scales it
+    holds the error bounds to.
+    """
+
+    def __init__(self, model, positions, anchors, limit, loads, residuals):
+        self.model, self.structure = model, model.structure
+        self.positions = np.asarray(positions, float)
+        self.anchors, self.limit = np.asarray(anchors, float), np.asarray(limit, float)
+        self.loads = np.asarray(loads, float)
+        self.residuals = np.asarray(residuals, float)
+        self.groups = [np.asarray(chains) for chains in model.groups]
+        self.banded = grounded(self.structure)
+        count = len(self.groups)
+        if self.banded and any(chains.size != 1 for chains in self.groups):
+            raise ValueError("the banded certificate takes one chain per group")
+        if not self.banded and count != 1:
+            raise ValueError("the sparse certificate takes the whole structure as one group")
+        self.stability = StepStability(count)
+        self.checks = [self._certify(k) for k in range(count)]
+        for k, result in enumerate(self.results):
+            self.stability.record(k, result, self.residuals[k])
+
+    @property
+    def results(self) -> list[np.ndarray]:
+        """Each group's (5,) result: NEGATIVES, LOWEST, LOWEST_ERROR, INVERSE_NORM, SHIFT."""
+        return [check[0] if self.banded else check.result for check in self.checks]
+
+    @property
+    def negatives(self) -> np.ndarray:
+        """Negative pivots of each group's Hessian (G,), int64."""
+        return np.array([int(result[NEGATIVES]) for result in self.results], np.int64)
+
+    def _chain(self, k: int):
+        """(nodes slice, ties, Yarn view) of group k's one chain (the banded route)."""
+        y = int(self.groups[k][0])
+        ties, _ = tie_layout(self.structure, y)
+        return chain_nodes(self.structure, y), ties, self.model.yarns[y]
+
+    def _certify(self, k: int):
+        if not self.banded:
+            return certify_patch(self.model, self.positions, self.anchors, self.limit)
+        nodes, ties, yarn = self._chain(k)
+        d = dim(self.structure)
+        fixed = self.structure.fixed[d * nodes.start:d * nodes.stop]
+        return certify_yarn(self.positions[nodes], yarn, self.anchors[ties, 0], fixed,
+                            self.residuals[k])
+
+    def escaped(self) -> tuple[np.ndarray, np.ndarray]:
+        """(positions (n, dim) [m] with every group on a saddle moved along its escape (the
+        others as they are), which groups moved (G,) bool)."""
+        out = self.positions.copy()
+        moved = np.zeros(len(self.groups), np.bool_)
+        for k, check in enumerate(self.checks):
+            if self.negatives[k] == 0:
+                continue
+            if self.banded:
+                nodes, ties, yarn = self._chain(k)
+                y = int(self.groups[k][0])
+                escaped = escape_yarn(self.positions[nodes], yarn, self.loads[y],
+                                      self.anchors[ties, 0], *check)
+                if escaped is not None:
+                    out[nodes], moved[k] = escaped, True
+            else:
+                escaped = escape_patch(self.model, self.positions, self.loads, self.anchors,
+                                       self.limit, check)
+                if escaped is not None:
+                    out[:], moved[k] = escaped, True
+        return out, moved
+
+    def scales(self) -> np.ndarray:
+        """Each group's displacement scale [m] (`StepStability.scale`: the largest displacement
+        of its nodes, at least sqrt(eps) times its longest chain)."""
+        s = self.structure
+        out = np.zeros(len(self.groups))
+        for k, chains in enumerate(self.groups):
+            nodes = np.concatenate([np.arange(s.chain_start[y], s.chain_start[y + 1])
+                                    for y in chains])
+            first, last = s.chain_start[chains], s.load_node[chains]
+            length = float(np.max(s.rest_position[last, 0] - s.rest_position[first, 0]))
+            out[k] = StepStability.scale(self.positions[nodes], s.rest_position[nodes], length)
+        return out
+
+    def fields(self) -> dict:
+        """The record's certificate entries, (G,) each: `StepStability.fields` and
+        negative_eigenvalues."""
+        return {**self.stability.fields(), "negative_eigenvalues": self.negatives}
+
+    def check(self, tolerances, accuracy: float, at_floor, precision: str, key: str) -> None:
+        """`check_accuracy` for every group (SolverError for the first whose bound exceeds
+        `accuracy` times its scale); the message names the group (`RunModel.group_name`) and,
+        on the sparse route, the yarn and node where the bound is largest."""
+        scales = self.scales()
+        for k, check in enumerate(self.checks):
+            where = self.model.group_name(k)
+            if not self.banded and check.worst >= 0:
+                where = f"{where} ({patch_location(self.model, check.worst)}: where the bound " \
+                        "is largest)"
+            check_accuracy(where, self.stability.error_estimate[k], scales[k],
+                           self.residuals[k], float(tolerances[k]), accuracy,
+                           bool(at_floor[k]), precision, key, self.stability.shift[k])
+
+
+def certify_groups(model, positions, anchors, limit, loads, residuals) -> GroupCertificates:
+    """The certificate of a converged step of any model (docs/model.md section 6,
+    `GroupCertificates`): flat positions (n, dim) [m], the step's anchors (T, 2) [m] in the
+    structure's convention, F_T (T,) [N] at the positions (used by the sparse route; the banded
+    one takes them from the positions), the end loads per chain (Y,) [N] (the escape's load
+    term) and each group's residual (G,) [N]."""
+    return GroupCertificates(model, positions, anchors, limit, loads, residuals)

@@ -155,6 +155,38 @@ class Model:
         """The structure's independent groups of chains: each yarn is one."""
         return [np.array([k]) for k in range(self.yarn_count)]
 
+    def group_name(self, k: int) -> str:
+        """Group k (0-based) as messages name it: "yarn k+1"."""
+        return f"yarn {k + 1}"
+
+    def frame(self, time: float, arrays: dict) -> dict:
+        """A transient frame (`dynfab.solver.FRAME_KEYS`) at `time` [s] from the structure's
+        flat arrays (`StructureRelaxation.transient`'s: positions, velocities, force (n, 2),
+        anchors (T, 2), kinetic_energy per group): per yarn, the contact forces and the
+        energies of every reported term at the load of that time (`dynfab.loading.load_at_time`),
+        and the kinetic energy (docs/model.md section 5)."""
+        from dynfab.loading import load_at_time
+        from dynfab.observables import frame_observables
+
+        shape = (self.yarn_count, self.segments + 1, 2)
+        positions = np.asarray(arrays["positions"], float).reshape(shape)
+        anchors = np.asarray(arrays["anchors"], float)[:, 0].reshape(self.yarn_count, -1)
+        frame = {"time": float(time), "positions": positions,
+                 "velocities": np.asarray(arrays["velocities"], float).reshape(shape),
+                 "force": np.asarray(arrays["force"], float).reshape(shape), "anchors": anchors}
+        frame.update(frame_observables(self, positions, anchors, load_at_time(self, time)))
+        frame["energy/kinetic"] = np.asarray(arrays["kinetic_energy"], float)
+        return frame
+
+    def frame_arrays(self, frame: dict) -> dict:
+        """A frame's (`frame`) positions, velocities, force (n, 2) and anchors (T, 2) as the
+        structure's flat arrays: what a resumed transient restores."""
+        anchors = np.zeros((self.structure.tie_a.size, 2))
+        anchors[:, 0] = np.asarray(frame["anchors"], float).ravel()
+        out = {name: np.asarray(frame[name], float).reshape(-1, 2)
+               for name in ("positions", "velocities", "force")}
+        return {**out, "anchors": anchors, "time": float(frame["time"])}
+
     def start_of_step(self, state: "State", load) -> StepStart:
         """Where the step to `load` [N or m] starts (`dynfab.loading.prescribe_load`), as the
         structure's flat arrays (`dynfab.step.StepStart`): the anchors are the slips' (column

@@ -98,3 +98,24 @@ def _slip_ratio(model: Model, positions: np.ndarray) -> np.ndarray:
 def _reported_terms(model: Model) -> list[int]:
     """Registry indices of the model's terms that report an energy dataset (`Term.dataset`)."""
     return [i for i, t in enumerate(registry.TERMS) if t.name in model.terms and t.dataset]
+
+
+def frame_observables(model: Model, positions: np.ndarray, anchors: np.ndarray,
+                      load_value: float) -> dict:
+    """A transient frame's contact forces (yarns, C) [N] and reported energies (yarns,) [J]
+    (`energy/<term>`) at `positions` (yarns, N+1, 2) with the `anchors` (yarns, C) the
+    integration holds (return-mapped at every time step, so not mapped again here) and the
+    load at the frame's time."""
+    yarns, c = model.yarn_count, model.crossings
+    contact_force, limit = np.zeros((yarns, c)), np.zeros((yarns, c))
+    reported = _reported_terms(model)
+    out = {registry.TERMS[i].dataset: np.zeros(yarns) for i in reported}
+    terms = assembly.energy_vector()
+    P = load_value if model.control == "force" else 0.0
+    for k, yarn in enumerate(model.yarns):
+        assembly.contact_state(positions[k], yarn, contact_force[k], limit[k], np.zeros(c))
+        assembly.energies(positions[k], yarn, P, anchors[k], limit[k], terms)
+        for i in reported:
+            out[registry.TERMS[i].dataset][k] = terms[i]
+    out["contact_force"] = contact_force
+    return out

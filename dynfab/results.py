@@ -120,7 +120,7 @@ UNITS: dict[str, str] = {
     "steps/rounding_floor": "-",  # (steps, yarns) bool: residual stopped falling above tolerance
     "steps/wall_time": "s",  # (steps,)
     "steps/time_steps": "-",  # dynamic solver: time steps taken
-    "steps/cg_iterations": "-",  # fabric semi-implicit solver: CG iterations of the step
+    "steps/cg_iterations": "-",  # semi-implicit dynamic solver: CG iterations of the step
     "steps/force_evaluations": "-",  # dynamic solver
     "steps/dt": "s",  # dynamic solver time step
     "steps/stable": "-",  # (steps, yarns) bool: no negative pivot of the frozen-F_T Hessian
@@ -135,7 +135,7 @@ UNITS: dict[str, str] = {
     "steps/slip_ratio": "-",  # fabric: (steps,) largest crossing node slip / segment; yarn: per yarn
     "steps/work": "J",  # fabric: (steps,) work of the end loads so far
     "steps/friction_solves": "-",  # fabric: (steps,) Newton solves of the friction update
-    "steps/negative_eigenvalues": "-",  # fabric: (steps,) of the frozen-F_T Hessian
+    "steps/negative_eigenvalues": "-",  # fabric, dynamic solver: of the frozen-F_T Hessian
     "steps/xdmf/weft_contact_force": "N",  # fabric: (steps, n_we, M+1) as steps/xdmf/contact_force
     "steps/xdmf/weft_slip": "m",  # fabric: (steps, n_we, M+1) y - Y_k - anchor at crossing nodes
     "steps/warp_planes": "m",  # fabric: (steps, n_wa) plane y = Y_k of each warp

@@ -65,7 +65,8 @@ yarns = model.yarn_count:
   `dynfab.fabric.model`.)
 
 A solver may add its own names (the dynamic solver: time_steps, force_evaluations,
-dt [s], tolerance [N]), each listed in `dynfab.results.UNITS`. `dynfab.run` adds
+dt [s], tolerance [N], negative_eigenvalues of the certificate's Hessian and, semi-implicit,
+cg_iterations), each listed in `dynfab.results.UNITS`. `dynfab.run` adds
 wall_time [s] (a scalar per step) after the step returns."""
 
 FRAME_KEYS = ("time", "positions", "velocities", "force", "contact_force", "anchors",
@@ -111,6 +112,13 @@ class RunModel(Protocol):
     def check_step(self, record: dict) -> None:
         """Raise `dynfab.errors.SolverError` if the step left the model's domain."""
 
+    groups: list
+    """The structure's independent groups of chains, each an array of chain indices (a
+    one-yarn model's yarns, a fabric's one patch): a solver reports its fields per group."""
+
+    def group_name(self, k: int) -> str:
+        """Group k (0-based) as a message names it ("yarn 2", "fabric")."""
+
     def start_of_step(self, state, load) -> StepStart:
         """Where the step to `load` starts from `state` (not modified)."""
 
@@ -118,6 +126,15 @@ class RunModel(Protocol):
         """(the new state, the step's record) from the solver's `solution` of the step that
         `start` began: the anchors return-mapped (docs/model.md section 4), the observables
         (`STEP_KEYS`), the solver's fields, in the model's record layout."""
+
+    def frame(self, time: float, arrays: dict) -> dict:
+        """A transient frame (`FRAME_KEYS`, in the model's layout) at `time` [s] from the
+        structure's flat arrays: positions, velocities, force (n, 2), anchors (T, 2) and the
+        kinetic energy per group (`dynfab.kernels.structure_relaxation`'s frames)."""
+
+    def frame_arrays(self, frame: dict) -> dict:
+        """The structure's flat arrays of a frame this model made (positions, velocities,
+        force, anchors, time): what a resumed transient restores."""
 
 
 @runtime_checkable

@@ -45,6 +45,7 @@ import warp as wp
 
 from dynfab.kernels import status, structure_arrays, structure_checks, structure_forces
 from dynfab.kernels import structure_settings, structure_state
+from dynfab.kernels import structure_variants
 from dynfab.kernels.precision import VECTORS
 
 DAMPINGS = ("viscous", "kinetic", "fire")
@@ -359,7 +360,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
                            viscous_factors=viscous_factors, step_factors=step_factors)
 
 
-@functools.cache
+@structure_variants.variant("explicit", "node_parallel")
 def stage_kernel(scalar, friction: bool, boundary: bool):
     """The node-parallel layout's kernel: one launch per stage, a thread per unit."""
     Data = structure_arrays.struct(scalar)
@@ -374,7 +375,7 @@ def stage_kernel(scalar, friction: bool, boundary: bool):
     return stage_pass
 
 
-@functools.cache
+@structure_variants.variant("explicit", "grouped")
 def grouped_kernel(scalar, friction: bool, boundary: bool, order: str):
     """The grouped layout's kernel: thread g runs group first + g, the start (`start` != 0)
     or up to settings.chunk time steps."""

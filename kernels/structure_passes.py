@@ -4,17 +4,17 @@ host (`structure_relaxation`: reactions, contact and friction forces, the return
 load step) and the tests (forces against the static reference's gradient, energy).
 """
 
-import functools
 
 import warp as wp
 
 from dynfab.kernels import structure_arrays, structure_forces, structure_settings, structure_state
+from dynfab.kernels import structure_variants
 
 TIES, FORCES, NODE_ENERGY, TIE_ENERGY, RETURN_MAP = range(5)
 """Passes (`pass_kernel`'s `which`): a thread per tie, node, node, tie, tie."""
 
 
-@functools.cache
+@structure_variants.variant("passes", "-")
 def pass_kernel(scalar, friction: bool, boundary: bool):
     """Kernel run(data, state, which, out): TIES writes every tie's R, dR/dg, F_T and friction
     force into the state; FORCES state.force = -dV/dr on the free dofs (after TIES);

@@ -42,6 +42,7 @@ from dynfab.errors import SolverError
 from dynfab.kernels import status, structure_arrays, structure_explicit, structure_passes
 from dynfab.kernels import structure_semi_implicit as semi
 from dynfab.kernels import structure_settings, structure_state, structure_transient
+from dynfab.kernels import structure_variants
 from dynfab.kernels.precision import SCALARS, VECTORS, numpy_dtype
 from dynfab.structure import Structure
 
@@ -161,6 +162,13 @@ class StructureRelaxation:
         count = min(self.cores, groups) if splits else 1
         bounds = np.linspace(0, groups, count + 1).round().astype(int)
         self.ranges = [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]
+
+    @property
+    def variant(self):
+        """The `structure_variants.Variant` of this relaxation's kernel (its method and layout)."""
+        return structure_variants.describe(self.method, self.layout, self.scalar, self.friction,
+                                           self.boundary,
+                                           self.order if self.layout == "grouped" else None)
 
     def _kernels(self):
         key = (self.scalar, self.friction, self.boundary)
@@ -449,14 +457,16 @@ class StructureRelaxation:
     # ------------------------------------------------------------------ transient
 
     def transient(self, positions, anchors, path, duration: float, output_interval: float,
-                  resume_from: dict | None = None):
+                  resume_from: dict | None = None, progress=None, name=None):
         """Frames of a transient from `positions` at rest (docs/model.md section 5): physical
         masses, the viscous c given (default 0), anchors return-mapped every step, the loads
         ramped through `path` (families, K) [N or m] over `duration` [s]; a frame at t = 0
         (unless resumed) and every `output_interval`, the last at `duration`, the time step
         (at most the Gershgorin dt x safety, or the dt given) shortened to land on each.
         `resume_from`, a frame of this run, continues from it bit for bit (its positions,
-        velocities, forces, anchors and dissipation replace those at the start)."""
+        velocities, forces and anchors replace those at the start, and its per-tie
+        dissipation where it has one). `progress(self)` after every launch; `name(g)` names
+        group g in the SolverError of a group that stopped (default "group g")."""
         if self.method != "explicit":
             raise ValueError("a transient runs the explicit integrator")
         a = self.arrays
@@ -502,9 +512,12 @@ class StructureRelaxation:
                                         self._count(structure_transient.KINDS[stage]),
                                         settings, path_wp, k)
                 codes = self.state.status.numpy()
+                if progress is not None:
+                    progress(self)
                 if (codes != status.RUNNING).any():
                     group = int(np.flatnonzero(codes != status.RUNNING)[0])
-                    raise SolverError(f"transient: group {group} stopped at t = "
+                    where = f"group {group}" if name is None else name(group)
+                    raise SolverError(f"{where}: the transient stopped at t = "
                                       f"{begin + (done + run) * dt:.6g} s (status "
                                       f"{int(codes[group])}: a non-finite state; dt = {dt:.3g} s "
                                       f"against the predicted stable "
@@ -523,5 +536,6 @@ class StructureRelaxation:
         for name, field in (("positions", "position"), ("velocities", "velocity"),
                             ("force", "force"), ("anchors", "anchors")):
             getattr(s, field).assign(self._vectors(frame[name]))
-        s.dissipated.assign(wp.array(np.asarray(frame["dissipated"]).astype(self.dtype),
-                                     dtype=self.scalar, device=self.device))
+        if "dissipated" in frame:
+            s.dissipated.assign(wp.array(np.asarray(frame["dissipated"]).astype(self.dtype),
+                                         dtype=self.scalar, device=self.device))

@@ -52,6 +52,7 @@ import warp as wp
 from dynfab.banded import BANDWIDTH
 from dynfab.kernels import band_lu, status, structure_arrays, structure_checks, structure_forces
 from dynfab.kernels import structure_settings, structure_state, structure_tangent
+from dynfab.kernels import structure_variants
 from dynfab.kernels.precision import VECTORS
 
 CG_TOLERANCE = 1e-2
@@ -627,7 +628,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
                            direct_done=direct_done)
 
 
-@functools.cache
+@structure_variants.variant("semi_implicit", "node_parallel")
 def stage_kernel(scalar, friction: bool, boundary: bool):
     """The node-parallel layout's kernel: one launch per stage, a thread per unit; the start's
     stages are `structure_explicit`'s (`START_STAGES`), with the merit."""
@@ -663,7 +664,7 @@ def stage_kernel(scalar, friction: bool, boundary: bool):
     return stage_pass
 
 
-@functools.cache
+@structure_variants.variant("semi_implicit", "grouped")
 def grouped_kernel(scalar, friction: bool, boundary: bool, order: str):
     """The grouped layout's kernel: thread g runs group first + g, the start (`begin` != 0) or
     up to settings.chunk time steps. `order` "gather" evaluates the forces as the node-parallel

@@ -25,6 +25,7 @@ import warp as wp
 
 from dynfab.kernels import status, structure_arrays, structure_checks, structure_explicit
 from dynfab.kernels import structure_forces, structure_settings, structure_state
+from dynfab.kernels import structure_variants
 from dynfab.kernels.precision import VECTORS
 
 T_MOVE, T_TIES, T_GATHER, T_BLOCKS, T_RETURN, T_CHECK = range(200, 206)
@@ -130,7 +131,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
                            check=check, unit_stage=unit_stage)
 
 
-@functools.cache
+@structure_variants.variant("transient", "node_parallel")
 def stage_kernel(scalar, friction: bool, boundary: bool):
     """The node-parallel layout's transient kernel (a launch per stage; `k` the step within
     the launch's run of steps from settings.time)."""
@@ -151,7 +152,7 @@ def stage_kernel(scalar, friction: bool, boundary: bool):
     return stage_pass
 
 
-@functools.cache
+@structure_variants.variant("transient", "grouped")
 def grouped_kernel(scalar, friction: bool, boundary: bool, order: str):
     """The grouped layout's transient kernel: thread g starts group first + g (`begin` != 0:
     the masses, dt and forces) or advances it by settings.chunk steps of settings.fixed_dt

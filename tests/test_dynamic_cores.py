@@ -58,7 +58,7 @@ def assert_records_identical(first, second):
 def test_split_is_bit_identical_to_one_launch(fig3, options):
     one, whole = relax_path(fig3, options, cores=1)
     split, parts = relax_path(fig3, options, cores=2)
-    assert len(one.groups) == 1 and len(split.groups) == 2
+    assert len(one.ranges) == 1 and len(split.ranges) == 2
     assert_records_identical(whole, parts)
     steps = whole[0]["time_steps"]
     assert len(set(steps.tolist())) > 1  # the yarns finished at different steps
@@ -74,7 +74,7 @@ def test_one_group_per_yarn_at_most(fig3):
     """More groups than cores queue on the pool: still identical, one yarn per group."""
     _, whole = relax_path(fig3, Dynamic(method="semi_implicit"), cores=1)
     solver, parts = relax_path(fig3, Dynamic(method="semi_implicit"), cores=8)
-    assert [(g.first, g.stop) for g in solver.groups] == [(0, 1), (1, 2), (2, 3)]
+    assert solver.ranges == [(0, 1), (1, 2), (2, 3)]
     assert_records_identical(whole, parts)
 
 
@@ -83,9 +83,9 @@ def test_groups_are_contiguous_and_balanced():
     scene = replace(scene, sweep=(("warp.kawabata_K", tuple(0.2 + 0.01 * k for k in range(7))),))
     solver = DynamicSolver(build_model(scene))
     solver.use_cores(2)
-    assert [(g.first, g.stop) for g in solver.groups] in ([(0, 3), (3, 7)], [(0, 4), (4, 7)])
+    assert solver.ranges in ([(0, 3), (3, 7)], [(0, 4), (4, 7)])
     solver.use_cores(3)
-    bounds = [(g.first, g.stop) for g in solver.groups]
+    bounds = solver.ranges
     assert bounds[0][0] == 0 and bounds[-1][1] == 7
     assert all(a[1] == b[0] for a, b in zip(bounds, bounds[1:]))
     assert all(2 <= stop - first <= 3 for first, stop in bounds)
@@ -95,8 +95,7 @@ def test_one_yarn_is_never_split():
     scene = with_key(replace(load_scene(RUNS / "paper_fig3.toml"), sweep=()), "load.values", [0.001])
     solver = DynamicSolver(build_model(scene))
     solver.use_cores(2)
-    assert len(solver.groups) == 1
-    assert solver.groups[0].motion is solver.motion  # the arrays themselves, no views
+    assert solver.ranges == [(0, 1)]
 
 
 def test_split_failure_names_the_same_yarn(fig3):
@@ -116,7 +115,8 @@ def test_split_progress_reports_every_yarn(fig3):
     solver = DynamicSolver(fig3, Dynamic(), progress=lines.append)
     solver.use_cores(2)
     solver.step(initial_state(fig3), 0.001)
-    assert lines and lines[-1].endswith("0 of 3 yarns running")
+    relaxing = [line for line in lines if "time steps" in line]
+    assert relaxing and relaxing[-1].endswith("0 of 3 groups running")
 
 
 def test_split_predicted_stable_dt_is_identical(fig3):
@@ -154,5 +154,5 @@ def test_split_of_rods_without_crossings():
     model = build_model(with_key(with_key(scene, "load.control", "force"), "load.values", [0.1]))
     _, whole = relax_path(model, Dynamic(), cores=1)
     solver, parts = relax_path(model, Dynamic(), cores=2)
-    assert len(solver.groups) == 2 and (whole[0]["time_steps"] > 0).all()
+    assert len(solver.ranges) == 2 and (whole[0]["time_steps"] > 0).all()
     assert_records_identical(whole, parts)

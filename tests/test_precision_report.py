@@ -30,8 +30,7 @@ from matplotlib.image import imread
 
 from dynfab.cli import main
 from dynfab.errors import UserError
-from dynfab.kernels.configuration import built_variants
-from dynfab.reports import precision
+from dynfab.kernels.structure_variants import built_variants
 from dynfab.reports.precision import CSV_COLUMNS, QUICK, TARGETS, Plan, run_precision
 from dynfab.reports.precision_plots import plot_error_vs_residual, plot_work_precision
 
@@ -40,15 +39,17 @@ FILES = {"points.csv", "summary.json", "cheapest.json", "precision.md",
 PNGS = sorted(name for name in FILES if name.endswith(".png"))
 
 TEST_VARIANTS = {
-    # the variants tests/test_dynamic_*.py build (displacement control)
-    "explicit/kinetic/float64/displacement control/no friction",
-    "explicit/viscous/float64/displacement control/no friction",
-    "explicit/fire/float64/displacement control/no friction",
-    "semi_implicit/-/float64/displacement control/no friction",
-    "explicit/kinetic/float32/displacement control/no friction",
-    "explicit/kinetic/float64/displacement control/friction",
-    "semi_implicit/-/float64/displacement control/friction",
+    # the variants tests/test_dynamic_*.py build (`structure_variants.Variant.name`; the
+    # damping and the load control are data, not variants)
+    "explicit/grouped/scatter/float64/no friction",
+    "semi_implicit/grouped/scatter/float64/no friction",
+    "explicit/grouped/scatter/float32/no friction",
+    "explicit/grouped/scatter/float64/friction",
+    "semi_implicit/grouped/scatter/float64/friction",
 }
+PASSES = {"passes/-/-/float64/no friction", "passes/-/-/float64/friction",
+          "passes/-/-/float32/no friction"}
+"""The one-pass kernels (tie forces at a step's end) of the same tests."""
 
 ROUNDING_SLACK = 1e-12
 """float64 rounding of a recomputed residual [N]: a node's diagonal stiffness k ~ 6e4 N/m
@@ -67,7 +68,7 @@ def report(tmp_path_factory):
     before = set(built_variants())
     with contextlib.redirect_stdout(stdout):
         main(["precision", "--out", str(out), "--quick", "--quiet"])
-    NEW_VARIANTS.update(configuration for _, configuration in set(built_variants()) - before)
+    NEW_VARIANTS.update(set(built_variants()) - before)
     return out, json.loads((out / "summary.json").read_text()), stdout.getvalue()
 
 
@@ -119,7 +120,7 @@ def test_quick_mode_builds_only_the_kernel_variants_the_dynamic_tests_build(repo
     assert set(summary["kernel_variants"]) == TEST_VARIANTS
     assert {p["kernel"] for p in usable(summary, "dynamic")} <= TEST_VARIANTS
     # and Warp's bookkeeping (empty when earlier tests built them all in this process):
-    assert {precision._kernel_name(c) for c in NEW_VARIANTS} <= TEST_VARIANTS
+    assert {variant.name for variant in NEW_VARIANTS} <= TEST_VARIANTS | PASSES
 
 
 def test_the_references_sit_at_the_rounding_floor(report):

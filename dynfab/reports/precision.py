@@ -385,8 +385,8 @@ def stiffness_measures(case: Case) -> tuple[np.ndarray | None, float | None]:
                       .sum(axis=1).max() for k in range(model.yarn_count)])
     probe = DynamicSolver(model, Dynamic(damping="kinetic"))  # the masses of every damping
     probe.predicted_stable_dt(case.start, case.load)
-    case.info["probe_kernel"] = _kernel_name(probe.configuration)
-    masses = probe.last_relaxation()["masses"].astype(np.float64)
+    case.info["probe_kernel"] = kernel_name(probe)
+    masses = probe.last_relaxation()["masses"].reshape(model.yarn_count, -1)
     free = ~model.fixed_dofs()
     lowest = []
     for k in range(model.yarn_count):
@@ -553,7 +553,7 @@ def dynamic_point(case: Case, method: Method, tolerance: float, plan: Plan) -> d
     point = _base_point("dynamic", method.key, method.label, tolerance,
                         precision=options.precision, masses=attrs["dynamic_masses"],
                         damping=damping, damping_coefficient=shown_coefficient,
-                        safety=options.safety, kernel=_kernel_name(solver.configuration))
+                        safety=options.safety, kernel=kernel_name(solver))
     point["dynamic_method"] = options.method
     try:
         with warnings.catch_warnings():
@@ -584,13 +584,11 @@ def _mark_failed(point: dict, message: str) -> dict:
     return point
 
 
-def _kernel_name(configuration) -> str:
-    """A kernel variant as one string: method/damping/precision/control/terms."""
-    terms = "+".join(t for t, on in (("friction", configuration.friction),
-                                     ("gravity", configuration.gravity)) if on) or "no friction"
-    damping = configuration.damping or "-"
-    return (f"{configuration.method}/{damping}/{configuration.precision}/"
-            f"{configuration.control} control/{terms}")
+def kernel_name(solver: DynamicSolver) -> str:
+    """A solver's kernel variant as one string (`dynfab.kernels.structure_variants.Variant.name`:
+    method/layout/order/precision/couplings; the damping and the load control are data, not
+    variants)."""
+    return solver.relaxation.variant.name
 
 
 MAX_FRICTION_ROUNDS = 30

@@ -469,10 +469,9 @@ class _Runner:
 
 
 def _variant(solver: DynamicSolver) -> str:
-    """The kernel variant of a solver, as text (`dynfab.kernels.configuration`)."""
-    c = solver.configuration
-    return (f"{c.mode} {c.method} damping={c.damping} control={c.control} friction={c.friction} "
-            f"gravity={c.gravity} {c.precision}")
+    """The kernel variant of a solver, as text (`dynfab.kernels.structure_variants.Variant.name`:
+    method/layout/order/precision/couplings; the damping is data, not a variant)."""
+    return solver.relaxation.variant.name
 
 
 # --------------------------------------------------------------------------
@@ -498,7 +497,7 @@ def measure_stable_dt(model, relaxed, load: float, *, damping: str = "viscous",
     DIVERGENCE_FACTOR x its start, a non-finite state, or (the test that catches the fine
     meshes, where an unstable chain folds and its forces saturate before the residual
     test trips) a kinetic energy beyond status.ENERGY_FACTOR x the work the forces can
-    have done since the start (`dynfab.kernels.relaxation`). Returns predicted, measured
+    have done since the start (`dynfab.kernels.structure_checks`). Returns predicted, measured
     (largest stable) and smallest unstable dt, the trial count, how many unstable trials
     the energy test caught, and the method.
     """
