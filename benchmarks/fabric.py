@@ -13,10 +13,11 @@ Per size, in increasing order, in a subprocess of its own (`run_size`) that firs
 every part untimed on a 4 x 4 patch (compiles; loads the numba and Warp caches), then:
 
 1. `explicit_costs`: the explicit time step (Warp, MODEL.md 5) in ns per node and step:
-   the persistent layout (the CPU default, scatter order), the same loop in the gather
-   order, the per-step layout (two launches per step) and a plain numba loop of the same
-   forces (`numba_steps`), viscous damping, a fixed number of steps (aim: Warp at most
-   1.5x numba); the launch cost per step; |Warp - numba| after the same steps.
+   the grouped layout (the CPU default, scatter order), the same loop in the gather
+   order, the node-parallel layout (a GPU's: a launch per stage) and a plain numba loop of
+   the same forces (`numba_steps`, the masses the kernels choose), viscous damping, a fixed
+   number of steps (aim: Warp at most 1.5x numba); the launch cost per step; |Warp - numba|
+   after the same steps.
 2. `newton_costs`: the Newton solve alone (`FabricStaticSolver.solve`: time per Newton
    iteration); later `static_costs`: `FabricStaticSolver.step` whole (Newton and the
    certificate), the certificate (`dynfab.certificate.certify_patch`: inertia, lowest
@@ -26,9 +27,10 @@ every part untimed on a 4 x 4 patch (compiles; loads the numba and Warp caches),
    is part 6); its linear solve ((M/h^2 + H) dx = f, Newton as h -> inf) is measured inside the static
    solver: `PCGStatic`, Newton with its direction by CG preconditioned with each yarn's
    own banded block of H, on the same step; time, CG iterations, fallbacks to SuperLU.
-4. `dynamic_costs`: `FabricDynamicSolver.step` (kinetic damping, persistent layout) on
-   the same step: time per load step, its time steps, the relaxation's time per time step,
-   and the largest position difference from the static solution.
+4. `dynamic_costs`: `dynfab.dynamic.DynamicSolver.step` (kinetic damping, grouped layout)
+   on the same step: time per load step, its time steps, the relaxation's time per time step
+   (the relaxation alone, `StructureRelaxation.relax`), and the largest position difference
+   from the static solution.
 5. `newton_pieces` (--pieces): gradient, Hessian assembly, SuperLU (default; symmetric
    mode in the nested-dissection order, the Newton solve's), the factorisation in each
    fill-reducing ordering (the geometric nested dissection of `dynfab.fabric.ordering`,
@@ -36,11 +38,10 @@ every part untimed on a 4 x 4 patch (compiles; loads the numba and Warp caches),
    of the factor time and the fill), the inertia (SuperLU's symmetric-mode pivots, else
    the Schur complement) against dense eigenvalues (n <= 8), and the nearest eigenvalue
    through the ordered shift-invert against ARPACK factoring the matrix itself.
-6. `semi_costs` (part "semi"): `FabricDynamicSolver(method="semi_implicit").step` on the
+6. `semi_costs` (part "semi"): `DynamicSolver.step` with the semi-implicit method on the
    same step: time, time steps, CG iterations per time step, |x - x_static|, its relaxation
-   against the Newton solve; the relaxation in the per-step layout (a launch per stage, one
-   run); and one Newton-like system (dt = 1e4 s) at its solution solved by PCG in the
-   persistent layout and in the launch-per-stage one: us per CG iteration.
+   against the Newton solve; the relaxation in the grouped and the node-parallel layout (a
+   launch per stage, one run each): us per CG iteration, and the launches' cost.
 
 Timing: time.perf_counter, the fastest of REPEATS runs where one run takes less than
 FAST seconds, else one run (warm: the 4 x 4 pass compiled everything). Memory: the
@@ -79,11 +80,13 @@ import scipy.sparse.linalg
 
 from dynfab import certificate
 from dynfab.fabric import inertia, ordering
-from dynfab.fabric.dynamic import FabricDynamicSolver
+from dynfab.dynamic import DynamicSolver
 from dynfab.fabric.model import FabricModel
 from dynfab.fabric.static import FabricStaticSolver, _sparse_solve
-from dynfab.kernels import fabric_arrays, fabric_explicit
+from dynfab.kernels.structure_relaxation import StructureRelaxation
+from dynfab.kernels.structure_settings import RELATIVE_TOLERANCE
 from dynfab.reports.fabric_data import paper_patch_scene
+from dynfab.scene import Dynamic
 
 OUTPUT = Path(__file__).resolve().parent / "fabric.json"
 SIZES = (4, 8, 16, 32, 64)
@@ -133,7 +136,7 @@ def patch_model(n: int, friction=None) -> FabricModel:
     return FabricModel.from_scene(paper_patch_scene(
         n, n, SEGMENTS_PER_HALF_WAVE,
         load={"control": "force", "values": [LOAD[0]], "weft_values": [LOAD[1]]},
-        static={"tolerance": TOLERANCE}, **tables))
+        static={"tolerance": TOLERANCE}, dynamic={"tolerance": TOLERANCE}, **tables))
 
 
 def timed(function):
@@ -230,52 +233,58 @@ def numba_steps(pos, vel, mass, nxt, rest_length, stretch, bend, rest_angle, fre
     return residual
 
 
-def warp_run(arrays, layout, steps, order="scatter"):
-    """Positions after `steps` viscous steps of one Warp layout, as a callable."""
-    solver = fabric_explicit.FabricExplicit(arrays, layout=layout, damping="viscous",
-                                            coefficient=DAMPING, check_interval=1 << 30,
-                                            order=order)
-    external = LOAD[0] * arrays.load_direction + LOAD[1] * arrays.weft_load_direction
-    return lambda: solver.relax(arrays.rest_position, external, 0.0, steps)[0]
+def warp_run(structure, layout, steps, order="scatter"):
+    """Positions after `steps` viscous steps of one Warp layout (fictitious masses, dt = 1 s),
+    as a callable."""
+    relaxation = StructureRelaxation(structure, damping="viscous", damping_coefficient=DAMPING,
+                                     layout=layout, order=order, check_interval=1 << 30,
+                                     chunk=steps)
+    loads = relaxation.chain_loads(LOAD)
+    return lambda: relaxation.relax(structure.rest_position, loads, None, tolerance=0.0,
+                                    max_steps=steps)[0]
 
 
-def numba_run(arrays, steps):
-    """Positions after `steps` steps of the numba loop, as a callable."""
-    mass = fabric_arrays.gershgorin_masses(arrays, 1.0)
-    external = LOAD[0] * arrays.load_direction + LOAD[1] * arrays.weft_load_direction
+def numba_run(structure, steps):
+    """Positions after `steps` steps of the numba loop (the masses the kernels choose at the
+    as-woven state), as a callable."""
+    relaxation = StructureRelaxation(structure, damping="viscous", damping_coefficient=DAMPING)
+    relaxation.start(structure.rest_position, relaxation.chain_loads(LOAD), None)
+    mass = relaxation.group_values("mass")
+    a = relaxation.arrays
+    external = relaxation.node_loads(relaxation.chain_loads(LOAD))
+    law = np.ascontiguousarray(a.contact_law[0])  # every tie's: a uniform patch
 
     def run():
-        pos, vel = arrays.rest_position.copy(), np.zeros_like(arrays.rest_position)
-        numba_steps(pos, vel, mass, arrays.next, arrays.rest_length, arrays.stretch_stiffness,
-                    arrays.bend_stiffness, arrays.rest_angle, arrays.free, arrays.crossing_warp,
-                    arrays.crossing_weft, arrays.crossing_side, arrays.crossing_offset,
-                    arrays.contact_law, external, 1.0, DAMPING, steps)
+        pos, vel = a.rest_position.copy(), np.zeros_like(a.rest_position)
+        numba_steps(pos, vel, mass, a.next, a.rest_length, a.stretch_stiffness,
+                    a.bend_stiffness, a.rest_angle, a.free, a.tie_a, a.tie_b, a.tie_side,
+                    a.tie_offset, law, external, 1.0, DAMPING, steps)
         return pos
     return run
 
 
 def explicit_costs(n: int, work: float = STEP_WORK, per_step_work: float = PER_STEP_WORK) -> dict:
     """ns per node and step of the Warp layouts and the numba loop on the n x n patch."""
-    arrays = fabric_arrays.build(patch_model(n).structure)
-    count = arrays.nodes
+    structure = patch_model(n).structure
+    count, crossings = structure.rest_position.shape[0], structure.tie_a.size
     steps = max(20, int(work / count))
     per_step_steps = max(10, int(per_step_work / count))
-    time_persistent, warp_positions = timed(warp_run(arrays, "persistent", steps))
-    time_numba, numba_positions = timed(numba_run(arrays, steps))
-    time_gather, _ = timed(warp_run(arrays, "persistent", per_step_steps, "gather"))
-    time_per_step, _ = timed(warp_run(arrays, "per_step", per_step_steps, "gather"))
-    return {"nodes": count, "crossings": arrays.crossings, "steps": steps,
+    time_grouped, warp_positions = timed(warp_run(structure, "grouped", steps))
+    time_numba, numba_positions = timed(numba_run(structure, steps))
+    time_gather, _ = timed(warp_run(structure, "grouped", per_step_steps, "gather"))
+    time_parallel, _ = timed(warp_run(structure, "node_parallel", per_step_steps, "gather"))
+    return {"nodes": count, "crossings": crossings, "steps": steps,
             "per_step_steps": per_step_steps,
-            "persistent_ns_per_node_step": 1e9 * time_persistent / (count * steps),
+            "persistent_ns_per_node_step": 1e9 * time_grouped / (count * steps),
             "numba_ns_per_node_step": 1e9 * time_numba / (count * steps),
             "gather_ns_per_node_step": 1e9 * time_gather / (count * per_step_steps),
-            "per_step_ns_per_node_step": 1e9 * time_per_step / (count * per_step_steps),
-            "launch_cost_us_per_step": 1e6 * (time_per_step - time_gather) / per_step_steps,
-            "persistent_s_per_step": time_persistent / steps,
+            "per_step_ns_per_node_step": 1e9 * time_parallel / (count * per_step_steps),
+            "launch_cost_us_per_step": 1e6 * (time_parallel - time_gather) / per_step_steps,
+            "persistent_s_per_step": time_grouped / steps,
             "numba_s_per_step": time_numba / steps,
-            "persistent_over_numba": time_persistent / time_numba,
+            "persistent_over_numba": time_grouped / time_numba,
             "warp_minus_numba_positions_m": float(np.abs(warp_positions - numba_positions).max()),
-            "displacement_m": float(np.abs(warp_positions - arrays.rest_position).max())}
+            "displacement_m": float(np.abs(warp_positions - structure.rest_position).max())}
 
 
 # --- 2. The static step: Newton iterations, then the whole step with its certificate ---
@@ -327,14 +336,28 @@ def static_costs(n: int, friction=None):
 
 # --- 4. The dynamic step on the same load step ---
 
+def relax_time(solver: DynamicSolver, start) -> tuple[float, object]:
+    """(wall time [s], outcome) of the step's relaxation alone (`StructureRelaxation.relax`
+    from the step's start, the solver's tolerance rule), one run."""
+    begun = solver.model.start_of_step(start, LOAD)
+    relative = RELATIVE_TOLERANCE if solver.options.tolerance is None else 0.0
+    began = time.perf_counter()
+    _, outcome = solver.relaxation.relax(begun.positions, begun.chain_loads, begun.anchors,
+                                         tolerance=solver.tolerance, max_steps=
+                                         solver.options.max_steps, relative_tolerance=relative)
+    return time.perf_counter() - began, outcome
+
+
 def dynamic_costs(n: int, static_positions=None, friction=None):
-    """(row, state, record): FabricDynamicSolver.step on the load step; |x - x_static|."""
-    solver = FabricDynamicSolver(patch_model(n, friction))
-    start = solver.initial_state()
+    """(row, state, record): DynamicSolver.step on the load step; |x - x_static|."""
+    model = patch_model(n, friction)
+    solver = DynamicSolver(model)
+    start = model.initial_state()
     step_s, (state, record) = timed(lambda: solver.step(start, LOAD))
     steps = int(record["time_steps"])
-    row = {"step_s": step_s, "time_steps": steps, "relax_s": float(solver.relax_time),
-           "relax_s_per_time_step": float(solver.relax_time) / max(steps, 1),
+    relax_s, _ = timed(lambda: relax_time(solver, start)[0])
+    row = {"step_s": step_s, "time_steps": steps, "relax_s": relax_s,
+           "relax_s_per_time_step": relax_s / max(steps, 1),
            "residual_N": float(record["residual"])}
     if static_positions is not None:
         row["static_difference_m"] = float(np.abs(state.positions - static_positions).max())
@@ -419,58 +442,35 @@ LAYOUT_TIME = 0.5
 
 
 def semi_costs(n: int, static_positions=None, friction=None, newton_s=None) -> dict:
-    """`FabricDynamicSolver(method="semi_implicit").step` on the load step: time, time steps,
-    CG iterations per time step, |x - x_static|; then, at its solution, one step's system
-    (dt = 1e4 s, a Newton-like step) solved by PCG in the persistent layout (one launch)
-    and in the launch-per-stage layout (`fabric_semi_implicit.pcg_launches`, 7 launches per
-    iteration): time per CG iteration of each, and their difference, the launches' cost."""
-    from dynfab.kernels import fabric_semi_implicit
-
-    solver = FabricDynamicSolver(patch_model(n, friction), method="semi_implicit")
-    start = solver.initial_state()
-
-    def step():
-        solver.linear_iterations = 0  # this run's alone
-        return solver.step(start, LOAD)
-    step_s, (state, record) = timed(step)
-    steps = int(record["time_steps"])
-    row = {"step_s": step_s, "time_steps": steps, "relax_s": float(solver.relax_time),
-           "cg_iterations": solver.linear_iterations,
-           "cg_per_time_step": solver.linear_iterations / max(steps, 1),
-           "relax_s_per_time_step": float(solver.relax_time) / max(steps, 1),
+    """`DynamicSolver.step` with the semi-implicit method on the load step: time, time steps,
+    CG iterations per time step, |x - x_static|; its relaxation alone in the grouped layout
+    (one launch per chunk of time steps) and the node-parallel one (a launch per stage, the
+    loops over CG iterations in Python): us per CG iteration of each, and their difference,
+    the launches' cost."""
+    model = patch_model(n, friction)
+    solver = DynamicSolver(model, Dynamic(method="semi_implicit", tolerance=TOLERANCE))
+    start = model.initial_state()
+    step_s, (state, record) = timed(lambda: solver.step(start, LOAD))
+    steps, cg = int(record["time_steps"]), int(record["cg_iterations"])
+    relax_s, (_, outcome) = timed(lambda: relax_time(solver, start))
+    row = {"step_s": step_s, "time_steps": steps, "relax_s": relax_s,
+           "cg_iterations": cg, "cg_per_time_step": cg / max(steps, 1),
+           "relax_s_per_time_step": relax_s / max(steps, 1),
            "residual_N": float(record["residual"])}
     if newton_s is not None:
         row["relax_over_newton"] = row["relax_s"] / newton_s
     if static_positions is not None:
         row["static_difference_m"] = float(np.abs(state.positions - static_positions).max())
-    semi = solver.relaxation
-    semi.cg_tolerance = LAYOUT_CG_TOLERANCE
-    anchors = start.anchors + solver._plane_shift
-    P = solver.model.yarn_loads(*LOAD)
-    dt = 1e4
-    semi.system(state.positions, solver.external_force(P), anchors, dt=dt)
-
-    def per_iteration(solve):
-        iterations, began = 0, time.perf_counter()
-        while time.perf_counter() - began < LAYOUT_TIME:
-            iterations += solve()
-        return (time.perf_counter() - began) / max(iterations, 1), iterations
-    persistent, count = per_iteration(lambda: semi.system(
-        state.positions, solver.external_force(P), anchors, dt=dt, assemble=False, solve=True)[1])
-    x = semi.work.x.numpy().copy()
-    launches, _ = per_iteration(lambda: fabric_semi_implicit.pcg_launches(semi, dt))
-    per_step = FabricDynamicSolver(patch_model(n, friction), method="semi_implicit",
-                                   layout="per_step")
-    begun = per_step.model.start_of_step(start, LOAD)
-    pos, held, loads = begun.positions, begun.anchors, begun.chain_loads
-    began = time.perf_counter()
-    per_step.relax(pos, loads, held)
-    row["per_step_relax_s"] = time.perf_counter() - began  # one run: the whole time loop
-    row.update({"layout_cg_iterations": count,
-                "persistent_us_per_cg_iteration": 1e6 * persistent,
-                "launches_us_per_cg_iteration": 1e6 * launches,
-                "launch_cost_us_per_cg_iteration": 1e6 * (launches - persistent),
-                "layouts_bit_identical": bool(np.array_equal(x, semi.work.x.numpy()))})
+    parallel = DynamicSolver(model, solver.options, layout="node_parallel")
+    parallel_s, parallel_outcome = relax_time(parallel, start)  # one run: the whole time loop
+    iterations = int(outcome.cg_iterations.sum())
+    row.update({"per_step_relax_s": parallel_s, "layout_cg_iterations": iterations,
+                "persistent_us_per_cg_iteration": 1e6 * relax_s / max(iterations, 1),
+                "launches_us_per_cg_iteration": 1e6 * parallel_s / max(iterations, 1),
+                "launch_cost_us_per_cg_iteration": 1e6 * (parallel_s - relax_s)
+                / max(iterations, 1),
+                "layouts_same_cg_iterations": bool(np.array_equal(
+                    outcome.cg_iterations, parallel_outcome.cg_iterations))})
     return row
 
 

@@ -15,8 +15,8 @@ Run:  python benchmarks/fabric_planes.py [--sizes 8,16,32] [--modes fixed,affine
    planes (the slip measured from planes moving with the mean end displacement, its
    reaction gathered on the end nodes), and the periodic cell (wrap springs, tied cell
    lengths, planes moving with the cell). A fixed number of viscous time steps from the
-   as-woven state in each layout (persistent: one launch, scatter order; per_step: two
-   launches per step, gather order), the fastest of REPEATS, modes alternating within each
+   as-woven state in each layout (grouped: one launch, scatter order; node_parallel: a
+   launch per stage, gather order), the fastest of REPEATS, modes alternating within each
    repeat; ns per node and time step, and each mode over fixed planes. `--modes fixed`
    runs on a tree without the moving planes too (the same public API), for before/after
    ratios of the fixed-plane step.
@@ -26,14 +26,14 @@ Run:  python benchmarks/fabric_planes.py [--sizes 8,16,32] [--modes fixed,affine
    in a subprocess (numba and Warp caches warm: run the tests or the script once before),
    wall time around the subprocess.
 3. `semi_rules` (part "semi"): the semi-implicit relaxation of the first load step, from the
-   static solver's start of the step (`FabricDynamicSolver.relax`, persistent layout), under
-   each time step rule of `fabric_semi_implicit.RULES` ("halving": undo and halve dt on a step
-   that does not lower f^T M^-1 f; "line_search": first halve the step's length along its
-   velocity, and where the planes move the sliding crossings' secant blocks):
-   runs/fabric_strip.toml's first step and the n x n patches of part 1 in each mode
-   (--semi-sizes). Time steps, rejected and shortened steps, CG iterations and the wall
-   time of one relaxation after a warm-up run (compilation), the rules alternating which runs
-   first per case.
+   step's start (`StructureRelaxation.relax`, grouped layout), under each time step rule
+   (`RULES`: "halving": undo and halve dt on a step that does not lower f^T M^-1 f, no line
+   search, no secant blocks; "line_search": first halve the step's length along its velocity,
+   `structure_semi_implicit.MAX_BACKTRACKS` times, and where the planes move the sliding
+   crossings' secant blocks, the layer's default): runs/fabric_strip.toml's first step and the
+   n x n patches of part 1 in each mode (--semi-sizes). Time steps, rejected and shortened
+   steps, CG iterations and the wall time of one relaxation after a warm-up run
+   (compilation), the rules alternating which runs first per case.
 """
 
 from __future__ import annotations
@@ -78,23 +78,25 @@ def patch(n: int, mode: str):
 
 
 def relaxer(n: int, mode: str, layout: str, steps: int):
-    """A callable running `steps` viscous steps of the mode's patch in one layout."""
-    from dynfab.kernels import fabric_arrays, fabric_explicit
+    """A callable running `steps` viscous steps of the mode's patch in one layout (friction
+    compiled in, as the patches have it)."""
+    from dynfab.kernels.structure_relaxation import StructureRelaxation
 
-    arrays = fabric_arrays.build(patch(n, mode).structure)
-    order = "scatter" if layout == "persistent" else "gather"
-    solver = fabric_explicit.FabricExplicit(arrays, layout=layout, damping="viscous",
-                                            coefficient=DAMPING, check_interval=1 << 30,
-                                            order=order, friction=True)
-    external = LOAD[0] * arrays.load_direction + LOAD[1] * arrays.weft_load_direction
-    return arrays.nodes, lambda: solver.relax(arrays.rest_position, external, 0.0, steps)
+    structure = patch(n, mode).structure
+    order = "scatter" if layout == "grouped" else "gather"
+    solver = StructureRelaxation(structure, layout=layout, order=order, damping="viscous",
+                                 damping_coefficient=DAMPING, check_interval=1 << 30,
+                                 chunk=steps)
+    loads = solver.chain_loads(LOAD)
+    return structure.rest_position.shape[0], lambda: solver.relax(
+        structure.rest_position, loads, None, tolerance=0.0, max_steps=steps)
 
 
 def step_costs(sizes, modes) -> list[dict]:
     """ns per node and step of each (size, layout, mode), modes alternating per repeat."""
     rows = []
     for n in sizes:
-        for layout, work in (("persistent", STEP_WORK), ("per_step", PER_STEP_WORK)):
+        for layout, work in (("grouped", STEP_WORK), ("node_parallel", PER_STEP_WORK)):
             nodes = {}
             runs = {}
             for mode in modes:
@@ -125,30 +127,31 @@ def step_costs(sizes, modes) -> list[dict]:
     return rows
 
 
+RULES = {"halving": dict(backtracks=0, secant=False), "line_search": {}}
+"""The semi-implicit time step rules compared (module docstring): `StructureRelaxation`
+options."""
+
+
 def first_step_relaxer(model, rule: str):
     """A callable relaxing the first load step of `model` (a `FabricModel`) with the
-    semi-implicit solver under `rule`."""
-    from dynfab.fabric.dynamic import FabricDynamicSolver
-    from dynfab.kernels import fabric_semi_implicit
+    semi-implicit kernels under `rule`, to the scene's static tolerance; its Outcome."""
+    from dynfab.kernels.structure_relaxation import StructureRelaxation
 
-    dynamic = FabricDynamicSolver(model, method="semi_implicit", layout="persistent")
-    dynamic.relaxation = fabric_semi_implicit.FabricSemiImplicit(dynamic.arrays,
-                                                                 layout="persistent", rule=rule)
-    warp, weft = model.load_values[0]
-    begun = dynamic.model.start_of_step(dynamic.initial_state(), (warp, weft))
-    pos, anchors, P = begun.positions, begun.anchors, begun.chain_loads
-    return lambda: dynamic.relax(pos, P, anchors)[1]
+    relaxation = StructureRelaxation(model.structure, method="semi_implicit", **RULES[rule])
+    begun = model.start_of_step(model.initial_state(), model.load_values[0])
+    return lambda: relaxation.relax(begun.positions, begun.chain_loads, begun.anchors,
+                                    tolerance=model.scene.static.tolerance,
+                                    max_steps=model.scene.dynamic.max_steps)[1]
 
 
 def semi_rules(sizes, modes) -> list[dict]:
     """Per case and time step rule: the first load step's time steps, CG iterations, wall time."""
     from dynfab.fabric.model import FabricModel
-    from dynfab.kernels import fabric_semi_implicit
     from dynfab.scene import load_scene
 
     cases = [("strip", FabricModel.from_scene(load_scene(ROOT / "runs" / "fabric_strip.toml")))]
     cases += [(f"{n}x{n} {mode}", patch(n, mode)) for n in sizes for mode in modes]
-    rules = tuple(fabric_semi_implicit.RULES)
+    rules = tuple(RULES)
     rows = []
     for index, (name, model) in enumerate(cases):
         runs = {rule: first_step_relaxer(model, rule) for rule in rules}
@@ -161,14 +164,14 @@ def semi_rules(sizes, modes) -> list[dict]:
             outcomes[rule] = runs[rule]()
             seconds[rule] = time.perf_counter() - began
         for rule in rules:
-            out = outcomes[rule]
-            rows.append({"case": name, "rule": rule, "status": out.status, "steps": out.steps,
-                         "rejected": out.rejected, "shortened": out.shortened,
-                         "backtracks": out.backtracks, "cg_iterations": out.cg_iterations,
-                         "residual_N": out.residual, "seconds": seconds[rule]})
-            print(f"{name:18s} {rule:12s} {out.steps:6d} steps {out.rejected:5d} rejected "
-                  f"{out.shortened:5d} shortened {out.cg_iterations:7d} CG {seconds[rule]:8.3f} s",
-                  flush=True)
+            out = {name: int(getattr(outcomes[rule], name)[0]) for name in
+                   ("status", "steps", "rejected", "shortened", "cg_iterations")}
+            residual = float(outcomes[rule].residual[0])
+            rows.append({"case": name, "rule": rule, **out, "residual_N": residual,
+                         "seconds": seconds[rule]})
+            print(f"{name:18s} {rule:12s} {out['steps']:6d} steps {out['rejected']:5d} rejected "
+                  f"{out['shortened']:5d} shortened {out['cg_iterations']:7d} CG "
+                  f"{seconds[rule]:8.3f} s", flush=True)
         by_rule = {row["rule"]: row for row in rows[-len(rules):]}
         before = by_rule["halving"]
         for rule in rules:

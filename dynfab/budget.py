@@ -68,15 +68,20 @@ def memory_bytes(scene: Scene) -> int:
 def result_file_bytes(scene: Scene) -> int:
     """Estimated size of the result file of `scene` [B]: positions (x, z) and the XDMF
     view's two point data (`dynfab.xdmf`) per node and step (three node arrays more per
-    frame of a transient run), crossings and scalars; a fabric's per step: both families'
-    nodes so, its n_wa x n_we crossings, end force and displacement per yarn; the view's
+    frame of a transient run), crossings and scalars; a fabric's per step (or frame, with
+    its velocities and forces): both families' nodes so, its n_wa x n_we crossings, end force
+    and displacement per yarn; the view's
     datasets (`VIEW_BYTES_PER_ENTRY`, `VIEW_BYTES_PER_NODE`)."""
     if scene.geometry.model == "fabric":
         yarns, crossings = scene.weft.count + scene.geometry.crossings, \
             scene.weft.count * scene.geometry.crossings
         per_step = 8 * (4 * fabric_nodes(scene) + FABRIC_CROSSING_DATASETS * crossings
                         + 2 * yarns + FABRIC_STEP_SCALARS) + VIEW_BYTES_PER_ENTRY
-        return len(scene.load.values) * per_step + VIEW_BYTES_PER_NODE * fabric_nodes(scene)
+        entries = len(scene.load.values)
+        if scene.dynamic.mode == "transient" and scene.dynamic.output_interval:
+            entries = scene.dynamic.duration / scene.dynamic.output_interval + 2
+            per_step += 8 * 4 * fabric_nodes(scene)  # velocities and forces
+        return int(entries * per_step) + VIEW_BYTES_PER_NODE * fabric_nodes(scene)
     yarns, nodes = yarn_count(scene), scene.geometry.segments + 1
     per_yarn = 8 * (4 * nodes + CROSSING_DATASETS * scene.geometry.crossings + STEP_SCALARS)
     view = VIEW_BYTES_PER_NODE * yarns * nodes

@@ -31,14 +31,17 @@ def prescribe_load(model: Model, state: State, load_value: float) -> np.ndarray:
     return positions
 
 
-def load_at_time(model: Model, time: float) -> float:
+def load_at_time(model, time: float):
     """The transient's load [N or m] at `time` [s] (docs/model.md section 5): piecewise linear
-    through (0, 0) and (k T / n, value_k), k = 1..n, T = dynamic.duration, held after T.
+    through (0, 0) and (k T / n, value_k), k = 1..n, T = dynamic.duration, held after T; a
+    float for a one-yarn path (n,), one value per family for a fabric's (n, 2).
 
-    The transient kernel evaluates the same ramp on the device (`kernels/transient.py`
+    The transient kernel evaluates the same ramp on the device (`kernels/structure_transient.py`
     load_at); this is its host side, for the frames.
     """
-    values = model.load_values
+    values = np.asarray(model.load_values, float)
     duration = model.scene.dynamic.duration
-    return float(np.interp(time, np.linspace(0.0, duration, values.size + 1),
-                           np.append(0.0, values)))
+    times = np.linspace(0.0, duration, values.shape[0] + 1)
+    if values.ndim == 1:
+        return float(np.interp(time, times, np.append(0.0, values)))
+    return np.array([np.interp(time, times, np.append(0.0, column)) for column in values.T])

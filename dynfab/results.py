@@ -154,6 +154,15 @@ UNITS: dict[str, str] = {
     f"frames/energy/{ENERGY_TERM}": "J",  # (frames, yarns)
     "frames/xdmf/contact_force": "N",  # as steps/xdmf/contact_force
     "frames/xdmf/slip": "m",  # as steps/xdmf/slip
+    "frames/weft_positions": "m",  # fabric: (frames, n_we, M+1, 2) weft node (y, z)
+    "frames/weft_velocities": "m/s",  # fabric: (frames, n_we, M+1, 2)
+    "frames/weft_force": "N",  # fabric: (frames, n_we, M+1, 2) as frames/force
+    "frames/warp_planes": "m",  # fabric: (frames, n_wa) as steps/warp_planes
+    "frames/weft_planes": "m",  # fabric: (frames, n_we) as steps/weft_planes
+    "frames/xdmf/weft_contact_force": "N",  # fabric: as steps/xdmf/weft_contact_force
+    "frames/xdmf/weft_slip": "m",  # fabric: as steps/xdmf/weft_slip
+    "frames/xdmf/plane": "m",  # fabric, moving planes: as steps/xdmf/plane
+    "frames/xdmf/weft_plane": "m",  # fabric, moving planes: as steps/xdmf/weft_plane
     # Finished rows of steps/ and frames/ (the rest are unwritten: see the layout).
     "steps_done": "-",  # (1,) int64
     "frames_done": "-",  # (1,) int64

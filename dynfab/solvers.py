@@ -15,7 +15,8 @@ def make_solver(model, name: str, device: str | None = None, status=None):
     """The solver `name` ("static" or "dynamic") built for `model` (its options are the
     scene's): a `dynfab.solver.Solver` driven by load step or, for dynamic.mode =
     "transient", a `Transient` driven by time; it reports within a step to `status` (per
-    Newton iteration or yarn solved, per launch of a relaxation)."""
+    Newton iteration or yarn solved, per launch of a relaxation). One dynamic solver drives
+    every model (`dynfab.dynamic`); the static solvers are one per model."""
     name = check_solver(name)
     fabric = model.scene.geometry.model == "fabric"
     if name == "static":
@@ -27,9 +28,6 @@ def make_solver(model, name: str, device: str | None = None, status=None):
             return FabricStaticSolver(model, status)
         from dynfab.static import StaticSolver
         return StaticSolver(model, status=status)
-    if fabric:
-        from dynfab.fabric.dynamic import FabricDynamicSolver
-        return FabricDynamicSolver.from_scene(model, device or "cpu", status)
     from dynfab.dynamic import DynamicSolver, DynamicTransient
     kind = DynamicTransient if model.scene.dynamic.mode == "transient" else DynamicSolver
     return kind(model, device=device or "cpu", progress=status)

@@ -60,6 +60,7 @@ from dynfab.fabric.assembly import TERMS
 from dynfab.scene import Scene
 from dynfab.step import StepSolution, StepStart
 from dynfab.structure import Structure, chain_count
+from dynfab.terms import friction as gralen
 from dynfab.terms import registry
 
 
@@ -286,6 +287,58 @@ class FabricModel:
     def groups(self) -> list[np.ndarray]:
         """The structure's independent groups of chains: a patch or a cell is one."""
         return [np.arange(self.yarns)]
+
+    def group_name(self, k: int) -> str:
+        """The patch (the one group) as messages name it: "fabric"."""
+        return "fabric"
+
+    def friction_limits(self, pos) -> np.ndarray:
+        """F_T (T,) [N] of Gralen's law at the contact forces of `pos`, each tie its own law
+        (docs/model.md section 4); 0 without friction."""
+        f = self.structure
+        out = np.zeros(f.tie_a.size)
+        if f.has_friction:
+            R = np.zeros(f.tie_a.size)
+            contact.forces(pos, f, R)
+            gralen.tie_limits(R, f.tie_friction_law, -1.0, out)
+        return out
+
+    def frame(self, time: float, arrays: dict) -> dict:
+        """A transient frame (`dynfab.solver.FRAME_KEYS` in the record's layout: the warps'
+        positions, velocities and force, the wefts' as weft_positions, weft_velocities,
+        weft_force; contact_force (n_wa, n_we), anchors (n_wa, n_we, 2), the planes, the
+        energy of every active term and the kinetic energy [J], scalars) at `time` [s] from
+        the structure's flat arrays (`dynfab.solver.RunModel.frame`); the loads are those of
+        the ramp at `time` (`dynfab.loading.load_at_time`)."""
+        from dynfab.loading import load_at_time
+
+        pos = np.asarray(arrays["positions"], float)
+        anchors = np.asarray(arrays["anchors"], float)
+        frame = {"time": float(time)}
+        for name in ("positions", "velocities", "force"):
+            warps, wefts = self.split(np.asarray(arrays[name], float))
+            frame[name], frame[f"weft_{name}"] = warps, wefts
+        R = np.zeros(self.structure.tie_a.size)
+        contact.forces(pos, self.structure, R)
+        shape = (self.warps, self.wefts)
+        frame.update({"contact_force": R.reshape(shape), "anchors": anchors.reshape(*shape, 2),
+                      **self.planes(pos)})
+        P = (self.yarn_loads(*load_at_time(self, time)) if self.control == "force"
+             else np.zeros(self.yarns))
+        values = dict(zip(TERMS, self.energies(pos, P, anchors, self.friction_limits(pos))))
+        frame.update({registry.TERMS[registry.index(term)].dataset: float(values[term])
+                      for term in registry.active_terms(self.scene)})
+        frame["energy/kinetic"] = float(np.sum(arrays["kinetic_energy"]))
+        return {name: np.asarray(value) for name, value in frame.items()}
+
+    def frame_arrays(self, frame: dict) -> dict:
+        """The structure's flat arrays of a frame `frame` made (positions, velocities, force
+        (n, 2), anchors (T, 2), time): what a resumed transient restores."""
+        out = {name: np.concatenate([np.asarray(frame[name], float).reshape(-1, 2),
+                                     np.asarray(frame[f"weft_{name}"], float).reshape(-1, 2)])
+               for name in ("positions", "velocities", "force")}
+        anchors = np.asarray(frame["anchors"], float).reshape(-1, 2)
+        return {**out, "anchors": anchors, "time": float(frame["time"])}
 
     def finish_step(self, state: FabricState, start: StepStart, solution: StepSolution):
         """(new state, record) of the step `start` began, from the solver's `solution`
