@@ -36,9 +36,10 @@ step, so at 10x the stable time step it crosses the bound within a handful of st
 
 ENERGY_FACTOR = 1e3
 """Kinetic energy / the largest f0 . (x - x0) of the load step [-] beyond which an explicit
-integration has diverged (`dynfab.kernels.relaxation`). At most about 1 in exact stable
+integration has diverged (`dynfab.kernels.structure_checks`). At most about 1 in exact stable
 dynamics from rest with a convex energy, 5.3 for symplectic Euler's half-step velocities at
 safety 0.9 (100 at omega dt = 1.99; tests/test_dynamic_relaxation.py checks 5.3 on the
 paper relaxations). An unstable mode multiplies its energy every step, so it passes 1e3 in
 a bounded number of steps (tests/test_dynamic_relaxation.py bounds it at 1.3 x the predicted
-dt); the test, every `relaxation.ENERGY_CHECK_INTERVAL` steps, sees it at the next multiple."""
+dt); the test, every `structure_checks.ENERGY_CHECK_INTERVAL` steps, sees it at the next
+multiple."""

@@ -16,8 +16,7 @@ summed end displacements of the plane nodes of family f (0: those moving the a s
 1: the b slips'), w_f = `tie_plane_weight` / the family's node count; anchors xi in the
 structure's convention (from the planes).
 
-The boundary couplings, as `dynfab.kernels.fabric_arrays` lays them out (its docstring):
-moving planes (`plane_nodes` split at `plane_offsets`, `node_plane`), wrap springs
+The boundary couplings (docs/model.md section 10): moving planes (`plane_nodes` split at `plane_offsets`, `node_plane`), wrap springs
 (`node_wrap`, `chain_last`, `wrap_stiffness` and `wrap_rest_angle` at each chain's first
 node), and tied dofs: a family's plane nodes whose in-plane dofs move as one (`node_tie`, the
 periodic cell's length under force control); other dof ties are refused.

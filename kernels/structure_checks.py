@@ -9,8 +9,8 @@ sum_j |K_ij|; then fictitious masses m_i = dt^2 / (4 safety^2) x that (dt = 1 s 
 for; stable dt = dt / safety) or the physical masses with dt = safety x 2 min_i sqrt(m_i / rows_i)
 (or the dt asked for). A tied family's nodes take the family's summed mass. The rounding floor
 ROUNDING_FLOOR_FACTOR eps max_i |K_ii| max_i |x_i| and the default tolerance min(D, max(1e-6 F,
-floor)) (F the force scale: the end loads, contact forces and segment tensions) as the one-yarn
-solver's (`kernels/relaxation.py`, whose constants these are).
+floor)) (F the force scale: the end loads, contact forces and segment tensions), the one-yarn
+solver's constants (docs/model.md, "The dynamic solver (decisions)").
 
 Each time step, `check`: converged (residual <= tolerance), non-finite, diverged (residual beyond
 DIVERGENCE_FACTOR x its start), at the rounding floor, out of steps; explicit integrators add
@@ -43,8 +43,7 @@ ENERGY_CHECK_INTERVAL = 16
 kinetic energy since the last test (docs/model.md, the dynamic solver's divergence test)."""
 STALL_MIN_STEPS = 2_000
 """semi-implicit: time steps after which a relaxation whose residual has not reached a new low
-during the last half of its steps stops (status.NO_PROGRESS); the fabric's
-(`kernels/fabric_semi_implicit.py`)."""
+during the last half of its steps stops (status.NO_PROGRESS); the fabric's choice."""
 
 
 @functools.cache
@@ -359,7 +358,7 @@ def functions(scalar, friction: bool, boundary: bool, merit: bool = False) -> Si
     def check_energy(g: int, data: Data, state: State, code: int) -> int:
         """`code`, or DIVERGED when the kinetic energy exceeds ENERGY_FACTOR x the largest
         f0 . (x - x0) of the step so far, tested every ENERGY_CHECK_INTERVAL steps on the
-        largest kinetic energy since the last test (`kernels/relaxation.py`)."""
+        largest kinetic energy since the last test (docs/model.md, the divergence test)."""
         if code != int(status.RUNNING) and code != int(status.MAX_STEPS):
             return code
         energy = wp.max(state.kinetic_peak[g], state.kinetic_energy[g])

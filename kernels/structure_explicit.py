@@ -4,8 +4,8 @@ kinetic (Barnes) or FIRE 2.0 damping (docs/model.md section 5, "The dynamic solv
     v^{n+1/2} = keep v^{n-1/2} + (gain / m) f(x^n),   x^{n+1} = x^n + dt v^{n+1/2},
 
 keep = (1 - c dt/2) / (1 + c dt/2), gain = dt / (1 + c dt/2) (the damping force centred in
-time; c = 0 undamped). The dampings, as the one-yarn solver's (`kernels/viscous_damping.py`,
-`kinetic_damping.py`, `fire.py`, whose decisions docs/model.md records):
+time; c = 0 undamped). The dampings (whose decisions docs/model.md records, "The dynamic
+solver (decisions)"):
 - viscous: c given, or adaptive (a negative settings coefficient): c = 2 sqrt(q), q by
   Underwood's diagonal estimate u^T K u / u^T M u where positive and below the secant
   -u . (f - f0) / u^T M u, else the secant; capped at 2 / dt;

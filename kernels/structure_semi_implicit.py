@@ -14,8 +14,8 @@ planes' rows (`plane_row`, from the per-group sums U_f and G_f = sum_t w_t,f (H_
 `boundary_sums`); a tied family's dof is one unknown whose copies sit on its nodes: its row
 the sum of theirs, each node's band holding 1/m of the family's mass, the CG inner products
 counting each copy at its share, its preconditioner its diagonal (`tie_diagonals`): CG runs on
-T^T A T, the static solver's unknowns (as `kernels/fabric_semi_implicit.py`, whose design
-this generalises to any structure).
+T^T A T, the static solver's unknowns (the design of the fabric's first semi-implicit
+kernels, generalised to any structure).
 
 The right side is dt f + M v - A v (A v by the same product). Held dofs get identity rows
 and columns and zero right sides. PCG is preconditioned by P = the chains' bands (each
@@ -25,11 +25,11 @@ choice), or after as many iterations as the group's dofs. Where the group's matr
 band alone (`StructureArrays.group_exact`: one chain, its ties to ground, no wrap, planes or
 tied dofs; every one-yarn scene) P = A: the first iterate x = P^-1 b is the solution, so with
 `settings.direct` the band is factored in place and solved at once, the right side
-dt (f - dt K v - c M v) taken from the band of K as the one-yarn solver takes it
-(`kernels/semi_implicit.py`), counted as one CG iteration; without it CG finds the solution in
-one iteration.
+dt (f - dt K v - c M v) taken from the band of K (as the one-yarn model's first semi-implicit
+kernel took it), counted as one CG iteration; without it CG finds the solution in one
+iteration.
 
-Time step rule (the fabric's, `kernels/fabric_semi_implicit.py` and docs/results.md): dt
+Time step rule (the fabric's first kernels', docs/model.md and docs/results.md): dt
 starts at the masses' dt (1 s with fictitious masses); a step that lowers f^T M^-1 f is
 accepted and dt doubles (at most DT_MAX); one that does not is shortened along its new
 velocity, x = x_0 + alpha dt v for alpha = 1/2, 1/4, ... (settings.backtracks halvings, a
@@ -56,7 +56,7 @@ from dynfab.kernels import structure_variants
 from dynfab.kernels.precision import VECTORS
 
 CG_TOLERANCE = 1e-2
-"""CG's default relative tolerance [-] (the fabric's, `kernels/fabric_semi_implicit.py`)."""
+"""CG's default relative tolerance [-] (the fabric's choice, docs/model.md section 10)."""
 DT_GROWTH = 2.0
 """dt factor after an accepted full step [-]."""
 DT_SHRINK = 0.5

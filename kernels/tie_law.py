@@ -8,7 +8,7 @@ The one Warp form of each law, for every structure (`structure_forces`) and ever
   from the lower bound k_s (g - C_a - C_b), stopping when a step no longer increases R (as
   `dynfab.terms.contact.force_from_closure`); R = 0 where open. expm1 by its Taylor series
   below |x| = 1/2 (u - 1 above), accurate to a few ulps near 0 (as np.expm1 and Kahan's
-  (u - 1) x / log u of `kernels/contact.py`, without a logarithm). The tangent
+  (u - 1) x / log u, without a logarithm). The tangent
   dR/dg = 1 / (1/k_s + sum_m C_m a_m exp(-a_m R)) <= k_s (0 where open); the energy
   R^2 / (2 k_s) + sum_m (C_m / a_m)(1 - exp(-x)(1 + x)), x = a_m R, below x = 0.5 by the
   series sum_{n>=2} (-1)^n (n - 1) x^n / n! against cancellation (docs/model.md (3.5)-(3.7)).

@@ -21,7 +21,7 @@ import warp as wp
 import dynfab.run  # noqa: F401 (the module, for sys.modules)
 from dynfab import cli
 from dynfab.compiling import MESSAGE, announcing, will_compile
-from dynfab.kernels import fabric_arrays, fabric_explicit
+from dynfab.kernels.structure_relaxation import StructureRelaxation
 from dynfab.kernels.runtime import initialize
 from dynfab.fabric.model import FabricModel
 from dynfab.reports.fabric_data import paper_patch_scene
@@ -106,16 +106,16 @@ def test_a_warp_module_missing_from_the_kernel_cache_is_announced_before_its_loa
 
 def test_a_loaded_warp_module_is_not_announced(warp_ready):
     """A kernel already compiled (launched before: loaded from the kernel cache, or compiled
-    then) launches again without a word: the fabric's return map (the variant the fabric
-    tests build)."""
+    then) launches again without a word: the return map of a frictionless patch (the one-pass
+    kernel the fabric tests build)."""
     scene = paper_patch_scene(2, 2, load={"values": [0.1]})
-    arrays = fabric_arrays.build(FabricModel.from_scene(scene).structure)
-    relaxation = fabric_explicit.FabricExplicit(arrays, friction=True)
-    anchors = np.zeros((arrays.crossings, 2))
-    before = relaxation.return_map(arrays.rest_position, anchors)
+    structure = FabricModel.from_scene(scene).structure
+    relaxation = StructureRelaxation(structure)
+    anchors = relaxation.as_woven_anchors()
+    before, _ = relaxation.return_map(structure.rest_position, anchors)
     said = []
     with announcing(said.append):
-        again = relaxation.return_map(arrays.rest_position, anchors)
+        again, _ = relaxation.return_map(structure.rest_position, anchors)
     assert said == []
     np.testing.assert_array_equal(again, before)
 

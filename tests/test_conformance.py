@@ -1,15 +1,15 @@
-"""Every term of V on both twins, the numba one (`dynfab.terms`, the static reference) and the
-Warp one (`dynfab.kernels`, the dynamic solver's): gradient against central differences of
-the energy, banded Hessian against central differences of the gradient, and the twins
-against each other (docs/model.md sections 2-4). The terms are the registry's
-(`dynfab.terms.registry`), so a term added there is checked here once its numba calls are in
-`numba_term` and its stiffness bound in `bounds`.
+"""Every term of V on the numba twin (`dynfab.terms`, the static reference): gradient against
+central differences of the energy, banded Hessian against central differences of the
+gradient (docs/model.md sections 2-4). The terms are the registry's (`dynfab.terms.registry`),
+so a term added there is checked here once its numba calls are in `numba_term` and its
+stiffness bound in `bounds`. (The dynamic solver's Warp kernels, one layer for any structure,
+are checked against this reference term by term: tests/test_kernels_structure.py.)
 
 The state: a small paper fabric (N = 16, 4 crossings, two adjacent yarns) with friction,
 gravity and the force load on, its nodes moved at random by up to 0.05 l0, and its crossings
 placed in every regime: contact closed inside the Kawabata range and past it, and open;
 friction sticking and sliding both ways. Friction's Huber potential is piecewise, with F_T
-frozen (the anchors and R_j of the state; on the Warp side F_T comes from the given R_j):
+frozen (the anchors and R_j of the state):
 each crossing's slip is >= 0.6 F_T / k_t (>= 5e-7 m) from its stick/slip kink and each
 closure >= 1.6e-5 m from g = 0, far beyond the largest difference step (6.25e-8 m), so no
 difference crosses a kink (asserted in `test_state_keeps_every_regime_under_the_steps`).
@@ -24,20 +24,16 @@ stiffness bound and ell the length over which it varies. Hessian from gradients,
 <= eps K r / h, r the largest coordinate; truncation <= h^2 K / (6 ell^2). Asserted with a
 factor 10 over the sum (sums of many roundings, derivative bounds by their scale); the
 estimates are 1e-9 to 1e-8 of the gradient or of K, and a wrong factor, sign or missing
-entry is O(1). The twins compute the same float64 formulas, so they agree to rounding.
+entry is O(1).
 """
 
 import importlib
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
-import warp as wp
 
 from dynfab import assembly
 from dynfab.banded import zeros_band
-from dynfab.kernels import diagnostics, yarn_arrays
-from dynfab.kernels.configuration import Configuration
 from dynfab.model import build_model
 from dynfab.terms import contact, friction, registry
 from independent import PAPER_FRICTION, PAPER_WARP, PAPER_WEFT, dense, make_scene
@@ -48,14 +44,12 @@ L, N, CROSSINGS, P = 0.1, 16, 4, 0.5
 L0 = L / N
 """The geometry scale: the projected segment length [m]."""
 H_GRAD, H_HESS = 1e-6 * L0, 1e-5 * L0
-CONFIGURATION = Configuration(terms=registry.NAMES)
-"""Every term compiled in: the variant tests/test_dynamic_kernels.py builds too."""
 
 CROSSING_STATES = ((0.5, "stick"), (3.0, "slide+"), (-0.25, "open"), (0.05, "slide-"))
 """Crossing j's (closure g_j / (C_wa + C_we), friction regime)."""
 SLIP = {"stick": 0.4, "slide+": 2.5, "slide-": -2.5, "open": 1.0}
 """Slip / (F_T / k_t) of each regime (1e-6 m where F_T = 0: an open crossing)."""
-TWINS = ("numba", "warp")
+TWINS = ("numba",)
 
 
 @pytest.fixture(scope="module")
@@ -90,8 +84,8 @@ def states(model):
 
 
 # --------------------------------------------------------------------------
-# The twins: (energies (M,), gradients (M, N+1, 2), dense Hessians (M, 2N+2, 2N+2)) of one term
-# at a batch of M positions, with the anchors and F_T (Warp: R) of the state frozen.
+# The twin: (energies (M,), gradients (M, N+1, 2), dense Hessians (M, 2N+2, 2N+2)) of one term
+# at a batch of M positions, with the anchors and F_T of the state frozen.
 
 
 def numba_term(yarn, anchors, F_T, name):
@@ -118,26 +112,7 @@ def numba_twin(model, k, positions, anchors, R, F_T, name):
     return np.array(energies), np.array(grads), np.array(hessians)
 
 
-def warp_twin(model, k, positions, anchors, R, F_T, name):
-    """`dynfab.kernels.diagnostics.term_kernel`, one thread per position: yarn k's arrays
-    repeated M times, R_j given (frozen), F_T from it."""
-    count, crossings = len(positions), model.crossings
-    rows = SimpleNamespace(yarns=model.yarns,
-                           stacked=lambda field: np.repeat(model.stacked(field)[k:k + 1], count, 0))
-    force, grad = (wp.zeros(positions.shape[:2], dtype=wp.vec2d) for _ in range(2))
-    band = wp.zeros((count, positions[0].size, 11), dtype=wp.float64)
-    energy = wp.zeros((count, len(registry.NAMES)), dtype=wp.float64)
-    tangent, limit = (wp.zeros((count, crossings), dtype=wp.float64) for _ in range(2))
-    wp.launch(diagnostics.term_kernel(CONFIGURATION), dim=count,
-              inputs=[yarn_arrays.upload(rows, wp.float64, "cpu"), wp.array(positions, dtype=wp.vec2d),
-                      wp.array(np.tile(anchors, (count, 1)), dtype=wp.float64), P,
-                      diagnostics.TERM_INDEX[name], 0, force, grad, band, energy,
-                      wp.array(np.tile(R, (count, 1)), dtype=wp.float64), tangent, limit])
-    return (energy.numpy()[:, diagnostics.TERM_INDEX[name]], grad.numpy(),
-            np.array([dense(b) for b in band.numpy()]))
-
-
-TWIN = {"numba": numba_twin, "warp": warp_twin}
+TWIN = {"numba": numba_twin}
 
 
 # --------------------------------------------------------------------------
@@ -214,20 +189,3 @@ def test_gradient_and_hessian_are_the_derivatives(model, states, name, twin):
         tolerance = 10 * (EPS * K * np.abs(r).max() / H_HESS + H_HESS ** 2 * K / (6 * ell ** 2))
         assert np.abs(jacobian).max() > 1e3 * tolerance
         assert np.abs(hessian - jacobian).max() <= tolerance
-
-
-@pytest.mark.parametrize("name", registry.NAMES)
-def test_twins_agree(model, states, name):
-    # The same float64 formulas: the energies to 16 eps of their rounding budget S (module
-    # docstring), the gradients to 16 eps of K max|r| + max|grad| (a force computed from
-    # coordinates of size r through stiffnesses <= K, or a constant one), the Hessians to
-    # 16 eps of their largest entry (each entry sums <= 3 element blocks).
-    for k, yarn, r, anchors, R, F_T in states:
-        K, _, n = bounds(yarn, name)
-        (E_n,), (g_n,), (H_n,) = numba_twin(model, k, r[None], anchors, R, F_T, name)
-        (E_w,), (g_w,), (H_w,) = warp_twin(model, k, r[None], anchors, R, F_T, name)
-        assert E_n != 0.0 and np.abs(g_n).max() > 0.0  # every term is exercised
-        S = n * abs(E_n) + np.sum(np.abs(g_n) * np.abs(r))
-        assert abs(E_w - E_n) <= 16 * EPS * S
-        assert np.abs(g_w - g_n).max() <= 16 * EPS * (K * np.abs(r).max() + np.abs(g_n).max())
-        assert np.abs(H_w - H_n).max() <= 16 * EPS * max(np.abs(H_n).max(), 1.0)

@@ -7,7 +7,7 @@ steps of the force path 0.005 to 0.6 N in 400 steps: displacement control, so th
 the test reuses the kernel variant the other friction tests build. Near the solution
 many crossings sit within 1e-8 m of g = 0, where the friction limit's coupling to the
 closure makes the force field circulatory: undamped motion between kinetic damping's
-resets settles there into a limit cycle (kernels/kinetic_damping.py). Plain kinetic
+resets settles there into a limit cycle (docs/model.md, kinetic damping). Plain kinetic
 damping ran into its 10^6 time-step limit at load step 5 (as on the force path, where
 it also stopped at step 10); the viscous fallback ends steps 5 and 10 after about
 200,000 steps.

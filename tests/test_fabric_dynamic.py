@@ -9,7 +9,8 @@ within itself (after every launch of a chunk of time steps), a chunked relaxatio
 bits of an unchunked one, and the node-parallel layout (a GPU's) takes the grouped layout's
 step bit for bit. Every [dynamic] setting runs the fabric (physical masses, float32, adaptive
 viscous damping, FIRE; a given dt above the bound warns, far above it diverges in one line),
-and the relaxation leaves a saddle along the certificate's escape.
+the relaxation leaves a saddle along the certificate's escape, and with every weft held each
+warp is the one-yarn model with a rigid weft spring.
 
 Kernel variants: float64 grouped (scatter order), friction compiled in or not as the patch
 has it; the layouts' test runs the periodic cell, whose variant (friction and the boundary
@@ -23,13 +24,16 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from dynfab import assembly
 from dynfab.dynamic import STEPS_PER_LAUNCH, DynamicSolver
 from dynfab.errors import SolverError
 from dynfab.fabric.model import FabricModel
 from dynfab.fabric.static import FabricStaticSolver
+from dynfab.model import build_model, initial_state
 from dynfab.reports.fabric_data import paper_patch_scene
-from dynfab.structure import uniform
-from independent import PAPER_FRICTION
+from dynfab.static import StaticSolver
+from dynfab.structure import chain_of_node, uniform
+from independent import PAPER_FRICTION, dense, held_family, make_scene
 
 TOLERANCE = 1e-10
 """Residual tolerance [N] of both solvers: with k_c = 1e5 N/m the static residual's rounding
@@ -313,3 +317,92 @@ def test_the_dynamic_solver_leaves_the_fabric_saddle():
         assert record["stable"] and record["negative_eigenvalues"] == 0
         assert record["lowest_eigenvalue"] > record["lowest_eigenvalue_error"]
     assert buckled[0]
+
+
+K_C = 1e5
+"""The core stiffness k_c [N/m] of the held-weft patch (a fabric's default)."""
+FRICTION_STICK = 1e3
+"""k_t [N/m] of the held-weft friction comparison, given to both models (the fabric's default
+is the smaller family's EA / segment length, the one-yarn model's its warp's)."""
+
+
+def held_weft_patch(friction):
+    """2 warps x 3 wefts of the paper's yarn (8 segments per half-wave), every weft dof held,
+    the warps pulled by 0.3 N; `friction` a [friction] table or None."""
+    tables = {} if friction is None else {"friction": friction}
+    scene = paper_patch_scene(2, 3, load={"control": "force", "values": [0.3]},
+                              contact={"core_stiffness": K_C},
+                              dynamic={"tolerance": 1e-10}, **tables)
+    return held_family(scene, "weft")
+
+
+def rigid_weft_yarns(patch: FabricModel, friction):
+    """The one-yarn model of the patch's warps (geometry.yarns = 2, phases +-1) with a rigid
+    weft spring: contact_law k_s = k_c exactly (docs/model.md section 10: k_we -> infinity)."""
+    family, weft = patch.warp, patch.weft
+    tables = {} if friction is None else {"friction": friction}
+    scene = make_scene(**tables,
+                       geometry={"length": family.length, "segments": family.segments,
+                                 "crossings": patch.wefts, "amplitude": family.amplitude,
+                                 "yarns": patch.warps},
+                       warp={"EA": family.EA, "EI": family.EI, "kawabata_C": family.kawabata_C,
+                             "kawabata_K": family.kawabata_K},
+                       weft={"EI": weft.EI, "length": weft.length, "count": patch.warps,
+                             "amplitude": weft.amplitude, "kawabata_C": weft.kawabata_C,
+                             "kawabata_K": weft.kawabata_K},
+                       contact={"core_stiffness": K_C}, load={"control": "force", "values": [0.3]})
+    model = build_model(scene)
+    yarns = tuple(y._replace(contact_law=np.r_[K_C, y.contact_law[1:]]) for y in model.yarns)
+    return replace(model, yarns=yarns)
+
+
+def one_yarn_inverse_norm(model, positions, anchors, coupled) -> float:
+    """max over yarns of ||K^-1||_inf [m/N], K the Hessian on the free dofs (coupled: the
+    Jacobian of the friction problem, F_T following R), with the step's anchors (yarns, C)."""
+    free = ~model.fixed_dofs()
+    norms = []
+    for k, yarn in enumerate(model.yarns):
+        band = assembly.tangent(positions[k], yarn, anchors[k], coupled)
+        norms.append(np.abs(np.linalg.inv(dense(band)[np.ix_(free, free)])).sum(axis=1).max())
+    return max(norms)
+
+
+@pytest.mark.parametrize("with_friction, damping", [(False, "kinetic"), (True, "kinetic"),
+                                                    (False, "fire")])
+def test_held_wefts_give_the_one_yarn_model_with_a_rigid_weft_spring(with_friction, damping):
+    """Every weft node held: each warp is the one-yarn model with k_s = k_c
+    (docs/model.md section 10); with friction, the weft node's slip y - Y_k - xi_y stays 0, so
+    the isotropic Huber term is the one-yarn model's on x alone. The dynamic solver's step on
+    the patch against the one-yarn static reference.
+
+    Linearising the residual at the solution, x_fabric - x_static = K^-1 (r_fabric - r_static),
+    so |x_fabric - x_static|_inf <= ||K^-1||_inf (r + r_s), K the warp's Hessian on its free
+    dofs (with the wefts held the fabric's K is block-diagonal, one one-yarn K per warp; with
+    friction, the Jacobian of the coupled problem at the step's anchors). The return-mapped
+    anchors then agree to the same bound: xi = x - F_T s / (k_t |s|) at a sliding crossing
+    moves with x and with F_T / k_t, whose change alpha dR / k_t <= alpha k_c dz / k_t adds the
+    factor (1 + alpha k_c / k_t)."""
+    friction = dict(PAPER_FRICTION, stick_stiffness=FRICTION_STICK) if with_friction else None
+    patch = held_weft_patch(friction)
+    model = rigid_weft_yarns(patch, friction)
+    start = initial_state(model)
+    state, record = StaticSolver(model).step(start, 0.3)
+    fabric, fabric_record = dynamic_solver(patch, damping=damping).step(patch.initial_state(),
+                                                                        patch.step_load(0))
+    f = patch.structure
+    weft_nodes = f.chain_family[chain_of_node(f)] == 1
+    assert np.array_equal(fabric.positions[weft_nodes], f.rest_position[weft_nodes])
+    norm = one_yarn_inverse_norm(model, state.positions, start.anchors, with_friction)
+    bound = norm * (fabric_record["residual"] + np.max(record["residual"]))
+    error = np.abs(fabric_record["positions"] - state.positions).max()
+    assert np.abs(state.positions - start.positions).max() > 1e3 * bound
+    assert error <= bound, (error, bound)
+    if with_friction:
+        planes = f.tie_plane[:, 0].reshape(patch.warps, patch.wefts)
+        fabric_anchors = fabric_record["anchors"][..., 0] + planes
+        slid = np.abs(state.anchors - start.anchors).max()
+        law = uniform(f.tie_friction_law)
+        anchor_gap = bound * (1 + law[0] * K_C / law[3])
+        assert slid > 1e3 * anchor_gap  # crossings slide
+        assert np.abs(fabric_anchors - state.anchors).max() <= anchor_gap
+        assert not fabric_record["anchors"][..., 1].any()  # the wefts do not slip

@@ -11,10 +11,12 @@ variant for all three structures; the yarn's force test and the relaxation tests
 """
 
 import math
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
+import warp as wp
 from independent import PAPER_FRICTION, PAPER_WARP, PAPER_WEFT, make_scene
 
 from dynfab import assembly
@@ -22,15 +24,17 @@ from dynfab.build import build_structure
 from dynfab.fabric import assembly as fabric_assembly
 from dynfab.fabric import contact as tie_contact
 from dynfab.fabric.static import FabricStaticSolver
-from dynfab.kernels import status, structure_arrays
+from dynfab.kernels import status, structure_arrays, structure_explicit, structure_variants
 from dynfab.kernels.structure_relaxation import StructureRelaxation
 from dynfab.model import chain_view
+from dynfab.scene import load_scene
 from dynfab.structure import GROUND, chain_count
 from dynfab.terms import friction as gralen
 from dynfab.terms import registry
 
 EPS = np.finfo(float).eps
 FAMILY = dict(EA=13.72, EI=1.47e-7, kawabata_C=0.2e-3, kawabata_K=0.2)
+RUNS = Path(__file__).resolve().parent.parent / "runs"
 PITCH = 0.1 / 16
 """The paper yarn's crossing pitch [m]: the fabric scenes' yarns are the paper's."""
 
@@ -396,3 +400,33 @@ def test_the_tie_law_is_cancellation_safe(precision):
     assert np.all(np.abs(values[:, 1] - R) <= 16 * eps * R)
     assert np.all(np.abs(values[:, 2] - E) <= 32 * eps * E)
     assert R.min() < 1e-10  # down where the cancellation would cost every digit
+
+
+def generated_source(kernel) -> str:
+    """The C++ Warp generated for a kernel's module, read from the kernel cache after its load
+    (the load's own module hash names the cache folder)."""
+    wp.load_module(kernel.module, device="cpu")
+    (loaded,) = kernel.module.execs.values()
+    identifier = f"wp_{kernel.module.name}_{loaded.module_hash.hex()[:7]}"
+    return (Path(wp.config.kernel_cache_dir) / identifier / f"{identifier}.cpp").read_text()
+
+
+def test_a_variant_without_friction_or_boundary_compiles_none_of_their_code(structures):
+    """Friction and the boundary couplings are compiled only into the variants that have them
+    (`wp.static`; a one-yarn scene without friction, the paper's Fig. 3, builds neither): the
+    grouped explicit kernel of that structure holds none of the Huber term's or the wrap
+    springs' source (Warp writes each line's Python source into the C++ as a comment), the
+    tests' variant with both holds both; asking for a variant twice returns the same kernel,
+    and the layer's register (`structure_variants.built_variants`) lists each once."""
+    paper = build_structure(load_scene(RUNS / "paper_fig3.toml"))
+    plain = StructureRelaxation(paper)
+    assert (plain.friction, plain.boundary) == (False, False)
+    full = relaxation(structures["periodic"])
+    without, with_both = generated_source(plain._kernels()), generated_source(full._kernels())
+    for code in ("laws.huber_force(", "wrap_forces(pos, data, first)"):
+        assert code in with_both and code not in without, code
+    assert structure_explicit.grouped_kernel(wp.float64, False, False, "scatter") \
+        is plain._kernels()
+    assert plain.variant in structure_variants.built_variants()
+    built = structure_variants.built_variants()
+    assert len(built) == len(set(built))

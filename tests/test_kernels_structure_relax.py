@@ -34,7 +34,8 @@ from dynfab.kernels import status
 from dynfab.model import build_model, initial_state
 from dynfab.scene import load_scene, with_key
 from dynfab.static import StaticSolver
-from test_kernels_structure import fabric_scene, relaxation, static_solver, yarn_scene
+from test_kernels_structure import (fabric_scene, relaxation, static_solver, yarn_scene,
+                                    yarn_scene_sweep)
 
 RUNS = Path(__file__).resolve().parent.parent / "runs"
 EPS = np.finfo(float).eps
@@ -294,3 +295,18 @@ def test_displacement_control_reactions_are_the_static_ones():
     rows = np.abs(H[2 * s.load_node]).sum(axis=1)
     assert np.all(np.abs(reaction - record["end_force"]) <= rows * bound)
     assert np.abs(record["end_force"]).max() > 1e3 * (rows * bound).max()
+
+
+def test_a_non_finite_node_stops_its_group_as_non_finite():
+    """The residual a group is judged by is its largest |force component|; one NaN node in the
+    middle of a chain (its force and its neighbours' NaN, the components compared after them
+    finite) makes it NaN, so the group stops as non-finite at once instead of converging on
+    its finite components; the other groups run on."""
+    s = build_structure(yarn_scene_sweep())
+    kernels = relaxation(s, damping="kinetic")
+    positions = s.rest_position.copy()
+    positions[(s.chain_start[0] + s.chain_start[1]) // 3, 1] = np.nan
+    _, outcome = kernels.relax(positions, kernels.chain_loads([0.1]), None, tolerance=1e-9,
+                               max_steps=10)
+    assert list(outcome.status) == [status.NON_FINITE, status.MAX_STEPS, status.MAX_STEPS]
+    assert np.isnan(outcome.residual[0]) and np.isfinite(outcome.residual[1:]).all()

@@ -13,8 +13,8 @@ and neither owns.
   planes, the energy terms.
 - `run_load_path`: every load step of a model with either solver.
 
-The static solver (`dynfab.fabric.static`) and the dynamic one (`dynfab.fabric.dynamic`)
-import this module, never each other (`dynfab.solver`); each solves a step from
+The static solver (`dynfab.fabric.static`) and the dynamic one of every model
+(`dynfab.dynamic`) import this module, never each other (`dynfab.solver`); each solves a step from
 `FabricModel.start_of_step` and hands its solution to `FabricModel.finish_step`, which
 makes the state and the record (`dynfab.step`).
 

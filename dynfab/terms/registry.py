@@ -1,15 +1,15 @@
 """The registry of the model's terms: each term declared once (docs/model.md, "Energy").
 
 V = sum over the active terms of their energies. A term is switched on by the
-scene (`Term.active`); its numba twin (`dynfab.terms.<name>`, +dV/dr) is the
-static reference, its Warp twin (`dynfab.kernels.<name>`) the dynamic solver's.
-The assembly (`dynfab.assembly`), the kernel configuration
-(`dynfab.kernels.configuration`), the diagnostics and the result datasets are
-derived from `TERMS`; adding a term is its two modules and one entry here, plus
+scene (`Term.active`); its numba module (`dynfab.terms.<name>`, +dV/dr) is the
+static reference. The assembly (`dynfab.assembly`), the diagnostics and the result
+datasets are derived from `TERMS`; adding a term is its module and one entry here, plus
 its parameters, if it has new ones: fields of `dynfab.model.Yarn` (filled in
 `build_model`) read from its scene keys (`dynfab.scene`). The energy vector,
-`Yarn.active` and the reported `steps/energy/*` follow the entry.
-"""
+`Yarn.active` and the reported `steps/energy/*` follow the entry. The dynamic solver's
+Warp kernels compute the terms a `dynfab.structure.Structure` holds
+(`dynfab.kernels.structure_forces`: stretch, bending, contact, friction, gravity, the
+end load), compiled in where the structure has them; a new term joins them there."""
 
 from __future__ import annotations
 
@@ -24,7 +24,7 @@ class Term:
     """One energy term of the model."""
 
     name: str
-    """Its name, also its module's name in `dynfab.terms` and `dynfab.kernels`. The numba module
+    """Its name, also its module's name in `dynfab.terms`. The numba module
     `dynfab.terms.<name>` has the entry points `yarn_energy(pos, yarn, frozen)`,
     `add_yarn_gradient(pos, yarn, frozen, grad)` and `add_yarn_hessian(pos, yarn, frozen, band)`
     (`dynfab.terms`), which `dynfab.assembly` calls in registry order."""
