@@ -665,18 +665,12 @@ class GroupCertificates:
             raise ValueError("the sparse certificate takes the whole structure as one group")
         self.stability = StepStability(count)
         self.checks = [self._certify(k) for k in range(count)]
+        self.results = [check[0] if self.banded else check.result for check in self.checks]
+        """Each group's (5,) result: NEGATIVES, LOWEST, LOWEST_ERROR, INVERSE_NORM, SHIFT."""
+        self.negatives = np.array([int(r[NEGATIVES]) for r in self.results], np.int64)
+        """Negative pivots of each group's Hessian (G,)."""
         for k, result in enumerate(self.results):
             self.stability.record(k, result, self.residuals[k])
-
-    @property
-    def results(self) -> list[np.ndarray]:
-        """Each group's (5,) result: NEGATIVES, LOWEST, LOWEST_ERROR, INVERSE_NORM, SHIFT."""
-        return [check[0] if self.banded else check.result for check in self.checks]
-
-    @property
-    def negatives(self) -> np.ndarray:
-        """Negative pivots of each group's Hessian (G,), int64."""
-        return np.array([int(result[NEGATIVES]) for result in self.results], np.int64)
 
     def _chain(self, k: int):
         """(nodes slice, ties, Yarn view) of group k's one chain (the banded route)."""

@@ -151,7 +151,6 @@ class DynamicSolver:
         self._counts = {"steps": 0, "force_evaluations": 0, "cg_iterations": 0}
         outcome = self._relax(start.positions, start, first=True)
         positions, outcome, certificates, buckled = self._certify(start, outcome)
-        limit = self.relaxation.tie_forces(positions, start.anchors)[2]
         read = self.relaxation.group_values
         fields = {"residual": outcome.residual, "iterations": self._counts["steps"].copy(),
                   "rounding_floor": outcome.status == status.ROUNDING_FLOOR,
@@ -161,7 +160,8 @@ class DynamicSolver:
                   "dt": read("dt"), "tolerance": read("tolerance")}
         if self.relaxation.method == "semi_implicit":
             fields["cg_iterations"] = self._counts["cg_iterations"].copy()
-        return model.finish_step(state, start, StepSolution(positions, limit, fields))
+        return model.finish_step(state, start, StepSolution(positions, certificates.limit,
+                                                            fields))
 
     def _relax(self, positions, start, first: bool = False):
         """Relax every group from `positions` at rest with the step's anchors and loads to the

@@ -147,6 +147,8 @@ class StructureRelaxation:
         self.state = structure_state.allocate(arrays, self.scalar, device,
                                               method == "semi_implicit")
         self._scratch = None
+        self._outs = {}
+        self._host = wp.get_device(device).is_cpu
         self._reaction_data = None
         self._loaded = set()
         self.use_cores(cores)
@@ -222,6 +224,16 @@ class StructureRelaxation:
         values = np.asarray(values, float).reshape(-1, 2)
         return wp.array(values.astype(self.dtype), dtype=self.vec, device=self.device)
 
+    def _set(self, dest, values) -> None:
+        """dest (a vector array of the state) = values (n, 2), in this relaxation's scalar: on
+        the CPU straight into its memory (no array made per call), on a device through a host
+        array."""
+        values = np.asarray(values, float).reshape(-1, 2)
+        if self._host:
+            dest.numpy()[...] = values
+        else:
+            dest.assign(self._vectors(values))
+
     def node_loads(self, loads) -> np.ndarray:
         """End loads (n, 2) [N] from loads per chain (Y,) (each on its chain's last node along
         the chain) or per dof ((n, 2) or (2 n,)); zeros for None."""
@@ -268,13 +280,13 @@ class StructureRelaxation:
 
     def _load_state(self, positions, loads, anchors, velocities=None) -> None:
         s = self.state
-        s.position.assign(self._vectors(positions))
-        s.load.assign(self._vectors(self.node_loads(loads)))
-        s.anchors.assign(self._vectors(self.as_woven_anchors() if anchors is None else anchors))
+        self._set(s.position, positions)
+        self._set(s.load, self.node_loads(loads))
+        self._set(s.anchors, self.as_woven_anchors() if anchors is None else anchors)
         if velocities is None:
             s.velocity.zero_()
         else:
-            s.velocity.assign(self._vectors(velocities))
+            self._set(s.velocity, velocities)
         s.previous_force.zero_()
         s.status.fill_(status.RUNNING)
 
@@ -399,16 +411,19 @@ class StructureRelaxation:
         if self._scratch is None:
             self._scratch = structure_state.allocate(self.arrays, self.scalar, self.device, False)
         s = self._scratch
-        s.position.assign(self._vectors(positions))
-        s.anchors.assign(self._vectors(self.as_woven_anchors() if anchors is None else anchors))
-        s.load.assign(self._vectors(self.node_loads(loads)))
+        self._set(s.position, positions)
+        self._set(s.anchors, self.as_woven_anchors() if anchors is None else anchors)
+        self._set(s.load, self.node_loads(loads))
         self._pass(structure_passes.TIES, self.arrays.ties, data)
         return s
 
     def _pass(self, which: int, count: int, data=None, out=None):
         kernel = structure_passes.pass_kernel(self.scalar, self.friction, self.boundary)
-        if out is None:
-            out = wp.zeros(max(count, 1), dtype=self.scalar, device=self.device)
+        if out is None:  # one per pass, kept: a pass writes every unit's entry
+            if which not in self._outs:
+                self._outs[which] = wp.zeros(max(count, 1), dtype=self.scalar,
+                                             device=self.device)
+            out = self._outs[which]
         if count:
             wp.launch(kernel, dim=count, device=self.device,
                       inputs=[self.data if data is None else data, self._scratch, which, out])
