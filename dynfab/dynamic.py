@@ -22,9 +22,10 @@ step rule (viscous c if one is given). Masses fictitious (Gershgorin, dt = 1 s) 
 load path and yields frames (`model.frame`).
 
 Layouts: "grouped" on the CPU (a thread per group, the time loop in the kernel, a chunk of
-`STEPS_PER_LAUNCH` steps per launch so that progress is shown and Ctrl-C taken within a step;
-the groups split across the cores, `use_cores`, bit-identical whatever the split) and
-"node_parallel" on a CUDA device (a launch per stage): `--device cuda` is the only change.
+time steps per launch, 2000 explicit or 16 semi-implicit steps first, then sized to about half
+a second, so that progress is shown and Ctrl-C taken within a step; the groups split across
+the cores, `use_cores`, bit-identical whatever the split and the chunks) and "node_parallel"
+on a CUDA device (a launch per stage): `--device cuda` is the only change.
 """
 
 from __future__ import annotations
@@ -38,14 +39,12 @@ from dynfab.errors import SolverError, UserError
 from dynfab.kernels import runtime, status
 from dynfab.kernels.precision import DEFAULT_TOLERANCE
 from dynfab.kernels.structure_explicit import MAX_NEGATIVE_STEPS
-from dynfab.kernels.structure_relaxation import (STEPS_PER_LAUNCH, StructureRelaxation,
-                                                 available_cores)
+from dynfab.kernels.structure_relaxation import StructureRelaxation, available_cores
 from dynfab.kernels.structure_settings import RELATIVE_TOLERANCE
 from dynfab.scene import Dynamic, check_dynamic_options
 from dynfab.step import StepSolution
 
-__all__ = ["DynamicSolver", "DynamicTransient", "MAX_TIGHTENINGS", "STEPS_PER_LAUNCH",
-           "available_cores"]
+__all__ = ["DynamicSolver", "DynamicTransient", "MAX_TIGHTENINGS", "available_cores"]
 
 _SADDLE_HINT = {"semi_implicit": " (semi_implicit accepts only steps that lower the residual, "
                                   "which cannot lead away from a saddle: use dynamic.method = "

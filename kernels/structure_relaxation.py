@@ -21,11 +21,14 @@ Methods: "explicit" (damping "viscous" with a given c or, c None, the adaptive c
 "fire") and "semi_implicit" (`structure_semi_implicit`; a viscous c only if given). Masses
 "fictitious" (Gershgorin, dt = 1 s or the dt given) or "physical" (dt = safety x the
 Gershgorin bound, or the dt given). Layouts: "grouped" (the CPU's: a thread per group, the
-time loop in the kernel, `chunk` steps per launch; the groups split into contiguous ranges
+time loop in the kernel, a chunk of steps per launch; the groups split into contiguous ranges
 launched at once on up to `cores` cores, each range a launch of its own, bit-identical
 whatever the split) and "node_parallel" (the GPU's: a launch per stage, the time loop here,
 the statuses read back every `check_interval` steps). The grouped layout evaluates forces in
-"scatter" order (each term once) or "gather" order (bit-identical to node_parallel).
+"scatter" order (each term once) or "gather" order (bit-identical to node_parallel). A
+relaxation runs `chunk` steps in its first launch (the node-parallel layout: before it calls
+`progress`), then chunks sized to take about `chunk_seconds` each, so that progress is shown
+and Ctrl-C taken within a step (the bits do not depend on the chunks).
 """
 
 from __future__ import annotations
@@ -33,6 +36,7 @@ from __future__ import annotations
 import concurrent.futures
 import os
 import threading
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -50,7 +54,15 @@ METHODS = ("explicit", "semi_implicit")
 LAYOUTS = ("grouped", "node_parallel")
 MASSES = ("fictitious", "physical")
 STEPS_PER_LAUNCH = 2000
-"""Time steps a grouped launch may take before Python regains control (progress, Ctrl-C)."""
+"""Time steps of a relaxation's first launch, explicit (the chunk Python regains control
+after: progress, Ctrl-C); later chunks are sized to take about CHUNK_SECONDS."""
+SEMI_IMPLICIT_CHUNK = 16
+"""Time steps of a semi-implicit relaxation's first launch (a step of a large patch is many CG
+iterations)."""
+CHUNK_SECONDS = 0.5
+"""Wall time a relaxation's launch is sized to take after the first [s] (`relax`)."""
+MAX_CHUNK_GROWTH = 4
+"""A chunk is at most this many times the last one (the time per step can change)."""
 SAFETY = 0.9
 """dt / the Gershgorin stable time step by default [-] (docs/model.md section 5)."""
 RUNNING_FOREVER = 2 ** 31 - 1
@@ -119,7 +131,7 @@ class StructureRelaxation:
                  order: str = "scatter", device: str = "cpu",
                  cg_tolerance: float = semi.CG_TOLERANCE, backtracks: int = semi.MAX_BACKTRACKS,
                  secant: bool | None = None, direct: bool = True,
-                 chunk: int = STEPS_PER_LAUNCH, check_interval: int = 16,
+                 chunk: int | None = None, check_interval: int = 16,
                  friction: bool | None = None, boundary: bool | None = None,
                  cores: int | None = 1):
         layout = default_layout(device) if layout is None else layout
@@ -136,7 +148,14 @@ class StructureRelaxation:
         self.masses, self.dt, self.safety = masses, dt, safety
         self.cg_tolerance, self.backtracks, self.direct = cg_tolerance, backtracks, direct
         self.secant = arrays.plane_nodes.size > 0 if secant is None else secant
+        if chunk is None:
+            chunk = STEPS_PER_LAUNCH if method == "explicit" else SEMI_IMPLICIT_CHUNK
         self.chunk, self.check_interval = int(chunk), int(check_interval)
+        """The first launch's time steps (a transient's: every launch's), and the node-parallel
+        layout's steps between two reads of the statuses."""
+        self.chunk_seconds = CHUNK_SECONDS
+        """The wall time later launches are sized to [s] (`relax`); None: every launch
+        `chunk` steps."""
         self.friction = arrays.has_friction if friction is None else friction
         self.boundary = arrays.has_boundary if boundary is None else boundary
         if arrays.has_friction and not self.friction or arrays.has_boundary and not self.boundary:
@@ -304,12 +323,26 @@ class StructureRelaxation:
                                   max_steps=int(max_steps))
         self._start(settings)
         codes = self.state.status.numpy()
+        size = max(1, self.chunk)
         while (codes == status.RUNNING).any():
-            self._advance(settings, codes == status.RUNNING)
+            settings.chunk = size
+            began = time.perf_counter()
+            self._advance(settings, codes == status.RUNNING, size)
             codes = self.state.status.numpy()
             if progress is not None:
                 progress(self)
+            size = self._next_chunk(size, time.perf_counter() - began)
         return self.positions(), self.outcome()
+
+    def _next_chunk(self, size: int, elapsed: float) -> int:
+        """The next launch's time steps: sized to take `chunk_seconds` from the time the last
+        `size` took (at most MAX_CHUNK_GROWTH x it, at least 1); `size` when chunk_seconds is
+        None. Each launch continues the time loop from the state it left: the bits do not
+        depend on the chunks."""
+        if self.chunk_seconds is None:
+            return size
+        wanted = size * self.chunk_seconds / elapsed if elapsed > 0 else size * MAX_CHUNK_GROWTH
+        return max(1, min(int(wanted), size * MAX_CHUNK_GROWTH))
 
     def start(self, positions, loads=None, anchors=None) -> None:
         """Only a relaxation's start: forces, masses, time steps (`group_values("dt")`,
@@ -327,29 +360,29 @@ class StructureRelaxation:
                 continue
             self._stage(kernel, stage, self._count(structure_explicit.KINDS[stage]), settings)
 
-    def _advance(self, settings, running: np.ndarray) -> None:
-        """Up to `chunk` time steps of every running group."""
+    def _advance(self, settings, running: np.ndarray, size: int) -> None:
+        """Up to `size` time steps of every running group (settings.chunk = size)."""
         if self.layout == "grouped":
             self._launch_groups(self._kernels(), [self.data, self.state, settings], (0,),
                                 groups=running)
         elif self.method == "explicit":
-            self._explicit_steps(settings)
+            self._explicit_steps(settings, size)
         else:
-            self._semi_steps(settings)
+            self._semi_steps(settings, size)
 
-    def _explicit_steps(self, settings) -> None:
+    def _explicit_steps(self, settings, size: int) -> None:
         kernel = self._kernels()
         adaptive = self.damping == "viscous" and settings.damping_coefficient < 0.0
         stages = [(stage, self._count(structure_explicit.KINDS[stage]))
                   for stage in structure_explicit.step_stages(self.damping, adaptive)]
-        for step in range(self.chunk):
+        for step in range(size):
             for stage, count in stages:
                 self._stage(kernel, stage, count, settings)
             if (step + 1) % self.check_interval == 0 and \
                     not (self.state.status.numpy() == status.RUNNING).any():
                 return
 
-    def _semi_steps(self, settings) -> None:
+    def _semi_steps(self, settings, size: int) -> None:
         kernel = self._kernels()
         a = self.arrays
         counts = {semi.NODE: a.nodes, semi.TIE: a.ties, semi.BLOCK: a.blocks,
@@ -362,7 +395,7 @@ class StructureRelaxation:
         def running():
             return self.state.status.numpy() == status.RUNNING
 
-        for _ in range(self.chunk):
+        for _ in range(size):
             if not running().any():
                 return
             run(semi.TIE_BLOCKS)

@@ -25,7 +25,7 @@ import numpy as np
 import pytest
 
 from dynfab import assembly
-from dynfab.dynamic import STEPS_PER_LAUNCH, DynamicSolver
+from dynfab.dynamic import DynamicSolver
 from dynfab.errors import SolverError
 from dynfab.fabric.model import FabricModel
 from dynfab.fabric.static import FabricStaticSolver
@@ -206,25 +206,25 @@ def test_a_relaxation_that_cannot_finish_raises_one_line(method):
 @pytest.mark.parametrize("method", ["explicit", "semi_implicit"])
 def test_a_step_reports_within_itself_and_chunked_launches_keep_the_bits(method):
     """The grouped layout runs the time loop inside one kernel thread a chunk of time steps
-    at a time (`StructureRelaxation.chunk`), so that the progress line (`status`) updates,
-    and Ctrl-C is taken, within a step. Chunks of a few steps give the very bits of the whole
-    loop in one launch, and `status` is called after each with the steps taken and the
+    at a time (`StructureRelaxation.chunk` first, then chunks sized to `chunk_seconds`), so
+    that the progress line (`status`) updates, and Ctrl-C is taken, within a step. A first
+    chunk of 5 steps, then one step per launch (`chunk_seconds` 0), gives the very bits of the
+    whole loop in one launch, and `status` is called after each with the steps taken and the
     residual; the stability check is announced too."""
     model = paper_patch_model(2, 2, [(0.3, 0.1)], friction=PAPER_FRICTION, tolerance=TOLERANCE)
     runs = []
-    for chunk in (STEPS_PER_LAUNCH, 5):
+    for chunk, seconds in ((10 ** 9, None), (5, 0.0)):
         calls = []
         solver = dynamic_solver(model, calls.append, method=method)
-        solver.relaxation.chunk = chunk
+        solver.relaxation.chunk, solver.relaxation.chunk_seconds = chunk, seconds
         state, record = solver.step(model.initial_state(), (0.3, 0.1))
         runs.append((state, record, calls))
     (whole, whole_record, quiet), (chunked, chunked_record, calls) = runs
     np.testing.assert_array_equal(chunked.positions, whole.positions)
     np.testing.assert_array_equal(chunked.anchors, whole.anchors)
     assert chunked_record["time_steps"] == whole_record["time_steps"] > 10
-    assert whole_record["time_steps"] < STEPS_PER_LAUNCH  # one launch per relaxation
     relaxing = [c for c in calls if "time steps, residual" in c]
-    assert len(relaxing) >= whole_record["time_steps"] // 5  # one per chunk of 5
+    assert len(relaxing) >= whole_record["time_steps"] - 4  # 5 steps, then one per launch
     assert relaxing[0].startswith("dynamic: 5 time steps, residual ")
     assert relaxing[-1].endswith("0 of 1 groups running")
     assert len([c for c in quiet if "time steps, residual" in c]) < len(relaxing)
