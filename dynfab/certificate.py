@@ -72,7 +72,7 @@ from dynfab.fabric import assembly as fabric_assembly
 from dynfab.fabric import inertia
 from dynfab.fabric import ordering as fabric_ordering
 from dynfab.ldlt import TINY_PIVOT, inverse_norm_1, ldlt_factor, ldlt_solve, negative_direction
-from dynfab.structure import Structure, chain_nodes, dim, grounded, tie_layout
+from dynfab.structure import Structure, dim, grounded, tie_layout
 from dynfab.terms import friction
 
 EPS = np.finfo(np.float64).eps
@@ -637,12 +637,47 @@ def patch_location(model, unknown: int) -> str:
 # One certificate for a step of any structure: the route chosen by the structure.
 
 
+class GroupLayout:
+    """What the certificate of a model's steps reads of its structure, worked out once per model
+    (`certify_groups`): its groups (`RunModel.groups`, each a contiguous range of chains), the
+    route its structure allows (`dynfab.structure.grounded`: banded per chain, one chain per
+    group; else the sparse route of the whole structure, one group), each group's nodes and
+    longest chain, and on the banded route each chain's ties, held dofs and Yarn view (the
+    model's `yarns`)."""
+
+    def __init__(self, model):
+        s = self.structure = model.structure
+        self.model = model
+        self.groups = [np.asarray(chains) for chains in model.groups]
+        self.banded = grounded(s)
+        if self.banded and any(chains.size != 1 for chains in self.groups):
+            raise ValueError("the banded certificate takes one chain per group")
+        if not self.banded and len(self.groups) != 1:
+            raise ValueError("the sparse certificate takes the whole structure as one group")
+        self.nodes = [slice(int(s.chain_start[chains[0]]), int(s.chain_start[chains[-1] + 1]))
+                      for chains in self.groups]
+        """Each group's nodes (its chains are contiguous)."""
+        first, last = s.chain_start[:-1], s.load_node
+        extent = s.rest_position[last, 0] - s.rest_position[first, 0]
+        self.lengths = [float(np.max(extent[chains])) for chains in self.groups]
+        """Each group's longest chain as woven [m]."""
+        self.chains = []
+        """On the banded route, per group: (its chain's ties, held dofs, Yarn view)."""
+        if self.banded:
+            d = dim(s)
+            for k, chains in enumerate(self.groups):
+                ties, _ = tie_layout(s, int(chains[0]))
+                nodes = self.nodes[k]
+                self.chains.append((ties, s.fixed[d * nodes.start:d * nodes.stop],
+                                    model.yarns[int(chains[0])]))
+
+
 class GroupCertificates:
     """The certificate of every group of a converged load step (`certify_groups`), for any
     model (`dynfab.solver.RunModel`: its `groups`, `group_name`), on the route its structure
-    allows: banded per chain where the chains are independent (`dynfab.structure.grounded`:
-    `certify_yarn` on the model's `yarns` views, one chain per group), the sparse route of the
-    whole patch otherwise (`certify_patch`: one group).
+    allows (`GroupLayout`): banded per chain where the chains are independent (`certify_yarn`
+    on the model's `yarns` views, one chain per group), the sparse route of the whole patch
+    otherwise (`certify_patch`: one group).
 
     `stability` holds the record's fields (`StepStability`, one unit per group); `escaped` gives
     the positions each group on a saddle moves to (`escape_yarn`, `escape_patch`); `check` is
@@ -650,55 +685,44 @@ class GroupCertificates:
     holds the error bounds to.
     """
 
-    def __init__(self, model, positions, anchors, limit, loads, residuals):
-        self.model, self.structure = model, model.structure
+    def __init__(self, layout: GroupLayout, positions, anchors, limit, loads, residuals):
+        self.layout, self.model = layout, layout.model
         self.positions = np.asarray(positions, float)
         self.anchors, self.limit = np.asarray(anchors, float), np.asarray(limit, float)
         self.loads = np.asarray(loads, float)
         self.residuals = np.asarray(residuals, float)
-        self.groups = [np.asarray(chains) for chains in model.groups]
-        self.banded = grounded(self.structure)
-        count = len(self.groups)
-        if self.banded and any(chains.size != 1 for chains in self.groups):
-            raise ValueError("the banded certificate takes one chain per group")
-        if not self.banded and count != 1:
-            raise ValueError("the sparse certificate takes the whole structure as one group")
+        count = len(layout.groups)
         self.stability = StepStability(count)
         self.checks = [self._certify(k) for k in range(count)]
-        self.results = [check[0] if self.banded else check.result for check in self.checks]
+        self.results = [check[0] if layout.banded else check.result for check in self.checks]
         """Each group's (5,) result: NEGATIVES, LOWEST, LOWEST_ERROR, INVERSE_NORM, SHIFT."""
         self.negatives = np.array([int(r[NEGATIVES]) for r in self.results], np.int64)
         """Negative pivots of each group's Hessian (G,)."""
         for k, result in enumerate(self.results):
             self.stability.record(k, result, self.residuals[k])
 
-    def _chain(self, k: int):
-        """(nodes slice, ties, Yarn view) of group k's one chain (the banded route)."""
-        y = int(self.groups[k][0])
-        ties, _ = tie_layout(self.structure, y)
-        return chain_nodes(self.structure, y), ties, self.model.yarns[y]
-
     def _certify(self, k: int):
-        if not self.banded:
+        layout = self.layout
+        if not layout.banded:
             return certify_patch(self.model, self.positions, self.anchors, self.limit)
-        nodes, ties, yarn = self._chain(k)
-        d = dim(self.structure)
-        fixed = self.structure.fixed[d * nodes.start:d * nodes.stop]
-        return certify_yarn(self.positions[nodes], yarn, self.anchors[ties, 0], fixed,
+        ties, fixed, yarn = layout.chains[k]
+        return certify_yarn(self.positions[layout.nodes[k]], yarn, self.anchors[ties, 0], fixed,
                             self.residuals[k])
 
     def escaped(self) -> tuple[np.ndarray, np.ndarray]:
         """(positions (n, dim) [m] with every group on a saddle moved along its escape (the
         others as they are), which groups moved (G,) bool)."""
+        layout = self.layout
         out = self.positions.copy()
-        moved = np.zeros(len(self.groups), np.bool_)
+        moved = np.zeros(len(layout.groups), np.bool_)
         for k, check in enumerate(self.checks):
             if self.negatives[k] == 0:
                 continue
-            if self.banded:
-                nodes, ties, yarn = self._chain(k)
-                y = int(self.groups[k][0])
-                escaped = escape_yarn(self.positions[nodes], yarn, self.loads[y],
+            if layout.banded:
+                ties, _, yarn = layout.chains[k]
+                nodes = layout.nodes[k]
+                escaped = escape_yarn(self.positions[nodes], yarn,
+                                      self.loads[int(layout.groups[k][0])],
                                       self.anchors[ties, 0], *check)
                 if escaped is not None:
                     out[nodes], moved[k] = escaped, True
@@ -712,15 +736,9 @@ class GroupCertificates:
     def scales(self) -> np.ndarray:
         """Each group's displacement scale [m] (`StepStability.scale`: the largest displacement
         of its nodes, at least sqrt(eps) times its longest chain)."""
-        s = self.structure
-        out = np.zeros(len(self.groups))
-        for k, chains in enumerate(self.groups):
-            nodes = np.concatenate([np.arange(s.chain_start[y], s.chain_start[y + 1])
-                                    for y in chains])
-            first, last = s.chain_start[chains], s.load_node[chains]
-            length = float(np.max(s.rest_position[last, 0] - s.rest_position[first, 0]))
-            out[k] = StepStability.scale(self.positions[nodes], s.rest_position[nodes], length)
-        return out
+        layout, rest = self.layout, self.layout.structure.rest_position
+        return np.array([StepStability.scale(self.positions[nodes], rest[nodes], length)
+                         for nodes, length in zip(layout.nodes, layout.lengths)])
 
     def fields(self) -> dict:
         """The record's certificate entries, (G,) each: `StepStability.fields` and
@@ -733,8 +751,10 @@ class GroupCertificates:
         on the sparse route, the yarn and node where the bound is largest."""
         scales = self.scales()
         for k, check in enumerate(self.checks):
+            if self.stability.error_estimate[k] <= accuracy * scales[k]:
+                continue
             where = self.model.group_name(k)
-            if not self.banded and check.worst >= 0:
+            if not self.layout.banded and check.worst >= 0:
                 where = f"{where} ({patch_location(self.model, check.worst)}: where the bound " \
                         "is largest)"
             check_accuracy(where, self.stability.error_estimate[k], scales[k],
@@ -742,10 +762,13 @@ class GroupCertificates:
                            bool(at_floor[k]), precision, key, self.stability.shift[k])
 
 
-def certify_groups(model, positions, anchors, limit, loads, residuals) -> GroupCertificates:
+def certify_groups(model, positions, anchors, limit, loads, residuals,
+                   layout: GroupLayout | None = None) -> GroupCertificates:
     """The certificate of a converged step of any model (docs/model.md section 6,
     `GroupCertificates`): flat positions (n, dim) [m], the step's anchors (T, 2) [m] in the
     structure's convention, F_T (T,) [N] at the positions (used by the sparse route; the banded
     one takes them from the positions), the end loads per chain (Y,) [N] (the escape's load
-    term) and each group's residual (G,) [N]."""
-    return GroupCertificates(model, positions, anchors, limit, loads, residuals)
+    term) and each group's residual (G,) [N]; `layout` the model's `GroupLayout` (made here if
+    not given: a solver keeps one per model)."""
+    layout = GroupLayout(model) if layout is None else layout
+    return GroupCertificates(layout, positions, anchors, limit, loads, residuals)

@@ -34,7 +34,7 @@ import warnings
 
 import numpy as np
 
-from dynfab.certificate import MAX_ESCAPES, certify_groups
+from dynfab.certificate import MAX_ESCAPES, GroupLayout, certify_groups
 from dynfab.errors import SolverError, UserError
 from dynfab.kernels import runtime, status
 from dynfab.kernels.precision import DEFAULT_TOLERANCE
@@ -93,6 +93,7 @@ class DynamicSolver:
                          for g in range(arrays.groups)]
         if kernel_groups != [list(chains) for chains in self.groups]:
             raise ValueError("the model's groups are not its structure's independent groups")
+        self._layout = GroupLayout(model)  # what the certificate reads of the structure
 
     def use_cores(self, cores: int | None = None) -> None:
         """Launch the groups on up to `cores` CPU cores (None: every core this process may run
@@ -211,7 +212,7 @@ class DynamicSolver:
             if self.progress is not None:
                 self.progress("dynamic: stability check (inertia of the Hessian)")
             certificates = certify_groups(self.model, positions, start.anchors, limit,
-                                          start.chain_loads, outcome.residual)
+                                          start.chain_loads, outcome.residual, self._layout)
             if attempt == MAX_ESCAPES or not certificates.negatives.any():
                 break
             restart, moved = certificates.escaped()
