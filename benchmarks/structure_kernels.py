@@ -171,8 +171,8 @@ def yarn_case(yarns: int, explicit_steps: int) -> dict:
 
 
 def model_structure(model):
-    """The one-yarn model's structure (`dynfab.build.yarn`)."""
-    from dynfab.build.yarn import yarn_structure
+    """The one-yarn model's structure (`dynfab.builders.yarn`)."""
+    from dynfab.builders.yarn import yarn_structure
     return yarn_structure(model.scene)
 
 

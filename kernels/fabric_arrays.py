@@ -2,7 +2,7 @@
 (docs/model.md section 10).
 
 The geometry and the parameters are the static reference's: `build(structure)` takes the
-fabric's `dynfab.structure.Structure` (`dynfab.build.fabric`: the node order, the crossings
+fabric's `dynfab.structure.Structure` (`dynfab.builders.fabric`: the node order, the crossings
 and their sides, the fixed dofs, the masses, the contact law with k_c and the stick
 stiffness k_t) and adds what node-parallel kernels need.
 Only the force and energy code is the Warp twin's own (`fabric_forces`).

@@ -18,7 +18,7 @@ import pytest
 from independent import PAPER_FRICTION, PAPER_WARP, PAPER_WEFT, make_scene
 
 from dynfab import assembly
-from dynfab.build import build_structure
+from dynfab.builders import build_structure
 from dynfab.fabric import assembly as fabric_assembly
 from dynfab.fabric import contact as tie_contact
 from dynfab.fabric.static import FabricStaticSolver

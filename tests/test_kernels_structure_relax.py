@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dynfab.build import build_structure
+from dynfab.builders import build_structure
 from dynfab.fabric import contact
 from dynfab.fabric.static import FabricStaticSolver
 from dynfab.kernels import status

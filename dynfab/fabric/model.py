@@ -3,7 +3,7 @@ and neither owns.
 
 - `FabricState`: what changes during a run (positions, anchors, dissipation, work, end
   forces); `as_woven_state`, the start of a run.
-- `FabricModel`: a fabric scene as the solvers see it, its structure (`dynfab.build.fabric`),
+- `FabricModel`: a fabric scene as the solvers see it, its structure (`dynfab.builders.fabric`),
   yarn families and load path, and the model's own functions of a state: the sparse
   Hessian with F_T frozen (`dynfab.fabric.assembly`, on the unknowns of its `Pattern`) that
   the Newton solve and the certificate (`dynfab.certificate`) both factor; the load a step
@@ -53,7 +53,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse
 
-from dynfab.build.fabric import Family, families, fabric_structure
+from dynfab.builders.fabric import Family, families, fabric_structure
 from dynfab.domain import check_crossings_held, check_not_folded, fabric_slip_ratios
 from dynfab.fabric import assembly, contact, friction
 from dynfab.fabric.assembly import TERMS
@@ -108,7 +108,7 @@ def run_load_path(solver, state: FabricState | None = None):
 
 @dataclass
 class FabricModel:
-    """A fabric scene as the solvers see it: its structure (`dynfab.build.fabric`), its yarn
+    """A fabric scene as the solvers see it: its structure (`dynfab.builders.fabric`), its yarn
     families and its load path (docs/model.md section 10)."""
 
     scene: Scene
