@@ -159,6 +159,18 @@ class Model:
         """The structure's independent groups of chains: each yarn is one."""
         return [np.array([k]) for k in range(self.yarn_count)]
 
+    def group_name(self, k: int) -> str:
+        """Group (yarn) k as a message names it: "yarn k" (1-based)."""
+        return f"yarn {k + 1}"
+
+    def crossing_name(self, t: int) -> str:
+        """Tie t of the structure as a message names it: "j (node n)", its crossing's number
+        along its yarn (1-based) and node, with "of yarn k" where there are several."""
+        crossings = self.yarns[0].crossing_node.size
+        k, j = divmod(int(t), crossings)
+        node = int(self.yarns[k].crossing_node[j])
+        return f"{j + 1} (node {node})" + (f" of yarn {k + 1}" if self.yarn_count > 1 else "")
+
     def start_of_step(self, state: "State", load) -> StepStart:
         """Where the step to `load` [N or m] starts (`dynfab.loading.prescribe_load`), as the
         structure's flat arrays (`dynfab.step.StepStart`): the anchors are the slips' (column

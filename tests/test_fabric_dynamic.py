@@ -17,7 +17,7 @@ import pytest
 from dynfab.errors import SolverError
 from dynfab.fabric.dynamic import FabricDynamicSolver
 from dynfab.fabric.model import FabricModel
-from dynfab.fabric.static import FabricStaticSolver
+from dynfab.static import StaticSolver
 from dynfab.kernels.fabric_arrays import gershgorin_masses
 from dynfab.reports.fabric_data import paper_patch_scene
 from dynfab.structure import uniform
@@ -54,14 +54,14 @@ def paper_patch_model(warps, wefts, values, control="force", friction=None, grav
                                                     **tables))
 
 
-def inverse_norm(solver: FabricStaticSolver, state, anchors, limit) -> float:
+def inverse_norm(solver: StaticSolver, state, anchors, limit) -> float:
     """||J^-1||_inf [m/N], J the Jacobian of the static residual on the free dofs at the
     static solution with the step's anchors: the Hessian (F_T frozen) plus, with friction,
-    the coupling of F_T to R (`FabricStaticSolver.coupling`), since both solvers converge
+    the coupling of F_T to R (`SparseNewton.coupling`), since both solvers converge
     to the point where F_T follows Gralen's law."""
-    J = solver.hessian(state.positions, anchors, limit)
-    if solver.fabric.has_friction:
-        J = J + solver.coupling(state.positions, anchors, limit)
+    J = solver.backend.hessian(state.positions, anchors, limit)
+    if solver.model.structure.has_friction:
+        J = J + solver.backend.coupling(state.positions, anchors, limit)
     return float(np.abs(np.linalg.inv(J.toarray())).sum(axis=1).max())
 
 
@@ -78,7 +78,7 @@ def agreement_bound(solver, static_state, anchors, record, dynamic_residual, anc
     same branch of every Huber kink and contact (checked: the sliding patterns agree, the
     contacts closed)."""
     norm = inverse_norm(solver, static_state, anchors, record["friction_limit"].ravel())
-    slack = uniform(solver.fabric.tie_friction_law)[3] * anchor_gap  # k_t
+    slack = uniform(solver.model.structure.tie_friction_law)[3] * anchor_gap  # k_t
     return norm * (dynamic_residual + record["residual"] + slack)
 
 
@@ -91,7 +91,7 @@ def anchor_bound(solver, record, bound: float) -> float:
     k_c |dg| <= 2 k_c bound (dR/dg <= k_c, the core in series with Kawabata's laws) and F_T by
     dF_T/dR = alpha + (beta ell r_f / R_0) exp(-R / R_0) times that, the exponential taken at
     the smallest R of a sliding crossing less that change."""
-    f = solver.fabric
+    f = solver.model.structure
     dR = 2 * uniform(f.tie_contact_law)[0] * bound
     sliding = record["sliding"].ravel()
     R_low = max(record["contact_force"].ravel()[sliding].min(initial=0.0) - dR, 0.0)
@@ -120,9 +120,9 @@ def test_dynamic_solver_agrees_with_the_static_one(n, control, friction, gravity
     values = FORCES if control == "force" else DISPLACEMENTS
     model = paper_patch_model(n, n, values, control, friction, gravity, tolerance=TOLERANCE,
                               **more)
-    static, dynamic = FabricStaticSolver(model), FabricDynamicSolver(model)
+    static, dynamic = StaticSolver(model), FabricDynamicSolver(model)
     s_state, d_state = static.initial_state(), dynamic.initial_state()
-    k_c = uniform(static.fabric.tie_contact_law)[0]
+    k_c = uniform(static.model.structure.tie_contact_law)[0]
     for warp_value, weft_value in values:
         anchors = s_state.anchors.copy()  # held during the step
         anchor_gap = float(np.hypot(*(d_state.anchors - s_state.anchors).T).max())
@@ -151,8 +151,8 @@ def test_dynamic_solver_agrees_with_the_static_one(n, control, friction, gravity
             # sum times the bound: the kernels' Gershgorin row sums (`gershgorin_masses` at
             # dt = 2 s, safety 1: the rows themselves) cover the stretch and bending blocks;
             # the stretched last segment adds its geometric stiffness T / l <= |end force| / l0
-            rows = gershgorin_masses(dynamic.arrays, 2.0, 1.0)[static.fabric.load_node]
-            l0 = dynamic.arrays.rest_length[static.fabric.load_node - 1]
+            rows = gershgorin_masses(dynamic.arrays, 2.0, 1.0)[static.model.structure.load_node]
+            l0 = dynamic.arrays.rest_length[static.model.structure.load_node - 1]
             row = rows + np.abs(s_record["end_force"]) / l0
             difference = np.abs(d_record["end_force"] - s_record["end_force"])
             assert (difference <= row * bound).all(), (difference, row * bound)

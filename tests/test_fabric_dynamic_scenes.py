@@ -27,7 +27,7 @@ import warp as wp
 from dynfab.fabric import assembly
 from dynfab.fabric.dynamic import FabricDynamicSolver
 from dynfab.fabric.model import FabricModel
-from dynfab.fabric.static import FabricStaticSolver
+from dynfab.static import StaticSolver
 from dynfab.kernels import fabric_explicit, fabric_forces, status
 from dynfab.scene import load_scene
 from dynfab.structure import uniform
@@ -41,10 +41,10 @@ LOADS = (0.2, 0.1)
 """(warp, weft) end force per yarn [N] of the kernel comparisons."""
 
 
-def perturbed_state(solver: FabricStaticSolver, seed=3, size=2e-5):
+def perturbed_state(solver: StaticSolver, seed=3, size=2e-5):
     """As-woven positions moved by up to `size` [m] in every free coordinate, a tied family's
     end nodes by one common amount (they are one dof), the held ones as woven."""
-    f = solver.fabric
+    f = solver.model.structure
     rng = np.random.default_rng(seed)
     move = rng.uniform(-size, size, f.rest_position.size)
     move[f.fixed] = 0.0
@@ -57,7 +57,7 @@ def mixed_anchors(solver, pos):
     """Static-convention anchors leaving the even crossings sliding (the slip 1e-5 m, about
     100 F_T / k_t at the paper's k_t) and the odd ones sticking (slip 1e-9 m along x, k_t |s|
     about 1e-5 N below F_T wherever a contact is closed)."""
-    f = solver.fabric
+    f = solver.model.structure
     px, py = assembly.planes(pos, f)
     current = np.stack([pos[f.tie_a, 0] - px, pos[f.tie_b, 0] - py], axis=1)
     anchors = current - 1e-9 * np.array([1.0, 0.0])
@@ -87,7 +87,7 @@ def kernel_forces(dynamic: FabricDynamicSolver, pos, P, anchors):
 def term_scale(static, pos, P, anchors, limit) -> float:
     """S = sum over the terms of each term's largest gradient component [N]: stretch,
     bending (and the wrap), contact, friction (with the planes' reaction), the load."""
-    f = static.fabric
+    f = static.model.structure
     without = [f._replace(stretch_stiffness=0 * f.stretch_stiffness),
                f._replace(bend_stiffness=0 * f.bend_stiffness, wrap_stiffness=0 * f.wrap_stiffness),
                f._replace(tie_gap_offset=f.tie_gap_offset - 1.0), f._replace(has_friction=False)]
@@ -118,16 +118,17 @@ def test_moving_plane_forces_are_the_numba_gradient(case):
     so leaving either out fails."""
     model = paper_patch_model(2, 2 if case == "periodic" else 3, [LOADS], friction=PAPER_FRICTION,
                               **GEOMETRY[case])
-    static, dynamic = FabricStaticSolver(model), FabricDynamicSolver(model)
-    f = static.fabric
+    static, dynamic = StaticSolver(model), FabricDynamicSolver(model)
+    f = static.model.structure
     pos = perturbed_state(static)
     anchors = mixed_anchors(static, pos)
-    limit = static.friction_limits(pos)
+    limit = static.backend.friction_limits(pos)
     assert (limit > 0).any()  # closed crossings: friction acts
     P = model.yarn_loads(*LOADS)
     grad = np.zeros_like(pos)
     assembly.gradient(pos, f, P, anchors, limit, grad)
-    expected = -static.pattern.expand(static.pattern.reduce(grad)).reshape(pos.shape)
+    pattern = static.backend.pattern
+    expected = -pattern.expand(pattern.reduce(grad)).reshape(pos.shape)
     force, friction = kernel_forces(dynamic, pos, P, anchors)
     bound = 256 * EPS * term_scale(static, pos, P, anchors, limit)
     assert np.abs(force - expected).max() <= bound, (np.abs(force - expected).max(), bound)
@@ -227,9 +228,9 @@ def test_every_fabric_scene_agrees_with_the_static_solver(name, method):
     differ by 2e-10 m. Started from one state, the steps share their anchors, and the anchors'
     agreement after the return map is checked instead."""
     model = scene_model(name)
-    static, dynamic = FabricStaticSolver(model), FabricDynamicSolver(model, method=method)
+    static, dynamic = StaticSolver(model), FabricDynamicSolver(model, method=method)
     state = dynamic.initial_state()
-    k_c = uniform(static.fabric.tie_contact_law)[0]
+    k_c = uniform(static.model.structure.tie_contact_law)[0]
     for warp_value, weft_value in model.load_values:
         start = state.copy()
         s_state, s_record = static.step(start.copy(), (warp_value, weft_value))
@@ -257,7 +258,7 @@ def test_the_other_dampings_and_layouts_reach_the_same_step(name, damping, layou
     static solver's, as the default configuration in
     `test_every_fabric_scene_agrees_with_the_static_solver`."""
     model = scene_model(name, steps=1)
-    static = FabricStaticSolver(model)
+    static = StaticSolver(model)
     dynamic = FabricDynamicSolver(model, damping=damping, layout=layout)
     start = dynamic.initial_state()
     load = tuple(model.load_values[0])
@@ -310,9 +311,9 @@ def test_displacement_control_moves_the_planes_with_the_prescribed_ends(boundary
     n = 2 if boundary == "periodic" else 4
     model = paper_patch_model(n, n, values, "displacement", PAPER_FRICTION, boundary=boundary,
                               planes=planes, tolerance=TOLERANCE)
-    static, dynamic = FabricStaticSolver(model), FabricDynamicSolver(model)
+    static, dynamic = StaticSolver(model), FabricDynamicSolver(model)
     state = dynamic.initial_state()
-    f = static.fabric
+    f = static.model.structure
     for warp_value, weft_value in values:
         start = state.copy()
         s_state, s_record = static.step(start.copy(), (warp_value, weft_value))

@@ -15,7 +15,7 @@ import scipy.linalg
 from dynfab.errors import SolverError
 from dynfab.fabric import assembly
 from dynfab.fabric.dynamic import FabricDynamicSolver
-from dynfab.fabric.static import FabricStaticSolver
+from dynfab.static import StaticSolver
 from dynfab.kernels import fabric_semi_implicit
 from dynfab.run import run
 from dynfab.scene import parse_scene_text
@@ -37,16 +37,16 @@ def loaded_state(n=2, friction=PAPER_FRICTION, value=0.3, **more):
     present. `more`: `paper_patch_model`'s boundary, planes."""
     model = paper_patch_model(n, n, [(value, 0.1 * value)], friction=friction,
                               tolerance=TOLERANCE, **more)
-    static = FabricStaticSolver(model)
+    static = StaticSolver(model)
     dynamic = FabricDynamicSolver(model, method="semi_implicit")
     start = static.initial_state()
     state, _ = static.step(start, (value, 0.1 * value))
-    f, pos = static.fabric, state.positions
+    f, pos = static.model.structure, state.positions
     anchors = start.anchors.copy()
     plane_x, plane_y = assembly.planes(pos, f)
     slip_point = np.stack([pos[f.tie_a, 0] - plane_x, pos[f.tie_b, 0] - plane_y], 1)
     stick = uniform(f.tie_friction_law)[3]  # k_t
-    nearby = 1e-3 * static.friction_limits(pos)[:, None] / max(stick, 1.0)
+    nearby = 1e-3 * static.backend.friction_limits(pos)[:, None] / max(stick, 1.0)
     anchors[::2] = slip_point[::2] - nearby[::2]
     return static, dynamic, pos, anchors
 
@@ -69,16 +69,16 @@ def test_the_tangent_is_the_exact_hessian_without_its_psd_modifications():
     part and the bending moment term, and K is positive semi-definite; at the as-woven state,
     where every segment has its rest length and every angle its rest angle, both coincide."""
     static, dynamic, pos, anchors = loaded_state()
-    limit = static.friction_limits(pos)
-    R = static.contact_forces(pos)
+    limit = static.backend.friction_limits(pos)
+    R = static.backend.contact_forces(pos)
     assert R.min() > 0  # every contact closed
-    f = static.fabric
+    f = static.model.structure
     s = pos[f.tie_a, 0] - f.tie_plane[:, 0] - anchors[:, 0]
     s_y = pos[f.tie_b, 0] - f.tie_plane[:, 1] - anchors[:, 1]
     sliding = uniform(f.tie_friction_law)[3] * np.hypot(s, s_y) > limit
     assert sliding.any() and not sliding.all()  # both Huber branches exercised
     zero = np.zeros(dynamic.arrays.nodes)
-    H = static.hessian(pos, anchors, limit).toarray()
+    H = static.backend.hessian(pos, anchors, limit).toarray()
     exact, _ = assembled(dynamic, pos, anchors, definite=False, masses=zero)
     scale = np.abs(H).max()
     assert np.abs(exact - H).max() <= 64 * EPS * scale
@@ -111,24 +111,24 @@ def test_the_tangent_has_the_moving_planes_wrap_springs_and_tied_cell_lengths(ca
                               PAPER_FRICTION, boundary=boundary,
                               planes="affine" if case == "affine" else "fixed",
                               tolerance=TOLERANCE)
-    static = FabricStaticSolver(model)
+    static = StaticSolver(model)
     dynamic = FabricDynamicSolver(model, method="semi_implicit")
     pos = perturbed_state(static)
     anchors = mixed_anchors(static, pos)
-    limit = static.friction_limits(pos)
-    H = static.hessian(pos, anchors, limit).toarray()
+    limit = static.backend.friction_limits(pos)
+    H = static.backend.hessian(pos, anchors, limit).toarray()
     semi = dynamic.relaxation
     semi.system(pos, np.zeros_like(pos), anchors + dynamic._plane_shift, definite=False,
                 masses=np.zeros(dynamic.arrays.nodes))
-    A = semi.dense(static.pattern.index)
+    A = semi.dense(static.backend.pattern.index)
     scale = np.abs(H).max()
     assert np.abs(A - H).max() <= 64 * EPS * scale
-    beyond = ~local_pattern(dynamic, static.pattern.index)
+    beyond = ~local_pattern(dynamic, static.backend.pattern.index)
     assert np.abs(H[beyond]).max() > 1e6 * 64 * EPS * scale
-    secant = static.hessian(pos, anchors, limit, secant=True).toarray()
+    secant = static.backend.hessian(pos, anchors, limit, secant=True).toarray()
     semi.system(pos, np.zeros_like(pos), anchors + dynamic._plane_shift, definite=False,
                 masses=np.zeros(dynamic.arrays.nodes), secant=True)
-    assert np.abs(semi.dense(static.pattern.index) - secant).max() <= 64 * EPS * scale
+    assert np.abs(semi.dense(static.backend.pattern.index) - secant).max() <= 64 * EPS * scale
     assert np.abs(secant - H).max() > 1e6 * 64 * EPS * scale
 
 
@@ -263,10 +263,10 @@ def test_semi_implicit_load_steps_agree_with_the_static_ones(control, friction):
     `anchor_bound`, the same stability."""
     values = FORCES if control == "force" else DISPLACEMENTS
     model = paper_patch_model(4, 4, values, control, friction, tolerance=TOLERANCE)
-    static = FabricStaticSolver(model)
+    static = StaticSolver(model)
     dynamic = FabricDynamicSolver(model, method="semi_implicit")
     s_state, d_state = static.initial_state(), dynamic.initial_state()
-    k_c = uniform(static.fabric.tie_contact_law)[0]
+    k_c = uniform(static.model.structure.tie_contact_law)[0]
     for warp_value, weft_value in values:
         anchors = s_state.anchors.copy()
         anchor_gap = float(np.hypot(*(d_state.anchors - s_state.anchors).T).max())

@@ -13,8 +13,9 @@ and neither owns.
   planes, the energy terms.
 - `run_load_path`: every load step of a model with either solver.
 
-The static solver (`dynfab.fabric.static`) and the dynamic one (`dynfab.fabric.dynamic`)
-import this module, never each other (`dynfab.solver`); each solves a step from
+The static solver (`dynfab.static`, its sparse backend) and the dynamic one
+(`dynfab.fabric.dynamic`) import this module, never each other (`dynfab.solver`); each
+solves a step from
 `FabricModel.start_of_step` and hands its solution to `FabricModel.finish_step`, which
 makes the state and the record (`dynfab.step`).
 
@@ -351,6 +352,10 @@ class FabricModel:
         u_new = pos[f.load_node, 0] - f.rest_position[f.load_node, 0]
         work = state.work + float(0.5 * (state.end_force + end_force) @ (u_new - u_old))
         return FabricState(pos, anchors, state.dissipated + lost, work, end_force), u_new
+
+    def group_name(self, k: int) -> str:
+        """The one group (the patch or cell) as a message names it."""
+        return "fabric"
 
     def crossing_name(self, c: int) -> str:
         """Crossing c as the scene counts it: "(warp k, weft j)", 1-based."""
