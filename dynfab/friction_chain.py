@@ -18,11 +18,13 @@ from the step's start:
 5. "semismooth": the semismooth Newton with the contact forces as unknowns (the banded
    backend, R_0 > 0).
 
-Every strategy after the first spends from one budget, FALLBACK_BUDGET x max_iterations
-Newton iterations per step, and stops where it is spent (the active set after its current
-solve, so that a failure still says where the onset stopped it). A step no strategy solves raises one
+The banded backend offers (3)-(5) with R_0 > 0 and the sparse one (1)-(4); with R_0 = 0
+both offer (1) and (3), without friction (1) alone (docs/model.md says why). Every strategy
+after the first spends from one budget, FALLBACK_BUDGET x max_iterations Newton iterations
+per step, and stops where it is spent (the active set after its current solve, so that a
+failure still says where the onset stopped it). A step no strategy solves raises one
 `SolverError` line naming the group, the crossing to blame (as the model counts it:
-`NewtonBackend.crossing_name`) and the residual reached (`failure`).
+`crossing_name`) and the residual reached (`failure`).
 """
 
 from __future__ import annotations
