@@ -18,14 +18,15 @@ every part untimed on a 4 x 4 patch (compiles; loads the numba and Warp caches),
    the same forces (`numba_steps`, the masses the kernels choose), viscous damping, a fixed
    number of steps (aim: Warp at most 1.5x numba); the launch cost per step; |Warp - numba|
    after the same steps.
-2. `newton_costs`: the Newton solve alone (`FabricStaticSolver.solve`: time per Newton
-   iteration); later `static_costs`: `FabricStaticSolver.step` whole (Newton and the
+2. `newton_costs`: the Newton solve alone (the static solver's sparse backend,
+   `SparseNewton.equilibrium`: time per Newton iteration); later `static_costs`:
+   `StaticSolver.step` whole (Newton and the
    certificate), the certificate (`dynfab.certificate.certify_patch`: inertia, lowest
    eigenvalue and its bracket, the norm estimate of the error bound) and two of its parts,
    the inertia count and the nearest eigenvalue (MODEL.md 6), each timed on its own.
 3. `pcg_costs`: the semi-implicit solver's linear algebra inside Newton (the solver itself
    is part 6); its linear solve ((M/h^2 + H) dx = f, Newton as h -> inf) is measured inside the static
-   solver: `PCGStatic`, Newton with its direction by CG preconditioned with each yarn's
+   solver: `PCGNewton`, Newton with its direction by CG preconditioned with each yarn's
    own banded block of H, on the same step; time, CG iterations, fallbacks to SuperLU.
 4. `dynamic_costs`: `dynfab.dynamic.DynamicSolver.step` (kinetic damping, grouped layout)
    on the same step: time per load step, its time steps, the relaxation's time per time step
@@ -82,11 +83,12 @@ from dynfab import certificate
 from dynfab.fabric import inertia, ordering
 from dynfab.dynamic import DynamicSolver
 from dynfab.fabric.model import FabricModel
-from dynfab.fabric.static import FabricStaticSolver, _sparse_solve
+from dynfab.newton_sparse import SparseNewton, _sparse_solve
 from dynfab.kernels.structure_relaxation import StructureRelaxation
 from dynfab.kernels.structure_settings import RELATIVE_TOLERANCE
 from dynfab.reports.fabric_data import paper_patch_scene
 from dynfab.scene import Dynamic
+from dynfab.static import StaticSolver
 
 OUTPUT = Path(__file__).resolve().parent / "fabric.json"
 SIZES = (4, 8, 16, 32, 64)
@@ -290,37 +292,38 @@ def explicit_costs(n: int, work: float = STEP_WORK, per_step_work: float = PER_S
 # --- 2. The static step: Newton iterations, then the whole step with its certificate ---
 
 def newton_costs(n: int, friction=None):
-    """(row, positions): the Newton solve of the load step alone (FabricStaticSolver.solve,
-    no certificate), its time per iteration."""
-    solver = FabricStaticSolver(patch_model(n, friction))
+    """(row, positions): the Newton solve of the load step alone (the static solver's sparse
+    backend, `SparseNewton.equilibrium`: the friction chain, no certificate), its time per
+    iteration."""
+    solver = StaticSolver(patch_model(n, friction))
     start = solver.initial_state()
     P = solver.model.yarn_loads(*LOAD)
 
     def newton():
         pos, anchors = start.positions.copy(), start.anchors.copy()
-        return solver.solve(pos, P, anchors)[0], pos
+        return solver.backend.equilibrium(pos, P, anchors)[0], pos
     newton_s, (info, positions) = timed(newton)
     iterations = int(info.iterations)
-    return {"dofs_free": solver.pattern.free_count, "newton_s": newton_s,
+    return {"dofs_free": solver.backend.pattern.free_count, "newton_s": newton_s,
             "newton_iterations": iterations, "s_per_newton_iteration": newton_s / max(iterations, 1),
             "residual_N": float(info.residual)}, positions
 
 
 def static_costs(n: int, friction=None):
-    """(row, state, record): FabricStaticSolver.step on the load step (Newton and the
+    """(row, state, record): StaticSolver.step on the load step (Newton and the
     certificate), the certificate (`dynfab.certificate.certify_patch`: the inertia, the
     lowest eigenvalue with its proved bracket, est ||H^-1||_inf) on its own at its
     solution, and parts of it timed alone: the inertia count and the nearest eigenvalue
     (MODEL.md 6)."""
-    solver = FabricStaticSolver(patch_model(n, friction))
+    solver = StaticSolver(patch_model(n, friction))
     start = solver.initial_state()
     step_s, (state, record) = timed(lambda: solver.step(start, LOAD))
-    limit = solver.friction_limits(state.positions)
+    limit = solver.backend.friction_limits(state.positions)
     certificate_s, checked = timed(lambda: certificate.certify_patch(
         solver.model, state.positions, state.anchors, limit))
     inertia_s, result = timed(lambda: inertia.inertia(solver.model, state.positions, state.anchors, limit))
     nearest_s, nearest = timed(lambda: inertia.nearest_eigenvalue(
-        solver.hessian(state.positions, state.anchors, limit)))
+        solver.backend.hessian(state.positions, state.anchors, limit)))
     row = {"step_s": step_s, "step_iterations": int(record["iterations"]),
            "buckled": bool(record["buckled"]), "certificate_s": certificate_s,
            "inertia_s": inertia_s, "nearest_eigenvalue_s": nearest_s,
@@ -366,13 +369,14 @@ def dynamic_costs(n: int, static_positions=None, friction=None):
 
 # --- 3. The semi-implicit stand-in: Newton with per-yarn preconditioned CG ---
 
-class PCGStatic(FabricStaticSolver):
-    """The static solver with its Newton direction by per-yarn preconditioned CG."""
+class PCGNewton(SparseNewton):
+    """The static solver's sparse backend with its Newton direction by per-yarn preconditioned
+    CG."""
 
     def __init__(self, model):
         super().__init__(model)
-        f = self.fabric
-        dof_yarn = np.repeat(np.arange(self.yarns), 2 * np.diff(f.chain_start))
+        f = self.structure
+        dof_yarn = np.repeat(np.arange(model.yarns), 2 * np.diff(f.chain_start))
         unknown = self.pattern.index >= 0
         self.unknown_yarn = np.zeros(self.pattern.free_count, int)
         self.unknown_yarn[self.pattern.index[unknown]] = dof_yarn[unknown]
@@ -414,19 +418,21 @@ class PCGStatic(FabricStaticSolver):
 
 
 def pcg_costs(n: int, static_positions=None, friction=None) -> dict:
-    """PCGStatic.step on the load step: time, CG iterations, fallbacks, |x - x_static|."""
-    solver = PCGStatic(patch_model(n, friction))
+    """StaticSolver.step with the `PCGNewton` backend on the load step: time, CG iterations,
+    fallbacks, |x - x_static|."""
+    solver = StaticSolver(patch_model(n, friction))
+    backend = solver.backend = PCGNewton(solver.model)
     start = solver.initial_state()
 
     def step():
-        solver.cg_iterations, solver.fallbacks = [], 0  # this run's alone
+        backend.cg_iterations, backend.fallbacks = [], 0  # this run's alone
         return solver.step(start, LOAD)
     step_s, (state, record) = timed(step)
-    counts = np.array(solver.cg_iterations)
+    counts = np.array(backend.cg_iterations)
     row = {"step_s": step_s, "newton_iterations": int(record["iterations"]),
            "cg_iterations_mean": float(counts.mean()) if counts.size else None,
            "cg_iterations_max": int(counts.max()) if counts.size else None,
-           "fallbacks": solver.fallbacks}
+           "fallbacks": backend.fallbacks}
     if static_positions is not None:
         row["static_difference_m"] = float(np.abs(state.positions - static_positions).max())
     return row
@@ -481,8 +487,8 @@ def newton_pieces(n: int, positions) -> dict:
     (default and symmetric mode), the inertia (`inertia.inertia`, its route recorded; dense
     eigenvalues where n <= 8) and the nearest eigenvalue (`nearest_eigenvalue_pieces`) at
     `positions`, the frictionless Newton solution of the load step."""
-    solver = FabricStaticSolver(patch_model(n))
-    pos, anchors = positions, solver.initial_state().anchors
+    solver = SparseNewton(patch_model(n))
+    pos, anchors = positions, solver.model.initial_state().anchors
     limit = np.zeros(n * n)
     P = solver.model.yarn_loads(*LOAD)
     H = solver.hessian(pos, anchors, limit)
@@ -492,7 +498,7 @@ def newton_pieces(n: int, positions) -> dict:
            "hessian_s": timed(lambda: solver.hessian(pos, anchors, limit))[0],
            "splu_default_s": timed(lambda: scipy.sparse.linalg.splu(H).solve(-g))[0],
            "splu_symmetric_s": timed(lambda: _sparse_solve(H, -g, order=ordering.fabric_order(
-               solver.fabric, solver.pattern)))[0]}
+               solver.structure, solver.pattern)))[0]}
     row.update(ordering_pieces(solver, H, g))
     row["inertia_s"], result = timed(lambda: inertia.inertia(solver.model, pos, anchors, limit))
     row["inertia_negatives"], row["inertia_method"] = int(result.negatives), result.method
@@ -516,9 +522,9 @@ def ordering_pieces(solver, H, g) -> dict:
     also on H's whole pattern (the friction blocks' values are nonzero in a run with
     friction); and the time to compute the nested-dissection order (once per pattern,
     uncached here)."""
-    xy = ordering.coordinates(solver.fabric, solver.pattern.index, H.shape[0])
+    xy = ordering.coordinates(solver.structure, solver.pattern.index, H.shape[0])
     row = {"order_nested_dissection_s": timed(lambda: ordering.nested_dissection(H, xy))[0]}
-    order = ordering.fabric_order(solver.fabric, solver.pattern)
+    order = ordering.fabric_order(solver.structure, solver.pattern)
     values = H.copy()
     values.eliminate_zeros()
     factors = {"nested_dissection": lambda: ordering.OrderedLU(values, order)}

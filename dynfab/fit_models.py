@@ -82,7 +82,7 @@ class FabricFit:
         """What the fabric runs for a key the scene leaves out (docs/model.md section 10):
         the core stiffness's and stick stiffness's defaults as the structure holds them, the
         wefts' default linear density."""
-        from dynfab.build.fabric import families
+        from dynfab.builders.fabric import families
         from dynfab.model import build_model
 
         if key == "weft.linear_density":

@@ -102,3 +102,17 @@ def tensioned_beam_stiffness(tension: float, EA: float, EI: float, length: float
     if x < 1e-2:
         return 16 * ei / lp ** 3 / (1 / 3 - 2 * x * x / 15 + 17 * x ** 4 / 315)
     return 2 * tension * (2 * x / lp) / (x - math.tanh(x))
+
+
+def crimp(positions: np.ndarray) -> np.ndarray:
+    """(arc length - projected length) / projected length [-] of each yarn (yarns, N+1, 2)."""
+    arc = np.hypot(*np.moveaxis(np.diff(positions, axis=-2), -1, 0)).sum(axis=-1)
+    projected = positions[..., -1, 0] - positions[..., 0, 0]
+    return (arc - projected) / projected
+
+
+def width_per_yarn(scene) -> float | None:
+    """Fabric width per warp yarn L_we / N_wa [m] (force per unit width is P / this); None for a rod."""
+    if scene.weft is None:
+        return None
+    return scene.weft.length / scene.weft.count

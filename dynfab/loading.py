@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from dynfab.model import Model, State
 
 
 def prescribe_load(model: Model, state: State, load_value: float) -> np.ndarray:

@@ -13,9 +13,13 @@ from typing import NamedTuple
 
 import numpy as np
 
-from dynfab.build.yarn import yarn_structure
+from dynfab.builders.yarn import yarn_structure
 from dynfab.domain import check_not_folded
 from dynfab.scene import Scene
+from dynfab.geometry import width_per_yarn
+from dynfab.loading import prescribe_load
+from dynfab.observables import finish_step as observe_step
+from dynfab.state import State, initial_state
 from dynfab.step import StepSolution, StepStart
 from dynfab.structure import Structure, chain_nodes, chain_segments, tie_layout, uniform
 from dynfab.terms import registry
@@ -75,7 +79,7 @@ class Model:
 
     scene: Scene
     structure: Structure
-    """The scene's chains and ties to ground (`dynfab.build.yarn`)."""
+    """The scene's chains and ties to ground (`dynfab.builders.yarn`)."""
     yarns: tuple[Yarn, ...]
     terms: tuple[str, ...]
     """The active energy terms, a subset of TERMS in that order."""
@@ -187,12 +191,18 @@ class Model:
                for name in ("positions", "velocities", "force")}
         return {**out, "anchors": anchors, "time": float(frame["time"])}
 
+    def crossing_name(self, t: int) -> str:
+        """Tie t of the structure as a message names it: "j (node n)", its crossing's number
+        along its yarn (1-based) and node, with "of yarn k" where there are several."""
+        crossings = self.yarns[0].crossing_node.size
+        k, j = divmod(int(t), crossings)
+        node = int(self.yarns[k].crossing_node[j])
+        return f"{j + 1} (node {node})" + (f" of yarn {k + 1}" if self.yarn_count > 1 else "")
+
     def start_of_step(self, state: "State", load) -> StepStart:
         """Where the step to `load` [N or m] starts (`dynfab.loading.prescribe_load`), as the
         structure's flat arrays (`dynfab.step.StepStart`): the anchors are the slips' (column
         0; a tie to ground has no second), the end forces the load under force control."""
-        from dynfab.loading import prescribe_load
-
         value = float(load)
         positions = prescribe_load(self, state, value).reshape(-1, 2)
         anchors = np.zeros((state.anchors.size, 2))
@@ -204,11 +214,9 @@ class Model:
         """(new state, record) of the step `start` began, from the solver's `solution`
         (`dynfab.solver.RunModel.finish_step`): the return map and the observables of
         `dynfab.observables.finish_step`, and the solver's fields, one per yarn."""
-        from dynfab.observables import finish_step
-
         positions = solution.positions.reshape(self.yarn_count, self.segments + 1, 2)
         fields = solution.fields
-        new_state, record = finish_step(self, state, positions, float(start.load),
+        new_state, record = observe_step(self, state, positions, float(start.load),
                                         fields["residual"], fields["iterations"])
         record.update({name: np.asarray(value) for name, value in fields.items()
                        if name not in ("residual", "iterations")})
@@ -227,35 +235,9 @@ class Model:
         return fixed
 
 
-@dataclass
-class State:
-    """What changes during a run, for every yarn."""
-
-    positions: np.ndarray
-    """Node positions (yarns, N+1, 2) [m]."""
-    anchors: np.ndarray
-    """Friction anchors xi (yarns, C) [m] (docs/model.md section 4)."""
-    dissipated: np.ndarray
-    """Cumulative friction dissipation (yarns,) [J]."""
-    load: np.ndarray
-    """The load last applied (yarns,) [N or m]; 0 at the as-woven start."""
-
-    def copy(self) -> "State":
-        return State(self.positions.copy(), self.anchors.copy(), self.dissipated.copy(),
-                     self.load.copy())
-
-
-def initial_state(model: Model) -> State:
-    """The as-woven geometry, anchors at the as-woven crossing positions, nothing dissipated."""
-    positions = model.stacked("rest_position").copy()
-    nodes = model.yarns[0].crossing_node
-    return State(positions=positions, anchors=positions[:, nodes, 0].copy(),
-                 dissipated=np.zeros(model.yarn_count), load=np.zeros(model.yarn_count))
-
-
 def build_model(scene: Scene) -> Model:
     """The model of a validated scene: a fabric's (`dynfab.fabric.model.FabricModel`), or
-    the one-yarn model's structure (`dynfab.build.yarn`) with one Yarn view per simulated warp
+    the one-yarn model's structure (`dynfab.builders.yarn`) with one Yarn view per simulated warp
     yarn."""
     if scene.geometry.model == "fabric":
         from dynfab.fabric.model import FabricModel
@@ -292,17 +274,3 @@ def chain_view(structure: Structure, y: int, active: np.ndarray) -> Yarn:
         gravity=float(gravity[0]) if gravity.size else 0.0,
         active=active,
     )
-
-
-def crimp(positions: np.ndarray) -> np.ndarray:
-    """(arc length - projected length) / projected length [-] of each yarn (yarns, N+1, 2)."""
-    arc = np.hypot(*np.moveaxis(np.diff(positions, axis=-2), -1, 0)).sum(axis=-1)
-    projected = positions[..., -1, 0] - positions[..., 0, 0]
-    return (arc - projected) / projected
-
-
-def width_per_yarn(scene: Scene) -> float | None:
-    """Fabric width per warp yarn L_we / N_wa [m] (force per unit width is P / this); None for a rod."""
-    if scene.weft is None:
-        return None
-    return scene.weft.length / scene.weft.count

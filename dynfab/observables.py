@@ -14,8 +14,10 @@ import numpy as np
 
 from dynfab import assembly
 from dynfab.domain import slip_ratios
-from dynfab.model import Model, State, crimp, width_per_yarn
+from dynfab.geometry import crimp, width_per_yarn
+from dynfab.state import State
 from dynfab.terms import friction, registry
+
 
 
 @numba.njit(cache=True)

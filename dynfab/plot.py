@@ -36,19 +36,12 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
 from dynfab.errors import UserError
+from dynfab.plot_style import DPI, FAMILY_ALPHA, FAMILY_STYLE, FAMILY_WIDTH, FONT_SIZE, new_figure, style_axes
 from dynfab.results import Results, read_results
 
-DPI = 200
-"""Resolution of the PNGs [dots per inch]."""
-FONT_SIZE = 9
-"""Font size [pt], readable on a printed page at the figure sizes used."""
+
 FRICTION_STATES = (("open", "#d9d9d9"), ("sticking", "#1f77b4"), ("sliding", "#d62728"))
 """Categories of `friction_states`, in code order, with their colours."""
-FAMILY_STYLE = {"warp": "-", "weft": "--"}
-FAMILY_WIDTH = {"warp": 3.0, "weft": 1.2}
-"""Line widths [pt] of a fabric's families: wide translucent warp lines under thin dashed weft
-lines, so that curves which coincide (a balanced fabric under equal loads) both stay visible."""
-FAMILY_ALPHA = {"warp": 0.55, "weft": 1.0}
 
 
 def plot_results(path: str | os.PathLike, out_dir: str | os.PathLike) -> list[Path]:
@@ -97,7 +90,7 @@ def family_names(results: Results) -> dict:
 def as_woven_crimps(results: Results) -> np.ndarray:
     """(warp, weft) mean crimp [-] of a fabric's as-woven reference (`dynfab.model.crimp`),
     as `steps/crimp` averages it."""
-    from dynfab.model import crimp
+    from dynfab.geometry import crimp
 
     return np.array([crimp(np.asarray(results.reference[name], float)).mean()
                      for name in ("positions", "weft_positions")])
@@ -240,23 +233,6 @@ def save_png(fig: Figure, path: Path) -> Path:
     except OSError as error:
         raise UserError(f"cannot write '{path}': {error.strerror or error}") from None
     return path
-
-
-def new_figure(width: float, height: float) -> Figure:
-    """A new figure of the given size [in] with the report font size."""
-    fig = Figure(figsize=(width, height), layout="constrained")
-    fig.set_dpi(DPI)
-    return fig
-
-
-def style_axes(ax, *, tick_size: float = FONT_SIZE, title_size: float = FONT_SIZE + 1) -> None:
-    """Apply the common axis style (font sizes, grid); `tick_size` and `title_size` let a
-    report keep its own tick-label and title sizes."""
-    ax.tick_params(labelsize=tick_size)
-    ax.xaxis.label.set_size(FONT_SIZE)
-    ax.yaxis.label.set_size(FONT_SIZE)
-    ax.title.set_size(title_size)
-    ax.grid(True, alpha=0.3)
 
 
 def _legend(ax, **kwargs) -> None:

@@ -1,8 +1,9 @@
 """The solvers of every model, by name: `make_solver(model, "static" | "dynamic")`.
 
 Neither a solver nor the model side: the one place that knows which solver classes drive
-which model (`dynfab.solver` states their contracts). The static solvers are numba and
-scipy; a dynamic one imports Warp, so it is imported only when asked for.
+which model (`dynfab.solver` states their contracts). The static solver is one for every
+model (numba and scipy; its backend follows the structure, `dynfab.static`); a dynamic one
+imports Warp, so it is imported only when asked for.
 """
 
 from __future__ import annotations
@@ -23,10 +24,7 @@ def make_solver(model, name: str, device: str | None = None, status=None):
         if device is not None:
             raise UserError(f"--device {device}: the static solver runs on the CPU (numba); "
                             "a device is for --solver dynamic")
-        if fabric:
-            from dynfab.fabric.static import FabricStaticSolver
-            return FabricStaticSolver(model, status)
-        from dynfab.static import StaticSolver
+        from dynfab.static import StaticSolver  # its backend follows the structure
         return StaticSolver(model, status=status)
     from dynfab.dynamic import DynamicSolver, DynamicTransient
     kind = DynamicTransient if model.scene.dynamic.mode == "transient" else DynamicSolver

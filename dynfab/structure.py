@@ -2,7 +2,7 @@
 (docs/model.md, "The structure").
 
 A `Structure` is what the solvers see of a scene, whatever the model that made it
-(`dynfab.build`: the paper's yarn against weft springs, docs/model.md sections 1-9; the woven
+(`dynfab.builders`: the paper's yarn against weft springs, docs/model.md sections 1-9; the woven
 fabric, section 10):
 
 - **Chains**: Y ordered runs of nodes, chain y holding nodes chain_start[y] ..

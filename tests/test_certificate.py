@@ -132,18 +132,18 @@ def test_paper_yarn_is_stable_and_its_lowest_eigenvalue_matches_dense(scene_file
     scene = with_key(entry, "load.values", [0.0005, 0.004])
     model = build_model(scene)
     solver, state = StaticSolver(model), initial_state(model)
-    yarn = model.yarns[0]
+    yarn, fixed = model.yarns[0], model.fixed_dofs()
     for value in model.load_values:
         anchors = state.anchors[0].copy()
         state, record = solver.step(state, value)
         positions, residual = record["positions"][0], record["residual"][0]
         assert record["stable"][0] and not record["buckled"][0]
         band = np.zeros((positions.size, 2 * BANDWIDTH + 1))
-        certificate.certificate_matrix(positions, yarn, anchors, solver.fixed, residual, band)
-        free = ~solver.fixed
+        certificate.certificate_matrix(positions, yarn, anchors, fixed, residual, band)
+        free = ~fixed
         matrix = dense(band)[np.ix_(free, free)]
         lowest = np.linalg.eigvalsh(matrix)[0]
-        result, _ = certificate.certify_yarn(positions, yarn, anchors, solver.fixed, residual)
+        result, _ = certificate.certify_yarn(positions, yarn, anchors, fixed, residual)
         estimate, accuracy = result[certificate.LOWEST], result[certificate.LOWEST_ERROR]
         assert record["lowest_eigenvalue"][0] == estimate > 0
         # the record writes the proved bracket: lambda_min in [lowest - error, lowest]
@@ -255,8 +255,8 @@ def test_pushed_in_yarn_leaves_its_saddle_in_both_solvers(make_scene):
     positions = saddle_steps[-1]["positions"][0]
     band = np.zeros((positions.size, 2 * BANDWIDTH + 1))
     certificate.certificate_matrix(positions, model.yarns[0], np.zeros(model.crossings),
-                                   saddle.fixed, saddle_steps[-1]["residual"][0], band)
-    free = ~saddle.fixed
+                                   model.fixed_dofs(), saddle_steps[-1]["residual"][0], band)
+    free = ~model.fixed_dofs()
     matrix = dense(band)[np.ix_(free, free)]
     lowest = np.linalg.eigvalsh(matrix)[0]
     assert abs(saddle_steps[-1]["lowest_eigenvalue"][0] - lowest) <= (

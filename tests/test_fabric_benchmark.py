@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dynfab.fabric.static import FabricStaticSolver
+from dynfab.static import StaticSolver
 from test_fabric_dynamic import agreement_bound
 
 PATH = Path(__file__).resolve().parents[1] / "benchmarks" / "fabric.py"
@@ -69,7 +69,7 @@ def test_the_solvers_end_states_agree_within_their_residual_bound():
     static_row, state, record = bench.static_costs(N)
     dynamic_row, dynamic_state, dynamic_record = bench.dynamic_costs(N, state.positions)
     pcg_row = bench.pcg_costs(N, state.positions)
-    solver = FabricStaticSolver(bench.patch_model(N))
+    solver = StaticSolver(bench.patch_model(N))
     anchors = solver.initial_state().anchors
     difference = np.abs(dynamic_state.positions - state.positions).max()
     assert dynamic_row["static_difference_m"] == difference

@@ -22,7 +22,7 @@ import pytest
 from dynfab import certificate
 from dynfab.fabric.model import FabricModel
 from dynfab.solvers import make_solver
-from dynfab.fabric.static import FabricStaticSolver
+from dynfab.static import StaticSolver
 from dynfab.results import units_of
 from dynfab.solver import STEP_KEYS
 from independent import fabric_scene
@@ -46,13 +46,13 @@ def assert_bracket(lowest, error, eigenvalues, H):
 
 
 def test_a_stable_step_brackets_the_dense_lowest_eigenvalue_and_bounds_its_error():
-    solver = FabricStaticSolver(patch_model("force", (0.2,), FRICTION, weft_values=(0.05,),
+    solver = StaticSolver(patch_model("force", (0.2,), FRICTION, weft_values=(0.05,),
                                             planes="affine"))
     start = solver.initial_state()
     state, record = solver.step(start, (0.2, 0.05))
     assert record["stable"] and record["negative_eigenvalues"] == 0
     # the matrix the step certified: F_T frozen at its limits, the step's own anchors
-    H = solver.hessian(state.positions, start.anchors, record["friction_limit"].ravel()).toarray()
+    H = solver.backend.hessian(state.positions, start.anchors, record["friction_limit"].ravel()).toarray()
     eigenvalues, rows = dense(H)
     assert eigenvalues[0] > 0
     assert_bracket(record["lowest_eigenvalue"], record["lowest_eigenvalue_error"], eigenvalues, H)
@@ -65,13 +65,13 @@ def test_a_stable_step_brackets_the_dense_lowest_eigenvalue_and_bounds_its_error
 
 
 def test_a_saddle_brackets_the_dense_negative_lowest_eigenvalue():
-    solver = FabricStaticSolver(patch_model("displacement", (-3e-4,), None, hold="weft"))
+    solver = StaticSolver(patch_model("displacement", (-3e-4,), None, hold="weft"))
     start = solver.initial_state()
     pos, anchors = start.positions.copy(), start.anchors.copy()
     solver.model.prescribe(pos, solver.model.yarn_loads(-3e-4, 0.0))
-    info, limit, _ = solver.solve(pos, np.zeros(solver.yarns), anchors)
+    info, limit = solver.backend.equilibrium(pos, np.zeros(solver.model.yarns), anchors)
     assert info.converged
-    H = solver.hessian(pos, anchors, limit).toarray()
+    H = solver.backend.hessian(pos, anchors, limit).toarray()
     eigenvalues, rows = dense(H)
     checked = certificate.certify_patch(solver.model, pos, anchors, limit)
     result = checked.result

@@ -12,7 +12,7 @@ import numpy as np
 
 from dynfab.fabric import contact
 from dynfab.fabric.model import FabricModel
-from dynfab.fabric.static import FabricStaticSolver
+from dynfab.static import StaticSolver
 from independent import without_core_spring
 from test_fabric_static import patch_scene
 
@@ -29,14 +29,14 @@ def solve(core_stiffness):
         model = without_core_spring(patch_scene(**PATH))
     else:
         model = FabricModel.from_scene(patch_scene(**PATH, core_stiffness=core_stiffness))
-    solver = FabricStaticSolver(model)
+    solver = StaticSolver(model)
     state, records = solver.run()
     return solver, state, records
 
 
 def test_without_a_core_spring_the_closures_stay_below_the_wall():
     solver, state, records = solve(np.inf)
-    f = solver.fabric
+    f = solver.model.structure
     assert np.all(f.tie_contact_law[:, 0] == np.inf)
     wall = f.tie_contact_law[0, 1] + f.tie_contact_law[0, 3]
     g = np.array([contact.closure(state.positions, f, c) for c in range(f.tie_a.size)])

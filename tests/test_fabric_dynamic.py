@@ -28,7 +28,7 @@ from dynfab import assembly
 from dynfab.dynamic import DynamicSolver
 from dynfab.errors import SolverError
 from dynfab.fabric.model import FabricModel
-from dynfab.fabric.static import FabricStaticSolver
+from dynfab.static import StaticSolver
 from dynfab.model import build_model, initial_state
 from dynfab.reports.fabric_data import paper_patch_scene
 from dynfab.static import StaticSolver
@@ -67,14 +67,14 @@ def paper_patch_model(warps, wefts, values, control="force", friction=None, grav
                                                     **tables))
 
 
-def inverse_norm(solver: FabricStaticSolver, state, anchors, limit) -> float:
+def inverse_norm(solver: StaticSolver, state, anchors, limit) -> float:
     """||J^-1||_inf [m/N], J the Jacobian of the static residual on the free dofs at the
     static solution with the step's anchors: the Hessian (F_T frozen) plus, with friction,
-    the coupling of F_T to R (`FabricStaticSolver.coupling`), since both solvers converge
+    the coupling of F_T to R (`SparseNewton.coupling`), since both solvers converge
     to the point where F_T follows Gralen's law."""
-    J = solver.hessian(state.positions, anchors, limit)
-    if solver.fabric.has_friction:
-        J = J + solver.coupling(state.positions, anchors, limit)
+    J = solver.backend.hessian(state.positions, anchors, limit)
+    if solver.model.structure.has_friction:
+        J = J + solver.backend.coupling(state.positions, anchors, limit)
     return float(np.abs(np.linalg.inv(J.toarray())).sum(axis=1).max())
 
 
@@ -91,7 +91,7 @@ def agreement_bound(solver, static_state, anchors, record, dynamic_residual, anc
     same branch of every Huber kink and contact (checked: the sliding patterns agree, the
     contacts closed)."""
     norm = inverse_norm(solver, static_state, anchors, record["friction_limit"].ravel())
-    slack = uniform(solver.fabric.tie_friction_law)[3] * anchor_gap  # k_t
+    slack = uniform(solver.model.structure.tie_friction_law)[3] * anchor_gap  # k_t
     return norm * (dynamic_residual + record["residual"] + slack)
 
 
@@ -104,7 +104,7 @@ def anchor_bound(solver, record, bound: float) -> float:
     k_c |dg| <= 2 k_c bound (dR/dg <= k_c, the core in series with Kawabata's laws) and F_T by
     dF_T/dR = alpha + (beta ell r_f / R_0) exp(-R / R_0) times that, the exponential taken at
     the smallest R of a sliding crossing less that change."""
-    f = solver.fabric
+    f = solver.model.structure
     dR = 2 * uniform(f.tie_contact_law)[0] * bound
     sliding = record["sliding"].ravel()
     R_low = max(record["contact_force"].ravel()[sliding].min(initial=0.0) - dR, 0.0)
@@ -150,9 +150,9 @@ def test_dynamic_solver_agrees_with_the_static_one(n, control, friction, gravity
     values = FORCES if control == "force" else DISPLACEMENTS
     model = paper_patch_model(n, n, values, control, friction, gravity, tolerance=TOLERANCE,
                               **more)
-    static, dynamic = FabricStaticSolver(model), dynamic_solver(model)
+    static, dynamic = StaticSolver(model), dynamic_solver(model)
     s_state, d_state = static.initial_state(), model.initial_state()
-    k_c = uniform(static.fabric.tie_contact_law)[0]
+    k_c = uniform(static.model.structure.tie_contact_law)[0]
     for warp_value, weft_value in values:
         anchors = s_state.anchors.copy()  # held during the step
         anchor_gap = float(np.hypot(*(d_state.anchors - s_state.anchors).T).max())
@@ -184,7 +184,7 @@ def test_dynamic_solver_agrees_with_the_static_one(n, control, friction, gravity
             # stiffness T / l <= |end force| / l0 added as a margin for the change of K
             # between the two solutions
             rows = end_rows(dynamic, s_state.positions, anchors)
-            l0 = static.fabric.rest_length[static.fabric.load_node - np.arange(model.yarns) - 1]
+            l0 = static.model.structure.rest_length[static.model.structure.load_node - np.arange(model.yarns) - 1]
             row = rows + np.abs(s_record["end_force"]) / l0
             difference = np.abs(d_record["end_force"] - s_record["end_force"])
             assert (difference <= row * bound).all(), (difference, row * bound)
@@ -272,7 +272,7 @@ def test_every_dynamic_setting_runs_the_fabric_to_the_static_step(name):
     options = dict(SETTINGS[name])
     if name == "float32":
         options["tolerance"] = None
-    static = FabricStaticSolver(model)
+    static = StaticSolver(model)
     start = model.initial_state()
     s_state, s_record = static.step(start, (0.3, 0.1))
     state, record = dynamic_solver(model, **options).step(start, (0.3, 0.1))

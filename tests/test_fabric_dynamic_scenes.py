@@ -23,7 +23,7 @@ import pytest
 from dynfab.dynamic import DynamicSolver
 from dynfab.fabric import assembly
 from dynfab.fabric.model import FabricModel
-from dynfab.fabric.static import FabricStaticSolver
+from dynfab.static import StaticSolver
 from dynfab.scene import load_scene
 from dynfab.structure import uniform
 from independent import PAPER_FRICTION, scene_with
@@ -93,9 +93,9 @@ def test_every_fabric_scene_agrees_with_the_static_solver(name, method):
     differ by 2e-10 m. Started from one state, the steps share their anchors, and the anchors'
     agreement after the return map is checked instead."""
     model = scene_model(name)
-    static, dynamic = FabricStaticSolver(model), dynamic_solver(model, method=method)
+    static, dynamic = StaticSolver(model), dynamic_solver(model, method=method)
     state = model.initial_state()
-    k_c = uniform(static.fabric.tie_contact_law)[0]
+    k_c = uniform(static.model.structure.tie_contact_law)[0]
     for warp_value, weft_value in model.load_values:
         start = state.copy()
         s_state, s_record = static.step(start.copy(), (warp_value, weft_value))
@@ -124,7 +124,7 @@ def test_the_other_dampings_and_layouts_reach_the_same_step(name, damping, layou
     first step within `agreement_bound` of the static solver's, as the default configuration
     in `test_every_fabric_scene_agrees_with_the_static_solver`."""
     model = scene_model(name, steps=1)
-    static = FabricStaticSolver(model)
+    static = StaticSolver(model)
     dynamic = DynamicSolver(model, replace(model.scene.dynamic, damping=damping), layout=layout)
     start = model.initial_state()
     load = tuple(model.load_values[0])
@@ -175,9 +175,9 @@ def test_displacement_control_moves_the_planes_with_the_prescribed_ends(boundary
     n = 2 if boundary == "periodic" else 4
     model = paper_patch_model(n, n, values, "displacement", PAPER_FRICTION, boundary=boundary,
                               planes=planes, tolerance=TOLERANCE)
-    static, dynamic = FabricStaticSolver(model), dynamic_solver(model)
+    static, dynamic = StaticSolver(model), dynamic_solver(model)
     state = model.initial_state()
-    f = static.fabric
+    f = static.model.structure
     for warp_value, weft_value in values:
         start = state.copy()
         s_state, s_record = static.step(start.copy(), (warp_value, weft_value))

@@ -15,7 +15,7 @@ import pytest
 
 from dynfab.fabric import assembly
 from dynfab.fabric.model import FabricModel
-from dynfab.fabric.static import FabricStaticSolver
+from dynfab.static import StaticSolver
 from independent import fabric_scene
 
 WARP = dict(length=0.04, segments=12, amplitude=0.5e-3, EA=13.72, EI=1.47e-7, kawabata_C=0.2e-3,
@@ -32,12 +32,12 @@ def imbalance(control, steps):
     and the dissipation [J]."""
     warp_end, weft_end = PATHS[control]
     fraction = np.arange(1, steps + 1) / steps
-    solver = FabricStaticSolver(FabricModel.from_scene(fabric_scene(
+    solver = StaticSolver(FabricModel.from_scene(fabric_scene(
         WARP, WEFT, 3, 3, friction=FRICTION,
         load=dict(control=control, values=list(warp_end * fraction),
                   weft_values=list(weft_end * fraction), warp_factors=[1.0, 0.5, 0.2]))))
     state, records = solver.run()
-    f = solver.fabric
+    f = solver.model.structure
     terms = np.zeros(len(assembly.TERMS))
     c = f.tie_a.size
     assembly.energies(state.positions, f, np.zeros(f.load_node.size), state.anchors,

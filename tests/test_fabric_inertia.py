@@ -19,7 +19,7 @@ import scipy.sparse
 import scipy.sparse.linalg
 
 from dynfab.fabric import inertia, ordering
-from dynfab.fabric.static import FabricStaticSolver
+from dynfab.static import StaticSolver
 from test_fabric_static import FRICTION, patch_model
 
 EPS = np.finfo(float).eps
@@ -33,7 +33,7 @@ def dense_count(H, shift):
 
 
 def friction_step(planes):
-    solver = FabricStaticSolver(patch_model("force", (0.2,), FRICTION, weft_values=(0.05,),
+    solver = StaticSolver(patch_model("force", (0.2,), FRICTION, weft_values=(0.05,),
                                             planes=planes))
     state, records = solver.run()
     limit = records[-1]["friction_limit"].ravel()
@@ -41,10 +41,10 @@ def friction_step(planes):
 
 
 def both_routes(solver, pos, anchors, limit, shift):
-    H = solver.hessian(pos, anchors, limit)
+    H = solver.backend.hessian(pos, anchors, limit)
     scale = float(np.abs(H.diagonal()).max())
     sparse = inertia.sparse_inertia(H, shift, scale)
-    schur = inertia._inertia(solver.fabric, pos, anchors, limit, shift, scale)
+    schur = inertia._inertia(solver.model.structure, pos, anchors, limit, shift, scale)
     return sparse, schur
 
 
@@ -53,7 +53,7 @@ def test_sparse_count_matches_schur_and_dense_across_the_spectrum(planes):
     # Sylvester on P A P^T = L D L^T: the negative pivots are the eigenvalues below -shift.
     # Shifts halfway between consecutive eigenvalues (gap checked far above eps ||H||).
     solver, pos, anchors, limit = friction_step(planes)
-    H = solver.hessian(pos, anchors, limit).toarray()
+    H = solver.backend.hessian(pos, anchors, limit).toarray()
     eigenvalues = np.linalg.eigvalsh(0.5 * (H + H.T))
     n = eigenvalues.size
     for m in (0, 1, 5, 17, 60, n // 2, n - 3, n):
@@ -76,13 +76,13 @@ def test_sparse_count_of_a_saddle_under_compression():
     # Held wefts, warps pushed in (docs/model.md section 6): Newton's equilibrium before the
     # escape is a saddle (tests/test_fabric_static.py); counted at it, both routes agree
     # with the dense spectrum, which has negatives.
-    solver = FabricStaticSolver(patch_model("displacement", (-3e-4,), None, hold="weft"))
+    solver = StaticSolver(patch_model("displacement", (-3e-4,), None, hold="weft"))
     state = solver.initial_state()
     pos, anchors = state.positions.copy(), state.anchors.copy()
     solver.model.prescribe(pos, solver.model.yarn_loads(-3e-4, 0.0))
-    info, limit, _ = solver.solve(pos, np.zeros(solver.yarns), anchors)
+    info, limit = solver.backend.equilibrium(pos, np.zeros(solver.model.yarns), anchors)
     assert info.converged
-    H = solver.hessian(pos, anchors, limit).toarray()
+    H = solver.backend.hessian(pos, anchors, limit).toarray()
     count, gap = dense_count(H, 0.0)
     assert count > 0 and gap > 1e6 * EPS * np.abs(H).max()
     sparse, schur = both_routes(solver, pos, anchors, limit, 0.0)
@@ -111,9 +111,9 @@ def dissection_unmodified(solver, A, order):
     position = np.empty(n, int)
     position[elimination] = np.arange(n)
     G = A.tocsr()
-    dof = np.flatnonzero(solver.pattern.index >= 0)  # unknown -> dof: no ties when clamped
-    yarn = np.searchsorted(solver.fabric.chain_start, dof // 2, side="right")
-    band_only = ~inertia.crossing_mask(solver.fabric)[dof]
+    dof = np.flatnonzero(solver.backend.pattern.index >= 0)  # unknown -> dof: no ties when clamped
+    yarn = np.searchsorted(solver.model.structure.chain_start, dof // 2, side="right")
+    band_only = ~inertia.crossing_mask(solver.model.structure)[dof]
     for j in elimination[1:]:
         coupled = G.indices[G.indptr[j]:G.indptr[j + 1]]
         coupled = coupled[coupled != j]
@@ -131,9 +131,9 @@ def test_an_exactly_zero_pivot_falls_back_to_the_schur_route(ordered):
     # must refuse it and, in the order `inertia` uses, `inertia` must count by the Schur
     # route at the same shift, still the dense count.
     solver, pos, anchors, limit = friction_step("fixed")
-    H = solver.hessian(pos, anchors, limit)
+    H = solver.backend.hessian(pos, anchors, limit)
     A = (0.5 * (H + H.T)).tocsc()
-    order = ordering.fabric_order(solver.fabric, solver.pattern) if ordered else None
+    order = ordering.fabric_order(solver.model.structure, solver.backend.pattern) if ordered else None
     first = dissection_unmodified(solver, A, order) if ordered else minimum_degree_first(A)
     shift = -A[first, first]
     assert shift + A[first, first] == 0.0

@@ -2,7 +2,7 @@
 
 Clamped 4 x 4 patches of the paper's yarns at small loads, where crossings open and close
 and sit at the onset: each step solved through the solver's default path and, at the
-hardest steps, through each of its fallbacks forced (`force_fallback`: the under-relaxed
+hardest steps, through each of its fallbacks alone (`force_fallback`: the under-relaxed
 fixed point on F_T, the open/closed active set with its continuation in R_0), every state
 checked against Gralen's law and the contact law evaluated here independently and the
 fallbacks' states against the default path's; a 5 x 5 patch whose plain fixed point on
@@ -18,8 +18,8 @@ import h5py
 import numpy as np
 
 from dynfab.fabric.model import FabricModel
-from dynfab.fabric.static import FabricStaticSolver, NewtonInfo
 from dynfab.scene import parse_scene_text
+from dynfab.static import StaticSolver
 from independent import contact_force, gralen, record_inverse_norm, scene_toml
 
 ALPHA, BETA, ELL, R_F = 0.2, 1e3, 2e-3, 1e-3
@@ -42,16 +42,16 @@ def patch(n: int, onset: float, control: str, values, weft_values) -> str:
                  "weft_values": [float(v) for v in weft_values]}})
 
 
-def patch_solver(text: str) -> FabricStaticSolver:
+def patch_solver(text: str) -> StaticSolver:
     """The static solver of a scene's text (`patch`)."""
-    return FabricStaticSolver(FabricModel.from_scene(parse_scene_text(text)))
+    return StaticSolver(FabricModel.from_scene(parse_scene_text(text)))
 
 
-def check_consistent(solver: FabricStaticSolver, before, after, record, load) -> None:
+def check_consistent(solver: StaticSolver, before, after, record, load) -> None:
     """The state `after` of a step from `before` obeys the laws (docs/model.md section 4):
     every crossing's F_T equals Gralen's law at its contact force to 1e-12 N, and the force
     residual with those F_T is within the tolerance (or the step's rounding floor)."""
-    f = solver.fabric
+    f, backend = solver.model.structure, solver.backend
     pos = after.positions
     g = f.tie_gap_offset - f.tie_side * (pos[f.tie_a, 1] - pos[f.tie_b, 1])
     R = np.array([contact_force(value, row) for value, row in zip(g, f.tie_contact_law)])
@@ -61,42 +61,23 @@ def check_consistent(solver: FabricStaticSolver, before, after, record, load) ->
     assert np.abs(np.ravel(record["friction_limit"]) - law).max() <= 1e-12
     begun = solver.model.start_of_step(before, load)
     anchors, P = begun.anchors, begun.chain_loads
-    residual = solver.residual(solver.gradient(pos, P, anchors, law))
-    H = solver.hessian(pos, anchors, law)
+    residual = backend.residual(backend.gradient(pos, P, anchors, law))
+    H = backend.hessian(pos, anchors, law)
     floor = 4 * EPS * np.abs(H.diagonal()).max() * np.abs(pos).max()  # docs/model.md section 6
     assert residual <= max(solver.tolerance, floor if record["rounding_floor"] else 0.0)
 
 
-STAGES = ("solve_frozen", "solve_relaxed", "solve_on_sets")
-"""The stages of `FabricStaticSolver.solve` in order: the frozen-F_T and coupled Newton from
-the step's start, then its two fallbacks, the under-relaxed fixed point on F_T and the
-open/closed active set with its continuation in R_0."""
+FALLBACKS = {"relaxed": ("relaxed",), "active set": ("sets", "continuation")}
+"""The sparse backend's fallbacks in the friction chain (`dynfab.friction_chain`), after its
+frozen-F_T and coupled Newton ("unilateral") from the step's start: the under-relaxed fixed
+point on F_T, and the open/closed active set with its continuation in R_0."""
 
 
-def force_fallback(monkeypatch, solver: FabricStaticSolver, fallback: str) -> None:
-    """Make `solver`'s steps solve by `fallback` ("solve_relaxed" or "solve_on_sets") alone:
-    each stage before it (STAGES) fails without running, so that `solve` goes on from the
-    step's start (it restores the start after a failed stage; the active set's own frozen
-    solves on a fixed set, `law` given, still run), and a stage after it raises."""
-    frozen = solver.solve_frozen
-
-    def failed_frozen(pos, P, anchors, law=None, max_iterations=None):
-        if law is not None:
-            return frozen(pos, P, anchors, law, max_iterations)
-        return NewtonInfo(), solver.friction_limits(pos), 0
-
-    def failed_relaxed(pos, P, anchors):
-        return NewtonInfo(), 0
-
-    def not_needed(*args):
-        raise AssertionError(f"{fallback} did not solve the step")
-
-    failed = {"solve_frozen": failed_frozen, "solve_relaxed": failed_relaxed}
-    position = STAGES.index(fallback)
-    for stage in STAGES[:position]:
-        monkeypatch.setattr(solver, stage, failed[stage])
-    for stage in STAGES[position + 1:]:
-        monkeypatch.setattr(solver, stage, not_needed)
+def force_fallback(monkeypatch, solver: StaticSolver, fallback: str) -> None:
+    """Make `solver`'s steps solve by `fallback` (a key of FALLBACKS) alone: the friction chain
+    is offered its strategies only, so it runs them from the step's start, and a step they
+    do not solve raises."""
+    monkeypatch.setattr(solver.backend, "strategies", lambda problem: FALLBACKS[fallback])
 
 
 def assert_same_state(solver, before, states) -> None:
@@ -127,7 +108,7 @@ def solve_path(text: str, fallback_steps: set[int], monkeypatch):
         check_consistent(solver, state, new, record, load)
         if index in fallback_steps:
             solved = [(new, record)]
-            for fallback in STAGES[1:]:
+            for fallback in FALLBACKS:
                 with monkeypatch.context() as patched:
                     force_fallback(patched, solver, fallback)
                     solved.append(solver.step(state, load))
@@ -210,10 +191,10 @@ def test_a_step_the_fallback_cannot_solve_names_its_crossing(monkeypatch):
     step needs about 1,600), the step of `test_force_control_at_a_small_onset_force` stops
     with a SolverError naming a crossing as the scene counts it, the onset and the laws'
     residual reached (above the tolerance), not a silent state."""
-    import dynfab.fabric.static as fabric_static
+    from dynfab import friction_chain
     from dynfab.errors import SolverError
 
-    monkeypatch.setattr(fabric_static, "FALLBACK_BUDGET", 1)
+    monkeypatch.setattr(friction_chain, "FALLBACK_BUDGET", 1)
     solver = patch_solver(patch(4, 1e-7, "force", [0.0, 1e-4], [0.0, 5e-5]))
     state, _ = solver.step(solver.initial_state(), (0.0, 0.0))
     try:
@@ -237,7 +218,7 @@ def test_a_fixed_point_on_friction_that_cycles_is_relaxed(monkeypatch):
     = 200, and the plain fixed point on F_T falls into a 2-cycle (a crossing closed in
     one solve is open in the next and closed again in the one after). The step reaches a
     state consistent with the laws through the default path, and through the under-relaxed
-    fixed point (`solve_relaxed`) alone (`force_fallback`: without the active set's fallback,
+    fixed point (`SparseNewton.solve_relaxed`) alone (`force_fallback`: without the active set,
     which, before the relaxed fixed point existed, found no consistent state here in
     31,770 Newton iterations, about 90 s: too long to show here): the same state."""
     text = patch(5, 1e-5, "force", [1e-4], [5e-5])
@@ -245,47 +226,48 @@ def test_a_fixed_point_on_friction_that_cycles_is_relaxed(monkeypatch):
     state = solver.initial_state()
     begun = solver.model.start_of_step(state, (1e-4, 5e-5))
     pos, anchors, P = begun.positions, begun.anchors, begun.chain_loads
-    limit = solver.friction_limits(pos)
+    backend = solver.backend
+    limit = backend.friction_limits(pos)
     closed = []
     for _ in range(30):  # the plain update, F_T = the law at the last solution
-        assert solver.newton(pos, P, anchors, limit).converged
-        limit = solver.friction_limits(pos)
-        closed.append(solver.closures(pos) > 0)
+        assert backend.newton(pos, P, anchors, limit).converged
+        limit = backend.friction_limits(pos)
+        closed.append(backend.closures(pos) > 0)
     assert np.array_equal(closed[-1], closed[-3]) and np.array_equal(closed[-2], closed[-4])
     assert not np.array_equal(closed[-1], closed[-2])
-    assert solver.law_residual(pos, P, anchors) > 1e3 * solver.tolerance
+    assert backend.law_residual(pos, P, anchors) > 1e3 * solver.tolerance
 
     load = (1e-4, 5e-5)
     new, record = solver.step(state, load)  # the default path
     check_consistent(solver, state, new, record, load)
 
     with monkeypatch.context() as patched:
-        force_fallback(patched, solver, "solve_relaxed")
+        force_fallback(patched, solver, "relaxed")
         relaxed = solver.step(state, load)
     check_consistent(solver, state, *relaxed, load)
     assert_same_state(solver, state, [(new, record), relaxed])
 
 
-def test_the_relaxed_fixed_point_and_the_active_set_reach_the_same_state():
+def test_the_relaxed_fixed_point_and_the_active_set_reach_the_same_state(monkeypatch):
     """With R_0 > 0 a step's solution is unique (docs/model.md section 4), so the two
     fallbacks, each from the step's start, must agree: on the step of
     `test_force_control_at_a_small_onset_force` (which the relaxed fixed point now solves
     first) the active set with its continuation in R_0 is run too, and the positions differ
     by at most twice the position error of a residual within the tolerance,
     tolerance ||H^-1||_inf (docs/model.md (5.7))."""
-    import dynfab.fabric.static as fabric_static
-
     solver = patch_solver(patch(4, 1e-7, "force", [0.0, 1e-4], [0.0, 5e-5]))
+    backend = solver.backend
     state, _ = solver.step(solver.initial_state(), (0.0, 0.0))
     solved = []
-    for fallback in (solver.solve_relaxed, solver.solve_on_sets):
+    for fallback in FALLBACKS:
         begun = solver.model.start_of_step(state, (1e-4, 5e-5))
         pos, anchors, P = begun.positions, begun.anchors, begun.chain_loads
-        solver._budget = fabric_static.FALLBACK_BUDGET * solver.max_iterations
-        assert fallback(pos, P, anchors)[0].converged
-        assert solver.law_residual(pos, P, anchors) <= solver.tolerance
+        with monkeypatch.context() as patched:
+            force_fallback(patched, solver, fallback)
+            assert backend.equilibrium(pos, P, anchors)[0].converged
+        assert backend.law_residual(pos, P, anchors) <= solver.tolerance
         solved.append(pos)
-    H = solver.hessian(solved[0], anchors, solver.friction_limits(solved[0])).toarray()
+    H = backend.hessian(solved[0], anchors, backend.friction_limits(solved[0])).toarray()
     bound = solver.tolerance * np.abs(np.linalg.inv(H)).sum(axis=1).max()
     assert np.abs(solved[0] - solved[1]).max() <= 2 * bound
     assert np.abs(solved[0] - state.positions).max() > 1e3 * bound  # the step moved the patch

@@ -20,7 +20,8 @@ import scipy.sparse.linalg
 
 from dynfab.fabric import inertia, ordering
 from dynfab.fabric.model import FabricModel
-from dynfab.fabric.static import FabricStaticSolver, _sparse_solve
+from dynfab.newton_sparse import _sparse_solve
+from dynfab.static import StaticSolver
 from dynfab.reports.fabric_data import paper_patch_scene
 from test_fabric_periodic import cell
 from test_fabric_static import FRICTION, patch_model
@@ -30,30 +31,30 @@ EPS = np.finfo(float).eps
 
 def friction_step(**more):
     """A converged friction load step of the small test fabric: (solver, H, order)."""
-    solver = FabricStaticSolver(patch_model("force", (0.2,), FRICTION, weft_values=(0.05,),
+    solver = StaticSolver(patch_model("force", (0.2,), FRICTION, weft_values=(0.05,),
                                             **more))
     state, records = solver.run()
     limit = records[-1]["friction_limit"].ravel()
-    H = solver.hessian(state.positions, state.anchors, limit)
-    return solver, H, ordering.fabric_order(solver.fabric, solver.pattern)
+    H = solver.backend.hessian(state.positions, state.anchors, limit)
+    return solver, H, ordering.fabric_order(solver.model.structure, solver.backend.pattern)
 
 
 def compressed_saddle():
     """Warps pushed in with the wefts free: Newton's equilibrium on the symmetric path is a
     saddle (negative eigenvalues by the dense spectrum, checked where used)."""
-    solver = FabricStaticSolver(patch_model("displacement", (-3e-4,), None))
+    solver = StaticSolver(patch_model("displacement", (-3e-4,), None))
     state = solver.initial_state()
     pos, anchors = state.positions.copy(), state.anchors.copy()
     solver.model.prescribe(pos, solver.model.yarn_loads(-3e-4, 0.0))
-    info, limit, _ = solver.solve(pos, np.zeros(solver.yarns), anchors)
+    info, limit = solver.backend.equilibrium(pos, np.zeros(solver.model.yarns), anchors)
     assert info.converged
-    H = solver.hessian(pos, anchors, limit)
-    return solver, H, ordering.fabric_order(solver.fabric, solver.pattern)
+    H = solver.backend.hessian(pos, anchors, limit)
+    return solver, H, ordering.fabric_order(solver.model.structure, solver.backend.pattern)
 
 
 def as_woven_hessian(solver):
     state = solver.initial_state()
-    return solver.hessian(state.positions, state.anchors, np.zeros(solver.fabric.tie_a.size))
+    return solver.backend.hessian(state.positions, state.anchors, np.zeros(solver.model.structure.tie_a.size))
 
 
 @pytest.mark.parametrize("case", ["fixed", "affine", "periodic"])
@@ -61,16 +62,16 @@ def test_the_order_is_a_permutation_of_the_unknowns(case):
     if case == "periodic":  # tied cell lengths, wrap springs, moving planes
         solver = cell(2, 4, "force", FRICTION)
     else:
-        solver = FabricStaticSolver(patch_model("force", (0.2,), FRICTION, planes=case))
+        solver = StaticSolver(patch_model("force", (0.2,), FRICTION, planes=case))
     H = as_woven_hessian(solver)
-    order = ordering.fabric_order(solver.fabric, solver.pattern)
+    order = ordering.fabric_order(solver.model.structure, solver.backend.pattern)
     assert order.order.dtype.kind == "i"
-    assert np.array_equal(np.sort(order.order), np.arange(solver.pattern.free_count))
+    assert np.array_equal(np.sort(order.order), np.arange(solver.backend.pattern.free_count))
     # computed once per pattern: found again from the Hessian of another state
     state, _ = solver.step(solver.initial_state(), (0.1, 0.05) if case == "periodic" else (0.2, 0.05))
-    again = solver.hessian(state.positions, state.anchors, np.zeros(solver.fabric.tie_a.size))
+    again = solver.backend.hessian(state.positions, state.anchors, np.zeros(solver.model.structure.tie_a.size))
     assert ordering.known_order(again) is order
-    assert ordering.fabric_order(solver.fabric, solver.pattern) is order
+    assert ordering.fabric_order(solver.model.structure, solver.backend.pattern) is order
 
 
 def backward_error_bound(A, lu):
@@ -174,10 +175,10 @@ def fills(order_of):
     the order `order_of(solver, A)` gives (None: SuperLU's minimum degree on A^T + A)."""
     out = []
     for n in SIZES:
-        solver = FabricStaticSolver(FabricModel.from_scene(paper_patch_scene(
+        solver = StaticSolver(FabricModel.from_scene(paper_patch_scene(
             n, n, 8, load={"control": "force", "values": [0.0]})))
         state = solver.initial_state()
-        A = structural_matrix(solver.hessian(state.positions, state.anchors,
+        A = structural_matrix(solver.backend.hessian(state.positions, state.anchors,
                                              np.zeros(n * n)))
         order = order_of(solver, A)
         if order is None:
@@ -209,7 +210,7 @@ def test_the_ordered_fill_grows_like_n_log_n():
     # Constant increments (n log n) against doubling ones (n^1.5): each increment at most
     # sqrt(2) times the one before, the geometric midpoint of the two hypotheses' ratios.
     dissection = growth_increments(fills(
-        lambda solver, A: ordering.fabric_order(solver.fabric, solver.pattern)))
+        lambda solver, A: ordering.fabric_order(solver.model.structure, solver.backend.pattern)))
     assert np.all(dissection > 0.0)
     assert np.all(dissection[1:] <= np.sqrt(2.0) * dissection[:-1]), dissection
     # the test can fail: minimum degree's fill on the same patterns grows faster

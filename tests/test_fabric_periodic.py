@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from dynfab.fabric.model import FabricModel
-from dynfab.fabric.static import FabricStaticSolver
+from dynfab.static import StaticSolver
 from independent import fabric_scene, record_inverse_norm
 
 SPACING_WARP, SPACING_WEFT = 0.1 / 16, 0.005
@@ -31,7 +31,7 @@ def cell(warps, wefts, control, friction):
                 EA=10.0, EI=2e-7, kawabata_C=0.15e-3, kawabata_K=0.3)
     warp_values, weft_values = PATHS[control]
     tables = {} if friction is None else {"friction": friction}
-    return FabricStaticSolver(FabricModel.from_scene(fabric_scene(
+    return StaticSolver(FabricModel.from_scene(fabric_scene(
         warp, weft, warps, wefts, geometry=dict(boundary="periodic"),
         load=dict(control=control, values=list(warp_values), weft_values=list(weft_values)),
         **tables)))
@@ -76,9 +76,9 @@ def test_two_repeats_are_the_cell_tiled(control):
         spacing = min(SPACING_WARP, SPACING_WEFT)
         assert np.abs(r_small["strain"] - r_large["strain"]).max() <= tol / spacing
         tiled = np.tile(r_small["contact_force"], (2, 2))
-        k_c = small.fabric.tie_contact_law[0, 0]
+        k_c = small.model.structure.tie_contact_law[0, 0]
         assert np.abs(tiled - r_large["contact_force"]).max() <= k_c * tol
         assert r_small["contact_force"].max() > 0
         # warp 0 of the large cell, first repeat, is warp 0 of the small one
-        n = small.fabric.chain_start[1]
+        n = small.model.structure.chain_start[1]
         assert np.abs(s_large.positions[:n] - s_small.positions[:n]).max() <= tol

@@ -19,7 +19,7 @@ frozen-F_T solves).
 import numpy as np
 
 from dynfab.fabric.model import FabricModel
-from dynfab.fabric.static import FabricStaticSolver
+from dynfab.static import StaticSolver
 from independent import fabric_scene, record_inverse_norm
 
 WARP = dict(length=0.04, segments=24, amplitude=0.5e-3, EA=13.72, EI=1.47e-7, kawabata_C=0.2e-3,
@@ -35,11 +35,11 @@ WARPS, WEFTS = 3, 4
 
 def test_pullout_force_is_the_friction_on_the_pulled_warp():
     values = tuple(np.linspace(2e-5, 6e-4, 12))
-    solver = FabricStaticSolver(FabricModel.from_scene(fabric_scene(
+    solver = StaticSolver(FabricModel.from_scene(fabric_scene(
         WARP, WEFT, WARPS, WEFTS, friction=FRICTION, contact=dict(core_stiffness=K_C),
         gravity=dict(g=9.81), pullout=dict(warp=PULLED),
         load=dict(control="displacement", values=list(values)))))
-    f = solver.fabric
+    f = solver.model.structure
     k = PULLED - 1
     nodes = f.chain_start[k + 1] - f.chain_start[k]
     state, forces = solver.initial_state(), []

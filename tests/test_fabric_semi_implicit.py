@@ -13,7 +13,7 @@ it, and the explicit one tests/test_fabric_dynamic.py builds.
 import numpy as np
 import pytest
 
-from dynfab.fabric.static import FabricStaticSolver
+from dynfab.static import StaticSolver
 from dynfab.run import run
 from dynfab.scene import parse_scene_text
 from dynfab.structure import uniform
@@ -35,11 +35,11 @@ def test_semi_implicit_load_steps_agree_with_the_static_ones(control, friction):
     `anchor_bound`, the same stability."""
     values = FORCES if control == "force" else DISPLACEMENTS
     model = paper_patch_model(4, 4, values, control, friction, tolerance=TOLERANCE)
-    static = FabricStaticSolver(model)
+    static = StaticSolver(model)
     dynamic = dynamic_solver(model, method="semi_implicit")
     s_state, d_state = static.initial_state(), model.initial_state()
     cg_iterations = 0
-    k_c = uniform(static.fabric.tie_contact_law)[0]
+    k_c = uniform(static.model.structure.tie_contact_law)[0]
     for warp_value, weft_value in values:
         anchors = s_state.anchors.copy()
         anchor_gap = float(np.hypot(*(d_state.anchors - s_state.anchors).T).max())

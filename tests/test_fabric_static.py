@@ -16,7 +16,6 @@ import pytest
 
 from dynfab.fabric import inertia
 from dynfab.fabric.model import FabricModel
-from dynfab.fabric.static import FabricStaticSolver
 from dynfab import assembly as one_yarn_assembly
 from dynfab.certificate import NEGATIVES, certify_yarn
 from dynfab.model import build_model, initial_state
@@ -124,12 +123,12 @@ def test_held_wefts_give_the_one_yarn_model_under_gravity(control, values):
 def compare_with_one_yarn(control, values, friction, gravity=None):
     """Solve both models along the path and compare them step by step; the fabric's
     records."""
-    solver = FabricStaticSolver(patch_model(control, values, friction, hold="weft",
+    solver = StaticSolver(patch_model(control, values, friction, hold="weft",
                                             gravity=gravity))
     state = solver.initial_state()
     reference = one_yarn_run(control, values, friction,
-                             solver.fabric.tie_friction_law[0, 3] or None, gravity)
-    f = solver.fabric
+                             solver.model.structure.tie_friction_law[0, 3] or None, gravity)
+    f = solver.model.structure
     records = []
     for value, expected in zip(values, reference):
         state, record = solver.step(state, (value, 0.0))
@@ -168,12 +167,12 @@ def test_held_wefts_under_compression_leave_the_saddle_for_a_one_yarn_minimum():
     # order, and the fabric stops at 1e-10 N) and stable by the one-yarn certificate
     # (dynfab.certificate: no negative pivot of its Hessian).
     values = (-3e-4, -6e-4, -9e-4)
-    solver = FabricStaticSolver(patch_model("displacement", values, None, hold="weft"))
+    solver = StaticSolver(patch_model("displacement", values, None, hold="weft"))
     records, model = one_yarn_run("displacement", values, None, None, with_model=True)
     model = dataclasses.replace(model, yarns=tuple(
         y._replace(contact_law=np.concatenate([[K_C], y.contact_law[1:]])) for y in model.yarns))
     fixed = model.fixed_dofs()
-    f = solver.fabric
+    f = solver.model.structure
     state = solver.initial_state()
     buckled = []
     for value in values:
@@ -198,14 +197,14 @@ def test_inertia_from_the_schur_complement_matches_the_dense_spectrum(planes):
     # dense Hessian equals the Schur count for shifts placed halfway between consecutive
     # eigenvalues (a gap far above the eigenvalues' rounding, eps ||H||). With planes
     # "affine" the end nodes' in-plane dofs join the crossing dofs in K.
-    solver = FabricStaticSolver(patch_model("force", (0.2,), FRICTION, weft_values=(0.05,),
+    solver = StaticSolver(patch_model("force", (0.2,), FRICTION, weft_values=(0.05,),
                                             planes=planes))
     state, records = solver.run()
     assert records[-1]["negative_eigenvalues"] == 0
     # the state before the return map: the Hessian the step certified
     limit = records[-1]["friction_limit"].ravel()
     anchors = solver.initial_state().anchors
-    H = solver.hessian(state.positions, anchors, limit).toarray()
+    H = solver.backend.hessian(state.positions, anchors, limit).toarray()
     eigenvalues = np.linalg.eigvalsh(H)
     gaps = np.diff(eigenvalues)
     for m in (1, 5, 17, 60, H.shape[0] // 2):
@@ -226,7 +225,7 @@ def test_a_step_reports_each_newton_iteration_within_itself():
     its residual against the tolerance), and before the stability check: what the progress
     line shows while a long step runs."""
     calls = []
-    solver = FabricStaticSolver(patch_model("force", FORCES, FRICTION), status=calls.append)
+    solver = StaticSolver(patch_model("force", FORCES, FRICTION), status=calls.append)
     _, record = solver.step(solver.initial_state(), (FORCES[0], 0.0))
     newton = [c for c in calls if c.startswith("Newton iteration")]
     assert len(newton) == record["iterations"] > 1

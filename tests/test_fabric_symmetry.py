@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from dynfab.fabric.model import FabricModel
-from dynfab.fabric.static import FabricStaticSolver
+from dynfab.static import StaticSolver
 from independent import fabric_scene, record_inverse_norm
 
 COUNT = 4
@@ -25,7 +25,7 @@ PATHS = {"force": ((0.1, 0.3, 0.6), (0.05, 0.1, 0.4)),
 def solve(control, warp_values, weft_values, friction, boundary="clamped", planes="fixed"):
     """(solver, [(state, record)] per step) of the balanced fabric."""
     tables = {} if friction is None else {"friction": friction}
-    solver = FabricStaticSolver(FabricModel.from_scene(fabric_scene(
+    solver = StaticSolver(FabricModel.from_scene(fabric_scene(
         YARN, YARN, COUNT, COUNT, geometry=dict(boundary=boundary, planes=planes),
         load=dict(control=control, values=list(warp_values), weft_values=list(weft_values)),
         **tables)))
@@ -38,7 +38,7 @@ def solve(control, warp_values, weft_values, friction, boundary="clamped", plane
 
 def families(solver, state):
     """(warps, wefts): node positions (COUNT, nodes, 2), z of the wefts mirrored."""
-    f, pos = solver.fabric, state.positions
+    f, pos = solver.model.structure, state.positions
     warps = np.stack([pos[f.chain_start[k]:f.chain_start[k + 1]] for k in range(COUNT)])
     wefts = np.stack([pos[f.chain_start[COUNT + j]:f.chain_start[COUNT + j + 1]]
                       for j in range(COUNT)]) * np.array([1.0, -1.0])
@@ -65,7 +65,7 @@ def test_equal_loads_give_equal_families(control, friction):
         assert np.abs(warps - wefts).max() <= tol
         R = record["contact_force"]
         assert R.max() > 0
-        k_c = solver.fabric.tie_contact_law[0, 0]
+        k_c = solver.model.structure.tie_contact_law[0, 0]
         assert np.abs(R - R.T).max() <= k_c * tol  # dR <= k_c dz
         assert record["strain"][0] == pytest.approx(record["strain"][1], rel=0,
                                                     abs=tol / YARN["length"])
@@ -88,6 +88,6 @@ def test_swapped_loads_swap_the_results(control, friction, boundary, planes):
         assert np.abs(wefts_a - warps_b).max() <= tol
         assert np.abs(warps_a - wefts_a).max() > 1e3 * tol  # the loads differ: so do families
         R_a, R_b = record_a["contact_force"], record_b["contact_force"]
-        assert np.abs(R_a - R_b.T).max() <= solver_a.fabric.tie_contact_law[0, 0] * tol
+        assert np.abs(R_a - R_b.T).max() <= solver_a.model.structure.tie_contact_law[0, 0] * tol
         if friction is not None:
             assert np.array_equal(record_a["sliding"], record_b["sliding"].T)

@@ -25,7 +25,7 @@ import pytest
 import scipy.sparse.linalg
 
 from dynfab.geometry import tensioned_beam_stiffness
-from dynfab.fabric.static import FabricStaticSolver
+from dynfab.static import StaticSolver
 from independent import fabric_scene, held_family
 
 WARPS, L_WE, EA, EI = 4, 0.1, 13.72, 1.47e-7
@@ -39,14 +39,14 @@ def chain_stiffness(T, m):
                 kawabata_C=0.2e-3, kawabata_K=0.2)
     scene = fabric_scene(warp, weft, WARPS, 1,
                          load=dict(control="force", values=[0.0], weft_values=[T]))
-    solver = FabricStaticSolver(held_family(scene, "warp"))
+    solver = StaticSolver(held_family(scene, "warp"))
     state, records = solver.run()
-    f = solver.fabric
-    H = solver.hessian(state.positions, state.anchors, np.zeros(WARPS))
+    f = solver.model.structure
+    H = solver.backend.hessian(state.positions, state.anchors, np.zeros(WARPS))
     push = np.zeros(f.fixed.size)
     push[2 * f.tie_b + 1] = -f.tie_side  # unit forces, each away from its warp
     deflection = np.zeros(f.fixed.size)
-    deflection[solver.free] = scipy.sparse.linalg.spsolve(H, push[solver.free])
+    deflection[solver.backend.free] = scipy.sparse.linalg.spsolve(H, push[solver.backend.free])
     away = -f.tie_side * deflection[2 * f.tie_b + 1]
     assert np.all(away > 0)
     return 1.0 / away.mean()

@@ -20,10 +20,10 @@ import warp as wp
 from independent import PAPER_FRICTION, PAPER_WARP, PAPER_WEFT, make_scene
 
 from dynfab import assembly
-from dynfab.build import build_structure
+from dynfab.builders import build_structure
 from dynfab.fabric import assembly as fabric_assembly
 from dynfab.fabric import contact as tie_contact
-from dynfab.fabric.static import FabricStaticSolver
+from dynfab.newton_sparse import SparseNewton
 from dynfab.kernels import status, structure_arrays, structure_explicit, structure_variants
 from dynfab.kernels.structure_relaxation import StructureRelaxation
 from dynfab.model import chain_view
@@ -78,12 +78,12 @@ def relaxation(structure, **options) -> StructureRelaxation:
     return StructureRelaxation(structure, friction=True, boundary=True, **options)
 
 
-def static_solver(structure, scene=None) -> FabricStaticSolver:
-    """The static solver of any structure (its energy, gradient and Hessian read the structure
-    alone: docs/model.md sections 6, 10)."""
+def static_solver(structure, scene=None) -> SparseNewton:
+    """The static solver's sparse backend on any structure (its energy, gradient and Hessian
+    read the structure alone: docs/model.md sections 6, 10)."""
     scene = make_scene(geometry={"length": 0.1, "segments": 4, "crossings": 0, "amplitude": 0.0},
                        warp=PAPER_WARP, load={"values": [0.1]}) if scene is None else scene
-    return FabricStaticSolver(SimpleNamespace(structure=structure, scene=scene))
+    return SparseNewton(SimpleNamespace(structure=structure, scene=scene))
 
 
 def perturbed(structure, seed=3, size=2e-5) -> np.ndarray:

@@ -27,9 +27,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dynfab.build import build_structure
+from dynfab.builders import build_structure
 from dynfab.fabric import contact
-from dynfab.fabric.static import FabricStaticSolver
 from dynfab.kernels import status
 from dynfab.model import build_model, initial_state
 from dynfab.scene import load_scene, with_key
@@ -118,7 +117,7 @@ def fabric_step(name):
     """(structure, start state, the static step's state and record, loads per chain)."""
     scene = with_key(FABRICS[name](), "static.tolerance", TOLERANCE / 10)
     model = build_model(scene)
-    static = FabricStaticSolver(model)
+    static = StaticSolver(model)
     start = static.initial_state()
     values = model.load_values[0]
     state, record = static.step(start.copy(), values)
@@ -129,7 +128,7 @@ def fabric_step(name):
 @pytest.mark.parametrize("name", sorted(FABRICS))
 def test_a_fabric_reaches_the_static_state(name, method):
     """The fabric's first load step from the as-woven state, each method against
-    `FabricStaticSolver.step`: positions within `agreement_bound`, the same closed and sliding
+    `StaticSolver.step`: positions within `agreement_bound`, the same closed and sliding
     ties, the return-mapped anchors within `anchor_bound`."""
     s, start, state, record, P = fabric_step(name)
     kernels = relaxation(s, method=method, damping="kinetic")
@@ -275,7 +274,7 @@ def test_displacement_control_reactions_are_the_static_ones():
     scene = with_key(fabric_scene(3, "clamped", "affine", load=(2e-4, 5e-5),
                                   control="displacement"), "static.tolerance", TOLERANCE / 10)
     model = build_model(scene)
-    static = FabricStaticSolver(model)
+    static = StaticSolver(model)
     start = static.initial_state()
     state, record = static.step(start.copy(), model.load_values[0])
     s = model.structure
@@ -288,10 +287,10 @@ def test_displacement_control_reactions_are_the_static_ones():
     bound = jacobian_norm(s, state.positions, anchors) * (outcome.residual[0] + record["residual"])
     assert np.abs(relaxed - state.positions).max() <= bound
     reaction = -kernels.internal_force(relaxed, anchors)[s.load_node, 0]
-    values = np.zeros(static.pattern.size)
-    assembly.hessian_values(state.positions, s, anchors, static.friction_limits(state.positions),
-                            values)
-    H = static.pattern.full_matrix(values)
+    values = np.zeros(static.backend.pattern.size)
+    limit = static.backend.friction_limits(state.positions)
+    assembly.hessian_values(state.positions, s, anchors, limit, values)
+    H = static.backend.pattern.full_matrix(values)
     rows = np.abs(H[2 * s.load_node]).sum(axis=1)
     assert np.all(np.abs(reaction - record["end_force"]) <= rows * bound)
     assert np.abs(record["end_force"]).max() > 1e3 * (rows * bound).max()

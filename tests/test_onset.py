@@ -30,11 +30,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dynfab import assembly, static
+from dynfab import assembly, newton_banded
+from dynfab.friction_chain import friction_chain
 from dynfab.banded import zeros_band
 from dynfab.model import build_model, initial_state
 from dynfab.run import run as run_scene
 from dynfab.scene import load_scene, with_key
+from dynfab.static import StaticSolver
 from dynfab.terms import contact, friction
 from independent import (EPS, PAPER_FRICTION, PAPER_WARP, PAPER_WEFT, contact_force, dense,
                          contact_forces, gralen, make_scene, scene_gralen)
@@ -192,12 +194,10 @@ stays below 1 % of the smallest difference measured (2e-11 m)."""
 def solve_first_step(onset):
     """Positions and closures of the onset path's first step (P = 5 mN) at R_0 = onset."""
     model = build_model(with_key(onset_scene(), "friction.onset_force", onset))
-    yarn, state = model.yarns[0], initial_state(model)
-    pos, info = state.positions[0].copy(), np.zeros(4)
-    static.newton(pos, yarn, 0.005, model.fixed_dofs(), state.anchors[0].copy(), TOLERANCE,
-                  200, info)
-    assert int(info[static.STATUS]) == static.CONVERGED, info
-    return model, pos
+    backend = StaticSolver(model, tolerance=TOLERANCE, max_iterations=200).backend
+    problem = backend.problems(model.start_of_step(initial_state(model), 0.005))[0]
+    assert friction_chain(backend, problem).converged  # the chain alone, no certificate
+    return model, problem.positions
 
 
 def test_state_converges_at_first_order_as_the_onset_force_vanishes():
@@ -221,7 +221,7 @@ def test_state_converges_at_first_order_as_the_onset_force_vanishes():
     c = yarn.crossing_node.size
     R, limit, tangent = np.zeros(c), np.zeros(c), np.zeros(c)
     assembly.contact_state(pos, yarn, R, limit, tangent)
-    g = static._closures(pos, yarn)
+    g = newton_banded._closures(pos, yarn)
     at_onset = (np.abs(g) <= onsets[-1] / yarn.contact_law[0]) & (limit > 0)
     assert at_onset.any()
     assert np.all(limit[at_onset] < CONSTANT)
@@ -266,12 +266,12 @@ def test_regularised_path_runs_and_satisfies_the_law():
 
 @pytest.mark.parametrize("hold_crossing", [False, True])
 def test_semismooth_newton_reaches_the_active_set_state(hold_crossing):
-    # The onset fallback's two parts (docs/model.md section 4): `static._semismooth` (contact forces
-    # as unknowns, the complementarity in min-form) and `static._onset_root` (one crossing's
+    # The onset fallback's two parts (docs/model.md section 4): `newton_banded._semismooth` (contact forces
+    # as unknowns, the complementarity in min-form) and `newton_banded._onset_root` (one crossing's
     # contact force as a scalar root, the rest relaxed, then the free solve). On the onset
     # path's first step at R_0 = 1e-3 N (where the continuation starts: F_T is smooth on
     # the scale of the steps) both must land on the state the active-set path
-    # (`static.newton`) finds: docs/model.md section 4 claims one solution per step. Both stop at
+    # (`StaticSolver`'s friction chain) finds: docs/model.md section 4 claims one solution per step. Both stop at
     # TOLERANCE; the position error that leaves is TOLERANCE x |K^-1| with K's smallest
     # eigenvalue about 0.25 N/m on this yarn (docs/model.md section 5): 4e-12 m each, so 1e-10 m has
     # margin, and is 1e-5 of the first step's displacement (2e-5 m).
@@ -279,22 +279,22 @@ def test_semismooth_newton_reaches_the_active_set_state(hold_crossing):
     yarn, state = model.yarns[0], initial_state(model)
     fixed, anchors = model.fixed_dofs(), state.anchors[0].copy()
     pos = state.positions[0].copy()
-    R = static._contact_forces(pos, yarn)
+    R = newton_banded._contact_forces(pos, yarn)
     if hold_crossing:
-        g_reference = static._closures(reference, yarn)
+        g_reference = newton_banded._closures(reference, yarn)
         closed = np.flatnonzero(g_reference > 0)
         j = int(closed[np.argmin(g_reference[closed])])  # the closed crossing nearest g = 0
-        found, _ = static._onset_root(pos, yarn, 0.005, fixed, anchors, R, TOLERANCE, j)
+        found, _ = newton_banded._onset_root(pos, yarn, 0.005, fixed, anchors, R, TOLERANCE, j)
         assert found
-    _, converged = static._semismooth(pos, yarn, 0.005, fixed, anchors, R, TOLERANCE, 200)
+    _, converged = newton_banded._semismooth(pos, yarn, 0.005, fixed, anchors, R, TOLERANCE, 200)
     assert converged
     # consistent with the unilateral contact law and Gralen's law: R from g, F_T from R
-    assert static._natural_residual(pos, yarn, 0.005, anchors, fixed) <= TOLERANCE
+    assert newton_banded._natural_residual(pos, yarn, 0.005, anchors, fixed) <= TOLERANCE
     assert np.abs(pos - reference).max() <= 1e-10
     # the unknowns R agree with the law at the solution's closures
     law = yarn.contact_law
     assert np.abs(R - [contact.force_from_closure(g, law)
-                       for g in static._closures(pos, yarn)]).max() <= TOLERANCE
+                       for g in newton_banded._closures(pos, yarn)]).max() <= TOLERANCE
 
 
 def test_onset_path_passes_the_step_the_set_updates_could_not_solve():
@@ -303,7 +303,7 @@ def test_onset_path_passes_the_step_the_set_updates_could_not_solve():
     # 512, 672, 896 and 1792 segments (448 and 224 pass). The state it could not reach
     # has crossing 2 open and crossing 3 closed with a contact force below R_0 (at 1792
     # segments R = 7.06e-6 N at g = 3.3e-7 m); the semismooth fallback
-    # (`static._solve_semismooth`) reaches it. Checked here: every step converges to the
+    # (`newton_banded._solve_semismooth`) reaches it. Checked here: every step converges to the
     # tolerance, every F_T is the law at the step's R to 1e-12 N (docs/model.md section 4: the law
     # evaluated independently, with numpy's expm1), and step 19 has a closed crossing
     # inside the onset, 0 < R < R_0.

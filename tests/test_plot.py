@@ -204,7 +204,7 @@ def test_a_fabric_file_draws_loads_per_width_from_the_origin_and_its_shape(tmp_p
     and its crimp against the larger of the two loads, from the as-woven state (0, 0), in
     line styles and markers of their own, so both stay visible; shape.png draws the
     deformed cell as the `dynfab fabric` report does, from the file's positions."""
-    from dynfab.model import crimp
+    from dynfab.geometry import crimp
     from dynfab.plot import plot_fabric, plot_fabric_shape
     from dynfab.run import run_to_file
     from dynfab.scene import load_scene

@@ -5,7 +5,7 @@ geometry of docs/model.md sections 1 and 10, not from the builders."""
 import numpy as np
 from independent import PAPER_FRICTION, PAPER_WARP, PAPER_WEFT, make_scene
 
-from dynfab.build import build_structure
+from dynfab.builders import build_structure
 from dynfab.scene import load_scene
 from dynfab.structure import GROUND, chain_count, chain_nodes, chain_ties, grounded
 

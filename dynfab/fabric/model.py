@@ -3,7 +3,7 @@ and neither owns.
 
 - `FabricState`: what changes during a run (positions, anchors, dissipation, work, end
   forces); `as_woven_state`, the start of a run.
-- `FabricModel`: a fabric scene as the solvers see it, its structure (`dynfab.build.fabric`),
+- `FabricModel`: a fabric scene as the solvers see it, its structure (`dynfab.builders.fabric`),
   yarn families and load path, and the model's own functions of a state: the sparse
   Hessian with F_T frozen (`dynfab.fabric.assembly`, on the unknowns of its `Pattern`) that
   the Newton solve and the certificate (`dynfab.certificate`) both factor; the load a step
@@ -13,7 +13,7 @@ and neither owns.
   planes, the energy terms.
 - `run_load_path`: every load step of a model with either solver.
 
-The static solver (`dynfab.fabric.static`) and the dynamic one of every model
+The static solver (`dynfab.static`, its sparse backend) and the dynamic one of every model
 (`dynfab.dynamic`) import this module, never each other (`dynfab.solver`); each solves a step from
 `FabricModel.start_of_step` and hands its solution to `FabricModel.finish_step`, which
 makes the state and the record (`dynfab.step`).
@@ -53,7 +53,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse
 
-from dynfab.build.fabric import Family, families, fabric_structure
+from dynfab.builders.fabric import Family, families, fabric_structure
 from dynfab.domain import check_crossings_held, check_not_folded, fabric_slip_ratios
 from dynfab.fabric import assembly, contact, friction
 from dynfab.fabric.assembly import TERMS
@@ -109,7 +109,7 @@ def run_load_path(solver, state: FabricState | None = None):
 
 @dataclass
 class FabricModel:
-    """A fabric scene as the solvers see it: its structure (`dynfab.build.fabric`), its yarn
+    """A fabric scene as the solvers see it: its structure (`dynfab.builders.fabric`), its yarn
     families and its load path (docs/model.md section 10)."""
 
     scene: Scene
@@ -404,6 +404,10 @@ class FabricModel:
         u_new = pos[f.load_node, 0] - f.rest_position[f.load_node, 0]
         work = state.work + float(0.5 * (state.end_force + end_force) @ (u_new - u_old))
         return FabricState(pos, anchors, state.dissipated + lost, work, end_force), u_new
+
+    def group_name(self, k: int) -> str:
+        """The one group (the patch or cell) as a message names it."""
+        return "fabric"
 
     def crossing_name(self, c: int) -> str:
         """Crossing c as the scene counts it: "(warp k, weft j)", 1-based."""

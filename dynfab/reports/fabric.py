@@ -39,12 +39,12 @@ from typing import Callable
 import numpy as np
 
 from dynfab.fabric.model import FabricModel
-from dynfab.fabric.static import FabricStaticSolver
 from dynfab.reports.common import machine, output_folder, write_json, write_text
 from dynfab.reports.fabric_data import (eq4_against_beam, FULL, PATHS, QUICK, YARNS, Plan, cell_scene, crimp_percent,
                                         load_per_width, strain_percent, width_per_yarn,
                                         yarn_nodes)
 from dynfab.reports.fabric_plots import draw_figures
+from dynfab.static import StaticSolver
 
 
 def run_fabric(out_dir, *, quick: bool = False,
@@ -109,8 +109,8 @@ def _family_dict(family) -> dict:
 def solve_path(plan: Plan, ratio: tuple[float, float]) -> dict:
     """One proportional path: per step (as woven first) loads, strains, crimps, contact
     forces, residual, stability and the positions' error bound; the last shapes and plan."""
-    solver = FabricStaticSolver(FabricModel.from_scene(cell_scene(plan, ratio)))
-    f, path = solver.fabric, solver.model.load_values
+    solver = StaticSolver(FabricModel.from_scene(cell_scene(plan, ratio)))
+    f, path = solver.model.structure, solver.model.load_values
     state = solver.initial_state()
     warp_loads, weft_loads = (np.concatenate([[0.0], v]) for v in path.T)
     strain, crimp = [np.zeros(2)], [solver.model.crimps(state.positions)]
@@ -150,10 +150,10 @@ def _lists(value):
     return value
 
 
-def position_bound(solver: FabricStaticSolver, state, record) -> float:
+def position_bound(solver: StaticSolver, state, record) -> float:
     """4 ||H^-1||_inf max(r, tolerance) [m]: how far the step's positions may lie from the
     exact solution (module docstring)."""
-    H = solver.hessian(state.positions, state.anchors, record["friction_limit"].ravel())
+    H = solver.backend.hessian(state.positions, state.anchors, record["friction_limit"].ravel())
     inverse_norm = np.abs(np.linalg.inv(H.toarray())).sum(axis=1).max()
     return float(4 * inverse_norm * max(record["residual"], solver.tolerance))
 

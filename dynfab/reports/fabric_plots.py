@@ -18,8 +18,8 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Rectangle
 
-from dynfab.plot import DPI, FAMILY_ALPHA, FAMILY_STYLE, FAMILY_WIDTH, FONT_SIZE, new_figure
-from dynfab.plot import style_axes as _plot_style
+from dynfab.plot_style import DPI, FAMILY_ALPHA, FAMILY_STYLE, FAMILY_WIDTH, FONT_SIZE, new_figure
+from dynfab.plot_style import style_axes as _plot_style
 from dynfab.reports.fabric_data import (PATHS, crimp_percent, larger_load, load_per_width,
                                         strain_percent)
 

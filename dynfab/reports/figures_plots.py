@@ -18,8 +18,9 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
-from dynfab.plot import DPI, FONT_SIZE, FRICTION_STATES, new_figure
-from dynfab.plot import style_axes as _plot_style
+from dynfab.plot import FRICTION_STATES
+from dynfab.plot_style import DPI, FONT_SIZE, new_figure
+from dynfab.plot_style import style_axes as _plot_style
 from dynfab.reports.figures_data import (STRAIN_STAGE, force_per_width, friction_gap,
                                          friction_split, k_order, kawabata_K, length,
                                          mean_contact_force, read_figure_data, scene_of,

@@ -92,7 +92,8 @@ from dynfab.reports.precision_points import (METHODS, Method, cheapest, method_l
 from dynfab.reports.precision_tables import precision_markdown
 from dynfab.scene import Dynamic, Scene, expand_sweep, load_scene, with_key
 from dynfab.loading import prescribe_load
-from dynfab.static import StaticSolver, max_free
+from dynfab.newton_banded import max_free
+from dynfab.static import StaticSolver
 from dynfab.timing import best_time
 from dynfab.terms.friction import INDEX as FRICTION
 

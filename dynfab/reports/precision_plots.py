@@ -12,7 +12,7 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.ticker import NullFormatter
 
-from dynfab.plot import DPI, FONT_SIZE, style_axes
+from dynfab.plot_style import DPI, FONT_SIZE, style_axes
 from dynfab.reports.precision_points import (METHODS, method_label, pareto_front,
                                              shown_error, usable_points)
 

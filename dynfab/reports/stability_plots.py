@@ -11,7 +11,7 @@ import math
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
-from dynfab.plot import DPI, FONT_SIZE
+from dynfab.plot_style import DPI, FONT_SIZE
 from dynfab.reports.stability_cases import Plan
 from dynfab.scene import Dynamic
 

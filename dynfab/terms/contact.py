@@ -17,7 +17,7 @@ left side gains R/k_c and the energy R^2/(2 k_c) with no further term (`dynfab.m
 
 Branches: the functions taking `branch` (None, or one of NATURAL, OPEN, CLOSED per
 crossing) let the static solver hold a crossing open or closed during a Newton solve
-(docs/model.md section 4, the active set of `dynfab.static`). OPEN: R = 0 and dR/dg = 0 at any g.
+(docs/model.md section 4, `dynfab.active_set`). OPEN: R = 0 and dR/dg = 0 at any g.
 CLOSED: the unilateral law's force (R = 0 for g <= 0: no adhesion), but for g <= 0 the
 tangent from the closed side, k_0 = 1/(1/k_s + C_wa a_wa + C_we a_we): the Newton
 matrix of a crossing held closed keeps its contact stiffness across g = 0. NATURAL (and

@@ -11,9 +11,9 @@ def build_structure(scene: Scene) -> Structure:
     """The structure of a validated scene: the paper's yarn (docs/model.md sections 1-9) or the
     woven fabric (section 10)."""
     if scene.geometry.model == "fabric":
-        from dynfab.build.fabric import fabric_structure
+        from dynfab.builders.fabric import fabric_structure
 
         return fabric_structure(scene)
-    from dynfab.build.yarn import yarn_structure
+    from dynfab.builders.yarn import yarn_structure
 
     return yarn_structure(scene)
