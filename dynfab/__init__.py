@@ -8,6 +8,7 @@ The public surface::
     dynfab.read_results("fig3.h5")                              # the same arrays, from disk
     dynfab.write_xdmf("fig3.h5")                                # fig3.xdmf for ParaView, meshio (a run writes it)
     dynfab.fit(scene, "curve.csv", ["warp.EA"])                 # parameters from a measured curve
+    dynfab.study("study.toml", "study_out")                     # many cases on a Dask cluster
 
 The names are imported on first use, so that `import dynfab` (and the
 `dynfab` command starting up) costs no heavy import. When the process is the
@@ -47,12 +48,13 @@ __version__ = "0.1.0"
 _HOMES = {"build_model": "dynfab.model", "plot_results": "dynfab.plot",
           "Results": "dynfab.results", "read_results": "dynfab.results", "run": "dynfab.run",
           "load_scene": "dynfab.scene", "parse_scene_text": "dynfab.scene",
-          "fit": "dynfab.fit", "FitResult": "dynfab.fit", "write_xdmf": "dynfab.xdmf"}
+          "fit": "dynfab.fit", "FitResult": "dynfab.fit", "write_xdmf": "dynfab.xdmf",
+          "study": "dynfab.study", "load_study": "dynfab.study_file"}
 """Module defining each public name."""
 
 __all__ = ["DynfabError", "FitResult", "Results", "SolverError", "UserError", "build_model",
-           "fit", "load_scene", "parse_scene_text", "plot_results", "read_results", "run",
-           "write_xdmf", "__version__"]
+           "fit", "load_scene", "load_study", "parse_scene_text", "plot_results", "read_results",
+           "run", "study", "write_xdmf", "__version__"]
 
 
 def __getattr__(name: str):
@@ -65,11 +67,11 @@ def __getattr__(name: str):
 
 
 class _Package(types.ModuleType):
-    """Keeps `dynfab.run` and `dynfab.fit` the functions: importing the submodules dynfab.run
-    and dynfab.fit would otherwise rebind the package attributes to the modules."""
+    """Keeps `dynfab.run`, `dynfab.fit` and `dynfab.study` the functions: importing the
+    submodules of those names would otherwise rebind the package attributes to the modules."""
 
     def __setattr__(self, name: str, value) -> None:
-        if name in ("run", "fit") and isinstance(value, types.ModuleType):
+        if name in ("run", "fit", "study") and isinstance(value, types.ModuleType):
             value = getattr(value, name)
         super().__setattr__(name, value)
 
