@@ -61,8 +61,9 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--quiet", action="store_true", help="no progress lines, no summary table")
     for flag, (kind, text) in RUN_FLAGS.items():
         run.add_argument(flag, type=kind, help=text)
-    plot = commands.add_parser("plot", help="draw the PNG figures of a result file")
-    plot.add_argument("results", type=Path, help="result file (HDF5)")
+    plot = commands.add_parser("plot", help="draw the PNG figures of a result file (or of a "
+                                            "study's study.nc)")
+    plot.add_argument("results", type=Path, help="result file (HDF5), or a study's table (.nc)")
     plot.add_argument("--out", type=Path, required=True, help="folder for the PNG files")
     xdmf = commands.add_parser("xdmf", help="(re)write <result>.xdmf, the view of a result file "
                                             "for ParaView and meshio (a run writes it too)")

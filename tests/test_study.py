@@ -209,6 +209,11 @@ def test_a_study_gathers_exactly_the_serial_runs_and_records_a_failed_case(tmp_p
     grid = table.set_index(case=table.attrs["parameters"].split()).unstack("case")
     assert grid["final"].sel({"warp.EA": 13.72, "static.max_iterations": 200}).item() == \
         expected["final"][1, 0]
+    drawn = dynfab.plot_results(result.table, tmp_path / "plots")  # dynfab plot study.nc
+    names = {"stretch.png", "stretch_path.png", "stretch_map.png"}
+    names |= {f"{n}{suffix}.png" for n in ("final", "between", "on_step") for suffix in ("", "_map")}
+    assert {p.name for p in drawn} == names
+    assert all(p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" for p in drawn)
 
 
 def test_a_second_study_on_a_folder_is_refused(tmp_path):
