@@ -109,6 +109,11 @@ def _add_fit_parser(commands) -> None:
     fit.add_argument("--out", type=Path, required=True, help="folder for fit.json, fitted.toml, PNGs")
     fit.add_argument("--bounds", action="append", help="KEY=LOWER:UPPER (repeatable)")
     fit.add_argument("--substeps", type=int, help="load steps per data interval")
+    fit.add_argument("--starts", type=int, default=1,
+                     help="fit from K starting points on a Dask cluster, keep the best")
+    fit.add_argument("--scheduler", help="with --starts: a running Dask scheduler's address "
+                                         "(default: a local cluster)")
+    fit.add_argument("--workers", type=int, help="with --starts: the local cluster's workers")
     fit.add_argument("--quiet", action="store_true", help="no progress lines")
 
 
@@ -316,7 +321,8 @@ def _command_fit(args, context: dict) -> None:
     with _compiles_announced(report):
         result = fit(load_scene(args.scene), args.data, args.fit,
                      bounds=parse_bounds(args.bounds), substeps=args.substeps, progress=report,
-                     out=args.out)
+                     out=args.out, starts=args.starts, scheduler=args.scheduler,
+                     workers=args.workers)
     print(result.table())
     for name in ("fit.json", "fitted.toml", "fit_curve.png", "fit_correlation.png"):
         print(f"wrote {args.out / name}", file=sys.stderr)
