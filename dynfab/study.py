@@ -67,6 +67,10 @@ class StudyResult:
     workers: int
     messages: dict = field(default_factory=dict)
     """Case index -> the message of each failed case."""
+    task_seconds: dict = field(default_factory=dict)
+    """Case index -> its task's wall time on its worker [s] (the cases run by this call)."""
+    write_seconds: float = 0.0
+    """Time this process spent writing the cases' files [s] (appends and syncs included)."""
 
     def summary(self) -> str:
         """The line printed at the end of `dynfab study`."""
@@ -97,12 +101,13 @@ def study(study_file, out, *, scheduler: str | None = None, workers: int | None 
         folder.prepare(plan, resume)
         todo = [case for case in plan.cases if folder.state(case)[0] not in ENDED]
         started = time.monotonic()
-        worker_count = 0
+        worker_count, runner = 0, None
         if todo:
             folder.table.unlink(missing_ok=True)  # a table says every case has ended
             with _cluster(scheduler, workers) as client:
                 worker_count = len(client.nthreads())
-                _Runner(plan, folder, client, sync, progress, status).run(todo)
+                runner = _Runner(plan, folder, client, sync, progress, status)
+                runner.run(todo)
         from dynfab.study_table import write_table
 
         write_table(plan, folder, folder.table)
@@ -111,7 +116,9 @@ def study(study_file, out, *, scheduler: str | None = None, workers: int | None 
         return StudyResult(table=folder.table, cases=len(plan.cases),
                            finished=len(plan.cases) - len(failed), failed=len(failed),
                            ran=len(todo), seconds=time.monotonic() - started,
-                           workers=worker_count, messages=failed)
+                           workers=worker_count, messages=failed,
+                           task_seconds=runner.task_seconds if runner else {},
+                           write_seconds=runner.write_seconds if runner else 0.0)
 
 
 ENDED = ("finished", "failed")
@@ -287,6 +294,8 @@ class _Runner:
         self.queue = None
         self.first_end: float | None = None
         """When the first case of this run ended (the rate of the others gives the time left)."""
+        self.task_seconds: dict[int, float] = {}
+        self.write_seconds = 0.0
 
     def run(self, todo: list[Case]) -> None:
         from distributed import Queue, wait
@@ -315,7 +324,9 @@ class _Runner:
                 if done:
                     self._drain()
                 for future in done:
+                    began = time.perf_counter()
                     self._finish(pending.pop(future), future)
+                    self.write_seconds += time.perf_counter() - began
                 self._show(started, total, len(pending))
         finally:
             for future in pending:
@@ -339,8 +350,10 @@ class _Runner:
         """Append every step waiting on the queue to its case's file ("steps")."""
         if self.queue is None:
             return
+        began = time.perf_counter()
         for message in self.queue.get(batch=True):
             self._append(message)
+        self.write_seconds += time.perf_counter() - began
 
     def _append(self, message: dict) -> None:
         from dynfab.results import ResultFile
@@ -358,12 +371,13 @@ class _Runner:
                 writer = ResultFile.create(path, attrs=attrs, reference=reference,
                                            step_capacity=case.steps, views=add_views)
             self.writers[index] = writer
-        if message["row"] < writer.step_count:
-            return  # a case rerun after its worker died: this step is in the file already
-        if message["row"] > writer.step_count:
-            raise RuntimeError(f"case {index}: step {message['row'] + 1} arrived before step "
-                               f"{writer.step_count + 1}")
-        writer.append_step(message["step"])
+        for row, step in enumerate(message["steps"], start=message["first"]):
+            if row < writer.step_count:
+                continue  # a case rerun after its worker died: this step is in the file
+            if row > writer.step_count:
+                raise RuntimeError(f"case {index}: step {row + 1} arrived before step "
+                                   f"{writer.step_count + 1}")
+            writer.append_step(step)
 
     def _finish(self, case: Case, future) -> None:
         """Write the case's end: close its streamed file, or write the file that came back."""
@@ -373,6 +387,7 @@ class _Runner:
                        "message": f"{type(error).__name__}: {error}"}
         else:
             outcome = future.result()
+            self.task_seconds[case.index] = outcome["seconds"]
         path = self.folder.case_path(case)
         writer = self.writers.pop(case.index, None)
         if outcome["status"] == "finished":

@@ -8,9 +8,13 @@ where the machine has one, so that the run's per-step disk syncs cost nothing th
 client's file is the one kept), removed when the case ends. How the results travel is
 the study's `sync`:
 
-* "steps": after each finished load step the worker puts the step's rows on a Dask queue
-  (`distributed.Queue`, through the scheduler), the first with the file's root attributes
-  and reference; the client appends each to the case's file at once, synced, as a run does.
+* "steps": once the case has run `STREAM_INTERVAL_S`, the worker puts its finished load
+  steps' rows on a Dask queue (`distributed.Queue`, through the scheduler), then those
+  finished since at most every `STREAM_INTERVAL_S`, the first message with the file's
+  root attributes and reference; the client appends each step to the case's file at once,
+  synced, as a run does. A message is a round trip through the scheduler, which would
+  cost a short case more than its run: a case that ends within the first interval comes
+  back whole, as in "end".
 * "end": the worker returns the finished file's bytes with the task's result; the client
   writes them in one go, synced once.
 
@@ -31,6 +35,9 @@ import tempfile
 import time
 from pathlib import Path
 
+STREAM_INTERVAL_S = 1.0
+"""Least time between two messages of a case's steps, and before the first ("steps") [s]: a
+finished step reaches the client within about this (plus the transfer)."""
 SCRATCH_ROOTS = ("/dev/shm",)
 """Folders in memory tried first for a case's scratch file (then the system's temp folder)."""
 
@@ -52,7 +59,8 @@ def run_case(task: dict) -> dict:
     `task`: ``index``, ``scene`` (TOML text), ``solver``, ``sync`` ("steps", "end"),
     ``queue`` (the queue's name, "steps" only), ``partial`` (the bytes of a begun case's
     file, or None). Returns ``index``, ``status`` ("finished", "failed"), ``message``,
-    ``file`` (the case file's bytes: "end", or a failed case; else None), ``seconds``
+    ``file`` (the case file's bytes: "end", a failed case, or a case that ended before its
+    first message; else None), ``seconds``
     (the task's wall time [s]), ``worker`` (its address), ``pid``.
     """
     started = time.perf_counter()
@@ -67,7 +75,12 @@ def run_case(task: dict) -> dict:
         resume = task.get("partial") is not None
         if resume:
             path.write_bytes(task["partial"])
-        stream = _Stream(task["queue"], task["index"], path) if task["sync"] == "steps" else None
+        stream = None
+        if task["sync"] == "steps":
+            from dynfab.results import finished_counts
+
+            begun = (finished_counts(path) or (0, 0))[0] if resume else 0
+            stream = _Stream(task["queue"], task["index"], path, begun)
         try:
             scene = parse_scene_text(task["scene"], source=f"case {task['index']}")
             run_to_file(scene, task["solver"], path, resume=resume, progress=stream)
@@ -75,7 +88,10 @@ def run_case(task: dict) -> dict:
             status, message = "failed", str(error)
         except Exception as error:  # noqa: BLE001 (any error of a case is recorded, not fatal)
             status, message = "failed", f"{type(error).__name__}: {error}"
-        keep = task["sync"] == "end" or status == "failed"
+        streamed = stream is not None and stream.sent_head
+        if streamed and status == "finished":
+            stream.send()  # the steps since the last message
+        keep = not streamed or status == "failed"
         data = path.read_bytes() if keep and path.is_file() else None
     finally:
         shutil.rmtree(folder, ignore_errors=True)
@@ -85,21 +101,33 @@ def run_case(task: dict) -> dict:
 
 
 class _Stream:
-    """The `progress` of the worker's run in "steps": each finished step's rows, read back
-    from the scratch file, put on the study's queue."""
+    """The `progress` of the worker's run in "steps": the finished steps' rows, read back
+    from the scratch file, put on the study's queue at most every STREAM_INTERVAL_S."""
 
-    def __init__(self, queue_name: str, index: int, path: Path) -> None:
+    def __init__(self, queue_name: str, index: int, path: Path, begun: int) -> None:
         self.queue = _queue(queue_name)
         self.index, self.path, self.sent_head = index, path, False
+        self.sent_rows = begun
+        """Rows the client has: those of the file the case resumed, then those sent."""
+        self.last = time.monotonic()
+        """When the last message went (or the case began)."""
 
     def __call__(self, line: str) -> None:
-        message = {"case": self.index}
-        row, step = read_last_row(self.path)
+        if time.monotonic() - self.last >= STREAM_INTERVAL_S:
+            self.send()
+
+    def send(self) -> None:
+        """Put the rows finished since the last message (none: nothing) on the queue."""
+        first, steps = read_rows(self.path, self.sent_rows)
+        self.last = time.monotonic()
+        if not steps:
+            return
+        message = {"case": self.index, "first": first, "steps": steps}
         if not self.sent_head:
             message["head"] = read_head(self.path)
             self.sent_head = True
-        message.update(row=row, step=step)
         self.queue.put(message)
+        self.sent_rows = first + len(steps)
 
 
 _QUEUES: dict = {}
@@ -116,16 +144,18 @@ def _queue(name: str):
     return _QUEUES[name]
 
 
-def read_last_row(path: Path) -> tuple[int, dict]:
-    """(index, {name: value}) of the last finished row of steps/ of a result file."""
+def read_rows(path: Path, first: int) -> tuple[int, list[dict]]:
+    """(first, [{name: value}, ...]): the finished rows of steps/ of a result file from row
+    `first` on."""
     import h5py
 
     with h5py.File(path, "r") as h5:
-        row = int(h5["steps_done"][0]) - 1
-        step: dict = {}
-        h5["steps"].visititems(lambda name, obj: step.__setitem__(name, obj[row])
+        done = int(h5["steps_done"][0])
+        columns: dict = {}
+        h5["steps"].visititems(lambda name, obj: columns.__setitem__(name, obj[first:done])
                                if isinstance(obj, h5py.Dataset) else None)
-    return row, step
+    return first, [{name: rows[i] for name, rows in columns.items()}
+                   for i in range(done - first)]
 
 
 def read_head(path: Path) -> tuple[dict, dict]:
