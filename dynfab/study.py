@@ -71,6 +71,9 @@ class StudyResult:
     """Case index -> its task's wall time on its worker [s] (the cases run by this call)."""
     write_seconds: float = 0.0
     """Time this process spent writing the cases' files [s] (appends and syncs included)."""
+    repeated_steps: int = 0
+    """Steps that came twice (a case rerun after its worker died sends again the steps its
+    file has) and were skipped."""
 
     def summary(self) -> str:
         """The line printed at the end of `dynfab study`."""
@@ -82,10 +85,13 @@ class StudyResult:
 def study(study_file, out, *, scheduler: str | None = None, workers: int | None = None,
           resume: bool = False, sync: str = "steps",
           progress: Callable[[str], None] | None = None,
-          status: Callable[[str], None] | None = None) -> StudyResult:
+          status: Callable[[str], None] | None = None,
+          stream_interval_s: float | None = None) -> StudyResult:
     """Run a study (a study file's path or a `Study`) into the folder `out`; see the module
     docstring. `progress` receives a line per failed case; `status` the live line (cases
-    finished, failed, running, time left), about every POLL_S s."""
+    finished, failed, running, time left), about every POLL_S s. `stream_interval_s`: with
+    sync "steps", how soon a running case's steps reach this process [s]
+    (`dynfab.study_case.STREAM_INTERVAL_S` by default)."""
     if not isinstance(study_file, Study):
         study_file = load_study(study_file)
     plan = study_file
@@ -107,6 +113,7 @@ def study(study_file, out, *, scheduler: str | None = None, workers: int | None 
             with _cluster(scheduler, workers) as client:
                 worker_count = len(client.nthreads())
                 runner = _Runner(plan, folder, client, sync, progress, status)
+                runner.stream_interval_s = stream_interval_s
                 runner.run(todo)
         from dynfab.study_table import write_table
 
@@ -118,7 +125,8 @@ def study(study_file, out, *, scheduler: str | None = None, workers: int | None 
                            ran=len(todo), seconds=time.monotonic() - started,
                            workers=worker_count, messages=failed,
                            task_seconds=runner.task_seconds if runner else {},
-                           write_seconds=runner.write_seconds if runner else 0.0)
+                           write_seconds=runner.write_seconds if runner else 0.0,
+                           repeated_steps=runner.repeated_steps if runner else 0)
 
 
 ENDED = ("finished", "failed")
@@ -296,6 +304,10 @@ class _Runner:
         """When the first case of this run ended (the rate of the others gives the time left)."""
         self.task_seconds: dict[int, float] = {}
         self.write_seconds = 0.0
+        self.repeated_steps = 0
+        self.stream_interval_s: float | None = None
+        self.shown = 0.0
+        """When the live line was last shown."""
 
     def run(self, todo: list[Case]) -> None:
         from distributed import Queue, wait
@@ -310,10 +322,12 @@ class _Runner:
             task = {"index": case.index, "scene": case.text, "solver": self.plan.solver,
                     "sync": self.sync, "queue": self.queue.name if self.queue else None,
                     "partial": self._partial(case)}
+            if self.stream_interval_s is not None:
+                task["stream_interval"] = self.stream_interval_s
             future = self.client.submit(run_case, task, key=f"dynfab-case-{token}-{case.index}",
                                         pure=False)
             pending[future] = case
-        started, total = time.monotonic(), len(todo)
+        self.started, self.total, self.pending = time.monotonic(), len(todo), pending
         try:
             while pending:
                 self._drain()
@@ -327,7 +341,7 @@ class _Runner:
                     began = time.perf_counter()
                     self._finish(pending.pop(future), future)
                     self.write_seconds += time.perf_counter() - began
-                self._show(started, total, len(pending))
+                self._show()
         finally:
             for future in pending:
                 future.cancel()
@@ -350,10 +364,12 @@ class _Runner:
         """Append every step waiting on the queue to its case's file ("steps")."""
         if self.queue is None:
             return
-        began = time.perf_counter()
         for message in self.queue.get(batch=True):
+            began = time.perf_counter()
             self._append(message)
-        self.write_seconds += time.perf_counter() - began
+            self.write_seconds += time.perf_counter() - began
+            if time.monotonic() - self.shown >= POLL_S:
+                self._show()  # a long drain (a sync per step) keeps the line live
 
     def _append(self, message: dict) -> None:
         from dynfab.results import ResultFile
@@ -373,7 +389,8 @@ class _Runner:
             self.writers[index] = writer
         for row, step in enumerate(message["steps"], start=message["first"]):
             if row < writer.step_count:
-                continue  # a case rerun after its worker died: this step is in the file
+                self.repeated_steps += 1  # a case rerun after its worker died
+                continue
             if row > writer.step_count:
                 raise RuntimeError(f"case {index}: step {row + 1} arrived before step "
                                    f"{writer.step_count + 1}")
@@ -429,9 +446,11 @@ class _Runner:
                                 + ", ".join(sorted(n for n in have if "/" not in n)))
         self.checked = True
 
-    def _show(self, started: float, total: int, pending: int) -> None:
+    def _show(self) -> None:
+        self.shown = time.monotonic()
         if self.status is None:
             return
+        started, total, pending = self.started, self.total, len(self.pending)
         ended = self.done + self.failed
         threads = sum(self.client.nthreads().values()) or 1
         running = min(pending, threads)

@@ -57,8 +57,8 @@ def run_case(task: dict) -> dict:
     """Run one case on this worker; its outcome (module docstring).
 
     `task`: ``index``, ``scene`` (TOML text), ``solver``, ``sync`` ("steps", "end"),
-    ``queue`` (the queue's name, "steps" only), ``partial`` (the bytes of a begun case's
-    file, or None). Returns ``index``, ``status`` ("finished", "failed"), ``message``,
+    ``queue`` (the queue's name, "steps" only), ``stream_interval`` (STREAM_INTERVAL_S
+    unless given), ``partial`` (the bytes of a begun case's file, or None). Returns ``index``, ``status`` ("finished", "failed"), ``message``,
     ``file`` (the case file's bytes: "end", a failed case, or a case that ended before its
     first message; else None), ``seconds``
     (the task's wall time [s]), ``worker`` (its address), ``pid``.
@@ -80,7 +80,8 @@ def run_case(task: dict) -> dict:
             from dynfab.results import finished_counts
 
             begun = (finished_counts(path) or (0, 0))[0] if resume else 0
-            stream = _Stream(task["queue"], task["index"], path, begun)
+            stream = _Stream(task["queue"], task["index"], path, begun,
+                             task.get("stream_interval", STREAM_INTERVAL_S))
         try:
             scene = parse_scene_text(task["scene"], source=f"case {task['index']}")
             run_to_file(scene, task["solver"], path, resume=resume, progress=stream)
@@ -104,8 +105,9 @@ class _Stream:
     """The `progress` of the worker's run in "steps": the finished steps' rows, read back
     from the scratch file, put on the study's queue at most every STREAM_INTERVAL_S."""
 
-    def __init__(self, queue_name: str, index: int, path: Path, begun: int) -> None:
-        self.queue = _queue(queue_name)
+    def __init__(self, queue_name: str, index: int, path: Path, begun: int,
+                 interval: float) -> None:
+        self.queue, self.interval = _queue(queue_name), interval
         self.index, self.path, self.sent_head = index, path, False
         self.sent_rows = begun
         """Rows the client has: those of the file the case resumed, then those sent."""
@@ -113,7 +115,7 @@ class _Stream:
         """When the last message went (or the case began)."""
 
     def __call__(self, line: str) -> None:
-        if time.monotonic() - self.last >= STREAM_INTERVAL_S:
+        if time.monotonic() - self.last >= self.interval:
             self.send()
 
     def send(self) -> None:

@@ -23,6 +23,7 @@ import pytest
 import xarray as xr
 
 import dynfab
+from dynfab.results import finished_counts
 from dynfab.study import study
 from dynfab.study_file import load_study
 from test_study import serial, wait_for, write_study
@@ -98,25 +99,29 @@ def test_dynfab_study_runs_on_a_scheduler_and_its_workers(tmp_path, cluster):
 
 
 def test_a_killed_worker_s_cases_are_rerun_and_every_case_ends_once(tmp_path, cluster):
-    """Eight cases of 60 steps each on two one-thread workers: when the first case ends,
-    the scheduler has given each worker a case; worker 0 is then killed. Its case goes to
-    worker 1 (the scheduler's reassignment: the scheduler's log shows a case processing
-    twice); each case file is written once, complete, and the table is the serial runs'
-    exactly. sync "steps": a rerun re-sends the steps the client has already written,
-    which are skipped."""
+    """Six cases of 300 steps on two one-thread workers, their steps streamed every 0.05 s
+    (sync "steps"): once two cases have finished steps in their files,
+    each worker is running one, and worker 0 is killed. Its case goes to worker 1 (the
+    scheduler's log shows a case processing twice), which sends again the steps the file
+    has: they are skipped (repeated_steps); each case file is written once, complete, and
+    the table is the serial runs' exactly."""
     address, workers = cluster
-    path = write_study(tmp_path, '"warp.EA" = [10, 11, 12, 13, 14, 15, 16, 17]\n'
-                                 '"load.steps" = [60]')
+    path = write_study(tmp_path, '"warp.EA" = [10, 11, 12, 13, 14, 15]\n"load.steps" = [300]')
     plan = load_study(path)
     runs = serial(plan)
+    cases = tmp_path / "out" / "cases"
     killed = []
 
-    def kill_on_first_end(line: str) -> None:
-        if not killed and line.startswith("cases: ") and not line.startswith("cases: 0 "):
+    def kill_when_both_stream(line: str) -> None:
+        if killed or not cases.is_dir():
+            return
+        counts = [finished_counts(p) for p in cases.glob("*.h5")]
+        if sum(c is not None and 0 < c[0] < 300 for c in counts) >= 2:
             end(workers[0])
             killed.append(time.monotonic())
 
-    result = study(plan, tmp_path / "out", scheduler=address, status=kill_on_first_end)
+    result = study(plan, tmp_path / "out", scheduler=address, status=kill_when_both_stream,
+                   stream_interval_s=0.05)
     assert killed, "the worker was never killed"
     from distributed import Client
 
@@ -125,13 +130,14 @@ def test_a_killed_worker_s_cases_are_rerun_and_every_case_ends_once(tmp_path, cl
             str(entry[0]) for entry in dask_scheduler.transition_log
             if str(entry[0]).startswith("dynfab-case-") and entry[2] == "processing"])
     assert max(log.count(key) for key in set(log)) >= 2  # a case given to a second worker
-    assert (result.cases, result.finished, result.failed) == (8, 8, 0)
-    files = sorted((tmp_path / "out" / "cases").iterdir())
-    assert [f.name for f in files] == [f"case-000{i}.h5" for i in range(8)]  # once each
+    assert result.repeated_steps > 0
+    assert (result.cases, result.finished, result.failed) == (6, 6, 0)
+    files = sorted(cases.iterdir())
+    assert [f.name for f in files] == [f"case-000{i}.h5" for i in range(6)]  # once each
     table = xr.open_dataset(result.table)
     assert np.array_equal(table["stretch"].values,
                           np.stack([r.steps["end_displacement"] for r in runs]))
     for index, run in enumerate(runs):
         written = dynfab.read_results(files[index])
-        assert written.step_count == 60
+        assert written.step_count == 300
         assert np.array_equal(written.steps["positions"], run.steps["positions"])
