@@ -24,8 +24,10 @@ compiled and in the caches before the timing: one untimed case first):
   1 m/N, 40 displacement steps; and the yarn refined to N = 1792, 10 steps): the
   same K values as one scene's [sweep] (one batched run in one process, static) against a
   study of one case per value on the cluster (sync "end").
-- sync: the one-yarn study at N = 224 with sync "steps" and "end": wall time and the
-  client's time writing files; and this disk's fdatasync, the median of 50.
+- sync: the one-yarn study at N = 224 with sync "steps" (its cases end within the first
+  stream interval: they come back whole), "steps" with every step streamed
+  (stream_interval_s = 0: a case longer than the interval) and "end": wall time, the
+  client's time writing files, a task's median; and this disk's fdatasync, the median of 50.
 - transfer: one case of a clamped 32 x 32 patch (one force step): its file's bytes per
   step, and the time a task takes to bring that many bytes to the client (best of 5,
   minus the same for 1 byte).
@@ -66,8 +68,12 @@ def study_file(folder: Path, scene_text: str, vary: dict, observe: str, name: st
 
 
 def strip_text(patch: int, steps: int) -> str:
-    """runs/fabric_strip.toml cut to a `patch` x `patch` patch and `steps` force steps."""
+    """runs/fabric_strip.toml resized to a `patch` x `patch` patch at the same pitch and
+    segments per crossing (L = 0.1 m x patch / 16, 14 segments a crossing), `steps` force
+    steps to 1 N."""
     text = (ROOT / "runs" / "fabric_strip.toml").read_text()
+    text = text.replace("length = 0.1\n", f"length = {0.1 * patch / 16!r}\n")
+    text = text.replace("segments = 224", f"segments = {14 * patch}")
     text = text.replace("crossings = 16", f"crossings = {patch}")
     text = text.replace("count = 16", f"count = {patch}").replace("steps = 10", f"steps = {steps}")
     return text
@@ -99,7 +105,9 @@ STUDY = """
 import json, sys, time
 began = time.perf_counter()
 import dynfab
-result = dynfab.study(sys.argv[1], sys.argv[2], workers=int(sys.argv[3]), sync=sys.argv[4])
+interval = float(sys.argv[5]) if len(sys.argv) > 5 else None
+result = dynfab.study(sys.argv[1], sys.argv[2], workers=int(sys.argv[3]), sync=sys.argv[4],
+                      stream_interval_s=interval)
 print(json.dumps({"process_s": time.perf_counter() - began, "study_s": result.seconds,
                   "task_seconds": list(result.task_seconds.values()),
                   "write_s": result.write_seconds, "failed": result.failed}))
@@ -172,21 +180,54 @@ def fabric_part(tmp: Path, cases: int, patch: int) -> dict:
     single = in_process(SERIAL, path, tmp, env=ONE_THREAD)
     start = cluster_start_seconds(WORKERS)
     study = in_process(STUDY, path, tmp / "fabric_out", WORKERS, "steps")
-    case = statistics.median(single["each"])  # a worker's BLAS runs one thread too
+    paired = paired_overhead(load_study(path), tmp)
     tasks = study["task_seconds"]
-    worker_extra = statistics.median(tasks) - case
-    client = study["write_s"] / cases
     return {"cases": cases, "patch": patch, "steps": 2,
             "serial_process_s": serial["wall_s"], "serial_case_median_s":
             statistics.median(serial["each"]),
-            "serial_1thread_process_s": single["wall_s"], "serial_1thread_case_median_s": case,
+            "serial_1thread_process_s": single["wall_s"],
+            "serial_1thread_case_median_s": statistics.median(single["each"]),
             "study_process_s": study["wall_s"], "speed_up": serial["wall_s"] / study["wall_s"],
             "speed_up_over_1thread": single["wall_s"] / study["wall_s"],
+            "study_task_median_s": statistics.median(tasks),
+            "study_client_write_per_case_s": study["write_s"] / cases,
             "cluster_start_s": start, "worker_warmup_s": max(tasks) - statistics.median(tasks),
-            "worker_extra_per_case_s": worker_extra, "client_write_per_case_s": client,
-            "dispatch_overhead_per_case_s": worker_extra + client,
-            "dispatch_overhead_fraction": (worker_extra + client) / case,
-            "failed": study["failed"]}
+            **paired, "failed": study["failed"]}
+
+
+def paired_overhead(plan, tmp: Path, pairs: int = 6) -> dict:
+    """A case run in this process (BLAS on one thread, as on a worker) and the same case as
+    a study's task on a one-worker LocalCluster (sync "end": the file comes back and is
+    written as the study writes it), alternately `pairs` times, so that the machine's other
+    load falls on both alike: the medians and their difference, the dispatch overhead."""
+    import dynfab
+    from distributed import Client, LocalCluster
+    from threadpoolctl import threadpool_limits
+
+    from dynfab.study import _write_atomically
+    from dynfab.study_case import run_case
+
+    case = plan.cases[0]
+    task = {"index": 0, "scene": case.text, "solver": "static", "sync": "end", "queue": None,
+            "partial": None}
+    here, there = [], []
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, host="127.0.0.1",
+                      dashboard_address=None, silence_logs=logging.ERROR) as cluster, \
+            Client(cluster) as client, threadpool_limits(1):
+        client.submit(run_case, task, pure=False).result()  # the worker's first case: warm
+        for _ in range(pairs):
+            began = time.perf_counter()
+            dynfab.run(case.scene, out=tmp / "paired.h5", overwrite=True)
+            here.append(time.perf_counter() - began)
+            began = time.perf_counter()
+            outcome = client.submit(run_case, task, pure=False).result()
+            _write_atomically(tmp / "paired-case.h5", outcome["file"])
+            there.append(time.perf_counter() - began)
+    overhead = statistics.median(there) - statistics.median(here)
+    return {"paired_case_here_s": statistics.median(here),
+            "paired_case_on_worker_s": statistics.median(there),
+            "dispatch_overhead_per_case_s": overhead,
+            "dispatch_overhead_fraction": overhead / statistics.median(here)}
 
 
 def sweep_part(tmp: Path, cases: int, segments: int, steps: int) -> dict:
@@ -217,12 +258,19 @@ def sync_part(tmp: Path, cases: int, segments: int, steps: int) -> dict:
     values = [float(v) for v in np.round(np.linspace(0.02, 1.0, cases), 6)]
     found = {"cases": cases, "segments": segments, "steps": steps,
              "fdatasync_median_s": disk_sync_seconds(tmp)}
-    for sync in ("steps", "end"):
+    for name, sync, interval in (("steps", "steps", None), ("steps_streamed", "steps", 0.0),
+                                 ("end", "end", None)):
         path = study_file(tmp, yarn_text(segments, steps), {"warp.kawabata_K": values},
-                          '[observe]\nforce = "end_force"\n', f"sync_{sync}")
-        wall, result = run_study(path, tmp / f"sync_{sync}_out", sync=sync)
-        found[sync] = {"study_s": wall, "client_write_s": result.write_seconds,
-                       "client_write_per_step_s": result.write_seconds / (cases * steps)}
+                          '[observe]\nforce = "end_force"\n', f"sync_{name}")
+        began = time.perf_counter()
+        import dynfab
+
+        result = dynfab.study(path, tmp / f"sync_{name}_out", workers=WORKERS, sync=sync,
+                              stream_interval_s=interval)
+        found[name] = {"study_s": time.perf_counter() - began,
+                       "client_write_s": result.write_seconds,
+                       "client_write_per_step_s": result.write_seconds / (cases * steps),
+                       "task_median_s": statistics.median(result.task_seconds.values())}
     return found
 
 
@@ -298,7 +346,9 @@ def main() -> None:
     found["load_after"] = os.getloadavg()
     print(f"load average before {found['load_before']}, after {found['load_after']}")
     if not args.quick:
-        OUTPUT.write_text(json.dumps(found, indent=2) + "\n")
+        kept = json.loads(OUTPUT.read_text()) if OUTPUT.exists() else {}
+        kept.update(found)  # the parts run now replace theirs; the others are kept
+        OUTPUT.write_text(json.dumps(kept, indent=2) + "\n")
         print(f"wrote {OUTPUT}")
 
 

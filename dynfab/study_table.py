@@ -2,7 +2,7 @@
 
 One dimension ``case`` (the cases in the study's order: case i is ``cases/case-000i.h5``),
 the varied keys as coordinates along it (named as the keys, "friction.alpha"; a ``units``
-attribute each), and per observable (`dynfab.study_file.Observable`) a variable named as
+attribute each; a list-valued key's lists as their text), and per observable (`dynfab.study_file.Observable`) a variable named as
 it is:
 
 * ``at = "path"``: (case, step, ...) the dataset at every load step, NaN past a case's
@@ -28,6 +28,7 @@ Written through a temporary file and renamed: a ``study.nc`` present is complete
 
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
 
@@ -78,7 +79,7 @@ def gather(plan: Study, folder) -> "xarray.Dataset":  # noqa: F821
     coords = {CASE: np.arange(len(plan.cases))}
     units = plan.parameter_units()
     for i, key in enumerate(plan.parameters):
-        column = np.asarray([case.values[i] for case in plan.cases])
+        column = _coordinate([case.values[i] for case in plan.cases])
         coords[key] = (CASE, column, {"units": units[key]} if units[key] else {})
     attrs = {"title": plan.title, "design": plan.design, "solver": plan.solver,
              "parameters": "\n".join(plan.parameters), "study": plan.text,
@@ -143,6 +144,14 @@ def _variable(observable: Observable, values: list, longest: int, control: str):
              "dataset": f"steps/{observable.dataset}"}
     attrs["at"] = observable.at
     return dims, array, attrs
+
+
+def _coordinate(values: list) -> np.ndarray:
+    """A varied key's values as a coordinate: numbers, strings, or a list-valued key's lists
+    as their TOML text ("[0.1, 0.2]")."""
+    if any(isinstance(v, (list, tuple)) for v in values):
+        return np.array([json.dumps(list(v)) for v in values], dtype=str)
+    return np.asarray(values)
 
 
 def _padded(arrays: list[np.ndarray], longest: int) -> np.ndarray:

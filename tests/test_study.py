@@ -281,3 +281,31 @@ def test_an_interrupted_study_resumes_its_begun_cases_to_the_serial_results(tmp_
     for index, run in enumerate(runs):
         written = read_results(out / "cases" / f"case-000{index}.h5")
         assert np.array_equal(written.steps["positions"], run.steps["positions"])
+
+
+def test_the_example_study_runs_and_its_balanced_case_strains_both_families_alike(tmp_path):
+    """runs/study_example.toml (README "Studies"): six cases of the periodic 2 x 2 cell. At
+    the wefts' crimp (0.5 mm) the cell is balanced under equal loads: both families strain
+    alike (the cell's symmetry, to the solver's rounding); more warp crimp gives the warps
+    more strain to straighten out, so their final strain grows with the amplitude."""
+    example = Path(__file__).resolve().parents[1] / "runs" / "study_example.toml"
+    dynfab.run(load_study(example).cases[0].scene)  # the fabric's kernels into the cache
+    out = tmp_path / "study_example"
+    done = subprocess.run([sys.executable, "-m", "dynfab.cli", "study", str(example), "--out",
+                           str(out)], capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    assert "6 cases, 6 finished, 0 failed" in done.stderr
+    table = xr.open_dataset(out / "study.nc")
+    final = table["final_strain"].values  # (case, family)
+    amplitude = table["geometry.amplitude"].values
+    balanced = amplitude == 0.5e-3
+    assert np.allclose(final[balanced, 0], final[balanced, 1], rtol=1e-9, atol=0)
+    for stiffness in (1e4, 1e5):
+        chosen = table["contact.core_stiffness"].values == stiffness
+        warp = final[chosen, 0][np.argsort(amplitude[chosen])]
+        assert np.all(np.diff(warp) > 0)
+    plots = subprocess.run([sys.executable, "-m", "dynfab.cli", "plot", str(out / "study.nc"),
+                            "--out", str(out / "plots")], capture_output=True, text=True,
+                           timeout=600)
+    assert plots.returncode == 0, plots.stderr
+    assert (out / "plots" / "final_strain_map.png").stat().st_size > 0
