@@ -38,7 +38,15 @@ def _catch_while_starting() -> None:
         signal.signal(signum, _interrupted_while_starting)
 
 
-if sys.argv and os.path.basename(sys.argv[0]) == "dynfab":
+def _started_as_the_command() -> bool:
+    """True when this process is the `dynfab` console script. Its own command line
+    (`sys.orig_argv`: the interpreter, then the script), not `sys.argv`: a worker process
+    that multiprocessing spawns (a study's local cluster) keeps its parent's `sys.argv`."""
+    argv = getattr(sys, "orig_argv", None) or ["", *sys.argv]
+    return len(argv) > 1 and os.path.basename(argv[1]) == "dynfab"
+
+
+if _started_as_the_command():
     _catch_while_starting()
 
 from dynfab.errors import DynfabError, UserError, SolverError

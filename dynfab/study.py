@@ -260,10 +260,18 @@ def _cluster(scheduler: str | None, workers: int | None):
 
     if scheduler is None:
         count = workers or os.cpu_count() or 1
-        with LocalCluster(n_workers=count, threads_per_worker=1, processes=True,
-                          host="127.0.0.1", dashboard_address=None,
-                          silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
-            yield client
+        with _workers_deaf_to_ctrl_c():
+            cluster = LocalCluster(n_workers=count, threads_per_worker=1, processes=True,
+                                   host="127.0.0.1", dashboard_address=None,
+                                   silence_logs=logging.ERROR)
+        try:
+            with cluster, Client(cluster) as client:
+                yield client
+        except KeyboardInterrupt:
+            # the cluster closes under an interrupt: its scheduler's complaints about the
+            # connections closing are no news to the user
+            logging.getLogger("distributed").setLevel(logging.CRITICAL + 1)
+            raise
         return
     try:
         client = Client(scheduler, timeout=10)
@@ -283,6 +291,26 @@ def _cluster(scheduler: str | None, workers: int | None):
             raise UserError(f"--scheduler {scheduler}: a worker cannot import dynfab: "
                             f"{type(error).__name__}: {error}") from None
         yield client
+
+
+@contextlib.contextmanager
+def _workers_deaf_to_ctrl_c():
+    """Ignore SIGINT while the local cluster's worker processes are spawned: they inherit
+    it ignored (Python leaves an ignored SIGINT so), so that a Ctrl-C at the terminal, which
+    reaches every process of its group, interrupts the study (this process), which closes
+    the cluster, and not each worker with a traceback. A Ctrl-C during these seconds is
+    lost. Only from the main thread (elsewhere signals cannot be set)."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 # --------------------------------------------------------------------------

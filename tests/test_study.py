@@ -143,6 +143,14 @@ def test_a_bad_study_is_one_line_before_anything_runs(tmp_path, vary, extra, obs
     assert words in str(error.value) and "\n" not in str(error.value)
 
 
+def test_every_study_file_in_runs_is_a_valid_study():
+    """runs/study_*.toml are study files; the other runs/*.toml are scenes (test_scene.py)."""
+    found = sorted((Path(__file__).resolve().parents[1] / "runs").glob("study_*.toml"))
+    assert found
+    for path in found:
+        assert load_study(path).cases
+
+
 def test_dynfab_study_refuses_a_bad_key_with_exit_2_and_writes_nothing(tmp_path):
     path = write_study(tmp_path, '"warp.EAX" = [1, 2]')
     done = subprocess.run([sys.executable, "-m", "dynfab.cli", "study", str(path), "--out",
