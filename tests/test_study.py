@@ -10,6 +10,7 @@ another process, and the table holds the files' float64 values unchanged.
 from __future__ import annotations
 
 import json
+import re
 import signal
 import subprocess
 import sys
@@ -189,8 +190,14 @@ def test_a_study_gathers_exactly_the_serial_runs_and_records_a_failed_case(tmp_p
                                             '"static.max_iterations" = [200, 1]'))
     good = [case for case in plan.cases if case.scene.static.max_iterations == 200]
     reference = {case.index: dynfab.run(case.scene) for case in good}
-    failures = []
-    result = study(plan, tmp_path / "out", workers=2, sync="end", progress=failures.append)
+    failures, lines = [], []
+    result = study(plan, tmp_path / "out", workers=2, sync="end", progress=failures.append,
+                   status=lines.append)
+    live = [line for line in lines if line]  # "" clears the line at the end
+    pattern = (r"cases: \d finished, \d failed, \d running, \d waiting of 4; "
+               r"(about \d+(\.\d)? (s|min|h) left|time left: after the first case)")
+    assert live and all(re.fullmatch(pattern, line) for line in live), live
+    assert live[-1].startswith("cases: 2 finished, 2 failed, 0 running, 0 waiting of 4")
     assert (result.cases, result.finished, result.failed) == (4, 2, 2)
     assert len(failures) == 2 and all("no convergence in 1 Newton" in f for f in failures)
     table = xr.open_dataset(result.table)
