@@ -98,6 +98,9 @@ def _add_study_parser(commands) -> None:
     study.add_argument("--sync", choices=("steps", "end"), default="steps",
                        help="steps (default): every finished step of a case written and synced "
                             "as it arrives; end: a case's file written once it ends")
+    study.add_argument("--stream-interval", type=float, metavar="SECONDS",
+                       help="with --sync steps: how soon a running case's finished steps reach "
+                            "its file (default 1 s; a case that ends sooner comes back whole)")
     study.add_argument("--quiet", action="store_true", help="no live line, no summary")
 
 
@@ -303,7 +306,7 @@ def _command_study(args, context: dict) -> None:
     _progress = None if args.quiet else _Progress()
     context["study"] = (args.out, plan)
     result = study(plan, args.out, scheduler=args.scheduler, workers=args.workers,
-                   resume=args.resume, sync=args.sync,
+                   resume=args.resume, sync=args.sync, stream_interval_s=args.stream_interval,
                    progress=None if args.quiet else _progress.notice,
                    status=None if args.quiet else _progress.show)
     if args.quiet:

@@ -72,7 +72,7 @@ def fit_from_starts(scene, data, keys, *, starts: int, bounds=None, substeps=Non
                     scheduler: str | None = None, workers: int | None = None):
     """`dynfab.fit.fit` from `starts` starting points on a Dask cluster; the best fit, its
     `starts` report filled in (module docstring)."""
-    from dynfab.fit import fit, make_parameters, parse_keys
+    from dynfab.fit import make_parameters, parse_keys
     from dynfab.fit_data import CurveData, read_curve
     from dynfab.study import _cluster
 

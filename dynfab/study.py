@@ -92,9 +92,7 @@ def study(study_file, out, *, scheduler: str | None = None, workers: int | None 
     finished, failed, running, time left), about every POLL_S s. `stream_interval_s`: with
     sync "steps", how soon a running case's steps reach this process [s]
     (`dynfab.study_case.STREAM_INTERVAL_S` by default)."""
-    if not isinstance(study_file, Study):
-        study_file = load_study(study_file)
-    plan = study_file
+    plan = study_file if isinstance(study_file, Study) else load_study(study_file)
     if sync not in SYNCS:
         raise UserError(f"--sync {sync}: one of {', '.join(SYNCS)}")
     if scheduler is not None and workers is not None:
@@ -102,6 +100,8 @@ def study(study_file, out, *, scheduler: str | None = None, workers: int | None 
                         "workers its dask worker commands started")
     if workers is not None and workers < 1:
         raise UserError(f"--workers {workers}: at least 1")
+    if stream_interval_s is not None and not stream_interval_s >= 0:
+        raise UserError(f"--stream-interval {stream_interval_s}: a number of seconds >= 0")
     folder = StudyFolder(Path(out), plan)
     with folder.locked():
         folder.prepare(plan, resume)
@@ -112,8 +112,8 @@ def study(study_file, out, *, scheduler: str | None = None, workers: int | None 
             folder.table.unlink(missing_ok=True)  # a table says every case has ended
             with _cluster(scheduler, workers) as client:
                 worker_count = len(client.nthreads())
-                runner = _Runner(plan, folder, client, sync, progress, status)
-                runner.stream_interval_s = stream_interval_s
+                runner = _Runner(plan, folder, client, sync, progress, status,
+                                 stream_interval_s)
                 runner.run(todo)
         from dynfab.study_table import write_table
 
@@ -321,7 +321,7 @@ class _Runner:
     """Submits the cases, writes what comes back, shows the live line."""
 
     def __init__(self, plan: Study, folder: StudyFolder, client, sync: str, progress,
-                 status) -> None:
+                 status, stream_interval_s: float | None = None) -> None:
         self.plan, self.folder, self.client, self.sync = plan, folder, client, sync
         self.progress, self.status = progress, status
         self.writers: dict[int, object] = {}
@@ -333,7 +333,7 @@ class _Runner:
         self.task_seconds: dict[int, float] = {}
         self.write_seconds = 0.0
         self.repeated_steps = 0
-        self.stream_interval_s: float | None = None
+        self.stream_interval_s = stream_interval_s
         self.shown = 0.0
         """When the live line was last shown."""
 

@@ -40,8 +40,9 @@ STEP = "step"
 CASE = "case"
 
 
-def gather(plan: Study, folder) -> "xarray.Dataset":  # noqa: F821
-    """The table of the study `plan` from the case files in `folder` (`dynfab.study.StudyFolder`)."""
+def gather(plan: Study, folder):
+    """The table (an xarray Dataset) of the study `plan` from the case files in `folder`
+    (`dynfab.study.StudyFolder`)."""
     import xarray as xr
 
     from dynfab.results import dynfab_version, read_results

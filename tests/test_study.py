@@ -264,20 +264,20 @@ def wait_for(condition, what: str, limit_s: float = 300):
 
 
 def test_an_interrupted_study_resumes_its_begun_cases_to_the_serial_results(tmp_path):
-    """sync "steps": SIGTERM (a batch system's limit) once a case has finished steps on
-    disk; the message counts the ended cases; --resume runs the rest, a begun case from its
-    last finished step, and the table is the serial runs'."""
-    path = write_study(tmp_path, '"warp.EA" = [10, 12, 14]\n"load.steps" = [400]')
+    """sync "steps", streamed every 0.05 s: SIGTERM (a batch system's limit) once a case has
+    finished steps on disk; the message counts the ended cases; --resume runs the rest, a
+    begun case from its last finished step, and the table is the serial runs'."""
+    path = write_study(tmp_path, '"warp.EA" = [10, 12, 14]\n"load.steps" = [200]')
     plan = load_study(path)
     runs = serial(plan)
     out = tmp_path / "out"
     command = [sys.executable, "-m", "dynfab.cli", "study", str(path), "--out", str(out),
-               "--workers", "2"]
+               "--workers", "2", "--stream-interval", "0.05"]
     process = subprocess.Popen(command, stderr=subprocess.PIPE, text=True)
     try:
         def begun():
             counts = [finished_counts(p) for p in (out / "cases").glob("*.h5")]
-            return any(c is not None and 0 < c[0] < 400 for c in counts)
+            return any(c is not None and 0 < c[0] < 200 for c in counts)
         wait_for(begun, "a case with finished steps on disk")
         process.send_signal(signal.SIGTERM)
         _, stderr = process.communicate(timeout=120)
@@ -287,7 +287,7 @@ def test_an_interrupted_study_resumes_its_begun_cases_to_the_serial_results(tmp_
     assert "cases are finished in" in stderr and "continue with --resume" in stderr
     assert not (out / "study.nc").exists()
     partial = [finished_counts(p)[0] for p in (out / "cases").glob("*.h5")]
-    assert any(0 < count < 400 for count in partial)
+    assert any(0 < count < 200 for count in partial)
     done = subprocess.run(command + ["--resume"], capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr
     table = xr.open_dataset(out / "study.nc")
