@@ -110,6 +110,12 @@ class FitResult:
     cost_history: list = field(default_factory=list)
     jacobian: str = "exact"
     """"exact" or "finite-difference": the Jacobian the optimiser used."""
+    cost: float = math.nan
+    """Half the sum of squared weighted residuals at the solution (what the optimiser
+    minimises)."""
+    starts: dict | None = None
+    """A fit from several starts (`dynfab.fit_starts`): their count, how many reached this
+    fit's cost, how many failed, each start and where it ended; None for one start."""
 
     def report(self) -> dict:
         """The JSON report (fit.json)."""
@@ -117,7 +123,8 @@ class FitResult:
                 "correlation": self.correlation,
                 "residual_rms": self.residual_rms, "dof": self.dof,
                 "iterations": self.iterations, "identifiable": self.identifiable,
-                "converged": self.converged, "noise": self.noise, "warnings": self.warnings}
+                "converged": self.converged, "noise": self.noise, "warnings": self.warnings,
+                "cost": self.cost, **({"starts": self.starts} if self.starts else {})}
 
     def table(self) -> str:
         """The parameters as a printed table."""
@@ -134,6 +141,10 @@ class FitResult:
         lines.append(f"residual rms: {rms}; dof {self.dof}; iterations {self.iterations}; "
                      f"identifiable: {'yes' if self.identifiable else 'NO'}"
                      + ("" if self.converged else "; NOT CONVERGED"))
+        if self.starts:
+            lines.append(f"starts: {self.starts['count']}; {self.starts['reached_best']} reached "
+                         f"the best cost (within {self.starts['tolerance']:g} of it), "
+                         f"{self.starts['failed']} failed")
         lines += [f"warning: {w}" for w in self.warnings]
         return "\n".join(lines)
 
@@ -354,7 +365,8 @@ class _Problem:
 
 def fit(scene, data, keys, *, bounds=None, substeps: int | None = None, start=None,
         progress: Callable[[str], None] | None = None, out=None, max_iterations: int = 50,
-        jacobian: str | None = None) -> FitResult:
+        jacobian: str | None = None, starts: int = 1, scheduler: str | None = None,
+        workers: int | None = None) -> FitResult:
     """Fit `keys` of `scene` (a Scene or a scene file) to the measured curve `data` (a CSV path
     or a CurveData).
 
@@ -365,12 +377,22 @@ def fit(scene, data, keys, *, bounds=None, substeps: int | None = None, start=No
     model's default and only there) or "finite-difference" (the fabric's default and only
     Jacobian: `_Problem._forward_difference`; for the one-yarn model a comparison, scipy's
     "2-point" differences of whole runs for the optimiser, the statistics still exact).
+    `starts` > 1: fit from that many starting points on a Dask cluster (an embedded one of
+    `workers` processes, or the scheduler at `scheduler`) and return the best
+    (`dynfab.fit_starts`).
     """
     from scipy.optimize import least_squares
 
     if isinstance(scene, (str, Path)):
         from dynfab.scene import load_scene
         scene = load_scene(scene)
+    if starts != 1 or scheduler is not None or workers is not None:
+        from dynfab.fit_starts import fit_from_starts
+
+        return fit_from_starts(scene, data, keys, starts=starts, bounds=bounds,
+                               substeps=substeps, start=start, progress=progress, out=out,
+                               max_iterations=max_iterations, jacobian=jacobian,
+                               scheduler=scheduler, workers=workers)
     keys = parse_keys(keys)
     jacobian = _jacobian_for(scene, jacobian)
     model = scene.geometry.model
@@ -458,7 +480,7 @@ def _finish(problem: _Problem, result, parameters, jacobian: str) -> FitResult:
                      identifiable=report["identifiable"], converged=bool(result.success),
                      warnings=warnings, noise=report["noise"], scene=fitted_scene,
                      data=problem.data, fitted=curves, cost_history=problem.costs,
-                     jacobian=jacobian)
+                     jacobian=jacobian, cost=0.5 * float(residual @ residual))
 
 
 # --------------------------------------------------------------------------

@@ -48,8 +48,13 @@ def plot_results(path: str | os.PathLike, out_dir: str | os.PathLike) -> list[Pa
     """Write the figures of the result file ``path`` into ``out_dir`` (created if needed).
 
     Returns the paths of the PNGs written. Raises UserError for a missing
-    file, a file that is not a dynfab result, or one without a load step.
+    file, a file that is not a dynfab result, or one without a load step. A study's table
+    (``study.nc``) gets the study's figures (`dynfab.study_plots`).
     """
+    from dynfab.study_plots import is_study_table, plot_study
+
+    if is_study_table(path):
+        return plot_study(path, out_dir)
     results = read_results(path)
     if results.step_count == 0 and results.frame_count > 0:
         return _plot_transient(results, output_folder(out_dir))
