@@ -321,11 +321,17 @@ def _command_fit(args, context: dict) -> None:
     from dynfab.scene import load_scene
 
     report = None if args.quiet else _stderr_line
+    options = dict(bounds=parse_bounds(args.bounds), substeps=args.substeps, progress=report,
+                   out=args.out)
     with _compiles_announced(report):
-        result = fit(load_scene(args.scene), args.data, args.fit,
-                     bounds=parse_bounds(args.bounds), substeps=args.substeps, progress=report,
-                     out=args.out, starts=args.starts, scheduler=args.scheduler,
-                     workers=args.workers)
+        scene = load_scene(args.scene)
+        if args.starts != 1 or args.scheduler is not None or args.workers is not None:
+            from dynfab.fit_starts import fit_from_starts  # Dask: imported only here
+
+            result = fit_from_starts(scene, args.data, args.fit, starts=args.starts,
+                                     scheduler=args.scheduler, workers=args.workers, **options)
+        else:
+            result = fit(scene, args.data, args.fit, **options)
     print(result.table())
     for name in ("fit.json", "fitted.toml", "fit_curve.png", "fit_correlation.png"):
         print(f"wrote {args.out / name}", file=sys.stderr)

@@ -365,8 +365,7 @@ class _Problem:
 
 def fit(scene, data, keys, *, bounds=None, substeps: int | None = None, start=None,
         progress: Callable[[str], None] | None = None, out=None, max_iterations: int = 50,
-        jacobian: str | None = None, starts: int = 1, scheduler: str | None = None,
-        workers: int | None = None) -> FitResult:
+        jacobian: str | None = None) -> FitResult:
     """Fit `keys` of `scene` (a Scene or a scene file) to the measured curve `data` (a CSV path
     or a CurveData).
 
@@ -377,22 +376,13 @@ def fit(scene, data, keys, *, bounds=None, substeps: int | None = None, start=No
     model's default and only there) or "finite-difference" (the fabric's default and only
     Jacobian: `_Problem._forward_difference`; for the one-yarn model a comparison, scipy's
     "2-point" differences of whole runs for the optimiser, the statistics still exact).
-    `starts` > 1: fit from that many starting points on a Dask cluster (an embedded one of
-    `workers` processes, or the scheduler at `scheduler`) and return the best
-    (`dynfab.fit_starts`).
+    From several starting points on a Dask cluster: `dynfab.fit_starts.fit_from_starts`.
     """
     from scipy.optimize import least_squares
 
     if isinstance(scene, (str, Path)):
         from dynfab.scene import load_scene
         scene = load_scene(scene)
-    if starts != 1 or scheduler is not None or workers is not None:
-        from dynfab.fit_starts import fit_from_starts
-
-        return fit_from_starts(scene, data, keys, starts=starts, bounds=bounds,
-                               substeps=substeps, start=start, progress=progress, out=out,
-                               max_iterations=max_iterations, jacobian=jacobian,
-                               scheduler=scheduler, workers=workers)
     keys = parse_keys(keys)
     jacobian = _jacobian_for(scene, jacobian)
     model = scene.geometry.model

@@ -12,7 +12,7 @@ import numpy as np
 
 
 
-def prescribe_load(model: Model, state: State, load_value: float) -> np.ndarray:
+def prescribe_load(model, state, load_value: float) -> np.ndarray:
     """The starting positions (yarns, N+1, 2) [m] of a load step to `load_value` [N or m].
 
     Under force control, the previous state's positions (P enters the energy, not the
@@ -30,7 +30,7 @@ def prescribe_load(model: Model, state: State, load_value: float) -> np.ndarray:
     return positions
 
 
-def load_at_time(model: Model, time: float) -> float:
+def load_at_time(model, time: float) -> float:
     """The transient's load [N or m] at `time` [s] (docs/model.md section 5): piecewise linear
     through (0, 0) and (k T / n, value_k), k = 1..n, T = dynamic.duration, held after T.
 

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from dynfab.errors import UserError
-from dynfab.plot import FONT_SIZE, _legend, new_figure, output_folder, save_png, style_axes
+from dynfab.plot_style import FONT_SIZE, legend, new_figure, output_folder, save_png, style_axes
 
 BOOKKEEPING = ("load", "status", "message", "steps_done", "solver_time")
 """The table's variables that are not observables."""
@@ -128,7 +128,7 @@ def _against_keys(table, keys, name, variable, values):
         ax.set_xlabel(_axis_label(table, key))
         ax.set_ylabel(_label(variable, name))
         style_axes(ax)
-        _legend(ax)
+        legend(ax)
     fig.suptitle(f"{table.attrs.get('title') or 'study'}: {name}", fontsize=FONT_SIZE + 1)
     return fig
 

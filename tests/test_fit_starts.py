@@ -13,7 +13,7 @@ import pytest
 
 import dynfab
 from dynfab.fit import make_parameters
-from dynfab.fit_starts import REACHED, SPREAD, start_points
+from dynfab.fit_starts import REACHED, SPREAD, fit_from_starts, start_points
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "runs" / "fit_example"
 KEYS = ["warp.EA", "friction.alpha"]
@@ -43,8 +43,8 @@ def test_a_fit_from_several_starts_keeps_the_best_and_counts_who_reached_it(tmp_
     scene = dynfab.load_scene(EXAMPLE / "scene.toml")
     one = dynfab.fit(scene, EXAMPLE / "curve.csv", KEYS)  # compiles into the cache first
     lines = []
-    best = dynfab.fit(scene, EXAMPLE / "curve.csv", KEYS, starts=3, workers=2,
-                      progress=lines.append, out=tmp_path / "fit")
+    best = fit_from_starts(scene, EXAMPLE / "curve.csv", KEYS, starts=3, workers=2,
+                           progress=lines.append, out=tmp_path / "fit")
     assert best.cost <= one.cost * (1 + REACHED)
     assert best.starts["count"] == 3 and best.starts["failed"] == 0
     assert best.starts["reached_best"] == 3
