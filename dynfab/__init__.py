@@ -8,6 +8,7 @@ The public surface::
     dynfab.read_results("fig3.h5")                              # the same arrays, from disk
     dynfab.write_xdmf("fig3.h5")                                # fig3.xdmf for ParaView, meshio (a run writes it)
     dynfab.fit(scene, "curve.csv", ["warp.EA"])                 # parameters from a measured curve
+    dynfab.study("study.toml", "study_out")                     # many cases on a Dask cluster
 
 The names are imported on first use, so that `import dynfab` (and the
 `dynfab` command starting up) costs no heavy import. When the process is the
@@ -37,7 +38,15 @@ def _catch_while_starting() -> None:
         signal.signal(signum, _interrupted_while_starting)
 
 
-if sys.argv and os.path.basename(sys.argv[0]) == "dynfab":
+def _started_as_the_command() -> bool:
+    """True when this process is the `dynfab` console script. Its own command line
+    (`sys.orig_argv`: the interpreter, then the script), not `sys.argv`: a worker process
+    that multiprocessing spawns (a study's local cluster) keeps its parent's `sys.argv`."""
+    argv = getattr(sys, "orig_argv", None) or ["", *sys.argv]
+    return len(argv) > 1 and os.path.basename(argv[1]) == "dynfab"
+
+
+if _started_as_the_command():
     _catch_while_starting()
 
 from dynfab.errors import DynfabError, UserError, SolverError
@@ -47,12 +56,13 @@ __version__ = "0.1.0"
 _HOMES = {"build_model": "dynfab.model", "plot_results": "dynfab.plot",
           "Results": "dynfab.results", "read_results": "dynfab.results", "run": "dynfab.run",
           "load_scene": "dynfab.scene", "parse_scene_text": "dynfab.scene",
-          "fit": "dynfab.fit", "FitResult": "dynfab.fit", "write_xdmf": "dynfab.xdmf"}
+          "fit": "dynfab.fit", "FitResult": "dynfab.fit", "write_xdmf": "dynfab.xdmf",
+          "study": "dynfab.study", "load_study": "dynfab.study_file"}
 """Module defining each public name."""
 
 __all__ = ["DynfabError", "FitResult", "Results", "SolverError", "UserError", "build_model",
-           "fit", "load_scene", "parse_scene_text", "plot_results", "read_results", "run",
-           "write_xdmf", "__version__"]
+           "fit", "load_scene", "load_study", "parse_scene_text", "plot_results", "read_results",
+           "run", "study", "write_xdmf", "__version__"]
 
 
 def __getattr__(name: str):
@@ -65,11 +75,11 @@ def __getattr__(name: str):
 
 
 class _Package(types.ModuleType):
-    """Keeps `dynfab.run` and `dynfab.fit` the functions: importing the submodules dynfab.run
-    and dynfab.fit would otherwise rebind the package attributes to the modules."""
+    """Keeps `dynfab.run`, `dynfab.fit` and `dynfab.study` the functions: importing the
+    submodules of those names would otherwise rebind the package attributes to the modules."""
 
     def __setattr__(self, name: str, value) -> None:
-        if name in ("run", "fit") and isinstance(value, types.ModuleType):
+        if name in ("run", "fit", "study") and isinstance(value, types.ModuleType):
             value = getattr(value, name)
         super().__setattr__(name, value)
 

@@ -1,4 +1,5 @@
-"""The `dynfab` command line: `dynfab run`, `dynfab plot`, `dynfab fit` and `dynfab xdmf`.
+"""The `dynfab` command line: `dynfab run`, `dynfab plot`, `dynfab fit`, `dynfab xdmf` and
+`dynfab study`.
 
 A user's mistake exits with status 2 and one line; a solver failure with
 status 3 and one line (finished steps kept on disk); an interrupt (Ctrl-C,
@@ -60,8 +61,9 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--quiet", action="store_true", help="no progress lines, no summary table")
     for flag, (kind, text) in RUN_FLAGS.items():
         run.add_argument(flag, type=kind, help=text)
-    plot = commands.add_parser("plot", help="draw the PNG figures of a result file")
-    plot.add_argument("results", type=Path, help="result file (HDF5)")
+    plot = commands.add_parser("plot", help="draw the PNG figures of a result file (or of a "
+                                            "study's study.nc)")
+    plot.add_argument("results", type=Path, help="result file (HDF5), or a study's table (.nc)")
     plot.add_argument("--out", type=Path, required=True, help="folder for the PNG files")
     xdmf = commands.add_parser("xdmf", help="(re)write <result>.xdmf, the view of a result file "
                                             "for ParaView and meshio (a run writes it too)")
@@ -76,7 +78,30 @@ def _parser() -> argparse.ArgumentParser:
                             help="a reduced scene and few settings, that runs in seconds")
         report.add_argument("--quiet", action="store_true", help="no progress lines")
     _add_fit_parser(commands)
+    _add_study_parser(commands)
     return parser
+
+
+def _add_study_parser(commands) -> None:
+    study = commands.add_parser("study", help="run the cases of a study file (a scene, keys to "
+                                              "vary, observables) on a Dask cluster; gather "
+                                              "study.nc")
+    study.add_argument("study", type=Path, help="study file (TOML)")
+    study.add_argument("--out", type=Path, required=True,
+                       help="folder for cases/*.h5 and study.nc")
+    study.add_argument("--scheduler", help="address of a running Dask scheduler "
+                                           "(tcp://HOST:PORT); default: a local cluster")
+    study.add_argument("--workers", type=int,
+                       help="worker processes of the local cluster (default: one per core)")
+    study.add_argument("--resume", action="store_true",
+                       help="continue a study: run only the cases whose file is not complete")
+    study.add_argument("--sync", choices=("steps", "end"), default="steps",
+                       help="steps (default): every finished step of a case written and synced "
+                            "as it arrives; end: a case's file written once it ends")
+    study.add_argument("--stream-interval", type=float, metavar="SECONDS",
+                       help="with --sync steps: how soon a running case's finished steps reach "
+                            "its file (default 1 s; a case that ends sooner comes back whole)")
+    study.add_argument("--quiet", action="store_true", help="no live line, no summary")
 
 
 def _add_fit_parser(commands) -> None:
@@ -87,6 +112,11 @@ def _add_fit_parser(commands) -> None:
     fit.add_argument("--out", type=Path, required=True, help="folder for fit.json, fitted.toml, PNGs")
     fit.add_argument("--bounds", action="append", help="KEY=LOWER:UPPER (repeatable)")
     fit.add_argument("--substeps", type=int, help="load steps per data interval")
+    fit.add_argument("--starts", type=int, default=1,
+                     help="fit from K starting points on a Dask cluster, keep the best")
+    fit.add_argument("--scheduler", help="with --starts: a running Dask scheduler's address "
+                                         "(default: a local cluster)")
+    fit.add_argument("--workers", type=int, help="with --starts: the local cluster's workers")
     fit.add_argument("--quiet", action="store_true", help="no progress lines")
 
 
@@ -127,13 +157,21 @@ class _Progress:
         if not self.live:
             return
         elapsed = time.monotonic() - self.step_started
+        self.show(f"step running {elapsed:.0f} s: {text}")
+
+    def show(self, text: str) -> None:
+        """Replace the live line by `text` (nothing when stderr is not a terminal; "" clears)."""
+        if not self.live:
+            return
+        if not text:
+            self.clear()
+            return
         try:
             width = os.get_terminal_size(self.stream.fileno()).columns
         except (AttributeError, OSError, ValueError, io.UnsupportedOperation):
             width = 0
         width = width or shutil.get_terminal_size().columns  # 0: a terminal of unknown size
-        self.stream.write("\r" + f"step running {elapsed:.0f} s: {text}"[:max(width - 1, 10)]
-                          + "\x1b[K")
+        self.stream.write("\r" + text[:max(width - 1, 10)] + "\x1b[K")
         self.stream.flush()
         self.showing = True
 
@@ -232,6 +270,8 @@ def _interrupted_line(context: dict, word: str = "interrupted") -> str:
     """The message after Ctrl-C (`word` "terminated" after SIGTERM): what the output file
     holds, if this command writes one; nothing was written before a command began (the
     arguments still being parsed)."""
+    if "study" in context:
+        return _study_interrupted_line(context["study"], word)
     out = context.get("out")
     if out is None or not Path(out).is_file():
         wrote_nothing = "out" in context or not context.get("began")
@@ -247,15 +287,51 @@ def _interrupted_line(context: dict, word: str = "interrupted") -> str:
     return f"dynfab: {word}; no finished step is in '{out}'"
 
 
+def _study_interrupted_line(study: tuple, word: str) -> str:
+    """After an interrupt of `dynfab study`: the cases ended in its folder."""
+    from dynfab.study import ended_counts
+
+    out, plan = study
+    ended, total = ended_counts(out, plan)
+    return (f"dynfab: {word}; {ended} of {total} cases are finished in '{out}': "
+            "continue with --resume")
+
+
+def _command_study(args, context: dict) -> None:
+    global _progress
+    from dynfab.study import study
+    from dynfab.study_file import load_study
+
+    plan = load_study(args.study)
+    _progress = None if args.quiet else _Progress()
+    context["study"] = (args.out, plan)
+    result = study(plan, args.out, scheduler=args.scheduler, workers=args.workers,
+                   resume=args.resume, sync=args.sync, stream_interval_s=args.stream_interval,
+                   progress=None if args.quiet else _progress.notice,
+                   status=None if args.quiet else _progress.show)
+    if args.quiet:
+        return
+    _progress.clear()
+    print(result.summary(), file=sys.stderr)  # each failed case had its line as it ended
+    print(f"wrote {result.table}", file=sys.stderr)
+
+
 def _command_fit(args, context: dict) -> None:
     from dynfab.fit import fit, parse_bounds
     from dynfab.scene import load_scene
 
     report = None if args.quiet else _stderr_line
+    options = dict(bounds=parse_bounds(args.bounds), substeps=args.substeps, progress=report,
+                   out=args.out)
     with _compiles_announced(report):
-        result = fit(load_scene(args.scene), args.data, args.fit,
-                     bounds=parse_bounds(args.bounds), substeps=args.substeps, progress=report,
-                     out=args.out)
+        scene = load_scene(args.scene)
+        if args.starts != 1 or args.scheduler is not None or args.workers is not None:
+            from dynfab.fit_starts import fit_from_starts  # Dask: imported only here
+
+            result = fit_from_starts(scene, args.data, args.fit, starts=args.starts,
+                                     scheduler=args.scheduler, workers=args.workers, **options)
+        else:
+            result = fit(scene, args.data, args.fit, **options)
     print(result.table())
     for name in ("fit.json", "fitted.toml", "fit_curve.png", "fit_correlation.png"):
         print(f"wrote {args.out / name}", file=sys.stderr)
@@ -353,7 +429,7 @@ def _main(argv: list[str] | None, context: dict) -> None:
     context["began"] = True
     try:
         commands = {"run": _command_run, "plot": _command_plot, "fit": _command_fit,
-                    "xdmf": _command_xdmf}
+                    "xdmf": _command_xdmf, "study": _command_study}
         commands.get(args.command, _command_report)(args, context)
     except DynfabError as error:
         if _progress is not None:

@@ -110,6 +110,12 @@ class FitResult:
     cost_history: list = field(default_factory=list)
     jacobian: str = "exact"
     """"exact" or "finite-difference": the Jacobian the optimiser used."""
+    cost: float = math.nan
+    """Half the sum of squared weighted residuals at the solution (what the optimiser
+    minimises)."""
+    starts: dict | None = None
+    """A fit from several starts (`dynfab.fit_starts`): their count, how many reached this
+    fit's cost, how many failed, each start and where it ended; None for one start."""
 
     def report(self) -> dict:
         """The JSON report (fit.json)."""
@@ -117,7 +123,8 @@ class FitResult:
                 "correlation": self.correlation,
                 "residual_rms": self.residual_rms, "dof": self.dof,
                 "iterations": self.iterations, "identifiable": self.identifiable,
-                "converged": self.converged, "noise": self.noise, "warnings": self.warnings}
+                "converged": self.converged, "noise": self.noise, "warnings": self.warnings,
+                "cost": self.cost, **({"starts": self.starts} if self.starts else {})}
 
     def table(self) -> str:
         """The parameters as a printed table."""
@@ -134,6 +141,10 @@ class FitResult:
         lines.append(f"residual rms: {rms}; dof {self.dof}; iterations {self.iterations}; "
                      f"identifiable: {'yes' if self.identifiable else 'NO'}"
                      + ("" if self.converged else "; NOT CONVERGED"))
+        if self.starts:
+            lines.append(f"starts: {self.starts['count']}; {self.starts['reached_best']} reached "
+                         f"the best cost (within {self.starts['tolerance']:g} of it), "
+                         f"{self.starts['failed']} failed")
         lines += [f"warning: {w}" for w in self.warnings]
         return "\n".join(lines)
 
@@ -365,6 +376,7 @@ def fit(scene, data, keys, *, bounds=None, substeps: int | None = None, start=No
     model's default and only there) or "finite-difference" (the fabric's default and only
     Jacobian: `_Problem._forward_difference`; for the one-yarn model a comparison, scipy's
     "2-point" differences of whole runs for the optimiser, the statistics still exact).
+    From several starting points on a Dask cluster: `dynfab.fit_starts.fit_from_starts`.
     """
     from scipy.optimize import least_squares
 
@@ -458,7 +470,7 @@ def _finish(problem: _Problem, result, parameters, jacobian: str) -> FitResult:
                      identifiable=report["identifiable"], converged=bool(result.success),
                      warnings=warnings, noise=report["noise"], scene=fitted_scene,
                      data=problem.data, fitted=curves, cost_history=problem.costs,
-                     jacobian=jacobian)
+                     jacobian=jacobian, cost=0.5 * float(residual @ residual))
 
 
 # --------------------------------------------------------------------------

@@ -20,7 +20,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from dynfab.fit_data import LOAD_COLUMN, WEFT_LOAD_COLUMN
-from dynfab.plot import save_png
+from dynfab.plot_style import save_png
 from dynfab.plot_style import FONT_SIZE
 
 FAMILY_COLOURS = {"": ("k", "C3"), "warp": ("C0", "C0"), "weft": ("C1", "C1")}

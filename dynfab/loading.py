@@ -12,7 +12,7 @@ import numpy as np
 
 
 
-def prescribe_load(model: Model, state: State, load_value: float) -> np.ndarray:
+def prescribe_load(model, state, load_value: float) -> np.ndarray:
     """The starting positions (yarns, N+1, 2) [m] of a load step to `load_value` [N or m].
 
     Under force control, the previous state's positions (P enters the energy, not the

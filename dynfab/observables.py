@@ -43,7 +43,7 @@ def observe_yarn(pos, yarn, P, anchors, contact_force, friction_limit, friction_
     return lost, grad[-1, 0]
 
 
-def finish_step(model: Model, state: State, positions: np.ndarray, load_value: float,
+def finish_step(model, state, positions: np.ndarray, load_value: float,
                 residual: np.ndarray, iterations: np.ndarray) -> tuple[State, dict]:
     """The new state (anchors return-mapped) and the step's record for the result file.
 
@@ -88,7 +88,7 @@ def finish_step(model: Model, state: State, positions: np.ndarray, load_value: f
     return new_state, record
 
 
-def _slip_ratio(model: Model, positions: np.ndarray) -> np.ndarray:
+def _slip_ratio(model, positions: np.ndarray) -> np.ndarray:
     """(yarns,) the largest slip ratio of each yarn's crossing nodes against the weft, fixed
     at its as-woven x (`dynfab.domain.slip_ratios`, docs/model.md section 4): recorded, not
     limited, in the one-yarn model (its crossings ride on their nodes, as the paper's)."""
@@ -97,7 +97,7 @@ def _slip_ratio(model: Model, positions: np.ndarray) -> np.ndarray:
     return np.max(slip_ratios(positions, nodes, rest), axis=1, initial=0.0)
 
 
-def _reported_terms(model: Model) -> list[int]:
+def _reported_terms(model) -> list[int]:
     """Registry indices of the model's terms that report an energy dataset (`Term.dataset`)."""
     return [i for i, t in enumerate(registry.TERMS) if t.name in model.terms and t.dataset]
 

@@ -36,7 +36,8 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
 from dynfab.errors import UserError
-from dynfab.plot_style import DPI, FAMILY_ALPHA, FAMILY_STYLE, FAMILY_WIDTH, FONT_SIZE, new_figure, style_axes
+from dynfab.plot_style import (FAMILY_ALPHA, FAMILY_STYLE, FAMILY_WIDTH, FONT_SIZE, legend,
+                               new_figure, output_folder, save_png, style_axes)
 from dynfab.results import Results, read_results
 
 
@@ -48,8 +49,13 @@ def plot_results(path: str | os.PathLike, out_dir: str | os.PathLike) -> list[Pa
     """Write the figures of the result file ``path`` into ``out_dir`` (created if needed).
 
     Returns the paths of the PNGs written. Raises UserError for a missing
-    file, a file that is not a dynfab result, or one without a load step.
+    file, a file that is not a dynfab result, or one without a load step. A study's table
+    (``study.nc``) gets the study's figures (`dynfab.study_plots`).
     """
+    from dynfab.study_plots import is_study_table, plot_study
+
+    if is_study_table(path):
+        return plot_study(path, out_dir)
     results = read_results(path)
     if results.step_count == 0 and results.frame_count > 0:
         return _plot_transient(results, output_folder(out_dir))
@@ -118,7 +124,7 @@ def plot_fabric(results: Results) -> Figure:
     crimp_ax.set(xlabel="larger of the two loads per unit width [N/m]", ylabel="mean crimp [%]")
     for ax in (traction, crimp_ax):
         style_axes(ax)
-        _legend(ax)
+        legend(ax)
     _suptitle(fig, results, "woven fabric, from the as-woven state (docs/model.md section 10)")
     return fig
 
@@ -201,45 +207,12 @@ def plot_pullout(results: Results) -> Figure:
     front_ax.xaxis.get_major_locator().set_params(integer=True)
     front_ax.yaxis.get_major_locator().set_params(integer=True)
     style_axes(force_ax)
-    _legend(force_ax)
+    legend(force_ax)
     style_axes(front_ax)
-    _legend(front_ax, loc="lower right")
+    legend(front_ax, loc="lower right")
     front_ax.grid(False)
     _suptitle(fig, results, f"pull-out of warp {results.attrs['pullout_warp']}")
     return fig
-
-
-def output_folder(out_dir: str | os.PathLike | None) -> Path:
-    """`out_dir` as an existing, writable folder (created if needed); UserError (one line)
-    if it cannot be. The one check of every command's --out folder (plots and reports)."""
-    if out_dir is None or str(out_dir) == "":
-        raise UserError("--out: give a folder for the files")
-    out = Path(out_dir)
-    if out.exists() and not out.is_dir():
-        raise UserError(f"--out '{out}' is a file, not a folder")
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as error:
-        raise UserError(f"cannot create the folder '{out}': {error.strerror or error}") from None
-    if not os.access(out, os.W_OK):
-        raise UserError(f"cannot write into the folder '{out}'")
-    return out
-
-
-def save_png(fig: Figure, path: Path) -> Path:
-    """Save ``fig`` as a PNG at ``path`` and return the path; UserError if it cannot be written."""
-    try:
-        fig.savefig(path, dpi=DPI)
-    except OSError as error:
-        raise UserError(f"cannot write '{path}': {error.strerror or error}") from None
-    return path
-
-
-def _legend(ax, **kwargs) -> None:
-    """A legend in the report font size, if anything is labelled."""
-    if ax.get_legend_handles_labels()[0] or kwargs.get("handles"):
-        kwargs.setdefault("loc", "best")
-        ax.legend(fontsize=FONT_SIZE - 2, **kwargs)
 
 
 def yarn_labels(results: Results) -> list[str]:
@@ -303,7 +276,7 @@ def plot_traction(results: Results, path="") -> Figure:
     right.set(xlabel="end displacement (mm)", ylabel="end force P (N)")
     for ax in (left, right):
         style_axes(ax)
-        _legend(ax)
+        legend(ax)
     _suptitle(fig, results, "traction")
     return fig
 
@@ -324,7 +297,7 @@ def plot_contact_force(results: Results) -> Figure:
         Line2D([], [], color="k", ls="-", label="max over crossings"),
         Line2D([], [], color="k", ls="--", label="mean over crossings"),
     ]
-    _legend(ax, handles=handles)
+    legend(ax, handles=handles)
     _suptitle(fig, results, "contact force at the crossings")
     return fig
 
@@ -351,7 +324,7 @@ def plot_energy_history(results: Results) -> Figure:
             ax.plot(time_ms, energy, label=name.split("/", 1)[1])
     ax.set(xlabel="time (ms)", ylabel="energy (J)")
     style_axes(ax)
-    _legend(ax)
+    legend(ax)
     _suptitle(fig, results, f"energies of {yarn_labels(results)[0]}")
     return fig
 
@@ -374,7 +347,7 @@ def plot_frame_shapes(results: Results) -> Figure:
             ax.plot(xz[nodes, 0], xz[nodes, 1], "o", color=color, ms=4)
     ax.set(xlabel="x (mm)", ylabel="z (mm, exaggerated)")
     style_axes(ax)
-    _legend(ax, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
+    legend(ax, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
     _suptitle(fig, results, f"shape of {yarn_labels(results)[0]} (z exaggerated; dots: crossings)")
     return fig
 
@@ -419,7 +392,7 @@ def plot_shape(results: Results, path="") -> Figure:
     ax.set(xlabel="x (mm)", ylabel="z (mm, exaggerated)")
     ax.set_aspect("auto")
     style_axes(ax)
-    _legend(ax, handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
+    legend(ax, handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
     labels = yarn_labels(results)
     _suptitle(fig, results, f"shape of {labels[0]} (z exaggerated)")
     return fig

@@ -31,7 +31,7 @@ class State:
                      self.load.copy())
 
 
-def initial_state(model: Model) -> State:
+def initial_state(model) -> State:
     """The as-woven geometry, anchors at the as-woven crossing positions, nothing dissipated."""
     positions = model.stacked("rest_position").copy()
     nodes = model.yarns[0].crossing_node

@@ -39,6 +39,19 @@ def test_live_line_is_overwritten_in_place_and_cleared_before_a_step_line():
     assert text.endswith("\r\x1b[K[1/3] load 0.3 N\n")
 
 
+def test_a_study_s_live_line_is_shown_as_given_and_only_on_a_terminal():
+    from dynfab.cli import _Progress
+
+    line = "cases: 3 finished, 0 failed, 2 running, 5 waiting of 10; about 12 s left"
+    terminal, pipe = Stream(tty=True), Stream(tty=False)
+    for stream in (terminal, pipe):
+        progress = _Progress(stream)
+        progress.show(line)
+        progress.show("")  # cleared
+    assert terminal.getvalue() == "\r" + line + "\x1b[K" + "\r\x1b[K"
+    assert pipe.getvalue() == ""
+
+
 def test_no_live_line_when_stderr_is_not_a_terminal():
     from dynfab.cli import _Progress
 

@@ -45,6 +45,8 @@ RUN_ELSEWHERE = {
     ("fit",): ("test_fit_cli.py", ['"fit"']),
     ("fit", "runs/fit_example/scene.toml"): ("test_fit_cli.py", ['"fit"', '"scene.toml"',
                                                                  '"curve.csv"']),
+    ("study",): ("test_study.py", ['"study"', '"--resume"']),
+    ("study", "runs/study_example.toml"): ("test_study.py", ['"study"', '"study_example.toml"']),
     ("convergence", "quick"): ("test_convergence_report.py", ['"convergence"', '"--quick"']),
     ("precision", "quick"): ("test_precision_report.py", ['"precision"', '"--quick"']),
     ("stability", "quick"): ("test_stability_report.py", ['"stability"', '"--quick"']),
@@ -85,7 +87,8 @@ def filled(command: str, folder: Path) -> list[str]:
         scene.write_text(TINY_SCENE)
     values = {"SCENE.toml": scene, "[SCENE]": scene, "FILE.h5": folder / "file.h5",
               "DIR": folder / "dir", "CURVE.csv": folder / "curve.csv",
-              "KEY[,KEY]": "warp.EA,warp.EI", "[--quick]": "--quick"}
+              "KEY[,KEY]": "warp.EA,warp.EI", "[--quick]": "--quick",
+              "STUDY.toml": folder / "study.toml", "ADDRESS": "tcp://127.0.0.1:8786", "K": "3"}
     args = [str(values.get(word, word)) for word in shlex.split(command)[1:]]
     unknown = [word for word in args if re.fullmatch(r"\[?[A-Z][A-Z_,\[\]]*\]?(\.\w+)?", word)]
     assert not unknown, f"README command {command!r}: placeholders {unknown} unknown to this test"
@@ -102,7 +105,7 @@ def form(command: str) -> tuple:
                 rest[rest.index("--solver") + 1] if "--solver" in rest else "static")
         concrete = [w for w in rest if w.endswith(".toml") and w != "SCENE.toml"]
         return ("run", *concrete) if concrete else ("run", mode)
-    concrete = [w for w in rest if w.endswith(".toml") and w != "SCENE.toml"]
+    concrete = [w for w in rest if w.endswith(".toml") and w not in ("SCENE.toml", "STUDY.toml")]
     if concrete:
         return (sub, *concrete)
     if "[SCENE]" in rest:

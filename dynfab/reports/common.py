@@ -17,7 +17,7 @@ from typing import Callable, Iterable, Sequence
 import numpy as np
 
 from dynfab.errors import UserError
-from dynfab.plot import output_folder  # noqa: F401 (the reports' --out check)
+from dynfab.plot_style import output_folder  # noqa: F401 (the reports' --out check)
 from dynfab.scene import Scene, expand_sweep, load_scene, with_key
 
 RUNS = Path(__file__).resolve().parents[2] / "runs"

@@ -52,7 +52,7 @@ from matplotlib.lines import Line2D
 
 from dynfab import assembly
 from dynfab.model import build_model
-from dynfab.plot import save_png
+from dynfab.plot_style import save_png
 from dynfab.plot_style import DPI, FONT_SIZE, style_axes
 from dynfab.reports.common import (cut_yarn, machine, output_folder, paper_yarns, write_csv,
                                    write_json, write_text)

@@ -83,7 +83,7 @@ from dynfab.dynamic import DynamicSolver
 from dynfab.errors import SolverError
 from dynfab.model import Model, State, build_model, initial_state
 from dynfab.observables import finish_step
-from dynfab.plot import save_png
+from dynfab.plot_style import save_png
 from dynfab.reports.common import (cut_yarn, machine, output_folder, paper_yarns, write_csv,
                                    write_json, write_text)
 from dynfab.reports.precision_plots import plot_error_vs_residual, plot_work_precision

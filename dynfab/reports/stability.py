@@ -63,7 +63,7 @@ from dynfab.dynamic import DynamicSolver
 from dynfab.errors import UserError, SolverError
 from dynfab.kernels import status
 from dynfab.model import build_model, initial_state
-from dynfab.plot import save_png
+from dynfab.plot_style import save_png
 from dynfab.reports.common import (cut_yarn, machine, output_folder,
                                    paper_yarns as common_paper_yarns, write_csv, write_json,
                                    write_text)
