@@ -102,7 +102,7 @@ def _reported_terms(model) -> list[int]:
     return [i for i, t in enumerate(registry.TERMS) if t.name in model.terms and t.dataset]
 
 
-def frame_observables(model: Model, positions: np.ndarray, anchors: np.ndarray,
+def frame_observables(model, positions: np.ndarray, anchors: np.ndarray,
                       load_value: float) -> dict:
     """A transient frame's contact forces (yarns, C) [N] and reported energies (yarns,) [J]
     (`energy/<term>`) at `positions` (yarns, N+1, 2) with the `anchors` (yarns, C) the

@@ -17,9 +17,9 @@ def make_solver(model, name: str, device: str | None = None, status=None):
     scene's): a `dynfab.solver.Solver` driven by load step or, for dynamic.mode =
     "transient", a `Transient` driven by time; it reports within a step to `status` (per
     Newton iteration or yarn solved, per launch of a relaxation). One dynamic solver drives
-    every model (`dynfab.dynamic`); the static solvers are one per model."""
+    every model (`dynfab.dynamic`), one static solver too (`dynfab.static`: its backend
+    follows the structure)."""
     name = check_solver(name)
-    fabric = model.scene.geometry.model == "fabric"
     if name == "static":
         if device is not None:
             raise UserError(f"--device {device}: the static solver runs on the CPU (numba); "

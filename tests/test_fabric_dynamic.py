@@ -28,7 +28,6 @@ from dynfab import assembly
 from dynfab.dynamic import DynamicSolver
 from dynfab.errors import SolverError
 from dynfab.fabric.model import FabricModel
-from dynfab.static import StaticSolver
 from dynfab.model import build_model, initial_state
 from dynfab.reports.fabric_data import paper_patch_scene
 from dynfab.static import StaticSolver

@@ -405,10 +405,6 @@ class FabricModel:
         work = state.work + float(0.5 * (state.end_force + end_force) @ (u_new - u_old))
         return FabricState(pos, anchors, state.dissipated + lost, work, end_force), u_new
 
-    def group_name(self, k: int) -> str:
-        """The one group (the patch or cell) as a message names it."""
-        return "fabric"
-
     def crossing_name(self, c: int) -> str:
         """Crossing c as the scene counts it: "(warp k, weft j)", 1-based."""
         k, j = divmod(int(c), self.wefts)
