@@ -39,10 +39,8 @@ CHAIN = ("unilateral", "relaxed", "sets", "continuation", "semismooth")
 """The strategies in the order every backend tries them (module docstring)."""
 FALLBACK_BUDGET = 150
 """Newton iterations of a step's fallbacks (every strategy after the first), in units of
-`max_iterations`: after them the step stops with its failure. The hardest 4 x 4 fabric steps
-tried needed 23,125 (a 60-step equal biaxial path, step 14) and 17,756 (weft ends
-compressed, step 4) of the 30,000 this gives at max_iterations = 200; an 8 x 8 patch at
-0.1 mN per warp found no state in 6,017."""
+`max_iterations`: after them the step stops with its failure (the steps that set it:
+docs/model.md, "The friction onset in the fabric's static solver")."""
 SHARED = {"sets": active_set.direct_sets, "continuation": active_set.continuation}
 """The strategies written once for both backends; the others are the backend's methods of
 the same name."""

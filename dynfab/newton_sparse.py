@@ -84,13 +84,13 @@ COUPLED_FIRST = 20
 from the same start (`SparseNewton._solve_fixed_set`)."""
 RELAXED_BUDGET = 10
 """Newton iterations of the relaxed fixed point on F_T (`solve_relaxed`), in units of
-`max_iterations`, taken from the fallbacks' budget (`dynfab.friction_chain`): an 8 x 8
-patch at 0.1 mN per warp (R_0 = 1e-5 N) needed 140 (25 solves, then the coupled Newton)."""
+`max_iterations`, taken from the fallbacks' budget (`dynfab.friction_chain`; the step that
+set it: docs/model.md, "The friction onset in the fabric's static solver")."""
 RELAXATION_START = 0.5
 """The first weight w of the relaxed update F_T <- F_T + w (law(R) - F_T)."""
 RELAXATION_MIN = 1.0 / 64.0
-"""The smallest weight: on that patch w = 0.3 still wandered after 60 solves, w = 0.05
-contracted the laws' residual by about 0.955 per solve."""
+"""The smallest weight (why: docs/model.md, "The friction onset in the fabric's static
+solver")."""
 RELAXATION_PATIENCE = 5
 """Relaxed solves without a new lowest residual of the laws after which w is halved."""
 RELAXED_COUPLED_EVERY = 25
