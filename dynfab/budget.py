@@ -25,8 +25,9 @@ from dynfab.scene import Scene, yarn_count
 
 BYTES_PER_NODE = 800
 """Peak memory per node of one yarn, model and solver arrays together [B]."""
-PROCESS_BYTES = 400 * 2**20
-"""Memory of the process before the model is built: imports, JIT compilation [B]."""
+PROCESS_BYTES = 500 * 2**20
+"""Memory of the process before the model is built: imports, JIT compilation [B]; a first run
+with numba's cache empty (a fresh clone) compiles the static solver in the run itself."""
 STEP_SCALARS = 24
 """Per-step datasets that hold one number per yarn (load, end force, residual, ...)."""
 CROSSING_DATASETS = 6

@@ -109,4 +109,4 @@ def failure(backend, problem, failures, iterations: int) -> str:
                 f"Newton iterations); {reached}")
     at = ("" if worst < 0 else f"; the largest residual at a crossing: {force:.3g} N at "
           f"crossing {backend.crossing_name(problem, worst)}")
-    return f"{where}: no convergence ({iterations} Newton iterations); {reached}{at}"
+    return f"{where}: no convergence in {iterations} Newton iterations; {reached}{at}"

@@ -885,8 +885,9 @@ def _yarn_key_in_fabric(dotted: str, value) -> UserError:
 
 
 def _sweep_in_fabric() -> UserError:
-    return UserError(f"[sweep] given but {_FABRIC}: a fabric is one patch, not a batch of "
-                     "independent yarns (docs/model.md section 10); write one scene per value")
+    return UserError(f"[sweep] given but {_FABRIC}: a patch is one coupled group, not a batch "
+                     "of independent yarns (docs/model.md section 10); vary it in a study "
+                     "(dynfab study, a [vary] table: runs/study_example.toml)")
 
 
 def _pullout_in_yarn() -> UserError:

@@ -672,9 +672,10 @@ def test_a_one_yarn_key_in_a_fabric_is_refused(key, value, why):
 def test_a_sweep_in_a_fabric_is_refused():
     with pytest.raises(UserError) as info:
         fabric({"sweep": {"warp.EA": [13.0, 14.0]}})
-    assert str(info.value) == ('[sweep] given but geometry.model = "fabric": a fabric is one '
-                               'patch, not a batch of independent yarns (docs/model.md section 10); '
-                               'write one scene per value')
+    assert str(info.value) == ('[sweep] given but geometry.model = "fabric": a patch is one '
+                               'coupled group, not a batch of independent yarns (docs/model.md '
+                               'section 10); vary it in a study (dynfab study, a [vary] table: '
+                               'runs/study_example.toml)')
 
 
 def test_a_prestressed_fabric_is_refused():

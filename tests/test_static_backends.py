@@ -21,7 +21,8 @@ from dynfab.static import StaticSolver
 from dynfab.structure import grounded
 
 RUNS = Path(__file__).resolve().parent.parent / "runs"
-SCENES = sorted(RUNS.glob("*.toml"))
+SCENES = sorted(p for p in RUNS.glob("*.toml") if not p.name.startswith("study_"))
+"""The scene files of runs/ (runs/study_*.toml are study files: README, "Studies")."""
 
 
 @pytest.mark.parametrize("path", SCENES, ids=[p.stem for p in SCENES])
