@@ -65,12 +65,13 @@ def test_a_huge_load_path_is_refused_before_it_is_built():
         scene(load={"max": 0.01, "steps": 100000000})
 
 
-def fabric_scene(n=4, values=(1e-3, 2e-3)):
-    """A clamped n x n patch of the paper's yarns (14 segments per half-wave), no friction."""
+def fabric_scene(n=4, values=(1e-3, 2e-3), boundary="clamped"):
+    """A clamped n x n patch of the paper's yarns (14 segments per half-wave), no friction
+    (`boundary` "periodic": the periodic cell of the same yarns)."""
     yarn = {"EA": 13.72, "EI": 1.47e-7, "kawabata_C": 0.2e-3, "kawabata_K": 0.2}
     return make_scene(
         geometry={"model": "fabric", "length": 0.00625 * n, "segments": 14 * n, "crossings": n,
-                  "amplitude": 0.5e-3},
+                  "amplitude": 0.5e-3, "boundary": boundary},
         warp=yarn, weft={**yarn, "count": n, "segments": 14 * n, "amplitude": 0.5e-3},
         load={"values": list(values)})
 
@@ -113,3 +114,23 @@ def test_a_fabric_result_file_beyond_the_free_disk_is_refused(monkeypatch, tmp_p
                                                r"but 100 kB is free there"):
         dynfab.run(fabric_scene(8, values=[1e-3] * 50), solver="static", out=out)
     assert not out.exists()
+
+
+def test_a_periodic_cell_is_estimated_and_refused_as_a_patch(monkeypatch, tmp_path):
+    """The periodic cell (geometry.boundary = "periodic": the same nodes and crossings as the
+    clamped patch, its cell lengths and planes besides): runs/fabric_biaxial.toml's file lies
+    within a factor 2 of its estimate, and a 64 x 64 cell beyond the memory is refused with
+    the estimate before anything is built."""
+    from pathlib import Path
+
+    cell = dynfab.load_scene(Path(__file__).resolve().parents[1] / "runs" / "fabric_biaxial.toml")
+    assert cell.geometry.boundary == "periodic"
+    out = tmp_path / "cell.h5"
+    dynfab.run(cell, solver="static", out=out)
+    assert 0.5 < out.stat().st_size / budget.result_file_bytes(cell) < 2.0
+    monkeypatch.setattr(budget, "available_memory_bytes", lambda: 10**9)
+    big = fabric_scene(64, boundary="periodic")
+    assert big.geometry.boundary == "periodic"
+    with pytest.raises(dynfab.UserError, match=r"a 64 x 64 fabric of 114816 nodes needs about "
+                                               r".* of memory .* but 1 GB is available"):
+        dynfab.run(big, solver="static")

@@ -128,6 +128,15 @@ def test_damping_methods_match_static_on_fig3_sweep(fig3, options):
         assert_same_equilibrium(model, *states)
 
 
+def test_physical_masses_match_static_on_fig3_sweep(fig3):
+    """Physical masses (each node its share of the yarn's linear density, the time step the
+    stable one of those masses: far below the fictitious masses' 1 s) relax Fig. 3's sweep
+    to the static equilibrium within the same bound."""
+    for model, *states in relax_path(fig3, Dynamic(masses="physical")):
+        assert_same_equilibrium(model, *states)
+        assert (states[3]["dt"] < 1e-3).all()
+
+
 @pytest.fixture(scope="module")
 def relaxed_yarn(fig3):
     """One paper yarn (K = 0.2 m/N) relaxed by the static solver at u = 1 mm."""

@@ -124,3 +124,24 @@ def test_a_fabric_step_records_every_step_key():
     for name in record:
         units_of(f"steps/{name}", model.control)  # raises for an undocumented name
     assert record["error_estimate"] > 0 and record["lowest_eigenvalue_error"] >= 0
+
+
+def test_a_periodic_cell_step_brackets_the_dense_lowest_eigenvalue_and_bounds_its_error():
+    """The periodic 2 x 4 cell with friction (tests/test_fabric_periodic.py: tied cell lengths,
+    wrap springs, moving planes, all in the Hessian the certificate factors): its first load
+    step's record brackets the dense lowest eigenvalue as the clamped patch's does, and its
+    error_estimate is the residual times ||H^-1||_inf within Hager-Higham's factor."""
+    from test_fabric_periodic import PATHS, cell
+
+    solver = cell(2, 4, "force", FRICTION)
+    start = solver.initial_state()
+    load = (PATHS["force"][0][0], PATHS["force"][1][0])
+    state, record = solver.step(start, load)
+    assert record["stable"] and record["negative_eigenvalues"] == 0
+    H = solver.backend.hessian(state.positions, start.anchors, record["friction_limit"].ravel()).toarray()
+    eigenvalues, rows = dense(H)
+    assert eigenvalues[0] > 0
+    assert_bracket(record["lowest_eigenvalue"], record["lowest_eigenvalue_error"], eigenvalues, H)
+    residual, norm = record["residual"], rows.max()
+    assert residual > 0
+    assert residual * norm / 3 <= record["error_estimate"] <= residual * norm * (1 + 1e-8)

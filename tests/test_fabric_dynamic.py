@@ -405,3 +405,31 @@ def test_held_wefts_give_the_one_yarn_model_with_a_rigid_weft_spring(with_fricti
         assert slid > 1e3 * anchor_gap  # crossings slide
         assert np.abs(fabric_anchors - state.anchors).max() <= anchor_gap
         assert not fabric_record["anchors"][..., 1].any()  # the wefts do not slip
+
+
+CELL_SETTINGS = {"physical masses": dict(masses="physical"),
+                 "float32": dict(precision="float32", accuracy=math.inf, tolerance=None)}
+"""The [dynamic] settings of `SETTINGS` that no other test runs on the periodic cell (its
+tied cell lengths, moving planes and wrap springs compiled in; float32's accuracy check off
+and its default tolerance, as in `SETTINGS`)."""
+
+
+@pytest.mark.parametrize("name", sorted(CELL_SETTINGS))
+def test_physical_masses_and_float32_run_the_periodic_cell_to_the_static_step(name):
+    """The periodic 2 x 2 cell with friction (the variant of
+    `test_the_node_parallel_layout_takes_the_grouped_step_bit_for_bit`, in float32 its own):
+    the step within `agreement_bound` of the static solver's (the same start, so the same
+    anchors), float32's residual within its default tolerance 1e-4 N (its rounding, about
+    eps_32 x the 0.2 N forces, far below), the cell stretched far beyond the bound."""
+    model = paper_patch_model(2, 2, [(0.2, 0.1)], friction=PAPER_FRICTION, tolerance=TOLERANCE,
+                              boundary="periodic")
+    static = StaticSolver(model)
+    start = model.initial_state()
+    s_state, s_record = static.step(start.copy(), (0.2, 0.1))
+    state, record = dynamic_solver(model, **CELL_SETTINGS[name]).step(start.copy(), (0.2, 0.1))
+    assert record["residual"] <= (1e-4 if name == "float32" else TOLERANCE)
+    if name == "physical masses":
+        assert record["dt"] < 1e-3  # the physical time step, not the fictitious masses' 1 s
+    bound = agreement_bound(static, s_state, start.anchors, s_record, record["residual"], 0.0)
+    assert np.abs(s_state.positions - start.positions).max() > 10 * bound
+    assert np.abs(state.positions - s_state.positions).max() <= bound

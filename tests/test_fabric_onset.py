@@ -271,3 +271,28 @@ def test_the_relaxed_fixed_point_and_the_active_set_reach_the_same_state(monkeyp
     bound = solver.tolerance * np.abs(np.linalg.inv(H)).sum(axis=1).max()
     assert np.abs(solved[0] - solved[1]).max() <= 2 * bound
     assert np.abs(solved[0] - state.positions).max() > 1e3 * bound  # the step moved the patch
+
+
+def test_the_periodic_cell_at_a_small_onset_force(monkeypatch):
+    """The periodic 2 x 2 cell (tied cell lengths, wrap springs, moving planes) under 0.1 mN
+    per warp and 0.05 mN per weft from its as-woven state, where every crossing starts at
+    g = 0 (R = 0, F_T = 0: the onset itself), with R_0 = 1e-5 N (the default): the contact
+    forces reached, about 2.5e-5 N, lie on the onset's curved part (exp(-R / R_0) ~ 0.1, checked
+    here), each step consistent with Gralen's law through R_0 and the contact law, and at the
+    second step the default path, the relaxed fixed point and the active set with its
+    continuation in R_0 reach the same state."""
+    text = patch(2, 1e-5, "force", [0.0, 1e-4], [0.0, 5e-5])
+    assert text.count('boundary = "clamped"') == 1
+    solver, state = solve_path(text.replace('boundary = "clamped"', 'boundary = "periodic"'),
+                               {2}, monkeypatch)
+    assert solver.model.scene.geometry.boundary == "periodic"
+    R = contact_force_of(solver, state)
+    assert (0.5 < R / 1e-5).all() and (R / 1e-5 < 5).all()  # within the onset's scale
+
+
+def contact_force_of(solver: StaticSolver, state) -> np.ndarray:
+    """Each crossing's contact force R [N] at `state`, from the contact law evaluated here."""
+    f = solver.model.structure
+    pos = state.positions
+    g = f.tie_gap_offset - f.tie_side * (pos[f.tie_a, 1] - pos[f.tie_b, 1])
+    return np.array([contact_force(value, row) for value, row in zip(g, f.tie_contact_law)])

@@ -131,3 +131,32 @@ def test_a_resumed_transient_writes_the_uninterrupted_frames(tmp_path):
         points, _ = view.read_points_cells()
         assert view.num_steps == FRAMES + 1
         assert points.shape[0] == FabricModel.from_scene(scene).structure.rest_position.shape[0]
+
+
+def test_a_transient_of_the_periodic_cell_follows_its_prescribed_cell_lengths():
+    """The periodic 2 x 2 cell with friction (tied cell lengths, moving planes, wrap springs)
+    in the transient mode, its cell lengths prescribed on the ramp of VALUES over DURATION:
+    the frames at their times, each family's last node on the ramp at every frame (to the
+    rounding of x0 + u), both families' arrays in every frame, and the cell in motion."""
+    scene = paper_patch_scene(
+        2, 2, friction=PAPER_FRICTION, boundary="periodic",
+        load={"control": "displacement", "values": [v[0] for v in VALUES],
+              "weft_values": [v[1] for v in VALUES]},
+        dynamic={"mode": "transient", "duration": DURATION,
+                 "output_interval": DURATION / FRAMES})
+    model = FabricModel.from_scene(scene)
+    solver = make_solver(model, "dynamic")
+    assert isinstance(solver, DynamicTransient)
+    frames = list(solver.advance(model.initial_state()))
+    times = [float(frame["time"]) for frame in frames]
+    assert np.allclose(times, np.linspace(0.0, DURATION, FRAMES + 1), rtol=0, atol=1e-18)
+    f = model.structure
+    for frame in frames:
+        assert set(FRAME_KEYS) | set(LAYOUT) <= set(frame)
+        u = [np.interp(float(frame["time"]), [0.0, DURATION / 2, DURATION],
+                       [0.0, VALUES[0][k], VALUES[1][k]]) for k in (0, 1)]
+        nodes = np.concatenate([frame["positions"].reshape(-1, 2),
+                                frame["weft_positions"].reshape(-1, 2)])
+        expected = f.rest_position[f.load_node, 0] + model.yarn_loads(*u)
+        assert np.abs(nodes[f.load_node, 0] - expected).max() <= 4 * EPS * 0.0125
+    assert frames[-1]["energy/kinetic"] > 0.0 and frames[0]["energy/kinetic"] == 0.0

@@ -289,3 +289,22 @@ def test_a_curve_of_one_model_for_a_scene_of_the_other_is_refused():
                                    [[0.1, 1e-4], [0.2, 2e-4], [0.3, 3e-4]], "force")
     with pytest.raises(UserError, match="one-yarn model.*woven fabric"):
         fit(load_scene(EXAMPLE / "fabric_scene.toml"), yarn_data, ["warp.EA"])
+
+
+def test_a_clamped_patch_curve_gives_back_its_warp_ea():
+    """A clamped 2 x 2 patch of the paper's yarns ("affine" planes, 8 segments per half-wave)
+    fitted the same way: its own noise-free curve (warp strain and crimp, warps pulled 2:1
+    against the wefts) at warp.EA = 13.72 N gives back warp.EA from 10 N, to 10 x the
+    optimiser's step tolerance as in `test_noise_free_curve_gives_back_its_parameters_from_a_wrong_start`."""
+    from dynfab.reports.fabric_data import paper_patch_scene
+
+    scene = paper_patch_scene(2, 2, planes="affine",
+                              load={"control": "force", "values": [0.1], "weft_values": [0.05]})
+    assert scene.geometry.boundary == "clamped"
+    warp = np.linspace(0.05, 0.3, 6)
+    data = synthetic(scene, warp, 0.5 * warp, names=("warp_strain", "warp_crimp"))
+    result = fit(scene, data, ["warp.EA"], start={"warp.EA": 10.0})
+    assert result.converged and result.jacobian == "finite-difference"
+    truth = scene.warp.EA
+    tolerance = 10 * 1e-8 * (1e-8 + abs(math.log(truth)))
+    assert abs(math.log(result.parameters["warp.EA"]["value"] / truth)) <= tolerance

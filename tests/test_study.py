@@ -324,3 +324,34 @@ def test_the_example_study_runs_and_its_balanced_case_strains_both_families_alik
                            timeout=600)
     assert plots.returncode == 0, plots.stderr
     assert (out / "plots" / "final_strain_map.png").stat().st_size > 0
+
+
+def test_a_study_of_a_clamped_patch_gathers_the_serial_runs(tmp_path):
+    """A clamped 2 x 2 patch of the paper's yarns with friction ("affine" planes) as the base
+    scene, its warps' EA varied: each case's file and the gathered final strains (both
+    families) are exactly those of the serial runs, as for the one-yarn base scene."""
+    from dynfab.reports.fabric_data import paper_patch_scene
+    from dynfab.scene import scene_to_toml
+
+    base = paper_patch_scene(2, 2, planes="affine",
+                             friction={"alpha": 0.2, "beta": 1e3, "contact_length": 2e-3,
+                                       "fiber_radius": 1e-3},
+                             load={"control": "force", "values": [0.1, 0.2],
+                                   "weft_values": [0.05, 0.1]})
+    assert base.geometry.boundary == "clamped"
+    (tmp_path / "base.toml").write_text(scene_to_toml(base))
+    path = tmp_path / "study.toml"
+    path.write_text('title = "patch"\nscene = "base.toml"\n[vary]\n"warp.EA" = [10, 13.72]\n'
+                    '[observe]\nfinal = { dataset = "strain", at = "last" }\n')
+    plan = load_study(path)
+    reference = serial(plan)
+    result = study(plan, tmp_path / "out", workers=1, sync="end")
+    assert (result.cases, result.finished, result.failed) == (2, 2, 0)
+    table = xr.open_dataset(result.table)
+    for index, run in enumerate(reference):
+        assert np.array_equal(table["final"].values[index], run.steps["strain"][-1])
+        written = read_results(tmp_path / "out" / "cases" / f"case-000{index}.h5")
+        for name, value in run.steps.items():
+            if name != "wall_time":
+                assert np.array_equal(written.steps[name], value), name
+    assert table["final"].shape == (2, 2) and table["final"].values[0, 0] > table["final"].values[1, 0]
