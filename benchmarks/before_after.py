@@ -106,8 +106,8 @@ def static_figures(tree: Path) -> dict:
 def fabric_figures(tree: Path, n: int) -> dict:
     """The figures of one run of `benchmarks/fabric.py --size n` in `tree`."""
     out = run_in(tree, ["fabric.py", "--size", str(n), "--parts", ",".join(FABRIC_PARTS)])
-    rows = {line["part"]: line for line in map(json.loads, filter(None, out.splitlines()))
-            if line.get("part") in FABRIC_PARTS}
+    lines = [json.loads(line) for line in out.splitlines() if line.startswith("{")]
+    rows = {line["part"]: line for line in lines if line.get("part") in FABRIC_PARTS}
     return {f"fabric_{n}_{part}_step_s": rows[part]["step_s"] for part in FABRIC_PARTS
             if part in rows and "step_s" in rows[part]}
 
