@@ -204,15 +204,18 @@ def paired_overhead(plan, tmp: Path, pairs: int = 6) -> dict:
     from distributed import Client, LocalCluster
     from threadpoolctl import threadpool_limits
 
-    from dynfab.study import _write_atomically
+    from dynfab.study import _write_atomically, worker_environment
     from dynfab.study_case import run_case
 
     case = plan.cases[0]
     task = {"index": 0, "scene": case.text, "solver": "static", "sync": "end", "queue": None,
             "partial": None}
     here, there = [], []
-    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, host="127.0.0.1",
-                      dashboard_address=None, silence_logs=logging.ERROR) as cluster, \
+    with worker_environment():  # as dynfab.study's own cluster
+        cluster = LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
+                               host="127.0.0.1", dashboard_address=None,
+                               silence_logs=logging.ERROR)
+    with cluster, \
             Client(cluster) as client, threadpool_limits(1):
         client.submit(run_case, task, pure=False).result()  # the worker's first case: warm
         for _ in range(pairs):
@@ -296,12 +299,17 @@ def _bytes(count: int) -> bytes:
 def transfer_part(tmp: Path, patch: int) -> dict:
     from distributed import Client, LocalCluster
 
+    from dynfab.study import worker_environment
+
     path = study_file(tmp, strip_text(patch, 1), {"warp.EA": [13.72]},
                       '[observe]\nstrain = "strain"\n', "transfer")
     wall, result = run_study(path, tmp / "transfer_out", sync="end", workers=1)
     size = (tmp / "transfer_out" / "cases" / "case-0000.h5").stat().st_size
-    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, host="127.0.0.1",
-                      dashboard_address=None, silence_logs=logging.ERROR) as cluster, \
+    with worker_environment():  # as dynfab.study's own cluster
+        cluster = LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
+                               host="127.0.0.1", dashboard_address=None,
+                               silence_logs=logging.ERROR)
+    with cluster, \
             Client(cluster) as client:
         def best(count: int) -> float:
             times = []

@@ -355,3 +355,20 @@ def test_a_study_of_a_clamped_patch_gathers_the_serial_runs(tmp_path):
             if name != "wall_time":
                 assert np.array_equal(written.steps[name], value), name
     assert table["final"].shape == (2, 2) and table["final"].values[0, 0] > table["final"].values[1, 0]
+
+
+def _trim_threshold():
+    import os
+
+    return os.environ.get("MALLOC_TRIM_THRESHOLD_")
+
+
+def test_the_local_cluster_workers_keep_glibcs_own_trim_rule(monkeypatch):
+    """Dask's nanny sets MALLOC_TRIM_THRESHOLD_ = 65536 in the workers it spawns, which made a
+    16 x 16 patch's case 1.3 x slower (docs/results.md, "Studies on a Dask cluster"); the
+    study's own cluster leaves it unset (unless the user's environment sets it)."""
+    from dynfab.study import _cluster
+
+    monkeypatch.delenv("MALLOC_TRIM_THRESHOLD_", raising=False)
+    with _cluster(None, 1) as client:
+        assert set(client.run(_trim_threshold).values()) == {None}
