@@ -14,12 +14,15 @@ compiled and in the caches before the timing: one untimed case first):
   default (the fabric's Newton solves call OpenBLAS, two threads here) and with the BLAS
   on one thread (as Dask's workers run it); and `dynfab.study` on a LocalCluster of
   WORKERS workers (sync "steps", the default). The speed-ups are the ratios of the
-  processes' wall times (imports, the cluster's start, the table included). The dispatch
-  overhead per case: the median task on a worker less the median one-thread serial case
-  (the scratch file, reading and sending the steps), plus the client's time
-  writing a case's file; the one-off costs apart: the cluster's start (start, dynfab
-  imported on every worker, close) and a worker's first case (kernels loaded from the
-  caches: the slowest task less the median).
+  processes' wall times (imports, the cluster's start, the table included). The ceiling:
+  WORKERS plain processes started at once, each running every WORKERS-th case with its
+  BLAS on one thread, no Dask (`concurrent_processes`): what the cores give independent
+  runs here. The dispatch overhead per case (`paired_overhead`): a case's task, sent,
+  run, its file brought back and written by the client, less the run's own time on the
+  worker (the task's `seconds`); and apart, that run's time against the same run in this
+  process. The one-off costs: the cluster's start (start, dynfab imported on every worker,
+  close) and a worker's first case (kernels loaded from the caches: the slowest task less
+  the median).
 - sweep: one-yarn cases of the paper's yarn (runs/paper_fig3.toml, the warp's K = 0.02 to
   1 m/N, 40 displacement steps; and the yarn refined to N = 1792, 10 steps): the
   same K values as one scene's [sweep] (one batched run in one process, static) against a
@@ -92,14 +95,16 @@ began = time.perf_counter()
 import dynfab
 from dynfab.study_file import load_study
 plan, folder = load_study(sys.argv[1]), sys.argv[2]
+part, parts = (int(sys.argv[3]), int(sys.argv[4])) if len(sys.argv) > 4 else (0, 1)
 each = []
-for case in plan.cases:
+for case in plan.cases[part::parts]:
     start = time.perf_counter()
     dynfab.run(case.scene, out=f"{folder}/serial-{case.index}.h5", overwrite=True)
     each.append(time.perf_counter() - start)
 print(json.dumps({"each": each, "process_s": time.perf_counter() - began}))
 """
-"""One process running every case of a study to its file, as a user's loop would."""
+"""One process running every case of a study to its file, as a user's loop would (or every
+`parts`-th from `part`: argv 3 and 4)."""
 
 STUDY = """
 import json, sys, time
@@ -115,6 +120,11 @@ print(json.dumps({"process_s": time.perf_counter() - began, "study_s": result.se
 """One process running a study (`dynfab.study`, its own local cluster)."""
 
 
+ENVIRONMENT = dict(os.environ)
+"""This process's environment at its start: a Dask nanny writes its workers' variables
+(distributed.nanny.pre-spawn-environ) into its own process's environment and leaves them
+there, where every later process would inherit them; the commands run here get this one."""
+
 ONE_THREAD = {name: "1" for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS",
                                      "MKL_NUM_THREADS")}
 """What Dask's nanny sets in every worker's environment (distributed.nanny.pre-spawn-environ):
@@ -126,10 +136,23 @@ def in_process(script: str, *args, env: dict | None = None) -> dict:
     variables added to its environment."""
     began = time.perf_counter()
     done = subprocess.run([sys.executable, "-c", script, *map(str, args)], capture_output=True,
-                          text=True, check=True, env={**os.environ, **(env or {})})
+                          text=True, check=True, env={**ENVIRONMENT, **(env or {})})
     found = json.loads(done.stdout.strip().splitlines()[-1])
     found["wall_s"] = time.perf_counter() - began
     return found
+
+
+def concurrent_processes(path: Path, tmp: Path, count: int) -> float:
+    """Wall time [s] of `count` plain processes started at once, each running every count-th
+    case of the study (BLAS on one thread, no Dask): what `count` cores give to independent
+    runs on this machine, the ceiling of a study's speed-up over one such process."""
+    began = time.perf_counter()
+    runs = [subprocess.Popen([sys.executable, "-c", SERIAL, str(path), str(tmp), str(k),
+                              str(count)], stdout=subprocess.DEVNULL,
+                             env={**ENVIRONMENT, **ONE_THREAD}) for k in range(count)]
+    if any(run.wait() for run in runs):
+        raise SystemExit("a concurrent serial process failed")
+    return time.perf_counter() - began
 
 
 def serial_seconds(plan, folder: Path) -> tuple[float, list[float]]:
@@ -151,10 +174,14 @@ def cluster_start_seconds(workers: int) -> float:
 
     from dynfab.study_case import worker_info
 
+    from dynfab.study import worker_environment
+
     began = time.perf_counter()
-    with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                      host="127.0.0.1", dashboard_address=None,
-                      silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
+    with worker_environment():  # as dynfab.study's own cluster
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                               host="127.0.0.1", dashboard_address=None,
+                               silence_logs=logging.ERROR)
+    with cluster, Client(cluster) as client:
         client.run(worker_info)
     return time.perf_counter() - began
 
@@ -178,6 +205,7 @@ def fabric_part(tmp: Path, cases: int, patch: int) -> dict:
     dynfab.run(load_study(path).cases[0].scene)  # compiled into the caches: both start warm
     serial = in_process(SERIAL, path, tmp)
     single = in_process(SERIAL, path, tmp, env=ONE_THREAD)
+    together = concurrent_processes(path, tmp, WORKERS)
     start = cluster_start_seconds(WORKERS)
     study = in_process(STUDY, path, tmp / "fabric_out", WORKERS, "steps")
     paired = paired_overhead(load_study(path), tmp)
@@ -189,6 +217,8 @@ def fabric_part(tmp: Path, cases: int, patch: int) -> dict:
             "serial_1thread_case_median_s": statistics.median(single["each"]),
             "study_process_s": study["wall_s"], "speed_up": serial["wall_s"] / study["wall_s"],
             "speed_up_over_1thread": single["wall_s"] / study["wall_s"],
+            "plain_processes": WORKERS, "plain_processes_s": together,
+            "ceiling_speed_up_over_1thread": single["wall_s"] / together,
             "study_task_median_s": statistics.median(tasks),
             "study_client_write_per_case_s": study["write_s"] / cases,
             "cluster_start_s": start, "worker_warmup_s": max(tasks) - statistics.median(tasks),
@@ -199,7 +229,8 @@ def paired_overhead(plan, tmp: Path, pairs: int = 6) -> dict:
     """A case run in this process (BLAS on one thread, as on a worker) and the same case as
     a study's task on a one-worker LocalCluster (sync "end": the file comes back and is
     written as the study writes it), alternately `pairs` times, so that the machine's other
-    load falls on both alike: the medians and their difference, the dispatch overhead."""
+    load falls on both alike: the medians; the dispatch overhead, the task less the run on
+    the worker (its `seconds`); and the run on the worker over the run here."""
     import dynfab
     from distributed import Client, LocalCluster
     from threadpoolctl import threadpool_limits
@@ -210,7 +241,7 @@ def paired_overhead(plan, tmp: Path, pairs: int = 6) -> dict:
     case = plan.cases[0]
     task = {"index": 0, "scene": case.text, "solver": "static", "sync": "end", "queue": None,
             "partial": None}
-    here, there = [], []
+    here, there, inside = [], [], []
     with worker_environment():  # as dynfab.study's own cluster
         cluster = LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
                                host="127.0.0.1", dashboard_address=None,
@@ -226,11 +257,14 @@ def paired_overhead(plan, tmp: Path, pairs: int = 6) -> dict:
             outcome = client.submit(run_case, task, pure=False).result()
             _write_atomically(tmp / "paired-case.h5", outcome["file"])
             there.append(time.perf_counter() - began)
-    overhead = statistics.median(there) - statistics.median(here)
+            inside.append(outcome["seconds"])
+    overhead = statistics.median(there) - statistics.median(inside)
     return {"paired_case_here_s": statistics.median(here),
             "paired_case_on_worker_s": statistics.median(there),
+            "paired_task_inside_worker_s": statistics.median(inside),
             "dispatch_overhead_per_case_s": overhead,
-            "dispatch_overhead_fraction": overhead / statistics.median(here)}
+            "dispatch_overhead_fraction": overhead / statistics.median(here),
+            "worker_run_over_here": statistics.median(inside) / statistics.median(here)}
 
 
 def sweep_part(tmp: Path, cases: int, segments: int, steps: int) -> dict:
