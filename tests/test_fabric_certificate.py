@@ -45,20 +45,29 @@ def assert_bracket(lowest, error, eigenvalues, H):
     assert 0 <= error <= 1e-2 * abs(lowest)
 
 
-def test_a_stable_step_brackets_the_dense_lowest_eigenvalue_and_bounds_its_error():
-    solver = StaticSolver(patch_model("force", (0.2,), FRICTION, weft_values=(0.05,),
-                                            planes="affine"))
-    start = solver.initial_state()
-    state, record = solver.step(start, (0.2, 0.05))
+def assert_stable_step_certified(solver, start, state, record) -> np.ndarray:
+    """A stable step's record against the dense Hessian it certified (F_T frozen at its
+    limits, the step's own anchors): the lowest eigenvalue positive and in its bracket, the
+    error_estimate the residual times ||H^-1||_inf within Hager-Higham's factor 3 (a lower
+    bound of the norm). Returns the rows' 1-norms of H^-1."""
     assert record["stable"] and record["negative_eigenvalues"] == 0
-    # the matrix the step certified: F_T frozen at its limits, the step's own anchors
-    H = solver.backend.hessian(state.positions, start.anchors, record["friction_limit"].ravel()).toarray()
+    H = solver.backend.hessian(state.positions, start.anchors,
+                               record["friction_limit"].ravel()).toarray()
     eigenvalues, rows = dense(H)
     assert eigenvalues[0] > 0
     assert_bracket(record["lowest_eigenvalue"], record["lowest_eigenvalue_error"], eigenvalues, H)
     residual, norm = record["residual"], rows.max()
     assert residual > 0
     assert residual * norm / 3 <= record["error_estimate"] <= residual * norm * (1 + 1e-8)
+    return rows
+
+
+def test_a_stable_step_brackets_the_dense_lowest_eigenvalue_and_bounds_its_error():
+    solver = StaticSolver(patch_model("force", (0.2,), FRICTION, weft_values=(0.05,),
+                                            planes="affine"))
+    start = solver.initial_state()
+    state, record = solver.step(start, (0.2, 0.05))
+    rows = assert_stable_step_certified(solver, start, state, record)
     checked = certificate.certify_patch(solver.model, state.positions, start.anchors,
                                         record["friction_limit"].ravel())
     assert rows[checked.worst] >= rows.max() / 3
@@ -137,11 +146,4 @@ def test_a_periodic_cell_step_brackets_the_dense_lowest_eigenvalue_and_bounds_it
     start = solver.initial_state()
     load = (PATHS["force"][0][0], PATHS["force"][1][0])
     state, record = solver.step(start, load)
-    assert record["stable"] and record["negative_eigenvalues"] == 0
-    H = solver.backend.hessian(state.positions, start.anchors, record["friction_limit"].ravel()).toarray()
-    eigenvalues, rows = dense(H)
-    assert eigenvalues[0] > 0
-    assert_bracket(record["lowest_eigenvalue"], record["lowest_eigenvalue_error"], eigenvalues, H)
-    residual, norm = record["residual"], rows.max()
-    assert residual > 0
-    assert residual * norm / 3 <= record["error_estimate"] <= residual * norm * (1 + 1e-8)
+    assert_stable_step_certified(solver, start, state, record)
