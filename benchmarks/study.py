@@ -43,7 +43,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import logging
 import os
 import platform
 import statistics
@@ -170,18 +169,13 @@ def serial_seconds(plan, folder: Path) -> tuple[float, list[float]]:
 
 def cluster_start_seconds(workers: int) -> float:
     """Start a LocalCluster, run a task on every worker (dynfab imported), close it [s]."""
-    from distributed import Client, LocalCluster
+    from distributed import Client
 
+    from dynfab.study import local_cluster
     from dynfab.study_case import worker_info
 
-    from dynfab.study import worker_environment
-
     began = time.perf_counter()
-    with worker_environment():  # as dynfab.study's own cluster
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                               host="127.0.0.1", dashboard_address=None,
-                               silence_logs=logging.ERROR)
-    with cluster, Client(cluster) as client:
+    with local_cluster(workers) as cluster, Client(cluster) as client:
         client.run(worker_info)
     return time.perf_counter() - began
 
@@ -232,22 +226,17 @@ def paired_overhead(plan, tmp: Path, pairs: int = 6) -> dict:
     load falls on both alike: the medians; the dispatch overhead, the task less the run on
     the worker (its `seconds`); and the run on the worker over the run here."""
     import dynfab
-    from distributed import Client, LocalCluster
+    from distributed import Client
     from threadpoolctl import threadpool_limits
 
-    from dynfab.study import _write_atomically, worker_environment
+    from dynfab.study import _write_atomically, local_cluster
     from dynfab.study_case import run_case
 
     case = plan.cases[0]
     task = {"index": 0, "scene": case.text, "solver": "static", "sync": "end", "queue": None,
             "partial": None}
     here, there, inside = [], [], []
-    with worker_environment():  # as dynfab.study's own cluster
-        cluster = LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
-                               host="127.0.0.1", dashboard_address=None,
-                               silence_logs=logging.ERROR)
-    with cluster, \
-            Client(cluster) as client, threadpool_limits(1):
+    with local_cluster(1) as cluster, Client(cluster) as client, threadpool_limits(1):
         client.submit(run_case, task, pure=False).result()  # the worker's first case: warm
         for _ in range(pairs):
             began = time.perf_counter()
@@ -331,20 +320,15 @@ def _bytes(count: int) -> bytes:
 
 
 def transfer_part(tmp: Path, patch: int) -> dict:
-    from distributed import Client, LocalCluster
+    from distributed import Client
 
-    from dynfab.study import worker_environment
+    from dynfab.study import local_cluster
 
     path = study_file(tmp, strip_text(patch, 1), {"warp.EA": [13.72]},
                       '[observe]\nstrain = "strain"\n', "transfer")
     wall, result = run_study(path, tmp / "transfer_out", sync="end", workers=1)
     size = (tmp / "transfer_out" / "cases" / "case-0000.h5").stat().st_size
-    with worker_environment():  # as dynfab.study's own cluster
-        cluster = LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
-                               host="127.0.0.1", dashboard_address=None,
-                               silence_logs=logging.ERROR)
-    with cluster, \
-            Client(cluster) as client:
+    with local_cluster(1) as cluster, Client(cluster) as client:
         def best(count: int) -> float:
             times = []
             for _ in range(5):

@@ -254,16 +254,14 @@ def _write_atomically(path: Path, data: bytes) -> None:
 def _cluster(scheduler: str | None, workers: int | None):
     """A Dask client: of an embedded LocalCluster (`workers` processes, one thread each;
     default one per core), or of the scheduler at `scheduler`."""
-    from distributed import Client, LocalCluster
+    from distributed import Client
 
     from dynfab.study_case import worker_info
 
     if scheduler is None:
         count = workers or os.cpu_count() or 1
-        with _workers_deaf_to_ctrl_c(), worker_environment():
-            cluster = LocalCluster(n_workers=count, threads_per_worker=1, processes=True,
-                                   host="127.0.0.1", dashboard_address=None,
-                                   silence_logs=logging.ERROR)
+        with _workers_deaf_to_ctrl_c():
+            cluster = local_cluster(count)
         try:
             with cluster, Client(cluster) as client:
                 yield client
@@ -300,11 +298,15 @@ in again at the next allocation (a 16 x 16 patch's case took 1.3 x as long with 
 docs/results.md, "Studies on a Dask cluster"); None leaves glibc's own rule."""
 
 
-def worker_environment():
-    """The context in which a LocalCluster's workers get `WORKER_ENVIRONMENT`."""
+def local_cluster(workers: int):
+    """The study's embedded cluster: a LocalCluster of `workers` worker processes on this
+    machine, one thread each, no dashboard, its workers spawned with `WORKER_ENVIRONMENT`."""
     import dask
+    from distributed import LocalCluster
 
-    return dask.config.set(WORKER_ENVIRONMENT)
+    with dask.config.set(WORKER_ENVIRONMENT):
+        return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                            host="127.0.0.1", dashboard_address=None, silence_logs=logging.ERROR)
 
 
 @contextlib.contextmanager
