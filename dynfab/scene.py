@@ -13,7 +13,8 @@ options (`dynfab.options`), the command line's flags and docs/scene.md
 
 Public: `load_scene`, `parse_scene_text`, `scene_from_tables`, `validate_scene` (for a Scene built
 in Python), `check_dynamic_options` (for solver options given apart from a
-scene), `with_key`, `expand_sweep`, `yarn_count`, `markdown_table`. Choices made here:
+scene), `with_key`, `expand_sweep`, `yarn_count`, `markdown_table`, and the specimen's
+constants `PAPER_FRICTION`, `TORSION_RADIUS_PER_WIDTH`. Choices made here:
 
 - a scene without crossings (a plain rod) refuses a [weft], [contact] or [friction] table
   and a non-zero geometry.amplitude, rather than ignoring them;
@@ -24,7 +25,15 @@ scene), `with_key`, `expand_sweep`, `yarn_count`, `markdown_table`. Choices made
 - load.max must be non-zero (a path at zero load is `values = [0.0]`);
 - a [sweep] key may be quoted ("warp.EA" = [...]) or bare (warp.EA = [...]),
   and may be left out of its table, which then takes the first entry;
-  weft.count is not sweepable (an integer; sweeps hold reals).
+  weft.count is not sweepable (an integer; sweeps hold reals);
+- a [specimen] (the spatial fabric's shear test, docs/model.md section 11) sets the layout:
+  the layout keys (geometry.length, segments, crossings, amplitude, weft.length, count,
+  segments) are refused with it and required without it; spatial kinematics and a
+  [specimen] go together, and a planar scene refuses [crossing] and the families' spatial
+  keys. A specimen without [friction] runs the paper's Gralen law (`PAPER_FRICTION`, the
+  `Specimen` decision), resolved by `validate_scene` with its other defaults;
+- the spatial keys are not sweepable: they are the fabric's, which takes no [sweep] (a
+  fabric's fit varies its real keys whether sweepable or not, `dynfab.fit_models`).
 """
 
 from __future__ import annotations
@@ -71,6 +80,13 @@ class _Key:
     default_doc: str = ""
     """The default as docs/scene.md writes it (Markdown) where it depends on other keys; the
     field's default is then None, resolved by `validate_scene`."""
+    layout: bool = False
+    """A key of the layout of a patch (its lengths, yarn counts, segments, the warp's crimp): a
+    [specimen] sets the layout and refuses it; without one, a key of the one-yarn model and
+    the planar fabric is required (weft.segments: in a fabric)."""
+    spatial: bool = False
+    """A key of the spatial fabric only (geometry.kinematics = "spatial", docs/model.md
+    section 11); a planar scene refuses it."""
 
 
 _POS, _NONNEG = "positive", "nonnegative"
@@ -81,7 +97,8 @@ PLANES = ("fixed", "affine", CELL_PLANES)
 
 def _key(doc: str, unit: str = "", rule: str = "", *, choices: tuple[str, ...] = (),
          sweepable: bool = False, option: bool = False, default_from: str = "",
-         model: str = "", default=MISSING, default_doc: str = ""):
+         model: str = "", default=MISSING, default_doc: str = "", layout: bool = False,
+         spatial: bool = False):
     """A dataclass field that is a scene key: its description, unit, rule and roles.
 
     The key's kind (real, integer, string, list) is its field's type; a field
@@ -89,20 +106,24 @@ def _key(doc: str, unit: str = "", rule: str = "", *, choices: tuple[str, ...] =
     """
     spec = _Key(unit=unit, rule=rule, choices=choices, doc=doc, sweepable=sweepable,
                 option=option, default_from=default_from, model=model,
-                default_doc=default_doc)
+                default_doc=default_doc, layout=layout, spatial=spatial)
     return field(default=default, metadata={"scene_key": spec})
+
+
+_SPATIAL = 'geometry.kinematics = "spatial"'
 
 
 @dataclass(frozen=True, kw_only=True)
 class Geometry:
     """The warp yarn's geometry (docs/model.md section 1)."""
 
-    length: float = _key("L, projected warp length", "m", _POS)
-    segments: int = _key("N, segments per warp yarn; a multiple of 2 x crossings", rule=_POS)
-    crossings: int = _key("N_we, weft crossings per warp yarn; 0 is a plain straight rod",
-                          rule=_NONNEG)
-    amplitude: float = _key("A_wa, as-woven warp crimp amplitude; 0 is a straight yarn", "m",
-                            _NONNEG, sweepable=True)
+    length: float | None = _key("L, projected warp length", "m", _POS, default=None, layout=True)
+    segments: int | None = _key("N, segments per warp yarn; a multiple of 2 x crossings",
+                                rule=_POS, default=None, layout=True)
+    crossings: int | None = _key("N_we, weft crossings per warp yarn; 0 is a plain straight rod",
+                                 rule=_NONNEG, default=None, layout=True)
+    amplitude: float | None = _key("A_wa, as-woven warp crimp amplitude; 0 is a straight yarn",
+                                   "m", _NONNEG, sweepable=True, default=None, layout=True)
     reference: str = _key("stress-free state (docs/model.md section 3)",
                           choices=("as_woven", "prestressed"), default="as_woven")
     yarns: int = _key("adjacent warp yarns simulated, yarn k with phase s_k = (-1)^(k-1)",
@@ -116,7 +137,69 @@ class Geometry:
                               "mean stretch, or with the periodic cell (a periodic cell's only "
                               "planes; docs/model.md section 10)",
                               choices=PLANES, default=None, model="fabric",
-                              default_doc=f'`"fixed"`; on a periodic cell `"{CELL_PLANES}"`')
+                              default_doc=f'`"fixed"`; on a periodic cell `"{CELL_PLANES}"`; '
+                                          'none with spatial kinematics (which refuses it)')
+    kinematics: str = _key("every yarn in its vertical plane (docs/model.md section 10), or nodes "
+                           "free in x, y and z, sheared in plane by a [specimen] test "
+                           "(docs/model.md section 11), which spatial kinematics requires",
+                           choices=("planar", "spatial"), default="planar", model="fabric")
+
+
+@dataclass(frozen=True, kw_only=True)
+class Specimen:
+    """An in-plane shear test of the spatial fabric (docs/model.md section 11).
+
+    A bias extension or a picture frame (Cao et al., Composites A 39 (2008) 1037-1053).
+
+    It sets the layout: yarns at whole spacings (warp.spacing, weft.spacing) from a crossing
+    at the specimen's centre, so geometry.length, segments, crossings, amplitude and
+    weft.length, count, segments are refused. It is loaded by its clamp (frame corner)
+    displacement, load.values, alone.
+
+    Decision: a specimen without a [friction] table takes the paper's Gralen law
+    (`PAPER_FRICTION`, docs/model.md section 7), not none: without friction a bias specimen
+    slides apart at no cost, so the table's absence must not silently mean frictionless;
+    friction.alpha = friction.beta = 0 written out switches it off.
+    """
+
+    test: str = _key("the test: a W x H bias-extension strip, yarns at +-45 degrees to its long "
+                     "side, clamped at its short sides; or a L x L picture frame, yarns along "
+                     "the bars, every end pinned to a bar",
+                     choices=("bias_extension", "picture_frame"), model="fabric", spatial=True)
+    width: float | None = _key("bias extension: W, the clamped short side; required there", "m",
+                               _POS, default=None, model="fabric", spatial=True)
+    height: float | None = _key("bias extension: H >= 2W, the free length between the clamps; "
+                                "required there", "m", _POS, default=None, model="fabric",
+                                spatial=True)
+    side: float | None = _key("picture frame: L, the frame's side, pin to pin; required there",
+                              "m", _POS, default=None, model="fabric", spatial=True)
+    fabric_side: float | None = _key("picture frame: L_fabric <= L, the sheared fabric's side in "
+                                     "the normalised shear force F_s L / L_fabric^2 (Cao et al. "
+                                     "2008, eq. 10)", "m", _POS, default=None, model="fabric",
+                                     spatial=True, default_doc="`specimen.side`")
+    segments_per_spacing: int = _key("segments of each yarn between consecutive crossings",
+                                     rule=_POS, default=4, model="fabric", spatial=True)
+
+
+def _lateral_keys(family: str, plural: str) -> dict:
+    """The spatial fabric's keys of one yarn family (docs/model.md section 11), as fields."""
+    spatial = {"default": None, "model": "fabric", "spatial": True}
+    return {
+        "spacing": _key(f"p, centre-to-centre distance of neighbouring {plural}; required with "
+                        "[specimen]", "m", _POS, **spatial),
+        "width": _key(f"w, {family} yarn width, below {family}.spacing: neighbouring {plural} "
+                      "meet (lateral contact, locking) closer than it; required with [specimen]",
+                      "m", _POS, **spatial),
+        "EI_lateral": _key("in-plane (lateral) bending stiffness", "N m^2", _POS,
+                           default_doc=f"`{family}.EI`", **spatial),
+        "lateral_stiffness": _key(f"k, stiffness of the lateral contact of neighbouring "
+                                  f"{plural}, per crossing", "N/m", _POS,
+                                  default_doc="`contact.core_stiffness`; without it the "
+                                              "fabric's 1e5 N/m", **spatial),
+    }
+
+
+_WARP_LATERAL, _WEFT_LATERAL = _lateral_keys("warp", "warps"), _lateral_keys("weft", "wefts")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -129,6 +212,13 @@ class Warp:
     kawabata_K: float = _key("Kawabata K_wa, compliance parameter", "m/N", _POS, sweepable=True)
     linear_density: float = _key("rho_l, mass per unit length", "kg/m", _POS, sweepable=True,
                                  default=3e-5)
+    amplitude: float | None = _key("A_wa, as-woven warp crimp half-height of a [specimen] (a "
+                                   "planar fabric's is geometry.amplitude); required there", "m",
+                                   _NONNEG, default=None, model="fabric", spatial=True)
+    spacing: float | None = _WARP_LATERAL["spacing"]
+    width: float | None = _WARP_LATERAL["width"]
+    EI_lateral: float | None = _WARP_LATERAL["EI_lateral"]
+    lateral_stiffness: float | None = _WARP_LATERAL["lateral_stiffness"]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -136,10 +226,10 @@ class Weft:
     """The weft at a crossing: a beam spring in series with Kawabata (docs/model.md section 3)."""
 
     EI: float = _key("weft bending stiffness", "N m^2", _POS, sweepable=True)
-    length: float = _key("L_we, projected weft length", "m", _POS, sweepable=True,
-                         default_from="geometry.length")
-    count: int = _key("N_wa, warp yarns crossing one weft", rule=_POS,
-                      default_from="geometry.crossings")
+    length: float | None = _key("L_we, projected weft length", "m", _POS, sweepable=True,
+                                default=None, default_from="geometry.length", layout=True)
+    count: int | None = _key("N_wa, warp yarns crossing one weft", rule=_POS, default=None,
+                             default_from="geometry.crossings", layout=True)
     amplitude: float = _key("A_we, weft crimp amplitude", "m", _NONNEG, sweepable=True)
     kawabata_C: float = _key("Kawabata C_we", "m", _POS, sweepable=True)
     kawabata_K: float = _key("Kawabata K_we", "m/N", _POS, sweepable=True)
@@ -150,7 +240,42 @@ class Weft:
     linear_density: float | None = _key("weft rho_l, mass per unit length; none: 3e-5", "kg/m",
                                         _POS, default=None, model="fabric")
     segments: int | None = _key("M, segments per weft yarn, a multiple of 2 x weft.count; "
-                                "required in a fabric", rule=_POS, default=None, model="fabric")
+                                "required in a fabric", rule=_POS, default=None, model="fabric",
+                                layout=True)
+    spacing: float | None = _WEFT_LATERAL["spacing"]
+    width: float | None = _WEFT_LATERAL["width"]
+    EI_lateral: float | None = _WEFT_LATERAL["EI_lateral"]
+    lateral_stiffness: float | None = _WEFT_LATERAL["lateral_stiffness"]
+
+
+TORSION_RADIUS_PER_WIDTH = (math.sqrt(2.0) + math.asinh(1.0)) / 6.0
+"""rho / w = 0.3826: the mean distance to the centre of a w x w square, (sqrt(2) +
+ln(1 + sqrt(2))) / 6 w, the default torsion radius of a crossing of uniform pressure
+(docs/model.md section 11)."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class Crossing:
+    """The spatial fabric's crossing laws (docs/model.md section 11).
+
+    The contact force woven in, the rotation's elastic spring and its lever in friction.
+    """
+
+    preload: float = _key("R_p, contact force woven in at every crossing (relaxed at zero load "
+                          "in step 0); a [specimen] requires it > 0, without it every friction "
+                          "limit is zero", "N", _NONNEG, default=0.0, model="fabric",
+                          spatial=True)
+    shear_stiffness: float = _key("elastic spring on a crossing's rotation (the in-plane angle "
+                                  "between warp and weft); with it 0 and the rotation sliding, "
+                                  "only the lateral bending (EI_lateral) resists the shear: a "
+                                  "soft, ill-conditioned mode", "N m/rad", _NONNEG, default=0.0,
+                                  model="fabric", spatial=True)
+    torsion_radius: float | None = _key(
+        "rho, the rotation's lever in the friction slip |(s_x, s_y, rho phi)|: the rotation "
+        "sticks with k_t rho^2 and slides at the moment rho F_T", "m", _POS, default=None,
+        model="fabric", spatial=True,
+        default_doc="0.3826 x the smaller of `warp.width` and `weft.width` (the mean distance "
+                    "to the centre of a w x w square)")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -166,6 +291,11 @@ class Friction:
     onset_force: float = _key("R_0; the limit's constant term sets in as 1 - exp(-R/R_0); 0 is "
                               "the literal jump law (docs/model.md section 4)", "N", _NONNEG,
                               sweepable=True, default=1e-5)
+
+
+PAPER_FRICTION = Friction(alpha=0.2, beta=1e3, contact_length=2e-3, fiber_radius=1e-3)
+"""The paper's Gralen law (docs/model.md section 7, Fig. 5's friction-on curve): what a
+[specimen] without a [friction] table runs (the `Specimen` decision)."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -275,9 +405,13 @@ class Scene:
 
     title: str = ""
     geometry: Geometry
+    specimen: Specimen | None = None
+    """A spatial fabric's shear test, only when given (then geometry.kinematics = "spatial")."""
     warp: Warp
     weft: Weft | None = None
-    """Absent exactly when geometry.crossings == 0."""
+    """Absent exactly when geometry.crossings == 0 (a [specimen] requires it)."""
+    crossing: Crossing | None = None
+    """The spatial fabric's crossing laws, only when given."""
     contact: Contact | None = None
     """Only when given; a plain rod refuses it."""
     friction: Friction | None = None
@@ -307,10 +441,9 @@ def _keys_of(cls: type) -> dict[str, _Key]:
     return {f.name: replace(f.metadata["scene_key"], kind=_KINDS[f.type]) for f in fields(cls)}
 
 
-_TABLES = {"geometry": Geometry, "warp": Warp, "weft": Weft, "contact": Contact,
-           "friction": Friction, "gravity": Gravity, "load": Load, "pullout": Pullout,
-           "static": Static,
-           "dynamic": Dynamic}
+_TABLES = {"geometry": Geometry, "specimen": Specimen, "warp": Warp, "weft": Weft,
+           "crossing": Crossing, "contact": Contact, "friction": Friction, "gravity": Gravity,
+           "load": Load, "pullout": Pullout, "static": Static, "dynamic": Dynamic}
 _SCHEMA: dict[str, tuple[type, dict[str, _Key]]] = {
     name: (cls, _keys_of(cls)) for name, cls in _TABLES.items()}
 """Table -> (dataclass, keys). The TOML key set is a contract: never rename."""
@@ -453,7 +586,9 @@ _VALIDATED: weakref.WeakValueDictionary[int, Scene] = weakref.WeakValueDictionar
 def validate_scene(scene: Scene) -> Scene:
     """Check every value and every combination of a Scene; return it, a fabric's
     geometry.planes left out (None) set to what runs: "fixed" on a clamped patch,
-    "cell" on a periodic cell (`planes_of`), so that a result file stores it.
+    "cell" on a periodic cell (`planes_of`), so that a result file stores it; a specimen's
+    defaults likewise (`_resolve_spatial`: [friction], torsion radius, lateral keys,
+    fabric side).
 
     Runs on parsed scenes and on scenes built in Python alike. A scene is checked once: the
     very same (frozen) object passed again returns at once, so that `run` re-checking a scene
@@ -461,7 +596,7 @@ def validate_scene(scene: Scene) -> Scene:
     """
     if _VALIDATED.get(id(scene)) is scene:
         return scene
-    scene = _resolve_planes(scene)
+    scene = _resolve_spatial(_resolve_planes(scene))
     _check_scene(scene)
     _VALIDATED[id(scene)] = scene
     return scene
@@ -469,12 +604,14 @@ def validate_scene(scene: Scene) -> Scene:
 
 def _check_scene(scene: Scene) -> None:
     """The checks of `validate_scene`: UserError naming the first key that fails."""
+    _check_layout(scene)
     if scene.geometry.model == "fabric" and scene.geometry.crossings == 0:
         raise _bad("geometry.crossings", 0, f"a fabric ({_FABRIC}) needs at least one weft")
     _check_tables_present(scene)
     _check_fields(scene)
-    _check_segments(scene.geometry)
-    if scene.weft is not None:
+    if not _sets_layout(scene):
+        _check_segments(scene.geometry)
+    if scene.weft is not None and scene.weft.length is not None:
         _check_weft_tension(scene.weft)
     if scene.geometry.model == "fabric":
         _check_fabric(scene)
@@ -495,7 +632,7 @@ def planes_of(geometry: Geometry) -> str:
 def _resolve_planes(scene: Scene) -> Scene:
     """A fabric scene with geometry.planes set to `planes_of` (a one-yarn scene as it is)."""
     g = scene.geometry
-    if g.model != "fabric" or g.planes is not None:
+    if g.model != "fabric" or g.planes is not None or g.kinematics == "spatial":
         return scene
     return replace(scene, geometry=replace(g, planes=planes_of(g)))
 
@@ -505,7 +642,9 @@ def with_key(scene: Scene, dotted_key: str, value) -> Scene:
 
     Any field of a table may be set (not only sweepable ones), but derived
     defaults resolved at parse time do not follow: setting geometry.length
-    leaves weft.length, and geometry.crossings leaves weft.count, as they were.
+    leaves weft.length, and geometry.crossings leaves weft.count, as they were; on a
+    specimen, setting warp.EI leaves warp.EI_lateral, a width crossing.torsion_radius and
+    contact.core_stiffness the lateral stiffnesses (`validate_scene` resolved them).
     """
     return _with_keys(scene, ((dotted_key, value),))
 
@@ -573,11 +712,12 @@ def _unknown(label: str, candidates, allowed) -> UserError:
 
 
 def _unknown_top(name: str) -> UserError:
-    """Error for an unknown top-level key or table; a field name points to its table."""
-    if not difflib.get_close_matches(name, _TOP_KEYS, n=1):
-        by_field = {}
-        for dotted in _ALL_KEYS:
-            by_field.setdefault(dotted.split(".")[1], dotted)
+    """Error for an unknown top-level key or table; a field name (exactly one, or close to
+    one and to no table) points to its table."""
+    by_field = {}
+    for dotted in _ALL_KEYS:
+        by_field.setdefault(dotted.split(".")[1], dotted)
+    if name in by_field or not difflib.get_close_matches(name, _TOP_KEYS, n=1):
         match = difflib.get_close_matches(name, list(by_field), n=1)
         if match:
             dotted = by_field[match[0]]
@@ -662,14 +802,18 @@ def _build_scene(raw: dict, text: str) -> Scene:
             raise _unknown_top(name)
     tables = {name: _table(raw, name) for name in (*_SCHEMA, "sweep")}
     _check_model_keys(tables)
+    _check_kinematics_tables(tables)
     sweep = _parse_sweep(tables["sweep"]) if tables["sweep"] is not None else ()
     _fill_swept(tables, sweep)
-    geometry = _build_table("geometry", tables["geometry"])
+    specimen = tables["specimen"] is not None
+    geometry = _build_table("geometry", tables["geometry"], specimen=specimen)
     return Scene(
         title=_convert("title", raw.get("title", ""), _TITLE),
         geometry=geometry,
+        specimen=_build_optional("specimen", tables["specimen"]),
         warp=_build_table("warp", tables["warp"]),
-        weft=_build_weft(tables["weft"], geometry),
+        weft=_build_weft(tables["weft"], geometry, specimen),
+        crossing=_build_optional("crossing", tables["crossing"]),
         contact=_build_optional("contact", tables["contact"]),
         friction=_build_optional("friction", tables["friction"]),
         gravity=_build_optional("gravity", tables["gravity"]),
@@ -699,8 +843,9 @@ def _check_keys(name: str, table: dict, allowed) -> None:
             raise _unknown(f"{name}.{key}", _ALL_KEYS, allowed)
 
 
-def _build_table(name: str, table: dict, defaults: dict | None = None):
-    """The dataclass of [name] from its raw table; missing keys take defaults."""
+def _build_table(name: str, table: dict, defaults: dict | None = None, specimen: bool = False):
+    """The dataclass of [name] from its raw table; missing keys take defaults. `specimen`:
+    the scene has a [specimen], which sets the layout (layout keys not required)."""
     cls, keys = _SCHEMA[name]
     _check_keys(name, table, keys)
     values = {}
@@ -709,7 +854,7 @@ def _build_table(name: str, table: dict, defaults: dict | None = None):
             values[key] = _convert(f"{name}.{key}", table[key], spec)
         elif defaults and key in defaults:
             values[key] = defaults[key]
-        elif _is_required(cls, key):
+        elif _is_required(cls, key) or (_layout_required(spec) and not specimen):
             raise UserError(f"missing required key {name}.{key}{_units(spec)}")
     return cls(**values)
 
@@ -718,6 +863,12 @@ def _is_required(cls: type, name: str) -> bool:
     """Whether the dataclass field has no default."""
     found = next(f for f in fields(cls) if f.name == name)
     return found.default is MISSING and found.default_factory is MISSING
+
+
+def _layout_required(spec: _Key) -> bool:
+    """A layout key of both models, required unless a [specimen] sets the layout (one that
+    another key fills, `default_from`, is filled from it)."""
+    return spec.layout and not spec.model and not spec.default_from
 
 
 def _build_optional(name: str, table: dict | None):
@@ -731,13 +882,14 @@ def _rod_table_error(name: str) -> UserError:
                       f"no crossings; remove the [{name}] table or set crossings > 0")
 
 
-def _build_weft(table: dict | None, geometry: Geometry) -> Weft | None:
-    """The weft; a key left out takes its `default_from` key of [geometry] (length, count)."""
+def _build_weft(table: dict | None, geometry: Geometry, specimen: bool) -> Weft | None:
+    """The weft; a key left out takes its `default_from` key of [geometry] (length, count),
+    none of them with a [specimen] (it sets the layout)."""
     if table is None:
         return None
     defaults = {name: getattr(geometry, spec.default_from.split(".")[1])
                 for name, spec in _SCHEMA["weft"][1].items() if spec.default_from}
-    return _build_table("weft", table, defaults)
+    return _build_table("weft", table, defaults, specimen=specimen)
 
 
 def _build_load(table: dict) -> Load:
@@ -819,7 +971,9 @@ def _fill_swept(tables: dict, sweep) -> None:
 
 def _check_tables_present(scene: Scene) -> None:
     """Tables that must be there, and the ones a plain rod must not have."""
-    if scene.geometry.crossings > 0 and scene.weft is None:
+    if scene.weft is None and _sets_layout(scene):
+        raise UserError("missing required table [weft] (needed with [specimen])")
+    if scene.weft is None and scene.geometry.crossings > 0:
         raise UserError(f"missing required table [weft] (geometry.crossings = "
                          f"{scene.geometry.crossings} > 0)")
     if scene.geometry.crossings == 0:
@@ -895,6 +1049,16 @@ def _pullout_in_yarn() -> UserError:
                      "section 10); set geometry.model = \"fabric\" or remove [pullout]")
 
 
+_SPATIAL_TABLES = ("specimen", "crossing")
+"""The tables of the spatial fabric only (docs/model.md section 11)."""
+
+
+def _spatial_table_in_yarn(name: str) -> UserError:
+    return UserError(f"[{name}] given but {_YARN}: a table of the spatial fabric (docs/model.md "
+                     f"section 11); set geometry.model = \"fabric\" and {_SPATIAL}, or remove "
+                     f"[{name}]")
+
+
 def _check_model_keys(tables: dict) -> None:
     """Refuse, as written in the file, a key of the other model (docs/model.md section 10)."""
     model = (tables.get("geometry") or {}).get("model", "yarn")
@@ -904,6 +1068,9 @@ def _check_model_keys(tables: dict) -> None:
         for table, key in _keys_for("fabric"):
             if key in (tables.get(table) or {}):
                 raise _fabric_key_in_yarn(f"{table}.{key}", tables[table][key])
+        for name in _SPATIAL_TABLES:
+            if tables.get(name) is not None:
+                raise _spatial_table_in_yarn(name)
     elif model == "fabric":
         if tables.get("sweep") is not None:
             raise _sweep_in_fabric()
@@ -916,6 +1083,9 @@ def _check_no_fabric_keys(scene: Scene) -> None:
     """A one-yarn scene built in Python: every fabric key at its default."""
     if scene.pullout is not None:
         raise _pullout_in_yarn()
+    for name in _SPATIAL_TABLES:
+        if getattr(scene, name) is not None:
+            raise _spatial_table_in_yarn(name)
     for table, key in _keys_for("fabric"):
         value = getattr(getattr(scene, table) or object(), key, None)
         default = next(f.default for f in fields(_TABLES[table]) if f.name == key)
@@ -940,8 +1110,12 @@ def _check_fabric(scene: Scene) -> None:
         raise _bad("geometry.reference", g.reference, "a fabric's stress-free state is as "
                    "woven (docs/model.md section 10); use \"as_woven\"")
     for key, unit in (("EA", " [N]"), ("segments", "")):
-        if getattr(weft, key) is None:
+        if getattr(weft, key) is None and not (key == "segments" and _sets_layout(scene)):
             raise UserError(f"missing required key weft.{key}{unit} (needed with {_FABRIC})")
+    if _sets_layout(scene):
+        _check_specimen(scene)
+        return
+    _check_planar(scene)
     if weft.segments % (2 * weft.count):
         step = 2 * weft.count
         raise _bad("weft.segments", weft.segments, f"must be a positive multiple of 2 x "
@@ -955,6 +1129,218 @@ def _check_fabric(scene: Scene) -> None:
                    "(geometry.boundary = \"periodic\"); a clamped patch's are \"fixed\" or "
                    "\"affine\"")
     _check_fabric_lists(scene)
+
+
+# --------------------------------------------------------------------------
+# The spatial fabric and its specimens (docs/model.md section 11).
+
+
+def _sets_layout(scene: Scene) -> bool:
+    """A fabric scene with a [specimen]: the specimen sets the layout (`Specimen`)."""
+    return scene.specimen is not None and scene.geometry.model == "fabric"
+
+
+def _layout_keys() -> list[tuple[str, str, _Key]]:
+    """(table, key, spec) of the layout keys, which a [specimen] refuses."""
+    return [(t, k, spec) for t, (_, keys) in _SCHEMA.items() for k, spec in keys.items()
+            if spec.layout]
+
+
+def _spatial_keys() -> list[tuple[str, str]]:
+    """(table, key) of the spatial keys of [warp] and [weft] (the tables [specimen] and
+    [crossing] are the spatial fabric's whole)."""
+    return [(t, k) for t, (_, keys) in _SCHEMA.items() for k, spec in keys.items()
+            if spec.spatial and t not in _SPATIAL_TABLES]
+
+
+def _check_layout(scene: Scene) -> None:
+    """A fabric's kinematics and [specimen] go together; the layout keys are given exactly
+    when no [specimen] sets the layout (a one-yarn scene's [specimen] is refused later, with
+    the fabric's keys)."""
+    g = scene.geometry
+    if g.model == "fabric":
+        _check_kinematics(g.kinematics, scene.specimen is not None)
+    for table, key, spec in _layout_keys():
+        value = getattr(getattr(scene, table) or object(), key, None)
+        if _sets_layout(scene) and value is not None:
+            raise UserError(f"[specimen] sets the layout: {table}.{key} is not used; remove it"
+                            + (" (a specimen's warp crimp is warp.amplitude)"
+                               if f"{table}.{key}" == "geometry.amplitude" else ""))
+        if (not _sets_layout(scene) and value is None and getattr(scene, table) is not None
+                and not spec.model):
+            raise UserError(f"missing required key {table}.{key}{_units(spec)}")
+
+
+def _check_kinematics(kinematics: str, specimen: bool) -> None:
+    """A fabric's spatial kinematics and its [specimen] go together (docs/model.md
+    section 11)."""
+    if kinematics == "spatial" and not specimen:
+        raise _bad("geometry.kinematics", kinematics, "spatial kinematics runs a [specimen] "
+                   "test (bias_extension or picture_frame, docs/model.md section 11); add a "
+                   "[specimen] table")
+    if specimen and kinematics != "spatial":
+        raise UserError(f"[specimen] given but geometry.kinematics = {_show(kinematics)}: a "
+                        f"specimen is sheared in plane (docs/model.md section 11); set "
+                        f"{_SPATIAL}")
+
+
+def _check_kinematics_tables(tables: dict) -> None:
+    """`_check_kinematics` on the file's tables, before a missing layout key is looked for."""
+    geometry = tables["geometry"]
+    if geometry.get("model") == "fabric":
+        spec = _SCHEMA["geometry"][1]["kinematics"]
+        kinematics = _convert("geometry.kinematics", geometry.get("kinematics", "planar"), spec)
+        _check_kinematics(kinematics, tables["specimen"] is not None)
+
+
+_SPATIAL_KEY_IN_PLANAR = {"warp.amplitude": "a planar fabric's warp crimp is geometry.amplitude"}
+"""Where a spatial key means something else in a planar scene."""
+
+
+def _check_planar(scene: Scene) -> None:
+    """A planar fabric takes no [crossing] and no spatial family key (docs/model.md
+    section 11)."""
+    if scene.crossing is not None:
+        raise UserError('[crossing] given but geometry.kinematics = "planar": a table of the '
+                        f"spatial fabric (docs/model.md section 11); set {_SPATIAL} with a "
+                        "[specimen], or remove [crossing]")
+    for table, key in _spatial_keys():
+        value = getattr(getattr(scene, table), key)
+        if value is not None:
+            dotted = f"{table}.{key}"
+            why = _SPATIAL_KEY_IN_PLANAR.get(dotted, "remove it")
+            raise _bad(dotted, value, f"a key of the spatial fabric ({_SPATIAL}, docs/model.md "
+                       f'section 11), but geometry.kinematics = "planar": {why}')
+
+
+def _check_specimen(scene: Scene) -> None:
+    """A [specimen] (spatial kinematics, checked before): a finite piece of fabric, one test,
+    sized for its test, both families' lateral keys, a preload, clamp displacement alone."""
+    g = scene.geometry
+    if g.boundary != "clamped":
+        raise _bad("geometry.boundary", g.boundary, "a [specimen] is a finite piece of fabric "
+                   "held by its clamps or frame, not a periodic cell; remove boundary or write "
+                   "\"clamped\"")
+    if g.planes is not None:
+        raise _bad("geometry.planes", g.planes, "the yarns' planes are the planar fabric's "
+                   "(docs/model.md section 10); a specimen's yarns move in x, y and z: remove it")
+    if scene.pullout is not None:
+        raise UserError("[pullout] given with [specimen]: a scene is one test, a pull-out of a "
+                        "planar patch or an in-plane shear specimen; remove one")
+    _check_specimen_size(scene.specimen)
+    for family in (scene.warp, scene.weft):
+        _check_family_lateral(family)
+    _check_preload(scene.crossing)
+    _check_specimen_load(scene.load)
+
+
+def _check_specimen_size(specimen: Specimen) -> None:
+    """Bias extension: W and H >= 2W, no side; picture frame: L >= L_fabric, no W, H."""
+    bias = specimen.test == "bias_extension"
+    needed, refused = ((("width", "height"), ("side", "fabric_side")) if bias
+                       else (("side",), ("width", "height")))
+    test = f"specimen.test = {_show(specimen.test)}"
+    for key in refused:
+        value = getattr(specimen, key)
+        if value is not None:
+            raise _bad(f"specimen.{key}", value, f"not a key of {test}; remove it")
+    for key in needed:
+        if getattr(specimen, key) is None:
+            raise UserError(f"missing required key specimen.{key} [m] (needed with {test})")
+    if bias and specimen.height < 2 * specimen.width:
+        raise _bad("specimen.height", specimen.height, f"must be at least 2 x specimen.width = "
+                   f"{2 * specimen.width:g} m: H/W = {specimen.height / specimen.width:.3g} < 2 "
+                   "(a bias-extension specimen needs H >= 2W, docs/model.md section 11)")
+    if not bias and specimen.fabric_side > specimen.side:
+        raise _bad("specimen.fabric_side", specimen.fabric_side, "must be at most specimen.side "
+                   f"= {specimen.side!r} m: the sheared fabric lies inside the frame")
+
+
+def _check_family_lateral(family: Warp | Weft) -> None:
+    """A specimen's family: its spacing, width (below the spacing) and crimp given."""
+    name = "warp" if isinstance(family, Warp) else "weft"
+    for key in ("spacing", "width", "amplitude"):
+        if getattr(family, key) is None:
+            spec = _SCHEMA[name][1][key]
+            raise UserError(f"missing required key {name}.{key}{_units(spec)} (needed with "
+                            "[specimen])")
+    if family.width >= family.spacing:
+        raise _bad(f"{name}.width", family.width, f"must be below {name}.spacing = "
+                   f"{family.spacing!r} m: neighbouring {name}s would overlap as woven")
+
+
+_NO_PRELOAD = "a specimen needs crossing.preload > 0: without it every friction limit is zero"
+
+
+def _check_preload(crossing: Crossing | None) -> None:
+    """R_p > 0 on a specimen (docs/model.md section 11: the as-woven fabric is stress-free)."""
+    if crossing is None:
+        raise UserError(f"missing table [crossing]: {_NO_PRELOAD}")
+    if crossing.preload == 0:
+        raise _bad("crossing.preload", crossing.preload, _NO_PRELOAD)
+
+
+def _check_specimen_load(load: Load) -> None:
+    """A specimen is loaded by its clamp (frame corner) displacement, load.values, alone."""
+    if load.control != "displacement":
+        raise _bad("load.control", load.control, "a specimen is loaded by its clamp "
+                   'displacement: load.control = "displacement"')
+    for key, spec in _SCHEMA["load"][1].items():
+        value = getattr(load, key)
+        if spec.model == "fabric" and value is not None:
+            raise _bad(f"load.{key}", value, "a specimen is loaded by its clamp (frame corner) "
+                       "displacement alone, load.values; remove it")
+
+
+def _resolve_spatial(scene: Scene) -> Scene:
+    """A specimen scene with its resolved defaults (docs/model.md section 11), so that a result
+    file stores what runs: [friction] the paper's law (the `Specimen` decision),
+    crossing.torsion_radius 0.3826 x the smaller width, each family's EI_lateral its EI and
+    lateral_stiffness the core stiffness, specimen.fabric_side the side. Values the checks
+    will refuse (missing, not numbers) are left for them."""
+    if not _sets_layout(scene) or scene.geometry.kinematics != "spatial":
+        return scene
+    changes = {}
+    if scene.friction is None:
+        changes["friction"] = PAPER_FRICTION
+    core = scene.contact.core_stiffness if scene.contact is not None else None
+    if core is None and _lateral_stiffness_unset(scene):
+        from dynfab.builders.fabric import DEFAULT_CORE_STIFFNESS  # numba: only when needed
+        core = DEFAULT_CORE_STIFFNESS
+    for name in ("warp", "weft"):
+        family = getattr(scene, name)
+        if family is not None:
+            changes[name] = _resolve_family(family, core)
+    if scene.crossing is not None and scene.crossing.torsion_radius is None:
+        widths = [getattr(f, "width", None) for f in (scene.warp, scene.weft)]
+        if all(_is_real(w) for w in widths):
+            changes["crossing"] = replace(scene.crossing,
+                                          torsion_radius=TORSION_RADIUS_PER_WIDTH * min(widths))
+    s = scene.specimen
+    if s.fabric_side is None and s.side is not None and s.test == "picture_frame":
+        changes["specimen"] = replace(s, fabric_side=s.side)
+    return replace(scene, **changes)
+
+
+def _lateral_stiffness_unset(scene: Scene) -> bool:
+    """Whether a family leaves lateral_stiffness to its default."""
+    return any(f is not None and f.lateral_stiffness is None for f in (scene.warp, scene.weft))
+
+
+def _resolve_family(family: Warp | Weft, core: float | None) -> Warp | Weft:
+    """EI_lateral = EI and lateral_stiffness = the core stiffness, where left out."""
+    changes = {}
+    if family.EI_lateral is None:
+        changes["EI_lateral"] = family.EI
+    if family.lateral_stiffness is None:
+        changes["lateral_stiffness"] = core
+    return replace(family, **changes) if changes else family
+
+
+def _is_real(value) -> bool:
+    """A finite real number (not a bool), as a resolved default may be computed from."""
+    return (isinstance(value, numbers.Real) and not isinstance(value, bool)
+            and math.isfinite(value))
 
 
 def _check_periodic(scene: Scene) -> None:
@@ -1209,10 +1595,23 @@ def _presence(table: str) -> str:
     if table in _REQUIRED_TABLES:
         return "Required."
     if table == "pullout":
-        return 'Optional; only with geometry.model = "fabric".'
-    text = "Required when geometry.crossings > 0" if table == "weft" else "Optional"
+        return 'Optional; only with geometry.model = "fabric" (not with `[specimen]`).'
+    if table == "specimen":
+        return (f'Optional; only with geometry.model = "fabric" and {_SPATIAL}, which requires '
+                "it. It sets the layout: a key whose default says \"refused with `[specimen]`\" "
+                "is refused with it.")
+    if table == "crossing":
+        return f"Optional; only with {_SPATIAL}; a `[specimen]` needs it (a preload > 0)."
+    text = ("Required when geometry.crossings > 0 or with `[specimen]`" if table == "weft"
+            else "Optional")
     if table in _ROD_REFUSES:
         text += "; a plain rod (geometry.crossings = 0) refuses it"
+    if table == "friction":
+        f = PAPER_FRICTION
+        text += (f"; a `[specimen]` without it takes the paper's law (alpha = {f.alpha:g}, beta = "
+                 f"{f.beta:g} N/m^2, contact_length = {f.contact_length:g} m, fiber_radius = "
+                 f"{f.fiber_radius:g} m; docs/model.md section 7); alpha = beta = 0 written "
+                 "out switches it off")
     return text + "."
 
 
@@ -1221,6 +1620,8 @@ def _row(dotted: str, spec: _Key, default: str) -> str:
     table, name = dotted.split(".")
     flag = f"`{run_flag(name)}`" if spec.option else ""
     only = {"fabric": "(fabric only) ", "yarn": "(one-yarn model only) "}.get(spec.model, "")
+    if spec.spatial:
+        only = "(spatial fabric only) "
     cells = (f"`{dotted}`", spec.unit, _allowed(spec), default,
              "yes" if spec.sweepable else "", flag, only + spec.doc)
     return "| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |"
@@ -1235,6 +1636,10 @@ def _allowed(spec: _Key) -> str:
 
 def _default_text(default, spec: _Key) -> str:
     """A field's default as written in TOML; required, none, or another key's value."""
+    if spec.layout:
+        base = (f"`{spec.default_from}`" if spec.default_from
+                else "none" if spec.model else "required")
+        return base + "; refused with `[specimen]`"
     if spec.default_from:
         return f"`{spec.default_from}`"
     if spec.default_doc:
