@@ -68,7 +68,7 @@ import scipy.sparse.linalg
 from dynfab import assembly
 from dynfab.banded import BANDWIDTH, band_add, band_matvec, constrain
 from dynfab.errors import SolverError
-from dynfab.fabric import assembly as fabric_assembly
+from dynfab.fabric.kinematics import terms_of
 from dynfab.fabric import inertia
 from dynfab.fabric import ordering as fabric_ordering
 from dynfab.ldlt import TINY_PIVOT, inverse_norm_1, ldlt_factor, ldlt_solve, negative_direction
@@ -571,7 +571,10 @@ def _inverse_norm(solve, n: int) -> tuple[float, int]:
 def longest_chain(structure: Structure) -> float:
     """The largest as-woven extent of a chain along itself [m] (a fabric's longer family)."""
     first, last = structure.chain_start[:-1], structure.load_node
-    return float(np.max(structure.rest_position[last, 0] - structure.rest_position[first, 0]))
+    extent = structure.rest_position[last] - structure.rest_position[first]
+    if dim(structure) == 3:  # spatial: the in-plane chord (docs/model.md section 11)
+        return float(np.max(np.hypot(extent[:, 0], extent[:, 1])))
+    return float(np.max(extent[:, 0]))
 
 
 def escape_patch(model, pos, P, anchors, limit, checked: PatchCertificate):
@@ -583,9 +586,10 @@ def escape_patch(model, pos, P, anchors, limit, checked: PatchCertificate):
     larger step, the + sign, the lower eigenvector. None when no trial lowers the energy.
     P: the end loads (Y,) [N]."""
     f = model.structure
-    terms = np.zeros(len(fabric_assembly.TERMS))
-    e0 = fabric_assembly.total_energy(pos, f, P, anchors, limit, terms)
-    rounding = 64.0 * EPS * (np.abs(terms).sum() + fabric_assembly.rounding_scale(pos, f, P, limit))
+    energy_terms = terms_of(f)
+    terms = np.zeros(len(energy_terms.TERMS))
+    e0 = energy_terms.total_energy(pos, f, P, anchors, limit, terms)
+    rounding = 64.0 * EPS * (np.abs(terms).sum() + energy_terms.rounding_scale(pos, f, P, limit))
     length = longest_chain(f)
     best, best_pos = e0 - rounding, None
     for k in range(checked.vectors.shape[1]):
@@ -594,7 +598,7 @@ def escape_patch(model, pos, P, anchors, limit, checked: PatchCertificate):
         for _ in range(STEP_HALVINGS):
             for sign in (1.0, -1.0):
                 trial = pos + (sign * t) * d
-                e = fabric_assembly.total_energy(trial, f, P, anchors, limit, terms)
+                e = energy_terms.total_energy(trial, f, P, anchors, limit, terms)
                 if e < best - rounding:
                     best, best_pos = e, trial
             t *= 0.5
@@ -612,8 +616,9 @@ def check_patch_accuracy(model, checked: PatchCertificate, stability: StepStabil
     scale = StepStability.scale(pos, f.rest_position, longest_chain(f))
     if stability.error_estimate[0] <= accuracy * scale:
         return
-    where = ("fabric" if checked.worst < 0 else
-             f"fabric ({patch_location(model, checked.worst)}: where the bound is largest)")
+    name = model.group_name(None) if hasattr(model, "group_name") else "fabric"
+    where = (name if checked.worst < 0 else
+             f"{name} ({patch_location(model, checked.worst)}: where the bound is largest)")
     check_accuracy(where, stability.error_estimate[0], scale, residual, tolerance, accuracy,
                    at_floor, "float64", key, stability.shift[0])
 

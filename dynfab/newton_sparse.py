@@ -58,7 +58,8 @@ import scipy.sparse.linalg
 
 from dynfab.certificate import certify_patch, check_patch_accuracy, escape_patch
 from dynfab.errors import SolverError
-from dynfab.fabric import assembly, contact, friction, ordering
+from dynfab.fabric import contact, ordering
+from dynfab.fabric.kinematics import terms_of
 from dynfab.friction_chain import friction_chain
 from dynfab.newton_backend import NewtonBackend
 from dynfab.newton_info import Budget, NewtonInfo, within
@@ -169,11 +170,14 @@ class SparseNewton(NewtonBackend):
 
     def __init__(self, model, **options):
         super().__init__(model, **options)
-        self.pattern = assembly.pattern_of(self.structure)
+        self.terms = terms_of(self.structure)
+        """The structure's term set: planar or spatial (`dynfab.fabric.kinematics`)."""
+        self.pattern = self.terms.pattern_of(self.structure)
         """The order of the Hessian's entries and its unknowns (`assembly.pattern_of`)."""
+        self.dim = self.structure.rest_position.shape[1]
         self.free = ~self.structure.fixed
         self._newton_count = 0  # Newton iterations of the step so far
-        self._terms = np.zeros(len(assembly.TERMS))
+        self._terms = np.zeros(len(self.terms.TERMS))
 
     # ------------------------------------------------------------------ the step
 
@@ -289,7 +293,7 @@ class SparseNewton(NewtonBackend):
     def closures(self, pos) -> np.ndarray:
         """g of every crossing (C,) [m] (docs/model.md (10.5))."""
         f = self.structure
-        z = pos[:, 1]
+        z = pos[:, -1]
         z_b = np.where(f.tie_b >= 0, z[np.maximum(f.tie_b, 0)], 0.0)
         return f.tie_gap_offset - f.tie_side * (z[f.tie_a] - z_b)
 
@@ -313,33 +317,33 @@ class SparseNewton(NewtonBackend):
         return out
 
     def energy(self, pos, P, anchors, limit, law: SetLaw | None = None) -> float:
-        total = assembly.total_energy(pos, self.structure, P, anchors, limit, self._terms)
+        total = self.terms.total_energy(pos, self.structure, P, anchors, limit, self._terms)
         if law is None or law.branch is None:
             return total
         opened, g = self._opened(pos, law)
         laws = self.structure.tie_contact_law[opened]
         lost = sum(contact.crossing_energy(value, row) for value, row in zip(g, laws))
-        self._terms[assembly.CONTACT] -= lost
+        self._terms[self.terms.CONTACT] -= lost
         return total - lost
 
     def gradient(self, pos, P, anchors, limit, law: SetLaw | None = None) -> np.ndarray:
         grad = np.zeros_like(pos)
-        assembly.gradient(pos, self.structure, P, anchors, limit, grad)
+        self.terms.gradient(pos, self.structure, P, anchors, limit, grad)
         if law is not None and law.branch is not None:
             f = self.structure
             opened, g = self._opened(pos, law)
             R = np.array([contact.force(value, row)
                           for value, row in zip(g, f.tie_contact_law[opened])])
-            np.add.at(grad[:, 1], f.tie_a[opened], f.tie_side[opened] * R)
+            np.add.at(grad[:, -1], f.tie_a[opened], f.tie_side[opened] * R)
             to_node = f.tie_b[opened] >= 0
-            np.add.at(grad[:, 1], f.tie_b[opened][to_node], -(f.tie_side[opened] * R)[to_node])
+            np.add.at(grad[:, -1], f.tie_b[opened][to_node], -(f.tie_side[opened] * R)[to_node])
         return grad
 
     def hessian(self, pos, anchors, limit, secant=False,
                 law: SetLaw | None = None) -> scipy.sparse.csc_matrix:
         """The Hessian on the free dofs, F_T frozen (`secant`: see `friction.huber_hessian`);
         on `law`'s branches, the contact tangent of `branch_tangents`."""
-        H = assembly.sparse_hessian(self.structure, pos, anchors, limit, secant)
+        H = self.terms.sparse_hessian(self.structure, pos, anchors, limit, secant)
         if law is None or law.branch is None:
             return H
         natural = np.zeros(self.structure.tie_a.size)
@@ -371,8 +375,9 @@ class SparseNewton(NewtonBackend):
         f = self.structure
         c = np.flatnonzero(tangent)
         index = self.pattern.index
-        za = index[2 * f.tie_a[c] + 1]
-        zb = np.where(f.tie_b[c] >= 0, index[2 * np.maximum(f.tie_b[c], 0) + 1], -1)  # ground: none
+        d = self.dim
+        za = index[d * f.tie_a[c] + d - 1]
+        zb = np.where(f.tie_b[c] >= 0, index[d * np.maximum(f.tie_b[c], 0) + d - 1], -1)  # ground
         t = tangent[c]
         rows = np.concatenate([za, za, zb, zb])
         cols = np.concatenate([za, zb, za, zb])
@@ -417,7 +422,7 @@ class SparseNewton(NewtonBackend):
         """Armijo on the energy from step 1; within its rounding, accept a lower residual."""
         e0 = self.energy(pos, P, anchors, limit, law)
         rounding = 64.0 * EPS * (np.abs(self._terms).sum()
-                                 + assembly.rounding_scale(pos, self.structure, P, limit))
+                                 + self.terms.rounding_scale(pos, self.structure, P, limit))
         t = 1.0
         for _ in range(halvings):
             trial = pos + t * d
@@ -610,21 +615,20 @@ class SparseNewton(NewtonBackend):
         tangent = self.branch_tangents(pos, law)
         R = self.contact_forces(pos, law)
         onset = _onset(law)
-        px, py = assembly.planes(pos, f)
         rows, cols, values = [], [], []
+        d = self.dim
         for i in range(c):
-            sx, sy = friction.slip(pos, anchors, f, px, py, i)
-            norm = np.hypot(sx, sy)
-            stick = f.tie_friction_law[i, friction.STICK]
-            if not (tangent[i] > 0.0 and limit[i] > 0.0 and stick * norm >= limit[i]):
+            if not (tangent[i] > 0.0 and limit[i] > 0.0):
+                continue
+            dofs, units = self.terms.coupling_rows(f, pos, anchors, limit, i)
+            if dofs.size == 0:
                 continue
             slope = gralen.tie_limit_slope(R[i], f.tie_friction_law, onset, i) * tangent[i]
-            z_dofs = [(2 * f.tie_a[i] + 1, -f.tie_side[i])]
+            z_dofs = [(d * f.tie_a[i] + d - 1, -f.tie_side[i])]
             if f.tie_b[i] >= 0:
-                z_dofs.append((2 * f.tie_b[i] + 1, f.tie_side[i]))
+                z_dofs.append((d * f.tie_b[i] + d - 1, f.tie_side[i]))
             # rows: J^T (s / |s|), J the slip's Jacobian (its nodes and the plane nodes)
-            J = assembly.slip_jacobian(f, i)
-            for row, unit in zip(assembly.slip_dofs(f, i), J.T @ np.array([sx, sy]) / norm):
+            for row, unit in zip(dofs, units):
                 for col, dg in z_dofs:
                     rows.append(row)
                     cols.append(col)
@@ -683,7 +687,7 @@ class SparseNewton(NewtonBackend):
         unilateral law's residual at `pos` (F_T from the law)."""
         f = self.structure
         grad = self.gradient(pos, P, anchors, self.friction_limits(pos))
-        force = np.where(f.fixed.reshape(-1, 2), 0.0, np.abs(grad)).max(axis=1)
+        force = np.where(f.fixed.reshape(-1, self.dim), 0.0, np.abs(grad)).max(axis=1)
         worst = np.maximum(force[f.tie_a], np.where(f.tie_b >= 0, force[np.maximum(f.tie_b, 0)],
                                                     0.0))
         c = int(np.argmax(worst))

@@ -24,10 +24,12 @@ fabric, section 10):
 - **Boundary**: held dofs (`fixed`), tied dofs (`dof_tie`: a dof that moves as another,
   the periodic cell's lengths), loads as the load factor of each chain's last node.
 
-Nodes carry `dim` coordinates in their chain's frame: coordinate 0 along the chain,
-the last one z (out of the fabric's plane). Today every chain moves in its own vertical
-plane (dim = 2); nothing here depends on dim but the terms that read the coordinates.
-Dof d = dim * node + coordinate.
+Nodes carry `dim` coordinates, the last one z (out of the fabric's plane). Planar
+kinematics (dim = 2): every chain moves in its own vertical plane, coordinate 0 along the
+chain (docs/model.md section 10). Spatial kinematics (dim = 3): global (x, y, z), the
+fabric's plane x-y; the ties are then stencils of six nodes and neighbouring yarns meet in
+lateral contacts (docs/model.md section 11, the fields after `dof_tie`). Nothing here
+depends on dim but the terms that read the coordinates. Dof d = dim * node + coordinate.
 
 A Structure is a NamedTuple of arrays and scalars, so numba functions take it whole;
 nothing in it changes during a run (what changes is a `dynfab.model.State`).
@@ -115,6 +117,26 @@ class Structure(NamedTuple):
     dof_tie: np.ndarray
     """Per dof (n dim,) int64: -1, or the dof it moves as (periodic force control: every
     warp's end holds the cell length L1 in warp 0's end)."""
+    # --- spatial kinematics only (dim 3, docs/model.md section 11); empty in the plane
+    lateral_bend_stiffness: np.ndarray = np.zeros(0)
+    """EI_lateral / lbar per node (n,) [N m]: the in-plane (lateral) bending spring; 0 at
+    each chain's end nodes."""
+    lateral_rest_angle: np.ndarray = np.zeros(0)
+    """Rest in-plane turning psi0 per node (n,) [rad]."""
+    tie_stencil: np.ndarray = np.zeros((0, 6), np.int64)
+    """(a_prev, a, a_next, b_prev, b, b_next) of each tie (T, 6), int64: its two nodes and
+    their chain neighbours (a node itself at its chain's end), whose chords set the
+    crossing's local frame and rotation."""
+    tie_rotation_law: np.ndarray = np.zeros((0, 3))
+    """(rho [m], K [N m/rad], phi_rest [rad]) of each tie (T, 3): the torsion radius that
+    scales the rotation in the friction slip, the elastic rotation (shear) spring and its
+    rest angle from the warp to the weft."""
+    lateral_stencil: np.ndarray = np.zeros((0, 4), np.int64)
+    """(A_prev, A_next, A, B) of each lateral contact (L, 4), int64: node B of yarn k+1
+    against the line through node A of its neighbour yarn k along A's chord."""
+    lateral_law: np.ndarray = np.zeros((0, 3))
+    """(sign [-], w [m], k [N/m]) of each lateral contact (L, 3): the orientation that makes
+    the distance positive, the yarns' width, the stiffness."""
 
 
 def dim(structure: Structure) -> int:

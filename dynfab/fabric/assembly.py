@@ -265,32 +265,39 @@ def wrap_dofs_of(fabric, y) -> np.ndarray:
     return np.stack([2 * nodes, 2 * nodes + 1], axis=1).ravel()
 
 
+def planar_entries(fabric) -> tuple[np.ndarray, np.ndarray]:
+    """(rows, cols) of every entry `hessian_values` fills, in its order."""
+    rows, cols = [], []
+    start = fabric.chain_start
+    for y in range(start.size - 1):
+        n = 2 * (start[y + 1] - start[y])
+        i, o = np.meshgrid(np.arange(n), np.arange(2 * BANDWIDTH + 1), indexing="ij")
+        j = i + o - BANDWIDTH
+        keep = (j >= 0) & (j < n)
+        rows.append(2 * start[y] + i[keep])
+        cols.append(2 * start[y] + j[keep])
+        if fabric.wrap_stiffness[y] > 0.0:
+            dofs = wrap_dofs_of(fabric, y)
+            rows.append(np.repeat(dofs, 8))
+            cols.append(np.tile(dofs, 8))
+    za = 2 * fabric.tie_a + 1
+    zb = np.where(fabric.tie_b >= 0, 2 * fabric.tie_b + 1, za)  # ground: a's own z
+    for c in range(za.size):
+        friction_dofs = slip_dofs(fabric, c)
+        rows.append(np.array([za[c], za[c], zb[c], zb[c]]))
+        cols.append(np.array([za[c], zb[c], za[c], zb[c]]))
+        rows.append(np.repeat(friction_dofs, friction_dofs.size))
+        cols.append(np.tile(friction_dofs, friction_dofs.size))
+    return np.concatenate(rows), np.concatenate(cols)
+
+
 class Pattern:
     """Row and column of every Hessian entry `hessian_values` fills, and the free dofs."""
 
-    def __init__(self, fabric):
-        rows, cols = [], []
-        start = fabric.chain_start
-        for y in range(start.size - 1):
-            n = 2 * (start[y + 1] - start[y])
-            i, o = np.meshgrid(np.arange(n), np.arange(2 * BANDWIDTH + 1), indexing="ij")
-            j = i + o - BANDWIDTH
-            keep = (j >= 0) & (j < n)
-            rows.append(2 * start[y] + i[keep])
-            cols.append(2 * start[y] + j[keep])
-            if fabric.wrap_stiffness[y] > 0.0:
-                dofs = wrap_dofs_of(fabric, y)
-                rows.append(np.repeat(dofs, 8))
-                cols.append(np.tile(dofs, 8))
-        za = 2 * fabric.tie_a + 1
-        zb = np.where(fabric.tie_b >= 0, 2 * fabric.tie_b + 1, za)  # ground: a's own z
-        for c in range(za.size):
-            friction_dofs = slip_dofs(fabric, c)
-            rows.append(np.array([za[c], za[c], zb[c], zb[c]]))
-            cols.append(np.array([za[c], zb[c], za[c], zb[c]]))
-            rows.append(np.repeat(friction_dofs, friction_dofs.size))
-            cols.append(np.tile(friction_dofs, friction_dofs.size))
-        rows, cols = np.concatenate(rows), np.concatenate(cols)
+    def __init__(self, fabric, entries=None):
+        """The planar fabric's entries (`planar_entries`), or `entries` = (rows, cols) as
+        another term set fills them (the spatial fabric's, `dynfab.fabric.spatial`)."""
+        rows, cols = planar_entries(fabric) if entries is None else entries
         self.rows, self.cols = rows, cols
         self.size = rows.size
         self.free = ~fabric.fixed
@@ -412,3 +419,17 @@ def energy_vector(structure, pos, P, anchors, limit) -> np.ndarray:
     out = np.zeros(len(TERMS))
     energies(pos, structure, np.asarray(P, float), anchors, limit, out)
     return out
+
+
+def coupling_rows(structure, pos, anchors, limit, c) -> tuple[np.ndarray, np.ndarray]:
+    """(dofs, values): d(dV/dr)/dF_T of tie c, J^T s/|s| on its slip dofs where it slides
+    (dH/ds = F_T s/|s|), empty where it sticks (dH/ds = k_t s): the friction's dependence on
+    its limit, for the coupled Newton's Jacobian (`dynfab.newton_sparse`)."""
+    px, py = planes(pos, structure)
+    sx, sy = friction.slip(pos, anchors, structure, px, py, c)
+    norm = np.hypot(sx, sy)
+    stick = structure.tie_friction_law[c, friction.STICK]
+    if not (limit[c] > 0.0 and stick * norm >= limit[c]):
+        return np.zeros(0, np.int64), np.zeros(0)
+    return slip_dofs(structure, c), slip_jacobian(structure, c).T @ np.array([sx, sy]) / norm
+

@@ -6,6 +6,9 @@ have approached since the stress-free state) is
 
     g = gap_offset - sigma (z_a - z_b),      z_b = 0 for a tie to ground,
 
+z the last coordinate (the planar fabric's second, the spatial one's third, docs/model.md
+section 11),
+
 and for g > 0 the contact force R >= 0 solves the tie's series law of both Kawabata
 compressions and its series spring k_s (the core stiffness k_c of a fabric crossing; the
 weft spring in series with it on the paper's yarn),
@@ -39,9 +42,9 @@ def wall(law):
 @numba.njit(cache=True)
 def closure(pos, s, c):
     """g of tie c [m]."""
-    b = s.tie_b[c]
-    z_b = pos[b, 1] if b >= 0 else 0.0
-    return s.tie_gap_offset[c] - s.tie_side[c] * (pos[s.tie_a[c], 1] - z_b)
+    b, z = s.tie_b[c], pos.shape[1] - 1
+    z_b = pos[b, z] if b >= 0 else 0.0
+    return s.tie_gap_offset[c] - s.tie_side[c] * (pos[s.tie_a[c], z] - z_b)
 
 
 @numba.njit(cache=True)
@@ -91,11 +94,12 @@ def forces(pos, s, out):
 @numba.njit(cache=True)
 def add_gradient(pos, s, grad):
     """grad += dE/dz: R dg/dz_a = -sigma R on node a, +sigma R on node b."""
+    z = pos.shape[1] - 1
     for c in range(s.tie_a.size):
         R = force(closure(pos, s, c), s.tie_contact_law[c])
-        grad[s.tie_a[c], 1] -= s.tie_side[c] * R
+        grad[s.tie_a[c], z] -= s.tie_side[c] * R
         if s.tie_b[c] >= 0:
-            grad[s.tie_b[c], 1] += s.tie_side[c] * R
+            grad[s.tie_b[c], z] += s.tie_side[c] * R
 
 
 @numba.njit(cache=True)

@@ -175,7 +175,10 @@ def inertia(model, pos, anchors, limit, shift: float = 0.0) -> Inertia:
     for tau in (shift, shift + 1e3 * EPS * scale, shift + 1e6 * EPS * scale):
         result = sparse_inertia(H, tau, scale, order)
         if result is None:
-            result = (_dense_inertia(H, tau, scale) if fabric.wrap_stiffness.any() else
+            # the Schur route knows the planar fabric's blocks; the periodic cell and the
+            # spatial fabric (docs/model.md section 11) count densely
+            dense = fabric.wrap_stiffness.any() or fabric.rest_position.shape[1] == 3
+            result = (_dense_inertia(H, tau, scale) if dense else
                       _inertia(fabric, pos, anchors, limit, tau, scale))
         if result is not None:
             return result

@@ -56,14 +56,18 @@ def coordinates(fabric, index, count: int) -> np.ndarray:
     """(x, y) [m] of each of the `count` unknowns, as woven: a warp node at (its in-plane
     coordinate, Y_k), a weft node at (X_j, its in-plane coordinate); `index` maps dofs to
     unknowns (-1 fixed, `assembly.Pattern.index`), a tied unknown placed at its first dof."""
-    yarn = chain_of_node(fabric)
-    along, line = fabric.rest_position[:, 0], fabric.chain_plane[yarn]
-    warp = fabric.chain_family[yarn, None] == 0
-    xy = np.where(warp, np.stack([along, line], 1), np.stack([line, along], 1))
+    d = fabric.rest_position.shape[1]
+    if d == 3:  # spatial kinematics: the nodes' own (x, y) (docs/model.md section 11)
+        xy = fabric.rest_position[:, :2]
+    else:
+        yarn = chain_of_node(fabric)
+        along, line = fabric.rest_position[:, 0], fabric.chain_plane[yarn]
+        warp = fabric.chain_family[yarn, None] == 0
+        xy = np.where(warp, np.stack([along, line], 1), np.stack([line, along], 1))
     dofs = np.flatnonzero(index >= 0)
     unknowns, first = np.unique(index[dofs], return_index=True)
     out = np.zeros((count, 2))
-    out[unknowns] = xy[dofs[first] // 2]
+    out[unknowns] = xy[dofs[first] // d]
     return out
 
 

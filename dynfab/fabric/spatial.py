@@ -1,0 +1,354 @@
+"""The spatial fabric's energy, gradient and sparse Hessian (docs/model.md section 11).
+
+Nodes move in x, y, z (dim 3, the fabric's plane x-y). The potential is
+
+V = sum_segments E_stretch + sum_inner_nodes E_bend (elevation and in-plane turning)
+    + sum_ties (E_contact + H_friction + E_shear) + sum_lateral E_lateral
+
+with each element's energy and exact local derivatives in `dynfab.terms.spatial`: the
+stretch spring, the bending in two planes, the contact along e_z of `dynfab.fabric.contact`
+(the same closure and law as the planar fabric, z the last coordinate), the Huber friction
+on the three-component slip (s_x, s_y, rho phi) with F_T = `limit` frozen and the rotation
+spring of each crossing (`tie_stencil`, `tie_rotation_law`), and the lateral contacts
+between neighbouring yarns (`lateral_stencil`, `lateral_law`). A specimen is loaded by its
+held nodes (displacement control), so there is no end-load work; the load term stays 0.
+
+The functions mirror the planar fabric's (`dynfab.fabric.assembly`), so the static solver's
+sparse backend takes either through `dynfab.fabric.kinematics.terms_of`. The Hessian's
+entries are every element's dense local block, in a fixed order (`pattern_entries`); numba
+fills the values in that order and `assembly.Pattern` sums them on the unknowns.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from dynfab.fabric import contact
+from dynfab.fabric.assembly import Pattern
+from dynfab.terms import spatial as element
+
+STRETCH, BENDING, CONTACT, FRICTION, LOAD, GRAVITY, SHEAR, LATERAL = range(8)
+"""Indices of the energy vector (the first six as the planar fabric's)."""
+TERMS = ("stretch", "bending", "contact", "friction", "load", "gravity", "shear", "lateral")
+STICK = 3
+"""Column of k_t [N/m] in `tie_friction_law`."""
+RHO, SHEAR_K, PHI_REST = range(3)
+"""Columns of `tie_rotation_law`."""
+SIGN, WIDTH, LATERAL_K = range(3)
+"""Columns of `lateral_law`."""
+
+
+@numba.njit(cache=True)
+def _gather(pos, nodes, X):
+    """X[m] = pos[nodes[m]] (the element's stencil)."""
+    for m in range(nodes.size):
+        for k in range(3):
+            X[m, k] = pos[nodes[m], k]
+
+
+@numba.njit(cache=True)
+def _scatter(nodes, g, grad):
+    """grad[nodes[m]] += g[3 m: 3 m + 3]."""
+    for m in range(nodes.size):
+        for k in range(3):
+            grad[nodes[m], k] += g[3 * m + k]
+
+
+@numba.njit(cache=True)
+def _crossing_law(s, c):
+    """(rho, K, phi_rest, k_t) of tie c."""
+    law = s.tie_rotation_law[c]
+    return law[RHO], law[SHEAR_K], law[PHI_REST], s.tie_friction_law[c, STICK]
+
+
+@numba.njit(cache=True)
+def energies(pos, s, P, anchors, limit, out):
+    """Each term's energy [J] into out (len(TERMS),); P unused (no end loads), kept for the
+    planar signature."""
+    out[:] = 0.0
+    pair, triple = np.empty((2, 3)), np.empty((3, 3))
+    six, four = np.empty((6, 3)), np.empty((4, 3))
+    start = s.chain_start
+    for y in range(start.size - 1):
+        for i in range(start[y], start[y + 1] - 1):
+            _gather(pos, np.arange(i, i + 2), pair)
+            out[STRETCH] += element.stretch_energy(pair, s.stretch_stiffness[i - y],
+                                                   s.rest_length[i - y])
+        for i in range(start[y] + 1, start[y + 1] - 1):
+            _gather(pos, np.arange(i - 1, i + 2), triple)
+            out[BENDING] += element.bend_energy(triple, s.bend_stiffness[i], s.rest_angle[i],
+                                                s.lateral_bend_stiffness[i],
+                                                s.lateral_rest_angle[i])
+    out[CONTACT] = contact.energy(pos, s)
+    for c in range(s.tie_a.size):
+        rho, K, phi_rest, stick = _crossing_law(s, c)
+        _gather(pos, s.tie_stencil[c], six)
+        spring = element.crossing_energy(six, anchors[c], rho, 0.0, stick, K, phi_rest)
+        out[SHEAR] += spring
+        if limit[c] > 0.0:
+            out[FRICTION] += element.crossing_energy(six, anchors[c], rho, limit[c], stick,
+                                                     0.0, phi_rest)
+    for e in range(s.lateral_stencil.shape[0]):
+        _gather(pos, s.lateral_stencil[e], four)
+        law = s.lateral_law[e]
+        out[LATERAL] += element.lateral_energy(four, law[SIGN], law[WIDTH], law[LATERAL_K])
+
+
+@numba.njit(cache=True)
+def total_energy(pos, s, P, anchors, limit, out):
+    """V [J] (its terms left in out)."""
+    energies(pos, s, P, anchors, limit, out)
+    return out.sum()
+
+
+@numba.njit(cache=True)
+def gradient(pos, s, P, anchors, limit, grad):
+    """grad = dV/dr (nodes, 3) [N], F_T frozen."""
+    grad[:, :] = 0.0
+    pair, triple = np.empty((2, 3)), np.empty((3, 3))
+    six, four = np.empty((6, 3)), np.empty((4, 3))
+    g6, g9, g18, g12 = np.empty(6), np.empty(9), np.empty(18), np.empty(12)
+    H6, H9, H18, H12 = np.empty((6, 6)), np.empty((9, 9)), np.empty((18, 18)), np.empty((12, 12))
+    start = s.chain_start
+    for y in range(start.size - 1):
+        for i in range(start[y], start[y + 1] - 1):
+            nodes = np.arange(i, i + 2)
+            _gather(pos, nodes, pair)
+            element.stretch_derivatives(pair, s.stretch_stiffness[i - y], s.rest_length[i - y],
+                                        g6, H6)
+            _scatter(nodes, g6, grad)
+        for i in range(start[y] + 1, start[y + 1] - 1):
+            nodes = np.arange(i - 1, i + 2)
+            _gather(pos, nodes, triple)
+            element.bend_derivatives(triple, s.bend_stiffness[i], s.rest_angle[i],
+                                     s.lateral_bend_stiffness[i], s.lateral_rest_angle[i],
+                                     g9, H9)
+            _scatter(nodes, g9, grad)
+    contact.add_gradient(pos, s, grad)
+    for c in range(s.tie_a.size):
+        rho, K, phi_rest, stick = _crossing_law(s, c)
+        _gather(pos, s.tie_stencil[c], six)
+        element.crossing_derivatives(six, anchors[c], rho, limit[c], stick, K, phi_rest, False,
+                                     g18, H18)
+        _scatter(s.tie_stencil[c], g18, grad)
+    for e in range(s.lateral_stencil.shape[0]):
+        _gather(pos, s.lateral_stencil[e], four)
+        law = s.lateral_law[e]
+        element.lateral_derivatives(four, law[SIGN], law[WIDTH], law[LATERAL_K], g12, H12)
+        _scatter(s.lateral_stencil[e], g12, grad)
+
+
+@numba.njit(cache=True)
+def _put(H, values, k):
+    """values[k:] = H row by row; returns the next free entry."""
+    n = H.shape[0]
+    for i in range(n):
+        for j in range(n):
+            values[k] = H[i, j]
+            k += 1
+    return k
+
+
+@numba.njit(cache=True)
+def hessian_values(pos, s, anchors, limit, values, secant=False):
+    """The Hessian's entries in `pattern_entries`' order [N/m], F_T = `limit` frozen;
+    `secant`: the sliding crossings' secant friction stiffness (`dynfab.terms.spatial`)."""
+    pair, triple = np.empty((2, 3)), np.empty((3, 3))
+    six, four = np.empty((6, 3)), np.empty((4, 3))
+    g6, g9, g18, g12 = np.empty(6), np.empty(9), np.empty(18), np.empty(12)
+    H6, H9, H18, H12 = np.empty((6, 6)), np.empty((9, 9)), np.empty((18, 18)), np.empty((12, 12))
+    k = 0
+    start = s.chain_start
+    for y in range(start.size - 1):
+        for i in range(start[y], start[y + 1] - 1):
+            _gather(pos, np.arange(i, i + 2), pair)
+            element.stretch_derivatives(pair, s.stretch_stiffness[i - y], s.rest_length[i - y],
+                                        g6, H6)
+            k = _put(H6, values, k)
+        for i in range(start[y] + 1, start[y + 1] - 1):
+            _gather(pos, np.arange(i - 1, i + 2), triple)
+            element.bend_derivatives(triple, s.bend_stiffness[i], s.rest_angle[i],
+                                     s.lateral_bend_stiffness[i], s.lateral_rest_angle[i],
+                                     g9, H9)
+            k = _put(H9, values, k)
+    for c in range(s.tie_a.size):
+        g = contact.closure(pos, s, c)
+        law = s.tie_contact_law[c]
+        t = contact.crossing_tangent(g, contact.force(g, law), law)
+        values[k], values[k + 1], values[k + 2], values[k + 3] = t, -t, -t, t
+        k += 4
+        rho, K, phi_rest, stick = _crossing_law(s, c)
+        _gather(pos, s.tie_stencil[c], six)
+        element.crossing_derivatives(six, anchors[c], rho, limit[c], stick, K, phi_rest, secant,
+                                     g18, H18)
+        k = _put(H18, values, k)
+    for e in range(s.lateral_stencil.shape[0]):
+        _gather(pos, s.lateral_stencil[e], four)
+        law = s.lateral_law[e]
+        element.lateral_derivatives(four, law[SIGN], law[WIDTH], law[LATERAL_K], g12, H12)
+        k = _put(H12, values, k)
+
+
+def _block(nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(rows, cols) of the dense blocks on the dofs of each row of `nodes` (E, m), row-major."""
+    dofs = (3 * nodes[:, :, None] + np.arange(3)).reshape(nodes.shape[0], -1)
+    m = dofs.shape[1]
+    return np.repeat(dofs, m, axis=1).ravel(), np.tile(dofs, (1, m)).ravel()
+
+
+def pattern_entries(s) -> tuple[np.ndarray, np.ndarray]:
+    """(rows, cols) of every entry `hessian_values` fills, in its order."""
+    rows, cols = [], []
+    start = s.chain_start
+    for y in range(start.size - 1):
+        a, b = int(start[y]), int(start[y + 1])
+        for width, first in ((2, a), (3, a)):
+            count = b - a - width + 1
+            if count <= 0:
+                continue
+            nodes = first + np.arange(count)[:, None] + np.arange(width)
+            r, c = _block(nodes)
+            rows.append(r)
+            cols.append(c)
+    z_a, z_b = 3 * s.tie_a + 2, 3 * s.tie_b + 2
+    friction_rows, friction_cols = _block(s.tie_stencil)
+    per = 18 * 18
+    for c in range(s.tie_a.size):
+        rows.append(np.array([z_a[c], z_a[c], z_b[c], z_b[c]]))
+        cols.append(np.array([z_a[c], z_b[c], z_a[c], z_b[c]]))
+        rows.append(friction_rows[c * per:(c + 1) * per])
+        cols.append(friction_cols[c * per:(c + 1) * per])
+    r, c = _block(s.lateral_stencil)
+    rows.append(r)
+    cols.append(c)
+    return (np.concatenate(rows).astype(np.int64) if rows else np.zeros(0, np.int64),
+            np.concatenate(cols).astype(np.int64) if cols else np.zeros(0, np.int64))
+
+
+_PATTERNS: dict[int, tuple] = {}
+PATTERNS_KEPT = 8
+
+
+def pattern_of(structure) -> Pattern:
+    """The `Pattern` of a spatial structure, made once and kept (as the planar one's)."""
+    entry = _PATTERNS.get(id(structure))
+    if entry is None or entry[0] is not structure:
+        if len(_PATTERNS) >= PATTERNS_KEPT:
+            _PATTERNS.pop(next(iter(_PATTERNS)))
+        entry = _PATTERNS[id(structure)] = (structure, Pattern(structure,
+                                                               pattern_entries(structure)))
+    return entry[1]
+
+
+def sparse_hessian(structure, pos, anchors, limit, secant: bool = False):
+    """The Hessian of V plus the friction terms on the structure's unknowns [N/m] (CSC)."""
+    pattern = pattern_of(structure)
+    values = np.zeros(pattern.size)
+    hessian_values(pos, structure, anchors, limit, values, secant)
+    return pattern.matrix(values)
+
+
+def energy_vector(structure, pos, P, anchors, limit) -> np.ndarray:
+    """Each term's energy [J] (`TERMS`)."""
+    out = np.zeros(len(TERMS))
+    energies(pos, structure, np.asarray(P, float), anchors, limit, out)
+    return out
+
+
+@numba.njit(cache=True)
+def rounding_scale(pos, s, P, limit):
+    """S [J] with the rounding of V about eps S (docs/model.md section 6's rounding rule):
+    every element's forces times the sizes of the coordinates they act on, in absolute
+    values (the planar `assembly.rounding_scale`'s rule on the spatial elements)."""
+    total = 0.0
+    pair, triple = np.empty((2, 3)), np.empty((3, 3))
+    six, four = np.empty((6, 3)), np.empty((4, 3))
+    g6, g9, g18, g12 = np.empty(6), np.empty(9), np.empty(18), np.empty(12)
+    H6, H9, H18, H12 = np.empty((6, 6)), np.empty((9, 9)), np.empty((18, 18)), np.empty((12, 12))
+    start = s.chain_start
+    for y in range(start.size - 1):
+        for i in range(start[y], start[y + 1] - 1):
+            _gather(pos, np.arange(i, i + 2), pair)
+            element.stretch_derivatives(pair, s.stretch_stiffness[i - y], s.rest_length[i - y],
+                                        g6, H6)
+            total += np.sum(np.abs(g6) * np.abs(pair.ravel()))
+        for i in range(start[y] + 1, start[y + 1] - 1):
+            _gather(pos, np.arange(i - 1, i + 2), triple)
+            element.bend_derivatives(triple, s.bend_stiffness[i], s.rest_angle[i],
+                                     s.lateral_bend_stiffness[i], s.lateral_rest_angle[i],
+                                     g9, H9)
+            total += np.sum(np.abs(g9) * np.abs(triple.ravel()))
+    for c in range(s.tie_a.size):
+        g = contact.closure(pos, s, c)
+        R = contact.force(g, s.tie_contact_law[c])
+        total += R * (abs(pos[s.tie_a[c], 2]) + abs(pos[s.tie_b[c], 2]) + abs(g))
+        rho, K, phi_rest, stick = _crossing_law(s, c)
+        _gather(pos, s.tie_stencil[c], six)
+        total += limit[c] * np.sum(np.abs(six[:, :2]))
+        element.crossing_derivatives(six, np.zeros(3), rho, 0.0, stick, K, phi_rest, False,
+                                     g18, H18)
+        total += np.sum(np.abs(g18) * np.abs(six.ravel()))
+    for e in range(s.lateral_stencil.shape[0]):
+        _gather(pos, s.lateral_stencil[e], four)
+        law = s.lateral_law[e]
+        element.lateral_derivatives(four, law[SIGN], law[WIDTH], law[LATERAL_K], g12, H12)
+        total += np.sum(np.abs(g12) * np.abs(four.ravel()))
+    return total
+
+
+@numba.njit(cache=True)
+def slip_direction(pos, anchors, s, limit, c, out):
+    """d(dV/dr)/dF_T of tie c on its stencil's dofs into out (18,): J^T D S/|S| where the
+    crossing slides (dH/dS = F_T S/|S|), zeros where it sticks (dH/dS = k_t S): the
+    friction's dependence on the limit, for the coupled Newton's Jacobian."""
+    rho, K, phi_rest, stick = _crossing_law(s, c)
+    six = np.empty((6, 3))
+    _gather(pos, s.tie_stencil[c], six)
+    S = element.crossing_slip(six, anchors[c], rho)
+    norm = np.sqrt(S[0] * S[0] + S[1] * S[1] + S[2] * S[2])
+    out[:] = 0.0
+    if not (limit[c] > 0.0 and stick * norm >= limit[c] and norm > 0.0):
+        return
+    q, J, K3 = np.empty(3), np.empty((3, 18)), np.empty((3, 18, 18))
+    element.crossing_kinematics(six, q, J, K3)
+    unit = np.array([S[0], S[1], rho * S[2]]) / norm  # D S / |S|, D = diag(1, 1, rho)
+    for j in range(18):
+        out[j] = J[0, j] * unit[0] + J[1, j] * unit[1] + J[2, j] * unit[2]
+
+
+@numba.njit(cache=True)
+def return_map(pos, anchors, s, limit, sliding, friction_force):
+    """The radial return of every sliding crossing's anchor (`dynfab.terms.spatial`), in
+    place; returns the energy lost [J]. Fills `sliding` (T,) and the friction force on the
+    slip (T, 3): [N, N, N] (-k_t S sticking, -F_T S/|S| sliding; the third is the moment
+    over rho)."""
+    lost = 0.0
+    six = np.empty((6, 3))
+    for c in range(s.tie_a.size):
+        rho, K, phi_rest, stick = _crossing_law(s, c)
+        _gather(pos, s.tie_stencil[c], six)
+        S = element.crossing_slip(six, anchors[c], rho)
+        norm = np.sqrt(S[0] * S[0] + S[1] * S[1] + S[2] * S[2])
+        F = limit[c]
+        if F > 0.0 and stick * norm > F:
+            friction_force[c, :] = -F * S / norm
+        elif F > 0.0:
+            friction_force[c, :] = -stick * S
+        else:
+            friction_force[c, :] = 0.0
+        energy, slid = element.crossing_return_map(six, anchors[c], rho, F, stick)
+        sliding[c] = slid
+        lost += energy
+    return lost
+
+
+def coupling_rows(structure, pos, anchors, limit, c) -> tuple[np.ndarray, np.ndarray]:
+    """(dofs, values): d(dV/dr)/dF_T of tie c on its stencil's dofs (`slip_direction`), empty
+    where it sticks (as `dynfab.fabric.assembly.coupling_rows`)."""
+    out = np.zeros(18)
+    slip_direction(pos, anchors, structure, limit, c, out)
+    if not np.any(out):
+        return np.zeros(0, np.int64), np.zeros(0)
+    return (3 * structure.tie_stencil[c][:, None] + np.arange(3)).ravel(), out
+
