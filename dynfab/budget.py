@@ -53,9 +53,25 @@ yarn (int32) [B per node]."""
 
 def fabric_nodes(scene: Scene) -> int:
     """Nodes of a fabric scene: n_wa warps of N+1 nodes and n_we wefts of M+1
-    (docs/model.md section 10)."""
-    g, weft = scene.geometry, scene.weft
-    return weft.count * (g.segments + 1) + g.crossings * (weft.segments + 1)
+    (docs/model.md section 10); a specimen's from its area (`fabric_sizes`)."""
+    return fabric_sizes(scene)[0]
+
+
+def fabric_sizes(scene: Scene) -> tuple[int, int, int]:
+    """(nodes, yarns, crossings) of a fabric scene. A specimen's (docs/model.md section 11)
+    from its area A: A / (p_wa p_we) crossings, each family n segments per spacing, so
+    2 n A / (p_wa p_we) nodes, plus a yarn's end pieces (a bound, not a count)."""
+    g, weft, s = scene.geometry, scene.weft, scene.specimen
+    if s is None:
+        return (weft.count * (g.segments + 1) + g.crossings * (weft.segments + 1),
+                weft.count + g.crossings, weft.count * g.crossings)
+    p_wa, p_we = scene.warp.spacing, weft.spacing
+    area = s.width * s.height if s.test == "bias_extension" else s.side ** 2
+    extent = (s.width + s.height) if s.test == "bias_extension" else 2.0 * s.side
+    crossings = area / (p_wa * p_we)
+    yarns = 2.0 * extent / min(p_wa, p_we)
+    n = s.segments_per_spacing
+    return int(2 * n * crossings + (n + 2) * yarns), int(yarns), int(crossings)
 
 
 def memory_bytes(scene: Scene) -> int:
@@ -74,8 +90,7 @@ def result_file_bytes(scene: Scene) -> int:
     and displacement per yarn; the view's
     datasets (`VIEW_BYTES_PER_ENTRY`, `VIEW_BYTES_PER_NODE`)."""
     if scene.geometry.model == "fabric":
-        yarns, crossings = scene.weft.count + scene.geometry.crossings, \
-            scene.weft.count * scene.geometry.crossings
+        _, yarns, crossings = fabric_sizes(scene)
         per_step = 8 * (4 * fabric_nodes(scene) + FABRIC_CROSSING_DATASETS * crossings
                         + 2 * yarns + FABRIC_STEP_SCALARS) + VIEW_BYTES_PER_ENTRY
         entries = len(scene.load.values)
@@ -127,7 +142,7 @@ def check_budget(scene: Scene, out: str | os.PathLike | None) -> None:
     need, have = memory_bytes(scene), available_memory_bytes()
     if have is not None and need > have and scene.geometry.model == "fabric":
         raise UserError(
-            f"a {scene.weft.count} x {scene.geometry.crossings} fabric of {fabric_nodes(scene)} "
+            f"a {_fabric_words(scene)} of {fabric_nodes(scene)} "
             f"nodes needs about {_size(need)} of memory (the static solver's sparse factors, "
             f"about {FABRIC_BYTES} B x nodes^1.5), but {_size(have)} is available: use fewer "
             "yarns or segments")
@@ -154,6 +169,13 @@ def check_budget(scene: Scene, out: str | os.PathLike | None) -> None:
             f"the result file '{out}' would take about {_size(size)} ({what} of "
             f"{scene.geometry.segments + 1} nodes x {yarn_count(scene)} yarn(s)), but "
             f"{_size(free)} is free there: use fewer load steps or frames, or a coarser mesh")
+
+
+def _fabric_words(scene: Scene) -> str:
+    """"a 16 x 16 fabric" or "a bias_extension specimen", as the refusals say it."""
+    if scene.specimen is not None:
+        return f"{scene.specimen.test} specimen"
+    return f"{scene.weft.count} x {scene.geometry.crossings} fabric"
 
 
 def _size(count: int) -> str:

@@ -236,9 +236,14 @@ class Model:
 
 
 def build_model(scene: Scene) -> Model:
-    """The model of a validated scene: a fabric's (`dynfab.fabric.model.FabricModel`), or
+    """The model of a validated scene: a shear specimen's
+    (`dynfab.fabric.specimen_model.SpecimenModel`), a fabric's (`dynfab.fabric.model.FabricModel`), or
     the one-yarn model's structure (`dynfab.builders.yarn`) with one Yarn view per simulated warp
     yarn."""
+    if getattr(scene, "specimen", None) is not None:
+        from dynfab.fabric.specimen_model import SpecimenModel  # docs/model.md section 11
+
+        return SpecimenModel.from_scene(scene)
     if scene.geometry.model == "fabric":
         from dynfab.fabric.model import FabricModel
 

@@ -17,7 +17,8 @@ width against its strain, and its crimp against the load, from the as-woven stat
 a family's mean over its loaded yarns, or a pull-out's pulled warp), ``shape.png`` (the
 deformed patch or cell, side and top views, as the ``dynfab fabric`` report draws it), and
 a pull-out's also ``pullout.png`` (the pull force on the pulled warp against its end
-displacement, and the slip front along it).
+displacement, and the slip front along it). An in-plane shear specimen's file (docs/model.md
+section 11) gets ``shear_force.png`` and ``shear_field.png`` (`dynfab.specimen_plots`).
 
 Matplotlib figures are built with `matplotlib.figure.Figure`, so the global
 pyplot state and backend are never touched; PNGs are written with Agg.
@@ -61,6 +62,12 @@ def plot_results(path: str | os.PathLike, out_dir: str | os.PathLike) -> list[Pa
         return _plot_transient(results, output_folder(out_dir))
     if results.step_count == 0:
         raise UserError(f"result file '{path}' has no finished load step to plot")
+    if results.attrs.get("model") == "specimen":  # docs/model.md section 11
+        from dynfab.specimen_plots import plot_shear_field, plot_shear_force
+
+        out = output_folder(out_dir)
+        return [save_png(plot_shear_force(results), out / "shear_force.png"),
+                save_png(plot_shear_field(results), out / "shear_field.png")]
     if results.attrs.get("model") == "fabric":  # docs/model.md section 10
         if "stress" not in results.steps:
             raise UserError(f"result file '{path}' lacks dataset steps/stress (written by an "

@@ -102,7 +102,24 @@ UNITS: dict[str, str] = {
     "reference/crossing_nodes": "-",  # (crossings,) node index of each crossing
     "reference/weft_positions": "m",  # fabric: (n_we, M+1, 2) weft node (y, z)
     "reference/weft_crossing_nodes": "-",  # fabric: (n_wa,) weft node of each crossing
+    "reference/chain_start": "-",  # specimen: (chains+1,) first node of each chain
+    "reference/chain_family": "-",  # specimen: (chains,) 0 warp, 1 weft
+    "reference/crossing_lattice": "-",  # specimen: (crossings, 2) lattice (k, j) from the centre
+    "reference/crossing_positions": "m",  # specimen: (crossings, 2) in-plane, as woven
+    "reference/zone": "-",  # specimen: (crossings,) bias extension's zone, 0 A, 1 B, 2 C
+    "reference/interior": "-",  # specimen: (crossings,) bool, neither yarn's end crossing
+    "reference/held": "-",  # specimen: (nodes,) bool, held by a clamp or bar
     # One entry per finished load step (axis 0 = steps).
+    "steps/clamp_force": "N",  # specimen: (steps,) force on the moved clamp (corner) along d
+    "steps/shear_force": "N",  # specimen: (steps,) picture frame F / (2 cos theta); NaN bias
+    "steps/normalised_shear_force": "N/m",  # specimen: (steps,) frame F_s L / L_f^2; bias F / W
+    "steps/crossing_positions": "m",  # specimen: (steps, crossings, 3) warp node of each crossing
+    "steps/shear_angle": "rad",  # specimen: (steps, crossings) gamma from step 0
+    "steps/reference_angle": "rad",  # specimen: (steps, crossings) step 0's gamma from as woven
+    "steps/crossing_slip_ratio": "-",  # specimen: (steps, crossings) in-plane offset / segment
+    "steps/lateral_gap": "m",  # specimen: (steps, lateral contacts) w - d, > 0 pressing
+    "steps/max_slope": "-",  # specimen: (steps,) largest |e_z| / |e_xy| of a segment
+    "steps/xdmf/shear_angle": "rad",  # specimen: (steps, nodes) gamma at crossing nodes
     "steps/load": LOAD_CONTROL_UNITS,  # (steps, yarns) applied value, N or m
     "steps/end_force": "N",  # (steps, yarns) P at the end node
     "steps/end_displacement": "m",  # (steps, yarns) end node x displacement
@@ -174,7 +191,8 @@ UNITS: dict[str, str] = {
     "view/yarn": "-",  # (S,) each segment's yarn: index into the attribute yarn_labels
     **{f"view/{group}/{name}/{ENTRY}": units for group in ("steps", "frames")
        for name, units in (("points", "m"), ("contact_force", "N"), ("slip", "m"),
-                           ("plane", "m"))},  # (P, 3) or (P,): row <entry> in 3D, per node
+                           ("plane", "m"), ("shear_angle", "rad"))},  # (P, 3) or (P,): row
+    # <entry> in 3D, per node
 }
 """Units of every dataset a result file may hold; the only list of names."""
 

@@ -45,6 +45,11 @@ def _step_quantities(attrs: dict, record: dict, unit: str) -> str:
     both families' strain and stress (means over their loaded yarns, docs/model.md
     section 10), and its largest slip ratio (`dynfab.domain.slip_ratios`)."""
     load = np.atleast_1d(record["load"])
+    if attrs.get("model") == "specimen":  # docs/model.md section 11
+        gamma = np.degrees(np.asarray(record["shear_angle"]))
+        return (f"d {1e3 * load[0]:.4g} mm  clamp force {float(record['clamp_force']):.4g} N  "
+                f"shear angle {np.median(gamma):.3g} deg (median), {gamma.max():.3g} (largest)"
+                f"  slip {float(record['slip_ratio']):.3f} of a segment")
     if attrs.get("model") != "fabric":
         u = 1e3 * np.atleast_1d(record["end_displacement"])
         whose = f" (largest of {u.size} yarns)" if u.size > 1 else ""
@@ -67,6 +72,8 @@ def print_summary(results: Results, file=sys.stdout) -> None:
     (`run_summary`): its steps, solver time and final state."""
     if results.step_count == 0:
         _print_frames_summary(results, file)
+    elif results.attrs.get("model") == "specimen":
+        _print_specimen_summary(results, file)
     elif results.attrs.get("model") == "fabric":
         _print_fabric_summary(results, file)
     else:
@@ -94,6 +101,26 @@ def _print_yarn_summary(results: Results, file) -> None:
                   file=file)
     for k, label in enumerate(labels):
         print(f"yarn {k + 1}: {label}", file=file)
+
+
+def _print_specimen_summary(results: Results, file) -> None:
+    """A shear specimen's table (docs/model.md section 11): per step (step 1 is step 0, the
+    preload relaxed) the clamp displacement d, the clamp force along it, the median and
+    largest shear angle over the crossings, the largest contact force, slip ratio and slope,
+    the residual, the time."""
+    steps = results.steps
+    print(f"{'step':>4} {'d [mm]':>9} {'F [N]':>10} {'gamma med':>9} {'gamma max':>9} "
+          f"{'max R [N]':>10} {'slip/seg':>8} {'slope':>6} {'residual':>10} {'time [s]':>9}",
+          file=file)
+    for i in range(results.step_count):
+        gamma = np.degrees(np.asarray(steps["shear_angle"][i]))
+        print(f"{i + 1:>4} {1e3 * steps['load'][i, 0]:>9.4g} {steps['clamp_force'][i]:>10.4g} "
+              f"{np.median(gamma):>9.3f} {gamma.max():>9.3f} "
+              f"{steps['contact_force'][i].max():>10.4g} {steps['slip_ratio'][i]:>8.3f} "
+              f"{steps['max_slope'][i]:>6.3f} {float(np.max(steps['residual'][i])):>10.3e} "
+              f"{steps['wall_time'][i]:>9.4f}", file=file)
+    print("gamma: shear angle [deg] from step 0 over the crossings; F: force on the moved clamp "
+          "(frame corner) along d", file=file)
 
 
 def _print_fabric_summary(results: Results, file) -> None:
@@ -154,6 +181,12 @@ def run_summary(results: Results) -> list[str]:
              f"in the solver"]
     if attrs.get("model") == "fabric":
         return lines + _fabric_summary(results)
+    if attrs.get("model") == "specimen":  # docs/model.md section 11
+        gamma = np.degrees(np.asarray(steps["shear_angle"][-1]))
+        return lines + [f"last step: d = {1e3 * float(steps['load'][-1, 0]):.5g} mm, clamp force "
+                        f"{float(steps['clamp_force'][-1]):.6g} N, shear angle "
+                        f"{np.median(gamma):.4g} deg (median over the crossings), largest slip "
+                        f"{float(steps['slip_ratio'][-1]):.3g} of a segment"]
     labels = attrs.get("yarn_labels") or []
     stress = steps.get("stress")
     for k in range(np.asarray(steps["end_force"]).shape[1]):

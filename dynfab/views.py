@@ -56,6 +56,9 @@ LENGTHS_PER_SPACING = 10
 POINT_DATA = ("contact_force", "slip")
 """Nodal point data: column ``<group>/xdmf/<prefix><name>`` (entries, yarns, nodes)."""
 
+SPATIAL_POINT_DATA = ("shear_angle",)
+"""A spatial model's nodal point data: ``<group>/xdmf/<name>`` (entries, nodes)."""
+
 GROUPS = ("steps", "frames")
 """The series whose rows get views."""
 
@@ -106,6 +109,8 @@ def plane_spacing(attrs) -> float:
 def families(h5: h5py.File) -> list[ViewFamily]:
     """The families of a result file: the warps (or the one-yarn model's yarns), then a
     fabric's wefts (docs/model.md section 10). KeyError if it lacks ``reference/positions``."""
+    if is_spatial(h5):
+        return []  # one (nodes, 3) array of every chain: `_add_spatial_views`
     yarns, nodes = h5["reference/positions"].shape[:2]
     found = [ViewFamily("", 1, (np.arange(yarns) + 0.5) * plane_spacing(h5.attrs), nodes, 0)]
     if "reference/weft_positions" in h5:
@@ -119,6 +124,8 @@ def row_views(h5: h5py.File, group: str, found: list[ViewFamily]) -> list[str]:
     """The names of a row's views: ``points``, then the point data every family stores, then
     ``plane`` where the planes move."""
     names = ["points"]
+    if not found:  # spatial: the nodes' own point data
+        return names + [name for name in SPATIAL_POINT_DATA if f"{group}/xdmf/{name}" in h5]
     names += [name for name in POINT_DATA
               if all(f.column(group, f"xdmf/{name}") in h5 for f in found)]
     if all(f.column(group, "xdmf/plane") in h5 for f in found):
@@ -158,6 +165,9 @@ def add_views(h5: h5py.File) -> None:
     if "reference/positions" not in h5:
         return
     found = families(h5)
+    if not found:
+        _add_spatial_views(h5)
+        return
     total = sum(f.size for f in found)
     _physical(h5, "view/plane", np.concatenate([np.repeat(f.planes, f.nodes) for f in found]))
     pairs = [f.offset + np.arange(f.size).reshape(f.yarns, f.nodes) for f in found]
@@ -186,6 +196,39 @@ def _row(virtual: "_Virtual", group: str, row: int, found: list[ViewFamily], tot
         virtual.create(row_name(group, name, row), (total,), [
             ((f.offset,), (f.size,), f.column(group, f"xdmf/{name}"), (row, 0, 0),
              (1, f.yarns, f.nodes)) for f in found])
+
+
+def is_spatial(h5: h5py.File) -> bool:
+    """A spatial model's file (docs/model.md section 11): ``reference/positions`` is every
+    node's (x, y, z), (nodes, 3), chain after chain (``reference/chain_start``)."""
+    return "reference/chain_start" in h5
+
+
+def _add_spatial_views(h5: h5py.File) -> None:
+    """A spatial file's views: its points are its positions (virtual, whole rows), the
+    segments each chain's consecutive nodes, each segment's yarn its chain (warps, then
+    wefts, as ``yarn_labels``: the view tells both families apart by it), ``view/plane`` 0
+    (its yarns lie in no plane), and each row's point data its ``xdmf/shear_angle``."""
+    start = h5["reference/chain_start"][:]
+    total = int(start[-1])
+    chain = np.repeat(np.arange(start.size - 1), np.diff(start))
+    _physical(h5, "view/plane", np.zeros(total))
+    first = np.arange(total - 1)
+    keep = chain[first] == chain[first + 1]
+    _physical(h5, "view/segments", np.stack([first[keep], first[keep] + 1], 1).astype(np.int32))
+    _physical(h5, "view/yarn", chain[first[keep]].astype(np.int32))
+    virtual = _Virtual(h5)
+    virtual.create("view/points", (total, 3),
+                   [((0, 0), (total, 3), "reference/positions", (0, 0), (total, 3))])
+    for group in GROUPS:
+        names = row_views(h5, group, [])
+        for row in range(rows(h5, group)):
+            virtual.create(row_name(group, "points", row), (total, 3),
+                           [((0, 0), (total, 3), f"{group}/positions", (row, 0, 0),
+                             (1, total, 3))])
+            for name in names[1:]:
+                virtual.create(row_name(group, name, row), (total,),
+                               [((0,), (total,), f"{group}/xdmf/{name}", (row, 0), (1, total))])
 
 
 def _point_maps(found: list[ViewFamily], positions: str, lead: tuple, plane: str | None) -> list:

@@ -3,6 +3,7 @@ of a scene that cannot fit (one line, exit status 2)."""
 
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -108,6 +109,20 @@ def test_a_fabric_beyond_memory_is_refused_with_the_estimate(monkeypatch):
     with pytest.raises(dynfab.UserError, match=r"a 64 x 64 fabric of 114816 nodes needs about "
                                                r".* of memory .* but 1 GB is available"):
         dynfab.run(big, solver="static")
+
+
+def test_a_shear_specimen_beyond_memory_is_refused_with_the_estimate(monkeypatch):
+    """A specimen's nodes are estimated from its area (`budget.fabric_sizes`, docs/model.md
+    section 11): Cao's 150 x 450 mm bias specimen (20,330 nodes built) is estimated at about
+    that, and refused where memory is short, in one line naming the specimen."""
+    from dynfab.scene import load_scene
+    scene = load_scene(Path(__file__).resolve().parents[1] / "runs" / "cao2008_bias_150x450.toml")
+    nodes = budget.fabric_nodes(scene)
+    assert 20330 <= nodes <= 1.2 * 20330
+    monkeypatch.setattr(budget, "available_memory_bytes", lambda: 10**8)
+    with pytest.raises(dynfab.UserError, match=r"^a bias_extension specimen of \d+ nodes needs "
+                                               r"about .* but 100 MB is available"):
+        dynfab.run(scene, solver="static")
 
 
 def test_a_fabric_result_file_beyond_the_free_disk_is_refused(monkeypatch, tmp_path):

@@ -1,0 +1,180 @@
+"""An in-plane shear specimen as a spatial structure (docs/model.md section 11).
+
+The layout (`dynfab.specimen_layout`: the bias-extension rectangle or the picture frame, its
+yarns, crossings, held nodes and lateral contacts) becomes chains of nodes in x, y, z (dim 3):
+
+- each yarn a chain with its stretch springs (EA / l0) and its bending in two planes
+  (EI / lbar out of the plane, EI_lateral / lbar in it; rest turnings of the as-woven
+  yarn);
+- each crossing a tie of six nodes (the two crossing nodes and their chain neighbours):
+  the contact along e_z (Kawabata's compressions in series with the core stiffness, a_m =
+  K_m / Lc_m over each family's half-wave at its spacing, docs/model.md section 10), its
+  closure offset set so that the as-woven state carries the preload R_p (g_p solving the
+  series law at R_p), Gralen's friction on the three-component slip with the torsion
+  radius rho, and the rotation spring K about the as-woven angle between the yarns;
+- each pair of neighbouring yarns of a family, at each yarn crossing both, a lateral
+  contact of the family's width w and lateral stiffness;
+- the held nodes fixed in x, y and z (their positions prescribed by the model at each
+  step, `dynfab.fabric.specimen_model`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from dynfab import geometry, specimen_layout
+from dynfab.builders.fabric import DEFAULT_CORE_STIFFNESS, DEFAULT_LINEAR_DENSITY
+from dynfab.errors import UserError
+from dynfab.scene import Scene
+from dynfab.structure import Structure
+from dynfab.terms import contact as contact_law
+from dynfab.terms.friction import law_constants
+
+TORSION_RADIUS_FACTOR = 0.3826
+"""rho / w by default: the mean distance to the centre of a w x w square of uniform
+pressure, (sqrt(2) + asinh(1)) / 6 = 0.3826 (docs/model.md section 11)."""
+
+
+def layout_of(scene: Scene) -> specimen_layout.Layout:
+    """The specimen's layout from its scene."""
+    s, warp, weft = scene.specimen, scene.warp, scene.weft
+    common = (warp.spacing, weft.spacing, warp.amplitude, weft.amplitude,
+              s.segments_per_spacing)
+    if s.test == "bias_extension":
+        return specimen_layout.bias_extension(s.width, s.height, *common)
+    return specimen_layout.picture_frame(s.side, *common)
+
+
+def _in_plane_angle(e: np.ndarray) -> np.ndarray:
+    return np.arctan2(e[:, 1], e[:, 0])
+
+
+def _wrap(angle: np.ndarray) -> np.ndarray:
+    return (angle + np.pi) % (2.0 * np.pi) - np.pi
+
+
+def _chain_springs(shape: np.ndarray, EA: float, EI: float, EI_lateral: float, density: float):
+    """(l0, EA / l0, EI / lbar, theta0, EI_lat / lbar, psi0, masses) of one chain (m, 3)."""
+    e = np.diff(shape, axis=0)
+    l0 = np.linalg.norm(e, axis=1)
+    in_plane = np.hypot(e[:, 0], e[:, 1])
+    if np.any(in_plane <= 1e-12 * l0):
+        raise UserError("a specimen yarn has a vertical segment: the spatial model needs every "
+                        "segment to have an in-plane extent (docs/model.md section 11)")
+    lbar = geometry.voronoi_lengths(l0)
+    elevation = np.arctan2(e[:, 2], in_plane)
+    theta0, psi0 = np.zeros(shape.shape[0]), np.zeros(shape.shape[0])
+    theta0[1:-1] = np.diff(elevation)
+    psi0[1:-1] = _wrap(np.diff(_in_plane_angle(e)))
+    kb, kl = EI / lbar, EI_lateral / lbar
+    kb[[0, -1]] = kl[[0, -1]] = 0.0
+    return l0, EA / l0, kb, theta0, kl, psi0, density * lbar
+
+
+def _contact_law(scene: Scene) -> np.ndarray:
+    """(k_c, C_wa, a_wa, C_we, a_we) with a_m = K_m / Lc_m, Lc_m the half-wave arc length of
+    family m at its spacing (docs/model.md section 10)."""
+    warp, weft = scene.warp, scene.weft
+    core = scene.contact.core_stiffness if scene.contact is not None else None
+    lc_warp = geometry.half_wave_arc_length(weft.spacing, warp.amplitude)
+    lc_weft = geometry.half_wave_arc_length(warp.spacing, weft.amplitude)
+    return np.array([DEFAULT_CORE_STIFFNESS if core is None else core, warp.kawabata_C,
+                     warp.kawabata_K / lc_warp, weft.kawabata_C, weft.kawabata_K / lc_weft])
+
+
+def _friction_law(scene: Scene) -> np.ndarray:
+    """(alpha, beta ell r_f, R_0, k_t): k_t as given, else the smaller family's EA over its
+    segment length; zeros without friction (alpha = beta = 0 written out)."""
+    friction = scene.friction
+    if friction is None:
+        return np.zeros(4)
+    stick = friction.stick_stiffness
+    if stick is None:
+        n = scene.specimen.segments_per_spacing
+        stick = min(scene.warp.EA * n / scene.weft.spacing, scene.weft.EA * n / scene.warp.spacing)
+    return np.array([*law_constants(friction), float(stick)])
+
+
+def torsion_radius(scene: Scene) -> float:
+    """rho [m]: crossing.torsion_radius, else 0.3826 times the smaller yarn width."""
+    given = scene.crossing.torsion_radius if scene.crossing is not None else None
+    if given is not None:
+        return float(given)
+    return TORSION_RADIUS_FACTOR * min(scene.warp.width, scene.weft.width)
+
+
+def _stencils(layout, start: np.ndarray, reach: int) -> np.ndarray:
+    """(a_prev, a, a_next, b_prev, b, b_next) of each crossing (C, 6): each crossing node and
+    the nodes `reach` along its chain either way (the neighbouring crossings' nodes), or the
+    chain's end nodes where it ends first."""
+    node_chain = np.repeat(np.arange(start.size - 1), np.diff(start))
+    out = []
+    for column in (0, 1):
+        node = layout.crossing_nodes[:, column]
+        chain = node_chain[node]
+        out.append(np.stack([np.maximum(node - reach, start[chain]), node,
+                             np.minimum(node + reach, start[chain + 1] - 1)], axis=1))
+    return np.concatenate(out, axis=1).astype(np.int64)
+
+
+def _rest_rotation(rest: np.ndarray, stencil: np.ndarray) -> np.ndarray:
+    """phi at rest: the in-plane angle from the warp's chord to the weft's (C,) [rad]."""
+    warp = rest[stencil[:, 2]] - rest[stencil[:, 0]]
+    weft = rest[stencil[:, 5]] - rest[stencil[:, 3]]
+    return _wrap(_in_plane_angle(weft) - _in_plane_angle(warp))
+
+
+def _family_value(scene: Scene, key: str, family: np.ndarray, default) -> np.ndarray:
+    """A per-family key for each row of `family` (0 warp, 1 weft), its default where unset."""
+    values = [getattr(t, key, None) for t in (scene.warp, scene.weft)]
+    values = [default(t) if v is None else v for v, t in zip(values, (scene.warp, scene.weft))]
+    return np.where(family == 0, values[0], values[1]).astype(float)
+
+
+def specimen_structure(scene: Scene, layout=None) -> Structure:
+    """The spatial structure of a validated specimen scene (module docstring)."""
+    layout = layout_of(scene) if layout is None else layout
+    rest, start = layout.positions, layout.chain_start
+    parts = []
+    for y in range(start.size - 1):
+        yarn = scene.warp if layout.chain_family[y] == 0 else scene.weft
+        density = yarn.linear_density or DEFAULT_LINEAR_DENSITY
+        parts.append(_chain_springs(rest[start[y]:start[y + 1]], yarn.EA, yarn.EI,
+                                    yarn.EI_lateral or yarn.EI, density))
+    l0, stretch, kb, theta0, kl, psi0, mass = (np.concatenate(p) for p in zip(*parts))
+    law = _contact_law(scene)
+    preload = scene.crossing.preload if scene.crossing is not None else 0.0
+    g_p = contact_law.closure_from_force(float(preload), law) if preload > 0.0 else 0.0
+    tie_a, tie_b = layout.crossing_nodes[:, 0], layout.crossing_nodes[:, 1]
+    side = layout.crossing_side.astype(float)
+    stencil = _stencils(layout, start, scene.specimen.segments_per_spacing)
+    ties = tie_a.size
+    friction = np.tile(_friction_law(scene), (ties, 1))
+    shear_k = scene.crossing.shear_stiffness if scene.crossing is not None else 0.0
+    rotation = np.column_stack([np.full(ties, torsion_radius(scene)), np.full(ties, shear_k),
+                                _rest_rotation(rest, stencil)])
+    node_chain = np.repeat(np.arange(start.size - 1), np.diff(start))
+    lateral_family = layout.chain_family[node_chain[layout.lateral[:, 2]]]
+    core = law[0]
+    lateral_law = np.column_stack([
+        layout.lateral_sign, _family_value(scene, "width", lateral_family, lambda t: np.nan),
+        _family_value(scene, "lateral_stiffness", lateral_family, lambda t: core)])
+    fixed = np.repeat(layout.held, 3)
+    n, chains = rest.shape[0], start.size - 1
+    return Structure(
+        rest_position=rest, mass=mass, gravity=np.zeros(n),
+        chain_start=start.astype(np.int64), chain_family=layout.chain_family.astype(np.int64),
+        chain_plane=np.zeros(chains), rest_length=l0, stretch_stiffness=stretch,
+        bend_stiffness=kb, rest_angle=theta0,
+        wrap_stiffness=np.zeros(chains), wrap_rest_angle=np.zeros(chains),
+        load_node=(start[1:] - 1).astype(np.int64), load_factor=np.zeros(chains),
+        tie_a=tie_a.astype(np.int64), tie_b=tie_b.astype(np.int64), tie_side=side,
+        tie_gap_offset=side * (rest[tie_a, 2] - rest[tie_b, 2]) + g_p,
+        tie_contact_law=np.tile(law, (ties, 1)), tie_friction_law=friction,
+        tie_plane=np.zeros((ties, 2)), tie_plane_weight=np.zeros((ties, 2)),
+        plane_nodes_a=np.zeros(0, np.int64), plane_nodes_b=np.zeros(0, np.int64),
+        has_friction=bool(np.any(friction[:, 3] > 0.0) and np.any(friction[:, :2] > 0.0)),
+        fixed=fixed, dof_tie=np.full(3 * n, -1, np.int64),
+        lateral_bend_stiffness=kl, lateral_rest_angle=psi0,
+        tie_stencil=stencil, tie_rotation_law=rotation,
+        lateral_stencil=layout.lateral.astype(np.int64), lateral_law=lateral_law)

@@ -1,0 +1,301 @@
+"""An in-plane shear specimen's model side (docs/model.md section 11): the bias extension and
+the picture frame of a plain weave in three dimensions, as a run drives them
+(`dynfab.solver.RunModel`).
+
+The load path is the clamp (frame corner) displacement d [m], preceded by a step 0 at d = 0
+that relaxes the woven-in preload: its state is the reference of every reported angle and
+displacement. Each step prescribes the held nodes (`dynfab.specimen_layout.held_positions`)
+and starts the free ones from the same affine map (a better Newton start than the previous
+state); the static solver's sparse backend solves it on the spatial terms
+(`dynfab.fabric.spatial`).
+
+Record of one step (n nodes, C crossings, L lateral contacts):
+
+- load, end_displacement (1,): d [m]; end_force (1,) and clamp_force (): the force on the
+  moved clamp (frame corner) along d [N], sum over the held nodes of the reaction dV/dr
+  times d(r)/dd; shear_force (): picture frame, F / (2 cos theta) [N] (Cao et al. eq. 3);
+  normalised_shear_force (): F_s L / L_fabric^2 [N/m] (frame, eq. 10), or for the bias
+  extension F / (2 (H - W) cos(gamma_A / 2 + pi/4))... see `normalised_force`;
+- positions (n, 3) [m]; crossing_positions (C, 3) [m] (the warp node's);
+- shear_angle (C,) [rad]: gamma = asin(t_wa . t_we) - its value at step 0, t the unit
+  in-plane chords over each crossing node's neighbours (`specimen_layout.shear_angles`);
+  reference_angle (C,) [rad]: step 0's angle from the as-woven state;
+- contact_force, friction_limit, sliding (C,); friction_force, anchors (C, 3) [N], [m, m,
+  rad]; slip_ratio: the largest in-plane slip over the segment length [-];
+- lateral_gap (L,) [m]: w - d of each lateral contact (positive where the yarns press);
+- max_slope: the largest |e_z| / |e_xy| of any segment [-] (the small-slope model's check);
+- dissipated, work [J]; energy/<term> [J]; the solver's fields.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from dynfab import specimen_layout
+from dynfab.builders.specimen import layout_of, specimen_structure
+from dynfab.errors import SolverError
+from dynfab.fabric import contact, spatial
+from dynfab.scene import Scene
+from dynfab.step import StepSolution, StepStart
+from dynfab.structure import chain_count
+from dynfab.terms import friction as gralen
+
+SLIP_LIMIT = 0.5
+"""The largest slip of a crossing over its segment length a step may end with
+(docs/model.md section 11, slip bounds): a crossing is a fixed pair of nodes."""
+
+
+@dataclass
+class SpecimenState:
+    """What changes during a specimen's run."""
+
+    positions: np.ndarray
+    """(n, 3) [m]."""
+    anchors: np.ndarray
+    """(C, 3): slip anchors [m, m] and rotation anchor [rad] of each crossing."""
+    dissipated: float
+    work: float
+    """Work of the clamp force so far [J] (trapezoid rule over the steps)."""
+    clamp_force: float
+    displacement: float
+    reference_angle: np.ndarray | None
+    """Each crossing's shear angle from the as-woven state at step 0 (C,) [rad], None
+    before it: the reference of the reported angles."""
+
+
+class SpecimenModel:
+    """A specimen scene as the solvers see it (module docstring)."""
+
+    relaxation_steps = 1
+    """Steps before the scene's load path: step 0, the preload relaxed at d = 0."""
+
+    def __init__(self, scene: Scene):
+        self.scene = scene
+        self.layout = layout_of(scene)
+        self.structure = specimen_structure(scene, self.layout)
+        self.control = "displacement"
+        self.load_values = np.concatenate([[0.0], np.asarray(scene.load.values, float)])
+        self._held = np.flatnonzero(self.layout.held)
+
+    @classmethod
+    def from_scene(cls, scene: Scene) -> "SpecimenModel":
+        return cls(scene)
+
+    # ------------------------------------------------------------------ the run's view
+
+    @property
+    def test(self) -> str:
+        return self.scene.specimen.test
+
+    @property
+    def groups(self) -> list[np.ndarray]:
+        return [np.arange(chain_count(self.structure))]
+
+    def group_name(self, k: int) -> str:
+        return "specimen"
+
+    def crossing_name(self, c: int) -> str:
+        """Crossing c as "(warp k, weft j)" in lattice indices from the centre crossing."""
+        k, j = self.layout.crossing_lattice[c]
+        return f"(warp {int(k):+d}, weft {int(j):+d})"
+
+    def yarn_name(self, y: int) -> str:
+        family = "warp" if self.structure.chain_family[y] == 0 else "weft"
+        return f"{family} {int(self.layout.chain_index[y]):+d}"
+
+    @property
+    def labels(self) -> list[str]:
+        return [self.yarn_name(y) for y in range(chain_count(self.structure))]
+
+    def step_load(self, index: int) -> float:
+        """d of step `index` [m] (step 0: d = 0, the preload relaxed)."""
+        return float(self.load_values[index])
+
+    def attrs(self) -> dict:
+        s = self.scene.specimen
+        dims = ({"specimen_width": s.width, "specimen_height": s.height}
+                if s.test == "bias_extension"
+                else {"specimen_side": s.side, "fabric_side": s.fabric_side or s.side})
+        return {"model": "specimen", "specimen_test": s.test, "kinematics": "spatial",
+                "load_control": self.control, "yarn_labels": self.labels,
+                "terms": list(spatial.TERMS), **dims}
+
+    def reference(self) -> dict:
+        """The as-woven nodes, the chains, the crossings and their zones."""
+        L = self.layout
+        rest = self.structure.rest_position
+        return {"positions": rest, "chain_start": L.chain_start, "chain_family": L.chain_family,
+                "crossing_nodes": L.crossing_nodes, "crossing_lattice": L.crossing_lattice,
+                "crossing_positions": rest[L.crossing_nodes[:, 0], :2], "zone": L.zone,
+                "interior": L.interior, "held": L.held}
+
+    def initial_state(self) -> SpecimenState:
+        anchors = np.zeros((self.structure.tie_a.size, 3))
+        anchors[:, 2] = self.structure.tie_rotation_law[:, spatial.PHI_REST]
+        return SpecimenState(self.structure.rest_position.copy(), anchors, 0.0, 0.0, 0.0, 0.0,
+                             None)
+
+    def state_from_step(self, last: dict) -> SpecimenState:
+        return SpecimenState(np.array(last["positions"], float), np.array(last["anchors"], float),
+                             float(last["dissipated"]), float(last["work"]),
+                             float(last["clamp_force"]), float(np.ravel(last["load"])[0]),
+                             np.array(last["reference_angle"], float))
+
+    def point_data(self, record: dict) -> dict:
+        """The view's nodal data: the shear angle at each crossing's two nodes, 0 elsewhere."""
+        angle = np.zeros(self.structure.rest_position.shape[0])
+        gamma = np.asarray(record["shear_angle"])
+        angle[self.layout.crossing_nodes[:, 0]] = gamma
+        angle[self.layout.crossing_nodes[:, 1]] = gamma
+        return {"xdmf/shear_angle": angle}
+
+    def check_step(self, record: dict) -> None:
+        """SolverError (exit 3) where a crossing slid more than half a segment."""
+        ratio = np.asarray(record["crossing_slip_ratio"])
+        if ratio.size and ratio.max() > SLIP_LIMIT:
+            c = int(np.argmax(ratio))
+            raise SolverError(
+                f"crossing {self.crossing_name(c)} slid {ratio[c]:.2f} of a segment (more than "
+                f"{SLIP_LIMIT}): a crossing is a fixed pair of nodes, the model does not follow "
+                "a yarn through its crossings (docs/model.md section 11)")
+
+    def frame(self, time, arrays):
+        raise NotImplementedError("a specimen has no transient run")
+
+    def frame_arrays(self, frame):
+        raise NotImplementedError("a specimen has no transient run")
+
+    # ------------------------------------------------------------------ a load step
+
+    def friction_limits(self, pos) -> np.ndarray:
+        f = self.structure
+        out = np.zeros(f.tie_a.size)
+        if f.has_friction:
+            R = np.zeros(f.tie_a.size)
+            contact.forces(pos, f, R)
+            gralen.tie_limits(R, f.tie_friction_law, -1.0, out)
+        return out
+
+    def start_of_step(self, state: SpecimenState, load) -> StepStart:
+        """The held nodes at d = `load`; the free ones moved by the same affine map from the
+        previous state (a start near the trellis, not the solution)."""
+        d = float(np.ravel(load)[0])
+        pos = state.positions.copy()
+        rest = self.structure.rest_position
+        if d != state.displacement:
+            pos += self._affine_increment(pos, state.displacement, d)
+        pos[self._held] = specimen_layout.held_positions(self.layout, rest, d)
+        return StepStart(np.array([d]), pos, state.anchors.copy(),
+                         np.zeros(chain_count(self.structure)))
+
+    def _affine_increment(self, pos, d_old: float, d_new: float) -> np.ndarray:
+        """The displacement of every node from d_old to d_new under the test's homogeneous map:
+        the frame's (bars' map applied to all), the bias extension's stretch along y."""
+        L = self.layout
+        if L.test == "picture_frame":
+            side = self.scene.specimen.side
+            old, new = (specimen_layout.frame_map(specimen_layout.frame_angle(side, d))
+                        for d in (d_old, d_new))
+            planar = pos[:, :2] @ np.linalg.inv(old).T @ new.T
+            out = np.zeros_like(pos)
+            out[:, :2] = planar - pos[:, :2]
+            return out
+        height = self.scene.specimen.height
+        out = np.zeros_like(pos)
+        out[:, 1] = (d_new - d_old) * self.structure.rest_position[:, 1] / height
+        return out
+
+    def finish_step(self, state: SpecimenState, start: StepStart, solution: StepSolution):
+        f, pos, limit = self.structure, solution.positions, solution.limit
+        d = float(start.load[0])
+        anchors = start.anchors.copy()
+        R = np.zeros(f.tie_a.size)
+        contact.forces(pos, f, R)
+        grad = np.zeros_like(pos)
+        spatial.gradient(pos, f, np.zeros(chain_count(f)), anchors, limit, grad)
+        velocity = specimen_layout.held_velocity(self.layout, f.rest_position, d)
+        clamp_force = float(np.sum(grad[self._held] * velocity))
+        sliding = np.zeros(f.tie_a.size, np.bool_)
+        friction_force = np.zeros((f.tie_a.size, 3))
+        lost = 0.0
+        if f.has_friction:
+            lost = spatial.return_map(pos, anchors, f, limit, sliding, friction_force)
+        # gamma from the as-woven state; step 0's is the reference of the reported angles
+        absolute = specimen_layout.shear_angles(self.layout, f.rest_position, pos)
+        reference = absolute if state.reference_angle is None else state.reference_angle
+        work = state.work + 0.5 * (state.clamp_force + clamp_force) * (d - state.displacement)
+        new = SpecimenState(pos, anchors, state.dissipated + lost, work, clamp_force, d,
+                            reference)
+        record = {
+            "load": np.array([d]), "end_displacement": np.array([d]),
+            "end_force": np.array([clamp_force]), "clamp_force": clamp_force,
+            **self.shear_forces(clamp_force, d),
+            "positions": pos, "crossing_positions": pos[self.layout.crossing_nodes[:, 0]],
+            "shear_angle": absolute - reference, "reference_angle": reference,
+            "contact_force": R, "friction_limit": np.asarray(limit, float),
+            "sliding": sliding, "friction_force": friction_force, "anchors": anchors,
+            "crossing_slip_ratio": self.slip_ratios(pos),
+            "lateral_gap": self.lateral_gaps(pos), "max_slope": self.max_slope(pos),
+            "crimp": self.crimps(pos), "dissipated": new.dissipated, "work": new.work,
+            **{name: np.asarray(value)[0] for name, value in solution.fields.items()},
+        }
+        record["slip_ratio"] = float(np.max(record["crossing_slip_ratio"], initial=0.0))
+        values = spatial.energy_vector(f, pos, np.zeros(chain_count(f)), anchors, limit)
+        record.update({f"energy/{term}": float(v) for term, v in zip(spatial.TERMS, values)
+                       if term not in ("load", "gravity")})
+        return new, {name: np.asarray(value) for name, value in record.items()}
+
+    # ------------------------------------------------------------------ observables
+
+    def shear_forces(self, force: float, d: float) -> dict:
+        """The frame's shear force F_s = F / (2 cos theta) (Cao et al. eq. 3) and its
+        normalisation F_s L / L_fabric^2 (eq. 10) [N], [N/m]; the bias extension's force over
+        the clamped width, F / W [N/m] (module docstring)."""
+        s = self.scene.specimen
+        if s.test == "picture_frame":
+            cos_theta = np.cos(specimen_layout.frame_angle(s.side, d))
+            shear = force / (2.0 * cos_theta)
+            fabric = s.fabric_side or s.side
+            return {"shear_force": shear, "normalised_shear_force": shear * s.side / fabric ** 2}
+        return {"shear_force": np.nan, "normalised_shear_force": force / s.width}
+
+    def slip_ratios(self, pos) -> np.ndarray:
+        """|in-plane offset of each crossing's two nodes| over the shorter family's segment
+        length (spacing / segments_per_spacing) (C,) [-]."""
+        f, s = self.structure, self.scene
+        segment = min(s.warp.spacing, s.weft.spacing) / s.specimen.segments_per_spacing
+        return np.hypot(*(pos[f.tie_b, :2] - pos[f.tie_a, :2]).T) / segment
+
+    def lateral_gaps(self, pos) -> np.ndarray:
+        """w - d of each lateral contact (L,) [m]: positive where neighbouring yarns press."""
+        f = self.structure
+        st = f.lateral_stencil
+        c = pos[st[:, 1], :2] - pos[st[:, 0], :2]
+        r = pos[st[:, 3], :2] - pos[st[:, 2], :2]
+        dist = f.lateral_law[:, spatial.SIGN] * (c[:, 0] * r[:, 1] - c[:, 1] * r[:, 0]) \
+            / np.hypot(c[:, 0], c[:, 1])
+        return f.lateral_law[:, spatial.WIDTH] - dist
+
+    def max_slope(self, pos) -> float:
+        """The largest |e_z| / |e_xy| over every segment [-]."""
+        start = self.structure.chain_start
+        e = np.diff(pos, axis=0)
+        keep = np.ones(e.shape[0], bool)
+        keep[start[1:-1] - 1] = False  # no segment across two chains
+        e = e[keep]
+        return float(np.max(np.abs(e[:, 2]) / np.hypot(e[:, 0], e[:, 1]), initial=0.0))
+
+    def crimps(self, pos) -> np.ndarray:
+        """Mean crimp (warp, weft) [-]: (arc length - in-plane chord) / in-plane chord."""
+        f = self.structure
+        out = np.zeros(2)
+        for family in (0, 1):
+            arc = chord = 0.0
+            for y in np.flatnonzero(f.chain_family == family):
+                p = pos[f.chain_start[y]:f.chain_start[y + 1]]
+                arc += np.linalg.norm(np.diff(p, axis=0), axis=1).sum()
+                chord += np.hypot(*(p[-1, :2] - p[0, :2]))
+            out[family] = arc / chord - 1.0 if chord > 0 else 0.0
+        return out

@@ -1,0 +1,87 @@
+"""Figures of an in-plane shear specimen's result file (docs/model.md section 11).
+
+- ``shear_force.png``: the force on the moved clamp (frame corner) along d against d, and
+  against the test's nominal shear angle (Cao et al. eq. 13 for the bias extension's zone A,
+  eq. 2 for the picture frame); the bias extension's panels also show each zone's mean
+  computed shear angle against d beside eq. 13, the frame's its interior mean;
+- ``shear_field.png``: the shear angle of every crossing over the specimen, drawn at the
+  crossings' in-plane positions, at about a third, two thirds and the end of the path (the
+  zones A, B, C of the bias extension are visible as the diamond, the triangles beside it and
+  the triangles on the clamps).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from matplotlib.figure import Figure
+
+from dynfab.plot_style import legend, new_figure, style_axes
+from dynfab.results import Results
+from dynfab.specimen_layout import nominal_shear_angle
+
+DEGREE = 180.0 / np.pi
+ZONES = ("zone A", "zone B", "zone C")
+
+
+def _nominal(results: Results, d: np.ndarray) -> np.ndarray:
+    """The test's nominal shear angle at each d [rad]."""
+    a = results.attrs
+    if a["specimen_test"] == "bias_extension":
+        dims = dict(width=float(a["specimen_width"]), height=float(a["specimen_height"]))
+    else:
+        dims = dict(side=float(a["specimen_side"]))
+    return np.array([nominal_shear_angle(a["specimen_test"], float(x), **dims) for x in d])
+
+
+def plot_shear_force(results: Results) -> Figure:
+    """Force against d and against the nominal angle; computed angles against eq. 13 / 2."""
+    steps = results.steps
+    d = np.asarray(steps["load"], float)[:, 0]
+    force = np.asarray(steps["clamp_force"], float)
+    gamma = np.asarray(steps["shear_angle"], float)
+    nominal = _nominal(results, d)
+    fig = new_figure(14, 4)
+    by_d, by_angle, angles = fig.subplots(1, 3)
+    by_d.plot(1e3 * d, force, marker="o", ms=3)
+    by_d.set(xlabel="clamp displacement d [mm]", ylabel="clamp force along d [N]")
+    by_angle.plot(DEGREE * nominal, force, marker="o", ms=3)
+    by_angle.set(xlabel="nominal shear angle [deg]", ylabel="clamp force along d [N]")
+    angles.plot(1e3 * d, DEGREE * nominal, color="k", linestyle="--", label="kinematics")
+    if results.attrs["specimen_test"] == "bias_extension":
+        zone = np.asarray(results.reference["zone"])
+        for z, name in enumerate(ZONES):
+            if np.any(zone == z):
+                angles.plot(1e3 * d, DEGREE * gamma[:, zone == z].mean(axis=1), marker="o",
+                            ms=3, label=f"{name}, mean")
+    else:
+        interior = np.asarray(results.reference["interior"], bool)
+        angles.plot(1e3 * d, DEGREE * gamma[:, interior].mean(axis=1), marker="o", ms=3,
+                    label="interior crossings, mean")
+    angles.set(xlabel="clamp displacement d [mm]", ylabel="shear angle [deg]")
+    for ax in (by_d, by_angle, angles):
+        style_axes(ax)
+    legend(angles)
+    fig.suptitle(f"{results.attrs['specimen_test'].replace('_', ' ')}: force and shear angle "
+                 "(docs/model.md section 11)")
+    return fig
+
+
+def plot_shear_field(results: Results) -> Figure:
+    """The shear angle of every crossing at its in-plane position, three steps."""
+    steps = results.steps
+    xy = np.asarray(steps["crossing_positions"], float)
+    gamma = DEGREE * np.asarray(steps["shear_angle"], float)
+    d = np.asarray(steps["load"], float)[:, 0]
+    last = gamma.shape[0] - 1
+    chosen = sorted({max(1, round(last / 3)), max(1, round(2 * last / 3)), last}) if last else [0]
+    fig = new_figure(4.5 * len(chosen) + 1, 5)
+    axes = np.atleast_1d(fig.subplots(1, len(chosen)))
+    top = max(float(np.abs(gamma[chosen]).max()), 1e-12)
+    for ax, k in zip(axes, chosen):
+        shown = ax.scatter(1e3 * xy[k, :, 0], 1e3 * xy[k, :, 1], c=gamma[k], s=12, cmap="viridis",
+                           vmin=min(0.0, float(gamma[chosen].min())), vmax=top)
+        ax.set(xlabel="x [mm]", ylabel="y [mm]", title=f"d = {1e3 * d[k]:.4g} mm",
+               aspect="equal")
+    fig.colorbar(shown, ax=list(axes), label="shear angle [deg]")
+    fig.suptitle("shear angle at the crossings (from step 0, the preload relaxed)")
+    return fig

@@ -1,0 +1,58 @@
+"""A shear specimen's result file (docs/model.md section 11): resumed after an interrupt it
+equals the uninterrupted run entry for entry (step 0's reference angles included), its XDMF
+view shows every node of both families with the shear angle, `dynfab plot` draws it, and
+the dynamic solver refuses it in one line.
+"""
+
+from __future__ import annotations
+
+import h5py
+import meshio
+import numpy as np
+import pytest
+
+from dynfab import run
+from dynfab.errors import UserError
+from dynfab.plot import plot_results
+from dynfab.run import run_to_file
+from dynfab.scene import parse_scene_text
+from test_fabric_scenes import run_interrupted
+from test_shear_specimens import FRAME, scene_text
+
+D = [1e-3, 2e-3, 3e-3, 4e-3]
+
+
+def small_frame():
+    return parse_scene_text(scene_text(FRAME.replace("side = 0.06", "side = 0.022"), D))
+
+
+def test_a_resumed_specimen_file_is_the_uninterrupted_one_and_its_view_and_figures(tmp_path):
+    scene = small_frame()
+    whole, part = tmp_path / "whole.h5", tmp_path / "part.h5"
+    run_to_file(scene, "static", whole)
+    run_interrupted(scene, "static", part, steps=3)
+    assert run_to_file(scene, "static", part, resume=True) == 2
+    with h5py.File(whole, "r") as a, h5py.File(part, "r") as b:
+        for name in a["steps"]:
+            if isinstance(a["steps"][name], h5py.Dataset) and name != "wall_time":
+                np.testing.assert_array_equal(a["steps"][name][:], b["steps"][name][:],
+                                              err_msg=name)
+        nodes = b["reference/positions"].shape[0]
+        gamma = b["steps/shear_angle"][4]
+        crossing_nodes = b["reference/crossing_nodes"][()]
+        positions = b["steps/positions"][4]
+    with meshio.xdmf.TimeSeriesReader(part.with_suffix(".xdmf")) as view:
+        points, cells = view.read_points_cells()
+        assert view.num_steps == 5 and points.shape == (nodes, 3)
+        _, data, _ = view.read_data(4)
+    np.testing.assert_array_equal(data["position"], positions)
+    np.testing.assert_array_equal(data["shear_angle"][crossing_nodes[:, 0]], gamma)
+    np.testing.assert_array_equal(data["shear_angle"][crossing_nodes[:, 1]], gamma)
+    assert [p.name for p in plot_results(part, tmp_path / "plots")] == \
+        ["shear_force.png", "shear_field.png"]
+
+
+def test_the_dynamic_solver_refuses_a_specimen_in_one_line():
+    with pytest.raises(UserError, match=r"^--solver dynamic does not run a \[specimen\]") as error:
+        run(small_frame(), solver="dynamic")
+    assert "\n" not in str(error.value)
