@@ -13,7 +13,9 @@ model, each optionally followed by its noise level `<name> sigma [unit]`
   [m]` (absent: the wefts' load is 0 at every step, the scene's default without
   load.weft_values); measured `warp_strain [-]`, `weft_strain [-]`, `warp_crimp
   [-]`, `weft_crimp [-]`, `warp_stress [N/m]`, `weft_stress [N/m]` (each family's
-  entry of the step record's strain, crimp, stress; `dynfab.fabric.model`).
+  entry of the step record's strain, crimp, stress; `dynfab.fabric.model`);
+- an in-plane shear specimen (a `[specimen]` scene, docs/model.md section 11): the clamp
+  displacement `end_displacement [m]`, measured `clamp_force [N]`.
 
 A column that is the load itself under the scene's control (a strain under
 displacement control, a stress or end force under force control) is refused.
@@ -81,12 +83,25 @@ LOAD_COLUMN = {"force": ("load", "N"), "displacement": ("end_displacement", "m")
 WEFT_LOAD_COLUMN = {"force": ("weft_load", "N"), "displacement": ("weft_end_displacement", "m")}
 """A fabric curve's optional second column under each control: the wefts' load path."""
 
+SPECIMEN_MEASURABLE = {
+    "clamp_force": Column("N", "clamp_force"),
+}
+"""An in-plane shear specimen's measured column: the force on the moved clamp (frame corner)
+along its displacement (`dynfab.fabric.specimen_model`, docs/model.md section 11)."""
+
 MODELS = {"yarn": ('the one-yarn model (geometry.model = "yarn")', MEASURABLE),
-          "fabric": ('the woven fabric (geometry.model = "fabric")', FABRIC_MEASURABLE)}
+          "fabric": ('the woven fabric (geometry.model = "fabric")', FABRIC_MEASURABLE),
+          "specimen": ("a shear specimen (a [specimen] scene)", SPECIMEN_MEASURABLE)}
 """model -> (its name in a message, its measured columns)."""
 
 _HEADER = re.compile(
     r"^\s*(?P<name>[A-Za-z_][A-Za-z0-9_]*)(?P<sigma>\s+sigma)?\s*\[(?P<unit>[^\]]*)\]\s*$")
+
+
+def model_kind(scene) -> str:
+    """The fit's name of a scene's model: "specimen" for a [specimen] scene, else
+    geometry.model ("yarn" or "fabric")."""
+    return "specimen" if getattr(scene, "specimen", None) is not None else scene.geometry.model
 
 
 def measurable(model: str) -> dict:
@@ -124,7 +139,7 @@ class CurveData:
     def path(self) -> np.ndarray:
         """The load path the scene takes: (points,) for one yarn, (points, 2) (warp value,
         weft value) for a fabric, the weft's 0 without a weft column."""
-        if self.model == "yarn":
+        if self.model in ("yarn", "specimen"):
             return self.load
         weft = np.zeros_like(self.load) if self.weft_load is None else self.weft_load
         return np.column_stack([self.load, weft])

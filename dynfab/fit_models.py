@@ -20,9 +20,9 @@ import numpy as np
 
 from dynfab import scene as scene_module
 from dynfab.errors import UserError
-from dynfab.fit_data import measurable
+from dynfab.fit_data import measurable, model_kind
 
-FABRIC_TABLES = ("warp", "weft", "friction", "contact", "gravity")
+FABRIC_TABLES = ("warp", "weft", "friction", "contact", "gravity", "crossing")
 """The tables whose real keys a fabric's fit may vary (the material, the crossings' laws,
 gravity); geometry and load are the experiment's, not the material's."""
 
@@ -72,10 +72,12 @@ class FabricFit:
     @staticmethod
     def fittable_keys(scene) -> tuple[str, ...]:
         """The real keys of FABRIC_TABLES that a fabric takes, whose table the scene has."""
+        spatial = getattr(scene, "specimen", None) is not None
         return tuple(f"{table}.{name}" for table in FABRIC_TABLES
-                     if getattr(scene, table) is not None
+                     if getattr(scene, table, None) is not None
                      for name, spec in scene_module._SCHEMA[table][1].items()
-                     if spec.kind == "float" and spec.model in ("", "fabric"))
+                     if spec.kind == "float" and spec.model in ("", "fabric")
+                     and (spatial or not spec.spatial))
 
     @staticmethod
     def default_value(scene, key: str) -> float | None:
@@ -102,7 +104,7 @@ class FabricFit:
         from dynfab.model import build_model
         from dynfab.solvers import make_solver
 
-        columns = {name: measurable("fabric")[name] for name in names}
+        columns = {name: measurable(model_kind(scene))[name] for name in names}
         model = build_model(scene)
         solver = make_solver(model, "static")
         state = model.initial_state()
@@ -110,6 +112,8 @@ class FabricFit:
         for index in range(len(model.load_values)):
             state, record = solver.step(state, model.step_load(index))
             model.check_step(record)
+            if index < getattr(model, "relaxation_steps", 0):
+                continue  # a specimen's step 0, the preload relaxed: no point of the curve
             for name, column in columns.items():
                 values[name].append(column.read(record))
         return PathCurves({name: np.asarray(v) for name, v in values.items()})
@@ -117,7 +121,7 @@ class FabricFit:
 
 def fit_model(scene):
     """The fit's view of the scene's model: `YarnFit` or `FabricFit`."""
-    return FabricFit if scene.geometry.model == "fabric" else YarnFit
+    return FabricFit if scene.geometry.model == "fabric" else YarnFit  # a specimen: fabric
 
 
 def start_value(scene, key: str) -> float:

@@ -1,0 +1,66 @@
+"""`dynfab fit` on a shear specimen (docs/model.md sections 11 and "Fitting parameters"): the
+measured column `clamp_force [N]` against the clamp displacement `end_displacement [m]`,
+the crossing's keys fittable, step 0 (the preload relaxed) no point of the curve.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from dynfab import run
+from dynfab.errors import UserError
+from dynfab.fit import fit
+from dynfab.fit_data import curve_from_columns
+from dynfab.fit_models import FabricFit
+from dynfab.scene import parse_scene_text, with_key
+from test_shear_specimens import FRAME, scene_text
+
+D = [1e-3, 2e-3, 3e-3]
+TRUTH = 5e-3
+"""crossing.shear_stiffness [N m/rad] of the synthetic curve."""
+
+
+def small_frame():
+    """A 22 mm picture frame (three crossings across): a few tenths of a second a step."""
+    return parse_scene_text(scene_text(FRAME.replace("side = 0.06", "side = 0.022"), D))
+
+
+def synthetic_curve(scene):
+    """The scene's own clamp forces at D, less step 0: the zero-residual curve."""
+    force = run(scene, solver="static").steps["clamp_force"][1:]
+    return curve_from_columns(["end_displacement [m]", "clamp_force [N]"],
+                              np.c_[D, force], "displacement", model="specimen")
+
+
+def test_a_noise_free_clamp_force_curve_gives_back_the_shear_stiffness():
+    """From a start 2x off, on the curve's own load steps (substeps = 1: the friction's return
+    map makes the force depend on the steps taken, so a refined path is another path): the
+    truth is the zero-residual minimum; the optimiser stops once a step in theta = log K is
+    below xtol (1e-8) (1 + |theta|), |theta| ~ 5.3, so 10 x that."""
+    scene = small_frame()
+    data = synthetic_curve(scene)
+    result = fit(scene, data, ["crossing.shear_stiffness"], substeps=1,
+                 start={"crossing.shear_stiffness": 2 * TRUTH})
+    assert result.converged, result.warnings
+    value = result.parameters["crossing.shear_stiffness"]["value"]
+    assert abs(math.log(value / TRUTH)) <= 10 * 1e-8 * (1 + abs(math.log(TRUTH)))
+
+
+def test_the_specimen_offers_its_crossing_keys_and_a_planar_fabric_does_not():
+    keys = FabricFit.fittable_keys(small_frame())
+    assert {"crossing.shear_stiffness", "crossing.preload", "crossing.torsion_radius",
+            "warp.lateral_stiffness", "friction.alpha"} <= set(keys)
+    from dynfab.scene import load_scene
+    from pathlib import Path
+    planar = load_scene(Path(__file__).resolve().parents[1] / "runs" / "fabric_pullout.toml")
+    assert not {k for k in FabricFit.fittable_keys(planar)
+                if k.startswith("crossing.") or k.endswith((".EI_lateral", ".width"))}
+
+
+def test_a_fabric_column_on_a_specimen_is_refused_in_one_line():
+    with pytest.raises(UserError, match="warp_strain.*clamp_force"):
+        curve_from_columns(["end_displacement [m]", "warp_strain [-]"], [[1e-3, 0.1]],
+                           "displacement", model="specimen")
