@@ -130,7 +130,7 @@ def test_a_latin_hypercube_puts_one_case_in_each_stratum_of_every_range(tmp_path
      "samples real values"),
     ('"warp.EA" = [10, 15]', 'design = "latin_hypercube"', OBSERVE, "needs the number of cases"),
     ('"warp.EA" = [10, 15]', "count = 3", OBSERVE, 'only design = "latin_hypercube"'),
-    ('"warp.EA" = [10]', "", '[observe]\nx = "clamp_force"', "dataset 'clamp_force' is not"),
+    ('"warp.EA" = [10]', "", '[observe]\nx = "clamp_torque"', "dataset 'clamp_torque' is not"),
     ('"warp.EA" = [10]', "", '[observe]\nx = { dataset = "end_force", at = 0.5 }',
      "does not pass it"),
     ('"warp.EA" = [10]', "", '[observe]\nx = { dataset = "end_force", at = 0.05 }',
