@@ -248,6 +248,8 @@ class Weft:
     lateral_stiffness: float | None = _WEFT_LATERAL["lateral_stiffness"]
 
 
+DEFAULT_CORE_STIFFNESS = 1e5
+"""k_c [N/m] of a fabric scene without contact.core_stiffness (docs/model.md section 10)."""
 TORSION_RADIUS_PER_WIDTH = (math.sqrt(2.0) + math.asinh(1.0)) / 6.0
 """rho / w = 0.3826: the mean distance to the centre of a w x w square, (sqrt(2) +
 ln(1 + sqrt(2))) / 6 w, the default torsion radius of a crossing of uniform pressure
@@ -1305,7 +1307,6 @@ def _resolve_spatial(scene: Scene) -> Scene:
         changes["friction"] = PAPER_FRICTION
     core = scene.contact.core_stiffness if scene.contact is not None else None
     if core is None and _lateral_stiffness_unset(scene):
-        from dynfab.builders.fabric import DEFAULT_CORE_STIFFNESS  # numba: only when needed
         core = DEFAULT_CORE_STIFFNESS
     for name in ("warp", "weft"):
         family = getattr(scene, name)

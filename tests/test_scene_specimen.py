@@ -145,7 +145,7 @@ def test_lateral_bending_defaults_to_each_familys_bending_stiffness():
 def test_lateral_stiffness_defaults_to_the_core_stiffness():
     """The fabric's default core stiffness is 1e5 N/m (docs/model.md section 10), the
     constant the fabric builder uses; contact.core_stiffness where the scene gives one."""
-    from dynfab.builders.fabric import DEFAULT_CORE_STIFFNESS
+    from dynfab.scene import DEFAULT_CORE_STIFFNESS
 
     scene = parse()
     assert scene.warp.lateral_stiffness == scene.weft.lateral_stiffness == 1e5

@@ -19,12 +19,10 @@ from typing import NamedTuple
 import numpy as np
 
 from dynfab import geometry
-from dynfab.scene import Scene
+from dynfab.scene import DEFAULT_CORE_STIFFNESS, Scene
 from dynfab.structure import Structure
 from dynfab.terms.friction import law_constants
 
-DEFAULT_CORE_STIFFNESS = 1e5
-"""k_c [N/m] of a fabric scene without contact.core_stiffness (docs/model.md section 10)."""
 DEFAULT_LINEAR_DENSITY = 3e-5
 """rho_l [kg/m] of the wefts without weft.linear_density (as the warps' default)."""
 

@@ -23,17 +23,12 @@ from __future__ import annotations
 import numpy as np
 
 from dynfab import geometry, specimen_layout
-from dynfab.builders.fabric import DEFAULT_CORE_STIFFNESS, DEFAULT_LINEAR_DENSITY
+from dynfab.builders.fabric import DEFAULT_LINEAR_DENSITY
 from dynfab.errors import UserError
-from dynfab.scene import Scene
+from dynfab.scene import DEFAULT_CORE_STIFFNESS, TORSION_RADIUS_PER_WIDTH, Scene
 from dynfab.structure import Structure
 from dynfab.terms import contact as contact_law
 from dynfab.terms.friction import law_constants
-
-TORSION_RADIUS_FACTOR = 0.3826
-"""rho / w by default: the mean distance to the centre of a w x w square of uniform
-pressure, (sqrt(2) + asinh(1)) / 6 = 0.3826 (docs/model.md section 11)."""
-
 
 def layout_of(scene: Scene) -> specimen_layout.Layout:
     """The specimen's layout from its scene."""
@@ -96,11 +91,12 @@ def _friction_law(scene: Scene) -> np.ndarray:
 
 
 def torsion_radius(scene: Scene) -> float:
-    """rho [m]: crossing.torsion_radius, else 0.3826 times the smaller yarn width."""
+    """rho [m]: crossing.torsion_radius, as the validated scene resolves it (default
+    `dynfab.scene.TORSION_RADIUS_PER_WIDTH` times the smaller yarn width)."""
     given = scene.crossing.torsion_radius if scene.crossing is not None else None
     if given is not None:
         return float(given)
-    return TORSION_RADIUS_FACTOR * min(scene.warp.width, scene.weft.width)
+    return TORSION_RADIUS_PER_WIDTH * min(scene.warp.width, scene.weft.width)
 
 
 def _stencils(layout, start: np.ndarray, reach: int) -> np.ndarray:

@@ -29,6 +29,7 @@ import numba
 import numpy as np
 
 from dynfab.terms import contact as law_1d
+from dynfab.terms import friction as gralen
 
 
 @numba.njit(cache=True)
@@ -110,3 +111,14 @@ def tangents(pos, s, out):
         g = closure(pos, s, c)
         law = s.tie_contact_law[c]
         out[c] = crossing_tangent(g, force(g, law), law)
+
+
+def friction_limits(pos, s) -> np.ndarray:
+    """F_T (T,) [N] of Gralen's law at the contact forces of `pos`, each tie its own law
+    (docs/model.md section 4); 0 without friction."""
+    out = np.zeros(s.tie_a.size)
+    if s.has_friction:
+        R = np.zeros(s.tie_a.size)
+        forces(pos, s, R)
+        gralen.tie_limits(R, s.tie_friction_law, -1.0, out)
+    return out

@@ -60,7 +60,6 @@ from dynfab.fabric.assembly import TERMS
 from dynfab.scene import Scene
 from dynfab.step import StepSolution, StepStart
 from dynfab.structure import Structure, chain_count
-from dynfab.terms import friction as gralen
 from dynfab.terms import registry
 
 
@@ -293,15 +292,8 @@ class FabricModel:
         return "fabric"
 
     def friction_limits(self, pos) -> np.ndarray:
-        """F_T (T,) [N] of Gralen's law at the contact forces of `pos`, each tie its own law
-        (docs/model.md section 4); 0 without friction."""
-        f = self.structure
-        out = np.zeros(f.tie_a.size)
-        if f.has_friction:
-            R = np.zeros(f.tie_a.size)
-            contact.forces(pos, f, R)
-            gralen.tie_limits(R, f.tie_friction_law, -1.0, out)
-        return out
+        """F_T (T,) [N] at `pos` (`dynfab.fabric.contact.friction_limits`)."""
+        return contact.friction_limits(pos, self.structure)
 
     def frame(self, time: float, arrays: dict) -> dict:
         """A transient frame (`dynfab.solver.FRAME_KEYS` in the record's layout: the warps'

@@ -40,7 +40,6 @@ from dynfab.fabric import contact, spatial
 from dynfab.scene import Scene
 from dynfab.step import StepSolution, StepStart
 from dynfab.structure import chain_count
-from dynfab.terms import friction as gralen
 
 SLIP_LIMIT = 0.5
 """The largest slip of a crossing over its segment length a step may end with
@@ -170,13 +169,8 @@ class SpecimenModel:
     # ------------------------------------------------------------------ a load step
 
     def friction_limits(self, pos) -> np.ndarray:
-        f = self.structure
-        out = np.zeros(f.tie_a.size)
-        if f.has_friction:
-            R = np.zeros(f.tie_a.size)
-            contact.forces(pos, f, R)
-            gralen.tie_limits(R, f.tie_friction_law, -1.0, out)
-        return out
+        """F_T (T,) [N] at `pos` (`dynfab.fabric.contact.friction_limits`)."""
+        return contact.friction_limits(pos, self.structure)
 
     def start_of_step(self, state: SpecimenState, load) -> StepStart:
         """The held nodes at d = `load`; the free ones moved by the same affine map from the
