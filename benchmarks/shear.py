@@ -1,0 +1,169 @@
+"""In-plane shear specimens with the static solver (docs/model.md section 11): cost per Newton
+iteration and iteration counts against the number of crossings, the sparse factorisations
+against each other on the same Hessians, and the Cao et al. scenes' load paths.
+
+    python benchmarks/shear.py [--sides 0.03,0.06,0.09,0.12] [--steps 4]
+                               [--scenes runs/cao2008_frame.toml,...] [--scene-steps N]
+                               [--out benchmarks/shear.json]
+
+- **scaling**: picture frames of the given sides (the Cao fabric of runs/cao2008_frame.toml),
+  `--steps` load steps of 1 % of the side each; per size the crossings, unknowns, Newton
+  iterations, wall time of the steps and their time per iteration; the exponent of time per
+  iteration against crossings (least squares in log-log);
+- **factorisations**: the Hessian of each size's last step (F_T frozen, on the unknowns),
+  factored by SuperLU in its symmetric mode in the nested-dissection order the solver uses
+  (`dynfab.fabric.inertia.sparse_factor`, which also counts the inertia), by SuperLU with
+  its own COLAMD order, and by MKL PARDISO as symmetric indefinite (mtype -2, its inertia
+  from iparm 22-23), where `pypardiso` imports (not a dependency: measured only);
+- **scenes**: each scene's path with the static solver until it ends or stops (a
+  SolverError: the step, the reason), or its first `--scene-steps` steps after step 0; its
+  crossings, steps, iterations, wall time and time per iteration (with the scaling's).
+
+Prints the figures and writes them to the JSON file. Times are wall-clock on this machine
+(shared: compare ratios within one run).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse
+import scipy.sparse.linalg
+
+from dynfab.errors import SolverError
+from dynfab.fabric import inertia, ordering
+from dynfab.model import build_model
+from dynfab.scene import load_scene, with_key
+from dynfab.solvers import make_solver
+
+ROOT = Path(__file__).resolve().parents[1]
+FRAME = ROOT / "runs" / "cao2008_frame.toml"
+
+
+def _path(model, steps: int | None, say=print) -> dict:
+    """Run the model's load path (its first `steps` + 1 steps, or all) with the static
+    solver: steps done, Newton iterations, wall time, the stop's reason."""
+    solver = make_solver(model, "static")
+    state = model.initial_state()
+    total = len(model.load_values) if steps is None else min(steps + 1, len(model.load_values))
+    iterations, started, stop = 0, time.perf_counter(), ""
+    done = 0
+    for index in range(total):
+        try:
+            state, record = solver.step(state, model.step_load(index))
+            model.check_step(record)
+        except SolverError as error:
+            stop = str(error)
+            break
+        iterations += int(np.max(record["iterations"]))
+        done += 1
+        say(f"  step {index}: d = {1e3 * model.step_load(index):.4g} mm, "
+            f"{int(np.max(record['iterations']))} iterations, clamp force "
+            f"{float(record['clamp_force']):.4g} N")
+    wall = time.perf_counter() - started
+    return {"steps": done, "iterations": iterations, "wall_s": wall, "stopped": stop,
+            "state": state, "solver": solver}
+
+
+def _pardiso_factor(H):
+    """(seconds, negatives) of PARDISO's symmetric indefinite factorisation of H, or None."""
+    try:
+        from pypardiso import PyPardisoSolver
+    except ImportError:
+        return None
+    upper = scipy.sparse.triu(H, format="csr")
+    upper.sort_indices()
+    solver = PyPardisoSolver(mtype=-2)
+    started = time.perf_counter()
+    solver.factorize(upper)
+    seconds = time.perf_counter() - started
+    return seconds, int(solver.iparm[22])
+
+
+def factorisations(solver, state) -> dict:
+    """The three factorisations of the Hessian at `state` (module docstring)."""
+    backend = solver.backend
+    pos = state.positions
+    H = backend.hessian(pos, state.anchors, backend.friction_limits(pos))
+    scale = float(np.abs(H.diagonal()).max())
+    order = ordering.fabric_order(backend.structure, backend.pattern)
+    out = {"unknowns": int(H.shape[0]), "nonzeros": int(H.nnz)}
+    started = time.perf_counter()
+    counted, _ = inertia.sparse_factor(H, 0.0, scale, order)
+    out["superlu_nested_dissection_s"] = time.perf_counter() - started
+    out["superlu_negatives"] = None if counted is None else int(counted.negatives)
+    started = time.perf_counter()
+    scipy.sparse.linalg.splu(H.tocsc())
+    out["superlu_colamd_s"] = time.perf_counter() - started
+    pardiso = _pardiso_factor(H)
+    if pardiso is not None:
+        out["pardiso_s"], out["pardiso_negatives"] = pardiso
+    return out
+
+
+def scaling(sides, steps: int) -> list[dict]:
+    rows = []
+    for side in sides:
+        scene = with_key(with_key(load_scene(FRAME), "specimen.fabric_side", side),
+                         "specimen.side", side)
+        scene = with_key(scene, "load.values", tuple(0.01 * side * k for k in range(1, steps + 1)))
+        model = build_model(scene)
+        print(f"picture frame of side {1e3 * side:g} mm: {model.structure.tie_a.size} crossings")
+        run = _path(model, steps)
+        row = {"side_m": side, "crossings": int(model.structure.tie_a.size),
+               "nodes": int(model.structure.rest_position.shape[0]),
+               **{k: run[k] for k in ("steps", "iterations", "wall_s", "stopped")}}
+        row["s_per_iteration"] = run["wall_s"] / max(run["iterations"], 1)
+        row["factorisations"] = factorisations(run["solver"], run["state"])
+        print(f"  {row['iterations']} iterations in {row['wall_s']:.2f} s: "
+              f"{1e3 * row['s_per_iteration']:.1f} ms per iteration; factorisations "
+              + ", ".join(f"{k} {v:.3g}" for k, v in row["factorisations"].items()
+                          if k.endswith("_s")))
+        rows.append(row)
+    return rows
+
+
+def exponent(rows) -> float:
+    """Slope of log(time per iteration) against log(crossings)."""
+    x = np.log([r["crossings"] for r in rows])
+    y = np.log([r["s_per_iteration"] for r in rows])
+    return float(np.polyfit(x, y, 1)[0]) if len(rows) > 1 else float("nan")
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--sides", default="0.03,0.06,0.09,0.12")
+    parser.add_argument("--steps", type=int, default=4)
+    parser.add_argument("--scenes", default="")
+    parser.add_argument("--scene-steps", type=int, default=None)
+    parser.add_argument("--out", default=str(ROOT / "benchmarks" / "shear.json"))
+    args = parser.parse_args(argv)
+    rows = scaling([float(s) for s in args.sides.split(",") if s], args.steps)
+    result = {"scaling": rows, "exponent_per_iteration": exponent(rows), "scenes": []}
+    print(f"time per Newton iteration ~ crossings^{result['exponent_per_iteration']:.2f}")
+    for path in [p for p in args.scenes.split(",") if p]:
+        print(f"{path}:")
+        model = build_model(load_scene(path))
+        run = _path(model, args.scene_steps)
+        entry = {"scene": path, "crossings": int(model.structure.tie_a.size),
+                 "nodes": int(model.structure.rest_position.shape[0]),
+                 **{k: run[k] for k in ("steps", "iterations", "wall_s", "stopped")}}
+        entry["s_per_iteration"] = run["wall_s"] / max(run["iterations"], 1)
+        print(f"  {entry['steps']} steps, {entry['iterations']} iterations, {entry['wall_s']:.1f} s"
+              + (f"; stopped: {entry['stopped']}" if entry["stopped"] else ""))
+        result["scenes"].append(entry)
+        Path(args.out).write_text(json.dumps(result, indent=2) + "\n")  # each scene kept
+    rows = rows + [s for s in result["scenes"]]
+    result["exponent_per_iteration_with_scenes"] = exponent(rows)
+    print(f"with the scenes: time per Newton iteration ~ crossings^"
+          f"{result['exponent_per_iteration_with_scenes']:.2f}")
+    Path(args.out).write_text(json.dumps(result, indent=2) + "\n")
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
