@@ -192,7 +192,7 @@ def hessian_values(pos, s, anchors, limit, values, secant=False):
 
 def _block(nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(rows, cols) of the dense blocks on the dofs of each row of `nodes` (E, m), row-major."""
-    dofs = (3 * nodes[:, :, None] + np.arange(3)).reshape(nodes.shape[0], -1)
+    dofs = (3 * nodes[:, :, None] + np.arange(3)).reshape(nodes.shape[0], 3 * nodes.shape[1])
     m = dofs.shape[1]
     return np.repeat(dofs, m, axis=1).ravel(), np.tile(dofs, (1, m)).ravel()
 
