@@ -369,9 +369,15 @@ def displacement_scale(positions, rest_positions):
     return float(np.max(np.abs(positions - rest_positions)))
 
 
+SINGULAR_ADVICE = "use a coarser mesh or softer data"
+"""What a singular stiffness matrix's message advises, unless the model knows better (its
+`singular_advice`: a shear specimen without friction)."""
+
+
 def check_accuracy(where: str, error_estimate: float, scale: float, residual: float,
                    tolerance: float, accuracy: float, at_floor: bool, precision: str,
-                   key: str, singular_shift: float = 0.0) -> None:
+                   key: str, singular_shift: float = 0.0,
+                   singular_advice: str = SINGULAR_ADVICE) -> None:
     """SolverError (one line) when the error bound is not small against the step's displacements.
 
     Accepted: error_estimate <= accuracy x max(scale, sqrt(eps) L) is checked by the caller
@@ -388,8 +394,7 @@ def check_accuracy(where: str, error_estimate: float, scale: float, residual: fl
         raise SolverError(
             f"{where}: the stiffness matrix is singular to rounding (a pivot within "
             f"{singular_shift:.3g} N/m of zero, 64 eps of its largest diagonal entry), so the "
-            f"residual {residual:.3g} N bounds no position error: use a coarser mesh or softer "
-            f"data")
+            f"residual {residual:.3g} N bounds no position error: {singular_advice}")
     inverse_norm = error_estimate / residual if residual > 0 else np.inf
     needed = accuracy * scale / inverse_norm
     if at_floor or residual > tolerance:
@@ -619,8 +624,9 @@ def check_patch_accuracy(model, checked: PatchCertificate, stability: StepStabil
     name = model.group_name(None) if hasattr(model, "group_name") else "fabric"
     where = (name if checked.worst < 0 else
              f"{name} ({patch_location(model, checked.worst)}: where the bound is largest)")
+    advice = getattr(getattr(model, "model", None), "singular_advice", None) or SINGULAR_ADVICE
     check_accuracy(where, stability.error_estimate[0], scale, residual, tolerance, accuracy,
-                   at_floor, "float64", key, stability.shift[0])
+                   at_floor, "float64", key, stability.shift[0], advice)
 
 
 def patch_stability(checked: PatchCertificate, residual: float, escapes: int) -> StepStability:

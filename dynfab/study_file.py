@@ -88,9 +88,23 @@ class Case:
         return self.scene.text
 
     @property
+    def path(self) -> np.ndarray:
+        """The load value of each step of its run (`path_values`)."""
+        return path_values(self.scene)
+
+    @property
     def steps(self) -> int:
-        """Load steps of its path."""
-        return len(self.scene.load.values)
+        """Load steps of its run."""
+        return len(self.path)
+
+
+def path_values(scene: Scene) -> np.ndarray:
+    """The load value of each step a run of `scene` writes: load.values (a fabric's warps'),
+    after a shear specimen's step 0 at d = 0 (the preload relaxed, docs/model.md section 11)."""
+    values = np.asarray(scene.load.values, float)
+    if getattr(scene, "specimen", None) is not None:
+        return np.concatenate([[0.0], values])
+    return values
 
 
 @dataclass(frozen=True)
@@ -364,7 +378,7 @@ def _check_dataset(name: str, dataset) -> None:
 
 
 def _check_load_reached(name: str, at: float, case: Case) -> None:
-    if load_position(np.asarray(case.scene.load.values), at) is None:
+    if load_position(case.path, at) is None:
         values = case.scene.load.values
         raise UserError(f"observe.{name}.at = {at:g}: the load path of case {case.index} "
                         f"({values[0]:g} to {values[-1]:g}, {len(values)} steps) does not pass it")

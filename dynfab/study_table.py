@@ -64,8 +64,7 @@ def gather(plan: Study, folder):
     control = plan.base.load.control
     longest = max(case.steps for case in plan.cases)
     variables = {
-        "load": ((CASE, STEP), _padded([np.asarray(c.scene.load.values, float)
-                                         for c in plan.cases], longest),
+        "load": ((CASE, STEP), _padded([c.path for c in plan.cases], longest),
                  {"units": "N" if control == "force" else "m",
                   "long_name": "load path value (load.values)"}),
         "status": (CASE, np.array(status, dtype=str)),
@@ -111,7 +110,7 @@ def _value(observable: Observable, steps: dict, case, finished: bool):
         return data
     if observable.at == AT_LAST:
         return data[-1] if finished else None
-    index, weight = load_position(np.asarray(case.scene.load.values, float), observable.at)
+    index, weight = load_position(case.path, observable.at)
     if index >= len(data):
         return None
     if weight == 1.0:

@@ -56,3 +56,28 @@ def test_the_dynamic_solver_refuses_a_specimen_in_one_line():
     with pytest.raises(UserError, match=r"^--solver dynamic does not run a \[specimen\]") as error:
         run(small_frame(), solver="dynamic")
     assert "\n" not in str(error.value)
+
+
+def test_a_study_of_a_specimen_gathers_the_serial_runs(tmp_path):
+    """A small picture frame as a study's base scene, its crossings' shear stiffness varied:
+    each case's clamp force at the last step is exactly the serial run's, and the stiffer
+    crossings carry the larger force."""
+    import xarray as xr
+
+    from dynfab.scene import scene_to_toml
+    from dynfab.study import study
+    from dynfab.study_file import load_study
+    from test_study import serial
+
+    (tmp_path / "base.toml").write_text(scene_to_toml(small_frame()))
+    path = tmp_path / "study.toml"
+    path.write_text('title = "frame"\nscene = "base.toml"\n'
+                    '[vary]\n"crossing.shear_stiffness" = [2e-3, 5e-3]\n'
+                    '[observe]\nforce = { dataset = "clamp_force", at = "last" }\n')
+    plan = load_study(path)
+    reference = serial(plan)
+    result = study(plan, tmp_path / "out", workers=1, sync="end")
+    assert (result.cases, result.finished, result.failed) == (2, 2, 0)
+    force = xr.open_dataset(result.table)["force"].values
+    assert np.array_equal(force, [run.steps["clamp_force"][-1] for run in reference])
+    assert force[1] > force[0] > 0.0

@@ -70,6 +70,16 @@ class SpecimenModel:
     relaxation_steps = 1
     """Steps before the scene's load path: step 0, the preload relaxed at d = 0."""
 
+    @property
+    def singular_advice(self) -> str | None:
+        """What a singular stiffness matrix's message advises (`dynfab.certificate`), None
+        for the solver's own advice."""
+        if not self.structure.has_friction:
+            return ("without friction (alpha = beta = 0) nothing holds the specimen's two yarn "
+                    "families together in its plane: give [friction] a law (docs/model.md "
+                    "section 11)")
+        return None  # the solver's own advice
+
     def __init__(self, scene: Scene):
         self.scene = scene
         self.layout = layout_of(scene)
