@@ -14,8 +14,8 @@ Record of one step (n nodes, C crossings, L lateral contacts):
 - load, end_displacement (1,): d [m]; end_force (1,) and clamp_force (): the force on the
   moved clamp (frame corner) along d [N], sum over the held nodes of the reaction dV/dr
   times d(r)/dd; shear_force (): picture frame, F / (2 cos theta) [N] (Cao et al. eq. 3);
-  normalised_shear_force (): F_s L / L_fabric^2 [N/m] (frame, eq. 10), or for the bias
-  extension F / (2 (H - W) cos(gamma_A / 2 + pi/4))... see `normalised_force`;
+  normalised_shear_force (): F_s L / L_fabric^2 [N/m] (frame, eq. 10), for the bias
+  extension F / W [N/m] (its Cao normalisation, Harrison's recursive one, is not computed);
 - positions (n, 3) [m]; crossing_positions (C, 3) [m] (the warp node's);
 - shear_angle (C,) [rad]: gamma = asin(t_wa . t_we) - its value at step 0, t the unit
   in-plane chords over each crossing node's neighbours (`specimen_layout.shear_angles`);
