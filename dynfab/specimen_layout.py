@@ -217,11 +217,12 @@ def _crossing_tables(chains: _Chains, crossings: list) -> tuple:
     return nodes, lattice, side, interior
 
 
-def chord_neighbours(chain_start: np.ndarray, nodes: np.ndarray) -> tuple:
-    """Nodes (n-1, n+1) along each node's chain, the node itself where the chain ends."""
+def chord_neighbours(chain_start: np.ndarray, nodes: np.ndarray, reach: int = 1) -> tuple:
+    """Nodes (n - reach, n + reach) along each node's chain, the chain's end node where it
+    ends first (the node itself at its end)."""
     chain = np.searchsorted(chain_start, nodes, side="right") - 1
-    before = np.where(nodes > chain_start[chain], nodes - 1, nodes)
-    after = np.where(nodes + 1 < chain_start[chain + 1], nodes + 1, nodes)
+    before = np.maximum(nodes - reach, chain_start[chain])
+    after = np.minimum(nodes + reach, chain_start[chain + 1] - 1)
     return before, after
 
 

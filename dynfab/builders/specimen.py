@@ -102,14 +102,12 @@ def torsion_radius(scene: Scene) -> float:
 def _stencils(layout, start: np.ndarray, reach: int) -> np.ndarray:
     """(a_prev, a, a_next, b_prev, b, b_next) of each crossing (C, 6): each crossing node and
     the nodes `reach` along its chain either way (the neighbouring crossings' nodes), or the
-    chain's end nodes where it ends first."""
-    node_chain = np.repeat(np.arange(start.size - 1), np.diff(start))
+    chain's end nodes where it ends first (`specimen_layout.chord_neighbours`)."""
     out = []
     for column in (0, 1):
         node = layout.crossing_nodes[:, column]
-        chain = node_chain[node]
-        out.append(np.stack([np.maximum(node - reach, start[chain]), node,
-                             np.minimum(node + reach, start[chain + 1] - 1)], axis=1))
+        before, after = specimen_layout.chord_neighbours(start, node, reach)
+        out.append(np.stack([before, node, after], axis=1))
     return np.concatenate(out, axis=1).astype(np.int64)
 
 

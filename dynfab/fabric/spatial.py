@@ -96,47 +96,20 @@ def energies(pos, s, P, anchors, limit, out):
 
 
 @numba.njit(cache=True)
+def lateral_gaps(pos, s, out):
+    """w - d of each lateral contact into out (L,) [m], d its signed distance
+    (`dynfab.terms.spatial.lateral_distance`): positive where neighbouring yarns press."""
+    four = np.empty((4, 3))
+    for e in range(s.lateral_stencil.shape[0]):
+        _gather(pos, s.lateral_stencil[e], four)
+        out[e] = s.lateral_law[e, WIDTH] - element.lateral_distance(four, s.lateral_law[e, SIGN])
+
+
+@numba.njit(cache=True)
 def total_energy(pos, s, P, anchors, limit, out):
     """V [J] (its terms left in out)."""
     energies(pos, s, P, anchors, limit, out)
     return out.sum()
-
-
-@numba.njit(cache=True)
-def gradient(pos, s, P, anchors, limit, grad):
-    """grad = dV/dr (nodes, 3) [N], F_T frozen."""
-    grad[:, :] = 0.0
-    pair, triple = np.empty((2, 3)), np.empty((3, 3))
-    six, four = np.empty((6, 3)), np.empty((4, 3))
-    g6, g9, g18, g12 = np.empty(6), np.empty(9), np.empty(18), np.empty(12)
-    H6, H9, H18, H12 = np.empty((6, 6)), np.empty((9, 9)), np.empty((18, 18)), np.empty((12, 12))
-    start = s.chain_start
-    for y in range(start.size - 1):
-        for i in range(start[y], start[y + 1] - 1):
-            nodes = np.arange(i, i + 2)
-            _gather(pos, nodes, pair)
-            element.stretch_derivatives(pair, s.stretch_stiffness[i - y], s.rest_length[i - y],
-                                        g6, H6)
-            _scatter(nodes, g6, grad)
-        for i in range(start[y] + 1, start[y + 1] - 1):
-            nodes = np.arange(i - 1, i + 2)
-            _gather(pos, nodes, triple)
-            element.bend_derivatives(triple, s.bend_stiffness[i], s.rest_angle[i],
-                                     s.lateral_bend_stiffness[i], s.lateral_rest_angle[i],
-                                     g9, H9)
-            _scatter(nodes, g9, grad)
-    contact.add_gradient(pos, s, grad)
-    for c in range(s.tie_a.size):
-        rho, K, phi_rest, stick = _crossing_law(s, c)
-        _gather(pos, s.tie_stencil[c], six)
-        element.crossing_derivatives(six, anchors[c], rho, limit[c], stick, K, phi_rest, False,
-                                     g18, H18)
-        _scatter(s.tie_stencil[c], g18, grad)
-    for e in range(s.lateral_stencil.shape[0]):
-        _gather(pos, s.lateral_stencil[e], four)
-        law = s.lateral_law[e]
-        element.lateral_derivatives(four, law[SIGN], law[WIDTH], law[LATERAL_K], g12, H12)
-        _scatter(s.lateral_stencil[e], g12, grad)
 
 
 @numba.njit(cache=True)
@@ -151,9 +124,22 @@ def _put(H, values, k):
 
 
 @numba.njit(cache=True)
-def hessian_values(pos, s, anchors, limit, values, secant=False):
-    """The Hessian's entries in `pattern_entries`' order [N/m], F_T = `limit` frozen;
-    `secant`: the sliding crossings' secant friction stiffness (`dynfab.terms.spatial`)."""
+def _emit(nodes, g, H, grad, values, k):
+    """One element's derivatives: g added to grad on `nodes` (where grad has rows), H into
+    values from entry k (where values has entries); returns the next entry."""
+    if grad.shape[0]:
+        _scatter(nodes, g, grad)
+    if values.size:
+        k = _put(H, values, k)
+    return k
+
+
+@numba.njit(cache=True)
+def _derivatives(pos, s, anchors, limit, secant, grad, values):
+    """Every element's gradient and Hessian, each element's once (`dynfab.terms.spatial`):
+    the gradient added to grad (nodes, 3) [N] where it has rows, the Hessian's entries into
+    values in `pattern_entries`' order [N/m] where it has entries; F_T = `limit` frozen,
+    `secant`: the sliding crossings' secant friction stiffness."""
     pair, triple = np.empty((2, 3)), np.empty((3, 3))
     six, four = np.empty((6, 3)), np.empty((4, 3))
     g6, g9, g18, g12 = np.empty(6), np.empty(9), np.empty(18), np.empty(12)
@@ -162,32 +148,51 @@ def hessian_values(pos, s, anchors, limit, values, secant=False):
     start = s.chain_start
     for y in range(start.size - 1):
         for i in range(start[y], start[y + 1] - 1):
-            _gather(pos, np.arange(i, i + 2), pair)
+            nodes = np.arange(i, i + 2)
+            _gather(pos, nodes, pair)
             element.stretch_derivatives(pair, s.stretch_stiffness[i - y], s.rest_length[i - y],
                                         g6, H6)
-            k = _put(H6, values, k)
+            k = _emit(nodes, g6, H6, grad, values, k)
         for i in range(start[y] + 1, start[y + 1] - 1):
-            _gather(pos, np.arange(i - 1, i + 2), triple)
+            nodes = np.arange(i - 1, i + 2)
+            _gather(pos, nodes, triple)
             element.bend_derivatives(triple, s.bend_stiffness[i], s.rest_angle[i],
                                      s.lateral_bend_stiffness[i], s.lateral_rest_angle[i],
                                      g9, H9)
-            k = _put(H9, values, k)
+            k = _emit(nodes, g9, H9, grad, values, k)
+    if grad.shape[0]:
+        contact.add_gradient(pos, s, grad)
     for c in range(s.tie_a.size):
-        g = contact.closure(pos, s, c)
-        law = s.tie_contact_law[c]
-        t = contact.crossing_tangent(g, contact.force(g, law), law)
-        values[k], values[k + 1], values[k + 2], values[k + 3] = t, -t, -t, t
-        k += 4
+        if values.size:
+            g = contact.closure(pos, s, c)
+            law = s.tie_contact_law[c]
+            t = contact.crossing_tangent(g, contact.force(g, law), law)
+            values[k], values[k + 1], values[k + 2], values[k + 3] = t, -t, -t, t
+            k += 4
         rho, K, phi_rest, stick = _crossing_law(s, c)
         _gather(pos, s.tie_stencil[c], six)
         element.crossing_derivatives(six, anchors[c], rho, limit[c], stick, K, phi_rest, secant,
                                      g18, H18)
-        k = _put(H18, values, k)
+        k = _emit(s.tie_stencil[c], g18, H18, grad, values, k)
     for e in range(s.lateral_stencil.shape[0]):
         _gather(pos, s.lateral_stencil[e], four)
         law = s.lateral_law[e]
         element.lateral_derivatives(four, law[SIGN], law[WIDTH], law[LATERAL_K], g12, H12)
-        k = _put(H12, values, k)
+        k = _emit(s.lateral_stencil[e], g12, H12, grad, values, k)
+
+
+@numba.njit(cache=True)
+def gradient(pos, s, P, anchors, limit, grad):
+    """grad = dV/dr (nodes, 3) [N], F_T frozen; P unused (no end loads)."""
+    grad[:, :] = 0.0
+    _derivatives(pos, s, anchors, limit, False, grad, np.zeros(0))
+
+
+@numba.njit(cache=True)
+def hessian_values(pos, s, anchors, limit, values, secant=False):
+    """The Hessian's entries in `pattern_entries`' order [N/m], F_T = `limit` frozen;
+    `secant`: the sliding crossings' secant friction stiffness (`dynfab.terms.spatial`)."""
+    _derivatives(pos, s, anchors, limit, secant, np.zeros((0, 3)), values)
 
 
 def _block(nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -273,14 +273,10 @@ class SpecimenModel:
         return np.hypot(*(pos[f.tie_b, :2] - pos[f.tie_a, :2]).T) / segment
 
     def lateral_gaps(self, pos) -> np.ndarray:
-        """w - d of each lateral contact (L,) [m]: positive where neighbouring yarns press."""
-        f = self.structure
-        st = f.lateral_stencil
-        c = pos[st[:, 1], :2] - pos[st[:, 0], :2]
-        r = pos[st[:, 3], :2] - pos[st[:, 2], :2]
-        dist = f.lateral_law[:, spatial.SIGN] * (c[:, 0] * r[:, 1] - c[:, 1] * r[:, 0]) \
-            / np.hypot(c[:, 0], c[:, 1])
-        return f.lateral_law[:, spatial.WIDTH] - dist
+        """w - d of each lateral contact (L,) [m] (`spatial.lateral_gaps`)."""
+        out = np.zeros(self.structure.lateral_stencil.shape[0])
+        spatial.lateral_gaps(pos, self.structure, out)
+        return out
 
     def max_slope(self, pos) -> float:
         """The largest |e_z| / |e_xy| over every segment [-]."""
