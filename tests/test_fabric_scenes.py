@@ -206,6 +206,15 @@ def run_interrupted(scene, solver: str, out, steps: int = 4) -> None:
         run_to_file(scene, solver, out, progress=stop_after)
 
 
+def assert_same_steps(whole, part) -> None:
+    """Every steps/ dataset of two result files equal, entry for entry (but wall_time)."""
+    with h5py.File(whole, "r") as a, h5py.File(part, "r") as b:
+        for name in a["steps"]:
+            if isinstance(a["steps"][name], h5py.Dataset) and name != "wall_time":
+                np.testing.assert_array_equal(a["steps"][name][:], b["steps"][name][:],
+                                              err_msg=name)
+
+
 def test_fabric_file_resumes_to_the_uninterrupted_run(tmp_path):
     """A run stopped after 4 steps and resumed equals the run done in one go, entry for
     entry; its XDMF view holds both families' grids for every step."""
@@ -216,11 +225,7 @@ def test_fabric_file_resumes_to_the_uninterrupted_run(tmp_path):
     with h5py.File(part, "r") as h5:
         assert int(h5["steps_done"][0]) == 4
     assert run_to_file(scene, "static", part, resume=True) == 6
-    with h5py.File(whole, "r") as a, h5py.File(part, "r") as b:
-        for name in a["steps"]:
-            if isinstance(a["steps"][name], h5py.Dataset) and name != "wall_time":
-                np.testing.assert_array_equal(a["steps"][name][:], b["steps"][name][:],
-                                              err_msg=name)
+    assert_same_steps(whole, part)
     from dynfab.plot import plot_results
     assert [p.name for p in plot_results(part, tmp_path / "plots")] == ["fabric.png", "shape.png"]
     with meshio.xdmf.TimeSeriesReader(part.with_suffix(".xdmf")) as view, \

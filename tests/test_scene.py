@@ -44,9 +44,10 @@ BASE = {
 FRICTION = {"alpha": 0.2, "beta": 1e3, "contact_length": 2e-3, "fiber_radius": 1e-3}
 
 
-def edited(edits: dict) -> str:
-    """BASE with edits {"table.key": value or DELETE, "table": {...} or DELETE} as TOML."""
-    scene = copy.deepcopy(BASE)
+def edited(edits: dict, base: dict = BASE) -> str:
+    """`base` (BASE) with edits {"table.key": value or DELETE, "table": {...} or DELETE} as
+    TOML."""
+    scene = copy.deepcopy(base)
     for path, value in edits.items():
         table, _, key = path.partition(".")
         target, name = (scene.setdefault(table, {}), key) if key else (scene, table)

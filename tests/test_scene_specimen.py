@@ -4,7 +4,6 @@ resolved defaults, the round trip through `scene_to_toml`, and one test per refu
 line naming the key; exit status 2 from `dynfab run`).
 """
 
-import copy
 import subprocess
 import sys
 from dataclasses import replace
@@ -22,10 +21,8 @@ from dynfab.scene import (
     validate_scene,
     with_key,
 )
-from toml_writer import toml_text
+from test_scene import DELETE, edited
 
-DELETE = object()
-"""Marker in an edit: remove the key (or table)."""
 
 FAMILY = {"spacing": 5.18e-3, "amplitude": 0.3e-3, "width": 4.2e-3, "EA": 2.0e4, "EI": 1e-5,
           "EI_lateral": 1e-5, "kawabata_C": 0.2e-3, "kawabata_K": 0.2}
@@ -61,16 +58,8 @@ YARN = {
 
 
 def text_of(edits: dict | None = None, base: dict = BIAS) -> str:
-    """`base` with edits {"table.key": value or DELETE, "table": {...} or DELETE} as TOML."""
-    scene = copy.deepcopy(base)
-    for path, value in (edits or {}).items():
-        table, _, key = path.partition(".")
-        target, name = (scene.setdefault(table, {}), key) if key else (scene, table)
-        if value is DELETE:
-            del target[name]
-        else:
-            target[name] = copy.deepcopy(value)
-    return toml_text(scene)
+    """`base` with edits as TOML (`test_scene.edited`)."""
+    return edited(edits or {}, base)
 
 
 def parse(edits: dict | None = None, base: dict = BIAS):
