@@ -112,7 +112,7 @@ UNITS: dict[str, str] = {
     # One entry per finished load step (axis 0 = steps).
     "steps/clamp_force": "N",  # specimen: (steps,) force on the moved clamp (corner) along d
     "steps/shear_force": "N",  # specimen: (steps,) picture frame F / (2 cos theta); NaN bias
-    "steps/normalised_shear_force": "N/m",  # specimen: (steps,) frame F_s L / L_f^2; bias F / W
+    "steps/normalised_shear_force": "N/m",  # specimen: (steps,) frame F_s L / L_f^2; bias Harrison's F_sh
     "steps/crossing_positions": "m",  # specimen: (steps, crossings, 3) warp node of each crossing
     "steps/shear_angle": "rad",  # specimen: (steps, crossings) gamma from step 0
     "steps/reference_angle": "rad",  # specimen: (steps, crossings) step 0's gamma from as woven
@@ -943,6 +943,11 @@ class ResultFile:
     def last_step(self) -> dict[str, np.ndarray]:
         """The last appended step's arrays, by name (empty dict if none)."""
         return {name: value.copy() for name, value in self._series["steps"].last.items()}
+
+    def step_column(self, name: str) -> np.ndarray:
+        """Every finished step's `steps/<name>`, read back from the file (rows, ...)."""
+        with h5py.File(self.path, "r") as h5:
+            return h5[f"steps/{name}"][:self.step_count]
 
     def last_frame(self) -> dict[str, np.ndarray]:
         """The last appended frame's arrays, by name (empty dict if none)."""

@@ -282,8 +282,14 @@ def _open_sink(model: RunModel, engine: Solver | Transient, out, *, overwrite: b
 
 
 def _start_state(model: RunModel, sink):
-    """The as-woven start, or the last finished step of a resumed file."""
-    return model.state_from_step(sink.last_step()) if sink.step_count else model.initial_state()
+    """The as-woven start, or the last finished step of a resumed file (with the columns of
+    every finished step a model names in `history_keys`: a specimen's path of clamp forces)."""
+    if not sink.step_count:
+        return model.initial_state()
+    keys = getattr(model, "history_keys", ())
+    if not keys:
+        return model.state_from_step(sink.last_step())
+    return model.state_from_step(sink.last_step(), {name: sink.step_column(name) for name in keys})
 
 
 def _root_attrs(model: RunModel, engine: Solver | Transient) -> dict:

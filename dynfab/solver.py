@@ -104,7 +104,9 @@ class RunModel(Protocol):
         """The as-woven state a run starts from."""
 
     def state_from_step(self, last: dict):
-        """The state a finished step (a record read back from a file) left."""
+        """The state a finished step (a record read back from a file) left. (A model with
+        `history_keys`, the names of step datasets it needs over the whole path, takes them as
+        a second argument, {name: (steps, ...)}: `dynfab.run`.)"""
 
     def point_data(self, entry: dict) -> dict:
         """The XDMF view's nodal point data of a step or frame (`dynfab.xdmf`)."""

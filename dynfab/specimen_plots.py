@@ -1,8 +1,9 @@
 """Figures of an in-plane shear specimen's result file (docs/model.md section 11).
 
 - ``shear_force.png``: the force on the moved clamp (frame corner) along d against d, and
-  against the test's nominal shear angle (Cao et al. eq. 13 for the bias extension's zone A,
-  eq. 2 for the picture frame); the bias extension's panels also show each zone's mean
+  Cao et al.'s normalised shear force (eq. 10; the bias extension's Harrison normalisation,
+  `dynfab.shear_force`) against the test's nominal shear angle (eq. 13 for the bias
+  extension's zone A, eq. 2 for the picture frame); the bias extension's panels also show each zone's mean
   computed shear angle against d beside eq. 13, the frame's its interior mean;
 - ``shear_field.png``: the shear angle of every crossing over the specimen, drawn at the
   crossings' in-plane positions, at about a third, two thirds and the end of the path (the
@@ -34,7 +35,8 @@ def _nominal(results: Results, d: np.ndarray) -> np.ndarray:
 
 
 def plot_shear_force(results: Results) -> Figure:
-    """Force against d and against the nominal angle; computed angles against eq. 13 / 2."""
+    """Force against d, normalised shear force against the nominal angle; computed angles
+    against eq. 13 / 2."""
     steps = results.steps
     d = np.asarray(steps["load"], float)[:, 0]
     force = np.asarray(steps["clamp_force"], float)
@@ -44,8 +46,9 @@ def plot_shear_force(results: Results) -> Figure:
     by_d, by_angle, angles = fig.subplots(1, 3)
     by_d.plot(1e3 * d, force, marker="o", ms=3)
     by_d.set(xlabel="clamp displacement d [mm]", ylabel="clamp force along d [N]")
-    by_angle.plot(DEGREE * nominal, force, marker="o", ms=3)
-    by_angle.set(xlabel="nominal shear angle [deg]", ylabel="clamp force along d [N]")
+    by_angle.plot(DEGREE * nominal, np.asarray(steps["normalised_shear_force"], float),
+                  marker="o", ms=3)
+    by_angle.set(xlabel="nominal shear angle [deg]", ylabel="normalised shear force [N/m]")
     angles.plot(1e3 * d, DEGREE * nominal, color="k", linestyle="--", label="kinematics")
     if results.attrs["specimen_test"] == "bias_extension":
         zone = np.asarray(results.reference["zone"])

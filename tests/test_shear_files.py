@@ -17,13 +17,28 @@ from dynfab.plot import plot_results
 from dynfab.run import run_to_file
 from dynfab.scene import parse_scene_text
 from test_fabric_scenes import assert_same_steps, run_interrupted
-from test_shear_specimens import FRAME, scene_text
+from test_shear_specimens import BIAS, FRAME, HOLDING_FRICTION, scene_text
 
 D = [1e-3, 2e-3, 3e-3, 4e-3]
 
 
 def small_frame():
     return parse_scene_text(scene_text(FRAME.replace("side = 0.06", "side = 0.022"), D))
+
+
+def test_a_resumed_bias_file_has_the_uninterrupted_normalised_force(tmp_path):
+    """Harrison's normalisation reads the whole curve so far (dynfab.shear_force): a resumed
+    run gives it the finished steps' forces, so every step's value is the uninterrupted
+    run's."""
+    bias = BIAS.replace("width = 0.06", "width = 0.025").replace("height = 0.12", "height = 0.05")
+    scene = parse_scene_text(scene_text(bias, D, HOLDING_FRICTION))
+    whole, part = tmp_path / "whole.h5", tmp_path / "part.h5"
+    run_to_file(scene, "static", whole)
+    run_interrupted(scene, "static", part, steps=3)
+    assert run_to_file(scene, "static", part, resume=True) == 2
+    assert_same_steps(whole, part)
+    with h5py.File(part, "r") as b:
+        assert np.all(np.isfinite(b["steps/normalised_shear_force"][:]))
 
 
 def test_a_resumed_specimen_file_is_the_uninterrupted_one_and_its_view_and_figures(tmp_path):

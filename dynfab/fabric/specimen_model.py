@@ -15,7 +15,8 @@ Record of one step (n nodes, C crossings, L lateral contacts):
   moved clamp (frame corner) along d [N], sum over the held nodes of the reaction dV/dr
   times d(r)/dd; shear_force (): picture frame, F / (2 cos theta) [N] (Cao et al. eq. 3);
   normalised_shear_force (): F_s L / L_fabric^2 [N/m] (frame, eq. 10), for the bias
-  extension F / W [N/m] (its Cao normalisation, Harrison's recursive one, is not computed);
+  extension Harrison's F_sh [N/m] (`dynfab.shear_force`, over the path so far; NaN once the
+  path has turned back: it is defined on a curve in increasing d);
 - positions (n, 3) [m]; crossing_positions (C, 3) [m] (the warp node's);
 - shear_angle (C,) [rad]: gamma = asin(t_wa . t_we) - its value at step 0, t the unit
   in-plane chords over each crossing node's neighbours (`specimen_layout.shear_angles`);
@@ -38,6 +39,8 @@ from dynfab.builders.specimen import layout_of, specimen_structure
 from dynfab.errors import SolverError
 from dynfab.fabric import contact, spatial
 from dynfab.scene import Scene
+from dynfab.shear_force import (bias_normalised_shear_force, frame_normalised_shear_force,
+                                frame_shear_force)
 from dynfab.step import StepSolution, StepStart
 from dynfab.structure import chain_count
 
@@ -62,12 +65,17 @@ class SpecimenState:
     reference_angle: np.ndarray | None
     """Each crossing's shear angle from the as-woven state at step 0 (C,) [rad], None
     before it: the reference of the reported angles."""
+    path: np.ndarray
+    """(steps so far, 2): each finished step's d [m] and clamp force [N] (the bias
+    extension's normalisation reads its curve)."""
 
 
 class SpecimenModel:
     """A specimen scene as the solvers see it (module docstring)."""
 
     relaxation_steps = 1
+    history_keys = ("load", "clamp_force")
+    """The columns of every finished step a resumed run gives `state_from_step` (`path`)."""
     """Steps before the scene's load path: step 0, the preload relaxed at d = 0."""
 
     @property
@@ -144,13 +152,17 @@ class SpecimenModel:
         anchors = np.zeros((self.structure.tie_a.size, 3))
         anchors[:, 2] = self.structure.tie_rotation_law[:, spatial.PHI_REST]
         return SpecimenState(self.structure.rest_position.copy(), anchors, 0.0, 0.0, 0.0, 0.0,
-                             None)
+                             None, np.zeros((0, 2)))
 
-    def state_from_step(self, last: dict) -> SpecimenState:
+    def state_from_step(self, last: dict, history: dict) -> SpecimenState:
+        """The state after the last finished step; `history` the columns `history_keys` of
+        every finished step."""
+        path = np.column_stack([np.asarray(history["load"], float).reshape(-1),
+                                np.asarray(history["clamp_force"], float).reshape(-1)])
         return SpecimenState(np.array(last["positions"], float), np.array(last["anchors"], float),
                              float(last["dissipated"]), float(last["work"]),
                              float(last["clamp_force"]), float(np.ravel(last["load"])[0]),
-                             np.array(last["reference_angle"], float))
+                             np.array(last["reference_angle"], float), path)
 
     def point_data(self, record: dict) -> dict:
         """The view's nodal data: the shear angle at each crossing's two nodes, 0 elsewhere."""
@@ -230,12 +242,13 @@ class SpecimenModel:
         absolute = specimen_layout.shear_angles(self.layout, f.rest_position, pos)
         reference = absolute if state.reference_angle is None else state.reference_angle
         work = state.work + 0.5 * (state.clamp_force + clamp_force) * (d - state.displacement)
+        path = np.vstack([state.path, [d, clamp_force]])
         new = SpecimenState(pos, anchors, state.dissipated + lost, work, clamp_force, d,
-                            reference)
+                            reference, path)
         record = {
             "load": np.array([d]), "end_displacement": np.array([d]),
             "end_force": np.array([clamp_force]), "clamp_force": clamp_force,
-            **self.shear_forces(clamp_force, d),
+            **self.shear_forces(path),
             "positions": pos, "crossing_positions": pos[self.layout.crossing_nodes[:, 0]],
             "shear_angle": absolute - reference, "reference_angle": reference,
             "contact_force": R, "friction_limit": np.asarray(limit, float),
@@ -253,17 +266,21 @@ class SpecimenModel:
 
     # ------------------------------------------------------------------ observables
 
-    def shear_forces(self, force: float, d: float) -> dict:
-        """The frame's shear force F_s = F / (2 cos theta) (Cao et al. eq. 3) and its
-        normalisation F_s L / L_fabric^2 (eq. 10) [N], [N/m]; the bias extension's force over
-        the clamped width, F / W [N/m] (module docstring)."""
+    def shear_forces(self, path: np.ndarray) -> dict:
+        """At the path's last point (d, F): the frame's shear force F_s = F / (2 cos theta)
+        (Cao et al. eq. 3) and its normalisation F_s L / L_fabric^2 (eq. 10) [N], [N/m]; the
+        bias extension's Harrison normalisation of its curve so far [N/m] (NaN once the path
+        has turned back) (`dynfab.shear_force`)."""
         s = self.scene.specimen
+        d, force = path[-1]
         if s.test == "picture_frame":
-            cos_theta = np.cos(specimen_layout.frame_angle(s.side, d))
-            shear = force / (2.0 * cos_theta)
-            fabric = s.fabric_side or s.side
-            return {"shear_force": shear, "normalised_shear_force": shear * s.side / fabric ** 2}
-        return {"shear_force": np.nan, "normalised_shear_force": force / s.width}
+            return {"shear_force": frame_shear_force(force, s.side, d),
+                    "normalised_shear_force": frame_normalised_shear_force(
+                        force, s.side, s.fabric_side or s.side, d)}
+        if np.any(np.diff(path[:, 0]) <= 0.0):
+            return {"shear_force": np.nan, "normalised_shear_force": np.nan}
+        normalised = bias_normalised_shear_force(path[:, 0], path[:, 1], s.width, s.height)
+        return {"shear_force": np.nan, "normalised_shear_force": normalised[-1]}
 
     def slip_ratios(self, pos) -> np.ndarray:
         """|in-plane offset of each crossing's two nodes| over the shorter family's segment
