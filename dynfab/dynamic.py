@@ -40,6 +40,7 @@ from dynfab.kernels import runtime, status
 from dynfab.kernels.precision import DEFAULT_TOLERANCE
 from dynfab.kernels.structure_explicit import MAX_NEGATIVE_STEPS
 from dynfab.kernels.structure_relaxation import StructureRelaxation, available_cores
+from dynfab.kernels.structure_relaxation import default_layout as runtime_layout
 from dynfab.kernels.structure_settings import RELATIVE_TOLERANCE
 from dynfab.scene import Dynamic, check_dynamic_options
 from dynfab.step import StepSolution
@@ -53,6 +54,34 @@ _SADDLE_HINT = {"semi_implicit": " (semi_implicit accepts only steps that lower 
 MAX_TIGHTENINGS = 3
 """Times a load step relaxed to the default tolerance is relaxed further because its error
 bound exceeds the accuracy target (`DynamicSolver._certify`)."""
+
+
+SPATIAL_REFUSALS = (
+    ("mode", "transient", "a specimen's run is quasi-static: its model has no frames"),
+    ("method", "semi_implicit", "its banded tangent is the planar chains'; a crossing's "
+     "stencil spans two yarns"),
+    ("precision", "float32", "not measured on a specimen: its force floor would hide the "
+     "trellis mode's residual"),
+)
+"""What a spatial structure's relaxation refuses (docs/model.md section 11.11): (option,
+value, why)."""
+
+
+def _check_spatial(structure, options, device: str, layout, order: str) -> None:
+    """A UserError in one line where a spatial structure (docs/model.md section 11) asks for
+    what its kernels do not have: the explicit method in the grouped layout, scatter order,
+    float64, quasi-static."""
+    if structure.rest_position.shape[1] != 3:
+        return
+    for name, value, why in SPATIAL_REFUSALS:
+        if getattr(options, name) == value:
+            raise UserError(f"a [specimen] (spatial kinematics) does not run dynamic.{name} = "
+                            f"\"{value}\": {why} (docs/model.md section 11.11)")
+    layout = runtime_layout(device) if layout is None else layout
+    if layout != "grouped" or order != "scatter":
+        raise UserError("a [specimen] (spatial kinematics) relaxes in the grouped CPU layout "
+                        "only (its forces in the scatter order); --device cuda's node-parallel "
+                        "layout is planar (docs/model.md section 11.11)")
 
 
 class DynamicSolver:
@@ -80,6 +109,7 @@ class DynamicSolver:
         self._dt_warned = False
         runtime.initialize(device)
         transient = self.options.mode == "transient"
+        _check_spatial(model.structure, self.options, device, layout, order)
         method = "explicit" if transient else self.options.method
         self.relaxation = StructureRelaxation(
             model.structure, precision=self.options.precision, method=method,
@@ -370,8 +400,9 @@ class DynamicSolver:
         if not s.has_friction or ties.size == 0:
             return ""
         positions = self.relaxation.positions()
-        z_b = np.where(s.tie_b[ties] >= 0, positions[np.maximum(s.tie_b[ties], 0), 1], 0.0)
-        closure = s.tie_gap_offset[ties] - s.tie_side[ties] * (positions[s.tie_a[ties], 1] - z_b)
+        z_b = np.where(s.tie_b[ties] >= 0, positions[np.maximum(s.tie_b[ties], 0), -1], 0.0)
+        closure = s.tie_gap_offset[ties] - s.tie_side[ties] * (positions[s.tie_a[ties], -1]
+                                                               - z_b)
         j = int(np.argmin(np.abs(closure)))
         t = ties[j]
         alpha, constant, onset, stick = s.tie_friction_law[t]

@@ -26,9 +26,6 @@ def make_solver(model, name: str, device: str | None = None, status=None):
                             "a device is for --solver dynamic")
         from dynfab.static import StaticSolver  # its backend follows the structure
         return StaticSolver(model, status=status)
-    if getattr(model.scene, "specimen", None) is not None:
-        raise UserError("--solver dynamic does not run a [specimen] (spatial kinematics) yet: "
-                        "use --solver static (docs/model.md section 11)")
     from dynfab.dynamic import DynamicSolver, DynamicTransient
     kind = DynamicTransient if model.scene.dynamic.mode == "transient" else DynamicSolver
     return kind(model, device=device or "cpu", progress=status)

@@ -10,6 +10,16 @@ SCALARS = {"float64": wp.float64, "float32": wp.float32}
 VECTORS = {wp.float64: wp.vec2d, wp.float32: wp.vec2f}
 """Warp scalar type -> its (x, z) vector type."""
 
+KINEMATICS = {"planar": 2, "spatial": 3}
+"""A kernel variant's kinematics -> coordinates per node: "planar" (x along the chain, z; each
+chain in its own plane, docs/model.md sections 2-10) or "spatial" (x, y, z, docs/model.md
+section 11)."""
+
+
+def vector(scalar, dim: int = 2):
+    """The Warp vector type of a node's `dim` coordinates in precision `scalar`."""
+    return VECTORS[scalar] if dim == 2 else wp.types.vector(dim, scalar)
+
 DEFAULT_TOLERANCE = {"float64": 1e-8, "float32": 1e-4}
 """Default force residual [N] per precision (docs/model.md section 5: float32's rounding floor is
 about 1e-4 N)."""

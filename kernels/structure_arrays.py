@@ -31,12 +31,12 @@ blocks of each block's sum in node order, in both layouts (the same bits).
 
 
 import functools
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import warp as wp
 
-from dynfab.kernels.precision import VECTORS, numpy_dtype
+from dynfab.kernels.precision import numpy_dtype, vector
 from dynfab.structure import GROUND, Structure, chain_count, chain_of_node
 
 BLOCK = 256
@@ -137,6 +137,24 @@ class StructureArrays:
     """(B,) the block's group."""
     families: int
     """Load families (1 + the largest chain family)."""
+    dim: int = 2
+    """Coordinates per node: 2 planar (along the chain, z), 3 spatial (x, y, z; docs/model.md
+    section 11): then every (n, 2) array above is (n, 3), the anchors (T, 3) and the spatial
+    terms' arrays below are filled."""
+    lateral_bend_stiffness: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    """spatial: (n,) EI_lateral / lbar [N m]; 0 at the end nodes."""
+    lateral_rest_angle: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    """spatial: (n,) rest in-plane turning psi0 [rad]."""
+    tie_stencil: np.ndarray = field(default_factory=lambda: np.zeros((0, 6), np.int64))
+    """spatial: (T, 6) (a_prev, a, a_next, b_prev, b, b_next) of each crossing."""
+    rotation_law: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    """spatial: (T, 3) (rho [m], K [N m/rad], phi_rest [rad]) of each crossing."""
+    lateral_stencil: np.ndarray = field(default_factory=lambda: np.zeros((0, 4), np.int64))
+    """spatial: (L, 4) (A_prev, A_next, A, B) of each lateral contact."""
+    lateral_law: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    """spatial: (L, 3) (sign, width [m], k [N/m]) of each lateral contact."""
+    group_lateral: np.ndarray = field(default_factory=lambda: np.zeros(1, np.int64))
+    """spatial: (G + 1,) group g's lateral contacts."""
 
     @property
     def nodes(self) -> int:
@@ -159,6 +177,10 @@ class StructureArrays:
         return self.block_start.shape[0] - 1
 
     @property
+    def laterals(self) -> int:
+        return self.lateral_stencil.shape[0]
+
+    @property
     def has_friction(self) -> bool:
         return bool(np.any(self.friction_law[:, 3] > 0.0))
 
@@ -171,9 +193,11 @@ class StructureArrays:
 
 def build(structure: Structure) -> StructureArrays:
     """The arrays of `structure` (module docstring); a ValueError for what the kernels do not
-    take: nodes with other than 2 coordinates, dof ties other than a family's plane nodes."""
-    if structure.rest_position.shape[1] != 2:
-        raise ValueError("the kernels take chains moving in their plane (2 coordinates per node)")
+    take: nodes with other than 2 or 3 coordinates, dof ties other than a family's plane
+    nodes, a spatial structure with moving planes, wraps or tied dofs."""
+    dim = structure.rest_position.shape[1]
+    if dim not in (2, 3):
+        raise ValueError("the kernels take 2 (planar) or 3 (spatial) coordinates per node")
     start = np.asarray(structure.chain_start, np.int64)
     n = int(start[-1])
     node_chain = chain_of_node(structure)
@@ -195,32 +219,54 @@ def build(structure: Structure) -> StructureArrays:
     order = np.lexsort((which, owners))
     node_ties = which[order]
     node_tie_start = np.searchsorted(owners[order], np.arange(n + 1))
-    weight = np.zeros((n, 2))
-    weight[:, 1] = -structure.mass * structure.gravity
-    load_direction = np.zeros((n, 2))
+    weight = np.zeros((n, dim))
+    weight[:, -1] = -structure.mass * structure.gravity
+    load_direction = np.zeros((n, dim))
     load_direction[structure.load_node, 0] = structure.load_factor
     load_family = np.full(n, -1)
     load_family[structure.load_node] = structure.chain_family
-    boundary = _boundary(structure, node_chain)
-    grouping = _groups(structure, node_chain, boundary)
+    boundary = _boundary(structure, node_chain, dim)
+    grouping = _groups(structure, node_chain, boundary, dim)
+    spatial = _spatial(structure, grouping["node_group"]) if dim == 3 else {}
+    if dim == 3 and (boundary["plane_nodes"].size or np.any(boundary["wrap_stiffness"] > 0)
+                     or np.any(boundary["node_tie"] >= 0)):
+        raise ValueError("spatial kernels without moving planes, wraps or tied dofs")
     return StructureArrays(
         rest_position=np.array(structure.rest_position, float), previous=previous,
         next=following, rest_length=rest_length, stretch_stiffness=stretch,
         bend_stiffness=np.array(structure.bend_stiffness, float),
         rest_angle=np.array(structure.rest_angle, float),
-        free=(~structure.fixed).reshape(n, 2).astype(float), mass=np.array(structure.mass, float),
+        free=(~structure.fixed).reshape(n, dim).astype(float), mass=np.array(structure.mass, float),
         weight=weight, load_direction=load_direction, load_family=load_family,
         node_chain=node_chain, node_tie_start=node_tie_start, node_ties=node_ties,
         tie_a=tie_a, tie_b=tie_b, tie_side=np.array(structure.tie_side, float),
         tie_offset=np.array(structure.tie_gap_offset, float),
         contact_law=np.array(structure.tie_contact_law, float).reshape(T, 5),
         friction_law=np.array(structure.tie_friction_law, float).reshape(T, 4),
-        tie_plane=np.array(structure.tie_plane, float).reshape(T, 2),
+        tie_plane=np.pad(np.array(structure.tie_plane, float).reshape(T, 2),
+                         ((0, 0), (0, dim - 2))),
         chain_start=start, families=int(np.max(structure.chain_family, initial=0)) + 1,
-        **boundary, **grouping)
+        dim=dim, **boundary, **grouping, **spatial)
 
 
-def _boundary(s: Structure, node_chain: np.ndarray) -> dict:
+def _spatial(s: Structure, node_group: np.ndarray) -> dict:
+    """The spatial terms' arrays (docs/model.md section 11): per node the lateral bending, per
+    crossing its stencil and rotation law, the lateral contacts and each group's range of
+    them (their A nodes' groups, in order)."""
+    lateral = np.asarray(s.lateral_stencil, np.int64).reshape(-1, 4)
+    owner = node_group[lateral[:, 2]] if lateral.size else np.zeros(0, np.int64)
+    if np.any(np.diff(owner) < 0):
+        raise ValueError("lateral contacts not in group order")
+    groups = int(node_group.max(initial=0)) + 1
+    return dict(lateral_bend_stiffness=np.array(s.lateral_bend_stiffness, float),
+                lateral_rest_angle=np.array(s.lateral_rest_angle, float),
+                tie_stencil=np.asarray(s.tie_stencil, np.int64).reshape(-1, 6),
+                rotation_law=np.array(s.tie_rotation_law, float).reshape(-1, 3),
+                lateral_stencil=lateral, lateral_law=np.array(s.lateral_law, float).reshape(-1, 3),
+                group_lateral=np.searchsorted(owner, np.arange(groups + 1)))
+
+
+def _boundary(s: Structure, node_chain: np.ndarray, dim: int = 2) -> dict:
     """The wrap springs, moving planes and tied dofs as per-node and per-tie data."""
     start = s.chain_start
     n = int(start[-1])
@@ -237,20 +283,20 @@ def _boundary(s: Structure, node_chain: np.ndarray) -> dict:
     plane_nodes = np.concatenate([s.plane_nodes_a, s.plane_nodes_b]).astype(np.int64)
     node_plane = np.full(n, -1)
     node_plane[s.plane_nodes_a], node_plane[s.plane_nodes_b] = 0, 1
-    weight = np.zeros((s.tie_a.size, 2))
+    weight = np.zeros((s.tie_a.size, dim))
     if nx:
         weight[:, 0] = s.tie_plane_weight[:, 0] / nx
     if ny:
         weight[:, 1] = s.tie_plane_weight[:, 1] / ny
     node_tie = np.full(n, -1)
-    tie = np.asarray(s.dof_tie).reshape(n, 2)
-    if np.any(tie[:, 1] >= 0):
+    tie = np.asarray(s.dof_tie).reshape(n, dim)
+    if np.any(tie[:, 1:] >= 0):
         raise ValueError("tied z dofs: the kernels tie a family's plane nodes' in-plane dofs only")
     claimed = np.zeros(n, np.bool_)
     for family, nodes in enumerate((s.plane_nodes_a, s.plane_nodes_b)):
         tied = nodes[tie[nodes, 0] >= 0]
         if tied.size:
-            if not (np.array_equal(tied, nodes[1:]) and np.all(tie[tied, 0] == 2 * nodes[0])):
+            if not (np.array_equal(tied, nodes[1:]) and np.all(tie[tied, 0] == dim * nodes[0])):
                 raise ValueError("tied dofs other than a family's plane nodes")
             node_tie[nodes] = family
             claimed[nodes[1:]] = True
@@ -267,7 +313,7 @@ def _boundary(s: Structure, node_chain: np.ndarray) -> dict:
                 node_tie=node_tie, share=share, tie_weight=weight)
 
 
-def _groups(s: Structure, node_chain: np.ndarray, boundary: dict) -> dict:
+def _groups(s: Structure, node_chain: np.ndarray, boundary: dict, dim: int = 2) -> dict:
     """Groups of chains and blocks of nodes (module docstring)."""
     Y = chain_count(s)
     root = np.arange(Y)
@@ -286,7 +332,7 @@ def _groups(s: Structure, node_chain: np.ndarray, boundary: dict) -> dict:
             join(node_chain[a], node_chain[b])
     tied = np.flatnonzero(np.asarray(s.dof_tie) >= 0)
     for d in tied:
-        join(node_chain[d // 2], node_chain[s.dof_tie[d] // 2])
+        join(node_chain[d // dim], node_chain[s.dof_tie[d] // dim])
     planes = np.concatenate([s.plane_nodes_a, s.plane_nodes_b]).astype(np.int64)
     moved = np.flatnonzero(np.any(np.asarray(s.tie_plane_weight) != 0.0, axis=1))
     coupled = np.concatenate([node_chain[planes], node_chain[s.tie_a[moved]]])
@@ -336,12 +382,17 @@ def _groups(s: Structure, node_chain: np.ndarray, boundary: dict) -> dict:
                 tie_group=tie_group, chain_group=chain_group, block_group=np.array(block_group))
 
 
-@functools.cache
-def struct(scalar):
-    """The `StructureData` Warp struct for one scalar type."""
-    vec = VECTORS[scalar]
+def struct(scalar, dim: int = 2):
+    """The `StructureData` Warp struct (`_struct`), one per (scalar, dim) however called."""
+    return _struct(scalar, int(dim))
 
-    @wp.struct
+
+@functools.cache
+def _struct(scalar, dim: int):
+    """The `StructureData` Warp struct for one scalar type and `dim` coordinates per node
+    (spatial, dim 3: with the spatial terms' arrays, `SPATIAL_FIELDS`)."""
+    vec = vector(scalar, dim)
+
     class StructureData:
         """Everything a kernel knows of the structure; constant during a run."""
 
@@ -389,7 +440,14 @@ def struct(scalar):
         chain_group: wp.array(dtype=wp.int32)
         block_group: wp.array(dtype=wp.int32)
 
-    return StructureData
+    if dim == 3:
+        StructureData.__annotations__.update({
+            "lateral_bend_stiffness": wp.array(dtype=scalar),
+            "lateral_rest_angle": wp.array(dtype=scalar),
+            "tie_stencil": wp.array2d(dtype=wp.int32), "rotation_law": wp.array2d(dtype=scalar),
+            "lateral_stencil": wp.array2d(dtype=wp.int32),
+            "lateral_law": wp.array2d(dtype=scalar), "group_lateral": wp.array(dtype=wp.int32)})
+    return wp.struct(StructureData)
 
 
 VECTOR_FIELDS = ("rest_position", "free", "weight", "load_direction", "tie_plane", "tie_weight")
@@ -403,17 +461,24 @@ INDEX_FIELDS = ("previous", "next", "load_family", "node_chain", "node_tie_start
                 "tie_group", "chain_group", "block_group")
 
 
+SPATIAL_FIELDS = {"lateral_bend_stiffness": "scalar", "lateral_rest_angle": "scalar",
+                  "tie_stencil": "index", "rotation_law": "scalar", "lateral_stencil": "index",
+                  "lateral_law": "scalar", "group_lateral": "index"}
+"""The spatial data's fields (dim 3 only) and their kinds."""
+
+
 def upload(arrays: StructureArrays, scalar, device: str, **replaced):
     """The StructureData of `arrays` on `device` in precision `scalar`; `replaced` fields
     (numpy arrays) instead of the arrays' own (the reactions' unmasked `free`)."""
-    dtype, vec = numpy_dtype(scalar), VECTORS[scalar]
-    data = struct(scalar)()
+    dim = arrays.dim
+    dtype, vec = numpy_dtype(scalar), vector(scalar, dim)
+    data = struct(scalar, dim)()
 
     def value(name):
         return np.asarray(replaced.get(name, getattr(arrays, name)))
 
     for name in VECTOR_FIELDS:
-        setattr(data, name, wp.array(value(name).reshape(-1, 2).astype(dtype), dtype=vec,
+        setattr(data, name, wp.array(value(name).reshape(-1, dim).astype(dtype), dtype=vec,
                                      device=device))
     for name in MATRIX_FIELDS:
         setattr(data, name, wp.array(value(name).astype(dtype), dtype=scalar, device=device))
@@ -421,4 +486,10 @@ def upload(arrays: StructureArrays, scalar, device: str, **replaced):
         setattr(data, name, wp.array(value(name).astype(dtype), dtype=scalar, device=device))
     for name in INDEX_FIELDS:
         setattr(data, name, wp.array(value(name).astype(np.int32), dtype=wp.int32, device=device))
+    if dim == 3:
+        for name, kind in SPATIAL_FIELDS.items():
+            values = value(name)
+            setattr(data, name, wp.array(values.astype(np.int32 if kind == "index" else dtype),
+                                         dtype=wp.int32 if kind == "index" else scalar,
+                                         device=device))
     return data

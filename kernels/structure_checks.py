@@ -32,7 +32,7 @@ import warp as wp
 from dynfab.banded import BANDWIDTH
 from dynfab.kernels import status, structure_arrays, structure_settings, structure_state
 from dynfab.kernels import band_lu, structure_forces, structure_tangent
-from dynfab.kernels.precision import VECTORS, epsilon
+from dynfab.kernels.precision import KINEMATICS, epsilon, vector
 
 ROUNDING_FLOOR_FACTOR = 16.0
 """Rounding floor of the residual / (eps max_i |K_ii| max_i |x_i|) [-], as `dynfab.static`'s."""
@@ -47,15 +47,20 @@ during the last half of its steps stops (status.NO_PROGRESS); the fabric's choic
 
 
 @functools.cache
-def functions(scalar, friction: bool, boundary: bool, merit: bool = False) -> SimpleNamespace:
+def functions(scalar, friction: bool, boundary: bool, merit: bool = False,
+              kinematics: str = "planar") -> SimpleNamespace:
     """The start, sum and check `wp.func`s of one variant; with `merit`, every node's
-    f^T M^-1 f term too (the semi-implicit time step rule's merit)."""
-    vec = VECTORS[scalar]
+    f^T M^-1 f term too (the semi-implicit time step rule's merit). A spatial structure's
+    Gershgorin rows and diagonals come from the host (`state.rows`, `state.diagonal`:
+    `dynfab.fabric.spatial.stiffest_rows`), not from the planar band."""
+    dim = KINEMATICS[kinematics]
+    spatial = dim == 3
+    vec = vector(scalar, dim)
     vec4 = wp.types.vector(4, scalar)
-    Data = structure_arrays.struct(scalar)
-    State = structure_state.struct(scalar)
+    Data = structure_arrays.struct(scalar, dim)
+    State = structure_state.struct(scalar, dim)
     Settings = structure_settings.struct(scalar)
-    forces = structure_forces.functions(scalar, friction, boundary)
+    forces = structure_forces.functions(scalar, friction, boundary, kinematics)
     tangent = structure_tangent.functions(scalar, friction, boundary)
     band_ops = band_lu.functions(scalar)
     floor_scale = ROUNDING_FLOOR_FACTOR * epsilon(scalar)
@@ -122,8 +127,11 @@ def functions(scalar, friction: bool, boundary: bool, merit: bool = False) -> Si
         merit_term = scalar(0.0)
         if wp.static(merit):
             merit_term = share * (wp.dot(f, f) / state.mass[i])
+        largest = scalar(0.0)
+        for c in range(wp.static(dim)):
+            largest = larger(largest, f[c])
         return vec4(scalar(0.5) * (state.mass[i] * share) * wp.dot(v, v), work, merit_term,
-                    larger(larger(scalar(0.0), f[0]), f[1]))
+                    largest)
 
     @wp.func(inline=True)
     def gather_node(i: int, data: Data, state: State, settings: Settings):
@@ -195,12 +203,16 @@ def functions(scalar, friction: bool, boundary: bool, merit: bool = False) -> Si
         """Node i's Gershgorin row sum [N/m] into node_values[i][0], its own mass into
         state.mass[i] (module docstring) and, with physical masses, 2 sqrt(m / rows) [s] into
         node_values[i][1] (0 where rows = 0)."""
-        off = tangent.coupling_rows(i, data, state)
-        if wp.static(boundary):
-            off = off + tangent.wrap_cross_rows(state.position, data, i)
-            off = off + vec(plane_rows(i, data, state), scalar(0.0))
-        rows = wp.max(band_ops.absolute_row_sum(state.band, 2 * i) + off[0],
-                      band_ops.absolute_row_sum(state.band, 2 * i + 1) + off[1])
+        rows = scalar(0.0)
+        if wp.static(spatial):
+            rows = state.rows[i]
+        else:
+            off = tangent.coupling_rows(i, data, state)
+            if wp.static(boundary):
+                off = off + tangent.wrap_cross_rows(state.position, data, i)
+                off = off + vec(plane_rows(i, data, state), scalar(0.0))
+            rows = wp.max(band_ops.absolute_row_sum(state.band, 2 * i) + off[0],
+                          band_ops.absolute_row_sum(state.band, 2 * i + 1) + off[1])
         bound = scalar(0.0)
         if settings.fictitious != 0:
             dt = scalar(1.0)
@@ -235,7 +247,8 @@ def functions(scalar, friction: bool, boundary: bool, merit: bool = False) -> Si
         segment tension |k (l - l0)|."""
         scale = scalar(0.0)
         for i in range(data.group_node[g], data.group_node[g + 1]):
-            scale = wp.max(scale, wp.max(wp.abs(state.load[i][0]), wp.abs(state.load[i][1])))
+            for c in range(wp.static(dim)):
+                scale = wp.max(scale, wp.abs(state.load[i][c]))
             j = data.next[i]
             if j >= 0:
                 length = wp.length(state.position[j] - state.position[i])
@@ -260,8 +273,12 @@ def functions(scalar, friction: bool, boundary: bool, merit: bool = False) -> Si
         for i in range(lo, hi):
             if state.node_values[i][1] > scalar(0.0):
                 bound = wp.min(bound, state.node_values[i][1])
-            for c in range(2):
-                diagonal = wp.max(diagonal, wp.abs(state.band[2 * i + c, BANDWIDTH]))
+            if wp.static(spatial):
+                diagonal = wp.max(diagonal, state.diagonal[i])
+            else:
+                for c in range(2):
+                    diagonal = wp.max(diagonal, wp.abs(state.band[2 * i + c, BANDWIDTH]))
+            for c in range(wp.static(dim)):
                 coordinate = wp.max(coordinate, wp.abs(state.position[i][c]))
             state.start_position[i] = state.position[i]
             state.start_force[i] = state.force[i]
@@ -401,15 +418,19 @@ def functions(scalar, friction: bool, boundary: bool, merit: bool = False) -> Si
 
 @functools.cache
 def group_functions(scalar, friction: bool, boundary: bool, order: str,
-                    merit: bool = False) -> SimpleNamespace:
+                    merit: bool = False, kinematics: str = "planar") -> SimpleNamespace:
     """The grouped layout's whole-group `wp.func`s: `evaluate` (the forces at the positions in
     `order` "scatter" or "gather", every node's values and the block sums) and `start` (the
-    start's stages in turn, as the node-parallel layout launches them)."""
-    Data = structure_arrays.struct(scalar)
-    State = structure_state.struct(scalar)
+    start's stages in turn, as the node-parallel layout launches them; spatial: without the
+    planar band's stages, its Gershgorin rows given)."""
+    dim = KINEMATICS[kinematics]
+    if dim == 3 and order != "scatter":
+        raise ValueError("the spatial kernels evaluate forces in the scatter order only")
+    Data = structure_arrays.struct(scalar, dim)
+    State = structure_state.struct(scalar, dim)
     Settings = structure_settings.struct(scalar)
-    checks = functions(scalar, friction, boundary, merit)
-    forces = structure_forces.functions(scalar, friction, boundary)
+    checks = functions(scalar, friction, boundary, merit, kinematics)
+    forces = structure_forces.functions(scalar, friction, boundary, kinematics)
     scatter = order == "scatter"
 
     @wp.func(inline=True)
@@ -440,10 +461,11 @@ def group_functions(scalar, friction: bool, boundary: bool, order: str,
     @wp.func(inline=True)
     def start(g: int, data: Data, state: State, settings: Settings):
         evaluate(g, data, state, settings)
-        for t in range(data.group_tie[g], data.group_tie[g + 1]):
-            checks.stiffest_tie(t, data, state)
-        for c in range(data.group_chain[g], data.group_chain[g + 1]):
-            checks.stiffest_chain(c, data, state)
+        if wp.static(dim == 2):
+            for t in range(data.group_tie[g], data.group_tie[g + 1]):
+                checks.stiffest_tie(t, data, state)
+            for c in range(data.group_chain[g], data.group_chain[g + 1]):
+                checks.stiffest_chain(c, data, state)
         for i in range(data.group_node[g], data.group_node[g + 1]):
             checks.rows_node(i, data, state, settings)
         checks.start_group(g, data, state, settings)

@@ -46,7 +46,7 @@ import warp as wp
 from dynfab.kernels import status, structure_arrays, structure_checks, structure_forces
 from dynfab.kernels import structure_settings, structure_state
 from dynfab.kernels import structure_variants
-from dynfab.kernels.precision import VECTORS
+from dynfab.kernels.precision import KINEMATICS, vector
 
 DAMPINGS = ("viscous", "kinetic", "fire")
 """`settings.damping` is the index of the damping in DAMPINGS: a kernel holds all three (one
@@ -102,15 +102,17 @@ def step_stages(damping: str, adaptive: bool) -> tuple:
 
 
 @functools.cache
-def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
+def functions(scalar, friction: bool, boundary: bool,
+              kinematics: str = "planar") -> SimpleNamespace:
     """The stage `wp.func`s of one variant (module docstring)."""
-    vec = VECTORS[scalar]
+    dim = KINEMATICS[kinematics]
+    vec = vector(scalar, dim)
     vec4 = wp.types.vector(4, scalar)
-    Data = structure_arrays.struct(scalar)
-    State = structure_state.struct(scalar)
+    Data = structure_arrays.struct(scalar, dim)
+    State = structure_state.struct(scalar, dim)
     Settings = structure_settings.struct(scalar)
-    forces = structure_forces.functions(scalar, friction, boundary)
-    checks = structure_checks.functions(scalar, friction, boundary)
+    forces = structure_forces.functions(scalar, friction, boundary, kinematics)
+    checks = structure_checks.functions(scalar, friction, boundary, kinematics=kinematics)
 
     @wp.func(inline=True)
     def running(state: State, g: int) -> bool:
@@ -139,7 +141,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
             u = state.position[i] - state.start_position[i]
             change = state.force[i] - state.previous_force[i]
             underwood = scalar(0.0)
-            for c in range(2):
+            for c in range(wp.static(dim)):
                 moved = state.dt[g] * state.velocity[i][c]
                 if moved != scalar(0.0):
                     underwood += u[c] * u[c] * (-change[c] / moved)
@@ -243,7 +245,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
         if settings.damping == KINETIC:
             if state.damping_coefficient[g] == scalar(0.0) and state.decision[g] != scalar(0.0):
                 state.position[i] = state.position[i] - (scalar(0.5) * dt) * state.velocity[i]
-                state.velocity[i] = vec(scalar(0.0), scalar(0.0))
+                state.velocity[i] = vec()
             else:
                 viscous_move(i, state, factors)
         if settings.damping == VISCOUS:
@@ -251,7 +253,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
         if settings.damping == FIRE:
             if state.decision[g] != scalar(0.0):
                 state.position[i] = state.position[i] - (scalar(0.5) * dt) * state.velocity[i]
-                state.velocity[i] = vec(scalar(0.0), scalar(0.0))
+                state.velocity[i] = vec()
             v = state.velocity[i] + (dt / state.mass[i]) * state.force[i]
             state.velocity[i] = v
             share = data.share[i]
@@ -293,7 +295,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
         if change:
             state.damping_coefficient[g] = c
             for i in range(data.group_node[g], data.group_node[g + 1]):
-                state.velocity[i] = vec(scalar(0.0), scalar(0.0))
+                state.velocity[i] = vec()
             state.kinetic_energy[g] = scalar(0.0)
             state.best_residual[g] = state.residual[g]
             state.steps_since_best[g] = 0
@@ -361,8 +363,10 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
 
 
 @structure_variants.variant("explicit", "node_parallel")
-def stage_kernel(scalar, friction: bool, boundary: bool):
+def stage_kernel(scalar, friction: bool, boundary: bool, kinematics: str = "planar"):
     """The node-parallel layout's kernel: one launch per stage, a thread per unit."""
+    if kinematics != "planar":
+        raise ValueError(f"the {kinematics} kinematics has the explicit grouped kernel only")
     Data = structure_arrays.struct(scalar)
     State = structure_state.struct(scalar)
     Settings = structure_settings.struct(scalar)
@@ -376,15 +380,19 @@ def stage_kernel(scalar, friction: bool, boundary: bool):
 
 
 @structure_variants.variant("explicit", "grouped")
-def grouped_kernel(scalar, friction: bool, boundary: bool, order: str):
+def grouped_kernel(scalar, friction: bool, boundary: bool, order: str,
+                   kinematics: str = "planar"):
     """The grouped layout's kernel: thread g runs group first + g, the start (`start` != 0)
-    or up to settings.chunk time steps."""
-    Data = structure_arrays.struct(scalar)
-    State = structure_state.struct(scalar)
+    or up to settings.chunk time steps; `kinematics` "spatial": vec3 nodes and the spatial
+    terms (`structure_forces`), the scatter order only."""
+    dim = KINEMATICS[kinematics]
+    Data = structure_arrays.struct(scalar, dim)
+    State = structure_state.struct(scalar, dim)
     Settings = structure_settings.struct(scalar)
-    ops = functions(scalar, friction, boundary)
+    ops = functions(scalar, friction, boundary, kinematics)
 
-    group = structure_checks.group_functions(scalar, friction, boundary, order)
+    group = structure_checks.group_functions(scalar, friction, boundary, order,
+                                             kinematics=kinematics)
     blocks, evaluate = group.blocks, group.evaluate
     scatter = order == "scatter"
 

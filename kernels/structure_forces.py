@@ -28,7 +28,13 @@ the grouped layout's default, within rounding of
 the gather order.
 
 Variants: `friction` compiles the friction terms (without, F_T = 0 is never evaluated);
-`boundary` the moving planes, wrap springs and tied families.
+`boundary` the moving planes, wrap springs and tied families; `kinematics` "spatial" (docs/model.md
+section 11) makes the nodes vec3 (x, y, z) and selects the spatial terms
+(`spatial_terms`: bending in two planes, each crossing's three-component Huber friction and
+rotation spring on its six-node stencil, the lateral contacts) beside the same stretch and
+contact along z, in the scatter order only (`scatter_terms`; a crossing's stencil spans six
+nodes of two chains, which the gather order's per-node lists do not hold); each tie's
+`friction` is then the force on its three-component slip, -dHuber/dS [N].
 """
 
 import functools
@@ -36,18 +42,31 @@ from types import SimpleNamespace
 
 import warp as wp
 
-from dynfab.kernels import structure_arrays, structure_state, tie_law
-from dynfab.kernels.precision import VECTORS
+from dynfab.kernels import spatial_terms, structure_arrays, structure_state, tie_law
+from dynfab.kernels.precision import KINEMATICS, vector
 
 
 @functools.cache
-def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
+def functions(scalar, friction: bool, boundary: bool,
+              kinematics: str = "planar") -> SimpleNamespace:
     """The force and energy `wp.func`s of one variant (module docstring)."""
-    vec = VECTORS[scalar]
+    dim = KINEMATICS[kinematics]
+    spatial = dim == 3
+    vec = vector(scalar, dim)
     mat = wp.types.matrix(shape=(2, 2), dtype=scalar)
-    Data = structure_arrays.struct(scalar)
-    State = structure_state.struct(scalar)
+    Data = structure_arrays.struct(scalar, dim)
+    State = structure_state.struct(scalar, dim)
     laws = tie_law.functions(scalar)
+    terms = spatial_terms.functions(scalar) if spatial else None
+    Z = dim - 1  # the coordinate along the fabric's normal
+
+    @wp.func(inline=True)
+    def along_z(value: scalar) -> vec:
+        """(0, .., value) [N]: a force along z."""
+        result = vec()
+        result[wp.static(Z)] = value
+        return result
+
     @wp.func(inline=True)
     def turning_angle(a: vec, b: vec) -> scalar:
         """phi [rad] from segment a to segment b."""
@@ -80,7 +99,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
     def plane_shift(pos: wp.array(dtype=vec), data: Data) -> vec:
         """(U_0, U_1) [m]: each plane family's summed end displacement, in plane-node order;
         zero without moving planes."""
-        shift = vec(scalar(0.0), scalar(0.0))
+        shift = vec()
         if wp.static(boundary):
             for family in range(2):
                 total = scalar(0.0)
@@ -96,8 +115,8 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
         b = data.tie_b[t]
         z_b = scalar(0.0)
         if b >= 0:
-            z_b = pos[b][1]
-        return data.tie_offset[t] - data.tie_side[t] * (pos[data.tie_a[t]][1] - z_b)
+            z_b = pos[b][wp.static(Z)]
+        return data.tie_offset[t] - data.tie_side[t] * (pos[data.tie_a[t]][wp.static(Z)] - z_b)
 
     @wp.func(inline=True)
     def slip(pos: wp.array(dtype=vec), data: Data, anchors: wp.array(dtype=vec), t: int,
@@ -119,8 +138,13 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
         if wp.static(friction):
             bound = laws.limit(at_g[0], data.friction_law, t)
             state.limit[t] = bound
-            state.friction[t] = laws.huber_force(slip(pos, data, state.anchors, t, shift), bound,
-                                                 data.friction_law[t, 3])
+            if wp.static(spatial):
+                state.friction[t] = -terms.huber_gradient(
+                    terms.crossing_slip(pos, data, state.anchors[t], t), bound,
+                    data.friction_law[t, 3])
+            else:
+                state.friction[t] = laws.huber_force(slip(pos, data, state.anchors, t, shift),
+                                                     bound, data.friction_law[t, 3])
 
     @wp.func(inline=True)
     def tie_pass(t: int, pos: wp.array(dtype=vec), data: Data, state: State):
@@ -223,10 +247,35 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
             state.force[i] = state.load[i] + data.weight[i]
 
     @wp.func(inline=True)
-    def scatter_terms(group: int, pos: wp.array(dtype=vec), data: Data, state: State):
-        """state.force += -dV/dr [N] of every term on the group's nodes (and every tie's R,
-        dR/dg, F_T, friction force), each term evaluated once and added to its nodes (module
-        docstring), unmasked: after `scatter_init`; the held dofs are masked by the caller."""
+    def spatial_scatter(group: int, pos: wp.array(dtype=vec), data: Data, state: State):
+        """`scatter_terms` of a spatial structure (docs/model.md section 11): each segment's
+        stretch and each inner node's two-plane bending, each crossing's contact along z,
+        Huber friction (F_T at the current R) and rotation spring, each lateral contact."""
+        force = state.force
+        for i in range(data.group_node[group], data.group_node[group + 1]):
+            j = data.next[i]
+            if j >= 0:
+                pull = segment_pull(pos, data, i)
+                force[i] = force[i] + pull
+                force[j] = force[j] - pull
+                k = data.next[j]
+                if k >= 0:
+                    terms.bend_forces(pos, data, i, j, k, force)
+        for t in range(data.group_tie[group], data.group_tie[group + 1]):
+            tie_pass_at(t, pos, data, state, vec())
+            up = along_z(data.tie_side[t] * state.contact[t])
+            force[data.tie_a[t]] = force[data.tie_a[t]] + up
+            force[data.tie_b[t]] = force[data.tie_b[t]] - up
+            huber = vec()
+            if wp.static(friction):
+                huber = -state.friction[t]
+            terms.crossing_forces(pos, data, t, huber, force)
+        for e in range(data.group_lateral[group], data.group_lateral[group + 1]):
+            terms.lateral_forces(pos, data, e, force)
+
+    @wp.func(inline=True)
+    def planar_scatter(group: int, pos: wp.array(dtype=vec), data: Data, state: State):
+        """`scatter_terms` of a planar structure."""
         force = state.force
         lo = data.group_node[group]
         hi = data.group_node[group + 1]
@@ -288,6 +337,16 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
                             force[data.plane_nodes[m]] = total
 
     @wp.func(inline=True)
+    def scatter_terms(group: int, pos: wp.array(dtype=vec), data: Data, state: State):
+        """state.force += -dV/dr [N] of every term on the group's nodes (and every tie's R,
+        dR/dg, F_T, friction force), each term evaluated once and added to its nodes (module
+        docstring), unmasked: after `scatter_init`; the held dofs are masked by the caller."""
+        if wp.static(spatial):
+            spatial_scatter(group, pos, data, state)
+        else:
+            planar_scatter(group, pos, data, state)
+
+    @wp.func(inline=True)
     def node_energy(i: int, pos: wp.array(dtype=vec), data: Data, state: State) -> scalar:
         """Energy [J] owned by node i: its segment (i, next), its bending spring, its wrap
         spring (at a chain's first node), minus the work of its external force."""
@@ -299,24 +358,46 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
             stretch = wp.length(pos[after] - pos[i]) - data.rest_length[i]
             energy += scalar(0.5) * data.stretch_stiffness[i] * stretch * stretch
         if before >= 0 and after >= 0:
-            turn = turning_angle(pos[i] - pos[before], pos[after] - pos[i]) - data.rest_angle[i]
-            energy += scalar(0.5) * data.bend_stiffness[i] * turn * turn
-        if data.wrap_stiffness[i] > scalar(0.0):
-            last = data.chain_last[i]
-            turn = turning_angle(pos[last] - pos[last - 1], pos[i + 1] - pos[i]) \
-                - data.wrap_rest_angle[i]
-            energy += scalar(0.5) * data.wrap_stiffness[i] * turn * turn
+            if wp.static(spatial):
+                energy += terms.bend_energy(pos, data, before, i, after)
+            else:
+                turn = turning_angle(pos[i] - pos[before], pos[after] - pos[i]) \
+                    - data.rest_angle[i]
+                energy += scalar(0.5) * data.bend_stiffness[i] * turn * turn
+        if wp.static(not spatial):
+            if data.wrap_stiffness[i] > scalar(0.0):
+                last = data.chain_last[i]
+                turn = turning_angle(pos[last] - pos[last - 1], pos[i + 1] - pos[i]) \
+                    - data.wrap_rest_angle[i]
+                energy += scalar(0.5) * data.wrap_stiffness[i] * turn * turn
         return energy
 
     @wp.func(inline=True)
     def tie_energy(t: int, pos: wp.array(dtype=vec), data: Data, state: State) -> scalar:
-        """Contact energy [J] of tie t, plus its Huber term with F_T at the current R."""
+        """Contact energy [J] of tie t, plus its Huber term with F_T at the current R (spatial:
+        plus its rotation spring)."""
         R = laws.contact(closure(pos, data, t), data.contact_law, t)[0]
         energy = laws.contact_energy(R, data.contact_law, t)
-        if wp.static(friction):
+        if wp.static(spatial):
+            q = terms.crossing_coordinates(pos, data, t)
+            w = terms.spring_excess(data, t, q)
+            energy += scalar(0.5) * data.rotation_law[t, 1] * w * w
+            if wp.static(friction):
+                energy += terms.huber_energy(terms.crossing_slip(pos, data, state.anchors[t], t),
+                                             laws.limit(R, data.friction_law, t),
+                                             data.friction_law[t, 3])
+        elif wp.static(friction):
             energy += laws.huber_energy(slip(pos, data, state.anchors, t, plane_shift(pos, data)),
                                         laws.limit(R, data.friction_law, t),
                                         data.friction_law[t, 3])
+        return energy
+
+    @wp.func(inline=True)
+    def lateral_energy(e: int, pos: wp.array(dtype=vec), data: Data) -> scalar:
+        """Energy [J] of lateral contact e (spatial; 0 in a planar structure, which has none)."""
+        energy = scalar(0.0)
+        if wp.static(spatial):
+            energy = terms.lateral_energy(pos, data, e)
         return energy
 
     @wp.func(inline=True)
@@ -328,15 +409,23 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
         if wp.static(friction):
             R = laws.contact(closure(pos, data, t), data.contact_law, t)[0]
             bound = laws.limit(R, data.friction_law, t)
-            s = slip(pos, data, state.anchors, t, plane_shift(pos, data))
-            move = laws.return_anchor(s, bound, data.friction_law[t, 3])
-            state.anchors[t] = state.anchors[t] + move
-            lost = bound * wp.length(move)
+            if wp.static(spatial):  # radially in S (docs/model.md section 11.4)
+                S = terms.crossing_slip(pos, data, state.anchors[t], t)
+                move = terms.return_anchor(S, bound, data.friction_law[t, 3],
+                                           data.rotation_law[t, 0])
+                state.anchors[t] = state.anchors[t] + move
+                shift = vec(move[0], move[1], data.rotation_law[t, 0] * move[2])
+                lost = wp.max(bound, scalar(0.0)) * wp.length(shift)
+            else:
+                s = slip(pos, data, state.anchors, t, plane_shift(pos, data))
+                move = laws.return_anchor(s, bound, data.friction_law[t, 3])
+                state.anchors[t] = state.anchors[t] + move
+                lost = bound * wp.length(move)
         return lost
 
     return SimpleNamespace(turning_angle=turning_angle, closure=closure, slip=slip,
                            plane_shift=plane_shift, tie_pass=tie_pass, tie_pass_at=tie_pass_at,
                            own_force=own_force, node_force=node_force,
                            scatter_init=scatter_init, scatter_terms=scatter_terms,
-                           node_energy=node_energy,
-                           tie_energy=tie_energy, return_map=return_map, wrap_forces=wrap_forces)
+                           node_energy=node_energy, lateral_energy=lateral_energy,
+                           tie_energy=tie_energy, along_z=along_z, return_map=return_map, wrap_forces=wrap_forces)

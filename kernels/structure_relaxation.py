@@ -47,7 +47,7 @@ from dynfab.kernels import status, structure_arrays, structure_explicit, structu
 from dynfab.kernels import structure_semi_implicit as semi
 from dynfab.kernels import structure_settings, structure_state, structure_transient
 from dynfab.kernels import structure_variants
-from dynfab.kernels.precision import SCALARS, VECTORS, numpy_dtype
+from dynfab.kernels.precision import SCALARS, numpy_dtype, vector
 from dynfab.structure import Structure
 
 METHODS = ("explicit", "semi_implicit")
@@ -142,6 +142,13 @@ class StructureRelaxation:
         if method == "explicit" and damping not in structure_explicit.DAMPINGS:
             raise ValueError(f"damping {damping!r} unknown; one of {structure_explicit.DAMPINGS}")
         self.arrays = arrays = structure_arrays.build(structure)
+        self.structure, self.dim = structure, arrays.dim
+        self.kinematics = "spatial" if arrays.dim == 3 else "planar"
+        if self.spatial and (method, layout, order, precision) != (
+                "explicit", "grouped", "scatter", "float64"):
+            raise ValueError(f"a spatial structure (docs/model.md section 11) relaxes with the "
+                             f"explicit method, the grouped layout, its scatter order and "
+                             f"float64 only (asked: {method}, {layout}, {order}, {precision})")
         self.method, self.layout, self.order, self.device = method, layout, order, device
         self.damping = damping if method == "explicit" else None
         self.coefficient = damping_coefficient
@@ -161,7 +168,7 @@ class StructureRelaxation:
         if arrays.has_friction and not self.friction or arrays.has_boundary and not self.boundary:
             raise ValueError("the structure has friction or boundary couplings the variant lacks")
         self.scalar = SCALARS[precision]
-        self.dtype, self.vec = numpy_dtype(self.scalar), VECTORS[self.scalar]
+        self.dtype, self.vec = numpy_dtype(self.scalar), vector(self.scalar, self.dim)
         self.data = structure_arrays.upload(arrays, self.scalar, device)
         self.state = structure_state.allocate(arrays, self.scalar, device,
                                               method == "semi_implicit")
@@ -171,6 +178,11 @@ class StructureRelaxation:
         self._reaction_data = None
         self._loaded = set()
         self.use_cores(cores)
+
+    @property
+    def spatial(self) -> bool:
+        """Nodes in x, y, z with the spatial terms (docs/model.md section 11)."""
+        return self.dim == 3
 
     # ------------------------------------------------------------------ layout
 
@@ -189,13 +201,15 @@ class StructureRelaxation:
         """The `structure_variants.Variant` of this relaxation's kernel (its method and layout)."""
         return structure_variants.describe(self.method, self.layout, self.scalar, self.friction,
                                            self.boundary,
-                                           self.order if self.layout == "grouped" else None)
+                                           self.order if self.layout == "grouped" else None,
+                                           self.kinematics)
 
     def _kernels(self):
         key = (self.scalar, self.friction, self.boundary)
         if self.method == "explicit":
             if self.layout == "grouped":
-                return structure_explicit.grouped_kernel(*key, self.order)
+                return structure_explicit.grouped_kernel(*key, self.order,
+                                                         kinematics=self.kinematics)
             return structure_explicit.stage_kernel(*key)
         if self.layout == "grouped":
             return semi.grouped_kernel(*key, self.order)
@@ -240,31 +254,31 @@ class StructureRelaxation:
     # ------------------------------------------------------------------ inputs
 
     def _vectors(self, values, shape=None):
-        values = np.asarray(values, float).reshape(-1, 2)
+        values = np.asarray(values, float).reshape(-1, self.dim)
         return wp.array(values.astype(self.dtype), dtype=self.vec, device=self.device)
 
     def _set(self, dest, values) -> None:
-        """dest (a vector array of the state) = values (n, 2), in this relaxation's scalar: on
+        """dest (a vector array of the state) = values (n, dim), in this relaxation's scalar: on
         the CPU straight into its memory (no array made per call), on a device through a host
         array."""
-        values = np.asarray(values, float).reshape(-1, 2)
+        values = np.asarray(values, float).reshape(-1, self.dim)
         if self._host:
             dest.numpy()[...] = values
         else:
             dest.assign(self._vectors(values))
 
     def node_loads(self, loads) -> np.ndarray:
-        """End loads (n, 2) [N] from loads per chain (Y,) (each on its chain's last node along
-        the chain) or per dof ((n, 2) or (2 n,)); zeros for None."""
+        """End loads (n, dim) [N] from loads per chain (Y,) (each on its chain's last node along
+        the chain) or per dof ((n, dim) or (dim n,)); zeros for None."""
         a = self.arrays
         if loads is None:
-            return np.zeros((a.nodes, 2))
+            return np.zeros((a.nodes, a.dim))
         loads = np.asarray(loads, float)
         if loads.shape == (a.chains,):
-            out = np.zeros((a.nodes, 2))
+            out = np.zeros((a.nodes, a.dim))
             out[a.chain_start[1:] - 1, 0] = loads
             return out
-        return loads.reshape(a.nodes, 2).copy()
+        return loads.reshape(a.nodes, a.dim).copy()
 
     def chain_loads(self, values) -> np.ndarray:
         """Loads per chain (Y,) [N or m] from one value per family: value x the load factor."""
@@ -275,8 +289,16 @@ class StructureRelaxation:
 
     def as_woven_anchors(self) -> np.ndarray:
         """Anchors (T, 2) [m] at zero slip in the as-woven state (the structure's convention:
-        from the planes; a ground tie's first component the node's x, its second 0)."""
+        from the planes; a ground tie's first component the node's x, its second 0); a spatial
+        structure's (T, 3) [m, m, rad]: each crossing's coordinates q as woven (docs/model.md
+        section 11.4)."""
         a = self.arrays
+        if self.spatial:
+            from dynfab.terms.spatial import crossing_coordinates
+            anchors = np.zeros((a.ties, 3))
+            for t in range(a.ties):
+                crossing_coordinates(a.rest_position[a.tie_stencil[t]], anchors[t])
+            return anchors
         anchors = np.zeros((a.ties, 2))
         anchors[:, 0] = a.rest_position[a.tie_a, 0] - a.tie_plane[:, 0]
         node_b = a.tie_b >= 0
@@ -299,9 +321,19 @@ class StructureRelaxation:
 
     def _load_state(self, positions, loads, anchors, velocities=None) -> None:
         s = self.state
+        anchors = self.as_woven_anchors() if anchors is None else anchors
         self._set(s.position, positions)
         self._set(s.load, self.node_loads(loads))
-        self._set(s.anchors, self.as_woven_anchors() if anchors is None else anchors)
+        self._set(s.anchors, anchors)
+        if self.spatial:  # the Gershgorin rows of the stiffest tangent, from the host
+            from dynfab.fabric.spatial import stiffest_rows
+            rows, diagonal = stiffest_rows(self.structure,
+                                           np.asarray(positions, float).reshape(-1, 3),
+                                           np.asarray(anchors, float).reshape(-1, 3))
+            s.rows.assign(wp.array(rows.astype(self.dtype), dtype=self.scalar,
+                                   device=self.device))
+            s.diagonal.assign(wp.array(diagonal.astype(self.dtype), dtype=self.scalar,
+                                       device=self.device))
         if velocities is None:
             s.velocity.zero_()
         else:
@@ -451,7 +483,8 @@ class StructureRelaxation:
         return s
 
     def _pass(self, which: int, count: int, data=None, out=None):
-        kernel = structure_passes.pass_kernel(self.scalar, self.friction, self.boundary)
+        kernel = structure_passes.pass_kernel(self.scalar, self.friction, self.boundary,
+                                              kinematics=self.kinematics)
         if out is None:  # one per pass, kept: a pass writes every unit's entry
             if which not in self._outs:
                 self._outs[which] = wp.zeros(max(count, 1), dtype=self.scalar,
@@ -472,8 +505,14 @@ class StructureRelaxation:
         """-dV/dr + the friction forces (n, 2) [N] on the free dofs (a tied family's summed on
         each of its nodes), the gather order's bits."""
         self._passes(positions, anchors, loads)
-        self._pass(structure_passes.FORCES, self.arrays.nodes)
+        self._pass(structure_passes.FORCES, self._force_units)
         return structure_state.read(self._scratch, "force")
+
+    @property
+    def _force_units(self) -> int:
+        """The FORCES pass's threads: a node each (the gather order), a group each (spatial:
+        the scatter order)."""
+        return self.arrays.groups if self.spatial else self.arrays.nodes
 
     def internal_force(self, positions, anchors=None) -> np.ndarray:
         """-dV/dr (+ friction) (n, 2) [N] without external loads or gravity, every dof
@@ -484,7 +523,7 @@ class StructureRelaxation:
                 a, self.scalar, self.device, free=np.ones_like(a.free),
                 weight=np.zeros_like(a.weight))
         self._passes(positions, anchors, None, self._reaction_data)
-        self._pass(structure_passes.FORCES, self.arrays.nodes, self._reaction_data)
+        self._pass(structure_passes.FORCES, self._force_units, self._reaction_data)
         return structure_state.read(self._scratch, "force")
 
     def energies(self, positions, loads=None, anchors=None):
@@ -494,6 +533,12 @@ class StructureRelaxation:
         nodes = self._pass(structure_passes.NODE_ENERGY, self.arrays.nodes).numpy()
         ties = self._pass(structure_passes.TIE_ENERGY, self.arrays.ties).numpy()
         return nodes[:self.arrays.nodes].astype(float), ties[:self.arrays.ties].astype(float)
+
+    def lateral_energies(self, positions) -> np.ndarray:
+        """Each lateral contact's energy (L,) [J] (spatial, docs/model.md section 11.5)."""
+        self._passes(positions, None)
+        out = self._pass(structure_passes.LATERAL_ENERGY, self.arrays.laterals).numpy()
+        return out[:self.arrays.laterals].astype(float)
 
     def return_map(self, positions, anchors):
         """(anchors (T, 2) [m] after the radial return map at `positions`, the energy each tie
@@ -515,8 +560,8 @@ class StructureRelaxation:
         velocities, forces and anchors replace those at the start, and its per-tie
         dissipation where it has one). `progress(self)` after every launch; `name(g)` names
         group g in the SolverError of a group that stopped (default "group g")."""
-        if self.method != "explicit":
-            raise ValueError("a transient runs the explicit integrator")
+        if self.method != "explicit" or self.spatial:
+            raise ValueError("a transient runs the explicit integrator on a planar structure")
         a = self.arrays
         kernel_key = (self.scalar, self.friction, self.boundary)
         path = np.asarray(path, float).reshape(a.families, -1)

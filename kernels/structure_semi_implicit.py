@@ -629,9 +629,11 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
 
 
 @structure_variants.variant("semi_implicit", "node_parallel")
-def stage_kernel(scalar, friction: bool, boundary: bool):
+def stage_kernel(scalar, friction: bool, boundary: bool, kinematics: str = "planar"):
     """The node-parallel layout's kernel: one launch per stage, a thread per unit; the start's
     stages are `structure_explicit`'s (`START_STAGES`), with the merit."""
+    if kinematics != "planar":
+        raise ValueError(f"the {kinematics} kinematics has the explicit grouped kernel only")
     Data = structure_arrays.struct(scalar)
     State = structure_state.struct(scalar)
     Settings = structure_settings.struct(scalar)
@@ -665,10 +667,13 @@ def stage_kernel(scalar, friction: bool, boundary: bool):
 
 
 @structure_variants.variant("semi_implicit", "grouped")
-def grouped_kernel(scalar, friction: bool, boundary: bool, order: str):
+def grouped_kernel(scalar, friction: bool, boundary: bool, order: str,
+                   kinematics: str = "planar"):
     """The grouped layout's kernel: thread g runs group first + g, the start (`begin` != 0) or
     up to settings.chunk time steps. `order` "gather" evaluates the forces as the node-parallel
     layout does (the same bits); "scatter" in scatter order."""
+    if kinematics != "planar":
+        raise ValueError(f"the {kinematics} kinematics has the explicit grouped kernel only")
     Data = structure_arrays.struct(scalar)
     State = structure_state.struct(scalar)
     Settings = structure_settings.struct(scalar)

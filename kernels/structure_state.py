@@ -16,7 +16,7 @@ import numpy as np
 import warp as wp
 
 from dynfab.banded import BANDWIDTH
-from dynfab.kernels.precision import VECTORS
+from dynfab.kernels.precision import vector
 
 WIDTH = 2 * BANDWIDTH + 1
 """Entries of a band row: band[i, j - i + BANDWIDTH] = A_ij."""
@@ -26,13 +26,19 @@ BOUNDARY_SUMS = 6
 """Per-group sums of the moving planes (U_a, U_b, G_a, G_b) and the tied dofs' diagonals."""
 
 
+def struct(scalar, dim: int = 2):
+    """The `StructureState` Warp struct (`_struct`), one per (scalar, dim) however called."""
+    return _struct(scalar, int(dim))
+
+
 @functools.cache
-def struct(scalar):
-    """The `StructureState` Warp struct for one scalar type."""
-    vec = VECTORS[scalar]
+def _struct(scalar, dim: int):
+    """The `StructureState` Warp struct for one scalar type and `dim` coordinates per node
+    (spatial, dim 3: with each node's Gershgorin row sum and diagonal, `rows` and
+    `diagonal`, computed on the host)."""
+    vec = vector(scalar, dim)
     vec4 = wp.types.vector(4, scalar)
 
-    @wp.struct
     class StructureState:
         """The mutable state of a relaxation or transient (module docstring)."""
 
@@ -106,7 +112,10 @@ def struct(scalar):
         cg: wp.array2d(dtype=scalar)
         boundary: wp.array2d(dtype=scalar)
 
-    return StructureState
+    if dim == 3:
+        StructureState.__annotations__.update({"rows": wp.array(dtype=scalar),
+                                               "diagonal": wp.array(dtype=scalar)})
+    return wp.struct(StructureState)
 
 
 NODE_VECTORS = ("position", "velocity", "force", "previous_force", "previous_position",
@@ -126,10 +135,11 @@ DOF_VECTORS = ("rhs", "x", "r", "z", "p", "q")
 def allocate(arrays, scalar, device: str, semi_implicit: bool):
     """A zeroed StructureState for `arrays` (`structure_arrays.StructureArrays`); the dof arrays
     of the semi-implicit system only with `semi_implicit`."""
-    vec, vec4 = VECTORS[scalar], wp.types.vector(4, scalar)
+    dim = arrays.dim
+    vec, vec4 = vector(scalar, dim), wp.types.vector(4, scalar)
     n, T, B, Y, G = arrays.nodes, arrays.ties, arrays.blocks, arrays.chains, arrays.groups
     dofs = 2 * n if semi_implicit else 0
-    state = struct(scalar)()
+    state = struct(scalar, dim)()
 
     def zeros(shape, dtype):
         return wp.zeros(shape, dtype=dtype, device=device)
@@ -145,7 +155,10 @@ def allocate(arrays, scalar, device: str, semi_implicit: bool):
     state.block_values, state.block_max = zeros(B, vec4), zeros(B, scalar)
     state.chain_failed = zeros(Y, wp.int32)
     state.chain_partial, state.chain_largest = zeros(Y, scalar), zeros(Y, scalar)
-    state.band = zeros((max(dofs, 2 * n), WIDTH), scalar)  # masses need the band too
+    band = 0 if dim == 3 else max(dofs, 2 * n)  # planar masses need the band too
+    state.band = zeros((band, WIDTH), scalar)
+    if dim == 3:  # the spatial masses' Gershgorin rows, from the host
+        state.rows, state.diagonal = zeros(n, scalar), zeros(n, scalar)
     state.factor = zeros((dofs, WIDTH), scalar)
     for name in DOF_VECTORS:
         setattr(state, name, zeros(dofs, scalar))

@@ -132,9 +132,11 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
 
 
 @structure_variants.variant("transient", "node_parallel")
-def stage_kernel(scalar, friction: bool, boundary: bool):
+def stage_kernel(scalar, friction: bool, boundary: bool, kinematics: str = "planar"):
     """The node-parallel layout's transient kernel (a launch per stage; `k` the step within
     the launch's run of steps from settings.time)."""
+    if kinematics != "planar":
+        raise ValueError(f"the {kinematics} kinematics has the explicit grouped kernel only")
     Data = structure_arrays.struct(scalar)
     State = structure_state.struct(scalar)
     Settings = structure_settings.struct(scalar)
@@ -153,10 +155,13 @@ def stage_kernel(scalar, friction: bool, boundary: bool):
 
 
 @structure_variants.variant("transient", "grouped")
-def grouped_kernel(scalar, friction: bool, boundary: bool, order: str):
+def grouped_kernel(scalar, friction: bool, boundary: bool, order: str,
+                   kinematics: str = "planar"):
     """The grouped layout's transient kernel: thread g starts group first + g (`begin` != 0:
     the masses, dt and forces) or advances it by settings.chunk steps of settings.fixed_dt
     from settings.time."""
+    if kinematics != "planar":
+        raise ValueError(f"the {kinematics} kinematics has the explicit grouped kernel only")
     Data = structure_arrays.struct(scalar)
     State = structure_state.struct(scalar)
     Settings = structure_settings.struct(scalar)

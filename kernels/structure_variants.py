@@ -4,7 +4,8 @@ solver (decisions)").
 Every kernel factory of the layer is cached (one variant per key, built once per process) and
 registered here by `variant`: its kind ("explicit", "semi_implicit", "transient", "passes"),
 layout ("grouped", "node_parallel"; "-" for the passes), scalar type, whether friction and the
-boundary couplings are compiled in, and the grouped layout's force order. `built_variants`
+boundary couplings are compiled in, the grouped layout's force order and the kinematics
+("planar", or "spatial": vec3 nodes and the spatial terms, docs/model.md section 11). `built_variants`
 lists them in the order they were built, so a report or a test can count the variants a run
 added (each one a compile on a cold cache).
 """
@@ -25,38 +26,42 @@ class Variant:
     friction: bool
     boundary: bool
     order: str = "-"
+    kinematics: str = "planar"
 
     @property
     def name(self) -> str:
-        """The variant as one line: kind/layout/order/precision/couplings."""
+        """The variant as one line: kind/layout/order/precision/couplings[/spatial]."""
         couplings = "+".join(name for name, on in (("friction", self.friction),
                                                     ("boundary", self.boundary)) if on)
+        spatial = "" if self.kinematics == "planar" else f"/{self.kinematics}"
         return (f"{self.kind}/{self.layout}/{self.order}/{self.precision}/"
-                f"{couplings or 'no friction'}")
+                f"{couplings or 'no friction'}{spatial}")
 
 
 _BUILT: list[Variant] = []
 
 
 def describe(kind: str, layout: str, scalar, friction: bool, boundary: bool,
-             order: str | None = None) -> Variant:
+             order: str | None = None, kinematics: str = "planar") -> Variant:
     """The Variant of a factory's key (`variant`)."""
     precision = "float64" if scalar is wp.float64 else "float32"
-    return Variant(kind, layout, precision, bool(friction), bool(boundary), order or "-")
+    return Variant(kind, layout, precision, bool(friction), bool(boundary), order or "-",
+                   kinematics)
 
 
 def variant(kind: str, layout: str):
-    """Decorator of a kernel factory f(scalar, friction, boundary[, order]): cached
-    (functools.cache), each new key recorded as a `Variant`."""
+    """Decorator of a kernel factory f(scalar, friction, boundary[, order], kinematics=...):
+    cached (functools.cache; `kinematics` always passed by keyword, so a default and an
+    explicit "planar" are one key), each new key recorded as a `Variant`."""
     def wrap(factory):
         cached = functools.cache(factory)
 
         @functools.wraps(factory)
-        def build(*key):
+        def build(*key, kinematics: str = "planar"):
             misses = cached.cache_info().misses
-            kernel = cached(*key)
+            kernel = cached(*key, kinematics=kinematics)
             if cached.cache_info().misses > misses:
-                _BUILT.append(describe(kind, layout, *key))
+                _BUILT.append(describe(kind, layout, *key, kinematics=kinematics))
             return kernel
 
         build.cache_info = cached.cache_info

@@ -12,7 +12,6 @@ import numpy as np
 import pytest
 
 from dynfab import run
-from dynfab.errors import UserError
 from dynfab.plot import plot_results
 from dynfab.run import run_to_file
 from dynfab.scene import parse_scene_text
@@ -62,12 +61,6 @@ def test_a_resumed_specimen_file_is_the_uninterrupted_one_and_its_view_and_figur
     np.testing.assert_array_equal(data["shear_angle"][crossing_nodes[:, 1]], gamma)
     assert [p.name for p in plot_results(part, tmp_path / "plots")] == \
         ["shear_force.png", "shear_field.png"]
-
-
-def test_the_dynamic_solver_refuses_a_specimen_in_one_line():
-    with pytest.raises(UserError, match=r"^--solver dynamic does not run a \[specimen\]") as error:
-        run(small_frame(), solver="dynamic")
-    assert "\n" not in str(error.value)
 
 
 def test_a_study_of_a_specimen_gathers_the_serial_runs(tmp_path):

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import numba
 import numpy as np
+import scipy.sparse
 
 from dynfab.fabric import contact
 from dynfab.fabric.assembly import Pattern
@@ -357,3 +358,30 @@ def coupling_rows(structure, pos, anchors, limit, c) -> tuple[np.ndarray, np.nda
         return np.zeros(0, np.int64), np.zeros(0)
     return (3 * structure.tie_stencil[c][:, None] + np.arange(3)).ravel(), out
 
+
+
+def stiffest_rows(structure, pos, anchors) -> tuple[np.ndarray, np.ndarray]:
+    """Per node, (the largest over its three dofs of sum_j |K_ij|, its largest |K_ii|) [N/m]
+    of the stiffest tangent K a load step from `pos` can meet (docs/model.md, "The dynamic
+    solver (decisions)": masses and time step): every crossing sticking (F_T infinite where
+    the structure has friction), every contact at its bound k_s, the other terms exact at
+    `pos`; on every dof, held ones included, as the planar kernels' band. The dynamic solver's
+    Gershgorin masses of a spatial structure (`dynfab.kernels.structure_checks`)."""
+    s = structure
+    pattern = pattern_of(s)
+    limit = np.full(s.tie_a.size, np.inf if s.has_friction else 0.0)
+    values = np.zeros(pattern.size)
+    hessian_values(pos, s, np.asarray(anchors, float), limit, values, False)
+    tangent = np.zeros(s.tie_a.size)
+    contact.tangents(pos, s, tangent)
+    raise_to = np.asarray(s.tie_contact_law, float)[:, 0] - tangent  # k_s - dR/dg
+    z_a, z_b = 3 * s.tie_a + 2, 3 * s.tie_b + 2
+    rows = np.concatenate([pattern.rows, z_a, z_a, z_b, z_b])
+    cols = np.concatenate([pattern.cols, z_a, z_b, z_a, z_b])
+    values = np.concatenate([values, raise_to, -raise_to, -raise_to, raise_to])
+    n = pos.shape[0]
+    K = scipy.sparse.coo_matrix((values, (rows, cols)), shape=(3 * n, 3 * n)).tocsr()
+    K.sum_duplicates()
+    row_sums = np.asarray(abs(K).sum(axis=1)).ravel().reshape(n, 3)
+    diagonal = np.abs(K.diagonal()).reshape(n, 3)
+    return row_sums.max(axis=1), diagonal.max(axis=1)

@@ -188,6 +188,18 @@ class SpecimenModel:
     def frame_arrays(self, frame):
         raise NotImplementedError("a specimen has no transient run")
 
+    # ------------------------------------------------------------------ the Hessian
+
+    @property
+    def pattern(self):
+        """The order of the Hessian's entries and its unknowns (`spatial.pattern_of`)."""
+        return spatial.pattern_of(self.structure)
+
+    def hessian(self, pos, anchors, limit, secant: bool = False):
+        """The Hessian on the unknowns, F_T frozen (`spatial.sparse_hessian`): what the
+        sparse certificate reads (`dynfab.certificate.certify_patch`), as a fabric's."""
+        return spatial.sparse_hessian(self.structure, pos, anchors, limit, secant)
+
     # ------------------------------------------------------------------ a load step
 
     def friction_limits(self, pos) -> np.ndarray:

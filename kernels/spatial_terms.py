@@ -1,0 +1,257 @@
+"""The spatial fabric's element forces and energies in a kernel (docs/model.md section 11): the
+Warp form of `dynfab.terms.spatial` (its energies and exact gradients; the Hessians stay on
+the host, where the masses' Gershgorin rows and the certificate take them).
+
+Nodes carry x, y, z (vec3, the fabric's plane x-y). Each force function adds -dE/dX of one
+element to the nodes of its stencil in a force array (the scatter order of
+`structure_forces`: a group's thread adds every element once); each energy function returns
+E [J]. The elements (docs/model.md eqs. in section 11; the derivatives as
+`dynfab.terms.spatial`'s docstring states them):
+
+- bending in two planes (11.1) at node j between i and k: e1 = x_j - x_i, e2 = x_k - x_j,
+  m_b = kb (theta(e2) - theta(e1) - theta0), m_l = kl (wrap(psi(e2) - psi(e1)) - psi0),
+  G_m = m_b dtheta/de(e_m) + m_l dpsi/de(e_m); forces (-G1, G1 + G2, -G2) on (i, j, k);
+- the crossing (11.2): q = (s_x, s_y, phi) of its stencil (a_prev, a, a_next, b_prev, b,
+  b_next), the slip S = (s_x - xi_x, s_y - xi_y, rho wrap(phi - xi_phi)) from its anchor,
+  E = Huber(S) + 1/2 K wrap(phi - phi_rest)^2 with F_T of the current contact force;
+  dE/dq = (h_x, h_y, rho h_phi + K w), h = dHuber/dS, chained through
+  ds/dd = R(-alpha), ds/dalpha = (s_y, -s_x), dphi/dalpha = -1, dphi/dbeta = 1,
+  dalpha/dc_a = (-c_a,y, c_a,x) / |c_a|^2 (beta alike);
+- the lateral contact (11.5): d = sign cross2(c, v) / |c|, E = 1/2 k (w - d)^2 for d < w,
+  dd/dc = sign ((v_y, -v_x) / |c| - cross2 c / |c|^3), dd/dv = sign (-c_y, c_x) / |c|.
+
+The stretch and the contact along z are the planar kernels' own (`structure_forces`), written
+for any vector size.
+"""
+
+import functools
+from types import SimpleNamespace
+
+import numpy as np
+import warp as wp
+
+from dynfab.kernels import structure_arrays
+from dynfab.kernels.precision import vector
+
+PI = float(np.pi)
+TWO_PI = 2.0 * float(np.pi)
+
+
+@functools.cache
+def functions(scalar) -> SimpleNamespace:
+    """The spatial elements' `wp.func`s for one scalar type (module docstring)."""
+    vec = vector(scalar, 3)
+    Data = structure_arrays.struct(scalar, 3)
+
+    @wp.func(inline=True)
+    def wrap(angle: scalar) -> scalar:
+        """The angle [rad] in (-pi, pi] that differs from `angle` by a multiple of 2 pi."""
+        return angle - scalar(TWO_PI) * wp.ceil((angle - scalar(PI)) / scalar(TWO_PI))
+
+    @wp.func(inline=True)
+    def elevation(e: vec) -> scalar:
+        """theta(e) = atan2(e_z, |e_xy|) [rad]."""
+        return wp.atan2(e[2], wp.sqrt(e[0] * e[0] + e[1] * e[1]))
+
+    @wp.func(inline=True)
+    def elevation_gradient(e: vec) -> vec:
+        """dtheta/de = (-z n_x, -z n_y, r) / |e|^2 [1/m], n = e_xy / r."""
+        r = wp.sqrt(e[0] * e[0] + e[1] * e[1])
+        z = e[2]
+        rr = r * r + z * z
+        return vec(-z * (e[0] / r) / rr, -z * (e[1] / r) / rr, r / rr)
+
+    @wp.func(inline=True)
+    def direction(e: vec) -> scalar:
+        """psi(e) = atan2(e_y, e_x) [rad]."""
+        return wp.atan2(e[1], e[0])
+
+    @wp.func(inline=True)
+    def direction_gradient(e: vec) -> vec:
+        """dpsi/de = (-e_y, e_x, 0) / r^2 [1/m]."""
+        r2 = e[0] * e[0] + e[1] * e[1]
+        return vec(-e[1] / r2, e[0] / r2, scalar(0.0))
+
+    @wp.func(inline=True)
+    def elevation_excess(data: Data, j: int, a: vec, b: vec) -> scalar:
+        """theta(b) - theta(a) - theta0 [rad] at node j."""
+        return elevation(b) - elevation(a) - data.rest_angle[j]
+
+    @wp.func(inline=True)
+    def lateral_excess(data: Data, j: int, a: vec, b: vec) -> scalar:
+        """wrap(psi(b) - psi(a)) - psi0 [rad] at node j."""
+        return wrap(direction(b) - direction(a)) - data.lateral_rest_angle[j]
+
+    @wp.func(inline=True)
+    def bend_forces(pos: wp.array(dtype=vec), data: Data, i: int, j: int, k: int,
+                    force: wp.array(dtype=vec)):
+        """force += -dE/dX of the bending spring at j (neighbours i, k) (module docstring)."""
+        a = pos[j] - pos[i]
+        b = pos[k] - pos[j]
+        mb = data.bend_stiffness[j] * elevation_excess(data, j, a, b)
+        ml = data.lateral_bend_stiffness[j] * lateral_excess(data, j, a, b)
+        g1 = mb * elevation_gradient(a) + ml * direction_gradient(a)
+        g2 = mb * elevation_gradient(b) + ml * direction_gradient(b)
+        force[i] = force[i] - g1
+        force[j] = force[j] + g1 + g2
+        force[k] = force[k] - g2
+
+    @wp.func(inline=True)
+    def bend_energy(pos: wp.array(dtype=vec), data: Data, i: int, j: int, k: int) -> scalar:
+        """E [J] of the bending spring at j (docs/model.md (11.1))."""
+        a = pos[j] - pos[i]
+        b = pos[k] - pos[j]
+        out_of_plane = elevation_excess(data, j, a, b)
+        lateral = lateral_excess(data, j, a, b)
+        return (scalar(0.5) * data.bend_stiffness[j] * out_of_plane * out_of_plane
+                + scalar(0.5) * data.lateral_bend_stiffness[j] * lateral * lateral)
+
+    @wp.func(inline=True)
+    def crossing_coordinates(pos: wp.array(dtype=vec), data: Data, t: int) -> vec:
+        """q = (s_x [m], s_y [m], phi [rad]) of crossing t (docs/model.md (11.2))."""
+        st = data.tie_stencil
+        p0 = pos[st[t, 0]]
+        p2 = pos[st[t, 2]]
+        p3 = pos[st[t, 3]]
+        p5 = pos[st[t, 5]]
+        alpha = wp.atan2(p2[1] - p0[1], p2[0] - p0[0])
+        beta = wp.atan2(p5[1] - p3[1], p5[0] - p3[0])
+        dx = pos[st[t, 4]][0] - pos[st[t, 1]][0]
+        dy = pos[st[t, 4]][1] - pos[st[t, 1]][1]
+        c = wp.cos(alpha)
+        s = wp.sin(alpha)
+        return vec(c * dx + s * dy, -s * dx + c * dy, wrap(beta - alpha))
+
+    @wp.func(inline=True)
+    def crossing_slip(pos: wp.array(dtype=vec), data: Data, anchor: vec, t: int) -> vec:
+        """S [m] of crossing t from its anchor (docs/model.md section 11.4)."""
+        q = crossing_coordinates(pos, data, t)
+        return vec(q[0] - anchor[0], q[1] - anchor[1],
+                   data.rotation_law[t, 0] * wrap(q[2] - anchor[2]))
+
+    @wp.func(inline=True)
+    def huber_gradient(S: vec, bound: scalar, stick: scalar) -> vec:
+        """dHuber/dS [N]: k_t S sticking, F_T S / |S| sliding, 0 where F_T <= 0."""
+        result = vec()
+        if bound > scalar(0.0):
+            size = wp.length(S)
+            scale = stick
+            if not stick * size <= bound:
+                scale = bound / size
+            result = scale * S
+        return result
+
+    @wp.func(inline=True)
+    def huber_energy(S: vec, bound: scalar, stick: scalar) -> scalar:
+        """Huber(S) [J]: 1/2 k_t |S|^2 sticking, F_T |S| - F_T^2 / (2 k_t) sliding, 0 open."""
+        energy = scalar(0.0)
+        if bound > scalar(0.0):
+            size = wp.length(S)
+            if stick * size <= bound:
+                energy = scalar(0.5) * stick * size * size
+            else:
+                energy = bound * size - bound * bound / (scalar(2.0) * stick)
+        return energy
+
+    @wp.func(inline=True)
+    def spring_excess(data: Data, t: int, q: vec) -> scalar:
+        """wrap(phi - phi_rest) [rad] of crossing t's rotation spring."""
+        return wrap(q[2] - data.rotation_law[t, 2])
+
+    @wp.func(inline=True)
+    def crossing_forces(pos: wp.array(dtype=vec), data: Data, t: int, huber: vec,
+                        force: wp.array(dtype=vec)):
+        """force += -dE/dX of crossing t, dHuber/dS = `huber` (module docstring)."""
+        st = data.tie_stencil
+        p0 = pos[st[t, 0]]
+        p2 = pos[st[t, 2]]
+        p3 = pos[st[t, 3]]
+        p5 = pos[st[t, 5]]
+        cax = p2[0] - p0[0]
+        cay = p2[1] - p0[1]
+        cbx = p5[0] - p3[0]
+        cby = p5[1] - p3[1]
+        alpha = wp.atan2(cay, cax)
+        beta = wp.atan2(cby, cbx)
+        dx = pos[st[t, 4]][0] - pos[st[t, 1]][0]
+        dy = pos[st[t, 4]][1] - pos[st[t, 1]][1]
+        c = wp.cos(alpha)
+        s = wp.sin(alpha)
+        sx = c * dx + s * dy
+        sy = -s * dx + c * dy
+        w = wrap(wrap(beta - alpha) - data.rotation_law[t, 2])
+        f0 = huber[0]
+        f1 = huber[1]
+        f2 = data.rotation_law[t, 0] * huber[2] + data.rotation_law[t, 1] * w
+        gd = vec(f0 * c - f1 * s, f0 * s + f1 * c, scalar(0.0))
+        galpha = f0 * sy - f1 * sx - f2
+        ra = cax * cax + cay * cay
+        rb = cbx * cbx + cby * cby
+        gca = galpha * vec(-cay / ra, cax / ra, scalar(0.0))
+        gcb = f2 * vec(-cby / rb, cbx / rb, scalar(0.0))
+        force[st[t, 0]] = force[st[t, 0]] + gca
+        force[st[t, 2]] = force[st[t, 2]] - gca
+        force[st[t, 1]] = force[st[t, 1]] + gd
+        force[st[t, 4]] = force[st[t, 4]] - gd
+        force[st[t, 3]] = force[st[t, 3]] + gcb
+        force[st[t, 5]] = force[st[t, 5]] - gcb
+
+    @wp.func(inline=True)
+    def lateral_gap(pos: wp.array(dtype=vec), data: Data, e: int) -> scalar:
+        """w - d [m] of lateral contact e (positive where the yarns press)."""
+        st = data.lateral_stencil
+        c = pos[st[e, 1]] - pos[st[e, 0]]
+        v = pos[st[e, 3]] - pos[st[e, 2]]
+        d = data.lateral_law[e, 0] * (c[0] * v[1] - c[1] * v[0]) / wp.sqrt(c[0] * c[0]
+                                                                           + c[1] * c[1])
+        return data.lateral_law[e, 1] - d
+
+    @wp.func(inline=True)
+    def lateral_forces(pos: wp.array(dtype=vec), data: Data, e: int,
+                       force: wp.array(dtype=vec)):
+        """force += -dE/dX of lateral contact e (module docstring)."""
+        st = data.lateral_stencil
+        c = pos[st[e, 1]] - pos[st[e, 0]]
+        v = pos[st[e, 3]] - pos[st[e, 2]]
+        sign = data.lateral_law[e, 0]
+        n2 = c[0] * c[0] + c[1] * c[1]
+        n = wp.sqrt(n2)
+        n3 = n2 * n
+        f = c[0] * v[1] - c[1] * v[0]
+        gap = data.lateral_law[e, 1] - sign * f / n
+        if gap > scalar(0.0):
+            m = -data.lateral_law[e, 2] * gap * sign  # dE/dd x sign
+            gc = m * vec(v[1] / n - f * c[0] / n3, -v[0] / n - f * c[1] / n3, scalar(0.0))
+            gv = m * vec(-c[1] / n, c[0] / n, scalar(0.0))
+            force[st[e, 1]] = force[st[e, 1]] - gc
+            force[st[e, 0]] = force[st[e, 0]] + gc
+            force[st[e, 3]] = force[st[e, 3]] - gv
+            force[st[e, 2]] = force[st[e, 2]] + gv
+
+    @wp.func(inline=True)
+    def lateral_energy(pos: wp.array(dtype=vec), data: Data, e: int) -> scalar:
+        """E = 1/2 k (w - d)^2 for d < w, else 0 [J]."""
+        gap = lateral_gap(pos, data, e)
+        energy = scalar(0.0)
+        if gap > scalar(0.0):
+            energy = scalar(0.5) * data.lateral_law[e, 2] * gap * gap
+        return energy
+
+    @wp.func(inline=True)
+    def return_anchor(S: vec, bound: scalar, stick: scalar, rho: scalar) -> vec:
+        """The anchor's move [m, m, rad]: m (S_x, S_y, S_phi / rho), m = 1 - F_T / (k_t |S|),
+        where k_t |S| > F_T (F_T <= 0 counting as 0), else 0 (`dynfab.terms.spatial`)."""
+        size = wp.length(S)
+        limit = wp.max(bound, scalar(0.0))
+        move = vec()
+        if stick * size > limit:
+            m = scalar(1.0) - limit / (stick * size)
+            move = vec(m * S[0], m * S[1], m * S[2] / rho)
+        return move
+
+    return SimpleNamespace(wrap=wrap, bend_forces=bend_forces, bend_energy=bend_energy,
+                           crossing_coordinates=crossing_coordinates, crossing_slip=crossing_slip,
+                           huber_gradient=huber_gradient, huber_energy=huber_energy,
+                           spring_excess=spring_excess, crossing_forces=crossing_forces,
+                           lateral_forces=lateral_forces, lateral_energy=lateral_energy,
+                           return_anchor=return_anchor)
