@@ -17,11 +17,11 @@ F d-dot = T L^2 gamma-dot with d-dot = L sin theta gamma-dot):
 so that
 
     F_sh(gamma) = [(H/W - 1) F (cos(gamma/2) - sin(gamma/2)) - W F_sh(gamma/2) cos(gamma/2)]
-                  / ((2 H - 3 W) cos gamma).                                         (11.9)
+                  / ((2 H - 3 W) cos gamma).                                         (11.3)
 
 F_sh(gamma/2) is the same normalisation at half the angle: the recursion runs down the
 measured curve F(gamma), read by linear interpolation between the path's points (d = 0 the
-first), until the angle is below `SMALLEST_ANGLE`, where F_sh = F / (2 W) (11.9 at gamma = 0).
+first), until the angle is below `SMALLEST_ANGLE`, where F_sh = F / (2 W) (11.3 at gamma = 0).
 The path must be in increasing d (a curve, not a cycle).
 """
 
@@ -34,7 +34,7 @@ import numpy as np
 from dynfab.specimen_layout import frame_angle, nominal_shear_angle
 
 SMALLEST_ANGLE = 1e-9
-"""Angle [rad] below which the recursion (11.9) stops at its gamma -> 0 limit F / (2 W)."""
+"""Angle [rad] below which the recursion (11.3) stops at its gamma -> 0 limit F / (2 W)."""
 
 
 def frame_shear_force(force: float, side: float, d: float) -> float:
@@ -49,7 +49,7 @@ def frame_normalised_shear_force(force: float, side: float, fabric_side: float,
 
 
 def bias_normalised_shear_force(d, force, width: float, height: float) -> np.ndarray:
-    """Harrison's F_sh [N/m] (11.9) at every point of a bias-extension path: d (k,) [m] the
+    """Harrison's F_sh [N/m] (11.3) at every point of a bias-extension path: d (k,) [m] the
     clamp displacements in increasing order, force (k,) [N] the clamp force there."""
     d = np.asarray(d, float)
     force = np.asarray(force, float)
@@ -69,7 +69,7 @@ def bias_normalised_shear_force(d, force, width: float, height: float) -> np.nda
 
 
 def _harrison(gamma: float, force_at, width: float, height: float) -> float:
-    """(11.9) at gamma, F(angle) = force_at(angle), unrolled from the smallest angle up."""
+    """(11.3) at gamma, F(angle) = force_at(angle), unrolled from the smallest angle up."""
     halvings = [gamma]
     while halvings[-1] > SMALLEST_ANGLE:
         halvings.append(0.5 * halvings[-1])
