@@ -119,6 +119,7 @@ UNITS: dict[str, str] = {
     "steps/crossing_slip_ratio": "-",  # specimen: (steps, crossings) in-plane offset / segment
     "steps/lateral_gap": "m",  # specimen: (steps, lateral contacts) w - d, > 0 pressing
     "steps/max_slope": "-",  # specimen: (steps,) largest |e_z| / |e_xy| of a segment
+    "steps/path_tangent": "-",  # specimen: (steps, nodes, 3) last step's dpositions / dd [m/m]
     "steps/xdmf/shear_angle": "rad",  # specimen: (steps, nodes) gamma at crossing nodes
     "steps/load": LOAD_CONTROL_UNITS,  # (steps, yarns) applied value, N or m
     "steps/end_force": "N",  # (steps, yarns) P at the end node

@@ -5,8 +5,9 @@ the picture frame of a plain weave in three dimensions, as a run drives them
 The load path is the clamp (frame corner) displacement d [m], preceded by a step 0 at d = 0
 that relaxes the woven-in preload: its state is the reference of every reported angle and
 displacement. Each step prescribes the held nodes (`dynfab.specimen_layout.held_positions`)
-and starts the free ones from the same affine map (a better Newton start than the previous
-state); the static solver's sparse backend solves it on the spatial terms
+and starts the free ones along the last step's path tangent (`start_of_step`; the first
+step after step 0 by the test's affine map): a better Newton start than the previous
+state; the static solver's sparse backend solves it on the spatial terms
 (`dynfab.fabric.spatial`).
 
 Record of one step (n nodes, C crossings, L lateral contacts):
@@ -24,6 +25,8 @@ Record of one step (n nodes, C crossings, L lateral contacts):
   rad]; slip_ratio: the largest in-plane slip over the segment length [-];
 - lateral_gap (L,) [m]: w - d of each lateral contact (positive where the yarns press);
 - max_slope: the largest |e_z| / |e_xy| of any segment [-] (the small-slope model's check);
+- path_tangent (n, 3) [m/m]: (positions - the last step's) / (its change of d), 0 at step 0
+  (the next step's start, `start_of_step`);
 - dissipated, work [J]; energy/<term> [J]; the solver's fields.
 """
 
@@ -62,6 +65,9 @@ class SpecimenState:
     reference_angle: np.ndarray | None
     """Each crossing's shear angle from the as-woven state at step 0 (C,) [rad], None
     before it: the reference of the reported angles."""
+    path_tangent: np.ndarray | None = None
+    """(n, 3) [m/m]: the positions' change over the last step per unit of d (the secant of
+    the path), None or 0 where that step did not move d (`start_of_step`)."""
 
 
 class SpecimenModel:
@@ -150,7 +156,8 @@ class SpecimenModel:
         return SpecimenState(np.array(last["positions"], float), np.array(last["anchors"], float),
                              float(last["dissipated"]), float(last["work"]),
                              float(last["clamp_force"]), float(np.ravel(last["load"])[0]),
-                             np.array(last["reference_angle"], float))
+                             np.array(last["reference_angle"], float),
+                             np.array(last["path_tangent"], float))
 
     def point_data(self, record: dict) -> dict:
         """The view's nodal data: the shear angle at each crossing's two nodes, 0 elsewhere."""
@@ -183,12 +190,19 @@ class SpecimenModel:
         return contact.friction_limits(pos, self.structure)
 
     def start_of_step(self, state: SpecimenState, load) -> StepStart:
-        """The held nodes at d = `load`; the free ones moved by the same affine map from the
-        previous state (a start near the trellis, not the solution)."""
+        """The held nodes at d = `load`; the free ones extrapolated from the previous state
+        along the last step's path tangent (`SpecimenState.path_tangent`), or where there is
+        none (the step after step 0) moved by the test's affine map: a start near the
+        solution. The secant halves the first Newton residual's and the line search's cuts
+        on the bias specimens (docs/model.md section 11.10); the equilibrium reached is the
+        step's whatever the start."""
         d = float(np.ravel(load)[0])
         pos = state.positions.copy()
         rest = self.structure.rest_position
-        if d != state.displacement:
+        tangent = state.path_tangent
+        if d != state.displacement and tangent is not None and np.any(tangent):
+            pos += (d - state.displacement) * tangent
+        elif d != state.displacement:
             pos += self._affine_increment(pos, state.displacement, d)
         pos[self._held] = specimen_layout.held_positions(self.layout, rest, d)
         return StepStart(np.array([d]), pos, state.anchors.copy(),
@@ -230,8 +244,10 @@ class SpecimenModel:
         absolute = specimen_layout.shear_angles(self.layout, f.rest_position, pos)
         reference = absolute if state.reference_angle is None else state.reference_angle
         work = state.work + 0.5 * (state.clamp_force + clamp_force) * (d - state.displacement)
+        moved = d - state.displacement
+        tangent = (pos - state.positions) / moved if moved else np.zeros_like(pos)
         new = SpecimenState(pos, anchors, state.dissipated + lost, work, clamp_force, d,
-                            reference)
+                            reference, tangent)
         record = {
             "load": np.array([d]), "end_displacement": np.array([d]),
             "end_force": np.array([clamp_force]), "clamp_force": clamp_force,
@@ -242,7 +258,7 @@ class SpecimenModel:
             "sliding": sliding, "friction_force": friction_force, "anchors": anchors,
             "crossing_slip_ratio": self.slip_ratios(pos),
             "lateral_gap": self.lateral_gaps(pos), "max_slope": self.max_slope(pos),
-            "crimp": self.crimps(pos), "dissipated": new.dissipated, "work": new.work,
+            "crimp": self.crimps(pos), "path_tangent": tangent, "dissipated": new.dissipated, "work": new.work,
             **{name: np.asarray(value)[0] for name, value in solution.fields.items()},
         }
         record["slip_ratio"] = float(np.max(record["crossing_slip_ratio"], initial=0.0))
