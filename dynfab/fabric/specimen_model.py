@@ -258,7 +258,8 @@ class SpecimenModel:
             "sliding": sliding, "friction_force": friction_force, "anchors": anchors,
             "crossing_slip_ratio": self.slip_ratios(pos),
             "lateral_gap": self.lateral_gaps(pos), "max_slope": self.max_slope(pos),
-            "crimp": self.crimps(pos), "path_tangent": tangent, "dissipated": new.dissipated, "work": new.work,
+            "crimp": self.crimps(pos), "path_tangent": tangent, "dissipated": new.dissipated,
+            "work": new.work,
             **{name: np.asarray(value)[0] for name, value in solution.fields.items()},
         }
         record["slip_ratio"] = float(np.max(record["crossing_slip_ratio"], initial=0.0))
