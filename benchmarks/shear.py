@@ -4,6 +4,7 @@ against each other on the same Hessians, and the Cao et al. scenes' load paths.
 
     python benchmarks/shear.py [--sides 0.03,0.06,0.09,0.12] [--steps 4]
                                [--scenes runs/cao2008_frame.toml,...] [--scene-steps N]
+                               [--friction-beta B]
                                [--out benchmarks/shear.json]
 
 - **scaling**: picture frames of the given sides (the Cao fabric of runs/cao2008_frame.toml),
@@ -17,7 +18,13 @@ against each other on the same Hessians, and the Cao et al. scenes' load paths.
   from iparm 22-23), where `pypardiso` imports (not a dependency: measured only);
 - **scenes**: each scene's path with the static solver until it ends or stops (a
   SolverError: the step, the reason), or its first `--scene-steps` steps after step 0; its
-  crossings, steps, iterations, wall time and time per iteration (with the scaling's).
+  crossings, steps, iterations, wall time and time per iteration (with the scaling's);
+  `--friction-beta` replaces the scenes' [friction] beta (1e6 holds the bias specimens'
+  free edges, which slide and stop the paper's law early: docs/results.md, to time many
+  steps).
+
+Every path also counts the Newton solves' factorisations and the solves by GMRES on kept
+factors instead (`dynfab.fabric.kept_factor`).
 
 Prints the figures and writes them to the JSON file. Times are wall-clock on this machine
 (shared: compare ratios within one run).
@@ -65,7 +72,10 @@ def _path(model, steps: int | None, say=print) -> dict:
             f"{int(np.max(record['iterations']))} iterations, clamp force "
             f"{float(record['clamp_force']):.4g} N")
     wall = time.perf_counter() - started
+    kept = getattr(solver.backend, "kept", None)
     return {"steps": done, "iterations": iterations, "wall_s": wall, "stopped": stop,
+            "factorisations": getattr(kept, "factorisations", None),
+            "krylov_solves": getattr(kept, "krylov_solves", None),
             "state": state, "solver": solver}
 
 
@@ -116,7 +126,8 @@ def scaling(sides, steps: int) -> list[dict]:
         run = _path(model, steps)
         row = {"side_m": side, "crossings": int(model.structure.tie_a.size),
                "nodes": int(model.structure.rest_position.shape[0]),
-               **{k: run[k] for k in ("steps", "iterations", "wall_s", "stopped")}}
+               **{k: run[k] for k in ("steps", "iterations", "wall_s", "stopped",
+                                      "factorisations", "krylov_solves")}}
         row["s_per_iteration"] = run["wall_s"] / max(run["iterations"], 1)
         row["factorisations"] = factorisations(run["solver"], run["state"])
         print(f"  {row['iterations']} iterations in {row['wall_s']:.2f} s: "
@@ -140,6 +151,7 @@ def main(argv=None) -> None:
     parser.add_argument("--steps", type=int, default=4)
     parser.add_argument("--scenes", default="")
     parser.add_argument("--scene-steps", type=int, default=None)
+    parser.add_argument("--friction-beta", type=float, default=None)
     parser.add_argument("--out", default=str(ROOT / "benchmarks" / "shear.json"))
     args = parser.parse_args(argv)
     rows = scaling([float(s) for s in args.sides.split(",") if s], args.steps)
@@ -147,13 +159,20 @@ def main(argv=None) -> None:
     print(f"time per Newton iteration ~ crossings^{result['exponent_per_iteration']:.2f}")
     for path in [p for p in args.scenes.split(",") if p]:
         print(f"{path}:")
-        model = build_model(load_scene(path))
+        scene = load_scene(path)
+        if args.friction_beta is not None:
+            scene = with_key(scene, "friction.beta", args.friction_beta)
+        model = build_model(scene)
         run = _path(model, args.scene_steps)
-        entry = {"scene": path, "crossings": int(model.structure.tie_a.size),
+        entry = {"scene": path, "friction_beta": args.friction_beta,
+                 "crossings": int(model.structure.tie_a.size),
                  "nodes": int(model.structure.rest_position.shape[0]),
-                 **{k: run[k] for k in ("steps", "iterations", "wall_s", "stopped")}}
+                 **{k: run[k] for k in ("steps", "iterations", "wall_s", "stopped",
+                                        "factorisations", "krylov_solves")}}
         entry["s_per_iteration"] = run["wall_s"] / max(run["iterations"], 1)
-        print(f"  {entry['steps']} steps, {entry['iterations']} iterations, {entry['wall_s']:.1f} s"
+        print(f"  {entry['steps']} steps, {entry['iterations']} iterations, "
+              f"{entry['wall_s']:.1f} s, {entry['factorisations']} factorisations, "
+              f"{entry['krylov_solves']} kept-factor solves"
               + (f"; stopped: {entry['stopped']}" if entry["stopped"] else ""))
         result["scenes"].append(entry)
         Path(args.out).write_text(json.dumps(result, indent=2) + "\n")  # each scene kept

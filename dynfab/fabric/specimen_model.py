@@ -5,8 +5,9 @@ the picture frame of a plain weave in three dimensions, as a run drives them
 The load path is the clamp (frame corner) displacement d [m], preceded by a step 0 at d = 0
 that relaxes the woven-in preload: its state is the reference of every reported angle and
 displacement. Each step prescribes the held nodes (`dynfab.specimen_layout.held_positions`)
-and starts the free ones from the same affine map (a better Newton start than the previous
-state); the static solver's sparse backend solves it on the spatial terms
+and starts the free ones along the last step's path tangent (`start_of_step`; the first
+step after step 0 by the test's affine map): a better Newton start than the previous
+state; the static solver's sparse backend solves it on the spatial terms
 (`dynfab.fabric.spatial`).
 
 Record of one step (n nodes, C crossings, L lateral contacts):
@@ -25,6 +26,7 @@ Record of one step (n nodes, C crossings, L lateral contacts):
   rad]; slip_ratio: the largest in-plane slip over the segment length [-];
 - lateral_gap (L,) [m]: w - d of each lateral contact (positive where the yarns press);
 - max_slope: the largest |e_z| / |e_xy| of any segment [-] (the small-slope model's check);
+  (the next step's start, `start_of_step`);
 - dissipated, work [J]; energy/<term> [J]; the solver's fields.
 """
 
@@ -68,14 +70,18 @@ class SpecimenState:
     path: np.ndarray
     """(steps so far, 2): each finished step's d [m] and clamp force [N] (the bias
     extension's normalisation reads its curve)."""
+    path_tangent: np.ndarray | None = None
+    """(n, 3) [m/m]: the positions' change over the last step per unit of d (the secant of
+    the path), None or 0 where that step did not move d (`start_of_step`)."""
 
 
 class SpecimenModel:
     """A specimen scene as the solvers see it (module docstring)."""
 
     relaxation_steps = 1
-    history_keys = ("load", "clamp_force")
-    """The columns of every finished step a resumed run gives `state_from_step` (`path`)."""
+    history_keys = ("load", "clamp_force", "positions")
+    """The columns of every finished step a resumed run gives `state_from_step` (`path`,
+    and the last step's path tangent from the last two steps' positions)."""
     """Steps before the scene's load path: step 0, the preload relaxed at d = 0."""
 
     @property
@@ -162,7 +168,20 @@ class SpecimenModel:
         return SpecimenState(np.array(last["positions"], float), np.array(last["anchors"], float),
                              float(last["dissipated"]), float(last["work"]),
                              float(last["clamp_force"]), float(np.ravel(last["load"])[0]),
-                             np.array(last["reference_angle"], float), path)
+                             np.array(last["reference_angle"], float), path,
+                             self._last_tangent(history))
+
+    @staticmethod
+    def _last_tangent(history: dict) -> np.ndarray | None:
+        """(r_n - r_n-1) / (d_n - d_n-1) of the last two finished steps, as `finish_step`
+        computed it (the same bits: a resumed run starts its next step where the
+        uninterrupted one did); None after step 0 alone, 0 where d did not move."""
+        positions, d = history["positions"], np.asarray(history["load"], float).reshape(-1)
+        if d.size < 2:
+            return None
+        moved = d[-1] - d[-2]
+        last = np.asarray(positions[-1], float)
+        return (last - np.asarray(positions[-2], float)) / moved if moved else np.zeros_like(last)
 
     def point_data(self, record: dict) -> dict:
         """The view's nodal data: the shear angle at each crossing's two nodes, 0 elsewhere."""
@@ -207,12 +226,19 @@ class SpecimenModel:
         return contact.friction_limits(pos, self.structure)
 
     def start_of_step(self, state: SpecimenState, load) -> StepStart:
-        """The held nodes at d = `load`; the free ones moved by the same affine map from the
-        previous state (a start near the trellis, not the solution)."""
+        """The held nodes at d = `load`; the free ones extrapolated from the previous state
+        along the last step's path tangent (`SpecimenState.path_tangent`), or where there is
+        none (the step after step 0) moved by the test's affine map: a start near the
+        solution. The secant halves the first Newton residual's and the line search's cuts
+        on the bias specimens (docs/model.md section 11.10); the equilibrium reached is the
+        step's whatever the start."""
         d = float(np.ravel(load)[0])
         pos = state.positions.copy()
         rest = self.structure.rest_position
-        if d != state.displacement:
+        tangent = state.path_tangent
+        if d != state.displacement and tangent is not None and np.any(tangent):
+            pos += (d - state.displacement) * tangent
+        elif d != state.displacement:
             pos += self._affine_increment(pos, state.displacement, d)
         pos[self._held] = specimen_layout.held_positions(self.layout, rest, d)
         return StepStart(np.array([d]), pos, state.anchors.copy(),
@@ -255,8 +281,10 @@ class SpecimenModel:
         reference = absolute if state.reference_angle is None else state.reference_angle
         work = state.work + 0.5 * (state.clamp_force + clamp_force) * (d - state.displacement)
         path = np.vstack([state.path, [d, clamp_force]])
+        moved = d - state.displacement
+        tangent = (pos - state.positions) / moved if moved else np.zeros_like(pos)
         new = SpecimenState(pos, anchors, state.dissipated + lost, work, clamp_force, d,
-                            reference, path)
+                            reference, path, tangent)
         record = {
             "load": np.array([d]), "end_displacement": np.array([d]),
             "end_force": np.array([clamp_force]), "clamp_force": clamp_force,
