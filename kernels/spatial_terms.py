@@ -30,7 +30,7 @@ from types import SimpleNamespace
 import numpy as np
 import warp as wp
 
-from dynfab.kernels import structure_arrays
+from dynfab.kernels import structure_arrays, tie_law
 from dynfab.kernels.precision import vector
 
 PI = float(np.pi)
@@ -41,6 +41,7 @@ TWO_PI = 2.0 * float(np.pi)
 def functions(scalar) -> SimpleNamespace:
     """The spatial elements' `wp.func`s for one scalar type (module docstring)."""
     vec = vector(scalar, 3)
+    huber_law = tie_law.huber_term(vec)
     Data = structure_arrays.struct(scalar, 3)
 
     @wp.func(inline=True)
@@ -128,30 +129,6 @@ def functions(scalar) -> SimpleNamespace:
         q = crossing_coordinates(pos, data, t)
         return vec(q[0] - anchor[0], q[1] - anchor[1],
                    data.rotation_law[t, 0] * wrap(q[2] - anchor[2]))
-
-    @wp.func(inline=True)
-    def huber_gradient(S: vec, bound: scalar, stick: scalar) -> vec:
-        """dHuber/dS [N]: k_t S sticking, F_T S / |S| sliding, 0 where F_T <= 0."""
-        result = vec()
-        if bound > scalar(0.0):
-            size = wp.length(S)
-            scale = stick
-            if not stick * size <= bound:
-                scale = bound / size
-            result = scale * S
-        return result
-
-    @wp.func(inline=True)
-    def huber_energy(S: vec, bound: scalar, stick: scalar) -> scalar:
-        """Huber(S) [J]: 1/2 k_t |S|^2 sticking, F_T |S| - F_T^2 / (2 k_t) sliding, 0 open."""
-        energy = scalar(0.0)
-        if bound > scalar(0.0):
-            size = wp.length(S)
-            if stick * size <= bound:
-                energy = scalar(0.5) * stick * size * size
-            else:
-                energy = bound * size - bound * bound / (scalar(2.0) * stick)
-        return energy
 
     @wp.func(inline=True)
     def spring_excess(data: Data, t: int, q: vec) -> scalar:
@@ -251,7 +228,7 @@ def functions(scalar) -> SimpleNamespace:
 
     return SimpleNamespace(wrap=wrap, bend_forces=bend_forces, bend_energy=bend_energy,
                            crossing_coordinates=crossing_coordinates, crossing_slip=crossing_slip,
-                           huber_gradient=huber_gradient, huber_energy=huber_energy,
+                           huber_force=huber_law.force, huber_energy=huber_law.energy,
                            spring_excess=spring_excess, crossing_forces=crossing_forces,
                            lateral_forces=lateral_forces, lateral_energy=lateral_energy,
                            return_anchor=return_anchor)

@@ -139,7 +139,7 @@ def functions(scalar, friction: bool, boundary: bool,
             bound = laws.limit(at_g[0], data.friction_law, t)
             state.limit[t] = bound
             if wp.static(spatial):
-                state.friction[t] = -terms.huber_gradient(
+                state.friction[t] = terms.huber_force(
                     terms.crossing_slip(pos, data, state.anchors[t], t), bound,
                     data.friction_law[t, 3])
             else:

@@ -133,26 +133,7 @@ def functions(scalar) -> SimpleNamespace:
             value = law[t, 0] * R + law[t, 1] * onset_factor
         return value
 
-    @wp.func(inline=True)
-    def huber_force(s: vec, bound: scalar, stick: scalar) -> vec:
-        """-dH/ds [N]: -k_t s sticking, -F_T s / |s| sliding."""
-        trial = -stick * s
-        size = wp.length(trial)
-        if size > bound:
-            trial = trial * (bound / size)
-        return trial
-
-    @wp.func(inline=True)
-    def huber_energy(s: vec, bound: scalar, stick: scalar) -> scalar:
-        """H(s) [J] (0 where k_t = 0)."""
-        energy = scalar(0.0)
-        if stick > scalar(0.0):
-            size = wp.length(s)
-            if stick * size <= bound:
-                energy = scalar(0.5) * stick * size * size
-            else:
-                energy = bound * size - bound * bound / (scalar(2.0) * stick)
-        return energy
+    huber = huber_term(vec)
 
     @wp.func(inline=True)
     def huber_hessian(s: vec, bound: scalar, stick: scalar, secant: int) -> vec3:
@@ -180,6 +161,40 @@ def functions(scalar) -> SimpleNamespace:
         return move
 
     return SimpleNamespace(expm1=expm1, series_law=series_law, contact=contact,
-                           contact_energy=contact_energy, limit=limit, huber_force=huber_force,
-                           huber_energy=huber_energy, huber_hessian=huber_hessian,
+                           contact_energy=contact_energy, limit=limit,
+                           huber_force=huber.force, huber_energy=huber.energy,
+                           huber_hessian=huber_hessian,
                            return_anchor=return_anchor)
+
+
+@functools.cache
+def huber_term(vec) -> SimpleNamespace:
+    """The Huber stick-slip term (docs/model.md (4.4), (10.8)) on a slip of `vec`'s length: the
+    planar ties' two components, a spatial crossing's three (`spatial_terms`):
+
+    - force(s, F_T, k_t) = -dH/ds [N]: -k_t s sticking (k_t |s| <= F_T), -F_T s / |s| sliding;
+    - energy(s, F_T, k_t) = H [J]: 1/2 k_t |s|^2 sticking, F_T |s| - F_T^2 / (2 k_t) sliding,
+      0 where k_t = 0 (an open tie, F_T = 0, gives 0 either way).
+    """
+    scalar = vec._wp_scalar_type_
+
+    @wp.func(inline=True)
+    def force(s: vec, bound: scalar, stick: scalar) -> vec:
+        trial = -stick * s
+        size = wp.length(trial)
+        if size > bound:
+            trial = trial * (bound / size)
+        return trial
+
+    @wp.func(inline=True)
+    def energy(s: vec, bound: scalar, stick: scalar) -> scalar:
+        value = scalar(0.0)
+        if stick > scalar(0.0):
+            size = wp.length(s)
+            if stick * size <= bound:
+                value = scalar(0.5) * stick * size * size
+            else:
+                value = bound * size - bound * bound / (scalar(2.0) * stick)
+        return value
+
+    return SimpleNamespace(force=force, energy=energy)
