@@ -25,28 +25,29 @@ def small_frame():
     return parse_scene_text(scene_text(FRAME.replace("side = 0.06", "side = 0.022"), D))
 
 
-def test_a_resumed_bias_file_has_the_uninterrupted_normalised_force(tmp_path):
-    """Harrison's normalisation reads the whole curve so far (dynfab.shear_force): a resumed
-    run gives it the finished steps' forces, so every step's value is the uninterrupted
-    run's."""
-    bias = BIAS.replace("width = 0.06", "width = 0.025").replace("height = 0.12", "height = 0.05")
-    scene = parse_scene_text(scene_text(bias, D, HOLDING_FRICTION))
+def resumed_run(scene, tmp_path):
+    """The file of `scene` run to step 3, interrupted and resumed, checked equal to the
+    uninterrupted run's entry for entry."""
     whole, part = tmp_path / "whole.h5", tmp_path / "part.h5"
     run_to_file(scene, "static", whole)
     run_interrupted(scene, "static", part, steps=3)
     assert run_to_file(scene, "static", part, resume=True) == 2
     assert_same_steps(whole, part)
+    return part
+
+
+def test_a_resumed_bias_file_has_the_uninterrupted_normalised_force(tmp_path):
+    """Harrison's normalisation reads the whole curve so far (dynfab.shear_force), and a step
+    starts along the last step's path tangent: a resumed run gives the model the finished
+    steps' forces and positions, so every step is the uninterrupted run's."""
+    bias = BIAS.replace("width = 0.06", "width = 0.025").replace("height = 0.12", "height = 0.05")
+    part = resumed_run(parse_scene_text(scene_text(bias, D, HOLDING_FRICTION)), tmp_path)
     with h5py.File(part, "r") as b:
         assert np.all(np.isfinite(b["steps/normalised_shear_force"][:]))
 
 
 def test_a_resumed_specimen_file_is_the_uninterrupted_one_and_its_view_and_figures(tmp_path):
-    scene = small_frame()
-    whole, part = tmp_path / "whole.h5", tmp_path / "part.h5"
-    run_to_file(scene, "static", whole)
-    run_interrupted(scene, "static", part, steps=3)
-    assert run_to_file(scene, "static", part, resume=True) == 2
-    assert_same_steps(whole, part)
+    part = resumed_run(small_frame(), tmp_path)
     with h5py.File(part, "r") as b:
         nodes = b["reference/positions"].shape[0]
         gamma = b["steps/shear_angle"][4]
