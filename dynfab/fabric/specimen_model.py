@@ -26,7 +26,6 @@ Record of one step (n nodes, C crossings, L lateral contacts):
   rad]; slip_ratio: the largest in-plane slip over the segment length [-];
 - lateral_gap (L,) [m]: w - d of each lateral contact (positive where the yarns press);
 - max_slope: the largest |e_z| / |e_xy| of any segment [-] (the small-slope model's check);
-  (the next step's start, `start_of_step`);
 - dissipated, work [J]; energy/<term> [J]; the solver's fields.
 """
 
@@ -79,10 +78,10 @@ class SpecimenModel:
     """A specimen scene as the solvers see it (module docstring)."""
 
     relaxation_steps = 1
+    """Steps before the scene's load path: step 0, the preload relaxed at d = 0."""
     history_keys = ("load", "clamp_force", "positions")
     """The columns of every finished step a resumed run gives `state_from_step` (`path`,
     and the last step's path tangent from the last two steps' positions)."""
-    """Steps before the scene's load path: step 0, the preload relaxed at d = 0."""
 
     @property
     def singular_advice(self) -> str | None:
