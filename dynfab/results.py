@@ -112,7 +112,7 @@ UNITS: dict[str, str] = {
     # One entry per finished load step (axis 0 = steps).
     "steps/clamp_force": "N",  # specimen: (steps,) force on the moved clamp (corner) along d
     "steps/shear_force": "N",  # specimen: (steps,) picture frame F / (2 cos theta); NaN bias
-    "steps/normalised_shear_force": "N/m",  # specimen: (steps,) frame F_s L / L_f^2; bias Harrison's F_sh
+    "steps/normalised_shear_force": "N/m",  # specimen: (steps,) frame eq. 10; bias Harrison
     "steps/crossing_positions": "m",  # specimen: (steps, crossings, 3) warp node of each crossing
     "steps/shear_angle": "rad",  # specimen: (steps, crossings) gamma from step 0
     "steps/reference_angle": "rad",  # specimen: (steps, crossings) step 0's gamma from as woven
