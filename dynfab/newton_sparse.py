@@ -426,7 +426,6 @@ class SparseNewton(NewtonBackend):
         """-H^-1 g by sparse LU in the pattern's nested-dissection order
         (`ordering.fabric_order`), H shifted by mu I until the step is a descent direction;
         by GMRES on the last factors where that converges (`kept_factor`)."""
-        order = ordering.fabric_order(self.structure, self.pattern)
         kept = self._kept_factor()
         diag = np.abs(H.diagonal()).max()
         shift = 0.0
@@ -434,7 +433,7 @@ class SparseNewton(NewtonBackend):
         for _ in range(40):
             A = (H + shift * eye if shift else H.copy()).tocsc()
             A.eliminate_zeros()  # else carried through the factors (frictionless friction blocks)
-            d = _sparse_solve(A, -g, order=order, kept=kept)
+            d = _sparse_solve(A, -g, kept=kept)
             if d is not None and np.all(np.isfinite(d)) and g @ d < 0.0:
                 return d
             shift = max(10.0 * shift, 1e-10 * diag)
