@@ -173,12 +173,13 @@ class _Chains(NamedTuple):
     chain_index: np.ndarray
     crossing_node: dict             # (family, k, j) -> node
     ends: list                      # per chain: (first, last node, first/last is a crossing)
+    exits: list                     # per chain: (2, 2) [m], where its centreline leaves the box
 
 
 def _build_chains(weave: _Weave, box: tuple, yarns: list, crossings: set) -> _Chains:
     """Nodes of every yarn (family, index) in `yarns`, in order, from boundary to boundary,
     with a node at each crossing (k, j) of `crossings`."""
-    blocks, start, node_of, ends = [], [0], {}, []
+    blocks, start, node_of, ends, exits = [], [0], {}, [], []
     for family, index in yarns:
         others = sorted(c[1 - family] for c in crossings if c[family] == index)
         others = np.asarray(others, dtype=np.int64)
@@ -195,11 +196,12 @@ def _build_chains(weave: _Weave, box: tuple, yarns: list, crossings: set) -> _Ch
             key = (index, other) if family == 0 else (other, index)
             node_of[(family,) + tuple(int(v) for v in key)] = base + int(node)
         ends.append((base, base + arcs.size - 1, nodes[0] == 0, nodes[-1] == arcs.size - 1))
+        exits.append(_snap(origin + np.array([[s_lo], [s_hi]]) * t, box))
         blocks.append(np.column_stack([xy, z]))
         start.append(base + arcs.size)
     return _Chains(np.concatenate(blocks), np.asarray(start, dtype=np.int64),
                    np.asarray([f for f, _ in yarns], dtype=np.int64),
-                   np.asarray([i for _, i in yarns], dtype=np.int64), node_of, ends)
+                   np.asarray([i for _, i in yarns], dtype=np.int64), node_of, ends, exits)
 
 
 def _crossing_tables(chains: _Chains, crossings: list) -> tuple:
@@ -251,16 +253,20 @@ def _lateral_stencils(chains: _Chains, crossings: list) -> tuple:
 
 
 def _layout(test: str, weave: _Weave, box: tuple, crossings: set, held_end) -> Layout:
-    """Assemble a Layout from the kept crossings; held_end(chain, node, dropped) says
-    whether an end node is held."""
+    """Assemble a Layout from the kept crossings; held_end(family, exit, position, dropped)
+    says whether a yarn's end is held: `exit` (2,) [m] where its centreline leaves the box,
+    `position` (3,) [m] its end node, `dropped` whether that node is a crossing's (the end
+    piece shorter than half a segment)."""
     order = sorted(crossings)
     yarns = sorted({(0, k) for k, _ in order}) + sorted({(1, j) for _, j in order})
     chains = _build_chains(weave, box, yarns, crossings)
     held = np.zeros(chains.positions.shape[0], dtype=bool)
     clamped_yarn = {}
     for chain, (first, last, first_dropped, last_dropped) in enumerate(chains.ends):
-        grips = [held_end(chains.positions[n], dropped, weave.pitch(yarns[chain][0]))
-                 for n, dropped in ((first, first_dropped), (last, last_dropped))]
+        family = yarns[chain][0]
+        grips = [held_end(family, exit, chains.positions[n], dropped)
+                 for exit, n, dropped in zip(chains.exits[chain], (first, last),
+                                             (first_dropped, last_dropped))]
         held[[first, last]] |= grips
         clamped_yarn[yarns[chain]] = any(grips)
     nodes, lattice, side, interior = _crossing_tables(chains, order)
@@ -312,14 +318,17 @@ def _drop_short_yarns(crossings: set) -> set:
 
 def bias_extension(width: float, height: float, warp_spacing: float, weft_spacing: float,
                    warp_amplitude: float, weft_amplitude: float,
-                   segments_per_spacing: int) -> Layout:
+                   segments_per_spacing: int, yarn_widths: tuple) -> Layout:
     """Bias-extension specimen: the rectangle 0 <= x <= W, 0 <= y <= H, warps at +45 and
     wefts at -45 degrees to the long side y, clamps at y = 0 (fixed) and y = H (moved).
 
     Yarns run from boundary to boundary; one with fewer than two crossings inside is dropped
-    with its crossings. A yarn end on a short side is held (and so is a crossing end node
-    within half a segment of it). Zone of a crossing = number of its yarns with a held end
-    (Cao et al. 2008: A, B, C).
+    with its crossings. A clamp grips every yarn whose band reaches it: a yarn end on a
+    short side is held (and so is a crossing end node within half a segment of it), and so
+    is an end on a long side whose band, `yarn_widths` (warp, weft) [m] wide, reaches the
+    short side there: within (w/2) / sin(45 deg) of it along the long side (docs/model.md
+    section 11.7). Zone of a crossing = number of its yarns with a held end (Cao et al.
+    2008: A, B, C).
     """
     _require_positive("specimen.width", width)
     _require_positive("specimen.height", height)
@@ -328,6 +337,8 @@ def bias_extension(width: float, height: float, warp_spacing: float, weft_spacin
                         f"H >= 2 W = {2 * width!r} [m]")
     _check_weave(warp_spacing, weft_spacing, warp_amplitude, weft_amplitude,
                  segments_per_spacing)
+    for family, w in zip(("warp", "weft"), yarn_widths):
+        _require_positive(f"{family}.width", w)
     weave = _Weave(np.array([width / 2, height / 2]),
                    (np.array([_SQRT_HALF, _SQRT_HALF]), np.array([-_SQRT_HALF, _SQRT_HALF])),
                    (warp_spacing, weft_spacing), (warp_amplitude, weft_amplitude),
@@ -339,9 +350,15 @@ def bias_extension(width: float, height: float, warp_spacing: float, weft_spacin
         raise UserError(f"specimen.width = {width!r}: {row} crossing(s) across the specimen's "
                         "centre row; at least 2 are needed (widen it or use a finer weave)")
 
-    def held_end(position, dropped, pitch):
-        reach = 0.5 * pitch / weave.segments if dropped else _RELATIVE_TOLERANCE * height
-        return min(abs(position[1]), abs(height - position[1])) <= reach
+    band = [0.5 * w / abs(t[0]) for w, t in zip(yarn_widths, weave.direction)]
+    tol = _RELATIVE_TOLERANCE * height
+
+    def held_end(family, exit, position, dropped):
+        reach = 0.5 * weave.pitch(family) / weave.segments if dropped else tol
+        if min(abs(position[1]), abs(height - position[1])) <= reach:
+            return True                                     # on a short side
+        on_long_side = min(abs(exit[0]), abs(width - exit[0])) <= tol
+        return on_long_side and min(exit[1], height - exit[1]) <= band[family]
 
     return _layout(BIAS, weave, box, crossings, held_end)
 

@@ -9,8 +9,10 @@ finite), bend in the plane (EI_lateral) and stick elastically (k_t finite), so t
 kinematics hold up to those compliances and to the bending that spreads each zone border
 over about a spacing; the tolerances below are the issue's (1 degree for the frame's
 interior, 3 degrees for a bias zone) or, for the stretch, 1 % (the yarns' strain is below
-1e-3 here). How far zone A lies from eq. 13 itself on this narrow specimen (eleven
-spacings across) is measured, not tested: docs/model.md section 11.
+1e-3 here). Zone A follows eq. 13 itself on this narrow specimen (eleven spacings across)
+because a clamp grips every yarn whose band reaches it (docs/model.md sections 11.7 and
+11.9): with the yarns as lines, zone C's apex lay a crossing short of W/2 and zone A
+sheared 22.9 degrees at eq. 13's 30.
 
 Without friction (alpha = beta = 0) nothing holds the two families together in the plane:
 the specimen does not follow the kinematics.
@@ -121,10 +123,11 @@ def test_the_picture_frame_interior_follows_cao_eq_2(frame_run):
 
 
 def test_the_bias_zones_shear_as_a_trellis(bias_run):
-    """Zone A uniform (every crossing but its border row within 3 degrees of its median:
-    the border bends over about a spacing) and stretched along
-    the load as its trellis, sqrt(2) cos(45 deg - gamma_A / 2), to 1 %; zone B at half of
-    zone A's angle (within 3 degrees); zone C within 3 degrees of 0."""
+    """Zone A (its median) within 3 degrees of eq. 13 up to 30 degrees, uniform (every
+    crossing but its border row within 3 degrees of its median: the border bends over about
+    a spacing) and stretched along the load as its trellis, sqrt(2) cos(45 deg - gamma_A /
+    2), to 1 %; zone B at half of zone A's angle (within 3 degrees); zone C within 3 degrees
+    of 0."""
     r = bias_run
     zone, lattice = r.reference["zone"], r.reference["crossing_lattice"]
     gamma = r.steps["shear_angle"]
@@ -139,13 +142,15 @@ def test_the_bias_zones_shear_as_a_trellis(bias_run):
     assert inside.sum() >= 20
     for k in range(1, gamma.shape[0]):
         a, b, c = (np.median(gamma[k][zone == z]) for z in (0, 1, 2))
-        assert a > 0.5 * bias_nominal(r.steps["load"][k, 0])
+        nominal = bias_nominal(r.steps["load"][k, 0])
+        assert abs(a - nominal) < 3 * DEGREE, (a / DEGREE, nominal / DEGREE)
         assert np.all(np.abs(gamma[k][inside] - a) < 3 * DEGREE)
         assert abs(b - a / 2) < 3 * DEGREE, (a / DEGREE, b / DEGREE)
         assert abs(c) < 3 * DEGREE
         stretch = np.diff(r.steps["crossing_positions"][k][core, 1]) / np.diff(rest)
         trellis = np.sqrt(2.0) * np.cos(np.pi / 4 - np.mean(gamma[k][core]) / 2)
         assert stretch[0] == pytest.approx(trellis, rel=0.01)
+    assert bias_nominal(r.steps["load"][-1, 0]) > 29.9 * DEGREE
     assert r.steps["slip_ratio"].max() < 0.05  # held together: nothing slid
 
 

@@ -19,17 +19,19 @@ A_WARP, A_WEFT = 0.3e-3, 0.2e-3
 """Unequal amplitudes [m], so a swapped family shows."""
 N = 4
 """Segments between consecutive crossings."""
+YARN_WIDTHS = (4.2e-3, 3.0e-3)
+"""Warp and weft widths [m] (Cao's 4.2 mm; unequal, so a swapped family shows)."""
 
 
 @pytest.fixture(scope="module")
 def bias():
-    return bias_extension(W, H, SPACING, SPACING, A_WARP, A_WEFT, N)
+    return bias_extension(W, H, SPACING, SPACING, A_WARP, A_WEFT, N, YARN_WIDTHS)
 
 
 @pytest.fixture(scope="module")
 def bias_unequal():
     """Unequal spacings, so a swapped pitch or spacing shows."""
-    return bias_extension(W, H, 5.18e-3, 6.1e-3, A_WARP, A_WEFT, N)
+    return bias_extension(W, H, 5.18e-3, 6.1e-3, A_WARP, A_WEFT, N, YARN_WIDTHS)
 
 
 @pytest.fixture(scope="module")
@@ -92,9 +94,10 @@ def test_small_bias_counts_by_hand():
     # along (1, 1): it meets x = 0 and x = W at s = -+10 sqrt(2) mm; its crossings j = -2..2
     # lie at s = 4.5 sqrt(2) j mm, so each end piece is 1 sqrt(2) mm against a segment of
     # 4.5 sqrt(2) / 4 mm: 0.89 segment, kept as 1 segment: 4 x 4 + 2 = 18 segments, 19 nodes,
-    # both ends on the long sides (free).
+    # both ends on the long sides 10 mm from the clamps (free: a 4.2 mm band reaches 3 mm
+    # along them).
     layout = bias_extension(0.02, 0.04, 4.5e-3 * math.sqrt(2), 4.5e-3 * math.sqrt(2),
-                            A_WARP, A_WEFT, N)
+                            A_WARP, A_WEFT, N, YARN_WIDTHS)
     assert layout.crossing_nodes.shape == (19, 2)
     assert list(layout.chain_index) == [-2, -1, 0, 1, 2] * 2
     warp0 = chains(layout)[2]
@@ -217,25 +220,38 @@ def chain_ends(layout):
     return np.concatenate([[n[0], n[-1]] for n in chains(layout)])
 
 
-def test_bias_holds_the_yarn_ends_on_the_short_sides_only(bias, bias_unequal):
+def band_reach(family):
+    """How far along a long side a yarn's band reaches from its centreline's end: half its
+    width over sin 45 degrees (the band's edge is a parallel line w/2 away, at 45 degrees to
+    the side)."""
+    return 0.5 * YARN_WIDTHS[family] * math.sqrt(2.0)
+
+
+def test_bias_holds_the_yarn_ends_whose_band_reaches_a_clamp(bias, bias_unequal):
     for layout, spacing in ((bias, SPACING), (bias_unequal, 5.18e-3)):
         ends = chain_ends(layout)
-        held = ends[layout.held[ends]]
-        # Within half a (shortest) segment of a short side: a dropped end piece is shorter.
-        y = layout.positions[held, 1]
-        assert np.all(np.minimum(y, H - y) <= 0.5 * spacing / N)
-        # Every end on a short side is held; every end away from both is free.
-        y_end = layout.positions[ends, 1]
-        on_short = np.minimum(np.abs(y_end), np.abs(H - y_end)) <= 1e-9 * H
+        family = np.repeat(layout.chain_family, 2)
+        x_end, y_end = layout.positions[ends, :2].T
+        near_clamp = np.minimum(y_end, H - y_end)
+        on_short = near_clamp <= 1e-9 * H
+        on_long = np.minimum(x_end, W - x_end) <= 1e-9 * W
+        reach = np.array([band_reach(f) for f in family])
+        # Every end on a short side is held, and every end on a long side whose band reaches
+        # the clamp there; every other end on a long side is free.
         assert np.all(layout.held[ends[on_short]])
-        away = np.minimum(y_end, H - y_end) > 0.5 * max(5.18e-3, 6.1e-3) / N
-        assert not layout.held[ends[away]].any()
-        # Free ends exist, on the long sides (or a crossing within half a segment of one,
-        # its end piece dropped), and both clamps hold nodes.
-        x_end = layout.positions[ends[away], 0]
-        assert np.all(np.minimum(x_end, W - x_end) <= 0.5 * max(5.18e-3, 6.1e-3) / N)
-        assert np.sum(np.minimum(x_end, W - x_end) <= 1e-9 * W) > 0
-        assert away.sum() > 0 and (y < H / 2).any() and (y > H / 2).any()
+        assert np.all(layout.held[ends[on_long & (near_clamp <= reach)]])
+        assert not layout.held[ends[on_long & (near_clamp > reach)]].any()
+        # An end on neither side is a crossing (its end piece dropped): held only within
+        # half a segment of a short side or, near a corner, by its band.
+        neither = ~(on_short | on_long)
+        assert np.all(near_clamp[neither & layout.held[ends]] <= np.maximum(0.5 * spacing / N,
+                                                                           reach[neither & layout.held[ends]]))
+        # The band rule holds ends on the long sides that the line rule left free, free ends
+        # remain, and both clamps hold nodes.
+        assert (on_long & (near_clamp > 1e-9 * H) & layout.held[ends]).any()
+        assert (on_long & ~layout.held[ends]).sum() > 0
+        held_y = y_end[layout.held[ends]]
+        assert (held_y < H / 2).any() and (held_y > H / 2).any()
 
 
 def test_frame_pins_every_yarn_end_to_a_bar(frame):
@@ -246,31 +262,49 @@ def test_frame_pins_every_yarn_end_to_a_bar(frame):
         np.testing.assert_array_equal(along, [0.0, 0.06])
 
 
-def clamp_reaches(x, y):
-    """The geometric zone definition: does each of the point's two yarn lines meet a short
-    side inside the rectangle? Warp along (1, 1): at y = 0, x - y >= 0; at y = H, x + H - y
-    <= W. Weft along (-1, 1): at y = 0, x + y <= W; at y = H, x - (H - y) >= 0."""
-    warp = (x - y >= 0) | (x + H - y <= W)
-    weft = (x + y <= W) | (x - (H - y) >= 0)
+def clamp_reaches(x, y, b_warp, b_weft):
+    """The geometric zone definition: does each of the point's two yarn bands meet a short
+    side inside the rectangle? A band reaches b = (w/2) / sin 45 deg to either side of its
+    centreline along a short side. Warp along (1, 1): its line meets y = 0 at x - y, y = H
+    at x + H - y; weft along (-1, 1): y = 0 at x + y, y = H at x - (H - y)."""
+    def meets(at, b):
+        return (at >= -b) & (at <= W + b)
+    warp = meets(x - y, b_warp) | meets(x + H - y, b_warp)
+    weft = meets(x + y, b_weft) | meets(x - (H - y), b_weft)
     return warp, weft
 
 
 def test_bias_zones_follow_the_geometric_definition(bias):
-    # The held-end rule and the line definition differ only for a line passing within half a
-    # segment of a corner; none does here (checked first: the clearance where each line meets
-    # y = 0 or y = H, the x of that point, from the nearest corner).
+    # The held-end rule and the band definition differ only for a band edge passing within
+    # half a segment of a corner; none does here (checked first: the clearance of each band
+    # edge, where it meets y = 0 or y = H, from the nearest corner).
     x, y = bias.positions[bias.crossing_nodes[:, 0], :2].T
-    for meet in (x - y, x + H - y, x + y, x - (H - y)):
-        assert np.min(np.minimum(np.abs(meet), np.abs(meet - W))) > SPACING / N / 2
-    warp, weft = clamp_reaches(x, y)
+    b = [band_reach(0), band_reach(1)]
+    for meet, reach in ((x - y, b[0]), (x + H - y, b[0]), (x + y, b[1]), (x - (H - y), b[1])):
+        assert np.min(np.minimum(np.abs(meet + reach), np.abs(meet - W - reach))) > SPACING / N / 2
+    warp, weft = clamp_reaches(x, y, *b)
     assert np.array_equal(bias.zone, warp.astype(int) + weft.astype(int))
     assert set(bias.zone) == {0, 1, 2}
     # Zone A in the middle diamond |x - W/2| + |y - H/2| < (H - W)/2 ... clipped by the long
-    # sides; zone C in the clamp triangles on y = 0 and y = H (apex W/2 from the clamp).
+    # sides; zone C in the clamp triangles on y = 0 and y = H (apex W/2 from the clamp),
+    # widened by the bands, but for the two crossings at mid-height on the long sides: with
+    # H = 2 W the yarns from the clamps' corners meet there, one gripped by each clamp.
     a, c = bias.zone == 0, bias.zone == 2
     assert np.all(np.abs(y[a] - H / 2) < (H - W) / 2 - np.abs(x[a] - W / 2))
     near = np.minimum(y, H - y)
-    assert np.all(near[c] <= np.minimum(x[c], W - x[c]))
+    in_triangle = near <= np.minimum(x, W - x) + max(b)
+    assert np.array_equal(np.flatnonzero(c & ~in_triangle),
+                          np.flatnonzero(c & (np.abs(y - H / 2) < 1e-9)
+                                         & (np.minimum(x, W - x) < min(b))))
+    assert np.sum(c & ~in_triangle) == 2
+    # The bands move zone C's apex on the centre line x = W/2 from the crossing at 23.4 mm to
+    # the one at 30.7 mm (crossings 7.33 mm apart there, at H/2 - 7.33 k; the yarns through
+    # the latter leave the long sides 0.7 mm from the clamp, within their 3.0 and 2.1 mm
+    # bands): the apex lies within a band of W/2, as the continuum's does at W/2.
+    centre = np.abs(x - W / 2) < 1e-9
+    apex = np.max(near[c & centre])
+    assert apex == pytest.approx(H / 2 - 4 * SPACING * math.sqrt(2.0), rel=1e-12)
+    assert abs(apex - W / 2) < min(b)
 
 
 def test_interior_crossings_have_a_crossing_on_each_side_along_both_yarns(bias):
@@ -468,7 +502,15 @@ def test_lateral_distance_is_the_spacing_and_closes_as_cos_gamma(bias_unequal, f
 ])
 def test_bad_bias_specimens_are_refused_in_one_line(args, key):
     with pytest.raises(UserError, match=key) as error:
-        bias_extension(*args, SPACING, SPACING, A_WARP, A_WEFT, N)
+        bias_extension(*args, SPACING, SPACING, A_WARP, A_WEFT, N, YARN_WIDTHS)
+    assert "\n" not in str(error.value)
+
+
+@pytest.mark.parametrize("widths, key", [((0.0, 3e-3), "warp.width"),
+                                          ((4.2e-3, -1e-3), "weft.width")])
+def test_a_bias_yarn_width_not_positive_is_refused_in_one_line(widths, key):
+    with pytest.raises(UserError, match=key) as error:
+        bias_extension(W, H, SPACING, SPACING, A_WARP, A_WEFT, N, widths)
     assert "\n" not in str(error.value)
 
 

@@ -36,7 +36,8 @@ def layout_of(scene: Scene) -> specimen_layout.Layout:
     common = (warp.spacing, weft.spacing, warp.amplitude, weft.amplitude,
               s.segments_per_spacing)
     if s.test == "bias_extension":
-        return specimen_layout.bias_extension(s.width, s.height, *common)
+        return specimen_layout.bias_extension(s.width, s.height, *common,
+                                              yarn_widths=(warp.width, weft.width))
     return specimen_layout.picture_frame(s.side, *common)
 
 
