@@ -419,7 +419,7 @@ class SparseNewton(NewtonBackend):
         """The Newton solves' `KeptFactor` in the pattern's nested-dissection order."""
         order = ordering.fabric_order(self.structure, self.pattern)
         if self.kept is None or self.kept.ordering is not order:
-            self.kept = KeptFactor(order)
+            self.kept = KeptFactor(order, self.terms.SOLVE_ON_KEPT_FACTORS)
         return self.kept
 
     def _direction(self, H, g):

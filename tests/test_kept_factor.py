@@ -60,3 +60,23 @@ def test_kept_factors_solve_a_nearby_matrix_and_a_far_one_is_factored():
     kept.drop()
     kept.solve(near, b)
     assert kept.factorisations == 3
+
+
+def test_without_solves_on_kept_factors_every_solve_factors():
+    """solve_on_kept = False (the planar fabric's term set: a factorisation there costs too
+    few triangular solves for GMRES's failed attempts to pay): the nearby matrix that GMRES
+    would solve on the kept factors is factored, and the direction is the direct one."""
+    rng = np.random.default_rng(2)
+    n = 300
+    A = chain_laplacian(n, rng)
+    near = (A + scipy.sparse.diags(np.where(np.arange(n) == 150, 1e-3, 0.0))).tocsc()
+    b = rng.standard_normal(n)
+    kept = kept_factor.KeptFactor(ordering.Ordering(np.arange(n)), solve_on_kept=False)
+    kept.solve(A, b)
+    x = kept.solve(near, b)
+    assert (kept.factorisations, kept.krylov_solves) == (2, 0)
+    np.testing.assert_allclose(x, scipy.sparse.linalg.spsolve(near, b), rtol=1e-10, atol=0.0)
+    reused = kept_factor.KeptFactor(ordering.Ordering(np.arange(n)))
+    reused.solve(A, b)
+    reused.solve(near, b)
+    assert (reused.factorisations, reused.krylov_solves) == (1, 1)   # the default would

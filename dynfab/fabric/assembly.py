@@ -34,6 +34,11 @@ from dynfab.terms import bending, gravity, stretch
 STRETCH, BENDING, CONTACT, FRICTION, LOAD, GRAVITY = range(6)
 """Indices of the energy vector."""
 TERMS = ("stretch", "bending", "contact", "friction", "load", "gravity")
+SOLVE_ON_KEPT_FACTORS = False
+"""Whether Newton's Hessian solves try GMRES on the step's last factors first
+(`dynfab.fabric.kept_factor`): not on the planar fabric, whose factorisation costs only 9 to
+14 triangular solves (2,000 to 33,000 unknowns), so that the attempts that fail cost more
+than the ones that succeed save (`python benchmarks/fabric.py`, docs/model.md 11.10)."""
 
 
 @numba.njit(cache=True)

@@ -38,8 +38,12 @@ class KeptFactor:
     """SuperLU's factors of the last matrix factored, in a fixed `Ordering`
     (`ordering.OrderedLU`), used to solve later matrices by preconditioned GMRES."""
 
-    def __init__(self, ordering: Ordering):
+    def __init__(self, ordering: Ordering, solve_on_kept: bool = True):
         self.ordering = ordering
+        self.solve_on_kept = solve_on_kept
+        """Whether `solve` tries GMRES on the kept factors before it factors (where a
+        factorisation costs few triangular solves, the failed attempts cost more than the
+        others save); `solve_near` always does."""
         self.lu: OrderedLU | None = None
         self.factorisations = 0
         """Factorisations so far (for the benchmark)."""
@@ -53,7 +57,7 @@ class KeptFactor:
     def solve(self, A, rhs) -> np.ndarray:
         """A^-1 rhs: GMRES preconditioned by the kept factors where it converges, else A
         factored (and kept). Raises RuntimeError where SuperLU does (a zero pivot)."""
-        found = self._on_kept(A, rhs)
+        found = self._on_kept(A, rhs) if self.solve_on_kept else None
         if found is not None:
             return found
         self._factor(A)

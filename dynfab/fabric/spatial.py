@@ -32,6 +32,10 @@ from dynfab.terms import spatial as element
 STRETCH, BENDING, CONTACT, FRICTION, LOAD, GRAVITY, SHEAR, LATERAL = range(8)
 """Indices of the energy vector (the first six as the planar fabric's)."""
 TERMS = ("stretch", "bending", "contact", "friction", "load", "gravity", "shear", "lateral")
+SOLVE_ON_KEPT_FACTORS = True
+"""Whether Newton's Hessian solves try GMRES on the step's last factors first
+(`dynfab.fabric.kept_factor`): yes on a specimen, whose factorisation costs 20 to 28
+triangular solves (docs/model.md 11.10)."""
 STICK = 3
 """Column of k_t [N/m] in `tie_friction_law`."""
 RHO, SHEAR_K, PHI_REST = range(3)
