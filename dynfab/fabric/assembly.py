@@ -38,7 +38,7 @@ SOLVE_ON_KEPT_FACTORS = False
 """Whether Newton's Hessian solves try GMRES on the step's last factors first
 (`dynfab.fabric.kept_factor`): not on the planar fabric, whose factorisation costs only 9 to
 14 triangular solves (2,000 to 33,000 unknowns), so that the attempts that fail cost more
-than the ones that succeed save (`python benchmarks/fabric.py`, docs/model.md 11.10)."""
+than the ones that succeed save (`benchmarks/kept_factor.py`, docs/model.md 11.10)."""
 
 
 @numba.njit(cache=True)
