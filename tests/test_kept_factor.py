@@ -81,23 +81,3 @@ def test_without_solves_on_kept_factors_every_solve_factors():
     reused.solve(near, b)
     assert (reused.factorisations, reused.krylov_solves) == (1, 1)   # the default would
 
-
-def test_a_jacobian_far_from_the_hessian_is_factored_in_its_order_not_pivoted():
-    """solve_near(A, b, B) with A far from B (a non-symmetric part as large as B's springs,
-    as the coupled friction Jacobian where many crossings' limits move with their contact):
-    GMRES on B's factors does not converge in KRYLOV_ITERATIONS, so A itself is factored in
-    the kept order (a third factorisation after the kept one and B's) and solved to the
-    Newton step's relative residual."""
-    rng = np.random.default_rng(3)
-    n = 300
-    B = chain_laplacian(n, rng)
-    coupling = scipy.sparse.diags(3.0 * rng.random(n - 1), 1, format="csc")
-    A = (B + coupling).tocsc()
-    b = rng.standard_normal(n)
-    kept = kept_factor.KeptFactor(ordering.Ordering(np.arange(n)))
-    kept.solve(B, b)
-    assert kept_factor.gmres(A, b, kept.lu.solve, kept_factor.KRYLOV_ITERATIONS,
-                             kept_factor.RELATIVE_RESIDUAL * np.linalg.norm(b)) is None
-    x = kept.solve_near(A, b, B)
-    assert kept.factorisations == 3
-    assert np.linalg.norm(A @ x - b) <= kept_factor.RELATIVE_RESIDUAL * np.linalg.norm(b)

@@ -66,19 +66,15 @@ class KeptFactor:
     def solve_near(self, A, rhs, B) -> np.ndarray | None:
         """A^-1 rhs for a matrix A near the symmetric B (the coupled friction Jacobian near
         the Hessian): GMRES preconditioned by the kept factors, else by B's factored (and
-        kept), else by A's own, factored in the same order with diagonal pivots (A has B's
-        pattern, so its fill and cost are B's: far less than SuperLU's pivoted
-        factorisation of A, minutes at 60,000 unknowns); None where none converges."""
+        kept); None where neither converges or B cannot be factored."""
         found = self._on_kept(A, rhs)
-        for matrix in (B, A):
-            if found is not None:
-                return found
-            try:
-                self._factor(matrix)
-            except RuntimeError:
-                continue
-            found = self._on_kept(A, rhs)
-        return found
+        if found is not None:
+            return found
+        try:
+            self._factor(B)
+        except RuntimeError:
+            return None
+        return self._on_kept(A, rhs)
 
     def _on_kept(self, A, rhs) -> np.ndarray | None:
         """A^-1 rhs by GMRES on the kept factors (`_preconditioned`), None without them or
