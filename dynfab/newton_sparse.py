@@ -37,7 +37,9 @@ Globalisation (docs/model.md section 6): a backtracking line search on the energ
 frozen); where the energy change is within its rounding, a step that lowers the residual is
 accepted. After a shortened step, and to retry a failed one, sliding crossings get the
 secant stiffness F_T/|s| I (a quadratic majorant of the Huber term, as on the banded
-backend), so a step cannot overshoot a crossing about to stick again. A step reaching
+backend), so a step cannot overshoot a crossing about to stick again; Newton's matrix
+returns to the exact Hessian through blends of the two whose secant weight falls by
+SECANT_GROWTH after each full step (`SparseNewton.newton`). A step reaching
 Kawabata's wall (k_c = inf) has energy +inf and is halved. If the Newton direction is not a
 descent direction (an indefinite Hessian), the matrix is shifted by mu I, mu growing tenfold
 from 1e-10 max|diag|, until it is.
@@ -87,6 +89,12 @@ MAX_FROZEN = 50
 """Further frozen solves when the coupled Newton fails."""
 HALVINGS = 60
 """Line-search halvings (8 at the rounding floor, where a step is lost in rounding)."""
+SECANT_GROWTH = 4.0
+"""The weight lambda of the secant friction model in Newton's matrix, H = H_exact + lambda
+(H_secant - H_exact) (`SparseNewton.newton`), is multiplied by this after a step the line
+search shortened and divided by it after a full step."""
+SECANT_FLOOR = 1e-3
+"""Below this lambda Newton's matrix is the exact Hessian again (quadratic convergence)."""
 COUPLED_FIRST = 20
 """Iterations of the coupled Newton on a fixed open/closed set before `solve_frozen` is tried
 from the same start (`SparseNewton._solve_fixed_set`)."""
@@ -104,6 +112,16 @@ RELAXATION_PATIENCE = 5
 RELAXED_COUPLED_EVERY = 25
 """Relaxed solves between attempts of the coupled Newton (COUPLED_FIRST iterations) from the
 state reached: once the open/closed set has settled it converges in a few iterations."""
+
+
+def _next_secant_weight(secant: float, shortened: bool) -> float:
+    """The secant model's weight in Newton's next matrix (`SparseNewton.newton`): 1 after the
+    first shortened step, then SECANT_GROWTH times more after a shortened step (at most 1)
+    and SECANT_GROWTH times less after a full one, 0 below SECANT_FLOOR."""
+    if shortened:
+        return 1.0 if secant == 0.0 else min(1.0, SECANT_GROWTH * secant)
+    secant /= SECANT_GROWTH
+    return secant if secant >= SECANT_FLOOR else 0.0
 
 
 def _sparse_solve(A, rhs, symmetric=True, order=None, kept=None):
@@ -490,34 +508,49 @@ class SparseNewton(NewtonBackend):
                update_first=False) -> NewtonInfo:
         """Minimise V + sum H (F_T frozen) from `pos`, in place (docs/model.md section 6), the
         contact on `law`'s branches (None: unilateral). `update_first`: converged already
-        where F_T's update to the law would matter more (`_update_first`, FROZEN_RATIO)."""
+        where F_T's update to the law would matter more (`_update_first`, FROZEN_RATIO).
+
+        Newton's matrix is the exact Hessian blended with the secant friction model
+        (`_newton_matrix`, docs/model.md 11.10): the weight lambda of the secant goes to 1
+        after a step the line search shortened (a Huber kink in the way: the exact Hessian
+        has no stiffness along a sliding crossing's slip) and then grows by SECANT_GROWTH
+        after each shortened step, falls by it after each full one, and is 0 again (the exact
+        Hessian) below SECANT_FLOOR."""
         info = NewtonInfo()
         max_iterations = self.max_iterations if max_iterations is None else max_iterations
         previous = np.inf
-        cut = False  # the last step was shortened: the secant friction stiffness
+        secant = 0.0  # lambda
         for iteration in range(max_iterations + 1):
             grad = self.gradient(pos, P, anchors, limit, law)
             if update_first and iteration and self._update_first(pos, P, anchors, grad, info, law):
                 info.iterations = iteration
                 return info
             H = self._iteration_start(info, pos, grad, iteration, previous, max_iterations,
-                                      lambda: self.hessian(pos, anchors, limit, cut, law))
+                                      lambda: self._newton_matrix(pos, anchors, limit, secant, law))
             if H is None:
                 return info
             residual, floor = info.residual, info.floor
             previous = residual
             trial = self._newton_step(pos, grad, H, residual, floor, P, anchors, limit, law)
-            if trial is None and not cut and self.structure.has_friction:
-                cut = True  # a Huber kink in the way: retry on the secant model
+            if trial is None and secant < 1.0 and self.structure.has_friction:
+                secant = 1.0  # a Huber kink in the way: retry on the secant model
                 trial = self._newton_step(pos, grad, self.hessian(pos, anchors, limit, True, law),
                                           residual, floor, P, anchors, limit, law)
             if trial is None:
                 info.converged = info.at_floor = residual <= floor
                 return info
             trial, t = trial
-            cut = t < 1.0
+            secant = _next_secant_weight(secant, t < 1.0)
             pos[:, :] = trial
         return info
+
+    def _newton_matrix(self, pos, anchors, limit, secant: float, law=None):
+        """H_exact + secant (H_secant - H_exact): the Hessian with F_T frozen, its friction
+        blocks moved towards the secant model by the weight `secant` in [0, 1]."""
+        if secant in (0.0, 1.0) or not self.structure.has_friction:
+            return self.hessian(pos, anchors, limit, secant == 1.0, law)
+        exact = self.hessian(pos, anchors, limit, False, law)
+        return (exact + secant * (self.hessian(pos, anchors, limit, True, law) - exact)).tocsc()
 
     def _update_first(self, pos, P, anchors, grad, info, law) -> bool:
         """Whether a frozen solve at `pos` (its gradient `grad`) may stop for F_T's update:
