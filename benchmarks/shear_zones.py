@@ -20,7 +20,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from dynfab import run  # noqa: E402
 from dynfab.scene import parse_scene_text  # noqa: E402
-from test_shear_specimens import BIAS, DEGREE, HOLDING_FRICTION, bias_nominal, scene_text  # noqa: E402
+from test_shear_specimens import (  # noqa: E402
+    BIAS, DEGREE, HOLDING_FRICTION, bias_nominal, scene_text)
 
 OUTPUT = Path(__file__).resolve().parent / "shear_zones.json"
 D_AT_60_MM = (3e-3, 6e-3, 9e-3, 13.5e-3)

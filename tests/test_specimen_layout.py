@@ -243,9 +243,9 @@ def test_bias_holds_the_yarn_ends_whose_band_reaches_a_clamp(bias, bias_unequal)
         assert not layout.held[ends[on_long & (near_clamp > reach)]].any()
         # An end on neither side is a crossing (its end piece dropped): held only within
         # half a segment of a short side or, near a corner, by its band.
-        neither = ~(on_short | on_long)
-        assert np.all(near_clamp[neither & layout.held[ends]] <= np.maximum(0.5 * spacing / N,
-                                                                           reach[neither & layout.held[ends]]))
+        held_inside = ~(on_short | on_long) & layout.held[ends]
+        assert np.all(near_clamp[held_inside]
+                      <= np.maximum(0.5 * spacing / N, reach[held_inside]))
         # The band rule holds ends on the long sides that the line rule left free, free ends
         # remain, and both clamps hold nodes.
         assert (on_long & (near_clamp > 1e-9 * H) & layout.held[ends]).any()
