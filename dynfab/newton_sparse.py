@@ -371,10 +371,11 @@ class SparseNewton(NewtonBackend):
             np.add.at(grad[:, -1], f.tie_b[opened][to_node], -(f.tie_side[opened] * R)[to_node])
         return grad
 
-    def hessian(self, pos, anchors, limit, secant=False,
+    def hessian(self, pos, anchors, limit, secant: float = 0.0,
                 law: SetLaw | None = None) -> scipy.sparse.csc_matrix:
-        """The Hessian on the free dofs, F_T frozen (`secant`: see `friction.huber_hessian`);
-        on `law`'s branches, the contact tangent of `branch_tangents`."""
+        """The Hessian on the free dofs, F_T frozen, the sliding crossings' blocks moved towards
+        their secant stiffness by the weight `secant` (`friction.huber_hessian`); on `law`'s
+        branches, the contact tangent of `branch_tangents`."""
         H = self.terms.sparse_hessian(self.structure, pos, anchors, limit, secant)
         if law is None or law.branch is None:
             return H
@@ -511,7 +512,7 @@ class SparseNewton(NewtonBackend):
         where F_T's update to the law would matter more (`_update_first`, FROZEN_RATIO).
 
         Newton's matrix is the exact Hessian blended with the secant friction model
-        (`_newton_matrix`, docs/model.md 11.10): the weight lambda of the secant goes to 1
+        (`hessian`'s `secant`, docs/model.md 11.10): the weight lambda of the secant goes to 1
         after a step the line search shortened (a Huber kink in the way: the exact Hessian
         has no stiffness along a sliding crossing's slip) and then grows by SECANT_GROWTH
         after each shortened step, falls by it after each full one, and is 0 again (the exact
@@ -526,7 +527,7 @@ class SparseNewton(NewtonBackend):
                 info.iterations = iteration
                 return info
             H = self._iteration_start(info, pos, grad, iteration, previous, max_iterations,
-                                      lambda: self._newton_matrix(pos, anchors, limit, secant, law))
+                                      lambda: self.hessian(pos, anchors, limit, secant, law))
             if H is None:
                 return info
             residual, floor = info.residual, info.floor
@@ -534,7 +535,7 @@ class SparseNewton(NewtonBackend):
             trial = self._newton_step(pos, grad, H, residual, floor, P, anchors, limit, law)
             if trial is None and secant < 1.0 and self.structure.has_friction:
                 secant = 1.0  # a Huber kink in the way: retry on the secant model
-                trial = self._newton_step(pos, grad, self.hessian(pos, anchors, limit, True, law),
+                trial = self._newton_step(pos, grad, self.hessian(pos, anchors, limit, 1.0, law),
                                           residual, floor, P, anchors, limit, law)
             if trial is None:
                 info.converged = info.at_floor = residual <= floor
@@ -543,14 +544,6 @@ class SparseNewton(NewtonBackend):
             secant = _next_secant_weight(secant, t < 1.0)
             pos[:, :] = trial
         return info
-
-    def _newton_matrix(self, pos, anchors, limit, secant: float, law=None):
-        """H_exact + secant (H_secant - H_exact): the Hessian with F_T frozen, its friction
-        blocks moved towards the secant model by the weight `secant` in [0, 1]."""
-        if secant in (0.0, 1.0) or not self.structure.has_friction:
-            return self.hessian(pos, anchors, limit, secant == 1.0, law)
-        exact = self.hessian(pos, anchors, limit, False, law)
-        return (exact + secant * (self.hessian(pos, anchors, limit, True, law) - exact)).tocsc()
 
     def _update_first(self, pos, P, anchors, grad, info, law) -> bool:
         """Whether a frozen solve at `pos` (its gradient `grad`) may stop for F_T's update:

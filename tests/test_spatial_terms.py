@@ -302,6 +302,29 @@ def test_huber3_values_and_derivatives():
     assert not g.any() and not H.any()
 
 
+def test_a_secant_weight_blends_the_sliding_curvature_with_its_secant():
+    """Newton's blend (dynfab.newton_sparse): weight w gives (1 - w) d2H + w (F_T / |s|) I on
+    a sliding crossing, in the plane (dynfab.fabric.friction) and in space; a sticking
+    crossing keeps k_t I whatever w."""
+    from dynfab.fabric import friction as planar
+    S = np.array([3.0, 4.0, 12.0]) * 1e-5          # sliding: k_t |S| = 0.13 N > F_T
+    exact, secant, blend = np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))
+    spatial.huber3_hessian(S, LIMIT, STICK, 0.0, exact)
+    spatial.huber3_hessian(S, LIMIT, STICK, 1.0, secant)
+    spatial.huber3_hessian(S, LIMIT, STICK, 0.25, blend)
+    np.testing.assert_allclose(blend, 0.75 * exact + 0.25 * secant, rtol=1e-14,
+                               atol=1e-14 * LIMIT / 1.3e-4)
+    sx, sy = 2.0 * S[:2]                           # |s| = 1e-4 m: k_t |s| = 0.1 N > F_T
+    exact2 = np.array(planar.huber_hessian(sx, sy, LIMIT, STICK, 0.0))
+    secant2 = np.array(planar.huber_hessian(sx, sy, LIMIT, STICK, 1.0))
+    blend2 = np.array(planar.huber_hessian(sx, sy, LIMIT, STICK, 0.25))
+    np.testing.assert_allclose(blend2, 0.75 * exact2 + 0.25 * secant2, rtol=1e-14,
+                               atol=1e-14 * LIMIT / 1e-4)
+    assert np.array_equal(secant2, [LIMIT / np.hypot(sx, sy), 0.0, LIMIT / np.hypot(sx, sy)])
+    spatial.huber3_hessian(S, 1.0, STICK, 0.25, blend)   # sticking at F_T = 1 N
+    np.testing.assert_array_equal(blend, STICK * np.eye(3))
+
+
 @pytest.mark.parametrize("scale", [0.4, 2.5])
 def test_huber3_derivatives_match_finite_differences(scale):
     S = slip_of_size(np.random.default_rng(2), scale * LIMIT / STICK)

@@ -208,7 +208,7 @@ def yarn_band(pos, fabric, y, band):
 
 
 @numba.njit(cache=True)
-def crossing_blocks(pos, fabric, anchors, limit, tangent, huber, secant=False):
+def crossing_blocks(pos, fabric, anchors, limit, tangent, huber, secant=0.0):
     """dR/dg per crossing into tangent (C,) and the Huber block (h_xx, h_xy, h_yy) into
     huber (C, 3) (zeros without friction; `secant`: see `friction.huber_hessian`)."""
     contact.tangents(pos, fabric, tangent)
@@ -219,9 +219,9 @@ def crossing_blocks(pos, fabric, anchors, limit, tangent, huber, secant=False):
 
 
 @numba.njit(cache=True)
-def hessian_values(pos, fabric, anchors, limit, values, secant=False):
+def hessian_values(pos, fabric, anchors, limit, values, secant=0.0):
     """The Hessian's entries (F_T frozen) in `Pattern` order into values; `secant`: the
-    sliding crossings' secant stiffness instead (`friction.huber_hessian`)."""
+    weight of the sliding crossings' secant stiffness (`friction.huber_hessian`)."""
     start = fabric.chain_start
     k = 0
     for y in range(start.size - 1):
@@ -408,13 +408,13 @@ def pattern_of(structure) -> Pattern:
     return entry[1]
 
 
-def sparse_hessian(structure, pos, anchors, limit, secant: bool = False):
+def sparse_hessian(structure, pos, anchors, limit, secant: float = 0.0):
     """The Hessian of V plus the Huber terms on the structure's unknowns [N/m] (CSC), F_T =
-    `limit` frozen (docs/model.md (6.1)); `secant`: the sliding ties' secant stiffness instead
-    (`dynfab.fabric.friction.huber_hessian`)."""
+    `limit` frozen (docs/model.md (6.1)); `secant` in [0, 1]: the weight of the sliding ties'
+    secant stiffness (`dynfab.fabric.friction.huber_hessian`)."""
     pattern = pattern_of(structure)
     values = np.zeros(pattern.size)
-    hessian_values(pos, structure, anchors, limit, values, secant)
+    hessian_values(pos, structure, anchors, limit, values, float(secant))
     return pattern.matrix(values)
 
 

@@ -64,23 +64,26 @@ def huber_gradient(sx, sy, limit, stick):
 
 
 @numba.njit(cache=True)
-def huber_hessian(sx, sy, limit, stick, secant=False):
-    """d2H/ds2 as (h_xx, h_xy, h_yy) [N/m].
+def huber_hessian(sx, sy, limit, stick, secant=0.0):
+    """d2H/ds2 as (h_xx, h_xy, h_yy) [N/m], a sliding tie's moved towards the secant by the
+    weight `secant` in [0, 1] (True: 1).
 
-    With `secant`, a sliding tie gets (F_T / |s|) I instead: the curvature of the
-    quadratic that touches H at s and lies above it everywhere
-    (|s'| <= |s'|^2 / (2 |s|) + |s| / 2), so a Newton step on it cannot overshoot a
-    tie about to stick again (the one-yarn solver's secant, `dynfab.terms.friction`).
+    The secant, (F_T / |s|) I, is the curvature of the quadratic that touches H at s and
+    lies above it everywhere (|s'| <= |s'|^2 / (2 |s|) + |s| / 2), so a Newton step on it
+    cannot overshoot a tie about to stick again (the one-yarn solver's secant,
+    `dynfab.terms.friction`); the sparse Newton blends towards it after shortened steps
+    (`dynfab.newton_sparse`).
     """
     if not limit > 0.0:
         return 0.0, 0.0, 0.0
     n = np.hypot(sx, sy)
     if stick * n < limit:
         return stick, 0.0, stick
-    if secant:
+    if secant >= 1.0:
         return limit / n, 0.0, limit / n
     scale = limit / (n * n * n)
-    return scale * sy * sy, -scale * sx * sy, scale * sx * sx
+    xx, xy, yy = scale * sy * sy, -scale * sx * sy, scale * sx * sx
+    return xx + secant * (limit / n - xx), (1.0 - secant) * xy, yy + secant * (limit / n - yy)
 
 
 @numba.njit(cache=True)
@@ -94,7 +97,7 @@ def energy(pos, anchors, s, plane_x, plane_y, limit):
 
 
 @numba.njit(cache=True)
-def hessians(pos, anchors, s, plane_x, plane_y, limit, out, secant=False):
+def hessians(pos, anchors, s, plane_x, plane_y, limit, out, secant=0.0):
     """(h_xx, h_xy, h_yy) of every tie into out (T, 3): the block on (x_a, y_b)."""
     for c in range(s.tie_a.size):
         sx, sy = slip(pos, anchors, s, plane_x, plane_y, c)

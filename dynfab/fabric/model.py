@@ -249,7 +249,7 @@ class FabricModel:
         """The order of the Hessian's entries and its unknowns (`assembly.pattern_of`)."""
         return assembly.pattern_of(self.structure)
 
-    def hessian(self, pos, anchors, limit, secant: bool = False) -> scipy.sparse.csc_matrix:
+    def hessian(self, pos, anchors, limit, secant: float = 0.0) -> scipy.sparse.csc_matrix:
         """The Hessian on the unknowns, F_T frozen (`assembly.sparse_hessian`)."""
         return assembly.sparse_hessian(self.structure, pos, anchors, limit, secant)
 

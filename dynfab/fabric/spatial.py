@@ -144,7 +144,7 @@ def _derivatives(pos, s, anchors, limit, secant, grad, values):
     """Every element's gradient and Hessian, each element's once (`dynfab.terms.spatial`):
     the gradient added to grad (nodes, 3) [N] where it has rows, the Hessian's entries into
     values in `pattern_entries`' order [N/m] where it has entries; F_T = `limit` frozen,
-    `secant`: the sliding crossings' secant friction stiffness."""
+    `secant`: the weight of the sliding crossings' secant friction stiffness."""
     pair, triple = np.empty((2, 3)), np.empty((3, 3))
     six, four = np.empty((6, 3)), np.empty((4, 3))
     g6, g9, g18, g12 = np.empty(6), np.empty(9), np.empty(18), np.empty(12)
@@ -194,9 +194,10 @@ def gradient(pos, s, P, anchors, limit, grad):
 
 
 @numba.njit(cache=True)
-def hessian_values(pos, s, anchors, limit, values, secant=False):
+def hessian_values(pos, s, anchors, limit, values, secant=0.0):
     """The Hessian's entries in `pattern_entries`' order [N/m], F_T = `limit` frozen;
-    `secant`: the sliding crossings' secant friction stiffness (`dynfab.terms.spatial`)."""
+    `secant`: the weight of the sliding crossings' secant friction stiffness
+    (`dynfab.terms.spatial`)."""
     _derivatives(pos, s, anchors, limit, secant, np.zeros((0, 3)), values)
 
 
@@ -251,11 +252,12 @@ def pattern_of(structure) -> Pattern:
     return entry[1]
 
 
-def sparse_hessian(structure, pos, anchors, limit, secant: bool = False):
-    """The Hessian of V plus the friction terms on the structure's unknowns [N/m] (CSC)."""
+def sparse_hessian(structure, pos, anchors, limit, secant: float = 0.0):
+    """The Hessian of V plus the friction terms on the structure's unknowns [N/m] (CSC);
+    `secant`: see `hessian_values`."""
     pattern = pattern_of(structure)
     values = np.zeros(pattern.size)
-    hessian_values(pos, structure, anchors, limit, values, secant)
+    hessian_values(pos, structure, anchors, limit, values, float(secant))
     return pattern.matrix(values)
 
 
@@ -296,7 +298,7 @@ def rounding_scale(pos, s, P, limit):
         rho, K, phi_rest, stick = _crossing_law(s, c)
         _gather(pos, s.tie_stencil[c], six)
         total += limit[c] * np.sum(np.abs(six[:, :2]))
-        element.crossing_derivatives(six, np.zeros(3), rho, 0.0, stick, K, phi_rest, False,
+        element.crossing_derivatives(six, np.zeros(3), rho, 0.0, stick, K, phi_rest, 0.0,
                                      g18, H18)
         total += np.sum(np.abs(g18) * np.abs(six.ravel()))
     for e in range(s.lateral_stencil.shape[0]):
@@ -375,7 +377,7 @@ def stiffest_rows(structure, pos, anchors) -> tuple[np.ndarray, np.ndarray]:
     pattern = pattern_of(s)
     limit = np.full(s.tie_a.size, np.inf if s.has_friction else 0.0)
     values = np.zeros(pattern.size)
-    hessian_values(pos, s, np.asarray(anchors, float), limit, values, False)
+    hessian_values(pos, s, np.asarray(anchors, float), limit, values, 0.0)
     tangent = np.zeros(s.tie_a.size)
     contact.tangents(pos, s, tangent)
     raise_to = np.asarray(s.tie_contact_law, float)[:, 0] - tangent  # k_s - dR/dg

@@ -213,7 +213,7 @@ class SpecimenModel:
         """The order of the Hessian's entries and its unknowns (`spatial.pattern_of`)."""
         return spatial.pattern_of(self.structure)
 
-    def hessian(self, pos, anchors, limit, secant: bool = False):
+    def hessian(self, pos, anchors, limit, secant: float = 0.0):
         """The Hessian on the unknowns, F_T frozen (`spatial.sparse_hessian`): what the
         sparse certificate reads (`dynfab.certificate.certify_patch`), as a fabric's."""
         return spatial.sparse_hessian(self.structure, pos, anchors, limit, secant)

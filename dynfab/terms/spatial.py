@@ -53,8 +53,8 @@ Elements:
         dE = J^T (D dHuber + shear_k w e_2),  w = wrap(q2 - phi_rest),
         d2E = J^T (D d2Huber D + shear_k e_2 e_2^T) J + sum_m (D dHuber + shear_k w e_2)_m K_m,
     J = dq/dX, K_m = d2q_m/dX2; d2Huber = k_t I sticking, (F_T / |S|)(I - S S^T / |S|^2)
-    sliding, or (F_T / |S|) I with `secant` (the curvature of the quadratic touching Huber at
-    S from above). The return map (4.3) moves the anchor radially in S where k_t |S| > F_T:
+    sliding, or towards (F_T / |S|) I by the weight `secant` (the curvature of the quadratic
+    touching Huber at S from above). The return map (4.3) moves the anchor radially in S where k_t |S| > F_T:
     S <- (1 - m) S, m = 1 - F_T / (k_t |S|), dissipating F_T m |S|.
 (e) Lateral contact of neighbouring yarns, X = (A_prev, A_next, A, B): c = (A_next -
     A_prev)_xy, d = sign cross2(c, (B - A)_xy) / |c| (the signed distance from B to the line
@@ -404,8 +404,9 @@ def huber3_gradient(S, limit, stick, out):
 
 @numba.njit(cache=True)
 def huber3_hessian(S, limit, stick, secant, out):
-    """d2Huber/dS2 [N/m] into out (3, 3): k_t I sticking; (F_T / |S|)(I - S S^T / |S|^2)
-    sliding, or (F_T / |S|) I with `secant`; 0 open."""
+    """d2Huber/dS2 [N/m] into out (3, 3): k_t I sticking; (F_T / |S|)(I - (1 - secant) S S^T /
+    |S|^2) sliding, `secant` in [0, 1] the weight of the secant (F_T / |S|) I (True: 1); 0
+    open."""
     out[:, :] = 0.0
     if not limit > 0.0:
         return
@@ -417,9 +418,9 @@ def huber3_hessian(S, limit, stick, secant, out):
     scale = limit / n
     for i in range(3):
         out[i, i] = scale
-        if not secant:
+        if secant < 1.0:
             for j in range(3):
-                out[i, j] -= scale * S[i] * S[j] / (n * n)
+                out[i, j] -= (1.0 - secant) * scale * S[i] * S[j] / (n * n)
 
 
 @numba.njit(cache=True)
