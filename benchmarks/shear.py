@@ -138,11 +138,19 @@ def scaling(sides, steps: int) -> list[dict]:
     return rows
 
 
-def exponent(rows) -> float:
-    """Slope of log(time per iteration) against log(crossings)."""
+def exponent(rows) -> float | None:
+    """Slope of log(time per iteration) against log(crossings); None below two sizes."""
+    if len({r["crossings"] for r in rows}) < 2:
+        return None
     x = np.log([r["crossings"] for r in rows])
     y = np.log([r["s_per_iteration"] for r in rows])
-    return float(np.polyfit(x, y, 1)[0]) if len(rows) > 1 else float("nan")
+    return float(np.polyfit(x, y, 1)[0])
+
+
+def say_exponent(label: str, value: float | None) -> None:
+    """Print the exponent, or that there are too few sizes for one."""
+    print(f"{label}time per Newton iteration ~ crossings^{value:.2f}" if value is not None
+          else f"{label}time per Newton iteration: fewer than two sizes, no exponent")
 
 
 def main(argv=None) -> None:
@@ -156,7 +164,7 @@ def main(argv=None) -> None:
     args = parser.parse_args(argv)
     rows = scaling([float(s) for s in args.sides.split(",") if s], args.steps)
     result = {"scaling": rows, "exponent_per_iteration": exponent(rows), "scenes": []}
-    print(f"time per Newton iteration ~ crossings^{result['exponent_per_iteration']:.2f}")
+    say_exponent("", result["exponent_per_iteration"])
     for path in [p for p in args.scenes.split(",") if p]:
         print(f"{path}:")
         scene = load_scene(path)
@@ -178,8 +186,7 @@ def main(argv=None) -> None:
         Path(args.out).write_text(json.dumps(result, indent=2) + "\n")  # each scene kept
     rows = rows + [s for s in result["scenes"]]
     result["exponent_per_iteration_with_scenes"] = exponent(rows)
-    print(f"with the scenes: time per Newton iteration ~ crossings^"
-          f"{result['exponent_per_iteration_with_scenes']:.2f}")
+    say_exponent("with the scenes: ", result["exponent_per_iteration_with_scenes"])
     Path(args.out).write_text(json.dumps(result, indent=2) + "\n")
     print(f"wrote {args.out}")
 

@@ -95,6 +95,14 @@ SECANT_GROWTH = 4.0
 search shortened and divided by it after a full step."""
 SECANT_FLOOR = 1e-3
 """Below this lambda Newton's matrix is the exact Hessian again (quadratic convergence)."""
+COUPLED_FORCING = 1e-6
+"""|J d + g| / |g| a coupled Newton direction d must reach (an inexact Newton step's forcing
+term: the next residual is at most this fraction of |g| plus Newton's quadratic term, so
+convergence stays quadratic down to a millionth of the step's first residual; Dembo,
+Eisenstat and Steihaug, SIAM J. Numer. Anal. 19, 1982). The Hessian's 1e-10 (the kept
+factors') cannot be reached there: on the 150 x 450 mm bias specimen (60,510 unknowns) the
+Jacobian's own factors solve it to 2.6e-9 and the pivoted LU to 5.3e-9, where GMRES on the
+Hessian's factors reaches 3.4e-8 in 6 iterations (docs/model.md section 11.10)."""
 COUPLED_FIRST = 20
 """Iterations of the coupled Newton on a fixed open/closed set before `solve_frozen` is tried
 from the same start (`SparseNewton._solve_fixed_set`)."""
@@ -715,17 +723,17 @@ class SparseNewton(NewtonBackend):
                                        shape=(n, n))
 
     def _coupled_direction(self, H, J, g):
-        """-J^-1 g for the coupled Jacobian J = H + coupling: GMRES preconditioned by the
-        factors of H (`KeptFactor.solve_near`: J is H plus a small non-symmetric part), else
-        SuperLU with pivoting on J (said on the live line: a minute at 60,000 unknowns);
-        None if J is singular."""
+        """-J^-1 g to COUPLED_FORCING for the coupled Jacobian J = H + coupling: GMRES
+        preconditioned by the factors of H, or of J in H's order (`KeptFactor.solve_near`:
+        J is H plus a small non-symmetric part), else SuperLU with pivoting on J (said on
+        the live line: a minute at 60,000 unknowns); None if J is singular."""
         H = H.tocsc(copy=True)  # its index arrays may be the pattern's own
         H.eliminate_zeros()
-        d = self._kept_factor().solve_near(J, -g, H)
+        d = self._kept_factor().solve_near(J, -g, H, COUPLED_FORCING)
         if d is not None:
             return d
-        self.say("coupled Newton: the Jacobian factored with pivoting (GMRES on the Hessian's "
-                 "factors did not converge)")
+        self.say("coupled Newton: the Jacobian factored with pivoting (GMRES on its and the "
+                 "Hessian's factors did not converge)")
         return _sparse_solve(J, -g, symmetric=False)
 
     def coupled_newton(self, pos, P, anchors, law=None, max_iterations=None) -> NewtonInfo:
