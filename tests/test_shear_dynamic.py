@@ -11,9 +11,10 @@ far more (a 1e-3 relative force error moves it by ~1e-3 of the step's displaceme
 at d = 3 mm, against bounds of 1e-8 m).
 
 Scenes: the issue's 60 mm picture frame (the paper's friction law, `runs/shear_frame_60mm.toml`
-cut to two load steps) and a 30 x 60 mm bias specimen held together by strong friction
-(tests/test_shear_specimens.py's `HOLDING_FRICTION`) for one load step; step 0 (the preload
-relaxed at d = 0) included in both.
+cut to two load steps), with fictitious and with physical masses, and a 30 x 60 mm bias
+specimen held together by strong friction (tests/test_shear_specimens.py's
+`HOLDING_FRICTION`) for one load step; step 0 (the preload relaxed at d = 0) included in
+both.
 """
 
 from __future__ import annotations
@@ -30,14 +31,17 @@ pytest.importorskip("warp")
 
 SMALL_BIAS = BIAS.replace("width = 0.06\nheight = 0.12", "width = 0.03\nheight = 0.06")
 CASES = {"frame": (FRAME, [3e-3, 6e-3], ""), "bias": (SMALL_BIAS, [2e-3], HOLDING_FRICTION)}
+MASSES = {"frame": "", "frame-physical-masses": '\n[dynamic]\nmasses = "physical"\n',
+          "bias": ""}
+"""Each dynamic run's [dynamic] table (the case named before the first '-')."""
 
 
-@pytest.mark.parametrize("name", sorted(CASES))
+@pytest.mark.parametrize("name", sorted(MASSES))
 def test_dynamic_positions_agree_with_static_within_the_error_bounds(name):
-    specimen, values, friction = CASES[name]
-    scene = parse_scene_text(scene_text(specimen, values, friction))
-    static = run(scene, solver="static")
-    dynamic = run(scene, solver="dynamic")
+    specimen, values, friction = CASES[name.split("-")[0]]
+    text = scene_text(specimen, values, friction)
+    static = run(parse_scene_text(text), solver="static")
+    dynamic = run(parse_scene_text(text + MASSES[name]), solver="dynamic")
     x_static, x_dynamic = static.steps["positions"], dynamic.steps["positions"]
     assert x_dynamic.shape == x_static.shape == (len(values) + 1, *x_static.shape[1:])
     bound = static.steps["error_estimate"] + dynamic.steps["error_estimate"]
