@@ -22,6 +22,8 @@ from dynfab.specimen_layout import nominal_shear_angle
 
 DEGREE = 180.0 / np.pi
 ZONES = ("zone A", "zone B", "zone C")
+WIDE_RANGE = 30.0
+"""Largest over smallest force drawn on a linear axis (`_log_if_wide`)."""
 
 
 def _nominal(results: Results, d: np.ndarray) -> np.ndarray:
@@ -63,10 +65,23 @@ def plot_shear_force(results: Results) -> Figure:
     angles.set(xlabel="clamp displacement d [mm]", ylabel="shear angle [deg]")
     for ax in (by_d, by_angle, angles):
         style_axes(ax)
+    loaded = d > 0.0  # step 0's force is zero to rounding
+    _log_if_wide(by_d, force[loaded])
+    _log_if_wide(by_angle, np.asarray(steps["normalised_shear_force"], float)[loaded])
     legend(angles)
     fig.suptitle(f"{results.attrs['specimen_test'].replace('_', ' ')}: force and shear angle "
                  "(docs/model.md section 11)")
     return fig
+
+
+def _log_if_wide(ax, values: np.ndarray) -> None:
+    """A logarithmic force axis from half the smallest of `values` (the loaded steps') where
+    they are positive and span more than WIDE_RANGE (a picture frame past the lock: its force
+    rises a hundredfold in the last steps and a linear axis hides the curve before it)."""
+    values = values[np.isfinite(values)]
+    if values.size and np.all(values > 0.0) and values.max() > WIDE_RANGE * values.min():
+        ax.set_yscale("log")
+        ax.set_ylim(bottom=0.5 * values.min())
 
 
 def plot_shear_field(results: Results) -> Figure:

@@ -239,3 +239,19 @@ def test_a_fabric_file_draws_loads_per_width_from_the_origin_and_its_shape(tmp_p
                      if line.get_gid() == f"step {step + 1} {family} shape"]
             assert len(drawn) == 1
             np.testing.assert_array_equal(drawn[0].get_xydata(), 1e3 * nodes)
+
+
+def test_a_specimen_force_past_the_lock_is_drawn_on_a_log_axis():
+    """The picture frame's force rises a hundredfold past the lock (docs/results.md): on a
+    linear axis the curve before it is a flat line at zero. A range wider than WIDE_RANGE
+    takes a log axis from half its smallest value; a bias curve (0.08 to 0.13 N) stays
+    linear."""
+    from matplotlib.figure import Figure
+
+    from dynfab.specimen_plots import WIDE_RANGE, _log_if_wide
+    frame, bias = Figure().subplots(1, 2)
+    _log_if_wide(frame, np.array([0.28, 0.33, 0.43, 2.3, 12.8, 154.6]))
+    _log_if_wide(bias, np.array([0.081, 0.098, 0.133]))
+    assert 154.6 / 0.28 > WIDE_RANGE > 0.133 / 0.081
+    assert (frame.get_yscale(), bias.get_yscale()) == ("log", "linear")
+    assert frame.get_ylim()[0] == pytest.approx(0.14)
