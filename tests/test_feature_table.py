@@ -22,8 +22,9 @@ README = ROOT / "README.md"
 SECTION = "## What runs on which model"
 COLUMNS = ["feature", "one yarn (paper)", "fabric: clamped patch", "fabric: periodic cell",
            "shear specimen (spatial)"]
-REFERENCE = re.compile(r"`(tests/[\w/]+\.py)::(\w+)`")
-"""A test named in a cell: `tests/FILE.py::test_name`."""
+REFERENCE = re.compile(r"`(tests/[\w/]+\.py)::(\w+)(?:\[([\w.-]+)\])?`")
+"""A test named in a cell: `tests/FILE.py::test_name`, or one case of a parametrised test,
+`tests/FILE.py::test_name[case]`."""
 REASON_WORDS = 4
 """The fewest words a `no` cell's reason has."""
 
@@ -67,12 +68,14 @@ def cell_problems(cell: str) -> list[str]:
     if not references:
         return [f"a yes naming no `tests/FILE.py::test_name`: {cell!r}"]
     problems = []
-    for file, name in references:
+    for file, name, case in references:
         path = ROOT / file
         if not path.is_file():
             problems.append(f"{file} does not exist")
         elif name not in defined_tests(path):
             problems.append(f"{file} defines no function {name}")
+        elif case and f'"{case}"' not in path.read_text():
+            problems.append(f"{file} names no case {case!r} (its id, quoted, in the source)")
     return problems
 
 
@@ -127,6 +130,10 @@ BROKEN = {
                      + row[2:], "defines no function test_not_there"),
     "missing file": (lambda row: row[:1] + ["yes: `tests/test_not_there.py::test_x`"] + row[2:],
                      "tests/test_not_there.py does not exist"),
+    "missing case": (lambda row: row[:1]
+                     + ["yes: `tests/test_shear_dynamic.py::test_dynamic_positions_agree_with"
+                        "_static_within_the_error_bounds[frame-not-there]`"] + row[2:],
+                     "names no case 'frame-not-there'"),
     "yes without a test": (lambda row: row[:1] + ["yes"] + row[2:], "a yes naming no"),
     "no without a reason": (lambda row: row[:1] + ["no"] + row[2:], "a no without a reason"),
     "neither": (lambda row: row[:1] + ["maybe: later"] + row[2:], "neither yes nor no"),
