@@ -20,6 +20,8 @@ the specimen does not follow the kinematics.
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -180,3 +182,20 @@ def test_without_friction_the_bias_specimen_does_not_follow_the_kinematics():
     zone = r.reference["zone"]
     a = np.median(r.steps["shear_angle"][-1][zone == 0])
     assert abs(a - bias_nominal(6e-3)) > 3 * DEGREE
+
+
+def test_the_paper_s_friction_lets_the_free_edges_slide_and_the_stop_says_why():
+    """The issue's bias specimen with the scene's default (the paper's) friction: the
+    rotation springs' couples need about K gamma / p of in-plane force at a free yarn end,
+    far above F_T at the relaxed preload (docs/model.md 11.8), so a free-edge crossing
+    slides past half a segment within a few millimetres; the stop names both forces, and
+    the one it names as needed exceeds the limit it names."""
+    scene = parse_scene_text(scene_text(BIAS, [1e-3, 2e-3, 3e-3, 4e-3]))
+    with pytest.raises(SolverError) as stopped:
+        run(scene, solver="static")
+    message = str(stopped.value)
+    numbers = re.search(r"friction limit F_T = (\S+) N, below the (\S+) N that the rotation "
+                        r"springs' couples need", message)
+    assert numbers is not None, message
+    limit, needed = float(numbers.group(1)), float(numbers.group(2))
+    assert needed > limit

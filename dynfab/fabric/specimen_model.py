@@ -198,7 +198,25 @@ class SpecimenModel:
             raise SolverError(
                 f"crossing {self.crossing_name(c)} slid {ratio[c]:.2f} of a segment (more than "
                 f"{SLIP_LIMIT}): a crossing is a fixed pair of nodes, the model does not follow "
-                "a yarn through its crossings (docs/model.md section 11)")
+                f"a yarn through its crossings (docs/model.md section 11){self._slip_cause(record, c)}")
+
+    def _slip_cause(self, record: dict, c: int) -> str:
+        """What held crossing c: its friction limit F_T at its contact force and, with a
+        rotation spring K, the in-plane force K |gamma| / p its couples need at a yarn's free
+        end (|gamma| the largest shear angle, p the smaller spacing; docs/model.md 11.8)."""
+        limit = float(np.asarray(record["friction_limit"])[c])
+        text = (f"; its contact force {float(np.asarray(record['contact_force'])[c]):.3g} N "
+                f"gives a friction limit F_T = {limit:.3g} N")
+        crossing = self.scene.crossing
+        K = crossing.shear_stiffness if crossing is not None else 0.0
+        gamma = float(np.max(np.abs(record["shear_angle"]), initial=0.0))
+        p = min(self.scene.warp.spacing, self.scene.weft.spacing)
+        if K > 0.0 and K * gamma / p > limit:
+            text += (f", below the {K * gamma / p:.3g} N that the rotation springs' couples "
+                     f"need at a free yarn end (shear_stiffness K = {K:g} N m/rad at "
+                     f"{np.degrees(gamma):.1f} degrees: K gamma / p; docs/model.md 11.8): a "
+                     "larger [friction] limit or a smaller K holds the specimen")
+        return text
 
     def frame(self, time, arrays):
         raise NotImplementedError("a specimen has no transient run")
