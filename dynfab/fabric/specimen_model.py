@@ -195,10 +195,11 @@ class SpecimenModel:
         ratio = np.asarray(record["crossing_slip_ratio"])
         if ratio.size and ratio.max() > SLIP_LIMIT:
             c = int(np.argmax(ratio))
+            cause = self._slip_cause(record, c)
             raise SolverError(
                 f"crossing {self.crossing_name(c)} slid {ratio[c]:.2f} of a segment (more than "
                 f"{SLIP_LIMIT}): a crossing is a fixed pair of nodes, the model does not follow "
-                f"a yarn through its crossings (docs/model.md section 11){self._slip_cause(record, c)}")
+                f"a yarn through its crossings (docs/model.md section 11){cause}")
 
     def _slip_cause(self, record: dict, c: int) -> str:
         """What held crossing c: its friction limit F_T at its contact force and, with a
