@@ -28,6 +28,7 @@ import pytest
 from dynfab import run
 from dynfab.errors import SolverError
 from dynfab.scene import parse_scene_text
+from independent import scene_gralen
 
 SPECIMEN = """
 [geometry]
@@ -77,6 +78,8 @@ to turn the yarns against the rotation springs (K gamma / p, 0.5 N at 30 degrees
 crossing slides in the bias specimen (docs/model.md section 11, what holds a specimen
 together). The paper's law at the relaxed preload (about 6 mN) lets the free edges slide."""
 DEGREE = np.pi / 180.0
+PRINTED = 5e-3
+"""The largest relative rounding of a value printed to three significant digits."""
 
 
 def bias_nominal(d, width=0.06, height=0.12):
@@ -188,14 +191,20 @@ def test_the_paper_s_friction_lets_the_free_edges_slide_and_the_stop_says_why():
     """The issue's bias specimen with the scene's default (the paper's) friction: the
     rotation springs' couples need about K gamma / p of in-plane force at a free yarn end,
     far above F_T at the relaxed preload (docs/model.md 11.8), so a free-edge crossing
-    slides past half a segment within a few millimetres; the stop names both forces, and
-    the one it names as needed exceeds the limit it names."""
+    slides past half a segment within a few millimetres. The stop names the crossing's
+    contact force R and limit F_T, which is Gralen's law at R (tests/independent.py), and
+    the K gamma / p the couples need at the angle it names. Both to the digits the message
+    prints: three significant (each value rounded by at most PRINTED of itself), the angle
+    to 0.1 degree (rounded by at most 0.05 degree)."""
     scene = parse_scene_text(scene_text(BIAS, [1e-3, 2e-3, 3e-3, 4e-3]))
     with pytest.raises(SolverError) as stopped:
         run(scene, solver="static")
     message = str(stopped.value)
-    numbers = re.search(r"friction limit F_T = (\S+) N, below the (\S+) N that the rotation "
-                        r"springs' couples need", message)
+    numbers = re.search(r"contact force (\S+) N gives a friction limit F_T = (\S+) N, below the "
+                        r"(\S+) N that the rotation springs' couples need at a free yarn end "
+                        r"\(shear_stiffness K = (\S+) N m/rad at (\S+) degrees", message)
     assert numbers is not None, message
-    limit, needed = float(numbers.group(1)), float(numbers.group(2))
-    assert needed > limit
+    R, limit, needed, K, degrees = (float(v) for v in numbers.groups())
+    assert limit == pytest.approx(float(scene_gralen(scene, R)), rel=2 * PRINTED)
+    assert needed == pytest.approx(K * np.radians(degrees) / 5.18e-3,
+                                   rel=2 * PRINTED + 0.05 / degrees)
