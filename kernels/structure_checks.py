@@ -68,10 +68,8 @@ def functions(scalar, friction: bool, boundary: bool, merit: bool = False,
     @wp.func(inline=True)
     def larger(worst: scalar, value: scalar) -> scalar:
         """max(worst, |value|); a NaN, once met, stays."""
-        result = worst
-        if worst == worst and not wp.abs(value) <= worst:
-            result = wp.abs(value)
-        return result
+        size = wp.abs(value)  # a select, not a branch: which is larger is data, not a pattern
+        return wp.where(worst == worst and not size <= worst, size, worst)
 
     # ------------------------------------------------------------- sums
 
@@ -113,10 +111,23 @@ def functions(scalar, friction: bool, boundary: bool, merit: bool = False,
         return upcoming % ENERGY_CHECK_INTERVAL == 0 or upcoming >= settings.max_steps
 
     @wp.func(inline=True)
-    def force_values(i: int, data: Data, state: State, energy: bool) -> vec4:
+    def trial_step(g: int, state: State, settings: Settings) -> scalar:
+        """dt [s] of the trial step whose kinetic energy a force pass sums (`force_values`):
+        kinetic damping's before its viscous fallback; 0 otherwise (none)."""
+        dt = scalar(0.0)
+        if settings.damping == wp.static(structure_settings.KINETIC):
+            if state.damping_coefficient[g] == scalar(0.0):
+                dt = state.dt[g]
+        return dt
+
+    @wp.func(inline=True)
+    def force_values(i: int, data: Data, state: State, energy: bool, trial: scalar) -> vec4:
         """Node i's force masked to its free dofs (in place) and its values: (1/2 m v^2 [J],
-        f0 . (x - x0) [J] with `energy`, f^T f / m [N^2/kg] with `merit`, the largest force
-        component [N]), the sums' terms counted at the node's share."""
+        f0 . (x - x0) [J] with `energy`, f^T f / m [N^2/kg] with `merit` or else, with `trial`
+        dt > 0, the kinetic energy 1/2 m |v + (dt / m) f|^2 [J] a step of dt would reach
+        (kinetic damping's peak test, `structure_explicit`), the largest force component [N]),
+        the sums' terms counted at the node's share. At a relaxation's start, before its masses,
+        the trial term is stale: read only after the first time step."""
         f = wp.cw_mul(state.force[i], data.free[i])
         state.force[i] = f
         v = state.velocity[i]
@@ -127,6 +138,10 @@ def functions(scalar, friction: bool, boundary: bool, merit: bool = False,
         merit_term = scalar(0.0)
         if wp.static(merit):
             merit_term = share * (wp.dot(f, f) / state.mass[i])
+        elif trial > scalar(0.0):
+            m = state.mass[i]
+            w = v + (trial / m) * f
+            merit_term = share * (scalar(0.5) * m * wp.dot(w, w))
         largest = scalar(0.0)
         for c in range(wp.static(dim)):
             largest = larger(largest, f[c])
@@ -136,20 +151,22 @@ def functions(scalar, friction: bool, boundary: bool, merit: bool = False,
     @wp.func(inline=True)
     def gather_node(i: int, data: Data, state: State, settings: Settings):
         """Node i's force gathered at the current positions, its values into node_values."""
+        g = data.node_group[i]
         state.force[i] = forces.node_force(i, state.position, data, state)
-        state.node_values[i] = force_values(i, data, state,
-                                            energy_step(data.node_group[i], state, settings))
+        state.node_values[i] = force_values(i, data, state, energy_step(g, state, settings),
+                                            trial_step(g, state, settings))
 
     @wp.func(inline=True)
     def values_blocks(g: int, data: Data, state: State, settings: Settings):
         """Every node's `force_values` summed straight into its block's sums (the grouped
         layout's scatter order: what `block_stage` sums, without storing the node values)."""
         energy = energy_step(g, state, settings)
+        trial = trial_step(g, state, settings)
         for b in range(data.group_block[g], data.group_block[g + 1]):
             total = vec4(scalar(0.0), scalar(0.0), scalar(0.0), scalar(0.0))
             worst = scalar(0.0)
             for i in range(data.block_start[b], data.block_start[b + 1]):
-                value = force_values(i, data, state, energy)
+                value = force_values(i, data, state, energy, trial)
                 total = total + value
                 worst = larger(worst, value[3])
             state.block_values[b] = total

@@ -10,7 +10,8 @@ solver (decisions)"):
   Underwood's diagonal estimate u^T K u / u^T M u where positive and below the secant
   -u . (f - f0) / u^T M u, else the secant; capped at 2 / dt;
 - kinetic: when the kinetic energy a full step would reach falls below the last one, the peak
-  has passed: x -= dt/2 v, v = 0; after KINETIC_STEPS steps a group still running continues
+  has passed: x -= dt/2 v, v = 0 (that energy, sum_i 1/2 m_i |v_i + (dt / m_i) f_i|^2, is
+  summed by the force pass before it, `structure_checks.force_values`); after KINETIC_STEPS steps a group still running continues
   with viscous damping at c dt = FALLBACK_DAMPING, c doubling (at most c dt = 2) after each
   STALL_STEPS steps without a new low of the residual;
 - FIRE 2.0: with P = f . v, dt grows by DT_GROWTH (at most DT_MAX x the stable dt) and alpha
@@ -19,8 +20,8 @@ solver (decisions)"):
   a row: STALLED); then v += dt M^-1 f, v = (1 - alpha) v + alpha |v| f / |f|, x += dt v.
 
 Every step is a sequence of stages, each a `wp.func` of one unit (node, tie, block or group):
-`PRE` (per node: the damping's terms), `BLOCKS`, `DECIDE` (per group: the kinetic peak, the
-adaptive c, FIRE's dt and alpha), `MOVE` (per node), for FIRE `BLOCKS`, `MIX` (per group) and
+`PRE` (per node: the damping's terms), `BLOCKS` (the adaptive c and FIRE), `DECIDE` (per
+group: the kinetic peak, the adaptive c, FIRE's dt and alpha), `MOVE` (per node), for FIRE `BLOCKS`, `MIX` (per group) and
 `MIX_MOVE` (per node), then the forces at the new positions (`TIES` per tie and `GATHER` per
 node, or the group's scatter), `BLOCKS` and `CHECK` (per group: `structure_checks`). Two
 layouts of the same stages:
@@ -47,11 +48,7 @@ from dynfab.kernels import status, structure_arrays, structure_checks, structure
 from dynfab.kernels import structure_settings, structure_state
 from dynfab.kernels import structure_variants
 from dynfab.kernels.precision import KINEMATICS, vector
-
-DAMPINGS = ("viscous", "kinetic", "fire")
-"""`settings.damping` is the index of the damping in DAMPINGS: a kernel holds all three (one
-compile for any damping; the choice, one per run, is a branch the CPU predicts)."""
-VISCOUS, KINETIC, FIRE = range(3)
+from dynfab.kernels.structure_settings import DAMPINGS, FIRE, KINETIC, VISCOUS  # noqa: F401
 ORDERS = ("scatter", "gather")
 KINETIC_STEPS = 200_000
 """Time steps of kinetic damping before the viscous fallback (docs/model.md, kinetic damping)."""
@@ -96,7 +93,9 @@ START_STAGES = (START_TIES, START_GATHER, START_BLOCKS, STIFFEST_TIES, STIFFEST_
 
 def step_stages(damping: str, adaptive: bool) -> tuple:
     """The stages of one time step for `damping` (viscous with `adaptive` c or not)."""
-    pre = (PRE, BLOCKS, DECIDE) if damping in ("kinetic", "fire") or adaptive else ()
+    pre = (PRE, BLOCKS, DECIDE) if damping == "fire" or adaptive else ()
+    if damping == "kinetic":  # the last force pass summed the trial step's energy
+        pre = (DECIDE,)
     mix = (BLOCKS, MIX, MIX_MOVE) if damping == "fire" else ()
     return (*pre, MOVE, *mix, TIES, GATHER, BLOCKS, CHECK)
 
@@ -129,14 +128,10 @@ def functions(scalar, friction: bool, boundary: bool,
 
     @wp.func(inline=True)
     def pre_values(i: int, data: Data, state: State, settings: Settings) -> vec4:
-        """The damping's terms of node i (module docstring)."""
+        """The damping's terms of node i (module docstring): the adaptive c's, FIRE's."""
         g = data.node_group[i]
         share = data.share[i]
         values = vec4(scalar(0.0), scalar(0.0), scalar(0.0), scalar(0.0))
-        if settings.damping == KINETIC:
-            m = state.mass[i]
-            v = state.velocity[i] + (state.dt[g] / m) * state.force[i]
-            values[0] = share * (scalar(0.5) * m * wp.dot(v, v))
         if settings.damping == VISCOUS:
             u = state.position[i] - state.start_position[i]
             change = state.force[i] - state.previous_force[i]
@@ -166,9 +161,9 @@ def functions(scalar, friction: bool, boundary: bool,
     def decide(g: int, data: Data, state: State, settings: Settings):
         """The damping's decision for the step from the group's sums (module docstring)."""
         sums = checks.group_sum(g, data, state)
-        if settings.damping == KINETIC:
+        if settings.damping == KINETIC:  # the trial step's energy, from the last force pass
             state.decision[g] = scalar(0.0)
-            if sums[0] < state.kinetic_energy[g]:
+            if state.steps[g] > 0 and sums[2] < state.kinetic_energy[g]:
                 state.decision[g] = scalar(1.0)
         if settings.damping == VISCOUS:
             stiffness = sums[1]
@@ -406,13 +401,14 @@ def grouped_kernel(scalar, friction: bool, boundary: bool, order: str,
         lo = data.group_node[g]
         hi = data.group_node[g + 1]
         pre = settings.damping == FIRE
-        if settings.damping == KINETIC:
-            pre = state.damping_coefficient[g] == scalar(0.0)
         if settings.damping == VISCOUS:
             pre = settings.damping_coefficient < scalar(0.0)
         if pre:
             ops.pre_blocks(g, data, state, settings)
             ops.decide(g, data, state, settings)
+        elif settings.damping == KINETIC:  # its energy is summed already
+            if state.damping_coefficient[g] == scalar(0.0):
+                ops.decide(g, data, state, settings)
         if ops.running(state, g):
             factors = ops.step_factors(g, state, settings)
             if settings.damping == FIRE:

@@ -6,6 +6,11 @@ import functools
 import warp as wp
 
 MODULE_OPTIONS = {"enable_backward": False}
+DAMPINGS = ("viscous", "kinetic", "fire")
+"""The explicit dampings; `StructureSettings.damping` is an index in it (docs/model.md section
+5). A kernel holds all three (one compile for any damping; the choice, one per run, is a branch
+the CPU predicts)."""
+VISCOUS, KINETIC, FIRE = range(3)
 """Every structure kernel is forward-only: no adjoint code to generate and compile."""
 RELATIVE_TOLERANCE = 1e-6
 """The default tolerance's share of the load step's force scale [-] (docs/model.md, the
@@ -31,7 +36,7 @@ def struct(scalar):
         fictitious: wp.int32
         """1: fictitious Gershgorin masses; 0: physical masses."""
         damping: wp.int32
-        """explicit: the damping, its index in `structure_explicit.DAMPINGS`."""
+        """explicit: the damping, its index in `DAMPINGS`."""
         damping_coefficient: scalar
         """Viscous c [1/s]; negative: adaptive (explicit viscous damping)."""
         max_steps: wp.int32
