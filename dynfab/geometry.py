@@ -106,7 +106,8 @@ def tensioned_beam_stiffness(tension: float, EA: float, EI: float, length: float
 
 def crimp(positions: np.ndarray) -> np.ndarray:
     """(arc length - projected length) / projected length [-] of each yarn (yarns, N+1, 2)."""
-    arc = np.hypot(*np.moveaxis(np.diff(positions, axis=-2), -1, 0)).sum(axis=-1)
+    segments = np.diff(positions, axis=-2)
+    arc = np.hypot(segments[..., 0], segments[..., 1]).sum(axis=-1)
     projected = positions[..., -1, 0] - positions[..., 0, 0]
     return (arc - projected) / projected
 

@@ -9,6 +9,7 @@ uses. Nothing in a Model changes during a run; what changes is a `State`.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from typing import NamedTuple
 
 import numpy as np
@@ -104,6 +105,12 @@ class Model:
     def rest_end_x(self) -> np.ndarray:
         """x0_N of every yarn (yarns,) [m]."""
         return np.array([y.rest_position[-1, 0] for y in self.yarns])
+
+    @cached_property
+    def crossing_rest_x(self) -> np.ndarray:
+        """(yarns, crossings) x0 [m] of each yarn's crossing nodes: where the weft's plane
+        stays (the slip ratio's reference, `dynfab.observables`)."""
+        return self.stacked("rest_position")[:, self.yarns[0].crossing_node, 0]
 
     def stacked(self, field: str) -> np.ndarray:
         """A Yarn field stacked over yarns, shape (yarns, ...)."""

@@ -93,8 +93,7 @@ def _slip_ratio(model, positions: np.ndarray) -> np.ndarray:
     at its as-woven x (`dynfab.domain.slip_ratios`, docs/model.md section 4): recorded, not
     limited, in the one-yarn model (its crossings ride on their nodes, as the paper's)."""
     nodes = model.yarns[0].crossing_node
-    rest = model.stacked("rest_position")[:, nodes, 0]
-    return np.max(slip_ratios(positions, nodes, rest), axis=1, initial=0.0)
+    return np.max(slip_ratios(positions, nodes, model.crossing_rest_x), axis=1, initial=0.0)
 
 
 def _reported_terms(model) -> list[int]:
