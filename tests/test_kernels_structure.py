@@ -430,3 +430,35 @@ def test_a_variant_without_friction_or_boundary_compiles_none_of_their_code(stru
     assert plain.variant in structure_variants.built_variants()
     built = structure_variants.built_variants()
     assert len(built) == len(set(built))
+
+
+def test_kinetic_damping_resets_where_the_undamped_motion_peaks():
+    """Kinetic damping (Barnes, docs/model.md section 5): the undamped motion until the kinetic
+    energy a step would reach falls below the last one's, then x -= dt/2 v and v = 0. The
+    reference is the same kernel's viscous damping at c = 0 (keep 1, gain dt: the kinetic
+    steps' own arithmetic, so equal bits before the peak), its kinetic energies from its own
+    successive positions, sum_i share_i m_i |x_k - x_(k-1)|^2 / (2 dt^2) (the masses the
+    start chose, the same in both). A peak test on the wrong energy resets at another step or
+    never."""
+    s = build_structure(fabric_scene(2, "clamped"))
+    undamped = relaxation(s, damping="viscous", damping_coefficient=0.0)
+    kinetic = relaxation(s, damping="kinetic")
+    loads = undamped.chain_loads((0.2, 0.1))
+
+    def after(kernels, steps):
+        return kernels.relax(s.rest_position, loads, None, tolerance=0.0, max_steps=steps)[0]
+
+    path = [after(undamped, k) for k in range(80)]
+    mass, dt = undamped.state.mass.numpy(), float(undamped.state.dt.numpy()[0])
+    assert np.array_equal(mass, (after(kinetic, 1), kinetic.state.mass.numpy())[1])
+    weight = undamped.arrays.share * mass / (2.0 * dt * dt)
+    energy = [float(weight @ ((b - a) ** 2).sum(axis=1)) for a, b in zip(path, path[1:])]
+    peak = next(k for k in range(1, len(energy)) if energy[k] < energy[k - 1])  # after k steps
+    for k in (1, peak // 2, peak):
+        assert np.array_equal(after(kinetic, k), path[k])
+    expected = path[peak] - 0.5 * (path[peak] - path[peak - 1])
+    motion = np.abs(path[peak] - path[0]).max()
+    assert motion > 0.0
+    # the kernel backs x by dt/2 times its stored v, (x_k - x_(k-1)) / dt to rounding
+    np.testing.assert_allclose(after(kinetic, peak + 1), expected, rtol=0, atol=1e-12 * motion)
+    assert not np.allclose(path[peak + 1], expected, rtol=0, atol=1e-6 * motion)
