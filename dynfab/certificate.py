@@ -629,15 +629,6 @@ def check_patch_accuracy(model, checked: PatchCertificate, stability: StepStabil
                    at_floor, "float64", key, stability.shift[0], advice)
 
 
-def patch_stability(checked: PatchCertificate, residual: float, escapes: int) -> StepStability:
-    """The certificate fields of a patch's step (one unit): `checked` at the final residual
-    [N], buckled where the step took an escape."""
-    stability = StepStability(1)
-    stability.record(0, checked.result, residual)
-    stability.buckled[0] = escapes > 0
-    return stability
-
-
 def patch_location(model, unknown: int) -> str:
     """Where unknown `unknown` of the patch lies, in words: "warp k, node i" (1-based k, the
     node counted from 0 along the yarn), the first of its dofs (a periodic cell's tied cell

@@ -67,7 +67,6 @@ def _struct(scalar, dim: int):
         # ---- per chain (Y)
         chain_failed: wp.array(dtype=wp.int32)
         chain_partial: wp.array(dtype=scalar)
-        chain_largest: wp.array(dtype=scalar)
         # ---- per dof (2n; empty unless semi-implicit)
         band: wp.array2d(dtype=scalar)
         factor: wp.array2d(dtype=scalar)
@@ -77,7 +76,6 @@ def _struct(scalar, dim: int):
         z: wp.array(dtype=scalar)
         p: wp.array(dtype=scalar)
         q: wp.array(dtype=scalar)
-        wrap_gradient: wp.array(dtype=vec)
         # ---- per group (G)
         dt: wp.array(dtype=scalar)
         stable_dt: wp.array(dtype=scalar)
@@ -154,7 +152,7 @@ def allocate(arrays, scalar, device: str, semi_implicit: bool):
         setattr(state, name, zeros(T, scalar))
     state.block_values, state.block_max = zeros(B, vec4), zeros(B, scalar)
     state.chain_failed = zeros(Y, wp.int32)
-    state.chain_partial, state.chain_largest = zeros(Y, scalar), zeros(Y, scalar)
+    state.chain_partial = zeros(Y, scalar)
     band = 0 if dim == 3 else max(dofs, 2 * n)  # planar masses need the band too
     state.band = zeros((band, WIDTH), scalar)
     if dim == 3:  # the spatial masses' Gershgorin rows, from the host
@@ -162,7 +160,6 @@ def allocate(arrays, scalar, device: str, semi_implicit: bool):
     state.factor = zeros((dofs, WIDTH), scalar)
     for name in DOF_VECTORS:
         setattr(state, name, zeros(dofs, scalar))
-    state.wrap_gradient = zeros(n if semi_implicit else 0, vec)
     for name in GROUP_SCALARS:
         setattr(state, name, zeros(G, scalar))
     for name in GROUP_COUNTERS:

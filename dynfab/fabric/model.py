@@ -11,7 +11,6 @@ and neither owns.
   displacements, the loads' work, the dissipation); and the observables of a record:
   strains, crimps, stresses per unit width, the loaded families, the widths per yarn, the
   planes, the energy terms.
-- `run_load_path`: every load step of a model with either solver.
 
 The static solver (`dynfab.static`, its sparse backend) and the dynamic one of every model
 (`dynfab.dynamic`) import this module, never each other (`dynfab.solver`); each solves a step from
@@ -92,18 +91,6 @@ def as_woven_state(structure: Structure) -> FabricState:
     anchors[:, 1] = np.where(grounded, 0.0, pos[np.where(grounded, 0, structure.tie_b), 0]
                              - structure.tie_plane[:, 1])
     return FabricState(pos, anchors, end_force=np.zeros(chain_count(structure)))
-
-
-def run_load_path(solver, state: FabricState | None = None):
-    """Every load step of `solver.model` in sequence by `solver.step(state, load)` (the static or
-    the dynamic fabric solver), from `state` or the solver's initial one; returns (final
-    state, records)."""
-    state = solver.initial_state() if state is None else state
-    records = []
-    for load in solver.model.load_values:
-        state, record = solver.step(state, load)
-        records.append(record)
-    return state, records
 
 
 @dataclass
