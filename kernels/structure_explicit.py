@@ -11,9 +11,9 @@ solver (decisions)"):
   -u . (f - f0) / u^T M u, else the secant; capped at 2 / dt;
 - kinetic: when the kinetic energy a full step would reach falls below the last one, the peak
   has passed: x -= dt/2 v, v = 0 (that energy, sum_i 1/2 m_i |v_i + (dt / m_i) f_i|^2, is
-  summed by the force pass before it, `structure_checks.force_values`); after KINETIC_STEPS steps a group still running continues
-  with viscous damping at c dt = FALLBACK_DAMPING, c doubling (at most c dt = 2) after each
-  STALL_STEPS steps without a new low of the residual;
+  summed by the force pass before it, `structure_checks.force_values`); after KINETIC_STEPS
+  steps a group still running continues with viscous damping at c dt = FALLBACK_DAMPING, c
+  doubling (at most c dt = 2) after each STALL_STEPS steps without a new low of the residual;
 - FIRE 2.0: with P = f . v, dt grows by DT_GROWTH (at most DT_MAX x the stable dt) and alpha
   shrinks after DELAY_STEPS positive steps; P <= 0 shrinks dt (not below DT_MIN x) after the
   first DELAY_STEPS steps, resets alpha, backs x by dt/2 v and zeroes v (MAX_NEGATIVE_STEPS in
@@ -21,10 +21,10 @@ solver (decisions)"):
 
 Every step is a sequence of stages, each a `wp.func` of one unit (node, tie, block or group):
 `PRE` (per node: the damping's terms), `BLOCKS` (the adaptive c and FIRE), `DECIDE` (per
-group: the kinetic peak, the adaptive c, FIRE's dt and alpha), `MOVE` (per node), for FIRE `BLOCKS`, `MIX` (per group) and
-`MIX_MOVE` (per node), then the forces at the new positions (`TIES` per tie and `GATHER` per
-node, or the group's scatter), `BLOCKS` and `CHECK` (per group: `structure_checks`). Two
-layouts of the same stages:
+group: the kinetic peak, the adaptive c, FIRE's dt and alpha), `MOVE` (per node), for FIRE
+`BLOCKS`, `MIX` (per group) and `MIX_MOVE` (per node), then the forces at the new positions
+(`TIES` per tie and `GATHER` per node, or the group's scatter), `BLOCKS` and `CHECK` (per
+group: `structure_checks`). Two layouts of the same stages:
 
 - "grouped" (the CPU's): one thread per group runs the time loop inside the kernel, each stage
   a loop over the group's units, up to `settings.chunk` steps per launch; the forces in
