@@ -450,7 +450,8 @@ def test_kinetic_damping_resets_where_the_undamped_motion_peaks():
 
     path = [after(undamped, k) for k in range(80)]
     mass, dt = undamped.state.mass.numpy(), float(undamped.state.dt.numpy()[0])
-    assert np.array_equal(mass, (after(kinetic, 1), kinetic.state.mass.numpy())[1])
+    after(kinetic, 1)
+    assert np.array_equal(kinetic.state.mass.numpy(), mass)  # the start chose the same masses
     weight = undamped.arrays.share * mass / (2.0 * dt * dt)
     energy = [float(weight @ ((b - a) ** 2).sum(axis=1)) for a, b in zip(path, path[1:])]
     peak = next(k for k in range(1, len(energy)) if energy[k] < energy[k - 1])  # after k steps
