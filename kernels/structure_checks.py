@@ -135,17 +135,17 @@ def functions(scalar, friction: bool, boundary: bool, merit: bool = False,
         work = scalar(0.0)
         if energy:
             work = share * wp.dot(state.start_force[i], state.position[i] - state.start_position[i])
-        merit_term = scalar(0.0)
+        merit_or_trial = scalar(0.0)
         if wp.static(merit):
-            merit_term = share * (wp.dot(f, f) / state.mass[i])
+            merit_or_trial = share * (wp.dot(f, f) / state.mass[i])
         elif trial > scalar(0.0):
             m = state.mass[i]
             w = v + (trial / m) * f
-            merit_term = share * (scalar(0.5) * m * wp.dot(w, w))
+            merit_or_trial = share * (scalar(0.5) * m * wp.dot(w, w))
         largest = scalar(0.0)
         for c in range(wp.static(dim)):
             largest = larger(largest, f[c])
-        return vec4(scalar(0.5) * (state.mass[i] * share) * wp.dot(v, v), work, merit_term,
+        return vec4(scalar(0.5) * (state.mass[i] * share) * wp.dot(v, v), work, merit_or_trial,
                     largest)
 
     @wp.func(inline=True)

@@ -48,7 +48,7 @@ from dynfab.kernels import status, structure_arrays, structure_checks, structure
 from dynfab.kernels import structure_settings, structure_state
 from dynfab.kernels import structure_variants
 from dynfab.kernels.precision import KINEMATICS, vector
-from dynfab.kernels.structure_settings import DAMPINGS, FIRE, KINETIC, VISCOUS  # noqa: F401
+from dynfab.kernels.structure_settings import FIRE, KINETIC, VISCOUS
 ORDERS = ("scatter", "gather")
 KINETIC_STEPS = 200_000
 """Time steps of kinetic damping before the viscous fallback (docs/model.md, kinetic damping)."""

@@ -139,8 +139,8 @@ class StructureRelaxation:
                 or order not in structure_explicit.ORDERS or precision not in SCALARS:
             raise ValueError(f"method {method!r}, layout {layout!r}, masses {masses!r}, order "
                              f"{order!r} or precision {precision!r} unknown")
-        if method == "explicit" and damping not in structure_explicit.DAMPINGS:
-            raise ValueError(f"damping {damping!r} unknown; one of {structure_explicit.DAMPINGS}")
+        if method == "explicit" and damping not in structure_settings.DAMPINGS:
+            raise ValueError(f"damping {damping!r} unknown; one of {structure_settings.DAMPINGS}")
         self.arrays = arrays = structure_arrays.build(structure)
         self.structure, self.dim = structure, arrays.dim
         self.kinematics = "spatial" if arrays.dim == 3 else "planar"
@@ -310,7 +310,7 @@ class StructureRelaxation:
         coefficient = self.coefficient
         if coefficient is None:
             coefficient = -1.0 if self.damping == "viscous" else 0.0
-        damping = structure_explicit.DAMPINGS.index(self.damping) if self.damping else 0
+        damping = structure_settings.DAMPINGS.index(self.damping) if self.damping else 0
         base = dict(safety=self.safety, fixed_dt=self.dt or 0.0, fictitious=fictitious,
                     damping=damping, damping_coefficient=coefficient,
                     cg_tolerance=self.cg_tolerance,
@@ -570,7 +570,7 @@ class StructureRelaxation:
         self.state.dissipated.zero_()
         coefficient = self.coefficient or 0.0
         base = dict(tolerance=-1.0, max_steps=RUNNING_FOREVER, fictitious=0,
-                    damping=structure_explicit.VISCOUS, damping_coefficient=coefficient,
+                    damping=structure_settings.VISCOUS, damping_coefficient=coefficient,
                     duration=duration)
         settings = self._settings(**base)
         grouped = self.layout == "grouped"
