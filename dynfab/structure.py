@@ -134,9 +134,11 @@ class Structure(NamedTuple):
     lateral_stencil: np.ndarray = np.zeros((0, 4), np.int64)
     """(A_prev, A_next, A, B) of each lateral contact (L, 4), int64: node B of yarn k+1
     against the line through node A of its neighbour yarn k along A's chord."""
-    lateral_law: np.ndarray = np.zeros((0, 3))
-    """(sign [-], w [m], k [N/m]) of each lateral contact (L, 3): the orientation that makes
-    the distance positive, the yarns' width, the stiffness."""
+    lateral_law: np.ndarray = np.zeros((0, 4))
+    """(sign [-], w [m], k [N/m], branch) of each lateral contact (L, 4): the orientation that
+    makes the distance positive, the yarns' width, the stiffness, and NATURAL (the
+    unilateral law, `dynfab.terms.contact`); the static solver's Newton solves see a copy
+    with each contact held OPEN or CLOSED (its active set, docs/model.md 11.5)."""
 
 
 def dim(structure: Structure) -> int:

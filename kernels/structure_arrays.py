@@ -262,7 +262,8 @@ def _spatial(s: Structure, node_group: np.ndarray) -> dict:
                 lateral_rest_angle=np.array(s.lateral_rest_angle, float),
                 tie_stencil=np.asarray(s.tie_stencil, np.int64).reshape(-1, 6),
                 rotation_law=np.array(s.tie_rotation_law, float).reshape(-1, 3),
-                lateral_stencil=lateral, lateral_law=np.array(s.lateral_law, float).reshape(-1, 3),
+                lateral_stencil=lateral,
+                lateral_law=np.array(s.lateral_law, float)[:, :3].reshape(-1, 3),  # unilateral
                 group_lateral=np.searchsorted(owner, np.arange(groups + 1)))
 
 

@@ -28,6 +28,7 @@ import numpy as np
 import pytest
 
 from dynfab.terms import bending, spatial
+from dynfab.terms.contact import CLOSED, NATURAL, OPEN
 
 EPS = np.finfo(float).eps
 L = 1e-3
@@ -185,11 +186,11 @@ def crossing_element(anchor, limit, shear_k, phi_rest, secant=False):
             derivatives)
 
 
-def lateral_element(sign):
+def lateral_element(sign, branch=NATURAL):
     def derivatives(X):
         g, H = np.empty(12), np.empty((12, 12))
-        return spatial.lateral_derivatives(X, sign, WIDTH, K_LATERAL, g, H), g, H
-    return (lambda X: spatial.lateral_energy(X, sign, WIDTH, K_LATERAL)), derivatives
+        return spatial.lateral_derivatives(X, sign, WIDTH, K_LATERAL, g, H, branch), g, H
+    return (lambda X: spatial.lateral_energy(X, sign, WIDTH, K_LATERAL, branch)), derivatives
 
 
 # The crossing's friction states: |S| in units of F_T / k_t (kinks >= 0.6 F_T / k_t = 3e-5 m
@@ -222,11 +223,14 @@ def make_case(name, seed):
         return (X, *crossing_element(anchor, limit, shear_k, q[2] + rng.uniform(-0.2, 0.2)), ell)
     if name.startswith("lateral"):
         sign = rng.choice([-1.0, 1.0])
+        if name == "lateral: held closed, apart":  # w - d < 0: the static solver's active set
+            return (lateral_stencil(rng, 1.2 * L, sign), *lateral_element(sign, CLOSED), L)
         return (lateral_stencil(rng, 0.5 * L, sign), *lateral_element(sign), L)
     raise KeyError(name)
 
 
-CASES = ["stretch", "bend", *(f"crossing: {s}" for s in CROSSING_STATES), "lateral"]
+CASES = ["stretch", "bend", *(f"crossing: {s}" for s in CROSSING_STATES), "lateral",
+         "lateral: held closed, apart"]
 
 
 # --- Building blocks ----------------------------------------------------------------------
@@ -607,6 +611,25 @@ def test_lateral_contact_at_a_known_distance(sign, distance):
         assert E == 0.0 and not g.any() and not H.any()
     # The other side of the line: a negative distance, deep in contact.
     assert spatial.lateral_distance(X, -sign) == pytest.approx(-distance, rel=0, abs=d_rounding)
+
+
+@pytest.mark.parametrize("distance", [0.5 * L, 1.2 * L])
+def test_a_held_lateral_contact_takes_its_branch_not_its_gap(distance):
+    """docs/model.md 11.5's active set: held CLOSED the contact is the spring 1/2 k (w - d)^2
+    on both sides of d = w (it pulls where d > w); held OPEN it carries nothing where d < w;
+    NATURAL is the unilateral law."""
+    X = lateral_stencil(np.random.default_rng(81), distance, 1.0)
+    gap = WIDTH - spatial.lateral_distance(X, 1.0)
+    spring = 0.5 * K_LATERAL * gap ** 2
+    energies = {branch: spatial.lateral_energy(X, 1.0, WIDTH, K_LATERAL, branch)
+                for branch in (NATURAL, OPEN, CLOSED)}
+    # numba's product may round differently from Python's: a few eps of the spring.
+    assert energies[CLOSED] == pytest.approx(spring, rel=4 * EPS)
+    assert energies[NATURAL] == (energies[CLOSED] if gap > 0.0 else 0.0)
+    assert energies[OPEN] == 0.0
+    g, H = np.empty(12), np.empty((12, 12))
+    spatial.lateral_derivatives(X, 1.0, WIDTH, K_LATERAL, g, H, OPEN)
+    assert not g.any() and not H.any()
 
 
 # --- Friction return map -------------------------------------------------------------------

@@ -153,7 +153,8 @@ def specimen_structure(scene: Scene, layout=None) -> Structure:
     core = law[0]
     lateral_law = np.column_stack([
         layout.lateral_sign, _family_value(scene, "width", lateral_family, lambda t: np.nan),
-        _family_value(scene, "lateral_stiffness", lateral_family, lambda t: core)])
+        _family_value(scene, "lateral_stiffness", lateral_family, lambda t: core),
+        np.full(lateral_family.size, float(contact_law.NATURAL))])
     fixed = np.repeat(layout.held, 3)
     n, chains = rest.shape[0], start.size - 1
     return Structure(

@@ -40,8 +40,8 @@ STICK = 3
 """Column of k_t [N/m] in `tie_friction_law`."""
 RHO, SHEAR_K, PHI_REST = range(3)
 """Columns of `tie_rotation_law`."""
-SIGN, WIDTH, LATERAL_K = range(3)
-"""Columns of `lateral_law`."""
+SIGN, WIDTH, LATERAL_K, BRANCH = range(4)
+"""Columns of `lateral_law` (`dynfab.structure.Structure`)."""
 
 
 @numba.njit(cache=True)
@@ -97,7 +97,8 @@ def energies(pos, s, P, anchors, limit, out):
     for e in range(s.lateral_stencil.shape[0]):
         _gather(pos, s.lateral_stencil[e], four)
         law = s.lateral_law[e]
-        out[LATERAL] += element.lateral_energy(four, law[SIGN], law[WIDTH], law[LATERAL_K])
+        out[LATERAL] += element.lateral_energy(four, law[SIGN], law[WIDTH], law[LATERAL_K],
+                                               law[BRANCH])
 
 
 @numba.njit(cache=True)
@@ -182,7 +183,8 @@ def _derivatives(pos, s, anchors, limit, secant, grad, values):
     for e in range(s.lateral_stencil.shape[0]):
         _gather(pos, s.lateral_stencil[e], four)
         law = s.lateral_law[e]
-        element.lateral_derivatives(four, law[SIGN], law[WIDTH], law[LATERAL_K], g12, H12)
+        element.lateral_derivatives(four, law[SIGN], law[WIDTH], law[LATERAL_K], g12, H12,
+                                    law[BRANCH])
         k = _emit(s.lateral_stencil[e], g12, H12, grad, values, k)
 
 
@@ -237,18 +239,30 @@ def pattern_entries(s) -> tuple[np.ndarray, np.ndarray]:
             np.concatenate(cols).astype(np.int64) if cols else np.zeros(0, np.int64))
 
 
-_PATTERNS: dict[int, tuple] = {}
+_PATTERNS: dict[tuple, tuple] = {}
+"""The last few spatial structures' `Pattern`s, by the ids of `_topology` (kept beside)."""
 PATTERNS_KEPT = 8
 
 
+def _topology(structure) -> tuple:
+    """The arrays a spatial structure's `Pattern` is made of: a structure derived from
+    another by a law (`_replace`, as the static solver's held lateral set,
+    `dynfab.newton_sparse.held_lateral_set`) shares them, and with them the pattern and its
+    nested-dissection order."""
+    s = structure
+    return (s.chain_start, s.tie_a, s.tie_b, s.tie_stencil, s.lateral_stencil, s.fixed,
+            s.dof_tie)
+
+
 def pattern_of(structure) -> Pattern:
-    """The `Pattern` of a spatial structure, made once and kept (as the planar one's)."""
-    entry = _PATTERNS.get(id(structure))
-    if entry is None or entry[0] is not structure:
+    """The `Pattern` of a spatial structure, made once per topology and kept."""
+    arrays = _topology(structure)
+    key = tuple(map(id, arrays))
+    entry = _PATTERNS.get(key)
+    if entry is None or any(a is not b for a, b in zip(entry[0], arrays)):
         if len(_PATTERNS) >= PATTERNS_KEPT:
             _PATTERNS.pop(next(iter(_PATTERNS)))
-        entry = _PATTERNS[id(structure)] = (structure, Pattern(structure,
-                                                               pattern_entries(structure)))
+        entry = _PATTERNS[key] = (arrays, Pattern(structure, pattern_entries(structure)))
     return entry[1]
 
 
@@ -304,7 +318,8 @@ def rounding_scale(pos, s, P, limit):
     for e in range(s.lateral_stencil.shape[0]):
         _gather(pos, s.lateral_stencil[e], four)
         law = s.lateral_law[e]
-        element.lateral_derivatives(four, law[SIGN], law[WIDTH], law[LATERAL_K], g12, H12)
+        element.lateral_derivatives(four, law[SIGN], law[WIDTH], law[LATERAL_K], g12, H12,
+                                    law[BRANCH])
         total += np.sum(np.abs(g12) * np.abs(four.ravel()))
     return total
 

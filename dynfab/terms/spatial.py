@@ -58,7 +58,9 @@ Elements:
     S <- (1 - m) S, m = 1 - F_T / (k_t |S|), dissipating F_T m |S|.
 (e) Lateral contact of neighbouring yarns, X = (A_prev, A_next, A, B): c = (A_next -
     A_prev)_xy, d = sign cross2(c, (B - A)_xy) / |c| (the signed distance from B to the line
-    through A along c), E = 1/2 k (width - d)^2 for d < width, else 0;
+    through A along c), E = 1/2 k (width - d)^2 for d < width, else 0 (the unilateral law,
+    `branch` NATURAL); held by the static solver's active set (`branch`, docs/model.md
+    11.5), CLOSED gives 1/2 k (width - d)^2 at every d and OPEN 0;
         dE = -k (width - d) dd,  d2E = k dd dd^T - k (width - d) d2d,
     with f = cross2(c, v), v = (B - A)_xy: dd/dc = sign ((v_y, -v_x) / |c| - f c / |c|^3),
     dd/dv = sign (-c_y, c_x) / |c|,
@@ -69,6 +71,8 @@ Elements:
 
 import numba
 import numpy as np
+
+from dynfab.terms.contact import CLOSED, NATURAL, OPEN
 
 TWO_PI = 2.0 * np.pi
 
@@ -530,10 +534,19 @@ def lateral_distance(X, sign):
 
 
 @numba.njit(cache=True)
-def lateral_energy(X, sign, width, k):
-    """E = 1/2 k (width - d)^2 for d < width, else 0 [J]; width [m], k [N/m]."""
+def lateral_pressing(gap, branch):
+    """Whether a lateral contact with w - d = `gap` [m] carries its spring on `branch`
+    (NATURAL, OPEN or CLOSED of `dynfab.terms.contact`; module docstring (e))."""
+    if branch == OPEN:
+        return False
+    return branch == CLOSED or gap > 0.0
+
+
+@numba.njit(cache=True)
+def lateral_energy(X, sign, width, k, branch=NATURAL):
+    """E = 1/2 k (width - d)^2 where `lateral_pressing`, else 0 [J]; width [m], k [N/m]."""
     gap = width - lateral_distance(X, sign)
-    if not gap > 0.0:
+    if not lateral_pressing(gap, branch):
         return 0.0
     return 0.5 * k * gap * gap
 
@@ -566,9 +579,9 @@ def _lateral_distance_derivatives(u, sign, gd, Hd):
 
 
 @numba.njit(cache=True)
-def lateral_derivatives(X, sign, width, k, g, H):
+def lateral_derivatives(X, sign, width, k, g, H, branch=NATURAL):
     """Fill g (12,) [N] and H (12, 12) [N/m] of `lateral_energy`; return E [J]
-    (all zero where d >= width)."""
+    (all zero where not `lateral_pressing`)."""
     g[:] = 0.0
     H[:, :] = 0.0
     u = np.empty(4)
@@ -576,7 +589,7 @@ def lateral_derivatives(X, sign, width, k, g, H):
     gd = np.empty(4)
     Hd = np.empty((4, 4))
     gap = width - _lateral_distance_derivatives(u, sign, gd, Hd)
-    if not gap > 0.0:
+    if not lateral_pressing(gap, branch):
         return 0.0
     gu = -k * gap * gd
     Hu = np.empty((4, 4))
