@@ -40,20 +40,22 @@ CONTINUATION_START = 1e-3
 iterations from the previous step's state on the paper's yarn)."""
 
 
-def update_set(g, branch, seen) -> np.ndarray:
+def update_set(g, branch, seen, all_first: bool = False) -> np.ndarray:
     """Switch the crossings whose branch the closures g [m] contradict; returns their indices.
 
     A closed crossing needs R >= 0 (g >= 0), an open one g <= 0 (docs/model.md section 4); where
-    both hold (g = 0) the two branches agree. All of them switch at once, unless that
-    gives a set already tried (`seen`, the sets as bytes): then only the one that
-    contradicts its branch most, then the next ones, one at a time. Returns an empty
-    array when consistent, None when every choice was tried.
+    both hold (g = 0) the two branches agree. The one that contradicts its branch most
+    switches, unless that gives a set already tried (`seen`, the sets as bytes): then the
+    next ones, one at a time, and last all of them at once; with `all_first`, all of them
+    at once first (the lateral contacts, docs/model.md 11.5). Returns an empty array when
+    consistent, None when every choice was tried.
     """
     wrong = ((branch == contact.CLOSED) & (g < 0.0)) | ((branch == contact.OPEN) & (g > 0.0))
     indices = np.flatnonzero(wrong)
     if indices.size == 0:
         return indices
-    candidates = [np.array([j]) for j in indices[np.argsort(-np.abs(g[indices]))]] + [indices]
+    singles = [np.array([j]) for j in indices[np.argsort(-np.abs(g[indices]))]]
+    candidates = [indices] + singles if all_first else singles + [indices]
     for switch in candidates:
         trial = branch.copy()
         trial[switch] = contact.OPEN + contact.CLOSED - trial[switch]

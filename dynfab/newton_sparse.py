@@ -29,6 +29,10 @@ Its strategies in the friction chain (`dynfab.friction_chain`, docs/model.md sec
   carries no force at any g, one held closed the unilateral force with the closed side's
   tangent across g = 0.
 
+Every Newton solve (`newton`, `coupled_newton`) holds the lateral contacts of a spatial
+structure on an active set of their own, updated between solves of the same call
+(`on_lateral_set`, docs/model.md 11.5).
+
 (The banded backend's semismooth fallback is not offered: on the fabric it stalled from the
 step's start where the relaxed fixed point converges, docs/model.md section 10.) The anchors
 are return-mapped by the model (`dynfab.fabric.friction`, radially).
@@ -58,6 +62,7 @@ import numpy as np
 import scipy.sparse
 import scipy.sparse.linalg
 
+from dynfab import active_set
 from dynfab.certificate import certify_patch, check_patch_accuracy, escape_patch
 from dynfab.errors import SolverError
 from dynfab.fabric import contact, ordering
@@ -103,6 +108,9 @@ Eisenstat and Steihaug, SIAM J. Numer. Anal. 19, 1982). The Hessian's 1e-10 (the
 factors') cannot be reached there: on the 150 x 450 mm bias specimen (60,510 unknowns) the
 Jacobian's own factors solve it to 2.6e-9 and the pivoted LU to 5.3e-9, where GMRES on the
 Hessian's factors reaches 3.4e-8 in 6 iterations (docs/model.md section 11.10)."""
+LATERAL_UPDATES = 12
+"""Lateral contact sets one Newton solve tries before it releases them to the unilateral law
+(`SparseNewton.on_lateral_set`; as the crossings' MAX_FLIPS)."""
 COUPLED_FIRST = 20
 """Iterations of the coupled Newton on a fixed open/closed set before `solve_frozen` is tried
 from the same start (`SparseNewton._solve_fixed_set`)."""
@@ -173,6 +181,14 @@ class SetLaw:
 def _onset(law: SetLaw | None) -> float:
     """R_0 [N] of `law` for every tie, or -1: each tie's own (`gralen.tie_limits`)."""
     return -1.0 if law is None or law.onset is None else law.onset
+
+
+def held_lateral_set(structure: Structure, branch) -> Structure:
+    """`structure` with each lateral contact held on `branch` (L,) (OPEN or CLOSED,
+    `dynfab.terms.contact`; the last column of `lateral_law`, docs/model.md 11.5)."""
+    law = structure.lateral_law.copy()
+    law[:, -1] = branch
+    return structure._replace(lateral_law=law)
 
 
 def scene_onset(structure: Structure) -> float:
@@ -516,8 +532,58 @@ class SparseNewton(NewtonBackend):
     def newton(self, pos, P, anchors, limit, law=None, max_iterations=None,
                update_first=False) -> NewtonInfo:
         """Minimise V + sum H (F_T frozen) from `pos`, in place (docs/model.md section 6), the
-        contact on `law`'s branches (None: unilateral). `update_first`: converged already
-        where F_T's update to the law would matter more (`_update_first`, FROZEN_RATIO).
+        contact on `law`'s branches (None: unilateral), the lateral contacts on their active
+        set (`on_lateral_set`). `update_first`: converged already where F_T's update to the
+        law would matter more (`_update_first`, FROZEN_RATIO)."""
+        return self.on_lateral_set(pos, lambda: self._newton(pos, P, anchors, limit, law,
+                                                             max_iterations, update_first))
+
+    def on_lateral_set(self, pos, solve) -> NewtonInfo:
+        """`solve()` (a Newton loop on `pos`) with each lateral contact held OPEN or CLOSED
+        (docs/model.md 11.5, the crossings' `active_set.update_set`, every contradicted contact
+        switched at once), from the set the
+        unilateral law gives at `pos`; while a converged state contradicts its set (a closed
+        contact with w - d < 0, an open one with w - d > 0), the set is updated and the
+        solve goes on from there. A set every update proposes was tried (or
+        LATERAL_UPDATES of them) releases the contacts to the unilateral law for a last
+        solve, whose kink the line search takes. Returns the last solve's info with every
+        solve's iterations."""
+        natural = self.structure
+        if natural.lateral_stencil.shape[0] == 0:
+            return solve()
+        gaps = np.empty(natural.lateral_stencil.shape[0])
+        self.terms.lateral_gaps(pos, natural, gaps)
+        branch = active_set.natural_set(gaps)
+        seen = {branch.tobytes()}
+        iterations, settled = 0, False
+        try:
+            for _ in range(LATERAL_UPDATES):
+                self.structure = held_lateral_set(natural, branch)
+                info = solve()
+                iterations += info.iterations
+                if not info.converged:
+                    settled = True  # a failure the caller's fallbacks take
+                    break
+                self.terms.lateral_gaps(pos, natural, gaps)
+                switched = active_set.update_set(gaps, branch, seen, all_first=True)
+                if switched is None:  # every set the updates propose was tried
+                    break
+                if switched.size == 0:  # consistent: the unilateral law's solution
+                    settled = True
+                    break
+                self.say(f"lateral contacts: {switched.size} switched between open and closed")
+            if not settled:
+                self.structure = natural
+                info = solve()
+                iterations += info.iterations
+        finally:
+            self.structure = natural
+        info.iterations = iterations
+        return info
+
+    def _newton(self, pos, P, anchors, limit, law=None, max_iterations=None,
+                update_first=False) -> NewtonInfo:
+        """`newton`'s loop on the lateral set the structure holds.
 
         Newton's matrix is the exact Hessian blended with the secant friction model
         (`hessian`'s `secant`, docs/model.md 11.10): the weight lambda of the secant goes to 1
@@ -738,7 +804,13 @@ class SparseNewton(NewtonBackend):
 
     def coupled_newton(self, pos, P, anchors, law=None, max_iterations=None) -> NewtonInfo:
         """Newton on the coupled problem (F_T = F_T(R) at every iterate), in place, the
-        contact on `law`'s branches with its R_0 (None: unilateral, the scene's R_0).
+        contact on `law`'s branches with its R_0 (None: unilateral, the scene's R_0), the
+        lateral contacts on their active set (`on_lateral_set`)."""
+        return self.on_lateral_set(pos, lambda: self._coupled_newton(pos, P, anchors, law,
+                                                                     max_iterations))
+
+    def _coupled_newton(self, pos, P, anchors, law=None, max_iterations=None) -> NewtonInfo:
+        """`coupled_newton`'s loop on the lateral set the structure holds.
 
         The Jacobian is the Hessian plus `coupling` (not symmetric: SuperLU pivots), and
         steps are backtracked on the 2-norm of the free residual with F_T re-evaluated at
