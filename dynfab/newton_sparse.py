@@ -540,14 +540,13 @@ class SparseNewton(NewtonBackend):
 
     def on_lateral_set(self, pos, solve) -> NewtonInfo:
         """`solve()` (a Newton loop on `pos`) with each lateral contact held OPEN or CLOSED
-        (docs/model.md 11.5, the crossings' `active_set.update_set`, every contradicted contact
-        switched at once), from the set the
-        unilateral law gives at `pos`; while a converged state contradicts its set (a closed
-        contact with w - d < 0, an open one with w - d > 0), the set is updated and the
-        solve goes on from there. A set every update proposes was tried (or
-        LATERAL_UPDATES of them) releases the contacts to the unilateral law for a last
-        solve, whose kink the line search takes. Returns the last solve's info with every
-        solve's iterations."""
+        (docs/model.md 11.5), from the set the unilateral law gives at `pos`; while a
+        converged state contradicts its set (a closed contact with w - d < 0, an open one
+        with w - d > 0), the set is updated (the crossings' `active_set.update_set`, every
+        contradicted contact switched at once) and the solve goes on from there. A set every
+        update proposes was tried (or LATERAL_UPDATES of them) releases the contacts to the
+        unilateral law for a last solve, whose kink the line search takes. Returns the last
+        solve's info with every solve's iterations."""
         natural = self.structure
         if natural.lateral_stencil.shape[0] == 0:
             return solve()
