@@ -34,6 +34,7 @@ if __name__ == "__main__":  # python -m dynfab.cli (the console script's is set 
 
 import argparse  # noqa: E402 (after the handler, on purpose)
 import contextlib  # noqa: E402
+import importlib  # noqa: E402
 import io  # noqa: E402
 import shutil  # noqa: E402
 import time  # noqa: E402
@@ -267,6 +268,31 @@ def _terminate(signum, frame) -> None:
     raise Terminated
 
 
+HELD_IMPORTS = {"run": ("numba",), "fit": ("numba",), "study": ("numba",)}
+"""Modules a command imports with its signals held (`_import_holding_signals`): numba's C
+extension turns a Ctrl-C during its import into an ImportError ("numba._devicearray failed
+to import") after printing the interrupt's traceback, and it takes a third of a second
+of the command's start."""
+
+
+def _import_holding_signals(names) -> None:
+    """Import the modules `names` with SIGINT and SIGTERM recorded, not raised, until they are
+    in; then raise the last one received as its handler would have (KeyboardInterrupt,
+    `Terminated`), so it takes the command's one way out."""
+    received = []
+    held = (signal.SIGINT, signal.SIGTERM)
+    previous = {signum: signal.signal(signum, lambda signum, frame: received.append(signum))
+                for signum in held}
+    try:
+        for name in names:
+            importlib.import_module(name)
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+    if received:
+        raise Terminated if received[-1] == signal.SIGTERM else KeyboardInterrupt
+
+
 def _interrupted_line(context: dict, word: str = "interrupted") -> str:
     """The message after Ctrl-C (`word` "terminated" after SIGTERM): what the output file
     holds, if this command writes one; nothing was written before a command began (the
@@ -428,6 +454,7 @@ def _main(argv: list[str] | None, context: dict) -> None:
         context["out"] = None  # a run writes a file; its name is set once checked
     warnings.showwarning = _show_warning
     context["began"] = True
+    _import_holding_signals(HELD_IMPORTS.get(args.command, ()))
     try:
         commands = {"run": _command_run, "plot": _command_plot, "fit": _command_fit,
                     "xdmf": _command_xdmf, "study": _command_study}
