@@ -65,7 +65,7 @@ import scipy.sparse.linalg
 from dynfab import active_set
 from dynfab.certificate import certify_patch, check_patch_accuracy, escape_patch
 from dynfab.errors import SolverError
-from dynfab.fabric import contact, ordering
+from dynfab.fabric import contact, ordering, spatial
 from dynfab.fabric.kept_factor import KeptFactor
 from dynfab.fabric.kinematics import terms_of
 from dynfab.friction_chain import friction_chain
@@ -185,9 +185,10 @@ def _onset(law: SetLaw | None) -> float:
 
 def held_lateral_set(structure: Structure, branch) -> Structure:
     """`structure` with each lateral contact held on `branch` (L,) (OPEN or CLOSED,
-    `dynfab.terms.contact`; the last column of `lateral_law`, docs/model.md 11.5)."""
+    `dynfab.terms.contact`; the column `spatial.BRANCH` of `lateral_law`, docs/model.md
+    11.5)."""
     law = structure.lateral_law.copy()
-    law[:, -1] = branch
+    law[:, spatial.BRANCH] = branch
     return structure._replace(lateral_law=law)
 
 

@@ -6,12 +6,12 @@ import functools
 import warp as wp
 
 MODULE_OPTIONS = {"enable_backward": False}
+"""Every structure kernel is forward-only: no adjoint code to generate and compile."""
 DAMPINGS = ("viscous", "kinetic", "fire")
 """The explicit dampings; `StructureSettings.damping` is an index in it (docs/model.md section
 5). A kernel holds all three (one compile for any damping; the choice, one per run, is a branch
 the CPU predicts)."""
 VISCOUS, KINETIC, FIRE = range(3)
-"""Every structure kernel is forward-only: no adjoint code to generate and compile."""
 RELATIVE_TOLERANCE = 1e-6
 """The default tolerance's share of the load step's force scale [-] (docs/model.md, the
 dynamic solver's default tolerance: min(D, max(1e-6 F, floor)))."""
