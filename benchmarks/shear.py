@@ -14,8 +14,9 @@ against each other on the same Hessians, and the Cao et al. scenes' load paths.
 - **factorisations**: the Hessian of each size's last step (F_T frozen, on the unknowns),
   factored by SuperLU in its symmetric mode in the nested-dissection order the solver uses
   (`dynfab.fabric.inertia.sparse_factor`, which also counts the inertia), by SuperLU with
-  its own COLAMD order, and by MKL PARDISO as symmetric indefinite (mtype -2, its inertia
-  from iparm 22-23), where `pypardiso` imports (not a dependency: measured only);
+  its own COLAMD order, and by MKL PARDISO as symmetric indefinite (`dynfab.fabric.pardiso`,
+  the analysis and factorisation, then the factorisation alone on its analysis, as the
+  Newton solves do; its inertia), where MKL is installed;
 - **scenes**: each scene's path with the static solver until it ends or stops (a
   SolverError: the step, the reason), or its first `--scene-steps` steps after step 0; its
   crossings, steps, iterations, wall time and time per iteration (with the scaling's);
@@ -42,7 +43,7 @@ import scipy.sparse
 import scipy.sparse.linalg
 
 from dynfab.errors import SolverError
-from dynfab.fabric import inertia, ordering
+from dynfab.fabric import inertia, ordering, pardiso
 from dynfab.model import build_model
 from dynfab.scene import load_scene, with_key
 from dynfab.solvers import make_solver
@@ -80,18 +81,17 @@ def _path(model, steps: int | None, say=print) -> dict:
 
 
 def _pardiso_factor(H):
-    """(seconds, negatives) of PARDISO's symmetric indefinite factorisation of H, or None."""
-    try:
-        from pypardiso import PyPardisoSolver
-    except ImportError:
+    """(analysis and factorisation [s], factorisation on the analysis [s], negatives) of
+    PARDISO's symmetric indefinite L D L^T of H (`dynfab.fabric.pardiso`), or None without
+    MKL."""
+    if not pardiso.available():
         return None
-    upper = scipy.sparse.triu(H, format="csr")
-    upper.sort_indices()
-    solver = PyPardisoSolver(mtype=-2)
     started = time.perf_counter()
-    solver.factorize(upper)
-    seconds = time.perf_counter() - started
-    return seconds, int(solver.iparm[22])
+    factor = pardiso.SymmetricFactor(H)
+    first = time.perf_counter() - started
+    started = time.perf_counter()
+    factor.refactor(H)
+    return first, time.perf_counter() - started, factor.negatives
 
 
 def factorisations(solver, state) -> dict:
@@ -109,9 +109,9 @@ def factorisations(solver, state) -> dict:
     started = time.perf_counter()
     scipy.sparse.linalg.splu(H.tocsc())
     out["superlu_colamd_s"] = time.perf_counter() - started
-    pardiso = _pardiso_factor(H)
-    if pardiso is not None:
-        out["pardiso_s"], out["pardiso_negatives"] = pardiso
+    found = _pardiso_factor(H)
+    if found is not None:
+        out["pardiso_with_analysis_s"], out["pardiso_s"], out["pardiso_negatives"] = found
     return out
 
 
@@ -162,8 +162,11 @@ def main(argv=None) -> None:
     parser.add_argument("--friction-beta", type=float, default=None)
     parser.add_argument("--out", default=str(ROOT / "benchmarks" / "shear.json"))
     args = parser.parse_args(argv)
+    factoriser = "pardiso" if pardiso.available() else "superlu"
+    print(f"the Newton solves factor by {factoriser} (DYNFAB_PARDISO=0: SuperLU alone)")
     rows = scaling([float(s) for s in args.sides.split(",") if s], args.steps)
-    result = {"scaling": rows, "exponent_per_iteration": exponent(rows), "scenes": []}
+    result = {"factoriser": factoriser, "scaling": rows, "exponent_per_iteration": exponent(rows),
+              "scenes": []}
     say_exponent("", result["exponent_per_iteration"])
     for path in [p for p in args.scenes.split(",") if p]:
         print(f"{path}:")

@@ -65,7 +65,7 @@ import scipy.sparse.linalg
 from dynfab import active_set
 from dynfab.certificate import certify_patch, check_patch_accuracy, escape_patch
 from dynfab.errors import SolverError
-from dynfab.fabric import contact, ordering, spatial
+from dynfab.fabric import contact, ordering, pardiso, spatial
 from dynfab.fabric.kept_factor import KeptFactor
 from dynfab.fabric.kinematics import terms_of
 from dynfab.friction_chain import friction_chain
@@ -141,11 +141,12 @@ def _next_secant_weight(secant: float, shortened: bool) -> float:
 
 
 def _sparse_solve(A, rhs, symmetric=True, order=None, kept=None):
-    """A^-1 rhs by SuperLU, or None if A is singular.
+    """A^-1 rhs by a sparse factorisation, or None if A is singular.
 
-    A symmetric matrix is factored in SuperLU's symmetric mode (diagonal pivots): with
-    `order`, the fabric's nested-dissection order (`dynfab.fabric.ordering`), else SuperLU's
-    minimum degree on A^T + A; both are faster than the default column ordering with
+    A symmetric matrix with `order` (the fabric's nested-dissection order) is factored by
+    `ordering.symmetric_factor` (PARDISO's L D L^T where MKL is installed, else SuperLU in
+    that order); without one, in SuperLU's symmetric mode (diagonal pivots) in its minimum
+    degree on A^T + A; both are faster than the default column ordering with
     partial pivoting on the fabric's Hessians, and nested dissection the fastest on large
     patches (`python benchmarks/fabric.py --pieces` measures them). If a pivot vanishes
     there, the default, pivoted factorisation is tried. `kept` (a `KeptFactor` in `order`):
@@ -156,7 +157,7 @@ def _sparse_solve(A, rhs, symmetric=True, order=None, kept=None):
             if kept is not None:
                 return kept.solve(A, rhs)
             if order is not None:
-                return ordering.OrderedLU(A, order).solve(rhs)
+                return ordering.symmetric_factor(A, order).solve(rhs)
             return scipy.sparse.linalg.splu(A, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
                                             options=dict(SymmetricMode=True)).solve(rhs)
         except RuntimeError:
@@ -476,7 +477,8 @@ class SparseNewton(NewtonBackend):
         eye = scipy.sparse.identity(H.shape[0], format="csc")
         for _ in range(40):
             A = (H + shift * eye if shift else H.copy()).tocsc()
-            A.eliminate_zeros()  # else carried through the factors (frictionless friction blocks)
+            if not pardiso.available():  # PARDISO keeps its analysis on a fixed pattern
+                A.eliminate_zeros()  # else carried through the factors (frictionless friction blocks)
             d = _sparse_solve(A, -g, kept=kept)
             if d is not None and np.all(np.isfinite(d)) and g @ d < 0.0:
                 return d

@@ -1,4 +1,5 @@
-"""Shared test fixtures: generic scene building only (no physics, no expected values)."""
+"""Shared test fixtures: generic scene building and the choice of sparse factorisation (no
+physics, no expected values)."""
 
 import pytest
 
@@ -16,3 +17,22 @@ def make_scene():
     def make(**tables) -> Scene:
         return parse_scene_text(scene_toml(tables))
     return make
+
+
+@pytest.fixture(params=["superlu", "pardiso"])
+def factoriser(request, monkeypatch):
+    """The fabric's symmetric factorisation (`dynfab.fabric.ordering.symmetric_factor`):
+    SuperLU alone, or PARDISO first (skipped where MKL is not installed)."""
+    from dynfab.fabric import pardiso
+    if request.param == "pardiso" and not pardiso.available():
+        pytest.skip("MKL (PARDISO) is not installed: pip install -e '.[pardiso]'")
+    if request.param == "superlu":
+        monkeypatch.setattr(pardiso, "available", lambda: False)
+    return request.param
+
+
+@pytest.fixture
+def superlu_alone(monkeypatch):
+    """The fabric's symmetric factorisations by SuperLU alone (PARDISO off)."""
+    from dynfab.fabric import pardiso
+    monkeypatch.setattr(pardiso, "available", lambda: False)

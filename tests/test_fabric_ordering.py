@@ -99,8 +99,26 @@ def test_solves_equal_the_dense_solve_to_rounding(case):
     expected = np.linalg.solve(A.toarray(), rhs)
     error = np.abs(x - expected).max() / np.abs(expected).max()
     assert error <= backward_error_bound(order.permuted(A), factor.lu)
-    # the Newton direction's solve (`_sparse_solve` with the order) is the same solve
-    assert np.array_equal(_sparse_solve(A, rhs, order=order), x)
+
+
+@pytest.mark.parametrize("case", ["friction", "saddle"])
+def test_the_newton_solve_is_backward_stable(case, factoriser):
+    # The Newton direction's solve (`_sparse_solve` with the order) is
+    # `ordering.symmetric_factor`'s: SuperLU's above, or PARDISO's L D L^T. Either is
+    # backward stable: the normwise backward error |A x - b| / (|A| |x| + |b|) (Rigal and
+    # Gaches 1967) within gamma_n = n eps / (1 - n eps), the first-order bound of a
+    # factorisation without element growth (Higham, Accuracy and Stability, Thm 7.1, 9.4).
+    solver, H, order = friction_step() if case == "friction" else compressed_saddle()
+    A = (0.5 * (H + H.T)).tocsc()
+    rhs = np.random.default_rng(5).standard_normal(A.shape[0])
+    factor = ordering.symmetric_factor(A, order)
+    assert (type(factor).__name__ == "SymmetricFactor") == (factoriser == "pardiso")
+    x = _sparse_solve(A, rhs, order=order)
+    assert np.array_equal(x, factor.solve(rhs))
+    n = A.shape[0]
+    norm_A = scipy.sparse.linalg.norm(A, np.inf)
+    backward = np.abs(A @ x - rhs).max() / (norm_A * np.abs(x).max() + np.abs(rhs).max())
+    assert backward <= n * EPS / (1.0 - n * EPS)
 
 
 def dense_count(H, shift):

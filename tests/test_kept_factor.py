@@ -1,6 +1,8 @@
 """The Newton solves on kept factors (dynfab.fabric.kept_factor, docs/model.md section 11.10):
 GMRES preconditioned by an earlier matrix's factors must give the direction of a direct
-solve to its accuracy, and factor where it cannot."""
+solve to its accuracy, and factor where it cannot. The tests of GMRES on kept factors take
+SuperLU's (`superlu_alone`): PARDISO's factorisation is cheap enough that the Hessian's
+solves factor at once (`test_pardiso_factors_each_hessian_on_its_kept_analysis`)."""
 
 from __future__ import annotations
 
@@ -8,7 +10,9 @@ import numpy as np
 import scipy.sparse
 import scipy.sparse.linalg
 
-from dynfab.fabric import kept_factor, ordering
+import pytest
+
+from dynfab.fabric import kept_factor, ordering, pardiso
 
 
 def chain_laplacian(n: int, rng) -> scipy.sparse.csc_matrix:
@@ -30,7 +34,7 @@ def test_gmres_reaches_its_target_and_says_when_it_cannot():
     assert kept_factor.gmres(A, b, lambda v: v, 3, target) is None
 
 
-def test_kept_factors_solve_a_nearby_matrix_and_a_far_one_is_factored():
+def test_kept_factors_solve_a_nearby_matrix_and_a_far_one_is_factored(superlu_alone):
     """A matrix whose three springs changed (as crossings turning from sticking to sliding:
     M^-1 of it is I plus a rank-3 term, so GMRES converges in four iterations) is solved on
     the kept factors (no new factorisation), to the relative residual the Newton step
@@ -62,7 +66,7 @@ def test_kept_factors_solve_a_nearby_matrix_and_a_far_one_is_factored():
     assert kept.factorisations == 3
 
 
-def test_without_solves_on_kept_factors_every_solve_factors():
+def test_without_solves_on_kept_factors_every_solve_factors(superlu_alone):
     """solve_on_kept = False (the planar fabric's term set: a factorisation there costs too
     few triangular solves for GMRES's failed attempts to pay): the nearby matrix that GMRES
     would solve on the kept factors is factored, and the direction is the direct one."""
@@ -83,7 +87,7 @@ def test_without_solves_on_kept_factors_every_solve_factors():
 
 
 
-def test_a_jacobian_far_from_the_hessian_is_factored_in_its_order_not_pivoted():
+def test_a_jacobian_far_from_the_hessian_is_factored_in_its_order_not_pivoted(superlu_alone):
     """solve_near(A, b, B) with A far from B (a non-symmetric part as large as B's springs,
     as the coupled friction Jacobian where many crossings' limits move with their contact):
     GMRES on B's factors does not converge in KRYLOV_ITERATIONS, so A itself is factored in
@@ -103,7 +107,7 @@ def test_a_jacobian_far_from_the_hessian_is_factored_in_its_order_not_pivoted():
     assert np.linalg.norm(A @ x - b) <= kept_factor.RELATIVE_RESIDUAL * np.linalg.norm(b)
 
 
-def test_a_looser_forcing_term_is_met_on_the_kept_factors_without_factoring():
+def test_a_looser_forcing_term_is_met_on_the_kept_factors_without_factoring(superlu_alone):
     """The coupled Newton's directions ask for a relative residual of 1e-6 (an inexact Newton
     forcing term, dynfab.newton_sparse.COUPLED_FORCING), not the Hessian's 1e-10, which its
     factors cannot reach on the large specimens. With a small non-symmetric part (the seed
@@ -123,7 +127,7 @@ def test_a_looser_forcing_term_is_met_on_the_kept_factors_without_factoring():
     assert np.linalg.norm(A @ x - b) <= 1e-6 * np.linalg.norm(b)
 
 
-def test_an_ill_conditioned_matrix_is_solved_on_kept_factors_as_exactly_as_directly():
+def test_an_ill_conditioned_matrix_is_solved_on_kept_factors_as_exactly_as_directly(superlu_alone):
     """Where the factors cannot reach RELATIVE_RESIDUAL on their own matrix (springs spread
     over eight decades: the direct solve leaves about 1e-7 of |b|, as the 150 x 450 mm
     specimen's Hessian leaves 2.3e-9), a nearby matrix is solved on them to ATTAINED_MARGIN
@@ -150,3 +154,23 @@ def test_an_ill_conditioned_matrix_is_solved_on_kept_factors_as_exactly_as_direc
     assert residual <= kept_factor.ATTAINED_MARGIN * kept.attained
     direct = ordering.OrderedLU(near, ordering.Ordering(np.arange(n))).solve(b)
     assert np.linalg.norm(near @ direct - b) / np.linalg.norm(b) > 0.1 * residual
+
+
+@pytest.mark.skipif(not pardiso.available(), reason="MKL (PARDISO) is not installed")
+def test_pardiso_factors_each_hessian_on_its_kept_analysis():
+    """With PARDISO, `solve` factors every matrix (no GMRES attempt: `KeptFactor._cheap`),
+    a matrix of the same pattern on the kept factor's analysis (the same handle,
+    `SymmetricFactor.refactor`), and each direction is the direct one."""
+    rng = np.random.default_rng(2)
+    n = 300
+    A = chain_laplacian(n, rng)
+    near = (A + scipy.sparse.diags(np.where(np.arange(n) == 150, 1e-3, 0.0))).tocsc()
+    b = rng.standard_normal(n)
+    kept = kept_factor.KeptFactor(ordering.Ordering(np.arange(n)))
+    kept.solve(A, b)
+    first = kept.lu
+    assert isinstance(first, pardiso.SymmetricFactor)
+    x = kept.solve(near, b)
+    assert (kept.factorisations, kept.krylov_solves) == (2, 0)
+    assert kept.lu is first
+    np.testing.assert_allclose(x, scipy.sparse.linalg.spsolve(near, b), rtol=1e-10, atol=0.0)

@@ -1,7 +1,11 @@
 """The fabric's inertia count and eigen-solves: the sparse route of the step certificate
 (`dynfab.certificate.certify_patch`, docs/model.md sections 6, 10).
 
-First route (`sparse_inertia`): SuperLU in symmetric mode, the Newton solve's factorisation
+First route (`sparse_inertia`): with the pattern's order, the Newton solve's factorisation
+(`ordering.symmetric_factor`). Where MKL is installed that is PARDISO's L D L^T, whose D
+(1 x 1 and 2 x 2 Bunch-Kaufman blocks) has A's inertia by Sylvester's law; it is refused
+where PARDISO perturbed a pivot (one below 1e-13 of the scale: `dynfab.fabric.pardiso`),
+and SuperLU counts instead. SuperLU in symmetric mode
 (the pattern's nested-dissection order, `dynfab.fabric.ordering`, or without one SuperLU's
 minimum degree on A^T + A; diagonal pivot threshold 0), factors P A P^T = L U of the
 symmetrised A = (H + H^T)/2 + tau I. When it took every pivot on the diagonal
@@ -45,7 +49,7 @@ import scipy.linalg
 import scipy.sparse.linalg
 
 from dynfab.banded import BANDWIDTH, constrain
-from dynfab.fabric import assembly, ordering
+from dynfab.fabric import assembly, ordering, pardiso
 from dynfab.ldlt import TINY_PIVOT, ldlt_factor, ldlt_solve
 
 EPS = np.finfo(np.float64).eps
@@ -66,7 +70,8 @@ class Inertia:
     schur_size: int
     """|K|, the dense Schur complement's order (0 when the sparse route counted)."""
     method: str = "schur"
-    """"superlu" (the sparse route), "schur" (Haynsworth) or "dense" (the periodic cell)."""
+    """"pardiso" or "superlu" (the sparse route), "schur" (Haynsworth) or "dense" (the
+    periodic cell)."""
 
 
 def nearest_eigenvalue(H, order=None) -> float:
@@ -97,19 +102,17 @@ def shift_inverse(H, sigma, order=None):
 
 
 def shifted_solve(H, sigma, order=None):
-    """The solve x = A^-1 b of A = (H + H^T)/2 - sigma I, or None (singular). SuperLU in
-    symmetric mode, in `order` (`ordering.OrderedLU`) or, without one, minimum degree on
-    A^T + A; the same guards as `sparse_inertia` (diagonal pivots, none within 64 eps of
-    zero, growth at most GROWTH), else SuperLU with partial pivoting."""
+    """The solve x = A^-1 b of A = (H + H^T)/2 - sigma I, or None (singular): `_guarded`'s
+    factors, else SuperLU with partial pivoting."""
     A = (0.5 * (H + H.T) - sigma * scipy.sparse.identity(H.shape[0])).tocsc()
     scale = float(np.abs(H.diagonal()).max()) if H.shape[0] else 0.0
-    lu, solve = _symmetric_lu(A, order)
-    if lu is None or _unsafe(lu, scale):
-        try:
-            solve = scipy.sparse.linalg.splu(A).solve
-        except RuntimeError:
-            return None
-    return solve
+    guarded = _guarded(A, scale, order)
+    if guarded is not None:
+        return guarded[1]
+    try:
+        return scipy.sparse.linalg.splu(A).solve
+    except RuntimeError:
+        return None
 
 
 def start_vector(n: int) -> np.ndarray:
@@ -186,32 +189,45 @@ def inertia(model, pos, anchors, limit, shift: float = 0.0) -> Inertia:
 
 
 def sparse_inertia(H, tau, scale, order=None):
-    """Negatives of (H + H^T)/2 + tau I from SuperLU's symmetric-mode pivots, in `order`
-    (`ordering.OrderedLU`) or without one in SuperLU's minimum degree on A^T + A, or None
-    when a guard fails (module docstring): no off-diagonal pivot, none within 64 eps scale
-    of zero, element growth at most GROWTH."""
+    """Negatives of (H + H^T)/2 + tau I from `_guarded`'s factors, or None when every guard
+    fails (module docstring)."""
     return sparse_factor(H, tau, scale, order)[0]
 
 
 def sparse_factor(H, tau, scale, order=None):
     """(`sparse_inertia`'s count, the solve x = A^-1 b of its factors, b (n,) or (n, k)),
-    A = (H + H^T)/2 + tau I; (None, None) when a guard fails."""
+    A = (H + H^T)/2 + tau I; (None, None) when every guard fails."""
     A = (0.5 * (H + H.T) + tau * scipy.sparse.identity(H.shape[0])).tocsc()
     if A.shape[0] == 0:
         return Inertia(0, tau, 0, "superlu"), lambda b: np.array(b, float)
-    lu, solve = _symmetric_lu(A, order)
-    if lu is None or _unsafe(lu, scale):
+    guarded = _guarded(A, scale, order)
+    if guarded is None:
         return None, None
-    return Inertia(int(np.count_nonzero(lu.U.diagonal() < 0.0)), tau, 0, "superlu"), solve
+    negatives, solve, method = guarded
+    return Inertia(negatives, tau, 0, method), solve
 
 
-def _symmetric_lu(A, order):
-    """(SuperLU's symmetric-mode factors of A, or of P A P^T in `order`; the solve of A),
-    or (None, None) where SuperLU fails (an exactly zero pivot with no usable row)."""
+def _guarded(A, scale, order):
+    """(negatives, solve, "pardiso" or "superlu") of the symmetric A's factors that pass
+    their guards, or None: with `order`, `ordering.symmetric_factor`'s (PARDISO's L D L^T,
+    no pivot perturbed: its D's inertia; else SuperLU's), SuperLU's with `_unsafe`'s guards
+    (the negative pivots of U)."""
     try:
-        if order is not None:
-            factor = ordering.OrderedLU(A, order)
-            return factor.lu, factor.solve
+        factor = None if order is None else ordering.symmetric_factor(A, order)
+    except RuntimeError:
+        return None
+    if isinstance(factor, pardiso.SymmetricFactor):
+        return factor.negatives, factor.solve, "pardiso"
+    lu, solve = (factor.lu, factor.solve) if factor is not None else _symmetric_lu(A)
+    if lu is None or _unsafe(lu, scale):
+        return None
+    return int(np.count_nonzero(lu.U.diagonal() < 0.0)), solve, "superlu"
+
+
+def _symmetric_lu(A):
+    """(SuperLU's symmetric-mode factors of A in its minimum degree on A^T + A; their
+    solve), or (None, None) where SuperLU fails (an exactly zero pivot with no usable row)."""
+    try:
         lu = scipy.sparse.linalg.splu(A, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
                                       options=dict(SymmetricMode=True))
         return lu, lu.solve

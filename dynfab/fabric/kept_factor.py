@@ -23,7 +23,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from dynfab.fabric.ordering import OrderedLU, Ordering
+from dynfab.fabric import pardiso
+from dynfab.fabric.ordering import OrderedLU, Ordering, symmetric_factor
 
 KRYLOV_ITERATIONS = 6
 """GMRES iterations (each a triangular solve with the kept factors) before H is factored:
@@ -41,8 +42,9 @@ residual is as exact as the direct one; demanding more only wastes the attempt."
 
 
 class KeptFactor:
-    """SuperLU's factors of the last matrix factored, in a fixed `Ordering`
-    (`ordering.OrderedLU`), used to solve later matrices by preconditioned GMRES."""
+    """The factors of the last matrix factored (PARDISO's where it is available, else
+    SuperLU's in a fixed `Ordering`: `ordering.symmetric_factor`; a non-symmetric one's by
+    SuperLU, `ordering.OrderedLU`), used to solve later matrices by preconditioned GMRES."""
 
     def __init__(self, ordering: Ordering, solve_on_kept: bool = True):
         self.ordering = ordering
@@ -50,7 +52,9 @@ class KeptFactor:
         """Whether `solve` tries GMRES on the kept factors before it factors (where a
         factorisation costs few triangular solves, the failed attempts cost more than the
         others save); `solve_near` always does."""
-        self.lu: OrderedLU | None = None
+        self.lu: OrderedLU | pardiso.SymmetricFactor | None = None
+        self._analysed: pardiso.SymmetricFactor | None = None
+        """The last PARDISO factor, whose analysis the next matrix of its pattern reuses."""
         self.factorisations = 0
         """Factorisations so far (for the benchmark)."""
         self.krylov_solves = 0
@@ -67,7 +71,7 @@ class KeptFactor:
     def solve(self, A, rhs) -> np.ndarray:
         """A^-1 rhs: GMRES preconditioned by the kept factors where it converges, else A
         factored (and kept). Raises RuntimeError where SuperLU does (a zero pivot)."""
-        found = self._on_kept(A, rhs) if self.solve_on_kept else None
+        found = self._on_kept(A, rhs) if self.solve_on_kept and not self._cheap() else None
         if found is not None:
             return found
         self._factor(A)
@@ -75,6 +79,12 @@ class KeptFactor:
         if self.solve_on_kept and norm(rhs) > 0.0:
             self.attained = norm(A @ x - rhs) / norm(rhs)
         return x
+
+    def _cheap(self) -> bool:
+        """Whether the kept factors are PARDISO's, whose factorisation costs about as much as
+        a failed GMRES attempt (ten triangular solves on a bias specimen, against 28 to 40
+        for SuperLU's: docs/model.md section 11.10): `solve` then factors at once."""
+        return isinstance(self.lu, pardiso.SymmetricFactor)
 
     def solve_near(self, A, rhs, B, relative_residual: float = RELATIVE_RESIDUAL
                    ) -> np.ndarray | None:
@@ -89,7 +99,7 @@ class KeptFactor:
             if found is not None:
                 return found
             try:
-                self._factor(matrix)
+                self._factor(matrix, symmetric=matrix is B)
             except RuntimeError:
                 continue
             found = self._on_kept(A, rhs, relative_residual)
@@ -103,11 +113,16 @@ class KeptFactor:
         self.krylov_solves += found is not None
         return found
 
-    def _factor(self, A) -> None:
+    def _factor(self, A, symmetric: bool = True) -> None:
         """Factor A and keep its factors (none kept where SuperLU raises RuntimeError)."""
         self.lu = None
         self.attained = 0.0
-        self.lu = OrderedLU(A, self.ordering)
+        if symmetric:
+            self.lu = symmetric_factor(A, self.ordering, self._analysed)
+            if isinstance(self.lu, pardiso.SymmetricFactor):
+                self._analysed = self.lu
+        else:
+            self.lu = OrderedLU(A, self.ordering)
         self.factorisations += 1
 
     def _preconditioned(self, A, rhs, relative_residual: float) -> np.ndarray | None:

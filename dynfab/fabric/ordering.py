@@ -41,6 +41,7 @@ import numpy as np
 import scipy.sparse
 import scipy.sparse.linalg
 
+from dynfab.fabric import pardiso
 from dynfab.structure import chain_of_node
 
 LEAF = 64
@@ -230,3 +231,19 @@ class OrderedLU:
     def fill(self) -> int:
         """nnz(L) + nnz(U)."""
         return int(self.lu.L.nnz + self.lu.U.nnz)
+
+
+def symmetric_factor(A, ordering: Ordering, kept=None):
+    """Factors of the symmetric A, with a `solve`: PARDISO's L D L^T
+    (`pardiso.SymmetricFactor`, on `kept`'s analysis where A has its pattern) where MKL is
+    available and no pivot was perturbed, else SuperLU's in `ordering` (`OrderedLU`). Raises
+    RuntimeError where SuperLU does (an exactly zero pivot with no other row)."""
+    if pardiso.available():
+        try:
+            if kept is None or not kept.refactor(A):
+                kept = pardiso.SymmetricFactor(A)
+            if kept.perturbed == 0 and not kept.tiny_pivots:
+                return kept
+        except RuntimeError:
+            pass
+    return OrderedLU(A, ordering)
