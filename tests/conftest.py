@@ -22,12 +22,14 @@ def make_scene():
 @pytest.fixture(params=["superlu", "pardiso"])
 def factoriser(request, monkeypatch):
     """The fabric's symmetric factorisation (`dynfab.fabric.ordering.symmetric_factor`):
-    SuperLU alone, or PARDISO first (skipped where MKL is not installed)."""
+    SuperLU alone, or PARDISO first at every size (skipped where MKL is not installed)."""
     from dynfab.fabric import pardiso
     if request.param == "pardiso" and not pardiso.available():
         pytest.skip("MKL (PARDISO) is not installed: pip install -e '.[pardiso]'")
     if request.param == "superlu":
         monkeypatch.setattr(pardiso, "available", lambda: False)
+    else:
+        monkeypatch.setattr(pardiso, "MIN_UNKNOWNS", 0)  # the tests' matrices are small
     return request.param
 
 

@@ -18,7 +18,7 @@ import pytest
 import scipy.sparse
 import scipy.sparse.linalg
 
-from dynfab.fabric import inertia, ordering
+from dynfab.fabric import inertia, ordering, pardiso
 from dynfab.fabric.model import FabricModel
 from dynfab.newton_sparse import _sparse_solve
 from dynfab.static import StaticSolver
@@ -234,3 +234,12 @@ def test_the_ordered_fill_grows_like_n_log_n():
     # the test can fail: minimum degree's fill on the same patterns grows faster
     minimum_degree = growth_increments(fills(lambda solver, A: None))
     assert np.any(minimum_degree[1:] > np.sqrt(2.0) * minimum_degree[:-1]), minimum_degree
+
+
+def test_a_matrix_below_pardiso_s_size_is_factored_by_superlu():
+    # Below pardiso.MIN_UNKNOWNS PARDISO's fixed costs outweigh its speed (its docstring's
+    # measurements), so SuperLU factors there whether MKL is installed or not.
+    solver, H, order = friction_step()
+    A = (0.5 * (H + H.T)).tocsc()
+    assert A.shape[0] < pardiso.MIN_UNKNOWNS
+    assert isinstance(ordering.symmetric_factor(A, order), ordering.OrderedLU)

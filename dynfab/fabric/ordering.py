@@ -238,7 +238,7 @@ def symmetric_factor(A, ordering: Ordering, kept=None):
     (`pardiso.SymmetricFactor`, on `kept`'s analysis where A has its pattern) where MKL is
     available and no pivot was perturbed, else SuperLU's in `ordering` (`OrderedLU`). Raises
     RuntimeError where SuperLU does (an exactly zero pivot with no other row)."""
-    if pardiso.available():
+    if pardiso.available() and A.shape[0] >= pardiso.MIN_UNKNOWNS:
         try:
             if kept is None or not kept.refactor(A):
                 kept = pardiso.SymmetricFactor(A)

@@ -18,8 +18,9 @@ MKL runs sequentially here (its threading layer set before its first call): the 
 so every Newton iterate are the same bits run after run (a resumed run repeats an
 uninterrupted one), and MKL's OpenMP runtime never meets numba's threads. MKL is bound
 through ctypes (the `mkl` wheel's `mkl_rt`, found under the interpreter's prefix); without
-it `available()` is False and the fabric factors by SuperLU alone. `DYNFAB_PARDISO=0` in the
-environment turns it off (to compare the two)."""
+it `available()` is False and the fabric factors by SuperLU alone, as it does matrices of
+fewer than MIN_UNKNOWNS unknowns. `DYNFAB_PARDISO=0` in the environment turns it off (to
+compare the two)."""
 
 from __future__ import annotations
 
@@ -34,6 +35,14 @@ import sys
 import numpy as np
 import scipy.sparse
 
+MIN_UNKNOWNS = 1000
+"""Smaller matrices are factored by SuperLU (`dynfab.fabric.ordering.symmetric_factor`):
+there PARDISO's fixed costs outweigh its speed. On the 4 x 4 planar patch (504 unknowns)
+its static and semi-implicit steps took 1.19 and 1.21 times 7e71657's with PARDISO (three
+turns each, `python benchmarks/before_after.py --before 7e71657 --rounds 3 --sizes 4,8`);
+from the 8 x 8 patch (2,032) the static step is faster with it (0.81), as the 60 mm frame's
+Newton iterations (2,706: 20.6 ms against 27.9, `python benchmarks/shear.py`); the 30 mm
+frame's (510) took 9.6 ms against 9.2."""
 SYMMETRIC_INDEFINITE = -2
 """PARDISO's mtype for a real symmetric indefinite matrix."""
 PIVOT_THRESHOLD = 13
