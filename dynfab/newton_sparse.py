@@ -477,8 +477,10 @@ class SparseNewton(NewtonBackend):
         eye = scipy.sparse.identity(H.shape[0], format="csc")
         for _ in range(40):
             A = (H + shift * eye if shift else H.copy()).tocsc()
-            if not pardiso.available():  # PARDISO keeps its analysis on a fixed pattern
-                A.eliminate_zeros()  # else carried through the factors (frictionless friction blocks)
+            if not (pardiso.available() and A.shape[0] >= pardiso.MIN_UNKNOWNS):
+                # SuperLU would carry them through its factors (frictionless friction blocks);
+                # PARDISO keeps its analysis while the pattern, zeros included, stays
+                A.eliminate_zeros()
             d = _sparse_solve(A, -g, kept=kept)
             if d is not None and np.all(np.isfinite(d)) and g @ d < 0.0:
                 return d
