@@ -2,7 +2,7 @@
 benchmarks/fabric.py).
 
 Run:  python benchmarks/before_after.py --before REV [--rounds 2] [--sizes 4,8,16,32]
-      (prints a table, writes benchmarks/before_after.json)
+      [--out benchmarks/before_after.json]   (prints a table, writes the JSON file)
 
 Each tree (REV, extracted with `git archive`, and this working tree, copied) runs its own
 benchmark scripts from a temporary folder with that folder first on PYTHONPATH (a link
@@ -118,11 +118,19 @@ def best_of(turns: list[dict]) -> dict:
             for name in {name for turn in turns for name in turn}}
 
 
+def _pardiso_after() -> bool:
+    """Whether this tree factors the fabric by PARDISO here (MKL installed, DYNFAB_PARDISO
+    not 0: `dynfab.fabric.pardiso`); the before tree may predate it."""
+    from dynfab.fabric import pardiso
+    return pardiso.available()
+
+
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--before", required=True, help="the earlier commit (any git revision)")
     parser.add_argument("--rounds", type=int, default=2, help="turns of each tree")
     parser.add_argument("--sizes", default="4,8,16,32", help="fabric patch sizes n (n x n yarns)")
+    parser.add_argument("--out", type=Path, default=OUTPUT, help="the JSON file written")
     args = parser.parse_args(argv)
     sizes = [int(n) for n in args.sizes.split(",") if n]
     revision = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", args.before],
@@ -145,13 +153,13 @@ def main(argv=None) -> dict:
                    "after_over_before": after[name] / before[name]}
             for name in sorted(before) if name in after}
     result = {"before": revision, "rounds": args.rounds, "sizes": sizes, "load_1min": loads,
-              "figures": rows, "turns": turns}
+              "pardiso_after": _pardiso_after(), "figures": rows, "turns": turns}
     print(f"\n{'figure':32s} {'before [s]':>12s} {'after [s]':>12s} {'after/before':>13s}")
     for name, row in rows.items():
         print(f"{name:32s} {row['before_s']:12.4g} {row['after_s']:12.4g} "
               f"{row['after_over_before']:13.3f}")
-    OUTPUT.write_text(json.dumps(result, indent=2) + "\n")
-    print(f"\nwrote {OUTPUT.relative_to(ROOT)}")
+    args.out.write_text(json.dumps(result, indent=2) + "\n")
+    print(f"\nwrote {args.out}")
     return result
 
 

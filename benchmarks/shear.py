@@ -4,7 +4,7 @@ against each other on the same Hessians, and the Cao et al. scenes' load paths.
 
     python benchmarks/shear.py [--sides 0.03,0.06,0.09,0.12] [--steps 4]
                                [--scenes runs/cao2008_frame.toml,...] [--scene-steps N]
-                               [--friction-beta B]
+                               [--friction-beta B] [--factor-scenes]
                                [--out benchmarks/shear.json]
 
 - **scaling**: picture frames of the given sides (the Cao fabric of runs/cao2008_frame.toml),
@@ -13,13 +13,14 @@ against each other on the same Hessians, and the Cao et al. scenes' load paths.
   iteration against crossings (least squares in log-log);
 - **factorisations**: the Hessian of each size's last step (F_T frozen, on the unknowns),
   factored by SuperLU in its symmetric mode in the nested-dissection order the solver uses
-  (`dynfab.fabric.inertia.sparse_factor`, which also counts the inertia), by SuperLU with
+  without MKL (`dynfab.fabric.ordering.OrderedLU`; its negative pivots), by SuperLU with
   its own COLAMD order, and by MKL PARDISO as symmetric indefinite (`dynfab.fabric.pardiso`,
   the analysis and factorisation, then the factorisation alone on its analysis, as the
   Newton solves do; its inertia), where MKL is installed;
 - **scenes**: each scene's path with the static solver until it ends or stops (a
   SolverError: the step, the reason), or its first `--scene-steps` steps after step 0; its
   crossings, steps, iterations, wall time and time per iteration (with the scaling's);
+  `--factor-scenes` factors each scene's last Hessian as the scaling's (without COLAMD);
   `--friction-beta` replaces the scenes' [friction] beta (1e6 holds the bias specimens'
   free edges, which slide and stop the paper's law early: docs/results.md, to time many
   steps).
@@ -43,7 +44,7 @@ import scipy.sparse
 import scipy.sparse.linalg
 
 from dynfab.errors import SolverError
-from dynfab.fabric import inertia, ordering, pardiso
+from dynfab.fabric import ordering, pardiso
 from dynfab.model import build_model
 from dynfab.scene import load_scene, with_key
 from dynfab.solvers import make_solver
@@ -81,9 +82,9 @@ def _path(model, steps: int | None, say=print) -> dict:
 
 
 def _pardiso_factor(H):
-    """(analysis and factorisation [s], factorisation on the analysis [s], negatives) of
-    PARDISO's symmetric indefinite L D L^T of H (`dynfab.fabric.pardiso`), or None without
-    MKL."""
+    """(analysis and factorisation [s], factorisation on the analysis [s], negatives,
+    nnz(L)) of PARDISO's symmetric indefinite L D L^T of H (`dynfab.fabric.pardiso`), or
+    None without MKL."""
     if not pardiso.available():
         return None
     started = time.perf_counter()
@@ -91,27 +92,31 @@ def _pardiso_factor(H):
     first = time.perf_counter() - started
     started = time.perf_counter()
     factor.refactor(H)
-    return first, time.perf_counter() - started, factor.negatives
+    return first, time.perf_counter() - started, factor.negatives, factor.fill
 
 
-def factorisations(solver, state) -> dict:
-    """The three factorisations of the Hessian at `state` (module docstring)."""
+def factorisations(solver, state, colamd: bool = True) -> dict:
+    """The three factorisations of the Hessian at `state` (module docstring); SuperLU's
+    COLAMD one only if `colamd` (a minute or more at 60,000 unknowns)."""
     backend = solver.backend
     pos = state.positions
     H = backend.hessian(pos, state.anchors, backend.friction_limits(pos))
-    scale = float(np.abs(H.diagonal()).max())
     order = ordering.fabric_order(backend.structure, backend.pattern)
     out = {"unknowns": int(H.shape[0]), "nonzeros": int(H.nnz)}
+    A = (0.5 * (H + H.T)).tocsc()
     started = time.perf_counter()
-    counted, _ = inertia.sparse_factor(H, 0.0, scale, order)
+    lu = ordering.OrderedLU(A, order)
     out["superlu_nested_dissection_s"] = time.perf_counter() - started
-    out["superlu_negatives"] = None if counted is None else int(counted.negatives)
-    started = time.perf_counter()
-    scipy.sparse.linalg.splu(H.tocsc())
-    out["superlu_colamd_s"] = time.perf_counter() - started
-    found = _pardiso_factor(H)
+    out["superlu_negatives"] = int(np.count_nonzero(lu.lu.U.diagonal() < 0.0))
+    out["superlu_fill"] = lu.fill
+    if colamd:
+        started = time.perf_counter()
+        scipy.sparse.linalg.splu(H.tocsc())
+        out["superlu_colamd_s"] = time.perf_counter() - started
+    found = _pardiso_factor(A)
     if found is not None:
-        out["pardiso_with_analysis_s"], out["pardiso_s"], out["pardiso_negatives"] = found
+        (out["pardiso_with_analysis_s"], out["pardiso_s"], out["pardiso_negatives"],
+         out["pardiso_fill"]) = found
     return out
 
 
@@ -160,6 +165,8 @@ def main(argv=None) -> None:
     parser.add_argument("--scenes", default="")
     parser.add_argument("--scene-steps", type=int, default=None)
     parser.add_argument("--friction-beta", type=float, default=None)
+    parser.add_argument("--factor-scenes", action="store_true",
+                        help="factor each scene's last Hessian by SuperLU and PARDISO too")
     parser.add_argument("--out", default=str(ROOT / "benchmarks" / "shear.json"))
     args = parser.parse_args(argv)
     factoriser = "pardiso" if pardiso.available() else "superlu"
@@ -181,6 +188,10 @@ def main(argv=None) -> None:
                  **{k: run[k] for k in ("steps", "iterations", "wall_s", "stopped",
                                         "factorisations", "krylov_solves")}}
         entry["s_per_iteration"] = run["wall_s"] / max(run["iterations"], 1)
+        if args.factor_scenes:
+            entry["factorisations_at_end"] = factorisations(run["solver"], run["state"], False)
+            print("  its last Hessian: " + ", ".join(
+                f"{k} {v:.3g}" for k, v in entry["factorisations_at_end"].items()))
         print(f"  {entry['steps']} steps, {entry['iterations']} iterations, "
               f"{entry['wall_s']:.1f} s, {entry['factorisations']} factorisations, "
               f"{entry['krylov_solves']} kept-factor solves"
