@@ -2,12 +2,12 @@
 (`dynfab.certificate.certify_patch`, docs/model.md sections 6, 10).
 
 First route (`sparse_inertia`): with the pattern's order, the Newton solve's factorisation
-(`ordering.symmetric_factor`). Where MKL is installed that is PARDISO's L D L^T, whose D
-(1 x 1 and 2 x 2 Bunch-Kaufman blocks) has A's inertia by Sylvester's law; it is refused
-where PARDISO perturbed a pivot (one below 1e-13 of the scale: `dynfab.fabric.pardiso`),
-and SuperLU counts instead. SuperLU in symmetric mode
-(the pattern's nested-dissection order, `dynfab.fabric.ordering`, or without one SuperLU's
-minimum degree on A^T + A; diagonal pivot threshold 0), factors P A P^T = L U of the
+(`ordering.symmetric_factor`). Where MKL is installed (and A has at least 1,000 unknowns)
+that is PARDISO's L D L^T, whose D (1 x 1 and 2 x 2 Bunch-Kaufman blocks) has A's inertia by
+Sylvester's law; it is refused where PARDISO perturbed a pivot or one of D's is within
+64 eps max|A_ii| of zero (`dynfab.fabric.pardiso`), and SuperLU counts instead. SuperLU in
+symmetric mode (the pattern's nested-dissection order, `dynfab.fabric.ordering`, or without
+one SuperLU's minimum degree on A^T + A; diagonal pivot threshold 0) factors P A P^T = L U of the
 symmetrised A = (H + H^T)/2 + tau I. When it took every pivot on the diagonal
 (perm_r == perm_c), the factorisation is unpivoted Gaussian elimination of the symmetric
 P A P^T, so U = D L^T with D = diag(U) (uniqueness of LDU), and P A P^T = L D L^T is a

@@ -236,8 +236,10 @@ class OrderedLU:
 def symmetric_factor(A, ordering: Ordering, kept=None):
     """Factors of the symmetric A, with a `solve`: PARDISO's L D L^T
     (`pardiso.SymmetricFactor`, on `kept`'s analysis where A has its pattern) where MKL is
-    available and no pivot was perturbed, else SuperLU's in `ordering` (`OrderedLU`). Raises
-    RuntimeError where SuperLU does (an exactly zero pivot with no other row)."""
+    available, A has at least `pardiso.MIN_UNKNOWNS` unknowns, no pivot was perturbed and
+    none is tiny (`SymmetricFactor.tiny_pivots`), else SuperLU's in `ordering`
+    (`OrderedLU`). Raises RuntimeError where SuperLU does (an exactly zero pivot with no
+    other row)."""
     if pardiso.available() and A.shape[0] >= pardiso.MIN_UNKNOWNS:
         try:
             if kept is None or not kept.refactor(A):
