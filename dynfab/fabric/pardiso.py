@@ -4,10 +4,11 @@ installed (`pip install -e '.[pardiso]'`; docs/model.md section 11.10).
 On the shear specimens a SuperLU factorisation is most of a Newton iteration. PARDISO
 (Schenk and Gaertner, Future Gener. Comput. Syst. 20, 2004) factors the same Hessians as a
 symmetric matrix (one triangle, about half SuperLU's arithmetic and fill) in its own
-nested-dissection order (METIS): on the 150 x 450 mm bias specimen's Hessian (60,510
-unknowns) 0.27 s against SuperLU's 1.3 to 1.8 s in the fabric's order, the analysis (the
-order and the symbolic factor, 0.25 s) once per pattern (`python benchmarks/shear.py`,
-docs/results.md "In-plane shear"). Its pivots are Bunch-Kaufman's 1 x 1 and 2 x 2 blocks
+nested-dissection order (METIS): on the 150 x 450 mm bias specimen's Hessian at step 0's
+equilibrium (60,510 unknowns) 0.16 s against SuperLU's 0.93 s in the fabric's order, 0.43 s
+with the analysis (the order and the symbolic factor), which the Newton solves do once per
+pattern (`python benchmarks/shear.py --sides "" --scenes runs/cao2008_bias_150x450.toml
+--scene-steps 0 --factor-scenes`; docs/results.md "In-plane shear"). Its pivots are Bunch-Kaufman's 1 x 1 and 2 x 2 blocks
 within each supernode; a pivot below PIVOT_THRESHOLD of its supernode's scale is perturbed
 instead (and counted). A factor with a perturbed pivot, or with a pivot within TINY_PIVOT of
 max |A_ii| (SuperLU's guard: the matrix singular to rounding), is refused, and SuperLU factors
