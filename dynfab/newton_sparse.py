@@ -477,7 +477,7 @@ class SparseNewton(NewtonBackend):
         eye = scipy.sparse.identity(H.shape[0], format="csc")
         for _ in range(40):
             A = (H + shift * eye if shift else H.copy()).tocsc()
-            if not (pardiso.available() and A.shape[0] >= pardiso.MIN_UNKNOWNS):
+            if not pardiso.takes(A.shape[0]):
                 # SuperLU would carry them through its factors (frictionless friction blocks);
                 # PARDISO keeps its analysis while the pattern, zeros included, stays
                 A.eliminate_zeros()

@@ -240,7 +240,7 @@ def symmetric_factor(A, ordering: Ordering, kept=None):
     none is tiny (`SymmetricFactor.tiny_pivots`), else SuperLU's in `ordering`
     (`OrderedLU`). Raises RuntimeError where SuperLU does (an exactly zero pivot with no
     other row)."""
-    if pardiso.available() and A.shape[0] >= pardiso.MIN_UNKNOWNS:
+    if pardiso.takes(A.shape[0]):
         try:
             if kept is None or not kept.refactor(A):
                 kept = pardiso.SymmetricFactor(A)

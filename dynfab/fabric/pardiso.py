@@ -92,6 +92,12 @@ def available() -> bool:
     return library() is not None
 
 
+def takes(unknowns: int) -> bool:
+    """Whether the fabric's symmetric matrices of `unknowns` unknowns go to PARDISO first
+    (`dynfab.fabric.ordering.symmetric_factor`): MKL available, at least MIN_UNKNOWNS."""
+    return available() and unknowns >= MIN_UNKNOWNS
+
+
 def _declare(lib) -> None:
     """The signatures of MKL's C functions used here, every integer 32-bit (LP64):
     pardiso(pt, maxfct, mnum, mtype, phase, n, a, ia, ja, perm, nrhs, iparm, msglvl, b, x,
