@@ -39,6 +39,11 @@ triangular solves (docs/model.md 11.10)."""
 STICK = 3
 """Column of k_t [N/m] in `tie_friction_law`."""
 RHO, SHEAR_K, PHI_REST = range(3)
+IN_PLANE = 2
+"""The dofs of a node a crossing or lateral contact acts on: x and y. Their slips, rotation
+and distance are in-plane (`dynfab.terms.spatial.crossing_coordinates`,
+`lateral_distance`), so their Hessians' rows and columns on z are zero by construction and
+stay out of the pattern (docs/model.md 11.10)."""
 """Columns of `tie_rotation_law`."""
 SIGN, WIDTH, LATERAL_K, BRANCH = range(4)
 """Columns of `lateral_law` (`dynfab.structure.Structure`)."""
@@ -130,6 +135,30 @@ def _put(H, values, k):
 
 
 @numba.njit(cache=True)
+def _put_in_plane(H, values, k):
+    """values[k:] = H's block on the x and y dofs of its nodes (3 per node), row by row;
+    returns the next free entry."""
+    m = H.shape[0] // 3
+    for a in range(m):
+        for i in range(IN_PLANE):
+            for b in range(m):
+                for j in range(IN_PLANE):
+                    values[k] = H[3 * a + i, 3 * b + j]
+                    k += 1
+    return k
+
+
+@numba.njit(cache=True)
+def _emit_in_plane(nodes, g, H, grad, values, k):
+    """`_emit` of an element acting on x and y alone: g whole, H's in-plane block."""
+    if grad.shape[0]:
+        _scatter(nodes, g, grad)
+    if values.size:
+        k = _put_in_plane(H, values, k)
+    return k
+
+
+@numba.njit(cache=True)
 def _emit(nodes, g, H, grad, values, k):
     """One element's derivatives: g added to grad on `nodes` (where grad has rows), H into
     values from entry k (where values has entries); returns the next entry."""
@@ -179,13 +208,13 @@ def _derivatives(pos, s, anchors, limit, secant, grad, values):
         _gather(pos, s.tie_stencil[c], six)
         element.crossing_derivatives(six, anchors[c], rho, limit[c], stick, K, phi_rest, secant,
                                      g18, H18)
-        k = _emit(s.tie_stencil[c], g18, H18, grad, values, k)
+        k = _emit_in_plane(s.tie_stencil[c], g18, H18, grad, values, k)
     for e in range(s.lateral_stencil.shape[0]):
         _gather(pos, s.lateral_stencil[e], four)
         law = s.lateral_law[e]
         element.lateral_derivatives(four, law[SIGN], law[WIDTH], law[LATERAL_K], g12, H12,
                                     law[BRANCH])
-        k = _emit(s.lateral_stencil[e], g12, H12, grad, values, k)
+        k = _emit_in_plane(s.lateral_stencil[e], g12, H12, grad, values, k)
 
 
 @numba.njit(cache=True)
@@ -203,9 +232,11 @@ def hessian_values(pos, s, anchors, limit, values, secant=0.0):
     _derivatives(pos, s, anchors, limit, secant, np.zeros((0, 3)), values)
 
 
-def _block(nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(rows, cols) of the dense blocks on the dofs of each row of `nodes` (E, m), row-major."""
-    dofs = (3 * nodes[:, :, None] + np.arange(3)).reshape(nodes.shape[0], 3 * nodes.shape[1])
+def _block(nodes: np.ndarray, components: int = 3) -> tuple[np.ndarray, np.ndarray]:
+    """(rows, cols) of the dense blocks on the first `components` dofs of each node of each
+    row of `nodes` (E, m), row-major."""
+    dofs = (3 * nodes[:, :, None] + np.arange(components)).reshape(nodes.shape[0],
+                                                                  components * nodes.shape[1])
     m = dofs.shape[1]
     return np.repeat(dofs, m, axis=1).ravel(), np.tile(dofs, (1, m)).ravel()
 
@@ -225,14 +256,14 @@ def pattern_entries(s) -> tuple[np.ndarray, np.ndarray]:
             rows.append(r)
             cols.append(c)
     z_a, z_b = 3 * s.tie_a + 2, 3 * s.tie_b + 2
-    friction_rows, friction_cols = _block(s.tie_stencil)
-    per = 18 * 18
+    friction_rows, friction_cols = _block(s.tie_stencil, IN_PLANE)
+    per = (IN_PLANE * s.tie_stencil.shape[1]) ** 2
     for c in range(s.tie_a.size):
         rows.append(np.array([z_a[c], z_a[c], z_b[c], z_b[c]]))
         cols.append(np.array([z_a[c], z_b[c], z_a[c], z_b[c]]))
         rows.append(friction_rows[c * per:(c + 1) * per])
         cols.append(friction_cols[c * per:(c + 1) * per])
-    r, c = _block(s.lateral_stencil)
+    r, c = _block(s.lateral_stencil, IN_PLANE)
     rows.append(r)
     cols.append(c)
     return (np.concatenate(rows).astype(np.int64) if rows else np.zeros(0, np.int64),
