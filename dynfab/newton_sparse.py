@@ -66,6 +66,7 @@ from dynfab import active_set
 from dynfab.certificate import certify_patch, check_patch_accuracy, escape_patch
 from dynfab.errors import SolverError
 from dynfab.fabric import contact, ordering, pardiso, spatial
+from dynfab.fabric.friction import STICK
 from dynfab.fabric.kept_factor import KeptFactor
 from dynfab.fabric.kinematics import terms_of
 from dynfab.friction_chain import friction_chain
@@ -95,11 +96,14 @@ MAX_FROZEN = 50
 HALVINGS = 60
 """Line-search halvings (8 at the rounding floor, where a step is lost in rounding)."""
 SECANT_GROWTH = 4.0
-"""The weight lambda of the secant friction model in Newton's matrix, H = H_exact + lambda
-(H_secant - H_exact) (`SparseNewton.newton`), is multiplied by this after a step the line
-search shortened and divided by it after a full step."""
+"""A crossing's weight lambda of the secant friction model in Newton's matrix, H = H_exact +
+lambda (H_secant - H_exact) on its Huber block (`next_secant_weights`), falls by this after
+each full step that did not take it across its kink."""
 SECANT_FLOOR = 1e-3
-"""Below this lambda Newton's matrix is the exact Hessian again (quadratic convergence)."""
+"""Below this lambda a crossing's block is the exact Hessian's again (quadratic convergence)."""
+KINK_TURN = 0.5
+"""cos of the largest turn of a sliding crossing's slip over one Newton step that leaves its
+exact Huber block in charge (`kinked`: 60 degrees)."""
 COUPLED_FORCING = 1e-6
 """|J d + g| / |g| a coupled Newton direction d must reach (an inexact Newton step's forcing
 term: the next residual is at most this fraction of |g| plus Newton's quadratic term, so
@@ -130,14 +134,40 @@ RELAXED_COUPLED_EVERY = 25
 state reached: once the open/closed set has settled it converges in a few iterations."""
 
 
-def _next_secant_weight(secant: float, shortened: bool) -> float:
-    """The secant model's weight in Newton's next matrix (`SparseNewton.newton`): 1 after the
-    first shortened step, then SECANT_GROWTH times more after a shortened step (at most 1)
-    and SECANT_GROWTH times less after a full one, 0 below SECANT_FLOOR."""
+def kinked(before, after, limit, stick) -> np.ndarray:
+    """Which crossings a Newton step takes across their Huber kink, from the slips `before`
+    to `after` (T, 3) [m] (`crossing_slips`), F_T = `limit` (T,) [N], k_t = `stick` (T,)
+    [N/m]: sliding before (k_t |S| > F_T > 0) and the step's straight path in S passing within
+    the stick radius F_T / k_t of zero, or turning by more than acos(KINK_TURN). There the
+    exact Hessian, which has no stiffness along a sliding slip, misjudges the Huber term
+    (docs/model.md 11.10)."""
+    radius = np.where(limit > 0.0, limit / stick, 0.0)
+    n0, n1 = np.linalg.norm(before, axis=1), np.linalg.norm(after, axis=1)
+    step = after - before
+    length2 = np.maximum((step * step).sum(axis=1), np.finfo(float).tiny)
+    along = np.clip(-(before * step).sum(axis=1) / length2, 0.0, 1.0)
+    closest = np.linalg.norm(before + along[:, None] * step, axis=1)
+    turned = (before * after).sum(axis=1) < KINK_TURN * n0 * n1
+    return (limit > 0.0) & (n0 > radius) & ((closest < radius) | turned)
+
+
+def next_secant_weights(weights, shortened: bool, kinks) -> np.ndarray:
+    """Each crossing's secant weight in Newton's next matrix (`SparseNewton.newton`), from
+    `weights` (T,) after a step the line search `shortened` or not, `kinks` (T,) the crossings
+    the full step took across their kink (`kinked`): after a shortened step those get 1 (if
+    there are none, every weight grows: 0 to 1, others times SECANT_GROWTH, at most 1), the
+    others keep theirs; after a full step the crossings it did not take across their kink
+    fall by SECANT_GROWTH, to 0 below SECANT_FLOOR, the others keep theirs."""
+    out = np.array(weights, float)
     if shortened:
-        return 1.0 if secant == 0.0 else min(1.0, SECANT_GROWTH * secant)
-    secant /= SECANT_GROWTH
-    return secant if secant >= SECANT_FLOOR else 0.0
+        if kinks.any():
+            out[kinks] = 1.0
+        else:
+            out = np.where(out == 0.0, 1.0, np.minimum(1.0, SECANT_GROWTH * out))
+        return out
+    out[~kinks] /= SECANT_GROWTH
+    out[out < SECANT_FLOOR] = 0.0
+    return out
 
 
 def _sparse_solve(A, rhs, symmetric=True, order=None, kept=None):
@@ -589,16 +619,17 @@ class SparseNewton(NewtonBackend):
                 update_first=False) -> NewtonInfo:
         """`newton`'s loop on the lateral set the structure holds.
 
-        Newton's matrix is the exact Hessian blended with the secant friction model
-        (`hessian`'s `secant`, docs/model.md 11.10): the weight lambda of the secant goes to 1
-        after a step the line search shortened (a Huber kink in the way: the exact Hessian
-        has no stiffness along a sliding crossing's slip) and then grows by SECANT_GROWTH
-        after each shortened step, falls by it after each full one, and is 0 again (the exact
-        Hessian) below SECANT_FLOOR."""
+        Newton's matrix is the exact Hessian with each crossing's Huber block blended with
+        its secant friction model by the crossing's weight lambda (`hessian`'s `secant`,
+        docs/model.md 11.10): 1 for the crossings a step the line search shortened took
+        across their kink (`kinked`: the exact Hessian has no stiffness along a sliding
+        crossing's slip), falling by SECANT_GROWTH after each full step that left them
+        clear of it (`next_secant_weights`); every crossing's 1 to retry a failed step."""
         info = NewtonInfo()
         max_iterations = self.max_iterations if max_iterations is None else max_iterations
         previous = np.inf
-        secant = 0.0  # lambda
+        friction = self.structure.has_friction
+        secant = np.zeros(self.structure.tie_a.size)  # lambda per crossing
         for iteration in range(max_iterations + 1):
             grad = self.gradient(pos, P, anchors, limit, law)
             if update_first and iteration and self._update_first(pos, P, anchors, grad, info, law):
@@ -611,17 +642,26 @@ class SparseNewton(NewtonBackend):
             residual, floor = info.residual, info.floor
             previous = residual
             trial = self._newton_step(pos, grad, H, residual, floor, P, anchors, limit, law)
-            if trial is None and secant < 1.0 and self.structure.has_friction:
-                secant = 1.0  # a Huber kink in the way: retry on the secant model
+            if trial is None and friction and secant.min() < 1.0:
+                secant[:] = 1.0  # a Huber kink in the way: retry on the secant model
                 trial = self._newton_step(pos, grad, self.hessian(pos, anchors, limit, 1.0, law),
                                           residual, floor, P, anchors, limit, law)
             if trial is None:
                 info.converged = info.at_floor = residual <= floor
                 return info
             trial, t = trial
-            secant = _next_secant_weight(secant, t < 1.0)
+            if friction:
+                secant = next_secant_weights(secant, t < 1.0,
+                                             self._kinks(pos, trial, t, anchors, limit))
             pos[:, :] = trial
         return info
+
+    def _kinks(self, pos, trial, t, anchors, limit) -> np.ndarray:
+        """`kinked` of the full Newton step of which pos -> trial is the fraction t."""
+        before, after = (np.empty((self.structure.tie_a.size, 3)) for _ in range(2))
+        self.terms.crossing_slips(pos, self.structure, anchors, before)
+        self.terms.crossing_slips(pos + (trial - pos) / t, self.structure, anchors, after)
+        return kinked(before, after, limit, self.structure.tie_friction_law[:, STICK])
 
     def _update_first(self, pos, P, anchors, grad, info, law) -> bool:
         """Whether a frozen solve at `pos` (its gradient `grad`) may stop for F_T's update:

@@ -394,3 +394,22 @@ def test_without_a_core_spring_kawabata_is_a_hard_wall():
         assert contact.crossing_energy(g, law) == np.inf
     r, anchors, limit, _ = perturbed_state(two_by_two_fabric())  # crossing 1 sits past the wall
     assert assembly.total_energy(r, fabric, P, anchors, limit, np.zeros(len(assembly.TERMS))) == np.inf
+
+
+def test_the_slips_the_newton_watches_are_the_huber_terms_slips(state):
+    """`assembly.crossing_slips` (what `dynfab.newton_sparse.kinked` reads) gives each
+    crossing's (s_x, s_y) as the Huber term sees it: sticking crossings within the stick
+    radius F_T / k_t, sliding ones beyond it by their CROSSING_STATES factor."""
+    fabric, r, anchors, limit, _ = state
+    kt = stick_stiffness(fabric)
+    slips = np.zeros((limit.size, 3))
+    assembly.crossing_slips(r, fabric, anchors, slips)
+    px, py = fabric.tie_plane.T.copy()
+    for c, (_, regime) in enumerate(CROSSING_STATES):
+        assert tuple(slips[c, :2]) == friction.slip(r, anchors, fabric, px, py, c)
+        assert slips[c, 2] == 0.0
+        if regime == "stick":
+            assert kt * np.linalg.norm(slips[c]) < limit[c]
+        elif regime == "slide":
+            assert np.linalg.norm(slips[c]) == pytest.approx(SLIP["slide"] * limit[c] / kt,
+                                                             rel=1e-12)

@@ -116,3 +116,26 @@ def test_a_rigid_motion_changes_no_energy_and_turns_the_forces(specimen):
     np.testing.assert_allclose(after, before, rtol=1e-9, atol=1e-12 * np.abs(before).sum())
     g0, g1 = gradient(s, pos, anchors, limit), gradient(s, moved, anchors, limit)
     np.testing.assert_allclose(g1, g0 @ turn.T, atol=1e-9 * np.abs(g0).max())
+
+
+def test_each_crossings_secant_weight_blends_its_own_block(specimen):
+    """The Hessian is linear in each crossing's secant weight, and a weight enters only its
+    crossing's block: H(w_A + w_B) = H(w_A) + H(w_B) - H(0) for two disjoint sets of crossings,
+    H(1/2) the mean of H(0) and H(1), one weight for all the same as that weight for each
+    (sums of the same numbers in the same order: to rounding)."""
+    s = specimen.structure
+    pos, anchors, limit = perturbed(s, seed=3)
+    ties = s.tie_a.size
+
+    def hessian(secant):
+        return spatial.sparse_hessian(s, pos, anchors, limit, secant).toarray()
+
+    exact, full = hessian(0.0), hessian(1.0)
+    scale = 1e-13 * np.abs(exact).max()  # rounding of the sums (stretch entries dominate)
+    assert np.abs(full - exact).max() > 1e6 * scale  # some crossings slide: a real change
+    first = (np.arange(ties) % 2 == 0).astype(float)
+    half = hessian(first)
+    assert min(np.abs(half - exact).max(), np.abs(half - full).max()) > 1e6 * scale
+    assert np.allclose(half + hessian(1.0 - first) - exact, full, rtol=0, atol=scale)
+    assert np.allclose(hessian(0.5), 0.5 * (exact + full), rtol=0, atol=scale)
+    assert np.array_equal(hessian(0.3), hessian(np.full(ties, 0.3)))

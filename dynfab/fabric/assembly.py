@@ -208,9 +208,9 @@ def yarn_band(pos, fabric, y, band):
 
 
 @numba.njit(cache=True)
-def crossing_blocks(pos, fabric, anchors, limit, tangent, huber, secant=0.0):
+def crossing_blocks(pos, fabric, anchors, limit, tangent, huber, secant=None):
     """dR/dg per crossing into tangent (C,) and the Huber block (h_xx, h_xy, h_yy) into
-    huber (C, 3) (zeros without friction; `secant`: see `friction.huber_hessian`)."""
+    huber (C, 3) (zeros without friction; `secant`: see `friction.hessians`)."""
     contact.tangents(pos, fabric, tangent)
     huber[:, :] = 0.0
     if fabric.has_friction:
@@ -219,9 +219,10 @@ def crossing_blocks(pos, fabric, anchors, limit, tangent, huber, secant=0.0):
 
 
 @numba.njit(cache=True)
-def hessian_values(pos, fabric, anchors, limit, values, secant=0.0):
-    """The Hessian's entries (F_T frozen) in `Pattern` order into values; `secant`: the
-    weight of the sliding crossings' secant stiffness (`friction.huber_hessian`)."""
+def hessian_values(pos, fabric, anchors, limit, values, secant=None):
+    """The Hessian's entries (F_T frozen) in `Pattern` order into values; `secant` (C,):
+    each crossing's weight of its secant stiffness when sliding (`friction.huber_hessian`),
+    None: 0."""
     start = fabric.chain_start
     k = 0
     for y in range(start.size - 1):
@@ -408,14 +409,32 @@ def pattern_of(structure) -> Pattern:
     return entry[1]
 
 
-def sparse_hessian(structure, pos, anchors, limit, secant: float = 0.0):
+def secant_weights(secant, count: int) -> np.ndarray | None:
+    """`secant` (a weight in [0, 1] for every tie, or one per tie) as the (count,) array the
+    Hessians take, or None where every weight is 0 (the exact Hessian)."""
+    weights = np.asarray(secant, float)
+    if not np.any(weights):
+        return None
+    return np.ascontiguousarray(np.broadcast_to(weights, (count,)))
+
+
+def sparse_hessian(structure, pos, anchors, limit, secant=0.0):
     """The Hessian of V plus the Huber terms on the structure's unknowns [N/m] (CSC), F_T =
-    `limit` frozen (docs/model.md (6.1)); `secant` in [0, 1]: the weight of the sliding ties'
-    secant stiffness (`dynfab.fabric.friction.huber_hessian`)."""
+    `limit` frozen (docs/model.md (6.1)); `secant` in [0, 1], one for all ties or one per
+    tie: the weight of each sliding tie's secant stiffness
+    (`dynfab.fabric.friction.huber_hessian`)."""
     pattern = pattern_of(structure)
     values = np.zeros(pattern.size)
-    hessian_values(pos, structure, anchors, limit, values, float(secant))
+    hessian_values(pos, structure, anchors, limit, values,
+                   secant_weights(secant, structure.tie_a.size))
     return pattern.matrix(values)
+
+
+def crossing_slips(pos, structure, anchors, out) -> None:
+    """Every tie's slip (s_x, s_y, 0) [m] into out (T, 3), the planes at `pos`: what the
+    Newton's secant weights watch (`dynfab.newton_sparse.kinked`)."""
+    px, py = planes(pos, structure)
+    friction.slips(pos, anchors, structure, px, py, out)
 
 
 def energy_vector(structure, pos, P, anchors, limit) -> np.ndarray:

@@ -97,12 +97,24 @@ def energy(pos, anchors, s, plane_x, plane_y, limit):
 
 
 @numba.njit(cache=True)
-def hessians(pos, anchors, s, plane_x, plane_y, limit, out, secant=0.0):
-    """(h_xx, h_xy, h_yy) of every tie into out (T, 3): the block on (x_a, y_b)."""
+def hessians(pos, anchors, s, plane_x, plane_y, limit, out, secant=None):
+    """(h_xx, h_xy, h_yy) of every tie into out (T, 3): the block on (x_a, y_b); `secant`
+    (T,): each tie's weight of its secant (`huber_hessian`), None: 0 (the exact Hessian)."""
     for c in range(s.tie_a.size):
         sx, sy = slip(pos, anchors, s, plane_x, plane_y, c)
+        weight = 0.0
+        if secant is not None:
+            weight = secant[c]
         out[c, 0], out[c, 1], out[c, 2] = huber_hessian(sx, sy, limit[c],
-                                                        s.tie_friction_law[c, STICK], secant)
+                                                        s.tie_friction_law[c, STICK], weight)
+
+
+@numba.njit(cache=True)
+def slips(pos, anchors, s, plane_x, plane_y, out):
+    """Every tie's slip (s_x, s_y, 0) [m] into out (T, 3) (`slip`)."""
+    for c in range(s.tie_a.size):
+        out[c, 0], out[c, 1] = slip(pos, anchors, s, plane_x, plane_y, c)
+        out[c, 2] = 0.0
 
 
 @numba.njit(cache=True)

@@ -26,7 +26,7 @@ import numpy as np
 import scipy.sparse
 
 from dynfab.fabric import contact
-from dynfab.fabric.assembly import Pattern
+from dynfab.fabric.assembly import Pattern, secant_weights
 from dynfab.terms import spatial as element
 
 STRETCH, BENDING, CONTACT, FRICTION, LOAD, GRAVITY, SHEAR, LATERAL = range(8)
@@ -174,7 +174,8 @@ def _derivatives(pos, s, anchors, limit, secant, grad, values):
     """Every element's gradient and Hessian, each element's once (`dynfab.terms.spatial`):
     the gradient added to grad (nodes, 3) [N] where it has rows, the Hessian's entries into
     values in `pattern_entries`' order [N/m] where it has entries; F_T = `limit` frozen,
-    `secant`: the weight of the sliding crossings' secant friction stiffness."""
+    `secant` (T,): each crossing's weight of its secant friction stiffness when sliding,
+    None: 0."""
     pair, triple = np.empty((2, 3)), np.empty((3, 3))
     six, four = np.empty((6, 3)), np.empty((4, 3))
     g6, g9, g18, g12 = np.empty(6), np.empty(9), np.empty(18), np.empty(12)
@@ -206,7 +207,10 @@ def _derivatives(pos, s, anchors, limit, secant, grad, values):
             k += 4
         rho, K, phi_rest, stick = _crossing_law(s, c)
         _gather(pos, s.tie_stencil[c], six)
-        element.crossing_derivatives(six, anchors[c], rho, limit[c], stick, K, phi_rest, secant,
+        weight = 0.0
+        if secant is not None:
+            weight = secant[c]
+        element.crossing_derivatives(six, anchors[c], rho, limit[c], stick, K, phi_rest, weight,
                                      g18, H18)
         k = _emit_in_plane(s.tie_stencil[c], g18, H18, grad, values, k)
     for e in range(s.lateral_stencil.shape[0]):
@@ -221,15 +225,25 @@ def _derivatives(pos, s, anchors, limit, secant, grad, values):
 def gradient(pos, s, P, anchors, limit, grad):
     """grad = dV/dr (nodes, 3) [N], F_T frozen; P unused (no end loads)."""
     grad[:, :] = 0.0
-    _derivatives(pos, s, anchors, limit, False, grad, np.zeros(0))
+    _derivatives(pos, s, anchors, limit, None, grad, np.zeros(0))
 
 
 @numba.njit(cache=True)
-def hessian_values(pos, s, anchors, limit, values, secant=0.0):
+def hessian_values(pos, s, anchors, limit, values, secant=None):
     """The Hessian's entries in `pattern_entries`' order [N/m], F_T = `limit` frozen;
-    `secant`: the weight of the sliding crossings' secant friction stiffness
-    (`dynfab.terms.spatial`)."""
+    `secant` (T,): each crossing's weight of its secant friction stiffness when sliding
+    (`dynfab.terms.spatial.huber3_hessian`), None: 0."""
     _derivatives(pos, s, anchors, limit, secant, np.zeros((0, 3)), values)
+
+
+@numba.njit(cache=True)
+def crossing_slips(pos, s, anchors, out):
+    """Each crossing's slip S (`dynfab.terms.spatial.crossing_slip`) into out (T, 3) [m]: what
+    the Newton's secant weights watch (`dynfab.newton_sparse.kinked`)."""
+    six = np.empty((6, 3))
+    for c in range(s.tie_a.size):
+        _gather(pos, s.tie_stencil[c], six)
+        out[c] = element.crossing_slip(six, anchors[c], s.tie_rotation_law[c, RHO])
 
 
 def _block(nodes: np.ndarray, components: int = 3) -> tuple[np.ndarray, np.ndarray]:
@@ -297,12 +311,13 @@ def pattern_of(structure) -> Pattern:
     return entry[1]
 
 
-def sparse_hessian(structure, pos, anchors, limit, secant: float = 0.0):
+def sparse_hessian(structure, pos, anchors, limit, secant=0.0):
     """The Hessian of V plus the friction terms on the structure's unknowns [N/m] (CSC);
-    `secant`: see `hessian_values`."""
+    `secant`: one weight for every crossing or one per crossing (`hessian_values`)."""
     pattern = pattern_of(structure)
     values = np.zeros(pattern.size)
-    hessian_values(pos, structure, anchors, limit, values, float(secant))
+    hessian_values(pos, structure, anchors, limit, values,
+                   secant_weights(secant, structure.tie_a.size))
     return pattern.matrix(values)
 
 
@@ -423,7 +438,7 @@ def stiffest_rows(structure, pos, anchors) -> tuple[np.ndarray, np.ndarray]:
     pattern = pattern_of(s)
     limit = np.full(s.tie_a.size, np.inf if s.has_friction else 0.0)
     values = np.zeros(pattern.size)
-    hessian_values(pos, s, np.asarray(anchors, float), limit, values, 0.0)
+    hessian_values(pos, s, np.asarray(anchors, float), limit, values)
     tangent = np.zeros(s.tie_a.size)
     contact.tangents(pos, s, tangent)
     raise_to = np.asarray(s.tie_contact_law, float)[:, 0] - tangent  # k_s - dR/dg
