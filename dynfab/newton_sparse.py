@@ -5,8 +5,9 @@ woven fabric; or tied to ground: `dynfab.static` then takes the banded backend).
 Each load step minimises V plus the Huber friction terms over the free dofs from the
 previous state, to a residual (largest free force component) of `static.tolerance`, or to
 the rounding floor where that is higher (docs/model.md section 6). The Newton matrix is the
-exact Hessian (`dynfab.fabric.assembly`, the structure's), factored by scipy's sparse LU
-(SuperLU, in its symmetric mode where it can: `_sparse_solve`); the loop, the line search
+exact Hessian (`dynfab.fabric.assembly`, the structure's), factored by MKL PARDISO's
+L D L^T where MKL is installed, else scipy's sparse LU (SuperLU, in its symmetric mode where
+it can: `_sparse_solve`, `dynfab.fabric.ordering.symmetric_factor`); the loop, the line search
 and the friction updates are ours. The unknowns are the free dofs, a periodic cell's tied
 cell lengths counted once (`assembly.Pattern.reduce`, `expand`).
 
@@ -39,11 +40,12 @@ are return-mapped by the model (`dynfab.fabric.friction`, radially).
 
 Globalisation (docs/model.md section 6): a backtracking line search on the energy (F_T
 frozen); where the energy change is within its rounding, a step that lowers the residual is
-accepted. After a shortened step, and to retry a failed one, sliding crossings get the
-secant stiffness F_T/|s| I (a quadratic majorant of the Huber term, as on the banded
-backend), so a step cannot overshoot a crossing about to stick again; Newton's matrix
-returns to the exact Hessian through blends of the two whose secant weight falls by
-SECANT_GROWTH after each full step (`SparseNewton.newton`). A step reaching
+accepted. After a shortened step the crossings it took across their Huber kink (`kinked`),
+and to retry a failed one every crossing, get the secant stiffness F_T/|s| I when sliding (a
+quadratic majorant of the Huber term, as on the banded backend), so a step cannot overshoot
+a crossing about to stick again; each crossing's block returns to the exact Hessian's
+through blends of the two whose weight falls by SECANT_GROWTH after each full step that
+left it clear of its kink (`next_secant_weights`, `SparseNewton.newton`). A step reaching
 Kawabata's wall (k_c = inf) has energy +inf and is halved. If the Newton direction is not a
 descent direction (an indefinite Hessian), the matrix is shifted by mu I, mu growing tenfold
 from 1e-10 max|diag|, until it is.
@@ -628,7 +630,7 @@ class SparseNewton(NewtonBackend):
         info = NewtonInfo()
         max_iterations = self.max_iterations if max_iterations is None else max_iterations
         previous = np.inf
-        friction = self.structure.has_friction
+        friction = self.structure.has_friction and self.structure.tie_a.size > 0
         secant = np.zeros(self.structure.tie_a.size)  # lambda per crossing
         for iteration in range(max_iterations + 1):
             grad = self.gradient(pos, P, anchors, limit, law)

@@ -5,7 +5,8 @@ Planar kinematics (dim 2: each chain in its vertical plane) takes the planar fab
 (`dynfab.fabric.spatial`: bending in two planes, the three-component crossing friction and
 rotation spring, the lateral contacts). Both offer the same functions (TERMS, CONTACT,
 total_energy, gradient, sparse_hessian, energy_vector, rounding_scale, pattern_of,
-coupling_rows, crossing_slips), so the static solver's sparse backend and its certificate take either.
+coupling_rows, crossing_slips), so the static solver's sparse backend and its certificate
+take either.
 """
 
 from __future__ import annotations

@@ -39,14 +39,14 @@ triangular solves (docs/model.md 11.10)."""
 STICK = 3
 """Column of k_t [N/m] in `tie_friction_law`."""
 RHO, SHEAR_K, PHI_REST = range(3)
+"""Columns of `tie_rotation_law`."""
+SIGN, WIDTH, LATERAL_K, BRANCH = range(4)
+"""Columns of `lateral_law` (`dynfab.structure.Structure`)."""
 IN_PLANE = 2
 """The dofs of a node a crossing or lateral contact acts on: x and y. Their slips, rotation
 and distance are in-plane (`dynfab.terms.spatial.crossing_coordinates`,
 `lateral_distance`), so their Hessians' rows and columns on z are zero by construction and
 stay out of the pattern (docs/model.md 11.10)."""
-"""Columns of `tie_rotation_law`."""
-SIGN, WIDTH, LATERAL_K, BRANCH = range(4)
-"""Columns of `lateral_law` (`dynfab.structure.Structure`)."""
 
 
 @numba.njit(cache=True)
