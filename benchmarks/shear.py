@@ -103,7 +103,9 @@ def factorisations(solver, state, colamd: bool = True) -> dict:
     H = backend.hessian(pos, state.anchors, backend.friction_limits(pos))
     order = ordering.fabric_order(backend.structure, backend.pattern)
     out = {"unknowns": int(H.shape[0]), "nonzeros": int(H.nnz)}
-    A = (0.5 * (H + H.T)).tocsc()
+    # each factorisation of the matrix its Newton solves factor (`SparseNewton._direction`):
+    # SuperLU without the explicit zeros, PARDISO with them (they keep its analysis)
+    A = (0.5 * (H + H.T)).tocsc()  # the sum drops explicit zeros
     started = time.perf_counter()
     lu = ordering.OrderedLU(A, order)
     out["superlu_nested_dissection_s"] = time.perf_counter() - started
@@ -113,7 +115,7 @@ def factorisations(solver, state, colamd: bool = True) -> dict:
         started = time.perf_counter()
         scipy.sparse.linalg.splu(H.tocsc())
         out["superlu_colamd_s"] = time.perf_counter() - started
-    found = _pardiso_factor(A)
+    found = _pardiso_factor(H.tocsc())
     if found is not None:
         (out["pardiso_with_analysis_s"], out["pardiso_s"], out["pardiso_negatives"],
          out["pardiso_fill"]) = found
