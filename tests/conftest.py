@@ -25,7 +25,7 @@ def factoriser(request, monkeypatch):
     SuperLU alone, or PARDISO first at every size (skipped where MKL is not installed)."""
     from dynfab.fabric import pardiso
     if request.param == "pardiso" and not pardiso.available():
-        pytest.skip("MKL (PARDISO) is not installed: pip install -e '.[pardiso]'")
+        pytest.skip("MKL (PARDISO) is not installed (wheels for x86-64 Linux and Windows only)")
     if request.param == "superlu":
         monkeypatch.setattr(pardiso, "available", lambda: False)
     else:

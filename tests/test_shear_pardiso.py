@@ -31,7 +31,7 @@ from test_shear_specimens import scene_text
 
 pytestmark = pytest.mark.skipif(
     not pardiso.available(),
-    reason="MKL (PARDISO) is not installed: pip install -e '.[pardiso]'")
+    reason="MKL (PARDISO) is not installed (wheels for x86-64 Linux and Windows only)")
 RUNS = Path(__file__).resolve().parents[1] / "runs"
 
 

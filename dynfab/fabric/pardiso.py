@@ -1,5 +1,6 @@
 """MKL PARDISO's sparse symmetric indefinite factorisation P A P^T = L D L^T, where MKL is
-installed (`pip install -e '.[pardiso]'`; docs/model.md section 11.10).
+installed (a base dependency on x86-64 Linux and Windows, where MKL has wheels;
+docs/model.md section 11.10).
 
 On the shear specimens a SuperLU factorisation is most of a Newton iteration. PARDISO
 (Schenk and Gaertner, Future Gener. Comput. Syst. 20, 2004) factors the same Hessians as a
