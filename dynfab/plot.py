@@ -37,13 +37,10 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
 from dynfab.errors import UserError
+from dynfab.friction_states import FRICTION_STATES, crossing_count, friction_states
 from dynfab.plot_style import (FAMILY_ALPHA, FAMILY_STYLE, FAMILY_WIDTH, FONT_SIZE, legend,
                                new_figure, output_folder, save_png, style_axes)
 from dynfab.results import Results, read_results
-
-
-FRICTION_STATES = (("open", "#d9d9d9"), ("sticking", "#1f77b4"), ("sliding", "#d62728"))
-"""Categories of `friction_states`, in code order, with their colours."""
 
 
 def plot_results(path: str | os.PathLike, out_dir: str | os.PathLike) -> list[Path]:
@@ -249,15 +246,6 @@ def _attr(results: Results, name: str, path) -> float:
     return float(value)
 
 
-def crossing_count(results: Results) -> int:
-    """Crossings per yarn (0 for a plain rod)."""
-    nodes = results.reference.get("crossing_nodes")
-    if nodes is not None:
-        return int(np.size(nodes))
-    contact = results.steps.get("contact_force")
-    return 0 if contact is None else int(contact.shape[-1])
-
-
 def has_friction(results: Results) -> bool:
     """True if the file has crossings with a non-zero friction limit at some step."""
     limit = results.steps.get("friction_limit")
@@ -403,23 +391,6 @@ def plot_shape(results: Results, path="") -> Figure:
     labels = yarn_labels(results)
     _suptitle(fig, results, f"shape of {labels[0]} (z exaggerated)")
     return fig
-
-
-def friction_states(results: Results, yarn: int = 0) -> np.ndarray:
-    """(steps, crossings) state codes of yarn `yarn` (from 0): 0 open, 1 sticking, 2 sliding.
-
-    A crossing is open when its contact force is zero (or, without contact
-    forces in the file, its friction limit is zero).
-    """
-    count = crossing_count(results)
-    source = results.steps.get("contact_force", results.steps.get("friction_limit"))
-    force = np.asarray(source, dtype=float).reshape(results.step_count, -1, count)[:, yarn]
-    states = np.where(force > 0, 1, 0)
-    sliding = results.steps.get("sliding")
-    if sliding is not None:
-        slide = np.asarray(sliding).reshape(results.step_count, -1, count)[:, yarn].astype(bool)
-        states = np.where(slide & (force > 0), 2, states)
-    return states
 
 
 def friction_yarns(results: Results) -> list[int]:

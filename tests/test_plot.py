@@ -11,8 +11,9 @@ import pytest
 from matplotlib.image import imread
 
 from dynfab.errors import UserError
-from dynfab.plot import (friction_states, friction_yarns, plot_contact_force, plot_friction,
-                         plot_results, plot_shape, plot_traction, shape_steps, yarn_labels)
+from dynfab.friction_states import friction_states
+from dynfab.plot import (friction_yarns, plot_contact_force, plot_friction, plot_results,
+                         plot_shape, plot_traction, shape_steps, yarn_labels)
 from dynfab.results import ResultFile, read_results
 
 LENGTH, SEGMENTS, AMPLITUDE = 0.01, 32, 1e-4

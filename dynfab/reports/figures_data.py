@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dynfab.plot import friction_states
+from dynfab.friction_states import friction_states
 from dynfab.results import Results, read_results
 from dynfab.scene import Scene, expand_sweep, parse_scene_text
 
@@ -109,5 +109,5 @@ def friction_gap(results: Results) -> np.ndarray:
 
 
 def state_codes(results: Results, yarn: int) -> np.ndarray:
-    """(steps, crossings) friction state codes of one yarn (`dynfab.plot.friction_states`)."""
+    """(steps, crossings) friction state codes of one yarn (`dynfab.friction_states`)."""
     return friction_states(results, yarn)

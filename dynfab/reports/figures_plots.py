@@ -18,7 +18,7 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
-from dynfab.plot import FRICTION_STATES
+from dynfab.friction_states import FRICTION_STATES
 from dynfab.plot_style import DPI, FONT_SIZE, new_figure
 from dynfab.plot_style import style_axes as _plot_style
 from dynfab.reports.figures_data import (STRAIN_STAGE, force_per_width, friction_gap,
@@ -183,7 +183,7 @@ SNAPSHOT_HEIGHT = 0.62
 
 STATE_MARKERS = {1: dict(color="C0", mfc="C0"), 2: dict(color="C3", mfc="white"),
                  0: dict(color="0.5", mfc="0.5")}
-"""Crossing markers of `plot_shapes` by state code (`dynfab.plot.friction_states` order)."""
+"""Crossing markers of `plot_shapes` by state code (`dynfab.friction_states` order)."""
 
 
 def plot_shapes(data) -> Figure:
