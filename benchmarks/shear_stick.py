@@ -23,9 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
-from dynfab.model import build_model
+from dynfab import run
 from dynfab.scene import load_scene, with_key
-from dynfab.solvers import make_solver
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = ROOT / "runs" / "cao2008_bias_115x230.toml"
@@ -42,20 +41,15 @@ def specimen(width: float, stick_stiffness: float):
 
 
 def path(scene) -> dict:
-    """The static solver's path: clamp forces [N], shear angles [rad], iterations, wall [s]."""
-    model = build_model(scene)
-    solver = make_solver(model, "static")
-    state = model.initial_state()
-    forces, angles, iterations = [], [], 0
+    """The static solver's path (`dynfab.run`): clamp forces [N], shear angles [rad],
+    iterations, wall [s]."""
     started = time.perf_counter()
-    for index in range(len(model.load_values)):
-        state, record = solver.step(state, model.step_load(index))
-        model.check_step(record)
-        forces.append(float(record["clamp_force"]))
-        angles.append(np.array(record["shear_angle"]))
-        iterations += int(np.max(record["iterations"]))
-    return {"clamp_force_N": np.array(forces), "shear_angle_rad": np.array(angles),
-            "iterations": iterations, "wall_s": time.perf_counter() - started}
+    results = run(scene, solver="static")
+    steps = results.steps
+    return {"clamp_force_N": np.asarray(steps["clamp_force"]),
+            "shear_angle_rad": np.asarray(steps["shear_angle"]),
+            "iterations": int(np.sum(steps["iterations"])),
+            "wall_s": time.perf_counter() - started}
 
 
 def main() -> None:

@@ -8,9 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dynfab.model import build_model
+from dynfab import run
 from dynfab.scene import load_scene, with_key
-from dynfab.solvers import make_solver
 
 SCENE = Path(__file__).resolve().parents[1] / "runs" / "cao2008_bias_115x230.toml"
 STIFFNESSES = (3e4, 3e5, 3e6)
@@ -25,16 +24,9 @@ def path(stick_stiffness: float):
     scene = with_key(load_scene(SCENE), "specimen.width", 0.06)
     scene = with_key(scene, "specimen.height", 0.12)
     scene = with_key(scene, "load.values", (1e-3, 2e-3, 3e-3))
-    model = build_model(with_key(scene, "friction.stick_stiffness", stick_stiffness))
-    solver = make_solver(model, "static")
-    state = model.initial_state()
-    forces, angles = [], []
-    for index in range(len(model.load_values)):
-        state, record = solver.step(state, model.step_load(index))
-        model.check_step(record)
-        forces.append(float(record["clamp_force"]))
-        angles.append(np.array(record["shear_angle"]))
-    return np.array(forces), np.array(angles)
+    steps = run(with_key(scene, "friction.stick_stiffness", stick_stiffness),
+                solver="static").steps
+    return np.asarray(steps["clamp_force"]), np.asarray(steps["shear_angle"])
 
 
 @pytest.fixture(scope="module")

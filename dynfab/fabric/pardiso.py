@@ -7,14 +7,16 @@ On the shear specimens a SuperLU factorisation is most of a Newton iteration. PA
 symmetric matrix (one triangle, about half SuperLU's arithmetic and fill) in its own
 nested-dissection order (METIS): on the 150 x 450 mm bias specimen's Hessian at step 0's
 equilibrium (60,510 unknowns), with the explicit zeros its Newton solves keep, 0.22 s
-against SuperLU's 1.09 s in the fabric's order, 0.55 s with the analysis (the order and the symbolic factor), which the Newton solves do once per
-pattern (`python benchmarks/shear.py --sides "" --scenes runs/cao2008_bias_150x450.toml
---scene-steps 0 --factor-scenes`; docs/results.md "In-plane shear"). Its pivots are Bunch-Kaufman's 1 x 1 and 2 x 2 blocks
+against SuperLU's 1.09 s in the fabric's order, 0.55 s with the analysis (the order and the
+symbolic factor), which the Newton solves do once per pattern (`python benchmarks/shear.py
+--sides "" --scenes runs/cao2008_bias_150x450.toml --scene-steps 0 --factor-scenes`;
+docs/results.md "In-plane shear"). Its pivots are Bunch-Kaufman's 1 x 1 and 2 x 2 blocks
 within each supernode; a pivot below PIVOT_THRESHOLD of its supernode's scale is perturbed
 instead (and counted). A factor with a perturbed pivot, or with a pivot within TINY_PIVOT of
-max |A_ii| (SuperLU's guard: the matrix singular to rounding), is refused, and SuperLU factors
-that matrix instead (`dynfab.fabric.ordering.symmetric_factor`), so every count and solve
-taken from PARDISO is of the matrix asked. D's inertia is A's (Sylvester); PARDISO reports it.
+max |A_ii| (SuperLU's guard: the matrix singular to rounding), is refused, and SuperLU
+factors that matrix instead (`dynfab.fabric.ordering.symmetric_factor`), so every count and
+solve taken from PARDISO is of the matrix asked. D's inertia is A's (Sylvester); PARDISO
+reports it.
 
 MKL runs sequentially here (its threading layer set before its first call): the factors and
 so every Newton iterate are the same bits run after run (a resumed run repeats an
