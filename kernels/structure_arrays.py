@@ -391,7 +391,7 @@ def struct(scalar, dim: int = 2):
 @functools.cache
 def _struct(scalar, dim: int):
     """The `StructureData` Warp struct for one scalar type and `dim` coordinates per node
-    (spatial, dim 3: with the spatial terms' arrays, `SPATIAL_FIELDS`)."""
+    (spatial, dim 3: with the spatial terms' arrays)."""
     vec = vector(scalar, dim)
 
     class StructureData:
@@ -451,46 +451,17 @@ def _struct(scalar, dim: int):
     return wp.struct(StructureData)
 
 
-VECTOR_FIELDS = ("rest_position", "free", "weight", "load_direction", "tie_plane", "tie_weight")
-MATRIX_FIELDS = ("contact_law", "friction_law")
-SCALAR_FIELDS = ("rest_length", "stretch_stiffness", "bend_stiffness", "rest_angle", "mass",
-                 "wrap_stiffness", "wrap_rest_angle", "share", "tie_side", "tie_offset")
-INDEX_FIELDS = ("previous", "next", "load_family", "node_chain", "node_tie_start", "node_ties",
-                "chain_last", "node_wrap", "plane_nodes", "plane_offsets", "node_plane",
-                "node_tie", "tie_a", "tie_b", "chain_start", "group_chain", "group_node",
-                "group_tie", "group_block", "group_exact", "block_start", "node_group",
-                "tie_group", "chain_group", "block_group")
-
-
-SPATIAL_FIELDS = {"lateral_bend_stiffness": "scalar", "lateral_rest_angle": "scalar",
-                  "tie_stencil": "index", "rotation_law": "scalar", "lateral_stencil": "index",
-                  "lateral_law": "scalar", "group_lateral": "index"}
-"""The spatial data's fields (dim 3 only) and their kinds."""
-
-
 def upload(arrays: StructureArrays, scalar, device: str, **replaced):
-    """The StructureData of `arrays` on `device` in precision `scalar`; `replaced` fields
-    (numpy arrays) instead of the arrays' own (the reactions' unmasked `free`)."""
-    dim = arrays.dim
-    dtype, vec = numpy_dtype(scalar), vector(scalar, dim)
-    data = struct(scalar, dim)()
-
-    def value(name):
-        return np.asarray(replaced.get(name, getattr(arrays, name)))
-
-    for name in VECTOR_FIELDS:
-        setattr(data, name, wp.array(value(name).reshape(-1, dim).astype(dtype), dtype=vec,
-                                     device=device))
-    for name in MATRIX_FIELDS:
-        setattr(data, name, wp.array(value(name).astype(dtype), dtype=scalar, device=device))
-    for name in SCALAR_FIELDS:
-        setattr(data, name, wp.array(value(name).astype(dtype), dtype=scalar, device=device))
-    for name in INDEX_FIELDS:
-        setattr(data, name, wp.array(value(name).astype(np.int32), dtype=wp.int32, device=device))
-    if dim == 3:
-        for name, kind in SPATIAL_FIELDS.items():
-            values = value(name)
-            setattr(data, name, wp.array(values.astype(np.int32 if kind == "index" else dtype),
-                                         dtype=wp.int32 if kind == "index" else scalar,
-                                         device=device))
+    """The StructureData of `arrays` on `device` in precision `scalar`, each field converted to
+    the element type the struct declares for it; `replaced` fields (numpy arrays) instead of
+    the arrays' own (the reactions' unmasked `free`)."""
+    Data = struct(scalar, arrays.dim)
+    data = Data()
+    for name, field in Data.vars.items():
+        values = np.asarray(replaced.get(name, getattr(arrays, name)))
+        dtype = field.type.dtype  # a node vector, the scalar or wp.int32
+        if wp.types.type_is_vector(dtype):
+            values = values.reshape(-1, arrays.dim)
+        values = values.astype(np.int32 if dtype is wp.int32 else numpy_dtype(scalar))
+        setattr(data, name, wp.array(values, dtype=dtype, device=device))
     return data

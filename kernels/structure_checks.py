@@ -30,8 +30,8 @@ from types import SimpleNamespace
 import warp as wp
 
 from dynfab.banded import BANDWIDTH
-from dynfab.kernels import status, structure_arrays, structure_settings, structure_state
-from dynfab.kernels import band_lu, structure_forces, structure_tangent
+from dynfab.kernels import band_lu, status, structure_forces, structure_settings
+from dynfab.kernels import structure_tangent, structure_variants
 from dynfab.kernels.precision import KINEMATICS, epsilon, vector
 
 ROUNDING_FLOOR_FACTOR = 16.0
@@ -57,9 +57,7 @@ def functions(scalar, friction: bool, boundary: bool, merit: bool = False,
     spatial = dim == 3
     vec = vector(scalar, dim)
     vec4 = wp.types.vector(4, scalar)
-    Data = structure_arrays.struct(scalar, dim)
-    State = structure_state.struct(scalar, dim)
-    Settings = structure_settings.struct(scalar)
+    Data, State, Settings = structure_variants.structs(scalar, dim)
     forces = structure_forces.functions(scalar, friction, boundary, kinematics)
     tangent = structure_tangent.functions(scalar, friction, boundary)
     band_ops = band_lu.functions(scalar)
@@ -443,9 +441,7 @@ def group_functions(scalar, friction: bool, boundary: bool, order: str,
     dim = KINEMATICS[kinematics]
     if dim == 3 and order != "scatter":
         raise ValueError("the spatial kernels evaluate forces in the scatter order only")
-    Data = structure_arrays.struct(scalar, dim)
-    State = structure_state.struct(scalar, dim)
-    Settings = structure_settings.struct(scalar)
+    Data, State, Settings = structure_variants.structs(scalar, dim)
     checks = functions(scalar, friction, boundary, merit, kinematics)
     forces = structure_forces.functions(scalar, friction, boundary, kinematics)
     scatter = order == "scatter"
@@ -489,3 +485,23 @@ def group_functions(scalar, friction: bool, boundary: bool, order: str,
 
     return SimpleNamespace(blocks=blocks, evaluate=evaluate, evaluate_set=evaluate_set,
                            start=start)
+
+
+def grouped_relax(scalar, start, step, dim: int = 2):
+    """The grouped layout's kernel around a group's `start` and time `step` (`wp.func`s of (g,
+    data, state, settings)): thread g runs group first + g, the start (`begin` != 0) or up to
+    settings.chunk time steps while the group runs."""
+    Data, State, Settings = structure_variants.structs(scalar, dim)
+
+    @wp.kernel(module="unique", module_options=structure_settings.MODULE_OPTIONS)
+    def relax(data: Data, state: State, settings: Settings, first: int, begin: int):
+        g = first + wp.tid()
+        if begin != 0:
+            start(g, data, state, settings)
+            return
+        for _ in range(settings.chunk):
+            if state.status[g] != int(status.RUNNING):
+                break
+            step(g, data, state, settings)
+
+    return relax

@@ -44,8 +44,7 @@ from types import SimpleNamespace
 
 import warp as wp
 
-from dynfab.kernels import status, structure_arrays, structure_checks, structure_forces
-from dynfab.kernels import structure_settings, structure_state
+from dynfab.kernels import status, structure_checks, structure_forces, structure_settings
 from dynfab.kernels import structure_variants
 from dynfab.kernels.precision import KINEMATICS, vector
 from dynfab.kernels.structure_settings import FIRE, KINETIC, VISCOUS
@@ -107,9 +106,7 @@ def functions(scalar, friction: bool, boundary: bool,
     dim = KINEMATICS[kinematics]
     vec = vector(scalar, dim)
     vec4 = wp.types.vector(4, scalar)
-    Data = structure_arrays.struct(scalar, dim)
-    State = structure_state.struct(scalar, dim)
-    Settings = structure_settings.struct(scalar)
+    Data, State, Settings = structure_variants.structs(scalar, dim)
     forces = structure_forces.functions(scalar, friction, boundary, kinematics)
     checks = structure_checks.functions(scalar, friction, boundary, kinematics=kinematics)
 
@@ -357,14 +354,10 @@ def functions(scalar, friction: bool, boundary: bool,
                            viscous_factors=viscous_factors, step_factors=step_factors)
 
 
-@structure_variants.variant("explicit", "node_parallel")
+@structure_variants.variant("explicit", "node_parallel", planar_only=True)
 def stage_kernel(scalar, friction: bool, boundary: bool, kinematics: str = "planar"):
     """The node-parallel layout's kernel: one launch per stage, a thread per unit."""
-    if kinematics != "planar":
-        raise ValueError(f"the {kinematics} kinematics has the explicit grouped kernel only")
-    Data = structure_arrays.struct(scalar)
-    State = structure_state.struct(scalar)
-    Settings = structure_settings.struct(scalar)
+    Data, State, Settings = structure_variants.structs(scalar)
     ops = functions(scalar, friction, boundary)
 
     @wp.kernel(module="unique", module_options=structure_settings.MODULE_OPTIONS)
@@ -381,9 +374,7 @@ def grouped_kernel(scalar, friction: bool, boundary: bool, order: str,
     or up to settings.chunk time steps; `kinematics` "spatial": vec3 nodes and the spatial
     terms (`structure_forces`), the scatter order only."""
     dim = KINEMATICS[kinematics]
-    Data = structure_arrays.struct(scalar, dim)
-    State = structure_state.struct(scalar, dim)
-    Settings = structure_settings.struct(scalar)
+    Data, State, Settings = structure_variants.structs(scalar, dim)
     ops = functions(scalar, friction, boundary, kinematics)
 
     group = structure_checks.group_functions(scalar, friction, boundary, order,
@@ -427,15 +418,4 @@ def grouped_kernel(scalar, friction: bool, boundary: bool, order: str,
                 group.evaluate_set(g, data, state, settings)
             ops.check_step(g, data, state, settings)
 
-    @wp.kernel(module="unique", module_options=structure_settings.MODULE_OPTIONS)
-    def relax(data: Data, state: State, settings: Settings, first: int, begin: int):
-        g = first + wp.tid()
-        if begin != 0:
-            start(g, data, state, settings)
-            return
-        for _ in range(settings.chunk):
-            if not ops.running(state, g):
-                break
-            step(g, data, state, settings)
-
-    return relax
+    return structure_checks.grouped_relax(scalar, start, step, dim)

@@ -248,14 +248,20 @@ class StructureRelaxation:
                       if extra else [self.data, self.state, settings, stage])
 
     def _count(self, kind) -> int:
+        """The threads of a stage over `kind`: a node, tie, block, chain, group (every method's
+        kinds) or dof (`structure_semi_implicit.DOF`) each."""
         a = self.arrays
-        return {0: a.nodes, 1: a.ties, 2: a.blocks, 3: a.chains, 4: a.groups}[kind]
+        return {0: a.nodes, 1: a.ties, 2: a.blocks, 3: a.chains, 4: a.groups, 5: 2 * a.nodes}[kind]
 
     # ------------------------------------------------------------------ inputs
 
-    def _vectors(self, values, shape=None):
+    def _vectors(self, values):
         values = np.asarray(values, float).reshape(-1, self.dim)
         return wp.array(values.astype(self.dtype), dtype=self.vec, device=self.device)
+
+    def _scalars(self, values):
+        values = np.asarray(values, float)
+        return wp.array(values.astype(self.dtype), dtype=self.scalar, device=self.device)
 
     def _set(self, dest, values) -> None:
         """dest (a vector array of the state) = values (n, dim), in this relaxation's scalar: on
@@ -319,7 +325,7 @@ class StructureRelaxation:
         base.update(values)
         return structure_settings.fill(self.scalar, **base)
 
-    def _load_state(self, positions, loads, anchors, velocities=None) -> None:
+    def _load_state(self, positions, loads, anchors) -> None:
         s = self.state
         anchors = self.as_woven_anchors() if anchors is None else anchors
         self._set(s.position, positions)
@@ -330,14 +336,9 @@ class StructureRelaxation:
             rows, diagonal = stiffest_rows(self.structure,
                                            np.asarray(positions, float).reshape(-1, 3),
                                            np.asarray(anchors, float).reshape(-1, 3))
-            s.rows.assign(wp.array(rows.astype(self.dtype), dtype=self.scalar,
-                                   device=self.device))
-            s.diagonal.assign(wp.array(diagonal.astype(self.dtype), dtype=self.scalar,
-                                       device=self.device))
-        if velocities is None:
-            s.velocity.zero_()
-        else:
-            self._set(s.velocity, velocities)
+            s.rows.assign(self._scalars(rows))
+            s.diagonal.assign(self._scalars(diagonal))
+        s.velocity.zero_()
         s.previous_force.zero_()
         s.status.fill_(status.RUNNING)
 
@@ -416,13 +417,11 @@ class StructureRelaxation:
 
     def _semi_steps(self, settings, size: int) -> None:
         kernel = self._kernels()
-        a = self.arrays
-        counts = {semi.NODE: a.nodes, semi.TIE: a.ties, semi.BLOCK: a.blocks,
-                  semi.CHAIN: a.chains, semi.GROUP: a.groups, semi.DOF: 2 * a.nodes}
+        counts = {stage: self._count(kind) for stage, kind in semi.KINDS.items()}
 
         def run(*stages):
             for stage in stages:
-                self._stage(kernel, stage, counts[semi.KINDS[stage]], settings)
+                self._stage(kernel, stage, counts[stage], settings)
 
         def running():
             return self.state.status.numpy() == status.RUNNING
@@ -565,7 +564,7 @@ class StructureRelaxation:
         a = self.arrays
         kernel_key = (self.scalar, self.friction, self.boundary)
         path = np.asarray(path, float).reshape(a.families, -1)
-        path_wp = wp.array(path.astype(self.dtype), dtype=self.scalar, device=self.device)
+        path_wp = self._scalars(path)
         self._load_state(positions, None, anchors)
         self.state.dissipated.zero_()
         coefficient = self.coefficient or 0.0
@@ -630,5 +629,4 @@ class StructureRelaxation:
                             ("force", "force"), ("anchors", "anchors")):
             getattr(s, field).assign(self._vectors(frame[name]))
         if "dissipated" in frame:
-            s.dissipated.assign(wp.array(np.asarray(frame["dissipated"]).astype(self.dtype),
-                                         dtype=self.scalar, device=self.device))
+            s.dissipated.assign(self._scalars(frame["dissipated"]))

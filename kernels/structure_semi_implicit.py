@@ -50,9 +50,8 @@ from types import SimpleNamespace
 import warp as wp
 
 from dynfab.banded import BANDWIDTH
-from dynfab.kernels import band_lu, status, structure_arrays, structure_checks, structure_forces
-from dynfab.kernels import structure_settings, structure_state, structure_tangent
-from dynfab.kernels import structure_variants
+from dynfab.kernels import band_lu, status, structure_checks, structure_forces
+from dynfab.kernels import structure_settings, structure_tangent, structure_variants
 from dynfab.kernels.precision import VECTORS
 
 CG_TOLERANCE = 1e-2
@@ -90,9 +89,7 @@ KINDS = {TIE_BLOCKS: TIE, BUILD: CHAIN, FACTORED: GROUP, VELOCITY: DOF, BOUNDARY
 def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
     """The stage `wp.func`s of one variant (module docstring)."""
     vec = VECTORS[scalar]
-    Data = structure_arrays.struct(scalar)
-    State = structure_state.struct(scalar)
-    Settings = structure_settings.struct(scalar)
+    Data, State, Settings = structure_variants.structs(scalar)
     forces = structure_forces.functions(scalar, friction, boundary)
     tangent = structure_tangent.functions(scalar, friction, boundary)
     checks = structure_checks.functions(scalar, friction, boundary, True)
@@ -101,6 +98,17 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
     @wp.func(inline=True)
     def running(state: State, g: int) -> bool:
         return state.status[g] == int(status.RUNNING)
+
+    @wp.func(inline=True)
+    def searching(state: State, g: int) -> bool:
+        """The group runs and its line search has not decided (no decision yet, or TRIAL)."""
+        return running(state, g) and state.decision[g] != scalar(ACCEPT) \
+            and state.decision[g] != scalar(UNDO)
+
+    @wp.func(inline=True)
+    def undone(state: State, g: int) -> bool:
+        """The group runs and its step is undone."""
+        return running(state, g) and state.decision[g] == scalar(UNDO)
 
     @wp.func(inline=True)
     def free_dof(data: Data, row: int) -> scalar:
@@ -570,23 +578,16 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
             if running(state, data.node_group[u]):
                 move_node(u, data, state)
         elif stage == TIES:
-            g = data.tie_group[u]
-            if running(state, g) and state.decision[g] != scalar(ACCEPT) \
-                    and state.decision[g] != scalar(UNDO):
+            if searching(state, data.tie_group[u]):
                 forces.tie_pass(u, state.position, data, state)
         elif stage == GATHER:
-            g = data.node_group[u]
-            if running(state, g) and state.decision[g] != scalar(ACCEPT) \
-                    and state.decision[g] != scalar(UNDO):
+            if searching(state, data.node_group[u]):
                 checks.gather_node(u, data, state, settings)
         elif stage == BLOCKS:
-            g = data.block_group[u]
-            if running(state, g) and state.decision[g] != scalar(ACCEPT) \
-                    and state.decision[g] != scalar(UNDO):
+            if searching(state, data.block_group[u]):
                 checks.block_stage(u, data, state)
         elif stage == SEARCH:
-            if running(state, u) and state.decision[u] != scalar(ACCEPT) \
-                    and state.decision[u] != scalar(UNDO):
+            if searching(state, u):
                 search(u, data, state, settings)
         elif stage == TRIAL_MOVE:
             if running(state, data.node_group[u]):
@@ -595,16 +596,13 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
             if running(state, data.node_group[u]):
                 finish_node(u, data, state)
         elif stage == RE_TIES:
-            g = data.tie_group[u]
-            if running(state, g) and state.decision[g] == scalar(UNDO):
+            if undone(state, data.tie_group[u]):
                 forces.tie_pass(u, state.position, data, state)
         elif stage == RE_GATHER:
-            g = data.node_group[u]
-            if running(state, g) and state.decision[g] == scalar(UNDO):
+            if undone(state, data.node_group[u]):
                 checks.gather_node(u, data, state, settings)
         elif stage == RE_BLOCKS:
-            g = data.block_group[u]
-            if running(state, g) and state.decision[g] == scalar(UNDO):
+            if undone(state, data.block_group[u]):
                 checks.block_stage(u, data, state)
         elif stage == FINISH_GROUP:
             if running(state, u):
@@ -628,15 +626,11 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
                            direct_done=direct_done)
 
 
-@structure_variants.variant("semi_implicit", "node_parallel")
+@structure_variants.variant("semi_implicit", "node_parallel", planar_only=True)
 def stage_kernel(scalar, friction: bool, boundary: bool, kinematics: str = "planar"):
     """The node-parallel layout's kernel: one launch per stage, a thread per unit; the start's
     stages are `structure_explicit`'s (`START_STAGES`), with the merit."""
-    if kinematics != "planar":
-        raise ValueError(f"the {kinematics} kinematics has the explicit grouped kernel only")
-    Data = structure_arrays.struct(scalar)
-    State = structure_state.struct(scalar)
-    Settings = structure_settings.struct(scalar)
+    Data, State, Settings = structure_variants.structs(scalar)
     ops = functions(scalar, friction, boundary)
     checks = structure_checks.functions(scalar, friction, boundary, True)
     forces = structure_forces.functions(scalar, friction, boundary)
@@ -666,17 +660,13 @@ def stage_kernel(scalar, friction: bool, boundary: bool, kinematics: str = "plan
     return stage_pass
 
 
-@structure_variants.variant("semi_implicit", "grouped")
+@structure_variants.variant("semi_implicit", "grouped", planar_only=True)
 def grouped_kernel(scalar, friction: bool, boundary: bool, order: str,
                    kinematics: str = "planar"):
     """The grouped layout's kernel: thread g runs group first + g, the start (`begin` != 0) or
     up to settings.chunk time steps. `order` "gather" evaluates the forces as the node-parallel
     layout does (the same bits); "scatter" in scatter order."""
-    if kinematics != "planar":
-        raise ValueError(f"the {kinematics} kinematics has the explicit grouped kernel only")
-    Data = structure_arrays.struct(scalar)
-    State = structure_state.struct(scalar)
-    Settings = structure_settings.struct(scalar)
+    Data, State, Settings = structure_variants.structs(scalar)
     ops = functions(scalar, friction, boundary)
 
     group = structure_checks.group_functions(scalar, friction, boundary, order, True)
@@ -751,15 +741,4 @@ def grouped_kernel(scalar, friction: bool, boundary: bool, order: str,
             ops.finish_group(g, data, state)
             ops.check_step(g, data, state, settings)
 
-    @wp.kernel(module="unique", module_options=structure_settings.MODULE_OPTIONS)
-    def relax(data: Data, state: State, settings: Settings, first: int, begin: int):
-        g = first + wp.tid()
-        if begin != 0:
-            start(g, data, state, settings)
-            return
-        for _ in range(settings.chunk):
-            if not ops.running(state, g):
-                break
-            step(g, data, state, settings)
-
-    return relax
+    return structure_checks.grouped_relax(scalar, start, step)

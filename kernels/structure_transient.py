@@ -23,9 +23,8 @@ from types import SimpleNamespace
 
 import warp as wp
 
-from dynfab.kernels import status, structure_arrays, structure_checks, structure_explicit
-from dynfab.kernels import structure_forces, structure_settings, structure_state
-from dynfab.kernels import structure_variants
+from dynfab.kernels import status, structure_checks, structure_explicit, structure_forces
+from dynfab.kernels import structure_settings, structure_variants
 from dynfab.kernels.precision import VECTORS
 
 T_MOVE, T_TIES, T_GATHER, T_BLOCKS, T_RETURN, T_CHECK = range(200, 206)
@@ -41,9 +40,7 @@ STEP_STAGES = (T_MOVE, T_TIES, T_GATHER, T_BLOCKS, T_RETURN, T_CHECK)
 def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
     """The transient stage `wp.func`s of one variant."""
     vec = VECTORS[scalar]
-    Data = structure_arrays.struct(scalar)
-    State = structure_state.struct(scalar)
-    Settings = structure_settings.struct(scalar)
+    Data, State, Settings = structure_variants.structs(scalar)
     forces = structure_forces.functions(scalar, friction, boundary)
     checks = structure_checks.functions(scalar, friction, boundary)
     explicit = structure_explicit.functions(scalar, friction, boundary)
@@ -131,15 +128,11 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
                            check=check, unit_stage=unit_stage)
 
 
-@structure_variants.variant("transient", "node_parallel")
+@structure_variants.variant("transient", "node_parallel", planar_only=True)
 def stage_kernel(scalar, friction: bool, boundary: bool, kinematics: str = "planar"):
     """The node-parallel layout's transient kernel (a launch per stage; `k` the step within
     the launch's run of steps from settings.time)."""
-    if kinematics != "planar":
-        raise ValueError(f"the {kinematics} kinematics has the explicit grouped kernel only")
-    Data = structure_arrays.struct(scalar)
-    State = structure_state.struct(scalar)
-    Settings = structure_settings.struct(scalar)
+    Data, State, Settings = structure_variants.structs(scalar)
     ops = functions(scalar, friction, boundary)
     start_ops = structure_explicit.functions(scalar, friction, boundary)
 
@@ -154,17 +147,13 @@ def stage_kernel(scalar, friction: bool, boundary: bool, kinematics: str = "plan
     return stage_pass
 
 
-@structure_variants.variant("transient", "grouped")
+@structure_variants.variant("transient", "grouped", planar_only=True)
 def grouped_kernel(scalar, friction: bool, boundary: bool, order: str,
                    kinematics: str = "planar"):
     """The grouped layout's transient kernel: thread g starts group first + g (`begin` != 0:
     the masses, dt and forces) or advances it by settings.chunk steps of settings.fixed_dt
     from settings.time."""
-    if kinematics != "planar":
-        raise ValueError(f"the {kinematics} kinematics has the explicit grouped kernel only")
-    Data = structure_arrays.struct(scalar)
-    State = structure_state.struct(scalar)
-    Settings = structure_settings.struct(scalar)
+    Data, State, Settings = structure_variants.structs(scalar)
     ops = functions(scalar, friction, boundary)
     group = structure_checks.group_functions(scalar, friction, boundary, order)
 

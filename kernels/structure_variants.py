@@ -15,6 +15,8 @@ from dataclasses import dataclass
 
 import warp as wp
 
+from dynfab.kernels import structure_arrays, structure_settings, structure_state
+
 
 @dataclass(frozen=True)
 class Variant:
@@ -49,15 +51,19 @@ def describe(kind: str, layout: str, scalar, friction: bool, boundary: bool,
                    kinematics)
 
 
-def variant(kind: str, layout: str):
+def variant(kind: str, layout: str, planar_only: bool = False):
     """Decorator of a kernel factory f(scalar, friction, boundary[, order], kinematics=...):
     cached (functools.cache; `kinematics` always passed by keyword, so a default and an
-    explicit "planar" are one key), each new key recorded as a `Variant`."""
+    explicit "planar" are one key), each new key recorded as a `Variant`; with `planar_only`
+    any other kinematics is a ValueError (only the explicit grouped kernel takes it)."""
     def wrap(factory):
         cached = functools.cache(factory)
 
         @functools.wraps(factory)
         def build(*key, kinematics: str = "planar"):
+            if planar_only and kinematics != "planar":
+                raise ValueError(f"the {kinematics} kinematics has the explicit grouped kernel "
+                                 "only")
             misses = cached.cache_info().misses
             kernel = cached(*key, kinematics=kinematics)
             if cached.cache_info().misses > misses:
@@ -73,3 +79,10 @@ def variant(kind: str, layout: str):
 def built_variants() -> list[Variant]:
     """Every kernel variant built in this process, in the order they were built."""
     return list(_BUILT)
+
+
+def structs(scalar, dim: int = 2) -> tuple:
+    """The struct types a structure kernel takes, (`StructureData`, `StructureState`,
+    `StructureSettings`), for `scalar` and `dim` coordinates per node."""
+    return (structure_arrays.struct(scalar, dim), structure_state.struct(scalar, dim),
+            structure_settings.struct(scalar))
