@@ -139,14 +139,21 @@ def contact_state(pos, yarn, contact_force, friction_limit, contact_tangent, bra
                                                yarn.friction_onset)
 
 
+@numba.njit(cache=True)
+def contact_state_of(pos, yarn, branch=None):
+    """`contact_state` into new arrays: (R_j [N], F_T,j [N], dR/dg [N/m]), (C,) each."""
+    c = yarn.crossing_node.size
+    contact_force, friction_limit, contact_tangent = np.zeros(c), np.zeros(c), np.zeros(c)
+    contact_state(pos, yarn, contact_force, friction_limit, contact_tangent, branch)
+    return contact_force, friction_limit, contact_tangent
+
+
 def tangent(pos, yarn, anchors, coupled: bool) -> np.ndarray:
     """The banded tangent [N/m] of one yarn at `pos` (`hessian`, `dynfab.banded` layout): F_T
     and dR/dg from the contact state there, the friction anchors of the step's start; with
     `coupled` the coupled friction Jacobian."""
     pos = np.ascontiguousarray(pos, dtype=np.float64)
-    c = yarn.crossing_node.size
-    contact_force, friction_limit, contact_tangent = np.zeros(c), np.zeros(c), np.zeros(c)
-    contact_state(pos, yarn, contact_force, friction_limit, contact_tangent)
+    _, friction_limit, contact_tangent = contact_state_of(pos, yarn)
     band = banded.zeros_band(pos.size)
     hessian(pos, yarn, np.ascontiguousarray(anchors, dtype=np.float64), friction_limit,
             contact_tangent, coupled, band)

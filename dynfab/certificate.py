@@ -111,11 +111,9 @@ def certificate_matrix(pos, yarn, anchors, fixed, residual, band):
 
     Returns F_T per crossing [N], the frozen friction limits it used.
     """
-    c = yarn.crossing_node.size
-    force, limit, tangent = np.zeros(c), np.zeros(c), np.zeros(c)
-    assembly.contact_state(pos, yarn, force, limit, tangent)
+    force, limit, tangent = assembly.contact_state_of(pos, yarn)
     assembly.hessian(pos, yarn, anchors, limit, tangent, False, band, False)
-    for j in range(c):
+    for j in range(force.size):
         dof = 2 * yarn.crossing_node[j]
         if tangent[j] > 0.0 and force[j] <= residual:  # at g = 0: open
             band_add(band, dof + 1, dof + 1, -tangent[j])
@@ -175,6 +173,17 @@ def _ritz_vectors(alpha, beta, used):
 
 
 @numba.njit(cache=True)
+def _no_eigenvalue_below(work, matrix, free, lower):
+    """Whether `matrix` - lower I has no negative pivot, which proves lambda_min >= lower
+    (Sylvester); its LDL^T overwrites `work`."""
+    work[:, :] = matrix
+    for i in range(free.size):
+        if not free[i]:  # identity rows of fixed dofs: keep them out of the count
+            work[i, BANDWIDTH] = lower + 1.0
+    return ldlt_factor(work, -lower, 0.0) == 0
+
+
+@numba.njit(cache=True)
 def _lowest_eigenvalue(band, matrix, free, shift):
     """(estimate, error) of lambda_min of a positive definite `matrix` (module docstring).
 
@@ -187,11 +196,7 @@ def _lowest_eigenvalue(band, matrix, free, shift):
     Overwrites `band` (the factor) with the proof's factorisation.
     """
     n = free.size
-    count = 0
-    for i in range(n):
-        if free[i]:
-            count += 1
-    steps = min(LANCZOS_STEPS, count, max(6, LANCZOS_MEMORY // n))
+    steps = min(LANCZOS_STEPS, np.count_nonzero(free), max(6, LANCZOS_MEMORY // n))
     basis = np.zeros((steps, n))
     alpha, beta = np.zeros(steps), np.zeros(steps)
     q = np.zeros(n)
@@ -236,11 +241,7 @@ def _lowest_eigenvalue(band, matrix, free, shift):
     for lower in (tight, value - residual):
         if lower == -np.inf:
             continue
-        band[:, :] = matrix  # the factor is no longer needed
-        for i in range(n):
-            if not free[i]:  # identity rows of fixed dofs: keep them out of the count
-                band[i, BANDWIDTH] = lower + 1.0
-        if ldlt_factor(band, -lower, 0.0) == 0:
+        if _no_eigenvalue_below(band, matrix, free, lower):  # the factor is no longer needed
             return value, value - lower
     return value, value + shift
 
@@ -255,9 +256,8 @@ def _bisect_lowest(check, matrix, free, upper):
     is 1e-6 of |upper| wide (about 40 factorisations, only on a state reported unstable).
     `check` is work space of the matrix's shape.
     """
-    n = free.size
     lower = 0.0
-    for i in range(n):
+    for i in range(free.size):
         if free[i]:
             row = matrix[i, BANDWIDTH]
             for m in range(2 * BANDWIDTH + 1):
@@ -268,11 +268,7 @@ def _bisect_lowest(check, matrix, free, upper):
         if upper - lower <= 1e-6 * abs(upper):
             break
         middle = 0.5 * (lower + upper)
-        check[:, :] = matrix
-        for i in range(n):
-            if not free[i]:  # identity rows of fixed dofs: keep them out of the count
-                check[i, BANDWIDTH] = middle + 1.0
-        if ldlt_factor(check, -middle, 0.0) == 0:
+        if _no_eigenvalue_below(check, matrix, free, middle):
             lower = middle
         else:
             upper = middle
@@ -323,9 +319,7 @@ def _energy(pos, yarn, P, anchors, limit, terms):
 def escape(pos, yarn, P, anchors, directions, count, out):
     """out = the trial of lowest V + H (F_T frozen) along the first `count` escape vectors
     (module docstring); returns the energy drop [J] (0 when none lowers V + H beyond rounding)."""
-    c = yarn.crossing_node.size
-    force, limit, tangent = np.zeros(c), np.zeros(c), np.zeros(c)
-    assembly.contact_state(pos, yarn, force, limit, tangent)
+    _, limit, _ = assembly.contact_state_of(pos, yarn)
     terms = assembly.energy_vector()
     e0 = _energy(pos, yarn, P, anchors, limit, terms)
     rounding = 64.0 * EPS * (np.abs(terms).sum() + abs(P) * abs(pos[-1, 0]))

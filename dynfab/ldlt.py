@@ -99,11 +99,7 @@ def inverse_norm_1(band, free):
     factor of 3 and usually exact. Fixed dofs (`free` False; identity rows
     after `dynfab.banded.constrain`) are left out.
     """
-    n = free.size
-    count = 0
-    for i in range(n):
-        if free[i]:
-            count += 1
+    n, count = free.size, np.count_nonzero(free)
     if count == 0:
         return 0.0
     x, y = np.zeros(n), np.zeros(n)

@@ -146,9 +146,7 @@ def _residual_line_search(pos, direction, yarn, P, anchors, fixed, trial, grad, 
     Accepts |f(t)| <= (1 - 1e-4 t) |f(0)|: the coupled Newton direction is a descent
     direction of |f|^2 where the Jacobian is exact.
     """
-    c = yarn.crossing_node.size
-    force, limit, tangent = np.zeros(c), np.zeros(c), np.zeros(c)
-    assembly.contact_state(pos, yarn, force, limit, tangent, branch)
+    force, limit, tangent = assembly.contact_state_of(pos, yarn, branch)
     assembly.gradient(pos, yarn, P, anchors, limit, grad, branch)
     norm0 = _free_norm(grad, fixed)
     d = direction.reshape(pos.shape)
@@ -235,10 +233,8 @@ def _closures(pos, yarn):
 @numba.njit(cache=True)
 def _natural_residual(pos, yarn, P, anchors, fixed):
     """The residual [N] of the unilateral law (no set) at `pos`, F_T from the law."""
-    c = yarn.crossing_node.size
-    force, limit, tangent = np.zeros(c), np.zeros(c), np.zeros(c)
+    _, limit, _ = assembly.contact_state_of(pos, yarn)
     grad = np.zeros_like(pos)
-    assembly.contact_state(pos, yarn, force, limit, tangent)
     assembly.gradient(pos, yarn, P, anchors, limit, grad)
     return max_free(grad, fixed)
 
@@ -247,9 +243,7 @@ def _natural_residual(pos, yarn, P, anchors, fixed):
 def _set_state(pos, yarn, P, anchors, fixed, branch, grad, band):
     """Residual [N] (grad filled) and, in band, the coupled Jacobian with fixed dofs
     constrained, of the fixed-set problem; returns (residual, rounding floor [N])."""
-    c = yarn.crossing_node.size
-    force, limit, tangent = np.zeros(c), np.zeros(c), np.zeros(c)
-    assembly.contact_state(pos, yarn, force, limit, tangent, branch)
+    _, limit, tangent = assembly.contact_state_of(pos, yarn, branch)
     assembly.gradient(pos, yarn, P, anchors, limit, grad, branch)
     assembly.hessian(pos, yarn, anchors, limit, tangent, True, band, False, branch)
     floor = 4.0 * EPS * np.abs(band[:, BANDWIDTH]).max() * np.abs(pos).max()
@@ -548,8 +542,8 @@ def _solve_semismooth(pos, yarn, P, fixed, anchors, tolerance, max_iterations, i
     `_semismooth` again, at most ONSET_ROOTS times. Returns True when converged (info set)."""
     R = _contact_forces(pos, yarn)
     start, start_R = pos.copy(), R.copy()
-    iterations, converged = _semismooth(pos, yarn, P, fixed, anchors, R, tolerance,
-                                        min(max_iterations, SEMISMOOTH_ITERATIONS))
+    allowed = min(max_iterations, SEMISMOOTH_ITERATIONS)
+    iterations, converged = _semismooth(pos, yarn, P, fixed, anchors, R, tolerance, allowed)
     if not converged:
         # the crossings whose complementarity the stalled state violates, worst first, each
         # bracketed from the step's start (the stalled state can sit on a spurious branch)
@@ -561,8 +555,7 @@ def _solve_semismooth(pos, yarn, P, fixed, anchors, tolerance, max_iterations, i
             iterations += more
             if not found:
                 continue
-            more, converged = _semismooth(pos, yarn, P, fixed, anchors, R, tolerance,
-                                          min(max_iterations, SEMISMOOTH_ITERATIONS))
+            more, converged = _semismooth(pos, yarn, P, fixed, anchors, R, tolerance, allowed)
             iterations += more
             if converged:
                 break
@@ -721,12 +714,10 @@ class BandedNewton(NewtonBackend):
         """(j, force [N]): the crossing whose node carries the largest free component of the
         unilateral law's residual; (-1, 0) without crossings."""
         p = problem
-        c = p.yarn.crossing_node.size
-        if c == 0:
+        if p.yarn.crossing_node.size == 0:
             return -1, 0.0
-        force, limit, tangent = np.zeros(c), np.zeros(c), np.zeros(c)
+        _, limit, _ = assembly.contact_state_of(p.positions, p.yarn)
         grad = np.zeros_like(p.positions)
-        assembly.contact_state(p.positions, p.yarn, force, limit, tangent)
         assembly.gradient(p.positions, p.yarn, p.P, p.anchors, limit, grad)
         per_node = np.where(p.fixed.reshape(-1, 2), 0.0, np.abs(grad)).max(axis=1)
         j = int(np.argmax(per_node[p.yarn.crossing_node]))
