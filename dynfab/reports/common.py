@@ -11,6 +11,8 @@ import json
 import math
 import os
 import platform
+import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Callable, Iterable, Sequence
 
@@ -18,7 +20,7 @@ import numpy as np
 
 from dynfab.errors import UserError
 from dynfab.plot_style import output_folder  # noqa: F401 (the reports' --out check)
-from dynfab.scene import Scene, expand_sweep, load_scene, with_key
+from dynfab.scene import Load, Scene, expand_sweep, load_scene, validate_scene, with_key
 
 RUNS = Path(__file__).resolve().parents[2] / "runs"
 """The paper scene files of the source tree (the README's editable install keeps it)."""
@@ -28,6 +30,27 @@ def machine() -> dict:
     """What the report ran on: `uname -m`, `nproc`, the Python version."""
     return {"machine": platform.machine(), "cpus": os.cpu_count(),
             "python": platform.python_version(), "platform": platform.platform()}
+
+
+def report_header(report: str, plan: str, quick: bool) -> dict:
+    """The first entries of a report's summary: the report, its plan, quick or not, the machine."""
+    return {"report": report, "plan": plan, "quick": quick, "machine": machine()}
+
+
+def write_summary(out: Path, summary: dict, files: Iterable[Path], started: float) -> dict:
+    """Finish `summary`: the wall time since `started` (time.perf_counter) and the files
+    written, ``summary.json`` last; write it as ``summary.json`` and return it."""
+    summary["wall_time_s"] = time.perf_counter() - started
+    summary["files"] = [str(path) for path in files] + [str(out / "summary.json")]
+    write_json(out / "summary.json", summary)
+    return summary
+
+
+def kernel_name(solver) -> str:
+    """A dynamic solver's kernel variant as one string
+    (`dynfab.kernels.structure_variants.Variant.name`: method/layout/order/precision/couplings;
+    the damping and the load control are data, not variants)."""
+    return solver.relaxation.variant.name
 
 
 def plain(value):
@@ -90,6 +113,23 @@ def paper_yarns(reader: str) -> tuple[Scene, Scene]:
     frictionless = next(s for s in expand_sweep(fig3) if s.warp.kawabata_K == 0.2)
     friction = next(s for s in expand_sweep(fig5) if s.friction and s.friction.alpha > 0)
     return frictionless, friction
+
+
+def with_load(scene: Scene, control: str, values, **changes) -> Scene:
+    """`scene` with the load path `values` under `control` (and any other field `changes`),
+    validated."""
+    return validate_scene(replace(scene, load=Load(control=control, values=values), **changes))
+
+
+def with_path(scene: Scene, top: float, steps: int, **changes) -> Scene:
+    """Displacement control to `top` [m] in `steps` equal steps (as `max`/`steps` in TOML)."""
+    return with_load(scene, "displacement", tuple(top * k / steps for k in range(1, steps + 1)),
+                     **changes)
+
+
+def default_stick_stiffness(scene: Scene) -> float:
+    """k_t = EA / (L / N) [N/m] (docs/model.md section 7)."""
+    return scene.warp.EA * scene.geometry.segments / scene.geometry.length
 
 
 def cut_yarn(scene: Scene, crossings: int, segments: int | None = None, *,

@@ -43,7 +43,7 @@ steps: a few seconds. Errors for user mistakes are `UserError`s.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
@@ -52,12 +52,11 @@ from matplotlib.lines import Line2D
 
 from dynfab import assembly
 from dynfab.model import build_model
-from dynfab.plot_style import save_png
-from dynfab.plot_style import DPI, FONT_SIZE, style_axes
-from dynfab.reports.common import (cut_yarn, machine, output_folder, paper_yarns, write_csv,
-                                   write_json, write_text)
+from dynfab.plot_style import FONT_SIZE, new_figure, save_png, style_axes
+from dynfab.reports.common import (cut_yarn, default_stick_stiffness, output_folder, paper_yarns,
+                                   report_header, with_path, write_csv, write_summary, write_text)
 from dynfab.run import run
-from dynfab.scene import Load, Scene, validate_scene, with_key
+from dynfab.scene import Scene, with_key
 
 NOISE = 1e-9
 """Relative difference [-] below which two solves count as equal (solver precision)."""
@@ -141,10 +140,7 @@ def run_convergence(out_dir, *, quick: bool = False,
             "stick_stiffness": stick_study(plan, scenes["friction"], solver)}
     studies = {name: analyse(name, study_rows) for name, study_rows in rows.items()}
     summary = {
-        "report": "convergence",
-        "plan": plan.name,
-        "quick": quick,
-        "machine": machine(),
+        **report_header("convergence", plan.name, quick),
         "solve_time_s": solver.solve_time,
         "solves": solver.log,
         "studies": studies,
@@ -154,10 +150,7 @@ def run_convergence(out_dir, *, quick: bool = False,
              for name, study_rows in rows.items()]
     files.append(write_text(out / "orders.md", orders_markdown(summary)))
     files += [save_png(plot_study(name, studies[name]), out / f"{name}.png") for name in rows]
-    summary["wall_time_s"] = time.perf_counter() - started
-    summary["files"] = [str(path) for path in files] + [str(out / "summary.json")]
-    write_json(out / "summary.json", summary)
-    return summary
+    return write_summary(out, summary, files, started)
 
 
 # --------------------------------------------------------------------------
@@ -169,17 +162,6 @@ def paper_scenes(plan: Plan) -> dict[str, Scene]:
     frictionless, friction = paper_yarns("the convergence report")
     return {label: cut_yarn(scene, plan.crossings, plan.base_segments)
             for label, scene in (("frictionless", frictionless), ("friction", friction))}
-
-
-def with_path(scene: Scene, top: float, steps: int) -> Scene:
-    """Displacement control to `top` [m] in `steps` equal steps (as `max`/`steps` in TOML)."""
-    values = tuple(top * k / steps for k in range(1, steps + 1))
-    return validate_scene(replace(scene, load=Load(control="displacement", values=values)))
-
-
-def default_stick_stiffness(scene: Scene) -> float:
-    """k_t = EA / (L / N) [N/m] (docs/model.md section 7)."""
-    return scene.warp.EA * scene.geometry.segments / scene.geometry.length
 
 
 class _Solver:
@@ -249,6 +231,11 @@ def friction_check(model, steps: dict) -> dict:
            "max_residual_N": 0.0, "max_abs_force_minus_limit_N": 0.0,
            "stick_force_rounding_N": 0.0, "max_gralen_deviation_N": 0.0,
            "max_stick_excess_N": -np.inf}
+
+    def keep_max(key: str, value) -> None:
+        """out[key]: the larger of it and `value` (a float)."""
+        out[key] = max(out[key], float(value))
+
     for i in range(steps["load"].shape[0]):
         positions, anchors = steps["positions"][i, 0], steps["anchors"][i, 0]
         R, limit = steps["contact_force"][i, 0], steps["friction_limit"][i, 0]
@@ -256,12 +243,10 @@ def friction_check(model, steps: dict) -> dict:
         sliding = steps["sliding"][i, 0].astype(bool) & (R > 0)
         x = positions[nodes, 0]
         gralen = np.where(R > 0, yarn.friction_alpha * R + yarn.friction_constant, 0.0)
-        out["max_gralen_deviation_N"] = max(out["max_gralen_deviation_N"],
-                                            float(np.abs(limit - gralen).max()))
+        keep_max("max_gralen_deviation_N", np.abs(limit - gralen).max())
         sticking = ~steps["sliding"][i, 0].astype(bool)
         if sticking.any():
-            out["max_stick_excess_N"] = max(out["max_stick_excess_N"],
-                                            float((np.abs(force) - limit)[sticking].max()))
+            keep_max("max_stick_excess_N", (np.abs(force) - limit)[sticking].max())
         if not sliding.any():
             continue
         assembly.gradient(np.ascontiguousarray(positions), yarn, 0.0,
@@ -269,13 +254,11 @@ def friction_check(model, steps: dict) -> dict:
         pull = grad[nodes, 0]  # dV/dx without friction: balances the friction force
         carried = -np.sign(x - anchors) * limit  # eq. 27 (anchors return-mapped: sign kept)
         out["sliding_crossing_steps"] += int(sliding.sum())
-        out["max_equilibrium_deviation_N"] = max(
-            out["max_equilibrium_deviation_N"], float(np.abs(pull - carried)[sliding].max()))
-        out["max_residual_N"] = max(out["max_residual_N"], float(steps["residual"][i, 0]))
-        out["max_abs_force_minus_limit_N"] = max(
-            out["max_abs_force_minus_limit_N"], float(np.abs(np.abs(force) - limit)[sliding].max()))
-        out["stick_force_rounding_N"] = max(out["stick_force_rounding_N"], float(
-            yarn.stick_stiffness * np.finfo(float).eps * np.abs(x).max()))
+        keep_max("max_equilibrium_deviation_N", np.abs(pull - carried)[sliding].max())
+        keep_max("max_residual_N", steps["residual"][i, 0])
+        keep_max("max_abs_force_minus_limit_N", np.abs(np.abs(force) - limit)[sliding].max())
+        keep_max("stick_force_rounding_N",
+                 yarn.stick_stiffness * np.finfo(float).eps * np.abs(x).max())
     return out
 
 
@@ -283,9 +266,9 @@ def friction_check(model, steps: dict) -> dict:
 # The three studies: tidy rows.
 
 
-def _rows(study: str, scene_label: str, value, steps: dict, loads, quantities) -> list[dict]:
-    """One row per (load, quantity) of one solve."""
-    parameter, units = STUDIES[study][:2]
+def _rows(study: str, scene_label: str, value, steps: dict, loads) -> list[dict]:
+    """One row per (load, quantity of the study) of one solve."""
+    parameter, units, _, _, quantities = STUDIES[study]
     rows = []
     for load in loads:
         i = step_at(steps, load)
@@ -308,7 +291,6 @@ def step_at(steps: dict, load: float) -> int:
 
 def mesh_study(plan: Plan, scenes: dict[str, Scene], solver: _Solver) -> list[dict]:
     """Both scenes at every N, on the same load path; friction at a fixed k_t."""
-    quantities = STUDIES["mesh"][4]
     rows = []
     for label, base in scenes.items():
         base = with_path(base, plan.max_displacement, plan.steps)
@@ -316,7 +298,7 @@ def mesh_study(plan: Plan, scenes: dict[str, Scene], solver: _Solver) -> list[di
             base = with_key(base, "friction.stick_stiffness", default_stick_stiffness(base))
         for n in plan.mesh_segments:
             steps = solver.solve(with_key(base, "geometry.segments", n), "mesh", label, n)
-            rows += _rows("mesh", label, n, steps, plan.mesh_loads, quantities)
+            rows += _rows("mesh", label, n, steps, plan.mesh_loads)
     return rows
 
 
@@ -326,8 +308,7 @@ def load_step_study(plan: Plan, scene: Scene, solver: _Solver) -> list[dict]:
     for count in plan.step_counts:
         steps = solver.solve(with_path(scene, plan.max_displacement, count), "load_steps",
                              "friction", count)
-        rows += _rows("load_steps", "friction", count, steps, plan.step_loads,
-                      STUDIES["load_steps"][4])
+        rows += _rows("load_steps", "friction", count, steps, plan.step_loads)
     return rows
 
 
@@ -340,8 +321,7 @@ def stick_study(plan: Plan, scene: Scene, solver: _Solver) -> list[dict]:
         value = factor * default
         steps = solver.solve(with_key(base, "friction.stick_stiffness", value),
                              "stick_stiffness", "friction", value)
-        rows += _rows("stick_stiffness", "friction", value, steps, plan.stick_loads,
-                      STUDIES["stick_stiffness"][4])
+        rows += _rows("stick_stiffness", "friction", value, steps, plan.stick_loads)
     return rows
 
 
@@ -420,9 +400,9 @@ def orders_markdown(summary: dict) -> str:
     titles = {"mesh": "Mesh: segments N", "load_steps": "Load increment: number of load steps",
               "stick_stiffness": "Stick stiffness: order in 1/k_t"}
     for name, study in summary["studies"].items():
-        values = ", ".join(f"{v:.4g}" for v in study["parameter_values"])
-        first, last = (_parameter_text(name, v) for v in study["parameter_values"][::len(
-            study["parameter_values"]) - 1])
+        parameters = study["parameter_values"]
+        values = ", ".join(f"{v:.4g}" for v in parameters)
+        first, last = _parameter_text(name, parameters[0]), _parameter_text(name, parameters[-1])
         lines += [f"### {titles[name]} ({values} {study['parameter_units']})", "",
                   f"Expected order {study['expected_order']:g}. Observed: fit of "
                   "|q - q(finest)| (what the same fit gives for an exact power law of the "
@@ -474,8 +454,7 @@ def plot_study(study: str, analysis: dict) -> Figure:
     scenes = list(dict.fromkeys(o["scene"] for o in analysis["orders"]))
     colors = {load: f"C{k}" for k, load in enumerate(loads)}
     styles = {scene: ("-", "o") if k == 0 else ("--", "s") for k, scene in enumerate(scenes)}
-    fig = Figure(figsize=(3.3 * len(quantities) + 1.6, 3.4), layout="constrained")
-    fig.set_dpi(DPI)
+    fig = new_figure(3.3 * len(quantities) + 1.6, 3.4)
     axes = fig.subplots(1, len(quantities), squeeze=False)[0]
     any_flat = False
     for ax, quantity in zip(axes, quantities):

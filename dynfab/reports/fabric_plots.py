@@ -46,10 +46,11 @@ def path_colors(names=PATHS) -> dict:
     return {name: colormaps["tab10"](i) for i, name in enumerate(names)}
 
 
-def _legend_handles(colors: dict) -> list:
+def _legend_handles(colors: dict, what: str = "direction") -> list:
+    """A line per path in its colour, then one per family in its style ("warp <what>")."""
     handles = [Line2D([], [], color=c, label=f"warp:weft = {name}") for name, c in colors.items()]
     handles += [Line2D([], [], color="k", linestyle=style, linewidth=FAMILY_WIDTH[family],
-                       alpha=FAMILY_ALPHA[family], label=f"{family} direction")
+                       alpha=FAMILY_ALPHA[family], label=f"{family} {what}")
                 for family, style in FAMILY_STYLE.items()]
     return handles
 
@@ -108,11 +109,7 @@ def plot_crimp(data: dict) -> Figure:
     ax.set_xlabel("larger of the two loads per unit width [N/m]")
     ax.set_ylabel("mean crimp [%]")
     style_axes(ax)
-    handles = _legend_handles(colors)
-    handles[-2:] = [Line2D([], [], color="k", linestyle=style, linewidth=FAMILY_WIDTH[family],
-                           alpha=FAMILY_ALPHA[family], label=f"{family} crimp")
-                    for family, style in FAMILY_STYLE.items()]
-    ax.legend(handles=handles, fontsize=FONT - 1.5)
+    ax.legend(handles=_legend_handles(colors, "crimp"), fontsize=FONT - 1.5)
     _title(fig, data, "Crimp interchange")
     return fig
 

@@ -44,7 +44,7 @@ without friction), and a few seconds. Errors for user mistakes are `UserError`s.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
@@ -55,7 +55,8 @@ from dynfab import assembly
 from dynfab.banded import BANDWIDTH, constrain, lu_factor, lu_solve, to_dense
 from dynfab.errors import UserError
 from dynfab.model import build_model
-from dynfab.reports.common import cut_yarn, machine, output_folder, paper_scene_file, write_json
+from dynfab.reports.common import (cut_yarn, output_folder, paper_scene_file, report_header,
+                                   with_path, write_json)
 from dynfab.reports.figures_data import (FIGURES, SOLVERS, STRAIN_STAGE, at_strain,
                                          force_per_width, friction_gap, friction_split,
                                          k_order, kawabata_K, mean_contact_force,
@@ -64,7 +65,7 @@ from dynfab.reports.figures_data import (FIGURES, SOLVERS, STRAIN_STAGE, at_stra
 from dynfab.reports.figures_plots import draw_figures
 from dynfab.results import Results, dynfab_version, read_results
 from dynfab.run import run
-from dynfab.scene import Load, Scene, parse_scene_text, scene_to_toml, validate_scene
+from dynfab.scene import Scene, parse_scene_text, scene_to_toml
 from dynfab.terms.friction import INDEX as FRICTION
 from dynfab.xdmf import xdmf_path
 
@@ -109,20 +110,14 @@ def run_figures(out_dir, *, quick: bool = False,
     started = time.perf_counter()
     out = output_folder(out_dir)
     plan = QUICK if quick else FULL
-    solves = []
-    for name, scene in paper_scenes(plan).items():
-        for solver in SOLVERS:
-            solves.append(ensure_result(scene, solver, out / result_name(name, solver),
-                                        progress))
+    solves = [ensure_result(scene, solver, out / result_name(name, solver), progress)
+              for name, scene in paper_scenes(plan).items() for solver in SOLVERS]
     data = read_figure_data(out)
     figures = draw_figures(out, data)
     comparison = compare_solvers(data)
     trends = check_trends(data, comparison)
     summary = {
-        "report": "figures",
-        "plan": plan.name,
-        "quick": quick,
-        "machine": machine(),
+        **report_header("figures", plan.name, quick),
         "reference_state": sorted({str(r.attrs.get("reference_state")) for r in data.values()}),
         "solves": solves,
         "trends": trends,
@@ -164,12 +159,10 @@ def cut_scene_text(scene: Scene, plan: Plan) -> str:
     (`common.cut_yarn`: L and N scaled, the same weft, whose length and count
     `scene_to_toml` writes out), and the end displacement to `plan.max_displacement` in
     `plan.steps` (values = max k / steps, as the scene file's max and steps)."""
-    cut = cut_yarn(scene, plan.crossings, plan.segments)
-    values = tuple(plan.max_displacement * k / plan.steps for k in range(1, plan.steps + 1))
     title = (f"{scene.title} [{plan.name}: {plan.crossings} crossings, N = {plan.segments}, "
              f"{1e3 * plan.max_displacement:g} mm in {plan.steps} steps]")
-    cut = validate_scene(replace(cut, title=title,
-                                 load=Load(control="displacement", values=values)))
+    cut = with_path(cut_yarn(scene, plan.crossings, plan.segments), plan.max_displacement,
+                    plan.steps, title=title)
     header = (f"# {plan.name} cut of the paper scene: {plan.crossings} of its "
               f"{scene.geometry.crossings} crossings at the same spacing, the same weft.\n")
     return header + scene_to_toml(cut)
@@ -220,10 +213,6 @@ def ensure_result(scene: Scene, solver: str, path: Path,
         progress(f"{path.name}: {entry['load_steps']} load steps x {entry['yarns']} yarns, "
                  f"residual <= {entry['max_residual_N']:.1e} N, {what}")
     return entry
-
-
-# --------------------------------------------------------------------------
-# Quantities read from a result file.
 
 
 # --------------------------------------------------------------------------

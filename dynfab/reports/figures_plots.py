@@ -38,11 +38,9 @@ def draw_figures(out_dir, data=None) -> list[Path]:
     figures = {"fig3a_traction.png": plot_fig3a(data), "fig3b_contact_force.png": plot_fig3b(data),
                "fig5_friction.png": plot_fig5(data), "shapes.png": plot_shapes(data),
                "friction_states.png": plot_friction_states(data)}
-    written = []
     for name, fig in figures.items():
         fig.savefig(out / name, dpi=DPI)
-        written.append(out / name)
-    return written
+    return [out / name for name in figures]
 
 
 # dynfab.plot's axis style with this report's tick labels (FONT) and titles (9 pt)

@@ -84,8 +84,8 @@ from dynfab.errors import SolverError
 from dynfab.model import Model, State, build_model, initial_state
 from dynfab.observables import finish_step
 from dynfab.plot_style import save_png
-from dynfab.reports.common import (cut_yarn, machine, output_folder, paper_yarns, write_csv,
-                                   write_json, write_text)
+from dynfab.reports.common import (cut_yarn, kernel_name, machine, output_folder, paper_yarns,
+                                   write_csv, write_json, write_summary, write_text)
 from dynfab.reports.precision_plots import plot_error_vs_residual, plot_work_precision
 from dynfab.reports.precision_points import (METHODS, Method, cheapest, method_label,
                                              pareto_fronts, usable_points)
@@ -211,19 +211,15 @@ def run_precision(out_dir, *, quick: bool = False, progress: Callable[[str], Non
         "points": points,
         "solve_time_s": study.solve_time,
     }
-    files = [write_csv(out / "points.csv", CSV_COLUMNS, csv_rows(points, cases))]
     cheapest = {key: summary[key] for key in ("targets", "cheapest", "one_setting")}
-    files.append(write_json(out / "cheapest.json", cheapest))
-    files.append(write_text(out / "precision.md", precision_markdown(summary)))
-    files.append(save_png(plot_work_precision(summary, "wall_time_s"),
-                       out / "work_precision_time.png"))
-    files.append(save_png(plot_work_precision(summary, "force_evaluations"),
-                       out / "work_precision_evaluations.png"))
-    files.append(save_png(plot_error_vs_residual(summary), out / "error_vs_residual.png"))
-    summary["wall_time_s"] = time.perf_counter() - started
-    summary["files"] = [str(path) for path in files] + [str(out / "summary.json")]
-    write_json(out / "summary.json", summary)
-    return summary
+    files = [write_csv(out / "points.csv", CSV_COLUMNS, csv_rows(points, cases)),
+             write_json(out / "cheapest.json", cheapest),
+             write_text(out / "precision.md", precision_markdown(summary)),
+             save_png(plot_work_precision(summary, "wall_time_s"), out / "work_precision_time.png"),
+             save_png(plot_work_precision(summary, "force_evaluations"),
+                      out / "work_precision_evaluations.png"),
+             save_png(plot_error_vs_residual(summary), out / "error_vs_residual.png")]
+    return write_summary(out, summary, files, started)
 
 
 # --------------------------------------------------------------------------
@@ -427,39 +423,34 @@ class _Study:
         self.solve_time = 0.0
         self.count = 0
 
-    def _say(self, case: Case, label: str, points: list[dict], elapsed: float) -> None:
+    def _curve(self, case: Case, label: str, solves) -> list[dict]:
+        """The points of `solves` (an iterator that solves them), numbered; one progress line."""
+        started = time.perf_counter()
+        points = [self._point(case, point) for point in solves]
         if self.progress is None:
-            return
+            return points
+        elapsed = time.perf_counter() - started
         done = [p for p in points if p["status"] != "failed"]
         errors = [p["relative_error"] for p in done]
         failed = len(points) - len(done)
         text = (f"errors {max(errors):.1e} .. {min(errors):.1e}" if errors else "no result")
         self.progress(f"{case.title}: {label}: {len(points)} solve(s), {text}"
                       f"{f', {failed} failed' if failed else ''}, {elapsed:.2f} s")
+        return points
 
     def solve_case(self, case: Case) -> list[dict]:
         friction = "friction" in case.model.terms
-        keys = self.plan.friction_methods if friction else self.plan.methods
-        points = []
-        started = time.perf_counter()
-        points.append(self._point(case, static_point(case, self.plan, reference=True)))
-        points.append(self._point(case, static_point(case, self.plan, reference=False)))
-        self._say(case, "static Newton", points[-2:], time.perf_counter() - started)
-        for key in keys:
+        plan = self.plan
+        points = self._curve(case, "static Newton", (static_point(case, plan, reference=reference)
+                                                     for reference in (True, False)))
+        for key in plan.friction_methods if friction else plan.methods:
             method = METHODS[key]
-            started = time.perf_counter()
-            tolerances = (self.plan.float32_tolerances if method.options.precision == "float32"
-                          else self.plan.tolerances)
-            curve = [self._point(case, dynamic_point(case, method, tolerance, self.plan))
-                     for tolerance in tolerances]
-            points += curve
-            self._say(case, method.label, curve, time.perf_counter() - started)
-        started = time.perf_counter()
-        curve = [self._point(case, lbfgs_point(case, tolerance, self.plan))
-                 for tolerance in self.plan.tolerances]
-        points += curve
-        self._say(case, "scipy L-BFGS-B", curve, time.perf_counter() - started)
-        return points
+            tolerances = (plan.float32_tolerances if method.options.precision == "float32"
+                          else plan.tolerances)
+            points += self._curve(case, method.label, (dynamic_point(case, method, tolerance, plan)
+                                                       for tolerance in tolerances))
+        return points + self._curve(case, "scipy L-BFGS-B", (lbfgs_point(case, tolerance, plan)
+                                                             for tolerance in plan.tolerances))
 
     def _point(self, case: Case, point: dict) -> dict:
         self.count += 1
@@ -583,13 +574,6 @@ def _mark_failed(point: dict, message: str) -> dict:
                                           "end_error_absolute", "residual_N",
                                           "solver_residual_N", "bound_m", "within_bound")})
     return point
-
-
-def kernel_name(solver: DynamicSolver) -> str:
-    """A solver's kernel variant as one string (`dynfab.kernels.structure_variants.Variant.name`:
-    method/layout/order/precision/couplings; the damping and the load control are data, not
-    variants)."""
-    return solver.relaxation.variant.name
 
 
 MAX_FRICTION_ROUNDS = 30
@@ -775,14 +759,12 @@ def csv_rows(points: list[dict], cases: list[Case]):
     """Tidy rows: one per (point, quantity) with the point's identifying columns."""
     end_units = {case.key: ("N" if case.end_quantity == "end_force" else "m") for case in cases}
     for p in points:
-        base = {"case": p["case"], "scene": p["scene"], "start_load": p["start_load"],
-                "load": p["load"], "load_units": p["load_units"], "solver": p["solver"],
-                "method": p["method"], "label": p["label"], "precision": p["precision"],
-                "masses": p["masses"], "damping": p["damping"],
-                "damping_coefficient": p["damping_coefficient"],
-                "damping_coefficient_units": "1/s" if p["damping_coefficient"] != "" else "",
-                "safety": p["safety"], "tolerance": p["tolerance"], "tolerance_units": "N",
-                "status": p["status"]}
+        base = {key: p[key] for key in ("case", "scene", "start_load", "load", "load_units",
+                                        "solver", "method", "label", "precision", "masses",
+                                        "damping", "damping_coefficient", "safety", "tolerance",
+                                        "status")}
+        base.update(damping_coefficient_units="1/s" if p["damping_coefficient"] != "" else "",
+                    tolerance_units="N")
         for quantity, (units, key) in QUANTITIES.items():
             if p.get(key) is None:
                 continue

@@ -12,7 +12,7 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.ticker import NullFormatter
 
-from dynfab.plot_style import DPI, FONT_SIZE, style_axes
+from dynfab.plot_style import FONT_SIZE, new_figure, style_axes
 from dynfab.reports.precision_points import (METHODS, method_label, pareto_front,
                                              shown_error, usable_points)
 
@@ -24,8 +24,7 @@ def _panels(cases: list[dict]):
     """A figure with one panel per case: scenes in rows, steps in columns."""
     scenes = list(dict.fromkeys(c["scene"] for c in cases))
     columns = max(sum(c["scene"] == s for c in cases) for s in scenes)
-    fig = Figure(figsize=(3.3 * columns + 3.2, 2.9 * len(scenes) + 0.6), layout="constrained")
-    fig.set_dpi(DPI)
+    fig = new_figure(3.3 * columns + 3.2, 2.9 * len(scenes) + 0.6)
     axes = fig.subplots(len(scenes), columns, squeeze=False)
     where = {}
     for row, scene in enumerate(scenes):
@@ -66,12 +65,17 @@ def _curves(points: list[dict]) -> dict[str, list[dict]]:
 
 
 def _style_of(key: str):
-    if key in STATIC_STYLES:
-        return STATIC_STYLES[key]
-    if key == "lbfgs":
-        return LBFGS_STYLE
-    return METHODS[key].style
+    """(colour, marker, line style) of a method: a static solve's, L-BFGS-B's or METHODS'."""
+    return {**STATIC_STYLES, "lbfgs": LBFGS_STYLE}.get(key) or METHODS[key].style
 
+
+def _method_handles(keys, lines: bool) -> list:
+    """Legend entries of the methods `keys`: markers, and their line styles if `lines`."""
+    return [Line2D([], [], color=_style_of(k)[0], marker=_style_of(k)[1],
+                   ls=(_style_of(k)[2] or "none") if lines else "none",
+                   ms=8 if k in STATIC_STYLES else 4,
+                   mfc="white" if k == "lbfgs" else _style_of(k)[0], label=method_label(k))
+            for k in keys]
 
 
 def plot_work_precision(summary: dict, cost: str) -> Figure:
@@ -98,10 +102,7 @@ def plot_work_precision(summary: dict, cost: str) -> Figure:
             ax.axhline(target, color="0.5", lw=0.7, ls=(0, (4, 3)), zorder=0)
         _finish_panel(ax, case, floor, "warm wall time (s)" if cost == "wall_time_s" else
                       "force evaluations (-)")
-    handles = [Line2D([], [], color=_style_of(k)[0], marker=_style_of(k)[1],
-                      ls=_style_of(k)[2] or "none", ms=8 if k in STATIC_STYLES else 4,
-                      mfc="white" if k == "lbfgs" else _style_of(k)[0], label=method_label(k))
-               for k in used]
+    handles = _method_handles(used, lines=True)
     handles += [Line2D([], [], color="#ffd92f", lw=5, alpha=0.8, marker="o", ms=9, mfc="none",
                        mec="#b8860b", label="Pareto front of\nthe dynamic methods"),
                 Line2D([], [], color="0.5", lw=0.7, ls=(0, (4, 3)),
@@ -148,10 +149,7 @@ def plot_error_vs_residual(summary: dict) -> Figure:
             ax.plot(r, norm * (r + case["reference_residual_N"]) / case["scale_m"], color="k",
                     lw=1.0, ls="--", zorder=2)
         _finish_panel(ax, case, floor, "force residual, float64 (N)")
-    handles = [Line2D([], [], color=_style_of(k)[0], marker=_style_of(k)[1], ls="none",
-                      ms=8 if k in STATIC_STYLES else 4,
-                      mfc="white" if k == "lbfgs" else _style_of(k)[0], label=method_label(k))
-               for k in used]
+    handles = _method_handles(used, lines=False)
     handles += [Line2D([], [], color="k", lw=1.0, ls="--",
                        label="bound ||K^-1||_inf (r + r_ref),\nrelative"),
                 Line2D([], [], color="0.88", lw=6, label="below the position\nrounding floor")]

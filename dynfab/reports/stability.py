@@ -64,14 +64,14 @@ from dynfab.errors import UserError, SolverError
 from dynfab.kernels import status
 from dynfab.model import build_model, initial_state
 from dynfab.plot_style import save_png
-from dynfab.reports.common import (cut_yarn, machine, output_folder,
-                                   paper_yarns as common_paper_yarns, write_csv, write_json,
-                                   write_text)
+from dynfab.reports.common import (cut_yarn, default_stick_stiffness, kernel_name,
+                                   output_folder, paper_yarns as common_paper_yarns,
+                                   report_header, with_load, write_csv, write_summary, write_text)
 from dynfab.reports.stability_cases import (EXPLICIT, FULL, METHODS, QUICK, QUICK_METHODS, Case,
                                             PathCase, Plan, short_number)
 from dynfab.reports.stability_plots import plot_map
 from dynfab.reports.stability_tables import stability_markdown
-from dynfab.scene import Dynamic, Load, Scene, validate_scene, with_key
+from dynfab.scene import Dynamic, Scene, with_key
 from dynfab.static import StaticSolver
 
 PERTURBATION = 1e-9
@@ -98,6 +98,10 @@ PATH_MAX_STEPS = {"explicit": 1_000_000, "semi_implicit": 20_000}
 """max_steps per load step of the path cases (the solver's default for the explicit methods:
 a failure there is what a user meets)."""
 
+QUICK_SKIPPED = {"verdict": "skipped", "message": "--quick: this method's kernel variant is not "
+                 "among those the dynamic tests compile"}
+"""The result of a method --quick does not run (`QUICK_METHODS`)."""
+
 
 CSV_COLUMNS = ("case", "family", "label", "segments", "control", "load", "load_units",
                "reference", "friction", "predicted_dt_s", "measured_dt_s",
@@ -123,10 +127,7 @@ def run_stability(out_dir, *, quick: bool = False,
     paths = [runner.run_path(path, bases[True]) for path in plan.paths]
     mesh_fit = extrapolate_mesh(cases)
     summary = {
-        "report": "stability",
-        "plan": plan.name,
-        "quick": quick,
-        "machine": machine(),
+        **report_header("stability", plan.name, quick),
         "settings": {"perturbation_m": PERTURBATION, "bisection_steps": BISECTION_STEPS,
                      "bisection_ratio": BISECTION_RATIO, "explicit_max_steps": EXPLICIT_MAX_STEPS,
                      "semi_implicit_max_steps": SEMI_IMPLICIT_MAX_STEPS,
@@ -139,10 +140,7 @@ def run_stability(out_dir, *, quick: bool = False,
     files = [write_csv(out / "stability.csv", CSV_COLUMNS, csv_rows(cases), cell=_finite),
              write_text(out / "stability.md", stability_markdown(summary)),
              save_png(plot_map(cases, plan), out / "map.png")]
-    summary["wall_time_s"] = time.perf_counter() - started
-    summary["files"] = [str(path) for path in files] + [str(out / "summary.json")]
-    write_json(out / "summary.json", summary)
-    return summary
+    return write_summary(out, summary, files, started)
 
 
 # --------------------------------------------------------------------------
@@ -173,8 +171,8 @@ def case_scene(case: Case, base: Scene, load: float) -> Scene:
         elif key == "EA_factor":
             scene = with_key(scene, "warp.EA", scene.warp.EA * value)
         elif key == "stick_factor":
-            default = scene.warp.EA * scene.geometry.segments / scene.geometry.length
-            scene = with_key(scene, "friction.stick_stiffness", value * default)
+            scene = with_key(scene, "friction.stick_stiffness",
+                             value * default_stick_stiffness(scene))
         elif key == "alpha_we":
             scene = with_key(scene, "weft.tension", value * buckling_load(scene))
         elif key == "k_we_factor":
@@ -182,7 +180,7 @@ def case_scene(case: Case, base: Scene, load: float) -> Scene:
             scene = with_key(scene, "weft.tension", alpha * buckling_load(scene))
         else:
             scene = with_key(scene, key, value)
-    return validate_scene(replace(scene, load=Load(control=case.control, values=(load,))))
+    return with_load(scene, case.control, (load,))
 
 
 def buckling_load(scene: Scene) -> float:
@@ -255,7 +253,7 @@ class _Runner:
         dict); a method's failure is its verdict, with the load step it stopped at."""
         where = f"[path] {path.name}"
         scene = with_key(base, "geometry.segments", path.segments)
-        scene = validate_scene(replace(scene, load=Load(control="force", values=path.values)))
+        scene = with_load(scene, "force", path.values)
         model = build_model(scene)
         record = {"case": path.name, "segments": path.segments, "values": list(path.values),
                   "control": path.control, "static": None, "methods": {}}
@@ -266,17 +264,13 @@ class _Runner:
             return record
         self.say(f"{where}: static reference: {sum(static['iterations'])} Newton iterations")
         if path.control == "displacement":
-            values = tuple(static["end_displacement_m"])
-            scene = validate_scene(replace(scene, load=Load(control="displacement",
-                                                            values=values)))
+            scene = with_load(scene, "displacement", tuple(static["end_displacement_m"]))
             model = build_model(scene)
             static = self._static_path(model)
             record["static_displacement_control"] = static
         for name in METHODS:
             if self.quick and name not in QUICK_METHODS.get((path.control, True), ()):
-                record["methods"][name] = {
-                    "verdict": "skipped", "message": "--quick: this method's kernel variant is "
-                    "not among those the dynamic tests compile"}
+                record["methods"][name] = dict(QUICK_SKIPPED)
                 continue
             record["methods"][name] = self._method_path(name, model, static, where)
         return record
@@ -305,7 +299,7 @@ class _Runner:
         options = replace(METHODS[name], max_steps=PATH_MAX_STEPS[
             "explicit" if explicit else "semi_implicit"])
         solver = DynamicSolver(model, options)
-        self.variants.add(_variant(solver))
+        self.variants.add(kernel_name(solver))
         key, reference = (("end_displacement", static["end_displacement_m"])
                           if model.control == "force" else ("end_force", static["end_force_N"]))
         state, steps, differences = initial_state(model), [], []
@@ -379,12 +373,11 @@ class _Runner:
         if explicit and model.segments > EXTRAPOLATE_ABOVE:
             return {"verdict": "extrapolated"}, None  # filled in by extrapolate_mesh
         if self.quick and name not in QUICK_METHODS.get((case.control, case.friction), ()):
-            return {"verdict": "skipped", "message": "--quick: this method's kernel variant is not "
-                    "among those the dynamic tests compile"}, None
+            return dict(QUICK_SKIPPED), None
         max_steps = EXPLICIT_MAX_STEPS if explicit else SEMI_IMPLICIT_MAX_STEPS
         options = replace(METHODS[name], max_steps=max_steps)
         solver = DynamicSolver(model, options)
-        self.variants.add(_variant(solver))
+        self.variants.add(kernel_name(solver))
         solver.predicted_stable_dt(start, load)  # compiles (or loads) the kernel outside the timing
         result = {"max_steps": max_steps}
         started = time.perf_counter()
@@ -428,7 +421,7 @@ class _Runner:
         options = Dynamic(damping="kinetic", masses="physical", dt=dt,
                           max_steps=EXPLICIT_MAX_STEPS)
         solver = DynamicSolver(model, options)
-        self.variants.add(_variant(solver))
+        self.variants.add(kernel_name(solver))
         started = time.perf_counter()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -468,12 +461,6 @@ class _Runner:
         return result
 
 
-def _variant(solver: DynamicSolver) -> str:
-    """The kernel variant of a solver, as text (`dynfab.kernels.structure_variants.Variant.name`:
-    method/layout/order/precision/couplings; the damping is data, not a variant)."""
-    return solver.relaxation.variant.name
-
-
 # --------------------------------------------------------------------------
 # Stable time step.
 
@@ -508,7 +495,7 @@ def measure_stable_dt(model, relaxed, load: float, *, damping: str = "viscous",
                       masses="physical")
     probe = DynamicSolver(model, options)
     if variants is not None:
-        variants.add(_variant(probe))
+        variants.add(kernel_name(probe))
     predicted = float(probe.predicted_stable_dt(perturbed, load)[0])
     trials, by_energy = 0, []
 
@@ -696,16 +683,14 @@ def csv_rows(cases: list[dict]) -> list[dict]:
                 "segments": case["segments"], "control": case["control"], "load": case["load"],
                 "load_units": case.get("load_units", ""), "reference": case.get("reference", ""),
                 "friction": case["friction"],
-                "predicted_dt_s": stability.get("predicted_dt_s"),
-                "measured_dt_s": stability.get("measured_dt_s"),
-                "measured_over_predicted": stability.get("measured_over_predicted"),
-                "gershgorin_actual_dt_s": stability.get("gershgorin_actual_dt_s"),
-                "linear_dt_s": stability.get("linear_dt_s"),
+                **{key: stability.get(key) for key in (
+                    "predicted_dt_s", "measured_dt_s", "measured_over_predicted",
+                    "gershgorin_actual_dt_s", "linear_dt_s")},
                 "dt_measured_with": stability.get("measured_with", ""),
                 "method": name, "verdict": verdict,
                 "time_steps": method.get("time_steps", method.get("predicted_time_steps")),
                 "wall_time_s": method.get("wall_time_s", method.get("predicted_wall_time_s")),
-                "residual_N": method.get("residual_N"),
-                "error_over_A_wa": method.get("error_over_A_wa"),
-                "bound_over_A_wa": method.get("bound_over_A_wa"), "message": message})
+                **{key: method.get(key)
+                   for key in ("residual_N", "error_over_A_wa", "bound_over_A_wa")},
+                "message": message})
     return rows

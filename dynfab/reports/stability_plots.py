@@ -11,7 +11,7 @@ import math
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
-from dynfab.plot_style import DPI, FONT_SIZE
+from dynfab.plot_style import FONT_SIZE, new_figure
 from dynfab.reports.stability_cases import Plan
 from dynfab.scene import Dynamic
 
@@ -27,8 +27,7 @@ def plot_map(cases: list[dict], plan: Plan) -> Figure:
     side."""
     points = [(c, c["stability"]) for c in cases
               if c.get("stability") and c["stability"].get("measured_dt_s") is not None]
-    fig = Figure(figsize=(11.5, 0.5 + max(4.8, 0.2 * len(points))), layout="constrained")
-    fig.set_dpi(DPI)
+    fig = new_figure(11.5, 0.5 + max(4.8, 0.2 * len(points)))
     ax, ratios = fig.subplots(1, 2, width_ratios=(1.15, 1))
     families, placed = [], []
     for case, stability in points:
