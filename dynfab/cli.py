@@ -379,8 +379,6 @@ def _command_xdmf(args, context: dict) -> None:
 
 def _command_report(args, context: dict) -> None:
     """Run the report `args.command` (dynfab/reports/<name>.py) and list the files it wrote."""
-    import importlib
-
     module = importlib.import_module(f"dynfab.reports.{args.command}")
     report = None if args.quiet else _stderr_line
     options = {"scene": args.scene} if getattr(args, "scene", None) is not None else {}

@@ -126,11 +126,8 @@ def plot_fabric(results: Results) -> Figure:
         crimp_ax.plot(larger, 100 * crimp[:, column], gid=family, **style)
     traction.set(xlabel="nominal strain [%]", ylabel="load per unit width [N/m]")
     crimp_ax.set(xlabel="larger of the two loads per unit width [N/m]", ylabel="mean crimp [%]")
-    for ax in (traction, crimp_ax):
-        style_axes(ax)
-        legend(ax)
-    _suptitle(fig, results, "woven fabric, from the as-woven state (docs/model.md section 10)")
-    return fig
+    return _styled(fig, results, "woven fabric, from the as-woven state (docs/model.md section 10)",
+                   traction, crimp_ax)
 
 
 def plot_fabric_shape(results: Results) -> Figure:
@@ -269,11 +266,7 @@ def plot_traction(results: Results, path="") -> Figure:
         right.plot(1e3 * displacement[:, k], force[:, k], "o-", ms=3, label=label)
     left.set(xlabel="strain (%)", ylabel="end force P (N)" if rod else "force per unit width (N/m)")
     right.set(xlabel="end displacement (mm)", ylabel="end force P (N)")
-    for ax in (left, right):
-        style_axes(ax)
-        legend(ax)
-    _suptitle(fig, results, "traction")
-    return fig
+    return _styled(fig, results, "traction", left, right)
 
 
 def plot_contact_force(results: Results) -> Figure:
@@ -318,10 +311,7 @@ def plot_energy_history(results: Results) -> Figure:
             energy = np.asarray(value, dtype=float).reshape(time_ms.size, -1)[:, 0]
             ax.plot(time_ms, energy, label=name.split("/", 1)[1])
     ax.set(xlabel="time (ms)", ylabel="energy (J)")
-    style_axes(ax)
-    legend(ax)
-    _suptitle(fig, results, f"energies of {yarn_labels(results)[0]}")
-    return fig
+    return _styled(fig, results, f"energies of {yarn_labels(results)[0]}", ax)
 
 
 def plot_frame_shapes(results: Results) -> Figure:
@@ -423,6 +413,15 @@ def plot_friction(results: Results) -> Figure:
     axes[0].legend(handles=handles, fontsize=FONT_SIZE - 1, loc="upper left",
                    bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
     _suptitle(fig, results, "friction state at each crossing (1 = nearest the fixed end)")
+    return fig
+
+
+def _styled(fig: Figure, results: Results, what: str, *axes) -> Figure:
+    """`fig` with each of `axes` styled and given its legend, under `_suptitle`."""
+    for ax in axes:
+        style_axes(ax)
+        legend(ax)
+    _suptitle(fig, results, what)
     return fig
 
 

@@ -483,25 +483,33 @@ RUN_OPTIONS = {solver: {k: spec for k, spec in _SCHEMA[solver][1].items() if spe
 def load_scene(path) -> Scene:
     """Read and validate the TOML scene file at `path` (UserError if it cannot)."""
     path = Path(path)
+    return parse_scene_text(read_text_file(path, "scene file"), source=str(path))
+
+
+def read_text_file(path: Path, what: str) -> str:
+    """The UTF-8 text of the file at `path`, a `what` ("scene file", "study file") in the
+    UserError that says why it cannot be read."""
     try:
-        text = path.read_bytes().decode("utf-8")
+        return path.read_bytes().decode("utf-8")
     except FileNotFoundError:
-        raise UserError(f"scene file '{path}' not found") from None
+        raise UserError(f"{what} '{path}' not found") from None
     except UnicodeDecodeError:
-        raise UserError(f"scene file '{path}' is not UTF-8 text") from None
+        raise UserError(f"{what} '{path}' is not UTF-8 text") from None
     except OSError as exc:
-        raise UserError(f"cannot read scene file '{path}': {exc.strerror}") from None
-    return parse_scene_text(text, source=str(path))
+        raise UserError(f"cannot read {what} '{path}': {exc.strerror}") from None
 
 
 def parse_scene_text(text: str, source: str = "<string>") -> Scene:
     """Parse and validate TOML scene text; `source` names it in a syntax error."""
+    return validate_scene(_build_scene(parse_toml(text, source), text))
+
+
+def parse_toml(text: str, source: str) -> dict:
+    """TOML text as a dictionary; a syntax error is a UserError naming `source`, on one line."""
     try:
-        raw = tomllib.loads(text)
+        return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        message = " ".join(str(exc).split())
-        raise UserError(f"{source}: not valid TOML: {message}") from None
-    return validate_scene(_build_scene(raw, text))
+        raise UserError(f"{source}: not valid TOML: {' '.join(str(exc).split())}") from None
 
 
 def scene_from_tables(tables: dict) -> Scene:
@@ -809,23 +817,17 @@ def _build_scene(raw: dict, text: str) -> Scene:
     _fill_swept(tables, sweep)
     specimen = tables["specimen"] is not None
     geometry = _build_table("geometry", tables["geometry"], specimen=specimen)
-    return Scene(
-        title=_convert("title", raw.get("title", ""), _TITLE),
-        geometry=geometry,
-        specimen=_build_optional("specimen", tables["specimen"]),
-        warp=_build_table("warp", tables["warp"]),
-        weft=_build_weft(tables["weft"], geometry, specimen),
-        crossing=_build_optional("crossing", tables["crossing"]),
-        contact=_build_optional("contact", tables["contact"]),
-        friction=_build_optional("friction", tables["friction"]),
-        gravity=_build_optional("gravity", tables["gravity"]),
-        load=_build_load(tables["load"]),
-        pullout=_build_optional("pullout", tables["pullout"]),
-        sweep=sweep,
-        static=_build_optional("static", tables["static"]) or Static(),
-        dynamic=_build_optional("dynamic", tables["dynamic"]) or Dynamic(),
-        text=text,
-    )
+    title = _convert("title", raw.get("title", ""), _TITLE)
+    built = {"geometry": geometry}
+    for name in _SCHEMA:  # in order, so that the first table at fault is the one named
+        if name == "weft":
+            built[name] = _build_weft(tables[name], geometry, specimen)
+        elif name == "load":
+            built[name] = _build_load(tables[name])
+        elif name != "geometry":
+            built[name] = _build_optional(name, tables[name])
+    given = {name: table for name, table in built.items() if table is not None}
+    return Scene(title=title, sweep=sweep, text=text, **given)  # the absent at their defaults
 
 
 def _table(raw: dict, name: str) -> dict | None:
@@ -1040,15 +1042,11 @@ def _yarn_key_in_fabric(dotted: str, value) -> UserError:
                 f"{_YARN_KEY_IN_FABRIC[dotted]}; remove it")
 
 
-def _sweep_in_fabric() -> UserError:
-    return UserError(f"[sweep] given but {_FABRIC}: a patch is one coupled group, not a batch "
-                     "of independent yarns (docs/model.md section 10); vary it in a study "
-                     "(dynfab study, a [vary] table: runs/study_example.toml)")
-
-
-def _pullout_in_yarn() -> UserError:
-    return UserError(f"[pullout] given but {_YARN}: a pull-out is a fabric scene (docs/model.md "
-                     "section 10); set geometry.model = \"fabric\" or remove [pullout]")
+_SWEEP_IN_FABRIC = (f"[sweep] given but {_FABRIC}: a patch is one coupled group, not a batch "
+                    "of independent yarns (docs/model.md section 10); vary it in a study "
+                    "(dynfab study, a [vary] table: runs/study_example.toml)")
+_PULLOUT_IN_YARN = (f"[pullout] given but {_YARN}: a pull-out is a fabric scene (docs/model.md "
+                    "section 10); set geometry.model = \"fabric\" or remove [pullout]")
 
 
 _SPATIAL_TABLES = ("specimen", "crossing")
@@ -1066,7 +1064,7 @@ def _check_model_keys(tables: dict) -> None:
     model = (tables.get("geometry") or {}).get("model", "yarn")
     if model == "yarn":
         if tables.get("pullout") is not None:
-            raise _pullout_in_yarn()
+            raise UserError(_PULLOUT_IN_YARN)
         for table, key in _keys_for("fabric"):
             if key in (tables.get(table) or {}):
                 raise _fabric_key_in_yarn(f"{table}.{key}", tables[table][key])
@@ -1075,7 +1073,7 @@ def _check_model_keys(tables: dict) -> None:
                 raise _spatial_table_in_yarn(name)
     elif model == "fabric":
         if tables.get("sweep") is not None:
-            raise _sweep_in_fabric()
+            raise UserError(_SWEEP_IN_FABRIC)
         for table, key in _keys_for("yarn"):
             if key in (tables.get(table) or {}):
                 raise _yarn_key_in_fabric(f"{table}.{key}", tables[table][key])
@@ -1084,7 +1082,7 @@ def _check_model_keys(tables: dict) -> None:
 def _check_no_fabric_keys(scene: Scene) -> None:
     """A one-yarn scene built in Python: every fabric key at its default."""
     if scene.pullout is not None:
-        raise _pullout_in_yarn()
+        raise UserError(_PULLOUT_IN_YARN)
     for name in _SPATIAL_TABLES:
         if getattr(scene, name) is not None:
             raise _spatial_table_in_yarn(name)
@@ -1099,7 +1097,7 @@ def _check_fabric(scene: Scene) -> None:
     """What a fabric scene must be (docs/model.md section 10)."""
     g, weft = scene.geometry, scene.weft
     if scene.sweep:
-        raise _sweep_in_fabric()
+        raise UserError(_SWEEP_IN_FABRIC)
     if weft.tension != 0.0:
         raise _yarn_key_in_fabric("weft.tension", weft.tension)
     if g.yarns != 1:
@@ -1366,17 +1364,15 @@ def _check_periodic(scene: Scene) -> None:
 def _check_fabric_lists(scene: Scene) -> None:
     """weft_values as long as values; one factor per yarn of its family."""
     load = scene.load
-    expected = (("weft_values", len(load.values), "load.values has"),
-                ("warp_factors", scene.weft.count, "weft.count says there are"),
-                ("weft_factors", scene.geometry.crossings, "geometry.crossings says there are"))
-    for key, count, what in expected:
+    expected = (("weft_values", len(load.values), "load.values has", "", "load step"),
+                ("warp_factors", scene.weft.count, "weft.count says there are", " warps", "warp"),
+                ("weft_factors", scene.geometry.crossings, "geometry.crossings says there are",
+                 " wefts", "weft"))
+    for key, count, what, noun, per in expected:
         values = getattr(load, key)
         if values is not None and len(values) != count:
-            noun = "entries" if key == "weft_values" else ("warps" if key == "warp_factors"
-                                                          else "wefts")
-            raise UserError(f"load.{key} has {len(values)} entries but {what} {count}"
-                            f"{'' if key == 'weft_values' else ' ' + noun}: give one per "
-                            f"{'load step' if key == 'weft_values' else noun[:-1]}")
+            raise UserError(f"load.{key} has {len(values)} entries but {what} {count}{noun}: "
+                            f"give one per {per}")
 
 
 def _check_pullout(scene: Scene) -> None:
@@ -1477,17 +1473,15 @@ def _check_sweep_key(key: str) -> None:
 
 def _sweepable_text() -> str:
     """The sweepable keys in words: a table whose real-valued keys all are, by its name."""
-    parts = []
+    single, tables = [], []
     for table, (_, keys) in _SCHEMA.items():
         swept = [name for name, spec in keys.items() if spec.sweepable]
         reals = [name for name, spec in keys.items() if spec.kind == "float"
                  and spec.model != "fabric"]
         if swept and swept == reals:
-            parts.append(f"[{table}]")
+            tables.append(f"[{table}]")
         else:
-            parts += [f"{table}.{name}" for name in swept]
-    single = [p for p in parts if not p.startswith("[")]
-    tables = [p for p in parts if p.startswith("[")]
+            single += [f"{table}.{name}" for name in swept]
     words = single + ([f"the real-valued keys of {_and(tables)}"] if tables else [])
     return _and(words)
 

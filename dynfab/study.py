@@ -77,9 +77,8 @@ class StudyResult:
 
     def summary(self) -> str:
         """The line printed at the end of `dynfab study`."""
-        text = (f"study: {self.cases} cases, {self.finished} finished, {self.failed} failed; "
+        return (f"study: {self.cases} cases, {self.finished} finished, {self.failed} failed; "
                 f"{self.ran} run now on {self.workers} workers in {self.seconds:.1f} s")
-        return text
 
 
 def study(study_file, out, *, scheduler: str | None = None, workers: int | None = None,

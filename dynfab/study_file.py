@@ -47,7 +47,8 @@ import numpy as np
 from dynfab import scene as scene_module
 from dynfab.errors import UserError
 from dynfab.results import ENERGY_TERM, UNITS
-from dynfab.scene import SCENE_TABLES, Scene, parse_scene_text, scene_from_tables
+from dynfab.scene import (SCENE_TABLES, Scene, parse_scene_text, parse_toml, read_text_file,
+                          scene_from_tables)
 
 DESIGNS = ("grid", "latin_hypercube")
 """How the cases are chosen: every combination of the listed values, or a Latin hypercube
@@ -139,23 +140,13 @@ class Study:
 def load_study(path) -> Study:
     """Read and validate the study file at `path` (UserError, one line, if it cannot)."""
     path = Path(path)
-    try:
-        text = path.read_bytes().decode("utf-8")
-    except FileNotFoundError:
-        raise UserError(f"study file '{path}' not found") from None
-    except UnicodeDecodeError:
-        raise UserError(f"study file '{path}' is not UTF-8 text") from None
-    except OSError as error:
-        raise UserError(f"cannot read study file '{path}': {error.strerror}") from None
-    return parse_study_text(text, source=str(path), folder=path.parent)
+    return parse_study_text(read_text_file(path, "study file"), source=str(path),
+                            folder=path.parent)
 
 
 def parse_study_text(text: str, source: str = "<study>", folder=".") -> Study:
     """Parse and validate study TOML; `folder` resolves a relative `scene` path."""
-    try:
-        raw = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as error:
-        raise UserError(f"{source}: not valid TOML: {' '.join(str(error).split())}") from None
+    raw = parse_toml(text, source)
     for key in raw:
         if key not in TOP_KEYS:
             raise UserError(f"{source}: unknown key '{key}'; allowed: {', '.join(TOP_KEYS)}")
