@@ -23,9 +23,9 @@ def path(stick_stiffness: float):
     fabric at d = 0, 1, 2, 3 mm (static solver, residual tolerance 1e-9 N: the smallest
     difference asserted below, 4e-7 N, must stand well above the solves' own error)."""
     scene = with_key(load_scene(SCENE), "specimen.width", 0.06)
-    scene = with_key(scene, "static.tolerance", 1e-9)
     scene = with_key(scene, "specimen.height", 0.12)
     scene = with_key(scene, "load.values", (1e-3, 2e-3, 3e-3))
+    scene = with_key(scene, "static.tolerance", 1e-9)
     steps = run(with_key(scene, "friction.stick_stiffness", stick_stiffness),
                 solver="static").steps
     return np.asarray(steps["clamp_force"]), np.asarray(steps["shear_angle"])

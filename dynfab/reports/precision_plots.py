@@ -66,16 +66,23 @@ def _curves(points: list[dict]) -> dict[str, list[dict]]:
 
 def _style_of(key: str):
     """(colour, marker, line style) of a method: a static solve's, L-BFGS-B's or METHODS'."""
-    return {**STATIC_STYLES, "lbfgs": LBFGS_STYLE}.get(key) or METHODS[key].style
+    if key in STATIC_STYLES:
+        return STATIC_STYLES[key]
+    if key == "lbfgs":
+        return LBFGS_STYLE
+    return METHODS[key].style
 
 
 def _method_handles(keys, lines: bool) -> list:
     """Legend entries of the methods `keys`: markers, and their line styles if `lines`."""
-    return [Line2D([], [], color=_style_of(k)[0], marker=_style_of(k)[1],
-                   ls=(_style_of(k)[2] or "none") if lines else "none",
-                   ms=8 if k in STATIC_STYLES else 4,
-                   mfc="white" if k == "lbfgs" else _style_of(k)[0], label=method_label(k))
-            for k in keys]
+    handles = []
+    for k in keys:
+        color, marker, line = _style_of(k)
+        handles.append(Line2D([], [], color=color, marker=marker,
+                              ls=(line or "none") if lines else "none",
+                              ms=8 if k in STATIC_STYLES else 4,
+                              mfc="white" if k == "lbfgs" else color, label=method_label(k)))
+    return handles
 
 
 def plot_work_precision(summary: dict, cost: str) -> Figure:
