@@ -49,12 +49,17 @@ import scipy.linalg
 import scipy.sparse.linalg
 
 from dynfab.banded import BANDWIDTH, constrain
+from dynfab.errors import SolverError
 from dynfab.fabric import assembly, ordering, pardiso
 from dynfab.ldlt import TINY_PIVOT, ldlt_factor, ldlt_solve
 
 EPS = np.finfo(np.float64).eps
 EIGEN_TOL = 1e-10
 """ARPACK's relative tolerance on the eigenvalues (`nearest_eigenvalue`, `lowest_eigenvectors`)."""
+DENSE_LIMIT = 6000
+"""Most unknowns the dense count takes (`_dense_inertia`: n^2 doubles, 288 MB at 6,000, and
+LAPACK's O(n^3) factorisation): a periodic cell or a small specimen. A larger Hessian whose
+sparse factorisations all fail stops the step (`inertia`) rather than fill the memory."""
 GROWTH = 1e4
 """Largest max |L_ij| and max |U_ij| / max|H_ii| the sparse route accepts (a positive definite
 matrix's |U_ij| stay within max|H_ii|, and on the benchmark's patches its |L_ij| far below
@@ -185,7 +190,11 @@ def inertia(model, pos, anchors, limit, shift: float = 0.0) -> Inertia:
                       _inertia(fabric, pos, anchors, limit, tau, scale))
         if result is not None:
             return result
-    raise ArithmeticError("fabric inertia: a vanishing pivot survived the rounding shift")
+    raise SolverError(f"the stability check could not count the negative eigenvalues of the "
+                      f"Hessian ({H.shape[0]} unknowns): a pivot within rounding of zero "
+                      f"survived the shifts up to {1e6 * EPS * scale:.3g} N/m at the step's "
+                      "state (docs/model.md section 6); the state may lie outside the model "
+                      "(a yarn turned past 90 degrees), see its max_slope")
 
 
 def sparse_inertia(H, tau, scale, order=None):
@@ -248,10 +257,12 @@ def _unsafe(lu, scale) -> bool:
 
 
 def _dense_inertia(H, tau, scale):
-    """The periodic cell: its wrap springs and tied cell lengths join the ends of every
-    yarn, so H is no longer a band per yarn plus crossing blocks; the cell is small, and
-    its whole (reduced) Hessian goes to the dense Bunch-Kaufman count; None if a pivot
-    block is within rounding of singular."""
+    """The periodic cell (its wrap springs and tied cell lengths join the ends of every
+    yarn, so H is no longer a band per yarn plus crossing blocks) and the spatial fabric:
+    the whole (reduced) Hessian goes to the dense Bunch-Kaufman count; None if a pivot
+    block is within rounding of singular, or above DENSE_LIMIT unknowns."""
+    if H.shape[0] > DENSE_LIMIT:
+        return None
     D = H.toarray() + tau * np.eye(H.shape[0])
     count = dense_negatives(D, 64.0 * EPS * scale)
     return Inertia(count, tau, H.shape[0], "dense") if count >= 0 else None
