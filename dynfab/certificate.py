@@ -72,10 +72,16 @@ from dynfab.fabric.kinematics import terms_of
 from dynfab.fabric import inertia
 from dynfab.fabric import ordering as fabric_ordering
 from dynfab.ldlt import TINY_PIVOT, inverse_norm_1, ldlt_factor, ldlt_solve, negative_direction
+from dynfab.scene import Static
 from dynfab.structure import Structure, dim, grounded, tie_layout
 from dynfab.terms import friction
 
 EPS = np.finfo(np.float64).eps
+SCALE_FLOOR = np.sqrt(EPS) / Static.accuracy
+"""The least displacement scale of a step over the structure's length [-] (1.5e-7): at the
+default accuracy (0.1) a step that barely moves is accepted with a position error bound up to
+sqrt(eps) L (`StepStability.scale`; docs/model.md, "Stability and accuracy of a converged
+step")."""
 LANCZOS_STEPS = 20
 """Solves of shift-invert Lanczos for the lowest eigenvalue of a stable state, at most."""
 LANCZOS_MEMORY = 20_000_000
@@ -374,8 +380,8 @@ def check_accuracy(where: str, error_estimate: float, scale: float, residual: fl
                    singular_advice: str = SINGULAR_ADVICE) -> None:
     """SolverError (one line) when the error bound is not small against the step's displacements.
 
-    Accepted: error_estimate <= accuracy x max(scale, sqrt(eps) L) is checked by the caller
-    through `scale` (already floored, `StepStability.scale`). The message starts with `where`
+    Accepted: error_estimate <= accuracy x max(displacement, SCALE_FLOOR L), checked by the
+    caller through `scale` (already floored, `StepStability.scale`). The message starts with `where`
     (the one-yarn model: "yarn k"; a fabric: the patch and the yarn where the bound is
     largest, `patch_location`), says what the residual implies and what to change
     (docs/model.md section 6, docs/model.md "Stability and accuracy of a converged step").
@@ -436,11 +442,13 @@ class StepStability:
     def scale(positions: np.ndarray, rest_positions: np.ndarray,
               length: float | None = None) -> float:
         """The step's displacement scale [m]: max |r - r0| over nodes and coordinates, at least
-        sqrt(eps) L (a step that barely moves is not asked for relative accuracy below that);
+        SCALE_FLOOR L, so that at the default accuracy a step that barely moves is accepted
+        with a position error bound up to sqrt(eps) L, half the digits of float64 at the
+        structure's size (docs/model.md, "Stability and accuracy of a converged step");
         L = `length`, else the extent of `rest_positions` along coordinate 0 (a yarn's)."""
         if length is None:
             length = abs(rest_positions[-1, 0] - rest_positions[0, 0])
-        return max(displacement_scale(positions, rest_positions), np.sqrt(EPS) * length)
+        return max(displacement_scale(positions, rest_positions), SCALE_FLOOR * length)
 
     def fields(self) -> dict:
         """The record entries (`steps/<name>` of the result file), arrays (units,)."""
@@ -609,7 +617,7 @@ def check_patch_accuracy(model, checked: PatchCertificate, stability: StepStabil
                          key: str) -> None:
     """`check_accuracy` for a patch whose certificate `stability` recorded (unit 0) at
     positions `pos` (nodes, 2) [m]: the scale is the largest displacement of any node, at
-    least sqrt(eps) times the longest chain; the message names the yarn and node where the
+    least SCALE_FLOOR times the longest chain (`StepStability.scale`); the message names the yarn and node where the
     bound is largest (`patch_location`); float64."""
     f = model.structure
     scale = StepStability.scale(pos, f.rest_position, longest_chain(f))
@@ -736,7 +744,7 @@ class GroupCertificates:
 
     def scales(self) -> np.ndarray:
         """Each group's displacement scale [m] (`StepStability.scale`: the largest displacement
-        of its nodes, at least sqrt(eps) times its longest chain)."""
+        of its nodes, at least SCALE_FLOOR times its longest chain)."""
         layout, rest = self.layout, self.layout.structure.rest_position
         return np.array([StepStability.scale(self.positions[nodes], rest[nodes], length)
                          for nodes, length in zip(layout.nodes, layout.lengths)])

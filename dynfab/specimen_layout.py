@@ -485,13 +485,15 @@ def held_positions(layout: Layout, rest_positions: np.ndarray, d: float) -> np.n
     at clamp / corner displacement d [m], from their reference positions.
 
     Bias: the y = H clamp moves by (0, d, 0), the y = 0 clamp stays. Frame: rigid hinged bars,
-    (x, y) -> F(theta) (x, y), z unchanged (docs/model.md section 11).
+    (x, y) -> F(theta) (x, y), z unchanged (docs/model.md section 11), as x + (F(theta) -
+    F(theta_0)) x: exactly x at d = 0, where F(theta_0) is the identity only to rounding.
     """
     rest = np.array(rest_positions[layout.held], dtype=float)
     if layout.test == BIAS:
         rest[_moved_clamp(layout), 1] += d
         return rest
-    rest[:, :2] = rest[:, :2] @ frame_map(frame_angle(layout.width, d)).T
+    turn = frame_map(frame_angle(layout.width, d)) - frame_map(frame_angle(layout.width, 0.0))
+    rest[:, :2] += rest[:, :2] @ turn.T
     return rest
 
 
