@@ -20,9 +20,16 @@ so that
                   / ((2 H - 3 W) cos gamma).                                         (11.3)
 
 F_sh(gamma/2) is the same normalisation at half the angle: the recursion runs down the
-measured curve F(gamma), read by linear interpolation between the path's points (d = 0 the
-first), until the angle is below `SMALLEST_ANGLE`, where F_sh = F / (2 W) (11.3 at gamma = 0).
-The path must be in increasing d (a curve, not a cycle).
+measured curve F(gamma), read by linear interpolation between the path's points, until the
+angle is below `SMALLEST_ANGLE`, where F_sh = F / (2 W) (11.3 at gamma = 0). The curve's value
+at d = 0 is its limit d -> 0+, extrapolated linearly from its first two loaded points
+(`_start_force`), not a step-0 point's force: a specimen's clamp reaction at d = 0 (the woven
+state's, docs/model.md section 10) is not shear resistance, and where friction yields at once
+the curve jumps above it (on the Cao 115 x 230 mm specimen from 0.021 N at d = 0 to 0.214 N at
+d = 0.05 mm). Read from d = 0, that jump ran up the recursion, whose factor on F_sh(gamma/2),
+-W cos(gamma/2) / ((2 H - 3 W) cos gamma), is -1 at H = 2 W: undamped, the normalised force
+alternated by 25 % from step to step. The path must be in increasing d (a curve, not a
+cycle).
 """
 
 from __future__ import annotations
@@ -57,15 +64,26 @@ def bias_normalised_shear_force(d, force, width: float, height: float) -> np.nda
         raise ValueError("the bias normalisation needs the path in increasing d")
     angles = np.array([nominal_shear_angle("bias_extension", x, width=width, height=height)
                        for x in d])
-    curve_angles, curve_forces = angles, force
-    if angles.size == 0 or angles[0] > 0.0:  # the curve starts at the origin
-        curve_angles = np.concatenate([[0.0], angles])
-        curve_forces = np.concatenate([[0.0], force])
+    loaded = angles > 0.0
+    curve_angles = np.concatenate([[0.0], angles[loaded]])
+    curve_forces = np.concatenate([[_start_force(angles[loaded], force[loaded])],
+                                   force[loaded]])
 
     def force_at(gamma: float) -> float:
         return float(np.interp(gamma, curve_angles, curve_forces))
 
     return np.array([_harrison(gamma, force_at, width, height) for gamma in angles])
+
+
+def _start_force(angles: np.ndarray, force: np.ndarray) -> float:
+    """F at gamma -> 0+ [N]: the line through the first two loaded points at gamma = 0 (0
+    where it crosses zero before: a curve that rises from the origin), the one point's force
+    where there is one, 0 without (module docstring)."""
+    if angles.size < 2:
+        return float(force[0]) if angles.size else 0.0
+    slope = (force[1] - force[0]) / (angles[1] - angles[0])
+    start = float(force[0] - slope * angles[0])
+    return start if start * force[0] > 0.0 else 0.0
 
 
 def _harrison(gamma: float, force_at, width: float, height: float) -> float:

@@ -63,3 +63,22 @@ def test_the_frame_normalisation_is_the_power_balance():
 def test_the_bias_normalisation_refuses_a_path_that_turns_back():
     with pytest.raises(ValueError, match="increasing d"):
         bias_normalised_shear_force([0.001, 0.002, 0.0015], [1.0, 2.0, 1.5], 0.06, 0.12)
+
+
+@pytest.mark.parametrize("width, height", [(0.115, 0.23), (0.15, 0.45)])
+def test_a_friction_plateau_over_a_reaction_at_d_0_is_normalised_as_its_curve(width, height):
+    # A rigid-plastic fabric (T = c as soon as gamma > 0, a friction that yields at once) with
+    # a clamp reaction r at d = 0 that is not shear (the woven state's, docs/model.md section
+    # 10): F jumps from r at d = 0 to its plateau at d -> 0+. The normalisation reads the
+    # curve from its limit d -> 0+ (module docstring), so every loaded step gives back
+    # c / cos(gamma) to the interpolation's second order; read from r, the jump would run up
+    # the recursion (undamped at H = 2 W).
+    c, r = 1.0, 0.1 * width
+    gamma = lambda x: nominal_shear_angle("bias_extension", x, width=width, height=height)  # noqa: E731
+    areas = width * (height - 1.5 * width), width ** 2
+    d = np.linspace(0.0, 0.3 * (height - width), 101)
+    force = np.array([(areas[0] * c + areas[1] * c / 2) * rate(gamma, x) if x > 0 else r
+                      for x in d])
+    computed = bias_normalised_shear_force(d, force, width, height)
+    expected = np.array([c / np.cos(gamma(x)) for x in d[1:]])
+    assert np.max(np.abs(computed[1:] - expected)) < 1e-3 * c
