@@ -18,7 +18,8 @@ a family's mean over its loaded yarns, or a pull-out's pulled warp), ``shape.png
 deformed patch or cell, side and top views, as the ``dynfab fabric`` report draws it), and
 a pull-out's also ``pullout.png`` (the pull force on the pulled warp against its end
 displacement, and the slip front along it). An in-plane shear specimen's file (docs/model.md
-section 11) gets ``shear_force.png`` and ``shear_field.png`` (`dynfab.specimen_plots`).
+section 11) gets ``shear_force.png``, ``shear_field.png`` and ``contact_field.png``
+(`dynfab.specimen_plots`).
 
 Matplotlib figures are built with `matplotlib.figure.Figure`, so the global
 pyplot state and backend are never touched; PNGs are written with Agg.
@@ -60,11 +61,15 @@ def plot_results(path: str | os.PathLike, out_dir: str | os.PathLike) -> list[Pa
     if results.step_count == 0:
         raise UserError(f"result file '{path}' has no finished load step to plot")
     if results.attrs.get("model") == "specimen":  # docs/model.md section 11
-        from dynfab.specimen_plots import plot_shear_field, plot_shear_force
+        from dynfab.specimen_plots import (plot_contact_field, plot_shear_field,
+                                           plot_shear_force)
 
         out = output_folder(out_dir)
-        return [save_png(plot_shear_force(results), out / "shear_force.png"),
-                save_png(plot_shear_field(results), out / "shear_field.png")]
+        written = [save_png(plot_shear_force(results), out / "shear_force.png"),
+                   save_png(plot_shear_field(results), out / "shear_field.png")]
+        if "free_end_rank" in results.reference and "preload" in results.attrs:
+            written.append(save_png(plot_contact_field(results), out / "contact_field.png"))
+        return written
     if results.attrs.get("model") == "fabric":  # docs/model.md section 10
         if "stress" not in results.steps:
             raise UserError(f"result file '{path}' lacks dataset steps/stress (written by an "

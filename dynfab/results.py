@@ -109,6 +109,7 @@ UNITS: dict[str, str] = {
     "reference/zone": "-",  # specimen: (crossings,) bias extension's zone, 0 A, 1 B, 2 C
     "reference/interior": "-",  # specimen: (crossings,) bool, neither yarn's end crossing
     "reference/held": "-",  # specimen: (nodes,) bool, held by a clamp or bar
+    "reference/free_end_rank": "-",  # specimen: (crossings,) rank from a free yarn end, 1 last
     # One entry per finished load step (axis 0 = steps).
     "steps/clamp_force": "N",  # specimen: (steps,) force on the moved clamp (corner) along d
     "steps/shear_force": "N",  # specimen: (steps,) picture frame F / (2 cos theta); NaN bias

@@ -29,8 +29,8 @@ constants `PAPER_FRICTION`, `TORSION_RADIUS_PER_WIDTH`. Choices made here:
 - a [specimen] (the spatial fabric's shear test, docs/model.md section 11) sets the layout:
   the layout keys (geometry.length, segments, crossings, amplitude, weft.length, count,
   segments) are refused with it and required without it; spatial kinematics and a
-  [specimen] go together, and a planar scene refuses [crossing] and the families' spatial
-  keys. A specimen without [friction] runs the paper's Gralen law (`PAPER_FRICTION`, the
+  [specimen] go together, and a planar scene refuses the spatial keys of [crossing] and
+  the families. A specimen without [friction] runs the paper's Gralen law (`PAPER_FRICTION`, the
   `Specimen` decision), resolved by `validate_scene` with its other defaults;
 - the spatial keys are not sweepable: they are the fabric's, which takes no [sweep] (a
   fabric's fit varies its real keys whether sweepable or not, `dynfab.fit_models`).
@@ -258,20 +258,22 @@ ln(1 + sqrt(2))) / 6 w, the default torsion radius of a crossing of uniform pres
 
 @dataclass(frozen=True, kw_only=True)
 class Crossing:
-    """The spatial fabric's crossing laws (docs/model.md section 11).
+    """The fabric's crossing laws (docs/model.md sections 10 and 11).
 
-    The contact force woven in, the rotation's elastic spring and its lever in friction.
+    The contact force woven in (any fabric); the rotation's elastic spring and its lever in
+    friction (the spatial fabric).
     """
 
-    preload: float = _key("R_p, contact force woven in at every crossing (relaxed at zero load "
-                          "in step 0); a [specimen] requires it > 0, without it every friction "
-                          "limit is zero", "N", _NONNEG, default=0.0, model="fabric",
-                          spatial=True)
-    shear_stiffness: float = _key("elastic spring on a crossing's rotation (the in-plane angle "
-                                  "between warp and weft); with it 0 and the rotation sliding, "
-                                  "only the lateral bending (EI_lateral) resists the shear: a "
-                                  "soft, ill-conditioned mode", "N m/rad", _NONNEG, default=0.0,
-                                  model="fabric", spatial=True)
+    preload: float = _key("R_p, contact force woven in at every crossing: the yarns' rest shapes "
+                          "hold it in the as-woven fabric at zero load, with no tension "
+                          "(docs/model.md section 10, the woven-in contact); a [specimen] "
+                          "requires it > 0, without it every friction limit is zero", "N",
+                          _NONNEG, default=0.0, model="fabric")
+    shear_stiffness: float | None = _key(
+        "elastic spring on a crossing's rotation (the in-plane angle between warp and weft); "
+        "with it 0 and the rotation sliding, only the lateral bending (EI_lateral) resists the "
+        "shear: a soft, ill-conditioned mode", "N m/rad", _NONNEG, default=None, model="fabric",
+        spatial=True, default_doc="`0`")
     torsion_radius: float | None = _key(
         "rho, the rotation's lever in the friction slip |(s_x, s_y, rho phi)|: the rotation "
         "sticks with k_t rho^2 and slides at the moment rho F_T", "m", _POS, default=None,
@@ -1049,11 +1051,17 @@ _PULLOUT_IN_YARN = (f"[pullout] given but {_YARN}: a pull-out is a fabric scene 
                     "section 10); set geometry.model = \"fabric\" or remove [pullout]")
 
 
-_SPATIAL_TABLES = ("specimen", "crossing")
+_SPATIAL_TABLES = ("specimen",)
 """The tables of the spatial fabric only (docs/model.md section 11)."""
+_FABRIC_TABLES = _SPATIAL_TABLES + ("crossing",)
+"""The tables a one-yarn scene refuses: [crossing] is the fabric's crossing (docs/model.md
+section 10, the woven-in contact; section 11, its rotation)."""
 
 
 def _spatial_table_in_yarn(name: str) -> UserError:
+    if name not in _SPATIAL_TABLES:
+        return UserError(f"[{name}] given but {_YARN}: a table of the woven fabric (docs/model.md "
+                         f"section 10); set geometry.model = \"fabric\", or remove [{name}]")
     return UserError(f"[{name}] given but {_YARN}: a table of the spatial fabric (docs/model.md "
                      f"section 11); set geometry.model = \"fabric\" and {_SPATIAL}, or remove "
                      f"[{name}]")
@@ -1068,7 +1076,7 @@ def _check_model_keys(tables: dict) -> None:
         for table, key in _keys_for("fabric"):
             if key in (tables.get(table) or {}):
                 raise _fabric_key_in_yarn(f"{table}.{key}", tables[table][key])
-        for name in _SPATIAL_TABLES:
+        for name in _FABRIC_TABLES:
             if tables.get(name) is not None:
                 raise _spatial_table_in_yarn(name)
     elif model == "fabric":
@@ -1083,7 +1091,7 @@ def _check_no_fabric_keys(scene: Scene) -> None:
     """A one-yarn scene built in Python: every fabric key at its default."""
     if scene.pullout is not None:
         raise UserError(_PULLOUT_IN_YARN)
-    for name in _SPATIAL_TABLES:
+    for name in _FABRIC_TABLES:
         if getattr(scene, name) is not None:
             raise _spatial_table_in_yarn(name)
     for table, key in _keys_for("fabric"):
@@ -1147,8 +1155,8 @@ def _layout_keys() -> list[tuple[str, str, _Key]]:
 
 
 def _spatial_keys() -> list[tuple[str, str]]:
-    """(table, key) of the spatial keys of [warp] and [weft] (the tables [specimen] and
-    [crossing] are the spatial fabric's whole)."""
+    """(table, key) of the spatial keys outside [specimen] (the spatial fabric's whole table):
+    those of [warp], [weft] and [crossing]."""
     return [(t, k) for t, (_, keys) in _SCHEMA.items() for k, spec in keys.items()
             if spec.spatial and t not in _SPATIAL_TABLES]
 
@@ -1198,14 +1206,10 @@ _SPATIAL_KEY_IN_PLANAR = {"warp.amplitude": "a planar fabric's warp crimp is geo
 
 
 def _check_planar(scene: Scene) -> None:
-    """A planar fabric takes no [crossing] and no spatial family key (docs/model.md
-    section 11)."""
-    if scene.crossing is not None:
-        raise UserError('[crossing] given but geometry.kinematics = "planar": a table of the '
-                        f"spatial fabric (docs/model.md section 11); set {_SPATIAL} with a "
-                        "[specimen], or remove [crossing]")
+    """A planar fabric takes no spatial key: of [crossing] only the preload (docs/model.md
+    section 10), of the families none of section 11's."""
     for table, key in _spatial_keys():
-        value = getattr(getattr(scene, table), key)
+        value = getattr(getattr(scene, table), key, None)
         if value is not None:
             dotted = f"{table}.{key}"
             why = _SPATIAL_KEY_IN_PLANAR.get(dotted, "remove it")
@@ -1310,15 +1314,23 @@ def _resolve_spatial(scene: Scene) -> Scene:
         family = getattr(scene, name)
         if family is not None:
             changes[name] = _resolve_family(family, core)
-    if scene.crossing is not None and scene.crossing.torsion_radius is None:
-        widths = [getattr(f, "width", None) for f in (scene.warp, scene.weft)]
-        if all(_is_real(w) for w in widths):
-            changes["crossing"] = replace(scene.crossing,
-                                          torsion_radius=TORSION_RADIUS_PER_WIDTH * min(widths))
+    if scene.crossing is not None:
+        changes["crossing"] = _resolve_crossing(scene.crossing, scene.warp, scene.weft)
     s = scene.specimen
     if s.fabric_side is None and s.side is not None and s.test == "picture_frame":
         changes["specimen"] = replace(s, fabric_side=s.side)
     return replace(scene, **changes)
+
+
+def _resolve_crossing(crossing: Crossing, warp, weft) -> Crossing:
+    """shear_stiffness 0 and torsion_radius 0.3826 x the smaller width, where left out."""
+    changes = {}
+    if crossing.shear_stiffness is None:
+        changes["shear_stiffness"] = 0.0
+    widths = [getattr(f, "width", None) for f in (warp, weft)]
+    if crossing.torsion_radius is None and all(_is_real(w) for w in widths):
+        changes["torsion_radius"] = TORSION_RADIUS_PER_WIDTH * min(widths)
+    return replace(crossing, **changes)
 
 
 def _lateral_stiffness_unset(scene: Scene) -> bool:
@@ -1596,7 +1608,8 @@ def _presence(table: str) -> str:
                 "it. It sets the layout: a key whose default says \"refused with `[specimen]`\" "
                 "is refused with it.")
     if table == "crossing":
-        return f"Optional; only with {_SPATIAL}; a `[specimen]` needs it (a preload > 0)."
+        return ('Optional; only with geometry.model = "fabric"; a `[specimen]` needs it (a '
+                "preload > 0).")
     text = ("Required when geometry.crossings > 0 or with `[specimen]`" if table == "weft"
             else "Optional")
     if table in _ROD_REFUSES:

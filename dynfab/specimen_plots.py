@@ -8,7 +8,10 @@
 - ``shear_field.png``: the shear angle of every crossing over the specimen, drawn at the
   crossings' in-plane positions, at about a third, two thirds and the end of the path (the
   zones A, B, C of the bias extension are visible as the diamond, the triangles beside it and
-  the triangles on the clamps).
+  the triangles on the clamps);
+- ``contact_field.png``: the contact force of every crossing after step 0 over the woven-in
+  preload R_p, drawn over the specimen, and its median and range against the crossing's rank
+  from a free yarn end (docs/model.md section 10, the woven-in contact: where it relaxes).
 """
 
 from __future__ import annotations
@@ -102,4 +105,42 @@ def plot_shear_field(results: Results) -> Figure:
                aspect="equal")
     fig.colorbar(shown, ax=list(axes), label="shear angle [deg]")
     fig.suptitle("shear angle at the crossings (from step 0, the preload relaxed)")
+    return fig
+
+
+BAND_RANKS = 6
+"""Ranks from a free yarn end drawn one by one in the band (`plot_contact_field`); the
+crossings further in are drawn together."""
+
+
+def plot_contact_field(results: Results) -> Figure:
+    """After step 0: R / R_p at every crossing over the specimen, and R / R_p against the rank
+    from a free yarn end (1 a yarn's last crossing before it), median and range."""
+    steps = results.steps
+    preload = float(results.attrs["preload"])
+    ratio = np.asarray(steps["contact_force"], float)[0] / preload
+    xy = np.asarray(steps["crossing_positions"], float)[0]
+    rank = np.asarray(results.reference["free_end_rank"])
+    fig = new_figure(12, 5)
+    field, band = fig.subplots(1, 2, gridspec_kw=dict(width_ratios=(1.3, 1)))
+    shown = field.scatter(1e3 * xy[:, 0], 1e3 * xy[:, 1], c=ratio, s=12, cmap="viridis",
+                          vmin=0.0, vmax=max(1.0, float(ratio.max())))
+    field.set(xlabel="x [mm]", ylabel="y [mm]", aspect="equal")
+    fig.colorbar(shown, ax=field, label="contact force / preload [-]")
+    groups = [(str(k), rank == k) for k in range(1, BAND_RANKS + 1)]
+    groups.append((f"{BAND_RANKS + 1}+", rank > BAND_RANKS))
+    groups = [(name, chosen) for name, chosen in groups if np.any(chosen)]
+    x = np.arange(len(groups))
+    median = np.array([np.median(ratio[chosen]) for _, chosen in groups])
+    low = np.array([ratio[chosen].min() for _, chosen in groups])
+    high = np.array([ratio[chosen].max() for _, chosen in groups])
+    band.errorbar(x, median, yerr=[median - low, high - median], marker="o", ms=4, capsize=3,
+                  label="median, range")
+    band.axhline(1.0, color="k", linestyle="--", linewidth=1, label="preload R_p")
+    band.set(xticks=x, xticklabels=[name for name, _ in groups], ylim=(0.0, None),
+             xlabel="crossings from a free yarn end [-]", ylabel="contact force / preload [-]")
+    style_axes(band)
+    legend(band)
+    fig.suptitle(f"contact force after step 0 (woven-in preload R_p = {preload:g} N; "
+                 "docs/model.md section 10)")
     return fig

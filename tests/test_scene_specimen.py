@@ -321,10 +321,7 @@ REFUSALS = {
        for key, value in (("geometry.length", 0.1), ("geometry.segments", 32),
                           ("geometry.crossings", 4), ("geometry.amplitude", 0.3e-3),
                           ("weft.length", 0.1), ("weft.count", 4), ("weft.segments", 32))},
-    # the spatial keys on a planar fabric
-    "a crossing table on a planar fabric": (
-        {"crossing": {"preload": 0.1}}, PLANAR,
-        '[crossing] given but geometry.kinematics = "planar"'),
+    # the spatial keys on a planar fabric (of [crossing], all but the woven-in preload)
     **{f"{key} on a planar fabric": ({key: value}, PLANAR,
                                      f"{key} = {value!r}: a key of the spatial fabric "
                                      f'(geometry.kinematics = "spatial", docs/model.md '
@@ -333,7 +330,8 @@ REFUSALS = {
                           ("warp.EI_lateral", 1e-5), ("warp.lateral_stiffness", 1e5),
                           ("warp.amplitude", 3e-4), ("weft.spacing", 5e-3),
                           ("weft.width", 4e-3), ("weft.EI_lateral", 1e-5),
-                          ("weft.lateral_stiffness", 1e5))},
+                          ("weft.lateral_stiffness", 1e5), ("crossing.shear_stiffness", 5e-3),
+                          ("crossing.torsion_radius", 2e-5))},
 }
 
 

@@ -50,7 +50,9 @@ def test_dynamic_positions_agree_with_static_within_the_error_bounds(name):
         difference = np.abs(x_dynamic[k] - x_static[k]).max()
         assert difference <= bound[k], (k, difference, bound[k])
     assert np.all(dynamic.steps["negative_eigenvalues"] == 0)
-    assert np.all(dynamic.steps["time_steps"] > 0)
+    # every load step relaxes; the frame's step 0 starts at rest (its yarns held at both ends
+    # keep the woven-in contact, docs/model.md section 10) and may take none
+    assert np.all(dynamic.steps["time_steps"][1:] > 0)
     moved = np.abs(x_static[-1] - x_static[0]).max()
     assert moved > 100 * bound[-1]  # the bounds are small against the motion
 

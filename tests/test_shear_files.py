@@ -61,7 +61,7 @@ def test_a_resumed_specimen_file_is_the_uninterrupted_one_and_its_view_and_figur
     np.testing.assert_array_equal(data["shear_angle"][crossing_nodes[:, 0]], gamma)
     np.testing.assert_array_equal(data["shear_angle"][crossing_nodes[:, 1]], gamma)
     assert [p.name for p in plot_results(part, tmp_path / "plots")] == \
-        ["shear_force.png", "shear_field.png"]
+        ["shear_force.png", "shear_field.png", "contact_field.png"]
 
 
 def test_a_study_of_a_specimen_gathers_the_serial_runs(tmp_path):

@@ -19,6 +19,8 @@ from typing import NamedTuple
 import numpy as np
 
 from dynfab import geometry
+from dynfab.builders import woven_rest
+from dynfab.builders.woven_rest import woven_closure
 from dynfab.scene import DEFAULT_CORE_STIFFNESS, Scene
 from dynfab.structure import Structure
 from dynfab.terms.friction import law_constants
@@ -72,9 +74,22 @@ def fabric_structure(scene: Scene) -> Structure:
     members = [warp] * warp.count + [weft] * weft.count
     start = np.concatenate([[0], np.cumsum([s.shape[0] for s in shapes])]).astype(np.int64)
     rest = np.concatenate(shapes)
+    tie_a, tie_b, side = _crossings(warp, weft, start)
+    preload = scene.crossing.preload if scene.crossing is not None else 0.0
+    load = woven_rest.crossing_loads(rest.shape[0], tie_a, tie_b, side, preload)
+    spacings = [warp.length / weft.count] * warp.count + [weft.length / warp.count] * weft.count
+    g = scene.geometry
+    periodic = g.boundary == "periodic"
+    moving = periodic or g.planes == "affine"
+    yarns = len(shapes)
+    wrap_k, wrap_angle = np.zeros(yarns), np.zeros(yarns)
+    fixed = _fixed_dofs(scene, start)
     rest_length, stretch, bend, angle, mass = [], [], [], [], []
-    for shape, family in zip(shapes, members):
-        l0 = geometry.segment_lengths(shape)
+    for y, (shape, family) in enumerate(zip(shapes, members)):
+        if preload > 0.0 and not (fixed[2 * start[y] + 1] and fixed[2 * start[y + 1] - 1]):
+            woven_rest.check_free_end(preload, spacings[y], family.EI, family.amplitude,
+                                      "warp" if y < warp.count else "weft")
+        l0, phi0, moment = _rest_shape(shape, family, load[start[y]:start[y + 1]], spacings[y])
         lbar = geometry.voronoi_lengths(l0)
         mass.append(family.linear_density * lbar)
         kb = family.EI / lbar
@@ -82,20 +97,14 @@ def fabric_structure(scene: Scene) -> Structure:
         rest_length.append(l0)
         stretch.append(family.EA / l0)
         bend.append(kb)
-        angle.append(geometry.turning_angles(shape))
-    g = scene.geometry
-    periodic = g.boundary == "periodic"
-    moving = periodic or g.planes == "affine"
-    yarns = len(shapes)
-    wrap_k, wrap_angle = np.zeros(yarns), np.zeros(yarns)
-    if periodic:
-        for y, (shape, family) in enumerate(zip(shapes, members)):
-            wrap_k[y], wrap_angle[y] = _wrap_spring(shape, family)
-    tie_a, tie_b, side = _crossings(warp, weft, start)
+        angle.append(woven_rest.rest_turnings(phi0, moment, kb))
+        if periodic:
+            wrap_k[y], wrap_angle[y] = _wrap_spring(shape, family, l0, moment[0])
     ties = tie_a.size
     x_planes = (np.arange(weft.count) + 0.5) * warp.length / weft.count
     y_planes = (np.arange(warp.count) + 0.5) * weft.length / warp.count
     friction_law = np.tile(_friction_law(scene, warp, weft), (ties, 1))
+    law = _contact_law(scene, warp, weft)
     return Structure(
         rest_position=rest, mass=np.concatenate(mass),
         gravity=np.full(rest.shape[0], float(scene.gravity.g) if scene.gravity else 0.0),
@@ -106,8 +115,8 @@ def fabric_structure(scene: Scene) -> Structure:
         wrap_stiffness=wrap_k, wrap_rest_angle=wrap_angle,
         load_node=start[1:] - 1, load_factor=_load_factors(scene, warp, weft),
         tie_a=tie_a, tie_b=tie_b, tie_side=side,
-        tie_gap_offset=side * (rest[tie_a, 1] - rest[tie_b, 1]),
-        tie_contact_law=np.tile(_contact_law(scene, warp, weft), (ties, 1)),
+        tie_gap_offset=side * (rest[tie_a, 1] - rest[tie_b, 1]) + woven_closure(preload, law),
+        tie_contact_law=np.tile(law, (ties, 1)),
         tie_friction_law=friction_law,
         tie_plane=np.stack([np.tile(x_planes, warp.count), np.repeat(y_planes, weft.count)],
                            axis=1),
@@ -116,16 +125,31 @@ def fabric_structure(scene: Scene) -> Structure:
         plane_nodes_a=(start[1:warp.count + 1] - 1) if moving else np.zeros(0, np.int64),
         plane_nodes_b=(start[warp.count + 1:] - 1) if moving else np.zeros(0, np.int64),
         has_friction=bool(np.any(friction_law[:, 3] > 0.0)),
-        fixed=_fixed_dofs(scene, start), dof_tie=_dof_ties(scene, start, warp.count))
+        fixed=fixed, dof_tie=_dof_ties(scene, start, warp.count))
 
 
-def _wrap_spring(shape: np.ndarray, family: Family) -> tuple[float, float]:
-    """(EI / lbar_0, as-woven angle) of the bending spring at node 0 of a periodic yarn,
-    between segment N-1's image (shifted back by the cell length) and segment 0."""
-    l0 = geometry.segment_lengths(shape)
+def _rest_shape(shape: np.ndarray, family: Family, load: np.ndarray, spacing: float):
+    """(rest lengths l0, woven turnings phi, moments M) of one yarn (N+1, 2) whose crossing
+    nodes carry the z-forces `load` [N] of the woven-in contact (`dynfab.builders.woven_rest`;
+    without a preload l0 the woven lengths and M zero, the as-woven state stress-free)."""
+    length = geometry.segment_lengths(shape)
+    turning = geometry.turning_angles(shape)
+    if not np.any(load):
+        return length, turning, np.zeros(shape.shape[0])
+    e = np.diff(shape, axis=0)
+    tension, moment = woven_rest.internal_forces(e[:, 0], e[:, 1], load, spacing)
+    return woven_rest.rest_lengths(length, tension, family.EA), turning, moment
+
+
+def _wrap_spring(shape: np.ndarray, family: Family, l0: np.ndarray,
+                 moment: float) -> tuple[float, float]:
+    """(EI / lbar_0, rest angle) of the bending spring at node 0 of a periodic yarn, between
+    segment N-1's image (shifted back by the cell length) and segment 0: the as-woven angle
+    less the woven-in moment over the stiffness (`woven_rest.rest_turnings`)."""
     a, b = shape[-1] - shape[-2], shape[1] - shape[0]
     angle = float(np.arctan2(a[0] * b[1] - a[1] * b[0], a @ b))
-    return family.EI / (0.5 * (l0[0] + l0[-1])), angle
+    stiffness = family.EI / (0.5 * (l0[0] + l0[-1]))
+    return stiffness, angle - moment / stiffness
 
 
 def _crossings(warp: Family, weft: Family, start: np.ndarray):

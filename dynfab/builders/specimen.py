@@ -23,6 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from dynfab import geometry, specimen_layout
+from dynfab.builders import woven_rest
 from dynfab.builders.fabric import DEFAULT_LINEAR_DENSITY
 from dynfab.errors import UserError
 from dynfab.scene import DEFAULT_CORE_STIFFNESS, TORSION_RADIUS_PER_WIDTH, Scene
@@ -49,14 +50,25 @@ def _wrap(angle: np.ndarray) -> np.ndarray:
     return (angle + np.pi) % (2.0 * np.pi) - np.pi
 
 
-def _chain_springs(shape: np.ndarray, EA: float, EI: float, EI_lateral: float, density: float):
-    """(l0, EA / l0, EI / lbar, theta0, EI_lat / lbar, psi0, masses) of one chain (m, 3)."""
+def _chain_springs(shape: np.ndarray, EA: float, EI: float, EI_lateral: float, density: float,
+                   load: np.ndarray, spacing: float, free_end: str | None):
+    """(l0, EA / l0, EI / lbar, theta0, EI_lat / lbar, psi0, masses) of one chain (m, 3) whose
+    crossing nodes carry the z-forces `load` [N] of the woven-in contact, `spacing` [m] apart
+    (`dynfab.builders.woven_rest`: without a preload the as-woven shape is stress-free);
+    `free_end`: the family's name where an end of the chain is free (`check_free_end`)."""
     e = np.diff(shape, axis=0)
     l0 = np.linalg.norm(e, axis=1)
     in_plane = np.hypot(e[:, 0], e[:, 1])
     if np.any(in_plane <= 1e-12 * l0):
         raise UserError("a specimen yarn has a vertical segment: the spatial model needs every "
                         "segment to have an in-plane extent (docs/model.md section 11)")
+    moment = np.zeros(shape.shape[0])
+    if free_end is not None and np.any(load):
+        woven_rest.check_free_end(float(np.max(np.abs(load))), spacing, EI,
+                                  float(np.max(np.abs(shape[:, 2]))), free_end)
+    if np.any(load):
+        tension, moment = woven_rest.internal_forces(in_plane, e[:, 2], load, spacing)
+        l0 = woven_rest.rest_lengths(l0, tension, EA)
     lbar = geometry.voronoi_lengths(l0)
     elevation = np.arctan2(e[:, 2], in_plane)
     theta0, psi0 = np.zeros(shape.shape[0]), np.zeros(shape.shape[0])
@@ -64,6 +76,7 @@ def _chain_springs(shape: np.ndarray, EA: float, EI: float, EI_lateral: float, d
     psi0[1:-1] = _wrap(np.diff(_in_plane_angle(e)))
     kb, kl = EI / lbar, EI_lateral / lbar
     kb[[0, -1]] = kl[[0, -1]] = 0.0
+    theta0 = woven_rest.rest_turnings(theta0, moment, kb)
     return l0, EA / l0, kb, theta0, kl, psi0, density * lbar
 
 
@@ -130,22 +143,29 @@ def specimen_structure(scene: Scene, layout=None) -> Structure:
     """The spatial structure of a validated specimen scene (module docstring)."""
     layout = layout_of(scene) if layout is None else layout
     rest, start = layout.positions, layout.chain_start
-    parts = []
-    for y in range(start.size - 1):
-        yarn = scene.warp if layout.chain_family[y] == 0 else scene.weft
-        density = yarn.linear_density or DEFAULT_LINEAR_DENSITY
-        parts.append(_chain_springs(rest[start[y]:start[y + 1]], yarn.EA, yarn.EI,
-                                    yarn.EI_lateral or yarn.EI, density))
-    l0, stretch, kb, theta0, kl, psi0, mass = (np.concatenate(p) for p in zip(*parts))
-    law = _contact_law(scene)
-    preload = scene.crossing.preload if scene.crossing is not None else 0.0
-    g_p = contact_law.closure_from_force(float(preload), law) if preload > 0.0 else 0.0
     tie_a, tie_b = layout.crossing_nodes[:, 0], layout.crossing_nodes[:, 1]
     side = layout.crossing_side.astype(float)
+    preload = scene.crossing.preload if scene.crossing is not None else 0.0
+    load = woven_rest.crossing_loads(rest.shape[0], tie_a, tie_b, side, preload)
+    parts = []
+    for y in range(start.size - 1):
+        # along a warp the crossings are the wefts', weft.spacing apart, and the other way
+        yarn, across = ((scene.warp, scene.weft) if layout.chain_family[y] == 0
+                        else (scene.weft, scene.warp))
+        density = yarn.linear_density or DEFAULT_LINEAR_DENSITY
+        nodes = slice(start[y], start[y + 1])
+        free = not (layout.held[start[y]] and layout.held[start[y + 1] - 1])
+        family = "warp" if layout.chain_family[y] == 0 else "weft"
+        parts.append(_chain_springs(rest[nodes], yarn.EA, yarn.EI, yarn.EI_lateral or yarn.EI,
+                                    density, load[nodes], across.spacing,
+                                    family if free else None))
+    l0, stretch, kb, theta0, kl, psi0, mass = (np.concatenate(p) for p in zip(*parts))
+    law = _contact_law(scene)
+    g_p = woven_rest.woven_closure(preload, law)
     stencil = _stencils(layout, start, scene.specimen.segments_per_spacing)
     ties = tie_a.size
     friction = np.tile(_friction_law(scene), (ties, 1))
-    shear_k = scene.crossing.shear_stiffness if scene.crossing is not None else 0.0
+    shear_k = (scene.crossing.shear_stiffness or 0.0) if scene.crossing is not None else 0.0
     rotation = np.column_stack([np.full(ties, torsion_radius(scene)), np.full(ties, shear_k),
                                 _rest_rotation(rest, stencil)])
     node_chain = np.repeat(np.arange(start.size - 1), np.diff(start))

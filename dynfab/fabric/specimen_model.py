@@ -36,6 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dynfab import specimen_layout
+from dynfab.builders import woven_rest
 from dynfab.builders.specimen import layout_of, specimen_structure
 from dynfab.errors import SolverError
 from dynfab.fabric import contact, spatial
@@ -142,16 +143,18 @@ class SpecimenModel:
                 else {"specimen_side": s.side, "fabric_side": s.fabric_side or s.side})
         return {"model": "specimen", "specimen_test": s.test, "kinematics": "spatial",
                 "load_control": self.control, "yarn_labels": self.labels,
-                "terms": list(spatial.TERMS), **dims}
+                "terms": list(spatial.TERMS), "preload": self.scene.crossing.preload, **dims}
 
     def reference(self) -> dict:
-        """The as-woven nodes, the chains, the crossings and their zones."""
+        """The as-woven nodes, the chains, the crossings, their zones and their rank from a
+        free yarn end (`woven_rest.crossings_from_free_end`)."""
         L = self.layout
         rest = self.structure.rest_position
         return {"positions": rest, "chain_start": L.chain_start, "chain_family": L.chain_family,
                 "crossing_nodes": L.crossing_nodes, "crossing_lattice": L.crossing_lattice,
                 "crossing_positions": rest[L.crossing_nodes[:, 0], :2], "zone": L.zone,
-                "interior": L.interior, "held": L.held}
+                "interior": L.interior, "held": L.held,
+                "free_end_rank": woven_rest.crossings_from_free_end(self.structure)}
 
     def initial_state(self) -> SpecimenState:
         anchors = np.zeros((self.structure.tie_a.size, 3))
@@ -209,7 +212,7 @@ class SpecimenModel:
         text = (f"; its contact force {float(np.asarray(record['contact_force'])[c]):.3g} N "
                 f"gives a friction limit F_T = {limit:.3g} N")
         crossing = self.scene.crossing
-        K = crossing.shear_stiffness if crossing is not None else 0.0
+        K = (crossing.shear_stiffness or 0.0) if crossing is not None else 0.0
         gamma = float(np.max(np.abs(record["shear_angle"]), initial=0.0))
         p = min(self.scene.warp.spacing, self.scene.weft.spacing)
         if K > 0.0 and K * gamma / p > limit:
