@@ -21,6 +21,7 @@ from matplotlib.figure import Figure
 
 from dynfab.plot_style import legend, new_figure, style_axes
 from dynfab.results import Results
+from dynfab.shear_force import bias_normalised_shear_force
 from dynfab.specimen_layout import nominal_shear_angle
 
 DEGREE = 180.0 / np.pi
@@ -51,8 +52,8 @@ def plot_shear_force(results: Results) -> Figure:
     by_d, by_angle, angles = fig.subplots(1, 3)
     by_d.plot(1e3 * d, force, marker="o", ms=3)
     by_d.set(xlabel="clamp displacement d [mm]", ylabel="clamp force along d [N]")
-    by_angle.plot(DEGREE * nominal, np.asarray(steps["normalised_shear_force"], float),
-                  marker="o", ms=3)
+    normalised = _normalised_over_the_path(results, d, force)
+    by_angle.plot(DEGREE * nominal, normalised, marker="o", ms=3)
     by_angle.set(xlabel="nominal shear angle [deg]", ylabel="normalised shear force [N/m]")
     angles.plot(1e3 * d, DEGREE * nominal, color="k", linestyle="--", label="kinematics")
     if results.attrs["specimen_test"] == "bias_extension":
@@ -70,11 +71,22 @@ def plot_shear_force(results: Results) -> Figure:
         style_axes(ax)
     loaded = d > 0.0  # step 0's force is zero to rounding
     _log_if_wide(by_d, force[loaded])
-    _log_if_wide(by_angle, np.asarray(steps["normalised_shear_force"], float)[loaded])
+    _log_if_wide(by_angle, normalised[loaded])
     legend(angles)
     fig.suptitle(f"{results.attrs['specimen_test'].replace('_', ' ')}: force and shear angle "
                  "(docs/model.md section 11)")
     return fig
+
+
+def _normalised_over_the_path(results: Results, d: np.ndarray, force: np.ndarray) -> np.ndarray:
+    """The normalised shear force [N/m] of every step: the frame's as recorded (eq. 10, a
+    step's own), the bias extension's from the whole path (Harrison's recursion reads the
+    curve from d -> 0+, which a step records only once two loaded steps exist: step 0's
+    recorded value is 0, `dynfab.shear_force`)."""
+    if results.attrs["specimen_test"] != "bias_extension":
+        return np.asarray(results.steps["normalised_shear_force"], float)
+    return bias_normalised_shear_force(d, force, float(results.attrs["specimen_width"]),
+                                       float(results.attrs["specimen_height"]))
 
 
 def _log_if_wide(ax, values: np.ndarray) -> None:
