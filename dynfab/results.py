@@ -119,6 +119,8 @@ UNITS: dict[str, str] = {
     "steps/reference_angle": "rad",  # specimen: (steps, crossings) step 0's gamma from as woven
     "steps/crossing_slip_ratio": "-",  # specimen: (steps, crossings) in-plane offset / segment
     "steps/lateral_gap": "m",  # specimen: (steps, lateral contacts) w - d, > 0 pressing
+    "steps/yarn_width": "m",  # specimen: (steps, lateral contacts) min(d, w), the narrowed width
+    "steps/fibre_volume_fraction": "-",  # specimen: (steps, lateral contacts) V0 w / min(d, w)
     "steps/max_slope": "-",  # specimen: (steps,) largest |e_z| / |e_xy| of a segment
     "steps/xdmf/shear_angle": "rad",  # specimen: (steps, nodes) gamma at crossing nodes
     "steps/load": LOAD_CONTROL_UNITS,  # (steps, yarns) applied value, N or m

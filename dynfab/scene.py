@@ -193,9 +193,25 @@ def _lateral_keys(family: str, plural: str) -> dict:
         "EI_lateral": _key("in-plane (lateral) bending stiffness", "N m^2", _POS,
                            default_doc=f"`{family}.EI`", **spatial),
         "lateral_stiffness": _key(f"k, stiffness of the lateral contact of neighbouring "
-                                  f"{plural}, per crossing", "N/m", _POS,
+                                  f"{plural}, per crossing: the contact's whole law without "
+                                  f"`{family}.fibre_modulus`, with it the yarns' core past "
+                                  "their fibres' packing (docs/model.md 11.5)", "N/m", _POS,
                                   default_doc="`contact.core_stiffness`; without it the "
                                               "fabric's 1e5 N/m", **spatial),
+        "fibre_modulus": _key(f"E_f, Young's modulus of the {family}'s fibres: with it "
+                              f"neighbouring {plural} compact sideways by Gutowski's law "
+                              "(docs/model.md 11.5), which also needs fibre_volume_fraction, "
+                              "packing_limit and fibre_waviness; without it the lateral "
+                              "contact is the linear lateral_stiffness", "Pa", _POS, **spatial),
+        "fibre_volume_fraction": _key(f"V0, fibre volume fraction of the {family} yarn as "
+                                      "woven (its fibres' cross-section over the yarn's, "
+                                      "below packing_limit)", "-", _POS, **spatial),
+        "packing_limit": _key("V_a, the largest fibre volume fraction the yarn's fibres can "
+                              "pack to (square packing pi/4 = 0.785, hexagonal 0.907)", "-",
+                              _POS, **spatial),
+        "fibre_waviness": _key("beta, the fibres' span between contacts over their waviness "
+                               "amplitude in the yarn (Gutowski's; the law's stiffness "
+                               "3 pi E_f / beta^4)", "-", _POS, **spatial),
     }
 
 
@@ -219,6 +235,10 @@ class Warp:
     width: float | None = _WARP_LATERAL["width"]
     EI_lateral: float | None = _WARP_LATERAL["EI_lateral"]
     lateral_stiffness: float | None = _WARP_LATERAL["lateral_stiffness"]
+    fibre_modulus: float | None = _WARP_LATERAL["fibre_modulus"]
+    fibre_volume_fraction: float | None = _WARP_LATERAL["fibre_volume_fraction"]
+    packing_limit: float | None = _WARP_LATERAL["packing_limit"]
+    fibre_waviness: float | None = _WARP_LATERAL["fibre_waviness"]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -246,6 +266,10 @@ class Weft:
     width: float | None = _WEFT_LATERAL["width"]
     EI_lateral: float | None = _WEFT_LATERAL["EI_lateral"]
     lateral_stiffness: float | None = _WEFT_LATERAL["lateral_stiffness"]
+    fibre_modulus: float | None = _WEFT_LATERAL["fibre_modulus"]
+    fibre_volume_fraction: float | None = _WEFT_LATERAL["fibre_volume_fraction"]
+    packing_limit: float | None = _WEFT_LATERAL["packing_limit"]
+    fibre_waviness: float | None = _WEFT_LATERAL["fibre_waviness"]
 
 
 DEFAULT_CORE_STIFFNESS = 1e5
@@ -1271,6 +1295,32 @@ def _check_family_lateral(family: Warp | Weft) -> None:
     if family.width >= family.spacing:
         raise _bad(f"{name}.width", family.width, f"must be below {name}.spacing = "
                    f"{family.spacing!r} m: neighbouring {name}s would overlap as woven")
+    _check_compaction(name, family)
+
+
+COMPACTION_KEYS = ("fibre_modulus", "fibre_volume_fraction", "packing_limit", "fibre_waviness")
+"""A family's keys of Gutowski's lateral compaction (docs/model.md 11.5): all or none."""
+HEXAGONAL_PACKING = math.pi / (2.0 * math.sqrt(3.0))
+"""0.9069: the densest packing of parallel round fibres."""
+
+
+def _check_compaction(name: str, family: Warp | Weft) -> None:
+    """The compaction keys all given or all left out; V0 < V_a <= hexagonal packing."""
+    given = [key for key in COMPACTION_KEYS if getattr(family, key) is not None]
+    if given and len(given) < len(COMPACTION_KEYS):
+        missing = ", ".join(f"{name}.{key}" for key in COMPACTION_KEYS if key not in given)
+        raise UserError(f"{name}.{given[0]} given without {missing}: Gutowski's lateral "
+                        f"compaction needs {', '.join(COMPACTION_KEYS)} (docs/model.md 11.5); "
+                        "give them all or none")
+    if not given:
+        return
+    if family.packing_limit > HEXAGONAL_PACKING:
+        raise _bad(f"{name}.packing_limit", family.packing_limit, "must be at most "
+                   f"{HEXAGONAL_PACKING:.4f}, the hexagonal packing of round fibres")
+    if family.fibre_volume_fraction >= family.packing_limit:
+        raise _bad(f"{name}.fibre_volume_fraction", family.fibre_volume_fraction, "must be "
+                   f"below {name}.packing_limit = {family.packing_limit!r}: the yarn as woven "
+                   "is looser than its fibres can pack")
 
 
 _NO_PRELOAD = "a specimen needs crossing.preload > 0: without it every friction limit is zero"

@@ -134,11 +134,14 @@ class Structure(NamedTuple):
     lateral_stencil: np.ndarray = np.zeros((0, 4), np.int64)
     """(A_prev, A_next, A, B) of each lateral contact (L, 4), int64: node B of yarn k+1
     against the line through node A of its neighbour yarn k along A's chord."""
-    lateral_law: np.ndarray = np.zeros((0, 4))
-    """(sign [-], w [m], k [N/m], branch) of each lateral contact (L, 4): the orientation that
-    makes the distance positive, the yarns' width, the stiffness, and NATURAL (the
-    unilateral law, `dynfab.terms.contact`); the static solver's Newton solves see a copy
-    with each contact held OPEN or CLOSED (its active set, docs/model.md 11.5)."""
+    lateral_law: np.ndarray = np.zeros((0, 7))
+    """(sign [-], w [m], k [N/m], branch, A [N], s_a [m], s_core [m]) of each lateral contact
+    (L, 7): the orientation that makes the distance positive, the yarns' width, the
+    stiffness (the law without compaction, the core with it), NATURAL (the unilateral law,
+    `dynfab.terms.contact`; the static solver's Newton solves see a copy with each contact
+    held OPEN or CLOSED, its active set), and Gutowski's compaction (A 0 without it): its
+    constant, the distance at the packing limit and the one below which the core takes over
+    (docs/model.md 11.5)."""
 
 
 def dim(structure: Structure) -> int:

@@ -17,7 +17,9 @@ E [J]. The elements (docs/model.md eqs. in section 11; the derivatives as
   dE/dq = (h_x, h_y, rho h_phi + K w), h = dHuber/dS, chained through
   ds/dd = R(-alpha), ds/dalpha = (s_y, -s_x), dphi/dalpha = -1, dphi/dbeta = 1,
   dalpha/dc_a = (-c_a,y, c_a,x) / |c_a|^2 (beta alike);
-- the lateral contact (11.5): d = sign cross2(c, v) / |c|, E = 1/2 k (w - d)^2 for d < w,
+- the lateral contact (11.5): d = sign cross2(c, v) / |c|, E = E_lat(d) for d < w (1/2 k
+  (w - d)^2, or Gutowski's compaction and the core below s_core: `compaction_law` of
+  `dynfab.terms.spatial`, law columns (sign, w, k, A, s_a, s_core)),
   dd/dc = sign ((v_y, -v_x) / |c| - cross2 c / |c|^3), dd/dv = sign (-c_y, c_x) / |c|.
 
 The stretch and the contact along z are the planar kernels' own (`structure_forces`), written
@@ -174,6 +176,55 @@ def functions(scalar) -> SimpleNamespace:
         force[st[t, 5]] = force[st[t, 5]] - gcb
 
     @wp.func(inline=True)
+    def gutowski_potential(s: scalar, w: scalar, packed: scalar) -> scalar:
+        """Phi(s) of Gutowski's compaction [m] (`dynfab.terms.spatial._gutowski`)."""
+        ra = wp.sqrt(packed)
+        v = wp.sqrt(s) / ra - scalar(1.0)
+        return scalar(2.0) * ra * (ra / (scalar(2.0) * v * v)
+                                   - (wp.sqrt(w) - ra) / (scalar(3.0) * v * v * v))
+
+    @wp.func(inline=True)
+    def gutowski_pressure(s: scalar, w: scalar, packed: scalar) -> scalar:
+        """sigma(s) = (sqrt(w / s) - 1) / v^4, v = sqrt(s / s_a) - 1 [-]."""
+        v = wp.sqrt(s / packed) - scalar(1.0)
+        return (wp.sqrt(w / s) - scalar(1.0)) / (v * v * v * v)
+
+    @wp.func(inline=True)
+    def lateral_slope(data: Data, e: int, d: scalar) -> scalar:
+        """dE_lat/dd [N] of lateral contact e at centreline distance d (module docstring)."""
+        w = data.lateral_law[e, 1]
+        k = data.lateral_law[e, 2]
+        A = data.lateral_law[e, 3]
+        packed = data.lateral_law[e, 4]
+        core = data.lateral_law[e, 5]
+        slope = -k * (w - d)
+        if A > scalar(0.0):
+            if d >= core:
+                slope = -A * gutowski_pressure(d, w, packed)
+            else:
+                slope = -A * gutowski_pressure(core, w, packed) + k * (d - core)
+        return slope
+
+    @wp.func(inline=True)
+    def lateral_law_energy(data: Data, e: int, gap: scalar) -> scalar:
+        """E_lat [J] of lateral contact e at w - d = `gap` (module docstring)."""
+        w = data.lateral_law[e, 1]
+        k = data.lateral_law[e, 2]
+        A = data.lateral_law[e, 3]
+        packed = data.lateral_law[e, 4]
+        core = data.lateral_law[e, 5]
+        energy = scalar(0.5) * k * gap * gap
+        if A > scalar(0.0):
+            d = w - gap
+            at = wp.max(d, core)
+            energy = A * (gutowski_potential(w, w, packed) - gutowski_potential(at, w, packed))
+            if d < core:
+                x = d - core
+                energy = (energy - A * gutowski_pressure(core, w, packed) * x
+                          + scalar(0.5) * k * x * x)
+        return energy
+
+    @wp.func(inline=True)
     def lateral_gap(pos: wp.array(dtype=vec), data: Data, e: int) -> scalar:
         """w - d [m] of lateral contact e (positive where the yarns press)."""
         st = data.lateral_stencil
@@ -195,9 +246,9 @@ def functions(scalar) -> SimpleNamespace:
         n = wp.sqrt(n2)
         n3 = n2 * n
         f = c[0] * v[1] - c[1] * v[0]
-        gap = data.lateral_law[e, 1] - sign * f / n
-        if gap > scalar(0.0):
-            m = -data.lateral_law[e, 2] * gap * sign  # dE/dd x sign
+        d = sign * f / n
+        if data.lateral_law[e, 1] - d > scalar(0.0):
+            m = lateral_slope(data, e, d) * sign  # dE/dd x sign
             gc = m * vec(v[1] / n - f * c[0] / n3, -v[0] / n - f * c[1] / n3, scalar(0.0))
             gv = m * vec(-c[1] / n, c[0] / n, scalar(0.0))
             force[st[e, 1]] = force[st[e, 1]] - gc
@@ -207,11 +258,11 @@ def functions(scalar) -> SimpleNamespace:
 
     @wp.func(inline=True)
     def lateral_energy(pos: wp.array(dtype=vec), data: Data, e: int) -> scalar:
-        """E = 1/2 k (w - d)^2 for d < w, else 0 [J]."""
+        """E = E_lat(d) for d < w, else 0 [J]."""
         gap = lateral_gap(pos, data, e)
         energy = scalar(0.0)
         if gap > scalar(0.0):
-            energy = scalar(0.5) * data.lateral_law[e, 2] * gap * gap
+            energy = lateral_law_energy(data, e, gap)
         return energy
 
     @wp.func(inline=True)

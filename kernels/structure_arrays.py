@@ -151,8 +151,9 @@ class StructureArrays:
     """spatial: (T, 3) (rho [m], K [N m/rad], phi_rest [rad]) of each crossing."""
     lateral_stencil: np.ndarray = field(default_factory=lambda: np.zeros((0, 4), np.int64))
     """spatial: (L, 4) (A_prev, A_next, A, B) of each lateral contact."""
-    lateral_law: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
-    """spatial: (L, 3) (sign, width [m], k [N/m]) of each lateral contact."""
+    lateral_law: np.ndarray = field(default_factory=lambda: np.zeros((0, 6)))
+    """spatial: (L, 6) (sign, width [m], k [N/m], A [N], s_a [m], s_core [m]) of each lateral
+    contact (`dynfab.structure.Structure.lateral_law` without its branch)."""
     group_lateral: np.ndarray = field(default_factory=lambda: np.zeros(1, np.int64))
     """spatial: (G + 1,) group g's lateral contacts."""
 
@@ -263,7 +264,8 @@ def _spatial(s: Structure, node_group: np.ndarray) -> dict:
                 tie_stencil=np.asarray(s.tie_stencil, np.int64).reshape(-1, 6),
                 rotation_law=np.array(s.tie_rotation_law, float).reshape(-1, 3),
                 lateral_stencil=lateral,
-                lateral_law=np.array(s.lateral_law, float)[:, :3].reshape(-1, 3),  # unilateral
+                # the unilateral law: (sign, w, k, A, s_a, s_core), without the branch
+                lateral_law=np.array(s.lateral_law, float)[:, [0, 1, 2, 4, 5, 6]].reshape(-1, 6),
                 group_lateral=np.searchsorted(owner, np.arange(groups + 1)))
 
 

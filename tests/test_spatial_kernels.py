@@ -53,10 +53,16 @@ def perturbed(model: SpecimenModel, d: float, seed: int):
     return pos, anchors
 
 
-def pressing(structure):
-    """The structure with every lateral contact's width at twice the spacing: all press."""
+def pressing(structure, compacting=False):
+    """The structure with every lateral contact's width at 2.5 times the yarn's: all press;
+    `compacting`: on Gutowski's law (docs/model.md 11.5), each contact's distance (about the
+    spacing, 0.49 of that width) between s_core and the width."""
     law = structure.lateral_law.copy()
     law[:, spatial.WIDTH] *= 2.5
+    if compacting:
+        law[:, spatial.COMPACTION] = 1e-4
+        law[:, spatial.PACKED] = 0.4 * law[:, spatial.WIDTH]
+        law[:, spatial.CORE_FROM] = 0.42 * law[:, spatial.WIDTH]
     return structure._replace(lateral_law=law)
 
 
@@ -67,9 +73,10 @@ def case(request):
     return specimen(scene_text(SMALL_BIAS, [3e-3], HOLDING_FRICTION))
 
 
-@pytest.mark.parametrize("lateral", [False, True], ids=["as_is", "pressing"])
+@pytest.mark.parametrize("lateral", ["as_is", "pressing", "compacting"])
 def test_kernel_forces_and_energy_are_the_spatial_terms(case, lateral):
-    structure = pressing(case.structure) if lateral else case.structure
+    structure = (case.structure if lateral == "as_is"
+                 else pressing(case.structure, lateral == "compacting"))
     pos, anchors = perturbed(case, float(case.load_values[1]), seed=1)
     relaxation = StructureRelaxation(structure)
     assert relaxation.variant.kinematics == "spatial"
@@ -88,7 +95,7 @@ def test_kernel_forces_and_energy_are_the_spatial_terms(case, lateral):
     terms = spatial.energy_vector(structure, pos, np.zeros(1), anchors, limit)
     nodes, ties = relaxation.energies(pos, None, anchors)
     laterals = relaxation.lateral_energies(pos)
-    assert (laterals > 0).all() if lateral else True
+    assert (laterals > 0).all() if lateral != "as_is" else True
     assert laterals.sum() == pytest.approx(terms[spatial.LATERAL],
                                            rel=ROUNDING, abs=ROUNDING * np.abs(terms).sum())
     total = nodes.sum() + ties.sum() + laterals.sum()

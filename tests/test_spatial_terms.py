@@ -47,6 +47,8 @@ STICK, LIMIT = 1e3, 0.05    # k_t [N/m], F_T [N]: slip at the limit F_T / k_t = 
 SHEAR_K = 5e-3              # [N m/rad]
 K_LATERAL = 1e4             # [N/m]
 WIDTH = 0.8 * L             # [m]
+COMPACTION = (1e-5, 0.4 * L, 0.45 * L)
+"""Gutowski's compaction (A [N], s_a, s_core [m]): at d = 0.5 L a force of 0.014 N."""
 
 
 # --- Finite differences -------------------------------------------------------------------
@@ -186,11 +188,13 @@ def crossing_element(anchor, limit, shear_k, phi_rest, secant=False):
             derivatives)
 
 
-def lateral_element(sign, branch=NATURAL):
+def lateral_element(sign, branch=NATURAL, compaction=(0.0, 0.0, 0.0)):
     def derivatives(X):
         g, H = np.empty(12), np.empty((12, 12))
-        return spatial.lateral_derivatives(X, sign, WIDTH, K_LATERAL, g, H, branch), g, H
-    return (lambda X: spatial.lateral_energy(X, sign, WIDTH, K_LATERAL, branch)), derivatives
+        E = spatial.lateral_derivatives(X, sign, WIDTH, K_LATERAL, g, H, branch, *compaction)
+        return E, g, H
+    return ((lambda X: spatial.lateral_energy(X, sign, WIDTH, K_LATERAL, branch, *compaction)),
+            derivatives)
 
 
 # The crossing's friction states: |S| in units of F_T / k_t (kinks >= 0.6 F_T / k_t = 3e-5 m
@@ -225,12 +229,21 @@ def make_case(name, seed):
         sign = rng.choice([-1.0, 1.0])
         if name == "lateral: held closed, apart":  # w - d < 0: the static solver's active set
             return (lateral_stencil(rng, 1.2 * L, sign), *lateral_element(sign, CLOSED), L)
+        if name.startswith("lateral compaction"):  # Gutowski's law (docs/model.md 11.5)
+            distance, branch = {"lateral compaction": (0.5 * L, NATURAL),
+                                "lateral compaction: the core": (0.42 * L, NATURAL),
+                                "lateral compaction: held closed, apart": (1.2 * L, CLOSED)}[name]
+            # FD steps (<= 1.2e-5 m on d) stay clear of the law's kinks at w and s_core; the
+            # law varies over v sqrt(s s_a) / 2 ~ 0.03 L (sigma ~ v^-4, v = sqrt(s / s_a) - 1)
+            return (lateral_stencil(rng, distance, sign),
+                    *lateral_element(sign, branch, COMPACTION), 0.03 * L)
         return (lateral_stencil(rng, 0.5 * L, sign), *lateral_element(sign), L)
     raise KeyError(name)
 
 
 CASES = ["stretch", "bend", *(f"crossing: {s}" for s in CROSSING_STATES), "lateral",
-         "lateral: held closed, apart"]
+         "lateral: held closed, apart", "lateral compaction", "lateral compaction: the core",
+         "lateral compaction: held closed, apart"]
 
 
 # --- Building blocks ----------------------------------------------------------------------

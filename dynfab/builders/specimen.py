@@ -30,6 +30,7 @@ from dynfab.scene import DEFAULT_CORE_STIFFNESS, TORSION_RADIUS_PER_WIDTH, Scene
 from dynfab.structure import Structure
 from dynfab.terms import contact as contact_law
 from dynfab.terms.friction import law_constants
+from dynfab.terms.spatial import compaction_law
 
 def layout_of(scene: Scene) -> specimen_layout.Layout:
     """The specimen's layout from its scene."""
@@ -104,6 +105,37 @@ def _friction_law(scene: Scene) -> np.ndarray:
     return np.array([*law_constants(friction), float(stick)])
 
 
+def _compaction(scene: Scene, family: int, core: np.ndarray) -> np.ndarray:
+    """(A [N], s_a [m], s_core [m]) of Gutowski's lateral compaction between two yarns of
+    `family` (docs/model.md 11.5, (11.5)-(11.6)); zeros without `fibre_modulus`.
+
+    A = 3 pi E_f / beta^4 x t x l: the law's stiffness A_s over the side face of a yarn of
+    thickness t = 2 A (its crimp amplitude: a balanced weave's centreline runs +-t / 2) along
+    the length l a lateral contact stands for (the crossing family's spacing); s_a = V0 w /
+    V_a, the centreline distance at which the yarns' fibres reach their packing limit; s_core
+    where the law's stiffness reaches the yarns' core (`lateral_stiffness`, `core`: that
+    family's, one value), found by bisection in (s_a, w]."""
+    yarn, across = (scene.warp, scene.weft) if family == 0 else (scene.weft, scene.warp)
+    if getattr(yarn, "fibre_modulus", None) is None:
+        return np.zeros(3)
+    A = (3.0 * np.pi * yarn.fibre_modulus / yarn.fibre_waviness ** 4
+         * 2.0 * yarn.amplitude * across.spacing)
+    w = yarn.width
+    packed = yarn.fibre_volume_fraction * w / yarn.packing_limit
+    k = float(core[0]) if core.size else 0.0
+
+    def stiffness(d):
+        return compaction_law(d, w, k, A, packed, packed)[2]
+
+    low, high = packed, w
+    if stiffness(high) >= k:
+        return np.array([A, packed, w])
+    for _ in range(200):
+        middle = 0.5 * (low + high)
+        low, high = (middle, high) if stiffness(middle) > k else (low, middle)
+    return np.array([A, packed, high])
+
+
 def torsion_radius(scene: Scene) -> float:
     """rho [m]: crossing.torsion_radius, as the validated scene resolves it (default
     `dynfab.scene.TORSION_RADIUS_PER_WIDTH` times the smaller yarn width)."""
@@ -171,10 +203,14 @@ def specimen_structure(scene: Scene, layout=None) -> Structure:
     node_chain = np.repeat(np.arange(start.size - 1), np.diff(start))
     lateral_family = layout.chain_family[node_chain[layout.lateral[:, 2]]]
     core = law[0]
+    width = _family_value(scene, "width", lateral_family, lambda t: np.nan)
+    stiffness = _family_value(scene, "lateral_stiffness", lateral_family, lambda t: core)
+    compaction = np.array([_compaction(scene, f, stiffness[lateral_family == f])
+                           for f in (0, 1)])
     lateral_law = np.column_stack([
-        layout.lateral_sign, _family_value(scene, "width", lateral_family, lambda t: np.nan),
-        _family_value(scene, "lateral_stiffness", lateral_family, lambda t: core),
-        np.full(lateral_family.size, float(contact_law.NATURAL))])
+        layout.lateral_sign, width, stiffness,
+        np.full(lateral_family.size, float(contact_law.NATURAL)),
+        compaction[lateral_family]])
     fixed = np.repeat(layout.held, 3)
     n, chains = rest.shape[0], start.size - 1
     return Structure(

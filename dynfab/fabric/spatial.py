@@ -40,7 +40,7 @@ STICK = 3
 """Column of k_t [N/m] in `tie_friction_law`."""
 RHO, SHEAR_K, PHI_REST = range(3)
 """Columns of `tie_rotation_law`."""
-SIGN, WIDTH, LATERAL_K, BRANCH = range(4)
+SIGN, WIDTH, LATERAL_K, BRANCH, COMPACTION, PACKED, CORE_FROM = range(7)
 """Columns of `lateral_law` (`dynfab.structure.Structure`)."""
 IN_PLANE = 2
 """The dofs of a node a crossing or lateral contact acts on: x and y. Their slips, rotation
@@ -103,7 +103,8 @@ def energies(pos, s, P, anchors, limit, out):
         _gather(pos, s.lateral_stencil[e], four)
         law = s.lateral_law[e]
         out[LATERAL] += element.lateral_energy(four, law[SIGN], law[WIDTH], law[LATERAL_K],
-                                               law[BRANCH])
+                                               law[BRANCH], law[COMPACTION], law[PACKED],
+                                               law[CORE_FROM])
 
 
 @numba.njit(cache=True)
@@ -217,7 +218,7 @@ def _derivatives(pos, s, anchors, limit, secant, grad, values):
         _gather(pos, s.lateral_stencil[e], four)
         law = s.lateral_law[e]
         element.lateral_derivatives(four, law[SIGN], law[WIDTH], law[LATERAL_K], g12, H12,
-                                    law[BRANCH])
+                                    law[BRANCH], law[COMPACTION], law[PACKED], law[CORE_FROM])
         k = _emit_in_plane(s.lateral_stencil[e], g12, H12, grad, values, k)
 
 
@@ -365,7 +366,7 @@ def rounding_scale(pos, s, P, limit):
         _gather(pos, s.lateral_stencil[e], four)
         law = s.lateral_law[e]
         element.lateral_derivatives(four, law[SIGN], law[WIDTH], law[LATERAL_K], g12, H12,
-                                    law[BRANCH])
+                                    law[BRANCH], law[COMPACTION], law[PACKED], law[CORE_FROM])
         total += np.sum(np.abs(g12) * np.abs(four.ravel()))
     return total
 

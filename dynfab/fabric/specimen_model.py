@@ -25,6 +25,9 @@ Record of one step (n nodes, C crossings, L lateral contacts):
 - contact_force, friction_limit, sliding (C,); friction_force, anchors (C, 3) [N], [m, m,
   rad]; slip_ratio: the largest in-plane slip over the segment length [-];
 - lateral_gap (L,) [m]: w - d of each lateral contact (positive where the yarns press);
+  yarn_width (L,) [m]: the width the two yarns narrow to there, min(d, w); and
+  fibre_volume_fraction (L,) [-]: their fibres' V0 w / min(d, w) (NaN for a family without
+  Gutowski's compaction, docs/model.md 11.5);
 - max_slope: the largest |e_z| / |e_xy| of any segment [-] (the small-slope model's check);
 - dissipated, work [J]; energy/<term> [J]; the solver's fields.
 """
@@ -44,7 +47,7 @@ from dynfab.scene import Scene
 from dynfab.shear_force import (bias_normalised_shear_force, frame_normalised_shear_force,
                                 frame_shear_force)
 from dynfab.step import StepSolution, StepStart
-from dynfab.structure import chain_count
+from dynfab.structure import chain_count, chain_of_node
 
 SLIP_LIMIT = 0.5
 """The largest slip of a crossing over its segment length a step may end with
@@ -100,6 +103,12 @@ class SpecimenModel:
         self.structure = specimen_structure(scene, self.layout)
         self.control = "displacement"
         self.load_values = np.concatenate([[0.0], np.asarray(scene.load.values, float)])
+        family = self.structure.chain_family[chain_of_node(self.structure)][
+            self.structure.lateral_stencil[:, 2]]
+        fractions = [getattr(t, "fibre_volume_fraction", None) for t in (scene.warp, scene.weft)]
+        self._woven_fibre_fraction = np.array([np.nan if v is None else v
+                                               for v in fractions])[family]
+        """V0 of each lateral contact's family (L,), NaN without Gutowski's compaction."""
         self._held = np.flatnonzero(self.layout.held)
 
     @classmethod
@@ -315,7 +324,7 @@ class SpecimenModel:
             "contact_force": R, "friction_limit": np.asarray(limit, float),
             "sliding": sliding, "friction_force": friction_force, "anchors": anchors,
             "crossing_slip_ratio": self.slip_ratios(pos),
-            "lateral_gap": self.lateral_gaps(pos), "max_slope": self.max_slope(pos),
+            **self.narrowing(pos), "max_slope": self.max_slope(pos),
             "crimp": self.crimps(pos), "dissipated": new.dissipated, "work": new.work,
             **{name: np.asarray(value)[0] for name, value in solution.fields.items()},
         }
@@ -355,6 +364,14 @@ class SpecimenModel:
         out = np.zeros(self.structure.lateral_stencil.shape[0])
         spatial.lateral_gaps(pos, self.structure, out)
         return out
+
+    def narrowing(self, pos) -> dict:
+        """lateral_gap, yarn_width and fibre_volume_fraction of each lateral contact (module
+        docstring; docs/model.md 11.5: the yarns narrow at constant thickness)."""
+        gap = self.lateral_gaps(pos)
+        width = self.structure.lateral_law[:, spatial.WIDTH] - np.maximum(gap, 0.0)
+        woven = self._woven_fibre_fraction * self.structure.lateral_law[:, spatial.WIDTH]
+        return {"lateral_gap": gap, "yarn_width": width, "fibre_volume_fraction": woven / width}
 
     def max_slope(self, pos) -> float:
         """The largest |e_z| / |e_xy| over every segment [-]."""

@@ -58,10 +58,11 @@ Elements:
     S <- (1 - m) S, m = 1 - F_T / (k_t |S|), dissipating F_T m |S|.
 (e) Lateral contact of neighbouring yarns, X = (A_prev, A_next, A, B): c = (A_next -
     A_prev)_xy, d = sign cross2(c, (B - A)_xy) / |c| (the signed distance from B to the line
-    through A along c), E = 1/2 k (width - d)^2 for d < width, else 0 (the unilateral law,
-    `branch` NATURAL); held by the static solver's active set (`branch`, docs/model.md
-    11.5), CLOSED gives 1/2 k (width - d)^2 at every d and OPEN 0;
-        dE = -k (width - d) dd,  d2E = k dd dd^T - k (width - d) d2d,
+    through A along c), E = E_lat(d) for d < width, else 0 (the unilateral law, `branch`
+    NATURAL); held by the static solver's active set (`branch`, docs/model.md 11.5), CLOSED
+    gives E_lat(d) at every d and OPEN 0. E_lat is the linear 1/2 k (width - d)^2 without a
+    compaction law (`compaction` 0), else Gutowski's (`compaction_law`, docs/model.md 11.5);
+        dE = E_lat' dd,  d2E = E_lat'' dd dd^T + E_lat' d2d,
     with f = cross2(c, v), v = (B - A)_xy: dd/dc = sign ((v_y, -v_x) / |c| - f c / |c|^3),
     dd/dv = sign (-c_y, c_x) / |c|,
     d2d/dc2 = -sign ((df/dc c^T + c df/dc^T) / |c|^3 + f (I / |c|^3 - 3 c c^T / |c|^5)),
@@ -519,6 +520,43 @@ def crossing_return_map(X, anchor, rho, limit, stick):
 
 # --- (e) Lateral contact of neighbouring yarns --------------------------------------------
 
+
+@numba.njit(cache=True)
+def _gutowski(s, width, compaction, packed):
+    """(E, dE/ds, d2E/ds2) of Gutowski's compaction at centreline distance s > packed [m]:
+    E = A (Phi(w) - Phi(s)), dE/ds = -A sigma(s), with (u = sqrt(s), v = u / sqrt(s_a) - 1)
+
+        sigma(s) = (sqrt(w / s) - 1) / v^4,
+        Phi(s) = 2 sqrt(s_a) (sqrt(s_a) / (2 v^2) - (sqrt(w) - sqrt(s_a)) / (3 v^3)),
+
+    Phi' = sigma (docs/model.md (11.6)); A = `compaction` [N], s_a = `packed` [m]."""
+    rw, rs, ra = np.sqrt(width), np.sqrt(s), np.sqrt(packed)
+    v, vw = rs / ra - 1.0, rw / ra - 1.0
+    phi = 2.0 * ra * (ra / (2.0 * v * v) - (rw - ra) / (3.0 * v * v * v))
+    phi_w = 2.0 * ra * (ra / (2.0 * vw * vw) - (rw - ra) / (3.0 * vw * vw * vw))
+    excess = rw / rs - 1.0
+    v4 = v * v * v * v
+    dsigma = -rw / (2.0 * s * rs) / v4 - 4.0 * excess / (v4 * v * 2.0 * rs * ra)
+    return compaction * (phi_w - phi), -compaction * excess / v4, -compaction * dsigma
+
+
+@numba.njit(cache=True)
+def compaction_law(d, width, k, compaction, packed, core_from):
+    """(E [J], dE/dd [N], d2E/dd2 [N/m]) of the lateral contact's law at centreline distance
+    d [m] (docs/model.md 11.5): 1/2 k (width - d)^2 without a compaction law (`compaction`
+    0); else Gutowski's (`_gutowski`) down to `core_from` [m], where its stiffness reaches
+    the yarns' core k, and the core's spring k below it (continuous to the second
+    derivative)."""
+    if not compaction > 0.0:
+        gap = width - d
+        return 0.5 * k * gap * gap, -k * gap, k
+    if d >= core_from:
+        return _gutowski(d, width, compaction, packed)
+    e, e1, e2 = _gutowski(core_from, width, compaction, packed)
+    x = d - core_from
+    return e + e1 * x + 0.5 * k * x * x, e1 + k * x, k
+
+
 # u = (c_x, c_y, v_x, v_y): c = A_next - A_prev, v = B - A over the slots (A_prev, A_next, A, B).
 _LATERAL_PLUS = (3, 4, 9, 10)
 _LATERAL_MINUS = (0, 1, 6, 7)
@@ -543,12 +581,14 @@ def lateral_pressing(gap, branch):
 
 
 @numba.njit(cache=True)
-def lateral_energy(X, sign, width, k, branch=NATURAL):
-    """E = 1/2 k (width - d)^2 where `lateral_pressing`, else 0 [J]; width [m], k [N/m]."""
-    gap = width - lateral_distance(X, sign)
-    if not lateral_pressing(gap, branch):
+def lateral_energy(X, sign, width, k, branch=NATURAL, compaction=0.0, packed=0.0,
+                   core_from=0.0):
+    """E = E_lat(d) where `lateral_pressing`, else 0 [J] (`compaction_law`); width [m],
+    k [N/m]."""
+    d = lateral_distance(X, sign)
+    if not lateral_pressing(width - d, branch):
         return 0.0
-    return 0.5 * k * gap * gap
+    return compaction_law(d, width, k, compaction, packed, core_from)[0]
 
 
 @numba.njit(cache=True)
@@ -579,7 +619,8 @@ def _lateral_distance_derivatives(u, sign, gd, Hd):
 
 
 @numba.njit(cache=True)
-def lateral_derivatives(X, sign, width, k, g, H, branch=NATURAL):
+def lateral_derivatives(X, sign, width, k, g, H, branch=NATURAL, compaction=0.0, packed=0.0,
+                        core_from=0.0):
     """Fill g (12,) [N] and H (12, 12) [N/m] of `lateral_energy`; return E [J]
     (all zero where not `lateral_pressing`)."""
     g[:] = 0.0
@@ -588,14 +629,15 @@ def lateral_derivatives(X, sign, width, k, g, H, branch=NATURAL):
     _difference(X, _LATERAL_PLUS, _LATERAL_MINUS, u)
     gd = np.empty(4)
     Hd = np.empty((4, 4))
-    gap = width - _lateral_distance_derivatives(u, sign, gd, Hd)
-    if not lateral_pressing(gap, branch):
+    d = _lateral_distance_derivatives(u, sign, gd, Hd)
+    if not lateral_pressing(width - d, branch):
         return 0.0
-    gu = -k * gap * gd
+    energy, e1, e2 = compaction_law(d, width, k, compaction, packed, core_from)
+    gu = e1 * gd
     Hu = np.empty((4, 4))
     for i in range(4):
         for j in range(4):
-            Hu[i, j] = k * gd[i] * gd[j] - k * gap * Hd[i, j]
+            Hu[i, j] = e2 * gd[i] * gd[j] + e1 * Hd[i, j]
     _scatter_gradient(gu, _LATERAL_PLUS, _LATERAL_MINUS, g)
     _scatter_hessian(Hu, _LATERAL_PLUS, _LATERAL_MINUS, H)
-    return 0.5 * k * gap * gap
+    return energy
