@@ -29,6 +29,12 @@ import sys
 
 from dynfab import _catch_while_starting
 
+DESCRIPTION = ("Yarn-scale simulation of a plain-woven fabric (docs/model.md): run a scene, "
+               "plot or view its results, fit its keys to a measured curve, run a study, "
+               "and the reports.")
+"""`dynfab --help`'s description: whole sentences (the module docstring's first line, which
+it was, stopped mid-sentence)."""
+
 if __name__ == "__main__":  # python -m dynfab.cli (the console script's is set by dynfab)
     _catch_while_starting()
 
@@ -41,7 +47,7 @@ import time  # noqa: E402
 import warnings  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-from dynfab.errors import DynfabError, UserError  # noqa: E402
+from dynfab.errors import DynfabError, SolverError, UserError  # noqa: E402
 
 from dynfab.options import run_flags  # noqa: E402 (light: the scene schema only)
 
@@ -50,7 +56,7 @@ RUN_FLAGS = run_flags()
 
 
 def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="dynfab", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="dynfab", description=DESCRIPTION)
     commands = parser.add_subparsers(dest="command", required=True)
     run = commands.add_parser("run", help="solve a scene's load path and write an HDF5 result file")
     run.add_argument("scene", type=Path, help="scene file (TOML, SI units)")
@@ -219,12 +225,16 @@ def _command_run(args, context: dict) -> None:
     _progress = None if args.quiet else _Progress()
     options = {flag[2:].replace("-", "_"): getattr(args, flag[2:].replace("-", "_"))
                for flag in RUN_FLAGS}
-    with _compiles_announced(None if args.quiet else _progress.notice):
-        written = run_to_file(scene, args.solver, out, overwrite=args.overwrite,
-                              resume=args.resume,
-                              progress=None if args.quiet else _progress.line,
-                              status=None if args.quiet else _progress.status,
-                              device=args.device, **options)
+    try:
+        with _compiles_announced(None if args.quiet else _progress.notice):
+            written = run_to_file(scene, args.solver, out, overwrite=args.overwrite,
+                                  resume=args.resume,
+                                  progress=None if args.quiet else _progress.line,
+                                  status=None if args.quiet else _progress.status,
+                                  device=args.device, **options)
+    except SolverError:
+        _summarise_the_finished(out, args)  # the table of what is kept, then the error line
+        raise
     if args.quiet:
         return
     _progress.clear()
@@ -233,6 +243,20 @@ def _command_run(args, context: dict) -> None:
         return
     print_summary(read_results(out, only=SUMMARY_DATASETS))
     print(f"wrote {out}", file=sys.stderr)
+
+
+def _summarise_the_finished(out: Path, args) -> None:
+    """Before a stop's error line: the summary table of the steps the file kept (none with
+    --quiet, or when it kept none or was not this run's to summarise)."""
+    from dynfab.results import finished_counts, read_results
+    from dynfab.summary import print_summary
+
+    if args.quiet or not out.exists():
+        return
+    with contextlib.suppress(DynfabError, OSError):
+        if finished_counts(out) != (0, 0):
+            _progress.clear()
+            print_summary(read_results(out, only=SUMMARY_DATASETS))
 
 
 def _compiles_announced(say):

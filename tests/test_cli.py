@@ -481,3 +481,14 @@ def test_sigterm_mid_run_of_a_clamped_patch_keeps_its_finished_steps(tmp_path):
     assert "weft_positions" in rows
     for name, value in rows.items():
         np.testing.assert_array_equal(value, expected[name][:kept], err_msg=name)
+
+
+def test_dynfab_help_describes_the_command_in_whole_sentences():
+    # the description was the module docstring's first line, cut mid-sentence ("`dynfab
+    # xdmf` and"): it must end a sentence and name what the command does
+    done = dynfab_cli("--help")
+    assert done.returncode == 0
+    description = done.stdout.split("\n\n")[1].replace("\n", " ")
+    assert description.endswith(".") and "` and" not in description
+    for word in ("run", "plot", "fit", "study"):
+        assert word in description
