@@ -98,14 +98,27 @@ def run_to_file(scene: Scene, solver: str, out: str | Path, *, overwrite: bool =
             sink.close(trim=False)
             _finish_view(view, out)
         raise
-    except BaseException:
+    except BaseException as error:
         if sink is not None:
-            sink.close()  # a solver failure: the finished steps, trimmed
+            if isinstance(error, SolverError):
+                sink.set_attrs(**stop_attrs(error, sink))
+            sink.close()  # a solver failure: the finished steps, trimmed (and the stop)
             _finish_view(view, out)
         raise
     sink.close()
     view.finish()  # the trimmed file's dataset sizes
     return written
+
+
+STOP_ATTRS = ("stop_message", "stop_step", "stop_exit_status")
+"""The root attributes of a run that a solver failure stopped: its one-line message, the
+1-based entry (load step, or frame of a transient) it stopped at, and its exit status."""
+
+
+def stop_attrs(error: SolverError, sink) -> dict:
+    """`STOP_ATTRS` of a run stopped by `error` after the entries `sink` holds."""
+    entries = sink.frame_count if sink.step_count == 0 and sink.frame_count else sink.step_count
+    return dict(zip(STOP_ATTRS, (str(error), int(entries) + 1, int(error.exit_status))))
 
 
 def _finish_view(view: XdmfSync, out) -> None:
@@ -274,6 +287,12 @@ def _open_sink(model: RunModel, engine: Solver | Transient, out, *, overwrite: b
             sink.close(trim=False)
             raise UserError(f"cannot resume '{out}': it was written by the "
                              f"{sink.attrs.get('solver')!r} solver, not {engine.name!r}")
+        if STOP_ATTRS[0] in sink.attrs:
+            sink.close(trim=False)
+            raise SolverError(f"'{out}' stopped at entry {sink.attrs['stop_step']} when it "
+                              f"was run: {sink.attrs['stop_message']}; resuming the same scene "
+                              "would stop there again: change the scene (or the run options) "
+                              "and run it with --overwrite")
         if not has_views(out):  # written before dynfab.views: add them now
             sink.flush()
         return sink

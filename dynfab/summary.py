@@ -67,9 +67,11 @@ def _step_quantities(attrs: dict, record: dict, unit: str) -> str:
     return text + f"  slip {float(record['slip_ratio']):.3f} of a segment"
 
 
-def print_summary(results: Results, file=sys.stdout) -> None:
+def print_summary(results: Results, file=None) -> None:
     """The summary table (per step, or per frame of a transient run), then the run's summary
-    (`run_summary`): its steps, solver time and final state."""
+    (`run_summary`): its steps, solver time and final state; to `file`, else the standard
+    output at the time of the call (not at import: a caller may have replaced it since)."""
+    file = sys.stdout if file is None else file
     if results.step_count == 0:
         _print_frames_summary(results, file)
     elif results.attrs.get("model") == "specimen":

@@ -112,3 +112,31 @@ def test_the_one_yarn_model_records_its_slip_ratio_and_runs_on():
         np.testing.assert_array_equal(steps["slip_ratio"][i], expected)
     np.testing.assert_array_equal(steps["stress"],
                                   steps["end_force"] / results.attrs["width_per_yarn"])
+
+
+def test_a_stopped_run_keeps_its_stop_in_the_file_and_resume_says_so(tmp_path, capsys):
+    """The stop the file remembers (exit 3): its message, step and status in the file's root
+    attributes; the summary of the finished steps printed before the error line; --resume
+    names the recorded stop and does not run into it again."""
+    from dynfab.results import read_results
+
+    scene, out = compressed_yarn(tmp_path), tmp_path / "out.h5"
+    with pytest.raises(SystemExit) as stop:
+        main(["run", str(scene), "--out", str(out)])
+    assert stop.value.code == 3
+    captured = capsys.readouterr()
+    error_line = captured.err.strip().splitlines()[-1]
+    assert error_line.startswith("dynfab: error: load step 2/2") and "folded back" in error_line
+    assert "step" in captured.out and "1 load step" in captured.out  # the table, the summary
+    attrs = read_results(out).attrs
+    assert attrs["stop_step"] == 2 and attrs["stop_exit_status"] == 3
+    assert attrs["stop_message"].startswith("load step 2/2") and "folded back" in attrs[
+        "stop_message"]
+    with pytest.raises(SystemExit) as resumed:
+        main(["run", str(scene), "--out", str(out), "--resume", "--quiet"])
+    assert resumed.value.code == 3
+    line = capsys.readouterr().err.strip()
+    assert "\n" not in line and f"'{out}' stopped at entry 2 when it was run" in line
+    assert "would stop there again" in line
+    with h5py.File(out, "r") as h5:
+        assert int(h5["steps_done"][0]) == 1  # nothing run, nothing written
