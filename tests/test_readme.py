@@ -209,3 +209,24 @@ def test_the_commands_no_other_test_runs(command, tmp_path, monkeypatch, capsys)
         out = Path(args[args.index("--out") + 1])
         assert any(out.iterdir()), f"{command!r} wrote nothing to {out}"
     assert "Traceback" not in capsys.readouterr().err
+
+
+def test_the_readme_names_the_python_it_needs_as_pyproject_does():
+    # a newcomer reads which Python the commands need, and it is the package's own floor
+    import tomllib
+
+    needed = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["requires-python"]
+    version = needed.removeprefix(">=")
+    text = README.read_text()
+    assert f"Python {version} or newer" in text and "`requires-python`" in text
+    assert "warnings summary" in text  # and what its expected warnings are
+
+
+def test_a_benchmark_flag_the_readme_names_is_said_to_be_the_benchmarks():
+    # `--friction-beta` belongs to benchmarks/shear.py, not to `dynfab run`: where the README
+    # names it, it says so
+    text = README.read_text()
+    at = text.index("--friction-beta")
+    assert "benchmarks/shear.py" in text[at:at + 120]
+    assert "--friction-beta" not in {a for action in _parser()._actions
+                                     for a in getattr(action, "option_strings", [])}
