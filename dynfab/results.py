@@ -112,6 +112,7 @@ UNITS: dict[str, str] = {
     "reference/free_end_rank": "-",  # specimen: (crossings,) rank from a free yarn end, 1 last
     # One entry per finished load step (axis 0 = steps).
     "steps/clamp_force": "N",  # specimen: (steps,) force on the moved clamp (corner) along d
+    "steps/clamp_force_from_step_0": "N",  # specimen: (steps,) the same less step 0's
     "steps/shear_force": "N",  # specimen: (steps,) picture frame F / (2 cos theta); NaN bias
     "steps/normalised_shear_force": "N/m",  # specimen: (steps,) frame eq. 10; bias Harrison
     "steps/crossing_positions": "m",  # specimen: (steps, crossings, 3) warp node of each crossing
@@ -139,6 +140,7 @@ UNITS: dict[str, str] = {
     "steps/iterations": "-",  # Newton iterations
     "steps/rounding_floor": "-",  # (steps, yarns) bool: residual stopped falling above tolerance
     "steps/wall_time": "s",  # (steps,)
+    "steps/compile_time": "s",  # (steps,) of wall_time, compiling kernels (a first run's)
     "steps/time_steps": "-",  # dynamic solver: time steps taken
     "steps/cg_iterations": "-",  # semi-implicit dynamic solver: CG iterations of the step
     "steps/force_evaluations": "-",  # dynamic solver

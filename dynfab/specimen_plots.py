@@ -19,15 +19,13 @@ from __future__ import annotations
 import numpy as np
 from matplotlib.figure import Figure
 
-from dynfab.plot_style import legend, new_figure, style_axes
+from dynfab.plot_style import FONT_SIZE, legend, new_figure, style_axes
 from dynfab.results import Results
 from dynfab.shear_force import bias_normalised_shear_force
 from dynfab.specimen_layout import nominal_shear_angle
 
 DEGREE = 180.0 / np.pi
 ZONES = ("zone A", "zone B", "zone C")
-WIDE_RANGE = 30.0
-"""Largest over smallest force drawn on a linear axis (`_log_if_wide`)."""
 
 
 def _nominal(results: Results, d: np.ndarray) -> np.ndarray:
@@ -41,41 +39,124 @@ def _nominal(results: Results, d: np.ndarray) -> np.ndarray:
 
 
 def plot_shear_force(results: Results) -> Figure:
-    """Force against d, normalised shear force against the nominal angle; computed angles
-    against eq. 13 / 2."""
+    """Force against d and normalised shear force against the nominal angle, both linear from
+    the origin; computed angles against eq. 13 / 2 (module docstring). Where the force past
+    the yarns' meeting (`yarns_meet_at`) outgrows the curve before it by more than
+    CLIP_RATIO, the first two panels are cut at CLIP_HEAD times the largest value before it
+    (the points past it drawn apart, the cut said in a note) and a fourth panel draws the
+    whole path on a log axis. A bias extension's force is drawn from step 0 too (a load
+    cell zeroed at the start of the test), step 0's point named: the woven state's reaction
+    on the clamps."""
     steps = results.steps
     d = np.asarray(steps["load"], float)[:, 0]
     force = np.asarray(steps["clamp_force"], float)
     gamma = np.asarray(steps["shear_angle"], float)
     nominal = _nominal(results, d)
-    fig = new_figure(14, 4)
-    by_d, by_angle, angles = fig.subplots(1, 3)
-    by_d.plot(1e3 * d, force, marker="o", ms=3)
-    by_d.set(xlabel="clamp displacement d [mm]", ylabel="clamp force along d [N]")
     normalised = _normalised_over_the_path(results, d, force)
-    by_angle.plot(DEGREE * nominal, normalised, marker="o", ms=3)
-    by_angle.set(xlabel="nominal shear angle [deg]", ylabel="normalised shear force [N/m]")
-    angles.plot(1e3 * d, DEGREE * nominal, color="k", linestyle="--", label="kinematics")
+    meet = _meeting_angle(results)
+    before = nominal < meet
+    clipped = _clipped(force, before)
+    fig = new_figure(18 if clipped else 14, 4)
+    axes = fig.subplots(1, 4 if clipped else 3)
+    by_d, by_angle, angles = axes[:3]
+    for ax, x, y, unit in ((by_d, 1e3 * d, force, "clamp force along d [N]"),
+                           (by_angle, DEGREE * nominal, normalised,
+                            "normalised shear force [N/m]")):
+        _draw_to_the_meeting(ax, x, y, before, clipped)
+        ax.set_ylabel(unit)
+    by_d.set_xlabel("clamp displacement d [mm]")
+    by_angle.set_xlabel("nominal shear angle [deg]")
+    if np.isfinite(meet):
+        by_angle.axvline(DEGREE * meet, color="0.4", linestyle=":", linewidth=1,
+                         label=f"yarns meet ({DEGREE * meet:.1f} deg)")
+        by_angle.set_xlim(right=max(by_angle.get_xlim()[1], 1.05 * DEGREE * meet))
+    if results.attrs["specimen_test"] == "bias_extension":
+        _draw_from_step_0(by_d, 1e3 * d, force)
+    _draw_angles(results, angles, d, nominal, gamma)
+    if clipped:
+        whole = axes[3]
+        whole.plot(1e3 * d[d > 0], force[d > 0], marker="o", ms=3, label="clamp force")
+        whole.set(yscale="log", xlabel="clamp displacement d [mm]",
+                  ylabel="clamp force along d [N], log", title="the whole path")
+    for ax in axes:
+        style_axes(ax)
+        legend(ax)
+    fig.suptitle(f"{results.attrs['specimen_test'].replace('_', ' ')}: force and shear angle "
+                 "(docs/model.md section 11)")
+    return fig
+
+
+def _meeting_angle(results: Results) -> float:
+    """The nominal angle [rad] at which the yarns meet: the file's `yarns_meet_at`, or from
+    the scene it stores (a file written before that attribute); inf where neither says."""
+    if "yarns_meet_at" in results.attrs:
+        return float(results.attrs["yarns_meet_at"])
+    from dynfab.scene import parse_scene_text
+
+    try:
+        scene = parse_scene_text(results.attrs["scene"])
+        return float(np.arccos(max(t.width / t.spacing for t in (scene.warp, scene.weft))))
+    except (KeyError, TypeError, ValueError):
+        return np.inf
+
+
+CLIP_RATIO = 5.0
+"""How far the force past the yarns' meeting may outgrow the largest before it on the linear
+panels before they are cut (`plot_shear_force`)."""
+CLIP_HEAD = 1.5
+"""Headroom of a cut panel over the largest value before the meeting."""
+
+
+def _clipped(values: np.ndarray, before: np.ndarray) -> bool:
+    """Whether the values past the meeting outgrow those before it by CLIP_RATIO."""
+    head = np.nanmax(np.abs(values[before]), initial=0.0)
+    return bool(head > 0 and np.nanmax(np.abs(values), initial=0.0) > CLIP_RATIO * head)
+
+
+def _draw_to_the_meeting(ax, x, y, before, clipped: bool) -> None:
+    """The curve on a linear axis from the origin: its points before the meeting, those past
+    it apart; cut at CLIP_HEAD times the largest before it where `clipped`, a note saying
+    where the last point lies."""
+    ax.plot(x[before], y[before], marker="o", ms=3, label="computed")
+    if not before.all():
+        last = int(np.flatnonzero(before)[-1]) if before.any() else 0
+        past = np.arange(last, x.size)
+        ax.plot(x[past], y[past], marker="s", ms=3, color="C3",
+                label="past the yarns' meeting")
+    top = CLIP_HEAD * np.nanmax(y[before], initial=0.0) if clipped else None
+    low = float(np.nanmin(y, initial=0.0))  # a force below zero beyond rounding is drawn
+    ax.set_ylim(bottom=low if low < -1e-6 * np.nanmax(np.abs(y), initial=0.0) else 0.0,
+                top=top)
+    ax.set_xlim(left=min(0.0, float(np.min(x))))
+    if clipped:
+        ax.annotate(f"cut: {y[-1]:.3g} at the last step (fourth panel)", xy=(0.02, 0.97),
+                    xycoords="axes fraction", va="top", fontsize=FONT_SIZE - 2)
+
+
+def _draw_from_step_0(ax, x, force) -> None:
+    """A bias extension's force less step 0's (a load cell zeroed at the start of the test),
+    and step 0's point named: the relaxed woven state's reaction on the clamps."""
+    ax.plot(x, force - force[0], linestyle="--", color="C2",
+            label="from step 0 (load cell zeroed)")
+    ax.annotate(f"step 0: the woven state's reaction\non the clamps, {force[0]:.3g} N",
+                xy=(x[0], force[0]), xytext=(0.25, 0.25), textcoords="axes fraction",
+                fontsize=FONT_SIZE - 2, arrowprops=dict(arrowstyle="->", color="0.4"))
+
+
+def _draw_angles(results: Results, ax, d, nominal, gamma) -> None:
+    """The computed shear angles (zone means, or the interior's) against the kinematics."""
+    ax.plot(1e3 * d, DEGREE * nominal, color="k", linestyle="--", label="kinematics")
     if results.attrs["specimen_test"] == "bias_extension":
         zone = np.asarray(results.reference["zone"])
         for z, name in enumerate(ZONES):
             if np.any(zone == z):
-                angles.plot(1e3 * d, DEGREE * gamma[:, zone == z].mean(axis=1), marker="o",
-                            ms=3, label=f"{name}, mean")
+                ax.plot(1e3 * d, DEGREE * gamma[:, zone == z].mean(axis=1), marker="o",
+                        ms=3, label=f"{name}, mean")
     else:
         interior = np.asarray(results.reference["interior"], bool)
-        angles.plot(1e3 * d, DEGREE * gamma[:, interior].mean(axis=1), marker="o", ms=3,
-                    label="interior crossings, mean")
-    angles.set(xlabel="clamp displacement d [mm]", ylabel="shear angle [deg]")
-    for ax in (by_d, by_angle, angles):
-        style_axes(ax)
-    loaded = d > 0.0  # step 0's force is zero to rounding
-    _log_if_wide(by_d, force[loaded])
-    _log_if_wide(by_angle, normalised[loaded])
-    legend(angles)
-    fig.suptitle(f"{results.attrs['specimen_test'].replace('_', ' ')}: force and shear angle "
-                 "(docs/model.md section 11)")
-    return fig
+        ax.plot(1e3 * d, DEGREE * gamma[:, interior].mean(axis=1), marker="o", ms=3,
+                label="interior crossings, mean")
+    ax.set(xlabel="clamp displacement d [mm]", ylabel="shear angle [deg]")
 
 
 def _normalised_over_the_path(results: Results, d: np.ndarray, force: np.ndarray) -> np.ndarray:
@@ -87,16 +168,6 @@ def _normalised_over_the_path(results: Results, d: np.ndarray, force: np.ndarray
         return np.asarray(results.steps["normalised_shear_force"], float)
     return bias_normalised_shear_force(d, force, float(results.attrs["specimen_width"]),
                                        float(results.attrs["specimen_height"]))
-
-
-def _log_if_wide(ax, values: np.ndarray) -> None:
-    """A logarithmic force axis from half the smallest of `values` (the loaded steps') where
-    they are positive and span more than WIDE_RANGE (a picture frame past the lock: its force
-    rises a hundredfold in the last steps and a linear axis hides the curve before it)."""
-    values = values[np.isfinite(values)]
-    if values.size and np.all(values > 0.0) and values.max() > WIDE_RANGE * values.min():
-        ax.set_yscale("log")
-        ax.set_ylim(bottom=0.5 * values.min())
 
 
 def plot_shear_field(results: Results) -> Figure:

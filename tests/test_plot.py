@@ -242,17 +242,56 @@ def test_a_fabric_file_draws_loads_per_width_from_the_origin_and_its_shape(tmp_p
             np.testing.assert_array_equal(drawn[0].get_xydata(), 1e3 * nodes)
 
 
-def test_a_specimen_force_past_the_lock_is_drawn_on_a_log_axis():
-    """The picture frame's force rises a hundredfold past the lock (docs/results.md): on a
-    linear axis the curve before it is a flat line at zero. A range wider than WIDE_RANGE
-    takes a log axis from half its smallest value; a bias curve (0.08 to 0.13 N) stays
-    linear."""
-    from matplotlib.figure import Figure
+def specimen_file(tmp_path, specimen: str, values, name: str):
+    """A specimen's result file: the 60 mm test scene (tests/test_shear_specimens.py) with
+    `specimen` and the load path `values` [m]."""
+    from dynfab import run
+    from dynfab.scene import parse_scene_text
+    from test_shear_specimens import scene_text
 
-    from dynfab.specimen_plots import WIDE_RANGE, _log_if_wide
-    frame, bias = Figure().subplots(1, 2)
-    _log_if_wide(frame, np.array([0.28, 0.33, 0.43, 2.3, 12.8, 154.6]))
-    _log_if_wide(bias, np.array([0.081, 0.098, 0.133]))
-    assert 154.6 / 0.28 > WIDE_RANGE > 0.133 / 0.081
-    assert (frame.get_yscale(), bias.get_yscale()) == ("log", "linear")
-    assert frame.get_ylim()[0] == pytest.approx(0.14)
+    out = tmp_path / f"{name}.h5"
+    run(parse_scene_text(scene_text(specimen, values)), solver="static", out=out)
+    return read_results(out)
+
+
+def test_a_frame_force_is_drawn_linearly_from_the_origin_and_its_wall_apart(tmp_path):
+    """The 22 mm frame sheared past its yarns' meeting (35.8 degrees at d = 7.8 mm) on the
+    linear lateral contact: the force past it rises a hundredfold. The force and the normalised
+    force are drawn on linear axes from 0, cut at 1.5 x the largest before the meeting (the
+    points past it apart, a note saying where the last lies); the whole path on a fourth,
+    logarithmic panel; the meeting marked on the angle axis."""
+    from test_shear_specimens import FRAME
+
+    from dynfab.specimen_plots import CLIP_HEAD, plot_shear_force
+    results = specimen_file(tmp_path, FRAME.replace("side = 0.06", "side = 0.022"),
+                            [2e-3, 5e-3, 7.5e-3, 8.5e-3, 9.2e-3], "frame")
+    force = results.steps["clamp_force"]
+    fig = plot_shear_force(results)
+    by_d, by_angle, _, whole = fig.axes[:4]
+    before = force[:4]  # d <= 7.5 mm: below the meeting
+    assert force[-1] > 5 * before.max()  # the wall the panels are cut for
+    for ax in (by_d, by_angle):
+        assert ax.get_yscale() == "linear" and ax.get_ylim()[0] == 0.0
+        labels = ax.get_legend_handles_labels()[1]
+        assert "past the yarns' meeting" in labels
+        assert any(t.get_text().startswith("cut: ") for t in ax.texts)
+    assert by_d.get_ylim()[1] == pytest.approx(CLIP_HEAD * before.max())
+    assert "yarns meet (35.8 deg)" in by_angle.get_legend_handles_labels()[1]
+    assert whole.get_yscale() == "log" and whole.get_title() == "the whole path"
+
+
+def test_a_bias_force_names_its_step_0_and_is_drawn_from_it_too(tmp_path):
+    """The bias curve starts at the relaxed woven state's reaction on the clamps (docs/model.md
+    section 11.7): step 0's point says so, and the force less step 0's (a load cell zeroed at
+    the start) is drawn beside it and recorded (steps/clamp_force_from_step_0)."""
+    from test_shear_specimens import BIAS
+
+    from dynfab.specimen_plots import plot_shear_force
+    results = specimen_file(tmp_path, BIAS, [1e-3, 2e-3], "bias")
+    steps = results.steps
+    np.testing.assert_allclose(steps["clamp_force_from_step_0"],
+                               steps["clamp_force"] - steps["clamp_force"][0], rtol=0, atol=0)
+    by_d = plot_shear_force(results).axes[0]
+    assert "from step 0 (load cell zeroed)" in by_d.get_legend_handles_labels()[1]
+    assert any(t.get_text().startswith("step 0: the woven state's reaction") for t in by_d.texts)
+    assert by_d.get_ylim()[0] == 0.0 and len(results.steps["load"]) == 3

@@ -14,7 +14,8 @@ Record of one step (n nodes, C crossings, L lateral contacts):
 
 - load, end_displacement (1,): d [m]; end_force (1,) and clamp_force (): the force on the
   moved clamp (frame corner) along d [N], sum over the held nodes of the reaction dV/dr
-  times d(r)/dd; shear_force (): picture frame, F / (2 cos theta) [N] (Cao et al. eq. 3);
+  times d(r)/dd; clamp_force_from_step_0 (): the same less step 0's, the reaction of the
+  relaxed woven state (what a load cell zeroed at the start of the test reads) [N]; shear_force (): picture frame, F / (2 cos theta) [N] (Cao et al. eq. 3);
   normalised_shear_force (): F_s L / L_fabric^2 [N/m] (frame, eq. 10), for the bias
   extension Harrison's F_sh [N/m] (`dynfab.shear_force`, over the path so far; NaN once the
   path has turned back: it is defined on a curve in increasing d);
@@ -152,7 +153,15 @@ class SpecimenModel:
                 else {"specimen_side": s.side, "fabric_side": s.fabric_side or s.side})
         return {"model": "specimen", "specimen_test": s.test, "kinematics": "spatial",
                 "load_control": self.control, "yarn_labels": self.labels,
-                "terms": list(spatial.TERMS), "preload": self.scene.crossing.preload, **dims}
+                "terms": list(spatial.TERMS), "preload": self.scene.crossing.preload,
+                "yarns_meet_at": self.yarns_meet_at, **dims}
+
+    @property
+    def yarns_meet_at(self) -> float:
+        """The nominal shear angle [rad] at which neighbouring yarns first meet, acos(w / p)
+        of the family whose width is the larger share of its spacing (docs/model.md 11.5)."""
+        return float(np.arccos(max(t.width / t.spacing for t in (self.scene.warp,
+                                                                  self.scene.weft))))
 
     def reference(self) -> dict:
         """The as-woven nodes, the chains, the crossings, their zones and their rank from a
@@ -318,6 +327,7 @@ class SpecimenModel:
         record = {
             "load": np.array([d]), "end_displacement": np.array([d]),
             "end_force": np.array([clamp_force]), "clamp_force": clamp_force,
+            "clamp_force_from_step_0": clamp_force - path[0, 1],
             **self.shear_forces(path),
             "positions": pos, "crossing_positions": pos[self.layout.crossing_nodes[:, 0]],
             "shear_angle": absolute - reference, "reference_angle": reference,
