@@ -18,6 +18,10 @@ on-disk cache that later processes load from in milliseconds:
 
 The message is said once per `announcing` block; the watches are removed when it ends
 (Warp's at once after the message: the wrapper costs a set lookup per launch).
+
+A run also times its compiles (`start_clock`, `compile_seconds`): a first run's steps spend
+seconds compiling that later runs load in milliseconds, and its summary says the two apart
+(`steps/compile_time`).
 """
 
 from __future__ import annotations
@@ -25,6 +29,7 @@ from __future__ import annotations
 import contextlib
 import glob
 import os
+import time
 
 MESSAGE = "compiling kernels (first run only)"
 """What is said before the first real compile."""
@@ -42,6 +47,7 @@ class _Announcer:
         self.said = False
         self.listener = None
         self.original_load = None
+        self.wrapper = None
         self.checked: set = set()
 
     def announce(self) -> None:
@@ -87,7 +93,7 @@ class _Announcer:
                     announcer.announce()
             return original(module, device, block_dim, *args, **kwargs)
 
-        wp.Module.load = load
+        self.wrapper = wp.Module.load = load
 
     def remove(self) -> None:
         """Take both watches off (idempotent)."""
@@ -99,11 +105,15 @@ class _Announcer:
         self.unwatch_warp()
 
     def unwatch_warp(self) -> None:
-        """Give `warp.Module.load` back (idempotent)."""
+        """Give `warp.Module.load` back (idempotent); where another watch wrapped it since
+        (the compile clock's), leave the chain as it is, this wrapper then passing through
+        (`said` set)."""
         if self.original_load is not None:
             import warp as wp
 
-            wp.Module.load = self.original_load
+            if wp.Module.load is self.wrapper:
+                wp.Module.load = self.original_load
+            self.said = True
             self.original_load = None
 
 
@@ -125,12 +135,91 @@ def announcing(say, packages: tuple[str, ...] = ("dynfab",)):
 
 
 def watch_warp() -> None:
-    """Watch Warp's module loads for the running `announcing` block, if any (Warp has been
-    imported; called when it starts)."""
+    """Watch Warp's module loads for the running `announcing` block, if any, and for the
+    compile clock, if started (Warp has been imported; called when it starts)."""
     import sys
 
-    if _active is not None and "warp" in sys.modules:
+    if "warp" not in sys.modules:
+        return
+    if _active is not None:
         _active.watch_warp()
+    if _clock.started:
+        _clock.watch_warp()
+
+
+class _CompileClock:
+    """Seconds spent compiling in this process since `start_clock` (module docstring):
+    numba's compiles, each outermost one timed whole (a function's compile compiles its
+    callees inside it), and Warp's module loads that compile. The watches stay for the
+    process: numba's listener is called only at a real compile, Warp's load wrapper checks a
+    set before it times anything."""
+
+    def __init__(self) -> None:
+        self.seconds = 0.0
+        self.started = False
+        self.depth = 0
+        self.began = 0.0
+        self.checked: set = set()
+        self.warp_watched = False
+
+    def start(self) -> None:
+        if self.started:
+            return
+        self.started = True
+        from numba.core import event
+
+        clock = self
+
+        class Listener(event.Listener):
+            def on_start(self, ev) -> None:
+                if clock.depth == 0:
+                    clock.began = time.perf_counter()
+                clock.depth += 1
+
+            def on_end(self, ev) -> None:
+                clock.depth -= 1
+                if clock.depth == 0:
+                    clock.seconds += time.perf_counter() - clock.began
+
+        event.register("numba:compile", Listener())
+        watch_warp()
+
+    def watch_warp(self) -> None:
+        import warp as wp
+
+        if self.warp_watched:
+            return
+        self.warp_watched = True
+        original = wp.Module.load
+        clock = self
+
+        def load(module, device, block_dim=None, *args, **kwargs):
+            key = (id(module), str(device), block_dim)
+            if key in clock.checked or args or kwargs.get("binary_path"):
+                return original(module, device, block_dim, *args, **kwargs)
+            clock.checked.add(key)
+            compiles = will_compile(module, device, block_dim)
+            began = time.perf_counter()
+            try:
+                return original(module, device, block_dim, *args, **kwargs)
+            finally:
+                if compiles:
+                    clock.seconds += time.perf_counter() - began
+
+        wp.Module.load = load
+
+
+_clock = _CompileClock()
+
+
+def start_clock() -> None:
+    """Start timing this process's compiles (idempotent; `compile_seconds` reads it)."""
+    _clock.start()
+
+
+def compile_seconds() -> float:
+    """Seconds spent compiling since `start_clock` [s]."""
+    return _clock.seconds
 
 
 def will_compile(module, device, block_dim: int | None = None) -> bool:

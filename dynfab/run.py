@@ -23,6 +23,7 @@ from typing import Callable
 import numpy as np
 
 from dynfab.budget import check_budget
+from dynfab.compiling import compile_seconds, start_clock
 from dynfab.errors import DynfabError, SolverError, UserError
 from dynfab.options import apply_run_options
 from dynfab.model import build_model
@@ -188,8 +189,9 @@ def _solve(model: RunModel, engine: Solver | Transient, sink, progress) -> int:
     unit = "N" if model.control == "force" else "m"
     first, floors, total = sink.step_count, [], len(model.load_values)
     attrs = model.attrs() if progress is not None else {}  # the progress line's only
+    start_clock()  # a step's compile_time: what it spent compiling (a first run's)
     for index in range(first, total):
-        started = time.perf_counter()
+        started, compiled = time.perf_counter(), compile_seconds()
         load = model.step_load(index)
         try:
             state, record = engine.step(state, load)
@@ -199,6 +201,7 @@ def _solve(model: RunModel, engine: Solver | Transient, sink, progress) -> int:
             raise SolverError(f"load step {index + 1}/{total} (load {shown} {unit}): "
                               f"{error}; the {index} finished steps are kept") from error
         record["wall_time"] = time.perf_counter() - started
+        record["compile_time"] = compile_seconds() - compiled
         _add_point_data(model, record)
         sink.append_step(_like_previous(record, sink.last_step() if sink.step_count else None))
         floors.append(bool(np.any(record["rounding_floor"])))
