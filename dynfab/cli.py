@@ -72,6 +72,9 @@ def _parser() -> argparse.ArgumentParser:
                                             "study's study.nc)")
     plot.add_argument("results", type=Path, help="result file (HDF5), or a study's table (.nc)")
     plot.add_argument("--out", type=Path, required=True, help="folder for the PNG files")
+    plot.add_argument("--data", type=Path, default=None,
+                      help="a measured curve (CSV, the columns of `dynfab fit --data`) drawn "
+                           "over the computed one, labelled with its file's name")
     xdmf = commands.add_parser("xdmf", help="(re)write <result>.xdmf, the view of a result file "
                                             "for ParaView and meshio (a run writes it too)")
     xdmf.add_argument("results", type=Path, help="result file (HDF5)")
@@ -392,7 +395,7 @@ def _command_fit(args, context: dict) -> None:
 def _command_plot(args, context: dict) -> None:
     from dynfab.plot import plot_results
 
-    for path in plot_results(args.results, args.out):
+    for path in plot_results(args.results, args.out, args.data):
         print(f"wrote {path}")
 
 

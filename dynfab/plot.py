@@ -28,6 +28,7 @@ pyplot state and backend are never touched; PNGs are written with Agg.
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -44,18 +45,25 @@ from dynfab.plot_style import (FAMILY_ALPHA, FAMILY_STYLE, FAMILY_WIDTH, FONT_SI
 from dynfab.results import Results, read_results
 
 
-def plot_results(path: str | os.PathLike, out_dir: str | os.PathLike) -> list[Path]:
+def plot_results(path: str | os.PathLike, out_dir: str | os.PathLike,
+                 data: str | os.PathLike | None = None) -> list[Path]:
     """Write the figures of the result file ``path`` into ``out_dir`` (created if needed).
 
     Returns the paths of the PNGs written. Raises UserError for a missing
     file, a file that is not a dynfab result, or one without a load step. A study's table
-    (``study.nc``) gets the study's figures (`dynfab.study_plots`).
+    (``study.nc``) gets the study's figures (`dynfab.study_plots`). `data`: a measured curve
+    (CSV, the columns of `dynfab fit --data`, `dynfab.fit_data`) drawn over the computed one
+    (`measured_points`), labelled with its file's name.
     """
     from dynfab.study_plots import is_study_table, plot_study
 
     if is_study_table(path):
+        if data is not None:
+            raise UserError(f"--data draws a measured curve over a run's file, not over a "
+                            f"study's table ('{path}'): plot one of its cases/*.h5")
         return plot_study(path, out_dir)
     results = read_results(path)
+    measured = None if data is None else measured_points(results, data)
     if results.step_count == 0 and results.frame_count > 0:
         return _plot_transient(results, output_folder(out_dir))
     if results.step_count == 0:
@@ -65,7 +73,7 @@ def plot_results(path: str | os.PathLike, out_dir: str | os.PathLike) -> list[Pa
                                            plot_shear_force)
 
         out = output_folder(out_dir)
-        written = [save_png(plot_shear_force(results), out / "shear_force.png"),
+        written = [save_png(plot_shear_force(results, measured), out / "shear_force.png"),
                    save_png(plot_shear_field(results), out / "shear_field.png")]
         if "free_end_rank" in results.reference and "preload" in results.attrs:
             written.append(save_png(plot_contact_field(results), out / "contact_field.png"))
@@ -75,7 +83,7 @@ def plot_results(path: str | os.PathLike, out_dir: str | os.PathLike) -> list[Pa
             raise UserError(f"result file '{path}' lacks dataset steps/stress (written by an "
                             f"earlier dynfab): run its scene again to plot it")
         out = output_folder(out_dir)
-        written = [save_png(plot_fabric(results), out / "fabric.png"),
+        written = [save_png(plot_fabric(results, measured), out / "fabric.png"),
                    save_png(plot_fabric_shape(results), out / "shape.png")]
         if "pullout_warp" in results.attrs:
             written.append(save_png(plot_pullout(results), out / "pullout.png"))
@@ -84,13 +92,64 @@ def plot_results(path: str | os.PathLike, out_dir: str | os.PathLike) -> list[Pa
         if key not in results.steps:
             raise UserError(f"result file '{path}' lacks dataset steps/{key}")
     out = output_folder(out_dir)
-    written = [save_png(plot_traction(results, path), out / "traction.png")]
+    written = [save_png(plot_traction(results, path, measured), out / "traction.png")]
     if crossing_count(results) > 0 and "contact_force" in results.steps:
         written.append(save_png(plot_contact_force(results), out / "contact_force.png"))
     written.append(save_png(plot_shape(results, path), out / "shape.png"))
     if has_friction(results):
         written.append(save_png(plot_friction(results), out / "friction.png"))
     return written
+
+
+@dataclass(frozen=True)
+class Measured:
+    """A measured curve as the figures draw it: the file's name, and per quantity its points
+    in SI units (`measured_points`)."""
+
+    label: str
+    end_displacement: np.ndarray | None = None
+    """[m] (a yarn's, or a specimen's clamp displacement d)."""
+    end_force: np.ndarray | None = None
+    """[N] (a yarn's end force, or a specimen's clamp force)."""
+    strain: np.ndarray | None = None
+    """The warps' nominal strain [-] (a fabric)."""
+    stress: np.ndarray | None = None
+    """The warps' load per unit width [N/m] (a fabric)."""
+
+
+def measured_points(results: Results, data) -> Measured:
+    """The CSV curve `data` read as `dynfab fit --data` reads it for the file's scene (its
+    model and control; the first error names the columns expected and found), as points of
+    the quantities the figures draw."""
+    from dynfab.fit_data import model_kind, read_curve
+    from dynfab.scene import parse_scene_text
+
+    scene = parse_scene_text(results.attrs["scene"])
+    model, control = model_kind(scene), results.attrs.get("load_control", "force")
+    curve = read_curve(data, control, model)
+    found = dict(curve.measured, **{("end_displacement" if control == "displacement"
+                                     else "load"): curve.load})
+    label = f"measured: {Path(data).stem}"
+    if model == "specimen":
+        return Measured(label, end_displacement=curve.load, end_force=found["clamp_force"])
+    if model == "fabric":
+        strain = found.get("warp_strain")
+        if strain is None and control == "displacement":
+            strain = curve.load / float(results.attrs["projected_length"])
+        stress = found.get("warp_stress")
+        if stress is None and control == "force":
+            stress = curve.load / (float(results.attrs["weft_length"])
+                                   / float(scene.weft.count))
+        return Measured(label, strain=strain, stress=stress)
+    return Measured(label, end_displacement=found.get("end_displacement"),
+                    end_force=found.get("end_force", found.get("load")))
+
+
+def draw_measured(ax, x, y, measured: Measured) -> None:
+    """The measured points on `ax` (x, y already in the axis' units), where both exist."""
+    if x is not None and y is not None:
+        ax.plot(x, y, linestyle="none", marker="D", ms=4, mfc="none", color="k",
+                label=measured.label)
 
 
 def family_names(results: Results) -> dict:
@@ -111,7 +170,7 @@ def as_woven_crimps(results: Results) -> np.ndarray:
                      for name in ("positions", "weft_positions")])
 
 
-def plot_fabric(results: Results) -> Figure:
+def plot_fabric(results: Results, measured: Measured | None = None) -> Figure:
     """A fabric's run (docs/model.md section 10): each family's load per unit width
     (`steps/stress`) against its nominal strain, and each family's mean crimp against the
     larger of the two loads per unit width, both from the as-woven state (0 load, 0 strain);
@@ -129,6 +188,9 @@ def plot_fabric(results: Results) -> Figure:
                      label=name)
         traction.plot(100 * strain[:, column], stress[:, column], gid=family, **style)
         crimp_ax.plot(larger, 100 * crimp[:, column], gid=family, **style)
+    if measured is not None:
+        draw_measured(traction, None if measured.strain is None else 100 * measured.strain,
+                      measured.stress, measured)
     traction.set(xlabel="nominal strain [%]", ylabel="load per unit width [N/m]")
     crimp_ax.set(xlabel="larger of the two loads per unit width [N/m]", ylabel="mean crimp [%]")
     return _styled(fig, results, "woven fabric, from the as-woven state (docs/model.md section 10)",
@@ -254,7 +316,7 @@ def has_friction(results: Results) -> bool:
     return crossing_count(results) > 0 and limit is not None and bool(np.any(limit != 0))
 
 
-def plot_traction(results: Results, path="") -> Figure:
+def plot_traction(results: Results, path="", measured: Measured | None = None) -> Figure:
     """Force per unit width [N/m] vs strain [%], and P [N] vs end displacement [mm].
 
     A plain rod (no weft, no `width_per_yarn` attribute) shows P against strain instead.
@@ -269,6 +331,10 @@ def plot_traction(results: Results, path="") -> Figure:
     for k, label in enumerate(yarn_labels(results)):
         left.plot(100 * displacement[:, k] / length, force[:, k] / width, "o-", ms=3, label=label)
         right.plot(1e3 * displacement[:, k], force[:, k], "o-", ms=3, label=label)
+    if measured is not None and measured.end_displacement is not None:
+        u, P = measured.end_displacement, measured.end_force
+        draw_measured(left, 100 * u / length, None if P is None else P / width, measured)
+        draw_measured(right, 1e3 * u, P, measured)
     left.set(xlabel="strain (%)", ylabel="end force P (N)" if rod else "force per unit width (N/m)")
     right.set(xlabel="end displacement (mm)", ylabel="end force P (N)")
     return _styled(fig, results, "traction", left, right)

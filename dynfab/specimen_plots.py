@@ -38,7 +38,7 @@ def _nominal(results: Results, d: np.ndarray) -> np.ndarray:
     return np.array([nominal_shear_angle(a["specimen_test"], float(x), **dims) for x in d])
 
 
-def plot_shear_force(results: Results) -> Figure:
+def plot_shear_force(results: Results, measured=None) -> Figure:
     """Force against d and normalised shear force against the nominal angle, both linear from
     the origin; computed angles against eq. 13 / 2 (module docstring). Where the force past
     the yarns' meeting (`yarns_meet_at`) outgrows the curve before it by more than
@@ -46,7 +46,8 @@ def plot_shear_force(results: Results) -> Figure:
     (the points past it drawn apart, the cut said in a note) and a fourth panel draws the
     whole path on a log axis. A bias extension's force is drawn from step 0 too (a load
     cell zeroed at the start of the test), step 0's point named: the woven state's reaction
-    on the clamps."""
+    on the clamps. `measured` (`dynfab.plot.Measured`): a measured clamp force drawn over
+    the computed one."""
     steps = results.steps
     d = np.asarray(steps["load"], float)[:, 0]
     force = np.asarray(steps["clamp_force"], float)
@@ -72,6 +73,9 @@ def plot_shear_force(results: Results) -> Figure:
         by_angle.set_xlim(right=max(by_angle.get_xlim()[1], 1.05 * DEGREE * meet))
     if results.attrs["specimen_test"] == "bias_extension":
         _draw_from_step_0(by_d, 1e3 * d, force)
+    if measured is not None:  # `dynfab.plot.Measured`: a clamp force against d
+        by_d.plot(1e3 * measured.end_displacement, measured.end_force, linestyle="none",
+                  marker="D", ms=4, mfc="none", color="k", label=measured.label)
     _draw_angles(results, angles, d, nominal, gamma)
     if clipped:
         whole = axes[3]

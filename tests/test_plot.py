@@ -295,3 +295,40 @@ def test_a_bias_force_names_its_step_0_and_is_drawn_from_it_too(tmp_path):
     assert "from step 0 (load cell zeroed)" in by_d.get_legend_handles_labels()[1]
     assert any(t.get_text().startswith("step 0: the woven state's reaction") for t in by_d.texts)
     assert by_d.get_ylim()[0] == 0.0 and len(results.steps["load"]) == 3
+
+def test_plot_data_draws_a_measured_curve_over_the_computed_one(tmp_path):
+    """`dynfab plot FILE --data CURVE.csv`: the curve read with the columns `dynfab fit --data`
+    takes for the file's scene (a shear specimen: clamp_force [N] against end_displacement
+    [m]), drawn over the computed force against d, its legend the file's name."""
+    from test_shear_specimens import FRAME
+
+    from dynfab.cli import main
+    specimen_file(tmp_path, FRAME.replace("side = 0.06", "side = 0.022"), [1e-3, 2e-3], "frame")
+    curve = tmp_path / "lab_curve.csv"
+    curve.write_text("end_displacement [m],clamp_force [N]\n0.001,0.05\n0.002,0.07\n")
+    main(["plot", str(tmp_path / "frame.h5"), "--out", str(tmp_path / "figures"), "--data",
+          str(curve)])
+    from dynfab.plot import measured_points
+    from dynfab.specimen_plots import plot_shear_force
+    results = read_results(tmp_path / "frame.h5")
+    by_d = plot_shear_force(results, measured_points(results, curve)).axes[0]
+    drawn = [line for line in by_d.get_lines() if line.get_label() == "measured: lab_curve"]
+    assert len(drawn) == 1
+    np.testing.assert_allclose(drawn[0].get_xydata(), [[1.0, 0.05], [2.0, 0.07]])
+    assert "measured: lab_curve" in by_d.get_legend_handles_labels()[1]
+    assert (tmp_path / "figures" / "shear_force.png").exists()
+
+
+def test_plot_data_with_the_wrong_columns_names_those_expected_and_found(tmp_path, capsys):
+    from test_shear_specimens import FRAME
+
+    from dynfab.cli import main
+    specimen_file(tmp_path, FRAME.replace("side = 0.06", "side = 0.022"), [1e-3], "frame")
+    curve = tmp_path / "curve.csv"
+    curve.write_text("end_displacement [m],end_force [N]\n0.001,0.05\n")
+    with pytest.raises(SystemExit) as stop:
+        main(["plot", str(tmp_path / "frame.h5"), "--out", str(tmp_path / "f"), "--data",
+              str(curve)])
+    assert stop.value.code == 2
+    line = capsys.readouterr().err.strip()
+    assert "\n" not in line and "clamp_force" in line and "end_force" in line
