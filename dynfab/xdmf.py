@@ -15,11 +15,14 @@ measured: docs/results.md, "The view"):
   cells), ``XYZ`` geometry (``view/points``), point data ``plane``, cell
   data ``yarn``;
 * one Temporal collection ``yarns`` with one Uniform grid per *finished* load
-  step (rows ``[0, steps_done)``), ``Time`` = the step number 1, 2, ... (the
-  summary table's ``step``): not the load value, because a load path may go
-  back and forth (a cycle) and ParaView orders grids by time; the load value
-  is each grid's ``Information load``. A transient run (``frames/``) gets
-  one grid per frame with ``Time`` = the frame's time [s].
+  step (rows ``[0, steps_done)``), ``Time`` = the step's load value (the first
+  column of ``steps/load``: a force [N], an end displacement or a specimen's
+  clamp displacement d [m]), as ParaView's time shows it, where the finished
+  steps' loads strictly increase; where they do not (a cycle going back and
+  forth: ParaView orders grids by time), the step number 1, 2, ... (the
+  summary table's ``step``). The load value is also each grid's ``Information
+  load``. A transient run (``frames/``) gets one grid per frame with ``Time``
+  = the frame's time [s].
 * each step's grid: the same topology, its ``XYZ`` geometry, and point data
   ``position`` (the same 3D points [m]: meshio reads a step's point data, not
   its geometry), ``plane`` (the yarn's plane coordinate [m]: y of a warp or of
@@ -105,15 +108,25 @@ def _read_layout(path: Path) -> _Layout | None:
             names = row_views(h5, group, families(h5))
             if not complete(h5):
                 return None
-            times = (h5["frames/time"][:count] if group == "frames"
-                     else np.arange(1, count + 1, dtype=float))
             loads = h5["steps/load"][:count, 0] if group == "steps" and count else None
+            times = (h5["frames/time"][:count] if group == "frames" else step_times(loads))
             points, segments = h5["view/points"].shape[0], h5["view/segments"].shape[0]
     except (KeyError, ValueError) as error:
         raise UserError(f"'{path}' is not a dynfab result file (no {error})") from None
     except OSError as error:
         raise UserError(f"cannot read result file '{path}': {str(error).splitlines()[0]}") from None
     return _Layout(path.name, group, count, points, segments, names, times, loads)
+
+
+def step_times(loads: np.ndarray | None) -> np.ndarray:
+    """The ``Time`` of each finished step (module docstring): its load where the loads
+    strictly increase, else its number 1, 2, ..."""
+    if loads is None or loads.size == 0:
+        return np.zeros(0)
+    loads = np.asarray(loads, float)
+    if np.all(np.diff(loads) > 0.0) and np.all(np.isfinite(loads)):
+        return loads
+    return np.arange(1, loads.size + 1, dtype=float)
 
 
 def _count(h5: h5py.File, group: str) -> int:

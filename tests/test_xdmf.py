@@ -152,6 +152,19 @@ def to_3d(positions, planes):
     return np.column_stack([positions[..., 0].ravel(), y, positions[..., 1].ravel()])
 
 
+def expected_times(loads) -> np.ndarray:
+    """Each grid's Time: the step's load where the loads strictly increase (ParaView shows the
+    load as its time), else the step number (a cycle: ParaView orders grids by time)."""
+    loads = np.asarray(loads, float)
+    return loads if np.all(np.diff(loads) > 0) else np.arange(1, loads.size + 1, dtype=float)
+
+
+def test_a_view_s_time_is_the_load_and_a_cycle_s_the_step_number():
+    from dynfab.xdmf import step_times
+    np.testing.assert_array_equal(step_times(np.array([0.0, 1e-3, 2e-3])), [0.0, 1e-3, 2e-3])
+    np.testing.assert_array_equal(step_times(np.array([0.1, 0.2, 0.1])), [1.0, 2.0, 3.0])
+
+
 def check_view(result: Path, planes: np.ndarray, behind: bool = False) -> int:
     """Read `result`'s view with meshio and VTK and compare every grid with the HDF5 file (one
     family: yarn k in the plane y = `planes`[k]); the number of time steps: the finished
@@ -180,7 +193,7 @@ def check_view(result: Path, planes: np.ndarray, behind: bool = False) -> int:
     expected = {"as_woven": to_3d(reference, planes), "as_woven_plane": plane,
                 "segments": chains([(yarns, nodes)]),
                 "yarn": np.repeat(np.arange(yarns), nodes - 1),
-                "times": np.arange(1, count + 1, dtype=float),
+                "times": expected_times(steps["load"][:, 0]),
                 "points": [to_3d(p, planes) for p in steps["positions"]],
                 "point_data": point_data}
     assert check_both(view, expected) == count
@@ -490,7 +503,7 @@ def test_a_fabric_view_draws_both_families_where_their_planes_are(tmp_path, name
         "segments": chains([(n_wa, N1), (n_we, M1)]),
         "yarn": np.concatenate([np.repeat(np.arange(n_wa), N1 - 1),
                                 np.repeat(n_wa + np.arange(n_we), M1 - 1)]),
-        "times": np.arange(1, count + 1, dtype=float),
+        "times": expected_times(steps["load"][:, 0]),
         "points": [nodes(steps["positions"][k], steps["weft_positions"][k], Y[k], X[k])
                    for k in range(count)],
         "point_data": {"plane": [np.concatenate([np.repeat(Y[k], N1), np.repeat(X[k], M1)])
