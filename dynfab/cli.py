@@ -115,7 +115,11 @@ def _add_study_parser(commands) -> None:
 
 
 def _add_fit_parser(commands) -> None:
-    fit = commands.add_parser("fit", help="fit scene keys to a measured traction curve (CSV)")
+    from dynfab.fit_data import columns_help
+
+    fit = commands.add_parser("fit", help="fit scene keys to a measured traction curve (CSV)",
+                              epilog=columns_help(),
+                              formatter_class=argparse.RawDescriptionHelpFormatter)
     fit.add_argument("scene", type=Path, help="scene file (TOML, SI units)")
     fit.add_argument("--data", type=Path, required=True, help="curve CSV: load column first")
     fit.add_argument("--fit", required=True, help="scene keys to fit, e.g. warp.EA,warp.kawabata_K")

@@ -167,13 +167,66 @@ def read_curve(path, control: str, model: str = "yarn") -> CurveData:
 def curve_from_columns(header, rows, control: str, source: str = "<data>",
                        model: str = "yarn") -> CurveData:
     """Validate a header (column names with units) and rows of numbers (strings or floats)
-    for a scene of `model` ("yarn" or "fabric") under `control`."""
-    columns = [_parse_header(source, text) for text in header]
-    _check_load_column(source, columns[0], control)
-    loads = 1 + (model == "fabric" and len(columns) > 1
-                 and columns[1][0] == WEFT_LOAD_COLUMN[control][0] and not columns[1][1])
+    for a scene of `model` ("yarn" or "fabric") under `control`. A header that does not fit
+    is refused in one line that names the columns expected and those found."""
+    try:
+        columns = [_parse_header(source, text) for text in header]
+        _check_load_column(source, columns[0], control)
+        _check_names(columns, header, control, source, model)
+    except UserError as error:
+        found = ", ".join(f"'{text.strip()}'" for text in header)
+        raise UserError(f"{error}; {expected_columns(model, control)}; found {found}") from None
+    return _validated(columns, header, rows, control, source, model)
+
+
+def _check_names(columns, header, control: str, source: str, model: str) -> None:
+    """The header's columns past the load path (names, units, order), before any number."""
+    loads = _load_columns(columns, control, model)
     if loads == 2:
         _check_unit(source, header[1].strip(), columns[1][2], WEFT_LOAD_COLUMN[control][1])
+    measured = {}
+    for index, (name, is_sigma, unit) in enumerate(columns[loads:], start=loads):
+        label = header[index].strip()
+        if is_sigma:
+            _check_sigma(source, label, name, unit, measured, np.ones(1), model)
+            continue
+        _check_measured(source, label, name, unit, control, measured, model)
+        measured[name] = None
+    if not measured:
+        raise UserError(f"{source}: no measured column after '{header[loads - 1].strip()}': "
+                         "give one of " + _listing(model, control))
+
+
+def _load_columns(columns, control: str, model: str) -> int:
+    """1, or 2 where a fabric's curve gives its wefts' load path second."""
+    return 1 + (model == "fabric" and len(columns) > 1
+                and columns[1][0] == WEFT_LOAD_COLUMN[control][0] and not columns[1][1])
+
+
+def expected_columns(model: str, control: str) -> str:
+    """The columns a curve of `model` under `control` takes, in words."""
+    load, unit = LOAD_COLUMN[control]
+    weft = (f", then optionally '{WEFT_LOAD_COLUMN[control][0]} "
+            f"[{WEFT_LOAD_COLUMN[control][1]}]'" if model == "fabric" else "")
+    return (f"{MODELS[model][0]} under {control} control takes '{load} [{unit}]' first{weft}, "
+            f"then one or more of {_listing(model, control)} (each optionally with its "
+            "'<name> sigma [unit]')")
+
+
+def columns_help() -> str:
+    """`dynfab fit --help`'s list of the CSV columns each kind of scene takes."""
+    lines = ["CSV columns (a header of 'name [unit]' in SI units, then one row per point):"]
+    for model in MODELS:
+        for control in ("force", "displacement"):
+            if model == "specimen" and control == "force":
+                continue  # a specimen is loaded by its clamp displacement only
+            lines.append(f"  - {expected_columns(model, control)}")
+    return "\n".join(lines)
+
+
+def _validated(columns, header, rows, control: str, source: str, model: str) -> CurveData:
+    """`curve_from_columns` past its header (`_check_names`): the numbers."""
+    loads = _load_columns(columns, control, model)
     values = _numbers(source, header, rows)
     _check_path(source, [h.strip() for h in header[:loads]], values[:, :loads])
     measured, sigma = {}, {}
@@ -183,11 +236,7 @@ def curve_from_columns(header, rows, control: str, source: str = "<data>",
             _check_sigma(source, label, name, unit, measured, values[:, index], model)
             sigma[name] = values[:, index]
             continue
-        _check_measured(source, label, name, unit, control, measured, model)
         measured[name] = values[:, index]
-    if not measured:
-        raise UserError(f"{source}: no measured column after '{header[loads - 1].strip()}': "
-                         "give one of " + _listing(model, control))
     if sigma and set(sigma) != set(measured):
         missing = sorted(set(measured) - set(sigma))
         raise UserError(f"{source}: a sigma column for some measured columns but not for "

@@ -63,6 +63,14 @@ class YarnFit:
         return solve_path(scene)
 
 
+def _unused_compaction(scene, table: str, name: str) -> bool:
+    """Whether `table.name` is a key of a family's lateral compaction that the family does not
+    have (docs/model.md 11.5: all four keys or none; one alone is refused)."""
+    family = getattr(scene, table, None)
+    return (name in scene_module.COMPACTION_KEYS
+            and getattr(family, "fibre_modulus", None) is None)
+
+
 class FabricFit:
     """The woven fabric: the real keys of FABRIC_TABLES, solved through the run contract."""
 
@@ -71,13 +79,16 @@ class FabricFit:
 
     @staticmethod
     def fittable_keys(scene) -> tuple[str, ...]:
-        """The real keys of FABRIC_TABLES that a fabric takes, whose table the scene has."""
+        """The real keys of FABRIC_TABLES that the scene's fabric takes, whose table the scene
+        has: a specimen's without the layout keys its [specimen] sets (and refuses), a planar
+        fabric's without the spatial ones."""
         spatial = getattr(scene, "specimen", None) is not None
         return tuple(f"{table}.{name}" for table in FABRIC_TABLES
                      if getattr(scene, table, None) is not None
                      for name, spec in scene_module._SCHEMA[table][1].items()
                      if spec.kind == "float" and spec.model in ("", "fabric")
-                     and (spatial or not spec.spatial))
+                     and (not spec.layout if spatial else not spec.spatial)
+                     and not _unused_compaction(scene, table, name))
 
     @staticmethod
     def default_value(scene, key: str) -> float | None:

@@ -64,3 +64,38 @@ def test_a_fabric_column_on_a_specimen_is_refused_in_one_line():
     with pytest.raises(UserError, match="warp_strain.*clamp_force"):
         curve_from_columns(["end_displacement [m]", "warp_strain [-]"], [[1e-3, 0.1]],
                            "displacement", model="specimen")
+
+
+def test_a_specimen_offers_only_keys_it_takes():
+    # weft.length was offered and then refused by the specimen (its [specimen] sets the
+    # layout): every key offered is one the scene takes
+    scene = small_frame()
+    keys = FabricFit.fittable_keys(scene)
+    assert "weft.length" not in keys and "geometry.length" not in keys
+    for key in keys:
+        value = FabricFit.default_value(scene, key)
+        table, name = key.split(".")
+        current = getattr(getattr(scene, table), name, None)
+        with_key(scene, key, current if current is not None else (value or 1.0))
+
+
+def test_fit_help_names_the_csv_columns_of_every_kind_of_scene():
+    import subprocess
+    import sys
+    done = subprocess.run([sys.executable, "-m", "dynfab.cli", "fit", "--help"],
+                          capture_output=True, text=True)
+    assert done.returncode == 0
+    for column in ("load [N]", "end_displacement [m]", "end_force [N]", "warp_stress [N/m]",
+                   "weft_load [N]", "clamp_force [N]"):
+        assert f"'{column}'" in done.stdout
+    assert "a shear specimen (a [specimen] scene) under displacement control" in done.stdout
+
+
+def test_a_curve_with_the_wrong_columns_names_those_expected_and_found():
+    with pytest.raises(UserError) as info:
+        curve_from_columns(["d [m]", "force [N]"], [[1e-3, 0.1]], "displacement",
+                           model="specimen")
+    message = str(info.value)
+    assert "\n" not in message
+    assert "takes 'end_displacement [m]' first, then one or more of 'clamp_force [N]'" in message
+    assert message.endswith("found 'd [m]', 'force [N]'")
