@@ -5,7 +5,10 @@ noise of 0.2 % of each column's range (seed 2026). Run: python runs/fit_example/
   warp.EA = 13.72 N, friction.alpha = 0.2 (the paper's values), pulled to 2.5 mm in 10 points;
 - fabric_curve.csv: the warp and weft strains and crimps of fabric_scene.toml (a periodic
   2 x 2 cell pulled 2:1) at warp.EA = 13.72 N, weft.EA = 10 N, the warps' load to 0.5 N in
-  10 points, the wefts' half of it.
+  10 points, the wefts' half of it;
+- frame_curve.csv: the clamp force of frame_scene.toml (a 30 mm picture frame of the Cao
+  fabric) at crossing.preload = 0.06 N (the Cao scenes' estimate), sheared to d = 4 mm in 8
+  points.
 """
 
 from pathlib import Path
@@ -21,6 +24,7 @@ NOISE, SEED = 2e-3, 2026
 YARN_TRUTH = {"warp.EA": 13.72, "friction.alpha": 0.2}
 FABRIC_TRUTH = {"warp.EA": 13.72, "weft.EA": 10.0}
 FABRIC_COLUMNS = ("warp_strain", "weft_strain", "warp_crimp", "weft_crimp")
+FRAME_TRUTH = {"crossing.preload": 0.06}
 
 
 def with_keys(scene, values: dict):
@@ -59,6 +63,15 @@ def fabric_curve():
           [warp, weft, *(noisy(curves[name], rng) for name in FABRIC_COLUMNS)])
 
 
+def frame_curve():
+    d = np.linspace(5e-4, 4e-3, 8)
+    scene = with_keys(load_scene(HERE / "frame_scene.toml"), {**FRAME_TRUTH, "load.values": list(d)})
+    force = FabricFit.solve(scene, ("clamp_force",)).observables["clamp_force"]
+    write(HERE / "frame_curve.csv", ["end_displacement [m]", "clamp_force [N]"],
+          [d, noisy(force, np.random.default_rng(SEED))])
+
+
 if __name__ == "__main__":
     yarn_curve()
     fabric_curve()
+    frame_curve()
