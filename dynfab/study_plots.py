@@ -82,16 +82,48 @@ def _per_case(table, variable) -> np.ndarray:
     return data.reshape(data.shape[0], -1)
 
 
+def _with_units(text: str, units) -> str:
+    """`text [units]`, "-" for a number without units (every axis says its units)."""
+    return f"{text} [{units or '-'}]"
+
+
 def _label(variable, name: str) -> str:
-    units = variable.attrs.get("units", "")
     at = variable.attrs.get("at", "path")
     where = {"path": ", last step", "last": ", last step"}.get(str(at), f" at load {at}")
-    return f"{name}{where}" + (f" [{units}]" if units and units != "-" else "")
+    return _with_units(f"{name}{where}", variable.attrs.get("units", ""))
 
 
 def _axis_label(table, key: str) -> str:
-    units = table[key].attrs.get("units", "")
-    return key + (f" [{units}]" if units and units != "-" else "")
+    return _with_units(key, table[key].attrs.get("units", ""))
+
+
+FAMILY_DATASETS = ("steps/strain", "steps/crimp", "steps/stress")
+"""A fabric's per-family datasets: their components are the warps' and the wefts'."""
+
+
+def _component_names(variable) -> list[str]:
+    """A name for each component of an observable with further axes (a fabric's family, else
+    its axis and index): the line styles' legend."""
+    extra = [d for d in variable.dims if d not in ("case", "step")]
+    if not extra:
+        return [""]
+    if variable.attrs.get("dataset") in FAMILY_DATASETS and variable.shape[-1] == 2:
+        return ["warp", "weft"]
+    sizes = [variable.sizes[d] for d in extra]
+    return [", ".join(f"{d} = {i}" for d, i in zip(extra, index))
+            for index in np.ndindex(*sizes)]
+
+
+def _style_legend(ax, names: list[str], **kwargs) -> None:
+    """A legend of every labelled line, and where an observable has several components, one
+    entry per line style saying whose component it draws."""
+    from matplotlib.lines import Line2D
+
+    handles, labels = ax.get_legend_handles_labels()
+    if len(names) > 1:
+        handles += [Line2D([], [], color="k", linestyle=STYLES[c % len(STYLES)], label=name)
+                    for c, name in enumerate(names)]
+    legend(ax, handles=handles, **kwargs)
 
 
 def _positions(column: np.ndarray) -> tuple[np.ndarray, list | None]:
@@ -114,21 +146,21 @@ def _against_keys(table, keys, name, variable, values):
         for i in range(len(x)):
             groups.setdefault(tuple(table[k].values[i].item() for k in others), []).append(i)
         labelled = grid and len(groups) <= MAX_LINES
-        for group, members in groups.items():
+        for g, (group, members) in enumerate(groups.items()):
             order = sorted(members, key=lambda i: x[i])
             text = ", ".join(f"{k} = {v:g}" if isinstance(v, float) else f"{k} = {v}"
                              for k, v in zip(others, group))
+            colour = f"C{g % 10}" if labelled else "C0"  # a group's components one colour
             for c in range(values.shape[1]):
                 ax.plot(x[order], values[order, c], STYLES[c % len(STYLES)] if grid else "",
-                        marker="o", ms=3,
-                        label=(text or None) if labelled and c == 0 else None,
-                        color=None if grid else "C0")
+                        marker="o", ms=3, color=colour,
+                        label=(text or None) if labelled and c == 0 else None)
         if labels is not None:
             ax.set_xticks(range(len(labels)), labels)
         ax.set_xlabel(_axis_label(table, key))
         ax.set_ylabel(_label(variable, name))
         style_axes(ax)
-        legend(ax)
+        _style_legend(ax, _component_names(variable))
     fig.suptitle(f"{table.attrs.get('title') or 'study'}: {name}", fontsize=FONT_SIZE + 1)
     return fig
 
@@ -152,10 +184,10 @@ def _along_path(table, keys, name, variable):
                     color=cmap(norm(colour[i])))
     bar = fig.colorbar(ScalarMappable(norm=norm, cmap=cmap), ax=ax)
     bar.set_label(_axis_label(table, keys[0]), fontsize=FONT_SIZE)
-    ax.set_xlabel("load" + (f" [{table['load'].attrs.get('units')}]"))
-    units = variable.attrs.get("units", "")
-    ax.set_ylabel(name + (f" [{units}]" if units and units != "-" else ""))
+    ax.set_xlabel(_with_units("load", table["load"].attrs.get("units")))
+    ax.set_ylabel(_with_units(name, variable.attrs.get("units", "")))
     style_axes(ax)
+    _style_legend(ax, _component_names(variable))
     return fig
 
 

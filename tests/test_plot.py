@@ -332,3 +332,49 @@ def test_plot_data_with_the_wrong_columns_names_those_expected_and_found(tmp_pat
     assert stop.value.code == 2
     line = capsys.readouterr().err.strip()
     assert "\n" not in line and "clamp_force" in line and "end_force" in line
+
+
+def synthetic_study_table():
+    """A 2 x 2 grid study's table (dynfab.study_table's layout): keys a [m] and b (no
+    units), a per-family path observable `strain` (warp, weft) and its last-step value."""
+    import xarray as xr
+    a, b = np.repeat([1.0, 2.0], 2), np.tile([0.1, 0.2], 2)
+    steps = np.arange(1, 4) / 3.0
+    strain = a[:, None, None] * steps[None, :, None] * np.array([1.0, 0.5]) + b[:, None, None]
+    return xr.Dataset(
+        {"strain": (("case", "step", "strain_1"), strain,
+                    {"units": "-", "at": "path", "dataset": "steps/strain"}),
+         "final": (("case", "final_1"), strain[:, -1],
+                   {"units": "-", "at": "last", "dataset": "steps/strain"}),
+         "load": (("case", "step"), np.tile(steps, (4, 1)), {"units": "N"}),
+         "status": (("case",), np.array(["finished"] * 4)),
+         "steps_done": (("case",), np.full(4, 3))},
+        coords={"case": np.arange(4), "a": ("case", a, {"units": "m"}), "b": ("case", b)},
+        attrs={"parameters": "a\nb", "design": "grid", "title": "synthetic"})
+
+
+def test_a_study_figure_names_every_line_in_its_legend_in_its_colour_with_units():
+    """Every line in the legend (the dashed components were not), a group's components in
+    the legend's colour, a style entry per component (warp, weft), units on every axis
+    label (a key without units says [-])."""
+    from dynfab.study_plots import _against_keys, _along_path, _per_case
+    table = synthetic_study_table()
+    fig = _against_keys(table, ["a", "b"], "final", table["final"],
+                        _per_case(table, table["final"]))
+    for ax in fig.axes:
+        handles, labels = ax.get_legend_handles_labels()
+        shown = ax.get_legend().legend_handles
+        texts = [t.get_text() for t in ax.get_legend().get_texts()]
+        assert "warp" in texts and "weft" in texts  # the line styles say whose
+        groups = [line for line in ax.get_lines() if line.get_label() in labels]
+        for line in ax.get_lines():  # a dashed line shares its group's labelled colour
+            assert line.get_color() in {g.get_color() for g in groups}
+        for handle, text in zip(shown, texts):
+            if text in labels:
+                match = [g for g in groups if g.get_label() == text][0]
+                assert handle.get_color() == match.get_color()
+        assert ax.get_xlabel().endswith("]") and ax.get_ylabel().endswith("[-]")
+    assert fig.axes[1].get_xlabel() == "b [-]" and fig.axes[0].get_xlabel() == "a [m]"
+    path = _along_path(table, ["a", "b"], "strain", table["strain"]).axes[0]
+    assert path.get_xlabel() == "load [N]" and path.get_ylabel() == "strain [-]"
+    assert [t.get_text() for t in path.get_legend().get_texts()] == ["warp", "weft"]
