@@ -32,6 +32,7 @@ import json
 import logging
 import os
 import secrets
+import shutil
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -74,11 +75,20 @@ class StudyResult:
     repeated_steps: int = 0
     """Steps that came twice (a case rerun after its worker died sends again the steps its
     file has) and were skipped."""
+    lost_workers: int = 0
+    """Workers that left the cluster while cases ran (killed, a machine lost)."""
+    rerun_cases: int = 0
+    """Cases begun on a worker that was lost and run again on another."""
 
     def summary(self) -> str:
-        """The line printed at the end of `dynfab study`."""
+        """The line printed at the end of `dynfab study`: the cases, and the workers that ran
+        them (those lost among them) and the cases run again."""
+        lost = f", {self.lost_workers} lost" if self.lost_workers else ""
+        rerun = (f"; {self.rerun_cases} case{'s' * (self.rerun_cases != 1)} run again after "
+                 "its worker was lost" if self.rerun_cases else "")
         return (f"study: {self.cases} cases, {self.finished} finished, {self.failed} failed; "
-                f"{self.ran} run now on {self.workers} workers in {self.seconds:.1f} s")
+                f"{self.ran} run now on {self.workers} worker{'s' * (self.workers != 1)}{lost} "
+                f"in {self.seconds:.1f} s{rerun}")
 
 
 def study(study_file, out, *, scheduler: str | None = None, workers: int | None = None,
@@ -114,6 +124,7 @@ def study(study_file, out, *, scheduler: str | None = None, workers: int | None 
                 runner = _Runner(plan, folder, client, sync, progress, status,
                                  stream_interval_s)
                 runner.run(todo)
+                worker_count = len(runner.workers_seen) or worker_count
         from dynfab.study_table import write_table
 
         write_table(plan, folder, folder.table)
@@ -125,7 +136,9 @@ def study(study_file, out, *, scheduler: str | None = None, workers: int | None 
                            workers=worker_count, messages=failed,
                            task_seconds=runner.task_seconds if runner else {},
                            write_seconds=runner.write_seconds if runner else 0.0,
-                           repeated_steps=runner.repeated_steps if runner else 0)
+                           repeated_steps=runner.repeated_steps if runner else 0,
+                           lost_workers=len(runner.lost) if runner else 0,
+                           rerun_cases=len(runner.rerun) if runner else 0)
 
 
 ENDED = ("finished", "failed")
@@ -351,6 +364,16 @@ class _Runner:
         self.stream_interval_s = stream_interval_s
         self.shown = 0.0
         """When the live line was last shown."""
+        self.last_end: float | None = None
+        """When the last case ended (seen at the live line's next showing)."""
+        self.ended_shown = 0
+        """Cases ended when the live line was last shown."""
+        self.workers_seen: set = set()
+        """Workers that ran a case (its outcome's), or were in the cluster while cases ran."""
+        self.lost: set = set()
+        """Workers seen that left the cluster while cases ran."""
+        self.rerun: set = set()
+        """Cases whose steps came again from a second worker (theirs was lost)."""
 
     def run(self, todo: list[Case]) -> None:
         from distributed import Queue, wait
@@ -433,6 +456,7 @@ class _Runner:
         for row, step in enumerate(message["steps"], start=message["first"]):
             if row < writer.step_count:
                 self.repeated_steps += 1  # a case rerun after its worker died
+                self.rerun.add(index)
                 continue
             if row > writer.step_count:
                 raise RuntimeError(f"case {index}: step {row + 1} arrived before step "
@@ -448,6 +472,8 @@ class _Runner:
         else:
             outcome = future.result()
             self.task_seconds[case.index] = outcome["seconds"]
+            if outcome.get("worker"):
+                self.workers_seen.add(outcome["worker"])
         path = self.folder.case_path(case)
         writer = self.writers.pop(case.index, None)
         if outcome["status"] == "finished":
@@ -490,24 +516,50 @@ class _Runner:
         self.checked = True
 
     def _show(self) -> None:
-        self.shown = time.monotonic()
+        self.shown = now = time.monotonic()
+        nthreads = self.client.nthreads()
+        present = set(nthreads)
+        self.lost |= self.workers_seen - present
+        self.workers_seen |= present
         if self.status is None:
             return
-        started, total, pending = self.started, self.total, len(self.pending)
+        total, pending = self.total, len(self.pending)
         ended = self.done + self.failed
-        threads = sum(self.client.nthreads().values()) or 1
-        running = min(pending, threads)
-        now = time.monotonic()
         if ended and self.first_end is None:
             self.first_end = now
-        if ended > 1:  # the pace after the first (which paid the workers' start)
-            left = f"about {_duration((now - self.first_end) / (ended - 1) * pending)} left"
-        elif ended:
-            left = f"about {_duration((now - started) * pending)} left"
-        else:
-            left = "time left: after the first case"
-        self.status(f"cases: {self.done} finished, {self.failed} failed, {running} running, "
-                    f"{pending - running} waiting of {total}; {left}")
+        if ended != self.ended_shown:  # a case ended since the line was last shown
+            self.last_end, self.ended_shown = now, ended
+        running = min(pending, sum(nthreads.values()) or 1)
+        parts = [f"cases: {self.done} finished, {self.failed} failed, {running} running, "
+                 f"{pending - running} waiting of {total}",
+                 time_left(self.started, self.first_end, self.last_end, ended, pending, now)]
+        if self.lost:
+            parts.append(f"{len(self.lost)} worker{'s' * (len(self.lost) != 1)} lost")
+        if self.rerun:
+            parts.append(f"{len(self.rerun)} case{'s' * (len(self.rerun) != 1)} rerun")
+        self.status(fit_line(parts, shutil.get_terminal_size().columns))
+
+
+def time_left(started: float, first_end: float | None, last_end: float | None, ended: int,
+              pending: int, now: float) -> str:
+    """The live line's time left, counting down between the cases' ends: the pace of the ended
+    cases (after the first, which paid the workers' start) times the cases pending, from the
+    last end, less the time since it."""
+    if not ended or last_end is None:
+        return "time left: unknown yet"
+    pace = (last_end - first_end) / (ended - 1) if ended > 1 else first_end - started
+    return f"about {_duration(max(last_end + pace * pending - now, 0.0))} left"
+
+
+def fit_line(parts: list[str], width: int) -> str:
+    """The parts joined by "; ", as many from the first as fit in `width` - 1 columns (the
+    first always: the counts)."""
+    line = parts[0]
+    for part in parts[1:]:
+        if len(line) + 2 + len(part) > width - 1:
+            break
+        line = f"{line}; {part}"
+    return line
 
 
 def _duration(seconds: float) -> str:

@@ -195,7 +195,7 @@ def test_a_study_gathers_exactly_the_serial_runs_and_records_a_failed_case(tmp_p
                    status=lines.append)
     live = [line for line in lines if line]  # "" clears the line at the end
     pattern = (r"cases: \d finished, \d failed, \d running, \d waiting of 4; "
-               r"(about \d+(\.\d)? (s|min|h) left|time left: after the first case)")
+               r"(about \d+(\.\d)? (s|min|h) left|time left: unknown yet)")
     assert live and all(re.fullmatch(pattern, line) for line in live), live
     assert live[-1].startswith("cases: 2 finished, 2 failed, 0 running, 0 waiting of 4")
     assert (result.cases, result.finished, result.failed) == (4, 2, 2)
@@ -372,3 +372,20 @@ def test_the_local_cluster_workers_keep_glibcs_own_trim_rule(monkeypatch):
     monkeypatch.delenv("MALLOC_TRIM_THRESHOLD_", raising=False)
     with _cluster(None, 1) as client:
         assert set(client.run(_trim_threshold).values()) == {None}
+
+
+def test_the_live_line_fits_80_columns_and_its_time_left_counts_down():
+    # "time left: after the fi" was cut at 80 columns: the counts come first and whole, the
+    # other parts only as far as they fit; between two ends the time left falls
+    from dynfab.study import fit_line, time_left
+    parts = ["cases: 12 finished, 3 failed, 2 running, 183 waiting of 200",
+             "about 14 min left", "1 worker lost", "2 cases rerun"]
+    line = fit_line(parts, 80)
+    assert len(line) <= 79 and line == "; ".join(parts[:2])
+    assert fit_line(parts, 200) == "; ".join(parts)
+    assert fit_line(parts, 20) == parts[0]
+    # two cases ended 10 s apart, 6 pending: 60 s from the last end, then less
+    at_end = time_left(0.0, 100.0, 110.0, 2, 6, now=110.0)
+    later = time_left(0.0, 100.0, 110.0, 2, 6, now=140.0)
+    assert (at_end, later) == ("about 60 s left", "about 30 s left")
+    assert time_left(0.0, None, None, 0, 6, now=5.0) == "time left: unknown yet"

@@ -132,6 +132,10 @@ def test_a_killed_worker_s_cases_are_rerun_and_every_case_ends_once(tmp_path, cl
     assert max(log.count(key) for key in set(log)) >= 2  # a case given to a second worker
     assert result.repeated_steps > 0
     assert (result.cases, result.finished, result.failed) == (6, 6, 0)
+    # the lost worker and the case run again are said, and the workers are those that ran
+    assert (result.workers, result.lost_workers) == (2, 1) and result.rerun_cases >= 1
+    assert "on 2 workers, 1 lost" in result.summary()
+    assert "run again after its worker was lost" in result.summary()
     files = sorted(cases.iterdir())
     assert [f.name for f in files] == [f"case-000{i}.h5" for i in range(6)]  # once each
     table = xr.open_dataset(result.table)
