@@ -453,7 +453,7 @@ def coupling_rows(structure, pos, anchors, limit, c) -> tuple[np.ndarray, np.nda
     sx, sy = friction.slip(pos, anchors, structure, px, py, c)
     norm = np.hypot(sx, sy)
     stick = structure.tie_friction_law[c, friction.STICK]
-    if not (limit[c] > 0.0 and stick * norm >= limit[c]):
+    if not (limit[c] > 0.0 and friction.is_sliding(sx, sy, limit[c], stick)):
         return np.zeros(0, np.int64), np.zeros(0)
     return slip_dofs(structure, c), slip_jacobian(structure, c).T @ np.array([sx, sy]) / norm
 

@@ -21,6 +21,8 @@ xi += (1 - F_T / (k_t |s|)) s where sliding, and the energy lost is F_T |delta x
 import numba
 import numpy as np
 
+from dynfab.terms import huber as huber_law
+
 STICK = 3
 """Column of k_t [N/m] in `tie_friction_law`."""
 
@@ -35,32 +37,22 @@ def slip(pos, anchors, s, plane_x, plane_y, c):
 
 @numba.njit(cache=True)
 def is_sliding(sx, sy, limit, stick):
-    """The sliding branch: k_t |s| >= F_T with F_T > 0, or F_T <= 0 (H = 0)."""
-    if not limit > 0.0:
-        return True
-    return stick * np.hypot(sx, sy) >= limit
+    """The sliding branch: k_t |s| >= F_T with F_T > 0, or F_T <= 0 (H = 0)
+    (`dynfab.terms.huber.slides`)."""
+    return huber_law.slides(np.hypot(sx, sy), limit, stick)
 
 
 @numba.njit(cache=True)
 def huber(sx, sy, limit, stick):
-    """H(s) [J]."""
-    if not limit > 0.0:
-        return 0.0
-    n = np.hypot(sx, sy)
-    if stick * n < limit:
-        return 0.5 * stick * n * n
-    return limit * n - limit * limit / (2.0 * stick)
+    """H(s) [J] (`dynfab.terms.huber.energy`)."""
+    return huber_law.energy(np.hypot(sx, sy), limit, stick)
 
 
 @numba.njit(cache=True)
 def huber_gradient(sx, sy, limit, stick):
     """dH/ds (2 floats) [N]: minus the friction force on the slip."""
-    if not limit > 0.0:
-        return 0.0, 0.0
-    n = np.hypot(sx, sy)
-    if stick * n < limit:
-        return stick * sx, stick * sy
-    return limit * sx / n, limit * sy / n
+    g = huber_law.force_per_slip(np.hypot(sx, sy), limit, stick)
+    return g * sx, g * sy
 
 
 @numba.njit(cache=True)
@@ -77,7 +69,7 @@ def huber_hessian(sx, sy, limit, stick, secant=0.0):
     if not limit > 0.0:
         return 0.0, 0.0, 0.0
     n = np.hypot(sx, sy)
-    if stick * n < limit:
+    if not huber_law.slides(n, limit, stick):
         return stick, 0.0, stick
     if secant >= 1.0:
         return limit / n, 0.0, limit / n
@@ -131,7 +123,7 @@ def return_map(pos, anchors, s, plane_x, plane_y, limit, sliding, friction_force
         stick = s.tie_friction_law[c, STICK]
         n = np.hypot(sx, sy)
         F = limit[c]
-        sliding[c] = stick * n > F
+        sliding[c] = huber_law.moves(n, F, stick)
         if sliding[c]:
             move = 1.0 - F / (stick * n)
             anchors[c, 0] += move * sx

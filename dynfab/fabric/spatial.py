@@ -27,6 +27,7 @@ import scipy.sparse
 
 from dynfab.fabric import contact
 from dynfab.fabric.assembly import Pattern, secant_weights
+from dynfab.terms import huber as huber_law
 from dynfab.terms import spatial as element
 
 STRETCH, BENDING, CONTACT, FRICTION, LOAD, GRAVITY, SHEAR, LATERAL = range(8)
@@ -382,7 +383,7 @@ def slip_direction(pos, anchors, s, limit, c, out):
     S = element.crossing_slip(six, anchors[c], rho)
     norm = np.sqrt(S[0] * S[0] + S[1] * S[1] + S[2] * S[2])
     out[:] = 0.0
-    if not (limit[c] > 0.0 and stick * norm >= limit[c] and norm > 0.0):
+    if not (limit[c] > 0.0 and huber_law.slides(norm, limit[c], stick) and norm > 0.0):
         return
     q, J, K3 = np.empty(3), np.empty((3, 18)), np.empty((3, 18, 18))
     element.crossing_kinematics(six, q, J, K3)
@@ -405,7 +406,7 @@ def return_map(pos, anchors, s, limit, sliding, friction_force):
         S = element.crossing_slip(six, anchors[c], rho)
         norm = np.sqrt(S[0] * S[0] + S[1] * S[1] + S[2] * S[2])
         F = limit[c]
-        if F > 0.0 and stick * norm > F:
+        if F > 0.0 and huber_law.moves(norm, F, stick):
             friction_force[c, :] = -F * S / norm
         elif F > 0.0:
             friction_force[c, :] = -stick * S

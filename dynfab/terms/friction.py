@@ -11,10 +11,11 @@ for the static solver's active set would make F_T negative: an anti-friction for
 with no stick zone, discontinuous at zero slip; it was tried and dropped.)
 
 Within a load step the anchors xi_j stay put and each crossing adds the convex
-Huber potential of its slip s = x_{n_j} - xi_j:
+Huber potential of its slip s = x_{n_j} - xi_j (`dynfab.terms.huber`, the law every slip
+dimension shares):
 
-    H(s) = 1/2 k_t s^2                 for |s| <= F_T / k_t   (sticking)
-         = F_T |s| - F_T^2 / (2 k_t)   otherwise               (sliding),
+    H(s) = 1/2 k_t s^2                 for |s| < F_T / k_t   (sticking)
+         = F_T |s| - F_T^2 / (2 k_t)   otherwise              (sliding; 0 where F_T = 0),
 
 whose force on the warp is -k_t s or -F_T sign(s). After the step the anchors
 are return-mapped, xi = x - sign(s) F_T / k_t where k_t |s| > F_T, and the
@@ -26,6 +27,7 @@ import numpy as np
 
 from dynfab.banded import band_add
 from dynfab.terms import contact, registry
+from dynfab.terms import huber as huber_law
 
 INDEX = registry.index("friction")
 """The term's place in the registry: `yarn.active[INDEX]` says whether a yarn has friction."""
@@ -88,24 +90,20 @@ def tie_limit_slope(R, law, onset, j):
 
 @numba.njit(cache=True)
 def is_sliding(slip, friction_limit, stick_stiffness):
-    """True where the trial force k_t |s| exceeds F_T."""
-    return stick_stiffness * abs(slip) > friction_limit
+    """The sliding (or open) branch of the slip `slip` [m] (`dynfab.terms.huber.slides`)."""
+    return huber_law.slides(abs(slip), friction_limit, stick_stiffness)
 
 
 @numba.njit(cache=True)
 def huber(slip, friction_limit, stick_stiffness):
-    """H(s) [J]."""
-    if not is_sliding(slip, friction_limit, stick_stiffness):
-        return 0.5 * stick_stiffness * slip * slip
-    return friction_limit * abs(slip) - friction_limit * friction_limit / (2.0 * stick_stiffness)
+    """H(s) [J] (`dynfab.terms.huber.energy`)."""
+    return huber_law.energy(abs(slip), friction_limit, stick_stiffness)
 
 
 @numba.njit(cache=True)
 def huber_derivative(slip, friction_limit, stick_stiffness):
-    """dH/ds [N]: minus the friction force on the warp."""
-    if not is_sliding(slip, friction_limit, stick_stiffness):
-        return stick_stiffness * slip
-    return friction_limit * np.sign(slip)
+    """dH/ds [N]: minus the friction force on the warp; 0 on an open crossing."""
+    return huber_law.force_per_slip(abs(slip), friction_limit, stick_stiffness) * slip
 
 
 @numba.njit(cache=True)
@@ -171,12 +169,13 @@ def return_map(pos, nodes, anchors, friction_limit, stick_stiffness, sliding, fr
     for j in range(nodes.size):
         x = pos[nodes[j], 0]
         slip = x - anchors[j]
-        sliding[j] = is_sliding(slip, friction_limit[j], stick_stiffness)
+        sliding[j] = huber_law.moves(abs(slip), friction_limit[j], stick_stiffness)
         if sliding[j]:
-            moved = x - np.sign(slip) * friction_limit[j] / stick_stiffness
-            lost += friction_limit[j] * abs(moved - anchors[j])
+            f_t = max(friction_limit[j], 0.0)
+            moved = x - np.sign(slip) * f_t / stick_stiffness
+            lost += f_t * abs(moved - anchors[j])
             anchors[j] = moved
-            friction_force[j] = -np.sign(slip) * friction_limit[j]
+            friction_force[j] = -np.sign(slip) * f_t
         else:
             friction_force[j] = -stick_stiffness * slip
     return lost

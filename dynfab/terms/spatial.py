@@ -48,7 +48,7 @@ Elements:
     (slip anchor [m, m], rotation anchor [rad]),
         S = (q0 - anchor0, q1 - anchor1, rho wrap(q2 - anchor2)),
         E = Huber(S) + 1/2 shear_k wrap(q2 - phi_rest)^2,
-        Huber(S) = 1/2 k_t |S|^2 if k_t |S| <= F_T, else F_T |S| - F_T^2 / (2 k_t);
+        Huber(S) = 1/2 k_t |S|^2 if k_t |S| < F_T, else F_T |S| - F_T^2 / (2 k_t);
     Huber = 0 where F_T <= 0 (an open crossing): (4.4) on the three-component slip.
         dE = J^T (D dHuber + shear_k w e_2),  w = wrap(q2 - phi_rest),
         d2E = J^T (D d2Huber D + shear_k e_2 e_2^T) J + sum_m (D dHuber + shear_k w e_2)_m K_m,
@@ -73,6 +73,7 @@ Elements:
 import numba
 import numpy as np
 
+from dynfab.terms import huber as huber_law
 from dynfab.terms.contact import CLOSED, NATURAL, OPEN
 
 TWO_PI = 2.0 * np.pi
@@ -385,24 +386,16 @@ def _norm3(S):
 
 @numba.njit(cache=True)
 def huber3(S, limit, stick):
-    """Huber(S) [J] of the slip S (3,) [m]: 1/2 k_t |S|^2 while k_t |S| <= F_T, else
-    F_T |S| - F_T^2 / (2 k_t); 0 where F_T <= 0. limit = F_T [N], stick = k_t [N/m]."""
-    if not limit > 0.0:
-        return 0.0
-    n = _norm3(S)
-    if stick * n <= limit:
-        return 0.5 * stick * n * n
-    return limit * n - limit * limit / (2.0 * stick)
+    """Huber(S) [J] of the slip S (3,) [m] (`dynfab.terms.huber.energy`): 1/2 k_t |S|^2
+    while k_t |S| < F_T, else F_T |S| - F_T^2 / (2 k_t); 0 where F_T <= 0. limit = F_T [N],
+    stick = k_t [N/m]."""
+    return huber_law.energy(_norm3(S), limit, stick)
 
 
 @numba.njit(cache=True)
 def huber3_gradient(S, limit, stick, out):
     """dHuber/dS [N] into out (3,): k_t S sticking, F_T S / |S| sliding, 0 open."""
-    if not limit > 0.0:
-        out[:] = 0.0
-        return
-    n = _norm3(S)
-    scale = stick if stick * n <= limit else limit / n
+    scale = huber_law.force_per_slip(_norm3(S), limit, stick)
     for i in range(3):
         out[i] = scale * S[i]
 
@@ -416,7 +409,7 @@ def huber3_hessian(S, limit, stick, secant, out):
     if not limit > 0.0:
         return
     n = _norm3(S)
-    if stick * n <= limit:
+    if not huber_law.slides(n, limit, stick):
         for i in range(3):
             out[i, i] = stick
         return
@@ -509,7 +502,7 @@ def crossing_return_map(X, anchor, rho, limit, stick):
     S = crossing_slip(X, anchor, rho)
     n = _norm3(S)
     f_t = max(limit, 0.0)
-    if not stick * n > f_t:
+    if not huber_law.moves(n, limit, stick):
         return 0.0, False
     m = 1.0 - f_t / (stick * n)
     anchor[0] += m * S[0]
