@@ -201,6 +201,11 @@ UNITS: dict[str, str] = {
 }
 """Units of every dataset a result file may hold; the only list of names."""
 
+MACHINE_TIMES = frozenset({"wall_time", "compile_time"})
+"""The steps/ datasets that time the machine, not the model: they differ run to run (and a
+first run's compile_time, its kernels compiled, from a later run's), so two runs of one scene
+agree bit for bit in every steps/ dataset but these."""
+
 _ENERGY_PREFIXES = ("steps/energy/", "frames/energy/")
 _VIEW_ROW = re.compile(r"(view/(?:steps|frames)/[a-z_]+/)[1-9][0-9]*\Z")
 _TERM_NAME = re.compile(r"[A-Za-z0-9_]+\Z")

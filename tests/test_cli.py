@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 import dynfab
-from dynfab.results import finished_counts
+from dynfab.results import MACHINE_TIMES, finished_counts
 
 ROOT = Path(__file__).resolve().parents[1]
 FIG5 = ROOT / "runs" / "paper_fig5.toml"  # friction on and off: anchors must survive a resume
@@ -33,19 +33,19 @@ def dynfab_cli(*args, **kwargs):
 
 
 def step_arrays(path) -> dict:
-    """Every steps/* dataset but the wall time (which differs run to run)."""
+    """Every steps/* dataset but the machine's times (`MACHINE_TIMES`: they differ run to run)."""
     results = dynfab.read_results(path)
-    return {k: v for k, v in results.steps.items() if k != "wall_time"}
+    return {k: v for k, v in results.steps.items() if k not in MACHINE_TIMES}
 
 
 def finished_rows(path, group: str = "steps") -> dict:
     """The finished rows of a result file read with plain h5py, as its layout tells a
-    script to: rows [0, <group>_done) of every <group>/ dataset (wall time left out)."""
+    script to: rows [0, <group>_done) of every <group>/ dataset (the machine's times left out)."""
     with h5py.File(path, "r") as f:
         count = int(f[f"{group}_done"][0])
         rows = {}
         f[group].visititems(lambda name, obj: rows.__setitem__(name, obj[:count])
-                            if isinstance(obj, h5py.Dataset) and name != "wall_time" else None)
+                            if isinstance(obj, h5py.Dataset) and name not in MACHINE_TIMES else None)
     return rows
 
 
