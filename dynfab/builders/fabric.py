@@ -84,9 +84,10 @@ def fabric_structure(scene: Scene) -> Structure:
     yarns = len(shapes)
     wrap_k, wrap_angle = np.zeros(yarns), np.zeros(yarns)
     fixed = _fixed_dofs(scene, start)
+    free = woven_rest.free_ends(fixed, start, 2)
     rest_length, stretch, bend, angle, mass = [], [], [], [], []
     for y, (shape, family) in enumerate(zip(shapes, members)):
-        if preload > 0.0 and not (fixed[2 * start[y] + 1] and fixed[2 * start[y + 1] - 1]):
+        if preload > 0.0 and free[y].any():
             woven_rest.check_free_end(preload, spacings[y], family.EI, family.amplitude,
                                       "warp" if y < warp.count else "weft")
         l0, phi0, moment = _rest_shape(shape, family, load[start[y]:start[y + 1]], spacings[y])

@@ -64,10 +64,10 @@ def _chain_springs(shape: np.ndarray, EA: float, EI: float, EI_lateral: float, d
         raise UserError("a specimen yarn has a vertical segment: the spatial model needs every "
                         "segment to have an in-plane extent (docs/model.md section 11)")
     moment = np.zeros(shape.shape[0])
-    if free_end is not None and np.any(load):
-        woven_rest.check_free_end(float(np.max(np.abs(load))), spacing, EI,
-                                  float(np.max(np.abs(shape[:, 2]))), free_end)
     if np.any(load):
+        if free_end is not None:
+            woven_rest.check_free_end(float(np.max(np.abs(load))), spacing, EI,
+                                      float(np.max(np.abs(shape[:, 2]))), free_end)
         tension, moment = woven_rest.internal_forces(in_plane, e[:, 2], load, spacing)
         l0 = woven_rest.rest_lengths(l0, tension, EA)
     lbar = geometry.voronoi_lengths(l0)
@@ -179,6 +179,8 @@ def specimen_structure(scene: Scene, layout=None) -> Structure:
     side = layout.crossing_side.astype(float)
     preload = scene.crossing.preload if scene.crossing is not None else 0.0
     load = woven_rest.crossing_loads(rest.shape[0], tie_a, tie_b, side, preload)
+    fixed = np.repeat(layout.held, 3)
+    free = woven_rest.free_ends(fixed, start, 3)
     parts = []
     for y in range(start.size - 1):
         # along a warp the crossings are the wefts', weft.spacing apart, and the other way
@@ -186,11 +188,10 @@ def specimen_structure(scene: Scene, layout=None) -> Structure:
                         else (scene.weft, scene.warp))
         density = yarn.linear_density or DEFAULT_LINEAR_DENSITY
         nodes = slice(start[y], start[y + 1])
-        free = not (layout.held[start[y]] and layout.held[start[y + 1] - 1])
         family = "warp" if layout.chain_family[y] == 0 else "weft"
         parts.append(_chain_springs(rest[nodes], yarn.EA, yarn.EI, yarn.EI_lateral or yarn.EI,
                                     density, load[nodes], across.spacing,
-                                    family if free else None))
+                                    family if free[y].any() else None))
     l0, stretch, kb, theta0, kl, psi0, mass = (np.concatenate(p) for p in zip(*parts))
     law = _contact_law(scene)
     g_p = woven_rest.woven_closure(preload, law)
@@ -211,7 +212,6 @@ def specimen_structure(scene: Scene, layout=None) -> Structure:
         layout.lateral_sign, width, stiffness,
         np.full(lateral_family.size, float(contact_law.NATURAL)),
         compaction[lateral_family]])
-    fixed = np.repeat(layout.held, 3)
     n, chains = rest.shape[0], start.size - 1
     return Structure(
         rest_position=rest, mass=mass, gravity=np.zeros(n),

@@ -116,13 +116,21 @@ def check_free_end(preload: float, spacing: float, EI: float, amplitude: float,
         f"a yarn straight at rest, 48 EI A / p^3)")
 
 
+def free_ends(fixed: np.ndarray, chain_start: np.ndarray, d: int) -> np.ndarray:
+    """(chains, 2) bool: whether each chain's first and last node is free along z (its z dof,
+    the last of the node's `d`, not in `fixed`): an end that carries none of the woven-in
+    pattern's end force (module docstring)."""
+    first, last = chain_start[:-1], chain_start[1:] - 1
+    return np.column_stack([~fixed[d * first + d - 1], ~fixed[d * last + d - 1]])
+
+
 def crossings_from_free_end(structure) -> np.ndarray:
     """For each tie (T,), int64: its rank from the nearest free yarn end along its two chains,
     1 for a yarn's last crossing before a free end (an end node whose z is not held), a
     large number where neither chain has a free end: where the woven-in contact relaxes
     (docs/model.md section 10, at a free end)."""
-    d = structure.rest_position.shape[1]
     start = structure.chain_start
+    free = free_ends(structure.fixed, start, structure.rest_position.shape[1])
     rank = np.full(structure.tie_a.size, np.iinfo(np.int64).max // 2, np.int64)
     nodes = np.concatenate([structure.tie_a, structure.tie_b])
     ties = np.concatenate([np.arange(structure.tie_a.size)] * 2)
@@ -130,8 +138,8 @@ def crossings_from_free_end(structure) -> np.ndarray:
         on_chain = np.flatnonzero((nodes >= start[y]) & (nodes < start[y + 1]))
         order = on_chain[np.argsort(nodes[on_chain], kind="stable")]
         count = np.arange(1, order.size + 1)
-        if not structure.fixed[d * start[y] + d - 1]:
+        if free[y, 0]:
             np.minimum.at(rank, ties[order], count)
-        if not structure.fixed[d * (start[y + 1] - 1) + d - 1]:
+        if free[y, 1]:
             np.minimum.at(rank, ties[order], count[::-1])
     return rank
