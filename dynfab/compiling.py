@@ -85,12 +85,9 @@ class _Announcer:
         announcer = self
 
         def load(module, device, block_dim=None, *args, **kwargs):
-            key = (id(module), str(device), block_dim)
-            given = args or kwargs.get("binary_path")  # a binary given: nothing to compile
-            if not (announcer.said or given or key in announcer.checked):
-                announcer.checked.add(key)
-                if will_compile(module, device, block_dim):
-                    announcer.announce()
+            if not announcer.said and _first_load_compiles(announcer.checked, module, device,
+                                                           block_dim, args, kwargs):
+                announcer.announce()
             return original(module, device, block_dim, *args, **kwargs)
 
         self.wrapper = wp.Module.load = load
@@ -194,11 +191,8 @@ class _CompileClock:
         clock = self
 
         def load(module, device, block_dim=None, *args, **kwargs):
-            key = (id(module), str(device), block_dim)
-            if key in clock.checked or args or kwargs.get("binary_path"):
-                return original(module, device, block_dim, *args, **kwargs)
-            clock.checked.add(key)
-            compiles = will_compile(module, device, block_dim)
+            compiles = _first_load_compiles(clock.checked, module, device, block_dim, args,
+                                            kwargs)
             began = time.perf_counter()
             try:
                 return original(module, device, block_dim, *args, **kwargs)
@@ -220,6 +214,17 @@ def start_clock() -> None:
 def compile_seconds() -> float:
     """Seconds spent compiling since `start_clock` [s]."""
     return _clock.seconds
+
+
+def _first_load_compiles(checked: set, module, device, block_dim, args, kwargs) -> bool:
+    """Whether this call of `warp.Module.load` compiles: the first for its (module, device,
+    block_dim) that `checked` has seen (added to it), with no binary given (nothing to
+    compile then), that `will_compile`. The watches' one check before a load."""
+    key = (id(module), str(device), block_dim)
+    if key in checked or args or kwargs.get("binary_path"):
+        return False
+    checked.add(key)
+    return will_compile(module, device, block_dim)
 
 
 def will_compile(module, device, block_dim: int | None = None) -> bool:
