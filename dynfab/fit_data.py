@@ -172,15 +172,16 @@ def curve_from_columns(header, rows, control: str, source: str = "<data>",
     try:
         columns = [_parse_header(source, text) for text in header]
         _check_load_column(source, columns[0], control)
-        _check_names(columns, header, control, source, model)
+        loads = _check_names(columns, header, control, source, model)
     except UserError as error:
         found = ", ".join(f"'{text.strip()}'" for text in header)
         raise UserError(f"{error}; {expected_columns(model, control)}; found {found}") from None
-    return _validated(columns, header, rows, control, source, model)
+    return _validated(columns, header, rows, loads, control, source, model)
 
 
-def _check_names(columns, header, control: str, source: str, model: str) -> None:
-    """The header's columns past the load path (names, units, order), before any number."""
+def _check_names(columns, header, control: str, source: str, model: str) -> int:
+    """The header's columns past the load path (names, units, order), before any number;
+    returns how many load columns it starts with (`_load_columns`)."""
     loads = _load_columns(columns, control, model)
     if loads == 2:
         _check_unit(source, header[1].strip(), columns[1][2], WEFT_LOAD_COLUMN[control][1])
@@ -188,13 +189,14 @@ def _check_names(columns, header, control: str, source: str, model: str) -> None
     for index, (name, is_sigma, unit) in enumerate(columns[loads:], start=loads):
         label = header[index].strip()
         if is_sigma:
-            _check_sigma(source, label, name, unit, measured, np.ones(1), model)
+            _check_sigma_column(source, label, name, unit, measured, model)
             continue
         _check_measured(source, label, name, unit, control, measured, model)
         measured[name] = None
     if not measured:
         raise UserError(f"{source}: no measured column after '{header[loads - 1].strip()}': "
                          "give one of " + _listing(model, control))
+    return loads
 
 
 def _load_columns(columns, control: str, model: str) -> int:
@@ -224,16 +226,17 @@ def columns_help() -> str:
     return "\n".join(lines)
 
 
-def _validated(columns, header, rows, control: str, source: str, model: str) -> CurveData:
-    """`curve_from_columns` past its header (`_check_names`): the numbers."""
-    loads = _load_columns(columns, control, model)
+def _validated(columns, header, rows, loads: int, control: str, source: str,
+               model: str) -> CurveData:
+    """`curve_from_columns` past its header (`_check_names`, which counted its `loads`
+    columns): the numbers."""
     values = _numbers(source, header, rows)
     _check_path(source, [h.strip() for h in header[:loads]], values[:, :loads])
     measured, sigma = {}, {}
     for index, (name, is_sigma, unit) in enumerate(columns[loads:], start=loads):
         label = header[index].strip()
         if is_sigma:
-            _check_sigma(source, label, name, unit, measured, values[:, index], model)
+            _check_positive(source, label, values[:, index])
             sigma[name] = values[:, index]
             continue
         measured[name] = values[:, index]
@@ -316,7 +319,8 @@ def _foreign_column(source, label, name, control, model: str) -> UserError:
                      "of " + _listing(model, control))
 
 
-def _check_sigma(source, label, name, unit, measured, values, model: str) -> None:
+def _check_sigma_column(source, label, name, unit, measured, model: str) -> None:
+    """A sigma column follows its measured column `name` and has its units."""
     if name not in measured:
         raise UserError(f"{source}: column '{label}' does not follow a measured column "
                          f"'{name} [...]'")
@@ -324,6 +328,10 @@ def _check_sigma(source, label, name, unit, measured, values, model: str) -> Non
     if unit != want:
         raise UserError(f"{source}: column '{label}' is in [{unit}]; it must be in "
                          f"[{want}] like '{name}'")
+
+
+def _check_positive(source, label, values) -> None:
+    """Every value of a sigma column `label` > 0."""
     if not (values > 0).all():
         row = int(np.argmin(values > 0)) + 2
         raise UserError(f"{source}: row {row}: '{label}' must be positive")
