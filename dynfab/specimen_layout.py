@@ -435,6 +435,13 @@ def frame_angle(side: float, d: float) -> float:
     return math.acos(cosine)
 
 
+def yarns_meet_at(warp, weft) -> float:
+    """The nominal shear angle [rad] at which neighbouring yarns first meet, acos(w / p) of
+    the family (`warp`, `weft`: the scene's) whose width is the larger share of its spacing
+    (docs/model.md 11.5)."""
+    return float(np.arccos(max(t.width / t.spacing for t in (warp, weft))))
+
+
 def nominal_shear_angle(layout_or_test, d: float, width: float = None, height: float = None,
                         side: float = None) -> float:
     """Nominal shear angle gamma [rad] at clamp / corner displacement d [m].

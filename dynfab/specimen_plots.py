@@ -19,10 +19,11 @@ from __future__ import annotations
 import numpy as np
 from matplotlib.figure import Figure
 
+from dynfab.plot import draw_measured
 from dynfab.plot_style import FONT_SIZE, legend, new_figure, style_axes
 from dynfab.results import Results
 from dynfab.shear_force import bias_normalised_shear_force
-from dynfab.specimen_layout import nominal_shear_angle
+from dynfab.specimen_layout import nominal_shear_angle, yarns_meet_at
 
 DEGREE = 180.0 / np.pi
 ZONES = ("zone A", "zone B", "zone C")
@@ -74,8 +75,7 @@ def plot_shear_force(results: Results, measured=None) -> Figure:
     if results.attrs["specimen_test"] == "bias_extension":
         _draw_from_step_0(by_d, 1e3 * d, force)
     if measured is not None:  # `dynfab.plot.Measured`: a clamp force against d
-        by_d.plot(1e3 * measured.end_displacement, measured.end_force, linestyle="none",
-                  marker="D", ms=4, mfc="none", color="k", label=measured.label)
+        draw_measured(by_d, 1e3 * measured.end_displacement, measured.end_force, measured)
     _draw_angles(results, angles, d, nominal, gamma)
     if clipped:
         whole = axes[3]
@@ -99,7 +99,7 @@ def _meeting_angle(results: Results) -> float:
 
     try:
         scene = parse_scene_text(results.attrs["scene"])
-        return float(np.arccos(max(t.width / t.spacing for t in (scene.warp, scene.weft))))
+        return yarns_meet_at(scene.warp, scene.weft)
     except (KeyError, TypeError, ValueError):
         return np.inf
 

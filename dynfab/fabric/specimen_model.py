@@ -158,10 +158,9 @@ class SpecimenModel:
 
     @property
     def yarns_meet_at(self) -> float:
-        """The nominal shear angle [rad] at which neighbouring yarns first meet, acos(w / p)
-        of the family whose width is the larger share of its spacing (docs/model.md 11.5)."""
-        return float(np.arccos(max(t.width / t.spacing for t in (self.scene.warp,
-                                                                  self.scene.weft))))
+        """The nominal shear angle [rad] at which neighbouring yarns first meet
+        (`specimen_layout.yarns_meet_at`)."""
+        return specimen_layout.yarns_meet_at(self.scene.warp, self.scene.weft)
 
     def reference(self) -> dict:
         """The as-woven nodes, the chains, the crossings, their zones and their rank from a
