@@ -27,19 +27,12 @@ from dynfab.results import read_results  # noqa: E402
 from dynfab.scene import parse_scene_text  # noqa: E402
 from dynfab.shear_force import (  # noqa: E402
     bias_normalised_shear_force, frame_normalised_shear_force)
-from dynfab.specimen_layout import nominal_shear_angle  # noqa: E402
+from dynfab.specimen_plots import nominal_angles  # noqa: E402
 
 OUTPUT = Path(__file__).resolve().parent / "shear_paths.json"
 ANGLES_DEG = (5.0, 10.0, 20.0, 30.0, 40.0)
 RANKS = (1, 2, 3, 4)
 """Ranks from a free yarn end reported one by one; the rest as 'interior'."""
-
-
-def _nominal_deg(results, d: np.ndarray) -> np.ndarray:
-    a = results.attrs
-    dims = ({"width": float(a["specimen_width"]), "height": float(a["specimen_height"])}
-            if a["specimen_test"] == "bias_extension" else {"side": float(a["specimen_side"])})
-    return np.degrees([nominal_shear_angle(a["specimen_test"], float(x), **dims) for x in d])
 
 
 def _at_angles(angle: np.ndarray, values: np.ndarray) -> list:
@@ -81,7 +74,7 @@ def path_of(path: Path) -> dict:
     steps = results.steps
     d = np.asarray(steps["load"], float)[:, 0]
     scene = parse_scene_text(results.attrs["scene"])
-    angle = _nominal_deg(results, d)
+    angle = np.degrees(nominal_angles(results, d))
     return {"file": str(path), "title": scene.title, "d_reached_m": float(d[-1]),
             "d_last_m": float(scene.load.values[-1]), "steps_finished": int(d.size),
             "steps_in_scene": 1 + len(scene.load.values),

@@ -29,8 +29,8 @@ DEGREE = 180.0 / np.pi
 ZONES = ("zone A", "zone B", "zone C")
 
 
-def _nominal(results: Results, d: np.ndarray) -> np.ndarray:
-    """The test's nominal shear angle at each d [rad]."""
+def nominal_angles(results: Results, d: np.ndarray) -> np.ndarray:
+    """The nominal shear angle [rad] of the file's test at each clamp displacement d [m]."""
     a = results.attrs
     if a["specimen_test"] == "bias_extension":
         dims = dict(width=float(a["specimen_width"]), height=float(a["specimen_height"]))
@@ -53,7 +53,7 @@ def plot_shear_force(results: Results, measured=None) -> Figure:
     d = np.asarray(steps["load"], float)[:, 0]
     force = np.asarray(steps["clamp_force"], float)
     gamma = np.asarray(steps["shear_angle"], float)
-    nominal = _nominal(results, d)
+    nominal = nominal_angles(results, d)
     normalised = _normalised_over_the_path(results, d, force)
     meet = _meeting_angle(results)
     before = nominal < meet
