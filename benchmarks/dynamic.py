@@ -21,7 +21,7 @@ two figures measured in this one run.
    step from the same state, at the same 1e-8 N tolerance and at the static
    default 1e-11 N.
 4. The cost of one explicit time step per node [ns], Warp's kernel beside a plain
-   numba loop doing the same step (the `dynfab.assembly` forces, the residual and the
+   numba loop doing the same step (the `dynfab.model.assembly` forces, the residual and the
    kinetic-damping update), N = 224.
 
 Aims (the table ends with each and "met" / "NOT met"): Warp's explicit step within
@@ -44,11 +44,11 @@ import numba
 import numpy as np
 import warp as wp
 
-from dynfab import assembly
-from dynfab.dynamic import DynamicSolver, available_cores
-from dynfab.model import build_model, initial_state
+from dynfab.model import assembly
+from dynfab.solvers.dynamic import DynamicSolver, available_cores
+from dynfab.model.yarn import build_model, initial_state
 from dynfab.scene import Dynamic, load_scene, validate_scene, with_key
-from dynfab.static import StaticSolver
+from dynfab.solvers.static import StaticSolver
 from dynfab.timing import best_time
 
 HERE = Path(__file__).resolve().parent

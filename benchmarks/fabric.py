@@ -21,20 +21,20 @@ every part untimed on a 4 x 4 patch (compiles; loads the numba and Warp caches),
 2. `newton_costs`: the Newton solve alone (the static solver's sparse backend,
    `SparseNewton.equilibrium`: time per Newton iteration); later `static_costs`:
    `StaticSolver.step` whole (Newton and the
-   certificate), the certificate (`dynfab.certificate.certify_patch`: inertia, lowest
+   certificate), the certificate (`dynfab.solvers.certificate.certify_patch`: inertia, lowest
    eigenvalue and its bracket, the norm estimate of the error bound) and two of its parts,
    the inertia count and the nearest eigenvalue (MODEL.md 6), each timed on its own.
 3. `pcg_costs`: the semi-implicit solver's linear algebra inside Newton (the solver itself
    is part 6); its linear solve ((M/h^2 + H) dx = f, Newton as h -> inf) is measured inside the static
    solver: `PCGNewton`, Newton with its direction by CG preconditioned with each yarn's
    own banded block of H, on the same step; time, CG iterations, fallbacks to SuperLU.
-4. `dynamic_costs`: `dynfab.dynamic.DynamicSolver.step` (kinetic damping, grouped layout)
+4. `dynamic_costs`: `dynfab.solvers.dynamic.DynamicSolver.step` (kinetic damping, grouped layout)
    on the same step: time per load step, its time steps, the relaxation's time per time step
    (the relaxation alone, `StructureRelaxation.relax`), and the largest position difference
    from the static solution.
 5. `newton_pieces` (--pieces): gradient, Hessian assembly, SuperLU (default; symmetric
    mode in the nested-dissection order, the Newton solve's), the factorisation in each
-   fill-reducing ordering (the geometric nested dissection of `dynfab.fabric.ordering`,
+   fill-reducing ordering (the geometric nested dissection of `dynfab.model.fabric.ordering`,
    SuperLU's MMD_AT_PLUS_A and COLAMD: time, fill nnz(L + U), one solve; fitted exponents
    of the factor time and the fill), the inertia (SuperLU's symmetric-mode pivots, else
    the Schur complement) against dense eigenvalues (n <= 8), and the nearest eigenvalue
@@ -79,16 +79,16 @@ import scipy.linalg
 import scipy.sparse
 import scipy.sparse.linalg
 
-from dynfab import certificate
-from dynfab.fabric import inertia, ordering
-from dynfab.dynamic import DynamicSolver
-from dynfab.fabric.model import FabricModel
-from dynfab.newton_sparse import SparseNewton, _sparse_solve
+from dynfab.solvers import certificate
+from dynfab.model.fabric import inertia, ordering
+from dynfab.solvers.dynamic import DynamicSolver
+from dynfab.model.fabric.model import FabricModel
+from dynfab.solvers.newton_sparse import SparseNewton, _sparse_solve
 from dynfab.kernels.structure_relaxation import StructureRelaxation
 from dynfab.kernels.structure_settings import RELATIVE_TOLERANCE
 from dynfab.reports.fabric_data import paper_patch_scene
 from dynfab.scene import Dynamic
-from dynfab.static import StaticSolver
+from dynfab.solvers.static import StaticSolver
 
 OUTPUT = Path(__file__).resolve().parent / "fabric.json"
 SIZES = (4, 8, 16, 32, 64)
@@ -311,7 +311,7 @@ def newton_costs(n: int, friction=None):
 
 def static_costs(n: int, friction=None):
     """(row, state, record): StaticSolver.step on the load step (Newton and the
-    certificate), the certificate (`dynfab.certificate.certify_patch`: the inertia, the
+    certificate), the certificate (`dynfab.solvers.certificate.certify_patch`: the inertia, the
     lowest eigenvalue with its proved bracket, est ||H^-1||_inf) on its own at its
     solution, and parts of it timed alone: the inertia count and the nearest eigenvalue
     (MODEL.md 6)."""
@@ -511,7 +511,7 @@ def newton_pieces(n: int, positions) -> dict:
 
 
 ORDERINGS = ("nested_dissection", "MMD_AT_PLUS_A", "COLAMD")
-"""The fill-reducing orderings compared: `dynfab.fabric.ordering`'s, and SuperLU's own two."""
+"""The fill-reducing orderings compared: `dynfab.model.fabric.ordering`'s, and SuperLU's own two."""
 
 
 def ordering_pieces(solver, H, g) -> dict:

@@ -68,7 +68,7 @@ PAPER_FRICTION = {"alpha": 0.2, "beta": 1e3, "contact_length": 2e-3, "fiber_radi
 
 def patch(n: int, mode: str):
     """The n x n patch's `FabricModel` in one boundary mode (module docstring)."""
-    from dynfab.fabric.model import FabricModel
+    from dynfab.model.fabric.model import FabricModel
     from dynfab.reports.fabric_data import paper_patch_scene
 
     more = {"fixed": {}, "affine": {"planes": "affine"}, "periodic": {"boundary": "periodic"}}[mode]
@@ -146,7 +146,7 @@ def first_step_relaxer(model, rule: str):
 
 def semi_rules(sizes, modes) -> list[dict]:
     """Per case and time step rule: the first load step's time steps, CG iterations, wall time."""
-    from dynfab.fabric.model import FabricModel
+    from dynfab.model.fabric.model import FabricModel
     from dynfab.scene import load_scene
 
     cases = [("strip", FabricModel.from_scene(load_scene(ROOT / "runs" / "fabric_strip.toml")))]

@@ -6,7 +6,7 @@ Run:  python benchmarks/fit.py            (prints a table, writes benchmarks/fit
 Measured in one run, warm (everything runs once to compile before timing; each
 figure is the best of several repeats, `dynfab.timing.best_time`):
 
-- one forward solve of a curve (`dynfab.sensitivity.solve_path`: the static
+- one forward solve of a curve (`dynfab.fitting.sensitivity.solve_path`: the static
   solver over the load path) against one Jacobian of the same curve
   (`path_sensitivities` of the measured observable, as a fit asks for it:
   per step one coupled Jacobian, one banded LU, one solve and two residual
@@ -29,10 +29,10 @@ from pathlib import Path
 import numpy as np
 import scipy
 
-from dynfab.fit import fit
-from dynfab.fit_data import read_curve
+from dynfab.fitting.fit import fit
+from dynfab.fitting.data import read_curve
 from dynfab.scene import expand_sweep, load_scene
-from dynfab.sensitivity import path_sensitivities, solve_path
+from dynfab.fitting.sensitivity import path_sensitivities, solve_path
 from dynfab.timing import best_time
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -66,7 +66,7 @@ def whole_fits():
     out = {}
     for method in ("exact", "finite-difference"):
         calls = {"solves": 0}
-        import dynfab.sensitivity as sensitivity
+        import dynfab.fitting.sensitivity as sensitivity
         original = sensitivity.solve_path
 
         def counting(*args, **kwargs):
@@ -88,7 +88,7 @@ def whole_fits():
 
 def main():
     example = load_scene(EXAMPLE / "scene.toml")
-    from dynfab.fit import refined_path, with_path
+    from dynfab.fitting.fit import refined_path, with_path
     data = read_curve(EXAMPLE / "curve.csv", example.load.control)
     example = with_path(example, refined_path(data.load, 2)[0])
     paper = expand_sweep(load_scene(ROOT / "runs" / "paper_fig5.toml"))[0]

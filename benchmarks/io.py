@@ -14,8 +14,8 @@ control. Measured in one process, time.perf_counter:
   real size and dtype, the load changed per step), and each writer appends it
   `steps` times to a new file in a temporary folder on the repository's disk:
   create + every append (+ close, which trims, for the new writer), divided by
-  the step count. The new writer is `dynfab.results.ResultFile` sized for the
-  run; the old one is dynfab/results.py as of commit `OLD_COMMIT` (read with
+  the step count. The new writer is `dynfab.results.file.ResultFile` sized for the
+  run; the old one is dynfab/results/file.py as of commit `OLD_COMMIT` (read with
   `git show`), which rewrote the whole file at every step, so it is run up to
   `OLD_MAX_STEPS` steps only (its cost per step grows linearly with the steps).
   "new-nosync" is the new writer with ``os.fdatasync`` skipped: not a mode
@@ -47,11 +47,11 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from dynfab.model import build_model, initial_state
-from dynfab.results import ResultFile
+from dynfab.model.yarn import build_model, initial_state
+from dynfab.results.file import ResultFile
 from dynfab.run import _reference, _root_attrs
 from dynfab.scene import Load, expand_sweep, load_scene, validate_scene, with_key
-from dynfab.static import StaticSolver
+from dynfab.solvers.static import StaticSolver
 
 ROOT = Path(__file__).resolve().parent.parent
 OUTPUT = Path(__file__).resolve().parent / "io.json"
@@ -88,8 +88,8 @@ def solve_time_per_step() -> tuple[float, dict, object, object]:
 
 
 def old_writer():
-    """The ResultFile class of dynfab/results.py at OLD_COMMIT."""
-    source = subprocess.run(["git", "show", f"{OLD_COMMIT}:dynfab/results.py"], cwd=ROOT,
+    """The ResultFile class of dynfab/results/file.py at OLD_COMMIT."""
+    source = subprocess.run(["git", "show", f"{OLD_COMMIT}:dynfab/results/file.py"], cwd=ROOT,
                             capture_output=True, text=True, check=True).stdout
     path = Path(tempfile.mkdtemp()) / "old_results.py"
     path.write_text(source)

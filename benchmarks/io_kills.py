@@ -31,7 +31,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from dynfab.results import ResultFile
+from dynfab.results.file import ResultFile
 
 OUTPUT = Path(__file__).resolve().parent / "io_kills.json"
 RESTART_STEPS = 500

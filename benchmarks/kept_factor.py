@@ -17,8 +17,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import fabric as patch  # noqa: E402  (benchmarks/fabric.py: the patch and its load step)
-from dynfab.fabric import assembly, ordering  # noqa: E402
-from dynfab.static import StaticSolver  # noqa: E402
+from dynfab.model.fabric import assembly, ordering  # noqa: E402
+from dynfab.solvers.static import StaticSolver  # noqa: E402
 
 OUTPUT = Path(__file__).resolve().parent / "kept_factor.json"
 

@@ -22,9 +22,9 @@ from pathlib import Path
 
 import numpy as np
 
-from dynfab.model import build_model, initial_state
+from dynfab.model.yarn import build_model, initial_state
 from dynfab.scene import load_scene, with_key
-from dynfab.static import StaticSolver
+from dynfab.solvers.static import StaticSolver
 
 ROOT = Path(__file__).resolve().parent.parent
 

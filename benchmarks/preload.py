@@ -24,7 +24,7 @@ sys.path.insert(0, str(ROOT))
 from dynfab import run  # noqa: E402
 from dynfab.errors import UserError  # noqa: E402
 from dynfab.scene import load_scene, with_key  # noqa: E402
-from dynfab.specimen_layout import nominal_shear_angle  # noqa: E402
+from dynfab.model.specimen_layout import nominal_shear_angle  # noqa: E402
 
 OUTPUT = Path(__file__).resolve().parent / "preload.json"
 

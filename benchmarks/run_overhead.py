@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 
 import dynfab
-from dynfab.model import build_model, initial_state
+from dynfab.model.yarn import build_model, initial_state
 from dynfab.run import make_solver
 from dynfab.scene import Load, expand_sweep, load_scene, validate_scene
 

@@ -13,8 +13,8 @@ against each other on the same Hessians, and the Cao et al. scenes' load paths.
   iteration against crossings (least squares in log-log);
 - **factorisations**: the Hessian of each size's last step (F_T frozen, on the unknowns),
   factored by SuperLU in its symmetric mode in the nested-dissection order the solver uses
-  without MKL (`dynfab.fabric.ordering.OrderedLU`; its negative pivots), by SuperLU with
-  its own COLAMD order, and by MKL PARDISO as symmetric indefinite (`dynfab.fabric.pardiso`,
+  without MKL (`dynfab.model.fabric.ordering.OrderedLU`; its negative pivots), by SuperLU with
+  its own COLAMD order, and by MKL PARDISO as symmetric indefinite (`dynfab.model.fabric.pardiso`,
   the analysis and factorisation, then the factorisation alone on its analysis, as the
   Newton solves do; its inertia), where MKL is installed;
 - **scenes**: each scene's path with the static solver until it ends or stops (a
@@ -26,7 +26,7 @@ against each other on the same Hessians, and the Cao et al. scenes' load paths.
   steps).
 
 Every path also counts the Newton solves' factorisations and the solves by GMRES on kept
-factors instead (`dynfab.fabric.kept_factor`).
+factors instead (`dynfab.model.fabric.kept_factor`).
 
 Prints the figures and writes them to the JSON file. Times are wall-clock on this machine
 (shared: compare ratios within one run).
@@ -44,10 +44,10 @@ import scipy.sparse
 import scipy.sparse.linalg
 
 from dynfab.errors import SolverError
-from dynfab.fabric import ordering, pardiso
-from dynfab.model import build_model
+from dynfab.model.fabric import ordering, pardiso
+from dynfab.model.yarn import build_model
 from dynfab.scene import load_scene, with_key
-from dynfab.solvers import make_solver
+from dynfab.solvers.by_name import make_solver
 
 ROOT = Path(__file__).resolve().parents[1]
 FRAME = ROOT / "runs" / "cao2008_frame.toml"
@@ -83,7 +83,7 @@ def _path(model, steps: int | None, say=print) -> dict:
 
 def _pardiso_factor(H):
     """(analysis and factorisation [s], factorisation on the analysis [s], negatives,
-    nnz(L)) of PARDISO's symmetric indefinite L D L^T of H (`dynfab.fabric.pardiso`), or
+    nnz(L)) of PARDISO's symmetric indefinite L D L^T of H (`dynfab.model.fabric.pardiso`), or
     None without MKL."""
     if not pardiso.available():
         return None

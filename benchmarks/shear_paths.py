@@ -3,8 +3,8 @@ for each result file of an in-plane shear specimen, how far its path ran (d reac
 scene's last d), the clamp force [N] and the normalised shear force [N/m] at nominal 5, 10,
 20, 30 and 40 degrees (linear in the nominal angle between the finished steps; '-' past the
 last one), and after step 0 the median contact force over the preload, by the crossings'
-rank from a free yarn end (`dynfab.builders.woven_rest.crossings_from_free_end`). The
-normalised force is computed from the clamp force by today's `dynfab.shear_force`, so files
+rank from a free yarn end (`dynfab.model.builders.woven_rest.crossings_from_free_end`). The
+normalised force is computed from the clamp force by today's `dynfab.results.shear_force`, so files
 of different trees compare on one normalisation.
 
 Run: PYTHONPATH=. python benchmarks/shear_paths.py FILE.h5 [FILE.h5 ...] [--label NAME]
@@ -23,11 +23,11 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from dynfab.results import read_results  # noqa: E402
+from dynfab.results.file import read_results  # noqa: E402
 from dynfab.scene import parse_scene_text  # noqa: E402
-from dynfab.shear_force import (  # noqa: E402
+from dynfab.results.shear_force import (  # noqa: E402
     bias_normalised_shear_force, frame_normalised_shear_force)
-from dynfab.specimen_plots import nominal_angles  # noqa: E402
+from dynfab.plots.specimen import nominal_angles  # noqa: E402
 
 OUTPUT = Path(__file__).resolve().parent / "shear_paths.json"
 ANGLES_DEG = (5.0, 10.0, 20.0, 30.0, 40.0)
@@ -44,7 +44,7 @@ def _at_angles(angle: np.ndarray, values: np.ndarray) -> list:
 
 def _normalised(results, d: np.ndarray) -> np.ndarray:
     """The normalised shear force [N/m] of every step from its clamp force, by today's
-    `dynfab.shear_force` (a file written before a change of the normalisation is read as
+    `dynfab.results.shear_force` (a file written before a change of the normalisation is read as
     today's would write it)."""
     a, force = results.attrs, np.asarray(results.steps["clamp_force"], float)
     if a["specimen_test"] == "bias_extension":

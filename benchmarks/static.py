@@ -9,12 +9,12 @@ each figure is the best of several repeats, `dynfab.timing.best_time`):
   N = 224, 16 crossings, prestressed), one force step P = 0.3 N from the
   as-woven state, through `StaticSolver.step`, to 1e-11 N;
 - the same equilibrium by scipy's L-BFGS-B on the same energy and gradient
-  (dynfab.assembly), which stalls where energy differences reach rounding:
+  (dynfab.model.assembly), which stalls where energy differences reach rounding:
   timed to the residual it reaches, and dynfab timed to that residual too;
 - the same equilibrium by a plain (line-search-free) Newton iteration with
   the model's Hessian converted to scipy.sparse and `spsolve`, from the same
   start, to 1e-11 N;
-- the certificate of that equilibrium (`dynfab.certificate.certify_yarn`: one LDL^T
+- the certificate of that equilibrium (`dynfab.solvers.certificate.certify_yarn`: one LDL^T
   with inertia, Lanczos for the lowest eigenvalue and its inertia proof, Hager's
   norm estimate), timed alone, as a share of the step that includes it;
 - the 40-step traction curves of runs/paper_fig5.toml: friction on (entry 0),
@@ -39,12 +39,12 @@ import scipy.sparse as sparse
 from scipy.optimize import minimize
 from scipy.sparse.linalg import spsolve
 
-from dynfab import assembly
-from dynfab.banded import BANDWIDTH
-from dynfab.certificate import certify_yarn
-from dynfab.model import build_model, initial_state
+from dynfab.model import assembly
+from dynfab.solvers.banded import BANDWIDTH
+from dynfab.solvers.certificate import certify_yarn
+from dynfab.model.yarn import build_model, initial_state
 from dynfab.scene import Load, expand_sweep, load_scene, validate_scene, with_key
-from dynfab.static import StaticSolver
+from dynfab.solvers.static import StaticSolver
 from dynfab.timing import best_time
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -64,7 +64,7 @@ def equilibrium_scene():
 
 
 class Energy:
-    """V and dV/dq over the free dofs q of one yarn (no friction), through dynfab.assembly."""
+    """V and dV/dq over the free dofs q of one yarn (no friction), through dynfab.model.assembly."""
 
     def __init__(self, model):
         self.yarn = model.yarns[0]
@@ -170,7 +170,7 @@ def main() -> dict:
                               "residual_N": float(record["residual"][0])}
     reference = record["positions"][0]
 
-    # the step's certificate (dynfab/certificate.py): its share of the step's time
+    # the step's certificate (dynfab/solvers/certificate.py): its share of the step's time
     yarn, fixed = model.yarns[0], model.fixed_dofs()
     t_certificate = best_time(lambda: certify_yarn(reference, yarn, start.anchors[0], fixed,
                                                    record["residual"][0]), 200, warm=True)[0]

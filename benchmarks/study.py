@@ -12,7 +12,7 @@ compiled and in the caches before the timing: one untimed case first):
   varied, each command in a fresh process as a user runs it (the kernels already in the
   caches): serially, a loop of `dynfab.run` of each case to its file, as it runs by
   default (the fabric's Newton solves call OpenBLAS, two threads here) and with the BLAS
-  on one thread (as Dask's workers run it); and `dynfab.study` on a LocalCluster of
+  on one thread (as Dask's workers run it); and `dynfab.studies.study` on a LocalCluster of
   WORKERS workers (sync "steps", the default). The speed-ups are the ratios of the
   processes' wall times (imports, the cluster's start, the table included). The ceiling:
   WORKERS plain processes started at once, each running every WORKERS-th case with its
@@ -92,7 +92,7 @@ SERIAL = """
 import json, sys, time
 began = time.perf_counter()
 import dynfab
-from dynfab.study_file import load_study
+from dynfab.studies.file import load_study
 plan, folder = load_study(sys.argv[1]), sys.argv[2]
 part, parts = (int(sys.argv[3]), int(sys.argv[4])) if len(sys.argv) > 4 else (0, 1)
 each = []
@@ -116,7 +116,7 @@ print(json.dumps({"process_s": time.perf_counter() - began, "study_s": result.se
                   "task_seconds": list(result.task_seconds.values()),
                   "write_s": result.write_seconds, "failed": result.failed}))
 """
-"""One process running a study (`dynfab.study`, its own local cluster)."""
+"""One process running a study (`dynfab.studies.study`, its own local cluster)."""
 
 
 ENVIRONMENT = dict(os.environ)
@@ -171,8 +171,8 @@ def cluster_start_seconds(workers: int) -> float:
     """Start a LocalCluster, run a task on every worker (dynfab imported), close it [s]."""
     from distributed import Client
 
-    from dynfab.study import local_cluster
-    from dynfab.study_case import worker_info
+    from dynfab.studies.study import local_cluster
+    from dynfab.studies.case import worker_info
 
     began = time.perf_counter()
     with local_cluster(workers) as cluster, Client(cluster) as client:
@@ -191,7 +191,7 @@ def run_study(path: Path, folder: Path, sync: str = "steps", workers: int = WORK
 def fabric_part(tmp: Path, cases: int, patch: int) -> dict:
     """Serial against the local cluster, each a fresh process as a user runs them."""
     import dynfab
-    from dynfab.study_file import load_study
+    from dynfab.studies.file import load_study
 
     ea = list(np.round(np.linspace(10.0, 17.0, cases // 4), 4))
     path = study_file(tmp, strip_text(patch, 2), {"warp.EA": ea, "weft.EA": [10, 12, 14, 16]},
@@ -229,8 +229,8 @@ def paired_overhead(plan, tmp: Path, pairs: int = 6) -> dict:
     from distributed import Client
     from threadpoolctl import threadpool_limits
 
-    from dynfab.study import _write_atomically, local_cluster
-    from dynfab.study_case import run_case
+    from dynfab.studies.study import _write_atomically, local_cluster
+    from dynfab.studies.case import run_case
 
     case = plan.cases[0]
     task = {"index": 0, "scene": case.text, "solver": "static", "sync": "end", "queue": None,
@@ -258,7 +258,7 @@ def paired_overhead(plan, tmp: Path, pairs: int = 6) -> dict:
 
 def sweep_part(tmp: Path, cases: int, segments: int, steps: int) -> dict:
     import dynfab
-    from dynfab.study_file import load_study
+    from dynfab.studies.file import load_study
 
     values = [float(v) for v in np.round(np.linspace(0.02, 1.0, cases), 6)]
     text = yarn_text(segments, steps)
@@ -322,7 +322,7 @@ def _bytes(count: int) -> bytes:
 def transfer_part(tmp: Path, patch: int) -> dict:
     from distributed import Client
 
-    from dynfab.study import local_cluster
+    from dynfab.studies.study import local_cluster
 
     path = study_file(tmp, strip_text(patch, 1), {"warp.EA": [13.72]},
                       '[observe]\nstrain = "strain"\n', "transfer")

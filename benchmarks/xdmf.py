@@ -1,4 +1,4 @@
-"""Benchmark of the XDMF view (dynfab/xdmf.py): the cost of one rewrite against the steps listed.
+"""Benchmark of the XDMF view (dynfab/results/xdmf.py): the cost of one rewrite against the steps listed.
 
 Run:  python benchmarks/xdmf.py           (prints a table, writes benchmarks/xdmf.json)
       python benchmarks/xdmf.py --quick   (up to 1000 steps)
@@ -8,13 +8,13 @@ costs O(steps listed); `XdmfSync.update` skips a rewrite while the last one took
 more than `XdmfSync.SHARE` (5 %) of the time since it ended, so the view costs at
 most about 5 % of a run's time however many steps it has. Measured here: a result file of
 the paper's yarn (N = 224 segments, 16 crossings, one yarn) with S steps written
-by `dynfab.results.ResultFile` (every step dataset of a static run at its real
-size) with the view's datasets (`dynfab.views.add_views`, as a run writes it),
+by `dynfab.results.file.ResultFile` (every step dataset of a static run at its real
+size) with the view's datasets (`dynfab.results.views.add_views`, as a run writes it),
 then `write_xdmf` timed (median of 5, time.perf_counter) and the XDMF size.
 "per step" divides a rewrite by S. The cost of ``view/``: the same file written
 without it, its size and the time of all the writes (``write_s``) against those
 with it ("view ... per step": the difference divided by S). Last, the bytes of a
-row's views by layout (`view_bytes_per_row`): `dynfab.views.add_views` on files
+row's views by layout (`view_bytes_per_row`): `dynfab.results.views.add_views` on files
 of 100 and 200 rows of made-up datasets, the difference divided by 100.
 """
 
@@ -30,9 +30,9 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from dynfab.results import ResultFile
-from dynfab.views import add_views
-from dynfab.xdmf import nodal_point_data, write_xdmf
+from dynfab.results.file import ResultFile
+from dynfab.results.views import add_views
+from dynfab.results.xdmf import nodal_point_data, write_xdmf
 
 SEGMENTS, CROSSINGS = 224, 16
 

@@ -53,11 +53,12 @@ from dynfab.errors import DynfabError, UserError, SolverError
 
 __version__ = "0.1.0"
 
-_HOMES = {"build_model": "dynfab.model", "plot_results": "dynfab.plot",
-          "Results": "dynfab.results", "read_results": "dynfab.results", "run": "dynfab.run",
-          "load_scene": "dynfab.scene", "parse_scene_text": "dynfab.scene",
-          "fit": "dynfab.fit", "FitResult": "dynfab.fit", "write_xdmf": "dynfab.xdmf",
-          "study": "dynfab.study", "load_study": "dynfab.study_file"}
+_HOMES = {"build_model": "dynfab.model.yarn", "plot_results": "dynfab.plots.figures",
+          "Results": "dynfab.results.file", "read_results": "dynfab.results.file",
+          "run": "dynfab.run", "load_scene": "dynfab.scene", "parse_scene_text": "dynfab.scene",
+          "fit": "dynfab.fitting.fit", "FitResult": "dynfab.fitting.fit",
+          "write_xdmf": "dynfab.results.xdmf", "study": "dynfab.studies.study",
+          "load_study": "dynfab.studies.file"}
 """Module defining each public name."""
 
 __all__ = ["DynfabError", "FitResult", "Results", "SolverError", "UserError", "build_model",
@@ -75,11 +76,11 @@ def __getattr__(name: str):
 
 
 class _Package(types.ModuleType):
-    """Keeps `dynfab.run`, `dynfab.fit` and `dynfab.study` the functions: importing the
-    submodules of those names would otherwise rebind the package attributes to the modules."""
+    """Keeps `dynfab.run` the function: importing the module of that name (`dynfab/run.py`)
+    would otherwise rebind the package attribute to the module."""
 
     def __setattr__(self, name: str, value) -> None:
-        if name in ("run", "fit", "study") and isinstance(value, types.ModuleType):
+        if name == "run" and isinstance(value, types.ModuleType):
             value = getattr(value, name)
         super().__setattr__(name, value)
 

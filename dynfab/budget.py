@@ -40,11 +40,11 @@ solver's sparse LU factors and the step's certificate on the patch's two-dimensi
 65 and 82 B nodes^1.5; 100 bounds both."""
 FABRIC_CROSSING_DATASETS = 7
 """A fabric step's numbers per crossing: contact force, friction limit, sliding, friction
-force (2), anchors (2) (`dynfab.fabric.model`)."""
+force (2), anchors (2) (`dynfab.model.fabric.model`)."""
 FABRIC_STEP_SCALARS = 40
 """A fabric step's scalars and per-family pairs (load, strain, crimp, energies, residual...)."""
 VIEW_BYTES_PER_ENTRY = 3200
-"""The XDMF view's datasets of one step or frame (`dynfab.views`: 3 or 4 virtual datasets,
+"""The XDMF view's datasets of one step or frame (`dynfab.results.views`: 3 or 4 virtual datasets,
 metadata only) [B]: a bound of the sizes measured in docs/results.md ("The view")."""
 VIEW_BYTES_PER_NODE = 20
 """The view's arrays stored once: each node's plane (8 B), each segment's two nodes and
@@ -84,7 +84,7 @@ def memory_bytes(scene: Scene) -> int:
 
 def result_file_bytes(scene: Scene) -> int:
     """Estimated size of the result file of `scene` [B]: positions (x, z) and the XDMF
-    view's two point data (`dynfab.xdmf`) per node and step (three node arrays more per
+    view's two point data (`dynfab.results.xdmf`) per node and step (three node arrays more per
     frame of a transient run), crossings and scalars; a fabric's per step (or frame, with
     its velocities and forces): both families' nodes so, its n_wa x n_we crossings, end force
     and displacement per yarn; the view's

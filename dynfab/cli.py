@@ -115,7 +115,7 @@ def _add_study_parser(commands) -> None:
 
 
 def _add_fit_parser(commands) -> None:
-    from dynfab.fit_data import columns_help
+    from dynfab.fitting.data import columns_help
 
     fit = commands.add_parser("fit", help="fit scene keys to a measured traction curve (CSV)",
                               epilog=columns_help(),
@@ -226,8 +226,8 @@ def _command_run(args, context: dict) -> None:
     _check_run_output(out, args)
     context["out"] = out
     from dynfab.run import run_to_file
-    from dynfab.summary import print_summary
-    from dynfab.results import read_results
+    from dynfab.results.summary import print_summary
+    from dynfab.results.file import read_results
 
     _progress = None if args.quiet else _Progress()
     options = {flag[2:].replace("-", "_"): getattr(args, flag[2:].replace("-", "_"))
@@ -255,8 +255,8 @@ def _command_run(args, context: dict) -> None:
 def _summarise_the_finished(out: Path, args) -> None:
     """Before a stop's error line: the summary table of the steps the file kept (none with
     --quiet, or when it kept none or was not this run's to summarise)."""
-    from dynfab.results import finished_counts, read_results
-    from dynfab.summary import print_summary
+    from dynfab.results.file import finished_counts, read_results
+    from dynfab.results.summary import print_summary
 
     if args.quiet or not out.exists():
         return
@@ -335,7 +335,7 @@ def _interrupted_line(context: dict, word: str = "interrupted") -> str:
     if out is None or not Path(out).is_file():
         wrote_nothing = "out" in context or not context.get("began")
         return f"dynfab: {word}; nothing was written" if wrote_nothing else f"dynfab: {word}"
-    from dynfab.results import finished_counts
+    from dynfab.results.file import finished_counts
 
     counts = finished_counts(out) or (0, 0)
     for count, what in zip(counts, ("load step", "frame")):
@@ -348,7 +348,7 @@ def _interrupted_line(context: dict, word: str = "interrupted") -> str:
 
 def _study_interrupted_line(study: tuple, word: str) -> str:
     """After an interrupt of `dynfab study`: the cases ended in its folder."""
-    from dynfab.study import ended_counts
+    from dynfab.studies.study import ended_counts
 
     out, plan = study
     ended, total = ended_counts(out, plan)
@@ -358,8 +358,8 @@ def _study_interrupted_line(study: tuple, word: str) -> str:
 
 def _command_study(args, context: dict) -> None:
     global _progress
-    from dynfab.study import study
-    from dynfab.study_file import load_study
+    from dynfab.studies.study import study
+    from dynfab.studies.file import load_study
 
     plan = load_study(args.study)
     _progress = None if args.quiet else _Progress()
@@ -376,7 +376,7 @@ def _command_study(args, context: dict) -> None:
 
 
 def _command_fit(args, context: dict) -> None:
-    from dynfab.fit import fit, parse_bounds
+    from dynfab.fitting.fit import fit, parse_bounds
     from dynfab.scene import load_scene
 
     report = None if args.quiet else _stderr_line
@@ -385,7 +385,7 @@ def _command_fit(args, context: dict) -> None:
     with _compiles_announced(report):
         scene = load_scene(args.scene)
         if args.starts != 1 or args.scheduler is not None or args.workers is not None:
-            from dynfab.fit_starts import fit_from_starts  # Dask: imported only here
+            from dynfab.fitting.starts import fit_from_starts  # Dask: imported only here
 
             result = fit_from_starts(scene, args.data, args.fit, starts=args.starts,
                                      scheduler=args.scheduler, workers=args.workers, **options)
@@ -397,14 +397,14 @@ def _command_fit(args, context: dict) -> None:
 
 
 def _command_plot(args, context: dict) -> None:
-    from dynfab.plot import plot_results
+    from dynfab.plots.figures import plot_results
 
     for path in plot_results(args.results, args.out, args.data):
         print(f"wrote {path}")
 
 
 def _command_xdmf(args, context: dict) -> None:
-    from dynfab.xdmf import write_xdmf
+    from dynfab.results.xdmf import write_xdmf
 
     print(f"wrote {write_xdmf(args.results)}")
 

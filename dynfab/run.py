@@ -6,7 +6,7 @@ last step of the file with `resume=True`), appends every finished step to the
 crash-safe result file, and returns the same arrays as `read_results` would.
 A solver failure keeps every finished step on disk and re-raises the
 `SolverError` with the load step named. Solvers are driven through their
-contracts (`dynfab.solver`): `Solver.step` per load value, or `Transient.advance`
+contracts (`dynfab.solvers.contract`): `Solver.step` per load value, or `Transient.advance`
 for a transient run.
 """
 
@@ -26,14 +26,14 @@ from dynfab.budget import check_budget
 from dynfab.compiling import compile_seconds, start_clock
 from dynfab.errors import DynfabError, SolverError, UserError
 from dynfab.options import apply_run_options
-from dynfab.model import build_model
-from dynfab.results import ResultFile, Results, dynfab_version, finished_counts, read_results
+from dynfab.model.yarn import build_model
+from dynfab.results.file import ResultFile, Results, dynfab_version, finished_counts, read_results
 from dynfab.scene import Scene, scene_to_toml
-from dynfab.solver import RunModel, Solver, Transient
-from dynfab.solvers import make_solver
-from dynfab.summary import step_line
-from dynfab.views import add_views
-from dynfab.xdmf import XdmfSync, has_views, xdmf_path
+from dynfab.solvers.contract import RunModel, Solver, Transient
+from dynfab.solvers.by_name import make_solver
+from dynfab.results.summary import step_line
+from dynfab.results.views import add_views
+from dynfab.results.xdmf import XdmfSync, has_views, xdmf_path
 
 def run(scene: Scene, solver: str = "static", out: str | Path | None = None, *,
         overwrite: bool = False, resume: bool = False,
@@ -87,7 +87,7 @@ def run_to_file(scene: Scene, solver: str, out: str | Path, *, overwrite: bool =
         with _interrupts_held_back():  # a Ctrl-C finds the file either not made or in `sink`
             sink = _open_sink(model, engine, out, overwrite=overwrite, resume=resume)
         if resume:
-            view.finish()  # the XDMF beside it (dynfab.xdmf), up to date with the finished steps
+            view.finish()  # the XDMF beside it (dynfab.results.xdmf), up to date with the finished steps
         else:
             xdmf_path(out).unlink(missing_ok=True)  # a replaced file's view is stale
         written = _solve(model, engine, _ViewedSink(sink, view), progress)
@@ -130,7 +130,7 @@ def _finish_view(view: XdmfSync, out) -> None:
 
 
 class _ViewedSink:
-    """A result file whose XDMF view (`dynfab.xdmf.XdmfSync`) follows every appended entry."""
+    """A result file whose XDMF view (`dynfab.results.xdmf.XdmfSync`) follows every appended entry."""
 
     def __init__(self, sink: ResultFile, view: XdmfSync) -> None:
         self.sink, self.view = sink, view
@@ -227,7 +227,7 @@ than a small run's bookkeeping)."""
 
 def _is_transient(engine: Solver | Transient) -> bool:
     """`isinstance(engine, Transient)`, looked at once per solver class: driven in time (a
-    transient run) or by load step (`dynfab.solver`)."""
+    transient run) or by load step (`dynfab.solvers.contract`)."""
     kind = type(engine)
     if kind not in _TRANSIENT_KINDS:
         _TRANSIENT_KINDS[kind] = isinstance(engine, Transient)
@@ -296,7 +296,7 @@ def _open_sink(model: RunModel, engine: Solver | Transient, out, *, overwrite: b
                               f"was run: {sink.attrs['stop_message']}; resuming the same scene "
                               "would stop there again: change the scene (or the run options) "
                               "and run it with --overwrite")
-        if not has_views(out):  # written before dynfab.views: add them now
+        if not has_views(out):  # written before dynfab.results.views: add them now
             sink.flush()
         return sink
     return ResultFile.create(out, attrs=_root_attrs(model, engine), reference=_reference(model),
@@ -315,7 +315,7 @@ def _start_state(model: RunModel, sink):
 
 
 def _root_attrs(model: RunModel, engine: Solver | Transient) -> dict:
-    """Root attributes of the result file (HDF5 layout in dynfab/results.py): the run's, the
+    """Root attributes of the result file (HDF5 layout in dynfab/results/file.py): the run's, the
     model's (`RunModel.attrs`) and the solver's."""
     scene = model.scene
     attrs = {"scene": scene_to_toml(scene), "scene_source": scene.text,

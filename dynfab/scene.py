@@ -33,7 +33,7 @@ constants `PAPER_FRICTION`, `TORSION_RADIUS_PER_WIDTH`. Choices made here:
   the families. A specimen without [friction] runs the paper's Gralen law (`PAPER_FRICTION`, the
   `Specimen` decision), resolved by `validate_scene` with its other defaults;
 - the spatial keys are not sweepable: they are the fabric's, which takes no [sweep] (a
-  fabric's fit varies its real keys whether sweepable or not, `dynfab.fit_models`).
+  fabric's fit varies its real keys whether sweepable or not, `dynfab.fitting.models`).
 """
 
 from __future__ import annotations

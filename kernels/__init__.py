@@ -1,5 +1,5 @@
 """Warp kernels of the dynamic solver (docs/model.md section 5), installed as `dynfab.kernels`:
-one kernel layer for any `dynfab.structure.Structure`, which `dynfab.dynamic.DynamicSolver`
+one kernel layer for any `dynfab.model.structure.Structure`, which `dynfab.solvers.dynamic.DynamicSolver`
 drives for every model (docs/model.md, "The dynamic solver (decisions)").
 
 One module per concept:

@@ -1,12 +1,12 @@
 """The spatial fabric's element forces and energies in a kernel (docs/model.md section 11): the
-Warp form of `dynfab.terms.spatial` (its energies and exact gradients; the Hessians stay on
+Warp form of `dynfab.model.terms.spatial` (its energies and exact gradients; the Hessians stay on
 the host, where the masses' Gershgorin rows and the certificate take them).
 
 Nodes carry x, y, z (vec3, the fabric's plane x-y). Each force function adds -dE/dX of one
 element to the nodes of its stencil in a force array (the scatter order of
 `structure_forces`: a group's thread adds every element once); each energy function returns
 E [J]. The elements (docs/model.md eqs. in section 11; the derivatives as
-`dynfab.terms.spatial`'s docstring states them):
+`dynfab.model.terms.spatial`'s docstring states them):
 
 - bending in two planes (11.1) at node j between i and k: e1 = x_j - x_i, e2 = x_k - x_j,
   m_b = kb (theta(e2) - theta(e1) - theta0), m_l = kl (wrap(psi(e2) - psi(e1)) - psi0),
@@ -19,7 +19,7 @@ E [J]. The elements (docs/model.md eqs. in section 11; the derivatives as
   dalpha/dc_a = (-c_a,y, c_a,x) / |c_a|^2 (beta alike);
 - the lateral contact (11.5): d = sign cross2(c, v) / |c|, E = E_lat(d) for d < w (1/2 k
   (w - d)^2, or Gutowski's compaction and the core below s_core: `compaction_law` of
-  `dynfab.terms.spatial`, law columns (sign, w, k, A, s_a, s_core)),
+  `dynfab.model.terms.spatial`, law columns (sign, w, k, A, s_a, s_core)),
   dd/dc = sign ((v_y, -v_x) / |c| - cross2 c / |c|^3), dd/dv = sign (-c_y, c_x) / |c|.
 
 The stretch and the contact along z are the planar kernels' own (`structure_forces`), written
@@ -177,7 +177,7 @@ def functions(scalar) -> SimpleNamespace:
 
     @wp.func(inline=True)
     def gutowski_potential(s: scalar, w: scalar, packed: scalar) -> scalar:
-        """Phi(s) of Gutowski's compaction [m] (`dynfab.terms.spatial._gutowski`)."""
+        """Phi(s) of Gutowski's compaction [m] (`dynfab.model.terms.spatial._gutowski`)."""
         ra = wp.sqrt(packed)
         v = wp.sqrt(s) / ra - scalar(1.0)
         return scalar(2.0) * ra * (ra / (scalar(2.0) * v * v)
@@ -268,7 +268,7 @@ def functions(scalar) -> SimpleNamespace:
     @wp.func(inline=True)
     def return_anchor(S: vec, bound: scalar, stick: scalar, rho: scalar) -> vec:
         """The anchor's move [m, m, rad]: m (S_x, S_y, S_phi / rho), m = 1 - F_T / (k_t |S|),
-        where k_t |S| > F_T (F_T <= 0 counting as 0), else 0 (`dynfab.terms.spatial`)."""
+        where k_t |S| > F_T (F_T <= 0 counting as 0), else 0 (`dynfab.model.terms.spatial`)."""
         size = wp.length(S)
         limit = wp.max(bound, scalar(0.0))
         move = vec()

@@ -1,4 +1,4 @@
-"""Any `dynfab.structure.Structure` as flat arrays for the Warp kernels: per node, per tie, per
+"""Any `dynfab.model.structure.Structure` as flat arrays for the Warp kernels: per node, per tie, per
 chain, and the groups and blocks the two layouts run on (docs/model.md sections 2-5, 10).
 
 Every node of every chain is one entry of one flat array, in the structure's order (chain after
@@ -37,7 +37,7 @@ import numpy as np
 import warp as wp
 
 from dynfab.kernels.precision import numpy_dtype, vector
-from dynfab.structure import GROUND, Structure, chain_count, chain_of_node
+from dynfab.model.structure import GROUND, Structure, chain_count, chain_of_node
 
 BLOCK = 256
 """Nodes per block of a group's sums (module docstring)."""
@@ -153,7 +153,7 @@ class StructureArrays:
     """spatial: (L, 4) (A_prev, A_next, A, B) of each lateral contact."""
     lateral_law: np.ndarray = field(default_factory=lambda: np.zeros((0, 6)))
     """spatial: (L, 6) (sign, width [m], k [N/m], A [N], s_a [m], s_core [m]) of each lateral
-    contact (`dynfab.structure.Structure.lateral_law` without its branch)."""
+    contact (`dynfab.model.structure.Structure.lateral_law` without its branch)."""
     group_lateral: np.ndarray = field(default_factory=lambda: np.zeros(1, np.int64))
     """spatial: (G + 1,) group g's lateral contacts."""
 

@@ -29,13 +29,13 @@ from types import SimpleNamespace
 
 import warp as wp
 
-from dynfab.banded import BANDWIDTH
+from dynfab.solvers.banded import BANDWIDTH
 from dynfab.kernels import band_lu, status, structure_forces, structure_settings
 from dynfab.kernels import structure_tangent, structure_variants
 from dynfab.kernels.precision import KINEMATICS, epsilon, vector
 
 ROUNDING_FLOOR_FACTOR = 16.0
-"""Rounding floor of the residual / (eps max_i |K_ii| max_i |x_i|) [-], as `dynfab.static`'s."""
+"""Rounding floor of the residual / (eps max_i |K_ii| max_i |x_i|) [-], as `dynfab.solvers.static`'s."""
 FLOOR_MIN_STEPS = 1000
 """Time steps before a stalled residual may be declared at the rounding floor."""
 ENERGY_CHECK_INTERVAL = 16
@@ -52,7 +52,7 @@ def functions(scalar, friction: bool, boundary: bool, merit: bool = False,
     """The start, sum and check `wp.func`s of one variant; with `merit`, every node's
     f^T M^-1 f term too (the semi-implicit time step rule's merit). A spatial structure's
     Gershgorin rows and diagonals come from the host (`state.rows`, `state.diagonal`:
-    `dynfab.fabric.spatial.stiffest_rows`), not from the planar band."""
+    `dynfab.model.fabric.spatial.stiffest_rows`), not from the planar band."""
     dim = KINEMATICS[kinematics]
     spatial = dim == 3
     vec = vector(scalar, dim)

@@ -1,7 +1,7 @@
 """Dynamic relaxation and transient dynamics of any structure with the Warp kernels: the host
 side (docs/model.md sections 4, 5, 10; "The dynamic solver (decisions)").
 
-`StructureRelaxation(structure, ...)` lays a `dynfab.structure.Structure` out
+`StructureRelaxation(structure, ...)` lays a `dynfab.model.structure.Structure` out
 (`structure_arrays`), uploads it once and drives the kernels of one method:
 
 - `relax(positions, loads, anchors, tolerance, max_steps)`: a quasi-static load step from rest,
@@ -48,7 +48,7 @@ from dynfab.kernels import structure_semi_implicit as semi
 from dynfab.kernels import structure_settings, structure_state, structure_transient
 from dynfab.kernels import structure_variants
 from dynfab.kernels.precision import SCALARS, numpy_dtype, vector
-from dynfab.structure import Structure
+from dynfab.model.structure import Structure
 
 METHODS = ("explicit", "semi_implicit")
 LAYOUTS = ("grouped", "node_parallel")
@@ -300,7 +300,7 @@ class StructureRelaxation:
         section 11.4)."""
         a = self.arrays
         if self.spatial:
-            from dynfab.terms.spatial import crossing_coordinates
+            from dynfab.model.terms.spatial import crossing_coordinates
             anchors = np.zeros((a.ties, 3))
             for t in range(a.ties):
                 crossing_coordinates(a.rest_position[a.tie_stencil[t]], anchors[t])
@@ -332,7 +332,7 @@ class StructureRelaxation:
         self._set(s.load, self.node_loads(loads))
         self._set(s.anchors, anchors)
         if self.spatial:  # the Gershgorin rows of the stiffest tangent, from the host
-            from dynfab.fabric.spatial import stiffest_rows
+            from dynfab.model.fabric.spatial import stiffest_rows
             rows, diagonal = stiffest_rows(self.structure,
                                            np.asarray(positions, float).reshape(-1, 3),
                                            np.asarray(anchors, float).reshape(-1, 3))

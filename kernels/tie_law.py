@@ -6,7 +6,7 @@ The one Warp form of each law, for every structure (`structure_forces`) and ever
 - contact: for a closure g > 0 the force R >= 0 solves
   g(R) = R / k_s - C_a expm1(-a_a R) - C_b expm1(-a_b R) (increasing and concave), by Newton
   from the lower bound k_s (g - C_a - C_b), stopping when a step no longer increases R (as
-  `dynfab.terms.contact.force_from_closure`); R = 0 where open. expm1 by its Taylor series
+  `dynfab.model.terms.contact.force_from_closure`); R = 0 where open. expm1 by its Taylor series
   below |x| = 1/2 (u - 1 above), accurate to a few ulps near 0 (as np.expm1 and Kahan's
   (u - 1) x / log u, without a logarithm). The tangent
   dR/dg = 1 / (1/k_s + sum_m C_m a_m exp(-a_m R)) <= k_s (0 where open); the energy
@@ -28,11 +28,11 @@ from types import SimpleNamespace
 import warp as wp
 
 from dynfab.kernels.precision import VECTORS, epsilon
-from dynfab.terms.contact import MAX_NEWTON
+from dynfab.model.terms.contact import MAX_NEWTON
 
 NEWTON_STOP = 4e-16 / 2.220446049250313e-16
 """The contact Newton stops when a step is below this many epsilons of R (4e-16 R in
-float64, as `dynfab.terms.contact`)."""
+float64, as `dynfab.model.terms.contact`)."""
 SERIES_TERMS = 40
 """Terms of the Kawabata energy's series at most (x < 0.5: 1e-18 relative long before)."""
 

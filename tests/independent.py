@@ -2,9 +2,9 @@
 
 Scene building through the TOML parser (as a user's scene file), fabric scenes and
 their models (a held family, no core spring), a load-path driver, the dense matrix of a
-banded one (`dynfab.banded.to_dense`, checked against `band_matvec` in
+banded one (`dynfab.solvers.banded.to_dense`, checked against `band_matvec` in
 test_certificate.py), and the tests' one reference of the contact and friction laws,
-written from docs/model.md independently of dynfab.terms: the series contact law of
+written from docs/model.md independently of dynfab.model.terms: the series contact law of
 section 3 solved with scipy (brentq on g(R), arc lengths from ellipe) and Gralen's law of
 section 4. Import with `from independent import ...` (pytest puts tests/ on sys.path).
 """
@@ -18,13 +18,13 @@ import numpy as np
 from scipy.optimize import brentq
 from scipy.special import ellipe
 
-from dynfab import assembly
-from dynfab.banded import to_dense as dense  # noqa: F401 (the tests' name for it)
-from dynfab.fabric.model import FabricModel
-from dynfab.model import build_model, initial_state
+from dynfab.model import assembly
+from dynfab.solvers.banded import to_dense as dense  # noqa: F401 (the tests' name for it)
+from dynfab.model.fabric.model import FabricModel
+from dynfab.model.yarn import build_model, initial_state
 from dynfab.scene import Scene, parse_scene_text, validate_scene
-from dynfab.structure import chain_of_node, dim
-from dynfab.static import StaticSolver
+from dynfab.model.structure import chain_of_node, dim
+from dynfab.solvers.static import StaticSolver
 from toml_writer import toml_text as scene_toml  # TOML of {table: {key: value}}
 
 EPS = np.finfo(float).eps
@@ -96,7 +96,7 @@ def without_core_spring(scene: Scene) -> FabricModel:
 
 def record_inverse_norm(record) -> float:
     """est ||H^-1||_inf [m/N] of a step's certificate: its error_estimate over its residual
-    (`dynfab.certificate.StepStability`: error_estimate = residual x est ||H^-1||_inf), H the
+    (`dynfab.solvers.certificate.StepStability`: error_estimate = residual x est ||H^-1||_inf), H the
     Hessian on the free dofs with F_T frozen at the step's anchors and limits. Hager-Higham's
     estimate, a lower bound of the norm, in practice within a factor 3: on the fabric patches
     of tests/test_fabric_certificate.py the dense inverse's norm to 1e-8."""

@@ -11,10 +11,10 @@ import math
 import numpy as np
 import pytest
 
-from dynfab import assembly
-from dynfab.banded import constrain, lu_factor, lu_solve, zeros_band
-from dynfab.model import build_model, initial_state
-from dynfab.static import StaticSolver
+from dynfab.model import assembly
+from dynfab.solvers.banded import constrain, lu_factor, lu_solve, zeros_band
+from dynfab.model.yarn import build_model, initial_state
+from dynfab.solvers.static import StaticSolver
 
 EPS = np.finfo(float).eps
 L, EA, EI = 0.1, 13.72, 1.47e-7

@@ -1,5 +1,5 @@
-"""The certificate of a converged step (docs/model.md section 6; dynfab/certificate.py,
-dynfab/ldlt.py).
+"""The certificate of a converged step (docs/model.md section 6; dynfab/solvers/certificate.py,
+dynfab/solvers/ldlt.py).
 
 - The banded LDL^T: inertia, solve and the Hager-Higham norm estimate against dense numpy.
 - A stable paper yarn: stable, and numpy.linalg.eigvalsh's lowest eigenvalue of the dense
@@ -25,14 +25,14 @@ import pytest
 from scipy.optimize import brentq
 from scipy.special import ellipe, ellipk
 
-from dynfab import certificate
-from dynfab.banded import BANDWIDTH, band_matvec, to_dense
+from dynfab.solvers import certificate
+from dynfab.solvers.banded import BANDWIDTH, band_matvec, to_dense
 from dynfab.errors import SolverError
-from dynfab.ldlt import TINY_PIVOT, inverse_norm_1, ldlt_factor, ldlt_solve
-from dynfab.model import build_model, initial_state
+from dynfab.solvers.ldlt import TINY_PIVOT, inverse_norm_1, ldlt_factor, ldlt_solve
+from dynfab.model.yarn import build_model, initial_state
 from dynfab.run import run
 from dynfab.scene import expand_sweep, load_scene, with_key
-from dynfab.static import StaticSolver
+from dynfab.solvers.static import StaticSolver
 from independent import dense
 from test_cli import dynfab_cli
 
@@ -41,7 +41,7 @@ RUNS = Path(__file__).resolve().parents[1] / "runs"
 
 
 def banded(matrix):
-    """The `dynfab.banded` layout of a dense matrix of half-bandwidth <= BANDWIDTH."""
+    """The `dynfab.solvers.banded` layout of a dense matrix of half-bandwidth <= BANDWIDTH."""
     n = matrix.shape[0]
     band = np.zeros((n, 2 * BANDWIDTH + 1))
     for i in range(n):

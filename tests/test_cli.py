@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 import dynfab
-from dynfab.results import MACHINE_TIMES, finished_counts
+from dynfab.results.file import MACHINE_TIMES, finished_counts
 
 ROOT = Path(__file__).resolve().parents[1]
 FIG5 = ROOT / "runs" / "paper_fig5.toml"  # friction on and off: anchors must survive a resume
@@ -272,7 +272,7 @@ def test_two_runs_started_at_once_on_a_new_file_one_wins(uninterrupted, tmp_path
 
 def test_a_file_being_written_refuses_a_second_writer(tmp_path):
     """--overwrite and --resume of a file another process writes: exit 2, file untouched."""
-    from dynfab.results import ResultFile
+    from dynfab.results.file import ResultFile
 
     out = tmp_path / "busy.h5"
     done = dynfab_cli("run", FIG5, "--out", out, "--quiet")

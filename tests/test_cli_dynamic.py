@@ -12,7 +12,7 @@ import h5py
 import numpy as np
 
 import dynfab
-from dynfab.results import finished_counts
+from dynfab.results.file import finished_counts
 from test_cli import dynfab_cli
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -114,8 +114,8 @@ def test_step_limit_exits_3_and_keeps_the_finished_steps(tmp_path):
 def test_given_dt_above_the_bound_is_allowed_with_a_one_line_warning(tmp_path):
     scene = tmp_path / "small.toml"
     scene.write_text(SMALL.replace("values = [0.3, 0.31, 0.0]", "values = [0.3]"))
-    from dynfab.dynamic import DynamicSolver
-    from dynfab.model import build_model, initial_state
+    from dynfab.solvers.dynamic import DynamicSolver
+    from dynfab.model.yarn import build_model, initial_state
     from dynfab.scene import Dynamic
 
     model = build_model(dynfab.load_scene(scene))

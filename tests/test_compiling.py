@@ -23,7 +23,7 @@ from dynfab import cli
 from dynfab.compiling import MESSAGE, announcing, will_compile
 from dynfab.kernels.structure_relaxation import StructureRelaxation
 from dynfab.kernels.runtime import initialize
-from dynfab.fabric.model import FabricModel
+from dynfab.model.fabric.model import FabricModel
 from dynfab.reports.fabric_data import paper_patch_scene
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -177,7 +177,7 @@ def test_the_compile_clock_times_a_real_compile_and_not_a_call():
 def test_the_summary_says_the_solver_time_and_the_compiling_apart():
     # "40 load steps, 67.6 s in the solver" for millisecond steps was the compiles': the
     # summary says the two apart (steps/compile_time, of steps/wall_time)
-    from dynfab.summary import _solver_time
+    from dynfab.results.summary import _solver_time
 
     steps = {"wall_time": np.array([30.2, 0.01, 0.02]),
              "compile_time": np.array([30.0, 0.0, 0.0])}

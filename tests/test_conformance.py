@@ -1,6 +1,6 @@
-"""Every term of V on the numba twin (`dynfab.terms`, the static reference): gradient against
+"""Every term of V on the numba twin (`dynfab.model.terms`, the static reference): gradient against
 central differences of the energy, banded Hessian against central differences of the
-gradient (docs/model.md sections 2-4). The terms are the registry's (`dynfab.terms.registry`),
+gradient (docs/model.md sections 2-4). The terms are the registry's (`dynfab.model.terms.registry`),
 so a term added there is checked here once its numba calls are in `numba_term` and its
 stiffness bound in `bounds`. (The dynamic solver's Warp kernels, one layer for any structure,
 are checked against this reference term by term: tests/test_kernels_structure.py.)
@@ -32,10 +32,10 @@ import importlib
 import numpy as np
 import pytest
 
-from dynfab import assembly
-from dynfab.banded import zeros_band
-from dynfab.model import build_model
-from dynfab.terms import contact, friction, registry
+from dynfab.model import assembly
+from dynfab.solvers.banded import zeros_band
+from dynfab.model.yarn import build_model
+from dynfab.model.terms import contact, friction, registry
 from independent import PAPER_FRICTION, PAPER_WARP, PAPER_WEFT, dense, make_scene
 
 EPS = np.finfo(float).eps
@@ -89,9 +89,9 @@ def states(model):
 
 
 def numba_term(yarn, anchors, F_T, name):
-    """(energy(r), add_gradient(r, grad), add_hessian(r, band)) of `dynfab.terms.<name>`: the
+    """(energy(r), add_gradient(r, grad), add_hessian(r, band)) of `dynfab.model.terms.<name>`: the
     registry's uniform entry points, with P, the anchors and F_T frozen."""
-    module = importlib.import_module(f"dynfab.terms.{name}")
+    module = importlib.import_module(f"dynfab.model.terms.{name}")
     frozen = assembly.Frozen(P, anchors, F_T, np.zeros(F_T.size), None, False, False)
     return (lambda r: module.yarn_energy(r, yarn, frozen),
             lambda r, g: module.add_yarn_gradient(r, yarn, frozen, g),
@@ -99,7 +99,7 @@ def numba_term(yarn, anchors, F_T, name):
 
 
 def numba_twin(model, k, positions, anchors, R, F_T, name):
-    """`dynfab.terms.<name>` of yarn k at each position, F_T given (frozen)."""
+    """`dynfab.model.terms.<name>` of yarn k at each position, F_T given (frozen)."""
     energy, add_gradient, add_hessian = numba_term(model.yarns[k], anchors, F_T, name)
     energies, grads, hessians = [], [], []
     for r in positions:

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from dynfab.cli import main
-from dynfab.domain import first_fold
+from dynfab.model.domain import first_fold
 
 RUNS = Path(__file__).resolve().parents[1] / "runs"
 
@@ -65,12 +65,12 @@ def test_a_fabric_cell_compressed_both_ways_stops_naming_a_warp(tmp_path, capsys
 
 
 def test_a_fit_path_that_folds_the_yarn_is_refused(tmp_path):
-    """The fit's path solve (`dynfab.sensitivity.solve_path`) applies the same check: the
+    """The fit's path solve (`dynfab.fitting.sensitivity.solve_path`) applies the same check: the
     compressed yarn's second step raises SolverError naming the fold, so a fit rejects such
     a trial point (and refuses such a start) instead of fitting a mirrored yarn."""
     from dynfab.errors import SolverError
     from dynfab.scene import load_scene
-    from dynfab.sensitivity import solve_path
+    from dynfab.fitting.sensitivity import solve_path
 
     with pytest.raises(SolverError, match="the yarn folded back at segment"):
         solve_path(load_scene(compressed_yarn(tmp_path)))
@@ -80,7 +80,7 @@ def test_a_slip_ratio_above_one_half_means_another_node_is_nearer_the_crossing()
     """`slip_ratios` (docs/model.md section 10, crossings at fixed nodes) against its meaning:
     on random increasing chains and planes, a crossing node's ratio is at most 1/2 exactly
     when no other node of its yarn is nearer the crossing yarn's plane."""
-    from dynfab.domain import slip_ratios
+    from dynfab.model.domain import slip_ratios
 
     rng = np.random.default_rng(7)
     x = np.cumsum(rng.uniform(0.5, 1.5, size=(200, 12)), axis=1)
@@ -97,7 +97,7 @@ def test_the_one_yarn_model_records_its_slip_ratio_and_runs_on():
     (docs/model.md section 4): `steps/slip_ratio` (steps, yarns) records the largest ratio,
     and the paper's scenes, whose crossings ride on their nodes past half a segment (Fig.
     5's at 0.5 mm of its 10 mm pull), run on (docs/model.md section 10)."""
-    from dynfab.domain import slip_ratios
+    from dynfab.model.domain import slip_ratios
     from dynfab.run import run
     from dynfab.scene import parse_scene_text
 
@@ -118,7 +118,7 @@ def test_a_stopped_run_keeps_its_stop_in_the_file_and_resume_says_so(tmp_path, c
     """The stop the file remembers (exit 3): its message, step and status in the file's root
     attributes; the summary of the finished steps printed before the error line; --resume
     names the recorded stop and does not run into it again."""
-    from dynfab.results import read_results
+    from dynfab.results.file import read_results
 
     scene, out = compressed_yarn(tmp_path), tmp_path / "out.h5"
     with pytest.raises(SystemExit) as stop:

@@ -1,4 +1,4 @@
-"""Batched yarns split across cores (dynfab.dynamic: `DynamicSolver.use_cores`).
+"""Batched yarns split across cores (dynfab.solvers.dynamic: `DynamicSolver.use_cores`).
 
 A split launches the same kernel once per contiguous group of yarns, on views of
 the same arrays, from several threads at once; thread y of a group does exactly
@@ -13,9 +13,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dynfab.dynamic import DynamicSolver
+from dynfab.solvers.dynamic import DynamicSolver
 from dynfab.errors import SolverError
-from dynfab.model import build_model, initial_state
+from dynfab.model.yarn import build_model, initial_state
 from dynfab.scene import Dynamic, load_scene, validate_scene, with_key
 
 RUNS = Path(__file__).resolve().parent.parent / "runs"

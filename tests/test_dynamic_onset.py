@@ -28,10 +28,10 @@ from pathlib import Path
 
 import pytest
 
-from dynfab.dynamic import DynamicSolver
-from dynfab.model import build_model, initial_state
+from dynfab.solvers.dynamic import DynamicSolver
+from dynfab.model.yarn import build_model, initial_state
 from dynfab.scene import load_scene, with_key
-from dynfab.static import StaticSolver
+from dynfab.solvers.static import StaticSolver
 from test_dynamic_relaxation import assert_same_equilibrium
 
 RUNS = Path(__file__).resolve().parent.parent / "runs"

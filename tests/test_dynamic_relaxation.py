@@ -21,14 +21,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dynfab import assembly
-from dynfab.banded import BANDWIDTH, to_dense
-from dynfab.dynamic import DynamicSolver
+from dynfab.model import assembly
+from dynfab.solvers.banded import BANDWIDTH, to_dense
+from dynfab.solvers.dynamic import DynamicSolver
 from dynfab.errors import SolverError
 from dynfab.kernels import status, structure_checks
-from dynfab.model import build_model, initial_state
+from dynfab.model.yarn import build_model, initial_state
 from dynfab.scene import Dynamic, load_scene, with_key
-from dynfab.static import StaticSolver
+from dynfab.solvers.static import StaticSolver
 
 RUNS = Path(__file__).resolve().parent.parent / "runs"
 

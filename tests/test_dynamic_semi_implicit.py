@@ -9,11 +9,11 @@ from pathlib import Path
 
 import pytest
 
-from dynfab.dynamic import DynamicSolver
+from dynfab.solvers.dynamic import DynamicSolver
 from dynfab.errors import UserError
-from dynfab.model import build_model, initial_state
+from dynfab.model.yarn import build_model, initial_state
 from dynfab.scene import Dynamic, load_scene, with_key
-from dynfab.static import StaticSolver
+from dynfab.solvers.static import StaticSolver
 from test_dynamic_relaxation import assert_same_equilibrium, relax_path
 
 RUNS = Path(__file__).resolve().parent.parent / "runs"

@@ -12,9 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dynfab import assembly
-from dynfab.dynamic import DynamicSolver
-from dynfab.model import build_model, initial_state
+from dynfab.model import assembly
+from dynfab.solvers.dynamic import DynamicSolver
+from dynfab.model.yarn import build_model, initial_state
 from dynfab.scene import load_scene, validate_scene, with_key
 
 RUNS = Path(__file__).resolve().parent.parent / "runs"

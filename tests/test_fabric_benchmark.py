@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dynfab.static import StaticSolver
+from dynfab.solvers.static import StaticSolver
 from test_fabric_dynamic import agreement_bound
 
 PATH = Path(__file__).resolve().parents[1] / "benchmarks" / "fabric.py"

@@ -1,4 +1,4 @@
-"""The fabric's step certificate (`dynfab.certificate.certify_patch`, docs/model.md section 6
+"""The fabric's step certificate (`dynfab.solvers.certificate.certify_patch`, docs/model.md section 6
 and "Stability and accuracy of a converged step"), against the dense Hessian.
 
 - A stable friction step of the 3 x 4 test patch ("affine" planes, whose end nodes join
@@ -12,19 +12,19 @@ and "Stability and accuracy of a converged step"), against the dense Hessian.
   Lanczos below the spectrum.
 - The bound bounds: a step solved at a loose tolerance lies within its error_estimate (plus
   the tight solve's) of the same step solved at a tight one, statically and dynamically.
-- The record: a fabric step holds every name of `dynfab.solver.STEP_KEYS`, each documented
-  in `dynfab.results.UNITS`.
+- The record: a fabric step holds every name of `dynfab.solvers.contract.STEP_KEYS`, each documented
+  in `dynfab.results.file.UNITS`.
 """
 
 import numpy as np
 import pytest
 
-from dynfab import certificate
-from dynfab.fabric.model import FabricModel
-from dynfab.solvers import make_solver
-from dynfab.static import StaticSolver
-from dynfab.results import units_of
-from dynfab.solver import STEP_KEYS
+from dynfab.solvers import certificate
+from dynfab.model.fabric.model import FabricModel
+from dynfab.solvers.by_name import make_solver
+from dynfab.solvers.static import StaticSolver
+from dynfab.results.file import units_of
+from dynfab.solvers.contract import STEP_KEYS
 from independent import fabric_scene
 from test_fabric_static import FRICTION, K_C, WARP, WEFT, patch_model
 
@@ -121,7 +121,7 @@ def test_the_error_estimate_bounds_the_distance_to_a_tighter_solve(control):
 
 
 def test_a_fabric_step_records_every_step_key():
-    """The contract's names (`dynfab.solver.STEP_KEYS`: the certificate's stable, buckled,
+    """The contract's names (`dynfab.solvers.contract.STEP_KEYS`: the certificate's stable, buckled,
     lowest_eigenvalue, lowest_eigenvalue_error and error_estimate among them), each with its
     units, whatever the model; the result file's root attributes say the accuracy the steps
     were held to, as a one-yarn run's."""

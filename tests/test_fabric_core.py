@@ -10,9 +10,9 @@ about 10 times their value at first touch).
 
 import numpy as np
 
-from dynfab.fabric import contact
-from dynfab.fabric.model import FabricModel
-from dynfab.static import StaticSolver
+from dynfab.model.fabric import contact
+from dynfab.model.fabric.model import FabricModel
+from dynfab.solvers.static import StaticSolver
 from independent import without_core_spring
 from test_fabric_static import patch_scene
 

@@ -1,4 +1,4 @@
-"""The dynamic solver (`dynfab.dynamic.DynamicSolver`, the one of every model) on the woven
+"""The dynamic solver (`dynfab.solvers.dynamic.DynamicSolver`, the one of every model) on the woven
 fabric against the static reference (Newton), docs/model.md sections 5, 6, 10.
 
 Both solve the same load path on small clamped patches of the paper's yarns, each
@@ -24,14 +24,14 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from dynfab import assembly
-from dynfab.dynamic import DynamicSolver
+from dynfab.model import assembly
+from dynfab.solvers.dynamic import DynamicSolver
 from dynfab.errors import SolverError
-from dynfab.fabric.model import FabricModel
-from dynfab.model import build_model, initial_state
+from dynfab.model.fabric.model import FabricModel
+from dynfab.model.yarn import build_model, initial_state
 from dynfab.reports.fabric_data import paper_patch_scene
-from dynfab.static import StaticSolver
-from dynfab.structure import chain_of_node, uniform
+from dynfab.solvers.static import StaticSolver
+from dynfab.model.structure import chain_of_node, uniform
 from independent import PAPER_FRICTION, dense, held_family, make_scene
 
 TOLERANCE = 1e-10
@@ -301,7 +301,7 @@ def test_a_given_dt_above_the_bound_warns_and_ten_times_it_diverges_in_one_line(
 def test_the_dynamic_solver_leaves_the_fabric_saddle():
     """Held wefts, warps pushed in (tests/test_fabric_static.py: Newton on the symmetric path
     stops on a saddle): the relaxation from the symmetric start settles on the saddle too, the
-    certificate (the sparse route, `dynfab.certificate.certify_groups`) finds it, the step
+    certificate (the sparse route, `dynfab.solvers.certificate.certify_groups`) finds it, the step
     leaves it along an escape and relaxes to a minimum: buckled at the first step, every
     step stable with its lowest eigenvalue proved positive (above its bracket's width)."""
     from test_fabric_static import patch_model

@@ -20,13 +20,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dynfab.dynamic import DynamicSolver
-from dynfab.fabric import assembly
-from dynfab.fabric.model import FabricModel
-from dynfab.results import MACHINE_TIMES
-from dynfab.static import StaticSolver
+from dynfab.solvers.dynamic import DynamicSolver
+from dynfab.model.fabric import assembly
+from dynfab.model.fabric.model import FabricModel
+from dynfab.results.file import MACHINE_TIMES
+from dynfab.solvers.static import StaticSolver
 from dynfab.scene import load_scene
-from dynfab.structure import uniform
+from dynfab.model.structure import uniform
 from independent import PAPER_FRICTION, scene_with
 from test_fabric_dynamic import (agreement_bound, anchor_bound, dynamic_solver, end_rows,
                                  paper_patch_model)

@@ -13,9 +13,9 @@ displacement control.
 import numpy as np
 import pytest
 
-from dynfab.fabric import assembly
-from dynfab.fabric.model import FabricModel
-from dynfab.static import StaticSolver
+from dynfab.model.fabric import assembly
+from dynfab.model.fabric.model import FabricModel
+from dynfab.solvers.static import StaticSolver
 from independent import fabric_scene
 
 WARP = dict(length=0.04, segments=12, amplitude=0.5e-3, EA=13.72, EI=1.47e-7, kawabata_C=0.2e-3,

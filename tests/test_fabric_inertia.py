@@ -18,8 +18,8 @@ import pytest
 import scipy.sparse
 import scipy.sparse.linalg
 
-from dynfab.fabric import inertia, ordering
-from dynfab.static import StaticSolver
+from dynfab.model.fabric import inertia, ordering
+from dynfab.solvers.static import StaticSolver
 from test_fabric_static import FRICTION, patch_model
 
 EPS = np.finfo(float).eps

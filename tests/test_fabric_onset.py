@@ -17,9 +17,9 @@ import sys
 import h5py
 import numpy as np
 
-from dynfab.fabric.model import FabricModel
+from dynfab.model.fabric.model import FabricModel
 from dynfab.scene import parse_scene_text
-from dynfab.static import StaticSolver
+from dynfab.solvers.static import StaticSolver
 from independent import contact_force, gralen, record_inverse_norm, scene_toml
 
 ALPHA, BETA, ELL, R_F = 0.2, 1e3, 2e-3, 1e-3
@@ -68,7 +68,7 @@ def check_consistent(solver: StaticSolver, before, after, record, load) -> None:
 
 
 FALLBACKS = {"relaxed": ("relaxed",), "active set": ("sets", "continuation")}
-"""The sparse backend's fallbacks in the friction chain (`dynfab.friction_chain`), after its
+"""The sparse backend's fallbacks in the friction chain (`dynfab.solvers.friction_chain`), after its
 frozen-F_T and coupled Newton ("unilateral") from the step's start: the under-relaxed fixed
 point on F_T, and the open/closed active set with its continuation in R_0."""
 
@@ -191,7 +191,7 @@ def test_a_step_the_fallback_cannot_solve_names_its_crossing(monkeypatch):
     step needs about 1,600), the step of `test_force_control_at_a_small_onset_force` stops
     with a SolverError naming a crossing as the scene counts it, the onset and the laws'
     residual reached (above the tolerance), not a silent state."""
-    from dynfab import friction_chain
+    from dynfab.solvers import friction_chain
     from dynfab.errors import SolverError
 
     monkeypatch.setattr(friction_chain, "FALLBACK_BUDGET", 1)

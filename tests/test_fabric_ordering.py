@@ -1,4 +1,4 @@
-"""The nested-dissection ordering of the fabric's Hessian (`dynfab.fabric.ordering`) and the
+"""The nested-dissection ordering of the fabric's Hessian (`dynfab.model.fabric.ordering`) and the
 factorisations that use it (docs/model.md sections 6, 10).
 
 - The order is a permutation of the unknowns (clamped with fixed and affine planes, the
@@ -18,10 +18,10 @@ import pytest
 import scipy.sparse
 import scipy.sparse.linalg
 
-from dynfab.fabric import inertia, ordering, pardiso
-from dynfab.fabric.model import FabricModel
-from dynfab.newton_sparse import _sparse_solve
-from dynfab.static import StaticSolver
+from dynfab.model.fabric import inertia, ordering, pardiso
+from dynfab.model.fabric.model import FabricModel
+from dynfab.solvers.newton_sparse import _sparse_solve
+from dynfab.solvers.static import StaticSolver
 from dynfab.reports.fabric_data import paper_patch_scene
 from test_fabric_periodic import cell
 from test_fabric_static import FRICTION, patch_model

@@ -9,8 +9,8 @@
 import numpy as np
 import pytest
 
-from dynfab.fabric.model import FabricModel
-from dynfab.static import StaticSolver
+from dynfab.model.fabric.model import FabricModel
+from dynfab.solvers.static import StaticSolver
 from independent import fabric_scene, record_inverse_norm
 
 SPACING_WARP, SPACING_WEFT = 0.1 / 16, 0.005

@@ -18,8 +18,8 @@ frozen-F_T solves).
 
 import numpy as np
 
-from dynfab.fabric.model import FabricModel
-from dynfab.static import StaticSolver
+from dynfab.model.fabric.model import FabricModel
+from dynfab.solvers.static import StaticSolver
 from independent import fabric_scene, record_inverse_norm
 
 WARP = dict(length=0.04, segments=24, amplitude=0.5e-3, EA=13.72, EI=1.47e-7, kawabata_C=0.2e-3,

@@ -16,11 +16,11 @@ import meshio
 import numpy as np
 import pytest
 
-from dynfab.fabric.model import FabricModel
-from dynfab.results import MACHINE_TIMES
+from dynfab.model.fabric.model import FabricModel
+from dynfab.results.file import MACHINE_TIMES
 from dynfab.run import run, run_to_file
 from dynfab.scene import load_scene, parse_scene_text
-from dynfab.structure import uniform
+from dynfab.model.structure import uniform
 from independent import record_inverse_norm
 
 RUNS = Path(__file__).resolve().parent.parent / "runs"
@@ -228,7 +228,7 @@ def test_fabric_file_resumes_to_the_uninterrupted_run(tmp_path):
         assert int(h5["steps_done"][0]) == 4
     assert run_to_file(scene, "static", part, resume=True) == 6
     assert_same_steps(whole, part)
-    from dynfab.plot import plot_results
+    from dynfab.plots.figures import plot_results
     assert [p.name for p in plot_results(part, tmp_path / "plots")] == ["fabric.png", "shape.png"]
     with meshio.xdmf.TimeSeriesReader(part.with_suffix(".xdmf")) as view, \
             h5py.File(part, "r") as h5:  # plain meshio: both families' nodes, every step
@@ -245,8 +245,8 @@ def test_fabric_file_resumes_to_the_uninterrupted_run(tmp_path):
 def test_pullout_figure_draws_the_file(tmp_path):
     """`dynfab plot` on a pull-out draws the pull force, the sum of the limits and each
     crossing's |F_x| / F_T from the file's datasets, recomputed here."""
-    from dynfab.plot import plot_pullout, plot_results
-    from dynfab.results import read_results
+    from dynfab.plots.figures import plot_pullout, plot_results
+    from dynfab.results.file import read_results
 
     scene = parse_scene_text(small_pullout())
     path = tmp_path / "pullout.h5"
@@ -291,7 +291,7 @@ def test_a_pull_past_half_a_segment_stops_naming_the_crossing(tmp_path, solver):
     (SolverError, exit status 3) naming the crossing, with either solver; the finished
     steps are kept, each within the limit (docs/model.md section 10)."""
     from dynfab.errors import SolverError
-    from dynfab.results import read_results
+    from dynfab.results.file import read_results
 
     scene = parse_scene_text(small_pullout("0, 0, 1e-4, 3e-4"))
     out = tmp_path / "past.h5"
@@ -310,8 +310,8 @@ def test_the_pullout_reports_the_pulled_warp(tmp_path):
     (a weft's); fabric.png's warp curve is the pulled warp's, labelled so."""
     import io
 
-    from dynfab.plot import plot_fabric
-    from dynfab.summary import print_summary
+    from dynfab.plots.figures import plot_fabric
+    from dynfab.results.summary import print_summary
 
     scene, lines = parse_scene_text(small_pullout()), []
     results = run(scene, progress=lines.append)
@@ -431,7 +431,7 @@ def assert_fabric_summary(stdout: str, out) -> None:
     """A fabric run's stdout: the table (a row per step, the columns saying they are the
     families' means) and the run's summary: its steps, the solver time and the last step's
     strains and loads per unit width, as the file holds them (docs/model.md section 10)."""
-    from dynfab.results import read_results
+    from dynfab.results.file import read_results
 
     steps = read_results(out).steps
     count = steps["load"].shape[0]

@@ -1,4 +1,4 @@
-"""The dynamic solver's semi-implicit method (`dynfab.dynamic.DynamicSolver`, method
+"""The dynamic solver's semi-implicit method (`dynfab.solvers.dynamic.DynamicSolver`, method
 "semi_implicit") on the woven fabric against the static reference: its load steps against
 Newton's within their residual bounds, its records, its repeatability, a scene run (docs/model.md
 sections 5, 10).
@@ -13,10 +13,10 @@ it, and the explicit one tests/test_fabric_dynamic.py builds.
 import numpy as np
 import pytest
 
-from dynfab.static import StaticSolver
+from dynfab.solvers.static import StaticSolver
 from dynfab.run import run
 from dynfab.scene import parse_scene_text
-from dynfab.structure import uniform
+from dynfab.model.structure import uniform
 from independent import PAPER_FRICTION
 from test_fabric_dynamic import (DISPLACEMENTS, FORCES, TOLERANCE, agreement_bound,
                                  anchor_bound, dynamic_solver, paper_patch_model)
@@ -85,7 +85,7 @@ def test_a_semi_implicit_scene_runs_and_matches_the_static_run():
     run's (each state within its own bound of the exact equilibrium)."""
     text = small_pullout() + '\n[dynamic]\nmethod = "semi_implicit"\n'
     scene = parse_scene_text(text)
-    from dynfab.fabric.model import FabricModel
+    from dynfab.model.fabric.model import FabricModel
 
     model = FabricModel.from_scene(scene)
     static, semi = run(scene, "static"), run(scene, "dynamic")

@@ -14,12 +14,12 @@ import dataclasses
 import numpy as np
 import pytest
 
-from dynfab.fabric import inertia
-from dynfab.fabric.model import FabricModel
-from dynfab import assembly as one_yarn_assembly
-from dynfab.certificate import NEGATIVES, certify_yarn
-from dynfab.model import build_model, initial_state
-from dynfab.static import StaticSolver
+from dynfab.model.fabric import inertia
+from dynfab.model.fabric.model import FabricModel
+from dynfab.model import assembly as one_yarn_assembly
+from dynfab.solvers.certificate import NEGATIVES, certify_yarn
+from dynfab.model.yarn import build_model, initial_state
+from dynfab.solvers.static import StaticSolver
 from independent import fabric_scene, held_family, make_scene, record_inverse_norm
 
 L, N, WEFTS, WARPS = 0.1, 24, 4, 3
@@ -165,7 +165,7 @@ def test_held_wefts_under_compression_leave_the_saddle_for_a_one_yarn_minimum():
     # warp is checked as a state of the one-yarn model instead: an equilibrium there (its
     # residual within 10 x the fabric's tolerance: the same forces, summed in another
     # order, and the fabric stops at 1e-10 N) and stable by the one-yarn certificate
-    # (dynfab.certificate: no negative pivot of its Hessian).
+    # (dynfab.solvers.certificate: no negative pivot of its Hessian).
     values = (-3e-4, -6e-4, -9e-4)
     solver = StaticSolver(patch_model("displacement", values, None, hold="weft"))
     records, model = one_yarn_run("displacement", values, None, None, with_model=True)

@@ -10,8 +10,8 @@ matrix), and swapping the loads swaps the results, to solver tolerance.
 import numpy as np
 import pytest
 
-from dynfab.fabric.model import FabricModel
-from dynfab.static import StaticSolver
+from dynfab.model.fabric.model import FabricModel
+from dynfab.solvers.static import StaticSolver
 from independent import fabric_scene, record_inverse_norm
 
 COUNT = 4

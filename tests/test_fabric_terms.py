@@ -16,11 +16,11 @@ import math
 import numpy as np
 import pytest
 
-from dynfab.fabric import assembly, contact, friction
-from dynfab.fabric.model import FabricModel
-from dynfab.structure import Structure, chain_count, uniform
-from dynfab.terms import friction as gralen
-from dynfab.terms.contact import closure_from_force
+from dynfab.model.fabric import assembly, contact, friction
+from dynfab.model.fabric.model import FabricModel
+from dynfab.model.structure import Structure, chain_count, uniform
+from dynfab.model.terms import friction as gralen
+from dynfab.model.terms.contact import closure_from_force
 from independent import fabric_scene, fd_gradient, fd_jacobian, without_core_spring
 
 EPS = np.finfo(float).eps
@@ -116,7 +116,7 @@ def term_functions(fabric, anchors, limit):
     the stretch springs 2 EA/l0 and bending 16 EI/(lbar l0^2) (tests/test_terms.py).
     The friction term's gradient is the assembly's (`assembly.gradient`, which computes it
     for the whole model): the whole model's minus the whole model's with F_T = 0, where the
-    Huber term vanishes; its energy and Hessian are `dynfab.fabric.friction`'s own.
+    Huber term vanishes; its energy and Hessian are `dynfab.model.fabric.friction`'s own.
     ell: contact, from the law at each closed crossing's force (`contact_length_scale`);
     friction, the
     sliding branch F|s| has derivatives of order n bounded by about F/|s|^(n-1) <= k_t/|s|^(n-2)
@@ -397,7 +397,7 @@ def test_without_a_core_spring_kawabata_is_a_hard_wall():
 
 
 def test_the_slips_the_newton_watches_are_the_huber_terms_slips(state):
-    """`assembly.crossing_slips` (what `dynfab.newton_sparse.kinked` reads) gives each
+    """`assembly.crossing_slips` (what `dynfab.solvers.newton_sparse.kinked` reads) gives each
     crossing's (s_x, s_y) as the Huber term sees it: sticking crossings within the stick
     radius F_T / k_t, sliding ones beyond it by their CROSSING_STATES factor."""
     fabric, r, anchors, limit, _ = state

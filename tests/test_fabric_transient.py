@@ -1,6 +1,6 @@
 """The dynamic solver's transient mode on the woven fabric (docs/model.md sections 4, 5, 10):
 dynamic.mode = "transient" runs a fabric as it runs the one-yarn model (the same solver and
-kernels, `dynfab.dynamic.DynamicSolver.transient`), its frames in the fabric's record layout
+kernels, `dynfab.solvers.dynamic.DynamicSolver.transient`), its frames in the fabric's record layout
 (`FabricModel.frame`).
 
 A 2 x 2 clamped patch of the paper's yarns with friction, its ends pulled by a prescribed
@@ -21,14 +21,14 @@ import numpy as np
 import pytest
 
 from dynfab import budget
-from dynfab.dynamic import DynamicTransient
-from dynfab.fabric import assembly
-from dynfab.fabric.model import FabricModel
+from dynfab.solvers.dynamic import DynamicTransient
+from dynfab.model.fabric import assembly
+from dynfab.model.fabric.model import FabricModel
 from dynfab.reports.fabric_data import paper_patch_scene
-from dynfab.results import read_results
+from dynfab.results.file import read_results
 from dynfab.run import run_to_file
-from dynfab.solver import FRAME_KEYS, Transient
-from dynfab.solvers import make_solver
+from dynfab.solvers.contract import FRAME_KEYS, Transient
+from dynfab.solvers.by_name import make_solver
 from independent import PAPER_FRICTION
 
 EPS = np.finfo(float).eps

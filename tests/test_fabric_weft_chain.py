@@ -24,8 +24,8 @@ import numpy as np
 import pytest
 import scipy.sparse.linalg
 
-from dynfab.geometry import tensioned_beam_stiffness
-from dynfab.static import StaticSolver
+from dynfab.model.geometry import tensioned_beam_stiffness
+from dynfab.solvers.static import StaticSolver
 from independent import fabric_scene, held_family
 
 WARPS, L_WE, EA, EI = 4, 0.1, 13.72, 1.47e-7

@@ -40,17 +40,17 @@ import pytest
 from matplotlib.image import imread
 from matplotlib.text import Text
 
-from dynfab import assembly
-from dynfab.banded import to_dense
+from dynfab.model import assembly
+from dynfab.solvers.banded import to_dense
 from dynfab.cli import main
 from dynfab.errors import UserError
 from dynfab.kernels.structure_variants import built_variants
-from dynfab.model import build_model
+from dynfab.model.yarn import build_model
 from dynfab.reports import figures as report
 from dynfab.reports import figures_plots
-from dynfab.results import read_results
+from dynfab.results.file import read_results
 from dynfab.scene import expand_sweep, load_scene, parse_scene_text
-from dynfab.terms.friction import INDEX as FRICTION
+from dynfab.model.terms.friction import INDEX as FRICTION
 
 RUNS = Path(__file__).resolve().parent.parent / "runs"
 NAMES = ("fig3", "fig5")

@@ -1,4 +1,4 @@
-"""`dynfab.fit`: recovery of known parameters, identifiability, statistics, bad data.
+"""`dynfab.fitting.fit`: recovery of known parameters, identifiability, statistics, bad data.
 
 Curves are made by dynfab itself with known parameters plus seeded Gaussian
 noise; the scenes are the quarter paper yarn of tests/test_fit_sensitivity.py
@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 
 from dynfab.errors import UserError
-from dynfab.fit import default_substeps, fit, refined_path
-from dynfab.fit_data import curve_from_columns
+from dynfab.fitting.fit import default_substeps, fit, refined_path
+from dynfab.fitting.data import curve_from_columns
 from dynfab.scene import with_key
-from dynfab.sensitivity import _get_key, solve_path
+from dynfab.fitting.sensitivity import _get_key, solve_path
 from independent import PAPER_FRICTION, PAPER_WARP, PAPER_WEFT, make_scene
 from test_fit_sensitivity import quarter_yarn
 
@@ -227,7 +227,7 @@ def test_fit_jacobian_is_the_derivative_of_its_residuals():
     positive keys) against a central difference of its own residual function in theta, on a
     curve with two measured columns. Tolerance: the whole-curve FD error, estimated by
     Richardson as in tests/test_fit_sensitivity.py."""
-    from dynfab.fit import _Problem, make_parameters, with_path
+    from dynfab.fitting.fit import _Problem, make_parameters, with_path
 
     scene = quarter_yarn("force", FORCES, dict(PAPER_FRICTION, beta=3e4))
     solution = solve_path(scene)
@@ -253,8 +253,8 @@ def test_fit_jacobian_is_the_derivative_of_its_residuals():
 def test_banded_solve_falls_back_to_pivoting_on_a_negative_pivot():
     """J is not positive definite under compression: the solve must still be J^-1 rhs (dense
     numpy reference), fixed dofs held at 0."""
-    from dynfab.banded import BANDWIDTH, band_add, to_dense, zeros_band
-    from dynfab.sensitivity import _solve
+    from dynfab.solvers.banded import BANDWIDTH, band_add, to_dense, zeros_band
+    from dynfab.fitting.sensitivity import _solve
 
     rng = np.random.default_rng(0)
     n = 24
@@ -282,7 +282,7 @@ def test_statistics_of_a_straight_line_match_the_textbook_formulas():
     s^2 = |r|^2 / (n - 2), 95 % interval b +- t_{0.975, n-2} se (independent of dynfab)."""
     from scipy import stats as scipy_stats
 
-    from dynfab.fit import Parameter, statistics
+    from dynfab.fitting.fit import Parameter, statistics
 
     rng = np.random.default_rng(3)
     x = np.linspace(0.0, 1.0, 9)
@@ -308,7 +308,7 @@ def test_statistics_of_a_straight_line_match_the_textbook_formulas():
 
 
 def test_statistics_name_a_key_the_curve_does_not_see():
-    from dynfab.fit import Parameter, statistics
+    from dynfab.fitting.fit import Parameter, statistics
 
     x = np.linspace(0.0, 1.0, 9)
     jac = np.c_[x, np.zeros_like(x)]
@@ -321,7 +321,7 @@ def test_statistics_name_a_key_the_curve_does_not_see():
 
 def test_statistics_name_an_exactly_dependent_pair():
     """Two columns proportional (the curve sees only their combination): rank deficient."""
-    from dynfab.fit import Parameter, statistics
+    from dynfab.fitting.fit import Parameter, statistics
 
     x = np.linspace(0.0, 1.0, 9)
     jac = np.c_[x, 2 * x, np.ones_like(x)]

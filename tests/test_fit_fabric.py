@@ -1,4 +1,4 @@
-"""`dynfab.fit` on fabric scenes: recovery of known parameters, the forward-difference Jacobian,
+"""`dynfab.fitting.fit` on fabric scenes: recovery of known parameters, the forward-difference Jacobian,
 fittable keys, malformed fabric curves.
 
 The scene is the fabric example's (runs/fit_example/fabric_scene.toml: a periodic 2 x 2 cell of
@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 
 from dynfab.errors import UserError
-from dynfab.fit import FD_STEP, fit, fittable_keys, make_parameters, refined_path, with_path
-from dynfab.fit_data import FABRIC_MEASURABLE, curve_from_columns, read_curve
-from dynfab.fit_models import FabricFit
+from dynfab.fitting.fit import FD_STEP, fit, fittable_keys, make_parameters, refined_path, with_path
+from dynfab.fitting.data import FABRIC_MEASURABLE, curve_from_columns, read_curve
+from dynfab.fitting.models import FabricFit
 from dynfab.scene import Contact, Friction, load_scene, validate_scene, with_key
 from test_fit_sensitivity import quarter_yarn
 
@@ -109,7 +109,7 @@ def test_forward_difference_jacobian_matches_central_differences():
     equilibrium): the second difference at FD_STEP itself, whose truncation FD_STEP^2 |r''|
     is nil, measures it. Keys: both EAs, k_c (the smallest column, where the noise shows)
     and Kawabata's K of the warps (through the nonlinear contact law)."""
-    from dynfab.fit import _Problem
+    from dynfab.fitting.fit import _Problem
 
     scene = cell()
     data = synthetic(scene, WARP, 0.5 * WARP)

@@ -1,4 +1,4 @@
-"""Sensitivities of a load path (dynfab.sensitivity) against finite differences of whole curves.
+"""Sensitivities of a load path (dynfab.fitting.sensitivity) against finite differences of whole curves.
 
 Each check re-solves the whole load path at p + h and p - h (static solver, as
 a user's run) and compares the central difference with the exact sensitivity
@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 from dynfab.scene import with_key
-from dynfab.sensitivity import (RELATIVE_STEP, _get_key, parameter_scale, path_sensitivities,
+from dynfab.fitting.sensitivity import (RELATIVE_STEP, _get_key, parameter_scale, path_sensitivities,
                                 solve_path)
 from independent import PAPER_FRICTION, PAPER_WARP, PAPER_WEFT, make_scene
 
@@ -115,7 +115,7 @@ def test_residual_difference_at_fixed_state_is_at_rounding_level():
     base = solve_path(scene)
     keys = ["warp.kawabata_K", "weft.kawabata_C", "friction.alpha"]
     exact = path_sensitivities(base, keys)["end_displacement"]
-    import dynfab.sensitivity as sensitivity
+    import dynfab.fitting.sensitivity as sensitivity
     original = sensitivity.RELATIVE_STEP
     try:
         sensitivity.RELATIVE_STEP = original / 4

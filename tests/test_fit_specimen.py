@@ -12,9 +12,9 @@ import pytest
 
 from dynfab import run
 from dynfab.errors import UserError
-from dynfab.fit import fit
-from dynfab.fit_data import curve_from_columns
-from dynfab.fit_models import FabricFit
+from dynfab.fitting.fit import fit
+from dynfab.fitting.data import curve_from_columns
+from dynfab.fitting.models import FabricFit
 from dynfab.scene import parse_scene_text, with_key
 from test_shear_specimens import FRAME, scene_text
 

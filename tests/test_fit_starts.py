@@ -1,4 +1,4 @@
-"""dynfab fit --starts K (dynfab/fit_starts.py): the starting points and the best of K fits
+"""dynfab fit --starts K (dynfab/fitting/starts.py): the starting points and the best of K fits
 on a local Dask cluster, on the fit example (runs/fit_example: a quarter yarn with
 friction, 10 data points, about 50 ms a fit)."""
 
@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 import dynfab
-from dynfab.fit import make_parameters
-from dynfab.fit_starts import REACHED, SPREAD, fit_from_starts, start_points
+from dynfab.fitting.fit import make_parameters
+from dynfab.fitting.starts import REACHED, SPREAD, fit_from_starts, start_points
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "runs" / "fit_example"
 KEYS = ["warp.EA", "friction.alpha"]

@@ -3,7 +3,7 @@
 Verification tests: each compares the static solution with an equation
 written in a comment -- Gralen's law evaluated by an independent solution of
 the series contact law (docs/model.md section 3, computed here with scipy, not with
-dynfab.terms.contact), the equilibrium of a crossing node, the energy balance
+dynfab.model.terms.contact), the equilibrium of a crossing node, the energy balance
 of the load path, the limit of rigid stick-slip -- with a tolerance derived
 from the solver's residual, the quadrature order or float64 rounding.
 
@@ -20,9 +20,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from dynfab import assembly
-from dynfab.banded import BANDWIDTH
-from dynfab.terms.friction import INDEX as FRICTION
+from dynfab.model import assembly
+from dynfab.solvers.banded import BANDWIDTH
+from dynfab.model.terms.friction import INDEX as FRICTION
 from independent import (EPS, PAPER_FRICTION, PAPER_WARP, PAPER_WEFT, contact_forces, dense,
                          make_scene, pull, run, scene_gralen, series_law)
 

@@ -1,4 +1,4 @@
-"""The one Huber stick-slip law (docs/model.md sections 4, 10.8, 11.4; `dynfab.terms.huber`)
+"""The one Huber stick-slip law (docs/model.md sections 4, 10.8, 11.4; `dynfab.model.terms.huber`)
 and the three slips that use it: the paper yarn's 1-D slip, the planar fabric's 2-D slip, the
 spatial fabric's three-component slip must give one energy, one force and one branch for one
 slip size."""
@@ -6,10 +6,10 @@ slip size."""
 import numpy as np
 import pytest
 
-from dynfab.fabric import friction as planar
-from dynfab.terms import friction as paper
-from dynfab.terms import huber
-from dynfab.terms import spatial
+from dynfab.model.fabric import friction as planar
+from dynfab.model.terms import friction as paper
+from dynfab.model.terms import huber
+from dynfab.model.terms import spatial
 
 LIMIT, STICK = 0.02, 400.0  # F_T [N], k_t [N/m]: the boundary is at |S| = 5e-5 m
 BOUNDARY = LIMIT / STICK

@@ -1,4 +1,4 @@
-"""The Newton solves on kept factors (dynfab.fabric.kept_factor, docs/model.md section 11.10):
+"""The Newton solves on kept factors (dynfab.model.fabric.kept_factor, docs/model.md section 11.10):
 GMRES preconditioned by an earlier matrix's factors must give the direction of a direct
 solve to its accuracy, and factor where it cannot. The tests of GMRES on kept factors take
 SuperLU's (`superlu_alone`): PARDISO's factorisation is cheap enough that the Hessian's
@@ -12,7 +12,7 @@ import scipy.sparse.linalg
 
 import pytest
 
-from dynfab.fabric import kept_factor, ordering, pardiso
+from dynfab.model.fabric import kept_factor, ordering, pardiso
 
 
 def chain_laplacian(n: int, rng) -> scipy.sparse.csc_matrix:
@@ -109,7 +109,7 @@ def test_a_jacobian_far_from_the_hessian_is_factored_in_its_order_not_pivoted(su
 
 def test_a_looser_forcing_term_is_met_on_the_kept_factors_without_factoring(superlu_alone):
     """The coupled Newton's directions ask for a relative residual of 1e-6 (an inexact Newton
-    forcing term, dynfab.newton_sparse.COUPLED_FORCING), not the Hessian's 1e-10, which its
+    forcing term, dynfab.solvers.newton_sparse.COUPLED_FORCING), not the Hessian's 1e-10, which its
     factors cannot reach on the large specimens. With a small non-symmetric part (the seed
     and size chosen so that 6 GMRES iterations on B's factors reach 1e-6 but not 1e-10,
     both asserted), solve_near meets the looser target on the kept factors alone."""

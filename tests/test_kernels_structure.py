@@ -19,18 +19,18 @@ import pytest
 import warp as wp
 from independent import PAPER_FRICTION, PAPER_WARP, PAPER_WEFT, make_scene
 
-from dynfab import assembly
-from dynfab.builders import build_structure
-from dynfab.fabric import assembly as fabric_assembly
-from dynfab.fabric import contact as tie_contact
-from dynfab.newton_sparse import SparseNewton
+from dynfab.model import assembly
+from dynfab.model.builders import build_structure
+from dynfab.model.fabric import assembly as fabric_assembly
+from dynfab.model.fabric import contact as tie_contact
+from dynfab.solvers.newton_sparse import SparseNewton
 from dynfab.kernels import status, structure_arrays, structure_explicit, structure_variants
 from dynfab.kernels.structure_relaxation import StructureRelaxation
-from dynfab.model import chain_view
+from dynfab.model.yarn import chain_view
 from dynfab.scene import load_scene
-from dynfab.structure import GROUND, chain_count
-from dynfab.terms import friction as gralen
-from dynfab.terms import registry
+from dynfab.model.structure import GROUND, chain_count
+from dynfab.model.terms import friction as gralen
+from dynfab.model.terms import registry
 
 EPS = np.finfo(float).eps
 FAMILY = dict(EA=13.72, EI=1.47e-7, kawabata_C=0.2e-3, kawabata_K=0.2)
@@ -162,7 +162,7 @@ def contribution_scale(structure, positions, P) -> float:
 
 
 def one_yarn_gradients(structure, positions, P, anchors) -> np.ndarray:
-    """-dV/dr (n, 2) [N] by `dynfab.assembly` on every chain's Yarn view, F_T frozen at the law
+    """-dV/dr (n, 2) [N] by `dynfab.model.assembly` on every chain's Yarn view, F_T frozen at the law
     of its own contact forces, 0 on the held dofs."""
     active = np.ones(len(registry.NAMES), np.bool_)
     out = np.zeros_like(positions)
@@ -182,7 +182,7 @@ def one_yarn_gradients(structure, positions, P, anchors) -> np.ndarray:
 
 
 def fabric_gradients(structure, positions, P, anchors) -> np.ndarray:
-    """-dV/dr (n, 2) [N] by `dynfab.fabric.assembly` on the unknowns (a tied family's summed on
+    """-dV/dr (n, 2) [N] by `dynfab.model.fabric.assembly` on the unknowns (a tied family's summed on
     each of its dofs), F_T frozen at the law of the current contact forces."""
     static = static_solver(structure)
     limit = np.zeros(structure.tie_a.size)
@@ -202,7 +202,7 @@ TERMS = ("stretch", "bending", "contact", "friction", "gravity", "load", "all")
 @pytest.mark.parametrize("name", sorted(SCENES))
 def test_forces_are_the_static_gradient(structures, name, term):
     """Each term's kernel force against the static reference's gradient (the one-yarn
-    `dynfab.assembly` per chain for the yarn, `dynfab.fabric.assembly` for the fabrics) at a
+    `dynfab.model.assembly` per chain for the yarn, `dynfab.model.fabric.assembly` for the fabrics) at a
     perturbed state, crossings closed and open, sliding and sticking, to rounding: a force
     component sums at most 16 contributions (two segments, three bending springs and the wrap,
     its ties' contact and friction, the planes' reaction, a tied family's members), each within
@@ -234,7 +234,7 @@ def test_forces_are_the_static_gradient(structures, name, term):
 
 @pytest.mark.parametrize("name", sorted(SCENES))
 def test_energy_is_the_static_energy(structures, name):
-    """The energy the nodes and ties own (`energies`) sums to `dynfab.fabric.assembly`'s V plus
+    """The energy the nodes and ties own (`energies`) sums to `dynfab.model.fabric.assembly`'s V plus
     the Huber terms (F_T at the current R), to the rounding of the terms' sums (each term
     within a few ulps of its size; 64 eps of every term's size summed)."""
     s = structures[name]
@@ -367,12 +367,12 @@ def test_the_tie_law_is_cancellation_safe(precision):
     """The tie law's expm1 within 2 ulps of numpy's over |x| from 1e-20 to 10, and the contact
     force and energy at closures from 1e-16 m to 1e-4 m (R from about 1e-11 N, where
     1 - exp(-a R) and the energy's 1 - exp(-x)(1 + x) cancel) within a few ulps of the static
-    reference's (`dynfab.terms.contact`, np.expm1 and its series), relative to their size."""
+    reference's (`dynfab.model.terms.contact`, np.expm1 and its series), relative to their size."""
     import warp as wp
 
     from dynfab.kernels import tie_law
     from dynfab.kernels.precision import SCALARS, numpy_dtype
-    from dynfab.terms import contact
+    from dynfab.model.terms import contact
 
     scalar, dtype = SCALARS[precision], numpy_dtype(SCALARS[precision])
     ops = tie_law.functions(scalar)

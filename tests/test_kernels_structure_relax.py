@@ -27,12 +27,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dynfab.builders import build_structure
-from dynfab.fabric import contact
+from dynfab.model.builders import build_structure
+from dynfab.model.fabric import contact
 from dynfab.kernels import status
-from dynfab.model import build_model, initial_state
+from dynfab.model.yarn import build_model, initial_state
 from dynfab.scene import load_scene, with_key
-from dynfab.static import StaticSolver
+from dynfab.solvers.static import StaticSolver
 from test_kernels_structure import (fabric_scene, relaxation, static_solver, yarn_scene,
                                     yarn_scene_sweep)
 
@@ -269,7 +269,7 @@ def test_displacement_control_reactions_are_the_static_ones():
     external load, every dof unmasked), within the bound times the sum of |H| over that dof's
     row (the reaction's change to first order in the positions: the Hessian's row, F_T frozen;
     no tie on an end node)."""
-    from dynfab.fabric import assembly
+    from dynfab.model.fabric import assembly
 
     scene = with_key(fabric_scene(3, "clamped", "affine", load=(2e-4, 5e-5),
                                   control="displacement"), "static.tolerance", TOLERANCE / 10)

@@ -25,14 +25,14 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from dynfab.builders.specimen import specimen_structure
+from dynfab.model.builders.specimen import specimen_structure
 from dynfab.errors import UserError
-from dynfab.fabric import spatial
-from dynfab.newton_sparse import SparseNewton
+from dynfab.model.fabric import spatial
+from dynfab.solvers.newton_sparse import SparseNewton
 from dynfab.scene import parse_scene_text, with_key
-from dynfab.structure import Structure
-from dynfab.terms import spatial as element
-from dynfab.terms.contact import NATURAL
+from dynfab.model.structure import Structure
+from dynfab.model.terms import spatial as element
+from dynfab.model.terms.contact import NATURAL
 from test_shear_specimens import FRAME, scene_text
 
 GLASS = dict(E=72e9, beta=350.0, V0=0.64, Va=0.785)
@@ -245,8 +245,8 @@ def test_a_made_up_force_angle_curve_gives_back_the_fibre_waviness():
     # once a step in theta = log beta is below xtol (1e-8) (1 + |theta|), |theta| ~ 5.9, so 10
     # x that (tests/test_fit_specimen.py's rule).
     from dynfab import run
-    from dynfab.fit import fit
-    from dynfab.fit_data import curve_from_columns
+    from dynfab.fitting.fit import fit
+    from dynfab.fitting.data import curve_from_columns
 
     scene = small_compacting_frame()
     steps = run(scene, solver="static").steps

@@ -14,10 +14,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from dynfab import newton_sparse, run
-from dynfab.model import build_model
+from dynfab import run
+
+from dynfab.solvers import newton_sparse
+from dynfab.model.yarn import build_model
 from dynfab.scene import parse_scene_text
-from dynfab.static import StaticSolver
+from dynfab.solvers.static import StaticSolver
 
 YARN = """spacing = 5.18e-3
 amplitude = 0.3e-3

@@ -30,14 +30,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dynfab import assembly, newton_banded
-from dynfab.friction_chain import friction_chain
-from dynfab.banded import zeros_band
-from dynfab.model import build_model, initial_state
+from dynfab.model import assembly
+
+from dynfab.solvers import newton_banded
+from dynfab.solvers.friction_chain import friction_chain
+from dynfab.solvers.banded import zeros_band
+from dynfab.model.yarn import build_model, initial_state
 from dynfab.run import run as run_scene
 from dynfab.scene import load_scene, with_key
-from dynfab.static import StaticSolver
-from dynfab.terms import contact, friction
+from dynfab.solvers.static import StaticSolver
+from dynfab.model.terms import contact, friction
 from independent import (EPS, PAPER_FRICTION, PAPER_WARP, PAPER_WEFT, contact_force, dense,
                          contact_forces, gralen, make_scene, scene_gralen)
 

@@ -1,6 +1,6 @@
 """The packages a (non-editable) install gets are found, not listed: every folder under dynfab/
 holding Python files, and kernels/ installed as dynfab.kernels (setup.py). A list in
-pyproject.toml once left dynfab.fabric out of `pip install .`. .ci/run checks the built
+pyproject.toml once left dynfab.model.fabric out of `pip install .`. .ci/run checks the built
 wheel itself (.ci/check_wheel.py); here, the package list against the folders."""
 
 import importlib.util
@@ -33,7 +33,7 @@ def package_folders() -> dict[str, Path]:
 def test_every_package_folder_is_a_package_of_the_install():
     setup = setup_script()
     folders = package_folders()
-    assert {"dynfab", "dynfab.fabric", "dynfab.kernels", "dynfab.terms"} <= set(folders)
+    assert {"dynfab", "dynfab.model.fabric", "dynfab.kernels", "dynfab.model.terms"} <= set(folders)
     assert sorted(setup.packages()) == sorted(folders)
     for name, folder in folders.items():
         assert (folder / "__init__.py").exists(), f"{name}: no __init__.py, so not found"

@@ -11,10 +11,10 @@ import pytest
 from matplotlib.image import imread
 
 from dynfab.errors import UserError
-from dynfab.friction_states import friction_states
-from dynfab.plot import (friction_yarns, plot_contact_force, plot_friction, plot_results,
+from dynfab.results.friction_states import friction_states
+from dynfab.plots.figures import (friction_yarns, plot_contact_force, plot_friction, plot_results,
                          plot_shape, plot_traction, shape_steps, yarn_labels)
-from dynfab.results import ResultFile, read_results
+from dynfab.results.file import ResultFile, read_results
 
 LENGTH, SEGMENTS, AMPLITUDE = 0.01, 32, 1e-4
 
@@ -205,8 +205,8 @@ def test_a_fabric_file_draws_loads_per_width_from_the_origin_and_its_shape(tmp_p
     and its crimp against the larger of the two loads, from the as-woven state (0, 0), in
     line styles and markers of their own, so both stay visible; shape.png draws the
     deformed cell as the `dynfab fabric` report does, from the file's positions."""
-    from dynfab.geometry import crimp
-    from dynfab.plot import plot_fabric, plot_fabric_shape
+    from dynfab.model.geometry import crimp
+    from dynfab.plots.figures import plot_fabric, plot_fabric_shape
     from dynfab.run import run_to_file
     from dynfab.scene import load_scene
 
@@ -262,7 +262,7 @@ def test_a_frame_force_is_drawn_linearly_from_the_origin_and_its_wall_apart(tmp_
     logarithmic panel; the meeting marked on the angle axis."""
     from test_shear_specimens import FRAME
 
-    from dynfab.specimen_plots import CLIP_HEAD, plot_shear_force
+    from dynfab.plots.specimen import CLIP_HEAD, plot_shear_force
     results = specimen_file(tmp_path, FRAME.replace("side = 0.06", "side = 0.022"),
                             [2e-3, 5e-3, 7.5e-3, 8.5e-3, 9.2e-3], "frame")
     force = results.steps["clamp_force"]
@@ -286,7 +286,7 @@ def test_a_bias_force_names_its_step_0_and_is_drawn_from_it_too(tmp_path):
     the start) is drawn beside it and recorded (steps/clamp_force_from_step_0)."""
     from test_shear_specimens import BIAS
 
-    from dynfab.specimen_plots import plot_shear_force
+    from dynfab.plots.specimen import plot_shear_force
     results = specimen_file(tmp_path, BIAS, [1e-3, 2e-3], "bias")
     steps = results.steps
     np.testing.assert_allclose(steps["clamp_force_from_step_0"],
@@ -308,8 +308,8 @@ def test_plot_data_draws_a_measured_curve_over_the_computed_one(tmp_path):
     curve.write_text("end_displacement [m],clamp_force [N]\n0.001,0.05\n0.002,0.07\n")
     main(["plot", str(tmp_path / "frame.h5"), "--out", str(tmp_path / "figures"), "--data",
           str(curve)])
-    from dynfab.plot import measured_points
-    from dynfab.specimen_plots import plot_shear_force
+    from dynfab.plots.figures import measured_points
+    from dynfab.plots.specimen import plot_shear_force
     results = read_results(tmp_path / "frame.h5")
     by_d = plot_shear_force(results, measured_points(results, curve)).axes[0]
     drawn = [line for line in by_d.get_lines() if line.get_label() == "measured: lab_curve"]
@@ -335,7 +335,7 @@ def test_plot_data_with_the_wrong_columns_names_those_expected_and_found(tmp_pat
 
 
 def synthetic_study_table():
-    """A 2 x 2 grid study's table (dynfab.study_table's layout): keys a [m] and b (no
+    """A 2 x 2 grid study's table (dynfab.studies.table's layout): keys a [m] and b (no
     units), a per-family path observable `strain` (warp, weft) and its last-step value."""
     import xarray as xr
     a, b = np.repeat([1.0, 2.0], 2), np.tile([0.1, 0.2], 2)
@@ -357,7 +357,7 @@ def test_a_study_figure_names_every_line_in_its_legend_in_its_colour_with_units(
     """Every line in the legend (the dashed components were not), a group's components in
     the legend's colour, a style entry per component (warp, weft), units on every axis
     label (a key without units says [-])."""
-    from dynfab.study_plots import _against_keys, _along_path, _per_case
+    from dynfab.studies.plots import _against_keys, _along_path, _per_case
     table = synthetic_study_table()
     fig = _against_keys(table, ["a", "b"], "final", table["final"],
                         _per_case(table, table["final"]))

@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 from dynfab.cli import _parser, main
-from dynfab.results import read_results
+from dynfab.results.file import read_results
 from dynfab.scene import load_scene, parse_scene_text
 from independent import PAPER_WARP, PAPER_WEFT, scene_toml
 

@@ -1,4 +1,4 @@
-"""The term registry (dynfab/terms/registry.py) drives the numba assembly and the reported energies.
+"""The term registry (dynfab/model/terms/registry.py) drives the numba assembly and the reported energies.
 
 - Terms switched off in a yarn (`Yarn.active`) add nothing, and the others add their
   docs/model.md energies: the energy vector holds 0 for the former and each closed form
@@ -24,12 +24,12 @@ import textwrap
 import numpy as np
 import pytest
 
-from dynfab import assembly
-from dynfab.banded import zeros_band
-from dynfab.model import build_model, initial_state
-from dynfab.observables import finish_step
-from dynfab.terms import registry
-from dynfab.terms.friction import INDEX as FRICTION
+from dynfab.model import assembly
+from dynfab.solvers.banded import zeros_band
+from dynfab.model.yarn import build_model, initial_state
+from dynfab.results.observables import finish_step
+from dynfab.model.terms import registry
+from dynfab.model.terms.friction import INDEX as FRICTION
 from independent import (EPS, contact_forces, dense, fd_gradient, fd_jacobian, scene_gralen,
                          yarn_energies)
 
@@ -156,7 +156,7 @@ TETHER = '''
 """A test term: a spring of stiffness K [N/m] holding the middle node at its rest height."""
 import numba
 
-from dynfab.banded import band_add
+from dynfab.solvers.banded import band_add
 
 K = 50.0
 
@@ -186,15 +186,15 @@ import sys
 import numpy as np
 sys.path.insert(0, sys.argv[1])
 import tether
-sys.modules["dynfab.terms.tether"] = tether
-from dynfab.terms import registry
+sys.modules["dynfab.model.terms.tether"] = tether
+from dynfab.model.terms import registry
 registry.TERMS += (registry.Term("tether", "test spring", lambda scene: True, "energy/tether"),)
 registry.NAMES += ("tether",)
 
-from dynfab import assembly
-from dynfab.banded import zeros_band, BANDWIDTH
-from dynfab.model import build_model, initial_state
-from dynfab.observables import finish_step
+from dynfab.model import assembly
+from dynfab.solvers.banded import zeros_band, BANDWIDTH
+from dynfab.model.yarn import build_model, initial_state
+from dynfab.results.observables import finish_step
 from dynfab.scene import parse_scene_text
 sys.path.insert(0, sys.argv[2])
 from independent import scene_toml

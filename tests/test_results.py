@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from dynfab.errors import UserError
-from dynfab.results import UNITS, ResultFile, read_results, units_of
+from dynfab.results.file import UNITS, ResultFile, read_results, units_of
 
 REPO = Path(__file__).resolve().parents[1]
 YARNS, NODES, CROSSINGS = 2, 17, 4
@@ -182,7 +182,7 @@ def test_create_is_exclusive_even_against_a_file_appearing_after_the_checks(
         tmp_path, monkeypatch, writer_running, hard_links):
     """Two runs on one new file: the one that publishes second must fail, not replace
     (also on a file system without hard links, where O_EXCL claims the name)."""
-    import dynfab.results as results
+    import dynfab.results.file as results
 
     path = tmp_path / "x.h5"
     holder = []
@@ -249,13 +249,13 @@ def test_resume_and_read_refuse_missing_or_foreign_files(tmp_path):
 def test_unknown_names_and_inconsistent_steps_are_rejected(tmp_path):
     path = tmp_path / "run.h5"
     out = create(path)
-    with pytest.raises(ValueError, match="not in dynfab.results.UNITS"):
+    with pytest.raises(ValueError, match="not in dynfab.results.file.UNITS"):
         out.append_step({**make_step(0), "tension": np.ones(YARNS)})
     with pytest.raises(ValueError, match="energy term"):
         out.append_step({"energy/bad-name": np.ones(YARNS)})
-    with pytest.raises(ValueError, match="not in dynfab.results.UNITS"):
+    with pytest.raises(ValueError, match="not in dynfab.results.file.UNITS"):
         out.append_frame({"load": np.ones(YARNS)})
-    with pytest.raises(ValueError, match="not in dynfab.results.UNITS"):
+    with pytest.raises(ValueError, match="not in dynfab.results.file.UNITS"):
         ResultFile.create(tmp_path / "r.h5", attrs=make_attrs(), reference={"velocities": np.ones(3)})
     assert out.step_count == 0 and read_results(path).step_count == 0
 
@@ -284,7 +284,7 @@ def test_resume_removes_temporary_files_of_dead_writers(tmp_path):
 CHILD = """
 import sys
 import numpy as np
-from dynfab.results import ResultFile
+from dynfab.results.file import ResultFile
 
 out = ResultFile.resume(sys.argv[1])
 print("ready", flush=True)

@@ -22,7 +22,7 @@ import pytest
 
 import dynfab
 from dynfab import budget, scene as scene_module
-from dynfab.domain import check_not_folded
+from dynfab.model.domain import check_not_folded
 from dynfab.errors import SolverError, UserError
 from dynfab.scene import scene_to_toml, validate_scene, with_key
 from independent import PAPER_FRICTION, PAPER_WARP, PAPER_WEFT, make_scene

@@ -1,5 +1,5 @@
 """The sparse Newton's per-crossing secant weights (docs/model.md 11.10,
-`dynfab.newton_sparse.kinked` and `next_secant_weights`): which crossings a step takes across
+`dynfab.solvers.newton_sparse.kinked` and `next_secant_weights`): which crossings a step takes across
 their Huber kink, from the geometry of the slip's path against the stick disk
 |S| <= F_T / k_t, and how the weights follow."""
 
@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from dynfab.newton_sparse import KINK_TURN, SECANT_FLOOR, SECANT_GROWTH, kinked, \
+from dynfab.solvers.newton_sparse import KINK_TURN, SECANT_FLOOR, SECANT_GROWTH, kinked, \
     next_secant_weights
 
 LIMIT, STICK = 1.0, 1e3  # F_T [N], k_t [N/m]: the stick radius is 1 mm

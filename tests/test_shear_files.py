@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from dynfab import run
-from dynfab.plot import plot_results
+from dynfab.plots.figures import plot_results
 from dynfab.run import run_to_file
 from dynfab.scene import parse_scene_text
 from test_fabric_scenes import assert_same_steps, run_interrupted
@@ -37,7 +37,7 @@ def resumed_run(scene, tmp_path):
 
 
 def test_a_resumed_bias_file_has_the_uninterrupted_normalised_force(tmp_path):
-    """Harrison's normalisation reads the whole curve so far (dynfab.shear_force), and a step
+    """Harrison's normalisation reads the whole curve so far (dynfab.results.shear_force), and a step
     starts along the last step's path tangent: a resumed run gives the model the finished
     steps' forces and positions, so every step is the uninterrupted run's."""
     bias = BIAS.replace("width = 0.06", "width = 0.025").replace("height = 0.12", "height = 0.05")
@@ -71,8 +71,8 @@ def test_a_study_of_a_specimen_gathers_the_serial_runs(tmp_path):
     import xarray as xr
 
     from dynfab.scene import scene_to_toml
-    from dynfab.study import study
-    from dynfab.study_file import load_study
+    from dynfab.studies.study import study
+    from dynfab.studies.file import load_study
     from test_study import serial
 
     (tmp_path / "base.toml").write_text(scene_to_toml(small_frame()))

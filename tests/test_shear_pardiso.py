@@ -1,7 +1,7 @@
 """PARDISO against SuperLU on the fabric's static paths (docs/model.md section 11.10).
 
 Where MKL is installed, the Newton solves and the certificate factor by PARDISO's L D L^T;
-SuperLU otherwise (`dynfab.fabric.ordering.symmetric_factor`). The two factorisations give
+SuperLU otherwise (`dynfab.model.fabric.ordering.symmetric_factor`). The two factorisations give
 different rounding, not different equilibria: each run's error bound
 (`steps/error_estimate`) bounds |x - x*|_inf of its positions from the step's exact
 equilibrium x* (to first order), so where both reach the same equilibrium
@@ -24,7 +24,7 @@ import numpy as np
 import pytest
 
 from dynfab import run
-from dynfab.fabric import pardiso
+from dynfab.model.fabric import pardiso
 from dynfab.scene import load_scene, parse_scene_text
 from test_shear_dynamic import CASES
 from test_shear_specimens import scene_text

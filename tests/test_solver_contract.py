@@ -1,4 +1,4 @@
-"""The solver contracts (`dynfab.solver`) and the load the model prescribes (`dynfab.loading`).
+"""The solver contracts (`dynfab.solvers.contract`) and the load the model prescribes (`dynfab.model.loading`).
 
 Both load-step solvers are `Solver`s and give records of the same names when
 driven through the contract alone; the transient mode is a `Transient`; a run
@@ -13,17 +13,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dynfab.dynamic import DynamicSolver, DynamicTransient
+from dynfab.solvers.dynamic import DynamicSolver, DynamicTransient
 from dynfab.errors import UserError
-from dynfab.loading import load_at_time, prescribe_load
-from dynfab.model import build_model, initial_state
-from dynfab.results import MACHINE_TIMES, units_of
+from dynfab.model.loading import load_at_time, prescribe_load
+from dynfab.model.yarn import build_model, initial_state
+from dynfab.results.file import MACHINE_TIMES, units_of
 from dynfab.run import run
 from dynfab.scene import load_scene, scene_keys, with_key
-from dynfab.solver import FRAME_KEYS, STEP_KEYS, Solver, Transient
-from dynfab.static import StaticSolver
-from dynfab.solvers import make_solver
-from dynfab.terms import registry
+from dynfab.solvers.contract import FRAME_KEYS, STEP_KEYS, Solver, Transient
+from dynfab.solvers.static import StaticSolver
+from dynfab.solvers.by_name import make_solver
+from dynfab.model.terms import registry
 from dynfab.reports.fabric_data import paper_patch_scene
 from independent import PAPER_FRICTION, PAPER_WARP, PAPER_WEFT, make_scene
 
@@ -119,9 +119,9 @@ def small_scene(model: str, boundary: str):
 @pytest.mark.parametrize("name", ["static", "dynamic"])
 @pytest.mark.parametrize("kind", model_kinds(), ids=lambda kind: "-".join(filter(None, kind)))
 def test_every_model_and_method_keeps_the_contract(kind, name):
-    """Every kind of model, each solver method through `dynfab.solvers.make_solver`: a
+    """Every kind of model, each solver method through `dynfab.solvers.by_name.make_solver`: a
     `Solver` (not a `Transient`), whose step through the contract alone records every name of
-    STEP_KEYS, each with its units (`dynfab.results.UNITS`), the energies the registry names,
+    STEP_KEYS, each with its units (`dynfab.results.file.UNITS`), the energies the registry names,
     and the model's domain check passes."""
     model = build_model(small_scene(*kind))
     solver = make_solver(model, name)
@@ -195,7 +195,7 @@ def package_files() -> dict[str, Path]:
 
 def solver_modules(files: dict[str, Path]) -> set[str]:
     """The modules that define a solver: a class (not a contract) with `attrs` and `step` or
-    `advance`, the members of `dynfab.solver.Solver` and `Transient`: found, not listed, so
+    `advance`, the members of `dynfab.solvers.contract.Solver` and `Transient`: found, not listed, so
     a new model's or method's solver is covered by construction."""
     found = set()
     for module, path in files.items():
@@ -212,15 +212,15 @@ def test_no_solver_module_imports_another():
     """The solvers share the model side, never each other: no module that defines a solver
     imports another such module, and no module a solver imports (the model side: model,
     loading, observables, certificate, assembly, ...) imports a solver. Only the factory
-    `dynfab.solvers` names them all."""
+    `dynfab.solvers.by_name` names them all."""
     files = package_files()
     solvers = solver_modules(files)
-    assert {"dynfab.static", "dynfab.dynamic"} <= solvers  # the search finds today's at least
+    assert {"dynfab.solvers.static", "dynfab.solvers.dynamic"} <= solvers  # the search finds today's at least
     for module in solvers:
         assert not imports_of(files[module]) & (solvers - {module}), module
     model_side = {name for module in solvers for name in imports_of(files[module])
                   if name in files and name not in solvers}
-    for module in model_side - {"dynfab.solvers"}:
+    for module in model_side - {"dynfab.solvers.by_name"}:
         assert not imports_of(files[module]) & solvers, module
 
 

@@ -10,10 +10,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from dynfab.fabric import contact, spatial
-from dynfab.model import build_model
+from dynfab.model.fabric import contact, spatial
+from dynfab.model.yarn import build_model
 from dynfab.scene import parse_scene_text
-from dynfab.terms import contact as contact_law
+from dynfab.model.terms import contact as contact_law
 from test_shear_specimens import FRAME, scene_text
 
 SMALL_FRAME = FRAME.replace("side = 0.06", "side = 0.022")

@@ -19,9 +19,9 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from dynfab.fabric import spatial
-from dynfab.model import build_model
-from dynfab.newton_sparse import SparseNewton
+from dynfab.model.fabric import spatial
+from dynfab.model.yarn import build_model
+from dynfab.solvers.newton_sparse import SparseNewton
 from test_certificate import ROD_EI, ROD_L, ROD_PCR, SHORTENINGS, elastica_load, rod_scene
 
 STIFFER_OUT_OF_PLANE = 100.0

@@ -1,9 +1,9 @@
 """The spatial terms in the Warp kernel layer against the host's (docs/model.md section 11).
 
-The kernels' force on the free dofs must be -dV/dr of `dynfab.fabric.spatial.gradient` with
+The kernels' force on the free dofs must be -dV/dr of `dynfab.model.fabric.spatial.gradient` with
 F_T from Gralen's law at the same positions (the dynamic solver's residual is the static
-solver's), their energy `dynfab.fabric.spatial.energy_vector`'s sum, and their return map
-`dynfab.fabric.spatial.return_map`'s anchors. Both sides are float64 evaluations of the same
+solver's), their energy `dynfab.model.fabric.spatial.energy_vector`'s sum, and their return map
+`dynfab.model.fabric.spatial.return_map`'s anchors. Both sides are float64 evaluations of the same
 formulas in different orders, so they agree to rounding: 1e-12 of the largest force (or
 energy term) allows ~4,500 eps of accumulated sums over a node's elements, far above what
 reordering a handful of terms costs and far below any formula error (a wrong sign or factor
@@ -19,10 +19,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from dynfab.fabric import contact, spatial
-from dynfab.fabric.specimen_model import SpecimenModel
+from dynfab.model.fabric import contact, spatial
+from dynfab.model.fabric.specimen_model import SpecimenModel
 from dynfab.scene import parse_scene_text
-from dynfab.terms.spatial import crossing_coordinates
+from dynfab.model.terms.spatial import crossing_coordinates
 from test_shear_specimens import BIAS, FRAME, HOLDING_FRICTION, scene_text
 
 wp = pytest.importorskip("warp")

@@ -20,11 +20,11 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from dynfab.model import build_model
-from dynfab.newton_sparse import SparseNewton
+from dynfab.model.yarn import build_model
+from dynfab.solvers.newton_sparse import SparseNewton
 from dynfab.scene import load_scene
-from dynfab.static import StaticSolver
-from dynfab.structure import Structure, chain_of_node
+from dynfab.solvers.static import StaticSolver
+from dynfab.model.structure import Structure, chain_of_node
 
 RUNS = Path(__file__).resolve().parents[1] / "runs"
 

@@ -1,4 +1,4 @@
-"""Element energies of the spatial fabric (dynfab.terms.spatial, docs/model.md section 11):
+"""Element energies of the spatial fabric (dynfab.model.terms.spatial, docs/model.md section 11):
 each gradient and Hessian against central finite differences, second order shown; stencils with
 a repeated node; invariance under rigid in-plane motions; the vertical-plane reduction to the
 planar bending; the friction return map; analytic values.
@@ -27,8 +27,8 @@ import math
 import numpy as np
 import pytest
 
-from dynfab.terms import bending, spatial
-from dynfab.terms.contact import CLOSED, NATURAL, OPEN
+from dynfab.model.terms import bending, spatial
+from dynfab.model.terms.contact import CLOSED, NATURAL, OPEN
 
 EPS = np.finfo(float).eps
 L = 1e-3
@@ -320,10 +320,10 @@ def test_huber3_values_and_derivatives():
 
 
 def test_a_secant_weight_blends_the_sliding_curvature_with_its_secant():
-    """Newton's blend (dynfab.newton_sparse): weight w gives (1 - w) d2H + w (F_T / |s|) I on
-    a sliding crossing, in the plane (dynfab.fabric.friction) and in space; a sticking
+    """Newton's blend (dynfab.solvers.newton_sparse): weight w gives (1 - w) d2H + w (F_T / |s|) I on
+    a sliding crossing, in the plane (dynfab.model.fabric.friction) and in space; a sticking
     crossing keeps k_t I whatever w."""
-    from dynfab.fabric import friction as planar
+    from dynfab.model.fabric import friction as planar
     S = np.array([3.0, 4.0, 12.0]) * 1e-5          # sliding: k_t |S| = 0.13 N > F_T
     exact, secant, blend = np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))
     spatial.huber3_hessian(S, LIMIT, STICK, 0.0, exact)

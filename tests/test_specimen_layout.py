@@ -1,4 +1,4 @@
-"""The shear specimens' layout (dynfab.specimen_layout, docs/model.md section 11): yarns,
+"""The shear specimens' layout (dynfab.model.specimen_layout, docs/model.md section 11): yarns,
 nodes, crossings, held nodes and zones against hand counts and the geometric definitions,
 and the nominal kinematics against closed forms (Cao et al. 2008 eqs. 1-2 and 13)."""
 
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from dynfab.errors import UserError
-from dynfab.specimen_layout import (
+from dynfab.model.specimen_layout import (
     bias_extension, bias_limit, frame_map, held_positions, held_velocity, nominal_shear_angle,
     picture_frame, shear_angles)
 

@@ -8,7 +8,7 @@ checks and where its tolerance comes from (solver residual over the
 smallest stiffness, float64 rounding, or the physics of the trend).
 
 Contact forces used for Gralen's law are solved here from the positions
-(scipy, docs/model.md section 3), independently of dynfab.terms.contact.
+(scipy, docs/model.md section 3), independently of dynfab.model.terms.contact.
 """
 
 from __future__ import annotations
@@ -19,8 +19,8 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize
 
-from dynfab import assembly
-from dynfab.model import initial_state
+from dynfab.model import assembly
+from dynfab.model.yarn import initial_state
 from dynfab.scene import expand_sweep, load_scene
 from independent import (EPS, PAPER_FRICTION, PAPER_WARP, PAPER_WEFT, contact_forces, dense,
                          make_scene, pull, run, scene_gralen)
@@ -61,7 +61,7 @@ def jacobian(yarn, positions, anchors, coupled=True):
 def test_newton_agrees_with_scipy_trust_exact_within_the_residual_bound():
     # Frictionless paper yarn, N = 64, 4 crossings, prestressed, one force step
     # P = 0.3 N from the as-woven state. scipy's trust-exact minimises the same
-    # V (dynfab.assembly energies / gradient / banded Hessian made dense) from
+    # V (dynfab.model.assembly energies / gradient / banded Hessian made dense) from
     # the same start. Both are stationary points with residuals r_N, r_S:
     #   g(x_S) - g(x_N) = Hbar (x_S - x_N),  Hbar = mean Hessian on the segment,
     #   ||x_S - x_N||_2 <= ||g(x_S) - g(x_N)||_2 / lambda_min(Hbar),
@@ -363,8 +363,8 @@ def test_every_step_meets_the_tolerance_and_gralens_law(figure, request):
 def test_a_step_of_several_yarns_reports_each_yarn_within_itself():
     """`status` is called within a step after each yarn of a batch (a yarn's Newton runs
     compiled and cannot report): the progress line of a long sweep step."""
-    from dynfab.model import build_model
-    from dynfab.static import StaticSolver
+    from dynfab.model.yarn import build_model
+    from dynfab.solvers.static import StaticSolver
 
     model = build_model(paper_yarn(64, 16, {"control": "force", "values": [0.1]}, yarns=2))
     calls = []

@@ -11,14 +11,14 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from dynfab.friction_chain import CHAIN
-from dynfab.model import build_model
-from dynfab.newton_banded import BandedNewton
-from dynfab.newton_sparse import SparseNewton
+from dynfab.solvers.friction_chain import CHAIN
+from dynfab.model.yarn import build_model
+from dynfab.solvers.newton_banded import BandedNewton
+from dynfab.solvers.newton_sparse import SparseNewton
 from dynfab.scene import expand_sweep, load_scene, with_key
-from dynfab.solvers import make_solver
-from dynfab.static import StaticSolver
-from dynfab.structure import grounded
+from dynfab.solvers.by_name import make_solver
+from dynfab.solvers.static import StaticSolver
+from dynfab.model.structure import grounded
 
 RUNS = Path(__file__).resolve().parent.parent / "runs"
 SCENES = sorted(p for p in RUNS.glob("*.toml") if not p.name.startswith("study_"))

@@ -1,13 +1,13 @@
-"""The one data model (`dynfab.structure`): both models' scenes are chains, ties and held dofs
+"""The one data model (`dynfab.model.structure`): both models' scenes are chains, ties and held dofs
 (docs/model.md, "The structure"). Expected values come from the scene's own numbers and the
 geometry of docs/model.md sections 1 and 10, not from the builders."""
 
 import numpy as np
 from independent import PAPER_FRICTION, PAPER_WARP, PAPER_WEFT, make_scene
 
-from dynfab.builders import build_structure
+from dynfab.model.builders import build_structure
 from dynfab.scene import load_scene
-from dynfab.structure import GROUND, chain_count, chain_nodes, chain_ties, grounded
+from dynfab.model.structure import GROUND, chain_count, chain_nodes, chain_ties, grounded
 
 
 def closures(structure, positions):

@@ -24,9 +24,9 @@ import xarray as xr
 
 import dynfab
 from dynfab.errors import UserError
-from dynfab.results import MACHINE_TIMES, finished_counts, read_results
-from dynfab.study import StudyFolder, study
-from dynfab.study_file import load_position, load_study, parse_study_text
+from dynfab.results.file import MACHINE_TIMES, finished_counts, read_results
+from dynfab.studies.study import StudyFolder, study
+from dynfab.studies.file import load_position, load_study, parse_study_text
 
 BASE = '''
 [geometry]
@@ -367,7 +367,7 @@ def test_the_local_cluster_workers_keep_glibcs_own_trim_rule(monkeypatch):
     """Dask's nanny sets MALLOC_TRIM_THRESHOLD_ = 65536 in the workers it spawns, which made a
     16 x 16 patch's case 1.3 x slower (docs/results.md, "Studies on a Dask cluster"); the
     study's own cluster leaves it unset (unless the user's environment sets it)."""
-    from dynfab.study import _cluster
+    from dynfab.studies.study import _cluster
 
     monkeypatch.delenv("MALLOC_TRIM_THRESHOLD_", raising=False)
     with _cluster(None, 1) as client:
@@ -377,7 +377,7 @@ def test_the_local_cluster_workers_keep_glibcs_own_trim_rule(monkeypatch):
 def test_the_live_line_fits_80_columns_and_its_time_left_counts_down():
     # "time left: after the fi" was cut at 80 columns: the counts come first and whole, the
     # other parts only as far as they fit; between two ends the time left falls
-    from dynfab.study import fit_line, time_left
+    from dynfab.studies.study import fit_line, time_left
     parts = ["cases: 12 finished, 3 failed, 2 running, 183 waiting of 200",
              "about 14 min left", "1 worker lost", "2 cases rerun"]
     line = fit_line(parts, 80)

@@ -23,9 +23,9 @@ import pytest
 import xarray as xr
 
 import dynfab
-from dynfab.results import finished_counts
-from dynfab.study import study
-from dynfab.study_file import load_study
+from dynfab.results.file import finished_counts
+from dynfab.studies.study import study
+from dynfab.studies.file import load_study
 from test_study import serial, wait_for, write_study
 
 START_LIMIT_S = 120

@@ -28,11 +28,11 @@ import numpy as np
 import pytest
 from scipy.special import ellipe
 
-from dynfab import assembly, geometry
-from dynfab.banded import zeros_band
-from dynfab.model import build_model
+from dynfab.model import assembly, geometry
+from dynfab.solvers.banded import zeros_band
+from dynfab.model.yarn import build_model
 from dynfab.scene import with_key
-from dynfab.terms import bending, contact, friction, gravity, load, registry, stretch
+from dynfab.model.terms import bending, contact, friction, gravity, load, registry, stretch
 from independent import (closure_of_force, contact_energy, dense, fd_gradient, fd_jacobian,
                          yarn_energies)
 
@@ -496,13 +496,13 @@ def test_eq4_is_eq2_at_the_crossings(alpha_we):
 
 
 def test_secant_friction_stiffness_majorises_the_huber_potential():
-    """Newton uses F_T/|s0| on a sliding crossing after a shortened step (dynfab/static.py).
+    """Newton uses F_T/|s0| on a sliding crossing after a shortened step (dynfab/solvers/static.py).
 
     Claim (friction.add_hessian): q(s) = H(s0) + H'(s0)(s - s0) + 1/2 (F_T/|s0|)(s - s0)^2
     lies above H(s) for every s, because |s| <= s^2/(2|s0|) + |s0|/2 and the Huber
     potential is the stick-clipped |s|. Checked on a grid to rounding (16 eps of the scale).
     """
-    from dynfab.banded import zeros_band
+    from dynfab.solvers.banded import zeros_band
 
     k_t, F_T = 3.07e4, 6e-3
     rng = np.random.default_rng(27)

@@ -26,14 +26,14 @@ import numpy as np
 import pytest
 
 from dynfab import run
-from dynfab.builders import woven_rest
-from dynfab.builders.fabric import fabric_structure
+from dynfab.model.builders import woven_rest
+from dynfab.model.builders.fabric import fabric_structure
 from dynfab.errors import UserError
-from dynfab.fabric import assembly, contact
-from dynfab.fabric.model import FabricModel
-from dynfab.fabric.specimen_model import SpecimenModel
+from dynfab.model.fabric import assembly, contact
+from dynfab.model.fabric.model import FabricModel
+from dynfab.model.fabric.specimen_model import SpecimenModel
 from dynfab.scene import parse_scene_text
-from dynfab.static import StaticSolver
+from dynfab.solvers.static import StaticSolver
 from independent import EPS, PAPER_FRICTION, fabric_scene, held_family, record_inverse_norm
 from test_shear_specimens import BIAS, FRAME, scene_text
 
@@ -275,9 +275,9 @@ def test_a_yarn_set_by_beam_theory_presses_its_crossings_with_the_preload():
 def test_dynfab_plot_draws_the_contact_after_step_0_and_its_free_end_band(tmp_path):
     # The band of section 10's free ends, drawn (`dynfab plot`: contact_field.png): over the
     # specimen, and the median against the rank from a free yarn end.
-    from dynfab.plot import plot_results
-    from dynfab.results import read_results
-    from dynfab.specimen_plots import plot_contact_field
+    from dynfab.plots.figures import plot_results
+    from dynfab.results.file import read_results
+    from dynfab.plots.specimen import plot_contact_field
 
     out = tmp_path / "bias.h5"
     run(parse_scene_text(scene_text(BIAS, [1e-3])), solver="static", out=out)

@@ -1,8 +1,8 @@
-"""The view of a result file (`dynfab.xdmf`, `dynfab.views`), read back as its users read it:
+"""The view of a result file (`dynfab.results.xdmf`, `dynfab.results.views`), read back as its users read it:
 with plain meshio (``meshio.xdmf.TimeSeriesReader``, no subclass) and with VTK's XDMF
 reader (``vtkXdmfReader``, ParaView's "XDMF Reader"), each compared with the HDF5 file
 read by h5py. Expected values come from the HDF5 datasets and from the scene (plane
-spacing), never from dynfab.xdmf or dynfab.views.
+spacing), never from dynfab.results.xdmf or dynfab.results.views.
 """
 
 import re
@@ -23,7 +23,7 @@ from vtkmodules.vtkCommonExecutionModel import vtkStreamingDemandDrivenPipeline
 from vtkmodules.vtkIOXdmf2 import vtkXdmfReader
 
 import dynfab
-from dynfab.results import ResultFile, finished_counts, units_of
+from dynfab.results.file import ResultFile, finished_counts, units_of
 from dynfab.run import run_to_file
 
 VTK_POLY_LINE = 4
@@ -160,7 +160,7 @@ def expected_times(loads) -> np.ndarray:
 
 
 def test_a_view_s_time_is_the_load_and_a_cycle_s_the_step_number():
-    from dynfab.xdmf import step_times
+    from dynfab.results.xdmf import step_times
     np.testing.assert_array_equal(step_times(np.array([0.0, 1e-3, 2e-3])), [0.0, 1e-3, 2e-3])
     np.testing.assert_array_equal(step_times(np.array([0.1, 0.2, 0.1])), [1.0, 2.0, 3.0])
 
@@ -232,7 +232,7 @@ def test_the_view_refers_to_the_hdf5_file_and_copies_no_data(finished):
         views = []
         h5["view"].visititems(lambda name, obj: views.append(f"view/{name}")
                               if isinstance(obj, h5py.Dataset) else None)
-        for name in views:  # every dataset has its units (dynfab.results.UNITS)
+        for name in views:  # every dataset has its units (dynfab.results.file.UNITS)
             assert h5[name].attrs["units"] == units_of(name), name
     assert text.count("<Grid Name=\"steps ") == len(LOADS)
     assert {int(n.split("/")[3]) for n in names if n.startswith("view/steps/")} == \

@@ -1,7 +1,7 @@
 """Helpers the reports share: the output folder, the machine, the CSV, JSON and text writers,
 and the paper's yarns (cut to fewer crossings for the quick reports).
 
-Figure helpers (saving, a new figure, the axis style) are dynfab.plot's.
+Figure helpers (saving, a new figure, the axis style) are dynfab.plots.figures's.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from typing import Callable, Iterable, Sequence
 import numpy as np
 
 from dynfab.errors import UserError
-from dynfab.plot_style import output_folder  # noqa: F401 (the reports' --out check)
+from dynfab.plots.style import output_folder  # noqa: F401 (the reports' --out check)
 from dynfab.scene import Load, Scene, expand_sweep, load_scene, validate_scene, with_key
 
 RUNS = Path(__file__).resolve().parents[2] / "runs"

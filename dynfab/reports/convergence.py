@@ -50,9 +50,9 @@ import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
-from dynfab import assembly
-from dynfab.model import build_model
-from dynfab.plot_style import FONT_SIZE, new_figure, save_png, style_axes
+from dynfab.model import assembly
+from dynfab.model.yarn import build_model
+from dynfab.plots.style import FONT_SIZE, new_figure, save_png, style_axes
 from dynfab.reports.common import (cut_yarn, default_stick_stiffness, output_folder, paper_yarns,
                                    report_header, with_path, write_csv, write_summary, write_text)
 from dynfab.run import run
@@ -436,7 +436,7 @@ def orders_markdown(summary: dict) -> str:
 
 
 # --------------------------------------------------------------------------
-# Figures (matplotlib Figure + Agg, as dynfab.plot).
+# Figures (matplotlib Figure + Agg, as dynfab.plots.figures).
 
 
 def _parameter_text(study: str, value: float) -> str:

@@ -38,13 +38,13 @@ from typing import Callable
 
 import numpy as np
 
-from dynfab.fabric.model import FabricModel
+from dynfab.model.fabric.model import FabricModel
 from dynfab.reports.common import machine, output_folder, write_json, write_text
 from dynfab.reports.fabric_data import (eq4_against_beam, FULL, PATHS, QUICK, YARNS, Plan, cell_scene, crimp_percent,
                                         load_per_width, strain_percent, width_per_yarn,
                                         yarn_nodes)
 from dynfab.reports.fabric_plots import draw_figures
-from dynfab.static import StaticSolver
+from dynfab.solvers.static import StaticSolver
 
 
 def run_fabric(out_dir, *, quick: bool = False,

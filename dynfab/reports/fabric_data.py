@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dynfab.geometry import tensioned_beam_stiffness, weft_stiffness
+from dynfab.model.geometry import tensioned_beam_stiffness, weft_stiffness
 from dynfab.scene import Scene, scene_from_tables
 
 SPACING = 0.1 / 16

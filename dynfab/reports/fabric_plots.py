@@ -18,8 +18,8 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Rectangle
 
-from dynfab.plot_style import DPI, FAMILY_ALPHA, FAMILY_STYLE, FAMILY_WIDTH, FONT_SIZE, new_figure
-from dynfab.plot_style import style_axes as _plot_style
+from dynfab.plots.style import DPI, FAMILY_ALPHA, FAMILY_STYLE, FAMILY_WIDTH, FONT_SIZE, new_figure
+from dynfab.plots.style import style_axes as _plot_style
 from dynfab.reports.fabric_data import (PATHS, crimp_percent, larger_load, load_per_width,
                                         strain_percent)
 
@@ -119,7 +119,7 @@ def plot_cell(data: dict, heading: str | None = None) -> Figure:
     the last step of every path over their as-woven shapes (z exaggerated), and a top view
     of each path's last step, crossings coloured by contact force (the upper yarn drawn over
     the crossing). `heading`: the figure's title (default: the report's cell, `_title`);
-    `dynfab plot` draws a result file's steps as the paths (`dynfab.plot.plot_fabric_shape`),
+    `dynfab plot` draws a result file's steps as the paths (`dynfab.plots.figures.plot_fabric_shape`),
     each with its curves' `label`."""
     paths = data["paths"]
     fig = new_figure(8.0, 7.2)

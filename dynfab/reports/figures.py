@@ -8,9 +8,9 @@ settings (`run(scene, solver="dynamic")`: explicit, kinetic damping, fictitious 
 residual 1e-8 N). Into `out_dir` it writes:
 
 * the four standard dynfab result files ``fig3_static.h5``, ``fig3_dynamic.h5``,
-  ``fig5_static.h5``, ``fig5_dynamic.h5`` (`dynfab.results` layout, so ``dynfab plot``
+  ``fig5_static.h5``, ``fig5_dynamic.h5`` (`dynfab.results.file` layout, so ``dynfab plot``
   draws its standard figures from each; a run writes its ParaView view ``.xdmf`` beside
-  it, `dynfab.xdmf`). A file is solved again only when it is missing
+  it, `dynfab.results.xdmf`). A file is solved again only when it is missing
   or stale (unreadable, written from another scene, by another solver or dynfab
   version, or with fewer load steps than the scene has);
 * the report's figures, drawn by `draw_figures` from those four files alone:
@@ -51,10 +51,10 @@ from typing import Callable
 import numba
 import numpy as np
 
-from dynfab import assembly
-from dynfab.banded import BANDWIDTH, constrain, lu_factor, lu_solve, to_dense
+from dynfab.model import assembly
+from dynfab.solvers.banded import BANDWIDTH, constrain, lu_factor, lu_solve, to_dense
 from dynfab.errors import UserError
-from dynfab.model import build_model
+from dynfab.model.yarn import build_model
 from dynfab.reports.common import (cut_yarn, output_folder, paper_scene_file, report_header,
                                    with_path, write_json)
 from dynfab.reports.figures_data import (FIGURES, SOLVERS, STRAIN_STAGE, at_strain,
@@ -63,11 +63,11 @@ from dynfab.reports.figures_data import (FIGURES, SOLVERS, STRAIN_STAGE, at_stra
                                          read_figure_data, result_name, scene_of, solver_pair,
                                          state_codes, strain_percent, width)
 from dynfab.reports.figures_plots import draw_figures
-from dynfab.results import Results, dynfab_version, read_results
+from dynfab.results.file import Results, dynfab_version, read_results
 from dynfab.run import run
 from dynfab.scene import Scene, parse_scene_text, scene_to_toml
-from dynfab.terms.friction import INDEX as FRICTION
-from dynfab.xdmf import xdmf_path
+from dynfab.model.terms.friction import INDEX as FRICTION
+from dynfab.results.xdmf import xdmf_path
 
 
 # Thresholds of the trend checks (see `check_trends` for the reasons).

@@ -11,8 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-from dynfab.friction_states import friction_states
-from dynfab.results import Results, read_results
+from dynfab.results.friction_states import friction_states
+from dynfab.results.file import Results, read_results
 from dynfab.scene import Scene, expand_sweep, parse_scene_text
 
 FIGURES = {"fig3": "paper_fig3.toml", "fig5": "paper_fig5.toml"}
@@ -109,5 +109,5 @@ def friction_gap(results: Results) -> np.ndarray:
 
 
 def state_codes(results: Results, yarn: int) -> np.ndarray:
-    """(steps, crossings) friction state codes of one yarn (`dynfab.friction_states`)."""
+    """(steps, crossings) friction state codes of one yarn (`dynfab.results.friction_states`)."""
     return friction_states(results, yarn)

@@ -18,14 +18,14 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
-from dynfab.friction_states import FRICTION_STATES
-from dynfab.plot_style import DPI, FONT_SIZE, new_figure
-from dynfab.plot_style import style_axes as _plot_style
+from dynfab.results.friction_states import FRICTION_STATES
+from dynfab.plots.style import DPI, FONT_SIZE, new_figure
+from dynfab.plots.style import style_axes as _plot_style
 from dynfab.reports.figures_data import (STRAIN_STAGE, force_per_width, friction_gap,
                                          friction_split, k_order, kawabata_K, length,
                                          mean_contact_force, read_figure_data, scene_of,
                                          solver_pair, state_codes, strain_percent, width)
-from dynfab.results import Results
+from dynfab.results.file import Results
 
 FONT = 8.5
 """Smallest font size [pt] of the report's figures (legends, ticks); labels are 9 pt."""
@@ -43,7 +43,7 @@ def draw_figures(out_dir, data=None) -> list[Path]:
     return [out / name for name in figures]
 
 
-# dynfab.plot's axis style with this report's tick labels (FONT) and titles (9 pt)
+# dynfab.plots.figures's axis style with this report's tick labels (FONT) and titles (9 pt)
 style_axes = partial(_plot_style, tick_size=FONT, title_size=FONT_SIZE)
 
 
@@ -181,7 +181,7 @@ SNAPSHOT_HEIGHT = 0.62
 
 STATE_MARKERS = {1: dict(color="C0", mfc="C0"), 2: dict(color="C3", mfc="white"),
                  0: dict(color="0.5", mfc="0.5")}
-"""Crossing markers of `plot_shapes` by state code (`dynfab.friction_states` order)."""
+"""Crossing markers of `plot_shapes` by state code (`dynfab.results.friction_states` order)."""
 
 
 def plot_shapes(data) -> Figure:

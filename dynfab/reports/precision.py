@@ -52,7 +52,7 @@ comparison), and the solve at the scene's `static.tolerance` (1e-11 N by default
 `dynfab run` does. Errors are shown no lower than the position rounding floor
 eps max|x| / A_wa.
 scipy's L-BFGS-B minimises the same energy
-(`dynfab.assembly`) over the free dofs with ``gtol`` = the tolerance; with friction,
+(`dynfab.model.assembly`) over the free dofs with ``gtol`` = the tolerance; with friction,
 whose F_T depends on the contact forces (docs/model.md section 4: not a pure minimisation), it
 alternates minimisations with F_T frozen and F_T updates until the residual with the
 current F_T meets the tolerance or stops falling.
@@ -77,13 +77,13 @@ from typing import Callable
 import numpy as np
 from threadpoolctl import threadpool_info, threadpool_limits
 
-from dynfab import assembly
-from dynfab.banded import to_dense
-from dynfab.dynamic import DynamicSolver
+from dynfab.model import assembly
+from dynfab.solvers.banded import to_dense
+from dynfab.solvers.dynamic import DynamicSolver
 from dynfab.errors import SolverError
-from dynfab.model import Model, State, build_model, initial_state
-from dynfab.observables import finish_step
-from dynfab.plot_style import save_png
+from dynfab.model.yarn import Model, State, build_model, initial_state
+from dynfab.results.observables import finish_step
+from dynfab.plots.style import save_png
 from dynfab.reports.common import (cut_yarn, kernel_name, machine, output_folder, paper_yarns,
                                    write_csv, write_json, write_summary, write_text)
 from dynfab.reports.precision_plots import plot_error_vs_residual, plot_work_precision
@@ -91,11 +91,11 @@ from dynfab.reports.precision_points import (METHODS, Method, cheapest, method_l
                                              pareto_fronts, usable_points)
 from dynfab.reports.precision_tables import precision_markdown
 from dynfab.scene import Dynamic, Scene, expand_sweep, load_scene, with_key
-from dynfab.loading import prescribe_load
-from dynfab.newton_banded import max_free
-from dynfab.static import StaticSolver
+from dynfab.model.loading import prescribe_load
+from dynfab.solvers.newton_banded import max_free
+from dynfab.solvers.static import StaticSolver
 from dynfab.timing import best_time
-from dynfab.terms.friction import INDEX as FRICTION
+from dynfab.model.terms.friction import INDEX as FRICTION
 
 REFERENCE_TOLERANCE = 1e-13
 """Static tolerance of the start states and references [N]: below float64's floor at

@@ -1,7 +1,7 @@
 """Precision report figures: the work-precision and error-against-residual panels.
 
 Drawn from the summary `dynfab.reports.precision.run_precision` builds (matplotlib Figure +
-Agg, as dynfab.plot), one panel per case: ``work_precision_time.png``,
+Agg, as dynfab.plots.figures), one panel per case: ``work_precision_time.png``,
 ``work_precision_evaluations.png`` and ``error_vs_residual.png``.
 """
 
@@ -12,7 +12,7 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.ticker import NullFormatter
 
-from dynfab.plot_style import FONT_SIZE, new_figure, style_axes
+from dynfab.plots.style import FONT_SIZE, new_figure, style_axes
 from dynfab.reports.precision_points import (METHODS, method_label, pareto_front,
                                              shown_error, usable_points)
 

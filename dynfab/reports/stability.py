@@ -57,13 +57,13 @@ from typing import Callable
 
 import numpy as np
 
-from dynfab import assembly
-from dynfab.banded import BANDWIDTH, to_dense
-from dynfab.dynamic import DynamicSolver
+from dynfab.model import assembly
+from dynfab.solvers.banded import BANDWIDTH, to_dense
+from dynfab.solvers.dynamic import DynamicSolver
 from dynfab.errors import UserError, SolverError
 from dynfab.kernels import status
-from dynfab.model import build_model, initial_state
-from dynfab.plot_style import save_png
+from dynfab.model.yarn import build_model, initial_state
+from dynfab.plots.style import save_png
 from dynfab.reports.common import (cut_yarn, default_stick_stiffness, kernel_name,
                                    output_folder, paper_yarns as common_paper_yarns,
                                    report_header, with_load, write_csv, write_summary, write_text)
@@ -72,7 +72,7 @@ from dynfab.reports.stability_cases import (EXPLICIT, FULL, METHODS, QUICK, QUIC
 from dynfab.reports.stability_plots import plot_map
 from dynfab.reports.stability_tables import stability_markdown
 from dynfab.scene import Dynamic, Scene, with_key
-from dynfab.static import StaticSolver
+from dynfab.solvers.static import StaticSolver
 
 PERTURBATION = 1e-9
 """Standard deviation [m] of the random displacement of the inner nodes before a bisection
@@ -576,7 +576,7 @@ def linear_stable_dts(model, relaxed) -> dict:
 
 
 def _largest_symmetric_eigenvalue(band: np.ndarray) -> float:
-    """lambda_max of a symmetric banded matrix (`dynfab.banded` layout)."""
+    """lambda_max of a symmetric banded matrix (`dynfab.solvers.banded` layout)."""
     n = band.shape[0]
     try:
         from scipy.linalg import eigvals_banded

@@ -1,7 +1,7 @@
 """Stability report figure: ``map.png``, measured against predicted stable time steps.
 
 Drawn from the cases `dynfab.reports.stability.run_stability` measures (matplotlib Figure +
-Agg, as dynfab.plot).
+Agg, as dynfab.plots.figures).
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import math
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
-from dynfab.plot_style import FONT_SIZE, new_figure
+from dynfab.plots.style import FONT_SIZE, new_figure
 from dynfab.reports.stability_cases import Plan
 from dynfab.scene import Dynamic
 

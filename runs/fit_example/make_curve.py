@@ -15,9 +15,9 @@ from pathlib import Path
 
 import numpy as np
 
-from dynfab.fit_models import FabricFit
+from dynfab.fitting.models import FabricFit
 from dynfab.scene import load_scene, with_key
-from dynfab.sensitivity import solve_path
+from dynfab.fitting.sensitivity import solve_path
 
 HERE = Path(__file__).parent
 NOISE, SEED = 2e-3, 2026

@@ -1,0 +1,452 @@
+"""The woven fabric's model side (docs/model.md section 10): what both fabric solvers share
+and neither owns.
+
+- `FabricState`: what changes during a run (positions, anchors, dissipation, work, end
+  forces); `as_woven_state`, the start of a run.
+- `FabricModel`: a fabric scene as the solvers see it, its structure (`dynfab.model.builders.fabric`),
+  yarn families and load path, and the model's own functions of a state: the sparse
+  Hessian with F_T frozen (`dynfab.model.fabric.assembly`, on the unknowns of its `Pattern`) that
+  the Newton solve and the certificate (`dynfab.solvers.certificate`) both factor; the load a step
+  prescribes at its start (`start_of_step`) and the state it ends in (`end_of_step`: the end
+  displacements, the loads' work, the dissipation); and the observables of a record:
+  strains, crimps, stresses per unit width, the loaded families, the widths per yarn, the
+  planes, the energy terms.
+
+The static solver (`dynfab.solvers.static`, its sparse backend) and the dynamic one of every model
+(`dynfab.solvers.dynamic`) import this module, never each other (`dynfab.solvers.contract`); each solves a step from
+`FabricModel.start_of_step` and hands its solution to `FabricModel.finish_step`, which
+makes the state and the record (`dynfab.solvers.step`).
+
+Record of one fabric step (n_wa warps of N+1 nodes, n_we wefts of M+1 nodes; Y = n_wa
++ n_we yarns, warps first):
+
+- load (2,): (warp, weft) value [N or m]; end_force, end_displacement (Y,) [N], [m];
+- positions (n_wa, N+1, 2): the warps' (x, z); weft_positions (n_we, M+1, 2): the
+  wefts' (y, z) [m];
+- strain, crimp (2,): (warp, weft) nominal strain and mean crimp [-]; stress (2,):
+  (warp, weft) load per unit width [N/m] (`FabricModel.stresses`);
+- slip_ratio: the largest slip ratio of the step's crossing nodes [-]
+  (`dynfab.model.domain.slip_ratios`; a run stops a step above 1/2, docs/model.md section 10);
+- contact_force, friction_limit, sliding (n_wa, n_we); friction_force, anchors
+  (n_wa, n_we, 2) [N], [m] (in-plane: warp x, weft y; the anchors relative to the planes);
+- warp_planes (n_wa,): the plane y = Y_k of each warp, weft_planes (n_we,): x = X_j of each
+  weft [m], where they are at the step's end (they move with "affine" planes and on the
+  periodic cell, docs/model.md section 10);
+- dissipated, work [J]; energy/<term> [J] per active term of the registry
+  (`dynfab.model.terms.registry`, its dataset names and order, as the one-yarn model's);
+- residual [N], iterations, friction_solves, rounding_floor; the certificate
+  (`dynfab.solvers.certificate.StepStability`, docs/model.md section 6): stable, buckled (an escape
+  from a saddle was taken), lowest_eigenvalue [N/m] (the lowest eigenvalue of the
+  frozen-F_T Hessian on the unknowns), lowest_eigenvalue_error [N/m] (lambda_min lies in
+  [lowest_eigenvalue - error, lowest_eigenvalue]), error_estimate [m] (residual x est
+  ||H^-1||_inf, the position error bound the accuracy check holds to static.accuracy or
+  dynamic.accuracy of the step's largest displacement), negative_eigenvalues; scalars;
+- with the dynamic solver, time_steps (the time steps of the step's relaxations, also its
+  iterations), and with the semi-implicit method cg_iterations (their CG iterations).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse
+
+from dynfab.model.builders.fabric import Family, families, fabric_structure
+from dynfab.model.domain import check_crossings_held, check_not_folded, fabric_slip_ratios
+from dynfab.model.fabric import assembly, contact, friction
+from dynfab.model.fabric.assembly import TERMS
+from dynfab.scene import Scene
+from dynfab.solvers.step import StepSolution, StepStart
+from dynfab.model.structure import Structure, chain_count
+from dynfab.model.terms import registry
+
+
+@dataclass
+class FabricState:
+    """What changes during a run (docs/model.md section 10)."""
+
+    positions: np.ndarray
+    """(in-plane coordinate, z) of every node (nodes, 2) [m]."""
+    anchors: np.ndarray
+    """Friction anchors xi per crossing (C, 2) [m], relative to the as-woven slip."""
+    dissipated: float = 0.0
+    """Cumulative friction dissipation [J]."""
+    work: float = 0.0
+    """Work of the end loads, trapezoid rule over the load steps [J]."""
+    end_force: np.ndarray | None = None
+    """End force along each yarn (Y,) [N]: the load (force control) or the reaction."""
+
+    def copy(self) -> "FabricState":
+        return FabricState(self.positions.copy(), self.anchors.copy(), self.dissipated,
+                           self.work, None if self.end_force is None else self.end_force.copy())
+
+
+def as_woven_state(structure: Structure) -> FabricState:
+    """As woven, anchors at zero slip, nothing dissipated, no end force."""
+    pos = structure.rest_position.copy()
+    anchors = np.zeros((structure.tie_a.size, 2))
+    anchors[:, 0] = pos[structure.tie_a, 0] - structure.tie_plane[:, 0]
+    grounded = structure.tie_b < 0
+    anchors[:, 1] = np.where(grounded, 0.0, pos[np.where(grounded, 0, structure.tie_b), 0]
+                             - structure.tie_plane[:, 1])
+    return FabricState(pos, anchors, end_force=np.zeros(chain_count(structure)))
+
+
+@dataclass
+class FabricModel:
+    """A fabric scene as the solvers see it: its structure (`dynfab.model.builders.fabric`), its yarn
+    families and its load path (docs/model.md section 10)."""
+
+    scene: Scene
+    structure: Structure
+    warp: Family
+    weft: Family
+
+    @classmethod
+    def from_scene(cls, scene: Scene, structure: Structure | None = None) -> "FabricModel":
+        """The model of a validated fabric scene; `structure` replaces the scene's own (a test
+        holding more dofs, say)."""
+        warp, weft = families(scene)
+        return cls(scene, fabric_structure(scene) if structure is None else structure, warp,
+                   weft)
+
+    @property
+    def warps(self) -> int:
+        return self.warp.count
+
+    @property
+    def wefts(self) -> int:
+        return self.weft.count
+
+    @property
+    def control(self) -> str:
+        return self.scene.load.control
+
+    @property
+    def pullout(self) -> int | None:
+        """The pulled warp (1-based), or None."""
+        return None if self.scene.pullout is None else self.scene.pullout.warp
+
+    @property
+    def load_values(self) -> np.ndarray:
+        """The load path (steps, 2): (warp value, weft value) per step [N or m]."""
+        load = self.scene.load
+        weft = load.weft_values if load.weft_values is not None else (0.0,) * len(load.values)
+        return np.column_stack([load.values, weft]).astype(float)
+
+    def split(self, nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """All nodes (nodes, 2) -> (warps (n_wa, N+1, 2), wefts (n_we, M+1, 2))."""
+        cut = self.warps * (self.warp.segments + 1)
+        return (nodes[:cut].reshape(self.warps, self.warp.segments + 1, 2),
+                nodes[cut:].reshape(self.wefts, self.weft.segments + 1, 2))
+
+    def reference(self) -> dict:
+        """The result file's `reference/`: both families as woven, the crossing nodes."""
+        warps, wefts = self.split(self.structure.rest_position)
+        nodes, weft_nodes = self.crossing_nodes()
+        return {"positions": warps, "weft_positions": wefts,
+                "crossing_nodes": nodes, "weft_crossing_nodes": weft_nodes}
+
+    def crossing_nodes(self) -> tuple[np.ndarray, np.ndarray]:
+        """(each warp's node of crossing j (n_we,), each weft's node of crossing k (n_wa,)):
+        (2j-1) N / (2 n_we) and (2k-1) M / (2 n_wa) (docs/model.md section 10)."""
+        return ((2 * np.arange(self.wefts) + 1) * self.warp.segments // (2 * self.wefts),
+                (2 * np.arange(self.warps) + 1) * self.weft.segments // (2 * self.warps))
+
+    @property
+    def labels(self) -> list[str]:
+        """One label per yarn, warps first."""
+        return ([f"warp {k + 1}" for k in range(self.warps)]
+                + [f"weft {j + 1}" for j in range(self.wefts)])
+
+    def step_load(self, index: int) -> np.ndarray:
+        """The load of step `index` of the path, (warp value, weft value) [N or m]: what
+        the fabric solvers take."""
+        return self.load_values[index]
+
+    def check_step(self, record: dict) -> None:
+        """SolverError if the step left the model's domain: a yarn folded back
+        (`dynfab.model.domain.check_not_folded`), or a crossing node carried more than half a
+        segment from its crossing (`dynfab.model.domain.check_crossings_held`); for every solver."""
+        check_not_folded(record, lambda: self.labels)  # labels made only for the message
+        g = self.scene.geometry
+        check_crossings_held(record, *self.crossing_nodes(), suggest_affine=(
+            g.boundary == "clamped" and g.planes == "fixed" and self.pullout is None))
+
+    def attrs(self) -> dict:
+        """Root attributes of a fabric's result file besides the solver's."""
+        scene = self.scene
+        return {"model": "fabric", "boundary": scene.geometry.boundary,
+                "planes": scene.geometry.planes,
+                "projected_length": self.warp.length, "weft_length": self.weft.length,
+                "width_per_yarn": self.weft.length / self.warps,
+                "length_per_weft": self.warp.length / self.wefts,
+                "reference_state": scene.geometry.reference, "load_control": self.control,
+                "yarn_labels": self.labels,
+                "terms": list(registry.active_terms(scene)), **({} if self.pullout is None
+                                          else {"pullout_warp": int(self.pullout)})}
+
+    def initial_state(self) -> FabricState:
+        """As woven, anchors at zero slip, nothing dissipated (`as_woven_state`)."""
+        return as_woven_state(self.structure)
+
+    def state_from_step(self, last: dict) -> FabricState:
+        """The state a finished step left (a resumed run continues from it)."""
+        nodes = np.concatenate([np.asarray(last["positions"]).reshape(-1, 2),
+                                np.asarray(last["weft_positions"]).reshape(-1, 2)])
+        return FabricState(nodes, np.array(last["anchors"]).reshape(self.warps * self.wefts, 2),
+                           float(last["dissipated"]), float(last["work"]),
+                           np.array(last["end_force"], float))
+
+    @property
+    def planes_move(self) -> bool:
+        """The planes X_j, Y_k follow the ends ("affine" planes, the periodic cell)."""
+        return bool(self.structure.plane_nodes_a.size or self.structure.plane_nodes_b.size)
+
+    def point_data(self, record: dict) -> dict:
+        """The XDMF view's nodal point data of a step (`dynfab.results.xdmf`): contact force and
+        the slip s (docs/model.md (10.7): in-plane coordinate - plane - anchor) at each
+        family's crossing nodes, 0 elsewhere; where the planes move, each node's plane
+        coordinate (`xdmf/plane`: the warps' y, `xdmf/weft_plane`: the wefts' x), which the
+        view draws them at."""
+        ref = self.reference()
+        R = np.asarray(record["contact_force"])
+        anchors = np.asarray(record["anchors"])
+        warp_planes, weft_planes = np.asarray(record["warp_planes"]), np.asarray(record["weft_planes"])
+        out = {}
+        for prefix, positions, nodes, force, anchor, crossed, own in (
+                ("", record["positions"], ref["crossing_nodes"], R, anchors[..., 0],
+                 weft_planes[None, :], warp_planes),
+                ("weft_", record["weft_positions"], ref["weft_crossing_nodes"], R.T,
+                 anchors[..., 1].T, warp_planes[None, :], weft_planes)):
+            positions = np.asarray(positions)
+            f, slip = np.zeros(positions.shape[:2]), np.zeros(positions.shape[:2])
+            f[:, nodes] = force
+            slip[:, nodes] = positions[:, nodes, 0] - crossed - anchor
+            out[f"xdmf/{prefix}contact_force"], out[f"xdmf/{prefix}slip"] = f, slip
+            if self.planes_move:
+                out[f"xdmf/{prefix}plane"] = np.repeat(own[:, None], positions.shape[1], axis=1)
+        return out
+
+    # ------------------------------------------------------------------ the Hessian
+
+    @property
+    def pattern(self) -> assembly.Pattern:
+        """The order of the Hessian's entries and its unknowns (`assembly.pattern_of`)."""
+        return assembly.pattern_of(self.structure)
+
+    def hessian(self, pos, anchors, limit, secant: float = 0.0) -> scipy.sparse.csc_matrix:
+        """The Hessian on the unknowns, F_T frozen (`assembly.sparse_hessian`)."""
+        return assembly.sparse_hessian(self.structure, pos, anchors, limit, secant)
+
+    def energies(self, pos, P, anchors, limit) -> np.ndarray:
+        """Each term's energy [J] (`assembly.energy_vector`)."""
+        return assembly.energy_vector(self.structure, pos, P, anchors, limit)
+
+    # ------------------------------------------------------------------ a load step
+
+    @property
+    def yarns(self) -> int:
+        """Warps and wefts, Y."""
+        return chain_count(self.structure)
+
+    def yarn_loads(self, warp_value: float, weft_value: float) -> np.ndarray:
+        """The load of each yarn (Y,) [N or m]: the family's value times its factor."""
+        f = self.structure
+        return np.where(f.chain_family == 0, warp_value, weft_value) * f.load_factor
+
+    def start_of_step(self, state: FabricState, load) -> StepStart:
+        """Where the step to `load` = (warp value, weft value) starts (`dynfab.solvers.step.StepStart`),
+        copies of the state's arrays: under force control the end forces are each yarn's load;
+        under displacement control they are 0 and the ends are moved to their prescribed
+        displacements (`prescribe`)."""
+        warp_value, weft_value = (float(v) for v in load)
+        loads = self.yarn_loads(warp_value, weft_value)
+        pos, anchors = state.positions.copy(), state.anchors.copy()
+        if self.control != "force":
+            self.prescribe(pos, loads)
+            loads = np.zeros(self.yarns)
+        return StepStart(np.array([warp_value, weft_value]), pos, anchors, loads)
+
+    @property
+    def groups(self) -> list[np.ndarray]:
+        """The structure's independent groups of chains: a patch or a cell is one."""
+        return [np.arange(self.yarns)]
+
+    def group_name(self, k: int) -> str:
+        """The patch (the one group) as messages name it: "fabric"."""
+        return "fabric"
+
+    def friction_limits(self, pos) -> np.ndarray:
+        """F_T (T,) [N] at `pos` (`dynfab.model.fabric.contact.friction_limits`)."""
+        return contact.friction_limits(pos, self.structure)
+
+    def frame(self, time: float, arrays: dict) -> dict:
+        """A transient frame (`dynfab.solvers.contract.FRAME_KEYS` in the record's layout: the warps'
+        positions, velocities and force, the wefts' as weft_positions, weft_velocities,
+        weft_force; contact_force (n_wa, n_we), anchors (n_wa, n_we, 2), the planes, the
+        energy of every active term and the kinetic energy [J], scalars) at `time` [s] from
+        the structure's flat arrays (`dynfab.solvers.contract.RunModel.frame`); the loads are those of
+        the ramp at `time` (`dynfab.model.loading.load_at_time`)."""
+        from dynfab.model.loading import load_at_time
+
+        pos = np.asarray(arrays["positions"], float)
+        anchors = np.asarray(arrays["anchors"], float)
+        frame = {"time": float(time)}
+        for name in ("positions", "velocities", "force"):
+            warps, wefts = self.split(np.asarray(arrays[name], float))
+            frame[name], frame[f"weft_{name}"] = warps, wefts
+        R = np.zeros(self.structure.tie_a.size)
+        contact.forces(pos, self.structure, R)
+        shape = (self.warps, self.wefts)
+        frame.update({"contact_force": R.reshape(shape), "anchors": anchors.reshape(*shape, 2),
+                      **self.planes(pos)})
+        P = (self.yarn_loads(*load_at_time(self, time)) if self.control == "force"
+             else np.zeros(self.yarns))
+        values = dict(zip(TERMS, self.energies(pos, P, anchors, self.friction_limits(pos))))
+        frame.update({registry.TERMS[registry.index(term)].dataset: float(values[term])
+                      for term in registry.active_terms(self.scene)})
+        frame["energy/kinetic"] = float(np.sum(arrays["kinetic_energy"]))
+        return {name: np.asarray(value) for name, value in frame.items()}
+
+    def frame_arrays(self, frame: dict) -> dict:
+        """The structure's flat arrays of a frame `frame` made (positions, velocities, force
+        (n, 2), anchors (T, 2), time): what a resumed transient restores."""
+        out = {name: np.concatenate([np.asarray(frame[name], float).reshape(-1, 2),
+                                     np.asarray(frame[f"weft_{name}"], float).reshape(-1, 2)])
+               for name in ("positions", "velocities", "force")}
+        anchors = np.asarray(frame["anchors"], float).reshape(-1, 2)
+        return {**out, "anchors": anchors, "time": float(frame["time"])}
+
+    def finish_step(self, state: FabricState, start: StepStart, solution: StepSolution):
+        """(new state, record) of the step `start` began, from the solver's `solution`
+        (`dynfab.solvers.contract.RunModel.finish_step`): the contact forces, the end forces (the load
+        under force control, else the reaction dV/du_N of the elastic terms and the friction
+        at F_T frozen), the anchors' radial return map and its dissipation, the loads' work,
+        and the record of the module docstring."""
+        f, pos, limit = self.structure, solution.positions, solution.limit
+        anchors = start.anchors.copy()
+        R = np.zeros(f.tie_a.size)
+        contact.forces(pos, f, R)
+        if self.control == "force":
+            end_force = np.asarray(start.chain_loads, float).copy()
+        else:
+            grad = np.zeros_like(pos)
+            assembly.gradient(pos, f, np.zeros(self.yarns), anchors, limit, grad)
+            end_force = grad[f.load_node, 0].copy()
+        sliding = np.zeros(f.tie_a.size, np.bool_)
+        friction_force = np.zeros((f.tie_a.size, 2))
+        lost = 0.0
+        if f.has_friction:
+            px, py = assembly.planes(pos, f)
+            lost = friction.return_map(pos, anchors, f, px, py, limit, sliding, friction_force)
+        new, u_new = self.end_of_step(state, pos, anchors, end_force, lost)
+        warps, wefts = self.split(pos)
+        shape = (self.warps, self.wefts)
+        record = {
+            "load": start.load.copy(), "end_force": end_force, "end_displacement": u_new,
+            "positions": warps, "weft_positions": wefts,
+            "strain": self.strains(pos), "stress": self.stresses(end_force),
+            "crimp": self.crimps(pos),
+            "contact_force": R.reshape(shape), "friction_limit": np.asarray(limit).reshape(shape),
+            "sliding": sliding.reshape(shape), "friction_force": friction_force.reshape(*shape, 2),
+            "anchors": anchors.reshape(*shape, 2), **self.planes(pos),
+            "dissipated": new.dissipated, "work": new.work,
+            **{name: np.asarray(value)[0] for name, value in solution.fields.items()},
+        }
+        P = end_force if self.control == "force" else np.zeros(self.yarns)
+        values = dict(zip(TERMS, self.energies(pos, P, anchors, limit)))
+        record.update({registry.TERMS[registry.index(term)].dataset: float(values[term])
+                       for term in registry.active_terms(self.scene)})
+        ratios = fabric_slip_ratios(record, *self.crossing_nodes())
+        record["slip_ratio"] = np.max(np.concatenate([r.ravel() for r in ratios]), initial=0.0)
+        return new, {name: np.asarray(value) for name, value in record.items()}
+
+    def prescribe(self, pos, loads) -> None:
+        """Displacement control, in place: u_N = load on each yarn, the increment spread
+        linearly along the yarn (a better start than the end node alone)."""
+        f = self.structure
+        for y in range(self.yarns):
+            a, b = f.chain_start[y], f.chain_start[y + 1]
+            rest = f.rest_position[a:b, 0]
+            increment = loads[y] - (pos[b - 1, 0] - rest[-1])
+            pos[a:b, 0] += increment * (rest - rest[0]) / (rest[-1] - rest[0])
+            pos[b - 1, 0] = rest[-1] + loads[y]
+
+    def end_of_step(self, state: FabricState, pos, anchors, end_force, lost: float):
+        """(the state a step from `state` ends in, the end displacements u (Y,) [m]): its
+        positions, return-mapped anchors and end forces [N]; the dissipation plus `lost` [J],
+        and the end loads' work by the trapezoid rule over the step [J]."""
+        f = self.structure
+        u_old = state.positions[f.load_node, 0] - f.rest_position[f.load_node, 0]
+        u_new = pos[f.load_node, 0] - f.rest_position[f.load_node, 0]
+        work = state.work + float(0.5 * (state.end_force + end_force) @ (u_new - u_old))
+        return FabricState(pos, anchors, state.dissipated + lost, work, end_force), u_new
+
+    def crossing_name(self, c: int) -> str:
+        """Crossing c as the scene counts it: "(warp k, weft j)", 1-based."""
+        k, j = divmod(int(c), self.wefts)
+        return f"(warp {k + 1}, weft {j + 1})"
+
+    def yarn_name(self, y: int) -> str:
+        """Yarn y (0-based, warps first) as the scene counts it: "warp k" or "weft j"."""
+        return f"warp {y + 1}" if y < self.warps else f"weft {y - self.warps + 1}"
+
+    # ------------------------------------------------------------------ observables
+
+    def crimps(self, pos) -> np.ndarray:
+        """Mean crimps (warp, weft) [-]: (arc length - projected length) / projected length of
+        each yarn (`dynfab.model.yarn.crimp`, the projected length its end-to-end extent along
+        itself), averaged over the family (docs/model.md section 10)."""
+        f = self.structure
+        crimp = np.empty(self.yarns)
+        for y in range(self.yarns):
+            chain = pos[f.chain_start[y]:f.chain_start[y + 1]]
+            arc = np.hypot(*np.diff(chain, axis=0).T).sum()
+            projected = chain[-1, 0] - chain[0, 0]
+            crimp[y] = (arc - projected) / projected
+        warp = f.chain_family == 0
+        return np.array([crimp[warp].mean(), crimp[~warp].mean()])
+
+    def families(self) -> tuple[np.ndarray, np.ndarray]:
+        """(warp mask, weft mask) (Y,) of the yarns a family's strain and stress average
+        over, its loaded yarns (docs/model.md section 10): under displacement control a
+        yarn of factor 0 is held, not loaded, and left out (a pull-out's other warps), unless
+        the whole family is; under force control a factor-0 yarn's end is free and counts."""
+        f = self.structure
+        loaded = (f.load_factor != 0) | (self.control == "force")
+        warp = f.chain_family == 0
+        out = []
+        for family in (warp, ~warp):
+            out.append(family & loaded if (family & loaded).any() else family)
+        return out[0], out[1]
+
+    def strains(self, pos) -> np.ndarray:
+        """Nominal strains (warp, weft): the mean end displacement of the family's loaded
+        yarns (`families`) over their length (docs/model.md section 10)."""
+        f = self.structure
+        u = pos[f.load_node, 0] - f.rest_position[f.load_node, 0]
+        return np.array([u[chosen].mean() / length for chosen, length
+                         in zip(self.families(), (self.warp.length, self.weft.length))])
+
+    def widths(self) -> np.ndarray:
+        """The width per yarn of each family [m], (warp, weft), as woven: a warp's is the
+        wefts' length over the warps, L_we / n_wa; a weft's L / n_we (docs/model.md
+        section 10)."""
+        return np.array([self.weft.length / self.warps, self.warp.length / self.wefts])
+
+    def stresses(self, end_force) -> np.ndarray:
+        """Loads per unit width (warp, weft) [N/m]: the mean end force of the family's
+        loaded yarns (`families`, the yarns of its strain) over its width per yarn
+        (`widths`): on the periodic cell and a patch under force control, the force the
+        family carries over the fabric's width; in a pull-out, the pulled warp's force over
+        its width (docs/model.md section 10)."""
+        end_force = np.asarray(end_force, float)
+        return np.array([end_force[chosen].mean() for chosen in self.families()]) / self.widths()
+
+    def planes(self, positions) -> dict:
+        """warp_planes (n_wa,) Y_k and weft_planes (n_we,) X_j [m] at `positions`
+        (`assembly.planes`: as woven, or moved with the ends)."""
+        x, y = assembly.planes(positions, self.structure)  # per crossing c = k n_we + j
+        return {"warp_planes": y[::self.wefts].copy(), "weft_planes": x[:self.wefts].copy()}

@@ -1,0 +1,246 @@
+"""What a run prints of its result file: a line per finished load step while it runs, the
+table of every step and the run's summary at its end (docs/model.md sections 1-10 name the
+quantities; `dynfab.results.file` their units).
+
+Each number says whose it is: a yarn's, a family's mean over its loaded yarns, a pull-out's
+pulled warp. The table and the summary read a result file's datasets (`Results`), so they
+print what a file holds, also a file written by an earlier run.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+
+from dynfab.model.domain import SLIP_LIMIT
+from dynfab.results.file import Results
+
+
+def step_line(index: int, total: int, record: dict, attrs: dict, unit: str) -> str:
+    """The progress line of a finished load step: its quantities (`_step_quantities`, `attrs`
+    the result file's root attributes), worst residual, iterations, time."""
+    return _progress_line(index, total, record, unit, _step_quantities(attrs, record, unit))
+
+
+def _progress_line(index: int, total: int, record: dict, unit: str, quantities: str) -> str:
+    """One line per finished load step: the step's `quantities` (`_step_quantities`), worst
+    residual, iterations, time."""
+    steps = record.get("time_steps", record["iterations"])
+    what = "time steps" if "time_steps" in record else "iterations"
+    buckled, stable = record.get("buckled"), record.get("stable")
+    note = ("  (buckled: left an unstable state)" if buckled is not None and buckled.any() else "")
+    if stable is not None and not stable.all():
+        note += "  (unstable: no escape lowered the energy; see steps/lowest_eigenvalue)"
+    return (f"[{index + 1:>{len(str(total))}}/{total}] {quantities}  "
+            f"residual {np.max(record['residual']):.2e} N  {what} {int(np.max(steps))}  "
+            f"{record['wall_time']:.3f} s{note}")
+
+
+def _step_quantities(attrs: dict, record: dict, unit: str) -> str:
+    """What a progress line shows of a step, each quantity saying whose it is: the load and
+    end displacement of the one-yarn model (the largest over its yarns when it has several);
+    a fabric's loads (warp, weft) and then, in a pull-out (`attrs["pullout_warp"]`), the
+    pulled warp's end displacement and pull force and the wefts' mean strain, otherwise
+    both families' strain and stress (means over their loaded yarns, docs/model.md
+    section 10), and its largest slip ratio (`dynfab.model.domain.slip_ratios`)."""
+    load = np.atleast_1d(record["load"])
+    if attrs.get("model") == "specimen":  # docs/model.md section 11
+        gamma = np.degrees(np.asarray(record["shear_angle"]))
+        return (f"d {1e3 * load[0]:.4g} mm  clamp force {float(record['clamp_force']):.4g} N  "
+                f"shear angle {np.median(gamma):.3g} deg (median), {gamma.max():.3g} (largest)"
+                f"  slip {float(record['slip_ratio']):.3f} of a segment")
+    if attrs.get("model") != "fabric":
+        u = 1e3 * np.atleast_1d(record["end_displacement"])
+        whose = f" (largest of {u.size} yarns)" if u.size > 1 else ""
+        return f"load {load[0]:.6g} {unit}  end displacement {u.max():.4f} mm{whose}"
+    text = f"load {load[0]:.6g}, {load[1]:.6g} {unit} (warp, weft)  "
+    strain, stress = 100 * np.asarray(record["strain"]), np.asarray(record["stress"])
+    if "pullout_warp" in attrs:
+        k = int(attrs["pullout_warp"])
+        text += (f"warp {k} (pulled): end displacement "
+                 f"{1e3 * record['end_displacement'][k - 1]:.4f} mm, pull force "
+                 f"{record['end_force'][k - 1]:.4g} N  wefts' mean strain {strain[1]:.4f} %")
+    else:
+        text += (f"mean strain {strain[0]:.4f}, {strain[1]:.4f} %, stress {stress[0]:.4g}, "
+                 f"{stress[1]:.4g} N/m (warp, weft)")
+    return text + f"  slip {float(record['slip_ratio']):.3f} of a segment"
+
+
+def _solver_time(steps) -> str:
+    """"X s in the solver" over the steps (`steps/wall_time`), the time spent compiling
+    (`steps/compile_time`, a first run's: later runs load the kernels from the caches) said
+    apart."""
+    wall = float(np.sum(steps["wall_time"]))
+    compiling = float(np.sum(steps["compile_time"])) if "compile_time" in steps else 0.0
+    text = f"{wall - compiling:.3f} s in the solver"
+    if compiling > 0.0:
+        text += f" and {compiling:.1f} s compiling kernels (first run only)"
+    return text
+
+
+def print_summary(results: Results, file=None) -> None:
+    """The summary table (per step, or per frame of a transient run), then the run's summary
+    (`run_summary`): its steps, solver time and final state; to `file`, else the standard
+    output at the time of the call (not at import: a caller may have replaced it since)."""
+    file = sys.stdout if file is None else file
+    if results.step_count == 0:
+        _print_frames_summary(results, file)
+    elif results.attrs.get("model") == "specimen":
+        _print_specimen_summary(results, file)
+    elif results.attrs.get("model") == "fabric":
+        _print_fabric_summary(results, file)
+    else:
+        _print_yarn_summary(results, file)
+    for line in run_summary(results):
+        print(line, file=file)
+
+
+def _print_yarn_summary(results: Results, file) -> None:
+    """The one-yarn model's table: per step and yarn, load, end displacement, end force,
+    largest contact force, residual, time."""
+    steps = results.steps
+    unit = "N" if results.attrs.get("load_control") == "force" else "m"
+    labels = results.attrs.get("yarn_labels") or []
+    header = (f"{'step':>4} {'yarn':>4} {'load [' + unit + ']':>12} {'u_end [mm]':>11} "
+              f"{'P [N]':>11} {'max R [N]':>11} {'residual [N]':>12} {'time [s]':>9}")
+    print(header, file=file)
+    contact = steps.get("contact_force")
+    for i in range(results.step_count):
+        for k in range(steps["load"].shape[1]):
+            largest = float(contact[i, k].max()) if contact is not None and contact.shape[-1] else 0.0
+            print(f"{i + 1:>4} {k + 1:>4} {steps['load'][i, k]:>12.6g} "
+                  f"{1e3 * steps['end_displacement'][i, k]:>11.5f} {steps['end_force'][i, k]:>11.5g} "
+                  f"{largest:>11.5g} {steps['residual'][i, k]:>12.3e} {steps['wall_time'][i]:>9.4f}",
+                  file=file)
+    for k, label in enumerate(labels):
+        print(f"yarn {k + 1}: {label}", file=file)
+
+
+def _print_specimen_summary(results: Results, file) -> None:
+    """A shear specimen's table (docs/model.md section 11): per step (step 1 is step 0, the
+    preload relaxed) the clamp displacement d, the clamp force along it, the median and
+    largest shear angle over the crossings, the largest contact force, slip ratio and slope,
+    the residual, the time."""
+    steps = results.steps
+    print(f"{'step':>4} {'d [mm]':>9} {'F [N]':>10} {'gamma med':>9} {'gamma max':>9} "
+          f"{'max R [N]':>10} {'slip/seg':>8} {'slope':>6} {'residual':>10} {'time [s]':>9}",
+          file=file)
+    for i in range(results.step_count):
+        gamma = np.degrees(np.asarray(steps["shear_angle"][i]))
+        print(f"{i + 1:>4} {1e3 * steps['load'][i, 0]:>9.4g} {steps['clamp_force'][i]:>10.4g} "
+              f"{np.median(gamma):>9.3f} {gamma.max():>9.3f} "
+              f"{steps['contact_force'][i].max():>10.4g} {steps['slip_ratio'][i]:>8.3f} "
+              f"{steps['max_slope'][i]:>6.3f} {float(np.max(steps['residual'][i])):>10.3e} "
+              f"{steps['wall_time'][i]:>9.4f}", file=file)
+    print("gamma: shear angle [deg] from step 0 over the crossings; F: force on the moved clamp "
+          "(frame corner) along d", file=file)
+
+
+def _print_fabric_summary(results: Results, file) -> None:
+    """A fabric's table (docs/model.md section 10), each column saying whose it is: per step
+    the (warp, weft) loads; in a pull-out the pulled warp's end displacement and pull force
+    and the wefts' mean strain and stress, otherwise each family's strain and stress (means
+    over its loaded yarns); the largest contact force and slip ratio, the residual, the time."""
+    steps, attrs = results.steps, results.attrs
+    unit = "N" if attrs.get("load_control") == "force" else "m"
+    pulled = attrs.get("pullout_warp")
+    strain, stress = _family_arrays(results, "strain"), _family_arrays(results, "stress")
+    slip = np.asarray(steps.get("slip_ratio", np.full(results.step_count, np.nan)), float)
+    if pulled is not None:
+        k = int(pulled)
+        middle = (f"{f'u w{k} [mm]':>10} {f'P w{k} [N]':>10} {'strain we':>10} "
+                  f"{'N_we [N/m]':>10}")
+        key = (f"w{k}: the pulled warp {k} (end displacement u, pull force P); strain we, "
+               f"N_we: the wefts' mean strain and load per unit width")
+    else:
+        middle = f"{'strain wa':>10} {'strain we':>10} {'N_wa [N/m]':>10} {'N_we [N/m]':>10}"
+        key = ("strain, N [N/m]: each family's mean strain and load per unit width over its "
+               "loaded yarns (wa: warps, we: wefts)")
+    print(f"{'step':>4} {'warp load':>11} {'weft load':>11} {middle} {'max R [N]':>10} "
+          f"{'slip/seg':>8} {'residual':>10} {'time [s]':>9}", file=file)
+    for i in range(results.step_count):
+        if pulled is not None:
+            values = (f"{1e3 * steps['end_displacement'][i, k - 1]:>10.5f} "
+                      f"{steps['end_force'][i, k - 1]:>10.4g} {strain[i, 1]:>10.4g} "
+                      f"{stress[i, 1]:>10.4g}")
+        else:
+            values = (f"{strain[i, 0]:>10.4g} {strain[i, 1]:>10.4g} {stress[i, 0]:>10.4g} "
+                      f"{stress[i, 1]:>10.4g}")
+        print(f"{i + 1:>4} {steps['load'][i, 0]:>11.5g} {steps['load'][i, 1]:>11.5g} {values} "
+              f"{steps['contact_force'][i].max():>10.4g} {slip[i]:>8.3f} "
+              f"{float(steps['residual'][i]):>10.2e} {steps['wall_time'][i]:>9.3f}", file=file)
+    print(f"loads in {unit}; {key}; slip/seg: the largest slip ratio of a crossing node "
+          f"(docs/model.md section 10)", file=file)
+
+
+def _family_arrays(results: Results, name: str) -> np.ndarray:
+    """(steps, 2) a fabric's per-family `steps/<name>`; NaN where the file lacks it (a file
+    written before `stress` was recorded)."""
+    value = results.steps.get(name)
+    return np.full((results.step_count, 2), np.nan) if value is None else np.asarray(value, float)
+
+
+def run_summary(results: Results) -> list[str]:
+    """The lines printed after a run's table: its load steps (or frames) and the solver time
+    summed over them (`steps/wall_time`), then the last step's state, each quantity saying
+    whose it is: a fabric's strains and stresses per family (means over the loaded yarns),
+    a pull-out's pulled warp and its peak pull force, the largest slip ratio; the one-yarn
+    model's end force and displacement per yarn (and load per unit width, with a weft)."""
+    if results.step_count == 0:
+        times = results.frames.get("time", [])
+        return [f"{len(times)} frames to t = {float(times[-1]) if len(times) else 0.0:.6g} s"]
+    steps, attrs = results.steps, results.attrs
+    lines = [f"{results.step_count} load steps, {_solver_time(steps)}"]
+    if attrs.get("model") == "fabric":
+        return lines + _fabric_summary(results)
+    if attrs.get("model") == "specimen":  # docs/model.md section 11
+        gamma = np.degrees(np.asarray(steps["shear_angle"][-1]))
+        return lines + [f"last step: d = {1e3 * float(steps['load'][-1, 0]):.5g} mm, clamp force "
+                        f"{float(steps['clamp_force'][-1]):.6g} N, shear angle "
+                        f"{np.median(gamma):.4g} deg (median over the crossings), largest slip "
+                        f"{float(steps['slip_ratio'][-1]):.3g} of a segment"]
+    labels = attrs.get("yarn_labels") or []
+    stress = steps.get("stress")
+    for k in range(np.asarray(steps["end_force"]).shape[1]):
+        label = labels[k] if k < len(labels) else f"yarn {k + 1}"
+        line = (f"last step, yarn {k + 1} ({label}): end force {steps['end_force'][-1, k]:.6g} N, "
+                f"end displacement {1e3 * steps['end_displacement'][-1, k]:.5f} mm")
+        if stress is not None:
+            line += f", load per unit width {stress[-1, k]:.6g} N/m"
+        lines.append(line)
+    return lines
+
+
+def _fabric_summary(results: Results) -> list[str]:
+    """`run_summary`'s lines on a fabric's last step, its pull-out and its slips."""
+    steps, attrs = results.steps, results.attrs
+    strain, stress = _family_arrays(results, "strain")[-1], _family_arrays(results, "stress")[-1]
+    lines = [f"last step: mean strain {100 * strain[0]:.5g} %, {100 * strain[1]:.5g} % and load "
+             f"per unit width {stress[0]:.6g}, {stress[1]:.6g} N/m (warp, weft: means over each "
+             f"family's loaded yarns)"]
+    if "pullout_warp" in attrs:
+        k = int(attrs["pullout_warp"])
+        force, u = steps["end_force"][:, k - 1], steps["end_displacement"][:, k - 1]
+        peak = int(np.argmax(force))
+        lines.append(f"pull-out of warp {k}: peak pull force {force[peak]:.6g} N at step "
+                     f"{peak + 1} (end displacement {1e3 * u[peak]:.5f} mm); last step "
+                     f"{force[-1]:.6g} N at {1e3 * u[-1]:.5f} mm")
+    if "slip_ratio" in steps:
+        slip = np.asarray(steps["slip_ratio"], float)
+        worst = int(np.argmax(slip))
+        lines.append(f"largest slip of a crossing node: {slip[worst]:.3f} of its segment, at "
+                     f"step {worst + 1} (a step stops above {SLIP_LIMIT:g}: docs/model.md "
+                     f"section 10)")
+    return lines
+
+
+def _print_frames_summary(results: Results, file) -> None:
+    """A transient run's table: per frame, time, kinetic energy and largest contact force."""
+    frames = results.frames
+    print(f"{'frame':>5} {'time [s]':>11} {'kinetic [J]':>12} {'max R [N]':>11}", file=file)
+    contact = frames.get("contact_force")
+    for i, time_s in enumerate(frames.get("time", [])):
+        largest = float(contact[i].max()) if contact is not None and contact[i].size else 0.0
+        print(f"{i:>5} {time_s:>11.6g} {frames['energy/kinetic'][i].max():>12.4g} {largest:>11.5g}",
+              file=file)
