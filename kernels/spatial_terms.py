@@ -45,6 +45,18 @@ def functions(scalar) -> SimpleNamespace:
     vec = vector(scalar, 3)
     huber_law = tie_law.huber_term(vec)
     Data = structure_arrays.struct(scalar, 3)
+    pair = wp.types.matrix(shape=(2, 3), dtype=scalar)
+    triple = wp.types.matrix(shape=(3, 3), dtype=scalar)
+
+    @wp.func(inline=True)
+    def rows2(a: vec, b: vec) -> pair:
+        """The 2 x 3 matrix of rows a, b."""
+        return pair(a[0], a[1], a[2], b[0], b[1], b[2])
+
+    @wp.func(inline=True)
+    def rows3(a: vec, b: vec, c: vec) -> triple:
+        """The 3 x 3 matrix of rows a, b, c."""
+        return triple(a[0], a[1], a[2], b[0], b[1], b[2], c[0], c[1], c[2])
 
     @wp.func(inline=True)
     def wrap(angle: scalar) -> scalar:
@@ -86,15 +98,23 @@ def functions(scalar) -> SimpleNamespace:
         return wrap(direction(b) - direction(a)) - data.lateral_rest_angle[j]
 
     @wp.func(inline=True)
-    def bend_forces(pos: wp.array(dtype=vec), data: Data, i: int, j: int, k: int,
-                    force: wp.array(dtype=vec)):
-        """force += -dE/dX of the bending spring at j (neighbours i, k) (module docstring)."""
+    def bend_gradients(pos: wp.array(dtype=vec), data: Data, i: int, j: int, k: int) -> pair:
+        """Rows (G1, G2) [N] of the bending spring at j (neighbours i, k): its forces are
+        (-G1, G1 + G2, -G2) on (i, j, k) (module docstring)."""
         a = pos[j] - pos[i]
         b = pos[k] - pos[j]
         mb = data.bend_stiffness[j] * elevation_excess(data, j, a, b)
         ml = data.lateral_bend_stiffness[j] * lateral_excess(data, j, a, b)
-        g1 = mb * elevation_gradient(a) + ml * direction_gradient(a)
-        g2 = mb * elevation_gradient(b) + ml * direction_gradient(b)
+        return rows2(mb * elevation_gradient(a) + ml * direction_gradient(a),
+                     mb * elevation_gradient(b) + ml * direction_gradient(b))
+
+    @wp.func(inline=True)
+    def bend_forces(pos: wp.array(dtype=vec), data: Data, i: int, j: int, k: int,
+                    force: wp.array(dtype=vec)):
+        """force += -dE/dX of the bending spring at j (neighbours i, k) (module docstring)."""
+        g = bend_gradients(pos, data, i, j, k)
+        g1 = g[0]
+        g2 = g[1]
         force[i] = force[i] - g1
         force[j] = force[j] + g1 + g2
         force[k] = force[k] - g2
@@ -138,9 +158,10 @@ def functions(scalar) -> SimpleNamespace:
         return wrap(q[2] - data.rotation_law[t, 2])
 
     @wp.func(inline=True)
-    def crossing_forces(pos: wp.array(dtype=vec), data: Data, t: int, huber: vec,
-                        force: wp.array(dtype=vec)):
-        """force += -dE/dX of crossing t, dHuber/dS = `huber` (module docstring)."""
+    def crossing_gradients(pos: wp.array(dtype=vec), data: Data, t: int, huber: vec) -> triple:
+        """Rows (g_ca, g_d, g_cb) [N] of crossing t, dHuber/dS = `huber` (module docstring):
+        its forces are +g_ca, +g_d, +g_cb on stencil slots 0, 1, 3 and their opposites on
+        slots 2, 4, 5 (`slot_force`)."""
         st = data.tie_stencil
         p0 = pos[st[t, 0]]
         p2 = pos[st[t, 2]]
@@ -166,14 +187,43 @@ def functions(scalar) -> SimpleNamespace:
         galpha = f0 * sy - f1 * sx - f2
         ra = cax * cax + cay * cay
         rb = cbx * cbx + cby * cby
-        gca = galpha * vec(-cay / ra, cax / ra, scalar(0.0))
-        gcb = f2 * vec(-cby / rb, cbx / rb, scalar(0.0))
+        return rows3(galpha * vec(-cay / ra, cax / ra, scalar(0.0)), gd,
+                     f2 * vec(-cby / rb, cbx / rb, scalar(0.0)))
+
+    @wp.func(inline=True)
+    def crossing_forces(pos: wp.array(dtype=vec), data: Data, t: int, huber: vec,
+                        force: wp.array(dtype=vec)):
+        """force += -dE/dX of crossing t, dHuber/dS = `huber` (module docstring)."""
+        st = data.tie_stencil
+        g = crossing_gradients(pos, data, t, huber)
+        gca = g[0]
+        gd = g[1]
+        gcb = g[2]
         force[st[t, 0]] = force[st[t, 0]] + gca
         force[st[t, 2]] = force[st[t, 2]] - gca
         force[st[t, 1]] = force[st[t, 1]] + gd
         force[st[t, 4]] = force[st[t, 4]] - gd
         force[st[t, 3]] = force[st[t, 3]] + gcb
         force[st[t, 5]] = force[st[t, 5]] - gcb
+
+    @wp.func(inline=True)
+    def crossing_slot_force(g: triple, slot: int) -> vec:
+        """The force [N] of a crossing with rows `g` (`crossing_gradients`) on its stencil's
+        node `slot` (0..5): +g_ca, +g_d, -g_ca, +g_cb, -g_d, -g_cb."""
+        force = vec()
+        if slot == 0:
+            force = g[0]
+        elif slot == 1:
+            force = g[1]
+        elif slot == 2:
+            force = -g[0]
+        elif slot == 3:
+            force = g[2]
+        elif slot == 4:
+            force = -g[1]
+        else:
+            force = -g[2]
+        return force
 
     @wp.func(inline=True)
     def gutowski_potential(s: scalar, w: scalar, packed: scalar) -> scalar:
@@ -235,9 +285,9 @@ def functions(scalar) -> SimpleNamespace:
         return data.lateral_law[e, 1] - d
 
     @wp.func(inline=True)
-    def lateral_forces(pos: wp.array(dtype=vec), data: Data, e: int,
-                       force: wp.array(dtype=vec)):
-        """force += -dE/dX of lateral contact e (module docstring)."""
+    def lateral_gradients(pos: wp.array(dtype=vec), data: Data, e: int) -> pair:
+        """Rows (g_c, g_v) [N] of lateral contact e, zero where it is open: its forces are
+        +g_c, -g_c, +g_v, -g_v on stencil slots 0..3 (module docstring)."""
         st = data.lateral_stencil
         c = pos[st[e, 1]] - pos[st[e, 0]]
         v = pos[st[e, 3]] - pos[st[e, 2]]
@@ -247,14 +297,25 @@ def functions(scalar) -> SimpleNamespace:
         n3 = n2 * n
         f = c[0] * v[1] - c[1] * v[0]
         d = sign * f / n
+        g = pair()
         if data.lateral_law[e, 1] - d > scalar(0.0):
             m = lateral_slope(data, e, d) * sign  # dE/dd x sign
-            gc = m * vec(v[1] / n - f * c[0] / n3, -v[0] / n - f * c[1] / n3, scalar(0.0))
-            gv = m * vec(-c[1] / n, c[0] / n, scalar(0.0))
-            force[st[e, 1]] = force[st[e, 1]] - gc
-            force[st[e, 0]] = force[st[e, 0]] + gc
-            force[st[e, 3]] = force[st[e, 3]] - gv
-            force[st[e, 2]] = force[st[e, 2]] + gv
+            g = rows2(m * vec(v[1] / n - f * c[0] / n3, -v[0] / n - f * c[1] / n3, scalar(0.0)),
+                      m * vec(-c[1] / n, c[0] / n, scalar(0.0)))
+        return g
+
+    @wp.func(inline=True)
+    def lateral_forces(pos: wp.array(dtype=vec), data: Data, e: int,
+                       force: wp.array(dtype=vec)):
+        """force += -dE/dX of lateral contact e (module docstring)."""
+        st = data.lateral_stencil
+        g = lateral_gradients(pos, data, e)
+        gc = g[0]
+        gv = g[1]
+        force[st[e, 1]] = force[st[e, 1]] - gc
+        force[st[e, 0]] = force[st[e, 0]] + gc
+        force[st[e, 3]] = force[st[e, 3]] - gv
+        force[st[e, 2]] = force[st[e, 2]] + gv
 
     @wp.func(inline=True)
     def lateral_energy(pos: wp.array(dtype=vec), data: Data, e: int) -> scalar:
@@ -277,7 +338,10 @@ def functions(scalar) -> SimpleNamespace:
             move = vec(m * S[0], m * S[1], m * S[2] / rho)
         return move
 
-    return SimpleNamespace(wrap=wrap, bend_forces=bend_forces, bend_energy=bend_energy,
+    return SimpleNamespace(wrap=wrap, bend_forces=bend_forces, bend_gradients=bend_gradients,
+                           bend_energy=bend_energy, crossing_gradients=crossing_gradients,
+                           crossing_slot_force=crossing_slot_force,
+                           lateral_gradients=lateral_gradients,
                            crossing_coordinates=crossing_coordinates, crossing_slip=crossing_slip,
                            huber_force=huber_law.force, huber_energy=huber_law.energy,
                            spring_excess=spring_excess, crossing_forces=crossing_forces,

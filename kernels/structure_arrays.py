@@ -156,6 +156,16 @@ class StructureArrays:
     contact (`dynfab.model.structure.Structure.lateral_law` without its branch)."""
     group_lateral: np.ndarray = field(default_factory=lambda: np.zeros(1, np.int64))
     """spatial: (G + 1,) group g's lateral contacts."""
+    node_stencil_start: np.ndarray = field(default_factory=lambda: np.zeros(1, np.int64))
+    """spatial: (n + 1,) node i's places in crossing stencils are
+    node_stencil[node_stencil_start[i]:node_stencil_start[i+1]] (the gather order's CSR)."""
+    node_stencil: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    """spatial: 6 t + slot for each crossing t whose stencil holds the node at `slot`, in
+    crossing order."""
+    node_lateral_start: np.ndarray = field(default_factory=lambda: np.zeros(1, np.int64))
+    """spatial: (n + 1,) node i's places in lateral stencils, as `node_stencil_start`."""
+    node_lateral: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    """spatial: 4 e + slot for each lateral contact e whose stencil holds the node at `slot`."""
 
     @property
     def nodes(self) -> int:
@@ -259,9 +269,14 @@ def _spatial(s: Structure, node_group: np.ndarray) -> dict:
     if np.any(np.diff(owner) < 0):
         raise ValueError("lateral contacts not in group order")
     groups = int(node_group.max(initial=0)) + 1
-    return dict(lateral_bend_stiffness=np.array(s.lateral_bend_stiffness, float),
+    stencil = np.asarray(s.tie_stencil, np.int64).reshape(-1, 6)
+    stencil_start, stencil_codes = _incidence(stencil, node_group.size)
+    lateral_start, lateral_codes = _incidence(lateral, node_group.size)
+    return dict(node_stencil_start=stencil_start, node_stencil=stencil_codes,
+                node_lateral_start=lateral_start, node_lateral=lateral_codes,
+                lateral_bend_stiffness=np.array(s.lateral_bend_stiffness, float),
                 lateral_rest_angle=np.array(s.lateral_rest_angle, float),
-                tie_stencil=np.asarray(s.tie_stencil, np.int64).reshape(-1, 6),
+                tie_stencil=stencil,
                 rotation_law=np.array(s.tie_rotation_law, float).reshape(-1, 3),
                 lateral_stencil=lateral,
                 # the unilateral law: (sign, w, k, A, s_a, s_core), without the branch
@@ -383,6 +398,14 @@ def _groups(s: Structure, node_chain: np.ndarray, boundary: dict, dim: int = 2) 
                 group_block=np.array(group_block), group_exact=exact,
                 block_start=np.array(block_start), node_group=chain_group[node_chain],
                 tie_group=tie_group, chain_group=chain_group, block_group=np.array(block_group))
+def _incidence(stencil: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Each node's places in the (E, K) `stencil` as a CSR list: (start (n + 1,), codes
+    K e + slot in element order), for the gather order of elements spanning several nodes."""
+    count, width = stencil.shape
+    codes = np.arange(count * width, dtype=np.int64)
+    nodes = stencil.reshape(-1)
+    order = np.lexsort((codes, nodes))
+    return np.searchsorted(nodes[order], np.arange(n + 1)), codes[order]
 
 
 def struct(scalar, dim: int = 2):
@@ -449,7 +472,11 @@ def _struct(scalar, dim: int):
             "lateral_rest_angle": wp.array(dtype=scalar),
             "tie_stencil": wp.array2d(dtype=wp.int32), "rotation_law": wp.array2d(dtype=scalar),
             "lateral_stencil": wp.array2d(dtype=wp.int32),
-            "lateral_law": wp.array2d(dtype=scalar), "group_lateral": wp.array(dtype=wp.int32)})
+            "lateral_law": wp.array2d(dtype=scalar), "group_lateral": wp.array(dtype=wp.int32),
+            "node_stencil_start": wp.array(dtype=wp.int32),
+            "node_stencil": wp.array(dtype=wp.int32),
+            "node_lateral_start": wp.array(dtype=wp.int32),
+            "node_lateral": wp.array(dtype=wp.int32)})
     return wp.struct(StructureData)
 
 

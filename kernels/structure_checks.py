@@ -439,8 +439,6 @@ def group_functions(scalar, friction: bool, boundary: bool, order: str,
     start's stages in turn, as the node-parallel layout launches them; spatial: without the
     planar band's stages, its Gershgorin rows given)."""
     dim = KINEMATICS[kinematics]
-    if dim == 3 and order != "scatter":
-        raise ValueError("the spatial kernels evaluate forces in the scatter order only")
     Data, State, Settings = structure_variants.structs(scalar, dim)
     checks = functions(scalar, friction, boundary, merit, kinematics)
     forces = structure_forces.functions(scalar, friction, boundary, kinematics)

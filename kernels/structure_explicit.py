@@ -310,9 +310,11 @@ def functions(scalar, friction: bool, boundary: bool,
         elif stage == START_BLOCKS:
             checks.block_stage(u, data, state)
         elif stage == STIFFEST_TIES:
-            checks.stiffest_tie(u, data, state)
+            if wp.static(dim == 2):  # spatial: the rows come from the host
+                checks.stiffest_tie(u, data, state)
         elif stage == STIFFEST_CHAINS:
-            checks.stiffest_chain(u, data, state)
+            if wp.static(dim == 2):
+                checks.stiffest_chain(u, data, state)
         elif stage == ROWS:
             checks.rows_node(u, data, state, settings)
         elif stage == START:
@@ -354,11 +356,11 @@ def functions(scalar, friction: bool, boundary: bool,
                            viscous_factors=viscous_factors, step_factors=step_factors)
 
 
-@structure_variants.variant("explicit", "node_parallel", planar_only=True)
+@structure_variants.variant("explicit", "node_parallel")
 def stage_kernel(scalar, friction: bool, boundary: bool, kinematics: str = "planar"):
     """The node-parallel layout's kernel: one launch per stage, a thread per unit."""
-    Data, State, Settings = structure_variants.structs(scalar)
-    ops = functions(scalar, friction, boundary)
+    Data, State, Settings = structure_variants.structs(scalar, KINEMATICS[kinematics])
+    ops = functions(scalar, friction, boundary, kinematics)
 
     @wp.kernel(module="unique", module_options=structure_settings.MODULE_OPTIONS)
     def stage_pass(data: Data, state: State, settings: Settings, stage: int):
@@ -372,7 +374,7 @@ def grouped_kernel(scalar, friction: bool, boundary: bool, order: str,
                    kinematics: str = "planar"):
     """The grouped layout's kernel: thread g runs group first + g, the start (`start` != 0)
     or up to settings.chunk time steps; `kinematics` "spatial": vec3 nodes and the spatial
-    terms (`structure_forces`), the scatter order only."""
+    terms (`structure_forces`), in either order."""
     dim = KINEMATICS[kinematics]
     Data, State, Settings = structure_variants.structs(scalar, dim)
     ops = functions(scalar, friction, boundary, kinematics)

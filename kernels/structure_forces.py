@@ -32,9 +32,11 @@ Variants: `friction` compiles the friction terms (without, F_T = 0 is never eval
 section 11) makes the nodes vec3 (x, y, z) and selects the spatial terms
 (`spatial_terms`: bending in two planes, each crossing's three-component Huber friction and
 rotation spring on its six-node stencil, the lateral contacts) beside the same stretch and
-contact along z, in the scatter order only (`scatter_terms`; a crossing's stencil spans six
-nodes of two chains, which the gather order's per-node lists do not hold); each tie's
-`friction` is then the force on its three-component slip, -dHuber/dS [N].
+contact along z, in both orders: the scatter adds each element's stencil forces once, the
+gather (`spatial_own_force`) evaluates each element at every node of its stencil, found in
+the per-node lists `node_stencil` and `node_lateral`; each element's forces come from one
+function either way (`spatial_terms`' `*_gradients`). Each tie's `friction` is then the
+force on its three-component slip, -dHuber/dS [N].
 """
 
 import functools
@@ -210,6 +212,55 @@ def functions(scalar, friction: bool, boundary: bool,
         return force
 
     @wp.func(inline=True)
+    def spatial_own_force(i: int, pos: wp.array(dtype=vec), data: Data, state: State) -> vec:
+        """-dV/dr_i (+ friction) [N] of node i of a spatial structure, gathered: its segments,
+        the bending springs at i and its neighbours, the crossings and lateral contacts whose
+        stencils hold it (each element evaluated at every node of its stencil), its ties'
+        contact along z; unmasked."""
+        before = data.previous[i]
+        after = data.next[i]
+        force = state.load[i] + data.weight[i]
+        if after >= 0:
+            force = force + segment_pull(pos, data, i)
+        if before >= 0:
+            force = force - segment_pull(pos, data, before)
+            if after >= 0:  # the spring at i
+                g = terms.bend_gradients(pos, data, before, i, after)
+                force = force + g[0] + g[1]
+            earlier = data.previous[before]
+            if earlier >= 0:  # the spring at i-1, node i its third
+                force = force - terms.bend_gradients(pos, data, earlier, before, i)[1]
+        if after >= 0:
+            later = data.next[after]
+            if later >= 0:  # the spring at i+1, node i its first
+                force = force - terms.bend_gradients(pos, data, i, after, later)[0]
+        for k in range(data.node_tie_start[i], data.node_tie_start[i + 1]):
+            t = data.node_ties[k]
+            up = along_z(data.tie_side[t] * state.contact[t])
+            if data.tie_a[t] == i:
+                force = force + up
+            else:
+                force = force - up
+        for k in range(data.node_stencil_start[i], data.node_stencil_start[i + 1]):
+            code = data.node_stencil[k]
+            t = code / 6
+            huber = vec()
+            if wp.static(friction):
+                huber = -state.friction[t]
+            force = force + terms.crossing_slot_force(
+                terms.crossing_gradients(pos, data, t, huber), code - 6 * t)
+        for k in range(data.node_lateral_start[i], data.node_lateral_start[i + 1]):
+            code = data.node_lateral[k]
+            e = code / 4
+            slot = code - 4 * e
+            row = terms.lateral_gradients(pos, data, e)[slot / 2]
+            if slot % 2 == 0:
+                force = force + row
+            else:
+                force = force - row
+        return force
+
+    @wp.func(inline=True)
     def plane_reaction(data: Data, state: State, group: int, family: int) -> scalar:
         """-sum_t w_t f_t [N] along the chain on each plane node of `family`, in tie order."""
         total = scalar(0.0)
@@ -221,8 +272,10 @@ def functions(scalar, friction: bool, boundary: bool,
     def node_force(i: int, pos: wp.array(dtype=vec), data: Data, state: State) -> vec:
         """-dV/dr_i [N] on node i's free dofs, gathered; on a plane node the planes' reaction;
         on a tied node its family's summed force (module docstring)."""
-        force = vec(scalar(0.0), scalar(0.0))
-        if wp.static(boundary):
+        force = vec()
+        if wp.static(spatial):
+            force = spatial_own_force(i, pos, data, state)
+        elif wp.static(boundary):
             family = data.node_tie[i]
             members = scalar(1.0)
             if family >= 0:

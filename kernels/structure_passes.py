@@ -12,32 +12,22 @@ from dynfab.kernels import structure_variants
 from dynfab.kernels.precision import KINEMATICS
 
 TIES, FORCES, NODE_ENERGY, TIE_ENERGY, RETURN_MAP, LATERAL_ENERGY = range(6)
-"""Passes (`pass_kernel`'s `which`): a thread per tie, node (spatial: group), node, tie, tie,
-lateral contact."""
+"""Passes (`pass_kernel`'s `which`): a thread per tie, node, node, tie, tie, lateral contact."""
 UNITS = {TIES: "ties", FORCES: "nodes", NODE_ENERGY: "nodes", TIE_ENERGY: "ties",
          RETURN_MAP: "ties", LATERAL_ENERGY: "laterals"}
-"""What each pass's threads run over (`StructureArrays` counts); a spatial structure's FORCES
-runs a thread per group (the scatter order: `structure_forces`)."""
+"""What each pass's threads run over (`StructureArrays` counts)."""
 
 
 @structure_variants.variant("passes", "-")
 def pass_kernel(scalar, friction: bool, boundary: bool, kinematics: str = "planar"):
     """Kernel run(data, state, which, out): TIES writes every tie's R, dR/dg, F_T and friction
-    force into the state; FORCES state.force = -dV/dr on the free dofs (after TIES; spatial:
-    every term's force of group u in the scatter order, masked); NODE_ENERGY, TIE_ENERGY and
-    LATERAL_ENERGY out[unit] = the energy the unit owns [J]; RETURN_MAP moves every anchor
+    force into the state; FORCES state.force = -dV/dr on the free dofs (after TIES),
+    gathered at node u; NODE_ENERGY, TIE_ENERGY and LATERAL_ENERGY out[unit] = the energy the unit owns [J]; RETURN_MAP moves every anchor
     radially, out[t] = the energy dissipated [J]."""
     dim = KINEMATICS[kinematics]
     Data = structure_arrays.struct(scalar, dim)
     State = structure_state.struct(scalar, dim)
     forces = structure_forces.functions(scalar, friction, boundary, kinematics)
-
-    @wp.func(inline=True)
-    def group_force(g: int, data: Data, state: State):
-        forces.scatter_init(g, data, state)
-        forces.scatter_terms(g, state.position, data, state)
-        for i in range(data.group_node[g], data.group_node[g + 1]):
-            state.force[i] = wp.cw_mul(state.force[i], data.free[i])
 
     @wp.kernel(module="unique", module_options=structure_settings.MODULE_OPTIONS)
     def run(data: Data, state: State, which: int, out: wp.array(dtype=scalar)):
@@ -45,10 +35,7 @@ def pass_kernel(scalar, friction: bool, boundary: bool, kinematics: str = "plana
         if which == TIES:
             forces.tie_pass(u, state.position, data, state)
         elif which == FORCES:
-            if wp.static(dim == 3):
-                group_force(u, data, state)
-            else:
-                state.force[u] = forces.node_force(u, state.position, data, state)
+            state.force[u] = forces.node_force(u, state.position, data, state)
         elif which == LATERAL_ENERGY:
             out[u] = forces.lateral_energy(u, state.position, data)
         elif which == NODE_ENERGY:

@@ -144,11 +144,9 @@ class StructureRelaxation:
         self.arrays = arrays = structure_arrays.build(structure)
         self.structure, self.dim = structure, arrays.dim
         self.kinematics = "spatial" if arrays.dim == 3 else "planar"
-        if self.spatial and (method, layout, order, precision) != (
-                "explicit", "grouped", "scatter", "float64"):
+        if self.spatial and method != "explicit":
             raise ValueError(f"a spatial structure (docs/model.md section 11) relaxes with the "
-                             f"explicit method, the grouped layout, its scatter order and "
-                             f"float64 only (asked: {method}, {layout}, {order}, {precision})")
+                             f"explicit method only (asked: {method})")
         self.method, self.layout, self.order, self.device = method, layout, order, device
         self.damping = damping if method == "explicit" else None
         self.coefficient = damping_coefficient
@@ -210,7 +208,7 @@ class StructureRelaxation:
             if self.layout == "grouped":
                 return structure_explicit.grouped_kernel(*key, self.order,
                                                          kinematics=self.kinematics)
-            return structure_explicit.stage_kernel(*key)
+            return structure_explicit.stage_kernel(*key, kinematics=self.kinematics)
         if self.layout == "grouped":
             return semi.grouped_kernel(*key, self.order)
         return semi.stage_kernel(*key)
@@ -504,14 +502,8 @@ class StructureRelaxation:
         """-dV/dr + the friction forces (n, 2) [N] on the free dofs (a tied family's summed on
         each of its nodes), the gather order's bits."""
         self._passes(positions, anchors, loads)
-        self._pass(structure_passes.FORCES, self._force_units)
+        self._pass(structure_passes.FORCES, self.arrays.nodes)
         return structure_state.read(self._scratch, "force")
-
-    @property
-    def _force_units(self) -> int:
-        """The FORCES pass's threads: a node each (the gather order), a group each (spatial:
-        the scatter order)."""
-        return self.arrays.groups if self.spatial else self.arrays.nodes
 
     def internal_force(self, positions, anchors=None) -> np.ndarray:
         """-dV/dr (+ friction) (n, 2) [N] without external loads or gravity, every dof
@@ -522,7 +514,7 @@ class StructureRelaxation:
                 a, self.scalar, self.device, free=np.ones_like(a.free),
                 weight=np.zeros_like(a.weight))
         self._passes(positions, anchors, None, self._reaction_data)
-        self._pass(structure_passes.FORCES, self._force_units, self._reaction_data)
+        self._pass(structure_passes.FORCES, self.arrays.nodes, self._reaction_data)
         return structure_state.read(self._scratch, "force")
 
     def energies(self, positions, loads=None, anchors=None):

@@ -55,7 +55,7 @@ def variant(kind: str, layout: str, planar_only: bool = False):
     """Decorator of a kernel factory f(scalar, friction, boundary[, order], kinematics=...):
     cached (functools.cache; `kinematics` always passed by keyword, so a default and an
     explicit "planar" are one key), each new key recorded as a `Variant`; with `planar_only`
-    any other kinematics is a ValueError (only the explicit grouped kernel takes it)."""
+    any other kinematics is a ValueError (the explicit kernels take the spatial one)."""
     def wrap(factory):
         cached = functools.cache(factory)
 

@@ -40,7 +40,6 @@ from dynfab.kernels import runtime, status
 from dynfab.kernels.precision import DEFAULT_TOLERANCE
 from dynfab.kernels.structure_explicit import MAX_NEGATIVE_STEPS
 from dynfab.kernels.structure_relaxation import StructureRelaxation, available_cores
-from dynfab.kernels.structure_relaxation import default_layout as runtime_layout
 from dynfab.kernels.structure_settings import RELATIVE_TOLERANCE
 from dynfab.scene import Dynamic, check_dynamic_options
 from dynfab.solvers.step import StepSolution
@@ -60,28 +59,23 @@ SPATIAL_REFUSALS = (
     ("mode", "transient", "a specimen's run is quasi-static: its model has no frames"),
     ("method", "semi_implicit", "its banded tangent is the planar chains'; a crossing's "
      "stencil spans two yarns"),
-    ("precision", "float32", "not measured on a specimen: its force floor would hide the "
-     "trellis mode's residual"),
+    ("precision", "float32", "float32 positions (a relative rounding of 6e-8) against the "
+     "yarns' stretch stiffness leave a force floor far above the trellis mode's residual "
+     "(docs/results.md, \"float32 on a specimen\")"),
 )
 """What a spatial structure's relaxation refuses (docs/model.md section 11.11): (option,
 value, why)."""
 
 
-def _check_spatial(structure, options, device: str, layout, order: str) -> None:
+def _check_spatial(structure, options) -> None:
     """A UserError in one line where a spatial structure (docs/model.md section 11) asks for
-    what its kernels do not have: the explicit method in the grouped layout, scatter order,
-    float64, quasi-static."""
+    what its kernels do not have: the semi-implicit method, a transient, float32."""
     if structure.rest_position.shape[1] != 3:
         return
     for name, value, why in SPATIAL_REFUSALS:
         if getattr(options, name) == value:
             raise UserError(f"a [specimen] (spatial kinematics) does not run dynamic.{name} = "
                             f"\"{value}\": {why} (docs/model.md section 11.11)")
-    layout = runtime_layout(device) if layout is None else layout
-    if layout != "grouped" or order != "scatter":
-        raise UserError("a [specimen] (spatial kinematics) relaxes in the grouped CPU layout "
-                        "only (its forces in the scatter order); --device cuda's node-parallel "
-                        "layout is planar (docs/model.md section 11.11)")
 
 
 class DynamicSolver:
@@ -109,7 +103,7 @@ class DynamicSolver:
         self._dt_warned = False
         runtime.initialize(device)
         transient = self.options.mode == "transient"
-        _check_spatial(model.structure, self.options, device, layout, order)
+        _check_spatial(model.structure, self.options)
         method = "explicit" if transient else self.options.method
         self.relaxation = StructureRelaxation(
             model.structure, precision=self.options.precision, method=method,
