@@ -1,10 +1,11 @@
 """What a run will need, estimated before anything is allocated, and refused if it cannot fit.
 
-A scene with 10^8 segments used to be killed for memory after writing 1.6 GB;
-one with 10^8 load steps hung. `check_budget` estimates the peak memory of the
-model and solver and the size of the result file from the scene alone, and
-raises a UserError (exit status 2) with the estimate when either exceeds what
-the machine has (available memory, free disk space where the file goes).
+A scene with 10^8 segments used to be killed for memory partway through writing
+its file (docs/results.md, "The run's memory budget"); one with 10^8 load steps
+hung. `check_budget` estimates the peak memory of the model and solver and the
+size of the result file from the scene alone, and raises a UserError (exit
+status 2) with the estimate when either exceeds what the machine has (available
+memory, free disk space where the file goes).
 
 The memory model is linear in the number of nodes: BYTES_PER_NODE bounds the growth
 of the peak resident memory of `dynfab.run` (static, one yarn, 4 crossings, step
@@ -35,9 +36,8 @@ CROSSING_DATASETS = 6
 FABRIC_BYTES = 100
 """c [B] of a fabric run's memory growth c nodes^1.5 (docs/model.md section 10): the static
 solver's sparse LU factors and the step's certificate on the patch's two-dimensional graph
-(nested-dissection-like fill). benchmarks/fabric.json's peak RSS grows by 138 MB from
-16 x 16 to 32 x 32 yarns and by 1.25 GB from 32 x 32 to 64 x 64 (65,664 nodes), about
-65 and 82 B nodes^1.5; 100 bounds both."""
+(nested-dissection-like fill). 100 bounds the growth measured on the fabric benchmark's
+patches up to 64 x 64 yarns (docs/results.md, "The run's memory budget")."""
 FABRIC_CROSSING_DATASETS = 7
 """A fabric step's numbers per crossing: contact force, friction limit, sliding, friction
 force (2), anchors (2) (`dynfab.model.fabric.model`)."""

@@ -9,11 +9,11 @@ from one that points forwards: the stretch springs see lengths and the bending s
 turning angles, and a yarn mirrored end for end has the same of both. So under enough
 compression a load step can converge, with a small residual and a positive definite
 Hessian, to a yarn that has turned a segment by more than 90 degrees or passed through
-itself (measured: the paper yarn under -0.1 N of force control ends 184 % shorter than
-its length, its end beyond its first node; a periodic cell under -0.5 N per yarn both
-ways, -171 %). That is an equilibrium of the discrete energy and not of a yarn, so a run
-stops there (`SolverError`, exit status 3), naming the yarn and segment, instead of
-writing it as a result.
+itself (as the paper yarn under -0.1 N of force control does, its end beyond its first
+node, and a periodic cell under -0.5 N per yarn both ways: tests/test_domain.py;
+docs/results.md, "Folded yarns"). That is an equilibrium of the discrete energy and not
+of a yarn, so a run stops there (`SolverError`, exit status 3), naming the yarn and
+segment, instead of writing it as a result.
 """
 
 from __future__ import annotations

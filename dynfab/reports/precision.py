@@ -636,9 +636,9 @@ def single_threaded_blas():
     (threadpoolctl); yields whether any was found to limit.
 
     Every solver compared runs on one thread (the Warp CPU kernel and numba), and
-    L-BFGS-B's BLAS calls on vectors of a few hundred entries only lose by threading:
-    measured up to 30x slower with OpenBLAS's default threads while other processes
-    loaded the 2-CPU machine. The thread counts are restored after.
+    L-BFGS-B's BLAS calls on vectors of a few hundred entries only lose by threading, the
+    more so while other processes load the machine (docs/results.md, "Precision",
+    Surprises). The thread counts are restored after.
     """
     with threadpool_limits(limits=1, user_api="blas"):
         yield any(info["user_api"] == "blas" for info in threadpool_info())

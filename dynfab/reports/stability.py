@@ -90,9 +90,11 @@ MAX_WIDENINGS = 10
 EXTRAPOLATE_ABOVE = 896
 """Explicit methods on finer meshes are extrapolated from N = 224, 448, 896, not run."""
 EXPLICIT_MAX_STEPS = 200_000
-"""max_steps of the explicit methods in every case: about 2 s at N = 224 and 8 s at N = 896."""
+"""max_steps of the explicit methods in every case (what a case that reaches it costs:
+docs/results.md, "The stability report's step limit")."""
 SEMI_IMPLICIT_MAX_STEPS = 2_000
-"""max_steps of semi_implicit (about 12 to 600 steps where it converges)."""
+"""max_steps of semi_implicit (far above the steps it takes where it converges:
+docs/results.md, "semi_implicit's steps per load step")."""
 
 PATH_MAX_STEPS = {"explicit": 1_000_000, "semi_implicit": 20_000}
 """max_steps per load step of the path cases (the solver's default for the explicit methods:
@@ -478,7 +480,7 @@ def measure_stable_dt(model, relaxed, load: float, *, damping: str = "viscous",
     the same threshold. With friction they differ: stick/slip switching makes the motion
     a switched system, which slowly pumps energy into an undamped motion below the linear
     limit of each of its pieces, and kinetic damping's resets remove that energy; its
-    threshold is then higher (the full report measures both: 1.0 to 4.3 x).
+    threshold is then higher (the full report measures both: docs/results.md, "Stability").
 
     A trial is unstable when the kernel reports divergence: the residual beyond
     DIVERGENCE_FACTOR x its start, a non-finite state, or (the test that catches the fine

@@ -25,11 +25,11 @@ angle is below `SMALLEST_ANGLE`, where F_sh = F / (2 W) (11.3 at gamma = 0). The
 at d = 0 is its limit d -> 0+, extrapolated linearly from its first two loaded points
 (`_start_force`), not a step-0 point's force: a specimen's clamp reaction at d = 0 (the woven
 state's, docs/model.md section 10) is not shear resistance, and where friction yields at once
-the curve jumps above it (on the Cao 115 x 230 mm specimen from 0.021 N at d = 0 to 0.214 N at
-d = 0.05 mm). Read from d = 0, that jump ran up the recursion, whose factor on F_sh(gamma/2),
--W cos(gamma/2) / ((2 H - 3 W) cos gamma), is -1 at H = 2 W: undamped, the normalised force
-alternated by 25 % from step to step. The path must be in increasing d (a curve, not a
-cycle).
+the curve jumps above it (as on the Cao 115 x 230 mm specimen: docs/results.md, "The
+normalised shear force's start"). Read from d = 0, that jump ran up the recursion,
+whose factor on F_sh(gamma/2), -W cos(gamma/2) / ((2 H - 3 W) cos gamma), is -1 at
+H = 2 W: undamped, the normalised force alternated from step to step. The path must be
+in increasing d (a curve, not a cycle).
 """
 
 from __future__ import annotations

@@ -244,7 +244,8 @@ class XdmfSync:
     """
 
     SHARE = 0.05
-    """Largest share of a run's time spent rewriting its view (benchmarks/xdmf.py)."""
+    """Largest share of a run's time spent rewriting its view (its cost: docs/results.md,
+    "The view")."""
 
     def __init__(self, result: str | os.PathLike) -> None:
         self.result = Path(result)

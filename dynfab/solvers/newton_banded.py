@@ -315,8 +315,8 @@ def _newton_set_polished(pos, yarn, P, fixed, anchors, tolerance, max_iterations
     `_newton_fixed_set` again: the frozen-energy direction is of little use where the
     friction limit's slope near the onset is large. With `energy_first` (a step's first
     attempt, from the previous step's state), `_newton_on_set` comes first: away from
-    the onset it finds the sticking crossings in fewer iterations (10 against 30 on the
-    first friction step of runs/paper_fig5.toml, `benchmarks/static.py`).
+    the onset it finds the sticking crossings in fewer iterations (docs/results.md, "The
+    energy line search first").
     """
     start = pos.copy()
     iterations = 0

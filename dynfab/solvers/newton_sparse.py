@@ -111,9 +111,10 @@ COUPLED_FORCING = 1e-6
 term: the next residual is at most this fraction of |g| plus Newton's quadratic term, so
 convergence stays quadratic down to a millionth of the step's first residual; Dembo,
 Eisenstat and Steihaug, SIAM J. Numer. Anal. 19, 1982). The Hessian's 1e-10 (the kept
-factors') cannot be reached there: on the 150 x 450 mm bias specimen (60,510 unknowns) the
-Jacobian's own factors solve it to 2.6e-9 and the pivoted LU to 5.3e-9, where GMRES on the
-Hessian's factors reaches 3.4e-8 in 6 iterations (docs/model.md section 11.10)."""
+factors') cannot be reached there: on the 150 x 450 mm bias specimen (60,510 unknowns)
+neither the Jacobian's own factors nor the pivoted LU reach it, where GMRES on the
+Hessian's factors gets below this one within KRYLOV_ITERATIONS (docs/model.md section 11.10;
+docs/results.md, "Solves on kept factors")."""
 LATERAL_UPDATES = 12
 """Lateral contact sets one Newton solve tries before it releases them to the unilateral law
 (`SparseNewton.on_lateral_set`; as the crossings' MAX_FLIPS)."""
@@ -180,7 +181,7 @@ def _sparse_solve(A, rhs, symmetric=True, order=None, kept=None):
     that order); without one, in SuperLU's symmetric mode (diagonal pivots) in its minimum
     degree on A^T + A; both are faster than the default column ordering with
     partial pivoting on the fabric's Hessians, and nested dissection the fastest on large
-    patches (`python benchmarks/fabric.py --pieces` measures them). If a pivot vanishes
+    patches (docs/results.md, "Woven fabric: cost", the orderings). If a pivot vanishes
     there, the default, pivoted factorisation is tried. `kept` (a `KeptFactor` in `order`):
     solve by GMRES on its factors where that converges (`dynfab.model.fabric.kept_factor`).
     """

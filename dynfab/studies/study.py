@@ -306,7 +306,7 @@ def _cluster(scheduler: str | None, workers: int | None):
 WORKER_ENVIRONMENT = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}
 """Dask settings of the local cluster's workers: Dask's nanny sets MALLOC_TRIM_THRESHOLD_ =
 65536 in every worker it spawns, which makes glibc return freed memory at once and fault it
-in again at the next allocation (a 16 x 16 patch's case took 1.3 x as long with it:
+in again at the next allocation (a 16 x 16 patch's case took longer with it:
 docs/results.md, "Studies on a Dask cluster"); None leaves glibc's own rule."""
 
 

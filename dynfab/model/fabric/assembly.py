@@ -36,9 +36,9 @@ STRETCH, BENDING, CONTACT, FRICTION, LOAD, GRAVITY = range(6)
 TERMS = ("stretch", "bending", "contact", "friction", "load", "gravity")
 SOLVE_ON_KEPT_FACTORS = False
 """Whether Newton's Hessian solves try GMRES on the step's last factors first
-(`dynfab.model.fabric.kept_factor`): not on the planar fabric, whose factorisation costs only 9 to
-14 triangular solves (2,000 to 33,000 unknowns), so that the attempts that fail cost more
-than the ones that succeed save (`benchmarks/kept_factor.py`, docs/model.md 11.10)."""
+(`dynfab.model.fabric.kept_factor`): not on the planar fabric, whose factorisation costs so few
+triangular solves that the attempts that fail cost more than the ones that succeed save
+(docs/model.md 11.10; docs/results.md, "Solves on kept factors")."""
 
 
 @numba.njit(cache=True)

@@ -17,7 +17,7 @@ within 64 eps max|H_ii| of zero (the threshold the banded LDL^T below uses), or 
 growth (max |L_ij| or max |U_ij| / max|H_ii| above GROWTH: unpivoted elimination of an
 indefinite matrix is backward stable only while its factors stay bounded). Its cost is the
 Newton solve's factorisation, so it scales like a Newton iteration
-(`python benchmarks/fabric.py`).
+(docs/results.md, "Woven fabric: cost").
 
 Second route, the reference and fallback: library sparse factorisations that pivot
 off the diagonal give no inertia. It comes from Haynsworth's inertia additivity: split the free dofs into the crossing

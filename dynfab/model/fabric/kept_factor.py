@@ -28,16 +28,16 @@ from dynfab.model.fabric.ordering import OrderedLU, Ordering, symmetric_factor
 
 KRYLOV_ITERATIONS = 6
 """GMRES iterations (each a triangular solve with the kept factors) before H is factored:
-on a bias specimen (973 crossings) the solves that converge take 3 to 6, the others do not
-within 30; one factorisation costs about 28 triangular solves there, 7 at 277 crossings
-(docs/model.md section 11.10)."""
+enough for the solves that converge quickly on a bias specimen (the others need many more
+or do not converge), and fewer than the triangular solves a factorisation costs there
+(docs/model.md section 11.10; docs/results.md, "Solves on kept factors")."""
 RELATIVE_RESIDUAL = 1e-10
 """|H d - b| / |b| a preconditioned direction must reach (module docstring), or
 ATTAINED_MARGIN times what the kept factors' own solve reached, where that is more."""
 ATTAINED_MARGIN = 2.0
-"""On large specimens a factorisation may not reach RELATIVE_RESIDUAL on its own matrix: the
-150 x 450 mm bias specimen's step-0 Hessian (60,510 unknowns) is solved by its own factors
-to 2.3e-9 (docs/model.md section 11.10). A direction within twice the direct solve's
+"""On large specimens a factorisation may not reach RELATIVE_RESIDUAL on its own matrix (the
+150 x 450 mm bias specimen's step-0 Hessian, 60,510 unknowns: docs/model.md section 11.10;
+docs/results.md, "Solves on kept factors"). A direction within twice the direct solve's
 residual is as exact as the direct one; demanding more only wastes the attempt."""
 
 
@@ -82,8 +82,9 @@ class KeptFactor:
 
     def _cheap(self) -> bool:
         """Whether the kept factors are PARDISO's, whose factorisation costs about as much as
-        a failed GMRES attempt (ten triangular solves on a bias specimen, against 28 to 40
-        for SuperLU's: docs/model.md section 11.10): `solve` then factors at once."""
+        a failed GMRES attempt (far fewer triangular solves' worth than SuperLU's on a bias
+        specimen: docs/model.md section 11.10; docs/results.md, "Solves on kept factors"):
+        `solve` then factors at once."""
         return isinstance(self.lu, pardiso.SymmetricFactor)
 
     def solve_near(self, A, rhs, B, relative_residual: float = RELATIVE_RESIDUAL
@@ -92,8 +93,8 @@ class KeptFactor:
         coupled friction Jacobian near the Hessian): GMRES preconditioned by the kept
         factors, else by B's factored (and kept), else by A's own, factored in the same
         order (A has B's pattern, so its fill and cost are B's: far less than SuperLU's
-        pivoted factorisation of A, 49 s against 1.1 s at 60,510 unknowns, docs/model.md
-        section 11.10); None where none converges."""
+        pivoted factorisation of A, docs/model.md section 11.10; docs/results.md, "Solves on
+        kept factors"); None where none converges."""
         found = self._on_kept(A, rhs, relative_residual)
         for matrix in (B, A):
             if found is not None:
@@ -138,8 +139,9 @@ class KeptFactor:
 
 
 def inner(a, b) -> float:
-    """a . b without BLAS: numpy's BLAS dot costs about 10 ms on a 23,000 vector on this
-    shared 2-core machine (OpenBLAS's threads wait for a core), einsum 30 us."""
+    """a . b without BLAS: on a shared machine numpy's BLAS dot of a specimen's vector costs
+    far more than einsum, its OpenBLAS threads waiting for a core (docs/results.md, "Solves
+    on kept factors")."""
     return float(np.einsum("i,i", a, b))
 
 

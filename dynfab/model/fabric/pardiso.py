@@ -5,17 +5,16 @@ docs/model.md section 11.10).
 On the shear specimens a SuperLU factorisation is most of a Newton iteration. PARDISO
 (Schenk and Gaertner, Future Gener. Comput. Syst. 20, 2004) factors the same Hessians as a
 symmetric matrix (one triangle, about half SuperLU's arithmetic and fill) in its own
-nested-dissection order (METIS): on the 150 x 450 mm bias specimen's Hessian at step 0's
-equilibrium (60,510 unknowns), with the explicit zeros its Newton solves keep, 0.22 s
-against SuperLU's 1.09 s in the fabric's order, 0.55 s with the analysis (the order and the
-symbolic factor), which the Newton solves do once per pattern (`python benchmarks/shear.py
---sides "" --scenes runs/cao2008_bias_150x450.toml --scene-steps 0 --factor-scenes`;
-docs/results.md "In-plane shear"). Its pivots are Bunch-Kaufman's 1 x 1 and 2 x 2 blocks
-within each supernode; a pivot below PIVOT_THRESHOLD of its supernode's scale is perturbed
-instead (and counted). A factor with a perturbed pivot, or with a pivot within TINY_PIVOT of
-max |A_ii| (SuperLU's guard: the matrix singular to rounding), is refused, and SuperLU
-factors that matrix instead (`dynfab.model.fabric.ordering.symmetric_factor`), so every count and
-solve taken from PARDISO is of the matrix asked. D's inertia is A's (Sylvester); PARDISO
+nested-dissection order (METIS), faster than SuperLU in the fabric's order on the
+specimens' Hessians (with the explicit zeros their Newton solves keep) even counting its
+analysis (the order and the symbolic factor), which the Newton solves do once per pattern
+(docs/results.md, "In-plane shear": PARDISO against SuperLU). Its pivots are
+Bunch-Kaufman's 1 x 1 and 2 x 2 blocks within each supernode; a pivot below
+PIVOT_THRESHOLD of its supernode's scale is perturbed instead (and counted). A factor
+with a perturbed pivot, or with a pivot within TINY_PIVOT of max |A_ii| (SuperLU's guard:
+the matrix singular to rounding), is refused, and SuperLU factors that matrix instead
+(`dynfab.model.fabric.ordering.symmetric_factor`), so every count and solve taken from
+PARDISO is of the matrix asked. D's inertia is A's (Sylvester); PARDISO
 reports it.
 
 MKL runs sequentially here (its threading layer set before its first call): the factors and
@@ -41,12 +40,10 @@ import scipy.sparse
 
 MIN_UNKNOWNS = 1000
 """Smaller matrices are factored by SuperLU (`dynfab.model.fabric.ordering.symmetric_factor`):
-there PARDISO's fixed costs outweigh its speed. On the 4 x 4 planar patch (504 unknowns)
-its static and semi-implicit steps took 1.19 and 1.21 times 7e71657's with PARDISO (three
-turns each, `python benchmarks/before_after.py --before 7e71657 --rounds 3 --sizes 4,8`);
-from the 8 x 8 patch (2,032) the static step is faster with it (0.81), as the 60 mm frame's
-Newton iterations (2,706: 20.6 ms against 27.9, `python benchmarks/shear.py`); the 30 mm
-frame's (510) took 9.6 ms against 9.2."""
+there PARDISO's fixed costs outweigh its speed. The threshold lies between the sizes where
+PARDISO was slower, the 4 x 4 planar patch (504 unknowns) and the 30 mm frame (510), and
+those where it was faster, the 8 x 8 patch (2,032) and the 60 mm frame (2,706)
+(docs/results.md, "PARDISO's smallest matrix")."""
 SYMMETRIC_INDEFINITE = -2
 """PARDISO's mtype for a real symmetric indefinite matrix."""
 PIVOT_THRESHOLD = 13
