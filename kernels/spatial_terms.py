@@ -32,7 +32,7 @@ from types import SimpleNamespace
 import numpy as np
 import warp as wp
 
-from dynfab.kernels import structure_arrays, tie_law
+from dynfab.kernels import structure_arrays, structure_state, tie_law
 from dynfab.kernels.precision import vector
 
 PI = float(np.pi)
@@ -347,3 +347,152 @@ def functions(scalar) -> SimpleNamespace:
                            spring_excess=spring_excess, crossing_forces=crossing_forces,
                            lateral_forces=lateral_forces, lateral_energy=lateral_energy,
                            return_anchor=return_anchor)
+
+
+def structure_terms(scalar, friction: bool, boundary: bool, base) -> SimpleNamespace:
+    """The spatial elements in the form every kinematics gives `structure_forces`
+    (`plane_shift`, `tie_pass_at`, `node_force`, `scatter`, `add_node_energy`,
+    `add_tie_energy`, `lateral_energy`, `return_anchor`), on `base` (`structure_forces.base`). A spatial
+    structure has no moving planes, wraps or tied dofs (`structure_arrays.build`), so
+    `boundary` compiles nothing here."""
+    vec = vector(scalar, 3)
+    Data = structure_arrays.struct(scalar, 3)
+    State = structure_state.struct(scalar, 3)
+    laws = tie_law.functions(scalar)
+    terms = functions(scalar)
+    segment_pull = base.segment_pull
+
+    @wp.func(inline=True)
+    def plane_shift(pos: wp.array(dtype=vec), data: Data) -> vec:
+        """Zero [m]: a spatial structure has no moving planes."""
+        return vec()
+
+    @wp.func(inline=True)
+    def tie_pass_at(t: int, pos: wp.array(dtype=vec), data: Data, state: State, shift: vec):
+        """R, dR/dg (and F_T, the force on the three-component slip) of crossing t into the
+        state's tie arrays; `shift` unused (no moving planes)."""
+        bound = base.contact_pass(t, pos, data, state)
+        if wp.static(friction):
+            state.friction[t] = terms.huber_force(
+                terms.crossing_slip(pos, data, state.anchors[t], t), bound,
+                data.friction_law[t, 3])
+
+    @wp.func(inline=True)
+    def node_force(i: int, pos: wp.array(dtype=vec), data: Data, state: State) -> vec:
+        """-dV/dr_i (+ friction) [N] of node i, gathered, unmasked: its segments, the bending
+        springs at i and its neighbours, the crossings and lateral contacts whose stencils hold
+        it (each element evaluated at every node of its stencil), its ties' contact along z."""
+        before = data.previous[i]
+        after = data.next[i]
+        force = state.load[i] + data.weight[i]
+        if after >= 0:
+            force = force + segment_pull(pos, data, i)
+        if before >= 0:
+            force = force - segment_pull(pos, data, before)
+            if after >= 0:  # the spring at i
+                g = terms.bend_gradients(pos, data, before, i, after)
+                force = force + g[0] + g[1]
+            earlier = data.previous[before]
+            if earlier >= 0:  # the spring at i-1, node i its third
+                force = force - terms.bend_gradients(pos, data, earlier, before, i)[1]
+        if after >= 0:
+            later = data.next[after]
+            if later >= 0:  # the spring at i+1, node i its first
+                force = force - terms.bend_gradients(pos, data, i, after, later)[0]
+        for k in range(data.node_tie_start[i], data.node_tie_start[i + 1]):
+            t = data.node_ties[k]
+            up = base.along_z(data.tie_side[t] * state.contact[t])
+            if data.tie_a[t] == i:
+                force = force + up
+            else:
+                force = force - up
+        for k in range(data.node_stencil_start[i], data.node_stencil_start[i + 1]):
+            code = data.node_stencil[k]
+            t = code / 6
+            huber = vec()
+            if wp.static(friction):
+                huber = -state.friction[t]
+            force = force + terms.crossing_slot_force(
+                terms.crossing_gradients(pos, data, t, huber), code - 6 * t)
+        for k in range(data.node_lateral_start[i], data.node_lateral_start[i + 1]):
+            code = data.node_lateral[k]
+            e = code / 4
+            slot = code - 4 * e
+            row = terms.lateral_gradients(pos, data, e)[slot / 2]
+            if slot % 2 == 0:
+                force = force + row
+            else:
+                force = force - row
+        return force
+
+    @wp.func(inline=True)
+    def scatter(group: int, pos: wp.array(dtype=vec), data: Data, state: State):
+        """state.force += -dV/dr of the group's elements, each once: each segment's stretch and
+        each inner node's two-plane bending, each crossing's contact along z, Huber friction
+        (F_T at the current R) and rotation spring, each lateral contact."""
+        force = state.force
+        for i in range(data.group_node[group], data.group_node[group + 1]):
+            j = data.next[i]
+            if j >= 0:
+                pull = segment_pull(pos, data, i)
+                force[i] = force[i] + pull
+                force[j] = force[j] - pull
+                k = data.next[j]
+                if k >= 0:
+                    terms.bend_forces(pos, data, i, j, k, force)
+        for t in range(data.group_tie[group], data.group_tie[group + 1]):
+            tie_pass_at(t, pos, data, state, vec())
+            up = base.along_z(data.tie_side[t] * state.contact[t])
+            force[data.tie_a[t]] = force[data.tie_a[t]] + up
+            force[data.tie_b[t]] = force[data.tie_b[t]] - up
+            huber = vec()
+            if wp.static(friction):
+                huber = -state.friction[t]
+            terms.crossing_forces(pos, data, t, huber, force)
+        for e in range(data.group_lateral[group], data.group_lateral[group + 1]):
+            terms.lateral_forces(pos, data, e, force)
+
+    @wp.func(inline=True)
+    def add_node_energy(i: int, pos: wp.array(dtype=vec), data: Data, energy: scalar) -> scalar:
+        """`energy` + the two-plane bending spring at node i [J] (docs/model.md (11.1))."""
+        total = energy
+        before = data.previous[i]
+        after = data.next[i]
+        if before >= 0 and after >= 0:
+            total += terms.bend_energy(pos, data, before, i, after)
+        return total
+
+    @wp.func(inline=True)
+    def add_tie_energy(t: int, pos: wp.array(dtype=vec), data: Data, state: State, R: scalar,
+                       energy: scalar) -> scalar:
+        """`energy` + crossing t's rotation spring and (with friction) its Huber term with F_T
+        at R [J]."""
+        q = terms.crossing_coordinates(pos, data, t)
+        w = terms.spring_excess(data, t, q)
+        total = energy + scalar(0.5) * data.rotation_law[t, 1] * w * w
+        if wp.static(friction):
+            total += terms.huber_energy(terms.crossing_slip(pos, data, state.anchors[t], t),
+                                        laws.limit(R, data.friction_law, t),
+                                        data.friction_law[t, 3])
+        return total
+
+    @wp.func(inline=True)
+    def lateral_energy(e: int, pos: wp.array(dtype=vec), data: Data) -> scalar:
+        """Energy [J] of lateral contact e."""
+        return terms.lateral_energy(pos, data, e)
+
+    @wp.func(inline=True)
+    def return_anchor(t: int, pos: wp.array(dtype=vec), data: Data, state: State,
+                      bound: scalar) -> scalar:
+        """Crossing t's anchor moved radially in S (docs/model.md section 11.4); the energy
+        dissipated F_T |delta xi| [J]."""
+        S = terms.crossing_slip(pos, data, state.anchors[t], t)
+        move = terms.return_anchor(S, bound, data.friction_law[t, 3], data.rotation_law[t, 0])
+        state.anchors[t] = state.anchors[t] + move
+        shift = vec(move[0], move[1], data.rotation_law[t, 0] * move[2])
+        return wp.max(bound, scalar(0.0)) * wp.length(shift)
+
+    return SimpleNamespace(plane_shift=plane_shift, tie_pass_at=tie_pass_at,
+                           node_force=node_force, scatter=scatter,
+                           add_node_energy=add_node_energy, add_tie_energy=add_tie_energy,
+                           lateral_energy=lateral_energy, return_anchor=return_anchor)

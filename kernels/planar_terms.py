@@ -1,0 +1,293 @@
+"""The planar structure's elements in a kernel (docs/model.md sections 2-4, 10): every chain in
+its own vertical plane, nodes (coordinate along the chain, z).
+
+- bending on exact turning angles, E = 1/2 (EI / lbar)(phi - phi0)^2 at each inner node,
+  phi = atan2(a x b, a . b): with m = k (phi - phi0), g_a = (a_z, -a_x) / |a|^2,
+  g_b = (-b_z, b_x) / |b|^2, the forces (m g_a, -m g_a + m g_b, -m g_b) on (i-1, i, i+1);
+- the wrap spring of a periodic chain (docs/model.md section 10) between a = r_N - r_{N-1} and
+  b = r_1 - r_0: m g_a on r_{N-1}, -m g_a on r_N, m g_b on r_0, -m g_b on r_1;
+- each tie's friction (variants built with it): the Huber force on the slip (its first
+  component along node a's chain, its second along node b's), F_T from the current R (frozen
+  only in derivatives), and where the planes move, -sum_t w_t f_t on each plane node of the
+  family (the chain rule through the planes), in tie order;
+- a tied family (periodic force control): each plane node of it carries the family's summed
+  force, each member's own force in plane-node order.
+
+`structure_terms` gives them to `structure_forces` in the form every kinematics offers
+(`plane_shift`, `tie_pass_at`, `node_force`, `scatter`, `add_node_energy`,
+`add_tie_energy`, `lateral_energy`, `return_anchor`); the stretch, the contact along z and
+the external force are `structure_forces`' own (its `base`).
+"""
+
+from types import SimpleNamespace
+
+import warp as wp
+
+from dynfab.kernels import structure_arrays, structure_state, tie_law
+from dynfab.kernels.precision import vector
+
+
+def structure_terms(scalar, friction: bool, boundary: bool, base) -> SimpleNamespace:
+    """The planar elements' `wp.func`s of one variant (module docstring), on `base`
+    (`structure_forces.base`: along_z, segment_pull, closure, contact_pass)."""
+    vec = vector(scalar, 2)
+    mat = wp.types.matrix(shape=(2, 2), dtype=scalar)
+    Data = structure_arrays.struct(scalar, 2)
+    State = structure_state.struct(scalar, 2)
+    laws = tie_law.functions(scalar)
+    segment_pull = base.segment_pull
+
+    @wp.func(inline=True)
+    def turning_angle(a: vec, b: vec) -> scalar:
+        """phi [rad] from segment a to segment b."""
+        return wp.atan2(a[0] * b[1] - a[1] * b[0], wp.dot(a, b))
+
+    @wp.func(inline=True)
+    def bend_moment(data: Data, m: int, a: vec, b: vec) -> scalar:
+        """k (phi - phi0) [N m] of the bending spring at node m."""
+        return data.bend_stiffness[m] * (turning_angle(a, b) - data.rest_angle[m])
+
+    @wp.func(inline=True)
+    def wrap_forces(pos: wp.array(dtype=vec), data: Data, first: int) -> mat:
+        """Rows (m g_a, m g_b) [N] of the wrap spring at chain node `first`."""
+        last = data.chain_last[first]
+        a = pos[last] - pos[last - 1]
+        b = pos[first + 1] - pos[first]
+        moment = data.wrap_stiffness[first] * (turning_angle(a, b) - data.wrap_rest_angle[first])
+        ga = moment * vec(a[1], -a[0]) / wp.dot(a, a)
+        gb = moment * vec(-b[1], b[0]) / wp.dot(b, b)
+        return mat(ga[0], ga[1], gb[0], gb[1])
+
+    @wp.func(inline=True)
+    def plane_shift(pos: wp.array(dtype=vec), data: Data) -> vec:
+        """(U_0, U_1) [m]: each plane family's summed end displacement, in plane-node order;
+        zero without moving planes."""
+        shift = vec()
+        if wp.static(boundary):
+            for family in range(2):
+                total = scalar(0.0)
+                for m in range(data.plane_offsets[family], data.plane_offsets[family + 1]):
+                    node = data.plane_nodes[m]
+                    total += pos[node][0] - data.rest_position[node][0]
+                shift[family] = total
+        return shift
+
+    @wp.func(inline=True)
+    def slip(pos: wp.array(dtype=vec), data: Data, anchors: wp.array(dtype=vec), t: int,
+             shift: vec) -> vec:
+        """s [m] of tie t (module docstring of `structure_arrays`); (s_x, 0) for ground."""
+        b = data.tie_b[t]
+        planes = data.tie_plane[t] + wp.cw_mul(data.tie_weight[t], shift)
+        along_b = scalar(0.0)
+        if b >= 0:
+            along_b = pos[b][0] - planes[1] - anchors[t][1]
+        return vec(pos[data.tie_a[t]][0] - planes[0] - anchors[t][0], along_b)
+
+    @wp.func(inline=True)
+    def tie_pass_at(t: int, pos: wp.array(dtype=vec), data: Data, state: State, shift: vec):
+        """R, dR/dg (and F_T, the friction force) of tie t into the state's tie arrays."""
+        bound = base.contact_pass(t, pos, data, state)
+        if wp.static(friction):
+            state.friction[t] = laws.huber_force(slip(pos, data, state.anchors, t, shift),
+                                                 bound, data.friction_law[t, 3])
+
+    @wp.func(inline=True)
+    def own_force(i: int, pos: wp.array(dtype=vec), data: Data, state: State) -> vec:
+        """-dV/dr_i (+ friction) [N] of node i alone, unmasked, without the planes' reaction."""
+        before = data.previous[i]
+        after = data.next[i]
+        force = state.load[i] + data.weight[i]
+        if after >= 0:
+            force = force + segment_pull(pos, data, i)
+        if before >= 0:
+            force = force - segment_pull(pos, data, before)
+        if before >= 0 and after >= 0:  # the spring at i: -m g_a + m g_b
+            a = pos[i] - pos[before]
+            b = pos[after] - pos[i]
+            moment = bend_moment(data, i, a, b)
+            force = force + moment * (vec(-a[1], a[0]) / wp.dot(a, a)
+                                      + vec(-b[1], b[0]) / wp.dot(b, b))
+        if before >= 0:
+            earlier = data.previous[before]
+            if earlier >= 0:  # the spring at i-1, node i its third: -m g_b
+                a = pos[before] - pos[earlier]
+                b = pos[i] - pos[before]
+                moment = bend_moment(data, before, a, b)
+                force = force - moment * vec(-b[1], b[0]) / wp.dot(b, b)
+        if after >= 0:
+            later = data.next[after]
+            if later >= 0:  # the spring at i+1, node i its first: +m g_a
+                a = pos[after] - pos[i]
+                b = pos[later] - pos[after]
+                moment = bend_moment(data, after, a, b)
+                force = force + moment * vec(a[1], -a[0]) / wp.dot(a, a)
+        for k in range(data.node_tie_start[i], data.node_tie_start[i + 1]):
+            t = data.node_ties[k]
+            up = data.tie_side[t] * state.contact[t]
+            if data.tie_a[t] == i:
+                along = scalar(0.0)
+                if wp.static(friction):
+                    along = state.friction[t][0]
+                force = force + vec(along, up)
+            else:
+                along = scalar(0.0)
+                if wp.static(friction):
+                    along = state.friction[t][1]
+                force = force + vec(along, -up)
+        if wp.static(boundary):
+            first = data.node_wrap[i]
+            if first >= 0:
+                last = data.chain_last[first]
+                g = wrap_forces(pos, data, first)
+                if i == last - 1:
+                    force = force + vec(g[0, 0], g[0, 1])
+                if i == last:
+                    force = force - vec(g[0, 0], g[0, 1])
+                if i == first + 1:
+                    force = force - vec(g[1, 0], g[1, 1])
+                if i == first:
+                    force = force + vec(g[1, 0], g[1, 1])
+        return force
+
+    @wp.func(inline=True)
+    def plane_reaction(data: Data, state: State, group: int, family: int) -> scalar:
+        """-sum_t w_t f_t [N] along the chain on each plane node of `family`, in tie order."""
+        total = scalar(0.0)
+        for t in range(data.group_tie[group], data.group_tie[group + 1]):
+            total += data.tie_weight[t][family] * state.friction[t][family]
+        return -total
+
+    @wp.func(inline=True)
+    def node_force(i: int, pos: wp.array(dtype=vec), data: Data, state: State) -> vec:
+        """-dV/dr_i [N] on node i, gathered, unmasked; on a plane node the planes' reaction;
+        on a tied node its family's summed force (module docstring)."""
+        force = vec()
+        if wp.static(boundary):
+            family = data.node_tie[i]
+            members = scalar(1.0)
+            if family >= 0:
+                for m in range(data.plane_offsets[family], data.plane_offsets[family + 1]):
+                    force = force + own_force(data.plane_nodes[m], pos, data, state)
+                members = scalar(data.plane_offsets[family + 1] - data.plane_offsets[family])
+            else:
+                force = own_force(i, pos, data, state)
+            if wp.static(friction):
+                plane = data.node_plane[i]
+                if plane >= 0:
+                    reaction = plane_reaction(data, state, data.node_group[i], plane)
+                    force = force + vec(members * reaction, scalar(0.0))
+        else:
+            force = own_force(i, pos, data, state)
+        return force
+
+    @wp.func(inline=True)
+    def scatter(group: int, pos: wp.array(dtype=vec), data: Data, state: State):
+        """state.force += -dV/dr of the group's elements, each once (`structure_forces`)."""
+        force = state.force
+        lo = data.group_node[group]
+        hi = data.group_node[group + 1]
+        for i in range(lo, hi):
+            j = data.next[i]
+            if j >= 0:  # segment (i, j), then the bending spring at j
+                pull = segment_pull(pos, data, i)
+                force[i] = force[i] + pull
+                force[j] = force[j] - pull
+                k = data.next[j]
+                if k >= 0:
+                    a = pos[j] - pos[i]
+                    b = pos[k] - pos[j]
+                    moment = bend_moment(data, j, a, b)
+                    ga = moment * vec(a[1], -a[0]) / wp.dot(a, a)
+                    gb = moment * vec(-b[1], b[0]) / wp.dot(b, b)
+                    force[i] = force[i] + ga
+                    force[j] = force[j] - ga + gb
+                    force[k] = force[k] - gb
+        shift = plane_shift(pos, data)
+        if wp.static(boundary):
+            for chain in range(data.group_chain[group], data.group_chain[group + 1]):
+                first = data.chain_start[chain]
+                if data.wrap_stiffness[first] > scalar(0.0):
+                    last = data.chain_last[first]
+                    g = wrap_forces(pos, data, first)
+                    force[last - 1] = force[last - 1] + vec(g[0, 0], g[0, 1])
+                    force[last] = force[last] - vec(g[0, 0], g[0, 1])
+                    force[first + 1] = force[first + 1] - vec(g[1, 0], g[1, 1])
+                    force[first] = force[first] + vec(g[1, 0], g[1, 1])
+        reaction = vec(scalar(0.0), scalar(0.0))
+        for t in range(data.group_tie[group], data.group_tie[group + 1]):
+            tie_pass_at(t, pos, data, state, shift)
+            node_a = data.tie_a[t]
+            node_b = data.tie_b[t]
+            up = data.tie_side[t] * state.contact[t]
+            along = vec(scalar(0.0), scalar(0.0))
+            if wp.static(friction):
+                along = state.friction[t]
+                if wp.static(boundary):
+                    reaction = reaction - wp.cw_mul(data.tie_weight[t], along)
+            force[node_a] = force[node_a] + vec(along[0], up)
+            if node_b >= 0:
+                force[node_b] = force[node_b] + vec(along[1], -up)
+        if wp.static(boundary):
+            for family in range(2):  # the planes' reaction, then a tied family's summed force
+                begin = data.plane_offsets[family]
+                end = data.plane_offsets[family + 1]
+                if wp.static(friction):
+                    for m in range(begin, end):
+                        node = data.plane_nodes[m]
+                        force[node] = force[node] + vec(reaction[family], scalar(0.0))
+                if end > begin:
+                    if data.node_tie[data.plane_nodes[begin]] >= 0:
+                        total = vec(scalar(0.0), scalar(0.0))
+                        for m in range(begin, end):
+                            total = total + force[data.plane_nodes[m]]
+                        for m in range(begin, end):
+                            force[data.plane_nodes[m]] = total
+
+    @wp.func(inline=True)
+    def add_node_energy(i: int, pos: wp.array(dtype=vec), data: Data, energy: scalar) -> scalar:
+        """`energy` + the bending spring at node i and, at a chain's first node, its wrap
+        spring [J]."""
+        total = energy
+        before = data.previous[i]
+        after = data.next[i]
+        if before >= 0 and after >= 0:
+            turn = turning_angle(pos[i] - pos[before], pos[after] - pos[i]) - data.rest_angle[i]
+            total += scalar(0.5) * data.bend_stiffness[i] * turn * turn
+        if data.wrap_stiffness[i] > scalar(0.0):
+            last = data.chain_last[i]
+            turn = turning_angle(pos[last] - pos[last - 1], pos[i + 1] - pos[i]) \
+                - data.wrap_rest_angle[i]
+            total += scalar(0.5) * data.wrap_stiffness[i] * turn * turn
+        return total
+
+    @wp.func(inline=True)
+    def add_tie_energy(t: int, pos: wp.array(dtype=vec), data: Data, state: State, R: scalar,
+                       energy: scalar) -> scalar:
+        """`energy` + tie t's Huber term with F_T at R [J] (variants with friction)."""
+        total = energy
+        if wp.static(friction):
+            total += laws.huber_energy(slip(pos, data, state.anchors, t, plane_shift(pos, data)),
+                                       laws.limit(R, data.friction_law, t),
+                                       data.friction_law[t, 3])
+        return total
+
+    @wp.func(inline=True)
+    def lateral_energy(e: int, pos: wp.array(dtype=vec), data: Data) -> scalar:
+        """0 [J]: a planar structure has no lateral contacts (its pass runs over none)."""
+        return scalar(0.0)
+
+    @wp.func(inline=True)
+    def return_anchor(t: int, pos: wp.array(dtype=vec), data: Data, state: State,
+                      bound: scalar) -> scalar:
+        """Tie t's anchor moved along s until k_t |s| = F_T where k_t |s| > F_T; the energy
+        dissipated F_T |delta xi| [J]."""
+        s = slip(pos, data, state.anchors, t, plane_shift(pos, data))
+        move = laws.return_anchor(s, bound, data.friction_law[t, 3])
+        state.anchors[t] = state.anchors[t] + move
+        return bound * wp.length(move)
+
+    return SimpleNamespace(turning_angle=turning_angle, wrap_forces=wrap_forces,
+                           plane_shift=plane_shift, slip=slip, tie_pass_at=tie_pass_at,
+                           own_force=own_force, node_force=node_force, scatter=scatter,
+                           add_node_energy=add_node_energy, add_tie_energy=add_tie_energy,
+                           lateral_energy=lateral_energy, return_anchor=return_anchor)
