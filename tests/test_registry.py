@@ -122,7 +122,8 @@ def test_switched_off_terms_add_nothing_and_the_others_their_closed_forms(make_s
 
 
 def test_reported_energies_are_the_registry_datasets(make_scene):
-    # A step reports steps/energy/<term> for exactly the model's terms (Term.dataset);
+    # A step reports steps/energy/<term> for exactly the model's terms (Term.dataset): on a
+    # yarn with every term, every term with one-yarn entry points (Term.yarn);
     # friction's is its stick springs after the return map: sum_j 1/2 k_t (x_nj - xi_j)^2.
     # Each crossing's value is the Huber energy on the stick branch, or on the slide
     # branch exactly at |s| = F_T / k_t, equal to the quadratic up to a few eps; summed
@@ -136,7 +137,7 @@ def test_reported_energies_are_the_registry_datasets(make_scene):
     state.anchors[:, :2] = positions[:, nodes[:2], 0] - 1e-7
     _, record = finish_step(model, state, positions, 0.05, np.zeros(2), np.zeros(2, np.int64))
     reported = {name for name in record if name.startswith("energy/")}
-    assert reported == {t.dataset for t in registry.TERMS}
+    assert reported == {t.dataset for t in registry.TERMS if t.yarn}
     assert record["sliding"].any() and not record["sliding"].all()  # both friction regimes
     slip = positions[:, nodes, 0] - record["anchors"]
     k_t = np.array([y.stick_stiffness for y in model.yarns])
@@ -188,8 +189,10 @@ sys.path.insert(0, sys.argv[1])
 import tether
 sys.modules["dynfab.model.terms.tether"] = tether
 from dynfab.model.terms import registry
+before = len(registry.TERMS)
 registry.TERMS += (registry.Term("tether", "test spring", lambda scene: True, "energy/tether"),)
 registry.NAMES += ("tether",)
+tethered = registry.index("tether")
 
 from dynfab.model import assembly
 from dynfab.solvers.banded import zeros_band, BANDWIDTH
@@ -214,7 +217,7 @@ assembly.energies(pos, yarn, 0.0, zero, zero, vector)
 grad = np.zeros_like(pos)
 assembly.gradient(pos, yarn, 0.0, zero, zero, grad)
 without = np.zeros_like(pos)
-yarn_without = yarn._replace(active=yarn.active & (np.arange(yarn.active.size) < 6))
+yarn_without = yarn._replace(active=yarn.active & (np.arange(yarn.active.size) != tethered))
 assembly.gradient(pos, yarn_without, 0.0, zero, zero, without)
 band, band_without = zeros_band(pos.size), zeros_band(pos.size)
 assembly.hessian(pos, yarn, zero, zero, zero, False, band)
@@ -222,11 +225,12 @@ assembly.hessian(pos, yarn_without, zero, zero, zero, False, band_without)
 _, record = finish_step(model, initial_state(model), pos[None], 1e-4, np.zeros(1),
                         np.zeros(1, np.int64))
 try:  # a yarn built for another term list (as after a stale numba cache) is refused
-    assembly.energies(pos, yarn._replace(active=yarn.active[:6]), 0.0, zero, zero, vector)
+    assembly.energies(pos, yarn._replace(active=yarn.active[:before]), 0.0, zero, zero, vector)
     refused = False
 except RuntimeError:
     refused = True
-print(json.dumps({"terms": model.terms, "refused": refused, "size": int(vector.size), "energy": vector[6],
+print(json.dumps({"terms": model.terms, "refused": refused, "added": int(vector.size) - before,
+                  "energy": vector[tethered],
                   "dz": pos[m, 1] - yarn.rest_position[m, 1],
                   "force": grad[m, 1] - without[m, 1],
                   "others_force": without[m, 1],
@@ -238,7 +242,7 @@ print(json.dumps({"terms": model.terms, "refused": refused, "size": int(vector.s
 
 def test_a_new_term_is_its_module_and_one_registry_entry(tmp_path):
     # The tether term exists only as a module and a registry entry: it shows up in the energy
-    # vector's 7th entry, the gradient, the Hessian and the step's energy/tether, with
+    # vector's last entry, the gradient, the Hessian and the step's energy/tether, with
     # E = K dz^2 / 2, dE/dz = K dz, d2E/dz2 = K (dz = 1e-4 m at the middle node). The energy
     # is the same floating-point product as here; force and stiffness are read as differences
     # of sums that include the other terms, so they carry those sums' rounding, eps x |sum|.
@@ -246,13 +250,13 @@ def test_a_new_term_is_its_module_and_one_registry_entry(tmp_path):
     script = tmp_path / "new_term.py"
     script.write_text(NEW_TERM_SCRIPT)
     tests = os.path.dirname(os.path.abspath(__file__))
-    # its own numba cache: the assembly compiled with seven terms must not reach the others
+    # its own numba cache: the assembly compiled with the tether must not reach the others
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba_cache"))
     done = subprocess.run([sys.executable, str(script), str(tmp_path), tests], env=env,
                           capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr
     out = json.loads(done.stdout.strip().splitlines()[-1])
-    assert "tether" in out["terms"] and out["size"] == 7
+    assert "tether" in out["terms"] and out["added"] == 1
     assert out["refused"]
     K, dz = 50.0, out["dz"]
     assert dz == pytest.approx(1e-4, rel=1e-9)

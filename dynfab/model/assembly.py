@@ -43,10 +43,16 @@ class Frozen(NamedTuple):
     """Hessian: sliding crossings get the secant stiffness F_T / |s| (`friction.add_hessian`)."""
 
 
+YARN_TERMS = tuple(i for i, t in enumerate(registry.TERMS) if t.yarn)
+"""The registry index of each term with one-yarn entry points (`registry.Term.yarn`), in
+registry order: the k-th entry point below is term YARN_TERMS[k]'s."""
+
+
 def _entry_points(name: str) -> tuple:
-    """The entry point `name` of every term's numba module `dynfab.model.terms.<term>`, registry order."""
-    return tuple(getattr(importlib.import_module(f"dynfab.model.terms.{t.name}"), name)
-                 for t in registry.TERMS)
+    """The entry point `name` of the numba module `dynfab.model.terms.<term>` of every term
+    in YARN_TERMS, registry order."""
+    return tuple(getattr(importlib.import_module(f"dynfab.model.terms.{registry.TERMS[i].name}"),
+                         name) for i in YARN_TERMS)
 
 
 ENERGIES = _entry_points("yarn_energy")
@@ -86,7 +92,8 @@ def energies(pos, yarn, P, anchors, friction_limit, out, branch=None):
     frozen = Frozen(P, anchors, friction_limit, anchors[:0], branch, False, False)
     k = 0
     for energy in literal_unroll(ENERGIES):
-        out[k] = energy(pos, yarn, frozen) if yarn.active[k] else 0.0
+        term = YARN_TERMS[k]
+        out[term] = energy(pos, yarn, frozen) if yarn.active[term] else 0.0
         k += 1
 
 
@@ -98,7 +105,7 @@ def gradient(pos, yarn, P, anchors, friction_limit, grad, branch=None):
     frozen = Frozen(P, anchors, friction_limit, anchors[:0], branch, False, False)
     k = 0
     for add_gradient in literal_unroll(GRADIENTS):
-        if yarn.active[k]:
+        if yarn.active[YARN_TERMS[k]]:
             add_gradient(pos, yarn, frozen, grad)
         k += 1
 
@@ -118,7 +125,7 @@ def hessian(pos, yarn, anchors, friction_limit, contact_tangent, coupled, band, 
     frozen = Frozen(0.0, anchors, friction_limit, contact_tangent, branch, coupled, secant)
     k = 0
     for add_hessian in literal_unroll(HESSIANS):
-        if yarn.active[k]:
+        if yarn.active[YARN_TERMS[k]]:
             add_hessian(pos, yarn, frozen, band)
         k += 1
 

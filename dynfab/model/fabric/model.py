@@ -305,8 +305,7 @@ class FabricModel:
         P = (self.yarn_loads(*load_at_time(self, time)) if self.control == "force"
              else np.zeros(self.yarns))
         values = dict(zip(TERMS, self.energies(pos, P, anchors, self.friction_limits(pos))))
-        frame.update({registry.TERMS[registry.index(term)].dataset: float(values[term])
-                      for term in registry.active_terms(self.scene)})
+        frame.update(registry.energy_records(self.scene, values))
         frame["energy/kinetic"] = float(np.sum(arrays["kinetic_energy"]))
         return {name: np.asarray(value) for name, value in frame.items()}
 
@@ -357,8 +356,7 @@ class FabricModel:
         }
         P = end_force if self.control == "force" else np.zeros(self.yarns)
         values = dict(zip(TERMS, self.energies(pos, P, anchors, limit)))
-        record.update({registry.TERMS[registry.index(term)].dataset: float(values[term])
-                       for term in registry.active_terms(self.scene)})
+        record.update(registry.energy_records(self.scene, values))
         ratios = fabric_slip_ratios(record, *self.crossing_nodes())
         record["slip_ratio"] = np.max(np.concatenate([r.ravel() for r in ratios]), initial=0.0)
         return new, {name: np.asarray(value) for name, value in record.items()}

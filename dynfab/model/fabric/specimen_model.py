@@ -49,6 +49,7 @@ from dynfab.results.shear_force import (bias_normalised_shear_force, frame_norma
                                 frame_shear_force)
 from dynfab.solvers.step import StepSolution, StepStart
 from dynfab.model.structure import chain_count, chain_of_node
+from dynfab.model.terms import registry
 
 SLIP_LIMIT = 0.5
 """The largest slip of a crossing over its segment length a step may end with
@@ -339,8 +340,7 @@ class SpecimenModel:
         }
         record["slip_ratio"] = float(np.max(record["crossing_slip_ratio"], initial=0.0))
         values = spatial.energy_vector(f, pos, np.zeros(chain_count(f)), anchors, limit)
-        record.update({f"energy/{term}": float(v) for term, v in zip(spatial.TERMS, values)
-                       if term not in ("load", "gravity")})
+        record.update(registry.energy_records(self.scene, dict(zip(spatial.TERMS, values))))
         return new, {name: np.asarray(value) for name, value in record.items()}
 
     # ------------------------------------------------------------------ observables

@@ -2,7 +2,10 @@
 
 V = sum over the active terms of their energies. A term is switched on by the
 scene (`Term.active`); its numba module (`dynfab.model.terms.<name>`, +dV/dr) is the
-static reference. The assembly (`dynfab.model.assembly`), the diagnostics and the result
+static reference. Every term of every model is listed, the spatial kinematics' crossing
+rotation spring and lateral contact included (docs/model.md section 11, their elements in
+`dynfab.model.terms.spatial`), so every model records the same term under the same
+`steps/energy/<...>` name (`energy_records`). The assembly (`dynfab.model.assembly`), the diagnostics and the result
 datasets are derived from `TERMS`; adding a term is its module and one entry here, plus
 its parameters, if it has new ones: fields of `dynfab.model.yarn.Yarn` (filled in
 `build_model`) read from its scene keys (`dynfab.scene`). The energy vector,
@@ -34,23 +37,34 @@ class Term:
     """active(scene) -> bool: whether a scene has this term."""
     dataset: str | None
     """The result dataset of its energy [J] (`steps/<dataset>`), or None when it reports none."""
+    yarn: bool = True
+    """Its module has the one-yarn entry points (`name` above), which the one-yarn assembly
+    calls (`dynfab.model.assembly.YARN_TERMS`)."""
 
 
 def _always(scene) -> bool:
     return True
 
 
+def _specimen(scene) -> bool:
+    return scene.specimen is not None
+
+
 TERMS: tuple[Term, ...] = (
     Term("stretch", "extension springs EA/l0 (model.md section 2)", _always, "energy/stretch"),
     Term("bending", "bending springs EI/lbar (model.md section 2)", _always, "energy/bending"),
     Term("contact", "series Kawabata compression at the crossings (model.md section 3)",
-         lambda scene: scene.geometry.crossings > 0, "energy/contact"),
+         lambda scene: _specimen(scene) or scene.geometry.crossings > 0, "energy/contact"),
     Term("friction", "Huber stick-slip friction at the crossings (model.md section 4)",
          lambda scene: scene.friction is not None, "energy/stick"),
     Term("gravity", "the weight of the yarn's masses (model.md section 2)",
          lambda scene: scene.gravity is not None, "energy/gravity"),
     Term("load", "the end load's potential -P (x_N - x0_N) (model.md section 2)",
          lambda scene: scene.load.control == "force", "energy/load"),
+    Term("shear", "the rotation spring of each crossing, K (phi - phi_rest) (model.md 11.3)",
+         _specimen, "energy/shear", yarn=False),
+    Term("lateral", "the lateral contact of neighbouring yarns (model.md 11.5)", _specimen,
+         "energy/lateral", yarn=False),
 )
 """Every term of the model, in the order of the energy vector."""
 
@@ -71,3 +85,9 @@ def index(name: str) -> int:
 def active_mask(scene) -> np.ndarray:
     """Which terms a (validated) scene uses, (len(TERMS),) bool in registry order (`Yarn.active`)."""
     return np.array([t.active(scene) for t in TERMS], dtype=np.bool_)
+
+
+def energy_records(scene, values: dict) -> dict[str, float]:
+    """{`Term.dataset`: its energy [J]} of every term `scene` has that reports one, from
+    `values` {term name: energy [J]} (a model's energy vector by name)."""
+    return {t.dataset: float(values[t.name]) for t in TERMS if t.dataset and t.active(scene)}
