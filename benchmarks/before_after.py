@@ -120,8 +120,8 @@ def best_of(turns: list[dict]) -> dict:
 
 def _pardiso_after() -> bool:
     """Whether this tree factors the fabric by PARDISO here (MKL installed, DYNFAB_PARDISO
-    not 0: `dynfab.model.fabric.pardiso`); the before tree may predate it."""
-    from dynfab.model.fabric import pardiso
+    not 0: `dynfab.linalg.pardiso`); the before tree may predate it."""
+    from dynfab.linalg import pardiso
     return pardiso.available()
 
 

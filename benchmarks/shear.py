@@ -14,7 +14,7 @@ against each other on the same Hessians, and the Cao et al. scenes' load paths.
 - **factorisations**: the Hessian of each size's last step (F_T frozen, on the unknowns),
   factored by SuperLU in its symmetric mode in the nested-dissection order the solver uses
   without MKL (`dynfab.model.fabric.ordering.OrderedLU`; its negative pivots), by SuperLU with
-  its own COLAMD order, and by MKL PARDISO as symmetric indefinite (`dynfab.model.fabric.pardiso`,
+  its own COLAMD order, and by MKL PARDISO as symmetric indefinite (`dynfab.linalg.pardiso`,
   the analysis and factorisation, then the factorisation alone on its analysis, as the
   Newton solves do; its inertia), where MKL is installed;
 - **scenes**: each scene's path with the static solver until it ends or stops (a
@@ -44,7 +44,8 @@ import scipy.sparse
 import scipy.sparse.linalg
 
 from dynfab.errors import SolverError
-from dynfab.model.fabric import ordering, pardiso
+from dynfab.model.fabric import ordering
+from dynfab.linalg import pardiso
 from dynfab.model.yarn import build_model
 from dynfab.scene import load_scene, with_key
 from dynfab.solvers.by_name import make_solver
@@ -83,7 +84,7 @@ def _path(model, steps: int | None, say=print) -> dict:
 
 def _pardiso_factor(H):
     """(analysis and factorisation [s], factorisation on the analysis [s], negatives,
-    nnz(L)) of PARDISO's symmetric indefinite L D L^T of H (`dynfab.model.fabric.pardiso`), or
+    nnz(L)) of PARDISO's symmetric indefinite L D L^T of H (`dynfab.linalg.pardiso`), or
     None without MKL."""
     if not pardiso.available():
         return None

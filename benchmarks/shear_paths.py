@@ -4,7 +4,7 @@ scene's last d), the clamp force [N] and the normalised shear force [N/m] at nom
 20, 30 and 40 degrees (linear in the nominal angle between the finished steps; '-' past the
 last one), and after step 0 the median contact force over the preload, by the crossings'
 rank from a free yarn end (`dynfab.model.builders.woven_rest.crossings_from_free_end`). The
-normalised force is computed from the clamp force by today's `dynfab.results.shear_force`, so files
+normalised force is computed from the clamp force by today's `dynfab.model.shear_force`, so files
 of different trees compare on one normalisation.
 
 Run: PYTHONPATH=. python benchmarks/shear_paths.py FILE.h5 [FILE.h5 ...] [--label NAME]
@@ -25,7 +25,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from dynfab.results.file import read_results  # noqa: E402
 from dynfab.scene import parse_scene_text  # noqa: E402
-from dynfab.results.shear_force import (  # noqa: E402
+from dynfab.model.shear_force import (  # noqa: E402
     bias_normalised_shear_force, frame_normalised_shear_force)
 from dynfab.plots.specimen import nominal_angles  # noqa: E402
 
@@ -44,7 +44,7 @@ def _at_angles(angle: np.ndarray, values: np.ndarray) -> list:
 
 def _normalised(results, d: np.ndarray) -> np.ndarray:
     """The normalised shear force [N/m] of every step from its clamp force, by today's
-    `dynfab.results.shear_force` (a file written before a change of the normalisation is read as
+    `dynfab.model.shear_force` (a file written before a change of the normalisation is read as
     today's would write it)."""
     a, force = results.attrs, np.asarray(results.steps["clamp_force"], float)
     if a["specimen_test"] == "bias_extension":

@@ -40,7 +40,7 @@ from scipy.optimize import minimize
 from scipy.sparse.linalg import spsolve
 
 from dynfab.model import assembly
-from dynfab.solvers.banded import BANDWIDTH
+from dynfab.linalg.banded import BANDWIDTH
 from dynfab.solvers.certificate import certify_yarn
 from dynfab.model.yarn import build_model, initial_state
 from dynfab.scene import Load, expand_sweep, load_scene, validate_scene, with_key

@@ -1,5 +1,5 @@
 """Banded matrices of a run of dofs in flat storage, and their LU factorisation, inside a kernel
-(the Warp twin of `dynfab.solvers.banded`; docs/model.md section 5).
+(the Warp twin of `dynfab.linalg.banded`; docs/model.md section 5).
 
 A matrix over all dofs stores row i as band[i, j - i + BANDWIDTH] = A_ij, shape
 (dofs, 2 BANDWIDTH + 1), half-bandwidth 5 (a node's two dofs and the three-node bending
@@ -15,7 +15,7 @@ from types import SimpleNamespace
 
 import warp as wp
 
-from dynfab.solvers.banded import BANDWIDTH
+from dynfab.linalg.banded import BANDWIDTH
 
 
 @functools.cache

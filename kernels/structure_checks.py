@@ -29,7 +29,7 @@ from types import SimpleNamespace
 
 import warp as wp
 
-from dynfab.solvers.banded import BANDWIDTH
+from dynfab.linalg.banded import BANDWIDTH
 from dynfab.kernels import band_lu, status, structure_forces, structure_settings
 from dynfab.kernels import structure_tangent, structure_variants
 from dynfab.kernels.precision import KINEMATICS, epsilon, vector

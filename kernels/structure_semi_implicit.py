@@ -49,7 +49,7 @@ from types import SimpleNamespace
 
 import warp as wp
 
-from dynfab.solvers.banded import BANDWIDTH
+from dynfab.linalg.banded import BANDWIDTH
 from dynfab.kernels import band_lu, status, structure_checks, structure_forces
 from dynfab.kernels import structure_settings, structure_tangent, structure_variants
 from dynfab.kernels.precision import VECTORS

@@ -15,7 +15,7 @@ import functools
 import numpy as np
 import warp as wp
 
-from dynfab.solvers.banded import BANDWIDTH
+from dynfab.linalg.banded import BANDWIDTH
 from dynfab.kernels.precision import vector
 
 WIDTH = 2 * BANDWIDTH + 1

@@ -29,7 +29,7 @@ import warp as wp
 
 from dynfab.kernels import band_lu, structure_arrays, structure_forces, structure_state, tie_law
 from dynfab.kernels.precision import VECTORS
-from dynfab.solvers.banded import BANDWIDTH
+from dynfab.linalg.banded import BANDWIDTH
 
 
 @functools.cache

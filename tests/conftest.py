@@ -23,7 +23,7 @@ def make_scene():
 def factoriser(request, monkeypatch):
     """The fabric's symmetric factorisation (`dynfab.model.fabric.ordering.symmetric_factor`):
     SuperLU alone, or PARDISO first at every size (skipped where MKL is not installed)."""
-    from dynfab.model.fabric import pardiso
+    from dynfab.linalg import pardiso
     if request.param == "pardiso" and not pardiso.available():
         pytest.skip("MKL (PARDISO) is not installed (wheels for x86-64 Linux and Windows only)")
     if request.param == "superlu":
@@ -36,5 +36,5 @@ def factoriser(request, monkeypatch):
 @pytest.fixture
 def superlu_alone(monkeypatch):
     """The fabric's symmetric factorisations by SuperLU alone (PARDISO off)."""
-    from dynfab.model.fabric import pardiso
+    from dynfab.linalg import pardiso
     monkeypatch.setattr(pardiso, "available", lambda: False)

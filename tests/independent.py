@@ -2,7 +2,7 @@
 
 Scene building through the TOML parser (as a user's scene file), fabric scenes and
 their models (a held family, no core spring), a load-path driver, the dense matrix of a
-banded one (`dynfab.solvers.banded.to_dense`, checked against `band_matvec` in
+banded one (`dynfab.linalg.banded.to_dense`, checked against `band_matvec` in
 test_certificate.py), and the tests' one reference of the contact and friction laws,
 written from docs/model.md independently of dynfab.model.terms: the series contact law of
 section 3 solved with scipy (brentq on g(R), arc lengths from ellipe) and Gralen's law of
@@ -19,7 +19,7 @@ from scipy.optimize import brentq
 from scipy.special import ellipe
 
 from dynfab.model import assembly
-from dynfab.solvers.banded import to_dense as dense  # noqa: F401 (the tests' name for it)
+from dynfab.linalg.banded import to_dense as dense  # noqa: F401 (the tests' name for it)
 from dynfab.model.fabric.model import FabricModel
 from dynfab.model.yarn import build_model, initial_state
 from dynfab.scene import Scene, parse_scene_text, validate_scene

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from dynfab.model import assembly
-from dynfab.solvers.banded import constrain, lu_factor, lu_solve, zeros_band
+from dynfab.linalg.banded import constrain, lu_factor, lu_solve, zeros_band
 from dynfab.model.yarn import build_model, initial_state
 from dynfab.solvers.static import StaticSolver
 

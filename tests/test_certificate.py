@@ -1,5 +1,5 @@
 """The certificate of a converged step (docs/model.md section 6; dynfab/solvers/certificate.py,
-dynfab/solvers/ldlt.py).
+dynfab/linalg/ldlt.py).
 
 - The banded LDL^T: inertia, solve and the Hager-Higham norm estimate against dense numpy.
 - A stable paper yarn: stable, and numpy.linalg.eigvalsh's lowest eigenvalue of the dense
@@ -26,9 +26,9 @@ from scipy.optimize import brentq
 from scipy.special import ellipe, ellipk
 
 from dynfab.solvers import certificate
-from dynfab.solvers.banded import BANDWIDTH, band_matvec, to_dense
+from dynfab.linalg.banded import BANDWIDTH, band_matvec, to_dense
 from dynfab.errors import SolverError
-from dynfab.solvers.ldlt import TINY_PIVOT, inverse_norm_1, ldlt_factor, ldlt_solve
+from dynfab.linalg.ldlt import TINY_PIVOT, inverse_norm_1, ldlt_factor, ldlt_solve
 from dynfab.model.yarn import build_model, initial_state
 from dynfab.run import run
 from dynfab.scene import expand_sweep, load_scene, with_key
@@ -41,7 +41,7 @@ RUNS = Path(__file__).resolve().parents[1] / "runs"
 
 
 def banded(matrix):
-    """The `dynfab.solvers.banded` layout of a dense matrix of half-bandwidth <= BANDWIDTH."""
+    """The `dynfab.linalg.banded` layout of a dense matrix of half-bandwidth <= BANDWIDTH."""
     n = matrix.shape[0]
     band = np.zeros((n, 2 * BANDWIDTH + 1))
     for i in range(n):

@@ -1,7 +1,8 @@
 """Every term of V on the numba twin (`dynfab.model.terms`, the static reference): gradient against
 central differences of the energy, banded Hessian against central differences of the
-gradient (docs/model.md sections 2-4). The terms are the registry's (`dynfab.model.terms.registry`),
-so a term added there is checked here once its numba calls are in `numba_term` and its
+gradient (docs/model.md sections 2-4). The terms are the registry's with one-yarn entry points
+(`dynfab.model.terms.registry`, `Term.yarn`; the spatial ones are checked in
+tests/test_spatial_terms.py), so a term added there is checked here once its numba calls are in `numba_term` and its
 stiffness bound in `bounds`. (The dynamic solver's Warp kernels, one layer for any structure,
 are checked against this reference term by term: tests/test_kernels_structure.py.)
 
@@ -33,7 +34,7 @@ import numpy as np
 import pytest
 
 from dynfab.model import assembly
-from dynfab.solvers.banded import zeros_band
+from dynfab.linalg.banded import zeros_band
 from dynfab.model.yarn import build_model
 from dynfab.model.terms import contact, friction, registry
 from independent import PAPER_FRICTION, PAPER_WARP, PAPER_WEFT, dense, make_scene
@@ -163,7 +164,7 @@ def test_state_keeps_every_regime_under_the_steps(states):
 
 
 @pytest.mark.parametrize("twin", TWINS)
-@pytest.mark.parametrize("name", registry.NAMES)
+@pytest.mark.parametrize("name", [t.name for t in registry.TERMS if t.yarn])
 def test_gradient_and_hessian_are_the_derivatives(model, states, name, twin):
     # dE/dr_i and d2E/dr_i dr_j against central differences (module docstring: h, tolerance
     # 10 x (rounding + truncation)); the banded Hessian compared as the dense matrix it

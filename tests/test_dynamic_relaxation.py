@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 
 from dynfab.model import assembly
-from dynfab.solvers.banded import BANDWIDTH, to_dense
+from dynfab.linalg.banded import BANDWIDTH, to_dense
 from dynfab.solvers.dynamic import DynamicSolver
 from dynfab.errors import SolverError
 from dynfab.kernels import status, structure_checks

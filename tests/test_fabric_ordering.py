@@ -18,7 +18,9 @@ import pytest
 import scipy.sparse
 import scipy.sparse.linalg
 
-from dynfab.model.fabric import inertia, ordering, pardiso
+from dynfab.model.fabric import inertia, ordering
+
+from dynfab.linalg import pardiso
 from dynfab.model.fabric.model import FabricModel
 from dynfab.solvers.newton_sparse import _sparse_solve
 from dynfab.solvers.static import StaticSolver

@@ -41,7 +41,7 @@ from matplotlib.image import imread
 from matplotlib.text import Text
 
 from dynfab.model import assembly
-from dynfab.solvers.banded import to_dense
+from dynfab.linalg.banded import to_dense
 from dynfab.cli import main
 from dynfab.errors import UserError
 from dynfab.kernels.structure_variants import built_variants

@@ -253,7 +253,7 @@ def test_fit_jacobian_is_the_derivative_of_its_residuals():
 def test_banded_solve_falls_back_to_pivoting_on_a_negative_pivot():
     """J is not positive definite under compression: the solve must still be J^-1 rhs (dense
     numpy reference), fixed dofs held at 0."""
-    from dynfab.solvers.banded import BANDWIDTH, band_add, to_dense, zeros_band
+    from dynfab.linalg.banded import BANDWIDTH, band_add, to_dense, zeros_band
     from dynfab.fitting.sensitivity import _solve
 
     rng = np.random.default_rng(0)

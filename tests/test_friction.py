@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 from dynfab.model import assembly
-from dynfab.solvers.banded import BANDWIDTH
+from dynfab.linalg.banded import BANDWIDTH
 from dynfab.model.terms.friction import INDEX as FRICTION
 from independent import (EPS, PAPER_FRICTION, PAPER_WARP, PAPER_WEFT, contact_forces, dense,
                          make_scene, pull, run, scene_gralen, series_law)

@@ -12,7 +12,9 @@ import scipy.sparse.linalg
 
 import pytest
 
-from dynfab.model.fabric import kept_factor, ordering, pardiso
+from dynfab.model.fabric import kept_factor, ordering
+
+from dynfab.linalg import pardiso
 
 
 def chain_laplacian(n: int, rng) -> scipy.sparse.csc_matrix:

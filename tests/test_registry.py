@@ -25,9 +25,9 @@ import numpy as np
 import pytest
 
 from dynfab.model import assembly
-from dynfab.solvers.banded import zeros_band
+from dynfab.linalg.banded import zeros_band
 from dynfab.model.yarn import build_model, initial_state
-from dynfab.results.observables import finish_step
+from dynfab.model.observables import finish_step
 from dynfab.model.terms import registry
 from dynfab.model.terms.friction import INDEX as FRICTION
 from independent import (EPS, contact_forces, dense, fd_gradient, fd_jacobian, scene_gralen,
@@ -157,7 +157,7 @@ TETHER = '''
 """A test term: a spring of stiffness K [N/m] holding the middle node at its rest height."""
 import numba
 
-from dynfab.solvers.banded import band_add
+from dynfab.linalg.banded import band_add
 
 K = 50.0
 
@@ -195,9 +195,9 @@ registry.NAMES += ("tether",)
 tethered = registry.index("tether")
 
 from dynfab.model import assembly
-from dynfab.solvers.banded import zeros_band, BANDWIDTH
+from dynfab.linalg.banded import zeros_band, BANDWIDTH
 from dynfab.model.yarn import build_model, initial_state
-from dynfab.results.observables import finish_step
+from dynfab.model.observables import finish_step
 from dynfab.scene import parse_scene_text
 sys.path.insert(0, sys.argv[2])
 from independent import scene_toml

@@ -37,7 +37,7 @@ def resumed_run(scene, tmp_path):
 
 
 def test_a_resumed_bias_file_has_the_uninterrupted_normalised_force(tmp_path):
-    """Harrison's normalisation reads the whole curve so far (dynfab.results.shear_force), and a step
+    """Harrison's normalisation reads the whole curve so far (dynfab.model.shear_force), and a step
     starts along the last step's path tangent: a resumed run gives the model the finished
     steps' forces and positions, so every step is the uninterrupted run's."""
     bias = BIAS.replace("width = 0.06", "width = 0.025").replace("height = 0.12", "height = 0.05")

@@ -1,4 +1,4 @@
-"""Cao et al.'s normalised shear forces (dynfab.results.shear_force, docs/model.md section 11.7)
+"""Cao et al.'s normalised shear forces (dynfab.model.shear_force, docs/model.md section 11.7)
 against the power balance they come from.
 
 A fabric whose shear power per unit area is T(gamma) gamma-dot (here T = a gamma + b gamma^3,
@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from dynfab.results.shear_force import bias_normalised_shear_force, frame_normalised_shear_force
+from dynfab.model.shear_force import bias_normalised_shear_force, frame_normalised_shear_force
 from dynfab.model.specimen_layout import frame_angle, nominal_shear_angle
 
 

@@ -24,7 +24,7 @@ import numpy as np
 import pytest
 
 from dynfab import run
-from dynfab.model.fabric import pardiso
+from dynfab.linalg import pardiso
 from dynfab.scene import load_scene, parse_scene_text
 from test_shear_dynamic import CASES
 from test_shear_specimens import scene_text

@@ -29,7 +29,7 @@ import pytest
 from scipy.special import ellipe
 
 from dynfab.model import assembly, geometry
-from dynfab.solvers.banded import zeros_band
+from dynfab.linalg.banded import zeros_band
 from dynfab.model.yarn import build_model
 from dynfab.scene import with_key
 from dynfab.model.terms import bending, contact, friction, gravity, load, registry, stretch
@@ -502,7 +502,7 @@ def test_secant_friction_stiffness_majorises_the_huber_potential():
     lies above H(s) for every s, because |s| <= s^2/(2|s0|) + |s0|/2 and the Huber
     potential is the stick-clipped |s|. Checked on a grid to rounding (16 eps of the scale).
     """
-    from dynfab.solvers.banded import zeros_band
+    from dynfab.linalg.banded import zeros_band
 
     k_t, F_T = 3.07e4, 6e-3
     rng = np.random.default_rng(27)

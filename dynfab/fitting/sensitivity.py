@@ -41,7 +41,7 @@ import numpy as np
 from scipy.linalg import solve_banded
 
 from dynfab.model import assembly
-from dynfab.solvers.banded import BANDWIDTH, constrain, lu_factor, lu_solve
+from dynfab.linalg.banded import BANDWIDTH, constrain, lu_factor, lu_solve
 from dynfab.model.domain import check_not_folded
 from dynfab.errors import UserError
 from dynfab.model.yarn import build_model, initial_state

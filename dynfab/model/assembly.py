@@ -18,7 +18,7 @@ import numpy as np
 from numba import literal_unroll
 from numba.core.errors import NumbaExperimentalFeatureWarning
 
-from dynfab.solvers import banded
+from dynfab.linalg import banded
 from dynfab.model.terms import contact, friction, registry
 
 
@@ -113,7 +113,7 @@ def gradient(pos, yarn, P, anchors, friction_limit, grad, branch=None):
 @numba.njit(cache=True)
 def hessian(pos, yarn, anchors, friction_limit, contact_tangent, coupled, band, secant=False,
             branch=None):
-    """band = d2V/dr2 [N/m], banded (`dynfab.solvers.banded`), F_T frozen.
+    """band = d2V/dr2 [N/m], banded (`dynfab.linalg.banded`), F_T frozen.
 
     With `coupled`, adds the derivative of F_T through the contact force on
     sliding crossings (`friction.add_limit_coupling`, dR/dg from `contact_tangent`):
@@ -156,7 +156,7 @@ def contact_state_of(pos, yarn, branch=None):
 
 
 def tangent(pos, yarn, anchors, coupled: bool) -> np.ndarray:
-    """The banded tangent [N/m] of one yarn at `pos` (`hessian`, `dynfab.solvers.banded` layout): F_T
+    """The banded tangent [N/m] of one yarn at `pos` (`hessian`, `dynfab.linalg.banded` layout): F_T
     and dR/dg from the contact state there, the friction anchors of the step's start; with
     `coupled` the coupled friction Jacobian."""
     pos = np.ascontiguousarray(pos, dtype=np.float64)

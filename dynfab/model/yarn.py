@@ -19,9 +19,9 @@ from dynfab.model.domain import check_not_folded
 from dynfab.scene import Scene
 from dynfab.model.geometry import width_per_yarn
 from dynfab.model.loading import prescribe_load
-from dynfab.results.observables import finish_step as observe_step
+from dynfab.model.observables import finish_step as observe_step
 from dynfab.model.state import State, initial_state
-from dynfab.solvers.step import StepSolution, StepStart
+from dynfab.model.step import StepSolution, StepStart
 from dynfab.model.structure import Structure, chain_nodes, chain_segments, tie_layout, uniform
 from dynfab.model.terms import registry
 
@@ -109,7 +109,7 @@ class Model:
     @cached_property
     def crossing_rest_x(self) -> np.ndarray:
         """(yarns, crossings) x0 [m] of each yarn's crossing nodes: where the weft's plane
-        stays (the slip ratio's reference, `dynfab.results.observables`)."""
+        stays (the slip ratio's reference, `dynfab.model.observables`)."""
         return self.stacked("rest_position")[:, self.yarns[0].crossing_node, 0]
 
     def stacked(self, field: str) -> np.ndarray:
@@ -155,11 +155,16 @@ class Model:
                      dissipated=np.array(last["dissipated"]), load=np.array(last["load"]))
 
     def point_data(self, entry: dict) -> dict:
-        """A step's or frame's nodal point data of the XDMF view (`dynfab.results.xdmf.nodal_point_data`)."""
-        from dynfab.results.xdmf import nodal_point_data
-
-        return nodal_point_data(np.asarray(entry["positions"]), np.asarray(entry["anchors"]),
-                                np.asarray(entry["contact_force"]), self.yarns[0].crossing_node)
+        """A step's (or frame's) point data of the XDMF view (`dynfab.results.xdmf`) on every
+        node: R [N] and slip x - anchor [m] at the crossing nodes, 0 elsewhere; keys
+        ``xdmf/contact_force``, ``xdmf/slip``, (yarns, N+1)."""
+        positions = np.asarray(entry["positions"])
+        crossing_nodes = self.yarns[0].crossing_node
+        force, slip = np.zeros(positions.shape[:2]), np.zeros(positions.shape[:2])
+        if len(crossing_nodes):
+            force[:, crossing_nodes] = np.asarray(entry["contact_force"])
+            slip[:, crossing_nodes] = positions[:, crossing_nodes, 0] - np.asarray(entry["anchors"])
+        return {"xdmf/contact_force": force, "xdmf/slip": slip}
 
     @property
     def groups(self) -> list[np.ndarray]:
@@ -177,7 +182,7 @@ class Model:
         energies of every reported term at the load of that time (`dynfab.model.loading.load_at_time`),
         and the kinetic energy (docs/model.md section 5)."""
         from dynfab.model.loading import load_at_time
-        from dynfab.results.observables import frame_observables
+        from dynfab.model.observables import frame_observables
 
         shape = (self.yarn_count, self.segments + 1, 2)
         positions = np.asarray(arrays["positions"], float).reshape(shape)
@@ -208,7 +213,7 @@ class Model:
 
     def start_of_step(self, state: "State", load) -> StepStart:
         """Where the step to `load` [N or m] starts (`dynfab.model.loading.prescribe_load`), as the
-        structure's flat arrays (`dynfab.solvers.step.StepStart`): the anchors are the slips' (column
+        structure's flat arrays (`dynfab.model.step.StepStart`): the anchors are the slips' (column
         0; a tie to ground has no second), the end forces the load under force control."""
         value = float(load)
         positions = prescribe_load(self, state, value).reshape(-1, 2)
@@ -220,7 +225,7 @@ class Model:
     def finish_step(self, state: "State", start: StepStart, solution: StepSolution):
         """(new state, record) of the step `start` began, from the solver's `solution`
         (`dynfab.solvers.contract.RunModel.finish_step`): the return map and the observables of
-        `dynfab.results.observables.finish_step`, and the solver's fields, one per yarn."""
+        `dynfab.model.observables.finish_step`, and the solver's fields, one per yarn."""
         positions = solution.positions.reshape(self.yarn_count, self.segments + 1, 2)
         fields = solution.fields
         new_state, record = observe_step(self, state, positions, float(start.load),

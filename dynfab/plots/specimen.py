@@ -2,7 +2,7 @@
 
 - ``shear_force.png``: the force on the moved clamp (frame corner) along d against d, and
   Cao et al.'s normalised shear force (eq. 10; the bias extension's Harrison normalisation,
-  `dynfab.results.shear_force`) against the test's nominal shear angle (eq. 13 for the bias
+  `dynfab.model.shear_force`) against the test's nominal shear angle (eq. 13 for the bias
   extension's zone A, eq. 2 for the picture frame); the bias extension's panels also show each zone's mean
   computed shear angle against d beside eq. 13, the frame's its interior mean;
 - ``shear_field.png``: the shear angle of every crossing over the specimen, drawn at the
@@ -22,7 +22,7 @@ from matplotlib.figure import Figure
 from dynfab.plots.figures import draw_measured
 from dynfab.plots.style import FONT_SIZE, legend, new_figure, style_axes
 from dynfab.results.file import Results
-from dynfab.results.shear_force import bias_normalised_shear_force
+from dynfab.model.shear_force import bias_normalised_shear_force
 from dynfab.model.specimen_layout import nominal_shear_angle, yarns_meet_at
 
 DEGREE = 180.0 / np.pi
@@ -167,7 +167,7 @@ def _normalised_over_the_path(results: Results, d: np.ndarray, force: np.ndarray
     """The normalised shear force [N/m] of every step: the frame's as recorded (eq. 10, a
     step's own), the bias extension's from the whole path (Harrison's recursion reads the
     curve from d -> 0+, which a step records only once two loaded steps exist: step 0's
-    recorded value is 0, `dynfab.results.shear_force`)."""
+    recorded value is 0, `dynfab.model.shear_force`)."""
     if results.attrs["specimen_test"] != "bias_extension":
         return np.asarray(results.steps["normalised_shear_force"], float)
     return bias_normalised_shear_force(d, force, float(results.attrs["specimen_width"]),

@@ -52,7 +52,7 @@ import numba
 import numpy as np
 
 from dynfab.model import assembly
-from dynfab.solvers.banded import BANDWIDTH, constrain, lu_factor, lu_solve, to_dense
+from dynfab.linalg.banded import BANDWIDTH, constrain, lu_factor, lu_solve, to_dense
 from dynfab.errors import UserError
 from dynfab.model.yarn import build_model
 from dynfab.reports.common import (cut_yarn, output_folder, paper_scene_file, report_header,

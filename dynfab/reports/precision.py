@@ -78,11 +78,11 @@ import numpy as np
 from threadpoolctl import threadpool_info, threadpool_limits
 
 from dynfab.model import assembly
-from dynfab.solvers.banded import to_dense
+from dynfab.linalg.banded import to_dense
 from dynfab.solvers.dynamic import DynamicSolver
 from dynfab.errors import SolverError
 from dynfab.model.yarn import Model, State, build_model, initial_state
-from dynfab.results.observables import finish_step
+from dynfab.model.observables import finish_step
 from dynfab.plots.style import save_png
 from dynfab.reports.common import (cut_yarn, kernel_name, machine, output_folder, paper_yarns,
                                    write_csv, write_json, write_summary, write_text)

@@ -58,7 +58,7 @@ from typing import Callable
 import numpy as np
 
 from dynfab.model import assembly
-from dynfab.solvers.banded import BANDWIDTH, to_dense
+from dynfab.linalg.banded import BANDWIDTH, to_dense
 from dynfab.solvers.dynamic import DynamicSolver
 from dynfab.errors import UserError, SolverError
 from dynfab.kernels import status
@@ -578,7 +578,7 @@ def linear_stable_dts(model, relaxed) -> dict:
 
 
 def _largest_symmetric_eigenvalue(band: np.ndarray) -> float:
-    """lambda_max of a symmetric banded matrix (`dynfab.solvers.banded` layout)."""
+    """lambda_max of a symmetric banded matrix (`dynfab.linalg.banded` layout)."""
     n = band.shape[0]
     try:
         from scipy.linalg import eigvals_banded

@@ -1,6 +1,7 @@
-"""Results: the crash-safe HDF5 file (`file`), what a finished step records (`observables`),
-the views of a file and its XDMF (`views`, `xdmf`), what a run prints (`summary`), and the
-quantities read back from a file (`friction_states`, `shear_force`).
+"""Results: the crash-safe HDF5 file (`file`), the views of a file and its XDMF (`views`,
+`xdmf`), what a run prints (`summary`), and each crossing's friction state read back from a
+file (`friction_states`). What a step records is the model's (`dynfab.model.observables`,
+`dynfab.model.shear_force`).
 
 `from dynfab.results import read_results, Results` keeps working: the file's public names
 are looked up in `file` on first use."""

@@ -67,18 +67,6 @@ def xdmf_path(result: str | os.PathLike) -> Path:
     return Path(result).with_suffix(".xdmf")
 
 
-def nodal_point_data(positions: np.ndarray, anchors: np.ndarray, contact_force: np.ndarray,
-                     crossing_nodes: np.ndarray) -> dict[str, np.ndarray]:
-    """One step's (or frame's) point data on every node: R [N] and slip x - anchor [m] at the
-    crossing nodes, 0 elsewhere; keys ``xdmf/contact_force``, ``xdmf/slip``, (yarns, N+1)."""
-    yarns, nodes = positions.shape[:2]
-    force, slip = np.zeros((yarns, nodes)), np.zeros((yarns, nodes))
-    if len(crossing_nodes):
-        force[:, crossing_nodes] = contact_force
-        slip[:, crossing_nodes] = positions[:, crossing_nodes, 0] - anchors
-    return {"xdmf/contact_force": force, "xdmf/slip": slip}
-
-
 @dataclass(frozen=True)
 class _Layout:
     """What the XDMF of a file needs: its sizes, finished entries and their time values."""

@@ -22,7 +22,7 @@ host:
   tangent), a crossing whose trial friction force k_t |s| is within the
   residual of F_T counts as sliding (no Huber curvature along the slip).
   At that accuracy the state cannot tell the branches apart.
-- The inertia (`dynfab.solvers.ldlt`): unpivoted LDL^T, negative pivots counted
+- The inertia (`dynfab.linalg.ldlt`): unpivoted LDL^T, negative pivots counted
   (Sylvester). A pivot within tau = 64 eps max|H_ii| of zero: H + tau I is
   factored instead (doubling tau while a pivot stays that small); all
   pivots positive then prove lambda_min > -tau. `stable` = no negative pivot.
@@ -42,7 +42,7 @@ host:
   1e-6 relative (`_bisect_lowest`: about 40 factorisations, only on a state
   reported unstable); `LOWEST_ERROR` is the bracket's width.
 - The error bound: residual x est ||H^-1||_inf, the Hager-Higham estimate of
-  `dynfab.solvers.ldlt.inverse_norm_1` (H symmetric: the 1- and inf-norms agree):
+  `dynfab.linalg.ldlt.inverse_norm_1` (H symmetric: the 1- and inf-norms agree):
   |x - x*|_inf <= ||H^-1||_inf |f|_inf to first order, f the residual force.
   Infinite when H needed the shift tau to factor: singular to rounding, it
   bounds nothing (`check_accuracy` then stops the step).
@@ -66,12 +66,12 @@ import numpy as np
 import scipy.sparse.linalg
 
 from dynfab.model import assembly
-from dynfab.solvers.banded import BANDWIDTH, band_add, band_matvec, constrain
+from dynfab.linalg.banded import BANDWIDTH, band_add, band_matvec, constrain
 from dynfab.errors import SolverError
 from dynfab.model.fabric.kinematics import terms_of
 from dynfab.model.fabric import inertia
 from dynfab.model.fabric import ordering as fabric_ordering
-from dynfab.solvers.ldlt import TINY_PIVOT, inverse_norm_1, ldlt_factor, ldlt_solve, negative_direction
+from dynfab.linalg.ldlt import TINY_PIVOT, inverse_norm_1, ldlt_factor, ldlt_solve, negative_direction
 from dynfab.scene import Static
 from dynfab.model.structure import Structure, dim, grounded, tie_layout
 from dynfab.model.terms import friction

@@ -31,7 +31,7 @@ import numpy as np
 
 from dynfab.model.yarn import State
 from dynfab.scene import Scene
-from dynfab.solvers.step import StepSolution, StepStart
+from dynfab.model.step import StepSolution, StepStart
 from dynfab.model.structure import Structure
 
 Record = dict[str, np.ndarray]
@@ -46,11 +46,11 @@ STEP_KEYS = ("load", "end_force", "end_displacement", "positions", "contact_forc
              "residual", "iterations", "rounding_floor", "stable", "buckled",
              "lowest_eigenvalue", "lowest_eigenvalue_error", "error_estimate", "slip_ratio")
 """Names every `Solver.step` record holds, whatever the solver, besides one
-`energy/<term>` per reported energy term (`dynfab.results.observables`) and, where the scene has a
+`energy/<term>` per reported energy term (`dynfab.model.observables`) and, where the scene has a
 weft, stress [N/m] (yarns,), the end force per unit width; shapes (yarns, ...) with
 yarns = model.yarn_count:
 
-- by `dynfab.results.observables.finish_step`: load [N or m], end_force [N],
+- by `dynfab.model.observables.finish_step`: load [N or m], end_force [N],
   end_displacement [m], dissipated [J], crimp [-], residual [N], iterations
   [-] and slip_ratio [-] (the largest over the crossings, `dynfab.model.domain.slip_ratios`)
   (yarns,); positions [m] (yarns, N+1, 2); contact_force, friction_force,
@@ -162,7 +162,7 @@ class Solver(Protocol):
         displacement u [m] under displacement control. The step starts from
         `dynfab.model.loading.prescribe_load(model, state, load)` and ends, once every yarn's
         residual (largest free force component, friction included) is within tolerance
-        and certified, with `dynfab.results.observables.finish_step`: the new state has the
+        and certified, with `dynfab.model.observables.finish_step`: the new state has the
         anchors return-mapped (docs/model.md section 4) and `load` applied; the record holds
         `STEP_KEYS`. `state` is not modified.
 

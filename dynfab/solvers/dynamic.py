@@ -42,7 +42,7 @@ from dynfab.kernels.structure_explicit import MAX_NEGATIVE_STEPS
 from dynfab.kernels.structure_relaxation import StructureRelaxation, available_cores
 from dynfab.kernels.structure_settings import RELATIVE_TOLERANCE
 from dynfab.scene import Dynamic, check_dynamic_options
-from dynfab.solvers.step import StepSolution
+from dynfab.model.step import StepSolution
 
 __all__ = ["DynamicSolver", "DynamicTransient", "MAX_TIGHTENINGS", "available_cores"]
 

@@ -27,7 +27,7 @@ import numpy as np
 from dynfab.solvers.certificate import MAX_ESCAPES, StepStability
 from dynfab.solvers.friction_chain import friction_chain
 from dynfab.solvers.newton_info import NewtonInfo
-from dynfab.solvers.step import StepSolution, StepStart
+from dynfab.model.step import StepSolution, StepStart
 
 
 class NewtonBackend:

@@ -31,14 +31,14 @@ import scipy.linalg
 
 from dynfab.model import assembly
 from dynfab.solvers.active_set import MAX_FLIPS
-from dynfab.solvers.banded import BANDWIDTH, band_add, constrain, lu_factor, lu_solve
+from dynfab.linalg.banded import BANDWIDTH, band_add, constrain, lu_factor, lu_solve
 from dynfab.solvers.certificate import NEGATIVES, certify_yarn, check_accuracy, escape_yarn
 from dynfab.model.yarn import Yarn, chain_view
 from dynfab.solvers.newton_backend import NewtonBackend
 from dynfab.solvers.newton_info import CYCLING as CYCLING_REASON
 from dynfab.solvers.newton_info import STALLED as STALLED_REASON
 from dynfab.solvers.newton_info import Budget, NewtonInfo
-from dynfab.solvers.step import StepSolution, StepStart
+from dynfab.model.step import StepSolution, StepStart
 from dynfab.model.structure import chain_count, chain_nodes, chain_ties, dim
 from dynfab.model.terms import contact, friction, registry
 

@@ -67,14 +67,15 @@ import scipy.sparse.linalg
 from dynfab.solvers import active_set
 from dynfab.solvers.certificate import certify_patch, check_patch_accuracy, escape_patch
 from dynfab.errors import SolverError
-from dynfab.model.fabric import contact, ordering, pardiso, spatial
+from dynfab.model.fabric import contact, ordering, spatial
+from dynfab.linalg import pardiso
 from dynfab.model.fabric.friction import STICK
 from dynfab.model.fabric.kept_factor import KeptFactor
 from dynfab.model.fabric.kinematics import terms_of
 from dynfab.solvers.friction_chain import friction_chain
 from dynfab.solvers.newton_backend import NewtonBackend
 from dynfab.solvers.newton_info import Budget, NewtonInfo, within
-from dynfab.solvers.step import StepSolution, StepStart
+from dynfab.model.step import StepSolution, StepStart
 from dynfab.model.structure import Structure
 from dynfab.model.terms import contact as contact_1d
 from dynfab.model.terms import friction as gralen

@@ -14,7 +14,7 @@ load along each yarn, W_load = sum_y P_y (u_N,y - u0_N,y) (force control; 0 unde
 displacement control), and gravity on the physical masses when asked
 (`dynfab.model.terms.gravity`, docs/model.md section 2).
 
-The Hessian is one band per yarn (half-bandwidth `dynfab.solvers.banded.BANDWIDTH` in that yarn's
+The Hessian is one band per yarn (half-bandwidth `dynfab.linalg.banded.BANDWIDTH` in that yarn's
 dofs, which are contiguous) plus, per crossing, the contact block on (z_a, z_b) and the
 friction block on (x_a, y_b). `Pattern` fixes the order of its entries once; numba fills
 the values in that order, and `Pattern.matrix` sums them into a scipy CSC matrix on the
@@ -27,7 +27,7 @@ import numba
 import numpy as np
 import scipy.sparse
 
-from dynfab.solvers.banded import BANDWIDTH
+from dynfab.linalg.banded import BANDWIDTH
 from dynfab.model.fabric import contact, friction
 from dynfab.model.terms import bending, gravity, stretch
 
@@ -199,7 +199,7 @@ def wrap_hessian(pos, fabric, y):
 
 @numba.njit(cache=True)
 def yarn_band(pos, fabric, y, band):
-    """band = d2(E_stretch + E_bend)/dr2 of yarn y in its own dofs (`dynfab.solvers.banded` layout)."""
+    """band = d2(E_stretch + E_bend)/dr2 of yarn y in its own dofs (`dynfab.linalg.banded` layout)."""
     a, b = fabric.chain_start[y], fabric.chain_start[y + 1]
     band[:, :] = 0.0
     stretch.add_hessian(pos[a:b], fabric.rest_length[a - y:b - y - 1],

@@ -5,7 +5,7 @@ First route (`sparse_inertia`): with the pattern's order, the Newton solve's fac
 (`ordering.symmetric_factor`). Where MKL is installed (and A has at least 1,000 unknowns)
 that is PARDISO's L D L^T, whose D (1 x 1 and 2 x 2 Bunch-Kaufman blocks) has A's inertia by
 Sylvester's law; it is refused where PARDISO perturbed a pivot or one of D's is within
-64 eps max|A_ii| of zero (`dynfab.model.fabric.pardiso`), and SuperLU counts instead. SuperLU in
+64 eps max|A_ii| of zero (`dynfab.linalg.pardiso`), and SuperLU counts instead. SuperLU in
 symmetric mode (the pattern's nested-dissection order, `dynfab.model.fabric.ordering`, or without
 one SuperLU's minimum degree on A^T + A; diagonal pivot threshold 0) factors P A P^T = L U of the
 symmetrised A = (H + H^T)/2 + tau I. When it took every pivot on the diagonal
@@ -29,7 +29,7 @@ by identity rows), and
     In(H) = In(H_II) + In(S),   S = H_KK - H_KI H_II^-1 H_IK
 
 (Haynsworth 1968). In(H_II) is counted from each yarn's unpivoted banded LDL^T
-(`dynfab.solvers.ldlt`, Sylvester's law: the negative pivots), O(n) per yarn; S is dense,
+(`dynfab.linalg.ldlt`, Sylvester's law: the negative pivots), O(n) per yarn; S is dense,
 |K| = 4 C, assembled from one banded solve per crossing dof and counted by its
 Bunch-Kaufman LDL^T (`dense_negatives`). A pivot within rounding of zero makes H_II unusable: the matrix is then
 shifted by tau I at the rounding level (docs/model.md section 6), and "no negative" proves
@@ -48,10 +48,11 @@ import numpy as np
 import scipy.linalg
 import scipy.sparse.linalg
 
-from dynfab.solvers.banded import BANDWIDTH, constrain
+from dynfab.linalg.banded import BANDWIDTH, constrain
 from dynfab.errors import SolverError
-from dynfab.model.fabric import assembly, ordering, pardiso
-from dynfab.solvers.ldlt import TINY_PIVOT, ldlt_factor, ldlt_solve
+from dynfab.model.fabric import assembly, ordering
+from dynfab.linalg import pardiso
+from dynfab.linalg.ldlt import TINY_PIVOT, ldlt_factor, ldlt_solve
 
 EPS = np.finfo(np.float64).eps
 EIGEN_TOL = 1e-10

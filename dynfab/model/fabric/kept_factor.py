@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from dynfab.model.fabric import pardiso
+from dynfab.linalg import pardiso
 from dynfab.model.fabric.ordering import OrderedLU, Ordering, symmetric_factor
 
 KRYLOV_ITERATIONS = 6

@@ -15,7 +15,7 @@ and neither owns.
 The static solver (`dynfab.solvers.static`, its sparse backend) and the dynamic one of every model
 (`dynfab.solvers.dynamic`) import this module, never each other (`dynfab.solvers.contract`); each solves a step from
 `FabricModel.start_of_step` and hands its solution to `FabricModel.finish_step`, which
-makes the state and the record (`dynfab.solvers.step`).
+makes the state and the record (`dynfab.model.step`).
 
 Record of one fabric step (n_wa warps of N+1 nodes, n_we wefts of M+1 nodes; Y = n_wa
 + n_we yarns, warps first):
@@ -57,7 +57,7 @@ from dynfab.model.domain import check_crossings_held, check_not_folded, fabric_s
 from dynfab.model.fabric import assembly, contact, friction
 from dynfab.model.fabric.assembly import TERMS
 from dynfab.scene import Scene
-from dynfab.solvers.step import StepSolution, StepStart
+from dynfab.model.step import StepSolution, StepStart
 from dynfab.model.structure import Structure, chain_count
 from dynfab.model.terms import registry
 
@@ -257,7 +257,7 @@ class FabricModel:
         return np.where(f.chain_family == 0, warp_value, weft_value) * f.load_factor
 
     def start_of_step(self, state: FabricState, load) -> StepStart:
-        """Where the step to `load` = (warp value, weft value) starts (`dynfab.solvers.step.StepStart`),
+        """Where the step to `load` = (warp value, weft value) starts (`dynfab.model.step.StepStart`),
         copies of the state's arrays: under force control the end forces are each yarn's load;
         under displacement control they are 0 and the ends are moved to their prescribed
         displacements (`prescribe`)."""

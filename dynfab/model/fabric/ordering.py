@@ -41,7 +41,7 @@ import numpy as np
 import scipy.sparse
 import scipy.sparse.linalg
 
-from dynfab.model.fabric import pardiso
+from dynfab.linalg import pardiso
 from dynfab.model.structure import chain_of_node
 
 LEAF = 64

@@ -17,7 +17,7 @@ Record of one step (n nodes, C crossings, L lateral contacts):
   times d(r)/dd; clamp_force_from_step_0 (): the same less step 0's, the reaction of the
   relaxed woven state (what a load cell zeroed at the start of the test reads) [N]; shear_force (): picture frame, F / (2 cos theta) [N] (Cao et al. eq. 3);
   normalised_shear_force (): F_s L / L_fabric^2 [N/m] (frame, eq. 10), for the bias
-  extension Harrison's F_sh [N/m] (`dynfab.results.shear_force`, over the path so far; NaN once the
+  extension Harrison's F_sh [N/m] (`dynfab.model.shear_force`, over the path so far; NaN once the
   path has turned back: it is defined on a curve in increasing d);
 - positions (n, 3) [m]; crossing_positions (C, 3) [m] (the warp node's);
 - shear_angle (C,) [rad]: gamma = asin(t_wa . t_we) - its value at step 0, t the unit
@@ -45,9 +45,9 @@ from dynfab.model.builders.specimen import layout_of, specimen_structure
 from dynfab.errors import SolverError
 from dynfab.model.fabric import contact, spatial
 from dynfab.scene import Scene
-from dynfab.results.shear_force import (bias_normalised_shear_force, frame_normalised_shear_force,
+from dynfab.model.shear_force import (bias_normalised_shear_force, frame_normalised_shear_force,
                                 frame_shear_force)
-from dynfab.solvers.step import StepSolution, StepStart
+from dynfab.model.step import StepSolution, StepStart
 from dynfab.model.structure import chain_count, chain_of_node
 from dynfab.model.terms import registry
 
@@ -349,7 +349,7 @@ class SpecimenModel:
         """At the path's last point (d, F): the frame's shear force F_s = F / (2 cos theta)
         (Cao et al. eq. 3) and its normalisation F_s L / L_fabric^2 (eq. 10) [N], [N/m]; the
         bias extension's Harrison normalisation of its curve so far [N/m] (NaN once the path
-        has turned back) (`dynfab.results.shear_force`)."""
+        has turned back) (`dynfab.model.shear_force`)."""
         s = self.scene.specimen
         d, force = path[-1]
         if s.test == "picture_frame":

@@ -2,7 +2,7 @@
 
 Each module holds numba functions on plain arrays: `energy(...)`, `add_gradient(...,
 grad)` and `add_hessian(..., band)`, accumulating into a gradient of shape
-(N+1, 2) [N] and a banded Hessian (`dynfab.solvers.banded`) [N/m]; and the term's entry
+(N+1, 2) [N] and a banded Hessian (`dynfab.linalg.banded`) [N/m]; and the term's entry
 points, with the same arguments for every term:
 
     yarn_energy(pos, yarn, frozen) -> E [J]

@@ -14,7 +14,7 @@ entry of the 6 x 6 local Hessian lies in the band.
 import numba
 import numpy as np
 
-from dynfab.solvers.banded import BANDWIDTH
+from dynfab.linalg.banded import BANDWIDTH
 
 
 @numba.njit(cache=True)

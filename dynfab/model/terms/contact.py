@@ -30,7 +30,7 @@ solutions with R < 0 made the set updates cycle on the paper's yarn, at load ste
 import numba
 import numpy as np
 
-from dynfab.solvers.banded import band_add
+from dynfab.linalg.banded import band_add
 
 MAX_NEWTON = 100
 """Newton iterations allowed in `force_from_closure`; it needs fewer than 10 on the paper's data."""

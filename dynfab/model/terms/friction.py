@@ -25,7 +25,7 @@ energy lost is F_T |delta xi|.
 import numba
 import numpy as np
 
-from dynfab.solvers.banded import band_add
+from dynfab.linalg.banded import band_add
 from dynfab.model.terms import contact, registry
 from dynfab.model.terms import huber as huber_law
 

@@ -6,7 +6,7 @@ E_stretch = sum_i 1/2 (EA / l0_i) (l_i - l0_i)^2,  l_i = |r_{i+1} - r_i|.
 import numba
 import numpy as np
 
-from dynfab.solvers.banded import band_add
+from dynfab.linalg.banded import band_add
 
 
 @numba.njit(cache=True)

@@ -96,7 +96,7 @@ def lu_factor(band):
 @numba.njit(cache=True)
 def forward_substitute(band, rhs):
     """rhs = L^-1 rhs in place, L the unit lower triangle stored left of the diagonal of
-    `band` (the factor of `lu_factor`, or of `dynfab.solvers.ldlt.ldlt_factor`)."""
+    `band` (the factor of `lu_factor`, or of `dynfab.linalg.ldlt.ldlt_factor`)."""
     for i in range(rhs.size):
         acc = rhs[i]
         for j in range(max(0, i - BANDWIDTH), i):

@@ -2,15 +2,15 @@
 (docs/model.md section 6).
 
 H = L D L^T, L unit lower triangular with the half-bandwidth of H
-(`dynfab.solvers.banded.BANDWIDTH`), D diagonal: O(n BANDWIDTH^2) work, O(n) memory.
+(`dynfab.linalg.banded.BANDWIDTH`), D diagonal: O(n BANDWIDTH^2) work, O(n) memory.
 By Sylvester's law of inertia H and D have as many negative eigenvalues: the
 factorisation counts the negative pivots instead of stopping at the first one
-(as `dynfab.solvers.banded.lu_factor` does). Without pivoting a pivot can vanish on an
+(as `dynfab.linalg.banded.lu_factor` does). Without pivoting a pivot can vanish on an
 indefinite or singular matrix: `ldlt_factor` then reports it, and the caller
 factors H + tau I with tau at the rounding level instead (all pivots positive
 then prove lambda_min(H) > -tau).
 
-Storage: the `dynfab.solvers.banded` layout, band[i, j - i + BANDWIDTH] = H[i, j]; only
+Storage: the `dynfab.linalg.banded` layout, band[i, j - i + BANDWIDTH] = H[i, j]; only
 the lower half (j <= i) is read. After `ldlt_factor`, band[i, BANDWIDTH] holds
 d_i and band[i, j - i + BANDWIDTH] (j < i) holds L[i, j].
 """
@@ -20,7 +20,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from dynfab.solvers.banded import BANDWIDTH, forward_substitute
+from dynfab.linalg.banded import BANDWIDTH, forward_substitute
 
 TINY_PIVOT = -1
 """`ldlt_factor`'s answer when a pivot is within the tolerance of zero."""
@@ -97,7 +97,7 @@ def inverse_norm_1(band, free):
     x_i = (-1)^i (1 + i / (n - 1)), whose 2 ||H^-1 x||_1 / (3 n) is taken if
     larger. The result is a lower bound of the norm, in practice within a
     factor of 3 and usually exact. Fixed dofs (`free` False; identity rows
-    after `dynfab.solvers.banded.constrain`) are left out.
+    after `dynfab.linalg.banded.constrain`) are left out.
     """
     n, count = free.size, np.count_nonzero(free)
     if count == 0:
