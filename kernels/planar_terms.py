@@ -96,7 +96,7 @@ def structure_terms(scalar, friction: bool, boundary: bool, base) -> SimpleNames
         """-dV/dr_i (+ friction) [N] of node i alone, unmasked, without the planes' reaction."""
         before = data.previous[i]
         after = data.next[i]
-        force = state.load[i] + data.weight[i]
+        force = base.external(i, pos, data, state)
         if after >= 0:
             force = force + segment_pull(pos, data, i)
         if before >= 0:

@@ -384,7 +384,7 @@ def structure_terms(scalar, friction: bool, boundary: bool, base) -> SimpleNames
         it (each element evaluated at every node of its stencil), its ties' contact along z."""
         before = data.previous[i]
         after = data.next[i]
-        force = state.load[i] + data.weight[i]
+        force = base.external(i, pos, data, state)
         if after >= 0:
             force = force + segment_pull(pos, data, i)
         if before >= 0:

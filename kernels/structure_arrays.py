@@ -38,6 +38,7 @@ import warp as wp
 
 from dynfab.kernels.precision import numpy_dtype, vector
 from dynfab.model.structure import GROUND, Structure, chain_count, chain_of_node
+from dynfab.model.terms import nodes
 
 BLOCK = 256
 """Nodes per block of a group's sums (module docstring)."""
@@ -166,6 +167,12 @@ class StructureArrays:
     """spatial: (n + 1,) node i's places in lateral stencils, as `node_stencil_start`."""
     node_lateral: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     """spatial: 4 e + slot for each lateral contact e whose stencil holds the node at `slot`."""
+    node_parameters: np.ndarray = field(default_factory=lambda: np.zeros((1, 1)))
+    """(n, P) the node terms' parameters (`Structure.node_parameters`; (1, 1) zeros without
+    any)."""
+    node_term_first: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    """(K,) each registry node term's first column in `node_parameters`, -1 where the structure
+    lacks it (`dynfab.model.terms.nodes.firsts`)."""
 
     @property
     def nodes(self) -> int:
@@ -257,7 +264,14 @@ def build(structure: Structure) -> StructureArrays:
         tie_plane=np.pad(np.array(structure.tie_plane, float).reshape(T, 2),
                          ((0, 0), (0, dim - 2))),
         chain_start=start, families=int(np.max(structure.chain_family, initial=0)) + 1,
-        dim=dim, **boundary, **grouping, **spatial)
+        dim=dim, **boundary, **grouping, **spatial, **_node_terms(structure))
+
+
+def _node_terms(s: Structure) -> dict:
+    """The node terms' arrays (`dynfab.kernels.node_terms`)."""
+    parameters = np.asarray(s.node_parameters, float)
+    return dict(node_parameters=parameters if parameters.size else np.zeros((1, 1)),
+                node_term_first=nodes.firsts(s.node_term_active))
 
 
 def _spatial(s: Structure, node_group: np.ndarray) -> dict:
@@ -465,6 +479,8 @@ def _struct(scalar, dim: int):
         tie_group: wp.array(dtype=wp.int32)
         chain_group: wp.array(dtype=wp.int32)
         block_group: wp.array(dtype=wp.int32)
+        node_parameters: wp.array2d(dtype=scalar)
+        node_term_first: wp.array(dtype=wp.int32)
 
     if dim == 3:
         StructureData.__annotations__.update({

@@ -228,6 +228,8 @@ def functions(scalar, friction: bool, boundary: bool, merit: bool = False,
                 off = off + vec(plane_rows(i, data, state), scalar(0.0))
             rows = wp.max(band_ops.absolute_row_sum(state.band, 2 * i) + off[0],
                           band_ops.absolute_row_sum(state.band, 2 * i + 1) + off[1])
+            if wp.static(forces.node.count > 0):  # the band holds no node term
+                rows = rows + forces.node.stiffness(i, state.position, data)
         bound = scalar(0.0)
         if settings.fictitious != 0:
             dt = scalar(1.0)

@@ -378,7 +378,7 @@ def grouped_kernel(scalar, friction: bool, boundary: bool, order: str,
     dim = KINEMATICS[kinematics]
     Data, State, Settings = structure_variants.structs(scalar, dim)
     ops = functions(scalar, friction, boundary, kinematics)
-
+    forces = structure_forces.functions(scalar, friction, boundary, kinematics)
     group = structure_checks.group_functions(scalar, friction, boundary, order,
                                              kinematics=kinematics)
     blocks, evaluate = group.blocks, group.evaluate
@@ -416,7 +416,7 @@ def grouped_kernel(scalar, friction: bool, boundary: bool, order: str,
                 for i in range(lo, hi):
                     ops.move_node(i, data, state, settings, factors)
                     if wp.static(scatter):
-                        state.force[i] = state.load[i] + data.weight[i]
+                        state.force[i] = forces.external(i, state.position, data, state)
                 group.evaluate_set(g, data, state, settings)
             ops.check_step(g, data, state, settings)
 

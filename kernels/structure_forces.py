@@ -6,7 +6,8 @@ What every kinematics shares is written here once (`base`; f = -dV/dr):
 - each tie's contact (`tie_law`): +sigma R along z on node a, -sigma R on node b, R from the
   closure g = c - sigma (z_a - z_b), and F_T from R where friction is compiled in;
 - the external force: the end loads given per node (`StructureState.load`) plus gravity on
-  the physical masses (`StructureArrays.weight`), work -f . (r - r0);
+  the physical masses (`StructureArrays.weight`), work -f . (r - r0); and each node's node
+  terms (`node_terms`: energies of a node alone, as a spring to its as-woven place);
 - held dofs carry no force.
 
 The elements of each kinematics, one module each, give the rest in one form
@@ -34,8 +35,8 @@ from types import SimpleNamespace
 
 import warp as wp
 
-from dynfab.kernels import planar_terms, spatial_terms, structure_arrays, structure_state
-from dynfab.kernels import tie_law
+from dynfab.kernels import node_terms, planar_terms, spatial_terms, structure_arrays
+from dynfab.kernels import structure_state, tie_law
 from dynfab.kernels.precision import KINEMATICS, vector
 
 KINDS = {"planar": planar_terms, "spatial": spatial_terms}
@@ -49,6 +50,7 @@ def base(scalar, friction: bool, dim: int) -> SimpleNamespace:
     Data = structure_arrays.struct(scalar, dim)
     State = structure_state.struct(scalar, dim)
     laws = tie_law.functions(scalar)
+    node = node_terms.functions(scalar, dim)
     Z = dim - 1  # the coordinate along the fabric's normal
 
     @wp.func(inline=True)
@@ -75,6 +77,15 @@ def base(scalar, friction: bool, dim: int) -> SimpleNamespace:
         return data.tie_offset[t] - data.tie_side[t] * (pos[data.tie_a[t]][wp.static(Z)] - z_b)
 
     @wp.func(inline=True)
+    def external(i: int, pos: wp.array(dtype=vec), data: Data, state: State) -> vec:
+        """The force on node i that is its own [N]: its end load and weight, and the node
+        terms' (`node_terms`)."""
+        force = state.load[i] + data.weight[i]
+        if wp.static(node.count > 0):
+            force = force + node.force(i, pos, data)
+        return force
+
+    @wp.func(inline=True)
     def contact_pass(t: int, pos: wp.array(dtype=vec), data: Data, state: State) -> scalar:
         """R and dR/dg of tie t into the state, and F_T (into the state and returned) where
         friction is compiled in; 0 otherwise."""
@@ -88,7 +99,7 @@ def base(scalar, friction: bool, dim: int) -> SimpleNamespace:
         return bound
 
     return SimpleNamespace(along_z=along_z, segment_pull=segment_pull, closure=closure,
-                           contact_pass=contact_pass)
+                           external=external, contact_pass=contact_pass, node=node)
 
 
 @functools.cache
@@ -119,7 +130,7 @@ def functions(scalar, friction: bool, boundary: bool,
     def scatter_init(group: int, data: Data, state: State):
         """state.force = the external force on the group's nodes (the scatter's start)."""
         for i in range(data.group_node[group], data.group_node[group + 1]):
-            state.force[i] = state.load[i] + data.weight[i]
+            state.force[i] = shared.external(i, state.position, data, state)
 
     @wp.func(inline=True)
     def scatter_terms(group: int, pos: wp.array(dtype=vec), data: Data, state: State):
@@ -135,6 +146,8 @@ def functions(scalar, friction: bool, boundary: bool,
         spring at a chain's first node), minus the work of its external force."""
         external = state.load[i] + data.weight[i]
         energy = -wp.dot(external, pos[i] - data.rest_position[i])
+        if wp.static(shared.node.count > 0):
+            energy += shared.node.energy(i, pos, data)
         after = data.next[i]
         if after >= 0:
             stretch = wp.length(pos[after] - pos[i]) - data.rest_length[i]

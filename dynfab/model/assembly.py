@@ -19,7 +19,7 @@ from numba import literal_unroll
 from numba.core.errors import NumbaExperimentalFeatureWarning
 
 from dynfab.linalg import banded
-from dynfab.model.terms import contact, friction, registry
+from dynfab.model.terms import contact, friction, nodes, registry
 
 
 class Frozen(NamedTuple):
@@ -55,6 +55,8 @@ def _entry_points(name: str) -> tuple:
                          name) for i in YARN_TERMS)
 
 
+NODE_TERMS = np.array(nodes.INDICES, np.int64)
+"""The registry index of each node term (`dynfab.model.terms.nodes`), summed after the others."""
 ENERGIES = _entry_points("yarn_energy")
 GRADIENTS = _entry_points("add_yarn_gradient")
 HESSIANS = _entry_points("add_yarn_hessian")
@@ -95,6 +97,11 @@ def energies(pos, yarn, P, anchors, friction_limit, out, branch=None):
         term = YARN_TERMS[k]
         out[term] = energy(pos, yarn, frozen) if yarn.active[term] else 0.0
         k += 1
+    if NODE_TERMS.size:
+        node_energies = np.zeros(NODE_TERMS.size)
+        nodes.energies(pos, yarn.rest_position, yarn.node_parameters, yarn.node_term_active,
+                       node_energies)
+        out[NODE_TERMS] = node_energies
 
 
 @numba.njit(cache=True)
@@ -108,6 +115,7 @@ def gradient(pos, yarn, P, anchors, friction_limit, grad, branch=None):
         if yarn.active[YARN_TERMS[k]]:
             add_gradient(pos, yarn, frozen, grad)
         k += 1
+    nodes.add_gradient(pos, yarn.rest_position, yarn.node_parameters, yarn.node_term_active, grad)
 
 
 @numba.njit(cache=True)
@@ -128,6 +136,7 @@ def hessian(pos, yarn, anchors, friction_limit, contact_tangent, coupled, band, 
         if yarn.active[YARN_TERMS[k]]:
             add_hessian(pos, yarn, frozen, band)
         k += 1
+    nodes.add_band(pos, yarn.rest_position, yarn.node_parameters, yarn.node_term_active, band)
 
 
 @numba.njit(cache=True)

@@ -142,6 +142,12 @@ class Structure(NamedTuple):
     held OPEN or CLOSED, its active set), and Gutowski's compaction (A 0 without it): its
     constant, the distance at the packing limit and the one below which the core takes over
     (docs/model.md 11.5)."""
+    # --- node terms (`dynfab.model.terms.nodes`): empty where the scene has none
+    node_parameters: np.ndarray = np.zeros((0, 0))
+    """The parameters of every node term the scene has, side by side in registry order
+    (n, sum of their parameter counts); see `dynfab.model.terms.nodes`."""
+    node_term_active: np.ndarray = np.zeros(0, np.bool_)
+    """Which registry node terms the scene has (K,) bool, in registry order."""
 
 
 def dim(structure: Structure) -> int:

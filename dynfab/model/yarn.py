@@ -67,6 +67,10 @@ class Yarn(NamedTuple):
     active: np.ndarray
     """Which terms of `dynfab.model.terms.registry.TERMS` the yarn has, (len(TERMS),) bool in registry
     order (`registry.active_mask`); `dynfab.model.assembly` skips the others."""
+    node_parameters: np.ndarray
+    """The node terms' parameters of each node (N+1, P) (`Structure.node_parameters`)."""
+    node_term_active: np.ndarray
+    """Which node terms the yarn has (K,) bool (`Structure.node_term_active`)."""
 
 
 TERMS = registry.NAMES
@@ -290,4 +294,7 @@ def chain_view(structure: Structure, y: int, active: np.ndarray) -> Yarn:
         friction_onset=float(friction[2]), stick_stiffness=float(friction[3]),
         gravity=float(gravity[0]) if gravity.size else 0.0,
         active=active,
+        node_parameters=structure.node_parameters[nodes] if structure.node_parameters.size
+        else np.zeros((nodes.stop - nodes.start, 0)),
+        node_term_active=structure.node_term_active,
     )

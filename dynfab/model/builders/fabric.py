@@ -23,6 +23,7 @@ from dynfab.model.builders import woven_rest
 from dynfab.model.builders.woven_rest import woven_closure
 from dynfab.scene import DEFAULT_CORE_STIFFNESS, Scene
 from dynfab.model.structure import Structure
+from dynfab.model.terms import nodes as node_terms
 from dynfab.model.terms.friction import law_constants
 
 DEFAULT_LINEAR_DENSITY = 3e-5
@@ -106,7 +107,7 @@ def fabric_structure(scene: Scene) -> Structure:
     y_planes = (np.arange(warp.count) + 0.5) * weft.length / warp.count
     friction_law = np.tile(_friction_law(scene, warp, weft), (ties, 1))
     law = _contact_law(scene, warp, weft)
-    return Structure(
+    return node_terms.attach(scene, Structure(
         rest_position=rest, mass=np.concatenate(mass),
         gravity=np.full(rest.shape[0], float(scene.gravity.g) if scene.gravity else 0.0),
         chain_start=start, chain_family=(np.arange(yarns) >= warp.count).astype(np.int64),
@@ -126,7 +127,7 @@ def fabric_structure(scene: Scene) -> Structure:
         plane_nodes_a=(start[1:warp.count + 1] - 1) if moving else np.zeros(0, np.int64),
         plane_nodes_b=(start[warp.count + 1:] - 1) if moving else np.zeros(0, np.int64),
         has_friction=bool(np.any(friction_law[:, 3] > 0.0)),
-        fixed=fixed, dof_tie=_dof_ties(scene, start, warp.count))
+        fixed=fixed, dof_tie=_dof_ties(scene, start, warp.count)))
 
 
 def _rest_shape(shape: np.ndarray, family: Family, load: np.ndarray, spacing: float):

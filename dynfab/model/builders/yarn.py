@@ -17,6 +17,7 @@ import numpy as np
 from dynfab.model import geometry
 from dynfab.scene import Scene, expand_sweep, yarn_count
 from dynfab.model.structure import GROUND, Structure
+from dynfab.model.terms import nodes as node_terms
 from dynfab.model.terms.friction import law_constants
 
 
@@ -26,7 +27,7 @@ def yarn_structure(scene: Scene) -> Structure:
         chains = [_chain(s, phase=1.0) for s in expand_sweep(scene)]
     else:
         chains = [_chain(scene, phase=(-1.0) ** k) for k in range(yarn_count(scene))]
-    return _assemble(scene, chains)
+    return node_terms.attach(scene, _assemble(scene, chains))
 
 
 def _chain(scene: Scene, phase: float) -> dict:

@@ -30,10 +30,14 @@ import scipy.sparse
 from dynfab.linalg.banded import BANDWIDTH
 from dynfab.model.fabric import contact, friction
 from dynfab.model.terms import bending, gravity, stretch
+from dynfab.model.terms import nodes as node_terms
 
 STRETCH, BENDING, CONTACT, FRICTION, LOAD, GRAVITY = range(6)
 """Indices of the energy vector."""
-TERMS = ("stretch", "bending", "contact", "friction", "load", "gravity")
+TERMS = ("stretch", "bending", "contact", "friction", "load", "gravity", *node_terms.NAMES)
+"""The energy vector's terms: the fabric's own, then the registry's node terms
+(`dynfab.model.terms.nodes`) from NODE_TERMS on."""
+NODE_TERMS = 6
 SOLVE_ON_KEPT_FACTORS = False
 """Whether Newton's Hessian solves try GMRES on the step's last factors first
 (`dynfab.model.fabric.kept_factor`): not on the planar fabric, whose factorisation costs so few
@@ -62,6 +66,8 @@ def energies(pos, fabric, P, anchors, limit, out):
         px, py = planes(pos, fabric)
         out[FRICTION] = friction.energy(pos, anchors, fabric, px, py, limit)
     out[GRAVITY] = gravity.energy_per_node(pos, fabric.rest_position, fabric.mass, fabric.gravity)
+    node_terms.energies(pos, fabric.rest_position, fabric.node_parameters,
+                        fabric.node_term_active, out[NODE_TERMS:])
 
 
 @numba.njit(cache=True)
@@ -87,6 +93,8 @@ def gradient(pos, fabric, P, anchors, limit, grad):
             _add_wrap_gradient(pos, fabric, y, grad)
     contact.add_gradient(pos, fabric, grad)
     gravity.add_gradient_per_node(fabric.mass, fabric.gravity, grad)
+    node_terms.add_gradient(pos, fabric.rest_position, fabric.node_parameters,
+                            fabric.node_term_active, grad)
     if fabric.has_friction:
         px, py = planes(pos, fabric)
         for c in range(fabric.tie_a.size):
@@ -199,12 +207,16 @@ def wrap_hessian(pos, fabric, y):
 
 @numba.njit(cache=True)
 def yarn_band(pos, fabric, y, band):
-    """band = d2(E_stretch + E_bend)/dr2 of yarn y in its own dofs (`dynfab.linalg.banded` layout)."""
+    """band = d2(E_stretch + E_bend + the node terms)/dr2 of yarn y in its own dofs
+    (`dynfab.linalg.banded` layout)."""
     a, b = fabric.chain_start[y], fabric.chain_start[y + 1]
     band[:, :] = 0.0
     stretch.add_hessian(pos[a:b], fabric.rest_length[a - y:b - y - 1],
                         fabric.stretch_stiffness[a - y:b - y - 1], band)
     bending.add_hessian(pos[a:b], fabric.bend_stiffness[a:b], fabric.rest_angle[a:b], band)
+    if node_terms.any_active(fabric.node_term_active):
+        node_terms.add_band(pos[a:b], fabric.rest_position[a:b], fabric.node_parameters[a:b],
+                            fabric.node_term_active, band)
 
 
 @numba.njit(cache=True)

@@ -28,11 +28,16 @@ import scipy.sparse
 from dynfab.model.fabric import contact
 from dynfab.model.fabric.assembly import Pattern, secant_weights
 from dynfab.model.terms import huber as huber_law
+from dynfab.model.terms import nodes as node_terms
 from dynfab.model.terms import spatial as element
 
 STRETCH, BENDING, CONTACT, FRICTION, LOAD, GRAVITY, SHEAR, LATERAL = range(8)
 """Indices of the energy vector (the first six as the planar fabric's)."""
-TERMS = ("stretch", "bending", "contact", "friction", "load", "gravity", "shear", "lateral")
+TERMS = ("stretch", "bending", "contact", "friction", "load", "gravity", "shear", "lateral",
+         *node_terms.NAMES)
+"""The energy vector's terms: the spatial fabric's own, then the registry's node terms
+(`dynfab.model.terms.nodes`) from NODE_TERMS on."""
+NODE_TERMS = 8
 SOLVE_ON_KEPT_FACTORS = True
 """Whether Newton's Hessian solves try GMRES on the step's last factors first
 (`dynfab.model.fabric.kept_factor`): yes on a specimen, whose factorisation costs 20 to 28
@@ -106,6 +111,8 @@ def energies(pos, s, P, anchors, limit, out):
         out[LATERAL] += element.lateral_energy(four, law[SIGN], law[WIDTH], law[LATERAL_K],
                                                law[BRANCH], law[COMPACTION], law[PACKED],
                                                law[CORE_FROM])
+    node_terms.energies(pos, s.rest_position, s.node_parameters, s.node_term_active,
+                        out[NODE_TERMS:])
 
 
 @numba.njit(cache=True)
@@ -172,6 +179,18 @@ def _emit(nodes, g, H, grad, values, k):
 
 
 @numba.njit(cache=True)
+def _add_node_blocks(pos, s, i, last, H):
+    """H (6, 6), segment (i, i + 1)'s block, += the node terms' Hessian of node i, and of node
+    i + 1 where it is its chain's `last` (every node's once: the node terms live on these
+    blocks, `dynfab.model.terms.nodes`)."""
+    for m in range(2 if last else 1):
+        block = np.zeros((3, 3))
+        node_terms.add_node_hessian(pos, s.rest_position, s.node_parameters, s.node_term_active,
+                                    i + m, block)
+        H[3 * m:3 * m + 3, 3 * m:3 * m + 3] += block
+
+
+@numba.njit(cache=True)
 def _derivatives(pos, s, anchors, limit, secant, grad, values):
     """Every element's gradient and Hessian, each element's once (`dynfab.model.terms.spatial`):
     the gradient added to grad (nodes, 3) [N] where it has rows, the Hessian's entries into
@@ -190,6 +209,8 @@ def _derivatives(pos, s, anchors, limit, secant, grad, values):
             _gather(pos, nodes, pair)
             element.stretch_derivatives(pair, s.stretch_stiffness[i - y], s.rest_length[i - y],
                                         g6, H6)
+            if values.size and node_terms.any_active(s.node_term_active):
+                _add_node_blocks(pos, s, i, i + 2 == start[y + 1], H6)
             k = _emit(nodes, g6, H6, grad, values, k)
         for i in range(start[y] + 1, start[y + 1] - 1):
             nodes = np.arange(i - 1, i + 2)
@@ -200,6 +221,8 @@ def _derivatives(pos, s, anchors, limit, secant, grad, values):
             k = _emit(nodes, g9, H9, grad, values, k)
     if grad.shape[0]:
         contact.add_gradient(pos, s, grad)
+        node_terms.add_gradient(pos, s.rest_position, s.node_parameters, s.node_term_active,
+                                grad)
     for c in range(s.tie_a.size):
         if values.size:
             g = contact.closure(pos, s, c)

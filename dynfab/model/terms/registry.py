@@ -5,7 +5,9 @@ scene (`Term.active`); its numba module (`dynfab.model.terms.<name>`, +dV/dr) is
 static reference. Every term of every model is listed, the spatial kinematics' crossing
 rotation spring and lateral contact included (docs/model.md section 11, their elements in
 `dynfab.model.terms.spatial`), so every model records the same term under the same
-`steps/energy/<...>` name (`energy_records`). The assembly (`dynfab.model.assembly`), the diagnostics and the result
+`steps/energy/<...>` name (`energy_records`). A node term (`Term.node`, an energy of each node
+alone) is its module and its entry here, and nothing else: every model's assembly and the
+kernels sum it (`dynfab.model.terms.nodes`, docs/model.md "Node terms"). The assembly (`dynfab.model.assembly`), the diagnostics and the result
 datasets are derived from `TERMS`; adding a term is its module and one entry here, plus
 its parameters, if it has new ones: fields of `dynfab.model.yarn.Yarn` (filled in
 `build_model`) read from its scene keys (`dynfab.scene`). The energy vector,
@@ -40,6 +42,10 @@ class Term:
     yarn: bool = True
     """Its module has the one-yarn entry points (`name` above), which the one-yarn assembly
     calls (`dynfab.model.assembly.YARN_TERMS`)."""
+    node: bool = False
+    """A node term: an energy of each node alone, whose module has the node-term entry points
+    (`dynfab.model.terms.nodes`); every model's assembly and the kernels sum it (then `yarn`
+    is False)."""
 
 
 def _always(scene) -> bool:
