@@ -6,10 +6,13 @@ a user's mistake raises `UserError` with one line naming the key, the value
 and what is allowed.
 
 Each key is a dataclass field declared once, with `_key(...)`: its meaning, unit,
-rule (or choices), default, whether a [sweep] may vary it and whether it is a run
-option (a `dynfab run` flag). The parser, the validation messages, the run
+rule (or choices), default, whether a [sweep] may vary it, whether it is a run
+option (a `dynfab run` flag) and which kind of scene takes it (its model, spatial
+kinematics, a layout that a [specimen] sets). The parser, the validation messages, the run
 options (`dynfab.options`), the command line's flags and docs/scene.md
-(`markdown_table`, `python -m dynfab.scene --markdown`) are all read from there.
+(`markdown_table`, `python -m dynfab.scene --markdown`) are all read from there; which
+kind of scene refuses which keys and tables is declared once too (`_KEY_REFUSALS`,
+`_TABLE_REFUSALS`), and one check (`_refuse`) applies it.
 
 Public: `load_scene`, `parse_scene_text`, `scene_from_tables`, `validate_scene` (for a Scene built
 in Python), `check_dynamic_options` (for solver options given apart from a
@@ -87,6 +90,10 @@ class _Key:
     spatial: bool = False
     """A key of the spatial fabric only (geometry.kinematics = "spatial", docs/model.md
     section 11); a planar scene refuses it."""
+    hint: str = "remove it"
+    """How the refusal of the key ends where a fabric, a planar fabric or a [specimen] refuses
+    it (`_KEY_REFUSALS`): what to do, why it means nothing there, or where that scene's value
+    lives instead (a one-yarn scene's refusal of the fabric's keys says one thing of all)."""
 
 
 _POS, _NONNEG = "positive", "nonnegative"
@@ -98,7 +105,7 @@ PLANES = ("fixed", "affine", CELL_PLANES)
 def _key(doc: str, unit: str = "", rule: str = "", *, choices: tuple[str, ...] = (),
          sweepable: bool = False, option: bool = False, default_from: str = "",
          model: str = "", default=MISSING, default_doc: str = "", layout: bool = False,
-         spatial: bool = False):
+         spatial: bool = False, hint: str = "remove it"):
     """A dataclass field that is a scene key: its description, unit, rule and roles.
 
     The key's kind (real, integer, string, list) is its field's type; a field
@@ -106,7 +113,7 @@ def _key(doc: str, unit: str = "", rule: str = "", *, choices: tuple[str, ...] =
     """
     spec = _Key(unit=unit, rule=rule, choices=choices, doc=doc, sweepable=sweepable,
                 option=option, default_from=default_from, model=model,
-                default_doc=default_doc, layout=layout, spatial=spatial)
+                default_doc=default_doc, layout=layout, spatial=spatial, hint=hint)
     return field(default=default, metadata={"scene_key": spec})
 
 
@@ -123,11 +130,14 @@ class Geometry:
     crossings: int | None = _key("N_we, weft crossings per warp yarn; 0 is a plain straight rod",
                                  rule=_NONNEG, default=None, layout=True)
     amplitude: float | None = _key("A_wa, as-woven warp crimp amplitude; 0 is a straight yarn",
-                                   "m", _NONNEG, sweepable=True, default=None, layout=True)
+                                   "m", _NONNEG, sweepable=True, default=None, layout=True,
+                                   hint="remove it (a specimen's warp crimp is warp.amplitude)")
     reference: str = _key("stress-free state (docs/model.md section 3)",
                           choices=("as_woven", "prestressed"), default="as_woven")
     yarns: int = _key("adjacent warp yarns simulated, yarn k with phase s_k = (-1)^(k-1)",
-                      rule=_POS, default=1, model="yarn")
+                      rule=_POS, default=1, model="yarn",
+                      hint="the fabric simulates weft.count warps and geometry.crossings "
+                           "wefts; remove it")
     model: str = _key("one warp yarn against weft springs (docs/model.md sections 1-9), or the woven "
                       "fabric, warps and wefts alike as chains (docs/model.md section 10)",
                       choices=("yarn", "fabric"), default="yarn")
@@ -230,7 +240,8 @@ class Warp:
                                  default=3e-5)
     amplitude: float | None = _key("A_wa, as-woven warp crimp half-height of a [specimen] (a "
                                    "planar fabric's is geometry.amplitude); required there", "m",
-                                   _NONNEG, default=None, model="fabric", spatial=True)
+                                   _NONNEG, default=None, model="fabric", spatial=True,
+                                   hint="a planar fabric's warp crimp is geometry.amplitude")
     spacing: float | None = _WARP_LATERAL["spacing"]
     width: float | None = _WARP_LATERAL["width"]
     EI_lateral: float | None = _WARP_LATERAL["EI_lateral"]
@@ -254,7 +265,8 @@ class Weft:
     kawabata_C: float = _key("Kawabata C_we", "m", _POS, sweepable=True)
     kawabata_K: float = _key("Kawabata K_we", "m/N", _POS, sweepable=True)
     tension: float = _key("P_we, weft tension; negative is compression, above -pi^2 EI/L_we^2",
-                          "N", sweepable=True, default=0.0, model="yarn")
+                          "N", sweepable=True, default=0.0, model="yarn",
+                          hint="the wefts are chains, loaded by load.weft_values; remove it")
     EA: float | None = _key("weft extensional stiffness; required in a fabric", "N", _POS,
                             default=None, model="fabric")
     linear_density: float | None = _key("weft rho_l, mass per unit length; none: 3e-5", "kg/m",
@@ -475,6 +487,8 @@ _TABLES = {"geometry": Geometry, "specimen": Specimen, "warp": Warp, "weft": Wef
 _SCHEMA: dict[str, tuple[type, dict[str, _Key]]] = {
     name: (cls, _keys_of(cls)) for name, cls in _TABLES.items()}
 """Table -> (dataclass, keys). The TOML key set is a contract: never rename."""
+_DEFAULTS = {name: {f.name: f.default for f in fields(cls)} for name, (cls, _) in _SCHEMA.items()}
+"""Table -> {key: its field's default (MISSING: required)}."""
 
 _TITLE = _Key("str", doc="free text, stored with the results")
 
@@ -489,8 +503,6 @@ _LOAD_PATH = {
 
 _TOP_KEYS = ("title", *_SCHEMA, "sweep")
 _REQUIRED_TABLES = ("geometry", "warp", "load")
-_ROD_REFUSES = ("weft", "contact", "friction")
-"""Tables a plain rod (geometry.crossings = 0) refuses; [weft] is required otherwise."""
 _FIELD_KEYS = tuple(f"{t}.{k}" for t, (_, keys) in _SCHEMA.items() for k in keys)
 _ALL_KEYS = _FIELD_KEYS + tuple(f"load.{k}" for k in _LOAD_PATH)
 _SWEEPABLE = tuple(f"{t}.{k}" for t, (_, keys) in _SCHEMA.items()
@@ -500,6 +512,44 @@ _SWEEPABLE = tuple(f"{t}.{k}" for t, (_, keys) in _SCHEMA.items()
 RUN_OPTIONS = {solver: {k: spec for k, spec in _SCHEMA[solver][1].items() if spec.option}
                for solver in ("static", "dynamic")}
 """Solver -> its table's keys that are run options (`dynfab.options`, `dynfab run` flags)."""
+
+# The kinds of scene (`_kind`), and the tables and keys each refuses.
+
+_FABRIC, _YARN = 'geometry.model = "fabric"', 'geometry.model = "yarn"'
+
+_KEY_REFUSALS = {
+    "yarn": ("model", "fabric", '{key} = {value}: a key of the woven fabric (docs/model.md '
+             'section 10), but geometry.model = "yarn": set geometry.model = "fabric" or '
+             'remove it'),
+    "fabric": ("model", "yarn", '{key} = {value}: means nothing in a fabric (geometry.model = '
+               '"fabric", docs/model.md section 10): {hint}'),
+    "planar": ("spatial", True, '{key} = {value}: a key of the spatial fabric (geometry.'
+               'kinematics = "spatial", docs/model.md section 11), but geometry.kinematics = '
+               '"planar": {hint}'),
+    "specimen": ("layout", True, "[specimen] sets the layout: {key} is not used; {hint}"),
+}
+"""Facet of a scene's kind -> (`_Key` field, value, refusal): the declaration of the keys it
+refuses, and what it says of one (its value shown, `_show`; its hint, `_Key.hint`): a
+one-yarn scene refuses the fabric's keys, a fabric the one-yarn model's (docs/model.md section
+10), a planar fabric the spatial keys (section 11), a [specimen] the layout keys (it sets the
+layout)."""
+
+_TABLE_REFUSALS = {
+    "pullout": {"yarn": 'a pull-out is a fabric scene (docs/model.md section 10); set '
+                        'geometry.model = "fabric" or remove [pullout]'},
+    "sweep": {"fabric": "a patch is one coupled group, not a batch of independent yarns "
+                        "(docs/model.md section 10); vary it in a study (dynfab study, a [vary] "
+                        "table: runs/study_example.toml)"},
+    "specimen": {"yarn": "a table of the spatial fabric (docs/model.md section 11); set "
+                         f'geometry.model = "fabric" and {_SPATIAL}, or remove [specimen]'},
+    "crossing": {"yarn": "a table of the woven fabric (docs/model.md section 10); set "
+                         'geometry.model = "fabric", or remove [crossing]'},
+    **{name: {"rod": f"a plain rod has no crossings; remove the [{name}] table or set "
+                     "crossings > 0"} for name in ("weft", "contact", "friction")},
+}
+"""Table -> {facet of a scene's kind that refuses it: why}, refused as `[table] given but
+<_GIVEN_BUT[facet]>: why`; a scene built in Python is checked in this order."""
+_GIVEN_BUT = {"yarn": _YARN, "fabric": _FABRIC, "rod": "geometry.crossings = 0"}
 
 
 # --------------------------------------------------------------------------
@@ -640,19 +690,21 @@ def validate_scene(scene: Scene) -> Scene:
 
 def _check_scene(scene: Scene) -> None:
     """The checks of `validate_scene`: UserError naming the first key that fails."""
-    _check_layout(scene)
-    if scene.geometry.model == "fabric" and scene.geometry.crossings == 0:
+    kind = _kind(scene)
+    _check_layout(scene, kind)
+    if "fabric" in kind and scene.geometry.crossings == 0:
         raise _bad("geometry.crossings", 0, f"a fabric ({_FABRIC}) needs at least one weft")
-    _check_tables_present(scene)
+    _check_tables_present(scene, kind)
     _check_fields(scene)
-    if not _sets_layout(scene):
+    if "specimen" not in kind:
         _check_segments(scene.geometry)
     if scene.weft is not None and scene.weft.length is not None:
         _check_weft_tension(scene.weft)
-    if scene.geometry.model == "fabric":
-        _check_fabric(scene)
-    else:
-        _check_no_fabric_keys(scene)
+    if "fabric" in kind:
+        _check_fabric(scene, kind)
+    # a one-yarn scene: none of the fabric's tables, nor its keys (one set to None is left out)
+    _refuse(kind, "yarn", [*_given_tables(scene),
+                           *(item for item in _given_keys(scene) if item[2] is not None)])
     _check_dynamic(scene.dynamic)
     _check_sweep(scene)
 
@@ -737,6 +789,12 @@ def _type_name(value) -> str:
 def _bad(label: str, value, what: str) -> UserError:
     """The one-line error `label = value: what`."""
     return UserError(f"{label} = {_show(value)}: {what}")
+
+
+def _missing(table: str, key: str, needed: str = "") -> UserError:
+    """The error for a required key left out, with its unit and what needs it."""
+    return UserError(f"missing required key {table}.{key}{_units(_SCHEMA[table][1][key])}"
+                     + (f" (needed with {needed})" if needed else ""))
 
 
 def _unknown(label: str, candidates, allowed) -> UserError:
@@ -837,8 +895,7 @@ def _build_scene(raw: dict, text: str) -> Scene:
         if name not in _TOP_KEYS:
             raise _unknown_top(name)
     tables = {name: _table(raw, name) for name in (*_SCHEMA, "sweep")}
-    _check_model_keys(tables)
-    _check_kinematics_tables(tables)
+    _check_written_kind(tables)
     sweep = _parse_sweep(tables["sweep"]) if tables["sweep"] is not None else ()
     _fill_swept(tables, sweep)
     specimen = tables["specimen"] is not None
@@ -885,7 +942,7 @@ def _build_table(name: str, table: dict, defaults: dict | None = None, specimen:
         elif defaults and key in defaults:
             values[key] = defaults[key]
         elif _is_required(cls, key) or (_layout_required(spec) and not specimen):
-            raise UserError(f"missing required key {name}.{key}{_units(spec)}")
+            raise _missing(name, key)
     return cls(**values)
 
 
@@ -904,12 +961,6 @@ def _layout_required(spec: _Key) -> bool:
 def _build_optional(name: str, table: dict | None):
     """An optional table's dataclass, None when the table is absent."""
     return None if table is None else _build_table(name, table)
-
-
-def _rod_table_error(name: str) -> UserError:
-    """A [weft], [contact] or [friction] table given to a plain rod (crossings = 0)."""
-    return UserError(f"[{name}] given but geometry.crossings = 0: a plain rod has "
-                      f"no crossings; remove the [{name}] table or set crossings > 0")
 
 
 def _build_weft(table: dict | None, geometry: Geometry, specimen: bool) -> Weft | None:
@@ -955,9 +1006,8 @@ def _build_load(table: dict) -> Load:
 
 def _fabric_loads(table: dict) -> dict:
     """The fabric's lists of [load] given (weft_values, warp_factors, weft_factors)."""
-    keys = _SCHEMA["load"][1]
-    return {key: _convert(f"load.{key}", table[key], spec) for key, spec in keys.items()
-            if spec.model == "fabric" and key in table}
+    return {key: _convert(f"load.{key}", table[key], spec)
+            for _, key, spec in _keys_where(("load",), model="fabric") if key in table}
 
 
 def _parse_sweep(table: dict) -> tuple[tuple[str, tuple[float, ...]], ...]:
@@ -999,17 +1049,15 @@ def _fill_swept(tables: dict, sweep) -> None:
 # Checks on a Scene.
 
 
-def _check_tables_present(scene: Scene) -> None:
-    """Tables that must be there, and the ones a plain rod must not have."""
-    if scene.weft is None and _sets_layout(scene):
+def _check_tables_present(scene: Scene, kind: tuple) -> None:
+    """Tables that must be there, and the ones a plain rod refuses (`_TABLE_REFUSALS`)."""
+    if scene.weft is None and "specimen" in kind:
         raise UserError("missing required table [weft] (needed with [specimen])")
     if scene.weft is None and scene.geometry.crossings > 0:
         raise UserError(f"missing required table [weft] (geometry.crossings = "
                          f"{scene.geometry.crossings} > 0)")
     if scene.geometry.crossings == 0:
-        for name in _ROD_REFUSES:
-            if getattr(scene, name) is not None:
-                raise _rod_table_error(name)
+        _refuse((*kind, "rod"), "rod", _given_tables(scene))
 
 
 def _check_fields(scene: Scene) -> None:
@@ -1044,110 +1092,115 @@ def _check_segments(geometry: Geometry) -> None:
                    f"nearest valid: {nearest}")
 
 
-_FABRIC, _YARN = 'geometry.model = "fabric"', 'geometry.model = "yarn"'
-_YARN_KEY_IN_FABRIC = {
-    "weft.tension": "the wefts are chains, loaded by load.weft_values",
-    "geometry.yarns": "the fabric simulates weft.count warps and geometry.crossings wefts",
-}
-"""Why each one-yarn key means nothing in a fabric (docs/model.md section 10)."""
+# --------------------------------------------------------------------------
+# The kinds of scene: each refuses the tables and keys the schema declares for another.
 
 
-def _keys_for(model: str) -> list[tuple[str, str]]:
-    """(table, key) of the keys that only the `model` scenes take."""
-    return [(t, k) for t, (_, keys) in _SCHEMA.items() for k, spec in keys.items()
-            if spec.model == model]
+def _kind(scene: Scene) -> tuple[str, ...]:
+    """The facets of a scene's kind that `_KEY_REFUSALS` and `_TABLE_REFUSALS` name: "fabric"
+    with "specimen" (its [specimen] sets the layout) or else "planar"; otherwise "yarn"
+    (whatever geometry.model says: another value is refused with the values). A plain rod's
+    facet, "rod", is added where its tables are checked (`_check_tables_present`)."""
+    if scene.geometry.model != "fabric":
+        return ("yarn",)
+    return ("fabric", "specimen" if scene.specimen is not None else "planar")
 
 
-def _fabric_key_in_yarn(dotted: str, value) -> UserError:
-    return _bad(dotted, value, f"a key of the woven fabric (docs/model.md section 10), but {_YARN}: "
-                "set geometry.model = \"fabric\" or remove it")
+def _refuse(kind: tuple, facet: str, given) -> None:
+    """Where the scene's `kind` has `facet`, refuse the first of `given` that the facet refuses:
+    a table of `_TABLE_REFUSALS`, or a key declared as `_KEY_REFUSALS[facet]` says.
+
+    `given`: (table, key, value) in the order to check, key None for a table. Each facet is
+    checked where the scene's rules have always met it: the file's model before its tables
+    are read, the specimen's layout first, the rod's tables with the required ones, the
+    models' tables and keys after the values, a planar fabric's spatial keys last.
+    """
+    if facet not in kind:
+        return
+    for table, key, value in given:
+        if key is None:
+            if facet in _TABLE_REFUSALS.get(table, {}):
+                raise UserError(f"[{table}] given but {_GIVEN_BUT[facet]}: "
+                                f"{_TABLE_REFUSALS[table][facet]}")
+        elif _refused_by(facet, spec := _SCHEMA[table][1][key]):
+            raise UserError(_KEY_REFUSALS[facet][2].format(key=f"{table}.{key}",
+                                                          value=_show(value), hint=spec.hint))
 
 
-def _yarn_key_in_fabric(dotted: str, value) -> UserError:
-    return _bad(dotted, value, f"means nothing in a fabric ({_FABRIC}, docs/model.md section 10): "
-                f"{_YARN_KEY_IN_FABRIC[dotted]}; remove it")
+def _refused_by(facet: str, spec: _Key) -> bool:
+    """Whether the facet of a scene's kind refuses the key declared `spec` (`_KEY_REFUSALS`)."""
+    field_name, declared, _ = _KEY_REFUSALS.get(facet, ("", None, ""))
+    return bool(field_name) and getattr(spec, field_name) == declared
 
 
-_SWEEP_IN_FABRIC = (f"[sweep] given but {_FABRIC}: a patch is one coupled group, not a batch "
-                    "of independent yarns (docs/model.md section 10); vary it in a study "
-                    "(dynfab study, a [vary] table: runs/study_example.toml)")
-_PULLOUT_IN_YARN = (f"[pullout] given but {_YARN}: a pull-out is a fabric scene (docs/model.md "
-                    "section 10); set geometry.model = \"fabric\" or remove [pullout]")
+def _given_tables(scene: Scene) -> list[tuple]:
+    """(table, None, value) of the tables of `_TABLE_REFUSALS` that `scene` has, in its order."""
+    return [(name, None, getattr(scene, name)) for name in _TABLE_REFUSALS
+            if getattr(scene, name) not in (None, ())]
 
 
-_SPATIAL_TABLES = ("specimen",)
-"""The tables of the spatial fabric only (docs/model.md section 11)."""
-_FABRIC_TABLES = _SPATIAL_TABLES + ("crossing",)
-"""The tables a one-yarn scene refuses: [crossing] is the fabric's crossing (docs/model.md
-section 10, the woven-in contact; section 11, its rotation)."""
+def _given_keys(scene: Scene, tables=tuple(_SCHEMA)) -> list[tuple]:
+    """(table, key, value) of the keys that `scene` sets away from their defaults (not None
+    where None is the default), table by table in the order of `tables`."""
+    given = []
+    for name, table in ((name, getattr(scene, name)) for name in tables):
+        if table is not None:
+            given += [(name, key, getattr(table, key)) for key, default in _DEFAULTS[name].items()
+                      if _away(getattr(table, key), default)]
+    return given
 
 
-def _spatial_table_in_yarn(name: str) -> UserError:
-    if name not in _SPATIAL_TABLES:
-        return UserError(f"[{name}] given but {_YARN}: a table of the woven fabric (docs/model.md "
-                         f"section 10); set geometry.model = \"fabric\", or remove [{name}]")
-    return UserError(f"[{name}] given but {_YARN}: a table of the spatial fabric (docs/model.md "
-                     f"section 11); set geometry.model = \"fabric\" and {_SPATIAL}, or remove "
-                     f"[{name}]")
+def _away(value, default) -> bool:
+    """Whether a key's value is not its default (None: whether it is given)."""
+    return value is not None if default is None else value != default
 
 
-def _check_model_keys(tables: dict) -> None:
-    """Refuse, as written in the file, a key of the other model (docs/model.md section 10)."""
-    model = (tables.get("geometry") or {}).get("model", "yarn")
-    if model == "yarn":
-        if tables.get("pullout") is not None:
-            raise UserError(_PULLOUT_IN_YARN)
-        for table, key in _keys_for("fabric"):
-            if key in (tables.get(table) or {}):
-                raise _fabric_key_in_yarn(f"{table}.{key}", tables[table][key])
-        for name in _FABRIC_TABLES:
-            if tables.get(name) is not None:
-                raise _spatial_table_in_yarn(name)
-    elif model == "fabric":
-        if tables.get("sweep") is not None:
-            raise UserError(_SWEEP_IN_FABRIC)
-        for table, key in _keys_for("yarn"):
-            if key in (tables.get(table) or {}):
-                raise _yarn_key_in_fabric(f"{table}.{key}", tables[table][key])
+@functools.cache
+def _keys_where(tables=tuple(_SCHEMA), **declared) -> tuple[tuple[str, str, _Key], ...]:
+    """(table, key, spec) of the keys of `tables` declared so (e.g. layout=True, model="")."""
+    return tuple((t, k, spec) for t in tables for k, spec in _SCHEMA[t][1].items()
+                 if all(getattr(spec, name) == value for name, value in declared.items()))
 
 
-def _check_no_fabric_keys(scene: Scene) -> None:
-    """A one-yarn scene built in Python: every fabric key at its default."""
-    if scene.pullout is not None:
-        raise UserError(_PULLOUT_IN_YARN)
-    for name in _FABRIC_TABLES:
-        if getattr(scene, name) is not None:
-            raise _spatial_table_in_yarn(name)
-    for table, key in _keys_for("fabric"):
-        value = getattr(getattr(scene, table) or object(), key, None)
-        default = next(f.default for f in fields(_TABLES[table]) if f.name == key)
-        if value is not None and value != default:
-            raise _fabric_key_in_yarn(f"{table}.{key}", value)
+def _written(tables: dict, names) -> list[tuple]:
+    """(table, None, value) of the tables `names` that a file's `tables` give."""
+    return [(name, None, tables[name]) for name in names if tables.get(name) is not None]
 
 
-def _check_fabric(scene: Scene) -> None:
-    """What a fabric scene must be (docs/model.md section 10)."""
+def _check_written_kind(tables: dict) -> None:
+    """Refuse, as written in the file, a table or key of the other model (docs/model.md
+    section 10: [pullout] and [sweep] first, then the keys, then [specimen] and [crossing],
+    named by their first key where they hold one); then a fabric's kinematics without its
+    [specimen] or the reverse (`_check_kinematics`), before a missing layout key is looked for."""
+    geometry = tables["geometry"]
+    kind = (geometry.get("model", "yarn"),)
+    keys = [(t, k, tables[t][k]) for t, k, _ in _keys_where() if k in (tables[t] or {})]
+    given = [*_written(tables, ("pullout", "sweep")), *keys, *_written(tables, _TABLE_REFUSALS)]
+    for facet in ("yarn", "fabric"):
+        _refuse(kind, facet, given)
+    if "fabric" in kind:
+        spec = _SCHEMA["geometry"][1]["kinematics"]
+        kinematics = _convert("geometry.kinematics", geometry.get("kinematics", "planar"), spec)
+        _check_kinematics(kinematics, tables["specimen"] is not None)
+
+
+def _check_fabric(scene: Scene, kind: tuple) -> None:
+    """What a fabric scene must be (docs/model.md section 10): none of the one-yarn model's
+    tables and keys (weft.tension named before geometry.yarns), as woven, the weft's chain
+    keys; a [specimen] (`_check_specimen`) or a planar patch, which takes no spatial key."""
     g, weft = scene.geometry, scene.weft
-    if scene.sweep:
-        raise UserError(_SWEEP_IN_FABRIC)
-    if weft.tension != 0.0:
-        raise _yarn_key_in_fabric("weft.tension", weft.tension)
-    if g.yarns != 1:
-        raise _yarn_key_in_fabric("geometry.yarns", g.yarns)
-    for table, key in _keys_for("yarn"):  # the rest, for a scene built in Python
-        value = getattr(getattr(scene, table), key)
-        if value != next(f.default for f in fields(_TABLES[table]) if f.name == key):
-            raise _yarn_key_in_fabric(f"{table}.{key}", value)
+    _refuse(kind, "fabric", [*_given_tables(scene), *_given_keys(scene, ("weft", *_SCHEMA))])
     if g.reference != "as_woven":
         raise _bad("geometry.reference", g.reference, "a fabric's stress-free state is as "
                    "woven (docs/model.md section 10); use \"as_woven\"")
-    for key, unit in (("EA", " [N]"), ("segments", "")):
-        if getattr(weft, key) is None and not (key == "segments" and _sets_layout(scene)):
-            raise UserError(f"missing required key weft.{key}{unit} (needed with {_FABRIC})")
-    if _sets_layout(scene):
+    if weft.EA is None:
+        raise _missing("weft", "EA", _FABRIC)
+    if "specimen" in kind:
         _check_specimen(scene)
         return
-    _check_planar(scene)
+    if weft.segments is None:
+        raise _missing("weft", "segments", _FABRIC)
+    _refuse(kind, "planar", _given_keys(scene))
     if weft.segments % (2 * weft.count):
         step = 2 * weft.count
         raise _bad("weft.segments", weft.segments, f"must be a positive multiple of 2 x "
@@ -1167,40 +1220,19 @@ def _check_fabric(scene: Scene) -> None:
 # The spatial fabric and its specimens (docs/model.md section 11).
 
 
-def _sets_layout(scene: Scene) -> bool:
-    """A fabric scene with a [specimen]: the specimen sets the layout (`Specimen`)."""
-    return scene.specimen is not None and scene.geometry.model == "fabric"
-
-
-def _layout_keys() -> list[tuple[str, str, _Key]]:
-    """(table, key, spec) of the layout keys, which a [specimen] refuses."""
-    return [(t, k, spec) for t, (_, keys) in _SCHEMA.items() for k, spec in keys.items()
-            if spec.layout]
-
-
-def _spatial_keys() -> list[tuple[str, str]]:
-    """(table, key) of the spatial keys outside [specimen] (the spatial fabric's whole table):
-    those of [warp], [weft] and [crossing]."""
-    return [(t, k) for t, (_, keys) in _SCHEMA.items() for k, spec in keys.items()
-            if spec.spatial and t not in _SPATIAL_TABLES]
-
-
-def _check_layout(scene: Scene) -> None:
-    """A fabric's kinematics and [specimen] go together; the layout keys are given exactly
-    when no [specimen] sets the layout (a one-yarn scene's [specimen] is refused later, with
-    the fabric's keys)."""
+def _check_layout(scene: Scene, kind: tuple) -> None:
+    """A fabric's kinematics and [specimen] go together; the layout keys (`_Key.layout`) are
+    refused with a [specimen], which sets the layout, and those of both models required where
+    the kind takes them (a one-yarn scene's [specimen] is refused later, with the fabric's
+    keys)."""
     g = scene.geometry
-    if g.model == "fabric":
+    if "fabric" in kind:
         _check_kinematics(g.kinematics, scene.specimen is not None)
-    for table, key, spec in _layout_keys():
-        value = getattr(getattr(scene, table) or object(), key, None)
-        if _sets_layout(scene) and value is not None:
-            raise UserError(f"[specimen] sets the layout: {table}.{key} is not used; remove it"
-                            + (" (a specimen's warp crimp is warp.amplitude)"
-                               if f"{table}.{key}" == "geometry.amplitude" else ""))
-        if (not _sets_layout(scene) and value is None and getattr(scene, table) is not None
-                and not spec.model):
-            raise UserError(f"missing required key {table}.{key}{_units(spec)}")
+    _refuse(kind, "specimen", _given_keys(scene))
+    for table, key, spec in _keys_where(layout=True, model=""):
+        if (not any(_refused_by(facet, spec) for facet in kind) and getattr(scene, table)
+                is not None and getattr(getattr(scene, table), key, None) is None):
+            raise _missing(table, key)
 
 
 def _check_kinematics(kinematics: str, specimen: bool) -> None:
@@ -1214,31 +1246,6 @@ def _check_kinematics(kinematics: str, specimen: bool) -> None:
         raise UserError(f"[specimen] given but geometry.kinematics = {_show(kinematics)}: a "
                         f"specimen is sheared in plane (docs/model.md section 11); set "
                         f"{_SPATIAL}")
-
-
-def _check_kinematics_tables(tables: dict) -> None:
-    """`_check_kinematics` on the file's tables, before a missing layout key is looked for."""
-    geometry = tables["geometry"]
-    if geometry.get("model") == "fabric":
-        spec = _SCHEMA["geometry"][1]["kinematics"]
-        kinematics = _convert("geometry.kinematics", geometry.get("kinematics", "planar"), spec)
-        _check_kinematics(kinematics, tables["specimen"] is not None)
-
-
-_SPATIAL_KEY_IN_PLANAR = {"warp.amplitude": "a planar fabric's warp crimp is geometry.amplitude"}
-"""Where a spatial key means something else in a planar scene."""
-
-
-def _check_planar(scene: Scene) -> None:
-    """A planar fabric takes no spatial key: of [crossing] only the preload (docs/model.md
-    section 10), of the families none of section 11's."""
-    for table, key in _spatial_keys():
-        value = getattr(getattr(scene, table), key, None)
-        if value is not None:
-            dotted = f"{table}.{key}"
-            why = _SPATIAL_KEY_IN_PLANAR.get(dotted, "remove it")
-            raise _bad(dotted, value, f"a key of the spatial fabric ({_SPATIAL}, docs/model.md "
-                       f'section 11), but geometry.kinematics = "planar": {why}')
 
 
 def _check_specimen(scene: Scene) -> None:
@@ -1274,7 +1281,7 @@ def _check_specimen_size(specimen: Specimen) -> None:
             raise _bad(f"specimen.{key}", value, f"not a key of {test}; remove it")
     for key in needed:
         if getattr(specimen, key) is None:
-            raise UserError(f"missing required key specimen.{key} [m] (needed with {test})")
+            raise _missing("specimen", key, test)
     if bias and specimen.height < 2 * specimen.width:
         raise _bad("specimen.height", specimen.height, f"must be at least 2 x specimen.width = "
                    f"{2 * specimen.width:g} m: H/W = {specimen.height / specimen.width:.3g} < 2 "
@@ -1289,9 +1296,7 @@ def _check_family_lateral(family: Warp | Weft) -> None:
     name = "warp" if isinstance(family, Warp) else "weft"
     for key in ("spacing", "width", "amplitude"):
         if getattr(family, key) is None:
-            spec = _SCHEMA[name][1][key]
-            raise UserError(f"missing required key {name}.{key}{_units(spec)} (needed with "
-                            "[specimen])")
+            raise _missing(name, key, "[specimen]")
     if family.width >= family.spacing:
         raise _bad(f"{name}.width", family.width, f"must be below {name}.spacing = "
                    f"{family.spacing!r} m: neighbouring {name}s would overlap as woven")
@@ -1339,9 +1344,9 @@ def _check_specimen_load(load: Load) -> None:
     if load.control != "displacement":
         raise _bad("load.control", load.control, "a specimen is loaded by its clamp "
                    'displacement: load.control = "displacement"')
-    for key, spec in _SCHEMA["load"][1].items():
+    for _, key, _ in _keys_where(("load",), model="fabric"):
         value = getattr(load, key)
-        if spec.model == "fabric" and value is not None:
+        if value is not None:
             raise _bad(f"load.{key}", value, "a specimen is loaded by its clamp (frame corner) "
                        "displacement alone, load.values; remove it")
 
@@ -1352,7 +1357,7 @@ def _resolve_spatial(scene: Scene) -> Scene:
     crossing.torsion_radius 0.3826 x the smaller width, each family's EI_lateral its EI and
     lateral_stiffness the core stiffness, specimen.fabric_side the side. Values the checks
     will refuse (missing, not numbers) are left for them."""
-    if not _sets_layout(scene) or scene.geometry.kinematics != "spatial":
+    if "specimen" not in _kind(scene) or scene.geometry.kinematics != "spatial":
         return scene
     changes = {}
     if scene.friction is None:
@@ -1514,8 +1519,7 @@ def _check_transient(dynamic: Dynamic) -> None:
                    '"transient"; use "viscous" (the default)')
     for key in ("duration", "output_interval"):
         if getattr(dynamic, key) is None:
-            raise UserError(f'missing required key dynamic.{key} [s] '
-                             '(needed with dynamic.mode = "transient")')
+            raise _missing("dynamic", key, 'dynamic.mode = "transient"')
     if dynamic.output_interval > dynamic.duration:
         raise _bad("dynamic.output_interval", dynamic.output_interval,
                    f"must be <= dynamic.duration = {dynamic.duration!r} [s]")
@@ -1610,6 +1614,9 @@ def _field_of(dotted: str) -> tuple[str, str, _Key]:
 # The key table of docs/scene.md, written from the schema.
 
 _RULE_TEXT = {"": "", "positive": " > 0", "nonnegative": " >= 0", "nonzero": " != 0"}
+_ONLY = {("fabric", False): "(fabric only) ", ("yarn", False): "(one-yarn model only) ",
+         ("fabric", True): "(spatial fabric only) "}
+"""A key's (model, spatial) declaration as its row's meaning starts."""
 _KIND_TEXT = {"float": "number", "int": "integer", "str": "string", "floats": "list of numbers"}
 
 
@@ -1662,7 +1669,7 @@ def _presence(table: str) -> str:
                 "preload > 0).")
     text = ("Required when geometry.crossings > 0 or with `[specimen]`" if table == "weft"
             else "Optional")
-    if table in _ROD_REFUSES:
+    if "rod" in _TABLE_REFUSALS.get(table, {}):
         text += "; a plain rod (geometry.crossings = 0) refuses it"
     if table == "friction":
         f = PAPER_FRICTION
@@ -1677,9 +1684,7 @@ def _row(dotted: str, spec: _Key, default: str) -> str:
     """One table row."""
     table, name = dotted.split(".")
     flag = f"`{run_flag(name)}`" if spec.option else ""
-    only = {"fabric": "(fabric only) ", "yarn": "(one-yarn model only) "}.get(spec.model, "")
-    if spec.spatial:
-        only = "(spatial fabric only) "
+    only = _ONLY.get((spec.model, spec.spatial), "")
     cells = (f"`{dotted}`", spec.unit, _allowed(spec), default,
              "yes" if spec.sweepable else "", flag, only + spec.doc)
     return "| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |"
@@ -1696,7 +1701,7 @@ def _default_text(default, spec: _Key) -> str:
     """A field's default as written in TOML; required, none, or another key's value."""
     if spec.layout:
         base = (f"`{spec.default_from}`" if spec.default_from
-                else "none" if spec.model else "required")
+                else {"": "required"}.get(spec.model, "none"))
         return base + "; refused with `[specimen]`"
     if spec.default_from:
         return f"`{spec.default_from}`"
