@@ -29,7 +29,8 @@ from dynfab.kernels.precision import vector
 
 def structure_terms(scalar, friction: bool, boundary: bool, base) -> SimpleNamespace:
     """The planar elements' `wp.func`s of one variant (module docstring), on `base`
-    (`structure_forces.base`: along_z, segment_pull, closure, contact_pass)."""
+    (`structure_forces.base`: along_z, segment_pull, closure, external, own_and_stretch,
+    contact_pass)."""
     vec = vector(scalar, 2)
     mat = wp.types.matrix(shape=(2, 2), dtype=scalar)
     Data = structure_arrays.struct(scalar, 2)
@@ -96,11 +97,7 @@ def structure_terms(scalar, friction: bool, boundary: bool, base) -> SimpleNames
         """-dV/dr_i (+ friction) [N] of node i alone, unmasked, without the planes' reaction."""
         before = data.previous[i]
         after = data.next[i]
-        force = base.external(i, pos, data, state)
-        if after >= 0:
-            force = force + segment_pull(pos, data, i)
-        if before >= 0:
-            force = force - segment_pull(pos, data, before)
+        force = base.own_and_stretch(i, pos, data, state)
         if before >= 0 and after >= 0:  # the spring at i: -m g_a + m g_b
             a = pos[i] - pos[before]
             b = pos[after] - pos[i]

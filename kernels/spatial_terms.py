@@ -384,11 +384,8 @@ def structure_terms(scalar, friction: bool, boundary: bool, base) -> SimpleNames
         it (each element evaluated at every node of its stencil), its ties' contact along z."""
         before = data.previous[i]
         after = data.next[i]
-        force = base.external(i, pos, data, state)
-        if after >= 0:
-            force = force + segment_pull(pos, data, i)
+        force = base.own_and_stretch(i, pos, data, state)
         if before >= 0:
-            force = force - segment_pull(pos, data, before)
             if after >= 0:  # the spring at i
                 g = terms.bend_gradients(pos, data, before, i, after)
                 force = force + g[0] + g[1]

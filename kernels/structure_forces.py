@@ -86,6 +86,17 @@ def base(scalar, friction: bool, dim: int) -> SimpleNamespace:
         return force
 
     @wp.func(inline=True)
+    def own_and_stretch(i: int, pos: wp.array(dtype=vec), data: Data, state: State) -> vec:
+        """Node i's own force (`external`) and its segments' pulls [N]: where the gather of
+        every kinematics starts."""
+        force = external(i, pos, data, state)
+        if data.next[i] >= 0:
+            force = force + segment_pull(pos, data, i)
+        if data.previous[i] >= 0:
+            force = force - segment_pull(pos, data, data.previous[i])
+        return force
+
+    @wp.func(inline=True)
     def contact_pass(t: int, pos: wp.array(dtype=vec), data: Data, state: State) -> scalar:
         """R and dR/dg of tie t into the state, and F_T (into the state and returned) where
         friction is compiled in; 0 otherwise."""
@@ -99,7 +110,8 @@ def base(scalar, friction: bool, dim: int) -> SimpleNamespace:
         return bound
 
     return SimpleNamespace(along_z=along_z, segment_pull=segment_pull, closure=closure,
-                           external=external, contact_pass=contact_pass, node=node)
+                           external=external, own_and_stretch=own_and_stretch,
+                           contact_pass=contact_pass, node=node)
 
 
 @functools.cache

@@ -212,3 +212,80 @@ def test_a_new_node_term_reaches_every_model_static_and_dynamic(tethered, name):
     else:
         assert case["recorded"] == pytest.approx(case["energy"], rel=1e-12)
     assert case["recorded"] == pytest.approx(case["energy"], rel=1e-12)
+
+
+TWO_TERMS = r"""
+import json
+from types import SimpleNamespace
+
+import numpy as np
+import warp as wp
+
+from dynfab.model.terms import nodes
+
+
+def term(scale):
+    def warp(scalar, vec):
+        @wp.func
+        def force(x: vec, rest: vec, p: wp.array2d(dtype=scalar), i: int, first: int) -> vec:
+            return -p[i, first] * scalar(scale) * (x - rest)
+
+        @wp.func
+        def energy(x: vec, rest: vec, p: wp.array2d(dtype=scalar), i: int, first: int) -> scalar:
+            return scalar(0.5 * scale) * p[i, first] * wp.dot(x - rest, x - rest)
+
+        @wp.func
+        def stiffness(x: vec, rest: vec, p: wp.array2d(dtype=scalar), i: int,
+                      first: int) -> scalar:
+            return p[i, first] * scalar(scale)
+        return SimpleNamespace(force=force, energy=energy, stiffness=stiffness)
+    return SimpleNamespace(warp=warp, PARAMETERS=("k",))
+
+
+nodes.MODULES = (term(1.0), term(10.0), term(100.0))
+from dynfab.kernels import node_terms, structure_arrays
+from dynfab.kernels.precision import vector
+
+vec = vector(wp.float64, 2)
+Data = structure_arrays.struct(wp.float64, 2)
+summed = node_terms.functions(wp.float64, 2)
+
+
+@wp.kernel
+def probe(pos: wp.array(dtype=vec), data: Data, force: wp.array(dtype=vec),
+          energy: wp.array(dtype=wp.float64), rows: wp.array(dtype=wp.float64)):
+    i = wp.tid()
+    force[i] = summed.force(i, pos, data)
+    energy[i] = summed.energy(i, pos, data)
+    rows[i] = summed.stiffness(i, pos, data)
+
+
+data = Data()
+for name, field in Data.vars.items():
+    setattr(data, name, wp.zeros((1,) * field.type.ndim, dtype=field.type.dtype))
+data.rest_position = wp.array(np.zeros((2, 2)), dtype=vec)
+data.node_parameters = wp.array(np.array([[2.0, 3.0], [5.0, 7.0]]), dtype=wp.float64)
+data.node_term_first = wp.array(np.array([0, -1, 1], np.int32), dtype=wp.int32)
+pos = wp.array(np.array([[1.0, -2.0], [0.5, 0.25]]), dtype=vec)
+out = [wp.zeros(2, dtype=vec), wp.zeros(2, dtype=wp.float64), wp.zeros(2, dtype=wp.float64)]
+wp.launch(probe, dim=2, inputs=[pos, data, *out])
+print(json.dumps([a.numpy().tolist() for a in out]))
+"""
+
+
+def test_the_kernels_sum_every_registered_node_term_where_the_structure_has_it(tmp_path):
+    """Three node terms registered, the second absent from the structure (its column -1): each
+    node's force, energy and stiffness bound are the sums of the first's and the third's,
+    e = s k |x - X|^2 / 2 with s = 1 and 100, k its parameter column (exact in binary
+    floating point for these values)."""
+    script = tmp_path / "two_terms.py"
+    script.write_text(TWO_TERMS)
+    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
+                          timeout=600)
+    assert done.returncode == 0, done.stderr[-4000:]
+    force, energy, rows = (np.array(a) for a in json.loads(done.stdout.strip().splitlines()[-1]))
+    x = np.array([[1.0, -2.0], [0.5, 0.25]])
+    k = np.array([[2.0, 3.0], [5.0, 7.0]]) * [1.0, 100.0]  # (node, term): s k
+    np.testing.assert_array_equal(force, -k.sum(axis=1)[:, None] * x)
+    np.testing.assert_array_equal(energy, 0.5 * k.sum(axis=1) * (x ** 2).sum(axis=1))
+    np.testing.assert_array_equal(rows, k.sum(axis=1))
