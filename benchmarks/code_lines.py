@@ -1,4 +1,5 @@
-"""Code lines of dynfab/ and kernels/, per top-level package folder and in total, for one or two revisions.
+"""Code lines of dynfab/ and kernels/, per top-level package folder and in total, for one or two
+revisions.
 
 Run:  python benchmarks/code_lines.py                            (the working tree)
       python benchmarks/code_lines.py --rev a2b9d22 --rev HEAD   (two commits, and the change)

@@ -1,7 +1,9 @@
-"""Branches on the kind of model in dynfab/ and kernels/, outside the builders and the element library.
+"""Branches on the kind of model in dynfab/ and kernels/, outside the builders and the element
+library.
 
-Run:  python benchmarks/model_kind_branches.py                                  (the working tree)
-      python benchmarks/model_kind_branches.py --rev a2b9d22 --rev HEAD --list  (two commits, each site)
+Run:  python benchmarks/model_kind_branches.py                              (the working tree)
+      python benchmarks/model_kind_branches.py --rev a2b9d22 --rev HEAD --list
+                                                                            (two commits, each site)
 
 A branch: the test of an `if`/`elif`, a conditional expression or a comprehension's `if`,
 or a `wp.static(...)` call in none of these (found with `ast`). It branches on the kind of
@@ -74,7 +76,8 @@ def compare_rule(node: ast.Compare) -> str | None:
     if any(isinstance(s, ast.Constant) and s.value in (2, 3) for s in sides) and any(
             is_dimension(s) for s in sides) and isinstance(node.ops[0], ast.Eq | ast.NotEq):
         return "kinematics"
-    return "kind" if any(isinstance(s, ast.Attribute) and s.attr == "model" for s in sides) else None
+    return "kind" if any(isinstance(s, ast.Attribute) and s.attr == "model"
+                         for s in sides) else None
 
 
 def node_rule(node: ast.AST, predicates: dict[str, str]) -> str | None:
@@ -85,7 +88,8 @@ def node_rule(node: ast.AST, predicates: dict[str, str]) -> str | None:
         return call_rule(node, predicates)
     if isinstance(node, ast.Compare):
         return compare_rule(node)
-    if isinstance(node, ast.Attribute) and node.attr == "kind" and name(node.value).endswith("model"):
+    if (isinstance(node, ast.Attribute) and node.attr == "kind"
+            and name(node.value).endswith("model")):
         return "kind"
     return NAMES.get(name(node)) if isinstance(node, ast.Name | ast.Attribute) else None
 

@@ -4,8 +4,8 @@ it stopped at its rounding floor, and its certificate's position error bound.
 
 A run refuses float32 on a specimen (`dynfab.solvers.dynamic.SPATIAL_REFUSALS`); this script
 lifts that one refusal for its own process, to measure what the refusal is for. Both runs use
-the same scene; float32 runs with dynamic.accuracy = 1e300 (off), so that its bound is recorded rather
-than refused. Prints a line per precision and writes benchmarks/specimen_float32.json.
+the same scene; float32 runs with dynamic.accuracy = 1e300 (off), so that its bound is recorded
+rather than refused. Prints a line per precision and writes benchmarks/specimen_float32.json.
 
 Run: PYTHONPATH=. python benchmarks/specimen_float32.py
 """

@@ -1,4 +1,5 @@
-"""Benchmark of the XDMF view (dynfab/results/xdmf.py): the cost of one rewrite against the steps listed.
+"""Benchmark of the XDMF view (dynfab/results/xdmf.py): the cost of one rewrite against the steps
+listed.
 
 Run:  python benchmarks/xdmf.py           (prints a table, writes benchmarks/xdmf.json)
       python benchmarks/xdmf.py --quick   (up to 1000 steps)

@@ -87,7 +87,8 @@ def run_to_file(scene: Scene, solver: str, out: str | Path, *, overwrite: bool =
         with _interrupts_held_back():  # a Ctrl-C finds the file either not made or in `sink`
             sink = _open_sink(model, engine, out, overwrite=overwrite, resume=resume)
         if resume:
-            view.finish()  # the XDMF beside it (dynfab.results.xdmf), up to date with the finished steps
+            view.finish()  # the XDMF beside it (dynfab.results.xdmf), up to date with the finished
+                           # steps
         else:
             xdmf_path(out).unlink(missing_ok=True)  # a replaced file's view is stale
         written = _solve(model, engine, _ViewedSink(sink, view), progress)
@@ -130,7 +131,8 @@ def _finish_view(view: XdmfSync, out) -> None:
 
 
 class _ViewedSink:
-    """A result file whose XDMF view (`dynfab.results.xdmf.XdmfSync`) follows every appended entry."""
+    """A result file whose XDMF view (`dynfab.results.xdmf.XdmfSync`) follows every appended
+    entry."""
 
     def __init__(self, sink: ResultFile, view: XdmfSync) -> None:
         self.sink, self.view = sink, view

@@ -1,6 +1,7 @@
 """Warp kernels of the dynamic solver (docs/model.md section 5), installed as `dynfab.kernels`:
-one kernel layer for any `dynfab.model.structure.Structure`, which `dynfab.solvers.dynamic.DynamicSolver`
-drives for every model (docs/model.md, "The dynamic solver (decisions)").
+one kernel layer for any `dynfab.model.structure.Structure`, which
+`dynfab.solvers.dynamic.DynamicSolver` drives for every model
+(docs/model.md, "The dynamic solver (decisions)").
 
 One module per concept:
 

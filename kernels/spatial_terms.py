@@ -352,8 +352,8 @@ def functions(scalar) -> SimpleNamespace:
 def structure_terms(scalar, friction: bool, boundary: bool, base) -> SimpleNamespace:
     """The spatial elements in the form every kinematics gives `structure_forces`
     (`plane_shift`, `tie_pass_at`, `node_force`, `scatter`, `add_node_energy`,
-    `add_tie_energy`, `lateral_energy`, `return_anchor`), on `base` (`structure_forces.base`). A spatial
-    structure has no moving planes, wraps or tied dofs (`structure_arrays.build`), so
+    `add_tie_energy`, `lateral_energy`, `return_anchor`), on `base` (`structure_forces.base`). A
+    spatial structure has no moving planes, wraps or tied dofs (`structure_arrays.build`), so
     `boundary` compiles nothing here."""
     vec = vector(scalar, 3)
     Data = structure_arrays.struct(scalar, 3)

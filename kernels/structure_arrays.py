@@ -1,5 +1,5 @@
-"""Any `dynfab.model.structure.Structure` as flat arrays for the Warp kernels: per node, per tie, per
-chain, and the groups and blocks the two layouts run on (docs/model.md sections 2-5, 10).
+"""Any `dynfab.model.structure.Structure` as flat arrays for the Warp kernels: per node, per tie,
+per chain, and the groups and blocks the two layouts run on (docs/model.md sections 2-5, 10).
 
 Every node of every chain is one entry of one flat array, in the structure's order (chain after
 chain). A node knows its chain neighbours (`previous`, `next`, -1 past an end), so a thread can

@@ -35,7 +35,8 @@ from dynfab.kernels import structure_tangent, structure_variants
 from dynfab.kernels.precision import KINEMATICS, epsilon, vector
 
 ROUNDING_FLOOR_FACTOR = 16.0
-"""Rounding floor of the residual / (eps max_i |K_ii| max_i |x_i|) [-], as `dynfab.solvers.static`'s."""
+"""Rounding floor of the residual / (eps max_i |K_ii| max_i |x_i|) [-], as
+`dynfab.solvers.static`'s."""
 FLOOR_MIN_STEPS = 1000
 """Time steps before a stalled residual may be declared at the rounding floor."""
 ENERGY_CHECK_INTERVAL = 16

@@ -22,8 +22,8 @@ UNITS = {TIES: "ties", FORCES: "nodes", NODE_ENERGY: "nodes", TIE_ENERGY: "ties"
 def pass_kernel(scalar, friction: bool, boundary: bool, kinematics: str = "planar"):
     """Kernel run(data, state, which, out): TIES writes every tie's R, dR/dg, F_T and friction
     force into the state; FORCES state.force = -dV/dr on the free dofs (after TIES),
-    gathered at node u; NODE_ENERGY, TIE_ENERGY and LATERAL_ENERGY out[unit] = the energy the unit owns [J]; RETURN_MAP moves every anchor
-    radially, out[t] = the energy dissipated [J]."""
+    gathered at node u; NODE_ENERGY, TIE_ENERGY and LATERAL_ENERGY out[unit] = the energy the unit
+    owns [J]; RETURN_MAP moves every anchor radially, out[t] = the energy dissipated [J]."""
     dim = KINEMATICS[kinematics]
     Data = structure_arrays.struct(scalar, dim)
     State = structure_state.struct(scalar, dim)

@@ -96,8 +96,8 @@ def without_core_spring(scene: Scene) -> FabricModel:
 
 def record_inverse_norm(record) -> float:
     """est ||H^-1||_inf [m/N] of a step's certificate: its error_estimate over its residual
-    (`dynfab.solvers.certificate.StepStability`: error_estimate = residual x est ||H^-1||_inf), H the
-    Hessian on the free dofs with F_T frozen at the step's anchors and limits. Hager-Higham's
+    (`dynfab.solvers.certificate.StepStability`: error_estimate = residual x est ||H^-1||_inf), H
+    the Hessian on the free dofs with F_T frozen at the step's anchors and limits. Hager-Higham's
     estimate, a lower bound of the norm, in practice within a factor 3: on the fabric patches
     of tests/test_fabric_certificate.py the dense inverse's norm to 1e-8."""
     residual = float(np.ravel(record["residual"])[0])

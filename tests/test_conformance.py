@@ -2,9 +2,9 @@
 central differences of the energy, banded Hessian against central differences of the
 gradient (docs/model.md sections 2-4). The terms are the registry's with one-yarn entry points
 (`dynfab.model.terms.registry`, `Term.yarn`; the spatial ones are checked in
-tests/test_spatial_terms.py), so a term added there is checked here once its numba calls are in `numba_term` and its
-stiffness bound in `bounds`. (The dynamic solver's Warp kernels, one layer for any structure,
-are checked against this reference term by term: tests/test_kernels_structure.py.)
+tests/test_spatial_terms.py), so a term added there is checked here once its numba calls are in
+`numba_term` and its stiffness bound in `bounds`. (The dynamic solver's Warp kernels, one layer for
+any structure, are checked against this reference term by term: tests/test_kernels_structure.py.)
 
 The state: a small paper fabric (N = 16, 4 crossings, two adjacent yarns) with friction,
 gravity and the force load on, its nodes moved at random by up to 0.05 l0, and its crossings

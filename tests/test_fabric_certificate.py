@@ -1,5 +1,5 @@
-"""The fabric's step certificate (`dynfab.solvers.certificate.certify_patch`, docs/model.md section 6
-and "Stability and accuracy of a converged step"), against the dense Hessian.
+"""The fabric's step certificate (`dynfab.solvers.certificate.certify_patch`, docs/model.md
+section 6 and "Stability and accuracy of a converged step"), against the dense Hessian.
 
 - A stable friction step of the 3 x 4 test patch ("affine" planes, whose end nodes join
   the crossings' blocks): the record's lowest_eigenvalue is a Rayleigh quotient (at least

@@ -1,5 +1,5 @@
-"""`dynfab.fitting.fit` on fabric scenes: recovery of known parameters, the forward-difference Jacobian,
-fittable keys, malformed fabric curves.
+"""`dynfab.fitting.fit` on fabric scenes: recovery of known parameters, the forward-difference
+Jacobian, fittable keys, malformed fabric curves.
 
 The scene is the fabric example's (runs/fit_example/fabric_scene.toml: a periodic 2 x 2 cell of
 8 segments per yarn, pulled 2:1 under force control); a path of it solves in ~25 ms, a fit of

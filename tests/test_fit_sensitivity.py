@@ -1,4 +1,5 @@
-"""Sensitivities of a load path (dynfab.fitting.sensitivity) against finite differences of whole curves.
+"""Sensitivities of a load path (dynfab.fitting.sensitivity) against finite differences of whole
+curves.
 
 Each check re-solves the whole load path at p + h and p - h (static solver, as
 a user's run) and compares the central difference with the exact sensitivity
@@ -20,8 +21,8 @@ import numpy as np
 import pytest
 
 from dynfab.scene import with_key
-from dynfab.fitting.sensitivity import (RELATIVE_STEP, _get_key, parameter_scale, path_sensitivities,
-                                solve_path)
+from dynfab.fitting.sensitivity import (RELATIVE_STEP, _get_key, parameter_scale,
+                                        path_sensitivities, solve_path)
 from independent import PAPER_FRICTION, PAPER_WARP, PAPER_WEFT, make_scene
 
 STEP = 1e-4

@@ -162,8 +162,8 @@ def contribution_scale(structure, positions, P) -> float:
 
 
 def one_yarn_gradients(structure, positions, P, anchors) -> np.ndarray:
-    """-dV/dr (n, 2) [N] by `dynfab.model.assembly` on every chain's Yarn view, F_T frozen at the law
-    of its own contact forces, 0 on the held dofs."""
+    """-dV/dr (n, 2) [N] by `dynfab.model.assembly` on every chain's Yarn view, F_T frozen at the
+    law of its own contact forces, 0 on the held dofs."""
     active = np.ones(len(registry.NAMES), np.bool_)
     out = np.zeros_like(positions)
     for y in range(chain_count(structure)):
@@ -182,8 +182,8 @@ def one_yarn_gradients(structure, positions, P, anchors) -> np.ndarray:
 
 
 def fabric_gradients(structure, positions, P, anchors) -> np.ndarray:
-    """-dV/dr (n, 2) [N] by `dynfab.model.fabric.assembly` on the unknowns (a tied family's summed on
-    each of its dofs), F_T frozen at the law of the current contact forces."""
+    """-dV/dr (n, 2) [N] by `dynfab.model.fabric.assembly` on the unknowns (a tied family's summed
+    on each of its dofs), F_T frozen at the law of the current contact forces."""
     static = static_solver(structure)
     limit = np.zeros(structure.tie_a.size)
     if structure.has_friction:
@@ -202,8 +202,8 @@ TERMS = ("stretch", "bending", "contact", "friction", "gravity", "load", "all")
 @pytest.mark.parametrize("name", sorted(SCENES))
 def test_forces_are_the_static_gradient(structures, name, term):
     """Each term's kernel force against the static reference's gradient (the one-yarn
-    `dynfab.model.assembly` per chain for the yarn, `dynfab.model.fabric.assembly` for the fabrics) at a
-    perturbed state, crossings closed and open, sliding and sticking, to rounding: a force
+    `dynfab.model.assembly` per chain for the yarn, `dynfab.model.fabric.assembly` for the fabrics)
+    at a perturbed state, crossings closed and open, sliding and sticking, to rounding: a force
     component sums at most 16 contributions (two segments, three bending springs and the wrap,
     its ties' contact and friction, the planes' reaction, a tied family's members), each within
     8 ulps of its size, at most S (`contribution_scale`) in both evaluations: 256 eps S. Not
@@ -234,8 +234,8 @@ def test_forces_are_the_static_gradient(structures, name, term):
 
 @pytest.mark.parametrize("name", sorted(SCENES))
 def test_energy_is_the_static_energy(structures, name):
-    """The energy the nodes and ties own (`energies`) sums to `dynfab.model.fabric.assembly`'s V plus
-    the Huber terms (F_T at the current R), to the rounding of the terms' sums (each term
+    """The energy the nodes and ties own (`energies`) sums to `dynfab.model.fabric.assembly`'s V
+    plus the Huber terms (F_T at the current R), to the rounding of the terms' sums (each term
     within a few ulps of its size; 64 eps of every term's size summed)."""
     s = structures[name]
     positions = perturbed(s)

@@ -151,8 +151,8 @@ def rest_gradient(model, pos):
     s = model.structure
     without = s._replace(node_term_active=np.zeros_like(s.node_term_active))
     grad = np.zeros_like(pos)
-    terms_of(s).gradient(pos, without, np.zeros(s.chain_start.size - 1), np.zeros((s.tie_a.size, 3)),
-                         np.zeros(s.tie_a.size), grad)
+    terms_of(s).gradient(pos, without, np.zeros(s.chain_start.size - 1),
+                         np.zeros((s.tie_a.size, 3)), np.zeros(s.tie_a.size), grad)
     return grad
 
 

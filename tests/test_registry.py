@@ -1,4 +1,5 @@
-"""The term registry (dynfab/model/terms/registry.py) drives the numba assembly and the reported energies.
+"""The term registry (dynfab/model/terms/registry.py) drives the numba assembly and the reported
+energies.
 
 - Terms switched off in a yarn (`Yarn.active`) add nothing, and the others add their
   docs/model.md energies: the energy vector holds 0 for the former and each closed form

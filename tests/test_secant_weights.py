@@ -1,6 +1,6 @@
 """The sparse Newton's per-crossing secant weights (docs/model.md 11.10,
-`dynfab.solvers.newton_sparse.kinked` and `next_secant_weights`): which crossings a step takes across
-their Huber kink, from the geometry of the slip's path against the stick disk
+`dynfab.solvers.newton_sparse.kinked` and `next_secant_weights`): which crossings a step takes
+across their Huber kink, from the geometry of the slip's path against the stick disk
 |S| <= F_T / k_t, and how the weights follow."""
 
 from __future__ import annotations

@@ -100,7 +100,8 @@ def test_the_node_parallel_layout_relaxes_a_specimen_as_the_grouped_one_bit_for_
 TRANSIENT = 'mode = "transient"\nduration = 0.01\noutput_interval = 0.005'
 
 
-@pytest.mark.parametrize("setting", ['method = "semi_implicit"', 'precision = "float32"', TRANSIENT])
+@pytest.mark.parametrize("setting", ['method = "semi_implicit"', 'precision = "float32"',
+                                     TRANSIENT])
 def test_a_specimen_refuses_what_its_kernels_lack_in_one_line(setting):
     specimen, values, friction = CASES["frame"]
     text = scene_text(specimen, values[:1], friction) + f"\n[dynamic]\n{setting}\n"

@@ -1,4 +1,5 @@
-"""The solver contracts (`dynfab.solvers.contract`) and the load the model prescribes (`dynfab.model.loading`).
+"""The solver contracts (`dynfab.solvers.contract`) and the load the model prescribes
+(`dynfab.model.loading`).
 
 Both load-step solvers are `Solver`s and give records of the same names when
 driven through the contract alone; the transient mode is a `Transient`; a run
@@ -195,8 +196,8 @@ def package_files() -> dict[str, Path]:
 
 def solver_modules(files: dict[str, Path]) -> set[str]:
     """The modules that define a solver: a class (not a contract) with `attrs` and `step` or
-    `advance`, the members of `dynfab.solvers.contract.Solver` and `Transient`: found, not listed, so
-    a new model's or method's solver is covered by construction."""
+    `advance`, the members of `dynfab.solvers.contract.Solver` and `Transient`: found, not listed,
+    so a new model's or method's solver is covered by construction."""
     found = set()
     for module, path in files.items():
         for node in ast.walk(ast.parse(path.read_text())):
@@ -215,7 +216,8 @@ def test_no_solver_module_imports_another():
     `dynfab.solvers.by_name` names them all."""
     files = package_files()
     solvers = solver_modules(files)
-    assert {"dynfab.solvers.static", "dynfab.solvers.dynamic"} <= solvers  # the search finds today's at least
+    assert {"dynfab.solvers.static", "dynfab.solvers.dynamic"} <= solvers  # the search finds
+                                                                           # today's at least
     for module in solvers:
         assert not imports_of(files[module]) & (solvers - {module}), module
     model_side = {name for module in solvers for name in imports_of(files[module])

@@ -320,8 +320,8 @@ def test_huber3_values_and_derivatives():
 
 
 def test_a_secant_weight_blends_the_sliding_curvature_with_its_secant():
-    """Newton's blend (dynfab.solvers.newton_sparse): weight w gives (1 - w) d2H + w (F_T / |s|) I on
-    a sliding crossing, in the plane (dynfab.model.fabric.friction) and in space; a sticking
+    """Newton's blend (dynfab.solvers.newton_sparse): weight w gives (1 - w) d2H + w (F_T / |s|) I
+    on a sliding crossing, in the plane (dynfab.model.fabric.friction) and in space; a sticking
     crossing keeps k_t I whatever w."""
     from dynfab.model.fabric import friction as planar
     S = np.array([3.0, 4.0, 12.0]) * 1e-5          # sliding: k_t |S| = 0.13 N > F_T

@@ -1,5 +1,5 @@
-"""The view of a result file (`dynfab.results.xdmf`, `dynfab.results.views`), read back as its users read it:
-with plain meshio (``meshio.xdmf.TimeSeriesReader``, no subclass) and with VTK's XDMF
+"""The view of a result file (`dynfab.results.xdmf`, `dynfab.results.views`), read back as its users
+read it: with plain meshio (``meshio.xdmf.TimeSeriesReader``, no subclass) and with VTK's XDMF
 reader (``vtkXdmfReader``, ParaView's "XDMF Reader"), each compared with the HDF5 file
 read by h5py. Expected values come from the HDF5 datasets and from the scene (plane
 spacing), never from dynfab.results.xdmf or dynfab.results.views.

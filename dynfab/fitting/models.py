@@ -4,8 +4,8 @@ the start value of a key the scene leaves to a default, and the solve of a load 
 - the one-yarn model (`YarnFit`): the path solved by `dynfab.fitting.sensitivity.solve_path`, whose
   exact sensitivities give the Jacobian;
 - the woven fabric (`FabricFit`): the path solved through the run contract
-  (`dynfab.solvers.contract.RunModel`: `make_solver(build_model(scene), "static")`, one step per load of
-  the path, the model's domain check after each, as a run), the measured columns read from
+  (`dynfab.solvers.contract.RunModel`: `make_solver(build_model(scene), "static")`, one step per
+  load of the path, the model's domain check after each, as a run), the measured columns read from
   the step records (`dynfab.fitting.data.Column.read`). It has no exact sensitivities: its
   Jacobian is a forward difference of whole path solves (`dynfab.fitting.fit`).
 
@@ -58,7 +58,8 @@ class YarnFit:
 
     @staticmethod
     def solve(scene, names):
-        """The path's `dynfab.fitting.sensitivity.PathSolution` (its observables hold every name)."""
+        """The path's `dynfab.fitting.sensitivity.PathSolution` (its observables hold every
+        name)."""
         from dynfab.fitting.sensitivity import solve_path
         return solve_path(scene)
 

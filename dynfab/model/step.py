@@ -46,7 +46,8 @@ class StepSolution:
     fields: dict
     """Record entries the solver reports, each with one value per group of the structure
     (`RunModel.groups`: a one-yarn model's yarns, a fabric's one patch): residual [N],
-    iterations, rounding_floor and the certificate's fields (`dynfab.solvers.certificate.StepStability`),
-    and its own (time_steps, cg_iterations, ...; `dynfab.results.file.UNITS`)."""
+    iterations, rounding_floor and the certificate's fields
+    (`dynfab.solvers.certificate.StepStability`), and its own (time_steps, cg_iterations, ...;
+    `dynfab.results.file.UNITS`)."""
 
 

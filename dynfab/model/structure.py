@@ -2,8 +2,8 @@
 (docs/model.md, "The structure").
 
 A `Structure` is what the solvers see of a scene, whatever the model that made it
-(`dynfab.model.builders`: the paper's yarn against weft springs, docs/model.md sections 1-9; the woven
-fabric, section 10):
+(`dynfab.model.builders`: the paper's yarn against weft springs, docs/model.md sections 1-9; the
+woven fabric, section 10):
 
 - **Chains**: Y ordered runs of nodes, chain y holding nodes chain_start[y] ..
   chain_start[y+1]-1, with a stretch spring per segment and a bending spring per inner

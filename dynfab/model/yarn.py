@@ -65,8 +65,8 @@ class Yarn(NamedTuple):
     gravity: float
     """g [m/s^2]; 0 without gravity."""
     active: np.ndarray
-    """Which terms of `dynfab.model.terms.registry.TERMS` the yarn has, (len(TERMS),) bool in registry
-    order (`registry.active_mask`); `dynfab.model.assembly` skips the others."""
+    """Which terms of `dynfab.model.terms.registry.TERMS` the yarn has, (len(TERMS),) bool in
+    registry order (`registry.active_mask`); `dynfab.model.assembly` skips the others."""
     node_parameters: np.ndarray
     """The node terms' parameters of each node (N+1, P) (`Structure.node_parameters`)."""
     node_term_active: np.ndarray
@@ -80,7 +80,8 @@ TERMS = registry.NAMES
 @dataclass(frozen=True)
 class Model:
     """A one-yarn scene's structure, its yarns as banded views, the terms it uses; shared by the
-    static and dynamic solvers. It fulfils `dynfab.solvers.contract.RunModel`, as a fabric's model does."""
+    static and dynamic solvers. It fulfils `dynfab.solvers.contract.RunModel`, as a fabric's model
+    does."""
 
     scene: Scene
     structure: Structure
@@ -180,11 +181,11 @@ class Model:
         return f"yarn {k + 1}"
 
     def frame(self, time: float, arrays: dict) -> dict:
-        """A transient frame (`dynfab.solvers.contract.FRAME_KEYS`) at `time` [s] from the structure's
-        flat arrays (`StructureRelaxation.transient`'s: positions, velocities, force (n, 2),
-        anchors (T, 2), kinetic_energy per group): per yarn, the contact forces and the
-        energies of every reported term at the load of that time (`dynfab.model.loading.load_at_time`),
-        and the kinetic energy (docs/model.md section 5)."""
+        """A transient frame (`dynfab.solvers.contract.FRAME_KEYS`) at `time` [s] from the
+        structure's flat arrays (`StructureRelaxation.transient`'s: positions, velocities,
+        force (n, 2), anchors (T, 2), kinetic_energy per group): per yarn, the contact forces
+        and the energies of every reported term at the load of that time
+        (`dynfab.model.loading.load_at_time`), and the kinetic energy (docs/model.md section 5)."""
         from dynfab.model.loading import load_at_time
         from dynfab.model.observables import frame_observables
 
@@ -253,9 +254,9 @@ class Model:
 
 def build_model(scene: Scene) -> Model:
     """The model of a validated scene: a shear specimen's
-    (`dynfab.model.fabric.specimen_model.SpecimenModel`), a fabric's (`dynfab.model.fabric.model.FabricModel`), or
-    the one-yarn model's structure (`dynfab.model.builders.yarn`) with one Yarn view per simulated warp
-    yarn."""
+    (`dynfab.model.fabric.specimen_model.SpecimenModel`), a fabric's
+    (`dynfab.model.fabric.model.FabricModel`), or the one-yarn model's structure
+    (`dynfab.model.builders.yarn`) with one Yarn view per simulated warp yarn."""
     if getattr(scene, "specimen", None) is not None:
         from dynfab.model.fabric.specimen_model import SpecimenModel  # docs/model.md section 11
 

@@ -119,8 +119,8 @@ def plot_cell(data: dict, heading: str | None = None) -> Figure:
     the last step of every path over their as-woven shapes (z exaggerated), and a top view
     of each path's last step, crossings coloured by contact force (the upper yarn drawn over
     the crossing). `heading`: the figure's title (default: the report's cell, `_title`);
-    `dynfab plot` draws a result file's steps as the paths (`dynfab.plots.figures.plot_fabric_shape`),
-    each with its curves' `label`."""
+    `dynfab plot` draws a result file's steps as the paths
+    (`dynfab.plots.figures.plot_fabric_shape`), each with its curves' `label`."""
     paths = data["paths"]
     fig = new_figure(8.0, 7.2)
     grid = fig.add_gridspec(3, len(paths))

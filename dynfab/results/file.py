@@ -164,7 +164,8 @@ UNITS: dict[str, str] = {
     "steps/weft_planes": "m",  # fabric: (steps, n_we) plane x = X_j of each weft
     "steps/xdmf/plane": "m",  # fabric, moving planes: (steps, n_wa, N+1) each warp node's Y_k
     "steps/xdmf/weft_plane": "m",  # fabric, moving planes: (steps, n_we, M+1) each weft node's X_j
-    "steps/xdmf/contact_force": "N",  # (steps, yarns, N+1) R at crossing nodes, 0 elsewhere (dynfab.results.xdmf)
+    "steps/xdmf/contact_force": "N",  # (steps, yarns, N+1) R at crossing nodes, 0 elsewhere
+                                      # (dynfab.results.xdmf)
     "steps/xdmf/slip": "m",  # (steps, yarns, N+1) x - anchor at crossing nodes, 0 elsewhere
     # Transient runs: one entry per output frame (axis 0 = frames).
     "frames/time": "s",  # (frames,)

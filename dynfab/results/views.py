@@ -1,5 +1,5 @@
-"""The view datasets of a result file: what ``<result>.xdmf`` (`dynfab.results.xdmf`) shows, as whole
-HDF5 datasets under ``view/``, made of the file's own rows without copying them.
+"""The view datasets of a result file: what ``<result>.xdmf`` (`dynfab.results.xdmf`) shows, as
+whole HDF5 datasets under ``view/``, made of the file's own rows without copying them.
 
 Why whole datasets: meshio's XDMF reader (``meshio.xdmf.TimeSeriesReader``)
 reads an HDF5 DataItem only as a whole dataset, and VTK's XDMF reader

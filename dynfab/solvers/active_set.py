@@ -1,6 +1,7 @@
 """The open/closed active set of the crossings and the continuation in R_0 (docs/model.md
 section 4), written once for both backends of the static solver (`dynfab.solvers.newton_banded`,
-`dynfab.solvers.newton_sparse`): two strategies of the friction chain (`dynfab.solvers.friction_chain`).
+`dynfab.solvers.newton_sparse`): two strategies of the friction chain
+(`dynfab.solvers.friction_chain`).
 
 Every crossing's contact branch (`dynfab.model.terms.contact`: OPEN, CLOSED) is held fixed during a
 Newton solve, and the set is updated where the state contradicts it (`update_set`) until

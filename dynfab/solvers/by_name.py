@@ -17,8 +17,8 @@ def make_solver(model, name: str, device: str | None = None, status=None):
     scene's): a `dynfab.solvers.contract.Solver` driven by load step or, for dynamic.mode =
     "transient", a `Transient` driven by time; it reports within a step to `status` (per
     Newton iteration or yarn solved, per launch of a relaxation). One dynamic solver drives
-    every model (`dynfab.solvers.dynamic`), one static solver too (`dynfab.solvers.static`: its backend
-    follows the structure)."""
+    every model (`dynfab.solvers.dynamic`), one static solver too (`dynfab.solvers.static`: its
+    backend follows the structure)."""
     name = check_solver(name)
     if name == "static":
         if device is not None:

@@ -71,7 +71,8 @@ from dynfab.errors import SolverError
 from dynfab.model.fabric.kinematics import terms_of
 from dynfab.model.fabric import inertia
 from dynfab.model.fabric import ordering as fabric_ordering
-from dynfab.linalg.ldlt import TINY_PIVOT, inverse_norm_1, ldlt_factor, ldlt_solve, negative_direction
+from dynfab.linalg.ldlt import (TINY_PIVOT, inverse_norm_1, ldlt_factor, ldlt_solve,
+                                negative_direction)
 from dynfab.scene import Static
 from dynfab.model.structure import Structure, dim, grounded, tie_layout
 from dynfab.model.terms import friction
@@ -683,10 +684,10 @@ class GroupLayout:
 
 class GroupCertificates:
     """The certificate of every group of a converged load step (`certify_groups`), for any
-    model (`dynfab.solvers.contract.RunModel`: its `groups`, `group_name`), on the route its structure
-    allows (`GroupLayout`): banded per chain where the chains are independent (`certify_yarn`
-    on the model's `yarns` views, one chain per group), the sparse route of the whole patch
-    otherwise (`certify_patch`: one group).
+    model (`dynfab.solvers.contract.RunModel`: its `groups`, `group_name`), on the route its
+    structure allows (`GroupLayout`): banded per chain where the chains are independent
+    (`certify_yarn` on the model's `yarns` views, one chain per group), the sparse route of the
+    whole patch otherwise (`certify_patch`: one group).
 
     `stability` holds the record's fields (`StepStability`, one unit per group); `escaped` gives
     the positions each group on a saddle moves to (`escape_yarn`, `escape_patch`); `check` is

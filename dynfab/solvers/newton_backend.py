@@ -42,7 +42,8 @@ class NewtonBackend:
                  certify: bool = True, status=None):
         static = model.scene.static
         self.model = model
-        """The model (`dynfab.solvers.contract.RunModel`, or anything with `structure` and `scene`)."""
+        """The model (`dynfab.solvers.contract.RunModel`, or anything with `structure` and
+        `scene`)."""
         self.structure = model.structure
         self.tolerance = static.tolerance if tolerance is None else tolerance
         """Newton's residual tolerance [N] (docs/model.md section 6), or the rounding floor

@@ -612,8 +612,8 @@ def _outcome(info, solves: int = 1) -> NewtonInfo:
 
 
 class BandedNewton(NewtonBackend):
-    """The banded backend of `dynfab.solvers.static.StaticSolver` (module docstring): each chain of a
-    grounded structure solved on its own; `dynfab.solvers.newton_backend` states the contract."""
+    """The banded backend of `dynfab.solvers.static.StaticSolver` (module docstring): each chain of
+    a grounded structure solved on its own; `dynfab.solvers.newton_backend` states the contract."""
 
     def __init__(self, model, **options):
         super().__init__(model, **options)

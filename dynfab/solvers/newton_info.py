@@ -1,6 +1,7 @@
 """The outcome of a Newton solve or of a friction strategy, for both backends of the static
-solver (`dynfab.solvers.static`: `dynfab.solvers.newton_banded`, `dynfab.solvers.newton_sparse`), and the budget of
-Newton iterations the fallbacks share (`dynfab.solvers.friction_chain`, docs/model.md section 6).
+solver (`dynfab.solvers.static`: `dynfab.solvers.newton_banded`, `dynfab.solvers.newton_sparse`),
+and the budget of Newton iterations the fallbacks share (`dynfab.solvers.friction_chain`,
+docs/model.md section 6).
 """
 
 from __future__ import annotations

@@ -7,8 +7,8 @@ One solver, two backends, chosen from the structure, not from the model's kind
 solves chain by chain in numba; otherwise (the woven fabric, chains tied to each other)
 `dynfab.solvers.newton_sparse.SparseNewton` solves the whole structure on its sparse Hessian. Both
 reach an equilibrium consistent with the contact and friction laws by one friction chain
-(`dynfab.solvers.friction_chain`), certify it (`dynfab.solvers.certificate`: a banded LDL^T per chain, or the
-sparse factorisation) and leave a saddle along a direction of negative curvature
+(`dynfab.solvers.friction_chain`), certify it (`dynfab.solvers.certificate`: a banded LDL^T per
+chain, or the sparse factorisation) and leave a saddle along a direction of negative curvature
 (`dynfab.solvers.newton_backend`).
 """
 

@@ -2,8 +2,8 @@
 
 One dimension ``case`` (the cases in the study's order: case i is ``cases/case-000i.h5``),
 the varied keys as coordinates along it (named as the keys, "friction.alpha"; a ``units``
-attribute each; a list-valued key's lists as their text), and per observable (`dynfab.studies.file.Observable`) a variable named as
-it is:
+attribute each; a list-valued key's lists as their text), and per observable
+(`dynfab.studies.file.Observable`) a variable named as it is:
 
 * ``at = "path"``: (case, step, ...) the dataset at every load step, NaN past a case's
   finished steps (a failed case, or a shorter path); ``load`` (case, step) is the load

@@ -175,8 +175,8 @@ def inertia(model, pos, anchors, limit, shift: float = 0.0) -> Inertia:
     """In(H - (-shift) I) on the free dofs: the negatives of H + shift I (module docstring):
     the sparse route in the pattern's nested-dissection order (`ordering.fabric_order`), else
     the Schur (or, for the periodic cell, dense) route, at the shift asked and then at two
-    rounding-level shifts above it. `model` is the fabric's (`dynfab.model.fabric.model.FabricModel`:
-    its structure, Hessian and pattern)."""
+    rounding-level shifts above it. `model` is the fabric's
+    (`dynfab.model.fabric.model.FabricModel`: its structure, Hessian and pattern)."""
     fabric = model.structure
     H = model.hessian(pos, anchors, limit)
     scale = float(np.abs(H.diagonal()).max())

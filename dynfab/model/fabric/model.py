@@ -3,19 +3,19 @@ and neither owns.
 
 - `FabricState`: what changes during a run (positions, anchors, dissipation, work, end
   forces); `as_woven_state`, the start of a run.
-- `FabricModel`: a fabric scene as the solvers see it, its structure (`dynfab.model.builders.fabric`),
-  yarn families and load path, and the model's own functions of a state: the sparse
-  Hessian with F_T frozen (`dynfab.model.fabric.assembly`, on the unknowns of its `Pattern`) that
-  the Newton solve and the certificate (`dynfab.solvers.certificate`) both factor; the load a step
-  prescribes at its start (`start_of_step`) and the state it ends in (`end_of_step`: the end
-  displacements, the loads' work, the dissipation); and the observables of a record:
+- `FabricModel`: a fabric scene as the solvers see it, its structure
+  (`dynfab.model.builders.fabric`), yarn families and load path, and the model's own functions of a
+  state: the sparse Hessian with F_T frozen (`dynfab.model.fabric.assembly`, on the unknowns of its
+  `Pattern`) that the Newton solve and the certificate (`dynfab.solvers.certificate`) both factor;
+  the load a step prescribes at its start (`start_of_step`) and the state it ends in (`end_of_step`:
+  the end displacements, the loads' work, the dissipation); and the observables of a record:
   strains, crimps, stresses per unit width, the loaded families, the widths per yarn, the
   planes, the energy terms.
 
 The static solver (`dynfab.solvers.static`, its sparse backend) and the dynamic one of every model
-(`dynfab.solvers.dynamic`) import this module, never each other (`dynfab.solvers.contract`); each solves a step from
-`FabricModel.start_of_step` and hands its solution to `FabricModel.finish_step`, which
-makes the state and the record (`dynfab.model.step`).
+(`dynfab.solvers.dynamic`) import this module, never each other (`dynfab.solvers.contract`); each
+solves a step from `FabricModel.start_of_step` and hands its solution to `FabricModel.finish_step`,
+which makes the state and the record (`dynfab.model.step`).
 
 Record of one fabric step (n_wa warps of N+1 nodes, n_we wefts of M+1 nodes; Y = n_wa
 + n_we yarns, warps first):
@@ -95,8 +95,8 @@ def as_woven_state(structure: Structure) -> FabricState:
 
 @dataclass
 class FabricModel:
-    """A fabric scene as the solvers see it: its structure (`dynfab.model.builders.fabric`), its yarn
-    families and its load path (docs/model.md section 10)."""
+    """A fabric scene as the solvers see it: its structure (`dynfab.model.builders.fabric`), its
+    yarn families and its load path (docs/model.md section 10)."""
 
     scene: Scene
     structure: Structure
@@ -257,10 +257,10 @@ class FabricModel:
         return np.where(f.chain_family == 0, warp_value, weft_value) * f.load_factor
 
     def start_of_step(self, state: FabricState, load) -> StepStart:
-        """Where the step to `load` = (warp value, weft value) starts (`dynfab.model.step.StepStart`),
-        copies of the state's arrays: under force control the end forces are each yarn's load;
-        under displacement control they are 0 and the ends are moved to their prescribed
-        displacements (`prescribe`)."""
+        """Where the step to `load` = (warp value, weft value) starts
+        (`dynfab.model.step.StepStart`), copies of the state's arrays: under force control the end
+        forces are each yarn's load; under displacement control they are 0 and the ends are moved to
+        their prescribed displacements (`prescribe`)."""
         warp_value, weft_value = (float(v) for v in load)
         loads = self.yarn_loads(warp_value, weft_value)
         pos, anchors = state.positions.copy(), state.anchors.copy()
@@ -283,12 +283,12 @@ class FabricModel:
         return contact.friction_limits(pos, self.structure)
 
     def frame(self, time: float, arrays: dict) -> dict:
-        """A transient frame (`dynfab.solvers.contract.FRAME_KEYS` in the record's layout: the warps'
-        positions, velocities and force, the wefts' as weft_positions, weft_velocities,
+        """A transient frame (`dynfab.solvers.contract.FRAME_KEYS` in the record's layout: the
+        warps' positions, velocities and force, the wefts' as weft_positions, weft_velocities,
         weft_force; contact_force (n_wa, n_we), anchors (n_wa, n_we, 2), the planes, the
         energy of every active term and the kinetic energy [J], scalars) at `time` [s] from
-        the structure's flat arrays (`dynfab.solvers.contract.RunModel.frame`); the loads are those of
-        the ramp at `time` (`dynfab.model.loading.load_at_time`)."""
+        the structure's flat arrays (`dynfab.solvers.contract.RunModel.frame`); the loads are those
+        of the ramp at `time` (`dynfab.model.loading.load_at_time`)."""
         from dynfab.model.loading import load_at_time
 
         pos = np.asarray(arrays["positions"], float)
@@ -320,8 +320,8 @@ class FabricModel:
 
     def finish_step(self, state: FabricState, start: StepStart, solution: StepSolution):
         """(new state, record) of the step `start` began, from the solver's `solution`
-        (`dynfab.solvers.contract.RunModel.finish_step`): the contact forces, the end forces (the load
-        under force control, else the reaction dV/du_N of the elastic terms and the friction
+        (`dynfab.solvers.contract.RunModel.finish_step`): the contact forces, the end forces (the
+        load under force control, else the reaction dV/du_N of the elastic terms and the friction
         at F_T frozen), the anchors' radial return map and its dissipation, the loads' work,
         and the record of the module docstring."""
         f, pos, limit = self.structure, solution.positions, solution.limit

@@ -7,12 +7,12 @@ rotation spring and lateral contact included (docs/model.md section 11, their el
 `dynfab.model.terms.spatial`), so every model records the same term under the same
 `steps/energy/<...>` name (`energy_records`). A node term (`Term.node`, an energy of each node
 alone) is its module and its entry here, and nothing else: every model's assembly and the
-kernels sum it (`dynfab.model.terms.nodes`, docs/model.md "Node terms"). The assembly (`dynfab.model.assembly`), the diagnostics and the result
-datasets are derived from `TERMS`; adding a term is its module and one entry here, plus
-its parameters, if it has new ones: fields of `dynfab.model.yarn.Yarn` (filled in
-`build_model`) read from its scene keys (`dynfab.scene`). The energy vector,
-`Yarn.active` and the reported `steps/energy/*` follow the entry. The dynamic solver's
-Warp kernels compute the terms a `dynfab.model.structure.Structure` holds
+kernels sum it (`dynfab.model.terms.nodes`, docs/model.md "Node terms"). The assembly
+(`dynfab.model.assembly`), the diagnostics and the result datasets are derived from `TERMS`; adding
+a term is its module and one entry here, plus its parameters, if it has new ones: fields of
+`dynfab.model.yarn.Yarn` (filled in `build_model`) read from its scene keys (`dynfab.scene`). The
+energy vector, `Yarn.active` and the reported `steps/energy/*` follow the entry. The dynamic
+solver's Warp kernels compute the terms a `dynfab.model.structure.Structure` holds
 (`dynfab.kernels.structure_forces`: stretch, bending, contact, friction, gravity, the
 end load), compiled in where the structure has them; a new term joins them there."""
 
@@ -89,7 +89,8 @@ def index(name: str) -> int:
 
 
 def active_mask(scene) -> np.ndarray:
-    """Which terms a (validated) scene uses, (len(TERMS),) bool in registry order (`Yarn.active`)."""
+    """Which terms a (validated) scene uses, (len(TERMS),) bool in registry order
+    (`Yarn.active`)."""
     return np.array([t.active(scene) for t in TERMS], dtype=np.bool_)
 
 
