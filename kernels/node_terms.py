@@ -43,32 +43,22 @@ def functions(scalar, dim: int) -> SimpleNamespace:
 
 def _with_term(k: int, form, before, vec, scalar, Data) -> SimpleNamespace:
     """`before`'s sums plus node term k's (`form`, its Warp form), where the structure has it."""
+    return SimpleNamespace(force=_gated(k, before.force, form.force, vec, vec, Data),
+                           energy=_gated(k, before.energy, form.energy, scalar, vec, Data),
+                           stiffness=_gated(k, before.stiffness, form.stiffness, scalar, vec,
+                                            Data))
+
+
+def _gated(k: int, before, term, value, vec, Data):
+    """before(i, pos, data) + term(x_i, X_i, parameters, i, first) [of type `value`] where
+    node term k's column `first` is set (the structure has it), else `before` alone."""
 
     @wp.func(inline=True)
-    def force(i: int, pos: wp.array(dtype=vec), data: Data) -> vec:
-        total = before.force(i, pos, data)
+    def summed(i: int, pos: wp.array(dtype=vec), data: Data) -> value:
+        total = before(i, pos, data)
         first = data.node_term_first[wp.static(k)]
         if first >= 0:
-            total = total + form.force(pos[i], data.rest_position[i], data.node_parameters, i,
-                                       first)
+            total = total + term(pos[i], data.rest_position[i], data.node_parameters, i, first)
         return total
 
-    @wp.func(inline=True)
-    def energy(i: int, pos: wp.array(dtype=vec), data: Data) -> scalar:
-        total = before.energy(i, pos, data)
-        first = data.node_term_first[wp.static(k)]
-        if first >= 0:
-            total = total + form.energy(pos[i], data.rest_position[i], data.node_parameters, i,
-                                        first)
-        return total
-
-    @wp.func(inline=True)
-    def stiffness(i: int, pos: wp.array(dtype=vec), data: Data) -> scalar:
-        total = before.stiffness(i, pos, data)
-        first = data.node_term_first[wp.static(k)]
-        if first >= 0:
-            total = total + form.stiffness(pos[i], data.rest_position[i], data.node_parameters,
-                                           i, first)
-        return total
-
-    return SimpleNamespace(force=force, energy=energy, stiffness=stiffness)
+    return summed

@@ -214,9 +214,8 @@ def yarn_band(pos, fabric, y, band):
     stretch.add_hessian(pos[a:b], fabric.rest_length[a - y:b - y - 1],
                         fabric.stretch_stiffness[a - y:b - y - 1], band)
     bending.add_hessian(pos[a:b], fabric.bend_stiffness[a:b], fabric.rest_angle[a:b], band)
-    if node_terms.any_active(fabric.node_term_active):
-        node_terms.add_band(pos[a:b], fabric.rest_position[a:b], fabric.node_parameters[a:b],
-                            fabric.node_term_active, band)
+    node_terms.add_band(pos[a:b], fabric.rest_position[a:b], fabric.node_parameters[a:b],
+                        fabric.node_term_active, band)
 
 
 @numba.njit(cache=True)

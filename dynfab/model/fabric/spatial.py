@@ -203,13 +203,14 @@ def _derivatives(pos, s, anchors, limit, secant, grad, values):
     H6, H9, H18, H12 = np.empty((6, 6)), np.empty((9, 9)), np.empty((18, 18)), np.empty((12, 12))
     k = 0
     start = s.chain_start
+    node_blocks = values.size > 0 and node_terms.any_active(s.node_term_active)
     for y in range(start.size - 1):
         for i in range(start[y], start[y + 1] - 1):
             nodes = np.arange(i, i + 2)
             _gather(pos, nodes, pair)
             element.stretch_derivatives(pair, s.stretch_stiffness[i - y], s.rest_length[i - y],
                                         g6, H6)
-            if values.size and node_terms.any_active(s.node_term_active):
+            if node_blocks:
                 _add_node_blocks(pos, s, i, i + 2 == start[y + 1], H6)
             k = _emit(nodes, g6, H6, grad, values, k)
         for i in range(start[y] + 1, start[y + 1] - 1):
