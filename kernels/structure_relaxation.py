@@ -239,11 +239,12 @@ class StructureRelaxation:
             for future in futures:
                 future.result()
 
-    def _stage(self, kernel, stage: int, kind_count: int, settings, *extra) -> None:
+    def _stage(self, kernel, stage: int, kind_count: int, settings, *extra, data=None) -> None:
         if kind_count:
+            data = self.data if data is None else data
             wp.launch(kernel, dim=kind_count, device=self.device,
-                      inputs=[self.data, self.state, settings, *extra[:-1], stage, *extra[-1:]]
-                      if extra else [self.data, self.state, settings, stage])
+                      inputs=[data, self.state, settings, *extra[:-1], stage, *extra[-1:]]
+                      if extra else [data, self.state, settings, stage])
 
     def _count(self, kind) -> int:
         """The threads of a stage over `kind`: a node, tie, block, chain, group (every method's
@@ -541,22 +542,30 @@ class StructureRelaxation:
     # ------------------------------------------------------------------ transient
 
     def transient(self, positions, anchors, path, duration: float, output_interval: float,
-                  resume_from: dict | None = None, progress=None, name=None):
+                  resume_from: dict | None = None, progress=None, name=None, driven=None):
         """Frames of a transient from `positions` at rest (docs/model.md section 5): physical
         masses, the viscous c given (default 0), anchors return-mapped every step, the loads
-        ramped through `path` (families, K) [N or m] over `duration` [s]; a frame at t = 0
+        ramped through `path` (rows, K) [N or m] over `duration` [s]; a frame at t = 0
         (unless resumed) and every `output_interval`, the last at `duration`, the time step
         (at most the Gershgorin dt x safety, or the dt given) shortened to land on each.
-        `resume_from`, a frame of this run, continues from it bit for bit (its positions,
-        velocities, forces and anchors replace those at the start, and its per-tie
-        dissipation where it has one). `progress(self)` after every launch; `name(g)` names
-        group g in the SolverError of a group that stopped (default "group g")."""
-        if self.method != "explicit" or self.spatial:
-            raise ValueError("a transient runs the explicit integrator on a planar structure")
+        `driven`, (first row (n,), direction (n, dim)) per node, replaces the structure's
+        load nodes (`structure_transient`: a chain end's family, a specimen's held nodes);
+        None keeps them, one row per load family. `resume_from`, a frame of this run,
+        continues from it bit for bit (its positions, velocities, forces and anchors replace
+        those at the start, and its per-tie dissipation where it has one). `progress(self)`
+        after every launch; `name(g)` names group g in the SolverError of a group that
+        stopped (default "group g")."""
+        if self.method != "explicit":
+            raise ValueError("a transient runs the explicit integrator")
         a = self.arrays
         kernel_key = (self.scalar, self.friction, self.boundary)
-        path = np.asarray(path, float).reshape(a.families, -1)
-        path_wp = self._scalars(path)
+        path = np.asarray(path, float)
+        path_wp = self._scalars(path.reshape(a.families, -1) if driven is None else path)
+        data = self.data
+        if driven is not None:
+            family, direction = driven
+            data = structure_arrays.upload(a, self.scalar, self.device, load_family=family,
+                                           load_direction=direction)
         self._load_state(positions, None, anchors)
         self.state.dissipated.zero_()
         coefficient = self.coefficient or 0.0
@@ -565,14 +574,15 @@ class StructureRelaxation:
                     duration=duration)
         settings = self._settings(**base)
         grouped = self.layout == "grouped"
-        kernel = (structure_transient.grouped_kernel(*kernel_key, self.order) if grouped
-                  else structure_transient.stage_kernel(*kernel_key))
+        kinematics = {"kinematics": self.kinematics}
+        kernel = (structure_transient.grouped_kernel(*kernel_key, self.order, **kinematics)
+                  if grouped else structure_transient.stage_kernel(*kernel_key, **kinematics))
         if grouped:
-            self._launch_groups(kernel, [self.data, self.state, settings, path_wp], (1,))
+            self._launch_groups(kernel, [data, self.state, settings, path_wp], (1,))
         else:
             for stage in structure_explicit.START_STAGES:
                 self._stage(kernel, stage, self._count(structure_explicit.KINDS[stage]),
-                            settings, path_wp, 0)
+                            settings, path_wp, 0, data=data)
         largest_dt = float(self.group_values("dt").min())
         times = np.append(np.arange(0.0, duration, output_interval), duration)
         first = 0
@@ -588,13 +598,13 @@ class StructureRelaxation:
                 run = min(self.chunk, steps - done)
                 settings = self._settings(**base, fixed_dt=dt, time=begin + done * dt, chunk=run)
                 if grouped:
-                    self._launch_groups(kernel, [self.data, self.state, settings, path_wp], (0,))
+                    self._launch_groups(kernel, [data, self.state, settings, path_wp], (0,))
                 else:
                     for k in range(run):
                         for stage in structure_transient.STEP_STAGES:
                             self._stage(kernel, stage,
                                         self._count(structure_transient.KINDS[stage]),
-                                        settings, path_wp, k)
+                                        settings, path_wp, k, data=data)
                 codes = self.state.status.numpy()
                 if progress is not None:
                     progress(self)

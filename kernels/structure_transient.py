@@ -5,11 +5,15 @@ Each time step from the force f^n at x^n and time t:
 
     v = keep v + (gain / m) f^n,   x += dt v         (`structure_explicit.viscous_move`)
 
-then the loads at t + dt: each family's load value follows the piecewise-linear ramp through
-(0, 0) and (k T / n, value_k), k = 1..n (T = settings.duration, held after T), times each
-load node's factor: on a free dof an end force, on a held one a prescribed displacement
-x = x0 + u(t + dt) with the ramp's velocity (u(t + dt) - u(t)) / dt; then f^{n+1} at the new
-positions and every tie's anchor return-mapped, its dissipation F_T |delta xi| added to the
+then the loads at t + dt: each row of the path follows the piecewise-linear ramp through
+(0, 0) and (k T / n, value_k), k = 1..n (T = settings.duration, held after T). A driven node
+(`load_family` >= 0, the row of its first component) on a free dof takes an end force, row
+`load_family` times its `load_direction`; on a held one, each component c its direction names
+(direction[c] != 0) a prescribed displacement x_c = x0_c + direction[c] u_c(t + dt), u_c the
+row `load_family` + c, with the ramp's velocity direction[c] (u_c(t + dt) - u_c(t)) / dt (a
+chain end pulled along x: one row; a specimen's held node: its own three rows, the frame's
+turn sampled finely, `dynfab.model.loading.Drive`); then f^{n+1} at the new positions and
+every tie's anchor return-mapped, its dissipation F_T |delta xi| added to the
 tie's total (`StructureState.dissipated`). The masses are the physical ones and dt at most the
 Gershgorin bound x safety (`structure_checks`' start with fictitious = 0); the host shortens dt
 to land on the output times. A non-finite kinetic energy stops the group (NON_FINITE).
@@ -25,7 +29,7 @@ import warp as wp
 
 from dynfab.kernels import status, structure_checks, structure_explicit, structure_forces
 from dynfab.kernels import structure_settings, structure_variants
-from dynfab.kernels.precision import VECTORS
+from dynfab.kernels.precision import KINEMATICS, vector
 
 T_MOVE, T_TIES, T_GATHER, T_BLOCKS, T_RETURN, T_CHECK = range(200, 206)
 """Stages of a transient time step (`stage_kernel`; the start's are `structure_explicit`'s)."""
@@ -37,13 +41,15 @@ STEP_STAGES = (T_MOVE, T_TIES, T_GATHER, T_BLOCKS, T_RETURN, T_CHECK)
 
 
 @functools.cache
-def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
+def functions(scalar, friction: bool, boundary: bool,
+              kinematics: str = "planar") -> SimpleNamespace:
     """The transient stage `wp.func`s of one variant."""
-    vec = VECTORS[scalar]
-    Data, State, Settings = structure_variants.structs(scalar)
-    forces = structure_forces.functions(scalar, friction, boundary)
-    checks = structure_checks.functions(scalar, friction, boundary)
-    explicit = structure_explicit.functions(scalar, friction, boundary)
+    dim = KINEMATICS[kinematics]
+    vec = vector(scalar, dim)
+    Data, State, Settings = structure_variants.structs(scalar, dim)
+    forces = structure_forces.functions(scalar, friction, boundary, kinematics)
+    checks = structure_checks.functions(scalar, friction, boundary, kinematics=kinematics)
+    explicit = structure_explicit.functions(scalar, friction, boundary, kinematics)
 
     @wp.func(inline=True)
     def load_at(time: scalar, path: wp.array2d(dtype=scalar), family: int,
@@ -61,20 +67,24 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
     def drive(i: int, data: Data, state: State, path: wp.array2d(dtype=scalar), time: scalar,
               dt: scalar, duration: scalar):
         """Node i's load at time + dt: an end force on a free dof, a prescribed displacement
-        and its ramp velocity on a held one (module docstring)."""
+        and its ramp velocity on each held component its direction names (module
+        docstring)."""
         family = data.load_family[i]
         if family >= 0:
             direction = data.load_direction[i]
-            after = load_at(time + dt, path, family, duration)
             if data.free[i][0] != scalar(0.0):
-                state.load[i] = after * direction
+                state.load[i] = load_at(time + dt, path, family, duration) * direction
             else:
-                before = load_at(time, path, family, duration)
                 position = state.position[i]
                 velocity = state.velocity[i]
-                state.position[i] = vec(data.rest_position[i][0] + after * direction[0],
-                                        position[1])
-                state.velocity[i] = vec((after - before) * direction[0] / dt, velocity[1])
+                for c in range(wp.static(dim)):
+                    if direction[c] != scalar(0.0):
+                        after = load_at(time + dt, path, family + c, duration)
+                        before = load_at(time, path, family + c, duration)
+                        position[c] = data.rest_position[i][c] + after * direction[c]
+                        velocity[c] = (after - before) * direction[c] / dt
+                state.position[i] = position
+                state.velocity[i] = velocity
 
     @wp.func(inline=True)
     def move_node(i: int, data: Data, state: State, settings: Settings,
@@ -128,13 +138,13 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
                            check=check, unit_stage=unit_stage)
 
 
-@structure_variants.variant("transient", "node_parallel", planar_only=True)
+@structure_variants.variant("transient", "node_parallel")
 def stage_kernel(scalar, friction: bool, boundary: bool, kinematics: str = "planar"):
     """The node-parallel layout's transient kernel (a launch per stage; `k` the step within
     the launch's run of steps from settings.time)."""
-    Data, State, Settings = structure_variants.structs(scalar)
-    ops = functions(scalar, friction, boundary)
-    start_ops = structure_explicit.functions(scalar, friction, boundary)
+    Data, State, Settings = structure_variants.structs(scalar, KINEMATICS[kinematics])
+    ops = functions(scalar, friction, boundary, kinematics)
+    start_ops = structure_explicit.functions(scalar, friction, boundary, kinematics)
 
     @wp.kernel(module="unique", module_options=structure_settings.MODULE_OPTIONS)
     def stage_pass(data: Data, state: State, settings: Settings, path: wp.array2d(dtype=scalar),
@@ -147,15 +157,16 @@ def stage_kernel(scalar, friction: bool, boundary: bool, kinematics: str = "plan
     return stage_pass
 
 
-@structure_variants.variant("transient", "grouped", planar_only=True)
+@structure_variants.variant("transient", "grouped")
 def grouped_kernel(scalar, friction: bool, boundary: bool, order: str,
                    kinematics: str = "planar"):
     """The grouped layout's transient kernel: thread g starts group first + g (`begin` != 0:
     the masses, dt and forces) or advances it by settings.chunk steps of settings.fixed_dt
     from settings.time."""
-    Data, State, Settings = structure_variants.structs(scalar)
-    ops = functions(scalar, friction, boundary)
-    group = structure_checks.group_functions(scalar, friction, boundary, order)
+    Data, State, Settings = structure_variants.structs(scalar, KINEMATICS[kinematics])
+    ops = functions(scalar, friction, boundary, kinematics)
+    group = structure_checks.group_functions(scalar, friction, boundary, order,
+                                             kinematics=kinematics)
 
     @wp.kernel(module="unique", module_options=structure_settings.MODULE_OPTIONS)
     def advance(data: Data, state: State, settings: Settings, path: wp.array2d(dtype=scalar),

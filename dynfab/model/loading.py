@@ -8,8 +8,27 @@ and neither imports the other.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
+
+class Drive(NamedTuple):
+    """What a transient's kernel drives (`kernels/structure_transient.py`, docs/model.md
+    section 5): `path` (rows, K) [N or m], each row's values at t = k T / K, k = 1..K (the
+    ramp starts at 0); `driven` None (the structure's load nodes, one row per load family,
+    `family_drive`) or (first row (n,), direction (n, dim)) per node (-1: not driven), a held
+    node's component c following row first + c."""
+
+    path: np.ndarray
+    driven: tuple[np.ndarray, np.ndarray] | None = None
+
+
+def family_drive(model) -> Drive:
+    """The transient's drive of a model whose load path is one value per load family and step
+    (the yarn's and the fabric's): the path itself, one row per family."""
+    values = np.asarray(model.load_values, float)
+    return Drive(values.reshape(values.shape[0], -1).T)
 
 
 def prescribe_load(model, state, load_value: float) -> np.ndarray:

@@ -18,7 +18,7 @@ from dynfab.model.builders.yarn import yarn_structure
 from dynfab.model.domain import check_not_folded
 from dynfab.scene import Scene
 from dynfab.model.geometry import width_per_yarn
-from dynfab.model.loading import prescribe_load
+from dynfab.model.loading import family_drive, prescribe_load
 from dynfab.model.observables import finish_step as observe_step
 from dynfab.model.state import State, initial_state
 from dynfab.model.step import StepSolution, StepStart
@@ -198,6 +198,10 @@ class Model:
         frame.update(frame_observables(self, positions, anchors, load_at_time(self, time)))
         frame["energy/kinetic"] = np.asarray(arrays["kinetic_energy"], float)
         return frame
+
+    def transient_drive(self):
+        """The transient's drive (`dynfab.model.loading.family_drive`): one row per family."""
+        return family_drive(self)
 
     def frame_arrays(self, frame: dict) -> dict:
         """A frame's (`frame`) positions, velocities, force (n, 2) and anchors (T, 2) as the

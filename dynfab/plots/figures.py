@@ -65,6 +65,10 @@ def plot_results(path: str | os.PathLike, out_dir: str | os.PathLike,
     results = read_results(path)
     measured = None if data is None else measured_points(results, data)
     if results.step_count == 0 and results.frame_count > 0:
+        if results.attrs.get("model") == "specimen":  # docs/model.md section 11.12
+            from dynfab.plots.specimen import plot_transient
+
+            return plot_transient(results, output_folder(out_dir))
         return _plot_transient(results, output_folder(out_dir))
     if results.step_count == 0:
         raise UserError(f"result file '{path}' has no finished load step to plot")

@@ -12,6 +12,9 @@
 - ``contact_field.png``: the contact force of every crossing after step 0 over the woven-in
   preload R_p, drawn over the specimen, and its median and range against the crossing's rank
   from a free yarn end (docs/model.md section 10, the woven-in contact: where it relaxes).
+
+A transient's file (docs/model.md section 11.12) gets ``clamp_force.png``, ``energy.png`` and
+``shear_field.png`` over time instead (`plot_transient`).
 """
 
 from __future__ import annotations
@@ -177,9 +180,17 @@ def _normalised_over_the_path(results: Results, d: np.ndarray, force: np.ndarray
 def plot_shear_field(results: Results) -> Figure:
     """The shear angle of every crossing at its in-plane position, three steps."""
     steps = results.steps
-    xy = np.asarray(steps["crossing_positions"], float)
-    gamma = DEGREE * np.asarray(steps["shear_angle"], float)
     d = np.asarray(steps["load"], float)[:, 0]
+    return _shear_field(np.asarray(steps["crossing_positions"], float),
+                        np.asarray(steps["shear_angle"], float),
+                        [f"d = {1e3 * value:.4g} mm" for value in d],
+                        "shear angle at the crossings (from step 0, the preload relaxed)")
+
+
+def _shear_field(xy: np.ndarray, gamma: np.ndarray, titles: list[str], title: str) -> Figure:
+    """Panels of the crossings' shear angle [deg] at their in-plane positions xy (entries, C,
+    2+) [m] at about a third, two thirds and the last of the entries (step or frame)."""
+    gamma = DEGREE * gamma
     last = gamma.shape[0] - 1
     chosen = sorted({max(1, round(last / 3)), max(1, round(2 * last / 3)), last}) if last else [0]
     fig = new_figure(4.5 * len(chosen) + 1, 5)
@@ -188,11 +199,49 @@ def plot_shear_field(results: Results) -> Figure:
     for ax, k in zip(axes, chosen):
         shown = ax.scatter(1e3 * xy[k, :, 0], 1e3 * xy[k, :, 1], c=gamma[k], s=12, cmap="viridis",
                            vmin=min(0.0, float(gamma[chosen].min())), vmax=top)
-        ax.set(xlabel="x [mm]", ylabel="y [mm]", title=f"d = {1e3 * d[k]:.4g} mm",
-               aspect="equal")
+        ax.set(xlabel="x [mm]", ylabel="y [mm]", title=titles[k], aspect="equal")
     fig.colorbar(shown, ax=list(axes), label="shear angle [deg]")
-    fig.suptitle("shear angle at the crossings (from step 0, the preload relaxed)")
+    fig.suptitle(title)
     return fig
+
+
+def plot_transient(results: Results, out) -> list:
+    """A specimen's transient figures (docs/model.md section 11.12): ``clamp_force.png`` (the
+    clamp force and d against time), ``energy.png`` (every energy and the dissipation against
+    time) and ``shear_field.png`` (the crossings' shear angle from the as-woven state at three
+    frames)."""
+    from dynfab.plots.figures import save_png
+
+    frames = results.frames
+    time_ms = 1e3 * np.asarray(frames["time"], float)
+    fig = new_figure(7.0, 3.6)
+    ax = fig.subplots()
+    ax.plot(time_ms, np.asarray(frames["clamp_force"], float), color="C0")
+    ax.set(xlabel="time [ms]", ylabel="clamp force along d [N]")
+    twin = ax.twinx()
+    twin.plot(time_ms, 1e3 * np.asarray(frames["load"], float)[:, 0], "--", color="C1")
+    twin.set_ylabel("d [mm] (dashed)")
+    style_axes(ax)
+    fig.suptitle("force on the moved clamp (frame corner) during the transient")
+    written = [save_png(fig, out / "clamp_force.png")]
+    fig = new_figure(7.0, 3.6)
+    ax = fig.subplots()
+    for name, value in frames.items():
+        if name.startswith("energy/") or name == "dissipated":
+            ax.plot(time_ms, np.asarray(value, float).reshape(time_ms.size),
+                    label=name.split("/", 1)[-1])
+    ax.set(xlabel="time [ms]", ylabel="energy [J]")
+    style_axes(ax)
+    legend(ax)
+    fig.suptitle("energies of the specimen, and friction's dissipation")
+    written.append(save_png(fig, out / "energy.png"))
+    crossing = np.asarray(results.reference["crossing_nodes"], int)[:, 0]
+    xy = np.asarray(frames["positions"], float)[:, crossing]
+    written.append(save_png(_shear_field(xy, np.asarray(frames["shear_angle"], float),
+                                         [f"t = {t:.4g} ms" for t in time_ms],
+                                         "shear angle at the crossings (from the as-woven "
+                                         "state)"), out / "shear_field.png"))
+    return written
 
 
 BAND_RANKS = 6

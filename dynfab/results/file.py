@@ -186,6 +186,14 @@ UNITS: dict[str, str] = {
     "frames/xdmf/weft_slip": "m",  # fabric: as steps/xdmf/weft_slip
     "frames/xdmf/plane": "m",  # fabric, moving planes: as steps/xdmf/plane
     "frames/xdmf/weft_plane": "m",  # fabric, moving planes: as steps/xdmf/weft_plane
+    "frames/load": LOAD_CONTROL_UNITS,  # specimen: (frames, 1) d of the ramp at the frame
+    "frames/end_displacement": "m",  # specimen: (frames, 1) as frames/load
+    "frames/clamp_force": "N",  # specimen: (frames,) as steps/clamp_force
+    "frames/shear_angle": "rad",  # specimen: (frames, C) from the as-woven state
+    "frames/crossing_slip_ratio": "-",  # specimen: (frames, C) as steps/crossing_slip_ratio
+    "frames/slip_ratio": "-",  # specimen: (frames,) as steps/slip_ratio
+    "frames/dissipated": "J",  # specimen: (frames,) friction's dissipation since t = 0
+    "frames/xdmf/shear_angle": "rad",  # specimen: as steps/xdmf/shear_angle
     # Finished rows of steps/ and frames/ (the rest are unwritten: see the layout).
     "steps_done": "-",  # (1,) int64
     "frames_done": "-",  # (1,) int64

@@ -139,6 +139,10 @@ class RunModel(Protocol):
         """The structure's flat arrays of a frame this model made (positions, velocities,
         force, anchors, time): what a resumed transient restores."""
 
+    def transient_drive(self):
+        """What a transient drives (`dynfab.model.loading.Drive`): the path of each load
+        family's end load or displacement, or of a specimen's held nodes."""
+
 
 @runtime_checkable
 class Solver(Protocol):

@@ -56,7 +56,6 @@ bound exceeds the accuracy target (`DynamicSolver._certify`)."""
 
 
 SPATIAL_REFUSALS = (
-    ("mode", "transient", "a specimen's run is quasi-static: its model has no frames"),
     ("method", "semi_implicit", "its banded tangent is the planar chains'; a crossing's "
      "stencil spans two yarns"),
     ("precision", "float32", "float32 positions (a relative rounding of 6e-8) against the "
@@ -69,7 +68,7 @@ value, why)."""
 
 def _check_spatial(structure, options) -> None:
     """A UserError in one line where a spatial structure (docs/model.md section 11) asks for
-    what its kernels do not have: the semi-implicit method, a transient, float32."""
+    what its kernels do not have: the semi-implicit method, float32."""
     if structure.rest_position.shape[1] != 3:
         return
     for name, value, why in SPATIAL_REFUSALS:
@@ -272,7 +271,8 @@ class DynamicSolver:
 
         Physical masses, viscous c (default 0), anchors return-mapped every time step,
         the load ramped piecewise-linearly from 0 at t = 0 through the load values evenly
-        spaced over `duration`. One frame at t = 0 and every `output_interval`, the last at
+        spaced over `duration` (the model's `transient_drive`: the end loads or displacements
+        of each family, a specimen's held nodes). One frame at t = 0 and every `output_interval`, the last at
         `duration`; the time step, at most the Gershgorin dt x safety (or dynamic.dt), is
         shortened to land on every frame time.
 
@@ -283,13 +283,13 @@ class DynamicSolver:
         """
         model, options = self.model, self.options
         start = model.start_of_step(state, self._zero_load())
-        values = np.asarray(model.load_values, float)
-        path = values.reshape(values.shape[0], -1).T  # (families, K)
+        drive = model.transient_drive()
         restored = None if resume_from is None else model.frame_arrays(resume_from)
         frames = self.relaxation.transient(
-            start.positions, start.anchors, path, options.duration, options.output_interval,
-            resume_from=restored, progress=None if self.progress is None else self._report,
-            name=model.group_name)
+            start.positions, start.anchors, drive.path, options.duration,
+            options.output_interval, resume_from=restored,
+            progress=None if self.progress is None else self._report, name=model.group_name,
+            driven=drive.driven)
         for raw in frames:
             yield model.frame(raw["time"], raw)
 

@@ -56,6 +56,7 @@ from dynfab.model.builders.fabric import Family, families, fabric_structure
 from dynfab.model.domain import check_crossings_held, check_not_folded, fabric_slip_ratios
 from dynfab.model.fabric import assembly, contact, friction
 from dynfab.model.fabric.assembly import TERMS
+from dynfab.model.loading import family_drive, load_at_time
 from dynfab.scene import Scene
 from dynfab.model.step import StepSolution, StepStart
 from dynfab.model.structure import Structure, chain_count
@@ -289,8 +290,6 @@ class FabricModel:
         energy of every active term and the kinetic energy [J], scalars) at `time` [s] from
         the structure's flat arrays (`dynfab.solvers.contract.RunModel.frame`); the loads are those
         of the ramp at `time` (`dynfab.model.loading.load_at_time`)."""
-        from dynfab.model.loading import load_at_time
-
         pos = np.asarray(arrays["positions"], float)
         anchors = np.asarray(arrays["anchors"], float)
         frame = {"time": float(time)}
@@ -308,6 +307,10 @@ class FabricModel:
         frame.update(registry.energy_records(self.scene, values))
         frame["energy/kinetic"] = float(np.sum(arrays["kinetic_energy"]))
         return {name: np.asarray(value) for name, value in frame.items()}
+
+    def transient_drive(self):
+        """The transient's drive (`dynfab.model.loading.family_drive`): one row per family."""
+        return family_drive(self)
 
     def frame_arrays(self, frame: dict) -> dict:
         """The structure's flat arrays of a frame `frame` made (positions, velocities, force

@@ -31,6 +31,11 @@ Record of one step (n nodes, C crossings, L lateral contacts):
   Gutowski's compaction, docs/model.md 11.5);
 - max_slope: the largest |e_z| / |e_xy| of any segment [-] (the small-slope model's check);
 - dissipated, work [J]; energy/<term> [J]; the solver's fields.
+
+A transient's frame (`frame`, docs/model.md section 11.12) holds time [s], positions,
+velocities, force (n, 3), anchors (C, 3), contact_force (C,), load and end_displacement (1,),
+clamp_force, shear_angle (C,) from the as-woven state, crossing_slip_ratio (C,), slip_ratio,
+dissipated, energy/<term> and energy/kinetic.
 """
 
 from __future__ import annotations
@@ -44,6 +49,7 @@ from dynfab.model.builders import woven_rest
 from dynfab.model.builders.specimen import layout_of, specimen_structure
 from dynfab.errors import SolverError
 from dynfab.model.fabric import contact, spatial
+from dynfab.model.loading import Drive, load_at_time
 from dynfab.scene import Scene
 from dynfab.model.shear_force import (bias_normalised_shear_force, frame_normalised_shear_force,
                                 frame_shear_force)
@@ -51,6 +57,11 @@ from dynfab.model.step import StepSolution, StepStart
 from dynfab.model.structure import chain_count, chain_of_node
 from dynfab.model.terms import registry
 
+TRANSIENT_KNOTS = 64
+"""Knots per interval of the load path at which a transient samples the held nodes'
+positions (`SpecimenModel.transient_drive`): between knots the frame's turn is taken linear,
+off its arc by at most h^2 / 8 max |x''| (h the knots' spacing), 1.6e-9 m for the 60 mm frame
+sheared to 40 degrees (d = 23.9 mm) over 20 intervals (docs/model.md section 11.12)."""
 SLIP_LIMIT = 0.5
 """The largest slip of a crossing over its segment length a step may end with
 (docs/model.md section 11, slip bounds): a crossing is a fixed pair of nodes."""
@@ -240,11 +251,66 @@ class SpecimenModel:
                      "larger [friction] limit or a smaller K holds the specimen")
         return text
 
-    def frame(self, time, arrays):
-        raise NotImplementedError("a specimen has no transient run")
+    def transient_drive(self) -> Drive:
+        """The held nodes' displacements from the as-woven state along the transient's ramp of
+        d (`dynfab.model.loading.Drive`, three rows per held node): d(t) through (0, 0) and
+        the load values (step 0's d = 0 first: the preload relaxes at d = 0 for T / n),
+        sampled at TRANSIENT_KNOTS knots per interval, the held nodes' positions exact there
+        (`specimen_layout.held_positions`) and linear between (docs/model.md section 11.12)."""
+        rest = self.structure.rest_position
+        intervals = self.load_values.size
+        knots = intervals * TRANSIENT_KNOTS
+        d = np.interp(np.arange(1, knots + 1) / knots, np.linspace(0.0, 1.0, intervals + 1),
+                      np.append(0.0, self.load_values))
+        moved = np.stack([specimen_layout.held_positions(self.layout, rest, value)
+                          - rest[self._held] for value in d], axis=-1)  # (H, 3, knots)
+        first = np.full(rest.shape[0], -1)
+        first[self._held] = 3 * np.arange(self._held.size)
+        direction = np.zeros_like(rest)
+        direction[self._held] = 1.0
+        return Drive(moved.reshape(-1, knots), (first, direction))
 
-    def frame_arrays(self, frame):
-        raise NotImplementedError("a specimen has no transient run")
+    def frame(self, time: float, arrays: dict) -> dict:
+        """A transient frame (`dynfab.solvers.contract.FRAME_KEYS`) at `time` [s] from the
+        structure's flat arrays: positions, velocities, force (n, 3), anchors (C, 3), the
+        contact forces (C,), d (`load`, `end_displacement`) of the ramp at `time`, the clamp
+        force along d [N] (the held nodes' reaction, as a step's), each crossing's shear
+        angle from the as-woven state [rad] and slip ratio [-], the energy of every reported
+        term and the kinetic energy [J], and the dissipation so far [J] (docs/model.md
+        section 11.12)."""
+        f = self.structure
+        pos = np.asarray(arrays["positions"], float)
+        anchors = np.asarray(arrays["anchors"], float)
+        d = load_at_time(self, time)
+        limit = self.friction_limits(pos)
+        R = np.zeros(f.tie_a.size)
+        contact.forces(pos, f, R)
+        loads = np.zeros(chain_count(f))
+        grad = np.zeros_like(pos)
+        spatial.gradient(pos, f, loads, anchors, limit, grad)
+        velocity = specimen_layout.held_velocity(self.layout, f.rest_position, d)
+        angle = (specimen_layout.shear_angles(self.layout, f.rest_position, pos)
+                 - specimen_layout.shear_angles(self.layout, f.rest_position, f.rest_position))
+        ratios = self.slip_ratios(pos)
+        frame = {"time": float(time), "positions": pos,
+                 "velocities": np.asarray(arrays["velocities"], float),
+                 "force": np.asarray(arrays["force"], float), "anchors": anchors,
+                 "contact_force": R, "load": np.array([d]), "end_displacement": np.array([d]),
+                 "clamp_force": float(np.sum(grad[self._held] * velocity)),
+                 "shear_angle": angle, "crossing_slip_ratio": ratios,
+                 "slip_ratio": float(np.max(ratios, initial=0.0)),
+                 "dissipated": float(np.sum(arrays["dissipated"]))}
+        values = spatial.energy_vector(f, pos, loads, anchors, limit)
+        frame.update(registry.energy_records(self.scene, dict(zip(spatial.TERMS, values))))
+        frame["energy/kinetic"] = float(np.sum(arrays["kinetic_energy"]))
+        return {name: np.asarray(value) for name, value in frame.items()}
+
+    def frame_arrays(self, frame: dict) -> dict:
+        """A frame's positions, velocities, force (n, 3) and anchors (C, 3) as the structure's
+        flat arrays, and its time: what a resumed transient restores."""
+        return {**{name: np.asarray(frame[name], float)
+                   for name in ("positions", "velocities", "force", "anchors")},
+                "time": float(frame["time"])}
 
     # ------------------------------------------------------------------ the Hessian
 
