@@ -46,7 +46,8 @@ import warp as wp
 
 from dynfab.model import assembly
 from dynfab.solvers.dynamic import DynamicSolver, available_cores
-from dynfab.model.yarn import build_model, initial_state
+from dynfab.model.yarn import initial_state
+from dynfab.model.builders import build_model
 from dynfab.scene import Dynamic, load_scene, validate_scene, with_key
 from dynfab.solvers.static import StaticSolver
 from dynfab.timing import best_time

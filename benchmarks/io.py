@@ -47,7 +47,8 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from dynfab.model.yarn import build_model, initial_state
+from dynfab.model.yarn import initial_state
+from dynfab.model.builders import build_model
 from dynfab.results.file import ResultFile
 from dynfab.run import _reference, _root_attrs
 from dynfab.scene import Load, expand_sweep, load_scene, validate_scene, with_key

@@ -22,7 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-from dynfab.model.yarn import build_model, initial_state
+from dynfab.model.yarn import initial_state
+from dynfab.model.builders import build_model
 from dynfab.scene import load_scene, with_key
 from dynfab.solvers.static import StaticSolver
 

@@ -40,7 +40,8 @@ from pathlib import Path
 import numpy as np
 
 import dynfab
-from dynfab.model.yarn import build_model, initial_state
+from dynfab.model.yarn import initial_state
+from dynfab.model.builders import build_model
 from dynfab.run import make_solver
 from dynfab.scene import Load, expand_sweep, load_scene, validate_scene
 

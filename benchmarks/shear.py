@@ -46,7 +46,7 @@ import scipy.sparse.linalg
 from dynfab.errors import SolverError
 from dynfab.model.fabric import ordering
 from dynfab.linalg import pardiso
-from dynfab.model.yarn import build_model
+from dynfab.model.builders import build_model
 from dynfab.scene import load_scene, with_key
 from dynfab.solvers.by_name import make_solver
 

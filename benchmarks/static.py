@@ -42,7 +42,8 @@ from scipy.sparse.linalg import spsolve
 from dynfab.model import assembly
 from dynfab.linalg.banded import BANDWIDTH
 from dynfab.solvers.certificate import certify_yarn
-from dynfab.model.yarn import build_model, initial_state
+from dynfab.model.yarn import initial_state
+from dynfab.model.builders import build_model
 from dynfab.scene import Load, expand_sweep, load_scene, validate_scene, with_key
 from dynfab.solvers.static import StaticSolver
 from dynfab.timing import best_time

@@ -26,7 +26,7 @@ from dynfab.budget import check_budget
 from dynfab.compiling import compile_seconds, start_clock
 from dynfab.errors import DynfabError, SolverError, UserError
 from dynfab.options import apply_run_options
-from dynfab.model.yarn import build_model
+from dynfab.model.builders import build_model
 from dynfab.results.file import ResultFile, Results, dynfab_version, finished_counts, read_results
 from dynfab.scene import Scene, scene_to_toml
 from dynfab.solvers.contract import RunModel, Solver, Transient

@@ -21,7 +21,8 @@ from scipy.special import ellipe
 from dynfab.model import assembly
 from dynfab.linalg.banded import to_dense as dense  # noqa: F401 (the tests' name for it)
 from dynfab.model.fabric.model import FabricModel
-from dynfab.model.yarn import build_model, initial_state
+from dynfab.model.yarn import initial_state
+from dynfab.model.builders import build_model
 from dynfab.scene import Scene, parse_scene_text, validate_scene
 from dynfab.model.structure import chain_of_node, dim
 from dynfab.solvers.static import StaticSolver

@@ -13,7 +13,8 @@ import pytest
 
 from dynfab.model import assembly
 from dynfab.linalg.banded import constrain, lu_factor, lu_solve, zeros_band
-from dynfab.model.yarn import build_model, initial_state
+from dynfab.model.yarn import initial_state
+from dynfab.model.builders import build_model
 from dynfab.solvers.static import StaticSolver
 
 EPS = np.finfo(float).eps

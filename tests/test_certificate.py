@@ -29,7 +29,8 @@ from dynfab.solvers import certificate
 from dynfab.linalg.banded import BANDWIDTH, band_matvec, to_dense
 from dynfab.errors import SolverError
 from dynfab.linalg.ldlt import TINY_PIVOT, inverse_norm_1, ldlt_factor, ldlt_solve
-from dynfab.model.yarn import build_model, initial_state
+from dynfab.model.yarn import initial_state
+from dynfab.model.builders import build_model
 from dynfab.run import run
 from dynfab.scene import expand_sweep, load_scene, with_key
 from dynfab.solvers.static import StaticSolver

@@ -115,7 +115,8 @@ def test_given_dt_above_the_bound_is_allowed_with_a_one_line_warning(tmp_path):
     scene = tmp_path / "small.toml"
     scene.write_text(SMALL.replace("values = [0.3, 0.31, 0.0]", "values = [0.3]"))
     from dynfab.solvers.dynamic import DynamicSolver
-    from dynfab.model.yarn import build_model, initial_state
+    from dynfab.model.yarn import initial_state
+    from dynfab.model.builders import build_model
     from dynfab.scene import Dynamic
 
     model = build_model(dynfab.load_scene(scene))

@@ -35,7 +35,7 @@ import pytest
 
 from dynfab.model import assembly
 from dynfab.linalg.banded import zeros_band
-from dynfab.model.yarn import build_model
+from dynfab.model.builders import build_model
 from dynfab.model.terms import contact, friction, registry
 from independent import PAPER_FRICTION, PAPER_WARP, PAPER_WEFT, dense, make_scene
 

@@ -15,7 +15,8 @@ import pytest
 
 from dynfab.solvers.dynamic import DynamicSolver
 from dynfab.errors import SolverError
-from dynfab.model.yarn import build_model, initial_state
+from dynfab.model.yarn import initial_state
+from dynfab.model.builders import build_model
 from dynfab.scene import Dynamic, load_scene, validate_scene, with_key
 
 RUNS = Path(__file__).resolve().parent.parent / "runs"

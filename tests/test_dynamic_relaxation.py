@@ -26,7 +26,8 @@ from dynfab.linalg.banded import BANDWIDTH, to_dense
 from dynfab.solvers.dynamic import DynamicSolver
 from dynfab.errors import SolverError
 from dynfab.kernels import status, structure_checks
-from dynfab.model.yarn import build_model, initial_state
+from dynfab.model.yarn import initial_state
+from dynfab.model.builders import build_model
 from dynfab.scene import Dynamic, load_scene, with_key
 from dynfab.solvers.static import StaticSolver
 

@@ -11,7 +11,8 @@ import pytest
 
 from dynfab.solvers.dynamic import DynamicSolver
 from dynfab.errors import UserError
-from dynfab.model.yarn import build_model, initial_state
+from dynfab.model.yarn import initial_state
+from dynfab.model.builders import build_model
 from dynfab.scene import Dynamic, load_scene, with_key
 from dynfab.solvers.static import StaticSolver
 from test_dynamic_relaxation import assert_same_equilibrium, relax_path

@@ -14,7 +14,8 @@ import pytest
 
 from dynfab.model import assembly
 from dynfab.solvers.dynamic import DynamicSolver
-from dynfab.model.yarn import build_model, initial_state
+from dynfab.model.yarn import initial_state
+from dynfab.model.builders import build_model
 from dynfab.scene import load_scene, validate_scene, with_key
 
 RUNS = Path(__file__).resolve().parent.parent / "runs"

@@ -28,7 +28,8 @@ from dynfab.model import assembly
 from dynfab.solvers.dynamic import DynamicSolver
 from dynfab.errors import SolverError
 from dynfab.model.fabric.model import FabricModel
-from dynfab.model.yarn import build_model, initial_state
+from dynfab.model.yarn import initial_state
+from dynfab.model.builders import build_model
 from dynfab.reports.fabric_data import paper_patch_scene
 from dynfab.solvers.static import StaticSolver
 from dynfab.model.structure import chain_of_node, uniform

@@ -18,7 +18,8 @@ from dynfab.model.fabric import inertia
 from dynfab.model.fabric.model import FabricModel
 from dynfab.model import assembly as one_yarn_assembly
 from dynfab.solvers.certificate import NEGATIVES, certify_yarn
-from dynfab.model.yarn import build_model, initial_state
+from dynfab.model.yarn import initial_state
+from dynfab.model.builders import build_model
 from dynfab.solvers.static import StaticSolver
 from independent import fabric_scene, held_family, make_scene, record_inverse_norm
 

@@ -45,7 +45,7 @@ from dynfab.linalg.banded import to_dense
 from dynfab.cli import main
 from dynfab.errors import UserError
 from dynfab.kernels.structure_variants import built_variants
-from dynfab.model.yarn import build_model
+from dynfab.model.builders import build_model
 from dynfab.reports import figures as report
 from dynfab.reports import figures_plots
 from dynfab.results.file import read_results

@@ -30,7 +30,8 @@ import pytest
 from dynfab.model.builders import build_structure
 from dynfab.model.fabric import contact
 from dynfab.kernels import status
-from dynfab.model.yarn import build_model, initial_state
+from dynfab.model.yarn import initial_state
+from dynfab.model.builders import build_model
 from dynfab.scene import load_scene, with_key
 from dynfab.solvers.static import StaticSolver
 from test_kernels_structure import (fabric_scene, relaxation, static_solver, yarn_scene,

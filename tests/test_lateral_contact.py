@@ -17,7 +17,7 @@ import pytest
 from dynfab import run
 
 from dynfab.solvers import newton_sparse
-from dynfab.model.yarn import build_model
+from dynfab.model.builders import build_model
 from dynfab.scene import parse_scene_text
 from dynfab.solvers.static import StaticSolver
 

@@ -35,7 +35,8 @@ from dynfab.model import assembly
 from dynfab.solvers import newton_banded
 from dynfab.solvers.friction_chain import friction_chain
 from dynfab.linalg.banded import zeros_band
-from dynfab.model.yarn import build_model, initial_state
+from dynfab.model.yarn import initial_state
+from dynfab.model.builders import build_model
 from dynfab.run import run as run_scene
 from dynfab.scene import load_scene, with_key
 from dynfab.solvers.static import StaticSolver

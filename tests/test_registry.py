@@ -27,7 +27,8 @@ import pytest
 
 from dynfab.model import assembly
 from dynfab.linalg.banded import zeros_band
-from dynfab.model.yarn import build_model, initial_state
+from dynfab.model.yarn import initial_state
+from dynfab.model.builders import build_model
 from dynfab.model.observables import finish_step
 from dynfab.model.terms import registry
 from dynfab.model.terms.friction import INDEX as FRICTION
@@ -197,7 +198,8 @@ tethered = registry.index("tether")
 
 from dynfab.model import assembly
 from dynfab.linalg.banded import zeros_band, BANDWIDTH
-from dynfab.model.yarn import build_model, initial_state
+from dynfab.model.yarn import initial_state
+from dynfab.model.builders import build_model
 from dynfab.model.observables import finish_step
 from dynfab.scene import parse_scene_text
 sys.path.insert(0, sys.argv[2])

@@ -17,7 +17,8 @@ import pytest
 from dynfab.solvers.dynamic import DynamicSolver, DynamicTransient
 from dynfab.errors import UserError
 from dynfab.model.loading import load_at_time, prescribe_load
-from dynfab.model.yarn import build_model, initial_state
+from dynfab.model.yarn import initial_state
+from dynfab.model.builders import build_model
 from dynfab.results.file import MACHINE_TIMES, units_of
 from dynfab.run import run
 from dynfab.scene import load_scene, scene_keys, with_key

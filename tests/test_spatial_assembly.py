@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from dynfab.model.fabric import contact, spatial
-from dynfab.model.yarn import build_model
+from dynfab.model.builders import build_model
 from dynfab.scene import parse_scene_text
 from dynfab.model.terms import contact as contact_law
 from test_shear_specimens import FRAME, scene_text

@@ -20,7 +20,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from dynfab.model.fabric import spatial
-from dynfab.model.yarn import build_model
+from dynfab.model.builders import build_model
 from dynfab.solvers.newton_sparse import SparseNewton
 from test_certificate import ROD_EI, ROD_L, ROD_PCR, SHORTENINGS, elastica_load, rod_scene
 

@@ -20,7 +20,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from dynfab.model.yarn import build_model
+from dynfab.model.builders import build_model
 from dynfab.solvers.newton_sparse import SparseNewton
 from dynfab.scene import load_scene
 from dynfab.solvers.static import StaticSolver

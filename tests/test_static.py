@@ -363,7 +363,7 @@ def test_every_step_meets_the_tolerance_and_gralens_law(figure, request):
 def test_a_step_of_several_yarns_reports_each_yarn_within_itself():
     """`status` is called within a step after each yarn of a batch (a yarn's Newton runs
     compiled and cannot report): the progress line of a long sweep step."""
-    from dynfab.model.yarn import build_model
+    from dynfab.model.builders import build_model
     from dynfab.solvers.static import StaticSolver
 
     model = build_model(paper_yarn(64, 16, {"control": "force", "values": [0.1]}, yarns=2))

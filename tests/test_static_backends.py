@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from dynfab.solvers.friction_chain import CHAIN
-from dynfab.model.yarn import build_model
+from dynfab.model.builders import build_model
 from dynfab.solvers.newton_banded import BandedNewton
 from dynfab.solvers.newton_sparse import SparseNewton
 from dynfab.scene import expand_sweep, load_scene, with_key

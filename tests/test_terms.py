@@ -30,7 +30,7 @@ from scipy.special import ellipe
 
 from dynfab.model import assembly, geometry
 from dynfab.linalg.banded import zeros_band
-from dynfab.model.yarn import build_model
+from dynfab.model.builders import build_model
 from dynfab.scene import with_key
 from dynfab.model.terms import bending, contact, friction, gravity, load, registry, stretch
 from independent import (closure_of_force, contact_energy, dense, fd_gradient, fd_jacobian,

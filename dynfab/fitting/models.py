@@ -52,7 +52,7 @@ class YarnFit:
     def default_value(scene, key: str) -> float | None:
         """The value a key left out of the scene takes (None: none to start from)."""
         if key == "friction.stick_stiffness":  # EA / (L/N)
-            from dynfab.model.yarn import build_model
+            from dynfab.model.builders import build_model
             return float(build_model(scene).yarns[0].stick_stiffness)
         return None
 
@@ -97,7 +97,7 @@ class FabricFit:
         the core stiffness's and stick stiffness's defaults as the structure holds them, the
         wefts' default linear density."""
         from dynfab.model.builders.fabric import families
-        from dynfab.model.yarn import build_model
+        from dynfab.model.builders import build_model
 
         if key == "weft.linear_density":
             return float(families(scene)[1].linear_density)
@@ -113,7 +113,7 @@ class FabricFit:
         """The measured columns `names` along the scene's load path, by the static solver
         through the run contract; a step that leaves the model's domain raises SolverError
         (`FabricModel.check_step`), as in a run."""
-        from dynfab.model.yarn import build_model
+        from dynfab.model.builders import build_model
         from dynfab.solvers.by_name import make_solver
 
         columns = {name: measurable(model_kind(scene))[name] for name in names}

@@ -44,7 +44,8 @@ from dynfab.model import assembly
 from dynfab.linalg.banded import BANDWIDTH, constrain, lu_factor, lu_solve
 from dynfab.model.domain import check_not_folded
 from dynfab.errors import UserError
-from dynfab.model.yarn import build_model, initial_state
+from dynfab.model.yarn import initial_state
+from dynfab.model.builders import build_model
 from dynfab.solvers.static import StaticSolver
 from dynfab.model.terms import friction
 

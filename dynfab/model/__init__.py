@@ -6,16 +6,17 @@ prescribed loads (`loading`), the model's domain (`domain`), a load step's start
 as models and solvers exchange them (`step`) and what a finished step records
 (`observables`).
 
-`from dynfab.model import build_model` keeps working: the names are looked up in `yarn`
-on first use."""
+`from dynfab.model import build_model` (`builders`), `initial_state` and `Model` (`yarn`):
+looked up on first use."""
 
 import importlib
 
-_PUBLIC = ("build_model", "initial_state", "Model")
+_PUBLIC = {"build_model": "dynfab.model.builders", "initial_state": "dynfab.model.yarn",
+           "Model": "dynfab.model.yarn"}
 
 
 def __getattr__(name: str):
-    """A public name of the model (`yarn`), imported on first use."""
+    """A public name of the model, imported on first use."""
     if name in _PUBLIC:
-        return getattr(importlib.import_module("dynfab.model.yarn"), name)
+        return getattr(importlib.import_module(_PUBLIC[name]), name)
     raise AttributeError(f"module 'dynfab.model' has no attribute {name!r}")

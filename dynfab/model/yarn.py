@@ -256,19 +256,9 @@ class Model:
         return fixed
 
 
-def build_model(scene: Scene) -> Model:
-    """The model of a validated scene: a shear specimen's
-    (`dynfab.model.fabric.specimen_model.SpecimenModel`), a fabric's
-    (`dynfab.model.fabric.model.FabricModel`), or the one-yarn model's structure
-    (`dynfab.model.builders.yarn`) with one Yarn view per simulated warp yarn."""
-    if getattr(scene, "specimen", None) is not None:
-        from dynfab.model.fabric.specimen_model import SpecimenModel  # docs/model.md section 11
-
-        return SpecimenModel.from_scene(scene)
-    if scene.geometry.model == "fabric":
-        from dynfab.model.fabric.model import FabricModel
-
-        return FabricModel.from_scene(scene)
+def yarn_model(scene: Scene) -> Model:
+    """The one-yarn model of a validated scene: its structure (`dynfab.model.builders.yarn`)
+    with one Yarn view per simulated warp yarn."""
     structure = yarn_structure(scene)
     yarns = tuple(chain_view(structure, k, registry.active_mask(scene))
                   for k in range(structure.chain_start.size - 1))

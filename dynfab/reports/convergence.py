@@ -51,7 +51,7 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
 from dynfab.model import assembly
-from dynfab.model.yarn import build_model
+from dynfab.model.builders import build_model
 from dynfab.plots.style import FONT_SIZE, new_figure, save_png, style_axes
 from dynfab.reports.common import (cut_yarn, default_stick_stiffness, output_folder, paper_yarns,
                                    report_header, with_path, write_csv, write_summary, write_text)

@@ -54,7 +54,7 @@ import numpy as np
 from dynfab.model import assembly
 from dynfab.linalg.banded import BANDWIDTH, constrain, lu_factor, lu_solve, to_dense
 from dynfab.errors import UserError
-from dynfab.model.yarn import build_model
+from dynfab.model.builders import build_model
 from dynfab.reports.common import (cut_yarn, output_folder, paper_scene_file, report_header,
                                    with_path, write_json)
 from dynfab.reports.figures_data import (FIGURES, SOLVERS, STRAIN_STAGE, at_strain,

@@ -81,7 +81,8 @@ from dynfab.model import assembly
 from dynfab.linalg.banded import to_dense
 from dynfab.solvers.dynamic import DynamicSolver
 from dynfab.errors import SolverError
-from dynfab.model.yarn import Model, State, build_model, initial_state
+from dynfab.model.yarn import Model, State, initial_state
+from dynfab.model.builders import build_model
 from dynfab.model.observables import finish_step
 from dynfab.plots.style import save_png
 from dynfab.reports.common import (cut_yarn, kernel_name, machine, output_folder, paper_yarns,

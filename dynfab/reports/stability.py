@@ -62,7 +62,8 @@ from dynfab.linalg.banded import BANDWIDTH, to_dense
 from dynfab.solvers.dynamic import DynamicSolver
 from dynfab.errors import UserError, SolverError
 from dynfab.kernels import status
-from dynfab.model.yarn import build_model, initial_state
+from dynfab.model.yarn import initial_state
+from dynfab.model.builders import build_model
 from dynfab.plots.style import save_png
 from dynfab.reports.common import (cut_yarn, default_stick_stiffness, kernel_name,
                                    output_folder, paper_yarns as common_paper_yarns,

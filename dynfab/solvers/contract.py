@@ -79,8 +79,9 @@ and anchors [m] (yarns, crossings), energy/kinetic [J] (yarns,)."""
 @runtime_checkable
 class RunModel(Protocol):
     """What a run (`dynfab.run`) needs of a model, whatever its kind: the one-yarn model
-    (`dynfab.model.yarn.Model`) and the woven fabric's (`dynfab.model.fabric.model.FabricModel`)
-    both fulfil it, built by `dynfab.model.yarn.build_model` from a scene, so the run never asks
+    (`dynfab.model.yarn.Model`), the woven fabric's (`dynfab.model.fabric.model.FabricModel`)
+    and the shear specimen's (`dynfab.model.fabric.specimen_model.SpecimenModel`) fulfil it,
+    built by `dynfab.model.builders.build_model` from a scene, so the run never asks
     which model it drives (its solvers come from `dynfab.solvers.by_name.make_solver`). (Members
     looked up by name, as for the solvers below.)"""
 
