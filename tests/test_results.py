@@ -254,7 +254,7 @@ def test_unknown_names_and_inconsistent_steps_are_rejected(tmp_path):
     with pytest.raises(ValueError, match="energy term"):
         out.append_step({"energy/bad-name": np.ones(YARNS)})
     with pytest.raises(ValueError, match="not in dynfab.results.file.UNITS"):
-        out.append_frame({"load": np.ones(YARNS)})
+        out.append_frame({"tension": np.ones(YARNS)})
     with pytest.raises(ValueError, match="not in dynfab.results.file.UNITS"):
         ResultFile.create(tmp_path / "r.h5", attrs=make_attrs(), reference={"velocities": np.ones(3)})
     assert out.step_count == 0 and read_results(path).step_count == 0

@@ -22,6 +22,8 @@ Kernel variants: the spatial float64 grouped transient kernel with friction.
 
 from __future__ import annotations
 
+import io
+
 import h5py
 import meshio
 import numpy as np
@@ -34,6 +36,7 @@ from dynfab.model import specimen_layout
 from dynfab.model.fabric import spatial
 from dynfab.model.fabric.specimen_model import TRANSIENT_KNOTS
 from dynfab.results.file import read_results
+from dynfab.results.summary import print_summary
 from dynfab.run import run_to_file
 from dynfab.scene import parse_scene_text
 from dynfab.solvers.by_name import make_solver
@@ -150,7 +153,8 @@ def test_a_damped_transient_settles_on_the_static_equilibrium():
 def test_a_resumed_transient_writes_the_uninterrupted_frames_and_its_view_and_figures(tmp_path):
     """`run_to_file` stopped (as a Ctrl-C) after its second frame and resumed from the file
     writes the very bits of the run done in one go (every frame dataset); its XDMF view has a
-    grid of every node per frame, and `dynfab plot` draws its figures."""
+    grid of every node per frame, `dynfab plot` draws its figures and the summary lists d and
+    the clamp force per frame."""
     scene = parse_scene_text(transient_text(VALUES, DURATION, DURATION / 4))
     whole, part = tmp_path / "whole.h5", tmp_path / "part.h5"
     assert run_to_file(scene, "dynamic", whole) == 5
@@ -177,3 +181,7 @@ def test_a_resumed_transient_writes_the_uninterrupted_frames_and_its_view_and_fi
         assert points.shape[0] == build_model(scene).structure.rest_position.shape[0]
     figures = plot_results(whole, tmp_path / "figures")
     assert figures and all(path.stat().st_size > 0 for path in figures)
+    table = io.StringIO()
+    print_summary(read_results(whole), table)
+    header, *rows = table.getvalue().splitlines()[:6]
+    assert "clamp F [N]" in header and len(rows) == 5  # a row per frame, d and the force in it

@@ -236,11 +236,16 @@ def _fabric_summary(results: Results) -> list[str]:
 
 
 def _print_frames_summary(results: Results, file) -> None:
-    """A transient run's table: per frame, time, kinetic energy and largest contact force."""
+    """A transient run's table: per frame, time, kinetic energy and largest contact force, and
+    where the frames hold them (a specimen's) d and the clamp force."""
     frames = results.frames
-    print(f"{'frame':>5} {'time [s]':>11} {'kinetic [J]':>12} {'max R [N]':>11}", file=file)
+    clamp = "clamp_force" in frames and "load" in frames
+    extra = f" {'d [m]':>11} {'clamp F [N]':>12}" if clamp else ""
+    print(f"{'frame':>5} {'time [s]':>11} {'kinetic [J]':>12} {'max R [N]':>11}{extra}", file=file)
     contact = frames.get("contact_force")
     for i, time_s in enumerate(frames.get("time", [])):
         largest = float(contact[i].max()) if contact is not None and contact[i].size else 0.0
-        print(f"{i:>5} {time_s:>11.6g} {frames['energy/kinetic'][i].max():>12.4g} {largest:>11.5g}",
-              file=file)
+        row = (f" {float(np.ravel(frames['load'][i])[0]):>11.5g} "
+               f"{float(frames['clamp_force'][i]):>12.5g}" if clamp else "")
+        print(f"{i:>5} {time_s:>11.6g} {frames['energy/kinetic'][i].max():>12.4g} {largest:>11.5g}"
+              f"{row}", file=file)
