@@ -53,7 +53,7 @@ from dynfab.errors import DynfabError, UserError, SolverError
 
 __version__ = "0.1.0"
 
-_HOMES = {"build_model": "dynfab.model.yarn", "plot_results": "dynfab.plots.figures",
+_HOMES = {"build_model": "dynfab.model.builders", "plot_results": "dynfab.plots.figures",
           "Results": "dynfab.results.file", "read_results": "dynfab.results.file",
           "run": "dynfab.run", "load_scene": "dynfab.scene", "parse_scene_text": "dynfab.scene",
           "fit": "dynfab.fitting.fit", "FitResult": "dynfab.fitting.fit",
