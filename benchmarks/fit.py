@@ -30,7 +30,7 @@ import numpy as np
 import scipy
 
 from dynfab.fitting.fit import fit
-from dynfab.fitting.data import read_curve
+from dynfab.results.measured_curve import read_curve
 from dynfab.scene import expand_sweep, load_scene
 from dynfab.fitting.sensitivity import path_sensitivities, solve_path
 from dynfab.timing import best_time

@@ -115,7 +115,7 @@ def _add_study_parser(commands) -> None:
 
 
 def _add_fit_parser(commands) -> None:
-    from dynfab.fitting.data import columns_help
+    from dynfab.results.measured_curve import columns_help
 
     fit = commands.add_parser("fit", help="fit scene keys to a measured traction curve (CSV)",
                               epilog=columns_help(),

@@ -14,7 +14,7 @@ import pytest
 
 from dynfab.errors import UserError
 from dynfab.fitting.fit import default_substeps, fit, refined_path
-from dynfab.fitting.data import curve_from_columns
+from dynfab.results.measured_curve import curve_from_columns
 from dynfab.scene import with_key
 from dynfab.fitting.sensitivity import _get_key, solve_path
 from independent import PAPER_FRICTION, PAPER_WARP, PAPER_WEFT, make_scene

@@ -70,7 +70,7 @@ def test_example_curve_is_the_documented_one():
     """curve.csv comes from make_curve.py: EA = 13.72, alpha = 0.2 plus 0.2 % noise; the noise-free
     curve lies within 5 sigma of every point (a regenerated or edited file would show)."""
     import numpy as np
-    from dynfab.fitting.data import read_curve
+    from dynfab.results.measured_curve import read_curve
     from dynfab.scene import with_key
 
     data = read_curve(EXAMPLE / "curve.csv", "displacement")

@@ -17,7 +17,7 @@ import pytest
 
 from dynfab.errors import UserError
 from dynfab.fitting.fit import FD_STEP, fit, fittable_keys, make_parameters, refined_path, with_path
-from dynfab.fitting.data import FABRIC_MEASURABLE, curve_from_columns, read_curve
+from dynfab.results.measured_curve import FABRIC_MEASURABLE, curve_from_columns, read_curve
 from dynfab.fitting.models import FabricFit
 from dynfab.scene import Contact, Friction, load_scene, validate_scene, with_key
 from test_fit_sensitivity import quarter_yarn

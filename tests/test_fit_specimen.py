@@ -13,7 +13,7 @@ import pytest
 from dynfab import run
 from dynfab.errors import UserError
 from dynfab.fitting.fit import fit
-from dynfab.fitting.data import curve_from_columns
+from dynfab.results.measured_curve import curve_from_columns
 from dynfab.fitting.models import FabricFit
 from dynfab.scene import parse_scene_text, with_key
 from test_shear_specimens import FRAME, scene_text

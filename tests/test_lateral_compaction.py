@@ -246,7 +246,7 @@ def test_a_made_up_force_angle_curve_gives_back_the_fibre_waviness():
     # x that (tests/test_fit_specimen.py's rule).
     from dynfab import run
     from dynfab.fitting.fit import fit
-    from dynfab.fitting.data import curve_from_columns
+    from dynfab.results.measured_curve import curve_from_columns
 
     scene = small_compacting_frame()
     steps = run(scene, solver="static").steps

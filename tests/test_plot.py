@@ -308,7 +308,7 @@ def test_plot_data_draws_a_measured_curve_over_the_computed_one(tmp_path):
     curve.write_text("end_displacement [m],clamp_force [N]\n0.001,0.05\n0.002,0.07\n")
     main(["plot", str(tmp_path / "frame.h5"), "--out", str(tmp_path / "figures"), "--data",
           str(curve)])
-    from dynfab.plots.figures import measured_points
+    from dynfab.plots.measured import measured_points
     from dynfab.plots.specimen import plot_shear_force
     results = read_results(tmp_path / "frame.h5")
     by_d = plot_shear_force(results, measured_points(results, curve)).axes[0]

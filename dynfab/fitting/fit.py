@@ -45,7 +45,7 @@ import numpy as np
 
 from dynfab import scene as scene_module
 from dynfab.errors import UserError, SolverError
-from dynfab.fitting.data import MODELS, CurveData, model_kind, read_curve
+from dynfab.results.measured_curve import MODELS, CurveData, model_kind, read_curve
 from dynfab.fitting.models import fit_model, start_value
 from dynfab.scene import scene_to_toml, validate_scene, with_key
 

@@ -6,7 +6,7 @@ the start value of a key the scene leaves to a default, and the solve of a load 
 - the woven fabric (`FabricFit`): the path solved through the run contract
   (`dynfab.solvers.contract.RunModel`: `make_solver(build_model(scene), "static")`, one step per
   load of the path, the model's domain check after each, as a run), the measured columns read from
-  the step records (`dynfab.fitting.data.Column.read`). It has no exact sensitivities: its
+  the step records (`dynfab.results.measured_curve.Column.read`). It has no exact sensitivities: its
   Jacobian is a forward difference of whole path solves (`dynfab.fitting.fit`).
 
 `fit_model(scene)` picks one, by geometry.model.
@@ -20,7 +20,7 @@ import numpy as np
 
 from dynfab import scene as scene_module
 from dynfab.errors import UserError
-from dynfab.fitting.data import measurable, model_kind
+from dynfab.results.measured_curve import measurable, model_kind
 
 FABRIC_TABLES = ("warp", "weft", "friction", "contact", "gravity", "crossing")
 """The tables whose real keys a fabric's fit may vary (the material, the crossings' laws,

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
-from dynfab.fitting.data import LOAD_COLUMN, WEFT_LOAD_COLUMN
+from dynfab.results.measured_curve import LOAD_COLUMN, WEFT_LOAD_COLUMN
 from dynfab.plots.style import save_png
 from dynfab.plots.style import FONT_SIZE
 

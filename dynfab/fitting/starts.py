@@ -73,7 +73,7 @@ def fit_from_starts(scene, data, keys, *, starts: int, bounds=None, substeps=Non
     """`dynfab.fitting.fit.fit` from `starts` starting points on a Dask cluster; the best fit, its
     `starts` report filled in (module docstring)."""
     from dynfab.fitting.fit import make_parameters, parse_keys
-    from dynfab.fitting.data import CurveData, model_kind, read_curve
+    from dynfab.results.measured_curve import CurveData, model_kind, read_curve
     from dynfab.studies.study import _cluster
 
     if starts < 1:

@@ -28,7 +28,6 @@ pyplot state and backend are never touched; PNGs are written with Agg.
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -42,6 +41,7 @@ from dynfab.errors import UserError
 from dynfab.results.friction_states import FRICTION_STATES, crossing_count, friction_states
 from dynfab.plots.style import (FAMILY_ALPHA, FAMILY_STYLE, FAMILY_WIDTH, FONT_SIZE, legend,
                                new_figure, output_folder, save_png, style_axes)
+from dynfab.plots.measured import Measured, draw_measured, measured_points
 from dynfab.results.file import Results, read_results
 
 
@@ -52,7 +52,7 @@ def plot_results(path: str | os.PathLike, out_dir: str | os.PathLike,
     Returns the paths of the PNGs written. Raises UserError for a missing
     file, a file that is not a dynfab result, or one without a load step. A study's table
     (``study.nc``) gets the study's figures (`dynfab.studies.plots`). `data`: a measured curve
-    (CSV, the columns of `dynfab fit --data`, `dynfab.fitting.data`) drawn over the computed one
+    (CSV, the columns of `dynfab fit --data`, `dynfab.results.measured_curve`) drawn over the computed one
     (`measured_points`), labelled with its file's name.
     """
     from dynfab.studies.plots import is_study_table, plot_study
@@ -103,57 +103,6 @@ def plot_results(path: str | os.PathLike, out_dir: str | os.PathLike,
     if has_friction(results):
         written.append(save_png(plot_friction(results), out / "friction.png"))
     return written
-
-
-@dataclass(frozen=True)
-class Measured:
-    """A measured curve as the figures draw it: the file's name, and per quantity its points
-    in SI units (`measured_points`)."""
-
-    label: str
-    end_displacement: np.ndarray | None = None
-    """[m] (a yarn's, or a specimen's clamp displacement d)."""
-    end_force: np.ndarray | None = None
-    """[N] (a yarn's end force, or a specimen's clamp force)."""
-    strain: np.ndarray | None = None
-    """The warps' nominal strain [-] (a fabric)."""
-    stress: np.ndarray | None = None
-    """The warps' load per unit width [N/m] (a fabric)."""
-
-
-def measured_points(results: Results, data) -> Measured:
-    """The CSV curve `data` read as `dynfab fit --data` reads it for the file's scene (its
-    model and control; the first error names the columns expected and found), as points of
-    the quantities the figures draw."""
-    from dynfab.fitting.data import model_kind, read_curve
-    from dynfab.scene import parse_scene_text
-
-    scene = parse_scene_text(results.attrs["scene"])
-    model, control = model_kind(scene), results.attrs.get("load_control", "force")
-    curve = read_curve(data, control, model)
-    found = dict(curve.measured, **{("end_displacement" if control == "displacement"
-                                     else "load"): curve.load})
-    label = f"measured: {Path(data).stem}"
-    if model == "specimen":
-        return Measured(label, end_displacement=curve.load, end_force=found["clamp_force"])
-    if model == "fabric":
-        strain = found.get("warp_strain")
-        if strain is None and control == "displacement":
-            strain = curve.load / float(results.attrs["projected_length"])
-        stress = found.get("warp_stress")
-        if stress is None and control == "force":
-            stress = curve.load / (float(results.attrs["weft_length"])
-                                   / float(scene.weft.count))
-        return Measured(label, strain=strain, stress=stress)
-    return Measured(label, end_displacement=found.get("end_displacement"),
-                    end_force=found.get("end_force", found.get("load")))
-
-
-def draw_measured(ax, x, y, measured: Measured) -> None:
-    """The measured points on `ax` (x, y already in the axis' units), where both exist."""
-    if x is not None and y is not None:
-        ax.plot(x, y, linestyle="none", marker="D", ms=4, mfc="none", color="k",
-                label=measured.label)
 
 
 def family_names(results: Results) -> dict:

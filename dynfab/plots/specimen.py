@@ -22,8 +22,8 @@ from __future__ import annotations
 import numpy as np
 from matplotlib.figure import Figure
 
-from dynfab.plots.figures import draw_measured
-from dynfab.plots.style import FONT_SIZE, legend, new_figure, style_axes
+from dynfab.plots.measured import draw_measured
+from dynfab.plots.style import FONT_SIZE, legend, new_figure, save_png, style_axes
 from dynfab.results.file import Results
 from dynfab.model.shear_force import bias_normalised_shear_force
 from dynfab.model.specimen_layout import nominal_shear_angle, yarns_meet_at
@@ -50,7 +50,7 @@ def plot_shear_force(results: Results, measured=None) -> Figure:
     (the points past it drawn apart, the cut said in a note) and a fourth panel draws the
     whole path on a log axis. A bias extension's force is drawn from step 0 too (a load
     cell zeroed at the start of the test), step 0's point named: the woven state's reaction
-    on the clamps. `measured` (`dynfab.plots.figures.Measured`): a measured clamp force drawn over
+    on the clamps. `measured` (`dynfab.plots.measured.Measured`): a measured clamp force drawn over
     the computed one."""
     steps = results.steps
     d = np.asarray(steps["load"], float)[:, 0]
@@ -77,7 +77,7 @@ def plot_shear_force(results: Results, measured=None) -> Figure:
         by_angle.set_xlim(right=max(by_angle.get_xlim()[1], 1.05 * DEGREE * meet))
     if results.attrs["specimen_test"] == "bias_extension":
         _draw_from_step_0(by_d, 1e3 * d, force)
-    if measured is not None:  # `dynfab.plots.figures.Measured`: a clamp force against d
+    if measured is not None:  # `dynfab.plots.measured.Measured`: a clamp force against d
         draw_measured(by_d, 1e3 * measured.end_displacement, measured.end_force, measured)
     _draw_angles(results, angles, d, nominal, gamma)
     if clipped:
@@ -210,8 +210,6 @@ def plot_transient(results: Results, out) -> list:
     clamp force and d against time), ``energy.png`` (every energy and the dissipation against
     time) and ``shear_field.png`` (the crossings' shear angle from the as-woven state at three
     frames)."""
-    from dynfab.plots.figures import save_png
-
     frames = results.frames
     time_ms = 1e3 * np.asarray(frames["time"], float)
     fig = new_figure(7.0, 3.6)
