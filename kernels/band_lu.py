@@ -1,10 +1,10 @@
 """Banded matrices of a run of dofs in flat storage, and their LU factorisation, inside a kernel
 (the Warp twin of `dynfab.linalg.banded`; docs/model.md section 5).
 
-A matrix over all dofs stores row i as band[i, j - i + BANDWIDTH] = A_ij, shape
-(dofs, 2 BANDWIDTH + 1), half-bandwidth 5 (a node's two dofs and the three-node bending
-stencil, dofs 2 node + coordinate). A chain's dofs are contiguous (lo..hi-1), so each chain's
-block is factored and solved on its own: Doolittle's LU without pivoting, O(N BANDWIDTH^2),
+A matrix over all dofs stores row i as band[i, j - i + w] = A_ij, shape (dofs, 2 w + 1), dofs
+dim node + coordinate, half-bandwidth w = `bandwidth(dim)` = 3 dim - 1 (a node's dofs and the
+three-node bending stencil: 5 in the plane, `BANDWIDTH`, 8 in space). A chain's dofs are
+contiguous (lo..hi-1), so each chain's block is factored and solved on its own: Doolittle's LU without pivoting, O(N BANDWIDTH^2),
 stable for the symmetric positive definite matrices the semi-implicit integrator builds; the
 first pivot that is not positive is reported. Entries linking dofs of different chains are
 never stored here (the caller keeps them zero).
@@ -18,17 +18,28 @@ import warp as wp
 from dynfab.linalg.banded import BANDWIDTH
 
 
+def bandwidth(dim: int) -> int:
+    """The half-bandwidth of a chain's band with `dim` coordinates per node (module
+    docstring)."""
+    return 3 * dim - 1
+
+
+assert bandwidth(2) == BANDWIDTH
+
+
 @functools.cache
-def functions(scalar) -> SimpleNamespace:
-    """The band `wp.func`s for one scalar type."""
-    mat = wp.types.matrix((2, 2), scalar)
+def functions(scalar, dim: int = 2) -> SimpleNamespace:
+    """The band `wp.func`s for one scalar type and `dim` coordinates per node."""
+    mat = wp.types.matrix((dim, dim), scalar)
+    BANDWIDTH = bandwidth(dim)  # noqa: N806 (the module's constant, for this dim)
 
     @wp.func(inline=True)
     def add_block(band: wp.array2d(dtype=scalar), node_p: int, node_q: int, block: mat):
-        """A[(p's 2 dofs), (q's 2 dofs)] += block."""
-        for c in range(2):
-            for d in range(2):
-                band[2 * node_p + c, 2 * (node_q - node_p) + d - c + BANDWIDTH] += block[c, d]
+        """A[(p's dim dofs), (q's dim dofs)] += block."""
+        for c in range(dim):
+            for d in range(dim):
+                band[dim * node_p + c, dim * (node_q - node_p) + d - c + BANDWIDTH] += \
+                    block[c, d]
 
     @wp.func(inline=True)
     def add_pair(band: wp.array2d(dtype=scalar), start: int, end: int, block: mat):

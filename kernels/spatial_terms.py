@@ -1,6 +1,7 @@
 """The spatial fabric's element forces and energies in a kernel (docs/model.md section 11): the
-Warp form of `dynfab.model.terms.spatial` (its energies and exact gradients; the Hessians stay on
-the host, where the masses' Gershgorin rows and the certificate take them).
+Warp form of `dynfab.model.terms.spatial` (its energies and exact gradients; the exact Hessians
+stay on the host, where the masses' Gershgorin rows and the certificate take them), and the
+semi-implicit method's positive semi-definite tangent (`tangent_terms`).
 
 Nodes carry x, y, z (vec3, the fabric's plane x-y). Each force function adds -dE/dX of one
 element to the nodes of its stencil in a force array (the scatter order of
@@ -32,7 +33,7 @@ from types import SimpleNamespace
 import numpy as np
 import warp as wp
 
-from dynfab.kernels import structure_arrays, structure_state, tie_law
+from dynfab.kernels import band_lu, structure_arrays, structure_state, tie_law
 from dynfab.kernels.precision import vector
 
 PI = float(np.pi)
@@ -338,7 +339,10 @@ def functions(scalar) -> SimpleNamespace:
             move = vec(m * S[0], m * S[1], m * S[2] / rho)
         return move
 
-    return SimpleNamespace(wrap=wrap, bend_forces=bend_forces, bend_gradients=bend_gradients,
+    return SimpleNamespace(rows3=rows3, wrap=wrap, bend_forces=bend_forces,
+                           bend_gradients=bend_gradients, elevation_gradient=elevation_gradient,
+                           direction_gradient=direction_gradient, lateral_gap=lateral_gap,
+                           lateral_slope=lateral_slope,
                            bend_energy=bend_energy, crossing_gradients=crossing_gradients,
                            crossing_slot_force=crossing_slot_force,
                            lateral_gradients=lateral_gradients,
@@ -493,3 +497,283 @@ def structure_terms(scalar, friction: bool, boundary: bool, base) -> SimpleNames
                            node_force=node_force, scatter=scatter,
                            add_node_energy=add_node_energy, add_tie_energy=add_tie_energy,
                            lateral_energy=lateral_energy, return_anchor=return_anchor)
+
+
+@functools.cache
+def tangent_terms(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
+    """The semi-implicit tangent of the spatial elements (docs/model.md section 11.11; the
+    planar form is `structure_tangent`'s): positive semi-definite Gauss-Newton blocks, each a
+    term's second derivative in its own coordinate times the outer product of that
+    coordinate's gradient, the coordinates' curvature left out (as the planar `definite`
+    mode leaves out bending's moment term):
+
+    - stretch: k [e e^T / l^2 + max(0, 1 - l0/l) (I - e e^T / l^2)];
+    - bending: kb dTheta dTheta^T + kl dPsi dPsi^T over (i, j, k), dTheta = (dtheta(e1),
+      -dtheta(e1) - dtheta(e2), dtheta(e2)), dPsi alike;
+    - a crossing: J^T H_q J on its stencil, J = dq/dX (q = (s_x, s_y, phi)), H_q = D H D
+      + K e_phi e_phi^T, H in S k_t I sticking and the secant (F_T / |S|) I sliding (not the
+      Huber Hessian's (F_T / |S|)(I - S S^T / |S|^2), which leaves a sliding crossing no
+      stiffness along its slip: docs/model.md 11.11 has the measurement), D = diag(1, 1,
+      rho); its contact along z dR/dg on (z_a, z_b);
+    - a lateral contact: E_lat''(d) dd dd^T where it presses (E_lat'' by a central difference
+      of E_lat', clipped at 0).
+
+    `assemble_chain` puts into a chain's band every block that lies in it (`in_band`: both
+    nodes on the chain, at most two apart): its stretch and bending, its ties' dR/dg on z, and
+    those blocks of its crossings and lateral contacts; `coupling_row` applies the rest to x
+    (a crossing's chord ends, four nodes apart at four segments per spacing, the blocks
+    joining two yarns, the contact's -dR/dg between z_a and z_b), so the CG's product is the
+    whole tangent and the bands its preconditioner. `tie_blocks` stores each crossing's dR/dg
+    and H_q (`StructureState.tie_hessian`). No moving planes, wraps or tied dofs in space."""
+    vec = vector(scalar, 3)
+    mat = wp.types.matrix(shape=(3, 3), dtype=scalar)
+    Data = structure_arrays.struct(scalar, 3)
+    State = structure_state.struct(scalar, 3)
+    terms = functions(scalar)
+    band_ops = band_lu.functions(scalar, 3)
+    DIAGONAL = band_lu.bandwidth(3)  # noqa: N806 (a band row's diagonal entry)
+    rows3 = terms.rows3
+
+    @wp.func(inline=True)
+    def add_stretch(band: wp.array2d(dtype=scalar), pos: wp.array(dtype=vec), data: Data,
+                    i: int):
+        """Segment (i, next)'s block."""
+        j = data.next[i]
+        e = pos[j] - pos[i]
+        l2 = wp.dot(e, e)
+        geometric = wp.max(scalar(1.0) - data.rest_length[i] / wp.sqrt(l2), scalar(0.0))
+        axial = wp.outer(e, e) / l2
+        band_ops.add_pair(band, i, j,
+                          data.stretch_stiffness[i] * (axial + geometric
+                                                       * (wp.identity(3, scalar) - axial)))
+
+    @wp.func(inline=True)
+    def add_outer3(band: wp.array2d(dtype=scalar), n0: int, n1: int, n2: int, k: scalar,
+                   g0: vec, g1: vec, g2: vec):
+        """k g g^T over nodes (n0, n1, n2), g = (g0, g1, g2)."""
+        band_ops.add_block(band, n0, n0, k * wp.outer(g0, g0))
+        band_ops.add_block(band, n0, n1, k * wp.outer(g0, g1))
+        band_ops.add_block(band, n0, n2, k * wp.outer(g0, g2))
+        band_ops.add_block(band, n1, n0, k * wp.outer(g1, g0))
+        band_ops.add_block(band, n1, n1, k * wp.outer(g1, g1))
+        band_ops.add_block(band, n1, n2, k * wp.outer(g1, g2))
+        band_ops.add_block(band, n2, n0, k * wp.outer(g2, g0))
+        band_ops.add_block(band, n2, n1, k * wp.outer(g2, g1))
+        band_ops.add_block(band, n2, n2, k * wp.outer(g2, g2))
+
+    @wp.func(inline=True)
+    def add_bending(band: wp.array2d(dtype=scalar), pos: wp.array(dtype=vec), data: Data,
+                    i: int, j: int, k: int):
+        """The two-plane spring at j (neighbours i, k)."""
+        a = pos[j] - pos[i]
+        b = pos[k] - pos[j]
+        ta = terms.elevation_gradient(a)
+        tb = terms.elevation_gradient(b)
+        add_outer3(band, i, j, k, data.bend_stiffness[j], ta, -ta - tb, tb)
+        pa = terms.direction_gradient(a)
+        pb = terms.direction_gradient(b)
+        add_outer3(band, i, j, k, data.lateral_bend_stiffness[j], pa, -pa - pb, pb)
+
+    @wp.func(inline=True)
+    def crossing_jacobian(pos: wp.array(dtype=vec), data: Data, t: int, slot: int) -> mat:
+        """dq/dX of crossing t's stencil node `slot` (rows s_x, s_y, phi; module docstring
+        of `functions`): d = X_4 - X_1 turned by -alpha, alpha of the chord X_2 - X_0, beta
+        of X_5 - X_3."""
+        st = data.tie_stencil
+        p0 = pos[st[t, 0]]
+        p2 = pos[st[t, 2]]
+        p3 = pos[st[t, 3]]
+        p5 = pos[st[t, 5]]
+        ca = p2 - p0
+        cb = p5 - p3
+        alpha = wp.atan2(ca[1], ca[0])
+        c = wp.cos(alpha)
+        s = wp.sin(alpha)
+        d = pos[st[t, 4]] - pos[st[t, 1]]
+        sx = c * d[0] + s * d[1]
+        sy = -s * d[0] + c * d[1]
+        ga = vec(-ca[1], ca[0], scalar(0.0)) / (ca[0] * ca[0] + ca[1] * ca[1])
+        gb = vec(-cb[1], cb[0], scalar(0.0)) / (cb[0] * cb[0] + cb[1] * cb[1])
+        zero = vec()
+        J = mat()
+        if slot == 0:
+            J = rows3(-sy * ga, sx * ga, ga)
+        elif slot == 2:
+            J = rows3(sy * ga, -sx * ga, -ga)
+        elif slot == 1:
+            J = rows3(vec(-c, -s, scalar(0.0)), vec(s, -c, scalar(0.0)), zero)
+        elif slot == 4:
+            J = rows3(vec(c, s, scalar(0.0)), vec(-s, c, scalar(0.0)), zero)
+        elif slot == 3:
+            J = rows3(zero, zero, -gb)
+        else:
+            J = rows3(zero, zero, gb)
+        return J
+
+    @wp.func(inline=True)
+    def crossing_hessian(state: State, t: int) -> mat:
+        """H_q of crossing t from `tie_blocks` [N/m, N, N m]."""
+        h = state.tie_hessian
+        return mat(h[t, 1], h[t, 2], h[t, 3], h[t, 2], h[t, 4], h[t, 5], h[t, 3], h[t, 5],
+                   h[t, 6])
+
+    @wp.func(inline=True)
+    def tie_blocks(t: int, pos: wp.array(dtype=vec), data: Data, state: State, shift: vec,
+                   secant: int):
+        """tie_hessian[t] = (dR/dg, H_q's upper triangle) at the tie pass's R and F_T (F_T
+        frozen; `shift` and `secant` unused: no moving planes, and a sliding crossing always
+        takes its secant (F_T / |S|) I, module docstring)."""
+        rho = data.rotation_law[t, 0]
+        H = mat()
+        if wp.static(friction):
+            S = terms.crossing_slip(pos, data, state.anchors[t], t)
+            stick = data.friction_law[t, 3]
+            size = wp.length(S)
+            bound = wp.max(state.limit[t], scalar(0.0))
+            if stick * size <= bound:
+                H = stick * wp.identity(3, scalar)
+            else:  # the secant: docs/model.md 11.11 measured it against the Hessian
+                H = (bound / size) * wp.identity(3, scalar)
+        D = wp.diag(vec(scalar(1.0), scalar(1.0), rho))
+        H = D * H * D
+        H[2, 2] = H[2, 2] + data.rotation_law[t, 1]
+        h = state.tie_hessian
+        h[t, 0] = state.tangent[t]
+        h[t, 1] = H[0, 0]
+        h[t, 2] = H[0, 1]
+        h[t, 3] = H[0, 2]
+        h[t, 4] = H[1, 1]
+        h[t, 5] = H[1, 2]
+        h[t, 6] = H[2, 2]
+
+    @wp.func(inline=True)
+    def lateral_curvature(pos: wp.array(dtype=vec), data: Data, e: int) -> scalar:
+        """E_lat''(d) [N/m] of lateral contact e, clipped at 0; 0 where it is open (central
+        difference of E_lat' over 1e-6 w)."""
+        d = data.lateral_law[e, 1] - terms.lateral_gap(pos, data, e)
+        value = scalar(0.0)
+        if data.lateral_law[e, 1] - d > scalar(0.0):
+            h = scalar(1.0e-6) * data.lateral_law[e, 1]
+            value = wp.max((terms.lateral_slope(data, e, d + h)
+                            - terms.lateral_slope(data, e, d - h)) / (scalar(2.0) * h),
+                           scalar(0.0))
+        return value
+
+    @wp.func(inline=True)
+    def lateral_rows(pos: wp.array(dtype=vec), data: Data, e: int) -> mat:
+        """(dd/dc, dd/dv, 0) [-] of lateral contact e: dd/dX = -dd/dc, +dd/dc, -dd/dv, +dd/dv
+        on slots 0..3."""
+        st = data.lateral_stencil
+        c = pos[st[e, 1]] - pos[st[e, 0]]
+        v = pos[st[e, 3]] - pos[st[e, 2]]
+        sign = data.lateral_law[e, 0]
+        n2 = c[0] * c[0] + c[1] * c[1]
+        n = wp.sqrt(n2)
+        f = c[0] * v[1] - c[1] * v[0]
+        return rows3(sign * vec(v[1] / n - f * c[0] / (n2 * n),
+                                -v[0] / n - f * c[1] / (n2 * n), scalar(0.0)),
+                     sign * vec(-c[1] / n, c[0] / n, scalar(0.0)), vec())
+
+    @wp.func(inline=True)
+    def lateral_slot_row(rows: mat, slot: int) -> vec:
+        """dd/dX of a lateral contact's stencil node `slot` from `lateral_rows`."""
+        row = rows[slot / 2]
+        if slot % 2 == 0:
+            row = -row
+        return row
+
+    @wp.func(inline=True)
+    def in_band(data: Data, p: int, q: int) -> bool:
+        """Whether the block (p, q) lies in a chain's band: both nodes on one chain, at most
+        two apart (`band_lu.bandwidth`)."""
+        return data.node_chain[p] == data.node_chain[q] and wp.abs(p - q) <= 2
+
+    @wp.func(inline=True)
+    def assemble_chain(c: int, pos: wp.array(dtype=vec), data: Data, state: State,
+                       band: wp.array2d(dtype=scalar), definite: int):
+        """band = the blocks of K [N/m] in chain c's band (`in_band`; `definite` unused: the
+        blocks are positive semi-definite by construction): its stretch and bending, its
+        ties' dR/dg on z, and each crossing's and lateral contact's blocks between nodes of
+        c that lie in the band."""
+        a = data.chain_start[c]
+        b = data.chain_start[c + 1]
+        band_ops.clear(band, 3 * a, 3 * b)
+        for i in range(a, b - 1):
+            add_stretch(band, pos, data, i)
+        for j in range(a + 1, b - 1):
+            add_bending(band, pos, data, j - 1, j, j + 1)
+        for i in range(a, b):
+            for k in range(data.node_tie_start[i], data.node_tie_start[i + 1]):
+                band[3 * i + 2, DIAGONAL] += state.tie_hessian[data.node_ties[k], 0]
+            for k in range(data.node_stencil_start[i], data.node_stencil_start[i + 1]):
+                code = data.node_stencil[k]
+                t = code / 6
+                row = wp.transpose(crossing_jacobian(pos, data, t, code - 6 * t)) \
+                    * crossing_hessian(state, t)
+                for v in range(6):
+                    other = data.tie_stencil[t, v]
+                    if in_band(data, i, other):
+                        band_ops.add_block(band, i, other,
+                                           row * crossing_jacobian(pos, data, t, v))
+            for k in range(data.node_lateral_start[i], data.node_lateral_start[i + 1]):
+                code = data.node_lateral[k]
+                e = code / 4
+                kappa = lateral_curvature(pos, data, e)
+                if kappa > scalar(0.0):
+                    rows = lateral_rows(pos, data, e)
+                    own = kappa * lateral_slot_row(rows, code - 4 * e)
+                    for v in range(4):
+                        other = data.lateral_stencil[e, v]
+                        if in_band(data, i, other):
+                            band_ops.add_block(band, i, other,
+                                               wp.outer(own, lateral_slot_row(rows, v)))
+
+    @wp.func(inline=True)
+    def node_vector(x: wp.array(dtype=scalar), i: int) -> vec:
+        return vec(x[3 * i], x[3 * i + 1], x[3 * i + 2])
+
+    @wp.func(inline=True)
+    def coupling_vector(i: int, x: wp.array(dtype=scalar), data: Data, state: State) -> vec:
+        """The blocks of K outside the chains' bands times x, at node i's dofs [N]: the
+        contact's -dR/dg between z_a and z_b, and each crossing's and lateral contact's
+        blocks (i, q) with q not `in_band`."""
+        pos = state.position
+        total = vec()
+        for k in range(data.node_tie_start[i], data.node_tie_start[i + 1]):
+            t = data.node_ties[k]
+            partner = data.tie_a[t]
+            if partner == i:
+                partner = data.tie_b[t]
+            total[2] = total[2] - state.tie_hessian[t, 0] * x[3 * partner + 2]
+        for k in range(data.node_stencil_start[i], data.node_stencil_start[i + 1]):
+            code = data.node_stencil[k]
+            t = code / 6
+            Jx = vec()
+            for v in range(6):
+                other = data.tie_stencil[t, v]
+                if not in_band(data, i, other):
+                    Jx = Jx + crossing_jacobian(pos, data, t, v) * node_vector(x, other)
+            total = total + wp.transpose(crossing_jacobian(pos, data, t, code - 6 * t)) * (
+                crossing_hessian(state, t) * Jx)
+        for k in range(data.node_lateral_start[i], data.node_lateral_start[i + 1]):
+            code = data.node_lateral[k]
+            e = code / 4
+            kappa = lateral_curvature(pos, data, e)
+            if kappa > scalar(0.0):
+                rows = lateral_rows(pos, data, e)
+                along = scalar(0.0)
+                for v in range(4):
+                    other = data.lateral_stencil[e, v]
+                    if not in_band(data, i, other):
+                        along += wp.dot(lateral_slot_row(rows, v), node_vector(x, other))
+                total = total + (kappa * along) * lateral_slot_row(rows, code - 4 * e)
+        return total
+
+    @wp.func(inline=True)
+    def coupling_row(i: int, comp: int, x: wp.array(dtype=scalar), data: Data,
+                     state: State) -> scalar:
+        """`coupling_vector` at dof (node i, comp) [N]."""
+        return coupling_vector(i, x, data, state)[comp]
+
+    return SimpleNamespace(tie_blocks=tie_blocks, assemble_chain=assemble_chain,
+                           coupling_row=coupling_row)

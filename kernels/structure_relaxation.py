@@ -144,9 +144,6 @@ class StructureRelaxation:
         self.arrays = arrays = structure_arrays.build(structure)
         self.structure, self.dim = structure, arrays.dim
         self.kinematics = "spatial" if arrays.dim == 3 else "planar"
-        if self.spatial and method != "explicit":
-            raise ValueError(f"a spatial structure (docs/model.md section 11) relaxes with the "
-                             f"explicit method only (asked: {method})")
         self.method, self.layout, self.order, self.device = method, layout, order, device
         self.damping = damping if method == "explicit" else None
         self.coefficient = damping_coefficient
@@ -210,8 +207,8 @@ class StructureRelaxation:
                                                          kinematics=self.kinematics)
             return structure_explicit.stage_kernel(*key, kinematics=self.kinematics)
         if self.layout == "grouped":
-            return semi.grouped_kernel(*key, self.order)
-        return semi.stage_kernel(*key)
+            return semi.grouped_kernel(*key, self.order, kinematics=self.kinematics)
+        return semi.stage_kernel(*key, kinematics=self.kinematics)
 
     def _launch_groups(self, kernel, inputs, tail=(), groups=None) -> None:
         """One launch of a grouped kernel per range of groups (`use_cores`), at once, each
@@ -250,7 +247,8 @@ class StructureRelaxation:
         """The threads of a stage over `kind`: a node, tie, block, chain, group (every method's
         kinds) or dof (`structure_semi_implicit.DOF`) each."""
         a = self.arrays
-        return {0: a.nodes, 1: a.ties, 2: a.blocks, 3: a.chains, 4: a.groups, 5: 2 * a.nodes}[kind]
+        return {0: a.nodes, 1: a.ties, 2: a.blocks, 3: a.chains, 4: a.groups,
+                5: a.dim * a.nodes}[kind]
 
     # ------------------------------------------------------------------ inputs
 

@@ -38,6 +38,12 @@ alpha and dt kept; else the step is undone (positions back, velocities zeroed) a
 A factorisation with a pivot that is not positive halves dt and rebuilds (at most
 MAX_REFACTORISATIONS times: NOT_POSITIVE_DEFINITE).
 
+Kinematics: the dofs are dim node + coordinate (dim 2 planar, 3 spatial) and the bands'
+half-width `band_lu.bandwidth(dim)`; K is the kinematics' tangent (`TANGENTS`: the planar
+`structure_tangent`, the spatial `spatial_terms.tangent_terms`, whose bands hold the blocks
+within two nodes of one chain and whose product applies every other block; docs/model.md
+11.11). The moving planes, wraps and tied dofs are the planar fabric's only.
+
 Layouts, the same stages in the same order (bit-identical): "grouped", one thread per group
 running the time loop and CG inside; "node_parallel", a launch per stage with threads per tie,
 chain, node or dof and one per group for each decision (`stage_kernel`), the loops over CG
@@ -49,10 +55,9 @@ from types import SimpleNamespace
 
 import warp as wp
 
-from dynfab.linalg.banded import BANDWIDTH
-from dynfab.kernels import band_lu, status, structure_checks, structure_forces
+from dynfab.kernels import band_lu, spatial_terms, status, structure_checks, structure_forces
 from dynfab.kernels import structure_settings, structure_tangent, structure_variants
-from dynfab.kernels.precision import VECTORS
+from dynfab.kernels.precision import KINEMATICS, vector
 
 CG_TOLERANCE = 1e-2
 """CG's default relative tolerance [-] (the fabric's choice, docs/model.md section 10)."""
@@ -76,6 +81,9 @@ CG_RZ, CG_STOP, CG_ALPHA, CG_BETA, CG_DONE, CG_ITERATIONS = range(6)
  BLOCKS, SEARCH, TRIAL_MOVE, FINISH, RE_TIES, RE_GATHER, RE_BLOCKS, FINISH_GROUP, CHECK) = \
     range(100, 129)
 """Stages of a semi-implicit time step (`stage_kernel`; the start's are `structure_explicit`'s)."""
+TANGENTS = {"planar": structure_tangent.functions, "spatial": spatial_terms.tangent_terms}
+"""The semi-implicit tangent of each kinematics: `tie_blocks`, `assemble_chain`,
+`coupling_row` (and the planar boundary's `wrap_cross`)."""
 NODE, TIE, BLOCK, CHAIN, GROUP, DOF = range(6)
 KINDS = {TIE_BLOCKS: TIE, BUILD: CHAIN, FACTORED: GROUP, VELOCITY: DOF, BOUNDARY: GROUP,
          RHS: NODE, CG_START: DOF, PRECONDITION: CHAIN, FIRST_SUM: GROUP, COPY: DOF,
@@ -86,14 +94,17 @@ KINDS = {TIE_BLOCKS: TIE, BUILD: CHAIN, FACTORED: GROUP, VELOCITY: DOF, BOUNDARY
 
 
 @functools.cache
-def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
+def functions(scalar, friction: bool, boundary: bool,
+              kinematics: str = "planar") -> SimpleNamespace:
     """The stage `wp.func`s of one variant (module docstring)."""
-    vec = VECTORS[scalar]
-    Data, State, Settings = structure_variants.structs(scalar)
-    forces = structure_forces.functions(scalar, friction, boundary)
-    tangent = structure_tangent.functions(scalar, friction, boundary)
-    checks = structure_checks.functions(scalar, friction, boundary, True)
-    band_ops = band_lu.functions(scalar)
+    dim = KINEMATICS[kinematics]
+    vec = vector(scalar, dim)
+    Data, State, Settings = structure_variants.structs(scalar, dim)
+    forces = structure_forces.functions(scalar, friction, boundary, kinematics)
+    tangent = TANGENTS[kinematics](scalar, friction, boundary)
+    checks = structure_checks.functions(scalar, friction, boundary, True, kinematics)
+    band_ops = band_lu.functions(scalar, dim)
+    BANDWIDTH = band_lu.bandwidth(dim)  # noqa: N806
 
     @wp.func(inline=True)
     def running(state: State, g: int) -> bool:
@@ -112,7 +123,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
 
     @wp.func(inline=True)
     def free_dof(data: Data, row: int) -> scalar:
-        return data.free[row / 2][row % 2]
+        return data.free[row / dim][row % dim]
 
     @wp.func(inline=True)
     def members(data: Data, i: int) -> int:
@@ -153,19 +164,19 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
         damping = wp.max(settings.damping_coefficient, scalar(0.0))
         a = data.chain_start[c]
         b = data.chain_start[c + 1]
-        lo = 2 * a
-        hi = 2 * b
+        lo = dim * a
+        hi = dim * b
         band = state.band
         tangent.assemble_chain(c, state.position, data, state, band, 1)
         direct = is_direct(g, data, settings)
         if direct:  # A is this band: x = dt (f - dt K v - c M v), K v from the band of K
             for row in range(lo, hi):
-                i = row / 2
-                comp = row % 2
+                i = row / dim
+                comp = row % dim
                 stiffness_velocity = scalar(0.0)
                 for j in range(wp.max(lo, row - BANDWIDTH), wp.min(hi, row + BANDWIDTH + 1)):
                     stiffness_velocity += band[row, j - row + BANDWIDTH] \
-                        * state.velocity[j / 2][j % 2]
+                        * state.velocity[j / dim][j % dim]
                 state.x[row] = free_dof(data, row) * dt * (
                     state.force[i][comp] - dt * stiffness_velocity
                     - damping * state.mass[i] * state.velocity[i][comp])
@@ -173,8 +184,8 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
         for row in range(lo, hi):
             for k in range(2 * BANDWIDTH + 1):
                 band[row, k] = dt2 * band[row, k]
-            band[row, BANDWIDTH] += (scalar(1.0) + dt * damping) * state.mass[row / 2] \
-                / scalar(members(data, row / 2))
+            band[row, BANDWIDTH] += (scalar(1.0) + dt * damping) * state.mass[row / dim] \
+                / scalar(members(data, row / dim))
         for row in range(lo, hi):
             if free_dof(data, row) == scalar(0.0):
                 band_ops.constrain(band, lo, hi, row)
@@ -190,7 +201,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
             if wp.static(boundary):
                 for i in range(a, b):
                     if data.node_tie[i] >= 0:
-                        band_ops.constrain(state.factor, lo, hi, 2 * i)
+                        band_ops.constrain(state.factor, lo, hi, dim * i)
             state.chain_failed[c] = band_ops.factor(state.factor, lo, hi)
 
     @wp.func(inline=True)
@@ -288,10 +299,10 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
                 dt2: scalar) -> scalar:
         """(A x) at dof (node i, comp) from node i's own row (`boundary_sums` of x done);
         dt2 = dt^2 [s^2] of its group."""
-        row = 2 * i + comp
+        row = dim * i + comp
         chain = data.node_chain[i]
-        value = band_ops.row_product(state.band, row, 2 * data.chain_start[chain],
-                                     2 * data.chain_start[chain + 1], x)
+        value = band_ops.row_product(state.band, row, dim * data.chain_start[chain],
+                                     dim * data.chain_start[chain + 1], x)
         coupled = tangent.coupling_row(i, comp, x, data, state)
         if wp.static(boundary):
             coupled = coupled + plane_row(i, comp, data, state) \
@@ -319,8 +330,8 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
     def rhs_node(i: int, data: Data, state: State):
         """rhs = dt f + M v - A v at node i's dofs (0 on held ones), A v from x = v."""
         dt = state.dt[data.node_group[i]]
-        for comp in range(2):
-            row = 2 * i + comp
+        for comp in range(dim):
+            row = dim * i + comp
             state.rhs[row] = free_dof(data, row) * (
                 dt * state.force[i][comp] + state.mass[i] * state.velocity[i][comp]
                 - product_value(i, comp, state.x, data, state, dt * dt))
@@ -333,7 +344,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
         chain_partial[c] = r . z there."""
         a = data.chain_start[c]
         b = data.chain_start[c + 1]
-        band_ops.solve_into(state.factor, 2 * a, 2 * b, state.r, state.z)
+        band_ops.solve_into(state.factor, dim * a, dim * b, state.r, state.z)
         if wp.static(boundary):
             g = data.chain_group[c]
             for i in range(a, b):
@@ -348,8 +359,9 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
         """sum of u w over chain c's dofs, in order, a tied copy counted at its share."""
         total = scalar(0.0)
         for i in range(data.chain_start[c], data.chain_start[c + 1]):
-            total += data.share[i] * (u[2 * i] * w[2 * i])
-            total += u[2 * i + 1] * w[2 * i + 1]
+            total += data.share[i] * (u[dim * i] * w[dim * i])
+            for c in range(1, dim):
+                total += u[dim * i + c] * w[dim * i + c]
         return total
 
     @wp.func(inline=True)
@@ -387,8 +399,8 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
     @wp.func(inline=True)
     def product_node(i: int, data: Data, state: State, dt2: scalar):
         """q = A p at node i's dofs (dt2 = dt^2 of its group)."""
-        for comp in range(2):
-            state.q[2 * i + comp] = product_value(i, comp, state.p, data, state, dt2)
+        for comp in range(dim):
+            state.q[dim * i + comp] = product_value(i, comp, state.p, data, state, dt2)
 
     @wp.func(inline=True)
     def curvature_chain(c: int, data: Data, state: State):
@@ -422,7 +434,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
             state.cg[g, CG_ITERATIONS] = iterations
             state.cg[g, CG_BETA] = total / state.cg[g, CG_RZ]
             state.cg[g, CG_RZ] = total
-            dofs = scalar(2 * (data.group_node[g + 1] - data.group_node[g]))
+            dofs = scalar(dim * (data.group_node[g + 1] - data.group_node[g]))
             if not total > state.cg[g, CG_STOP] or iterations >= dofs:
                 state.cg[g, CG_DONE] = scalar(1.0)
 
@@ -441,7 +453,10 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
         """previous = x, v += dv, x += dt v at node i."""
         dt = state.dt[data.node_group[i]]
         state.previous_position[i] = state.position[i]
-        v = state.velocity[i] + vec(state.x[2 * i], state.x[2 * i + 1])
+        dv = vec()
+        for c in range(dim):
+            dv[c] = state.x[dim * i + c]
+        v = state.velocity[i] + dv
         state.velocity[i] = v
         state.position[i] = state.position[i] + dt * v
 
@@ -474,7 +489,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
         g = data.node_group[i]
         if state.decision[g] == scalar(UNDO):
             state.position[i] = state.previous_position[i]
-            state.velocity[i] = vec(scalar(0.0), scalar(0.0))
+            state.velocity[i] = vec()
         elif state.step_length[g] < scalar(1.0):
             state.velocity[i] = state.step_length[g] * state.velocity[i]
 
@@ -523,9 +538,9 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
             if running(state, u) and state.factored[u] == 0:
                 factored(u, data, state, settings)
         elif stage == VELOCITY:
-            g = data.node_group[u / 2]
+            g = data.node_group[u / dim]
             if running(state, g) and not direct_done(g, state):
-                state.x[u] = state.velocity[u / 2][u % 2]
+                state.x[u] = state.velocity[u / dim][u % dim]
         elif stage == BOUNDARY:
             if running(state, u) and not direct_done(u, state):
                 boundary_sums(u, state.x, data, state)
@@ -535,7 +550,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
             if running(state, g) and not direct_done(g, state):
                 rhs_node(u, data, state)
         elif stage == CG_START:
-            g = data.node_group[u / 2]
+            g = data.node_group[u / dim]
             if running(state, g) and not direct_done(g, state):
                 cg_start(u, state)
         elif stage == PRECONDITION:
@@ -546,7 +561,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
             if running(state, u) and not direct_done(u, state):
                 first_sum(u, data, state, settings)
         elif stage == COPY:
-            g = data.node_group[u / 2]
+            g = data.node_group[u / dim]
             if running(state, g) and not direct_done(g, state):
                 copy_direction(u, data, state)
         elif stage == CG_BOUNDARY:
@@ -564,14 +579,14 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
             if running(state, u) and not cg_done(u, state):
                 step_length(u, data, state)
         elif stage == UPDATE:
-            g = data.node_group[u / 2]
+            g = data.node_group[u / dim]
             if running(state, g):
                 update_range(g, u, u + 1, state)
         elif stage == NEXT_SUM:
             if running(state, u):
                 next_sum(u, data, state)
         elif stage == DIRECTION:
-            g = data.node_group[u / 2]
+            g = data.node_group[u / dim]
             if running(state, g):
                 direction_range(g, u, u + 1, state)
         elif stage == MOVE:
@@ -626,15 +641,16 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
                            direct_done=direct_done)
 
 
-@structure_variants.variant("semi_implicit", "node_parallel", planar_only=True)
+@structure_variants.variant("semi_implicit", "node_parallel")
 def stage_kernel(scalar, friction: bool, boundary: bool, kinematics: str = "planar"):
     """The node-parallel layout's kernel: one launch per stage, a thread per unit; the start's
     stages are `structure_explicit`'s (`START_STAGES`), with the merit."""
-    Data, State, Settings = structure_variants.structs(scalar)
-    ops = functions(scalar, friction, boundary)
-    checks = structure_checks.functions(scalar, friction, boundary, True)
-    forces = structure_forces.functions(scalar, friction, boundary)
+    Data, State, Settings = structure_variants.structs(scalar, KINEMATICS[kinematics])
+    ops = functions(scalar, friction, boundary, kinematics)
+    checks = structure_checks.functions(scalar, friction, boundary, True, kinematics)
+    forces = structure_forces.functions(scalar, friction, boundary, kinematics)
     from dynfab.kernels import structure_explicit as explicit
+    stiffest = explicit.functions(scalar, friction, boundary, kinematics)
 
     @wp.kernel(module="unique", module_options=structure_settings.MODULE_OPTIONS)
     def stage_pass(data: Data, state: State, settings: Settings, stage: int):
@@ -647,10 +663,8 @@ def stage_kernel(scalar, friction: bool, boundary: bool, kinematics: str = "plan
             checks.gather_node(u, data, state, settings)
         elif stage == explicit.START_BLOCKS:
             checks.block_stage(u, data, state)
-        elif stage == explicit.STIFFEST_TIES:
-            checks.stiffest_tie(u, data, state)
-        elif stage == explicit.STIFFEST_CHAINS:
-            checks.stiffest_chain(u, data, state)
+        elif stage == explicit.STIFFEST_TIES or stage == explicit.STIFFEST_CHAINS:
+            stiffest.unit_stage(stage, u, data, state, settings)  # the planar band's (only)
         elif stage == explicit.ROWS:
             checks.rows_node(u, data, state, settings)
         elif stage == explicit.START:
@@ -660,16 +674,18 @@ def stage_kernel(scalar, friction: bool, boundary: bool, kinematics: str = "plan
     return stage_pass
 
 
-@structure_variants.variant("semi_implicit", "grouped", planar_only=True)
+@structure_variants.variant("semi_implicit", "grouped")
 def grouped_kernel(scalar, friction: bool, boundary: bool, order: str,
                    kinematics: str = "planar"):
     """The grouped layout's kernel: thread g runs group first + g, the start (`begin` != 0) or
     up to settings.chunk time steps. `order` "gather" evaluates the forces as the node-parallel
     layout does (the same bits); "scatter" in scatter order."""
-    Data, State, Settings = structure_variants.structs(scalar)
-    ops = functions(scalar, friction, boundary)
+    dim = KINEMATICS[kinematics]
+    Data, State, Settings = structure_variants.structs(scalar, dim)
+    ops = functions(scalar, friction, boundary, kinematics)
 
-    group = structure_checks.group_functions(scalar, friction, boundary, order, True)
+    group = structure_checks.group_functions(scalar, friction, boundary, order, True,
+                                             kinematics=kinematics)
     evaluate = group.evaluate
 
     @wp.func(inline=True)
@@ -680,8 +696,8 @@ def grouped_kernel(scalar, friction: bool, boundary: bool, order: str,
     @wp.func(inline=True)
     def solve(g: int, data: Data, state: State, settings: Settings):
         """x = A^-1 rhs by PCG from x = 0 (module docstring)."""
-        lo = 2 * data.group_node[g]
-        hi = 2 * data.group_node[g + 1]
+        lo = dim * data.group_node[g]
+        hi = dim * data.group_node[g + 1]
         c0 = data.group_chain[g]
         c1 = data.group_chain[g + 1]
         for d in range(lo, hi):
@@ -694,7 +710,7 @@ def grouped_kernel(scalar, friction: bool, boundary: bool, order: str,
         dt2 = state.dt[g] * state.dt[g]
         while not ops.cg_done(g, state):
             ops.boundary_sums(g, state.p, data, state)
-            for i in range(lo / 2, hi / 2):
+            for i in range(lo / dim, hi / dim):
                 ops.product_node(i, data, state, dt2)
             for c in range(c0, c1):
                 ops.curvature_chain(c, data, state)
@@ -718,8 +734,8 @@ def grouped_kernel(scalar, friction: bool, boundary: bool, order: str,
             ops.factored(g, data, state, settings)
         if ops.running(state, g):
             if not ops.direct_done(g, state):
-                for d in range(2 * lo, 2 * hi):
-                    state.x[d] = state.velocity[d / 2][d % 2]
+                for d in range(dim * lo, dim * hi):
+                    state.x[d] = state.velocity[d / dim][d % dim]
                 ops.boundary_sums(g, state.x, data, state)
                 ops.tie_diagonals(g, data, state)
                 for i in range(lo, hi):
@@ -741,4 +757,4 @@ def grouped_kernel(scalar, friction: bool, boundary: bool, order: str,
             ops.finish_group(g, data, state)
             ops.check_step(g, data, state, settings)
 
-    return structure_checks.grouped_relax(scalar, start, step)
+    return structure_checks.grouped_relax(scalar, start, step, dim)

@@ -16,10 +16,15 @@ import numpy as np
 import warp as wp
 
 from dynfab.linalg.banded import BANDWIDTH
+from dynfab.kernels import band_lu
 from dynfab.kernels.precision import vector
 
 WIDTH = 2 * BANDWIDTH + 1
-"""Entries of a band row: band[i, j - i + BANDWIDTH] = A_ij."""
+"""Entries of a planar band row: band[i, j - i + BANDWIDTH] = A_ij (`band_lu`; in space
+2 `band_lu.bandwidth(3)` + 1)."""
+TIE_HESSIAN = 7
+"""Per spatial crossing, the semi-implicit tangent's numbers: dR/dg and the upper triangle of
+the 3 x 3 Hessian on (s_x, s_y, phi) (`spatial_terms.tangent_terms`)."""
 CG_SCALARS = 6
 """Per-group CG scalars: r^T z, the stop value, alpha, beta, done, iterations."""
 BOUNDARY_SUMS = 6
@@ -61,13 +66,14 @@ def _struct(scalar, dim: int):
         friction: wp.array(dtype=vec)
         dissipated: wp.array(dtype=scalar)
         coupling: wp.array(dtype=vec4)
+        tie_hessian: wp.array2d(dtype=scalar)
         # ---- per block (B)
         block_values: wp.array(dtype=vec4)
         block_max: wp.array(dtype=scalar)
         # ---- per chain (Y)
         chain_failed: wp.array(dtype=wp.int32)
         chain_partial: wp.array(dtype=scalar)
-        # ---- per dof (2n; empty unless semi-implicit)
+        # ---- per dof (dim n; empty unless semi-implicit)
         band: wp.array2d(dtype=scalar)
         factor: wp.array2d(dtype=scalar)
         rhs: wp.array(dtype=scalar)
@@ -136,7 +142,8 @@ def allocate(arrays, scalar, device: str, semi_implicit: bool):
     dim = arrays.dim
     vec, vec4 = vector(scalar, dim), wp.types.vector(4, scalar)
     n, T, B, Y, G = arrays.nodes, arrays.ties, arrays.blocks, arrays.chains, arrays.groups
-    dofs = 2 * n if semi_implicit else 0
+    dofs = dim * n if semi_implicit else 0
+    width = 2 * band_lu.bandwidth(dim) + 1
     state = struct(scalar, dim)()
 
     def zeros(shape, dtype):
@@ -153,11 +160,12 @@ def allocate(arrays, scalar, device: str, semi_implicit: bool):
     state.block_values, state.block_max = zeros(B, vec4), zeros(B, scalar)
     state.chain_failed = zeros(Y, wp.int32)
     state.chain_partial = zeros(Y, scalar)
-    band = 0 if dim == 3 else max(dofs, 2 * n)  # planar masses need the band too
-    state.band = zeros((band, WIDTH), scalar)
+    band = dofs if dim == 3 else max(dofs, 2 * n)  # planar masses need the band too
+    state.band = zeros((band, width), scalar)
+    state.tie_hessian = zeros((T if dim == 3 and semi_implicit else 0, TIE_HESSIAN), scalar)
     if dim == 3:  # the spatial masses' Gershgorin rows, from the host
         state.rows, state.diagonal = zeros(n, scalar), zeros(n, scalar)
-    state.factor = zeros((dofs, WIDTH), scalar)
+    state.factor = zeros((dofs, width), scalar)
     for name in DOF_VECTORS:
         setattr(state, name, zeros(dofs, scalar))
     for name in GROUP_SCALARS:

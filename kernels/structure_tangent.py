@@ -1,5 +1,6 @@
-"""The tangent stiffness K of any structure in a kernel: each chain's band and the couplings
-outside it (docs/model.md sections 5, 6, 10).
+"""The tangent stiffness K of a planar structure in a kernel: each chain's band and the couplings
+outside it (docs/model.md sections 5, 6, 10; a spatial structure's is
+`spatial_terms.tangent_terms`, with the same `tie_blocks`, `assemble_chain`, `coupling_row`).
 
 `assemble_chain` fills chain c's rows of the flat band (`band_lu`, the chain's dofs
 contiguous) with

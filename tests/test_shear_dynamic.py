@@ -34,9 +34,11 @@ pytest.importorskip("warp")
 
 SMALL_BIAS = BIAS.replace("width = 0.06\nheight = 0.12", "width = 0.03\nheight = 0.06")
 CASES = {"frame": (FRAME, [3e-3, 6e-3], ""), "bias": (SMALL_BIAS, [2e-3], HOLDING_FRICTION)}
+SEMI_IMPLICIT = '\n[dynamic]\nmethod = "semi_implicit"\n'
 MASSES = {"frame": "", "frame-physical-masses": '\n[dynamic]\nmasses = "physical"\n',
-          "bias": ""}
-"""Each dynamic run's [dynamic] table (the case named before the first '-')."""
+          "bias": "", "frame-semi-implicit": SEMI_IMPLICIT, "bias-semi-implicit": SEMI_IMPLICIT}
+"""Each dynamic run's [dynamic] table (the case named before the first '-'): kinetic damping,
+physical masses, the semi-implicit method (its spatial tangent, docs/model.md 11.11)."""
 
 
 @pytest.mark.parametrize("name", sorted(MASSES))
@@ -69,7 +71,8 @@ def _path(model, solver) -> list:
     return steps
 
 
-def test_the_node_parallel_layout_relaxes_a_specimen_as_the_grouped_one_bit_for_bit():
+@pytest.mark.parametrize("method", ["explicit", "semi_implicit"])
+def test_the_node_parallel_layout_relaxes_a_specimen_as_the_grouped_one_bit_for_bit(method):
     """The node-parallel layout (a GPU's: a launch per stage, each node gathering its
     segments', bending springs', crossings' and lateral contacts' forces; docs/model.md
     section 11.11) takes the grouped layout's load steps in its gather order bit for bit,
@@ -77,11 +80,12 @@ def test_the_node_parallel_layout_relaxes_a_specimen_as_the_grouped_one_bit_for_
     sums each node's terms in another order than the scatter's, so against the static solver
     it holds only within the error bounds (module docstring), which it does. On the frame to
     its first load step (a launch per stage per time step costs the CPU 10-45 us, and the
-    bias specimen's soft trellis mode takes 55,000 time steps at d = 0)."""
+    bias specimen's soft trellis mode takes 55,000 time steps at d = 0), explicit and
+    semi-implicit (its CG's products gathered per node as well)."""
     specimen, values, friction = CASES["frame"]
     text = scene_text(specimen, values[:1], friction)
     static = run(parse_scene_text(text), solver="static")
-    model = build_model(parse_scene_text(text))
+    model = build_model(parse_scene_text(text + f'\n[dynamic]\nmethod = "{method}"\n'))
     paths = [_path(model, DynamicSolver(model, layout=layout, order="gather"))
              for layout in ("grouped", "node_parallel")]
     for (grouped, grouped_record), (parallel, parallel_record) in zip(*paths):
@@ -97,7 +101,7 @@ def test_the_node_parallel_layout_relaxes_a_specimen_as_the_grouped_one_bit_for_
         assert difference <= bound, (k, difference, bound)
 
 
-@pytest.mark.parametrize("setting", ['method = "semi_implicit"', 'precision = "float32"'])
+@pytest.mark.parametrize("setting", ['precision = "float32"'])
 def test_a_specimen_refuses_what_its_kernels_lack_in_one_line(setting):
     specimen, values, friction = CASES["frame"]
     text = scene_text(specimen, values[:1], friction) + f"\n[dynamic]\n{setting}\n"

@@ -56,8 +56,6 @@ bound exceeds the accuracy target (`DynamicSolver._certify`)."""
 
 
 SPATIAL_REFUSALS = (
-    ("method", "semi_implicit", "its banded tangent is the planar chains'; a crossing's "
-     "stencil spans two yarns"),
     ("precision", "float32", "float32 positions (a relative rounding of 6e-8) against the "
      "yarns' stretch stiffness leave a force floor far above the trellis mode's residual "
      "(docs/results.md, \"float32 on a specimen\")"),
@@ -68,7 +66,7 @@ value, why)."""
 
 def _check_spatial(structure, options) -> None:
     """A UserError in one line where a spatial structure (docs/model.md section 11) asks for
-    what its kernels do not have: the semi-implicit method, float32."""
+    what its kernels do not have: float32."""
     if structure.rest_position.shape[1] != 3:
         return
     for name, value, why in SPATIAL_REFUSALS:
