@@ -51,19 +51,16 @@ def describe(kind: str, layout: str, scalar, friction: bool, boundary: bool,
                    kinematics)
 
 
-def variant(kind: str, layout: str, planar_only: bool = False):
+def variant(kind: str, layout: str):
     """Decorator of a kernel factory f(scalar, friction, boundary[, order], kinematics=...):
     cached (functools.cache; `kinematics` always passed by keyword, so a default and an
-    explicit "planar" are one key), each new key recorded as a `Variant`; with `planar_only`
-    any other kinematics is a ValueError (the explicit kernels take the spatial one)."""
+    explicit "planar" are one key), each new key recorded as a `Variant` (every factory takes
+    both kinematics)."""
     def wrap(factory):
         cached = functools.cache(factory)
 
         @functools.wraps(factory)
         def build(*key, kinematics: str = "planar"):
-            if planar_only and kinematics != "planar":
-                raise ValueError(f"the {kinematics} kinematics has the explicit grouped kernel "
-                                 "only")
             misses = cached.cache_info().misses
             kernel = cached(*key, kinematics=kinematics)
             if cached.cache_info().misses > misses:
