@@ -283,7 +283,8 @@ def _stderr_line(text: str) -> None:
 SUMMARY_DATASETS = ("steps/load", "steps/end_displacement", "steps/end_force",
                     "steps/contact_force", "steps/residual", "steps/wall_time",
                     "steps/compile_time", "frames/time",
-                    "frames/energy/kinetic", "frames/contact_force", "steps/strain",
+                    "frames/energy/kinetic", "frames/contact_force", "frames/load",
+                    "frames/clamp_force", "steps/strain",
                     "steps/stress", "steps/slip_ratio", "steps/clamp_force", "steps/shear_angle",
                     "steps/max_slope")
 """What the summary table reads: not the positions, which may not fit in memory."""

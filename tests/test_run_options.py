@@ -86,6 +86,18 @@ def test_cli_refuses_a_device_for_the_static_solver(tmp_path):
     assert "the static solver runs on the CPU" in done.stderr
 
 
+def test_a_transient_scene_with_the_static_solver_is_refused_in_one_line(tmp_path):
+    """runs/relax.toml asks for a transient ([dynamic] mode), which the default static solver
+    would otherwise have run as one quasi-static load step, silently."""
+    relax = Path(__file__).resolve().parent.parent / "runs" / "relax.toml"
+    done = cli("run", relax, "--out", tmp_path / "r.h5")
+    assert done.returncode == 2 and "Traceback" not in done.stderr
+    assert done.stderr.strip().splitlines() == [
+        'dynfab: error: dynamic.mode = "transient" integrates in time, which the static solver '
+        "does not: run it with --solver dynamic (or remove the mode for a quasi-static run)"]
+    assert not (tmp_path / "r.h5").exists()
+
+
 def test_each_flag_takes_its_keys_type_and_names_their_units():
     """The flags are written from the scene keys: an option of both solvers has one kind,
     and its help gives each key's unit (so `--help` and docs/scene.md cannot disagree)."""

@@ -24,6 +24,10 @@ def make_solver(model, name: str, device: str | None = None, status=None):
         if device is not None:
             raise UserError(f"--device {device}: the static solver runs on the CPU (numba); "
                             "a device is for --solver dynamic")
+        if model.scene.dynamic.mode == "transient":
+            raise UserError('dynamic.mode = "transient" integrates in time, which the static '
+                            "solver does not: run it with --solver dynamic (or remove the "
+                            "mode for a quasi-static run)")
         from dynfab.solvers.static import StaticSolver  # its backend follows the structure
         return StaticSolver(model, status=status)
     from dynfab.solvers.dynamic import DynamicSolver, DynamicTransient
