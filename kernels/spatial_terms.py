@@ -276,19 +276,23 @@ def functions(scalar) -> SimpleNamespace:
         return energy
 
     @wp.func(inline=True)
-    def lateral_gap(pos: wp.array(dtype=vec), data: Data, e: int) -> scalar:
-        """w - d [m] of lateral contact e (positive where the yarns press)."""
+    def lateral_distance(pos: wp.array(dtype=vec), data: Data, e: int) -> scalar:
+        """d = sign cross2(c, v) / |c| [m] of lateral contact e (module docstring)."""
         st = data.lateral_stencil
         c = pos[st[e, 1]] - pos[st[e, 0]]
         v = pos[st[e, 3]] - pos[st[e, 2]]
-        d = data.lateral_law[e, 0] * (c[0] * v[1] - c[1] * v[0]) / wp.sqrt(c[0] * c[0]
-                                                                           + c[1] * c[1])
-        return data.lateral_law[e, 1] - d
+        return data.lateral_law[e, 0] * (c[0] * v[1] - c[1] * v[0]) / wp.sqrt(c[0] * c[0]
+                                                                              + c[1] * c[1])
 
     @wp.func(inline=True)
-    def lateral_gradients(pos: wp.array(dtype=vec), data: Data, e: int) -> pair:
-        """Rows (g_c, g_v) [N] of lateral contact e, zero where it is open: its forces are
-        +g_c, -g_c, +g_v, -g_v on stencil slots 0..3 (module docstring)."""
+    def lateral_gap(pos: wp.array(dtype=vec), data: Data, e: int) -> scalar:
+        """w - d [m] of lateral contact e (positive where the yarns press)."""
+        return data.lateral_law[e, 1] - lateral_distance(pos, data, e)
+
+    @wp.func(inline=True)
+    def lateral_distance_rows(pos: wp.array(dtype=vec), data: Data, e: int) -> pair:
+        """(dd/dc, dd/dv) [-] of lateral contact e (module docstring): dd/dX = -dd/dc,
+        +dd/dc, -dd/dv, +dd/dv on stencil slots 0..3."""
         st = data.lateral_stencil
         c = pos[st[e, 1]] - pos[st[e, 0]]
         v = pos[st[e, 3]] - pos[st[e, 2]]
@@ -297,12 +301,19 @@ def functions(scalar) -> SimpleNamespace:
         n = wp.sqrt(n2)
         n3 = n2 * n
         f = c[0] * v[1] - c[1] * v[0]
-        d = sign * f / n
+        return rows2(sign * vec(v[1] / n - f * c[0] / n3, -v[0] / n - f * c[1] / n3,
+                                scalar(0.0)),
+                     sign * vec(-c[1] / n, c[0] / n, scalar(0.0)))
+
+    @wp.func(inline=True)
+    def lateral_gradients(pos: wp.array(dtype=vec), data: Data, e: int) -> pair:
+        """Rows (g_c, g_v) [N] of lateral contact e, dE/dd (dd/dc, dd/dv), zero where it is
+        open: its forces are +g_c, -g_c, +g_v, -g_v on stencil slots 0..3 (module
+        docstring)."""
+        d = lateral_distance(pos, data, e)
         g = pair()
         if data.lateral_law[e, 1] - d > scalar(0.0):
-            m = lateral_slope(data, e, d) * sign  # dE/dd x sign
-            g = rows2(m * vec(v[1] / n - f * c[0] / n3, -v[0] / n - f * c[1] / n3, scalar(0.0)),
-                      m * vec(-c[1] / n, c[0] / n, scalar(0.0)))
+            g = lateral_slope(data, e, d) * lateral_distance_rows(pos, data, e)
         return g
 
     @wp.func(inline=True)
@@ -342,7 +353,8 @@ def functions(scalar) -> SimpleNamespace:
     return SimpleNamespace(rows3=rows3, wrap=wrap, bend_forces=bend_forces,
                            bend_gradients=bend_gradients, elevation_gradient=elevation_gradient,
                            direction_gradient=direction_gradient, lateral_gap=lateral_gap,
-                           lateral_slope=lateral_slope,
+                           lateral_slope=lateral_slope, lateral_distance=lateral_distance,
+                           lateral_distance_rows=lateral_distance_rows,
                            bend_energy=bend_energy, crossing_gradients=crossing_gradients,
                            crossing_slot_force=crossing_slot_force,
                            lateral_gradients=lateral_gradients,
@@ -527,6 +539,7 @@ def tangent_terms(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
     and H_q (`StructureState.tie_hessian`). No moving planes, wraps or tied dofs in space."""
     vec = vector(scalar, 3)
     mat = wp.types.matrix(shape=(3, 3), dtype=scalar)
+    pair = wp.types.matrix(shape=(2, 3), dtype=scalar)
     Data = structure_arrays.struct(scalar, 3)
     State = structure_state.struct(scalar, 3)
     terms = functions(scalar)
@@ -650,7 +663,7 @@ def tangent_terms(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
     def lateral_curvature(pos: wp.array(dtype=vec), data: Data, e: int) -> scalar:
         """E_lat''(d) [N/m] of lateral contact e, clipped at 0; 0 where it is open (central
         difference of E_lat' over 1e-6 w)."""
-        d = data.lateral_law[e, 1] - terms.lateral_gap(pos, data, e)
+        d = terms.lateral_distance(pos, data, e)
         value = scalar(0.0)
         if data.lateral_law[e, 1] - d > scalar(0.0):
             h = scalar(1.0e-6) * data.lateral_law[e, 1]
@@ -660,23 +673,9 @@ def tangent_terms(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
         return value
 
     @wp.func(inline=True)
-    def lateral_rows(pos: wp.array(dtype=vec), data: Data, e: int) -> mat:
-        """(dd/dc, dd/dv, 0) [-] of lateral contact e: dd/dX = -dd/dc, +dd/dc, -dd/dv, +dd/dv
-        on slots 0..3."""
-        st = data.lateral_stencil
-        c = pos[st[e, 1]] - pos[st[e, 0]]
-        v = pos[st[e, 3]] - pos[st[e, 2]]
-        sign = data.lateral_law[e, 0]
-        n2 = c[0] * c[0] + c[1] * c[1]
-        n = wp.sqrt(n2)
-        f = c[0] * v[1] - c[1] * v[0]
-        return rows3(sign * vec(v[1] / n - f * c[0] / (n2 * n),
-                                -v[0] / n - f * c[1] / (n2 * n), scalar(0.0)),
-                     sign * vec(-c[1] / n, c[0] / n, scalar(0.0)), vec())
-
-    @wp.func(inline=True)
-    def lateral_slot_row(rows: mat, slot: int) -> vec:
-        """dd/dX of a lateral contact's stencil node `slot` from `lateral_rows`."""
+    def lateral_slot_row(rows: pair, slot: int) -> vec:
+        """dd/dX of a lateral contact's stencil node `slot` from its distance rows
+        (`functions`' lateral_distance_rows)."""
         row = rows[slot / 2]
         if slot % 2 == 0:
             row = -row
@@ -720,7 +719,7 @@ def tangent_terms(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
                 e = code / 4
                 kappa = lateral_curvature(pos, data, e)
                 if kappa > scalar(0.0):
-                    rows = lateral_rows(pos, data, e)
+                    rows = terms.lateral_distance_rows(pos, data, e)
                     own = kappa * lateral_slot_row(rows, code - 4 * e)
                     for v in range(4):
                         other = data.lateral_stencil[e, v]
@@ -760,7 +759,7 @@ def tangent_terms(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
             e = code / 4
             kappa = lateral_curvature(pos, data, e)
             if kappa > scalar(0.0):
-                rows = lateral_rows(pos, data, e)
+                rows = terms.lateral_distance_rows(pos, data, e)
                 along = scalar(0.0)
                 for v in range(4):
                     other = data.lateral_stencil[e, v]
