@@ -14,7 +14,11 @@ Scenes: the issue's 60 mm picture frame (the paper's friction law, `runs/shear_f
 cut to two load steps), with fictitious and with physical masses, and a 30 x 60 mm bias
 specimen held together by strong friction (tests/test_shear_specimens.py's
 `HOLDING_FRICTION`) for one load step; step 0 (the preload relaxed at d = 0) included in
-both.
+both. Each with kinetic damping and with the semi-implicit method (its spatial tangent: a
+wrong tangent slows the method or stops it, a wrong force moves the answer).
+
+Kernel variants: the spatial float64 explicit and semi-implicit kernels with friction,
+grouped (scatter and gather order) and node-parallel.
 """
 
 from __future__ import annotations
