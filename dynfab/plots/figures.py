@@ -152,11 +152,11 @@ def plot_fabric(results: Results, measured: Measured | None = None) -> Figure:
 
 def plot_fabric_shape(results: Results) -> Figure:
     """The deformed patch or cell at about four load steps (`shape_steps`), drawn as the
-    `dynfab fabric` report draws its cell (`dynfab.reports.fabric_plots.plot_cell`): side
+    `dynfab fabric` report draws its cell (`dynfab.plots.cell.plot_cell`): side
     views of one warp (a pull-out's pulled warp, else warp 1) and weft 1 over their
     as-woven shapes, z exaggerated, and top views with the crossings coloured by contact
     force, the planes where each step leaves them."""
-    from dynfab.reports.fabric_plots import plot_cell  # it imports this module
+    from dynfab.plots.cell import plot_cell
 
     steps, reference = results.steps, results.reference
     warp = int(results.attrs.get("pullout_warp", 1)) - 1
