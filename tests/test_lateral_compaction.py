@@ -262,9 +262,11 @@ def test_a_made_up_force_angle_curve_gives_back_the_fibre_waviness():
     assert abs(math.log(value / truth)) <= 10 * 1e-8 * (1 + abs(math.log(truth)))
 
 
-def test_static_and_dynamic_agree_past_the_meeting_of_the_yarns():
+@pytest.mark.parametrize("method", ["explicit", "semi_implicit"])
+def test_static_and_dynamic_agree_past_the_meeting_of_the_yarns(method):
     # The 22 mm frame into the yarns' compaction: the dynamic solver's explicit relaxation
-    # (the kernels' Gutowski law) reaches the static equilibria within the two runs' error
+    # (the kernels' Gutowski law) and its semi-implicit one (the spatial tangent's lateral
+    # blocks, E_lat''(d) dd dd^T) reach the static equilibria within the two runs' error
     # bounds (tests/test_shear_dynamic.py's rule); the recorded widths and fibre fractions
     # are each other's closed form, V = V0 w / width.
     pytest.importorskip("warp")
@@ -272,7 +274,7 @@ def test_static_and_dynamic_agree_past_the_meeting_of_the_yarns():
 
     scene = small_compacting_frame()
     static = run(scene, solver="static").steps
-    dynamic = run(scene, solver="dynamic").steps
+    dynamic = run(scene, solver="dynamic", method=method).steps
     for k in range(len(FIT_D) + 1):
         bound = static["error_estimate"][k] + dynamic["error_estimate"][k]
         difference = np.abs(static["positions"][k] - dynamic["positions"][k]).max()
