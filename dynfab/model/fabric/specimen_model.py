@@ -40,6 +40,7 @@ dissipated, energy/<term> and energy/kinetic.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -283,24 +284,19 @@ class SpecimenModel:
         anchors = np.asarray(arrays["anchors"], float)
         d = load_at_time(self, time)
         limit = self.friction_limits(pos)
-        R = np.zeros(f.tie_a.size)
-        contact.forces(pos, f, R)
-        loads = np.zeros(chain_count(f))
-        grad = np.zeros_like(pos)
-        spatial.gradient(pos, f, loads, anchors, limit, grad)
-        velocity = specimen_layout.held_velocity(self.layout, f.rest_position, d)
+        R, clamp_force = self._forces(pos, anchors, limit, d)
         angle = (specimen_layout.shear_angles(self.layout, f.rest_position, pos)
-                 - specimen_layout.shear_angles(self.layout, f.rest_position, f.rest_position))
+                 - self._woven_angle)
         ratios = self.slip_ratios(pos)
         frame = {"time": float(time), "positions": pos,
                  "velocities": np.asarray(arrays["velocities"], float),
                  "force": np.asarray(arrays["force"], float), "anchors": anchors,
                  "contact_force": R, "load": np.array([d]), "end_displacement": np.array([d]),
-                 "clamp_force": float(np.sum(grad[self._held] * velocity)),
+                 "clamp_force": clamp_force,
                  "shear_angle": angle, "crossing_slip_ratio": ratios,
                  "slip_ratio": float(np.max(ratios, initial=0.0)),
                  "dissipated": float(np.sum(arrays["dissipated"]))}
-        values = spatial.energy_vector(f, pos, loads, anchors, limit)
+        values = spatial.energy_vector(f, pos, np.zeros(chain_count(f)), anchors, limit)
         frame.update(registry.energy_records(self.scene, dict(zip(spatial.TERMS, values))))
         frame["energy/kinetic"] = float(np.sum(arrays["kinetic_energy"]))
         return {name: np.asarray(value) for name, value in frame.items()}
@@ -366,16 +362,29 @@ class SpecimenModel:
         out[:, 1] = (d_new - d_old) * self.structure.rest_position[:, 1] / height
         return out
 
-    def finish_step(self, state: SpecimenState, start: StepStart, solution: StepSolution):
-        f, pos, limit = self.structure, solution.positions, solution.limit
-        d = float(start.load[0])
-        anchors = start.anchors.copy()
+    @functools.cached_property
+    def _woven_angle(self) -> np.ndarray:
+        """Each crossing's shear angle as woven (C,) [rad]: a frame's reference."""
+        rest = self.structure.rest_position
+        return specimen_layout.shear_angles(self.layout, rest, rest)
+
+    def _forces(self, pos, anchors, limit, d: float) -> tuple[np.ndarray, float]:
+        """(contact force R (C,) [N], the clamp force along d [N]) at `pos`, F_T = `limit`
+        frozen: the held nodes' reaction dV/dr dotted with d(r)/dd, what a step and a frame
+        record."""
+        f = self.structure
         R = np.zeros(f.tie_a.size)
         contact.forces(pos, f, R)
         grad = np.zeros_like(pos)
         spatial.gradient(pos, f, np.zeros(chain_count(f)), anchors, limit, grad)
         velocity = specimen_layout.held_velocity(self.layout, f.rest_position, d)
-        clamp_force = float(np.sum(grad[self._held] * velocity))
+        return R, float(np.sum(grad[self._held] * velocity))
+
+    def finish_step(self, state: SpecimenState, start: StepStart, solution: StepSolution):
+        f, pos, limit = self.structure, solution.positions, solution.limit
+        d = float(start.load[0])
+        anchors = start.anchors.copy()
+        R, clamp_force = self._forces(pos, anchors, limit, d)
         sliding = np.zeros(f.tie_a.size, np.bool_)
         friction_force = np.zeros((f.tie_a.size, 3))
         lost = 0.0
