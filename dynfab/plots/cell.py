@@ -18,7 +18,7 @@ from dynfab.plots.style import FONT_SIZE, new_figure
 from dynfab.plots.style import style_axes as _plot_style
 
 FONT = 8.5
-"""Tick-label and legend font size [pt]."""
+"""Tick-label and legend font size [pt] of the cell's and the fabric report's figures."""
 
 style_axes = partial(_plot_style, tick_size=FONT, title_size=FONT_SIZE)
 

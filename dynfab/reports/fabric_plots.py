@@ -8,24 +8,19 @@ carries a gid "<path> <family>" (e.g. "2:1 warp"), so a test can read back what 
 
 from __future__ import annotations
 
-from functools import partial
 from pathlib import Path
 
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
 from dynfab.plots import cell
-from dynfab.plots.style import DPI, FAMILY_ALPHA, FAMILY_STYLE, FAMILY_WIDTH, FONT_SIZE, new_figure
-from dynfab.plots.style import style_axes as _plot_style
+from dynfab.plots.cell import FONT, style_axes
+from dynfab.plots.style import DPI, FAMILY_ALPHA, FAMILY_STYLE, FAMILY_WIDTH, new_figure
 from dynfab.reports.fabric_data import (PATHS, crimp_percent, larger_load, load_per_width,
                                         strain_percent)
 
-FONT = 8.5
-"""Tick-label and legend font size [pt]."""
 ZOOM_SHARE = 0.15
 """The zoomed panel of the biaxial figure shows loads up to this share of the largest."""
-
-style_axes = partial(_plot_style, tick_size=FONT, title_size=FONT_SIZE)
 
 
 def draw_figures(out_dir, data: dict) -> list[Path]:
