@@ -101,14 +101,12 @@ def test_anchors_are_return_mapped_every_step(run_frames):
     assert np.abs(frames[-1]["anchors"] - frames[0]["anchors"]).max() > 1e-7
 
 
-def test_a_resumed_transient_writes_the_uninterrupted_frames(tmp_path):
-    """`run_to_file` stopped (as a Ctrl-C) after its second frame and resumed from the file
-    writes the very bits of the run done in one go (every frame dataset), its view has a grid
-    of both families' nodes per frame, and the file lies within a factor 2 of the budget's
-    estimate (`dynfab.budget.result_file_bytes`)."""
-    scene = transient_scene()
+def resumed_equals_whole(scene, tmp_path, frames: int):
+    """Run `scene`'s transient to a file in one go and, into another, stopped (as a Ctrl-C)
+    after its second frame and resumed: every frame dataset of the two files bit for bit.
+    Returns (the whole file's path, its frame dataset names)."""
     whole, part = tmp_path / "whole.h5", tmp_path / "part.h5"
-    assert run_to_file(scene, "dynamic", whole) == FRAMES + 1
+    assert run_to_file(scene, "dynamic", whole) == frames
 
     def stop_after(line: str) -> None:
         if line.startswith("frame 2:"):
@@ -117,15 +115,25 @@ def test_a_resumed_transient_writes_the_uninterrupted_frames(tmp_path):
     with pytest.raises(KeyboardInterrupt):
         run_to_file(scene, "dynamic", part, progress=stop_after)
     assert read_results(part).frames["time"].shape == (2,)
-    assert run_to_file(scene, "dynamic", part, resume=True) == FRAMES - 1
+    assert run_to_file(scene, "dynamic", part, resume=True) == frames - 2
     with h5py.File(whole, "r") as a, h5py.File(part, "r") as b:
         names = []
         a["frames"].visit(lambda name: names.append(name)
                           if isinstance(a["frames"][name], h5py.Dataset) else None)
         for name in names:
             np.testing.assert_array_equal(a["frames"][name][:], b["frames"][name][:], err_msg=name)
-        assert set(FRAME_KEYS) | set(LAYOUT) <= set(names)
-        assert "xdmf/weft_contact_force" in names  # the view's point data of both families
+    return whole, names
+
+
+def test_a_resumed_transient_writes_the_uninterrupted_frames(tmp_path):
+    """`run_to_file` stopped (as a Ctrl-C) after its second frame and resumed from the file
+    writes the very bits of the run done in one go (every frame dataset), its view has a grid
+    of both families' nodes per frame, and the file lies within a factor 2 of the budget's
+    estimate (`dynfab.budget.result_file_bytes`)."""
+    scene = transient_scene()
+    whole, names = resumed_equals_whole(scene, tmp_path, FRAMES + 1)
+    assert set(FRAME_KEYS) | set(LAYOUT) <= set(names)
+    assert "xdmf/weft_contact_force" in names  # the view's point data of both families
     assert 0.5 < whole.stat().st_size / budget.result_file_bytes(scene) < 2.0
     with meshio.xdmf.TimeSeriesReader(whole.with_suffix(".xdmf")) as view:  # both families
         points, _ = view.read_points_cells()

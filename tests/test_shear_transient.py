@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import io
 
-import h5py
 import meshio
 import numpy as np
 import pytest
@@ -38,11 +37,11 @@ from dynfab.model.fabric import spatial
 from dynfab.model.fabric.specimen_model import TRANSIENT_KNOTS
 from dynfab.results.file import read_results
 from dynfab.results.summary import print_summary
-from dynfab.run import run_to_file
 from dynfab.scene import parse_scene_text
 from dynfab.solvers.by_name import make_solver
 from dynfab.solvers.contract import FRAME_KEYS
 from dynfab.solvers.dynamic import DynamicSolver
+from test_fabric_transient import resumed_equals_whole
 from test_shear_specimens import FRAME, scene_text
 
 pytest.importorskip("warp")
@@ -158,25 +157,9 @@ def test_a_resumed_transient_writes_the_uninterrupted_frames_and_its_view_and_fi
     grid of every node per frame, `dynfab plot` draws its figures and the summary lists d and
     the clamp force per frame."""
     scene = parse_scene_text(transient_text(VALUES, DURATION, DURATION / 4))
-    whole, part = tmp_path / "whole.h5", tmp_path / "part.h5"
-    assert run_to_file(scene, "dynamic", whole) == 5
-
-    def stop_after(line: str) -> None:
-        if line.startswith("frame 2:"):
-            raise KeyboardInterrupt
-
-    with pytest.raises(KeyboardInterrupt):
-        run_to_file(scene, "dynamic", part, progress=stop_after)
-    assert read_results(part).frames["time"].shape == (2,)
-    assert run_to_file(scene, "dynamic", part, resume=True) == 3
-    with h5py.File(whole, "r") as a, h5py.File(part, "r") as b:
-        names = []
-        a["frames"].visit(lambda name: names.append(name)
-                          if isinstance(a["frames"][name], h5py.Dataset) else None)
-        for name in names:
-            np.testing.assert_array_equal(a["frames"][name][:], b["frames"][name][:], err_msg=name)
-        assert set(FRAME_KEYS) | set(SPECIMEN_NAMES) <= set(names)
-        assert "xdmf/shear_angle" in names
+    whole, names = resumed_equals_whole(scene, tmp_path, 5)
+    assert set(FRAME_KEYS) | set(SPECIMEN_NAMES) <= set(names)
+    assert "xdmf/shear_angle" in names
     with meshio.xdmf.TimeSeriesReader(whole.with_suffix(".xdmf")) as view:
         points, _ = view.read_points_cells()
         assert view.num_steps == 5
