@@ -2,7 +2,7 @@
 of tests/test_shear_dynamic.py relaxed in float64 and in float32, each step's residual, whether
 it stopped at its rounding floor, and its certificate's position error bound.
 
-A run refuses float32 on a specimen (`dynfab.solvers.dynamic.SPATIAL_REFUSALS`); this script
+A run refuses float32 on a specimen (`dynfab.kernels.spatial_terms.REFUSALS`); this script
 lifts that one refusal for its own process, to measure what the refusal is for. Both runs use
 the same scene; float32 runs with dynamic.accuracy = 1e300 (off), so that its bound is recorded
 rather than refused. Prints a line per precision and writes benchmarks/specimen_float32.json.
@@ -20,11 +20,11 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent / "tests"))
 from dynfab import run  # noqa: E402
 from dynfab.scene import parse_scene_text  # noqa: E402
-from dynfab.solvers import dynamic  # noqa: E402
+from dynfab.kernels import spatial_terms  # noqa: E402
 from test_shear_dynamic import CASES  # noqa: E402
 from test_shear_specimens import scene_text  # noqa: E402
 
-dynamic.SPATIAL_REFUSALS = tuple(r for r in dynamic.SPATIAL_REFUSALS if r[0] != "precision")
+spatial_terms.REFUSALS = tuple(r for r in spatial_terms.REFUSALS if r[0] != "precision")
 specimen, values, friction = CASES["frame"]
 text = scene_text(specimen, values, friction)
 static = run(parse_scene_text(text), solver="static")

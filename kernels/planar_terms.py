@@ -26,6 +26,14 @@ import warp as wp
 from dynfab.kernels import structure_arrays, structure_state, tie_law
 from dynfab.kernels.precision import vector
 
+ROWS_FROM_HOST = False
+"""The dynamic solver's masses take the stiffest tangent's rows from the kernels' band
+(`structure_tangent`), not from the host."""
+BOUNDARY = True
+"""The boundary couplings (moving planes, wrap springs, tied families) are planar elements."""
+REFUSALS = ()
+"""The dynamic options these elements refuse: none."""
+
 
 def structure_terms(scalar, friction: bool, boundary: bool, base) -> SimpleNamespace:
     """The planar elements' `wp.func`s of one variant (module docstring), on `base`

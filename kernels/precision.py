@@ -7,18 +7,23 @@ import warp as wp
 SCALARS = {"float64": wp.float64, "float32": wp.float32}
 """Precision name -> Warp scalar type."""
 
-VECTORS = {wp.float64: wp.vec2d, wp.float32: wp.vec2f}
-"""Warp scalar type -> its (x, z) vector type."""
+VECTORS = {(wp.float64, 2): wp.vec2d, (wp.float32, 2): wp.vec2f,
+           (wp.float64, 3): wp.types.vector(3, wp.float64),
+           (wp.float32, 3): wp.types.vector(3, wp.float32)}
+"""(Warp scalar type, coordinates per node) -> the node's vector type: (x, z) planar, (x, y, z)
+spatial."""
 
 KINEMATICS = {"planar": 2, "spatial": 3}
 """A kernel variant's kinematics -> coordinates per node: "planar" (x along the chain, z; each
 chain in its own plane, docs/model.md sections 2-10) or "spatial" (x, y, z, docs/model.md
 section 11)."""
+KINEMATICS_OF_DIM = {dim: name for name, dim in KINEMATICS.items()}
+"""Coordinates per node -> the kinematics' name."""
 
 
 def vector(scalar, dim: int = 2):
     """The Warp vector type of a node's `dim` coordinates in precision `scalar`."""
-    return VECTORS[scalar] if dim == 2 else wp.types.vector(dim, scalar)
+    return VECTORS[scalar, dim]
 
 DEFAULT_TOLERANCE = {"float64": 1e-8, "float32": 1e-4}
 """Default force residual [N] per precision (docs/model.md section 5: float32's rounding floor is

@@ -36,6 +36,18 @@ import warp as wp
 from dynfab.kernels import band_lu, structure_arrays, structure_state, tie_law
 from dynfab.kernels.precision import vector
 
+ROWS_FROM_HOST = True
+"""The dynamic solver's masses take the stiffest tangent's rows from the host's exact Hessian
+(`dynfab.model.terms.kinematics.stiffest_rows`): `tangent_terms`' blocks are Gauss-Newton's."""
+BOUNDARY = False
+"""No moving planes, wrap springs or tied families in space."""
+REFUSALS = (
+    ("precision", "float32", "float32 positions (a relative rounding of 6e-8) against the "
+     "yarns' stretch stiffness leave a force floor far above the trellis mode's residual (a "
+     "[specimen]'s: docs/results.md, \"float32 on a specimen\")"),
+)
+"""The dynamic options these elements refuse (docs/model.md section 11.11): (option, value,
+why)."""
 PI = float(np.pi)
 TWO_PI = 2.0 * float(np.pi)
 
@@ -774,5 +786,31 @@ def tangent_terms(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
         """`coupling_vector` at dof (node i, comp) [N]."""
         return coupling_vector(i, x, data, state)[comp]
 
+    # The stiffest tangent's rows (docs/model.md (5.5)) come from the host, from the exact
+    # Hessian (`dynfab.model.terms.kinematics.stiffest_rows` into `state.rows` and
+    # `state.diagonal`): the blocks above are Gauss-Newton's, which may not bound it.
+
+    @wp.func(inline=True)
+    def stiffest_tie(t: int, data: Data, state: State):
+        """Nothing: the host gave the rows."""
+        pass
+
+    @wp.func(inline=True)
+    def stiffest_chain(c: int, data: Data, state: State):
+        """Nothing: the host gave the rows."""
+        pass
+
+    @wp.func(inline=True)
+    def gershgorin_row(i: int, data: Data, state: State) -> scalar:
+        """The largest over node i's dofs of sum_j |K_ij| [N/m], from the host."""
+        return state.rows[i]
+
+    @wp.func(inline=True)
+    def largest_diagonal(i: int, data: Data, state: State) -> scalar:
+        """max |K_ii| [N/m] over node i's dofs, from the host."""
+        return state.diagonal[i]
+
     return SimpleNamespace(tie_blocks=tie_blocks, assemble_chain=assemble_chain,
-                           coupling_row=coupling_row)
+                           coupling_row=coupling_row, stiffest_tie=stiffest_tie,
+                           stiffest_chain=stiffest_chain, gershgorin_row=gershgorin_row,
+                           largest_diagonal=largest_diagonal)

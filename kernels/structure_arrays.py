@@ -141,7 +141,7 @@ class StructureArrays:
     dim: int = 2
     """Coordinates per node: 2 planar (along the chain, z), 3 spatial (x, y, z; docs/model.md
     section 11): then every (n, 2) array above is (n, 3), the anchors (T, 3) and the spatial
-    terms' arrays below are filled."""
+    terms' arrays below are filled (a planar structure has none: empty)."""
     lateral_bend_stiffness: np.ndarray = field(default_factory=lambda: np.zeros(0))
     """spatial: (n,) EI_lateral / lbar [N m]; 0 at the end nodes."""
     lateral_rest_angle: np.ndarray = field(default_factory=lambda: np.zeros(0))
@@ -212,7 +212,7 @@ class StructureArrays:
 def build(structure: Structure) -> StructureArrays:
     """The arrays of `structure` (module docstring); a ValueError for what the kernels do not
     take: nodes with other than 2 or 3 coordinates, dof ties other than a family's plane
-    nodes, a spatial structure with moving planes, wraps or tied dofs."""
+    nodes (a spatial structure with moving planes, wraps or tied dofs: the relaxation's)."""
     dim = structure.rest_position.shape[1]
     if dim not in (2, 3):
         raise ValueError("the kernels take 2 (planar) or 3 (spatial) coordinates per node")
@@ -245,10 +245,7 @@ def build(structure: Structure) -> StructureArrays:
     load_family[structure.load_node] = structure.chain_family
     boundary = _boundary(structure, node_chain, dim)
     grouping = _groups(structure, node_chain, boundary, dim)
-    spatial = _spatial(structure, grouping["node_group"]) if dim == 3 else {}
-    if dim == 3 and (boundary["plane_nodes"].size or np.any(boundary["wrap_stiffness"] > 0)
-                     or np.any(boundary["node_tie"] >= 0)):
-        raise ValueError("spatial kernels without moving planes, wraps or tied dofs")
+    spatial = _spatial(structure, grouping["node_group"])
     return StructureArrays(
         rest_position=np.array(structure.rest_position, float), previous=previous,
         next=following, rest_length=rest_length, stretch_stiffness=stretch,
@@ -429,8 +426,8 @@ def struct(scalar, dim: int = 2):
 
 @functools.cache
 def _struct(scalar, dim: int):
-    """The `StructureData` Warp struct for one scalar type and `dim` coordinates per node
-    (spatial, dim 3: with the spatial terms' arrays)."""
+    """The `StructureData` Warp struct for one scalar type and `dim` coordinates per node (the
+    spatial terms' arrays empty in a planar structure)."""
     vec = vector(scalar, dim)
 
     class StructureData:
@@ -481,18 +478,18 @@ def _struct(scalar, dim: int):
         block_group: wp.array(dtype=wp.int32)
         node_parameters: wp.array2d(dtype=scalar)
         node_term_first: wp.array(dtype=wp.int32)
+        lateral_bend_stiffness: wp.array(dtype=scalar)
+        lateral_rest_angle: wp.array(dtype=scalar)
+        tie_stencil: wp.array2d(dtype=wp.int32)
+        rotation_law: wp.array2d(dtype=scalar)
+        lateral_stencil: wp.array2d(dtype=wp.int32)
+        lateral_law: wp.array2d(dtype=scalar)
+        group_lateral: wp.array(dtype=wp.int32)
+        node_stencil_start: wp.array(dtype=wp.int32)
+        node_stencil: wp.array(dtype=wp.int32)
+        node_lateral_start: wp.array(dtype=wp.int32)
+        node_lateral: wp.array(dtype=wp.int32)
 
-    if dim == 3:
-        StructureData.__annotations__.update({
-            "lateral_bend_stiffness": wp.array(dtype=scalar),
-            "lateral_rest_angle": wp.array(dtype=scalar),
-            "tie_stencil": wp.array2d(dtype=wp.int32), "rotation_law": wp.array2d(dtype=scalar),
-            "lateral_stencil": wp.array2d(dtype=wp.int32),
-            "lateral_law": wp.array2d(dtype=scalar), "group_lateral": wp.array(dtype=wp.int32),
-            "node_stencil_start": wp.array(dtype=wp.int32),
-            "node_stencil": wp.array(dtype=wp.int32),
-            "node_lateral_start": wp.array(dtype=wp.int32),
-            "node_lateral": wp.array(dtype=wp.int32)})
     return wp.struct(StructureData)
 
 

@@ -29,10 +29,9 @@ from types import SimpleNamespace
 
 import warp as wp
 
-from dynfab.linalg.banded import BANDWIDTH
-from dynfab.kernels import band_lu, status, structure_forces, structure_settings
+from dynfab.kernels import spatial_terms, status, structure_forces, structure_settings
 from dynfab.kernels import structure_tangent, structure_variants
-from dynfab.kernels.precision import KINEMATICS, epsilon, vector
+from dynfab.kernels.precision import KINEMATICS, epsilon
 
 ROUNDING_FLOOR_FACTOR = 16.0
 """Rounding floor of the residual / (eps max_i |K_ii| max_i |x_i|) [-], as
@@ -47,21 +46,23 @@ STALL_MIN_STEPS = 2_000
 during the last half of its steps stops (status.NO_PROGRESS); the fabric's choice."""
 
 
+TANGENTS = {"planar": structure_tangent.functions, "spatial": spatial_terms.tangent_terms}
+"""The tangent of each kinematics' elements: the semi-implicit method's (`tie_blocks`,
+`assemble_chain`, `coupling_row`) and the stiffest one's rows, which the masses take
+(`stiffest_tie`, `stiffest_chain`, `gershgorin_row`, `largest_diagonal`)."""
+
+
 @functools.cache
 def functions(scalar, friction: bool, boundary: bool, merit: bool = False,
               kinematics: str = "planar") -> SimpleNamespace:
     """The start, sum and check `wp.func`s of one variant; with `merit`, every node's
-    f^T M^-1 f term too (the semi-implicit time step rule's merit). A spatial structure's
-    Gershgorin rows and diagonals come from the host (`state.rows`, `state.diagonal`:
-    `dynfab.model.fabric.spatial.stiffest_rows`), not from the planar band."""
+    f^T M^-1 f term too (the semi-implicit time step rule's merit). The masses' Gershgorin
+    rows are the kinematics' tangent's (`TANGENTS`)."""
     dim = KINEMATICS[kinematics]
-    spatial = dim == 3
-    vec = vector(scalar, dim)
     vec4 = wp.types.vector(4, scalar)
     Data, State, Settings = structure_variants.structs(scalar, dim)
     forces = structure_forces.functions(scalar, friction, boundary, kinematics)
-    tangent = structure_tangent.functions(scalar, friction, boundary)
-    band_ops = band_lu.functions(scalar)
+    tangent = TANGENTS[kinematics](scalar, friction, boundary)
     floor_scale = ROUNDING_FLOOR_FACTOR * epsilon(scalar)
 
     @wp.func(inline=True)
@@ -181,56 +182,11 @@ def functions(scalar, friction: bool, boundary: bool, merit: bool = False,
     # ------------------------------------------------------------- start
 
     @wp.func(inline=True)
-    def plane_rows(i: int, data: Data, state: State) -> scalar:
-        """sum_j |K_ij| of the moving planes' friction coupling at node i's in-plane dof
-        beyond its ties' own k_t, every tie sticking [N/m] (J^T k_t J, J carrying -w on the
-        plane nodes: docs/model.md section 10)."""
-        rows = scalar(0.0)
-        if wp.static(boundary and friction):
-            counts = vec(scalar(data.plane_offsets[1] - data.plane_offsets[0]),
-                         scalar(data.plane_offsets[2] - data.plane_offsets[1]))
-            for k in range(data.node_tie_start[i], data.node_tie_start[i + 1]):
-                t = data.node_ties[k]
-                f = 1
-                if data.tie_a[t] == i:
-                    f = 0
-                rows += data.friction_law[t, 3] * data.tie_weight[t][f] * counts[f]
-            family = data.node_plane[i]
-            if family >= 0:
-                g = data.node_group[i]
-                for t in range(data.group_tie[g], data.group_tie[g + 1]):
-                    w = data.tie_weight[t][family]
-                    rows += data.friction_law[t, 3] * wp.abs(w) * (scalar(1.0)
-                                                                    + wp.abs(w) * counts[family])
-        return rows
-
-    @wp.func(inline=True)
-    def stiffest_tie(t: int, data: Data, state: State):
-        """The tie's stiffest blocks (`structure_tangent.stiffest_blocks`)."""
-        tangent.stiffest_blocks(t, data, state)
-
-    @wp.func(inline=True)
-    def stiffest_chain(c: int, data: Data, state: State):
-        """Chain c's stiffest band into state.band."""
-        tangent.assemble_chain(c, state.position, data, state, state.band, 0)
-
-    @wp.func(inline=True)
     def rows_node(i: int, data: Data, state: State, settings: Settings):
         """Node i's Gershgorin row sum [N/m] into node_values[i][0], its own mass into
         state.mass[i] (module docstring) and, with physical masses, 2 sqrt(m / rows) [s] into
         node_values[i][1] (0 where rows = 0)."""
-        rows = scalar(0.0)
-        if wp.static(spatial):
-            rows = state.rows[i]
-        else:
-            off = tangent.coupling_rows(i, data, state)
-            if wp.static(boundary):
-                off = off + tangent.wrap_cross_rows(state.position, data, i)
-                off = off + vec(plane_rows(i, data, state), scalar(0.0))
-            rows = wp.max(band_ops.absolute_row_sum(state.band, 2 * i) + off[0],
-                          band_ops.absolute_row_sum(state.band, 2 * i + 1) + off[1])
-            if wp.static(forces.node.count > 0):  # the band holds no node term
-                rows = rows + forces.node.stiffness(i, state.position, data)
+        rows = tangent.gershgorin_row(i, data, state)
         bound = scalar(0.0)
         if settings.fictitious != 0:
             dt = scalar(1.0)
@@ -291,11 +247,7 @@ def functions(scalar, friction: bool, boundary: bool, merit: bool = False,
         for i in range(lo, hi):
             if state.node_values[i][1] > scalar(0.0):
                 bound = wp.min(bound, state.node_values[i][1])
-            if wp.static(spatial):
-                diagonal = wp.max(diagonal, state.diagonal[i])
-            else:
-                for c in range(2):
-                    diagonal = wp.max(diagonal, wp.abs(state.band[2 * i + c, BANDWIDTH]))
+            diagonal = wp.max(diagonal, tangent.largest_diagonal(i, data, state))
             for c in range(wp.static(dim)):
                 coordinate = wp.max(coordinate, wp.abs(state.position[i][c]))
             state.start_position[i] = state.position[i]
@@ -428,8 +380,8 @@ def functions(scalar, friction: bool, boundary: bool, merit: bool = False,
     return SimpleNamespace(larger=larger, block_stage=block_stage, group_sum=group_sum,
                            group_max=group_max, force_values=force_values, gather_node=gather_node,
                            values_blocks=values_blocks,
-                           scatter_group=scatter_group, stiffest_tie=stiffest_tie,
-                           stiffest_chain=stiffest_chain, rows_node=rows_node,
+                           scatter_group=scatter_group, stiffest_tie=tangent.stiffest_tie,
+                           stiffest_chain=tangent.stiffest_chain, rows_node=rows_node,
                            start_group=start_group, check=check, check_energy=check_energy,
                            check_progress=check_progress, energy_step=energy_step)
 
@@ -439,8 +391,7 @@ def group_functions(scalar, friction: bool, boundary: bool, order: str,
                     merit: bool = False, kinematics: str = "planar") -> SimpleNamespace:
     """The grouped layout's whole-group `wp.func`s: `evaluate` (the forces at the positions in
     `order` "scatter" or "gather", every node's values and the block sums) and `start` (the
-    start's stages in turn, as the node-parallel layout launches them; spatial: without the
-    planar band's stages, its Gershgorin rows given)."""
+    start's stages in turn, as the node-parallel layout launches them)."""
     dim = KINEMATICS[kinematics]
     Data, State, Settings = structure_variants.structs(scalar, dim)
     checks = functions(scalar, friction, boundary, merit, kinematics)
@@ -475,11 +426,10 @@ def group_functions(scalar, friction: bool, boundary: bool, order: str,
     @wp.func(inline=True)
     def start(g: int, data: Data, state: State, settings: Settings):
         evaluate(g, data, state, settings)
-        if wp.static(dim == 2):
-            for t in range(data.group_tie[g], data.group_tie[g + 1]):
-                checks.stiffest_tie(t, data, state)
-            for c in range(data.group_chain[g], data.group_chain[g + 1]):
-                checks.stiffest_chain(c, data, state)
+        for t in range(data.group_tie[g], data.group_tie[g + 1]):
+            checks.stiffest_tie(t, data, state)
+        for c in range(data.group_chain[g], data.group_chain[g + 1]):
+            checks.stiffest_chain(c, data, state)
         for i in range(data.group_node[g], data.group_node[g + 1]):
             checks.rows_node(i, data, state, settings)
         checks.start_group(g, data, state, settings)

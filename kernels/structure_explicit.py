@@ -310,11 +310,9 @@ def functions(scalar, friction: bool, boundary: bool,
         elif stage == START_BLOCKS:
             checks.block_stage(u, data, state)
         elif stage == STIFFEST_TIES:
-            if wp.static(dim == 2):  # spatial: the rows come from the host
-                checks.stiffest_tie(u, data, state)
+            checks.stiffest_tie(u, data, state)
         elif stage == STIFFEST_CHAINS:
-            if wp.static(dim == 2):
-                checks.stiffest_chain(u, data, state)
+            checks.stiffest_chain(u, data, state)
         elif stage == ROWS:
             checks.rows_node(u, data, state, settings)
         elif stage == START:

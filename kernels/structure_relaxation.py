@@ -43,12 +43,14 @@ import numpy as np
 import warp as wp
 
 from dynfab.errors import SolverError
-from dynfab.kernels import status, structure_arrays, structure_explicit, structure_passes
+from dynfab.kernels import status, structure_arrays, structure_explicit, structure_forces
+from dynfab.kernels import structure_passes
 from dynfab.kernels import structure_semi_implicit as semi
 from dynfab.kernels import structure_settings, structure_state, structure_transient
 from dynfab.kernels import structure_variants
-from dynfab.kernels.precision import SCALARS, numpy_dtype, vector
+from dynfab.kernels.precision import KINEMATICS_OF_DIM, SCALARS, numpy_dtype, vector
 from dynfab.model.structure import Structure
+from dynfab.model.terms import kinematics
 
 METHODS = ("explicit", "semi_implicit")
 LAYOUTS = ("grouped", "node_parallel")
@@ -143,7 +145,9 @@ class StructureRelaxation:
             raise ValueError(f"damping {damping!r} unknown; one of {structure_settings.DAMPINGS}")
         self.arrays = arrays = structure_arrays.build(structure)
         self.structure, self.dim = structure, arrays.dim
-        self.kinematics = "spatial" if arrays.dim == 3 else "planar"
+        self.kinematics = KINEMATICS_OF_DIM[arrays.dim]
+        elements = structure_forces.KINDS[self.kinematics]
+        self.rows_from_host = elements.ROWS_FROM_HOST
         self.method, self.layout, self.order, self.device = method, layout, order, device
         self.damping = damping if method == "explicit" else None
         self.coefficient = damping_coefficient
@@ -162,22 +166,19 @@ class StructureRelaxation:
         self.boundary = arrays.has_boundary if boundary is None else boundary
         if arrays.has_friction and not self.friction or arrays.has_boundary and not self.boundary:
             raise ValueError("the structure has friction or boundary couplings the variant lacks")
+        if self.boundary and not elements.BOUNDARY:
+            raise ValueError(f"{self.kinematics} kernels without moving planes, wraps or tied dofs")
         self.scalar = SCALARS[precision]
         self.dtype, self.vec = numpy_dtype(self.scalar), vector(self.scalar, self.dim)
         self.data = structure_arrays.upload(arrays, self.scalar, device)
         self.state = structure_state.allocate(arrays, self.scalar, device,
-                                              method == "semi_implicit")
+                                              method == "semi_implicit", self.rows_from_host)
         self._scratch = None
         self._outs = {}
         self._host = wp.get_device(device).is_cpu
         self._reaction_data = None
         self._loaded = set()
         self.use_cores(cores)
-
-    @property
-    def spatial(self) -> bool:
-        """Nodes in x, y, z with the spatial terms (docs/model.md section 11)."""
-        return self.dim == 3
 
     # ------------------------------------------------------------------ layout
 
@@ -291,22 +292,8 @@ class StructureRelaxation:
         return np.asarray(values, float)[a.load_family[last]] * factors
 
     def as_woven_anchors(self) -> np.ndarray:
-        """Anchors (T, 2) [m] at zero slip in the as-woven state (the structure's convention:
-        from the planes; a ground tie's first component the node's x, its second 0); a spatial
-        structure's (T, 3) [m, m, rad]: each crossing's coordinates q as woven (docs/model.md
-        section 11.4)."""
-        a = self.arrays
-        if self.spatial:
-            from dynfab.model.terms.spatial import crossing_coordinates
-            anchors = np.zeros((a.ties, 3))
-            for t in range(a.ties):
-                crossing_coordinates(a.rest_position[a.tie_stencil[t]], anchors[t])
-            return anchors
-        anchors = np.zeros((a.ties, 2))
-        anchors[:, 0] = a.rest_position[a.tie_a, 0] - a.tie_plane[:, 0]
-        node_b = a.tie_b >= 0
-        anchors[node_b, 1] = a.rest_position[a.tie_b[node_b], 0] - a.tie_plane[node_b, 1]
-        return anchors
+        """Anchors at zero slip as woven (`dynfab.model.terms.kinematics.woven_anchors`)."""
+        return kinematics.woven_anchors(self.structure)
 
     def _settings(self, **values):
         fictitious = int(self.masses == "fictitious")
@@ -328,13 +315,10 @@ class StructureRelaxation:
         self._set(s.position, positions)
         self._set(s.load, self.node_loads(loads))
         self._set(s.anchors, anchors)
-        if self.spatial:  # the Gershgorin rows of the stiffest tangent, from the host
-            from dynfab.model.fabric.spatial import stiffest_rows
-            rows, diagonal = stiffest_rows(self.structure,
-                                           np.asarray(positions, float).reshape(-1, 3),
-                                           np.asarray(anchors, float).reshape(-1, 3))
-            s.rows.assign(self._scalars(rows))
-            s.diagonal.assign(self._scalars(diagonal))
+        host = kinematics.stiffest_rows(self.structure, positions, anchors)
+        if host is not None:  # the Gershgorin rows of the stiffest tangent, from the host
+            s.rows.assign(self._scalars(host[0]))
+            s.diagonal.assign(self._scalars(host[1]))
         s.velocity.zero_()
         s.previous_force.zero_()
         s.status.fill_(status.RUNNING)
@@ -470,7 +454,8 @@ class StructureRelaxation:
     def _passes(self, positions, anchors, loads=None, data=None):
         """A scratch state at `positions` with `anchors` and `loads`, its tie pass done."""
         if self._scratch is None:
-            self._scratch = structure_state.allocate(self.arrays, self.scalar, self.device, False)
+            self._scratch = structure_state.allocate(self.arrays, self.scalar, self.device, False,
+                                                     self.rows_from_host)
         s = self._scratch
         self._set(s.position, positions)
         self._set(s.anchors, self.as_woven_anchors() if anchors is None else anchors)

@@ -39,7 +39,7 @@ A factorisation with a pivot that is not positive halves dt and rebuilds (at mos
 MAX_REFACTORISATIONS times: NOT_POSITIVE_DEFINITE).
 
 Kinematics: the dofs are dim node + coordinate (dim 2 planar, 3 spatial) and the bands'
-half-width `band_lu.bandwidth(dim)`; K is the kinematics' tangent (`TANGENTS`: the planar
+half-width `band_lu.bandwidth(dim)`; K is the kinematics' tangent (`structure_checks.TANGENTS`: the planar
 `structure_tangent`, the spatial `spatial_terms.tangent_terms`, whose bands hold the blocks
 within two nodes of one chain and whose product applies every other block; docs/model.md
 11.11). The moving planes, wraps and tied dofs are the planar fabric's only.
@@ -55,8 +55,8 @@ from types import SimpleNamespace
 
 import warp as wp
 
-from dynfab.kernels import band_lu, spatial_terms, status, structure_checks, structure_forces
-from dynfab.kernels import structure_settings, structure_tangent, structure_variants
+from dynfab.kernels import band_lu, status, structure_checks, structure_forces
+from dynfab.kernels import structure_settings, structure_variants
 from dynfab.kernels.precision import KINEMATICS, vector
 
 CG_TOLERANCE = 1e-2
@@ -81,9 +81,6 @@ CG_RZ, CG_STOP, CG_ALPHA, CG_BETA, CG_DONE, CG_ITERATIONS = range(6)
  BLOCKS, SEARCH, TRIAL_MOVE, FINISH, RE_TIES, RE_GATHER, RE_BLOCKS, FINISH_GROUP, CHECK) = \
     range(100, 129)
 """Stages of a semi-implicit time step (`stage_kernel`; the start's are `structure_explicit`'s)."""
-TANGENTS = {"planar": structure_tangent.functions, "spatial": spatial_terms.tangent_terms}
-"""The semi-implicit tangent of each kinematics: `tie_blocks`, `assemble_chain`,
-`coupling_row` (and the planar boundary's `wrap_cross`)."""
 NODE, TIE, BLOCK, CHAIN, GROUP, DOF = range(6)
 KINDS = {TIE_BLOCKS: TIE, BUILD: CHAIN, FACTORED: GROUP, VELOCITY: DOF, BOUNDARY: GROUP,
          RHS: NODE, CG_START: DOF, PRECONDITION: CHAIN, FIRST_SUM: GROUP, COPY: DOF,
@@ -101,7 +98,7 @@ def functions(scalar, friction: bool, boundary: bool,
     vec = vector(scalar, dim)
     Data, State, Settings = structure_variants.structs(scalar, dim)
     forces = structure_forces.functions(scalar, friction, boundary, kinematics)
-    tangent = TANGENTS[kinematics](scalar, friction, boundary)
+    tangent = structure_checks.TANGENTS[kinematics](scalar, friction, boundary)
     checks = structure_checks.functions(scalar, friction, boundary, True, kinematics)
     band_ops = band_lu.functions(scalar, dim)
     BANDWIDTH = band_lu.bandwidth(dim)  # noqa: N806

@@ -39,8 +39,8 @@ def struct(scalar, dim: int = 2):
 @functools.cache
 def _struct(scalar, dim: int):
     """The `StructureState` Warp struct for one scalar type and `dim` coordinates per node
-    (spatial, dim 3: with each node's Gershgorin row sum and diagonal, `rows` and
-    `diagonal`, computed on the host)."""
+    (`rows` and `diagonal`: each node's Gershgorin row sum and diagonal where the host
+    computes them, `allocate`)."""
     vec = vector(scalar, dim)
     vec4 = wp.types.vector(4, scalar)
 
@@ -115,10 +115,9 @@ def _struct(scalar, dim: int):
         mixing: wp.array(dtype=scalar)
         cg: wp.array2d(dtype=scalar)
         boundary: wp.array2d(dtype=scalar)
+        rows: wp.array(dtype=scalar)
+        diagonal: wp.array(dtype=scalar)
 
-    if dim == 3:
-        StructureState.__annotations__.update({"rows": wp.array(dtype=scalar),
-                                               "diagonal": wp.array(dtype=scalar)})
     return wp.struct(StructureState)
 
 
@@ -136,9 +135,11 @@ GROUP_COUNTERS = ("fire_positive", "fire_negative", "steps_since_best", "steps",
 DOF_VECTORS = ("rhs", "x", "r", "z", "p", "q")
 
 
-def allocate(arrays, scalar, device: str, semi_implicit: bool):
+def allocate(arrays, scalar, device: str, semi_implicit: bool, rows_from_host: bool):
     """A zeroed StructureState for `arrays` (`structure_arrays.StructureArrays`); the dof arrays
-    of the semi-implicit system only with `semi_implicit`."""
+    of the semi-implicit system only with `semi_implicit`; the masses' Gershgorin rows and
+    diagonals (`rows`, `diagonal`) where the host gives them (`rows_from_host`, the elements'
+    `ROWS_FROM_HOST`), otherwise the band for the kernels to assemble them in."""
     dim = arrays.dim
     vec, vec4 = vector(scalar, dim), wp.types.vector(4, scalar)
     n, T, B, Y, G = arrays.nodes, arrays.ties, arrays.blocks, arrays.chains, arrays.groups
@@ -160,11 +161,10 @@ def allocate(arrays, scalar, device: str, semi_implicit: bool):
     state.block_values, state.block_max = zeros(B, vec4), zeros(B, scalar)
     state.chain_failed = zeros(Y, wp.int32)
     state.chain_partial = zeros(Y, scalar)
-    band = dofs if dim == 3 else max(dofs, 2 * n)  # planar masses need the band too
-    state.band = zeros((band, width), scalar)
-    state.tie_hessian = zeros((T if dim == 3 and semi_implicit else 0, TIE_HESSIAN), scalar)
-    if dim == 3:  # the spatial masses' Gershgorin rows, from the host
-        state.rows, state.diagonal = zeros(n, scalar), zeros(n, scalar)
+    state.band = zeros((dofs if rows_from_host else max(dofs, dim * n), width), scalar)
+    state.tie_hessian = zeros((T if semi_implicit else 0, TIE_HESSIAN), scalar)
+    host_rows = n if rows_from_host else 0
+    state.rows, state.diagonal = zeros(host_rows, scalar), zeros(host_rows, scalar)
     state.factor = zeros((dofs, width), scalar)
     for name in DOF_VECTORS:
         setattr(state, name, zeros(dofs, scalar))

@@ -20,7 +20,7 @@ Modes: `definite` drops a compressed segment's negative geometric part and bendi
 term (the semi-implicit matrix, positive semi-definite; docs/model.md (5.4)); the couplings
 are then set by `tie_blocks`. `stiffest` (the Gershgorin masses, docs/model.md (5.5)) takes
 the exact stretch and bending and every tie at its stiffest: contact at k_s, sticking at k_t
-(`stiffest_blocks`).
+(`stiffest_tie`).
 """
 
 import functools
@@ -29,14 +29,14 @@ from types import SimpleNamespace
 import warp as wp
 
 from dynfab.kernels import band_lu, structure_arrays, structure_forces, structure_state, tie_law
-from dynfab.kernels.precision import VECTORS
+from dynfab.kernels.precision import vector
 from dynfab.linalg.banded import BANDWIDTH
 
 
 @functools.cache
 def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
     """The tangent `wp.func`s of one variant (`structure_forces.functions`' flags)."""
-    vec = VECTORS[scalar]
+    vec = vector(scalar)
     vec3 = wp.types.vector(3, scalar)
     vec4 = wp.types.vector(4, scalar)
     mat = wp.types.matrix((2, 2), scalar)
@@ -193,7 +193,7 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
         state.coupling[t] = vec4(tangent, h[0], h[1], h[2])
 
     @wp.func(inline=True)
-    def stiffest_blocks(t: int, data: Data, state: State):
+    def stiffest_tie(t: int, data: Data, state: State):
         """coupling[t] = (k_s, k_t, 0, k_t): every contact at its bound, every tie sticking
         (k_t's y part 0 for a tie to ground)."""
         stick = scalar(0.0)
@@ -265,7 +265,60 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
                 rows = rows + vec(wp.abs(blk[2]), wp.abs(blk[0]))
         return rows
 
+    # ------------------------------------------------ the stiffest tangent's rows (5.5)
+
+    @wp.func(inline=True)
+    def plane_rows(i: int, data: Data, state: State) -> scalar:
+        """sum_j |K_ij| of the moving planes' friction coupling at node i's in-plane dof
+        beyond its ties' own k_t, every tie sticking [N/m] (J^T k_t J, J carrying -w on the
+        plane nodes: docs/model.md section 10)."""
+        rows = scalar(0.0)
+        if wp.static(boundary and friction):
+            counts = vec(scalar(data.plane_offsets[1] - data.plane_offsets[0]),
+                         scalar(data.plane_offsets[2] - data.plane_offsets[1]))
+            for k in range(data.node_tie_start[i], data.node_tie_start[i + 1]):
+                t = data.node_ties[k]
+                f = 1
+                if data.tie_a[t] == i:
+                    f = 0
+                rows += data.friction_law[t, 3] * data.tie_weight[t][f] * counts[f]
+            family = data.node_plane[i]
+            if family >= 0:
+                g = data.node_group[i]
+                for t in range(data.group_tie[g], data.group_tie[g + 1]):
+                    w = data.tie_weight[t][family]
+                    rows += data.friction_law[t, 3] * wp.abs(w) * (scalar(1.0)
+                                                                    + wp.abs(w) * counts[family])
+        return rows
+
+    @wp.func(inline=True)
+    def stiffest_chain(c: int, data: Data, state: State):
+        """Chain c's stiffest band into state.band (after its ties' `stiffest_tie`)."""
+        assemble_chain(c, state.position, data, state, state.band, 0)
+
+    @wp.func(inline=True)
+    def gershgorin_row(i: int, data: Data, state: State) -> scalar:
+        """The larger over node i's two dofs of sum_j |K_ij| [N/m] of the stiffest tangent:
+        its chain's band, its ties' and (boundary variants) the wraps' and moving planes'
+        couplings, its node terms' stiffness."""
+        off = coupling_rows(i, data, state)
+        if wp.static(boundary):
+            off = off + wrap_cross_rows(state.position, data, i)
+            off = off + vec(plane_rows(i, data, state), scalar(0.0))
+        rows = wp.max(band_ops.absolute_row_sum(state.band, 2 * i) + off[0],
+                      band_ops.absolute_row_sum(state.band, 2 * i + 1) + off[1])
+        if wp.static(forces.node.count > 0):  # the band holds no node term
+            rows = rows + forces.node.stiffness(i, state.position, data)
+        return rows
+
+    @wp.func(inline=True)
+    def largest_diagonal(i: int, data: Data, state: State) -> scalar:
+        """max |K_ii| [N/m] over node i's dofs of the stiffest band."""
+        return wp.max(wp.abs(state.band[2 * i, BANDWIDTH]),
+                      wp.abs(state.band[2 * i + 1, BANDWIDTH]))
+
     return SimpleNamespace(assemble_chain=assemble_chain, tie_blocks=tie_blocks,
-                           stiffest_blocks=stiffest_blocks, coupling_row=coupling_row,
-                           coupling_rows=coupling_rows, wrap_cross=wrap_cross,
-                           wrap_cross_rows=wrap_cross_rows, theta_hessian=theta_hessian)
+                           stiffest_tie=stiffest_tie, stiffest_chain=stiffest_chain,
+                           gershgorin_row=gershgorin_row, largest_diagonal=largest_diagonal,
+                           coupling_row=coupling_row, wrap_cross=wrap_cross,
+                           theta_hessian=theta_hessian)

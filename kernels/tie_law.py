@@ -27,7 +27,7 @@ from types import SimpleNamespace
 
 import warp as wp
 
-from dynfab.kernels.precision import VECTORS, epsilon
+from dynfab.kernels.precision import epsilon, vector
 from dynfab.model.terms.contact import MAX_NEWTON
 
 NEWTON_STOP = 4e-16 / 2.220446049250313e-16
@@ -40,7 +40,7 @@ SERIES_TERMS = 40
 @functools.cache
 def functions(scalar) -> SimpleNamespace:
     """The tie-law `wp.func`s for one scalar type."""
-    vec = VECTORS[scalar]
+    vec = vector(scalar)
     vec3 = wp.types.vector(3, scalar)
     newton_stop = NEWTON_STOP * epsilon(scalar)
 

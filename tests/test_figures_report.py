@@ -57,7 +57,7 @@ NAMES = ("fig3", "fig5")
 SOLVERS = ("static", "dynamic")
 PNGS = ("fig3a_traction.png", "fig3b_contact_force.png", "fig5_friction.png", "shapes.png",
         "friction_states.png")
-ALLOWED_VARIANTS = {f"{kind}/{layout}/{order}/float64/{couplings}"
+ALLOWED_VARIANTS = {f"{kind}/{layout}/{order}/float64/{couplings}/planar"
                     for kind, layout, order in (("explicit", "grouped", "scatter"),
                                                 ("passes", "-", "-"))
                     for couplings in ("no friction", "friction")}

@@ -114,7 +114,7 @@ registry.TERMS += (registry.Term("tether", "a spring to the as-woven place (test
 registry.NAMES += ("tether",)
 
 from dynfab.model import build_model
-from dynfab.model.fabric.kinematics import terms_of
+from dynfab.model.terms.kinematics import terms_of
 from dynfab.reports.fabric_data import paper_patch_scene
 from dynfab.scene import parse_scene_text
 from dynfab.solvers.by_name import make_solver

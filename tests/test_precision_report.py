@@ -41,14 +41,14 @@ PNGS = sorted(name for name in FILES if name.endswith(".png"))
 TEST_VARIANTS = {
     # the variants tests/test_dynamic_*.py build (`structure_variants.Variant.name`; the
     # damping and the load control are data, not variants)
-    "explicit/grouped/scatter/float64/no friction",
-    "semi_implicit/grouped/scatter/float64/no friction",
-    "explicit/grouped/scatter/float32/no friction",
-    "explicit/grouped/scatter/float64/friction",
-    "semi_implicit/grouped/scatter/float64/friction",
+    "explicit/grouped/scatter/float64/no friction/planar",
+    "semi_implicit/grouped/scatter/float64/no friction/planar",
+    "explicit/grouped/scatter/float32/no friction/planar",
+    "explicit/grouped/scatter/float64/friction/planar",
+    "semi_implicit/grouped/scatter/float64/friction/planar",
 }
-PASSES = {"passes/-/-/float64/no friction", "passes/-/-/float64/friction",
-          "passes/-/-/float32/no friction"}
+PASSES = {"passes/-/-/float64/no friction/planar", "passes/-/-/float64/friction/planar",
+          "passes/-/-/float32/no friction/planar"}
 """The one-pass kernels (tie forces at a step's end) of the same tests."""
 
 ROUNDING_SLACK = 1e-12

@@ -60,10 +60,10 @@ TESTED_VARIANTS = {
     # the float64 grouped kernels (`structure_variants.Variant.name`; the damping and the load
     # control are data) that test_dynamic_relaxation.py and test_dynamic_semi_implicit.py
     # compile, and the one-pass kernels of their steps' ends
-    "explicit/grouped/scatter/float64/no friction", "explicit/grouped/scatter/float64/friction",
-    "semi_implicit/grouped/scatter/float64/no friction",
-    "semi_implicit/grouped/scatter/float64/friction",
-    "passes/-/-/float64/no friction", "passes/-/-/float64/friction",
+    "explicit/grouped/scatter/float64/no friction/planar", "explicit/grouped/scatter/float64/friction/planar",
+    "semi_implicit/grouped/scatter/float64/no friction/planar",
+    "semi_implicit/grouped/scatter/float64/friction/planar",
+    "passes/-/-/float64/no friction/planar", "passes/-/-/float64/friction/planar",
 }
 
 

@@ -68,7 +68,7 @@ import scipy.sparse.linalg
 from dynfab.model import assembly
 from dynfab.linalg.banded import BANDWIDTH, band_add, band_matvec, constrain
 from dynfab.errors import SolverError
-from dynfab.model.fabric.kinematics import terms_of
+from dynfab.model.terms.kinematics import terms_of
 from dynfab.model.fabric import inertia
 from dynfab.model.fabric import ordering as fabric_ordering
 from dynfab.linalg.ldlt import (TINY_PIVOT, inverse_norm_1, ldlt_factor, ldlt_solve,

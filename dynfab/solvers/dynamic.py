@@ -36,13 +36,14 @@ import numpy as np
 
 from dynfab.solvers.certificate import MAX_ESCAPES, GroupLayout, certify_groups
 from dynfab.errors import SolverError, UserError
-from dynfab.kernels import runtime, status
-from dynfab.kernels.precision import DEFAULT_TOLERANCE
+from dynfab.kernels import runtime, status, structure_forces
+from dynfab.kernels.precision import DEFAULT_TOLERANCE, KINEMATICS_OF_DIM
 from dynfab.kernels.structure_explicit import MAX_NEGATIVE_STEPS
 from dynfab.kernels.structure_relaxation import StructureRelaxation, available_cores
 from dynfab.kernels.structure_settings import RELATIVE_TOLERANCE
 from dynfab.scene import Dynamic, check_dynamic_options
 from dynfab.model.step import StepSolution
+from dynfab.model.structure import dim
 
 __all__ = ["DynamicSolver", "DynamicTransient", "MAX_TIGHTENINGS", "available_cores"]
 
@@ -55,24 +56,14 @@ MAX_TIGHTENINGS = 3
 bound exceeds the accuracy target (`DynamicSolver._certify`)."""
 
 
-SPATIAL_REFUSALS = (
-    ("precision", "float32", "float32 positions (a relative rounding of 6e-8) against the "
-     "yarns' stretch stiffness leave a force floor far above the trellis mode's residual "
-     "(docs/results.md, \"float32 on a specimen\")"),
-)
-"""What a spatial structure's relaxation refuses (docs/model.md section 11.11): (option,
-value, why)."""
-
-
-def _check_spatial(structure, options) -> None:
-    """A UserError in one line where a spatial structure (docs/model.md section 11) asks for
-    what its kernels do not have: float32."""
-    if structure.rest_position.shape[1] != 3:
-        return
-    for name, value, why in SPATIAL_REFUSALS:
+def _check_refusals(structure, options) -> None:
+    """A UserError in one line where the structure's elements refuse an option (their
+    `REFUSALS`: the spatial ones float32, docs/model.md section 11.11)."""
+    kinematics = KINEMATICS_OF_DIM[dim(structure)]
+    for name, value, why in structure_forces.KINDS[kinematics].REFUSALS:
         if getattr(options, name) == value:
-            raise UserError(f"a [specimen] (spatial kinematics) does not run dynamic.{name} = "
-                            f"\"{value}\": {why} (docs/model.md section 11.11)")
+            raise UserError(f"a structure of {kinematics} kinematics does not run dynamic.{name}"
+                            f" = \"{value}\": {why} (docs/model.md section 11.11)")
 
 
 class DynamicSolver:
@@ -100,7 +91,7 @@ class DynamicSolver:
         self._dt_warned = False
         runtime.initialize(device)
         transient = self.options.mode == "transient"
-        _check_spatial(model.structure, self.options)
+        _check_refusals(model.structure, self.options)
         method = "explicit" if transient else self.options.method
         self.relaxation = StructureRelaxation(
             model.structure, precision=self.options.precision, method=method,

@@ -71,7 +71,7 @@ from dynfab.model.fabric import contact, ordering, spatial
 from dynfab.linalg import pardiso
 from dynfab.model.fabric.friction import STICK
 from dynfab.model.fabric.kept_factor import KeptFactor
-from dynfab.model.fabric.kinematics import terms_of
+from dynfab.model.terms.kinematics import terms_of
 from dynfab.solvers.friction_chain import friction_chain
 from dynfab.solvers.newton_backend import NewtonBackend
 from dynfab.solvers.newton_info import Budget, NewtonInfo, within
@@ -259,7 +259,7 @@ class SparseNewton(NewtonBackend):
     def __init__(self, model, **options):
         super().__init__(model, **options)
         self.terms = terms_of(self.structure)
-        """The structure's term set: planar or spatial (`dynfab.model.fabric.kinematics`)."""
+        """The structure's term set: planar or spatial (`dynfab.model.terms.kinematics`)."""
         self.pattern = self.terms.pattern_of(self.structure)
         """The order of the Hessian's entries and its unknowns (`assembly.pattern_of`)."""
         self.dim = self.structure.rest_position.shape[1]

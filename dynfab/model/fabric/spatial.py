@@ -14,7 +14,7 @@ between neighbouring yarns (`lateral_stencil`, `lateral_law`). A specimen is loa
 held nodes (displacement control), so there is no end-load work; the load term stays 0.
 
 The functions mirror the planar fabric's (`dynfab.model.fabric.assembly`), so the static solver's
-sparse backend takes either through `dynfab.model.fabric.kinematics.terms_of`. The Hessian's
+sparse backend takes either through `dynfab.model.terms.kinematics.terms_of`. The Hessian's
 entries are every element's dense local block, in a fixed order (`pattern_entries`); numba
 fills the values in that order and `assembly.Pattern` sums them on the unknowns.
 """

@@ -1,0 +1,52 @@
+"""What a structure's coordinates call for, on the host (docs/model.md sections 10 and 11): its
+term set, its friction anchors as woven, and the dynamic solver's stiffest rows.
+
+Planar kinematics (dim 2: each chain in its vertical plane) takes the planar fabric's terms
+(`dynfab.model.fabric.assembly`); spatial kinematics (dim 3: x, y, z) the spatial ones
+(`dynfab.model.fabric.spatial`: bending in two planes, the three-component crossing friction and
+rotation spring, the lateral contacts). Both offer the same functions (TERMS, CONTACT,
+total_energy, gradient, sparse_hessian, energy_vector, rounding_scale, pattern_of,
+coupling_rows, crossing_slips), so the static solver's sparse backend and its certificate
+take either. This is the one place on the host that asks which kinematics a structure has.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from dynfab.model.fabric import assembly, spatial
+from dynfab.model.structure import Structure, dim
+from dynfab.model.terms.spatial import crossing_coordinates
+
+
+def terms_of(structure: Structure):
+    """The term set (module) of `structure`: spatial where its nodes have three coordinates."""
+    return spatial if dim(structure) == 3 else assembly
+
+
+def woven_anchors(structure: Structure) -> np.ndarray:
+    """Each tie's friction anchor at zero slip as woven: planar (T, 2) [m], from the planes (a
+    ground tie's first component its node's x, its second 0; docs/model.md section 10);
+    spatial (T, 3) [m, m, rad], each crossing's coordinates q as woven (section 11.4)."""
+    pos = np.asarray(structure.rest_position, float)
+    if dim(structure) == 3:
+        anchors = np.zeros((structure.tie_a.size, 3))
+        for t, stencil in enumerate(np.asarray(structure.tie_stencil).reshape(-1, 6)):
+            crossing_coordinates(pos[stencil], anchors[t])
+        return anchors
+    plane = np.asarray(structure.tie_plane, float).reshape(-1, 2)
+    anchors = np.zeros((structure.tie_a.size, 2))
+    anchors[:, 0] = pos[structure.tie_a, 0] - plane[:, 0]
+    node_b = structure.tie_b >= 0
+    anchors[node_b, 1] = pos[structure.tie_b[node_b], 0] - plane[node_b, 1]
+    return anchors
+
+
+def stiffest_rows(structure: Structure, pos, anchors) -> tuple[np.ndarray, np.ndarray] | None:
+    """Per node, the stiffest tangent's Gershgorin row sum and largest diagonal [N/m] where the
+    host computes them (spatial: `dynfab.model.fabric.spatial.stiffest_rows`, from the exact
+    Hessian); None where the kernels do (planar: from their band, `structure_tangent`)."""
+    if dim(structure) != 3:
+        return None
+    return spatial.stiffest_rows(structure, np.asarray(pos, float).reshape(-1, 3),
+                                 np.asarray(anchors, float).reshape(-1, 3))
