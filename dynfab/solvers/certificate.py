@@ -68,7 +68,7 @@ import scipy.sparse.linalg
 from dynfab.model import assembly
 from dynfab.linalg.banded import BANDWIDTH, band_add, band_matvec, constrain
 from dynfab.errors import SolverError
-from dynfab.model.terms.kinematics import terms_of
+from dynfab.model.terms.kinematics import terms_of, woven_plan
 from dynfab.model.fabric import inertia
 from dynfab.model.fabric import ordering as fabric_ordering
 from dynfab.linalg.ldlt import (TINY_PIVOT, inverse_norm_1, ldlt_factor, ldlt_solve,
@@ -577,12 +577,10 @@ def _inverse_norm(solve, n: int) -> tuple[float, int]:
 
 
 def longest_chain(structure: Structure) -> float:
-    """The largest as-woven extent of a chain along itself [m] (a fabric's longer family)."""
-    first, last = structure.chain_start[:-1], structure.load_node
-    extent = structure.rest_position[last] - structure.rest_position[first]
-    if dim(structure) == 3:  # spatial: the in-plane chord (docs/model.md section 11)
-        return float(np.max(np.hypot(extent[:, 0], extent[:, 1])))
-    return float(np.max(extent[:, 0]))
+    """The largest as-woven chord of a chain seen from above [m] (a fabric's longer family)."""
+    plan = woven_plan(structure)
+    extent = plan[structure.load_node] - plan[structure.chain_start[:-1]]
+    return float(np.max(np.hypot(extent[:, 0], extent[:, 1])))
 
 
 def escape_patch(model, pos, P, anchors, limit, checked: PatchCertificate):
@@ -624,7 +622,7 @@ def check_patch_accuracy(model, checked: PatchCertificate, stability: StepStabil
     scale = StepStability.scale(pos, f.rest_position, longest_chain(f))
     if stability.error_estimate[0] <= accuracy * scale:
         return
-    name = model.group_name(None) if hasattr(model, "group_name") else "fabric"
+    name = model.group_name(None)
     where = (name if checked.worst < 0 else
              f"{name} ({patch_location(model, checked.worst)}: where the bound is largest)")
     advice = getattr(getattr(model, "model", None), "singular_advice", None) or SINGULAR_ADVICE

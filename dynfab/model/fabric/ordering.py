@@ -42,7 +42,7 @@ import scipy.sparse
 import scipy.sparse.linalg
 
 from dynfab.linalg import pardiso
-from dynfab.model.structure import chain_of_node
+from dynfab.model.terms.kinematics import woven_plan
 
 LEAF = 64
 """Parts of at most this many unknowns are not dissected further (natural order: along
@@ -54,17 +54,10 @@ _by_pattern: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 
 
 def coordinates(fabric, index, count: int) -> np.ndarray:
-    """(x, y) [m] of each of the `count` unknowns, as woven: a warp node at (its in-plane
-    coordinate, Y_k), a weft node at (X_j, its in-plane coordinate); `index` maps dofs to
-    unknowns (-1 fixed, `assembly.Pattern.index`), a tied unknown placed at its first dof."""
+    """(x, y) [m] of each of the `count` unknowns, as woven (`woven_plan`); `index` maps dofs
+    to unknowns (-1 fixed, `assembly.Pattern.index`), a tied unknown placed at its first dof."""
     d = fabric.rest_position.shape[1]
-    if d == 3:  # spatial kinematics: the nodes' own (x, y) (docs/model.md section 11)
-        xy = fabric.rest_position[:, :2]
-    else:
-        yarn = chain_of_node(fabric)
-        along, line = fabric.rest_position[:, 0], fabric.chain_plane[yarn]
-        warp = fabric.chain_family[yarn, None] == 0
-        xy = np.where(warp, np.stack([along, line], 1), np.stack([line, along], 1))
+    xy = woven_plan(fabric)
     dofs = np.flatnonzero(index >= 0)
     unknowns, first = np.unique(index[dofs], return_index=True)
     out = np.zeros((count, 2))

@@ -15,13 +15,26 @@ from __future__ import annotations
 import numpy as np
 
 from dynfab.model.fabric import assembly, spatial
-from dynfab.model.structure import Structure, dim
+from dynfab.model.structure import Structure, chain_of_node, dim
 from dynfab.model.terms.spatial import crossing_coordinates
 
 
 def terms_of(structure: Structure):
     """The term set (module) of `structure`: spatial where its nodes have three coordinates."""
     return spatial if dim(structure) == 3 else assembly
+
+
+def woven_plan(structure: Structure) -> np.ndarray:
+    """(x, y) [m] of each node as woven, seen from above: planar, a warp node at (its in-plane
+    coordinate, Y_k) and a weft node at (X_j, its in-plane coordinate) (docs/model.md section
+    10); spatial, the node's own (x, y) (section 11)."""
+    pos = np.asarray(structure.rest_position, float)
+    if dim(structure) == 3:
+        return pos[:, :2]
+    chain = chain_of_node(structure)
+    along, line = pos[:, 0], structure.chain_plane[chain]
+    warp = structure.chain_family[chain, None] == 0
+    return np.where(warp, np.stack([along, line], 1), np.stack([line, along], 1))
 
 
 def woven_anchors(structure: Structure) -> np.ndarray:
