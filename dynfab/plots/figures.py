@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import Callable, NamedTuple
 
 import numpy as np
 from matplotlib import colormaps
@@ -41,6 +42,7 @@ from dynfab.errors import UserError
 from dynfab.results.friction_states import FRICTION_STATES, crossing_count, friction_states
 from dynfab.plots.style import (FAMILY_ALPHA, FAMILY_STYLE, FAMILY_WIDTH, FONT_SIZE, legend,
                                new_figure, output_folder, save_png, style_axes)
+from dynfab.plots import specimen
 from dynfab.plots.measured import Measured, draw_measured, measured_points
 from dynfab.results.file import Results, read_results
 
@@ -64,34 +66,31 @@ def plot_results(path: str | os.PathLike, out_dir: str | os.PathLike,
         return plot_study(path, out_dir)
     results = read_results(path)
     measured = None if data is None else measured_points(results, data)
+    kind = KINDS[results.attrs.get("model", "yarn")]
     if results.step_count == 0 and results.frame_count > 0:
-        if results.attrs.get("model") == "specimen":  # docs/model.md section 11.12
-            from dynfab.plots.specimen import plot_transient
-
-            return plot_transient(results, output_folder(out_dir))
-        return _plot_transient(results, output_folder(out_dir))
+        return kind.transient(results, output_folder(out_dir))
     if results.step_count == 0:
         raise UserError(f"result file '{path}' has no finished load step to plot")
-    if results.attrs.get("model") == "specimen":  # docs/model.md section 11
-        from dynfab.plots.specimen import (plot_contact_field, plot_shear_field,
-                                           plot_shear_force)
+    return kind.steps(results, path, out_dir, measured)
 
-        out = output_folder(out_dir)
-        written = [save_png(plot_shear_force(results, measured), out / "shear_force.png"),
-                   save_png(plot_shear_field(results), out / "shear_field.png")]
-        if "free_end_rank" in results.reference and "preload" in results.attrs:
-            written.append(save_png(plot_contact_field(results), out / "contact_field.png"))
-        return written
-    if results.attrs.get("model") == "fabric":  # docs/model.md section 10
-        if "stress" not in results.steps:
-            raise UserError(f"result file '{path}' lacks dataset steps/stress (written by an "
-                            f"earlier dynfab): run its scene again to plot it")
-        out = output_folder(out_dir)
-        written = [save_png(plot_fabric(results, measured), out / "fabric.png"),
-                   save_png(plot_fabric_shape(results), out / "shape.png")]
-        if "pullout_warp" in results.attrs:
-            written.append(save_png(plot_pullout(results), out / "pullout.png"))
-        return written
+
+def _fabric_figures(results: Results, path, out_dir, measured: Measured | None) -> list[Path]:
+    """A fabric's figures (docs/model.md section 10): its strains and stresses, its shape, a
+    pull-out's curves."""
+    if "stress" not in results.steps:
+        raise UserError(f"result file '{path}' lacks dataset steps/stress (written by an "
+                        f"earlier dynfab): run its scene again to plot it")
+    out = output_folder(out_dir)
+    written = [save_png(plot_fabric(results, measured), out / "fabric.png"),
+               save_png(plot_fabric_shape(results), out / "shape.png")]
+    if "pullout_warp" in results.attrs:
+        written.append(save_png(plot_pullout(results), out / "pullout.png"))
+    return written
+
+
+def _yarn_figures(results: Results, path, out_dir, measured: Measured | None) -> list[Path]:
+    """The one-yarn model's figures (docs/model.md sections 1-9): traction, contact forces,
+    shapes, friction."""
     for key in ("end_force", "end_displacement", "positions"):
         if key not in results.steps:
             raise UserError(f"result file '{path}' lacks dataset steps/{key}")
@@ -453,3 +452,18 @@ def _suptitle(fig: Figure, results: Results, what: str) -> None:
     """Figure title: the run's ``title`` attribute (if any) and what is shown."""
     title = str(results.attrs.get("title", "") or "")
     fig.suptitle(f"{title}\n{what}" if title else what, fontsize=FONT_SIZE + 1)
+
+
+class KindFigures(NamedTuple):
+    """The figures of one kind of result file (its root attribute "model")."""
+
+    steps: Callable
+    """(results, path, out_dir, measured) -> the PNGs of a run's load steps."""
+    transient: Callable
+    """(results, out) -> the PNGs of a transient run's frames."""
+
+
+KINDS = {"yarn": KindFigures(_yarn_figures, _plot_transient),
+         "fabric": KindFigures(_fabric_figures, _plot_transient),
+         "specimen": KindFigures(specimen.plot_steps, specimen.plot_transient)}
+"""Each kind of result file's figures (a file without the attribute: the one-yarn model's)."""

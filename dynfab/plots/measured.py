@@ -4,7 +4,7 @@ figures draw (`measured_points`), and drawn (`draw_measured`)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -41,19 +41,35 @@ def measured_points(results: Results, data) -> Measured:
     found = dict(curve.measured, **{("end_displacement" if control == "displacement"
                                      else "load"): curve.load})
     label = f"measured: {Path(data).stem}"
-    if model == "specimen":
-        return Measured(label, end_displacement=curve.load, end_force=found["clamp_force"])
-    if model == "fabric":
-        strain = found.get("warp_strain")
-        if strain is None and control == "displacement":
-            strain = curve.load / float(results.attrs["projected_length"])
-        stress = found.get("warp_stress")
-        if stress is None and control == "force":
-            stress = curve.load / (float(results.attrs["weft_length"])
-                                   / float(scene.weft.count))
-        return Measured(label, strain=strain, stress=stress)
-    return Measured(label, end_displacement=found.get("end_displacement"),
-                    end_force=found.get("end_force", found.get("load")))
+    return POINTS[model](Measured(label), found, results, scene, control)
+
+
+def _specimen_points(measured: Measured, found: dict, results: Results, scene, control: str):
+    """A specimen's curve: the clamp force against its displacement d."""
+    return replace(measured, end_displacement=found["end_displacement"],
+                   end_force=found["clamp_force"])
+
+
+def _fabric_points(measured: Measured, found: dict, results: Results, scene, control: str):
+    """A fabric's curve: the warps' strain and load per unit width, the prescribed one from the
+    load path (a displacement over the projected length, a force over the width per warp)."""
+    strain, stress = found.get("warp_strain"), found.get("warp_stress")
+    if strain is None and control == "displacement":
+        strain = found["end_displacement"] / float(results.attrs["projected_length"])
+    if stress is None and control == "force":
+        width = float(results.attrs["weft_length"]) / float(scene.weft.count)
+        stress = found["load"] / width
+    return replace(measured, strain=strain, stress=stress)
+
+
+def _yarn_points(measured: Measured, found: dict, results: Results, scene, control: str):
+    """A yarn's curve: its end force against its end displacement."""
+    return replace(measured, end_displacement=found.get("end_displacement"),
+                   end_force=found.get("end_force", found.get("load")))
+
+
+POINTS = {"yarn": _yarn_points, "fabric": _fabric_points, "specimen": _specimen_points}
+"""Each kind of scene's measured curve as the figures' quantities (`measured_points`)."""
 
 
 def draw_measured(ax, x, y, measured: Measured) -> None:

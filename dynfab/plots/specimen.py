@@ -23,7 +23,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from dynfab.plots.measured import draw_measured
-from dynfab.plots.style import FONT_SIZE, legend, new_figure, save_png, style_axes
+from dynfab.plots.style import FONT_SIZE, legend, new_figure, output_folder, save_png, style_axes
 from dynfab.results.file import Results
 from dynfab.model.shear_force import bias_normalised_shear_force
 from dynfab.model.specimen_layout import nominal_shear_angle, yarns_meet_at
@@ -203,6 +203,18 @@ def _shear_field(xy: np.ndarray, gamma: np.ndarray, titles: list[str], title: st
     fig.colorbar(shown, ax=list(axes), label="shear angle [deg]")
     fig.suptitle(title)
     return fig
+
+
+def plot_steps(results: Results, path, out_dir, measured=None) -> list:
+    """A specimen's figures (docs/model.md section 11): its shear force against d and angle,
+    its shear field, and where the file holds its free ends' ranks and preload, its contact
+    field."""
+    out = output_folder(out_dir)
+    written = [save_png(plot_shear_force(results, measured), out / "shear_force.png"),
+               save_png(plot_shear_field(results), out / "shear_field.png")]
+    if "free_end_rank" in results.reference and "preload" in results.attrs:
+        written.append(save_png(plot_contact_field(results), out / "contact_field.png"))
+    return written
 
 
 def plot_transient(results: Results, out) -> list:

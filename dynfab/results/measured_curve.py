@@ -31,6 +31,7 @@ import math
 import re
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -89,10 +90,27 @@ SPECIMEN_MEASURABLE = {
 """An in-plane shear specimen's measured column: the force on the moved clamp (frame corner)
 along its displacement (`dynfab.model.fabric.specimen_model`, docs/model.md section 11)."""
 
-MODELS = {"yarn": ('the one-yarn model (geometry.model = "yarn")', MEASURABLE),
-          "fabric": ('the woven fabric (geometry.model = "fabric")', FABRIC_MEASURABLE),
-          "specimen": ("a shear specimen (a [specimen] scene)", SPECIMEN_MEASURABLE)}
-"""model -> (its name in a message, its measured columns)."""
+class CurveKind(NamedTuple):
+    """What a measured curve of one kind of scene holds."""
+
+    words: str
+    """Its name in a message."""
+    columns: dict
+    """Its measured columns, name -> Column."""
+    weft_load: bool
+    """Whether a second load column, the wefts' path, may follow the first."""
+    controls: tuple
+    """The load controls its scenes run."""
+
+
+MODELS = {"yarn": CurveKind('the one-yarn model (geometry.model = "yarn")', MEASURABLE, False,
+                            ("force", "displacement")),
+          "fabric": CurveKind('the woven fabric (geometry.model = "fabric")', FABRIC_MEASURABLE,
+                              True, ("force", "displacement")),
+          "specimen": CurveKind("a shear specimen (a [specimen] scene)", SPECIMEN_MEASURABLE,
+                                False, ("displacement",))}
+"""Each kind of scene (`model_kind`) -> what its curves hold (a specimen is loaded by its
+clamp displacement only)."""
 
 _HEADER = re.compile(
     r"^\s*(?P<name>[A-Za-z_][A-Za-z0-9_]*)(?P<sigma>\s+sigma)?\s*\[(?P<unit>[^\]]*)\]\s*$")
@@ -105,8 +123,8 @@ def model_kind(scene) -> str:
 
 
 def measurable(model: str) -> dict:
-    """The measured columns of `model` ("yarn" or "fabric"), name -> Column."""
-    return MODELS[model][1]
+    """The measured columns of `model` (`MODELS`), name -> Column."""
+    return MODELS[model].columns
 
 
 @dataclass(frozen=True)
@@ -139,7 +157,7 @@ class CurveData:
     def path(self) -> np.ndarray:
         """The load path the scene takes: (points,) for one yarn, (points, 2) (warp value,
         weft value) for a fabric, the weft's 0 without a weft column."""
-        if self.model in ("yarn", "specimen"):
+        if not MODELS[self.model].weft_load:
             return self.load
         weft = np.zeros_like(self.load) if self.weft_load is None else self.weft_load
         return np.column_stack([self.load, weft])
@@ -209,7 +227,7 @@ def expected_columns(model: str, control: str) -> str:
     """The columns a curve of `model` under `control` takes, in words."""
     load, unit = LOAD_COLUMN[control]
     weft = (f", then optionally '{WEFT_LOAD_COLUMN[control][0]} "
-            f"[{WEFT_LOAD_COLUMN[control][1]}]'" if model == "fabric" else "")
+            f"[{WEFT_LOAD_COLUMN[control][1]}]'" if MODELS[model].weft_load else "")
     return (f"{MODELS[model][0]} under {control} control takes '{load} [{unit}]' first{weft}, "
             f"then one or more of {_listing(model, control)} (each optionally with its "
             "'<name> sigma [unit]')")
@@ -220,8 +238,8 @@ def columns_help() -> str:
     lines = ["CSV columns (a header of 'name [unit]' in SI units, then one row per point):"]
     for model in MODELS:
         for control in ("force", "displacement"):
-            if model == "specimen" and control == "force":
-                continue  # a specimen is loaded by its clamp displacement only
+            if control not in MODELS[model].controls:
+                continue
             lines.append(f"  - {expected_columns(model, control)}")
     return "\n".join(lines)
 
@@ -299,9 +317,9 @@ def _foreign_column(source, label, name, control, model: str) -> UserError:
     this = MODELS[model][0]
     weft_names = {n: c for c, (n, _) in WEFT_LOAD_COLUMN.items()}
     if name in weft_names:
-        if model == "yarn":
+        if not MODELS[model].weft_load:
             return UserError(f"{source}: column '{label}' is the wefts' load of the woven fabric; "
-                             f"this scene is {this}, loaded at its warp only")
+                             f"this scene is {this}, which takes no wefts' load")
         if weft_names[name] != control:
             want, unit = WEFT_LOAD_COLUMN[control]
             return UserError(f"{source}: column '{label}' is the wefts' load under "
@@ -310,11 +328,11 @@ def _foreign_column(source, label, name, control, model: str) -> UserError:
         return UserError(f"{source}: column '{label}', the wefts' load path, must be the second "
                          f"column, right after '{LOAD_COLUMN[control][0]} "
                          f"[{LOAD_COLUMN[control][1]}]'")
-    other = "fabric" if model == "yarn" else "yarn"
-    if name in measurable(other):
-        return UserError(f"{source}: column '{label}' is a measurement of {MODELS[other][0]}; "
-                         f"this scene is {this}, whose measured columns are "
-                         + _listing(model, control))
+    for other, kind in MODELS.items():
+        if other != model and name in kind.columns:
+            return UserError(f"{source}: column '{label}' is a measurement of {kind.words}; "
+                             f"this scene is {this}, whose measured columns are "
+                             + _listing(model, control))
     return UserError(f"{source}: unknown column '{label}': a measured column of {this} is one "
                      "of " + _listing(model, control))
 

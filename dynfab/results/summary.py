@@ -10,6 +10,7 @@ print what a file holds, also a file written by an earlier run.
 from __future__ import annotations
 
 import sys
+from typing import Callable, NamedTuple
 
 import numpy as np
 
@@ -38,22 +39,26 @@ def _progress_line(index: int, total: int, record: dict, unit: str, quantities: 
 
 
 def _step_quantities(attrs: dict, record: dict, unit: str) -> str:
-    """What a progress line shows of a step, each quantity saying whose it is: the load and
-    end displacement of the one-yarn model (the largest over its yarns when it has several);
-    a fabric's loads (warp, weft) and then, in a pull-out (`attrs["pullout_warp"]`), the
-    pulled warp's end displacement and pull force and the wefts' mean strain, otherwise
-    both families' strain and stress (means over their loaded yarns, docs/model.md
-    section 10), and its largest slip ratio (`dynfab.model.domain.slip_ratios`)."""
+    """What a progress line shows of a step, each quantity saying whose it is (the kind's
+    `quantities`, `KINDS`)."""
+    return _kind(attrs).quantities(attrs, record, unit)
+
+
+def _yarn_quantities(attrs: dict, record: dict, unit: str) -> str:
+    """The one-yarn model's load and end displacement (the largest over its yarns when it has
+    several)."""
     load = np.atleast_1d(record["load"])
-    if attrs.get("model") == "specimen":  # docs/model.md section 11
-        gamma = np.degrees(np.asarray(record["shear_angle"]))
-        return (f"d {1e3 * load[0]:.4g} mm  clamp force {float(record['clamp_force']):.4g} N  "
-                f"shear angle {np.median(gamma):.3g} deg (median), {gamma.max():.3g} (largest)"
-                f"  slip {float(record['slip_ratio']):.3f} of a segment")
-    if attrs.get("model") != "fabric":
-        u = 1e3 * np.atleast_1d(record["end_displacement"])
-        whose = f" (largest of {u.size} yarns)" if u.size > 1 else ""
-        return f"load {load[0]:.6g} {unit}  end displacement {u.max():.4f} mm{whose}"
+    u = 1e3 * np.atleast_1d(record["end_displacement"])
+    whose = f" (largest of {u.size} yarns)" if u.size > 1 else ""
+    return f"load {load[0]:.6g} {unit}  end displacement {u.max():.4f} mm{whose}"
+
+
+def _fabric_quantities(attrs: dict, record: dict, unit: str) -> str:
+    """A fabric's loads (warp, weft) and then, in a pull-out (`attrs["pullout_warp"]`), the
+    pulled warp's end displacement and pull force and the wefts' mean strain, otherwise both
+    families' strain and stress (means over their loaded yarns, docs/model.md section 10), and
+    its largest slip ratio (`dynfab.model.domain.slip_ratios`)."""
+    load = np.atleast_1d(record["load"])
     text = f"load {load[0]:.6g}, {load[1]:.6g} {unit} (warp, weft)  "
     strain, stress = 100 * np.asarray(record["strain"]), np.asarray(record["stress"])
     if "pullout_warp" in attrs:
@@ -65,6 +70,16 @@ def _step_quantities(attrs: dict, record: dict, unit: str) -> str:
         text += (f"mean strain {strain[0]:.4f}, {strain[1]:.4f} %, stress {stress[0]:.4g}, "
                  f"{stress[1]:.4g} N/m (warp, weft)")
     return text + f"  slip {float(record['slip_ratio']):.3f} of a segment"
+
+
+def _specimen_quantities(attrs: dict, record: dict, unit: str) -> str:
+    """A shear specimen's clamp displacement and force, shear angles and largest slip
+    (docs/model.md section 11)."""
+    load = np.atleast_1d(record["load"])
+    gamma = np.degrees(np.asarray(record["shear_angle"]))
+    return (f"d {1e3 * load[0]:.4g} mm  clamp force {float(record['clamp_force']):.4g} N  "
+            f"shear angle {np.median(gamma):.3g} deg (median), {gamma.max():.3g} (largest)"
+            f"  slip {float(record['slip_ratio']):.3f} of a segment")
 
 
 def _solver_time(steps) -> str:
@@ -86,12 +101,8 @@ def print_summary(results: Results, file=None) -> None:
     file = sys.stdout if file is None else file
     if results.step_count == 0:
         _print_frames_summary(results, file)
-    elif results.attrs.get("model") == "specimen":
-        _print_specimen_summary(results, file)
-    elif results.attrs.get("model") == "fabric":
-        _print_fabric_summary(results, file)
     else:
-        _print_yarn_summary(results, file)
+        _kind(results.attrs).table(results, file)
     for line in run_summary(results):
         print(line, file=file)
 
@@ -184,23 +195,19 @@ def _family_arrays(results: Results, name: str) -> np.ndarray:
 def run_summary(results: Results) -> list[str]:
     """The lines printed after a run's table: its load steps (or frames) and the solver time
     summed over them (`steps/wall_time`), then the last step's state, each quantity saying
-    whose it is: a fabric's strains and stresses per family (means over the loaded yarns),
-    a pull-out's pulled warp and its peak pull force, the largest slip ratio; the one-yarn
-    model's end force and displacement per yarn (and load per unit width, with a weft)."""
+    whose it is (the kind's `last_step`, `KINDS`)."""
     if results.step_count == 0:
         times = results.frames.get("time", [])
         return [f"{len(times)} frames to t = {float(times[-1]) if len(times) else 0.0:.6g} s"]
-    steps, attrs = results.steps, results.attrs
-    lines = [f"{results.step_count} load steps, {_solver_time(steps)}"]
-    if attrs.get("model") == "fabric":
-        return lines + _fabric_summary(results)
-    if attrs.get("model") == "specimen":  # docs/model.md section 11
-        gamma = np.degrees(np.asarray(steps["shear_angle"][-1]))
-        return lines + [f"last step: d = {1e3 * float(steps['load'][-1, 0]):.5g} mm, clamp force "
-                        f"{float(steps['clamp_force'][-1]):.6g} N, shear angle "
-                        f"{np.median(gamma):.4g} deg (median over the crossings), largest slip "
-                        f"{float(steps['slip_ratio'][-1]):.3g} of a segment"]
-    labels = attrs.get("yarn_labels") or []
+    lines = [f"{results.step_count} load steps, {_solver_time(results.steps)}"]
+    return lines + _kind(results.attrs).last_step(results)
+
+
+def _yarn_summary(results: Results) -> list[str]:
+    """`run_summary`'s lines on the one-yarn model's last step: per yarn its end force and
+    displacement (and load per unit width, with a weft)."""
+    steps, lines = results.steps, []
+    labels = results.attrs.get("yarn_labels") or []
     stress = steps.get("stress")
     for k in range(np.asarray(steps["end_force"]).shape[1]):
         label = labels[k] if k < len(labels) else f"yarn {k + 1}"
@@ -210,6 +217,16 @@ def run_summary(results: Results) -> list[str]:
             line += f", load per unit width {stress[-1, k]:.6g} N/m"
         lines.append(line)
     return lines
+
+
+def _specimen_summary(results: Results) -> list[str]:
+    """`run_summary`'s line on a shear specimen's last step (docs/model.md section 11)."""
+    steps = results.steps
+    gamma = np.degrees(np.asarray(steps["shear_angle"][-1]))
+    return [f"last step: d = {1e3 * float(steps['load'][-1, 0]):.5g} mm, clamp force "
+            f"{float(steps['clamp_force'][-1]):.6g} N, shear angle "
+            f"{np.median(gamma):.4g} deg (median over the crossings), largest slip "
+            f"{float(steps['slip_ratio'][-1]):.3g} of a segment"]
 
 
 def _fabric_summary(results: Results) -> list[str]:
@@ -249,3 +266,27 @@ def _print_frames_summary(results: Results, file) -> None:
                f"{float(frames['clamp_force'][i]):>12.5g}" if clamp else "")
         print(f"{i:>5} {time_s:>11.6g} {frames['energy/kinetic'][i].max():>12.4g} {largest:>11.5g}"
               f"{row}", file=file)
+
+
+class KindSummary(NamedTuple):
+    """What the summary prints of one kind of result file (its root attribute "model")."""
+
+    quantities: Callable[[dict, dict, str], str]
+    """(attrs, record, unit) -> a progress line's quantities."""
+    table: Callable[[Results, object], None]
+    """(results, file): the table of its steps."""
+    last_step: Callable[[Results], list[str]]
+    """results -> the summary's lines on its last step."""
+
+
+KINDS = {"yarn": KindSummary(_yarn_quantities, _print_yarn_summary, _yarn_summary),
+         "fabric": KindSummary(_fabric_quantities, _print_fabric_summary, _fabric_summary),
+         "specimen": KindSummary(_specimen_quantities, _print_specimen_summary,
+                                 _specimen_summary)}
+"""Each kind of result file's summary (docs/model.md sections 1-9, 10 and 11)."""
+
+
+def _kind(attrs) -> KindSummary:
+    """The summary of a result file's kind (a file without the attribute: the one-yarn
+    model's, as written before the fabric existed)."""
+    return KINDS[attrs.get("model", "yarn")]
