@@ -310,10 +310,8 @@ def _start_state(model: RunModel, sink):
     every finished step a model names in `history_keys`: a specimen's path of clamp forces)."""
     if not sink.step_count:
         return model.initial_state()
-    keys = getattr(model, "history_keys", ())
-    if not keys:
-        return model.state_from_step(sink.last_step())
-    return model.state_from_step(sink.last_step(), {name: sink.step_column(name) for name in keys})
+    return model.state_from_step(sink.last_step(),
+                                 {name: sink.step_column(name) for name in model.history_keys})
 
 
 def _root_attrs(model: RunModel, engine: Solver | Transient) -> dict:

@@ -1127,6 +1127,13 @@ def _refuse(kind: tuple, facet: str, given) -> None:
                                                           value=_show(value), hint=spec.hint))
 
 
+def scene_takes(scene: Scene, table: str, key: str) -> bool:
+    """Whether a scene of `scene`'s kind takes `table.key`: no facet of its kind refuses it
+    (`_KEY_REFUSALS`)."""
+    spec = _SCHEMA[table][1][key]
+    return not any(_refused_by(facet, spec) for facet in _kind(scene))
+
+
 def _refused_by(facet: str, spec: _Key) -> bool:
     """Whether the facet of a scene's kind refuses the key declared `spec` (`_KEY_REFUSALS`)."""
     field_name, declared, _ = _KEY_REFUSALS.get(facet, ("", None, ""))

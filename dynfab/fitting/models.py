@@ -80,15 +80,13 @@ class FabricFit:
 
     @staticmethod
     def fittable_keys(scene) -> tuple[str, ...]:
-        """The real keys of FABRIC_TABLES that the scene's fabric takes, whose table the scene
-        has: a specimen's without the layout keys its [specimen] sets (and refuses), a planar
-        fabric's without the spatial ones."""
-        spatial = getattr(scene, "specimen", None) is not None
+        """The real keys of FABRIC_TABLES that the scene's kind takes (`scene_takes`: a
+        specimen's without the layout keys its [specimen] sets, a planar fabric's without the
+        spatial ones), whose table the scene has."""
         return tuple(f"{table}.{name}" for table in FABRIC_TABLES
                      if getattr(scene, table, None) is not None
                      for name, spec in scene_module._SCHEMA[table][1].items()
-                     if spec.kind == "float" and spec.model in ("", "fabric")
-                     and (not spec.layout if spatial else not spec.spatial)
+                     if spec.kind == "float" and scene_module.scene_takes(scene, table, name)
                      and not _unused_compaction(scene, table, name))
 
     @staticmethod
@@ -124,16 +122,20 @@ class FabricFit:
         for index in range(len(model.load_values)):
             state, record = solver.step(state, model.step_load(index))
             model.check_step(record)
-            if index < getattr(model, "relaxation_steps", 0):
+            if index < model.relaxation_steps:
                 continue  # a specimen's step 0, the preload relaxed: no point of the curve
             for name, column in columns.items():
                 values[name].append(column.read(record))
         return PathCurves({name: np.asarray(v) for name, v in values.items()})
 
 
+FITS = {"yarn": YarnFit, "fabric": FabricFit, "specimen": FabricFit}
+"""Each kind of scene's fit (`model_kind`)."""
+
+
 def fit_model(scene):
-    """The fit's view of the scene's model: `YarnFit` or `FabricFit`."""
-    return FabricFit if scene.geometry.model == "fabric" else YarnFit  # a specimen: fabric
+    """The fit's view of the scene's model: `YarnFit` or `FabricFit` (a specimen's too)."""
+    return FITS[model_kind(scene)]
 
 
 def start_value(scene, key: str) -> float:

@@ -83,6 +83,11 @@ class Model:
     static and dynamic solvers. It fulfils `dynfab.solvers.contract.RunModel`, as a fabric's model
     does."""
 
+    relaxation_steps = 0
+    """Steps before the scene's load path: none."""
+    history_keys = ()
+    """No step dataset of the whole path is needed to resume (`state_from_step`)."""
+
     scene: Scene
     structure: Structure
     """The scene's chains and ties to ground (`dynfab.model.builders.yarn`)."""
@@ -154,7 +159,7 @@ class Model:
         """The as-woven start (`initial_state`)."""
         return initial_state(self)
 
-    def state_from_step(self, last: dict) -> "State":
+    def state_from_step(self, last: dict, history: dict | None = None) -> "State":
         """The state a finished step left (a resumed run continues from it)."""
         return State(positions=np.array(last["positions"]), anchors=np.array(last["anchors"]),
                      dissipated=np.array(last["dissipated"]), load=np.array(last["load"]))

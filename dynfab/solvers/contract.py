@@ -92,6 +92,10 @@ class RunModel(Protocol):
     """"force" or "displacement"."""
     load_values: np.ndarray
     """The load path, one row (or value) per step [N or m]."""
+    relaxation_steps: int
+    """Steps before the scene's load path (a specimen's step 0, its preload relaxed)."""
+    history_keys: tuple
+    """The step datasets of the whole path that `state_from_step` needs to resume."""
 
     def step_load(self, index: int):
         """The load of step `index`: what the model's `Solver.step` takes."""
@@ -105,10 +109,9 @@ class RunModel(Protocol):
     def initial_state(self):
         """The as-woven state a run starts from."""
 
-    def state_from_step(self, last: dict):
-        """The state a finished step (a record read back from a file) left. (A model with
-        `history_keys`, the names of step datasets it needs over the whole path, takes them as
-        a second argument, {name: (steps, ...)}: `dynfab.run`.)"""
+    def state_from_step(self, last: dict, history: dict | None = None):
+        """The state a finished step (a record read back from a file) left; `history` the
+        columns `history_keys` of every finished step, {name: (steps, ...)}."""
 
     def point_data(self, entry: dict) -> dict:
         """The XDMF view's nodal point data of a step or frame (`dynfab.results.xdmf`)."""

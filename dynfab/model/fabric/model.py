@@ -99,6 +99,11 @@ class FabricModel:
     """A fabric scene as the solvers see it: its structure (`dynfab.model.builders.fabric`), its
     yarn families and its load path (docs/model.md section 10)."""
 
+    relaxation_steps = 0
+    """Steps before the scene's load path: none."""
+    history_keys = ()
+    """No step dataset of the whole path is needed to resume (`state_from_step`)."""
+
     scene: Scene
     structure: Structure
     warp: Family
@@ -192,7 +197,7 @@ class FabricModel:
         """As woven, anchors at zero slip, nothing dissipated (`as_woven_state`)."""
         return as_woven_state(self.structure)
 
-    def state_from_step(self, last: dict) -> FabricState:
+    def state_from_step(self, last: dict, history: dict | None = None) -> FabricState:
         """The state a finished step left (a resumed run continues from it)."""
         nodes = np.concatenate([np.asarray(last["positions"]).reshape(-1, 2),
                                 np.asarray(last["weft_positions"]).reshape(-1, 2)])
