@@ -544,7 +544,7 @@ def tangent_terms(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
 
     `assemble_chain` puts into a chain's band every block that lies in it (`in_band`: both
     nodes on the chain, at most two apart): its stretch and bending, its ties' dR/dg on z, and
-    those blocks of its crossings and lateral contacts; `coupling_row` applies the rest to x
+    those blocks of its crossings and lateral contacts; `coupling_vector` applies the rest to x
     (a crossing's chord ends, four nodes apart at four segments per spacing, the blocks
     joining two yarns, the contact's -dR/dg between z_a and z_b), so the CG's product is the
     whole tangent and the bands its preconditioner. `tie_blocks` stores each crossing's dR/dg
@@ -780,12 +780,6 @@ def tangent_terms(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
                 total = total + (kappa * along) * lateral_slot_row(rows, code - 4 * e)
         return total
 
-    @wp.func(inline=True)
-    def coupling_row(i: int, comp: int, x: wp.array(dtype=scalar), data: Data,
-                     state: State) -> scalar:
-        """`coupling_vector` at dof (node i, comp) [N]."""
-        return coupling_vector(i, x, data, state)[comp]
-
     # The stiffest tangent's rows (docs/model.md (5.5)) come from the host, from the exact
     # Hessian (`dynfab.model.terms.kinematics.stiffest_rows` into `state.rows` and
     # `state.diagonal`): the blocks above are Gauss-Newton's, which may not bound it.
@@ -811,6 +805,6 @@ def tangent_terms(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
         return state.diagonal[i]
 
     return SimpleNamespace(tie_blocks=tie_blocks, assemble_chain=assemble_chain,
-                           coupling_row=coupling_row, stiffest_tie=stiffest_tie,
+                           coupling_vector=coupling_vector, stiffest_tie=stiffest_tie,
                            stiffest_chain=stiffest_chain, gershgorin_row=gershgorin_row,
                            largest_diagonal=largest_diagonal)

@@ -48,7 +48,7 @@ during the last half of its steps stops (status.NO_PROGRESS); the fabric's choic
 
 TANGENTS = {"planar": structure_tangent.functions, "spatial": spatial_terms.tangent_terms}
 """The tangent of each kinematics' elements: the semi-implicit method's (`tie_blocks`,
-`assemble_chain`, `coupling_row`) and the stiffest one's rows, which the masses take
+`assemble_chain`, `coupling_vector`) and the stiffest one's rows, which the masses take
 (`stiffest_tie`, `stiffest_chain`, `gershgorin_row`, `largest_diagonal`)."""
 
 

@@ -293,14 +293,15 @@ def functions(scalar, friction: bool, boundary: bool,
 
     @wp.func(inline=True)
     def own_row(i: int, comp: int, x: wp.array(dtype=scalar), data: Data, state: State,
-                dt2: scalar) -> scalar:
+                dt2: scalar, coupling: scalar) -> scalar:
         """(A x) at dof (node i, comp) from node i's own row (`boundary_sums` of x done);
-        dt2 = dt^2 [s^2] of its group."""
+        dt2 = dt^2 [s^2] of its group, `coupling` the tangent's blocks outside the band times x
+        there (`coupling_vector`)."""
         row = dim * i + comp
         chain = data.node_chain[i]
         value = band_ops.row_product(state.band, row, dim * data.chain_start[chain],
                                      dim * data.chain_start[chain + 1], x)
-        coupled = tangent.coupling_row(i, comp, x, data, state)
+        coupled = coupling
         if wp.static(boundary):
             coupled = coupled + plane_row(i, comp, data, state) \
                 + tangent.wrap_cross(state.position, data, i, x, comp)
@@ -308,9 +309,10 @@ def functions(scalar, friction: bool, boundary: bool,
 
     @wp.func(inline=True)
     def product_value(i: int, comp: int, x: wp.array(dtype=scalar), data: Data, state: State,
-                      dt2: scalar) -> scalar:
-        """(A x) at dof (node i, comp); a tied node's in-plane dof: its family's rows summed in
-        plane-node order (T^T A T x, the same on every copy)."""
+                      dt2: scalar, coupling: vec) -> scalar:
+        """(A x) at dof (node i, comp), `coupling` node i's `coupling_vector` of x; a tied
+        node's in-plane dof: its family's rows summed in plane-node order (T^T A T x, the same
+        on every copy)."""
         value = scalar(0.0)
         tied = int(-1)
         if wp.static(boundary):
@@ -318,20 +320,23 @@ def functions(scalar, friction: bool, boundary: bool,
                 tied = data.node_tie[i]
         if tied >= 0:
             for m in range(data.plane_offsets[tied], data.plane_offsets[tied + 1]):
-                value += own_row(data.plane_nodes[m], 0, x, data, state, dt2)
+                j = data.plane_nodes[m]
+                value += own_row(j, 0, x, data, state, dt2,
+                                 tangent.coupling_vector(j, x, data, state)[0])
         else:
-            value = own_row(i, comp, x, data, state, dt2)
+            value = own_row(i, comp, x, data, state, dt2, coupling[comp])
         return value
 
     @wp.func(inline=True)
     def rhs_node(i: int, data: Data, state: State):
         """rhs = dt f + M v - A v at node i's dofs (0 on held ones), A v from x = v."""
         dt = state.dt[data.node_group[i]]
+        coupling = tangent.coupling_vector(i, state.x, data, state)
         for comp in range(dim):
             row = dim * i + comp
             state.rhs[row] = free_dof(data, row) * (
                 dt * state.force[i][comp] + state.mass[i] * state.velocity[i][comp]
-                - product_value(i, comp, state.x, data, state, dt * dt))
+                - product_value(i, comp, state.x, data, state, dt * dt, coupling))
 
     # ------------------------------------------------------------- PCG
 
@@ -396,8 +401,9 @@ def functions(scalar, friction: bool, boundary: bool,
     @wp.func(inline=True)
     def product_node(i: int, data: Data, state: State, dt2: scalar):
         """q = A p at node i's dofs (dt2 = dt^2 of its group)."""
+        coupling = tangent.coupling_vector(i, state.p, data, state)
         for comp in range(dim):
-            state.q[dim * i + comp] = product_value(i, comp, state.p, data, state, dt2)
+            state.q[dim * i + comp] = product_value(i, comp, state.p, data, state, dt2, coupling)
 
     @wp.func(inline=True)
     def curvature_chain(c: int, data: Data, state: State):

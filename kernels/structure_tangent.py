@@ -1,6 +1,6 @@
 """The tangent stiffness K of a planar structure in a kernel: each chain's band and the couplings
 outside it (docs/model.md sections 5, 6, 10; a spatial structure's is
-`spatial_terms.tangent_terms`, with the same `tie_blocks`, `assemble_chain`, `coupling_row`).
+`spatial_terms.tangent_terms`, with the same `tie_blocks`, `assemble_chain`, `coupling_vector`).
 
 `assemble_chain` fills chain c's rows of the flat band (`band_lu`, the chain's dofs
 contiguous) with
@@ -235,11 +235,10 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
             add_tie_diagonals(band, data, state, i)
 
     @wp.func(inline=True)
-    def coupling_row(i: int, comp: int, x: wp.array(dtype=scalar), data: Data,
-                     state: State) -> scalar:
-        """The ties' off-diagonal parts times x (flat dofs) at dof (node i, comp) [N]:
-        -dR/dg x_partner on z, h_xy x_partner on the in-plane dof (ties between nodes)."""
-        total = scalar(0.0)
+    def coupling_vector(i: int, x: wp.array(dtype=scalar), data: Data, state: State) -> vec:
+        """The ties' off-diagonal parts times x (flat dofs) at node i's dofs [N]: h_xy
+        x_partner on the in-plane dof, -dR/dg x_partner on z (ties between nodes)."""
+        total = vec(scalar(0.0), scalar(0.0))
         for k in range(data.node_tie_start[i], data.node_tie_start[i + 1]):
             t = data.node_ties[k]
             b = data.tie_b[t]
@@ -248,10 +247,8 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
                 if partner == i:
                     partner = b
                 blk = state.coupling[t]
-                if comp == 1:
-                    total += -blk[0] * x[2 * partner + 1]
-                else:
-                    total += blk[2] * x[2 * partner]
+                total[0] = total[0] + blk[2] * x[2 * partner]
+                total[1] = total[1] - blk[0] * x[2 * partner + 1]
         return total
 
     @wp.func(inline=True)
@@ -320,5 +317,5 @@ def functions(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
     return SimpleNamespace(assemble_chain=assemble_chain, tie_blocks=tie_blocks,
                            stiffest_tie=stiffest_tie, stiffest_chain=stiffest_chain,
                            gershgorin_row=gershgorin_row, largest_diagonal=largest_diagonal,
-                           coupling_row=coupling_row, wrap_cross=wrap_cross,
+                           coupling_vector=coupling_vector, wrap_cross=wrap_cross,
                            theta_hessian=theta_hessian)
