@@ -66,6 +66,25 @@ def test_a_fabric_column_on_a_specimen_is_refused_in_one_line():
                            "displacement", model="specimen")
 
 
+@pytest.mark.parametrize("model, header, words", [
+    ("specimen", ["end_displacement [m]", "weft_load [m]", "clamp_force [N]"],
+     ["'weft_load [m]'", "wefts' load", "a shear specimen", "takes no wefts' load"]),
+    ("specimen", ["end_displacement [m]", "warp_strain [-]"],
+     ["'warp_strain [-]'", "a measurement of the woven fabric", "'clamp_force [N]'"]),
+    ("yarn", ["end_displacement [m]", "clamp_force [N]"],
+     ["'clamp_force [N]'", "a measurement of a shear specimen", "the one-yarn model"]),
+])
+def test_a_column_of_another_kind_of_scene_is_named_as_that_kind_s(model, header, words):
+    # each kind of curve says as data what it takes (measured_curve.MODELS): a wefts' load
+    # column only the fabric's, each measured column its own kind's
+    with pytest.raises(UserError) as info:
+        curve_from_columns(header, [[1e-3] * len(header)], "displacement", model=model)
+    message = str(info.value)
+    assert "\n" not in message
+    for word in words:
+        assert word in message, (word, message)
+
+
 def test_a_specimen_offers_only_keys_it_takes():
     # weft.length was offered and then refused by the specimen (its [specimen] sets the
     # layout): every key offered is one the scene takes

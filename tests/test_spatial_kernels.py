@@ -116,3 +116,25 @@ def test_kernel_return_map_is_the_spatial_one(case):
     scale = np.abs(anchors).max(axis=0)
     assert np.all(np.abs(mapped - expected) <= ROUNDING * scale)
     assert dissipated.sum() == pytest.approx(lost, rel=ROUNDING)
+
+
+SHARED_TANGENT = {"tie_blocks", "assemble_chain", "coupling_vector", "stiffest_tie",
+                  "stiffest_chain", "gershgorin_row", "largest_diagonal"}
+"""What the shared kernels (`structure_checks`, `structure_semi_implicit`) ask of a
+kinematics' tangent."""
+
+
+@pytest.mark.parametrize("kinematics", ["planar", "spatial"])
+def test_each_kinematics_offers_the_shared_kernels_one_form(kinematics):
+    # the shared kernels hold no fork on the kinematics (docs/model.md, "no fork on the
+    # kinematics in the shared kernels"): each element module gives the same functions and
+    # says as data what it does differently; a missing one would fail only at a launch
+    import warp as wp
+
+    from dynfab.kernels import structure_checks, structure_forces
+
+    elements = structure_forces.KINDS[kinematics]
+    assert isinstance(elements.ROWS_FROM_HOST, bool) and isinstance(elements.BOUNDARY, bool)
+    assert all(len(refusal) == 3 for refusal in elements.REFUSALS)
+    tangent = structure_checks.TANGENTS[kinematics](wp.float64, True, elements.BOUNDARY)
+    assert SHARED_TANGENT <= set(vars(tangent))
