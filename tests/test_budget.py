@@ -9,6 +9,7 @@ import pytest
 
 import dynfab
 from dynfab import budget
+from dynfab.model.builders import mesh_size
 from independent import PAPER_WARP, PAPER_WEFT, make_scene, scene_toml
 
 def yarn_tables(segments: int, load: dict) -> dict:
@@ -99,7 +100,7 @@ def test_fabric_memory_estimate_grows_as_its_sparse_factors():
                   "amplitude": 0.5e-3},
         warp=yarn, weft={**yarn, "count": 64, "segments": 512, "amplitude": 0.5e-3},
         load={"values": [1e-3]})
-    assert budget.fabric_nodes(patch) == 65664
+    assert mesh_size(patch).nodes == 65664
     assert budget.memory_bytes(patch) > 1.71e9 * 1.1
 
 
@@ -112,12 +113,13 @@ def test_a_fabric_beyond_memory_is_refused_with_the_estimate(monkeypatch):
 
 
 def test_a_shear_specimen_beyond_memory_is_refused_with_the_estimate(monkeypatch):
-    """A specimen's nodes are estimated from its area (`budget.fabric_sizes`, docs/model.md
-    section 11): Cao's 150 x 450 mm bias specimen (20,330 nodes built) is estimated at about
-    that, and refused where memory is short, in one line naming the specimen."""
+    """A specimen's nodes are estimated from its area (`dynfab.model.builders.mesh_size`,
+    docs/model.md section 11): Cao's 150 x 450 mm bias specimen (20,330 nodes built) is
+    estimated at about that, and refused where memory is short, in one line naming the
+    specimen."""
     from dynfab.scene import load_scene
     scene = load_scene(Path(__file__).resolve().parents[1] / "runs" / "cao2008_bias_150x450.toml")
-    nodes = budget.fabric_nodes(scene)
+    nodes = mesh_size(scene).nodes
     assert 20330 <= nodes <= 1.2 * 20330
     monkeypatch.setattr(budget, "available_memory_bytes", lambda: 10**8)
     with pytest.raises(dynfab.UserError, match=r"^a bias_extension specimen of \d+ nodes needs "
