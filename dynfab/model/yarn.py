@@ -14,6 +14,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from dynfab.model.builders import RELAXATION_STEPS
 from dynfab.model.builders.yarn import yarn_structure
 from dynfab.model.domain import check_not_folded
 from dynfab.scene import Scene
@@ -83,7 +84,7 @@ class Model:
     static and dynamic solvers. It fulfils `dynfab.solvers.contract.RunModel`, as a fabric's model
     does."""
 
-    relaxation_steps = 0
+    relaxation_steps = RELAXATION_STEPS["yarn"]
     """Steps before the scene's load path: none."""
     history_keys = ()
     """No step dataset of the whole path is needed to resume (`state_from_step`)."""

@@ -36,6 +36,7 @@ from typing import NamedTuple
 import numpy as np
 
 from dynfab.errors import UserError
+from dynfab.model.builders import scene_kind
 
 
 @dataclass(frozen=True)
@@ -117,9 +118,8 @@ _HEADER = re.compile(
 
 
 def model_kind(scene) -> str:
-    """The fit's name of a scene's model: "specimen" for a [specimen] scene, else
-    geometry.model ("yarn" or "fabric")."""
-    return "specimen" if getattr(scene, "specimen", None) is not None else scene.geometry.model
+    """The kind of a scene's curves (`MODELS`): its model's (`dynfab.model.builders.scene_kind`)."""
+    return scene_kind(scene)
 
 
 def measurable(model: str) -> dict:

@@ -44,6 +44,8 @@ from pathlib import Path
 
 import numpy as np
 
+from dynfab.model.builders import RELAXATION_STEPS, scene_kind
+
 from dynfab import scene as scene_module
 from dynfab.errors import UserError
 from dynfab.results.file import ENERGY_TERM, UNITS
@@ -102,10 +104,8 @@ class Case:
 def path_values(scene: Scene) -> np.ndarray:
     """The load value of each step a run of `scene` writes: load.values (a fabric's warps'),
     after a shear specimen's step 0 at d = 0 (the preload relaxed, docs/model.md section 11)."""
-    values = np.asarray(scene.load.values, float)
-    if getattr(scene, "specimen", None) is not None:
-        return np.concatenate([[0.0], values])
-    return values
+    steps = RELAXATION_STEPS[scene_kind(scene)]
+    return np.concatenate([np.zeros(steps), np.asarray(scene.load.values, float)])
 
 
 @dataclass(frozen=True)

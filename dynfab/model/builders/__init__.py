@@ -52,16 +52,31 @@ def mesh_size(scene: Scene) -> MeshSize:
                     f"{g.segments + 1} nodes x {yarns} yarn(s)")
 
 
+def scene_kind(scene: Scene) -> str:
+    """The kind of model a validated scene is: "specimen" (a [specimen] table, docs/model.md
+    section 11), "fabric" (section 10) or "yarn" (sections 1-9); a result file's root
+    attribute "model" and a measured curve's kind (`dynfab.results.measured_curve.MODELS`)."""
+    if getattr(scene, "specimen", None) is not None:
+        return "specimen"
+    return scene.geometry.model
+
+
+RELAXATION_STEPS = {"yarn": 0, "fabric": 0, "specimen": 1}
+"""Steps a run of each kind writes before its load path: a specimen's step 0, its preload
+relaxed at d = 0 (the models' `relaxation_steps`)."""
+
+
 def build_model(scene: Scene):
-    """The model of a validated scene: a shear specimen's
+    """The model of a validated scene (`scene_kind`): a shear specimen's
     (`dynfab.model.fabric.specimen_model.SpecimenModel`, docs/model.md section 11), a
     fabric's (`dynfab.model.fabric.model.FabricModel`, section 10) or the one-yarn model
-    (`dynfab.model.yarn.yarn_model`, sections 1-9): the one place that asks which."""
-    if getattr(scene, "specimen", None) is not None:
+    (`dynfab.model.yarn.yarn_model`, sections 1-9)."""
+    kind = scene_kind(scene)
+    if kind == "specimen":
         from dynfab.model.fabric.specimen_model import SpecimenModel
 
         return SpecimenModel.from_scene(scene)
-    if scene.geometry.model == "fabric":
+    if kind == "fabric":
         from dynfab.model.fabric.model import FabricModel
 
         return FabricModel.from_scene(scene)

@@ -52,6 +52,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse
 
+from dynfab.model.builders import RELAXATION_STEPS
 from dynfab.model.builders.fabric import Family, families, fabric_structure
 from dynfab.model.domain import check_crossings_held, check_not_folded, fabric_slip_ratios
 from dynfab.model.fabric import assembly, contact, friction
@@ -99,7 +100,7 @@ class FabricModel:
     """A fabric scene as the solvers see it: its structure (`dynfab.model.builders.fabric`), its
     yarn families and its load path (docs/model.md section 10)."""
 
-    relaxation_steps = 0
+    relaxation_steps = RELAXATION_STEPS["fabric"]
     """Steps before the scene's load path: none."""
     history_keys = ()
     """No step dataset of the whole path is needed to resume (`state_from_step`)."""

@@ -46,6 +46,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dynfab.model import specimen_layout
+from dynfab.model.builders import RELAXATION_STEPS
 from dynfab.model.builders import woven_rest
 from dynfab.model.builders.specimen import layout_of, specimen_structure
 from dynfab.errors import SolverError
@@ -95,7 +96,7 @@ class SpecimenState:
 class SpecimenModel:
     """A specimen scene as the solvers see it (module docstring)."""
 
-    relaxation_steps = 1
+    relaxation_steps = RELAXATION_STEPS["specimen"]
     """Steps before the scene's load path: step 0, the preload relaxed at d = 0."""
     history_keys = ("load", "clamp_force", "positions")
     """The columns of every finished step a resumed run gives `state_from_step` (`path`,
