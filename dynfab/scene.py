@@ -1550,7 +1550,7 @@ def _sweepable_text() -> str:
     for table, (_, keys) in _SCHEMA.items():
         swept = [name for name, spec in keys.items() if spec.sweepable]
         reals = [name for name, spec in keys.items() if spec.kind == "float"
-                 and spec.model != "fabric"]
+                 and not _refused_by("yarn", spec)]  # a sweep's scene is one-yarn
         if swept and swept == reals:
             tables.append(f"[{table}]")
         else:
