@@ -39,9 +39,10 @@ A factorisation with a pivot that is not positive halves dt and rebuilds (at mos
 MAX_REFACTORISATIONS times: NOT_POSITIVE_DEFINITE).
 
 Kinematics: the dofs are dim node + coordinate (dim 2 planar, 3 spatial) and the bands'
-half-width `band_lu.bandwidth(dim)`; K is the kinematics' tangent (`structure_checks.TANGENTS`: the planar
-`structure_tangent`, the spatial `spatial_terms.tangent_terms`, whose bands hold the blocks
-within two nodes of one chain and whose product applies every other block; docs/model.md
+half-width `band_lu.bandwidth(dim)`; K is the kinematics' tangent
+(`structure_checks.TANGENTS`: the planar `structure_tangent`, the spatial
+`spatial_terms.tangent_terms`, whose bands hold the blocks within two nodes of one chain and
+whose product, `coupling_vector` once per node, applies every other block; docs/model.md
 11.11). The moving planes, wraps and tied dofs are the planar fabric's only.
 
 Layouts, the same stages in the same order (bit-identical): "grouped", one thread per group

@@ -5,10 +5,10 @@ Every kernel factory of the layer is cached (one variant per key, built once per
 registered here by `variant`: its kind ("explicit", "semi_implicit", "transient", "passes"),
 layout ("grouped", "node_parallel"; "-" for the passes), scalar type, whether friction and the
 boundary couplings are compiled in, the grouped layout's force order and the kinematics
-("planar", or "spatial": vec3 nodes and the spatial terms, docs/model.md section 11), each named by the
-element module it takes (`structure_forces.KINDS`). `built_variants`
-lists them in the order they were built, so a report or a test can count the variants a run
-added (each one a compile on a cold cache).
+("planar", or "spatial": vec3 nodes and the spatial terms, docs/model.md section 11; the
+element module it takes, `structure_forces.KINDS`). `built_variants` lists them in the order
+they were built, so a report or a test can count the variants a run added (each one a compile
+on a cold cache).
 """
 
 import functools
