@@ -239,8 +239,8 @@ def warp_run(structure, layout, steps, order="scatter"):
     """Positions after `steps` viscous steps of one Warp layout (fictitious masses, dt = 1 s),
     as a callable."""
     relaxation = StructureRelaxation(structure, damping="viscous", damping_coefficient=DAMPING,
-                                     layout=layout, order=order, check_interval=1 << 30,
-                                     chunk=steps)
+                                     layout=layout, order=order)
+    relaxation.check_interval, relaxation.chunk = 1 << 30, steps
     loads = relaxation.chain_loads(LOAD)
     return lambda: relaxation.relax(structure.rest_position, loads, None, tolerance=0.0,
                                     max_steps=steps)[0]

@@ -85,8 +85,8 @@ def relaxer(n: int, mode: str, layout: str, steps: int):
     structure = patch(n, mode).structure
     order = "scatter" if layout == "grouped" else "gather"
     solver = StructureRelaxation(structure, layout=layout, order=order, damping="viscous",
-                                 damping_coefficient=DAMPING, check_interval=1 << 30,
-                                 chunk=steps)
+                                 damping_coefficient=DAMPING)
+    solver.check_interval, solver.chunk = 1 << 30, steps
     loads = solver.chain_loads(LOAD)
     return structure.rest_position.shape[0], lambda: solver.relax(
         structure.rest_position, loads, None, tolerance=0.0, max_steps=steps)
@@ -129,7 +129,7 @@ def step_costs(sizes, modes) -> list[dict]:
 
 RULES = {"halving": dict(backtracks=0, secant=False), "line_search": {}}
 """The semi-implicit time step rules compared (module docstring): `StructureRelaxation`
-options."""
+attributes."""
 
 
 def first_step_relaxer(model, rule: str):
@@ -137,7 +137,9 @@ def first_step_relaxer(model, rule: str):
     semi-implicit kernels under `rule`, to the scene's static tolerance; its Outcome."""
     from dynfab.kernels.structure_relaxation import StructureRelaxation
 
-    relaxation = StructureRelaxation(model.structure, method="semi_implicit", **RULES[rule])
+    relaxation = StructureRelaxation(model.structure, method="semi_implicit")
+    for name, value in RULES[rule].items():
+        setattr(relaxation, name, value)
     begun = model.start_of_step(model.initial_state(), model.load_values[0])
     return lambda: relaxation.relax(begun.positions, begun.chain_loads, begun.anchors,
                                     tolerance=model.scene.static.tolerance,

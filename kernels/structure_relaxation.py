@@ -124,16 +124,20 @@ def _worker_pool() -> concurrent.futures.ThreadPoolExecutor:
 
 
 class StructureRelaxation:
-    """One structure's kernels on one device (module docstring)."""
+    """One structure's kernels on one device (module docstring).
+
+    The keywords are the dynamic options a run chooses ([dynamic]: precision, method, damping,
+    masses, dt, safety), the layout, device and cores, and `friction` / `boundary` to compile
+    those terms in whether or not the structure has them (so that tests share one variant).
+    Tuning that only tests and benchmarks change is attributes, set after construction:
+    `chunk`, `chunk_seconds`, `check_interval` (launch sizes), `cg_tolerance`, `backtracks`,
+    `secant`, `direct` (the semi-implicit time step's rule)."""
 
     def __init__(self, structure: Structure, *, precision: str = "float64",
                  method: str = "explicit", damping: str | None = "kinetic",
                  damping_coefficient: float | None = None, masses: str = "fictitious",
                  dt: float | None = None, safety: float = SAFETY, layout: str | None = None,
                  order: str = "scatter", device: str = "cpu",
-                 cg_tolerance: float = semi.CG_TOLERANCE, backtracks: int = semi.MAX_BACKTRACKS,
-                 secant: bool | None = None, direct: bool = True,
-                 chunk: int | None = None, check_interval: int = 16,
                  friction: bool | None = None, boundary: bool | None = None,
                  cores: int | None = 1):
         layout = default_layout(device) if layout is None else layout
@@ -152,13 +156,20 @@ class StructureRelaxation:
         self.damping = damping if method == "explicit" else None
         self.coefficient = damping_coefficient
         self.masses, self.dt, self.safety = masses, dt, safety
-        self.cg_tolerance, self.backtracks, self.direct = cg_tolerance, backtracks, direct
-        self.secant = arrays.plane_nodes.size > 0 if secant is None else secant
-        if chunk is None:
-            chunk = STEPS_PER_LAUNCH if method == "explicit" else SEMI_IMPLICIT_CHUNK
-        self.chunk, self.check_interval = int(chunk), int(check_interval)
-        """The first launch's time steps (a transient's: every launch's), and the node-parallel
-        layout's steps between two reads of the statuses."""
+        self.cg_tolerance = semi.CG_TOLERANCE
+        """The CG's relative residual per semi-implicit time step."""
+        self.backtracks = semi.MAX_BACKTRACKS
+        """Line-search halvings of a semi-implicit time step before it is undone (0: halving
+        dt instead)."""
+        self.secant = arrays.plane_nodes.size > 0
+        """The semi-implicit tangent's sliding ties on their secant (moving planes: on)."""
+        self.direct = True
+        """The semi-implicit system solved by the bands' factors where they are the whole
+        tangent (no CG)."""
+        self.chunk = STEPS_PER_LAUNCH if method == "explicit" else SEMI_IMPLICIT_CHUNK
+        """The first launch's time steps (a transient's: every launch's)."""
+        self.check_interval = 16
+        """The node-parallel layout's time steps between two reads of the statuses."""
         self.chunk_seconds = CHUNK_SECONDS
         """The wall time later launches are sized to [s] (`relax`); None: every launch
         `chunk` steps."""

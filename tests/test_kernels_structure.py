@@ -73,9 +73,18 @@ def structures():
     return {name: build_structure(make()) for name, make in SCENES.items()}
 
 
+TUNING = ("chunk", "check_interval", "cg_tolerance", "backtracks", "secant", "direct")
+"""`StructureRelaxation`'s tuning, attributes set after construction."""
+
+
 def relaxation(structure, **options) -> StructureRelaxation:
-    """The kernels of the tests' one variant (friction and boundary compiled in)."""
-    return StructureRelaxation(structure, friction=True, boundary=True, **options)
+    """The kernels of the tests' one variant (friction and boundary compiled in); `options`
+    its keywords and tuning attributes (`TUNING`)."""
+    tuning = {name: options.pop(name) for name in TUNING if name in options}
+    kernels = StructureRelaxation(structure, friction=True, boundary=True, **options)
+    for name, value in tuning.items():
+        setattr(kernels, name, value)
+    return kernels
 
 
 def static_solver(structure, scene=None) -> SparseNewton:
