@@ -177,6 +177,21 @@ def test_missing_or_foreign_file_is_a_scene_error(tmp_path):
     assert not list(tmp_path.glob("*.png"))
 
 
+def test_a_file_of_a_model_this_dynfab_does_not_know_is_one_line(tmp_path):
+    # a file from a newer dynfab (another kind of model): the figures and the summary are
+    # chosen by the file's kind (`figures.KINDS`, `summary.KINDS`), and say so in one line
+    from dynfab.results.summary import print_summary
+
+    path = write_synthetic(tmp_path / "run.h5")
+    with h5py.File(path, "r+") as h5:
+        h5.attrs["model"] = "knit"
+    for show in (lambda: plot_results(path, tmp_path), lambda: print_summary(read_results(path))):
+        with pytest.raises(UserError, match="'knit'") as error:
+            show()
+        assert "\n" not in str(error.value)
+    assert not list(tmp_path.glob("*.png"))
+
+
 def test_friction_figure_has_a_panel_per_friction_yarn_numbered_from_1(tmp_path):
     """A sweep over friction shows every yarn with friction (not only the first), and the
     crossings are numbered 1..count as in messages and reports."""

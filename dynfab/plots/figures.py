@@ -66,7 +66,10 @@ def plot_results(path: str | os.PathLike, out_dir: str | os.PathLike,
         return plot_study(path, out_dir)
     results = read_results(path)
     measured = None if data is None else measured_points(results, data)
-    kind = KINDS[results.attrs.get("model", "yarn")]
+    kind = KINDS.get(results.attrs.get("model", "yarn"))
+    if kind is None:
+        raise UserError(f"result file '{path}' holds a model this dynfab does not draw "
+                        f"({results.attrs.get('model')!r}; it draws {', '.join(KINDS)})")
     if results.step_count == 0 and results.frame_count > 0:
         return kind.transient(results, output_folder(out_dir))
     if results.step_count == 0:

@@ -14,6 +14,7 @@ from typing import Callable, NamedTuple
 
 import numpy as np
 
+from dynfab.errors import UserError
 from dynfab.model.domain import SLIP_LIMIT
 from dynfab.results.file import Results
 
@@ -288,5 +289,9 @@ KINDS = {"yarn": KindSummary(_yarn_quantities, _print_yarn_summary, _yarn_summar
 
 def _kind(attrs) -> KindSummary:
     """The summary of a result file's kind (a file without the attribute: the one-yarn
-    model's, as written before the fabric existed)."""
-    return KINDS[attrs.get("model", "yarn")]
+    model's, as written before the fabric existed); a UserError for a kind it does not know."""
+    kind = KINDS.get(attrs.get("model", "yarn"))
+    if kind is None:
+        raise UserError(f"a result file of a model this dynfab does not summarise "
+                        f"({attrs.get('model')!r}; it summarises {', '.join(KINDS)})")
+    return kind
