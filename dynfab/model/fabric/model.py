@@ -62,6 +62,7 @@ from dynfab.scene import Scene
 from dynfab.model.step import StepSolution, StepStart
 from dynfab.model.structure import Structure, chain_count
 from dynfab.model.terms import registry
+from dynfab.model.terms.kinematics import woven_anchors
 
 
 @dataclass
@@ -85,14 +86,10 @@ class FabricState:
 
 
 def as_woven_state(structure: Structure) -> FabricState:
-    """As woven, anchors at zero slip, nothing dissipated, no end force."""
-    pos = structure.rest_position.copy()
-    anchors = np.zeros((structure.tie_a.size, 2))
-    anchors[:, 0] = pos[structure.tie_a, 0] - structure.tie_plane[:, 0]
-    grounded = structure.tie_b < 0
-    anchors[:, 1] = np.where(grounded, 0.0, pos[np.where(grounded, 0, structure.tie_b), 0]
-                             - structure.tie_plane[:, 1])
-    return FabricState(pos, anchors, end_force=np.zeros(chain_count(structure)))
+    """As woven, anchors at zero slip (`dynfab.model.terms.kinematics.woven_anchors`),
+    nothing dissipated, no end force."""
+    return FabricState(structure.rest_position.copy(), woven_anchors(structure),
+                       end_force=np.zeros(chain_count(structure)))
 
 
 @dataclass
