@@ -45,7 +45,8 @@ import numpy as np
 
 from dynfab import scene as scene_module
 from dynfab.errors import UserError, SolverError
-from dynfab.results.measured_curve import MODELS, CurveData, model_kind, read_curve
+from dynfab.model.builders import scene_kind
+from dynfab.results.measured_curve import MODELS, CurveData, read_curve
 from dynfab.fitting.models import fit_model, start_value
 from dynfab.scene import scene_to_toml, validate_scene, with_key
 
@@ -193,7 +194,7 @@ def make_parameters(scene, keys, bounds=None, start=None) -> list[Parameter]:
         raise UserError("a fit takes one simulated yarn: remove the [sweep] and set "
                          "geometry.yarns = 1")
     allowed = fittable_keys(scene)
-    model = model_kind(scene)
+    model = scene_kind(scene)
     bounds, start = dict(bounds or {}), dict(start or {})
     parameters = []
     for key in keys:
@@ -385,7 +386,7 @@ def fit(scene, data, keys, *, bounds=None, substeps: int | None = None, start=No
         scene = load_scene(scene)
     keys = parse_keys(keys)
     jacobian = _jacobian_for(scene, jacobian)
-    model = model_kind(scene)
+    model = scene_kind(scene)
     if not isinstance(data, CurveData):
         data = read_curve(data, scene.load.control, model)
     if data.model != model:
@@ -428,7 +429,7 @@ def _jacobian_for(scene, jacobian: str | None) -> str:
         raise UserError(f"jacobian={jacobian!r}: 'exact' or 'finite-difference'")
     if jacobian == "exact" and own != "exact":
         raise UserError(f"jacobian='exact': exact path sensitivities exist for the one-yarn "
-                         f"model only; a fit of {MODELS[model_kind(scene)][0]} uses "
+                         f"model only; a fit of {MODELS[scene_kind(scene)][0]} uses "
                          "'finite-difference'")
     return jacobian
 

@@ -20,7 +20,8 @@ import numpy as np
 
 from dynfab import scene as scene_module
 from dynfab.errors import UserError
-from dynfab.results.measured_curve import measurable, model_kind
+from dynfab.model.builders import scene_kind
+from dynfab.results.measured_curve import measurable
 
 FABRIC_TABLES = ("warp", "weft", "friction", "contact", "gravity", "crossing")
 """The tables whose real keys a fabric's fit may vary (the material, the crossings' laws,
@@ -114,7 +115,7 @@ class FabricFit:
         from dynfab.model.builders import build_model
         from dynfab.solvers.by_name import make_solver
 
-        columns = {name: measurable(model_kind(scene))[name] for name in names}
+        columns = {name: measurable(scene_kind(scene))[name] for name in names}
         model = build_model(scene)
         solver = make_solver(model, "static")
         state = model.initial_state()
@@ -130,12 +131,12 @@ class FabricFit:
 
 
 FITS = {"yarn": YarnFit, "fabric": FabricFit, "specimen": FabricFit}
-"""Each kind of scene's fit (`model_kind`)."""
+"""Each kind of scene's fit (`scene_kind`)."""
 
 
 def fit_model(scene):
     """The fit's view of the scene's model: `YarnFit` or `FabricFit` (a specimen's too)."""
-    return FITS[model_kind(scene)]
+    return FITS[scene_kind(scene)]
 
 
 def start_value(scene, key: str) -> float:

@@ -73,14 +73,15 @@ def fit_from_starts(scene, data, keys, *, starts: int, bounds=None, substeps=Non
     """`dynfab.fitting.fit.fit` from `starts` starting points on a Dask cluster; the best fit, its
     `starts` report filled in (module docstring)."""
     from dynfab.fitting.fit import make_parameters, parse_keys
-    from dynfab.results.measured_curve import CurveData, model_kind, read_curve
+    from dynfab.model.builders import scene_kind
+    from dynfab.results.measured_curve import CurveData, read_curve
     from dynfab.studies.study import _cluster
 
     if starts < 1:
         raise UserError(f"--starts {starts}: at least 1")
     keys = parse_keys(keys)
     if not isinstance(data, CurveData):
-        data = read_curve(data, scene.load.control, model_kind(scene))
+        data = read_curve(data, scene.load.control, scene_kind(scene))
     points = start_points(make_parameters(scene, keys, bounds, start), starts)
     options = dict(bounds=bounds, substeps=substeps, max_iterations=max_iterations,
                    jacobian=jacobian)

@@ -32,11 +32,12 @@ def measured_points(results: Results, data) -> Measured:
     """The CSV curve `data` read as `dynfab fit --data` reads it for the file's scene (its
     model and control; the first error names the columns expected and found), as points of
     the quantities the figures draw."""
-    from dynfab.results.measured_curve import model_kind, read_curve
+    from dynfab.model.builders import scene_kind
+    from dynfab.results.measured_curve import read_curve
     from dynfab.scene import parse_scene_text
 
     scene = parse_scene_text(results.attrs["scene"])
-    model, control = model_kind(scene), results.attrs.get("load_control", "force")
+    model, control = scene_kind(scene), results.attrs.get("load_control", "force")
     curve = read_curve(data, control, model)
     found = dict(curve.measured, **{("end_displacement" if control == "displacement"
                                      else "load"): curve.load})

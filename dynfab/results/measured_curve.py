@@ -36,7 +36,6 @@ from typing import NamedTuple
 import numpy as np
 
 from dynfab.errors import UserError
-from dynfab.model.builders import scene_kind
 
 
 @dataclass(frozen=True)
@@ -110,16 +109,11 @@ MODELS = {"yarn": CurveKind('the one-yarn model (geometry.model = "yarn")', MEAS
                               True, ("force", "displacement")),
           "specimen": CurveKind("a shear specimen (a [specimen] scene)", SPECIMEN_MEASURABLE,
                                 False, ("displacement",))}
-"""Each kind of scene (`model_kind`) -> what its curves hold (a specimen is loaded by its
+"""Each kind of scene (`dynfab.model.builders.scene_kind`) -> what its curves hold (a specimen is loaded by its
 clamp displacement only)."""
 
 _HEADER = re.compile(
     r"^\s*(?P<name>[A-Za-z_][A-Za-z0-9_]*)(?P<sigma>\s+sigma)?\s*\[(?P<unit>[^\]]*)\]\s*$")
-
-
-def model_kind(scene) -> str:
-    """The kind of a scene's curves (`MODELS`): its model's (`dynfab.model.builders.scene_kind`)."""
-    return scene_kind(scene)
 
 
 def measurable(model: str) -> dict:
