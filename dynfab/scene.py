@@ -682,31 +682,12 @@ def validate_scene(scene: Scene) -> Scene:
     """
     if _VALIDATED.get(id(scene)) is scene:
         return scene
-    scene = _resolve_spatial(_resolve_planes(scene))
-    _check_scene(scene)
+    kind = _kind(scene)
+    scene = _RESOLVE[kind[-1]](scene)
+    for check in _CHECKS[kind[-1]]:
+        check(scene, kind)
     _VALIDATED[id(scene)] = scene
     return scene
-
-
-def _check_scene(scene: Scene) -> None:
-    """The checks of `validate_scene`: UserError naming the first key that fails."""
-    kind = _kind(scene)
-    _check_layout(scene, kind)
-    if "fabric" in kind and scene.geometry.crossings == 0:
-        raise _bad("geometry.crossings", 0, f"a fabric ({_FABRIC}) needs at least one weft")
-    _check_tables_present(scene, kind)
-    _check_fields(scene)
-    if "specimen" not in kind:
-        _check_segments(scene.geometry)
-    if scene.weft is not None and scene.weft.length is not None:
-        _check_weft_tension(scene.weft)
-    if "fabric" in kind:
-        _check_fabric(scene, kind)
-    # a one-yarn scene: none of the fabric's tables, nor its keys (one set to None is left out)
-    _refuse(kind, "yarn", [*_given_tables(scene),
-                           *(item for item in _given_keys(scene) if item[2] is not None)])
-    _check_dynamic(scene.dynamic)
-    _check_sweep(scene)
 
 
 def planes_of(geometry: Geometry) -> str:
@@ -718,9 +699,9 @@ def planes_of(geometry: Geometry) -> str:
 
 
 def _resolve_planes(scene: Scene) -> Scene:
-    """A fabric scene with geometry.planes set to `planes_of` (a one-yarn scene as it is)."""
+    """A planar fabric scene with geometry.planes set to `planes_of` where left out."""
     g = scene.geometry
-    if g.model != "fabric" or g.planes is not None or g.kinematics == "spatial":
+    if g.planes is not None:
         return scene
     return replace(scene, geometry=replace(g, planes=planes_of(g)))
 
@@ -1049,18 +1030,23 @@ def _fill_swept(tables: dict, sweep) -> None:
 # Checks on a Scene.
 
 
-def _check_tables_present(scene: Scene, kind: tuple) -> None:
-    """Tables that must be there, and the ones a plain rod refuses (`_TABLE_REFUSALS`)."""
-    if scene.weft is None and "specimen" in kind:
-        raise UserError("missing required table [weft] (needed with [specimen])")
-    if scene.weft is None and scene.geometry.crossings > 0:
-        raise UserError(f"missing required table [weft] (geometry.crossings = "
-                         f"{scene.geometry.crossings} > 0)")
-    if scene.geometry.crossings == 0:
+def _check_crossed(scene: Scene, kind: tuple) -> None:
+    """A yarn with crossings needs its [weft]; a plain rod (geometry.crossings = 0) refuses
+    the crossings' tables (`_TABLE_REFUSALS`)."""
+    crossings = scene.geometry.crossings
+    if crossings == 0:
         _refuse((*kind, "rod"), "rod", _given_tables(scene))
+    else:
+        _require_table(scene, "weft", f"geometry.crossings = {crossings} > 0")
 
 
-def _check_fields(scene: Scene) -> None:
+def _require_table(scene: Scene, table: str, why: str) -> None:
+    """UserError where the scene lacks [table], saying why it is needed."""
+    if getattr(scene, table) is None:
+        raise UserError(f"missing required table [{table}] ({why})")
+
+
+def _check_fields(scene: Scene, kind: tuple = ()) -> None:
     """Every field's type and range, as if read from TOML."""
     _convert("title", scene.title, _TITLE)
     for name, (_, keys) in _SCHEMA.items():
@@ -1073,8 +1059,9 @@ def _check_fields(scene: Scene) -> None:
                 _convert(f"{name}.{key}", value, spec)
 
 
-def _check_segments(geometry: Geometry) -> None:
+def _check_segments(scene: Scene, kind: tuple) -> None:
     """segments a multiple of 2 x crossings; a plain rod is straight, segments >= 2."""
+    geometry = scene.geometry
     n, crossings = geometry.segments, geometry.crossings
     if crossings == 0:
         if n < 2:
@@ -1099,10 +1086,14 @@ def _check_segments(geometry: Geometry) -> None:
 def _kind(scene: Scene) -> tuple[str, ...]:
     """The facets of a scene's kind that `_KEY_REFUSALS` and `_TABLE_REFUSALS` name: "fabric"
     with "specimen" (its [specimen] sets the layout) or else "planar"; otherwise "yarn"
-    (whatever geometry.model says: another value is refused with the values). A plain rod's
-    facet, "rod", is added where its tables are checked (`_check_tables_present`)."""
+    (whatever geometry.model says: another value is refused with the values). The last facet
+    names the kind's rules (`_RESOLVE`, `_CHECKS`). A fabric's kinematics and its [specimen]
+    go together (`_check_kinematics`). A plain rod's facet, "rod", is added where its tables
+    are checked (`_check_crossed`). The one place that asks which kind a scene is before it
+    is valid (`dynfab.model.builders.scene_kind` after)."""
     if scene.geometry.model != "fabric":
         return ("yarn",)
+    _check_kinematics(scene.geometry.kinematics, scene.specimen is not None)
     return ("fabric", "specimen" if scene.specimen is not None else "planar")
 
 
@@ -1194,7 +1185,7 @@ def _check_written_kind(tables: dict) -> None:
 def _check_fabric(scene: Scene, kind: tuple) -> None:
     """What a fabric scene must be (docs/model.md section 10): none of the one-yarn model's
     tables and keys (weft.tension named before geometry.yarns), as woven, the weft's chain
-    keys; a [specimen] (`_check_specimen`) or a planar patch, which takes no spatial key."""
+    keys; then a [specimen] (`_check_specimen`) or a planar patch (`_check_planar`)."""
     g, weft = scene.geometry, scene.weft
     _refuse(kind, "fabric", [*_given_tables(scene), *_given_keys(scene, ("weft", *_SCHEMA))])
     if g.reference != "as_woven":
@@ -1202,9 +1193,12 @@ def _check_fabric(scene: Scene, kind: tuple) -> None:
                    "woven (docs/model.md section 10); use \"as_woven\"")
     if weft.EA is None:
         raise _missing("weft", "EA", _FABRIC)
-    if "specimen" in kind:
-        _check_specimen(scene)
-        return
+
+
+def _check_planar(scene: Scene, kind: tuple) -> None:
+    """A planar patch or cell: its weft chains, no spatial key, a pull-out's and a periodic
+    cell's rules, one load factor per yarn."""
+    g, weft = scene.geometry, scene.weft
     if weft.segments is None:
         raise _missing("weft", "segments", _FABRIC)
     _refuse(kind, "planar", _given_keys(scene))
@@ -1228,13 +1222,10 @@ def _check_fabric(scene: Scene, kind: tuple) -> None:
 
 
 def _check_layout(scene: Scene, kind: tuple) -> None:
-    """A fabric's kinematics and [specimen] go together; the layout keys (`_Key.layout`) are
-    refused with a [specimen], which sets the layout, and those of both models required where
-    the kind takes them (a one-yarn scene's [specimen] is refused later, with the fabric's
-    keys)."""
-    g = scene.geometry
-    if "fabric" in kind:
-        _check_kinematics(g.kinematics, scene.specimen is not None)
+    """The layout keys (`_Key.layout`) are refused with a [specimen], which sets the layout,
+    and those of both models required where the kind takes them (a one-yarn scene's
+    [specimen] is refused later, with the fabric's keys; a fabric's kinematics and [specimen]
+    go together, `_kind`)."""
     _refuse(kind, "specimen", _given_keys(scene))
     for table, key, spec in _keys_where(layout=True, model=""):
         if (not any(_refused_by(facet, spec) for facet in kind) and getattr(scene, table)
@@ -1255,7 +1246,7 @@ def _check_kinematics(kinematics: str, specimen: bool) -> None:
                         f"{_SPATIAL}")
 
 
-def _check_specimen(scene: Scene) -> None:
+def _check_specimen(scene: Scene, kind: tuple) -> None:
     """A [specimen] (spatial kinematics, checked before): a finite piece of fabric, one test,
     sized for its test, both families' lateral keys, a preload, clamp displacement alone."""
     g = scene.geometry
@@ -1364,8 +1355,6 @@ def _resolve_spatial(scene: Scene) -> Scene:
     crossing.torsion_radius 0.3826 x the smaller width, each family's EI_lateral its EI and
     lateral_stiffness the core stiffness, specimen.fabric_side the side. Values the checks
     will refuse (missing, not numbers) are left for them."""
-    if "specimen" not in _kind(scene) or scene.geometry.kinematics != "spatial":
-        return scene
     changes = {}
     if scene.friction is None:
         changes["friction"] = PAPER_FRICTION
@@ -1469,8 +1458,12 @@ def _check_pullout(scene: Scene) -> None:
                    "(the pulled warp 1, the others held); remove it")
 
 
-def _check_weft_tension(weft: Weft) -> None:
-    """P_we > -Pcr_we = -pi^2 EI_we / L_we^2: the weft must not buckle (docs/model.md section 3)."""
+def _check_weft_tension(scene: Scene, kind: tuple) -> None:
+    """P_we > -Pcr_we = -pi^2 EI_we / L_we^2: the weft must not buckle (docs/model.md section 3);
+    a plain rod has no weft."""
+    weft = scene.weft
+    if weft is None:
+        return
     limit = -math.pi**2 * weft.EI / weft.length**2
     if weft.tension <= limit:
         raise _bad("weft.tension", weft.tension, f"must be > {limit:.6g} N = -pi^2 weft.EI / "
@@ -1564,7 +1557,7 @@ def _and(items: list[str]) -> str:
     return ", ".join(items[:-1]) + " and " + items[-1] if len(items) > 1 else "".join(items)
 
 
-def _check_sweep(scene: Scene) -> None:
+def _check_sweep(scene: Scene, kind: tuple = ()) -> None:
     """[sweep]: yarns = 1, sweepable keys of present tables, equal lengths, valid entries."""
     if not scene.sweep:
         return
@@ -1594,6 +1587,52 @@ def _check_sweep_entries(scene: Scene) -> None:
             _with_keys(base, [(key, values[i]) for key, values in scene.sweep])
         except UserError as exc:
             raise UserError(f"sweep entry {i}: {exc}") from None
+
+
+def _check_some_weft(scene: Scene, kind: tuple) -> None:
+    """A fabric has at least one weft (geometry.crossings > 0 where the layout is written)."""
+    if scene.geometry.crossings == 0:
+        raise _bad("geometry.crossings", 0, f"a fabric ({_FABRIC}) needs at least one weft")
+
+
+def _check_specimen_weft(scene: Scene, kind: tuple) -> None:
+    """A specimen's weft family is its [weft] table."""
+    _require_table(scene, "weft", "needed with [specimen]")
+
+
+def _refuse_fabric_tables(scene: Scene, kind: tuple) -> None:
+    """A one-yarn scene: none of the fabric's tables, nor its keys (one set to None is left
+    out)."""
+    _refuse(kind, "yarn", [*_given_tables(scene),
+                           *(item for item in _given_keys(scene) if item[2] is not None)])
+
+
+def _check_dynamic_table(scene: Scene, kind: tuple) -> None:
+    """[dynamic]'s combinations (`_check_dynamic`)."""
+    _check_dynamic(scene.dynamic)
+
+
+def _unchanged(scene: Scene) -> Scene:
+    return scene
+
+
+_RESOLVE = {"yarn": _unchanged, "planar": _resolve_planes, "specimen": _resolve_spatial}
+"""The last facet of a scene's kind (`_kind`) -> the defaults it resolves before its checks,
+so that a result file stores what runs."""
+
+_CHECKS = {
+    "yarn": (_check_layout, _check_crossed, _check_fields, _check_segments, _check_weft_tension,
+             _refuse_fabric_tables, _check_dynamic_table, _check_sweep),
+    "planar": (_check_layout, _check_some_weft, _check_crossed, _check_fields, _check_segments,
+               _check_weft_tension, _check_fabric, _check_planar, _check_dynamic_table,
+               _check_sweep),
+    "specimen": (_check_layout, _check_specimen_weft, _check_fields, _check_fabric,
+                 _check_specimen, _check_dynamic_table, _check_sweep),
+}
+"""The last facet of a scene's kind (`_kind`) -> its checks, each check(scene, kind), in the
+order a scene's faults are named: the layout first, the tables present, every value, then
+the rules that combine keys (a one-yarn scene's, a fabric's and a planar patch's or a
+specimen's), [dynamic] and [sweep] last. UserError naming the first key that fails."""
 
 
 def _with_keys(scene: Scene, items) -> Scene:
