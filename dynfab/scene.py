@@ -316,6 +316,13 @@ class Crossing:
         model="fabric", spatial=True,
         default_doc="0.3826 x the smaller of `warp.width` and `weft.width` (the mean distance "
                     "to the centre of a w x w square)")
+    motion: str = _key(
+        "how a crossing moves along its yarns: \"fixed\", a fixed pair of nodes, one on each "
+        "yarn, and a step whose slip passes half a segment stops (docs/model.md 11.6); "
+        "\"sliding\", its contact point stays where the yarns cross while their material "
+        "slides through it, and a yarn end that passes its last crossing leaves it "
+        "(docs/model.md 11.13; so far a planar clamped patch with fixed planes, on the static "
+        "solver)", choices=("fixed", "sliding"), default="fixed", model="fabric")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -1197,7 +1204,8 @@ def _check_fabric(scene: Scene, kind: tuple) -> None:
 
 def _check_planar(scene: Scene, kind: tuple) -> None:
     """A planar patch or cell: its weft chains, no spatial key, a pull-out's and a periodic
-    cell's rules, one load factor per yarn."""
+    cell's rules, one load factor per yarn, crossings that slide on a clamped patch with
+    fixed planes."""
     g, weft = scene.geometry, scene.weft
     if weft.segments is None:
         raise _missing("weft", "segments", _FABRIC)
@@ -1208,6 +1216,7 @@ def _check_planar(scene: Scene, kind: tuple) -> None:
                    f"weft.count = {step}; nearest valid: {max(step, round(weft.segments / step) * step)}")
     if scene.pullout is not None:
         _check_pullout(scene)
+    _check_sliding(scene)
     if g.boundary == "periodic":
         _check_periodic(scene)
     elif g.planes == CELL_PLANES:
@@ -1264,6 +1273,8 @@ def _check_specimen(scene: Scene, kind: tuple) -> None:
     for family in (scene.warp, scene.weft):
         _check_family_lateral(family)
     _check_preload(scene.crossing)
+    if scene.crossing.motion == "sliding":
+        raise _bad("crossing.motion", "sliding", f"not yet with a [specimen]: {_SLIDES_ON}")
     _check_specimen_load(scene.load)
 
 
@@ -1403,6 +1414,21 @@ def _is_real(value) -> bool:
     """A finite real number (not a bool), as a resolved default may be computed from."""
     return (isinstance(value, numbers.Real) and not isinstance(value, bool)
             and math.isfinite(value))
+
+
+_SLIDES_ON = ("so far crossings slide on a planar clamped patch with fixed planes "
+              "(docs/model.md 11.13)")
+
+
+def _check_sliding(scene: Scene) -> None:
+    """Crossings that slide: a clamped patch whose planes stay as woven (so far)."""
+    if scene.crossing is None or scene.crossing.motion != "sliding":
+        return
+    g = scene.geometry
+    if g.boundary != "clamped" or g.planes != "fixed":
+        key, value = (("geometry.boundary", g.boundary) if g.boundary != "clamped"
+                      else ("geometry.planes", g.planes))
+        raise _bad(key, value, f'with crossing.motion = "sliding": {_SLIDES_ON}')
 
 
 def _check_periodic(scene: Scene) -> None:

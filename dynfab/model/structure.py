@@ -148,6 +148,37 @@ class Structure(NamedTuple):
     (n, sum of their parameter counts); see `dynfab.model.terms.nodes`."""
     node_term_active: np.ndarray = np.zeros(0, np.bool_)
     """Which registry node terms the scene has (K,) bool, in registry order."""
+    # --- crossings that slide (docs/model.md 11.13, `dynfab.model.builders.sliding`): empty
+    # where every crossing is a fixed pair of nodes
+    physical_source: np.ndarray = np.zeros(0, np.int64)
+    """Per physical coordinate (n dim,), int64: the dof that holds it, or -1 where it is held at
+    its as-woven value (a planar sliding crossing's node, on the plane it crosses). The
+    positions the elements see are these (`dynfab.model.fabric.sliding.physical`); the dofs
+    of the solvers are the physical coordinates but for each sliding tie's two slip dofs,
+    which hold its material coordinates instead."""
+    tie_material: np.ndarray = np.zeros((0, 2), np.int64)
+    """(dof of u_a, dof of u_b) of each tie (T, 2), int64: the dofs that hold its two material
+    coordinates [m], the as-woven arc length from its chain's first node of the yarn point at
+    the crossing, on node a's chain and on node b's (its slip dofs as a fixed crossing)."""
+    segment_material: np.ndarray = np.zeros((0, 2), np.int64)
+    """(left, right) material coordinates' dofs of each segment's bay (n - Y, 2), int64: the
+    bay, the piece of chain between two consecutive crossings or a crossing and the chain's
+    end, whose material the crossings let through; -1 at a chain's end."""
+    segment_material_end: np.ndarray = np.zeros((0, 2))
+    """The material coordinate [m] of each segment's bay end where `segment_material` is -1
+    (a chain's ends: 0 and its rest length, material points), else 0 (n - Y, 2)."""
+    segment_fraction: np.ndarray = np.zeros(0)
+    """Each segment's share of its bay's material (n - Y,) [-]: its rest length is this times
+    the difference of the bay's two material coordinates."""
+    stretch_modulus: np.ndarray = np.zeros(0)
+    """EA of each segment (n - Y,) [N]: a sliding crossing changes its rest length."""
+    bend_modulus: np.ndarray = np.zeros(0)
+    """EI of each node's bending spring (n,) [N m^2] (0 at each chain's end nodes)."""
+
+
+def sliding(structure: Structure) -> bool:
+    """Whether the structure's crossings slide along its chains (docs/model.md 11.13)."""
+    return structure.physical_source.size > 0
 
 
 def dim(structure: Structure) -> int:

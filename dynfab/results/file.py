@@ -156,6 +156,9 @@ UNITS: dict[str, str] = {
     "steps/stress": "N/m",  # fabric: (steps, 2) load per unit width (warp, weft); yarn: (steps, yarns)
     "steps/slip_ratio": "-",  # fabric: (steps,) largest crossing node slip / segment; yarn: per yarn
     "steps/work": "J",  # fabric: (steps,) work of the end loads so far
+    "steps/slip": "m",  # fabric, sliding crossings: (steps, n_wa, n_we, 2) slide along warp, weft
+    "steps/material": "m",  # fabric, sliding crossings: (steps, n_wa, n_we, 2) u_a, u_b now
+    "steps/crossing_present": "-",  # fabric, sliding crossings: (steps, n_wa, n_we) bool
     "steps/friction_solves": "-",  # fabric: (steps,) Newton solves of the friction update
     "steps/negative_eigenvalues": "-",  # fabric, dynamic solver: of the frozen-F_T Hessian
     "steps/xdmf/weft_contact_force": "N",  # fabric: (steps, n_we, M+1) as steps/xdmf/contact_force

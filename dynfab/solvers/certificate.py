@@ -68,7 +68,7 @@ import scipy.sparse.linalg
 from dynfab.model import assembly
 from dynfab.linalg.banded import BANDWIDTH, band_add, band_matvec, constrain
 from dynfab.errors import SolverError
-from dynfab.model.terms.kinematics import terms_of, woven_plan
+from dynfab.model.terms.kinematics import physical_positions, terms_of, woven_plan
 from dynfab.model.fabric import inertia
 from dynfab.model.fabric import ordering as fabric_ordering
 from dynfab.linalg.ldlt import (TINY_PIVOT, inverse_norm_1, ldlt_factor, ldlt_solve,
@@ -619,7 +619,7 @@ def check_patch_accuracy(model, checked: PatchCertificate, stability: StepStabil
     least SCALE_FLOOR times the longest chain (`StepStability.scale`); the message names the yarn and node where the
     bound is largest (`patch_location`); float64."""
     f = model.structure
-    scale = StepStability.scale(pos, f.rest_position, longest_chain(f))
+    scale = StepStability.scale(physical_positions(f, pos), f.rest_position, longest_chain(f))
     if stability.error_estimate[0] <= accuracy * scale:
         return
     name = model.group_name(None)

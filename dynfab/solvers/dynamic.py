@@ -43,7 +43,7 @@ from dynfab.kernels.structure_relaxation import StructureRelaxation, available_c
 from dynfab.kernels.structure_settings import RELATIVE_TOLERANCE
 from dynfab.scene import Dynamic, check_dynamic_options
 from dynfab.model.step import StepSolution
-from dynfab.model.structure import dim
+from dynfab.model.structure import dim, sliding
 
 __all__ = ["DynamicSolver", "DynamicTransient", "MAX_TIGHTENINGS", "available_cores"]
 
@@ -60,6 +60,10 @@ def _check_refusals(structure, options) -> None:
     """A UserError in one line where the structure's elements refuse an option (their
     `REFUSALS`: the spatial ones float32, docs/model.md section 11.11)."""
     kinematics = KINEMATICS_OF_DIM[dim(structure)]
+    if sliding(structure):
+        raise UserError('crossing.motion = "sliding" runs on the static solver (--solver '
+                        'static) so far: the kernels hold each crossing a fixed pair of nodes '
+                        '(docs/model.md 11.13)')
     for name, value, why in structure_forces.KINDS[kinematics].REFUSALS:
         if getattr(options, name) == value:
             raise UserError(f"a structure of {kinematics} kinematics does not run dynamic.{name}"

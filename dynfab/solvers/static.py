@@ -45,9 +45,11 @@ class StaticSolver:
     def __init__(self, model, *, tolerance: float | None = None, max_iterations: int | None = None,
                  accuracy: float | None = None, certify: bool = True, status=None):
         self.model = model
-        self.backend = backend_for(model, tolerance=tolerance, max_iterations=max_iterations,
-                                   accuracy=accuracy, certify=certify, status=status)
-        """`BandedNewton` or `SparseNewton` (module docstring)."""
+        self._options = dict(tolerance=tolerance, max_iterations=max_iterations,
+                             accuracy=accuracy, certify=certify, status=status)
+        self.backend = backend_for(model, **self._options)
+        """`BandedNewton` or `SparseNewton` (module docstring), of the model's structure now
+        (made again where a yarn end has left a sliding crossing, docs/model.md 11.13)."""
 
     @property
     def tolerance(self) -> float:
@@ -70,6 +72,8 @@ class StaticSolver:
         """The equilibrium under `load` from `state` (not modified): (new state, record), or a
         `dynfab.errors.SolverError` (`dynfab.solvers.contract.Solver.step`)."""
         start = self.model.start_of_step(state, load)
+        if self.backend.structure is not self.model.structure:
+            self.backend = backend_for(self.model, **self._options)
         solution = self.backend.solve(start)
         return self.model.finish_step(state, start, solution)
 

@@ -456,6 +456,13 @@ def energy_vector(structure, pos, P, anchors, limit) -> np.ndarray:
     return out
 
 
+def return_map(pos, anchors, structure, limit, sliding, friction_force) -> float:
+    """The anchors' radial return at `pos`, the planes there, in place
+    (`dynfab.model.fabric.friction.return_map`); returns the energy lost [J]."""
+    px, py = planes(pos, structure)
+    return friction.return_map(pos, anchors, structure, px, py, limit, sliding, friction_force)
+
+
 def coupling_rows(structure, pos, anchors, limit, c) -> tuple[np.ndarray, np.ndarray]:
     """(dofs, values): d(dV/dr)/dF_T of tie c, J^T s/|s| on its slip dofs where it slides
     (dH/ds = F_T s/|s|), empty where it sticks (dH/ds = k_t s): the friction's dependence on

@@ -26,7 +26,12 @@ Record of one fabric step (n_wa warps of N+1 nodes, n_we wefts of M+1 nodes; Y =
 - strain, crimp (2,): (warp, weft) nominal strain and mean crimp [-]; stress (2,):
   (warp, weft) load per unit width [N/m] (`FabricModel.stresses`);
 - slip_ratio: the largest slip ratio of the step's crossing nodes [-]
-  (`dynfab.model.domain.slip_ratios`; a run stops a step above 1/2, docs/model.md section 10);
+  (`dynfab.model.domain.slip_ratios`; a run stops a step above 1/2, docs/model.md section 10;
+  0 where the crossings slide, their nodes staying on the planes);
+- where the crossings slide (`crossing.motion = "sliding"`, docs/model.md 11.13): slip
+  (n_wa, n_we, 2): each crossing's total slide along the warp and along the weft [m], its
+  material coordinates' change since the as-woven state; the anchors are then material
+  coordinates [m];
 - contact_force, friction_limit, sliding (n_wa, n_we); friction_force, anchors
   (n_wa, n_we, 2) [N], [m] (in-plane: warp x, weft y; the anchors relative to the planes);
 - warp_planes (n_wa,): the plane y = Y_k of each warp, weft_planes (n_we,): x = X_j of each
@@ -52,17 +57,20 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse
 
+from dynfab.errors import UserError
 from dynfab.model.builders import RELAXATION_STEPS
 from dynfab.model.builders.fabric import Family, families, fabric_structure
+from dynfab.model.builders.sliding import leaving, without_crossings
 from dynfab.model.domain import check_crossings_held, check_not_folded, fabric_slip_ratios
-from dynfab.model.fabric import assembly, contact, friction
-from dynfab.model.fabric.assembly import TERMS
+from dynfab.model.fabric import contact
+from dynfab.model.fabric.assembly import planes as plane_positions
 from dynfab.model.loading import family_drive, load_at_time
 from dynfab.scene import Scene
 from dynfab.model.step import StepSolution, StepStart
 from dynfab.model.structure import Structure, chain_count
 from dynfab.model.terms import registry
-from dynfab.model.terms.kinematics import woven_anchors
+from dynfab.model.terms.kinematics import (physical_positions, terms_of, woven_anchors,
+                                            woven_state)
 
 
 @dataclass
@@ -70,9 +78,11 @@ class FabricState:
     """What changes during a run (docs/model.md section 10)."""
 
     positions: np.ndarray
-    """(in-plane coordinate, z) of every node (nodes, 2) [m]."""
+    """(in-plane coordinate, z) of every node (nodes, 2) [m]: the structure's dofs (where the
+    crossings slide, their slots hold material coordinates, `physical_positions`)."""
     anchors: np.ndarray
-    """Friction anchors xi per crossing (C, 2) [m], relative to the as-woven slip."""
+    """Friction anchors xi per crossing (C, 2) [m], relative to the as-woven slip (where the
+    crossings slide, material coordinates)."""
     dissipated: float = 0.0
     """Cumulative friction dissipation [J]."""
     work: float = 0.0
@@ -86,9 +96,9 @@ class FabricState:
 
 
 def as_woven_state(structure: Structure) -> FabricState:
-    """As woven, anchors at zero slip (`dynfab.model.terms.kinematics.woven_anchors`),
-    nothing dissipated, no end force."""
-    return FabricState(structure.rest_position.copy(), woven_anchors(structure),
+    """As woven (`dynfab.model.terms.kinematics.woven_state`), anchors at zero slip
+    (`woven_anchors`), nothing dissipated, no end force."""
+    return FabricState(woven_state(structure), woven_anchors(structure),
                        end_force=np.zeros(chain_count(structure)))
 
 
@@ -99,13 +109,26 @@ class FabricModel:
 
     relaxation_steps = RELAXATION_STEPS["fabric"]
     """Steps before the scene's load path: none."""
-    history_keys = ()
-    """No step dataset of the whole path is needed to resume (`state_from_step`)."""
 
     scene: Scene
     structure: Structure
+    """The structure now: where a yarn end leaves a sliding crossing, without that crossing's
+    tie from the step it left on (`woven_structure` the one the scene made)."""
     warp: Family
     weft: Family
+
+    def __post_init__(self):
+        self.woven_structure = self.structure
+        """The structure as the scene made it, every crossing in it."""
+        self.tie_crossing = np.arange(self.structure.tie_a.size)
+        """The crossing (c = k n_we + j) of each tie of `structure`."""
+
+    @property
+    def history_keys(self) -> tuple:
+        """The step datasets of the whole path `state_from_step` needs to resume: where the
+        crossings slide, which were present and their material coordinates at each step
+        (the steps a yarn end left one, replayed); none otherwise."""
+        return ("crossing_present", "material") if self.slides else ()
 
     @classmethod
     def from_scene(cls, scene: Scene, structure: Structure | None = None) -> "FabricModel":
@@ -126,6 +149,17 @@ class FabricModel:
     @property
     def control(self) -> str:
         return self.scene.load.control
+
+    @property
+    def terms(self):
+        """The structure's term set (`dynfab.model.terms.kinematics.terms_of`): the planar
+        fabric's, or on the dofs of crossings that slide."""
+        return terms_of(self.structure)
+
+    @property
+    def slides(self) -> bool:
+        """The crossings slide along the yarns (docs/model.md 11.13)."""
+        return self.structure.physical_source.size > 0
 
     @property
     def pullout(self) -> int | None:
@@ -174,6 +208,8 @@ class FabricModel:
         (`dynfab.model.domain.check_not_folded`), or a crossing node carried more than half a
         segment from its crossing (`dynfab.model.domain.check_crossings_held`); for every solver."""
         check_not_folded(record, lambda: self.labels)  # labels made only for the message
+        if self.slides:  # the crossings follow the yarns: no bound on their slips
+            return
         g = self.scene.geometry
         check_crossings_held(record, *self.crossing_nodes(), suggest_affine=(
             g.boundary == "clamped" and g.planes == "fixed" and self.pullout is None))
@@ -192,14 +228,28 @@ class FabricModel:
                                           else {"pullout_warp": int(self.pullout)})}
 
     def initial_state(self) -> FabricState:
-        """As woven, anchors at zero slip, nothing dissipated (`as_woven_state`)."""
+        """As woven, anchors at zero slip, nothing dissipated (`as_woven_state`), every
+        crossing in the structure."""
+        self._set_structure(self.woven_structure, np.arange(self.woven_structure.tie_a.size))
         return as_woven_state(self.structure)
 
+    def _set_structure(self, structure: Structure, tie_crossing: np.ndarray) -> None:
+        self.structure, self.tie_crossing = structure, tie_crossing
+
     def state_from_step(self, last: dict, history: dict | None = None) -> FabricState:
-        """The state a finished step left (a resumed run continues from it)."""
+        """The state a finished step left (a resumed run continues from it): its positions,
+        where the crossings slide with their material coordinates (the as-woven ones plus
+        `slip`) in their slots."""
         nodes = np.concatenate([np.asarray(last["positions"]).reshape(-1, 2),
                                 np.asarray(last["weft_positions"]).reshape(-1, 2)])
-        return FabricState(nodes, np.array(last["anchors"]).reshape(self.warps * self.wefts, 2),
+        anchors = np.array(last["anchors"]).reshape(self.warps * self.wefts, 2)
+        if self.slides:
+            self._replay_departures(history)
+            f = self.structure
+            material = np.asarray(last["material"], float).reshape(-1, 2)
+            nodes.reshape(-1)[f.tie_material] = material[self.tie_crossing]
+            anchors = anchors[self.tie_crossing]
+        return FabricState(nodes, anchors,
                            float(last["dissipated"]), float(last["work"]),
                            np.array(last["end_force"], float))
 
@@ -228,6 +278,9 @@ class FabricModel:
             f, slip = np.zeros(positions.shape[:2]), np.zeros(positions.shape[:2])
             f[:, nodes] = force
             slip[:, nodes] = positions[:, nodes, 0] - crossed - anchor
+            if self.slides:  # the slide of the material through the crossing
+                slide = np.asarray(record["slip"])[..., 0 if prefix == "" else 1]
+                slip[:, nodes] = slide if prefix == "" else slide.T
             out[f"xdmf/{prefix}contact_force"], out[f"xdmf/{prefix}slip"] = f, slip
             if self.planes_move:
                 out[f"xdmf/{prefix}plane"] = np.repeat(own[:, None], positions.shape[1], axis=1)
@@ -236,17 +289,17 @@ class FabricModel:
     # ------------------------------------------------------------------ the Hessian
 
     @property
-    def pattern(self) -> assembly.Pattern:
-        """The order of the Hessian's entries and its unknowns (`assembly.pattern_of`)."""
-        return assembly.pattern_of(self.structure)
+    def pattern(self):
+        """The order of the Hessian's entries and its unknowns (the term set's `pattern_of`)."""
+        return self.terms.pattern_of(self.structure)
 
     def hessian(self, pos, anchors, limit, secant: float = 0.0) -> scipy.sparse.csc_matrix:
-        """The Hessian on the unknowns, F_T frozen (`assembly.sparse_hessian`)."""
-        return assembly.sparse_hessian(self.structure, pos, anchors, limit, secant)
+        """The Hessian on the unknowns, F_T frozen (the term set's `sparse_hessian`)."""
+        return self.terms.sparse_hessian(self.structure, pos, anchors, limit, secant)
 
     def energies(self, pos, P, anchors, limit) -> np.ndarray:
-        """Each term's energy [J] (`assembly.energy_vector`)."""
-        return assembly.energy_vector(self.structure, pos, P, anchors, limit)
+        """Each term's energy [J] (the term set's `energy_vector`)."""
+        return self.terms.energy_vector(self.structure, pos, P, anchors, limit)
 
     # ------------------------------------------------------------------ a load step
 
@@ -306,7 +359,8 @@ class FabricModel:
                       **self.planes(pos)})
         P = (self.yarn_loads(*load_at_time(self, time)) if self.control == "force"
              else np.zeros(self.yarns))
-        values = dict(zip(TERMS, self.energies(pos, P, anchors, self.friction_limits(pos))))
+        values = dict(zip(self.terms.TERMS, self.energies(pos, P, anchors,
+                                                          self.friction_limits(pos))))
         frame.update(registry.energy_records(self.scene, values))
         frame["energy/kinetic"] = float(np.sum(arrays["kinetic_energy"]))
         return {name: np.asarray(value) for name, value in frame.items()}
@@ -330,7 +384,7 @@ class FabricModel:
         load under force control, else the reaction dV/du_N of the elastic terms and the friction
         at F_T frozen), the anchors' radial return map and its dissipation, the loads' work,
         and the record of the module docstring."""
-        f, pos, limit = self.structure, solution.positions, solution.limit
+        f, pos, limit, terms = self.structure, solution.positions, solution.limit, self.terms
         anchors = start.anchors.copy()
         R = np.zeros(f.tie_a.size)
         contact.forces(pos, f, R)
@@ -338,44 +392,107 @@ class FabricModel:
             end_force = np.asarray(start.chain_loads, float).copy()
         else:
             grad = np.zeros_like(pos)
-            assembly.gradient(pos, f, np.zeros(self.yarns), anchors, limit, grad)
+            terms.gradient(pos, f, np.zeros(self.yarns), anchors, limit, grad)
             end_force = grad[f.load_node, 0].copy()
         sliding = np.zeros(f.tie_a.size, np.bool_)
         friction_force = np.zeros((f.tie_a.size, 2))
         lost = 0.0
         if f.has_friction:
-            px, py = assembly.planes(pos, f)
-            lost = friction.return_map(pos, anchors, f, px, py, limit, sliding, friction_force)
+            lost = terms.return_map(pos, anchors, f, limit, sliding, friction_force)
         new, u_new = self.end_of_step(state, pos, anchors, end_force, lost)
-        warps, wefts = self.split(pos)
-        shape = (self.warps, self.wefts)
+        physical = physical_positions(f, pos)
+        warps, wefts = self.split(physical)
+        full = self.per_crossing
         record = {
             "load": start.load.copy(), "end_force": end_force, "end_displacement": u_new,
             "positions": warps, "weft_positions": wefts,
             "strain": self.strains(pos), "stress": self.stresses(end_force),
-            "crimp": self.crimps(pos),
-            "contact_force": R.reshape(shape), "friction_limit": np.asarray(limit).reshape(shape),
-            "sliding": sliding.reshape(shape), "friction_force": friction_force.reshape(*shape, 2),
-            "anchors": anchors.reshape(*shape, 2), **self.planes(pos),
+            "crimp": self.crimps(physical),
+            "contact_force": full(R), "friction_limit": full(limit),
+            "sliding": full(sliding, False), "friction_force": full(friction_force),
+            "anchors": full(anchors, np.nan), **self.planes(pos),
             "dissipated": new.dissipated, "work": new.work,
             **{name: np.asarray(value)[0] for name, value in solution.fields.items()},
         }
         P = end_force if self.control == "force" else np.zeros(self.yarns)
-        values = dict(zip(TERMS, self.energies(pos, P, anchors, limit)))
+        values = dict(zip(terms.TERMS, self.energies(pos, P, anchors, limit)))
         record.update(registry.energy_records(self.scene, values))
         ratios = fabric_slip_ratios(record, *self.crossing_nodes())
         record["slip_ratio"] = np.max(np.concatenate([r.ravel() for r in ratios]), initial=0.0)
+        if self.slides:
+            new = self._slide(new, record)
         return new, {name: np.asarray(value) for name, value in record.items()}
+
+    def _slide(self, new: FabricState, record: dict) -> FabricState:
+        """Where the crossings slide: the record's material coordinates and slips at the step's
+        end (docs/model.md 11.13), then the crossings a yarn end has passed taken out of the
+        structure (`leaving`, `leave`) and the record's `crossing_present` after that; the
+        state in the new structure."""
+        f = self.structure
+        material = self.per_crossing(new.positions.reshape(-1)[f.tie_material], np.nan)
+        record["material"] = material
+        record["slip"] = material - woven_anchors(self.woven_structure).reshape(material.shape)
+        departures = leaving(f, new.positions)
+        if departures:
+            gone = sorted({d.tie for d in departures})
+            new = FabricState(self.leave(departures, new.positions),
+                              np.delete(new.anchors, gone, 0), new.dissipated, new.work,
+                              new.end_force)
+        record["crossing_present"] = self.per_crossing(np.ones(self.tie_crossing.size, bool),
+                                                       False)
+        return new
+
+    def _replay_departures(self, history: dict) -> None:
+        """The structure after the finished steps of `history` (its `crossing_present` and
+        `material` columns): each crossing a yarn end left taken out at the step it left, at
+        that step's material coordinates (`leave`), as the uninterrupted run did."""
+        self._set_structure(self.woven_structure, np.arange(self.woven_structure.tie_a.size))
+        present = np.asarray(history["crossing_present"], bool)
+        material = np.asarray(history["material"], float)
+        for step in range(present.shape[0]):
+            gone = ~present[step].ravel()[self.tie_crossing]
+            if gone.any():
+                dofs = as_woven_state(self.structure).positions
+                dofs.reshape(-1)[self.structure.tie_material] = \
+                    material[step].reshape(-1, 2)[self.tie_crossing]
+                departures = leaving(self.structure, dofs)
+                if sorted({d.tie for d in departures}) != list(np.flatnonzero(gone)):
+                    raise UserError(f"step {step + 1} of the file: the crossings it left are not "
+                                    "those its material coordinates leave (a file of another "
+                                    "scene or version); run it again without --resume")
+                self.leave(departures, dofs)
+
+    def leave(self, departures: list, dofs) -> np.ndarray:
+        """Take the crossings yarn ends have passed out of the structure at `dofs`
+        (`dynfab.model.builders.sliding.without_crossings`); returns the dofs of the new
+        structure."""
+        structure, dofs = without_crossings(self.structure, departures, dofs)
+        ties = sorted({d.tie for d in departures})
+        self._set_structure(structure, np.delete(self.tie_crossing, ties))
+        return dofs
+
+    def per_crossing(self, values, fill=0.0) -> np.ndarray:
+        """Per-tie `values` (T, ...) as the scene's crossings (n_wa, n_we, ...): a crossing a
+        yarn end has left holds `fill`."""
+        values = np.asarray(values)
+        out = np.full((self.woven_structure.tie_a.size, *values.shape[1:]), fill, values.dtype)
+        out[self.tie_crossing] = values
+        return out.reshape(self.warps, self.wefts, *values.shape[1:])
 
     def prescribe(self, pos, loads) -> None:
         """Displacement control, in place: u_N = load on each yarn, the increment spread
         linearly along the yarn (a better start than the end node alone)."""
         f = self.structure
+        moved = np.ones(pos.shape[0], bool)  # a sliding crossing's slot holds no coordinate
+        moved[f.tie_material.ravel() // 2] = False
         for y in range(self.yarns):
             a, b = f.chain_start[y], f.chain_start[y + 1]
             rest = f.rest_position[a:b, 0]
             increment = loads[y] - (pos[b - 1, 0] - rest[-1])
-            pos[a:b, 0] += increment * (rest - rest[0]) / (rest[-1] - rest[0])
+            spread = (rest - rest[0]) / (rest[-1] - rest[0])
+            if self.slides and not np.any(f.stretch_modulus[a - y:b - y - 1]):
+                spread = 1.0  # a yarn that has left the fabric moves with its loaded end
+            pos[a:b, 0] += moved[a:b] * increment * spread
             pos[b - 1, 0] = rest[-1] + loads[y]
 
     def end_of_step(self, state: FabricState, pos, anchors, end_force, lost: float):
@@ -452,5 +569,5 @@ class FabricModel:
     def planes(self, positions) -> dict:
         """warp_planes (n_wa,) Y_k and weft_planes (n_we,) X_j [m] at `positions`
         (`assembly.planes`: as woven, or moved with the ends)."""
-        x, y = assembly.planes(positions, self.structure)  # per crossing c = k n_we + j
+        x, y = plane_positions(positions, self.woven_structure)  # per crossing k n_we + j
         return {"warp_planes": y[::self.wefts].copy(), "weft_planes": x[:self.wefts].copy()}

@@ -14,14 +14,36 @@ from __future__ import annotations
 
 import numpy as np
 
-from dynfab.model.fabric import assembly, spatial
+from dynfab.model.builders.sliding import woven_dofs
+from dynfab.model.fabric import assembly, sliding, spatial
 from dynfab.model.structure import Structure, chain_of_node, dim
+from dynfab.model.structure import sliding as slides
 from dynfab.model.terms.spatial import crossing_coordinates
 
 
 def terms_of(structure: Structure):
-    """The term set (module) of `structure`: spatial where its nodes have three coordinates."""
-    return spatial if dim(structure) == 3 else assembly
+    """The term set (module) of `structure`: spatial where its nodes have three coordinates;
+    planar, on the dofs of crossings that slide where they do (`dynfab.model.fabric.sliding`,
+    docs/model.md 11.13)."""
+    if dim(structure) == 3:
+        return spatial
+    return sliding if slides(structure) else assembly
+
+
+def woven_state(structure: Structure) -> np.ndarray:
+    """The dofs as woven (n, dim): the rest positions, or where the crossings slide each one's
+    material coordinates in its slots (`dynfab.model.builders.sliding.woven_dofs`)."""
+    if slides(structure):
+        return woven_dofs(structure)
+    return np.array(structure.rest_position, float)
+
+
+def physical_positions(structure: Structure, dofs) -> np.ndarray:
+    """The positions (n, dim) [m] the dofs stand for: themselves, or where the crossings slide
+    each crossing's nodes where it is (`dynfab.model.fabric.sliding.physical`)."""
+    if slides(structure):
+        return sliding.physical(dofs, structure)
+    return np.asarray(dofs, float)
 
 
 def woven_plan(structure: Structure) -> np.ndarray:
@@ -42,6 +64,8 @@ def woven_anchors(structure: Structure) -> np.ndarray:
     ground tie's first component its node's x, its second 0; docs/model.md section 10);
     spatial (T, 3) [m, m, rad], each crossing's coordinates q as woven (section 11.4)."""
     pos = np.asarray(structure.rest_position, float)
+    if slides(structure):  # the material coordinates at the crossings
+        return woven_dofs(structure).reshape(-1)[structure.tie_material]
     if dim(structure) == 3:
         anchors = np.zeros((structure.tie_a.size, 3))
         for t, stencil in enumerate(np.asarray(structure.tie_stencil).reshape(-1, 6)):

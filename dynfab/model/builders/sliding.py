@@ -1,0 +1,239 @@
+"""Crossings that slide along the yarns (docs/model.md 11.13): a structure whose ties are fixed
+pairs of nodes made into one whose crossings let the yarns' material through.
+
+Each crossing's two nodes stay at the crossing and carry, besides their positions, the
+material coordinate u of their own chain there: the as-woven arc length, from the chain's
+first node, of the yarn point at the crossing now. Those two coordinates take the place of
+the crossing's two slip dofs (planar: node a's x and node b's y, the nodes then held on the
+planes they cross; spatial: node b's x and y, node b then sharing node a's), so the dofs,
+the held ones and the Hessian's sparsity are fixed for the whole path. The nodes between two
+crossings of a chain (a bay) interpolate their material coordinates: a segment's rest length
+is its share of the bay times the difference of the bay's two coordinates, a chain's ends
+being material points (0 and the chain's rest length).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from typing import NamedTuple
+
+from dynfab.errors import SolverError
+from dynfab.model import geometry
+from dynfab.model.structure import Structure, chain_count, dim
+
+GROUND_REFUSED = "crossings that slide join two chains; a tie to ground (the paper's weft) cannot"
+
+
+def material_coordinates(structure: Structure) -> np.ndarray:
+    """The as-woven material coordinate of every node (n,) [m]: the rest lengths summed from
+    its chain's first node."""
+    start, l0 = structure.chain_start, structure.rest_length
+    out = np.zeros(start[-1])
+    for y in range(start.size - 1):
+        a, b = start[y], start[y + 1]
+        out[a + 1:b] = np.cumsum(l0[a - y:b - y - 1])
+    return out
+
+
+def material_slots(structure: Structure) -> tuple[np.ndarray, np.ndarray]:
+    """(the dofs of each tie's (u_a, u_b) (T, 2), the source of every physical coordinate
+    (n dim,)): planar, node a's x and node b's y hold them, both held on their planes; spatial,
+    node b's x and y hold them, node b's x and y being node a's."""
+    d, a, b = dim(structure), structure.tie_a, structure.tie_b
+    if np.any(b < 0):
+        raise ValueError(GROUND_REFUSED)
+    source = np.arange(d * structure.rest_position.shape[0], dtype=np.int64)
+    if d == 2:
+        slots = np.stack([d * a, d * b], axis=1)
+        source[slots.ravel()] = -1
+    else:
+        slots = np.stack([d * b, d * b + 1], axis=1)
+        source[d * b], source[d * b + 1] = d * a, d * a + 1
+    return slots.astype(np.int64), source
+
+
+def bays(structure: Structure, ties: np.ndarray, flat: np.ndarray, lengths: np.ndarray):
+    """(segment_material (n - Y, 2), segment_material_end (n - Y, 2), segment_fraction
+    (n - Y,)) of the bays between consecutive crossings of each chain, the crossings the ties
+    `ties` (`Structure`): each segment's fraction its rest length `lengths` over its bay's
+    material, `flat` holding the crossings' material coordinates in their slots, a chain's
+    ends 0 and its as-woven rest length."""
+    start = structure.chain_start
+    woven = material_coordinates(structure)
+    count = lengths.size
+    material = np.full((count, 2), -1, np.int64)
+    end = np.zeros((count, 2))
+    fraction = np.zeros(count)
+    slots = structure.tie_material[ties]
+    nodes = np.concatenate([structure.tie_a[ties], structure.tie_b[ties]])
+    dofs = np.concatenate([slots[:, 0], slots[:, 1]])
+    for y in range(start.size - 1):
+        a, b = start[y], start[y + 1]
+        mine = (nodes >= a) & (nodes < b)
+        order = np.argsort(nodes[mine])
+        crossed, crossed_dof = nodes[mine][order], dofs[mine][order]
+        for i in range(a, b - 1):
+            k = i - y
+            left = np.searchsorted(crossed, i, side="right") - 1
+            right = np.searchsorted(crossed, i + 1, side="left")
+            if left >= 0:
+                material[k, 0] = crossed_dof[left]
+            else:
+                end[k, 0] = woven[a]
+            if right < crossed.size:
+                material[k, 1] = crossed_dof[right]
+            else:
+                end[k, 1] = woven[b - 1]
+            ends = [flat[m] if m >= 0 else e for m, e in zip(material[k], end[k])]
+            fraction[k] = lengths[k] / (ends[1] - ends[0])
+    return material, end, fraction
+
+
+def sliding_structure(structure: Structure) -> Structure:
+    """`structure` with crossings that slide (module docstring); ValueError for ties to ground."""
+    slots, source = material_slots(structure)
+    with_slots = structure._replace(tie_material=slots)
+    material, end, fraction = bays(with_slots, np.arange(slots.shape[0]),
+                                   woven_dofs(with_slots).reshape(-1), structure.rest_length)
+    lbar = np.concatenate([geometry.voronoi_lengths(structure.rest_length[
+        structure.chain_start[y] - y:structure.chain_start[y + 1] - y - 1])
+        for y in range(chain_count(structure))])
+    return structure._replace(
+        physical_source=source, tie_material=slots, segment_material=material,
+        segment_material_end=end, segment_fraction=fraction,
+        stretch_modulus=structure.stretch_stiffness * structure.rest_length,
+        bend_modulus=structure.bend_stiffness * lbar)
+
+
+def woven_dofs(structure: Structure) -> np.ndarray:
+    """The dofs of a sliding structure as woven (n, dim): the rest positions, each tie's slots
+    holding its material coordinates."""
+    dofs = np.array(structure.rest_position, float)
+    woven = material_coordinates(structure)
+    flat = dofs.reshape(-1)
+    flat[structure.tie_material[:, 0]] = woven[structure.tie_a]
+    flat[structure.tie_material[:, 1]] = woven[structure.tie_b]
+    return dofs
+
+
+class Departure(NamedTuple):
+    """A yarn end leaving a crossing: the tie, the chain and which end (0 its first node)."""
+
+    tie: int
+    chain: int
+    end: int
+
+
+def leaving(structure: Structure, dofs) -> list[Departure]:
+    """The crossings a free yarn end has reached (docs/model.md 11.13): each tie whose end bay,
+    the piece of a chain between the crossing and the chain's free end, holds less material
+    than one as-woven segment of that chain (its mean rest length). A yarn's loaded end
+    reaching its last crossing is `SolverError` (its load would be left on nothing)."""
+    flat = np.asarray(dofs, float).reshape(-1)
+    start, l0, d = structure.chain_start, structure.rest_length, dim(structure)
+    found = []
+    for y in range(start.size - 1):
+        a, b = start[y], start[y + 1]
+        active = np.flatnonzero(structure.stretch_modulus[a - y:b - y - 1] > 0.0)
+        if active.size == 0:
+            continue
+        k0, k1 = a - y + active[0], a - y + active[-1]  # a retired tail is not the chain's
+        bays, ends = structure.segment_material, structure.segment_material_end
+        segment = l0[a - y:b - y - 1].sum() / (b - a - 1)
+        first, last = bays[k0, 1], bays[k1, 0]  # the first and the last crossing's dof
+        if bays[k0, 0] < 0 <= first and flat[first] - ends[k0, 0] < segment \
+                and not structure.fixed[d * (k0 + y)]:
+            found.append((first, y, 0))
+        if bays[k1, 1] < 0 <= last and ends[k1, 1] - flat[last] < segment:
+            raise SolverError(f"the loaded end of chain {y + 1} reached its last crossing: its "
+                              "load would act on a yarn that has left the fabric (docs/model.md "
+                              "11.13); stop the load path before")
+    return [Departure(int(np.flatnonzero((structure.tie_material == dof).any(axis=1))[0]), y, end)
+            for dof, y, end in found]
+
+
+def without_crossings(structure: Structure, departures: list[Departure],
+                      dofs) -> tuple[Structure, np.ndarray]:
+    """(the structure without the ties a yarn end left, its dofs) at `dofs` (docs/model.md
+    11.13): each such tie's nodes ordinary nodes again, their slots holding their coordinates
+    where they are now; on its other chain the bays on each side of it one bay whose segments
+    keep the rest lengths they have now; on the leaving chain the tail past it, less than a
+    segment of material, retired (`_retire_tail`), the crossing's node the chain's free end
+    from then on, its material coordinate the end's."""
+    removed = np.array(sorted({d.tie for d in departures}), np.int64)
+    flat = np.asarray(dofs, float).reshape(-1)
+    keep = np.ones(structure.tie_a.size, bool)
+    keep[removed] = False
+    lengths = structure.segment_fraction * np.diff(np.where(
+        structure.segment_material >= 0, flat[np.maximum(structure.segment_material, 0)],
+        structure.segment_material_end), axis=1)[:, 0]
+    material, end, fraction = bays(structure, np.flatnonzero(keep), flat, lengths)
+    same = np.all(material == structure.segment_material, axis=1)
+    fraction[same] = structure.segment_fraction[same]  # the bays kept keep their bits
+    slots = structure.tie_material[removed].ravel()
+    source = structure.physical_source.copy()
+    held = source[slots] < 0
+    out = np.array(dofs, float)
+    out.reshape(-1)[slots] = np.where(held, np.asarray(structure.rest_position).reshape(-1)[slots],
+                                      flat[np.maximum(source[slots], 0)])
+    source[slots] = slots
+    ties = {name: getattr(structure, name)[keep] for name in structure._fields
+            if name.startswith("tie_") and np.ndim(getattr(structure, name))
+            and len(getattr(structure, name)) == keep.size}
+    out_structure = structure._replace(
+        **ties, physical_source=source, segment_material=material, segment_material_end=end,
+        segment_fraction=fraction, has_friction=bool(np.any(ties["tie_friction_law"][:, 3] > 0.0)))
+    for departure in departures:
+        node = structure.tie_a[departure.tie] if _on_chain(structure, structure.tie_a[
+            departure.tie], departure.chain) else structure.tie_b[departure.tie]
+        u = flat[structure.tie_material[departure.tie,
+                                        0 if node == structure.tie_a[departure.tie] else 1]]
+        out_structure = _retire_tail(out_structure, departure.chain, int(node), u, lengths,
+                                     flat)
+        y = departure.chain
+        last = int(out_structure.chain_start[y + 1] - 1)
+        if not any(_on_chain(out_structure, n, y) for n in (*out_structure.tie_a,
+                                                            *out_structure.tie_b)):
+            # the yarn has left the fabric: nothing holds it but its loaded end, on which it
+            # would turn freely; it leaves the mechanics, moving with that end
+            out_structure = _retire_tail(out_structure, y, last, 0.0, lengths, flat)
+    return out_structure, out
+
+
+def _on_chain(structure: Structure, node: int, y: int) -> bool:
+    return bool(structure.chain_start[y] <= node < structure.chain_start[y + 1])
+
+
+def _retire_tail(structure: Structure, y: int, node: int, u: float, lengths: np.ndarray,
+                 flat: np.ndarray) -> Structure:
+    """Chain y's tail from its first node to `node` retired: its segments without stiffness
+    (their rest lengths kept, constant), its nodes without bending and moving as `node` (tied
+    dofs), `node` the chain's free end, with the material coordinate `u` [m], the end of the
+    bay that starts there."""
+    a = structure.chain_start[y]
+    d = dim(structure)
+    tail = slice(a - y, node - y)  # the segments between the chain's first node and `node`
+    material = structure.segment_material.copy()
+    end = structure.segment_material_end.copy()
+    fraction = structure.segment_fraction.copy()
+    material[tail] = -1
+    end[tail] = np.stack([np.zeros(node - a), lengths[tail]], axis=1)
+    fraction[tail] = 1.0
+    first_bay = np.flatnonzero((np.arange(end.shape[0]) >= node - y)
+                               & (np.arange(end.shape[0]) < structure.chain_start[y + 1] - y - 1)
+                               & (structure.segment_material[:, 0] < 0))
+    end[first_bay, 0] = u  # the bay from `node`: its left end the chain's end now
+    right = np.where(material[first_bay, 1] >= 0, flat[np.maximum(material[first_bay, 1], 0)],
+                     end[first_bay, 1])
+    fraction[first_bay] = lengths[first_bay] / (right - u)
+    stretch = structure.stretch_modulus.copy()
+    stretch[tail] = 0.0
+    bend = structure.bend_modulus.copy()
+    bend[a:node + 1] = 0.0
+    tie = structure.dof_tie.copy()
+    for k in range(d):
+        tie[d * np.arange(a, node) + k] = d * node + k
+    return structure._replace(segment_material=material, segment_material_end=end,
+                              segment_fraction=fraction, stretch_modulus=stretch,
+                              bend_modulus=bend, dof_tie=tie)

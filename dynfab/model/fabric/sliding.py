@@ -1,0 +1,427 @@
+"""The energy, gradient and sparse Hessian of a fabric whose crossings slide along the yarns
+(docs/model.md 11.13), on the structure's dofs (`dynfab.model.builders.sliding`).
+
+The elastic terms, the contact and the loads are the planar fabric's own
+(`dynfab.model.fabric.assembly`), evaluated at the physical positions (`physical`: each dof
+where it is a coordinate, a sliding crossing's node on the plane it crosses) with each
+segment's rest length and each spring's stiffness those of the material in it now
+(`current`):
+
+    E_s = 1/2 EA (l_s - L_s)^2 / L_s,      L_s = f_s (u_R - u_L),                  (11.13a)
+    E_i = 1/2 EI (phi_i - phi0_i)^2 / lbar_i,   lbar_i = (L_{i-1} + L_i) / 2,       (11.13b)
+
+u_L, u_R the material coordinates of the segment's bay ends (a crossing's dof, or a chain end's
+constant), f_s its share of the bay. Their gradient on the dofs is the physical gradient
+pulled back (`Structure.physical_source`) plus the material part dE/dL dL/du, with
+
+    dE_s/dL = EA (L^2 - l^2) / (2 L^2),  d2E_s/dl dL = -EA l / L^2,  d2E_s/dL2 = EA l^2 / L^3,
+    dE_i/dlbar = -E_i / lbar,  d2E_i/dr dlbar = -(dE_i/dr) / lbar,  d2E_i/dlbar2 = 2 E_i / lbar^2,
+
+dL/du = (-f, +f) and dlbar/dL = 1/2, each linear in u; the Hessian adds those mixed and
+material blocks (`material_entries`, `_material_values`, in one order). Friction acts on the
+material slip S = (u_a - xi_a, u_b - xi_b) (docs/model.md 11.13): the planar Huber law
+(`dynfab.model.fabric.friction`) on the dofs with the planes at 0, its block on the two
+material dofs. A bay whose material runs out (L <= 0: two crossings meeting, or a yarn end
+reaching its last crossing before it is removed) has energy +inf, which the line searches
+refuse.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from dynfab.model.fabric import assembly as planar
+from dynfab.model.fabric import friction
+from dynfab.model.fabric.assembly import Pattern, secant_weights
+from dynfab.model.structure import Structure
+from dynfab.model.terms import bending
+
+TERMS = planar.TERMS
+CONTACT, FRICTION, STRETCH = planar.CONTACT, planar.FRICTION, planar.STRETCH
+SOLVE_ON_KEPT_FACTORS = planar.SOLVE_ON_KEPT_FACTORS
+
+
+# ----------------------------------------------------------------------- kinematics
+
+
+@numba.njit(cache=True)
+def _physical(dofs, s, out):
+    """out = the physical positions (n, 2) of the dofs (module docstring)."""
+    flat, rest, o = dofs.reshape(-1), s.rest_position.reshape(-1), out.reshape(-1)
+    for d in range(o.size):
+        source = s.physical_source[d]
+        o[d] = flat[source] if source >= 0 else rest[d]
+
+
+@numba.njit(cache=True)
+def _bay_end(flat, s, k, side):
+    """The material coordinate [m] of side 0 (left) or 1 (right) of segment k's bay."""
+    index = s.segment_material[k, side]
+    return flat[index] if index >= 0 else s.segment_material_end[k, side]
+
+
+@numba.njit(cache=True)
+def _rest_lengths(dofs, s, out):
+    """out = L_s (n - Y,) [m] (11.13a)."""
+    flat = dofs.reshape(-1)
+    for k in range(out.size):
+        out[k] = s.segment_fraction[k] * (_bay_end(flat, s, k, 1) - _bay_end(flat, s, k, 0))
+
+
+def physical(dofs, s: Structure) -> np.ndarray:
+    """The physical positions (n, 2) [m] of the dofs."""
+    out = np.empty(s.rest_position.shape)
+    _physical(np.ascontiguousarray(dofs, float), s, out)
+    return out
+
+
+def rest_lengths(dofs, s: Structure) -> np.ndarray:
+    """Each segment's rest length now, L_s (n - Y,) [m] (11.13a)."""
+    out = np.empty(s.rest_length.size)
+    _rest_lengths(np.ascontiguousarray(dofs, float), s, out)
+    return out
+
+
+def current(dofs, s: Structure) -> Structure | None:
+    """The structure of the material as it lies now: each segment's rest length L_s and
+    stiffness EA / L_s, each node's bending stiffness EI / lbar_i (11.13b), friction left to
+    this module (`has_friction` False); None where a bay has run out of material (L <= 0)."""
+    L = rest_lengths(dofs, s)
+    if not np.all(L > 0.0):
+        return None
+    lbar = np.empty(s.bend_modulus.size)
+    start = s.chain_start
+    for y in range(start.size - 1):
+        a, b = start[y], start[y + 1]
+        segments = L[a - y:b - y - 1]
+        lbar[a], lbar[b - 1] = segments[0] / 2, segments[-1] / 2
+        lbar[a + 1:b - 1] = 0.5 * (segments[:-1] + segments[1:])
+    return s._replace(rest_length=L, stretch_stiffness=s.stretch_modulus / L,
+                      bend_stiffness=s.bend_modulus / lbar, has_friction=False)
+
+
+def _no_planes(s: Structure) -> np.ndarray:
+    return np.zeros(s.tie_a.size)
+
+
+# ----------------------------------------------------------------------- energy and gradient
+
+
+def total_energy(dofs, s: Structure, P, anchors, limit, out) -> float:
+    """V [J] at the dofs (its terms left in out, `TERMS`), F_T = `limit` frozen; +inf where a
+    bay has run out of material."""
+    now = current(dofs, s)
+    out[:] = 0.0
+    if now is None:
+        out[STRETCH] = np.inf
+        return np.inf
+    planar.energies(physical(dofs, s), now, P, anchors, limit, out)
+    if s.has_friction:
+        zero = _no_planes(s)
+        out[FRICTION] = friction.energy(dofs, anchors, s, zero, zero, limit)
+    return float(out.sum())
+
+
+def energy_vector(s: Structure, dofs, P, anchors, limit) -> np.ndarray:
+    """Each term's energy [J] (`TERMS`) at the dofs, F_T = `limit` frozen."""
+    out = np.zeros(len(TERMS))
+    total_energy(dofs, s, np.asarray(P, float), anchors, limit, out)
+    return out
+
+
+@numba.njit(cache=True)
+def _pull_back(physical_grad, s, grad):
+    """grad += the physical gradient on the dofs that hold each coordinate."""
+    g, o = physical_grad.reshape(-1), grad.reshape(-1)
+    for d in range(g.size):
+        if s.physical_source[d] >= 0:
+            o[s.physical_source[d]] += g[d]
+
+
+@numba.njit(cache=True)
+def _add_to_bay(flat, s, k, value):
+    """flat += value dL_k/du on segment k's bay ends (dL/du_R = f, dL/du_L = -f)."""
+    f = s.segment_fraction[k]
+    if s.segment_material[k, 0] >= 0:
+        flat[s.segment_material[k, 0]] -= value * f
+    if s.segment_material[k, 1] >= 0:
+        flat[s.segment_material[k, 1]] += value * f
+
+
+@numba.njit(cache=True)
+def _length(pos, i):
+    ex, ez = pos[i + 1, 0] - pos[i, 0], pos[i + 1, 1] - pos[i, 1]
+    return np.sqrt(ex * ex + ez * ez)
+
+
+@numba.njit(cache=True)
+def _add_material_gradient(pos, now, s, grad):
+    """grad += the material part of the elastic terms' gradient (module docstring)."""
+    flat = grad.reshape(-1)
+    start = s.chain_start
+    for y in range(start.size - 1):
+        a, b = start[y], start[y + 1]
+        for i in range(a, b - 1):
+            k = i - y
+            L, l = now.rest_length[k], _length(pos, i)
+            _add_to_bay(flat, s, k, 0.5 * s.stretch_modulus[k] * (L * L - l * l) / (L * L))
+        for i in range(a + 1, b - 1):
+            d = bending.turning_angle(pos, i) - s.rest_angle[i]
+            energy = 0.5 * now.bend_stiffness[i] * d * d
+            lbar = 0.5 * (now.rest_length[i - 1 - y] + now.rest_length[i - y])
+            _add_to_bay(flat, s, i - 1 - y, -0.5 * energy / lbar)
+            _add_to_bay(flat, s, i - y, -0.5 * energy / lbar)
+
+
+@numba.njit(cache=True)
+def _add_friction_gradient(dofs, s, anchors, limit, grad):
+    """grad += dH/du of every tie's Huber term on its material slip."""
+    zero = np.zeros(s.tie_a.size)
+    flat = grad.reshape(-1)
+    for c in range(s.tie_a.size):
+        sx, sy = friction.slip(dofs, anchors, s, zero, zero, c)
+        gx, gy = friction.huber_gradient(sx, sy, limit[c], s.tie_friction_law[c, friction.STICK])
+        flat[s.tie_material[c, 0]] += gx
+        flat[s.tie_material[c, 1]] += gy
+
+
+def gradient(dofs, s: Structure, P, anchors, limit, grad) -> None:
+    """grad = dV/d(dofs) (n, 2) [N, and N for the material coordinates' J/m], F_T frozen."""
+    now = current(dofs, s)
+    if now is None:  # a bay has run out of material: no gradient (the energy is +inf)
+        grad[:] = np.nan
+        return
+    pos = physical(dofs, s)
+    physical_grad = np.zeros_like(pos)
+    planar.gradient(pos, now, np.asarray(P, float), anchors, limit, physical_grad)
+    grad[:] = 0.0
+    _pull_back(physical_grad, s, grad)
+    _add_material_gradient(pos, now, s, grad)
+    if s.has_friction:
+        _add_friction_gradient(np.ascontiguousarray(dofs, float), s, anchors, limit, grad)
+
+
+# ----------------------------------------------------------------------- the Hessian
+
+
+@numba.njit(cache=True)
+def _segment_dofs(s, i, k, out):
+    """(the dofs holding the 4 coordinates of segment k's nodes i, i+1; its 2 bay-end dofs),
+    -1 for a coordinate held on a plane or a chain end's constant."""
+    for m in range(4):
+        out[m] = s.physical_source[2 * i + m]
+    out[4], out[5] = s.segment_material[k, 0], s.segment_material[k, 1]
+
+
+@numba.njit(cache=True)
+def _bend_dofs(s, i, k, out):
+    """(the dofs holding the 6 coordinates of nodes i-1..i+1; the bay-end dofs of segments k-1
+    and k), -1 as `_segment_dofs`."""
+    for m in range(6):
+        out[m] = s.physical_source[2 * (i - 1) + m]
+    out[6], out[7] = s.segment_material[k - 1, 0], s.segment_material[k - 1, 1]
+    out[8], out[9] = s.segment_material[k, 0], s.segment_material[k, 1]
+
+
+@numba.njit(cache=True)
+def _emit_block(local, positions, materials, rows, cols, e):
+    """(rows, cols) of the mixed (position x material, both orders) and material x material
+    entries of one element whose dofs are `local`: `positions` physical ones, then
+    `materials` material ones; returns the next entry."""
+    for p in range(positions):
+        for q in range(materials):
+            rows[e], cols[e] = local[p], local[positions + q]
+            rows[e + 1], cols[e + 1] = local[positions + q], local[p]
+            e += 2
+    for p in range(materials):
+        for q in range(materials):
+            rows[e], cols[e] = local[positions + p], local[positions + q]
+            e += 1
+    return e
+
+
+@numba.njit(cache=True)
+def _material_entry_count(s):
+    segments = s.rest_length.size
+    inner = segments - (s.chain_start.size - 1)
+    ties = s.tie_a.size
+    return segments * (4 * 2 * 2 + 4) + inner * (6 * 4 * 2 + 16) + 4 * ties
+
+
+@numba.njit(cache=True)
+def _material_entries(s, rows, cols):
+    """(rows, cols) of every entry `_material_values` fills, in its order: each segment's
+    stretch block, each inner node's bending block, each tie's friction block, on the dofs
+    (-1 where a coordinate is held on a plane or a bay ends at a chain end)."""
+    start = s.chain_start
+    local = np.empty(10, np.int64)
+    e = 0
+    for y in range(start.size - 1):
+        a, b = start[y], start[y + 1]
+        for i in range(a, b - 1):
+            _segment_dofs(s, i, i - y, local)
+            e = _emit_block(local, 4, 2, rows, cols, e)
+        for i in range(a + 1, b - 1):
+            _bend_dofs(s, i, i - y, local)
+            e = _emit_block(local, 6, 4, rows, cols, e)
+    for c in range(s.tie_a.size):
+        u_a, u_b = s.tie_material[c, 0], s.tie_material[c, 1]
+        rows[e:e + 4] = np.array([u_a, u_a, u_b, u_b])
+        cols[e:e + 4] = np.array([u_a, u_b, u_a, u_b])
+        e += 4
+
+
+@numba.njit(cache=True)
+def _put_block(gx, gm, hmm, positions, materials, values, e):
+    """values (in `_emit_block`'s order) of the block gx gm^T (both orders) and hmm gm gm^T."""
+    for p in range(positions):
+        for q in range(materials):
+            values[e] = values[e + 1] = gx[p] * gm[q]
+            e += 2
+    for p in range(materials):
+        for q in range(materials):
+            values[e] = hmm * gm[p] * gm[q]
+            e += 1
+    return e
+
+
+@numba.njit(cache=True)
+def _material_values(pos, dofs, now, s, anchors, limit, secant, values):
+    """The mixed and material Hessian entries (module docstring) in `_material_entries`'
+    order; the friction blocks with each tie's secant weight (`friction.huber_hessian`)."""
+    start = s.chain_start
+    gx, gm, g = np.empty(6), np.empty(4), np.empty(6)
+    e = 0
+    for y in range(start.size - 1):
+        a, b = start[y], start[y + 1]
+        for i in range(a, b - 1):
+            k = i - y
+            ex, ez = pos[i + 1, 0] - pos[i, 0], pos[i + 1, 1] - pos[i, 1]
+            l = np.sqrt(ex * ex + ez * ez)
+            L, EA, f = now.rest_length[k], s.stretch_modulus[k], s.segment_fraction[k]
+            mixed = -EA * l / (L * L)  # d2E/dl dL, times dl/dr = (-e, e) / l
+            gx[0], gx[1], gx[2], gx[3] = -mixed * ex / l, -mixed * ez / l, mixed * ex / l, \
+                mixed * ez / l
+            gm[0], gm[1] = -f, f
+            e = _put_block(gx, gm, EA * l * l / (L * L * L), 4, 2, values, e)
+        for i in range(a + 1, b - 1):
+            k = i - y
+            kb = now.bend_stiffness[i]
+            d = bending.turning_angle(pos, i) - s.rest_angle[i]
+            energy = 0.5 * kb * d * d
+            lbar = 0.5 * (now.rest_length[k - 1] + now.rest_length[k])
+            bending._angle_gradient(pos, i, g)
+            for m in range(6):
+                gx[m] = -kb * d * g[m] / lbar  # d2E/dr dlbar
+            f0, f1 = 0.5 * s.segment_fraction[k - 1], 0.5 * s.segment_fraction[k]
+            gm[0], gm[1], gm[2], gm[3] = -f0, f0, -f1, f1  # dlbar/du
+            e = _put_block(gx, gm, 2.0 * energy / (lbar * lbar), 6, 4, values, e)
+    zero = np.zeros(s.tie_a.size)
+    for c in range(s.tie_a.size):
+        weight = 0.0 if secant is None else secant[c]
+        sx, sy = friction.slip(dofs, anchors, s, zero, zero, c)
+        xx, xy, yy = friction.huber_hessian(sx, sy, limit[c], s.tie_friction_law[c, friction.STICK],
+                                            weight)
+        values[e], values[e + 1], values[e + 2], values[e + 3] = xx, xy, xy, yy
+        e += 4
+
+
+class SlidingPattern(Pattern):
+    """The Hessian's entries on the dofs: the planar fabric's (`planar.planar_entries`), each
+    physical dof moved to the dof that holds it, then the material entries
+    (`_material_entries`); those on a coordinate held on a plane or a chain end's constant
+    left out (`kept`)."""
+
+    def __init__(self, s: Structure):
+        base_rows, base_cols = planar.planar_entries(s)
+        count = _material_entry_count(s)
+        rows, cols = np.empty(count, np.int64), np.empty(count, np.int64)
+        _material_entries(s, rows, cols)
+        rows = np.concatenate([s.physical_source[base_rows], rows])
+        cols = np.concatenate([s.physical_source[base_cols], cols])
+        self.base_size = base_rows.size
+        self.kept = (rows >= 0) & (cols >= 0)
+        super().__init__(s, (rows[self.kept], cols[self.kept]))
+
+
+_PATTERNS: dict[int, tuple] = {}
+"""The last few structures' `SlidingPattern`s, by id (the structure kept alive beside it)."""
+
+
+def pattern_of(s: Structure) -> SlidingPattern:
+    """The `SlidingPattern` of a structure, made once (the static solver, the certificate and
+    the model share it, and with it the nested-dissection order)."""
+    entry = _PATTERNS.get(id(s))
+    if entry is None or entry[0] is not s:
+        if len(_PATTERNS) >= planar.PATTERNS_KEPT:
+            _PATTERNS.pop(next(iter(_PATTERNS)))
+        entry = _PATTERNS[id(s)] = (s, SlidingPattern(s))
+    return entry[1]
+
+
+def hessian_values(dofs, s: Structure, anchors, limit, secant=None) -> np.ndarray:
+    """Every entry of `SlidingPattern` (before `kept`), F_T = `limit` frozen."""
+    pattern = pattern_of(s)
+    now = current(dofs, s)
+    pos = physical(dofs, s)
+    values = np.zeros(pattern.kept.size)
+    planar.hessian_values(pos, now, anchors, limit, values[:pattern.base_size], None)
+    _material_values(pos, np.ascontiguousarray(dofs, float), now, s, anchors, limit, secant,
+                     values[pattern.base_size:])
+    return values
+
+
+def sparse_hessian(s: Structure, dofs, anchors, limit, secant=0.0):
+    """The Hessian of V plus the Huber terms on the structure's unknowns [N/m] (CSC), F_T =
+    `limit` frozen; `secant` as `planar.sparse_hessian`'s."""
+    pattern = pattern_of(s)
+    values = hessian_values(dofs, s, anchors, limit, secant_weights(secant, s.tie_a.size))
+    return pattern.matrix(values[pattern.kept])
+
+
+def full_hessian(s: Structure, dofs, anchors, limit) -> np.ndarray:
+    """The Hessian on every dof, dense (for tests and small checks)."""
+    pattern = pattern_of(s)
+    return pattern.full_matrix(hessian_values(dofs, s, anchors, limit)[pattern.kept])
+
+
+# ----------------------------------------------------------------------- friction and the rest
+
+
+def crossing_slips(dofs, s: Structure, anchors, out) -> None:
+    """Every tie's material slip (u_a - xi_a, u_b - xi_b, 0) [m] into out (T, 3)."""
+    zero = _no_planes(s)
+    friction.slips(np.ascontiguousarray(dofs, float), anchors, s, zero, zero, out)
+
+
+def return_map(dofs, anchors, s: Structure, limit, sliding, friction_force) -> float:
+    """The anchors' radial return on the material slips, in place (`friction.return_map`);
+    returns the energy lost [J]."""
+    zero = _no_planes(s)
+    return friction.return_map(np.ascontiguousarray(dofs, float), anchors, s, zero, zero,
+                               limit, sliding, friction_force)
+
+
+def coupling_rows(s: Structure, dofs, anchors, limit, c) -> tuple[np.ndarray, np.ndarray]:
+    """(dofs, values): d(dV/d dofs)/dF_T of tie c, S / |S| on its material dofs where it
+    slides, empty where it sticks (as `planar.coupling_rows`)."""
+    zero = _no_planes(s)
+    sx, sy = friction.slip(np.ascontiguousarray(dofs, float), anchors, s, zero, zero, c)
+    stick = s.tie_friction_law[c, friction.STICK]
+    if not (limit[c] > 0.0 and friction.is_sliding(sx, sy, limit[c], stick)):
+        return np.zeros(0, np.int64), np.zeros(0)
+    norm = np.hypot(sx, sy)
+    return s.tie_material[c].copy(), np.array([sx, sy]) / norm
+
+
+def rounding_scale(dofs, s: Structure, P, limit) -> float:
+    """S [J] with the rounding of V about eps S (`planar.rounding_scale` at the physical
+    positions and the material lengths; each tie's F_T times its material coordinates)."""
+    now = current(dofs, s)
+    if now is None:
+        return np.inf
+    flat = np.asarray(dofs, float).reshape(-1)
+    material = np.abs(flat[s.tie_material]).sum(axis=1)
+    return float(planar.rounding_scale(physical(dofs, s), now, np.asarray(P, float), limit)
+                 + np.sum(np.asarray(limit) * material))
