@@ -244,12 +244,30 @@ def _fabric_summary(results: Results) -> list[str]:
         lines.append(f"pull-out of warp {k}: peak pull force {force[peak]:.6g} N at step "
                      f"{peak + 1} (end displacement {1e3 * u[peak]:.5f} mm); last step "
                      f"{force[-1]:.6g} N at {1e3 * u[-1]:.5f} mm")
-    if "slip_ratio" in steps:
+    if "slip" in steps:  # crossings that slide (docs/model.md 11.13)
+        lines += _slides(steps)
+    elif "slip_ratio" in steps:
         slip = np.asarray(steps["slip_ratio"], float)
         worst = int(np.argmax(slip))
         lines.append(f"largest slip of a crossing node: {slip[worst]:.3f} of its segment, at "
                      f"step {worst + 1} (a step stops above {SLIP_LIMIT:g}: docs/model.md "
                      f"section 10)")
+    return lines
+
+
+def _slides(steps) -> list[str]:
+    """Where the crossings slide: the largest slide of a crossing along a yarn and the
+    crossings a yarn end left, with the steps it left the first and the last."""
+    slide = np.abs(np.asarray(steps["slip"], float))
+    largest = np.nanmax(slide, axis=tuple(range(1, slide.ndim)), initial=0.0)
+    worst = int(np.argmax(largest))
+    lines = [f"largest slide of a crossing along a yarn: {1e3 * largest[worst]:.4g} mm, at "
+             f"step {worst + 1} (crossings slide: docs/model.md 11.13)"]
+    present = np.asarray(steps["crossing_present"], bool).reshape(slide.shape[0], -1)
+    left = np.flatnonzero(~present.all(axis=1))
+    if left.size:
+        gone = int((~present[-1]).sum())
+        lines.append(f"crossings a yarn end has left: {gone}, the first at step {left[0] + 1}")
     return lines
 
 

@@ -512,7 +512,9 @@ def certify_patch(model, pos, anchors, limit) -> PatchCertificate:
         else (np.inf, -1)
     result[INVERSE_NORM] = norm
     nearest, vectors = np.nan, None
-    if counted.negatives == 0:
+    if n == 0:  # nothing left to move (every dof held): no eigenvalue
+        pass
+    elif counted.negatives == 0:
         start = inertia.start_vector(n)
         inverse = None if solve is None else scipy.sparse.linalg.LinearOperator(
             H.shape, matvec=solve, dtype=float)

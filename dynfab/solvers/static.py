@@ -17,12 +17,14 @@ from __future__ import annotations
 from dynfab.solvers.newton_backend import NewtonBackend
 from dynfab.solvers.newton_banded import BandedNewton
 from dynfab.solvers.newton_sparse import SparseNewton
-from dynfab.model.structure import grounded
+from dynfab.model.structure import grounded, sliding
 
 
 def backend_for(model, **options) -> NewtonBackend:
-    """The backend of `model`'s structure: banded where it is grounded, else sparse."""
-    kind = BandedNewton if grounded(model.structure) else SparseNewton
+    """The backend of `model`'s structure: banded where it is grounded, else sparse (and
+    where its crossings slide, whose term set is the sparse one's, docs/model.md 11.13)."""
+    structure = model.structure
+    kind = BandedNewton if grounded(structure) and not sliding(structure) else SparseNewton
     return kind(model, **options)
 
 

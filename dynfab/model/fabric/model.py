@@ -317,10 +317,14 @@ class FabricModel:
         """Where the step to `load` = (warp value, weft value) starts
         (`dynfab.model.step.StepStart`), copies of the state's arrays: under force control the end
         forces are each yarn's load; under displacement control they are 0 and the ends are moved to
-        their prescribed displacements (`prescribe`)."""
+        their prescribed displacements (`prescribe`). Where the crossings slide the anchors
+        carry the yarns' stretches at each crossing beside them, what the step's friction
+        measures its slips with (`dynfab.model.fabric.sliding.with_stretches`)."""
         warp_value, weft_value = (float(v) for v in load)
         loads = self.yarn_loads(warp_value, weft_value)
         pos, anchors = state.positions.copy(), state.anchors.copy()
+        if self.slides:
+            anchors = self.terms.with_stretches(pos, self.structure, anchors)
         if self.control != "force":
             self.prescribe(pos, loads)
             loads = np.zeros(self.yarns)
@@ -399,7 +403,7 @@ class FabricModel:
         lost = 0.0
         if f.has_friction:
             lost = terms.return_map(pos, anchors, f, limit, sliding, friction_force)
-        new, u_new = self.end_of_step(state, pos, anchors, end_force, lost)
+        new, u_new = self.end_of_step(state, pos, anchors[:, :2].copy(), end_force, lost)
         physical = physical_positions(f, pos)
         warps, wefts = self.split(physical)
         full = self.per_crossing
@@ -410,17 +414,20 @@ class FabricModel:
             "crimp": self.crimps(physical),
             "contact_force": full(R), "friction_limit": full(limit),
             "sliding": full(sliding, False), "friction_force": full(friction_force),
-            "anchors": full(anchors, np.nan), **self.planes(pos),
+            "anchors": full(anchors[:, :2], np.nan), **self.planes(pos),
             "dissipated": new.dissipated, "work": new.work,
             **{name: np.asarray(value)[0] for name, value in solution.fields.items()},
         }
         P = end_force if self.control == "force" else np.zeros(self.yarns)
         values = dict(zip(terms.TERMS, self.energies(pos, P, anchors, limit)))
         record.update(registry.energy_records(self.scene, values))
-        ratios = fabric_slip_ratios(record, *self.crossing_nodes())
-        record["slip_ratio"] = np.max(np.concatenate([r.ravel() for r in ratios]), initial=0.0)
-        if self.slides:
+        if self.slides:  # every crossing's nodes stay on its planes
+            record["slip_ratio"] = 0.0
             new = self._slide(new, record)
+        else:
+            ratios = fabric_slip_ratios(record, *self.crossing_nodes())
+            record["slip_ratio"] = np.max(np.concatenate([r.ravel() for r in ratios]),
+                                          initial=0.0)
         return new, {name: np.asarray(value) for name, value in record.items()}
 
     def _slide(self, new: FabricState, record: dict) -> FabricState:
@@ -483,16 +490,18 @@ class FabricModel:
         """Displacement control, in place: u_N = load on each yarn, the increment spread
         linearly along the yarn (a better start than the end node alone)."""
         f = self.structure
-        moved = np.ones(pos.shape[0], bool)  # a sliding crossing's slot holds no coordinate
-        moved[f.tie_material.ravel() // 2] = False
+        crossed = np.zeros(pos.shape[0], bool)
+        crossed[np.concatenate([f.tie_a, f.tie_b])] = self.slides
         for y in range(self.yarns):
             a, b = f.chain_start[y], f.chain_start[y + 1]
             rest = f.rest_position[a:b, 0]
             increment = loads[y] - (pos[b - 1, 0] - rest[-1])
-            spread = (rest - rest[0]) / (rest[-1] - rest[0])
-            if self.slides and not np.any(f.stretch_modulus[a - y:b - y - 1]):
-                spread = 1.0  # a yarn that has left the fabric moves with its loaded end
-            pos[a:b, 0] += moved[a:b] * increment * spread
+            # where the crossings slide, the spread runs from the chain's last crossing, whose
+            # slot holds a material coordinate, and the nodes before it stay: the yarn's
+            # material moves through the crossings (a yarn that has left them moves whole)
+            first = a + (np.flatnonzero(crossed[a:b])[-1] if crossed[a:b].any() else 0)
+            spread = (rest[first - a:] - rest[first - a]) / (rest[-1] - rest[first - a])
+            pos[first:b, 0] += increment * spread
             pos[b - 1, 0] = rest[-1] + loads[y]
 
     def end_of_step(self, state: FabricState, pos, anchors, end_force, lost: float):

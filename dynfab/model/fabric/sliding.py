@@ -18,12 +18,20 @@ pulled back (`Structure.physical_source`) plus the material part dE/dL dL/du, wi
     dE_i/dlbar = -E_i / lbar,  d2E_i/dr dlbar = -(dE_i/dr) / lbar,  d2E_i/dlbar2 = 2 E_i / lbar^2,
 
 dL/du = (-f, +f) and dlbar/dL = 1/2, each linear in u; the Hessian adds those mixed and
-material blocks (`material_entries`, `_material_values`, in one order). Friction acts on the
-material slip S = (u_a - xi_a, u_b - xi_b) (docs/model.md 11.13): the planar Huber law
-(`dynfab.model.fabric.friction`) on the dofs with the planes at 0, its block on the two
-material dofs. A bay whose material runs out (L <= 0: two crossings meeting, or a yarn end
-reaching its last crossing before it is removed) has energy +inf, which the line searches
-refuse.
+material blocks (`_material_entries`, `_material_values`, in one order). Friction acts on the
+slip of the material through the crossing measured in space,
+
+    S_k = lambda_k (u_k - xi_k),   lambda_k = (l_1 / L_1 + l_2 / L_2) / 2,            (11.13c)
+
+on each yarn k of the crossing, lambda_k the mean stretch of the two segments at its node at
+the step's start (held through the step with the anchors: `with_stretches`): so Gralen's F_T
+is a force in space, as the fixed crossing's, and the tension jumps by F_T across a sliding
+crossing (its material balance, the jump of the Eshelby force W - lambda T =
+-T (1 + (lambda - 1) / 2) per unit of u, is F_T lambda), a yarn pulled through crossings
+carrying the sum of their limits. The planar Huber law (`dynfab.model.fabric.friction`) on S,
+its block on the two material dofs. A bay
+whose material runs out (L <= 0: two crossings meeting, or a yarn end reaching its last
+crossing before it leaves it) has energy +inf, which the line searches refuse.
 """
 
 from __future__ import annotations
@@ -36,6 +44,7 @@ from dynfab.model.fabric import friction
 from dynfab.model.fabric.assembly import Pattern, secant_weights
 from dynfab.model.structure import Structure
 from dynfab.model.terms import bending
+from dynfab.model.terms import huber as huber_law
 
 TERMS = planar.TERMS
 CONTACT, FRICTION, STRETCH = planar.CONTACT, planar.FRICTION, planar.STRETCH
@@ -101,10 +110,6 @@ def current(dofs, s: Structure) -> Structure | None:
                       bend_stiffness=s.bend_modulus / lbar, has_friction=False)
 
 
-def _no_planes(s: Structure) -> np.ndarray:
-    return np.zeros(s.tie_a.size)
-
-
 # ----------------------------------------------------------------------- energy and gradient
 
 
@@ -118,8 +123,7 @@ def total_energy(dofs, s: Structure, P, anchors, limit, out) -> float:
         return np.inf
     planar.energies(physical(dofs, s), now, P, anchors, limit, out)
     if s.has_friction:
-        zero = _no_planes(s)
-        out[FRICTION] = friction.energy(dofs, anchors, s, zero, zero, limit)
+        out[FRICTION] = _friction_energy(np.ascontiguousarray(dofs, float), s, anchors, limit)
     return float(out.sum())
 
 
@@ -175,15 +179,54 @@ def _add_material_gradient(pos, now, s, grad):
 
 
 @numba.njit(cache=True)
-def _add_friction_gradient(dofs, s, anchors, limit, grad):
-    """grad += dH/du of every tie's Huber term on its material slip."""
-    zero = np.zeros(s.tie_a.size)
-    flat = grad.reshape(-1)
+def _chain_of(s, node):
+    return np.searchsorted(s.chain_start, node, side="right") - 1
+
+
+@numba.njit(cache=True)
+def _stretches(pos, dofs, s, out):
+    """lambda of each tie's two yarns at its nodes (T, 2): the mean stretch l / L of the two
+    segments at the node (11.13c)."""
+    flat = dofs.reshape(-1)
     for c in range(s.tie_a.size):
-        sx, sy = friction.slip(dofs, anchors, s, zero, zero, c)
+        for side in range(2):
+            n = s.tie_a[c] if side == 0 else s.tie_b[c]
+            y = _chain_of(s, n)
+            k1, k2 = n - 1 - y, n - y
+            u = flat[s.tie_material[c, side]]
+            L1 = s.segment_fraction[k1] * (u - _bay_end(flat, s, k1, 0))
+            L2 = s.segment_fraction[k2] * (_bay_end(flat, s, k2, 1) - u)
+            out[c, side] = 0.5 * (_length(pos, n - 1) / L1 + _length(pos, n) / L2)
+
+
+@numba.njit(cache=True)
+def _slip(flat, s, anchors, c):
+    """(S_a, S_b) of tie c (11.13c): each yarn's material slip from its anchor times the
+    stretch there at the step's start (anchors' columns 2, 3)."""
+    return (anchors[c, 2] * (flat[s.tie_material[c, 0]] - anchors[c, 0]),
+            anchors[c, 3] * (flat[s.tie_material[c, 1]] - anchors[c, 1]))
+
+
+@numba.njit(cache=True)
+def _friction_energy(dofs, s, anchors, limit):
+    """sum_c H(S_c) [J] (11.13c), F_T frozen."""
+    flat = dofs.reshape(-1)
+    total = 0.0
+    for c in range(s.tie_a.size):
+        sx, sy = _slip(flat, s, anchors, c)
+        total += friction.huber(sx, sy, limit[c], s.tie_friction_law[c, friction.STICK])
+    return total
+
+
+@numba.njit(cache=True)
+def _add_friction_gradient(dofs, s, anchors, limit, grad):
+    """grad += dH/du = lambda_0 dH/dS on each tie's two material dofs (11.13c)."""
+    flat, out = dofs.reshape(-1), grad.reshape(-1)
+    for c in range(s.tie_a.size):
+        sx, sy = _slip(flat, s, anchors, c)
         gx, gy = friction.huber_gradient(sx, sy, limit[c], s.tie_friction_law[c, friction.STICK])
-        flat[s.tie_material[c, 0]] += gx
-        flat[s.tie_material[c, 1]] += gy
+        out[s.tie_material[c, 0]] += anchors[c, 2] * gx
+        out[s.tie_material[c, 1]] += anchors[c, 3] * gy
 
 
 def gradient(dofs, s: Structure, P, anchors, limit, grad) -> None:
@@ -317,13 +360,15 @@ def _material_values(pos, dofs, now, s, anchors, limit, secant, values):
             f0, f1 = 0.5 * s.segment_fraction[k - 1], 0.5 * s.segment_fraction[k]
             gm[0], gm[1], gm[2], gm[3] = -f0, f0, -f1, f1  # dlbar/du
             e = _put_block(gx, gm, 2.0 * energy / (lbar * lbar), 6, 4, values, e)
-    zero = np.zeros(s.tie_a.size)
+    flat = dofs.reshape(-1)
     for c in range(s.tie_a.size):
         weight = 0.0 if secant is None else secant[c]
-        sx, sy = friction.slip(dofs, anchors, s, zero, zero, c)
+        sx, sy = _slip(flat, s, anchors, c)
         xx, xy, yy = friction.huber_hessian(sx, sy, limit[c], s.tie_friction_law[c, friction.STICK],
                                             weight)
-        values[e], values[e + 1], values[e + 2], values[e + 3] = xx, xy, xy, yy
+        la, lb = anchors[c, 2], anchors[c, 3]  # d2H/du2 = diag(lambda_0) d2H/dS2 diag(lambda_0)
+        values[e], values[e + 1], values[e + 2], values[e + 3] = la * la * xx, la * lb * xy, \
+            la * lb * xy, lb * lb * yy
         e += 4
 
 
@@ -389,30 +434,64 @@ def full_hessian(s: Structure, dofs, anchors, limit) -> np.ndarray:
 # ----------------------------------------------------------------------- friction and the rest
 
 
+def with_stretches(dofs, s: Structure, anchors) -> np.ndarray:
+    """The anchors (T, 2) [m] with the stretches lambda_0 (T, 2) of the yarns at each crossing
+    at `dofs` beside them (T, 4): what a load step's friction measures its slips with
+    (11.13c), taken at the step's start."""
+    pos = physical(dofs, s)
+    out = np.zeros((s.tie_a.size, 2))
+    _stretches(pos, np.ascontiguousarray(dofs, float), s, out)
+    return np.hstack([np.asarray(anchors, float)[:, :2], out])
+
+
 def crossing_slips(dofs, s: Structure, anchors, out) -> None:
-    """Every tie's material slip (u_a - xi_a, u_b - xi_b, 0) [m] into out (T, 3)."""
-    zero = _no_planes(s)
-    friction.slips(np.ascontiguousarray(dofs, float), anchors, s, zero, zero, out)
+    """Every tie's slip (S_a, S_b, 0) (11.13c) [m] into out (T, 3)."""
+    flat = np.asarray(dofs, float).reshape(-1)
+    for c in range(s.tie_a.size):
+        out[c, 0], out[c, 1] = _slip(flat, s, anchors, c)
+        out[c, 2] = 0.0
+
+
+@numba.njit(cache=True)
+def _return_map(dofs, s, anchors, limit, sliding, friction_force):
+    """`return_map` in numba."""
+    flat = dofs.reshape(-1)
+    lost = 0.0
+    for c in range(s.tie_a.size):
+        sx, sy = _slip(flat, s, anchors, c)
+        stick = s.tie_friction_law[c, friction.STICK]
+        n = np.hypot(sx, sy)
+        F = limit[c]
+        sliding[c] = huber_law.moves(n, F, stick)
+        if sliding[c]:
+            move = 1.0 - F / (stick * n)
+            for k in range(2):
+                anchors[c, k] += move * (flat[s.tie_material[c, k]] - anchors[c, k])
+            lost += F * move * n
+            friction_force[c, 0], friction_force[c, 1] = -F * sx / n, -F * sy / n
+        else:
+            friction_force[c, 0], friction_force[c, 1] = -stick * sx, -stick * sy
+    return lost
 
 
 def return_map(dofs, anchors, s: Structure, limit, sliding, friction_force) -> float:
-    """The anchors' radial return on the material slips, in place (`friction.return_map`);
-    returns the energy lost [J]."""
-    zero = _no_planes(s)
-    return friction.return_map(np.ascontiguousarray(dofs, float), anchors, s, zero, zero,
-                               limit, sliding, friction_force)
+    """The anchors' radial return on the slips (11.13c), in place: where k_t |S| > F_T each
+    material anchor moves so that the slip becomes (F_T / (k_t |S|)) S, the energy lost F_T
+    times the slip's change [J] (returned); fills `sliding` and the friction force on the
+    slip (T, 2) [N] (as `dynfab.model.fabric.friction.return_map`)."""
+    return _return_map(np.ascontiguousarray(dofs, float), s, anchors, limit, sliding,
+                       friction_force)
 
 
 def coupling_rows(s: Structure, dofs, anchors, limit, c) -> tuple[np.ndarray, np.ndarray]:
-    """(dofs, values): d(dV/d dofs)/dF_T of tie c, S / |S| on its material dofs where it
-    slides, empty where it sticks (as `planar.coupling_rows`)."""
-    zero = _no_planes(s)
-    sx, sy = friction.slip(np.ascontiguousarray(dofs, float), anchors, s, zero, zero, c)
+    """(dofs, values): d(dV/d dofs)/dF_T of tie c, lambda_0 S / |S| on its material dofs where
+    it slides (dH/dS = F_T S / |S|), empty where it sticks (as `planar.coupling_rows`)."""
+    sx, sy = _slip(np.asarray(dofs, float).reshape(-1), s, anchors, c)
     stick = s.tie_friction_law[c, friction.STICK]
     if not (limit[c] > 0.0 and friction.is_sliding(sx, sy, limit[c], stick)):
         return np.zeros(0, np.int64), np.zeros(0)
     norm = np.hypot(sx, sy)
-    return s.tie_material[c].copy(), np.array([sx, sy]) / norm
+    return s.tie_material[c].copy(), np.array([anchors[c, 2] * sx, anchors[c, 3] * sy]) / norm
 
 
 def rounding_scale(dofs, s: Structure, P, limit) -> float:
