@@ -60,8 +60,9 @@ STEP_WORK = 4e6
 PER_STEP_WORK = 5e5
 """Node-steps timed in the per-step layout (two launches per step: slower on the CPU)."""
 REPEATS = 3
-SCENES = ("fabric_biaxial", "fabric_biaxial_2to1", "fabric_biaxial_1to2", "fabric_strip",
-          "fabric_pullout")
+SCENES = ("fabric_biaxial", "fabric_biaxial_2to1", "fabric_biaxial_1to2", "fabric_strip")
+"""The runs/ fabric scenes `run_times` times with every solver (runs/fabric_pullout.toml's
+crossings slide: the static solver's alone, docs/model.md 11.13)."""
 PAPER_FRICTION = {"alpha": 0.2, "beta": 1e3, "contact_length": 2e-3, "fiber_radius": 1e-3}
 """The paper's Gralen parameters (docs/model.md section 7), R_0 the default 1e-5 N."""
 

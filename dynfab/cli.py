@@ -286,7 +286,7 @@ SUMMARY_DATASETS = ("steps/load", "steps/end_displacement", "steps/end_force",
                     "frames/energy/kinetic", "frames/contact_force", "frames/load",
                     "frames/clamp_force", "steps/strain",
                     "steps/stress", "steps/slip_ratio", "steps/clamp_force", "steps/shear_angle",
-                    "steps/max_slope")
+                    "steps/max_slope", "steps/slip", "steps/crossing_present")
 """What the summary table reads: not the positions, which may not fit in memory."""
 
 

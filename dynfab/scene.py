@@ -691,10 +691,16 @@ def validate_scene(scene: Scene) -> Scene:
         return scene
     kind = _kind(scene)
     scene = _RESOLVE[kind[-1]](scene)
-    for check in _CHECKS[kind[-1]]:
-        check(scene, kind)
+    _check_scene(scene, kind)
     _VALIDATED[id(scene)] = scene
     return scene
+
+
+def _check_scene(scene: Scene, kind: tuple) -> None:
+    """The checks of `validate_scene`, those of the scene's kind (`_CHECKS`) in their order:
+    UserError naming the first key that fails."""
+    for check in _CHECKS[kind[-1]]:
+        check(scene, kind)
 
 
 def planes_of(geometry: Geometry) -> str:

@@ -12,7 +12,9 @@ section 4. Import with `from independent import ...` (pytest puts tests/ on sys.
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 from scipy.optimize import brentq
@@ -73,6 +75,29 @@ def fabric_scene(warp: dict, weft: dict, warps: int, wefts: int, geometry=None,
                   "crossings": wefts, **(geometry or {})},
         warp={key: value for key, value in warp.items() if key not in FAMILY_GEOMETRY},
         weft={**weft, "count": warps}, **tables)
+
+
+PULLOUT = Path(__file__).resolve().parents[1] / "runs" / "fabric_pullout.toml"
+PULLOUT_RISE = 22
+"""Steps of runs/fabric_pullout.toml's first two stages (the wefts tensioned, then the warp
+pulled 0.2 mm through its slip front to the peak), within half a segment of every crossing."""
+
+
+def pullout_text(motion: str = "fixed", steps: int = PULLOUT_RISE) -> str:
+    """runs/fabric_pullout.toml with crossing.motion = `motion` and its load path cut to its
+    first `steps` steps (default: to the peak, where crossings that are fixed pairs of nodes
+    hold: the scene as it was before crossings could slide)."""
+    text = PULLOUT.read_text().replace('motion = "sliding"', f'motion = "{motion}"')
+    for name in ("values", "weft_values"):
+        match = re.search(rf"^{name} = \[(.*)\]$", text, flags=re.M)
+        kept = ", ".join(match.group(1).split(", ")[:steps])
+        text = text.replace(match.group(0), f"{name} = [{kept}]")
+    return text
+
+
+def pullout_scene(motion: str = "fixed", steps: int = PULLOUT_RISE) -> Scene:
+    """`pullout_text` as a scene."""
+    return parse_scene_text(pullout_text(motion, steps))
 
 
 def held_family(scene: Scene, family: str) -> FabricModel:

@@ -20,6 +20,7 @@ import pytest
 
 import dynfab
 from dynfab.results.file import MACHINE_TIMES, finished_counts
+from independent import pullout_text
 
 ROOT = Path(__file__).resolve().parents[1]
 FIG5 = ROOT / "runs" / "paper_fig5.toml"  # friction on and off: anchors must survive a resume
@@ -465,7 +466,8 @@ def test_sigterm_mid_run_of_a_clamped_patch_keeps_its_finished_steps(tmp_path):
     steps are on disk: one line naming the finished steps kept, exit status 143, and those
     steps, read with plain h5py, the uninterrupted run's first ones exactly (both families'
     positions, the crossings' forces, every steps/ dataset but the wall time)."""
-    scene = ROOT / "runs" / "fabric_pullout.toml"
+    scene = tmp_path / "pullout.toml"
+    scene.write_text(pullout_text())  # runs/fabric_pullout.toml to its peak, crossings fixed
     full = tmp_path / "full.h5"
     done = dynfab_cli("run", scene, "--solver", "static", "--out", full, "--quiet")
     assert done.returncode == 0, done.stderr

@@ -27,7 +27,7 @@ from dynfab.results.file import MACHINE_TIMES
 from dynfab.solvers.static import StaticSolver
 from dynfab.scene import load_scene
 from dynfab.model.structure import uniform
-from independent import PAPER_FRICTION, scene_with
+from independent import PAPER_FRICTION, pullout_scene, scene_with
 from test_fabric_dynamic import (agreement_bound, anchor_bound, dynamic_solver, end_rows,
                                  paper_patch_model)
 from test_fabric_scenes import run_interrupted
@@ -55,8 +55,9 @@ def scene_model(name: str, steps: int | None = None) -> FabricModel:
     (default SCENES[name]; the pull-out's from its step 2). The strip is
     the same scene on a 4 x 4 patch of the same yarns (pitch, segment length, planes
     "affine", friction, loads per yarn), as tests/test_fabric_scenes.py runs it: the
-    bound needs ||J^-1|| by a dense inverse."""
-    scene = load_scene(RUNS / f"{name}.toml")
+    bound needs ||J^-1|| by a dense inverse. The pull-out's crossings are fixed pairs of nodes
+    here: crossings that slide run on the static solver alone (docs/model.md 11.13)."""
+    scene = pullout_scene() if name == "fabric_pullout" else load_scene(RUNS / f"{name}.toml")
     steps = SCENES[name] if steps is None else steps
     first = 1 if name == "fabric_pullout" else 0  # the pull-out from its step 2
     path = FabricModel.from_scene(scene).load_values[first:first + steps]

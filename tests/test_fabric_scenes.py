@@ -21,7 +21,7 @@ from dynfab.results.file import MACHINE_TIMES
 from dynfab.run import run, run_to_file
 from dynfab.scene import load_scene, parse_scene_text
 from dynfab.model.structure import uniform
-from independent import record_inverse_norm
+from independent import pullout_scene, pullout_text, record_inverse_norm
 
 RUNS = Path(__file__).resolve().parent.parent / "runs"
 
@@ -158,7 +158,7 @@ def test_pullout_is_resisted_by_the_friction_of_the_pressed_crossings():
     internal forces cancel, contact acts in z), at most their sum of limits; it rises while
     the slip front runs along the warp, and once all slide it stays at that sum: the peak is
     a plateau (tests/test_fabric_pullout.py's argument)."""
-    scene = load_scene(RUNS / "fabric_pullout.toml")
+    scene = pullout_scene()  # its crossings fixed pairs of nodes, to the peak
     model, results = FabricModel.from_scene(scene), run(scene)
     steps, k = results.steps, scene.pullout.warp - 1
     nodes = model.warp.segments + 1
@@ -273,7 +273,7 @@ def small_pullout(values: str = "0, 0, 5e-5, 1e-4, 1.5e-4") -> str:
     of 0.446 mm), warp 2 pulled to 0.15 mm (`values`) after two steps of weft stretching
     to 0.1 mm (0.4 %, the scene's strain), within half a segment (docs/model.md section 10,
     crossings at fixed nodes)."""
-    text = (RUNS / "fabric_pullout.toml").read_text()
+    text = pullout_text()  # the crossings fixed pairs of nodes
     for old, new in (("segments = 112", "segments = 56"), ("crossings = 8", "crossings = 4"),
                      ("count = 8", "count = 4"), ("warp = 4", "warp = 2"),
                      ("length = 0.05", "length = 0.025")):

@@ -5,8 +5,8 @@ elevation bending are section 2's, the contact the same law on z, and the crossi
 the warp's frame (its chord along +x) is (X_j - x_a, y_b - Y_k), the planar slip with its first
 component's sign turned (the Huber potential is isotropic), its rotation constant (pi / 2).
 
-The check solves the pull-out of runs/fabric_pullout.toml (a clamped patch with friction,
-fixed planes, displacement control) step by step with both term sets, each step from the
+The check solves the pull-out of runs/fabric_pullout.toml to its peak, its crossings fixed (a
+clamped patch with friction, fixed planes, displacement control) step by step with both term sets, each step from the
 planar solver's previous state lifted to 3D (anchors too), and compares the equilibria: they
 agree within the planar step's own error bound (`steps/error_estimate`, residual x est
 ||H^-1||), twice it for the two solutions' errors.
@@ -14,19 +14,15 @@ agree within the planar step's own error bound (`steps/error_estimate`, residual
 
 from __future__ import annotations
 
-from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
-import pytest
 
 from dynfab.model.builders import build_model
 from dynfab.solvers.newton_sparse import SparseNewton
-from dynfab.scene import load_scene
 from dynfab.solvers.static import StaticSolver
 from dynfab.model.structure import Structure, chain_of_node
-
-RUNS = Path(__file__).resolve().parents[1] / "runs"
+from independent import pullout_scene
 
 
 def lift(planar: Structure, pos2: np.ndarray) -> np.ndarray:
@@ -76,7 +72,7 @@ def spatial_anchors(planar_anchors: np.ndarray) -> np.ndarray:
 
 
 def test_the_spatial_terms_with_the_lateral_dofs_held_solve_the_planar_pull_out():
-    scene = load_scene(RUNS / "fabric_pullout.toml")
+    scene = pullout_scene()  # fixed crossings, to the peak
     model = build_model(scene)
     planar = model.structure
     assert planar.plane_nodes_a.size == 0 and not planar.wrap_stiffness.any()  # fixed planes

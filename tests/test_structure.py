@@ -3,7 +3,7 @@
 geometry of docs/model.md sections 1 and 10, not from the builders."""
 
 import numpy as np
-from independent import PAPER_FRICTION, PAPER_WARP, PAPER_WEFT, make_scene
+from independent import PAPER_FRICTION, PAPER_WARP, PAPER_WEFT, make_scene, pullout_scene
 
 from dynfab.model.builders import build_structure
 from dynfab.scene import load_scene
@@ -62,7 +62,7 @@ def test_a_fabric_patch_ties_warp_and_weft_nodes_at_every_crossing():
 
 def test_masses_add_up_to_the_yarns_weight():
     """sum_i rho_l lbar_i = rho_l x the chain's arc length (docs/model.md section 5)."""
-    s = build_structure(load_scene("runs/fabric_pullout.toml"))
+    s = build_structure(pullout_scene())
     for y in range(chain_count(s)):
         nodes = chain_nodes(s, y)
         segments = slice(nodes.start - y, nodes.stop - y - 1)

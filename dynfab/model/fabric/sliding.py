@@ -64,18 +64,22 @@ def _physical(dofs, s, out):
 
 
 @numba.njit(cache=True)
-def _bay_end(flat, s, k, side):
-    """The material coordinate [m] of side 0 (left) or 1 (right) of segment k's bay."""
-    index = s.segment_material[k, side]
-    return flat[index] if index >= 0 else s.segment_material_end[k, side]
+def _bay_end(flat, material, end, k, side):
+    """The material coordinate [m] of side 0 (left) or 1 (right) of segment k's bay
+    (`Structure.segment_material`, `segment_material_end`; arrays, not the structure: a
+    structure passed to a function called in a loop costs about 0.5 us a call)."""
+    index = material[k, side]
+    return flat[index] if index >= 0 else end[k, side]
 
 
 @numba.njit(cache=True)
 def _rest_lengths(dofs, s, out):
     """out = L_s (n - Y,) [m] (11.13a)."""
     flat = dofs.reshape(-1)
+    material, end = s.segment_material, s.segment_material_end
     for k in range(out.size):
-        out[k] = s.segment_fraction[k] * (_bay_end(flat, s, k, 1) - _bay_end(flat, s, k, 0))
+        out[k] = s.segment_fraction[k] * (_bay_end(flat, material, end, k, 1)
+                                          - _bay_end(flat, material, end, k, 0))
 
 
 def physical(dofs, s: Structure) -> np.ndarray:
@@ -92,22 +96,34 @@ def rest_lengths(dofs, s: Structure) -> np.ndarray:
     return out
 
 
-def current(dofs, s: Structure) -> Structure | None:
-    """The structure of the material as it lies now: each segment's rest length L_s and
-    stiffness EA / L_s, each node's bending stiffness EI / lbar_i (11.13b), friction left to
-    this module (`has_friction` False); None where a bay has run out of material (L <= 0)."""
-    L = rest_lengths(dofs, s)
-    if not np.all(L > 0.0):
-        return None
-    lbar = np.empty(s.bend_modulus.size)
+@numba.njit(cache=True)
+def _material_now(dofs, s, L, stretch, bend):
+    """Each segment's rest length L (11.13a) and stiffness EA / L, each node's bending stiffness
+    EI / lbar (11.13b); False where a bay has run out of material (L <= 0)."""
+    _rest_lengths(dofs, s, L)
     start = s.chain_start
     for y in range(start.size - 1):
-        a, b = start[y], start[y + 1]
-        segments = L[a - y:b - y - 1]
-        lbar[a], lbar[b - 1] = segments[0] / 2, segments[-1] / 2
-        lbar[a + 1:b - 1] = 0.5 * (segments[:-1] + segments[1:])
-    return s._replace(rest_length=L, stretch_stiffness=s.stretch_modulus / L,
-                      bend_stiffness=s.bend_modulus / lbar, has_friction=False)
+        for k in range(start[y] - y, start[y + 1] - y - 1):
+            if not L[k] > 0.0:
+                return False
+            stretch[k] = s.stretch_modulus[k] / L[k]
+        for i in range(start[y] + 1, start[y + 1] - 1):
+            bend[i] = s.bend_modulus[i] / (0.5 * (L[i - 1 - y] + L[i - y]))
+        bend[start[y]] = bend[start[y + 1] - 1] = 0.0
+    return True
+
+
+def current(dofs, s: Structure) -> Structure | None:
+    """The structure of the material as it lies now: each segment's rest length L_s and
+    stiffness EA / L_s, each node's bending stiffness EI / lbar_i (11.13b; 0 at a chain's
+    ends), friction left to this module (`has_friction` False); None where a bay has run out
+    of material (L <= 0)."""
+    L, stretch = np.empty(s.rest_length.size), np.empty(s.rest_length.size)
+    bend = np.empty(s.bend_modulus.size)
+    if not _material_now(np.ascontiguousarray(dofs, float), s, L, stretch, bend):
+        return None
+    return s._replace(rest_length=L, stretch_stiffness=stretch, bend_stiffness=bend,
+                      has_friction=False)
 
 
 # ----------------------------------------------------------------------- energy and gradient
@@ -144,13 +160,13 @@ def _pull_back(physical_grad, s, grad):
 
 
 @numba.njit(cache=True)
-def _add_to_bay(flat, s, k, value):
+def _add_to_bay(flat, material, fraction, k, value):
     """flat += value dL_k/du on segment k's bay ends (dL/du_R = f, dL/du_L = -f)."""
-    f = s.segment_fraction[k]
-    if s.segment_material[k, 0] >= 0:
-        flat[s.segment_material[k, 0]] -= value * f
-    if s.segment_material[k, 1] >= 0:
-        flat[s.segment_material[k, 1]] += value * f
+    f = fraction[k]
+    if material[k, 0] >= 0:
+        flat[material[k, 0]] -= value * f
+    if material[k, 1] >= 0:
+        flat[material[k, 1]] += value * f
 
 
 @numba.njit(cache=True)
@@ -163,24 +179,25 @@ def _length(pos, i):
 def _add_material_gradient(pos, now, s, grad):
     """grad += the material part of the elastic terms' gradient (module docstring)."""
     flat = grad.reshape(-1)
-    start = s.chain_start
+    start, material, fraction = s.chain_start, s.segment_material, s.segment_fraction
     for y in range(start.size - 1):
         a, b = start[y], start[y + 1]
         for i in range(a, b - 1):
             k = i - y
             L, l = now.rest_length[k], _length(pos, i)
-            _add_to_bay(flat, s, k, 0.5 * s.stretch_modulus[k] * (L * L - l * l) / (L * L))
+            _add_to_bay(flat, material, fraction, k,
+                        0.5 * s.stretch_modulus[k] * (L * L - l * l) / (L * L))
         for i in range(a + 1, b - 1):
             d = bending.turning_angle(pos, i) - s.rest_angle[i]
             energy = 0.5 * now.bend_stiffness[i] * d * d
             lbar = 0.5 * (now.rest_length[i - 1 - y] + now.rest_length[i - y])
-            _add_to_bay(flat, s, i - 1 - y, -0.5 * energy / lbar)
-            _add_to_bay(flat, s, i - y, -0.5 * energy / lbar)
+            _add_to_bay(flat, material, fraction, i - 1 - y, -0.5 * energy / lbar)
+            _add_to_bay(flat, material, fraction, i - y, -0.5 * energy / lbar)
 
 
 @numba.njit(cache=True)
-def _chain_of(s, node):
-    return np.searchsorted(s.chain_start, node, side="right") - 1
+def _chain_of(chain_start, node):
+    return np.searchsorted(chain_start, node, side="right") - 1
 
 
 @numba.njit(cache=True)
@@ -191,20 +208,21 @@ def _stretches(pos, dofs, s, out):
     for c in range(s.tie_a.size):
         for side in range(2):
             n = s.tie_a[c] if side == 0 else s.tie_b[c]
-            y = _chain_of(s, n)
+            y = _chain_of(s.chain_start, n)
             k1, k2 = n - 1 - y, n - y
             u = flat[s.tie_material[c, side]]
-            L1 = s.segment_fraction[k1] * (u - _bay_end(flat, s, k1, 0))
-            L2 = s.segment_fraction[k2] * (_bay_end(flat, s, k2, 1) - u)
+            material, end = s.segment_material, s.segment_material_end
+            L1 = s.segment_fraction[k1] * (u - _bay_end(flat, material, end, k1, 0))
+            L2 = s.segment_fraction[k2] * (_bay_end(flat, material, end, k2, 1) - u)
             out[c, side] = 0.5 * (_length(pos, n - 1) / L1 + _length(pos, n) / L2)
 
 
 @numba.njit(cache=True)
-def _slip(flat, s, anchors, c):
+def _slip(flat, tie_material, anchors, c):
     """(S_a, S_b) of tie c (11.13c): each yarn's material slip from its anchor times the
     stretch there at the step's start (anchors' columns 2, 3)."""
-    return (anchors[c, 2] * (flat[s.tie_material[c, 0]] - anchors[c, 0]),
-            anchors[c, 3] * (flat[s.tie_material[c, 1]] - anchors[c, 1]))
+    return (anchors[c, 2] * (flat[tie_material[c, 0]] - anchors[c, 0]),
+            anchors[c, 3] * (flat[tie_material[c, 1]] - anchors[c, 1]))
 
 
 @numba.njit(cache=True)
@@ -213,7 +231,7 @@ def _friction_energy(dofs, s, anchors, limit):
     flat = dofs.reshape(-1)
     total = 0.0
     for c in range(s.tie_a.size):
-        sx, sy = _slip(flat, s, anchors, c)
+        sx, sy = _slip(flat, s.tie_material, anchors, c)
         total += friction.huber(sx, sy, limit[c], s.tie_friction_law[c, friction.STICK])
     return total
 
@@ -223,7 +241,7 @@ def _add_friction_gradient(dofs, s, anchors, limit, grad):
     """grad += dH/du = lambda_0 dH/dS on each tie's two material dofs (11.13c)."""
     flat, out = dofs.reshape(-1), grad.reshape(-1)
     for c in range(s.tie_a.size):
-        sx, sy = _slip(flat, s, anchors, c)
+        sx, sy = _slip(flat, s.tie_material, anchors, c)
         gx, gy = friction.huber_gradient(sx, sy, limit[c], s.tie_friction_law[c, friction.STICK])
         out[s.tie_material[c, 0]] += anchors[c, 2] * gx
         out[s.tie_material[c, 1]] += anchors[c, 3] * gy
@@ -259,12 +277,13 @@ def _segment_dofs(s, i, k, out):
 
 @numba.njit(cache=True)
 def _bend_dofs(s, i, k, out):
-    """(the dofs holding the 6 coordinates of nodes i-1..i+1; the bay-end dofs of segments k-1
-    and k), -1 as `_segment_dofs`."""
+    """(the dofs holding the 6 coordinates of nodes i-1..i+1; the bay ends of segments k-1
+    and k: k-1's two, then k's right one, its left being one of those), -1 as
+    `_segment_dofs`."""
     for m in range(6):
         out[m] = s.physical_source[2 * (i - 1) + m]
     out[6], out[7] = s.segment_material[k - 1, 0], s.segment_material[k - 1, 1]
-    out[8], out[9] = s.segment_material[k, 0], s.segment_material[k, 1]
+    out[8] = s.segment_material[k, 1]
 
 
 @numba.njit(cache=True)
@@ -289,7 +308,7 @@ def _material_entry_count(s):
     segments = s.rest_length.size
     inner = segments - (s.chain_start.size - 1)
     ties = s.tie_a.size
-    return segments * (4 * 2 * 2 + 4) + inner * (6 * 4 * 2 + 16) + 4 * ties
+    return segments * (4 * 2 * 2 + 4) + inner * (6 * 3 * 2 + 9) + 4 * ties
 
 
 @numba.njit(cache=True)
@@ -307,7 +326,7 @@ def _material_entries(s, rows, cols):
             e = _emit_block(local, 4, 2, rows, cols, e)
         for i in range(a + 1, b - 1):
             _bend_dofs(s, i, i - y, local)
-            e = _emit_block(local, 6, 4, rows, cols, e)
+            e = _emit_block(local, 6, 3, rows, cols, e)
     for c in range(s.tie_a.size):
         u_a, u_b = s.tie_material[c, 0], s.tie_material[c, 1]
         rows[e:e + 4] = np.array([u_a, u_a, u_b, u_b])
@@ -358,12 +377,15 @@ def _material_values(pos, dofs, now, s, anchors, limit, secant, values):
             for m in range(6):
                 gx[m] = -kb * d * g[m] / lbar  # d2E/dr dlbar
             f0, f1 = 0.5 * s.segment_fraction[k - 1], 0.5 * s.segment_fraction[k]
-            gm[0], gm[1], gm[2], gm[3] = -f0, f0, -f1, f1  # dlbar/du
-            e = _put_block(gx, gm, 2.0 * energy / (lbar * lbar), 6, 4, values, e)
+            # dlbar/du on (k-1's left, k-1's right, k's right): k's left end is one of the
+            # first two (an inner node of a bay: its left; a crossing's node: its right)
+            inner = s.segment_material[k, 0] == s.segment_material[k - 1, 0]
+            gm[0], gm[1], gm[2] = -f0 - f1 * inner, f0 - f1 * (not inner), f1
+            e = _put_block(gx, gm, 2.0 * energy / (lbar * lbar), 6, 3, values, e)
     flat = dofs.reshape(-1)
     for c in range(s.tie_a.size):
         weight = 0.0 if secant is None else secant[c]
-        sx, sy = _slip(flat, s, anchors, c)
+        sx, sy = _slip(flat, s.tie_material, anchors, c)
         xx, xy, yy = friction.huber_hessian(sx, sy, limit[c], s.tie_friction_law[c, friction.STICK],
                                             weight)
         la, lb = anchors[c, 2], anchors[c, 3]  # d2H/du2 = diag(lambda_0) d2H/dS2 diag(lambda_0)
@@ -448,7 +470,7 @@ def crossing_slips(dofs, s: Structure, anchors, out) -> None:
     """Every tie's slip (S_a, S_b, 0) (11.13c) [m] into out (T, 3)."""
     flat = np.asarray(dofs, float).reshape(-1)
     for c in range(s.tie_a.size):
-        out[c, 0], out[c, 1] = _slip(flat, s, anchors, c)
+        out[c, 0], out[c, 1] = _slip(flat, s.tie_material, anchors, c)
         out[c, 2] = 0.0
 
 
@@ -458,7 +480,7 @@ def _return_map(dofs, s, anchors, limit, sliding, friction_force):
     flat = dofs.reshape(-1)
     lost = 0.0
     for c in range(s.tie_a.size):
-        sx, sy = _slip(flat, s, anchors, c)
+        sx, sy = _slip(flat, s.tie_material, anchors, c)
         stick = s.tie_friction_law[c, friction.STICK]
         n = np.hypot(sx, sy)
         F = limit[c]
@@ -486,7 +508,7 @@ def return_map(dofs, anchors, s: Structure, limit, sliding, friction_force) -> f
 def coupling_rows(s: Structure, dofs, anchors, limit, c) -> tuple[np.ndarray, np.ndarray]:
     """(dofs, values): d(dV/d dofs)/dF_T of tie c, lambda_0 S / |S| on its material dofs where
     it slides (dH/dS = F_T S / |S|), empty where it sticks (as `planar.coupling_rows`)."""
-    sx, sy = _slip(np.asarray(dofs, float).reshape(-1), s, anchors, c)
+    sx, sy = _slip(np.asarray(dofs, float).reshape(-1), s.tie_material, anchors, c)
     stick = s.tie_friction_law[c, friction.STICK]
     if not (limit[c] > 0.0 and friction.is_sliding(sx, sy, limit[c], stick)):
         return np.zeros(0, np.int64), np.zeros(0)

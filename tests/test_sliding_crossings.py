@@ -1,0 +1,349 @@
+"""Crossings that slide along the yarns (docs/model.md 11.13; issue 37): the planar fabric's
+sliding term set against finite differences, a rigid motion, straight yarns (where sliding and
+fixed crossings are one model), a yarn pulled through crossings that hold their contact
+forces (its force the sum of their friction limits, each departure dropping it by its own,
+zero once the yarn has left), the path's energy balance, a resumed run past a departure, the
+pull-out of runs/fabric_pullout.toml to full extraction on a 4 x 4 patch, and the refusals.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from dynfab.errors import UserError
+from dynfab.model.builders.sliding import woven_dofs
+from dynfab.model.fabric import assembly, sliding
+from dynfab.model.fabric.model import FabricModel
+from dynfab.model.structure import chain_of_node
+from dynfab.model.terms import contact as contact_law
+from dynfab.model.terms import friction as gralen
+from dynfab.model.terms.kinematics import woven_anchors
+from dynfab.run import run_to_file
+from dynfab.scene import parse_scene_text
+from dynfab.solvers.static import StaticSolver
+from independent import fabric_scene, pullout_text
+from test_fabric_scenes import assert_same_steps, run_interrupted
+
+WARP = dict(length=0.04, segments=12, amplitude=0.5e-3, EA=13.72, EI=1.47e-7, kawabata_C=0.2e-3,
+            kawabata_K=0.2)
+WEFT = dict(length=0.03, segments=12, amplitude=0.4e-3, EA=10.0, EI=2e-7, kawabata_C=0.15e-3,
+            kawabata_K=0.3)
+FRICTION = dict(alpha=0.2, beta=1e3, contact_length=2e-3, fiber_radius=1e-3)
+
+
+def patch(motion: str = "sliding", **more):
+    """A crimped 3 x 3 clamped patch with a woven-in preload and the paper's friction."""
+    return fabric_scene(WARP, WEFT, 3, 3, friction=FRICTION,
+                        crossing=dict(preload=0.01, motion=motion),
+                        load=dict(control="force", values=[0.01]), **more)
+
+
+@pytest.fixture(scope="module")
+def structure():
+    return FabricModel.from_scene(patch()).structure
+
+
+def perturbed(s, seed=0):
+    """Dofs off the as-woven state by up to 10 um (material coordinates too), anchors off the
+    woven ones by 10 um with the stretches at the dofs beside them, and friction limits so
+    that some crossings stick, some slide and some are open (F_T = 0)."""
+    rng = np.random.default_rng(seed)
+    dofs = woven_dofs(s) + 1e-5 * rng.standard_normal(s.rest_position.shape) \
+        * ~s.fixed.reshape(s.rest_position.shape)
+    anchors = sliding.with_stretches(dofs, s, woven_anchors(s))
+    anchors[:, :2] += 1e-5 * rng.standard_normal((s.tie_a.size, 2))
+    limit = np.where(np.arange(s.tie_a.size) % 3 == 0, 0.0, 0.01)
+    return dofs, anchors, limit
+
+
+def loads(s):
+    return np.full(s.chain_start.size - 1, 0.02)
+
+
+def energy(s, dofs, anchors, limit):
+    return sliding.total_energy(dofs, s, loads(s), anchors, limit, np.zeros(len(sliding.TERMS)))
+
+
+def gradient(s, dofs, anchors, limit):
+    grad = np.zeros_like(dofs)
+    sliding.gradient(dofs, s, loads(s), anchors, limit, grad)
+    return grad
+
+
+def test_the_as_woven_state_has_the_fixed_crossings_energies(structure):
+    """As woven, every bay's material is its as-woven length (L = f (u_R - u_L) = l0) and the
+    nodes are where the fixed crossings' are: each term's energy equals the fixed structure's
+    at its rest positions, to rounding (a few ulps of each term)."""
+    fixed = FabricModel.from_scene(patch("fixed")).structure
+    limit = np.full(fixed.tie_a.size, 0.01)
+    P = loads(fixed)
+    dofs = woven_dofs(structure)
+    anchors = sliding.with_stretches(dofs, structure, woven_anchors(structure))
+    np.testing.assert_allclose(
+        sliding.energy_vector(structure, dofs, P, anchors, limit),
+        assembly.energy_vector(fixed, fixed.rest_position, P, woven_anchors(fixed), limit),
+        rtol=1e-12)
+
+
+def test_the_gradient_is_the_derivative_of_the_energy(structure):
+    """Central differences on every free dof (material coordinates included), h = 1e-8 m:
+    truncation h^2 |V'''| and rounding eps V / h both below 1e-9 N; 1e-6 of the largest
+    force component still fails on a term scattered to a wrong dof or a missing material
+    part (the stretch's dE/dL alone is 1e-2 N here)."""
+    s = structure
+    dofs, anchors, limit = perturbed(s)
+    grad = gradient(s, dofs, anchors, limit).ravel()
+    h = 1e-8
+    for dof in np.flatnonzero(~s.fixed):
+        plus, minus = dofs.copy().ravel(), dofs.copy().ravel()
+        plus[dof] += h
+        minus[dof] -= h
+        fd = (energy(s, plus.reshape(dofs.shape), anchors, limit)
+              - energy(s, minus.reshape(dofs.shape), anchors, limit)) / (2 * h)
+        assert fd == pytest.approx(grad[dof], abs=1e-6 * np.abs(grad).max())
+
+
+def test_the_sparse_hessian_is_the_derivative_of_the_gradient(structure):
+    """Every entry of the assembled Hessian on the free dofs (`sliding.full_hessian`) against
+    central differences of the gradient, h = 1e-9 m: error h^2 |V''''| + eps |grad| / h, at
+    most 1e-6 of the largest entry (the sliding Huber branch's F_T / |S|^3 term the largest,
+    1e13 N/m^3 at |S| = 10 um: h^2 times it is 1e-5 N/m against entries of 1e4)."""
+    s = structure
+    dofs, anchors, limit = perturbed(s, seed=1)
+    H = sliding.full_hessian(s, dofs, anchors, limit)
+    free = np.flatnonzero(~s.fixed)
+    scale = np.abs(H[np.ix_(free, free)]).max()
+    h = 1e-9
+    for dof in free:
+        plus, minus = dofs.copy().ravel(), dofs.copy().ravel()
+        plus[dof] += h
+        minus[dof] -= h
+        column = (gradient(s, plus.reshape(dofs.shape), anchors, limit)
+                  - gradient(s, minus.reshape(dofs.shape), anchors, limit)).ravel() / (2 * h)
+        np.testing.assert_allclose(H[free, dof], column[free], rtol=0, atol=1e-6 * scale)
+
+
+def test_a_rigid_motion_moves_no_material_coordinate_and_costs_no_energy(structure):
+    """The planar fabric's rigid motion, every node lifted along z: the material coordinates
+    (the crossings' slots) do not move, and no term's energy nor any force changes (to
+    rounding: 1e-12 of the terms, 1e-9 of the largest force)."""
+    s = structure
+    dofs, anchors, limit = perturbed(s, seed=2)
+    lifted = dofs.copy()
+    lifted[:, 1] += 3e-3
+    material = s.tie_material.ravel()
+    np.testing.assert_array_equal(lifted.reshape(-1)[material], dofs.reshape(-1)[material])
+    P = loads(s)
+    before = sliding.energy_vector(s, dofs, P, anchors, limit)
+    after = sliding.energy_vector(s, lifted, P, anchors, limit)
+    np.testing.assert_allclose(after, before, rtol=1e-9, atol=1e-12 * np.abs(before).sum())
+    g0, g1 = gradient(s, dofs, anchors, limit), gradient(s, lifted, anchors, limit)
+    np.testing.assert_allclose(g1, g0, atol=1e-9 * np.abs(g0).max())
+
+
+def straight_patch(motion: str):
+    """A frictionless 3 x 3 patch of straight yarns under end forces (no contact force: the
+    yarns do not touch)."""
+    warp, weft = dict(WARP, amplitude=0.0, segments=24), dict(WEFT, amplitude=0.0, segments=24)
+    return fabric_scene(warp, weft, 3, 3, crossing=dict(motion=motion),
+                        load=dict(control="force", values=[0.01, 0.02],
+                                  warp_factors=[1.0, 0.5, 0.2]))
+
+
+def test_straight_yarns_slide_as_the_fixed_crossings_let_them():
+    """Straight yarns without contact or friction: a fixed crossing's node and a sliding
+    crossing's material both move freely, so both models are each yarn a chain of springs
+    under its end force: the yarns' ends (their end displacements and end nodes) agree within
+    the two steps' error bounds (`steps/error_estimate`). (Between its ends a yarn's nodes
+    differ: the sliding crossings' stay on the planes, the material flowing through.)"""
+    runs = {motion: StaticSolver(FabricModel.from_scene(straight_patch(motion))).run()[1]
+            for motion in ("fixed", "sliding")}
+    for fixed, moving in zip(runs["fixed"], runs["sliding"]):
+        bound = float(fixed["error_estimate"]) + float(moving["error_estimate"])
+        np.testing.assert_allclose(moving["end_displacement"], fixed["end_displacement"],
+                                   rtol=0, atol=bound)
+        for name in ("positions", "weft_positions"):
+            np.testing.assert_allclose(np.asarray(moving[name])[:, [0, -1]],
+                                       np.asarray(fixed[name])[:, [0, -1]], rtol=0, atol=bound)
+
+
+def held_pullout(wefts: int, step: float, steps: int, R: float = 0.05):
+    """A straight warp pulled (its end displaced `step` per step) through `wefts` held wefts
+    with sliding crossings, each pressed with the contact force R [N] held (the wefts' dofs
+    and the warp's crossing nodes' z held, the closure set by the tie's offset), its first
+    node free: (model, F_T of one crossing [N])."""
+    warp = dict(WARP, amplitude=0.0, length=0.005 * wefts, segments=10 * wefts)
+    weft = dict(WEFT, amplitude=0.0, length=0.005, segments=10)
+    scene = fabric_scene(warp, weft, 1, wefts, friction=FRICTION, crossing=dict(motion="sliding"),
+                         pullout=dict(warp=1), load=dict(
+                             control="displacement", values=list(step * np.arange(1, steps + 1))))
+    s = FabricModel.from_scene(scene).structure
+    weft_nodes = s.chain_family[chain_of_node(s)] == 1
+    fixed = s.fixed | np.repeat(weft_nodes, 2)
+    fixed[2 * s.tie_a + 1] = True
+    closure = contact_law.closure_from_force(R, s.tie_contact_law[0])
+    s = s._replace(fixed=fixed, tie_gap_offset=s.tie_gap_offset + closure)
+    limit = np.zeros(1)
+    gralen.tie_limits(np.array([R]), s.tie_friction_law[:1], -1.0, limit)
+    return FabricModel.from_scene(scene, structure=s), float(limit[0])
+
+
+def plateau(records, settled: int) -> tuple[np.ndarray, np.ndarray]:
+    """(the steps i of a plateau, the count of crossings during each step): those whose
+    crossings are the ones of the `settled` steps before and all slide at i - 1 and at i. A
+    step runs with the crossings its previous record left, its friction with the stretches
+    that step ended with (11.13c): after a change of force those trail the tension by one
+    step, the force's error falling about a thousandfold a step (4.7e-5, 4.3e-8, 3.3e-11 N
+    after the first pull of the held warp), below the residual's tolerance from the third
+    step of a plateau on."""
+    present = np.array([r["crossing_present"][0] for r in records])
+    during = np.vstack([np.ones_like(present[:1]), present[:-1]])
+    slides = np.array([np.all(r["sliding"][0][during[i]]) for i, r in enumerate(records)])
+    steps = [i for i in range(settled, len(records))
+             if all(np.array_equal(during[i - k], during[i]) for k in range(1, settled + 1))
+             and slides[i - 1] and slides[i] and during[i].any()]
+    return np.array(steps, int), during.sum(axis=1)
+
+
+def test_a_yarn_pulled_through_crossings_carries_the_sum_of_their_limits_to_zero():
+    """A straight warp pulled through four crossings that hold their contact forces R: once
+    all slide, the pull is sum F_T(R) (its material's balance at each crossing: the tension
+    jumps by the friction force F_T lambda_0 over the mean stretch there, the slip measured in
+    space, docs/model.md 11.13), to the residual's tolerance times the warp's nodes, on every
+    step of a plateau (`plateau`); each crossing the free end reaches leaves, in order from
+    that end, and drops the force by its own F_T; after the last the pull is 0."""
+    model, F_T = held_pullout(wefts=4, step=2.5e-4, steps=88)
+    state, records = StaticSolver(model).run()
+    tolerance = (model.warp.segments + 1) * model.scene.static.tolerance
+    present = np.array([r["crossing_present"][0] for r in records])
+    pull = np.array([float(r["end_force"][0]) for r in records])
+    assert present[0].all() and not present[-1].any()
+    gone = [int(np.argmax(~present[:, j])) for j in range(4)]
+    assert gone == sorted(gone)  # the crossing nearest the free end leaves first
+    steps, count = plateau(records, settled=2)
+    assert steps.size > len(records) // 2 and set(count[steps]) == {1, 2, 3, 4}
+    np.testing.assert_allclose(pull[steps], count[steps] * F_T, rtol=0, atol=tolerance)
+    assert np.all(np.abs(pull[count == 0]) <= tolerance)
+
+
+def test_a_pull_outs_work_is_its_stored_energy_and_its_dissipation():
+    """Along the pull of three held crossings to extraction, step by step: on every step of a
+    plateau (`plateau`), the work of the pull F du is the change of the stored energy
+    (stretch, bending, stick springs) plus the friction dissipated, F_T times each
+    crossing's slide in space, to the solver (the residual's tolerance times the warp's nodes
+    times the step; from the fourth step of a plateau, the trapezoid rule's force of the step
+    before settled too, `plateau`). Over the whole path
+    the trapezoid work differs from them by what the force's jumps make of the rule, half of
+    each jump times its step (the rise from 0, each departure's drop), and by the elastic
+    energy a departure releases at once, at most (Delta T)^2 L / (2 EA) over the warp's
+    length L."""
+    step = 2.5e-4
+    model, F_T = held_pullout(wefts=3, step=step, steps=64)
+    state, records = StaticSolver(model).run()
+    stored = np.array([sum(float(r[f"energy/{k}"]) for k in ("stretch", "bending", "stick"))
+                       for r in records])
+    work = np.array([float(r["work"]) for r in records])
+    dissipated = np.array([float(r["dissipated"]) for r in records])
+    pull = np.array([float(r["end_force"][0]) for r in records])
+    steps, _ = plateau(records, settled=3)
+    assert steps.size > len(records) // 2
+    imbalance = np.diff(work) - np.diff(stored) - np.diff(dissipated)  # [i - 1]: step i's
+    tolerance = (model.warp.segments + 1) * model.scene.static.tolerance * step
+    assert np.all(np.abs(imbalance[steps - 1]) <= tolerance)
+    jumps = np.abs(np.diff(np.r_[0.0, pull]))
+    L, EA = model.warp.length, model.scene.warp.EA
+    bound = 0.5 * step * jumps.sum() + (jumps ** 2).sum() * L / (2 * EA)
+    assert abs(work[-1] - stored[-1] - dissipated[-1]) <= bound
+    assert stored[-1] == 0.0 and dissipated[-1] > 0.9 * work[-1]
+
+
+def small_pullout(values: int) -> str:
+    """runs/fabric_pullout.toml (crossings sliding) as a 4 x 4 patch of the same segment length
+    (0.446 mm), warp 2 pulled after the wefts' two steps, its path the scene's first `values`
+    values and on in its 0.25 mm steps to 23 mm."""
+    text = pullout_text("sliding", steps=values)
+    for old, new in (("segments = 112", "segments = 56"), ("crossings = 8", "crossings = 4"),
+                     ("count = 8", "count = 4"), ("warp = 4", "warp = 2"),
+                     ("length = 0.05", "length = 0.025")):
+        text = text.replace(old, new)
+    return text
+
+
+def test_the_pull_out_runs_to_full_extraction_and_its_figure_draws_it(tmp_path):
+    """runs/fabric_pullout.toml on a 4 x 4 patch, pulled to 23 mm: the pull never exceeds the
+    sum of the friction limits of the crossings the warp runs through (each one's friction
+    carries at most its F_T along the warp; the warp's crimp takes some more of the force into
+    the crossings' planes); every crossing of the pulled warp leaves it, one per drop of the
+    force, the drop at least half the limit the crossing carried, and between departures the
+    force holds within 1 % a step (the crimp straightening); after the last it is 0 N.
+    `dynfab plot` draws the file (`pullout.png`)."""
+    from dynfab.plots.figures import plot_results, pullout_curves
+    from dynfab.results.file import read_results
+
+    out = tmp_path / "pullout.h5"
+    scene = parse_scene_text(small_pullout(112))
+    run_to_file(scene, "static", out)
+    results = read_results(out)
+    pull = pullout_curves(results)["force"]
+    present = np.asarray(results.steps["crossing_present"], bool)[:, 1]
+    limits = np.asarray(results.steps["friction_limit"])[:, 1]
+    during = np.vstack([np.ones_like(present[:1]), present[:-1]])
+    tolerance = (scene.geometry.segments + 1) * scene.static.tolerance
+    assert np.all(pull <= (limits * during).sum(axis=1) + tolerance)
+    assert present[0].all() and not present[-1].any() and pull[-1] == 0.0
+    left = np.flatnonzero(during[1:].sum(axis=1) < during[:-1].sum(axis=1)) + 1  # first steps
+    assert left.size == 4  # without them, one crossing at a time
+    for i in left:
+        gone = during[i - 1] & ~during[i]
+        assert pull[i - 1] - pull[i] >= 0.5 * limits[i - 1][gone].sum()
+    holding = np.setdiff1d(np.arange(25, pull.size), left)  # past the rise (step 25)
+    holding = holding[pull[holding - 1] > 0]
+    assert np.all(np.abs(np.diff(pull)[holding - 1]) <= 0.01 * pull[holding - 1])
+    written = plot_results(out, tmp_path / "figures")
+    assert tmp_path / "figures" / "pullout.png" in written
+    assert all(path.exists() for path in written)
+
+
+def test_a_resumed_run_past_a_departure_repeats_the_uninterrupted_one(tmp_path):
+    """A sliding pull-out stopped after its first departure and resumed writes the uninterrupted
+    run's steps exactly: the departures replayed from the file's crossing_present and material
+    coordinates rebuild the same structure (docs/model.md 11.13)."""
+    scene = parse_scene_text(small_pullout(40))
+    whole, part = tmp_path / "whole.h5", tmp_path / "part.h5"
+    run_to_file(scene, "static", whole)
+    from dynfab.results.file import read_results
+    present = np.asarray(read_results(whole).steps["crossing_present"], bool)
+    first = int(np.argmax(~present.reshape(present.shape[0], -1).all(axis=1)))
+    assert 0 < first < len(scene.load.values) - 3
+    run_interrupted(scene, "static", part, steps=first + 2)
+    run_to_file(scene, "static", part, resume=True)
+    assert_same_steps(whole, part)
+
+
+@pytest.mark.parametrize("change, words", [
+    (dict(geometry=dict(boundary="periodic")), "geometry.boundary"),
+    (dict(geometry=dict(planes="affine")), "geometry.planes"),
+])
+def test_what_sliding_crossings_do_not_run_yet_is_refused_in_one_line(change, words):
+    """Sliding crossings on a periodic cell or with moving planes: refused naming the key."""
+    with pytest.raises(UserError, match=rf"^{words} .*crossing.motion = \"sliding\""):
+        fabric_scene(WARP, WEFT, 2, 2, crossing=dict(motion="sliding"),
+                     load=dict(control="force", values=[0.01]), **change)
+
+
+def test_the_dynamic_solver_refuses_sliding_crossings_in_one_line():
+    from dynfab.solvers.dynamic import DynamicSolver
+
+    with pytest.raises(UserError, match=r'^crossing.motion = "sliding" runs on the static'):
+        DynamicSolver(FabricModel.from_scene(patch()))
+
+
+def test_a_specimen_refuses_sliding_crossings_in_one_line():
+    """The spatial fabric's crossings do not slide yet (docs/model.md 11.13)."""
+    from test_shear_specimens import FRAME, scene_text
+
+    text = scene_text(FRAME, [1e-3]).replace("preload = 0.1", 'preload = 0.1\nmotion = "sliding"')
+    with pytest.raises(UserError, match=r'^crossing.motion = "sliding": not yet with a '
+                                        r'\[specimen\]'):
+        parse_scene_text(text)
