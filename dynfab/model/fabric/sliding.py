@@ -39,16 +39,16 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from dynfab.model.fabric import assembly as planar
+from dynfab.model.fabric import assembly
 from dynfab.model.fabric import friction
 from dynfab.model.fabric.assembly import Pattern, secant_weights
 from dynfab.model.structure import Structure
 from dynfab.model.terms import bending
 from dynfab.model.terms import huber as huber_law
 
-TERMS = planar.TERMS
-CONTACT, FRICTION, STRETCH = planar.CONTACT, planar.FRICTION, planar.STRETCH
-SOLVE_ON_KEPT_FACTORS = planar.SOLVE_ON_KEPT_FACTORS
+TERMS = assembly.TERMS
+CONTACT, FRICTION, STRETCH = assembly.CONTACT, assembly.FRICTION, assembly.STRETCH
+SOLVE_ON_KEPT_FACTORS = assembly.SOLVE_ON_KEPT_FACTORS
 
 
 # ----------------------------------------------------------------------- kinematics
@@ -137,7 +137,7 @@ def total_energy(dofs, s: Structure, P, anchors, limit, out) -> float:
     if now is None:
         out[STRETCH] = np.inf
         return np.inf
-    planar.energies(physical(dofs, s), now, P, anchors, limit, out)
+    assembly.energies(physical(dofs, s), now, P, anchors, limit, out)
     if s.has_friction:
         out[FRICTION] = _friction_energy(np.ascontiguousarray(dofs, float), s, anchors, limit)
     return float(out.sum())
@@ -255,7 +255,7 @@ def gradient(dofs, s: Structure, P, anchors, limit, grad) -> None:
         return
     pos = physical(dofs, s)
     physical_grad = np.zeros_like(pos)
-    planar.gradient(pos, now, np.asarray(P, float), anchors, limit, physical_grad)
+    assembly.gradient(pos, now, np.asarray(P, float), anchors, limit, physical_grad)
     grad[:] = 0.0
     _pull_back(physical_grad, s, grad)
     _add_material_gradient(pos, now, s, grad)
@@ -395,13 +395,13 @@ def _material_values(pos, dofs, now, s, anchors, limit, secant, values):
 
 
 class SlidingPattern(Pattern):
-    """The Hessian's entries on the dofs: the planar fabric's (`planar.planar_entries`), each
+    """The Hessian's entries on the dofs: the planar fabric's (`assembly.planar_entries`), each
     physical dof moved to the dof that holds it, then the material entries
     (`_material_entries`); those on a coordinate held on a plane or a chain end's constant
     left out (`kept`)."""
 
     def __init__(self, s: Structure):
-        base_rows, base_cols = planar.planar_entries(s)
+        base_rows, base_cols = assembly.planar_entries(s)
         count = _material_entry_count(s)
         rows, cols = np.empty(count, np.int64), np.empty(count, np.int64)
         _material_entries(s, rows, cols)
@@ -421,7 +421,7 @@ def pattern_of(s: Structure) -> SlidingPattern:
     the model share it, and with it the nested-dissection order)."""
     entry = _PATTERNS.get(id(s))
     if entry is None or entry[0] is not s:
-        if len(_PATTERNS) >= planar.PATTERNS_KEPT:
+        if len(_PATTERNS) >= assembly.PATTERNS_KEPT:
             _PATTERNS.pop(next(iter(_PATTERNS)))
         entry = _PATTERNS[id(s)] = (s, SlidingPattern(s))
     return entry[1]
@@ -433,7 +433,7 @@ def hessian_values(dofs, s: Structure, anchors, limit, secant=None) -> np.ndarra
     now = current(dofs, s)
     pos = physical(dofs, s)
     values = np.zeros(pattern.kept.size)
-    planar.hessian_values(pos, now, anchors, limit, values[:pattern.base_size], None)
+    assembly.hessian_values(pos, now, anchors, limit, values[:pattern.base_size], None)
     _material_values(pos, np.ascontiguousarray(dofs, float), now, s, anchors, limit, secant,
                      values[pattern.base_size:])
     return values
@@ -441,7 +441,7 @@ def hessian_values(dofs, s: Structure, anchors, limit, secant=None) -> np.ndarra
 
 def sparse_hessian(s: Structure, dofs, anchors, limit, secant=0.0):
     """The Hessian of V plus the Huber terms on the structure's unknowns [N/m] (CSC), F_T =
-    `limit` frozen; `secant` as `planar.sparse_hessian`'s."""
+    `limit` frozen; `secant` as `assembly.sparse_hessian`'s."""
     pattern = pattern_of(s)
     values = hessian_values(dofs, s, anchors, limit, secant_weights(secant, s.tie_a.size))
     return pattern.matrix(values[pattern.kept])
@@ -507,7 +507,7 @@ def return_map(dofs, anchors, s: Structure, limit, sliding, friction_force) -> f
 
 def coupling_rows(s: Structure, dofs, anchors, limit, c) -> tuple[np.ndarray, np.ndarray]:
     """(dofs, values): d(dV/d dofs)/dF_T of tie c, lambda_0 S / |S| on its material dofs where
-    it slides (dH/dS = F_T S / |S|), empty where it sticks (as `planar.coupling_rows`)."""
+    it slides (dH/dS = F_T S / |S|), empty where it sticks (as `assembly.coupling_rows`)."""
     sx, sy = _slip(np.asarray(dofs, float).reshape(-1), s.tie_material, anchors, c)
     stick = s.tie_friction_law[c, friction.STICK]
     if not (limit[c] > 0.0 and friction.is_sliding(sx, sy, limit[c], stick)):
@@ -517,12 +517,12 @@ def coupling_rows(s: Structure, dofs, anchors, limit, c) -> tuple[np.ndarray, np
 
 
 def rounding_scale(dofs, s: Structure, P, limit) -> float:
-    """S [J] with the rounding of V about eps S (`planar.rounding_scale` at the physical
+    """S [J] with the rounding of V about eps S (`assembly.rounding_scale` at the physical
     positions and the material lengths; each tie's F_T times its material coordinates)."""
     now = current(dofs, s)
     if now is None:
         return np.inf
     flat = np.asarray(dofs, float).reshape(-1)
     material = np.abs(flat[s.tie_material]).sum(axis=1)
-    return float(planar.rounding_scale(physical(dofs, s), now, np.asarray(P, float), limit)
+    return float(assembly.rounding_scale(physical(dofs, s), now, np.asarray(P, float), limit)
                  + np.sum(np.asarray(limit) * material))
