@@ -500,8 +500,8 @@ class FabricModel:
             # slot holds a material coordinate, and the nodes before it stay: the yarn's
             # material moves through the crossings (a yarn that has left them moves whole)
             first = a + (np.flatnonzero(crossed[a:b])[-1] if crossed[a:b].any() else 0)
-            spread = (rest[first - a:] - rest[first - a]) / (rest[-1] - rest[first - a])
-            pos[first:b, 0] += increment * spread
+            base = rest[first - a:] - rest[first - a]
+            pos[first:b, 0] += increment * base / (rest[-1] - rest[first - a])
             pos[b - 1, 0] = rest[-1] + loads[y]
 
     def end_of_step(self, state: FabricState, pos, anchors, end_force, lost: float):
