@@ -238,8 +238,9 @@ class FabricModel:
 
     def state_from_step(self, last: dict, history: dict | None = None) -> FabricState:
         """The state a finished step left (a resumed run continues from it): its positions,
-        where the crossings slide with their material coordinates (the as-woven ones plus
-        `slip`) in their slots."""
+        where the crossings slide the structure after the departures of `history`
+        (`_replay_departures`) and the crossings' material coordinates (`material`) in their
+        slots."""
         nodes = np.concatenate([np.asarray(last["positions"]).reshape(-1, 2),
                                 np.asarray(last["weft_positions"]).reshape(-1, 2)])
         anchors = np.array(last["anchors"]).reshape(self.warps * self.wefts, 2)
