@@ -1059,7 +1059,7 @@ def _require_table(scene: Scene, table: str, why: str) -> None:
         raise UserError(f"missing required table [{table}] ({why})")
 
 
-def _check_fields(scene: Scene, kind: tuple = ()) -> None:
+def _check_fields(scene: Scene, kind: tuple) -> None:
     """Every field's type and range, as if read from TOML."""
     _convert("title", scene.title, _TITLE)
     for name, (_, keys) in _SCHEMA.items():
@@ -1589,7 +1589,7 @@ def _and(items: list[str]) -> str:
     return ", ".join(items[:-1]) + " and " + items[-1] if len(items) > 1 else "".join(items)
 
 
-def _check_sweep(scene: Scene, kind: tuple = ()) -> None:
+def _check_sweep(scene: Scene, kind: tuple) -> None:
     """[sweep]: yarns = 1, sweepable keys of present tables, equal lengths, valid entries."""
     if not scene.sweep:
         return

@@ -20,6 +20,7 @@ from typing import NamedTuple
 
 from dynfab.errors import SolverError
 from dynfab.model import geometry
+from dynfab.model.fabric.sliding import rest_lengths
 from dynfab.model.structure import Structure, chain_count, dim
 
 GROUND_REFUSED = "crossings that slide join two chains; a tie to ground (the paper's weft) cannot"
@@ -165,9 +166,7 @@ def without_crossings(structure: Structure, departures: list[Departure],
     flat = np.asarray(dofs, float).reshape(-1)
     keep = np.ones(structure.tie_a.size, bool)
     keep[removed] = False
-    lengths = structure.segment_fraction * np.diff(np.where(
-        structure.segment_material >= 0, flat[np.maximum(structure.segment_material, 0)],
-        structure.segment_material_end), axis=1)[:, 0]
+    lengths = rest_lengths(dofs, structure)
     material, end, fraction = bays(structure, np.flatnonzero(keep), flat, lengths)
     same = np.all(material == structure.segment_material, axis=1)
     fraction[same] = structure.segment_fraction[same]  # the bays kept keep their bits
