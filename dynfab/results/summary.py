@@ -257,7 +257,7 @@ def _fabric_summary(results: Results) -> list[str]:
 
 def _slides(steps) -> list[str]:
     """Where the crossings slide: the largest slide of a crossing along a yarn and the
-    crossings a yarn end left, with the steps it left the first and the last."""
+    crossings a yarn end has left, with the step it left the first."""
     slide = np.abs(np.asarray(steps["slip"], float))
     largest = np.nanmax(slide, axis=tuple(range(1, slide.ndim)), initial=0.0)
     worst = int(np.argmax(largest))
