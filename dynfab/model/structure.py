@@ -174,6 +174,9 @@ class Structure(NamedTuple):
     """EA of each segment (n - Y,) [N]: a sliding crossing changes its rest length."""
     bend_modulus: np.ndarray = np.zeros(0)
     """EI of each node's bending spring (n,) [N m^2] (0 at each chain's end nodes)."""
+    lateral_bend_modulus: np.ndarray = np.zeros(0)
+    """EI_lateral of each node's in-plane bending spring (n,) [N m^2] (spatial kinematics;
+    empty in the plane)."""
 
 
 def sliding(structure: Structure) -> bool:

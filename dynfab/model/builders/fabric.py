@@ -20,7 +20,7 @@ import numpy as np
 
 from dynfab.model import geometry
 from dynfab.model.builders import woven_rest
-from dynfab.model.builders.sliding import sliding_structure
+from dynfab.model.builders.sliding import crossings_as_they_move
 from dynfab.model.builders.woven_rest import woven_closure
 from dynfab.scene import DEFAULT_CORE_STIFFNESS, Scene
 from dynfab.model.structure import Structure
@@ -108,7 +108,7 @@ def fabric_structure(scene: Scene) -> Structure:
     y_planes = (np.arange(warp.count) + 0.5) * weft.length / warp.count
     friction_law = np.tile(_friction_law(scene, warp, weft), (ties, 1))
     law = _contact_law(scene, warp, weft)
-    made = _crossings_as_they_move(scene)
+    made = crossings_as_they_move(scene)
     return made(node_terms.attach(scene, Structure(
         rest_position=rest, mass=np.concatenate(mass),
         gravity=np.full(rest.shape[0], float(scene.gravity.g) if scene.gravity else 0.0),
@@ -130,13 +130,6 @@ def fabric_structure(scene: Scene) -> Structure:
         plane_nodes_b=(start[warp.count + 1:] - 1) if moving else np.zeros(0, np.int64),
         has_friction=bool(np.any(friction_law[:, 3] > 0.0)),
         fixed=fixed, dof_tie=_dof_ties(scene, start, warp.count))))
-
-
-def _crossings_as_they_move(scene: Scene):
-    """The structure as its crossings move (`crossing.motion`): fixed pairs of nodes as built,
-    or sliding along the yarns (`dynfab.model.builders.sliding`, docs/model.md 11.13)."""
-    motion = scene.crossing.motion if scene.crossing is not None else "fixed"
-    return {"fixed": lambda structure: structure, "sliding": sliding_structure}[motion]
 
 
 def _rest_shape(shape: np.ndarray, family: Family, load: np.ndarray, spacing: float):

@@ -104,7 +104,16 @@ def sliding_structure(structure: Structure) -> Structure:
         physical_source=source, tie_material=slots, segment_material=material,
         segment_material_end=end, segment_fraction=fraction,
         stretch_modulus=structure.stretch_stiffness * structure.rest_length,
-        bend_modulus=structure.bend_stiffness * lbar)
+        bend_modulus=structure.bend_stiffness * lbar,
+        lateral_bend_modulus=np.asarray(structure.lateral_bend_stiffness) * lbar
+        if dim(structure) == 3 else np.zeros(0))
+
+
+def crossings_as_they_move(scene):
+    """The structure as its crossings move (`crossing.motion` of a validated scene): fixed
+    pairs of nodes as built, or sliding along the yarns (`sliding_structure`)."""
+    motion = scene.crossing.motion if scene.crossing is not None else "fixed"
+    return {"fixed": lambda structure: structure, "sliding": sliding_structure}[motion]
 
 
 def woven_dofs(structure: Structure) -> np.ndarray:
@@ -129,10 +138,12 @@ class Departure(NamedTuple):
 def leaving(structure: Structure, dofs) -> list[Departure]:
     """The crossings a free yarn end has reached (docs/model.md 11.13): each tie whose end bay,
     the piece of a chain between the crossing and the chain's free end, holds less material
-    than one as-woven segment of that chain (its mean rest length). A yarn's loaded end
-    reaching its last crossing is `SolverError` (its load would be left on nothing)."""
+    than one as-woven segment of that chain (its mean rest length), or than half its own
+    as-woven material where the chain was cut shorter (a specimen's edges). A held or loaded
+    end reaching its last crossing so is `SolverError` (its load or hold would be left on a
+    yarn that has left the fabric)."""
     flat = np.asarray(dofs, float).reshape(-1)
-    start, l0, d = structure.chain_start, structure.rest_length, dim(structure)
+    start, l0 = structure.chain_start, structure.rest_length
     found = []
     for y in range(start.size - 1):
         a, b = start[y], start[y + 1]
@@ -140,18 +151,46 @@ def leaving(structure: Structure, dofs) -> list[Departure]:
         if active.size == 0:
             continue
         k0, k1 = a - y + active[0], a - y + active[-1]  # a retired tail is not the chain's
-        bays, ends = structure.segment_material, structure.segment_material_end
         segment = l0[a - y:b - y - 1].sum() / (b - a - 1)
-        first, last = bays[k0, 1], bays[k1, 0]  # the first and the last crossing's dof
-        if bays[k0, 0] < 0 <= first and flat[first] - ends[k0, 0] < segment \
-                and not structure.fixed[d * (k0 + y)]:
-            found.append((first, y, 0))
-        if bays[k1, 1] < 0 <= last and ends[k1, 1] - flat[last] < segment:
-            raise SolverError(f"the loaded end of chain {y + 1} reached its last crossing: its "
-                              "load would act on a yarn that has left the fabric (docs/model.md "
-                              "11.13); stop the load path before")
+        for end, k in ((0, k0), (1, k1)):
+            dof = _reached(structure, flat, k, end, segment)
+            if dof is None:
+                continue
+            node = k + y if end == 0 else k + y + 1
+            held = _held(structure, y, node)
+            if held:
+                raise SolverError(
+                    f"the {held} end of chain {y + 1} reached its last crossing: its "
+                    f"{'load' if held == 'loaded' else 'hold'} would act on a yarn that has "
+                    "left the fabric (docs/model.md 11.13); stop the load path before")
+            found.append((dof, y, end))
     return [Departure(int(np.flatnonzero((structure.tie_material == dof).any(axis=1))[0]), y, end)
             for dof, y, end in found]
+
+
+def _reached(structure: Structure, flat: np.ndarray, k: int, end: int,
+             segment: float) -> int | None:
+    """The dof of the last crossing before a chain's `end` (0 first, 1 last; k the end's
+    segment) where the end bay's material is below `leaving`'s bound, else None."""
+    bays, ends = structure.segment_material, structure.segment_material_end
+    if bays[k, end] >= 0:  # the end segment's bay ends at a crossing: not a chain's end
+        return None
+    crossing = bays[k, 1 - end]
+    if crossing < 0:  # no crossing on the chain
+        return None
+    in_bay = np.flatnonzero(np.all(bays == bays[k], axis=1)
+                            & np.all(ends == ends[k], axis=1))
+    bound = min(segment, 0.5 * structure.rest_length[in_bay].sum())
+    material = flat[crossing] - ends[k, 0] if end == 0 else ends[k, 1] - flat[crossing]
+    return int(crossing) if material < bound else None
+
+
+def _held(structure: Structure, y: int, node: int) -> str:
+    """"loaded" where a chain's end node carries the chain's load, "held" where it is held,
+    else ""."""
+    if node == structure.load_node[y] and structure.load_factor[y] != 0.0:
+        return "loaded"
+    return "held" if structure.fixed[dim(structure) * node] else ""
 
 
 def without_crossings(structure: Structure, departures: list[Departure],
@@ -188,51 +227,73 @@ def without_crossings(structure: Structure, departures: list[Departure],
             departure.tie], departure.chain) else structure.tie_b[departure.tie]
         u = flat[structure.tie_material[departure.tie,
                                         0 if node == structure.tie_a[departure.tie] else 1]]
-        out_structure = _retire_tail(out_structure, departure.chain, int(node), u, lengths,
-                                     flat)
         y = departure.chain
-        last = int(out_structure.chain_start[y + 1] - 1)
+        out_structure = _retire_tail(out_structure, y, int(node), departure.end, u, lengths,
+                                     flat)
         if not any(_on_chain(out_structure, n, y) for n in (*out_structure.tie_a,
                                                             *out_structure.tie_b)):
-            # the yarn has left the fabric: nothing holds it but its loaded end, on which it
-            # would turn freely; it leaves the mechanics, moving with that end
-            out_structure = _retire_tail(out_structure, y, last, 0.0, lengths, flat)
+            out_structure = _left_the_fabric(out_structure, y, lengths, flat)
     return out_structure, out
+
+
+def _left_the_fabric(structure: Structure, y: int, lengths: np.ndarray,
+                     flat: np.ndarray) -> Structure:
+    """Chain y, which no crossing holds any more, out of the mechanics: nothing holds it but a
+    held or loaded end, on which it would turn freely, so it moves with that end (its last
+    one where both are); where neither end is held it stays where it left, held, its lateral
+    contacts without stiffness (the yarn has fallen out of the fabric)."""
+    a, b = int(structure.chain_start[y]), int(structure.chain_start[y + 1])
+    if _held(structure, y, b - 1):
+        return _retire_tail(structure, y, b - 1, 0, 0.0, lengths, flat)
+    if _held(structure, y, a):
+        return _retire_tail(structure, y, a, 1, 0.0, lengths, flat)
+    structure = _retire_tail(structure, y, b - 1, 0, 0.0, lengths, flat)
+    d = dim(structure)
+    fixed, tie = structure.fixed.copy(), structure.dof_tie.copy()
+    fixed[d * a:d * b], tie[d * a:d * b] = True, -1
+    law = structure.lateral_law.copy()
+    on_chain = np.any((structure.lateral_stencil >= a) & (structure.lateral_stencil < b), axis=1)
+    law[on_chain, 2] = law[on_chain, 4] = 0.0  # k and Gutowski's A
+    return structure._replace(fixed=fixed, dof_tie=tie, lateral_law=law)
 
 
 def _on_chain(structure: Structure, node: int, y: int) -> bool:
     return bool(structure.chain_start[y] <= node < structure.chain_start[y + 1])
 
 
-def _retire_tail(structure: Structure, y: int, node: int, u: float, lengths: np.ndarray,
-                 flat: np.ndarray) -> Structure:
-    """Chain y's tail from its first node to `node` retired: its segments without stiffness
-    (their rest lengths kept, constant), its nodes without bending and moving as `node` (tied
-    dofs), `node` the chain's free end, with the material coordinate `u` [m], the end of the
-    bay that starts there."""
-    a = structure.chain_start[y]
+def _retire_tail(structure: Structure, y: int, node: int, end: int, u: float,
+                 lengths: np.ndarray, flat: np.ndarray) -> Structure:
+    """Chain y's tail from its `end` (0 its first node, 1 its last) to `node` retired: its
+    segments without stiffness (their rest lengths kept, constant), its nodes without bending
+    and moving as `node` (tied dofs), `node` the chain's free end, with the material
+    coordinate `u` [m], the end of the bay that reaches it."""
+    a, b = int(structure.chain_start[y]), int(structure.chain_start[y + 1])
     d = dim(structure)
-    tail = slice(a - y, node - y)  # the segments between the chain's first node and `node`
+    segments = np.arange(a - y, b - y - 1)
+    tail = segments[segments < node - y] if end == 0 else segments[segments >= node - y]
     material = structure.segment_material.copy()
-    end = structure.segment_material_end.copy()
+    bay_end = structure.segment_material_end.copy()
     fraction = structure.segment_fraction.copy()
     material[tail] = -1
-    end[tail] = np.stack([np.zeros(node - a), lengths[tail]], axis=1)
+    bay_end[tail] = np.stack([np.zeros(tail.size), lengths[tail]], axis=1)
     fraction[tail] = 1.0
-    first_bay = np.flatnonzero((np.arange(end.shape[0]) >= node - y)
-                               & (np.arange(end.shape[0]) < structure.chain_start[y + 1] - y - 1)
-                               & (structure.segment_material[:, 0] < 0))
-    end[first_bay, 0] = u  # the bay from `node`: its left end the chain's end now
-    right = np.where(material[first_bay, 1] >= 0, flat[np.maximum(material[first_bay, 1], 0)],
-                     end[first_bay, 1])
-    fraction[first_bay] = lengths[first_bay] / (right - u)
+    rest = np.setdiff1d(segments, tail)
+    bay = rest[structure.segment_material[rest, end] < 0]  # the bay that reaches `node`
+    bay_end[bay, end] = u
+    other = np.where(material[bay, 1 - end] >= 0, flat[np.maximum(material[bay, 1 - end], 0)],
+                     bay_end[bay, 1 - end])
+    fraction[bay] = lengths[bay] / np.abs(other - u)
     stretch = structure.stretch_modulus.copy()
     stretch[tail] = 0.0
+    still = slice(a, node + 1) if end == 0 else slice(node, b)  # no bending from here on
     bend = structure.bend_modulus.copy()
-    bend[a:node + 1] = 0.0
+    bend[still] = 0.0
+    lateral = structure.lateral_bend_modulus.copy()
+    lateral[still] = 0.0
     tie = structure.dof_tie.copy()
+    nodes = np.arange(a, node) if end == 0 else np.arange(node + 1, b)
     for k in range(d):
-        tie[d * np.arange(a, node) + k] = d * node + k
-    return structure._replace(segment_material=material, segment_material_end=end,
+        tie[d * nodes + k] = d * node + k
+    return structure._replace(segment_material=material, segment_material_end=bay_end,
                               segment_fraction=fraction, stretch_modulus=stretch,
-                              bend_modulus=bend, dof_tie=tie)
+                              bend_modulus=bend, lateral_bend_modulus=lateral, dof_tie=tie)

@@ -25,6 +25,7 @@ import numpy as np
 from dynfab.model import geometry, specimen_layout
 from dynfab.model.builders import woven_rest
 from dynfab.model.builders.fabric import DEFAULT_LINEAR_DENSITY
+from dynfab.model.builders.sliding import crossings_as_they_move
 from dynfab.errors import UserError
 from dynfab.scene import DEFAULT_CORE_STIFFNESS, TORSION_RADIUS_PER_WIDTH, Scene
 from dynfab.model.structure import Structure
@@ -214,7 +215,7 @@ def specimen_structure(scene: Scene, layout=None) -> Structure:
         np.full(lateral_family.size, float(contact_law.NATURAL)),
         compaction[lateral_family]])
     n, chains = rest.shape[0], start.size - 1
-    return node_terms.attach(scene, Structure(
+    return crossings_as_they_move(scene)(node_terms.attach(scene, Structure(
         rest_position=rest, mass=mass, gravity=np.zeros(n),
         chain_start=start.astype(np.int64), chain_family=layout.chain_family.astype(np.int64),
         chain_plane=np.zeros(chains), rest_length=l0, stretch_stiffness=stretch,
@@ -230,4 +231,4 @@ def specimen_structure(scene: Scene, layout=None) -> Structure:
         fixed=fixed, dof_tie=np.full(3 * n, -1, np.int64),
         lateral_bend_stiffness=kl, lateral_rest_angle=psi0,
         tie_stencil=stencil, tie_rotation_law=rotation,
-        lateral_stencil=layout.lateral.astype(np.int64), lateral_law=lateral_law))
+        lateral_stencil=layout.lateral.astype(np.int64), lateral_law=lateral_law)))

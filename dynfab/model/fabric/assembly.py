@@ -356,6 +356,15 @@ class Pattern:
         """The Hessian on the unknowns (CSC), from `hessian_values`' entries (T^T H T with
         T the 0/1 map from unknowns to dofs)."""
         data = np.bincount(self._slot, weights=values[self._keep], minlength=self._slots)
+        return self.csc(data)
+
+    def counts(self) -> scipy.sparse.csc_matrix:
+        """The matrix on the unknowns whose every entry counts the Hessian entries summed into
+        it: its sparsity, what an ordering reads."""
+        return self.csc(np.bincount(self._slot, minlength=self._slots).astype(float))
+
+    def csc(self, data) -> scipy.sparse.csc_matrix:
+        """The CSC matrix on the unknowns of the summed entries `data` (one per slot)."""
         return scipy.sparse.csc_matrix((data, self._indices, self._indptr),
                                        shape=(self.free_count, self.free_count))
 

@@ -175,7 +175,7 @@ def fabric_order(fabric, pattern) -> Ordering:
     found = _by_pattern.get(pattern)
     if found is not None:
         return found
-    A = pattern.matrix(np.ones(pattern.size))
+    A = pattern.counts()
     key = digest(A)
     if key not in _orders:
         _orders[key] = Ordering(nested_dissection(

@@ -1,54 +1,80 @@
 """The energy, gradient and sparse Hessian of a fabric whose crossings slide along the yarns
-(docs/model.md 11.13), on the structure's dofs (`dynfab.model.builders.sliding`).
+(docs/model.md 11.13), on the structure's dofs (`dynfab.model.builders.sliding`), planar or
+spatial.
 
-The elastic terms, the contact and the loads are the planar fabric's own
-(`dynfab.model.fabric.assembly`), evaluated at the physical positions (`physical`: each dof
-where it is a coordinate, a sliding crossing's node on the plane it crosses) with each
-segment's rest length and each spring's stiffness those of the material in it now
-(`current`):
+The elastic terms, the contact, the loads, the rotation spring and the lateral contacts are
+the fixed crossings' own (`dynfab.model.fabric.assembly` in the plane,
+`dynfab.model.fabric.spatial` in space: the base term set), evaluated at the physical
+positions (`physical`: each dof where it is a coordinate, a sliding crossing's nodes where the
+crossing is) with each segment's rest length and each spring's stiffness those of the
+material in it now (`current`):
 
     E_s = 1/2 EA (l_s - L_s)^2 / L_s,      L_s = f_s (u_R - u_L),                  (11.13a)
-    E_i = 1/2 EI (phi_i - phi0_i)^2 / lbar_i,   lbar_i = (L_{i-1} + L_i) / 2,       (11.13b)
+    E_i = E_i(r; EI / lbar_i, EI_lateral / lbar_i),   lbar_i = (L_{i-1} + L_i) / 2,  (11.13b)
 
 u_L, u_R the material coordinates of the segment's bay ends (a crossing's dof, or a chain end's
-constant), f_s its share of the bay. Their gradient on the dofs is the physical gradient
+constant), f_s its share of the bay, E_i a node's bending (in space, out of and in the
+plane), inversely proportional to lbar_i. Their gradient on the dofs is the physical gradient
 pulled back (`Structure.physical_source`) plus the material part dE/dL dL/du, with
 
     dE_s/dL = EA (L^2 - l^2) / (2 L^2),  d2E_s/dl dL = -EA l / L^2,  d2E_s/dL2 = EA l^2 / L^3,
     dE_i/dlbar = -E_i / lbar,  d2E_i/dr dlbar = -(dE_i/dr) / lbar,  d2E_i/dlbar2 = 2 E_i / lbar^2,
 
 dL/du = (-f, +f) and dlbar/dL = 1/2, each linear in u; the Hessian adds those mixed and
-material blocks (`_material_entries`, `_material_values`, in one order). Friction acts on the
-slip of the material through the crossing measured in space,
+material blocks (`_material_entries`, `_elastic_material_values`, `_friction_values`, in one
+order; each node's mixed entries summed over its elements before they are emitted, so that
+the sparse sum has few duplicates to merge). Friction acts on the
+slip of the material through the crossing measured in space, and in space on the crossing's
+rotation as a fixed crossing's (`dynfab.model.terms.spatial` (d)):
 
-    S_k = lambda_k (u_k - xi_k),   lambda_k = (l_1 / L_1 + l_2 / L_2) / 2,            (11.13c)
+    S = (lambda_a (u_a - xi_a), lambda_b (u_b - xi_b), rho wrap(phi - phi_anchor)),   (11.13c)
 
-on each yarn k of the crossing, lambda_k the mean stretch of the two segments at its node at
-the step's start (held through the step with the anchors: `with_stretches`): so Gralen's F_T
-is a force in space, as the fixed crossing's, and the tension jumps by F_T across a sliding
-crossing (its material balance, the jump of the Eshelby force W - lambda T =
+lambda_k the mean stretch of the two segments at the crossing's node on yarn k at the step's
+start (held through the step with the anchors: `with_stretches`), phi the in-plane angle
+from the warp's chord to the weft's (0 in the plane, where S has two components): so
+Gralen's F_T is a force in space, as the fixed crossing's, and the tension jumps by F_T across
+a sliding crossing (its material balance, the jump of the Eshelby force W - lambda T =
 -T (1 + (lambda - 1) / 2) per unit of u, is F_T lambda), a yarn pulled through crossings
-carrying the sum of their limits. The planar Huber law (`dynfab.model.fabric.friction`) on S,
-its block on the two material dofs. A bay
-whose material runs out (L <= 0: two crossings meeting, or a yarn end reaching its last
-crossing before it leaves it) has energy +inf, which the line searches refuse.
+carrying the sum of their limits. Huber's law (`dynfab.model.terms.spatial.huber3`, the one
+law of every slip) on S; its block on the two material dofs and, in space, the in-plane
+coordinates of the crossing's stencil. A bay whose material runs out (L <= 0: two crossings
+meeting, or a yarn end reaching its last crossing before it leaves it) has energy +inf, which
+the line searches refuse.
+
+The anchors of a step (`with_stretches`): (xi_a, xi_b, lambda_a, lambda_b) per tie, and in
+space phi_anchor after them (`ROTATION`); a state keeps (xi_a, xi_b[, phi_anchor])
+(`state_anchors`).
 """
 
 from __future__ import annotations
 
 import numba
 import numpy as np
+import scipy.sparse
 
-from dynfab.model.fabric import assembly
-from dynfab.model.fabric import friction
+from dynfab.model.fabric import assembly, spatial
 from dynfab.model.fabric.assembly import Pattern, secant_weights
-from dynfab.model.structure import Structure
+from dynfab.model.structure import Structure, dim
 from dynfab.model.terms import bending
 from dynfab.model.terms import huber as huber_law
+from dynfab.model.terms import spatial as element
 
-TERMS = assembly.TERMS
 CONTACT, FRICTION, STRETCH = assembly.CONTACT, assembly.FRICTION, assembly.STRETCH
-SOLVE_ON_KEPT_FACTORS = assembly.SOLVE_ON_KEPT_FACTORS
+"""Indices of the energy vector, the same in both base term sets."""
+STRETCHES = (2, 3)
+"""The step anchors' columns of lambda_a, lambda_b (11.13c)."""
+ROTATION = 4
+"""The step anchors' column of phi_anchor [rad] (spatial)."""
+STICK = 3
+"""Column of k_t [N/m] in `tie_friction_law`."""
+STENCIL_IN_PLANE = 12
+"""The in-plane coordinates of a spatial crossing's stencil (6 nodes, x and y) its rotation
+acts on."""
+
+
+def _base(s: Structure):
+    """The fixed crossings' term set of the structure's kinematics."""
+    return spatial if dim(s) == 3 else assembly
 
 
 # ----------------------------------------------------------------------- kinematics
@@ -56,7 +82,7 @@ SOLVE_ON_KEPT_FACTORS = assembly.SOLVE_ON_KEPT_FACTORS
 
 @numba.njit(cache=True)
 def _physical(dofs, s, out):
-    """out = the physical positions (n, 2) of the dofs (module docstring)."""
+    """out = the physical positions (n, dim) of the dofs (module docstring)."""
     flat, rest, o = dofs.reshape(-1), s.rest_position.reshape(-1), out.reshape(-1)
     for d in range(o.size):
         source = s.physical_source[d]
@@ -83,7 +109,7 @@ def _rest_lengths(dofs, s, out):
 
 
 def physical(dofs, s: Structure) -> np.ndarray:
-    """The physical positions (n, 2) [m] of the dofs."""
+    """The physical positions (n, dim) [m] of the dofs."""
     out = np.empty(s.rest_position.shape)
     _physical(np.ascontiguousarray(dofs, float), s, out)
     return out
@@ -97,55 +123,199 @@ def rest_lengths(dofs, s: Structure) -> np.ndarray:
 
 
 @numba.njit(cache=True)
-def _material_now(dofs, s, L, stretch, bend):
-    """Each segment's rest length L (11.13a) and stiffness EA / L, each node's bending stiffness
-    EI / lbar (11.13b); False where a bay has run out of material (L <= 0)."""
+def _material_now(dofs, s, L, stretch, bend, lateral):
+    """Each segment's rest length L (11.13a) and stiffness EA / L, each node's bending
+    stiffnesses EI / lbar and (in space) EI_lateral / lbar (11.13b); False where a bay has run
+    out of material (L <= 0)."""
     _rest_lengths(dofs, s, L)
     start = s.chain_start
+    in_plane = s.lateral_bend_modulus.size > 0
     for y in range(start.size - 1):
         for k in range(start[y] - y, start[y + 1] - y - 1):
             if not L[k] > 0.0:
                 return False
             stretch[k] = s.stretch_modulus[k] / L[k]
         for i in range(start[y] + 1, start[y + 1] - 1):
-            bend[i] = s.bend_modulus[i] / (0.5 * (L[i - 1 - y] + L[i - y]))
+            lbar = 0.5 * (L[i - 1 - y] + L[i - y])
+            bend[i] = s.bend_modulus[i] / lbar
+            if in_plane:
+                lateral[i] = s.lateral_bend_modulus[i] / lbar
         bend[start[y]] = bend[start[y + 1] - 1] = 0.0
+        if in_plane:
+            lateral[start[y]] = lateral[start[y + 1] - 1] = 0.0
     return True
 
 
 def current(dofs, s: Structure) -> Structure | None:
     """The structure of the material as it lies now: each segment's rest length L_s and
-    stiffness EA / L_s, each node's bending stiffness EI / lbar_i (11.13b; 0 at a chain's
+    stiffness EA / L_s, each node's bending stiffnesses over lbar_i (11.13b; 0 at a chain's
     ends), friction left to this module (`has_friction` False); None where a bay has run out
     of material (L <= 0)."""
     L, stretch = np.empty(s.rest_length.size), np.empty(s.rest_length.size)
     bend = np.empty(s.bend_modulus.size)
-    if not _material_now(np.ascontiguousarray(dofs, float), s, L, stretch, bend):
+    lateral = np.empty(s.lateral_bend_modulus.size)
+    if not _material_now(np.ascontiguousarray(dofs, float), s, L, stretch, bend, lateral):
         return None
-    return s._replace(rest_length=L, stretch_stiffness=stretch, bend_stiffness=bend,
-                      has_friction=False)
+    fields = dict(rest_length=L, stretch_stiffness=stretch, bend_stiffness=bend,
+                  has_friction=False)
+    if lateral.size:
+        fields["lateral_bend_stiffness"] = lateral
+    return s._replace(**fields)
+
+
+@numba.njit(cache=True)
+def _length(pos, i):
+    """|r_{i+1} - r_i| [m] in any dimension."""
+    total = 0.0
+    for k in range(pos.shape[1]):
+        e = pos[i + 1, k] - pos[i, k]
+        total += e * e
+    return np.sqrt(total)
+
+
+@numba.njit(cache=True)
+def _planar_bends(pos, now, energy, grad):
+    """Each inner node's bending energy E_i [J] and, where grad has rows, its gradient on
+    (r_{i-1}, r_i, r_{i+1}) (n, 6) [N] in the plane: 1/2 EI / lbar (phi - phi0)^2
+    (docs/model.md section 2)."""
+    start = now.chain_start
+    g = np.empty(6)
+    for y in range(start.size - 1):
+        for i in range(start[y] + 1, start[y + 1] - 1):
+            d = bending.turning_angle(pos, i) - now.rest_angle[i]
+            energy[i] = 0.5 * now.bend_stiffness[i] * d * d
+            if grad.shape[0]:
+                bending._angle_gradient(pos, i, g)
+                for m in range(6):
+                    grad[i, m] = now.bend_stiffness[i] * d * g[m]
+
+
+@numba.njit(cache=True)
+def _spatial_bends(pos, now, energy, grad):
+    """`_planar_bends` in space (n, 9): the bending out of and in the plane
+    (`dynfab.model.terms.spatial` (b))."""
+    start = now.chain_start
+    g = np.empty(9)
+    for y in range(start.size - 1):
+        for i in range(start[y] + 1, start[y + 1] - 1):
+            X = pos[i - 1:i + 2]
+            kb, kl = now.bend_stiffness[i], now.lateral_bend_stiffness[i]
+            theta0, psi0 = now.rest_angle[i], now.lateral_rest_angle[i]
+            if grad.shape[0]:
+                energy[i] = element.bend_gradient(X, kb, theta0, kl, psi0, g)
+                grad[i] = g
+            else:
+                energy[i] = element.bend_energy(X, kb, theta0, kl, psi0)
+
+
+def _bends(pos, now: Structure, gradients: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """(E_i (n,) [J], where `gradients` dE_i/dr on its three nodes (n, 3 dim) [N]) of every
+    node's bending."""
+    d = pos.shape[1]
+    energy = np.zeros(pos.shape[0])
+    grad = np.zeros((pos.shape[0] if gradients else 0, 3 * d))
+    (_spatial_bends if d == 3 else _planar_bends)(pos, now, energy, grad)
+    return energy, grad
+
+
+# ----------------------------------------------------------------------- friction (11.13c)
+
+
+@numba.njit(cache=True)
+def _crossing_slip(pos, flat, tie_material, stencil, rotation_law, anchors, c, S):
+    """S (3,) of tie c (11.13c): each yarn's material slip from its anchor times its stretch
+    at the step's start; in space (`stencil` with rows) the rotation's rho wrap(phi -
+    phi_anchor), else 0."""
+    S[0] = anchors[c, 2] * (flat[tie_material[c, 0]] - anchors[c, 0])
+    S[1] = anchors[c, 3] * (flat[tie_material[c, 1]] - anchors[c, 1])
+    S[2] = 0.0
+    if stencil.shape[0]:
+        six, q = np.empty((6, 3)), np.empty(3)
+        for m in range(6):
+            six[m] = pos[stencil[c, m]]
+        element.crossing_coordinates(six, q)
+        S[2] = rotation_law[c, 0] * element.wrap(q[2] - anchors[c, 4])
+
+
+@numba.njit(cache=True)
+def _friction_energy(pos, dofs, s, anchors, limit):
+    """sum_c Huber(S_c) [J] (11.13c), F_T frozen."""
+    flat = dofs.reshape(-1)
+    S = np.empty(3)
+    total = 0.0
+    for c in range(s.tie_a.size):
+        _crossing_slip(pos, flat, s.tie_material, s.tie_stencil, s.tie_rotation_law, anchors,
+                       c, S)
+        total += element.huber3(S, limit[c], s.tie_friction_law[c, STICK])
+    return total
+
+
+@numba.njit(cache=True)
+def _rotation_jacobian(pos, stencil, c, J2, K2):
+    """dphi/dX (12,) and d2phi/dX2 (12, 12) of tie c on its stencil's in-plane coordinates
+    (node-major, x then y; `dynfab.model.terms.spatial.crossing_kinematics`)."""
+    six, q = np.empty((6, 3)), np.empty(3)
+    J, K = np.empty((3, 18)), np.empty((3, 18, 18))
+    for m in range(6):
+        six[m] = pos[stencil[c, m]]
+    element.crossing_kinematics(six, q, J, K)
+    for a in range(6):
+        for i in range(2):
+            J2[2 * a + i] = J[2, 3 * a + i]
+            for b in range(6):
+                for j in range(2):
+                    K2[2 * a + i, 2 * b + j] = K[2, 3 * a + i, 3 * b + j]
+
+
+@numba.njit(cache=True)
+def _add_friction_gradient(pos, dofs, s, anchors, limit, grad, physical_grad):
+    """grad += lambda_0 dHuber/dS on each tie's two material dofs, physical_grad += rho
+    dHuber/dS_3 dphi/dr on its stencil in space (11.13c)."""
+    flat, out = dofs.reshape(-1), grad.reshape(-1)
+    S, f = np.empty(3), np.empty(3)
+    J2, K2 = np.empty(STENCIL_IN_PLANE), np.empty((STENCIL_IN_PLANE, STENCIL_IN_PLANE))
+    for c in range(s.tie_a.size):
+        _crossing_slip(pos, flat, s.tie_material, s.tie_stencil, s.tie_rotation_law, anchors,
+                       c, S)
+        element.huber3_gradient(S, limit[c], s.tie_friction_law[c, STICK], f)
+        out[s.tie_material[c, 0]] += anchors[c, 2] * f[0]
+        out[s.tie_material[c, 1]] += anchors[c, 3] * f[1]
+        if s.tie_stencil.shape[0] and f[2] != 0.0:
+            _rotation_jacobian(pos, s.tie_stencil, c, J2, K2)
+            moment = s.tie_rotation_law[c, 0] * f[2]
+            for a in range(6):
+                for i in range(2):
+                    physical_grad[s.tie_stencil[c, a], i] += moment * J2[2 * a + i]
 
 
 # ----------------------------------------------------------------------- energy and gradient
 
 
 def total_energy(dofs, s: Structure, P, anchors, limit, out) -> float:
-    """V [J] at the dofs (its terms left in out, `TERMS`), F_T = `limit` frozen; +inf where a
-    bay has run out of material."""
+    """V [J] at the dofs (its terms left in out, the base term set's TERMS), F_T = `limit`
+    frozen; +inf where a bay has run out of material."""
     now = current(dofs, s)
     out[:] = 0.0
     if now is None:
         out[STRETCH] = np.inf
         return np.inf
-    assembly.energies(physical(dofs, s), now, P, anchors, limit, out)
+    pos = physical(dofs, s)
+    _base(s).energies(pos, now, P, _base_anchors(anchors, s), np.zeros(s.tie_a.size), out)
     if s.has_friction:
-        out[FRICTION] = _friction_energy(np.ascontiguousarray(dofs, float), s, anchors, limit)
+        out[FRICTION] = _friction_energy(pos, np.ascontiguousarray(dofs, float), s, anchors,
+                                         limit)
     return float(out.sum())
 
 
+def _base_anchors(anchors, s: Structure) -> np.ndarray:
+    """Anchors of the base term set's shape, for its terms that do not read them (its
+    friction is off: F_T = 0)."""
+    return np.zeros((s.tie_a.size, 3 if dim(s) == 3 else 2))
+
+
 def energy_vector(s: Structure, dofs, P, anchors, limit) -> np.ndarray:
-    """Each term's energy [J] (`TERMS`) at the dofs, F_T = `limit` frozen."""
-    out = np.zeros(len(TERMS))
+    """Each term's energy [J] (the base term set's TERMS) at the dofs, F_T = `limit` frozen."""
+    out = np.zeros(len(_base(s).TERMS))
     total_energy(dofs, s, np.asarray(P, float), anchors, limit, out)
     return out
 
@@ -170,29 +340,350 @@ def _add_to_bay(flat, material, fraction, k, value):
 
 
 @numba.njit(cache=True)
-def _length(pos, i):
-    ex, ez = pos[i + 1, 0] - pos[i, 0], pos[i + 1, 1] - pos[i, 1]
-    return np.sqrt(ex * ex + ez * ez)
-
-
-@numba.njit(cache=True)
-def _add_material_gradient(pos, now, s, grad):
-    """grad += the material part of the elastic terms' gradient (module docstring)."""
+def _add_material_gradient(pos, L, s, bend_energy, grad):
+    """grad += the material part of the elastic terms' gradient (module docstring); L the
+    rest lengths now, bend_energy each node's E_i."""
     flat = grad.reshape(-1)
     start, material, fraction = s.chain_start, s.segment_material, s.segment_fraction
     for y in range(start.size - 1):
         a, b = start[y], start[y + 1]
         for i in range(a, b - 1):
             k = i - y
-            L, l = now.rest_length[k], _length(pos, i)
+            l = _length(pos, i)
             _add_to_bay(flat, material, fraction, k,
-                        0.5 * s.stretch_modulus[k] * (L * L - l * l) / (L * L))
+                        0.5 * s.stretch_modulus[k] * (L[k] * L[k] - l * l) / (L[k] * L[k]))
         for i in range(a + 1, b - 1):
-            d = bending.turning_angle(pos, i) - s.rest_angle[i]
-            energy = 0.5 * now.bend_stiffness[i] * d * d
-            lbar = 0.5 * (now.rest_length[i - 1 - y] + now.rest_length[i - y])
-            _add_to_bay(flat, material, fraction, i - 1 - y, -0.5 * energy / lbar)
-            _add_to_bay(flat, material, fraction, i - y, -0.5 * energy / lbar)
+            lbar = 0.5 * (L[i - 1 - y] + L[i - y])
+            _add_to_bay(flat, material, fraction, i - 1 - y, -0.5 * bend_energy[i] / lbar)
+            _add_to_bay(flat, material, fraction, i - y, -0.5 * bend_energy[i] / lbar)
+
+
+def gradient(dofs, s: Structure, P, anchors, limit, grad) -> None:
+    """grad = dV/d(dofs) (n, dim) [N, and N for the material coordinates' J/m], F_T frozen."""
+    now = current(dofs, s)
+    if now is None:  # a bay has run out of material: no gradient (the energy is +inf)
+        grad[:] = np.nan
+        return
+    dofs = np.ascontiguousarray(dofs, float)
+    pos = physical(dofs, s)
+    physical_grad = np.zeros_like(pos)
+    _base(s).gradient(pos, now, np.asarray(P, float), _base_anchors(anchors, s),
+                      np.zeros(s.tie_a.size), physical_grad)
+    grad[:] = 0.0
+    if s.has_friction:
+        _add_friction_gradient(pos, dofs, s, anchors, limit, grad, physical_grad)
+    _pull_back(physical_grad, s, grad)
+    _add_material_gradient(pos, now.rest_length, s, _bends(pos, now, False)[0], grad)
+
+
+# ----------------------------------------------------------------------- the Hessian
+
+
+@numba.njit(cache=True)
+def _friction_dofs(s, c, out):
+    """(in space the dofs holding the in-plane coordinates of tie c's stencil; its u_a, u_b)."""
+    m = 0
+    if s.tie_stencil.shape[0]:
+        for a in range(6):
+            for i in range(2):
+                out[m] = s.physical_source[3 * s.tie_stencil[c, a] + i]
+                m += 1
+    out[m], out[m + 1] = s.tie_material[c, 0], s.tie_material[c, 1]
+
+
+@numba.njit(cache=True)
+def _emit_square(local, size, rows, cols, e):
+    """(rows, cols) of a dense block on `local`'s first `size` dofs, row-major."""
+    for p in range(size):
+        for q in range(size):
+            rows[e], cols[e] = local[p], local[q]
+            e += 1
+    return e
+
+
+@numba.njit(cache=True)
+def _friction_size(s):
+    """The dofs of one tie's friction block: its two material ones, in space with its
+    stencil's in-plane coordinates before them."""
+    return 2 + (STENCIL_IN_PLANE if s.tie_stencil.shape[0] else 0)
+
+
+@numba.njit(cache=True)
+def _bend_materials(s, k, out):
+    """The material dofs the bending at the node between segments k - 1 and k reads (3,):
+    k - 1's bay ends, then k's right one (its left being one of those), -1 at a chain's
+    end."""
+    out[0], out[1] = s.segment_material[k - 1, 0], s.segment_material[k - 1, 1]
+    out[2] = s.segment_material[k, 1]
+
+
+@numba.njit(cache=True)
+def _node_materials(s, width, table):
+    """Each node's material dofs (n, width), -1 padded: the bay ends of the segments whose
+    stretch or bending reads its position (its chain's segments i - 2 .. i + 1), each once:
+    the columns of its mixed Hessian entries, merged over its elements."""
+    table[:, :] = -1
+    start = s.chain_start
+    count = 0
+    for y in range(start.size - 1):
+        for i in range(start[y], start[y + 1]):
+            m = 0
+            for k in range(max(i - 2, start[y]) - y, min(i + 2, start[y + 1] - 1) - y):
+                for side in range(2):
+                    dof = s.segment_material[k, side]
+                    if dof < 0:
+                        continue
+                    seen = False
+                    for q in range(m):
+                        seen = seen or table[i, q] == dof
+                    if not seen:
+                        if m < width:
+                            table[i, m] = dof
+                        m += 1
+            count = max(count, m)
+    return count
+
+
+def node_materials(s: Structure) -> np.ndarray:
+    """`_node_materials` as wide as the structure needs."""
+    width = _node_materials(s, 0, np.zeros((s.rest_position.shape[0], 0), np.int64))
+    table = np.empty((s.rest_position.shape[0], width), np.int64)
+    _node_materials(s, width, table)
+    return table
+
+
+@numba.njit(cache=True)
+def _material_entries(s, d, table, rows, cols):
+    """(rows, cols) of every entry `_material_values` fills, in its order, on the dofs (-1
+    where a coordinate is held on a plane or a bay ends at a chain end): each node's mixed
+    entries (its d coordinates against its material dofs `table`, both orders), each
+    segment's and each inner node's material block (its bay ends' 2 x 2, its 3 x 3), each
+    tie's friction block."""
+    start = s.chain_start
+    local = np.empty(STENCIL_IN_PLANE + 2, np.int64)
+    e = 0
+    for i in range(table.shape[0]):
+        for j in range(table.shape[1]):
+            for c in range(d):
+                rows[e], cols[e] = s.physical_source[d * i + c], table[i, j]
+                rows[e + 1], cols[e + 1] = table[i, j], s.physical_source[d * i + c]
+                e += 2
+    for y in range(start.size - 1):
+        for k in range(start[y] - y, start[y + 1] - y - 1):
+            local[0], local[1] = s.segment_material[k, 0], s.segment_material[k, 1]
+            e = _emit_square(local, 2, rows, cols, e)
+        for k in range(start[y] + 1 - y, start[y + 1] - y - 1):
+            _bend_materials(s, k, local)
+            e = _emit_square(local, 3, rows, cols, e)
+    size = _friction_size(s)
+    for c in range(s.tie_a.size):
+        _friction_dofs(s, c, local)
+        e = _emit_square(local, size, rows, cols, e)
+
+
+def _material_entry_count(s: Structure, d: int, width: int) -> int:
+    segments = s.rest_length.size
+    inner = segments - (s.chain_start.size - 1)
+    friction = _friction_size(s)
+    return (s.rest_position.shape[0] * width * d * 2 + segments * 4 + inner * 9
+            + s.tie_a.size * friction * friction)
+
+
+@numba.njit(cache=True)
+def _add_mixed(table, node, dofs, weights, count, gx, first, d, mixed):
+    """mixed[node, slot of dofs[q], :] += gx[first:first + d] weights[q] for q < count (the
+    mixed block gx gm^T of one element on one of its nodes, merged per node)."""
+    for q in range(count):
+        if dofs[q] < 0:
+            continue
+        j = 0
+        while table[node, j] != dofs[q]:
+            j += 1
+        for c in range(d):
+            mixed[node, j, c] += gx[first + c] * weights[q]
+
+
+@numba.njit(cache=True)
+def _put_square(weights, scale, count, values, e):
+    """values[e:] = scale weights weights^T (count x count), row-major; the next entry."""
+    for p in range(count):
+        for q in range(count):
+            values[e] = scale * weights[p] * weights[q]
+            e += 1
+    return e
+
+
+@numba.njit(cache=True)
+def _elastic_material_values(pos, L, s, bend_energy, bend_grad, table, values):
+    """The stretch and bending terms' mixed and material Hessian entries (module docstring)
+    in `_material_entries`' order; returns the next entry. Each element's mixed block
+    d2E/dr dL dL/du = gx gm^T is summed on its nodes' rows (`_add_mixed`), its material
+    block is hmm gm gm^T."""
+    start, d = s.chain_start, pos.shape[1]
+    n, width = table.shape
+    mixed = np.zeros((n, width, d))
+    gx, gm, dofs = np.empty(3 * d), np.empty(3), np.empty(3, np.int64)
+    e = n * width * d * 2
+    for y in range(start.size - 1):
+        a, b = start[y], start[y + 1]
+        for i in range(a, b - 1):
+            k = i - y
+            l = _length(pos, i)
+            EA, f = s.stretch_modulus[k], s.segment_fraction[k]
+            coupling = -EA * l / (L[k] * L[k])  # d2E/dl dL, times dl/dr = (-e, e) / l
+            for m in range(d):
+                unit = (pos[i + 1, m] - pos[i, m]) / l
+                gx[m], gx[d + m] = -coupling * unit, coupling * unit
+            gm[0], gm[1] = -f, f
+            dofs[0], dofs[1] = s.segment_material[k, 0], s.segment_material[k, 1]
+            for node in range(2):
+                _add_mixed(table, i + node, dofs, gm, 2, gx, d * node, d, mixed)
+            e = _put_square(gm, EA * l * l / (L[k] * L[k] * L[k]), 2, values, e)
+        for i in range(a + 1, b - 1):
+            k = i - y
+            lbar = 0.5 * (L[k - 1] + L[k])
+            for m in range(3 * d):
+                gx[m] = -bend_grad[i, m] / lbar  # d2E/dr dlbar
+            f0, f1 = 0.5 * s.segment_fraction[k - 1], 0.5 * s.segment_fraction[k]
+            # dlbar/du on (k-1's left, k-1's right, k's right): k's left end is one of the
+            # first two (an inner node of a bay: its left; a crossing's node: its right)
+            inner = s.segment_material[k, 0] == s.segment_material[k - 1, 0]
+            gm[0], gm[1], gm[2] = -f0 - f1 * inner, f0 - f1 * (not inner), f1
+            _bend_materials(s, k, dofs)
+            for node in range(3):
+                _add_mixed(table, i - 1 + node, dofs, gm, 3, gx, d * node, d, mixed)
+            e = _put_square(gm, 2.0 * bend_energy[i] / (lbar * lbar), 3, values, e)
+    e0 = 0
+    for i in range(n):
+        for j in range(width):
+            for c in range(d):
+                values[e0] = values[e0 + 1] = mixed[i, j, c]
+                e0 += 2
+    return e
+
+
+@numba.njit(cache=True)
+def _friction_values(pos, dofs, s, anchors, limit, secant, values, e):
+    """Each tie's friction block G^T A G + rho dHuber/dS_3 d2phi/dr2 (11.13c) in
+    `_material_entries`' order from entry e, G = dS/d(its dofs), A = d2Huber/dS2 with the
+    tie's secant weight (`dynfab.model.terms.spatial.huber3_hessian`)."""
+    flat = dofs.reshape(-1)
+    size = _friction_size(s)
+    m = size - 2
+    S, f, A = np.empty(3), np.empty(3), np.empty((3, 3))
+    G = np.zeros((3, size))
+    J2, K2 = np.zeros(STENCIL_IN_PLANE), np.zeros((STENCIL_IN_PLANE, STENCIL_IN_PLANE))
+    for c in range(s.tie_a.size):
+        weight = 0.0 if secant is None else secant[c]
+        _crossing_slip(pos, flat, s.tie_material, s.tie_stencil, s.tie_rotation_law, anchors,
+                       c, S)
+        stick = s.tie_friction_law[c, STICK]
+        element.huber3_gradient(S, limit[c], stick, f)
+        element.huber3_hessian(S, limit[c], stick, weight, A)
+        G[0, m], G[1, m + 1] = anchors[c, 2], anchors[c, 3]
+        rho = 0.0
+        if m:
+            rho = s.tie_rotation_law[c, 0]
+            _rotation_jacobian(pos, s.tie_stencil, c, J2, K2)
+            for j in range(m):
+                G[2, j] = rho * J2[j]
+        for p in range(size):
+            for q in range(size):
+                h = 0.0
+                for a in range(3):
+                    for b in range(3):
+                        h += G[a, p] * A[a, b] * G[b, q]
+                if p < m and q < m:
+                    h += rho * f[2] * K2[p, q]
+                values[e] = h
+                e += 1
+    return e
+
+
+def _topology(s: Structure) -> tuple:
+    """The arrays a sliding structure's `SlidingPattern` is made of: a structure derived from
+    another by a law (the static solver's held lateral set) shares them, and with them the
+    pattern and its nested-dissection order."""
+    return (s.chain_start, s.tie_a, s.tie_b, s.tie_stencil, s.lateral_stencil, s.fixed,
+            s.dof_tie, s.physical_source, s.tie_material, s.segment_material)
+
+
+class SlidingPattern(Pattern):
+    """The Hessian's entries on the dofs: the base term set's, each physical dof moved to the
+    dof that holds it, then the material entries (`_material_entries`); those on a coordinate
+    held on a plane or a chain end's constant left out (`kept`)."""
+
+    def __init__(self, s: Structure):
+        d = dim(s)
+        base_rows, base_cols = (spatial.pattern_entries(s) if d == 3
+                                else assembly.planar_entries(s))
+        self.node_materials = node_materials(s)
+        count = _material_entry_count(s, d, self.node_materials.shape[1])
+        rows, cols = np.empty(count, np.int64), np.empty(count, np.int64)
+        _material_entries(s, d, self.node_materials, rows, cols)
+        rows = np.concatenate([s.physical_source[base_rows], rows])
+        cols = np.concatenate([s.physical_source[base_cols], cols])
+        self.base_size = base_rows.size
+        self.kept = (rows >= 0) & (cols >= 0)
+        super().__init__(s, (rows[self.kept], cols[self.kept]))
+        self._keep_all = np.flatnonzero(self.kept)[self._keep]
+
+    def matrix(self, values) -> scipy.sparse.csc_matrix:
+        """The Hessian on the unknowns (CSC) from every entry `hessian_values` fills (before
+        `kept`)."""
+        data = np.bincount(self._slot, weights=values[self._keep_all], minlength=self._slots)
+        return self.csc(data)
+
+
+_PATTERNS: dict[tuple, tuple] = {}
+"""The last few structures' `SlidingPattern`s, by the ids of `_topology` (kept beside)."""
+
+
+def pattern_of(s: Structure) -> SlidingPattern:
+    """The `SlidingPattern` of a structure, made once per topology (the static solver, the
+    certificate and the model share it, and with it the nested-dissection order)."""
+    arrays = _topology(s)
+    key = tuple(map(id, arrays))
+    entry = _PATTERNS.get(key)
+    if entry is None or any(a is not b for a, b in zip(entry[0], arrays)):
+        if len(_PATTERNS) >= assembly.PATTERNS_KEPT:
+            _PATTERNS.pop(next(iter(_PATTERNS)))
+        entry = _PATTERNS[key] = (arrays, SlidingPattern(s))
+    return entry[1]
+
+
+def hessian_values(dofs, s: Structure, anchors, limit, secant=None) -> np.ndarray:
+    """Every entry of `SlidingPattern` (before `kept`), F_T = `limit` frozen."""
+    pattern = pattern_of(s)
+    now = current(dofs, s)
+    dofs = np.ascontiguousarray(dofs, float)
+    pos = physical(dofs, s)
+    values = np.zeros(pattern.kept.size)
+    _base(s).hessian_values(pos, now, _base_anchors(anchors, s), np.zeros(s.tie_a.size),
+                            values[:pattern.base_size], None)
+    energy, grad = _bends(pos, now)
+    rest = values[pattern.base_size:]
+    e = _elastic_material_values(pos, now.rest_length, s, energy, grad, pattern.node_materials,
+                                 rest)
+    _friction_values(pos, dofs, s, anchors, limit, secant, rest, e)
+    return values
+
+
+def sparse_hessian(s: Structure, dofs, anchors, limit, secant=0.0):
+    """The Hessian of V plus the Huber terms on the structure's unknowns [N/m] (CSC), F_T =
+    `limit` frozen; `secant` as `assembly.sparse_hessian`'s."""
+    pattern = pattern_of(s)
+    values = hessian_values(dofs, s, anchors, limit, secant_weights(secant, s.tie_a.size))
+    return pattern.matrix(values)
+
+
+def full_hessian(s: Structure, dofs, anchors, limit) -> np.ndarray:
+    """The Hessian on every dof, dense (for tests and small checks)."""
+    pattern = pattern_of(s)
+    return pattern.full_matrix(hessian_values(dofs, s, anchors, limit)[pattern.kept])
+
+
+# ----------------------------------------------------------------------- friction and the rest
 
 
 @numba.njit(cache=True)
@@ -205,324 +696,153 @@ def _stretches(pos, dofs, s, out):
     """lambda of each tie's two yarns at its nodes (T, 2): the mean stretch l / L of the two
     segments at the node (11.13c)."""
     flat = dofs.reshape(-1)
+    material, end = s.segment_material, s.segment_material_end
     for c in range(s.tie_a.size):
         for side in range(2):
             n = s.tie_a[c] if side == 0 else s.tie_b[c]
             y = _chain_of(s.chain_start, n)
             k1, k2 = n - 1 - y, n - y
             u = flat[s.tie_material[c, side]]
-            material, end = s.segment_material, s.segment_material_end
             L1 = s.segment_fraction[k1] * (u - _bay_end(flat, material, end, k1, 0))
             L2 = s.segment_fraction[k2] * (_bay_end(flat, material, end, k2, 1) - u)
             out[c, side] = 0.5 * (_length(pos, n - 1) / L1 + _length(pos, n) / L2)
 
 
-@numba.njit(cache=True)
-def _slip(flat, tie_material, anchors, c):
-    """(S_a, S_b) of tie c (11.13c): each yarn's material slip from its anchor times the
-    stretch there at the step's start (anchors' columns 2, 3)."""
-    return (anchors[c, 2] * (flat[tie_material[c, 0]] - anchors[c, 0]),
-            anchors[c, 3] * (flat[tie_material[c, 1]] - anchors[c, 1]))
-
-
-@numba.njit(cache=True)
-def _friction_energy(dofs, s, anchors, limit):
-    """sum_c H(S_c) [J] (11.13c), F_T frozen."""
-    flat = dofs.reshape(-1)
-    total = 0.0
-    for c in range(s.tie_a.size):
-        sx, sy = _slip(flat, s.tie_material, anchors, c)
-        total += friction.huber(sx, sy, limit[c], s.tie_friction_law[c, friction.STICK])
-    return total
-
-
-@numba.njit(cache=True)
-def _add_friction_gradient(dofs, s, anchors, limit, grad):
-    """grad += dH/du = lambda_0 dH/dS on each tie's two material dofs (11.13c)."""
-    flat, out = dofs.reshape(-1), grad.reshape(-1)
-    for c in range(s.tie_a.size):
-        sx, sy = _slip(flat, s.tie_material, anchors, c)
-        gx, gy = friction.huber_gradient(sx, sy, limit[c], s.tie_friction_law[c, friction.STICK])
-        out[s.tie_material[c, 0]] += anchors[c, 2] * gx
-        out[s.tie_material[c, 1]] += anchors[c, 3] * gy
-
-
-def gradient(dofs, s: Structure, P, anchors, limit, grad) -> None:
-    """grad = dV/d(dofs) (n, 2) [N, and N for the material coordinates' J/m], F_T frozen."""
-    now = current(dofs, s)
-    if now is None:  # a bay has run out of material: no gradient (the energy is +inf)
-        grad[:] = np.nan
-        return
-    pos = physical(dofs, s)
-    physical_grad = np.zeros_like(pos)
-    assembly.gradient(pos, now, np.asarray(P, float), anchors, limit, physical_grad)
-    grad[:] = 0.0
-    _pull_back(physical_grad, s, grad)
-    _add_material_gradient(pos, now, s, grad)
-    if s.has_friction:
-        _add_friction_gradient(np.ascontiguousarray(dofs, float), s, anchors, limit, grad)
-
-
-# ----------------------------------------------------------------------- the Hessian
-
-
-@numba.njit(cache=True)
-def _segment_dofs(s, i, k, out):
-    """(the dofs holding the 4 coordinates of segment k's nodes i, i+1; its 2 bay-end dofs),
-    -1 for a coordinate held on a plane or a chain end's constant."""
-    for m in range(4):
-        out[m] = s.physical_source[2 * i + m]
-    out[4], out[5] = s.segment_material[k, 0], s.segment_material[k, 1]
-
-
-@numba.njit(cache=True)
-def _bend_dofs(s, i, k, out):
-    """(the dofs holding the 6 coordinates of nodes i-1..i+1; the bay ends of segments k-1
-    and k: k-1's two, then k's right one, its left being one of those), -1 as
-    `_segment_dofs`."""
-    for m in range(6):
-        out[m] = s.physical_source[2 * (i - 1) + m]
-    out[6], out[7] = s.segment_material[k - 1, 0], s.segment_material[k - 1, 1]
-    out[8] = s.segment_material[k, 1]
-
-
-@numba.njit(cache=True)
-def _emit_block(local, positions, materials, rows, cols, e):
-    """(rows, cols) of the mixed (position x material, both orders) and material x material
-    entries of one element whose dofs are `local`: `positions` physical ones, then
-    `materials` material ones; returns the next entry."""
-    for p in range(positions):
-        for q in range(materials):
-            rows[e], cols[e] = local[p], local[positions + q]
-            rows[e + 1], cols[e + 1] = local[positions + q], local[p]
-            e += 2
-    for p in range(materials):
-        for q in range(materials):
-            rows[e], cols[e] = local[positions + p], local[positions + q]
-            e += 1
-    return e
-
-
-@numba.njit(cache=True)
-def _material_entry_count(s):
-    segments = s.rest_length.size
-    inner = segments - (s.chain_start.size - 1)
-    ties = s.tie_a.size
-    return segments * (4 * 2 * 2 + 4) + inner * (6 * 3 * 2 + 9) + 4 * ties
-
-
-@numba.njit(cache=True)
-def _material_entries(s, rows, cols):
-    """(rows, cols) of every entry `_material_values` fills, in its order: each segment's
-    stretch block, each inner node's bending block, each tie's friction block, on the dofs
-    (-1 where a coordinate is held on a plane or a bay ends at a chain end)."""
-    start = s.chain_start
-    local = np.empty(10, np.int64)
-    e = 0
-    for y in range(start.size - 1):
-        a, b = start[y], start[y + 1]
-        for i in range(a, b - 1):
-            _segment_dofs(s, i, i - y, local)
-            e = _emit_block(local, 4, 2, rows, cols, e)
-        for i in range(a + 1, b - 1):
-            _bend_dofs(s, i, i - y, local)
-            e = _emit_block(local, 6, 3, rows, cols, e)
-    for c in range(s.tie_a.size):
-        u_a, u_b = s.tie_material[c, 0], s.tie_material[c, 1]
-        rows[e:e + 4] = np.array([u_a, u_a, u_b, u_b])
-        cols[e:e + 4] = np.array([u_a, u_b, u_a, u_b])
-        e += 4
-
-
-@numba.njit(cache=True)
-def _put_block(gx, gm, hmm, positions, materials, values, e):
-    """values (in `_emit_block`'s order) of the block gx gm^T (both orders) and hmm gm gm^T."""
-    for p in range(positions):
-        for q in range(materials):
-            values[e] = values[e + 1] = gx[p] * gm[q]
-            e += 2
-    for p in range(materials):
-        for q in range(materials):
-            values[e] = hmm * gm[p] * gm[q]
-            e += 1
-    return e
-
-
-@numba.njit(cache=True)
-def _material_values(pos, dofs, now, s, anchors, limit, secant, values):
-    """The mixed and material Hessian entries (module docstring) in `_material_entries`'
-    order; the friction blocks with each tie's secant weight (`friction.huber_hessian`)."""
-    start = s.chain_start
-    gx, gm, g = np.empty(6), np.empty(4), np.empty(6)
-    e = 0
-    for y in range(start.size - 1):
-        a, b = start[y], start[y + 1]
-        for i in range(a, b - 1):
-            k = i - y
-            ex, ez = pos[i + 1, 0] - pos[i, 0], pos[i + 1, 1] - pos[i, 1]
-            l = np.sqrt(ex * ex + ez * ez)
-            L, EA, f = now.rest_length[k], s.stretch_modulus[k], s.segment_fraction[k]
-            mixed = -EA * l / (L * L)  # d2E/dl dL, times dl/dr = (-e, e) / l
-            gx[0], gx[1], gx[2], gx[3] = -mixed * ex / l, -mixed * ez / l, mixed * ex / l, \
-                mixed * ez / l
-            gm[0], gm[1] = -f, f
-            e = _put_block(gx, gm, EA * l * l / (L * L * L), 4, 2, values, e)
-        for i in range(a + 1, b - 1):
-            k = i - y
-            kb = now.bend_stiffness[i]
-            d = bending.turning_angle(pos, i) - s.rest_angle[i]
-            energy = 0.5 * kb * d * d
-            lbar = 0.5 * (now.rest_length[k - 1] + now.rest_length[k])
-            bending._angle_gradient(pos, i, g)
-            for m in range(6):
-                gx[m] = -kb * d * g[m] / lbar  # d2E/dr dlbar
-            f0, f1 = 0.5 * s.segment_fraction[k - 1], 0.5 * s.segment_fraction[k]
-            # dlbar/du on (k-1's left, k-1's right, k's right): k's left end is one of the
-            # first two (an inner node of a bay: its left; a crossing's node: its right)
-            inner = s.segment_material[k, 0] == s.segment_material[k - 1, 0]
-            gm[0], gm[1], gm[2] = -f0 - f1 * inner, f0 - f1 * (not inner), f1
-            e = _put_block(gx, gm, 2.0 * energy / (lbar * lbar), 6, 3, values, e)
-    flat = dofs.reshape(-1)
-    for c in range(s.tie_a.size):
-        weight = 0.0 if secant is None else secant[c]
-        sx, sy = _slip(flat, s.tie_material, anchors, c)
-        xx, xy, yy = friction.huber_hessian(sx, sy, limit[c], s.tie_friction_law[c, friction.STICK],
-                                            weight)
-        la, lb = anchors[c, 2], anchors[c, 3]  # d2H/du2 = diag(lambda_0) d2H/dS2 diag(lambda_0)
-        values[e], values[e + 1], values[e + 2], values[e + 3] = la * la * xx, la * lb * xy, \
-            la * lb * xy, lb * lb * yy
-        e += 4
-
-
-class SlidingPattern(Pattern):
-    """The Hessian's entries on the dofs: the planar fabric's (`assembly.planar_entries`), each
-    physical dof moved to the dof that holds it, then the material entries
-    (`_material_entries`); those on a coordinate held on a plane or a chain end's constant
-    left out (`kept`)."""
-
-    def __init__(self, s: Structure):
-        base_rows, base_cols = assembly.planar_entries(s)
-        count = _material_entry_count(s)
-        rows, cols = np.empty(count, np.int64), np.empty(count, np.int64)
-        _material_entries(s, rows, cols)
-        rows = np.concatenate([s.physical_source[base_rows], rows])
-        cols = np.concatenate([s.physical_source[base_cols], cols])
-        self.base_size = base_rows.size
-        self.kept = (rows >= 0) & (cols >= 0)
-        super().__init__(s, (rows[self.kept], cols[self.kept]))
-
-
-_PATTERNS: dict[int, tuple] = {}
-"""The last few structures' `SlidingPattern`s, by id (the structure kept alive beside it)."""
-
-
-def pattern_of(s: Structure) -> SlidingPattern:
-    """The `SlidingPattern` of a structure, made once (the static solver, the certificate and
-    the model share it, and with it the nested-dissection order)."""
-    entry = _PATTERNS.get(id(s))
-    if entry is None or entry[0] is not s:
-        if len(_PATTERNS) >= assembly.PATTERNS_KEPT:
-            _PATTERNS.pop(next(iter(_PATTERNS)))
-        entry = _PATTERNS[id(s)] = (s, SlidingPattern(s))
-    return entry[1]
-
-
-def hessian_values(dofs, s: Structure, anchors, limit, secant=None) -> np.ndarray:
-    """Every entry of `SlidingPattern` (before `kept`), F_T = `limit` frozen."""
-    pattern = pattern_of(s)
-    now = current(dofs, s)
-    pos = physical(dofs, s)
-    values = np.zeros(pattern.kept.size)
-    assembly.hessian_values(pos, now, anchors, limit, values[:pattern.base_size], None)
-    _material_values(pos, np.ascontiguousarray(dofs, float), now, s, anchors, limit, secant,
-                     values[pattern.base_size:])
-    return values
-
-
-def sparse_hessian(s: Structure, dofs, anchors, limit, secant=0.0):
-    """The Hessian of V plus the Huber terms on the structure's unknowns [N/m] (CSC), F_T =
-    `limit` frozen; `secant` as `assembly.sparse_hessian`'s."""
-    pattern = pattern_of(s)
-    values = hessian_values(dofs, s, anchors, limit, secant_weights(secant, s.tie_a.size))
-    return pattern.matrix(values[pattern.kept])
-
-
-def full_hessian(s: Structure, dofs, anchors, limit) -> np.ndarray:
-    """The Hessian on every dof, dense (for tests and small checks)."""
-    pattern = pattern_of(s)
-    return pattern.full_matrix(hessian_values(dofs, s, anchors, limit)[pattern.kept])
-
-
-# ----------------------------------------------------------------------- friction and the rest
-
-
 def with_stretches(dofs, s: Structure, anchors) -> np.ndarray:
-    """The anchors (T, 2) [m] with the stretches lambda_0 (T, 2) of the yarns at each crossing
-    at `dofs` beside them (T, 4): what a load step's friction measures its slips with
-    (11.13c), taken at the step's start."""
+    """A state's anchors (`state_anchors`) with the stretches lambda_0 (T, 2) of the yarns at
+    each crossing at `dofs` after the material ones: what a load step's friction measures
+    its slips with (11.13c), taken at the step's start (module docstring)."""
     pos = physical(dofs, s)
     out = np.zeros((s.tie_a.size, 2))
     _stretches(pos, np.ascontiguousarray(dofs, float), s, out)
-    return np.hstack([np.asarray(anchors, float)[:, :2], out])
+    anchors = np.asarray(anchors, float)
+    return np.hstack([anchors[:, :2], out, anchors[:, 2:]])
+
+
+def state_anchors(anchors) -> np.ndarray:
+    """A step's anchors without the stretches: (xi_a, xi_b[, phi_anchor]) per tie."""
+    return np.delete(np.asarray(anchors, float), STRETCHES, axis=1)
 
 
 def crossing_slips(dofs, s: Structure, anchors, out) -> None:
-    """Every tie's slip (S_a, S_b, 0) (11.13c) [m] into out (T, 3)."""
-    flat = np.asarray(dofs, float).reshape(-1)
+    """Every tie's slip S (11.13c) [m] into out (T, 3)."""
+    dofs = np.ascontiguousarray(dofs, float)
+    pos, flat, S = physical(dofs, s), dofs.reshape(-1), np.empty(3)
     for c in range(s.tie_a.size):
-        out[c, 0], out[c, 1] = _slip(flat, s.tie_material, anchors, c)
-        out[c, 2] = 0.0
+        _crossing_slip(pos, flat, s.tie_material, s.tie_stencil, s.tie_rotation_law, anchors,
+                       c, S)
+        out[c] = S
 
 
 @numba.njit(cache=True)
-def _return_map(dofs, s, anchors, limit, sliding, friction_force):
+def _return_map(pos, dofs, s, anchors, limit, sliding, friction_force):
     """`return_map` in numba."""
     flat = dofs.reshape(-1)
+    S = np.empty(3)
     lost = 0.0
     for c in range(s.tie_a.size):
-        sx, sy = _slip(flat, s.tie_material, anchors, c)
-        stick = s.tie_friction_law[c, friction.STICK]
-        n = np.hypot(sx, sy)
+        _crossing_slip(pos, flat, s.tie_material, s.tie_stencil, s.tie_rotation_law, anchors,
+                       c, S)
+        stick = s.tie_friction_law[c, STICK]
+        n = np.sqrt(S[0] * S[0] + S[1] * S[1] + S[2] * S[2])
         F = limit[c]
         sliding[c] = huber_law.moves(n, F, stick)
         if sliding[c]:
-            move = 1.0 - F / (stick * n)
+            move = 1.0 - max(F, 0.0) / (stick * n)
             for k in range(2):
                 anchors[c, k] += move * (flat[s.tie_material[c, k]] - anchors[c, k])
-            lost += F * move * n
-            friction_force[c, 0], friction_force[c, 1] = -F * sx / n, -F * sy / n
+            if s.tie_stencil.shape[0]:
+                anchors[c, ROTATION] += move * S[2] / s.tie_rotation_law[c, 0]
+            lost += max(F, 0.0) * move * n
+            for k in range(friction_force.shape[1]):
+                friction_force[c, k] = -max(F, 0.0) * S[k] / n
         else:
-            friction_force[c, 0], friction_force[c, 1] = -stick * sx, -stick * sy
+            for k in range(friction_force.shape[1]):
+                friction_force[c, k] = -stick * S[k] if F > 0.0 else 0.0
     return lost
 
 
 def return_map(dofs, anchors, s: Structure, limit, sliding, friction_force) -> float:
     """The anchors' radial return on the slips (11.13c), in place: where k_t |S| > F_T each
-    material anchor moves so that the slip becomes (F_T / (k_t |S|)) S, the energy lost F_T
-    times the slip's change [J] (returned); fills `sliding` and the friction force on the
-    slip (T, 2) [N] (as `dynfab.model.fabric.friction.return_map`)."""
-    return _return_map(np.ascontiguousarray(dofs, float), s, anchors, limit, sliding,
-                       friction_force)
+    anchor moves so that the slip becomes (F_T / (k_t |S|)) S, the energy lost F_T times the
+    slip's change [J] (returned); fills `sliding` and the friction force on the slip (T, 2)
+    or (T, 3) [N] (the third the moment over rho), as the fixed crossings'."""
+    dofs = np.ascontiguousarray(dofs, float)
+    return _return_map(physical(dofs, s), dofs, s, anchors, limit, sliding, friction_force)
 
 
 def coupling_rows(s: Structure, dofs, anchors, limit, c) -> tuple[np.ndarray, np.ndarray]:
-    """(dofs, values): d(dV/d dofs)/dF_T of tie c, lambda_0 S / |S| on its material dofs where
-    it slides (dH/dS = F_T S / |S|), empty where it sticks (as `assembly.coupling_rows`)."""
-    sx, sy = _slip(np.asarray(dofs, float).reshape(-1), s.tie_material, anchors, c)
-    stick = s.tie_friction_law[c, friction.STICK]
-    if not (limit[c] > 0.0 and friction.is_sliding(sx, sy, limit[c], stick)):
+    """(dofs, values): d(dV/d dofs)/dF_T of tie c, G^T S / |S| (`_friction_values`' G) where
+    it slides (dHuber/dS = F_T S / |S|), empty where it sticks (as
+    `assembly.coupling_rows`)."""
+    dofs = np.ascontiguousarray(dofs, float)
+    pos, S = physical(dofs, s), np.empty(3)
+    _crossing_slip(pos, dofs.reshape(-1), s.tie_material, s.tie_stencil, s.tie_rotation_law,
+                   anchors, c, S)
+    stick = s.tie_friction_law[c, STICK]
+    norm = np.linalg.norm(S)
+    if not (limit[c] > 0.0 and huber_law.slides(norm, limit[c], stick) and norm > 0.0):
         return np.zeros(0, np.int64), np.zeros(0)
-    norm = np.hypot(sx, sy)
-    return s.tie_material[c].copy(), np.array([anchors[c, 2] * sx, anchors[c, 3] * sy]) / norm
+    rows, values = list(s.tie_material[c]), [anchors[c, 2] * S[0] / norm,
+                                             anchors[c, 3] * S[1] / norm]
+    if s.tie_stencil.shape[0]:
+        J2, K2 = np.zeros(STENCIL_IN_PLANE), np.zeros((STENCIL_IN_PLANE, STENCIL_IN_PLANE))
+        _rotation_jacobian(pos, s.tie_stencil, c, J2, K2)
+        local = np.empty(STENCIL_IN_PLANE + 2, np.int64)
+        _friction_dofs(s, c, local)
+        rho = s.tie_rotation_law[c, 0]
+        rows += list(local[:STENCIL_IN_PLANE])
+        values += list(rho * J2 * S[2] / norm)
+    rows, values = np.array(rows, np.int64), np.array(values)
+    keep = rows >= 0
+    return rows[keep], values[keep]
+
+
+def lateral_gaps(dofs, s: Structure, out) -> None:
+    """w - d of each lateral contact (L,) [m] at the physical positions
+    (`dynfab.model.fabric.spatial.lateral_gaps`)."""
+    spatial.lateral_gaps(physical(dofs, s), s, out)
 
 
 def rounding_scale(dofs, s: Structure, P, limit) -> float:
-    """S [J] with the rounding of V about eps S (`assembly.rounding_scale` at the physical
+    """S [J] with the rounding of V about eps S (the base term set's at the physical
     positions and the material lengths; each tie's F_T times its material coordinates)."""
     now = current(dofs, s)
     if now is None:
         return np.inf
     flat = np.asarray(dofs, float).reshape(-1)
     material = np.abs(flat[s.tie_material]).sum(axis=1)
-    return float(assembly.rounding_scale(physical(dofs, s), now, np.asarray(P, float), limit)
+    return float(_base(s).rounding_scale(physical(dofs, s), now, np.asarray(P, float), limit)
                  + np.sum(np.asarray(limit) * material))
+
+
+class SlidingTerms:
+    """The term set of a structure whose crossings slide, over its base term set: the
+    functions of this module with the base's energy terms (TERMS) and its choice of solves
+    on kept factors (SOLVE_ON_KEPT_FACTORS), the interface of `assembly` and `spatial`."""
+
+    def __init__(self, base):
+        self.TERMS = base.TERMS
+        self.SOLVE_ON_KEPT_FACTORS = base.SOLVE_ON_KEPT_FACTORS
+        self.CONTACT, self.FRICTION = CONTACT, FRICTION
+
+    total_energy = staticmethod(total_energy)
+    energy_vector = staticmethod(energy_vector)
+    gradient = staticmethod(gradient)
+    pattern_of = staticmethod(pattern_of)
+    sparse_hessian = staticmethod(sparse_hessian)
+    full_hessian = staticmethod(full_hessian)
+    crossing_slips = staticmethod(crossing_slips)
+    return_map = staticmethod(return_map)
+    coupling_rows = staticmethod(coupling_rows)
+    lateral_gaps = staticmethod(lateral_gaps)
+    rounding_scale = staticmethod(rounding_scale)
+    with_stretches = staticmethod(with_stretches)
+    state_anchors = staticmethod(state_anchors)
+    physical = staticmethod(physical)
+
+
+PLANAR, SPATIAL = SlidingTerms(assembly), SlidingTerms(spatial)
+"""The term sets of planar and spatial structures whose crossings slide."""
+TERMS = assembly.TERMS
+"""The planar term set's energy terms (`PLANAR.TERMS`)."""

@@ -22,12 +22,12 @@ from dynfab.model.terms.spatial import crossing_coordinates
 
 
 def terms_of(structure: Structure):
-    """The term set (module) of `structure`: spatial where its nodes have three coordinates;
-    planar, on the dofs of crossings that slide where they do (`dynfab.model.fabric.sliding`,
+    """The term set of `structure`: spatial where its nodes have three coordinates, else
+    planar; on the dofs of crossings that slide where they do (`dynfab.model.fabric.sliding`,
     docs/model.md 11.13)."""
-    if dim(structure) == 3:
-        return spatial
-    return sliding if slides(structure) else assembly
+    if slides(structure):
+        return sliding.SPATIAL if dim(structure) == 3 else sliding.PLANAR
+    return spatial if dim(structure) == 3 else assembly
 
 
 def woven_state(structure: Structure) -> np.ndarray:
@@ -62,14 +62,17 @@ def woven_plan(structure: Structure) -> np.ndarray:
 def woven_anchors(structure: Structure) -> np.ndarray:
     """Each tie's friction anchor at zero slip as woven: planar (T, 2) [m], from the planes (a
     ground tie's first component its node's x, its second 0; docs/model.md section 10);
-    spatial (T, 3) [m, m, rad], each crossing's coordinates q as woven (section 11.4)."""
+    spatial (T, 3) [m, m, rad], each crossing's coordinates q as woven (section 11.4); where
+    the crossings slide the first two the material coordinates at the crossing (11.13)."""
     pos = np.asarray(structure.rest_position, float)
-    if slides(structure):  # the material coordinates at the crossings
-        return woven_dofs(structure).reshape(-1)[structure.tie_material]
     if dim(structure) == 3:
         anchors = np.zeros((structure.tie_a.size, 3))
         for t, stencil in enumerate(np.asarray(structure.tie_stencil).reshape(-1, 6)):
             crossing_coordinates(pos[stencil], anchors[t])
+    if slides(structure):  # the material coordinates at the crossings
+        material = woven_dofs(structure).reshape(-1)[structure.tie_material]
+        return np.hstack([material, anchors[:, 2:]]) if dim(structure) == 3 else material
+    if dim(structure) == 3:
         return anchors
     plane = np.asarray(structure.tie_plane, float).reshape(-1, 2)
     anchors = np.zeros((structure.tie_a.size, 2))

@@ -281,6 +281,28 @@ def _add_turning_spring(k, excess, g1, H1, g2, H2, gu, Hu):
 
 
 @numba.njit(cache=True)
+def bend_gradient(X, kb, theta0, kl, psi0, g):
+    """Fill g (9,) [N] of `bend_energy` alone (`bend_derivatives` without its Hessian);
+    return E [J]."""
+    e1, e2 = _segments(X)
+    g1, g2, gu = np.empty(3), np.empty(3), np.empty(6)
+    a = elevation(e2) - elevation(e1) - theta0
+    b = wrap(direction(e2) - direction(e1)) - psi0
+    elevation_gradient(e1, g1)
+    elevation_gradient(e2, g2)
+    for i in range(3):  # d(1/2 k excess^2)/du = k excess (-df/de at e1, df/de at e2)
+        gu[i], gu[3 + i] = -kb * a * g1[i], kb * a * g2[i]
+    direction_gradient(e1, g1)
+    direction_gradient(e2, g2)
+    for i in range(3):
+        gu[i] -= kl * b * g1[i]
+        gu[3 + i] += kl * b * g2[i]
+    g[:] = 0.0
+    _scatter_gradient(gu, _BEND_PLUS, _BEND_MINUS, g)
+    return 0.5 * kb * a * a + 0.5 * kl * b * b
+
+
+@numba.njit(cache=True)
 def bend_derivatives(X, kb, theta0, kl, psi0, g, H):
     """Fill g (9,) [N] and H (9, 9) [N/m] of `bend_energy`; return E [J]."""
     e1, e2 = _segments(X)
