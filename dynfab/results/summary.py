@@ -70,7 +70,16 @@ def _fabric_quantities(attrs: dict, record: dict, unit: str) -> str:
     else:
         text += (f"mean strain {strain[0]:.4f}, {strain[1]:.4f} %, stress {stress[0]:.4g}, "
                  f"{stress[1]:.4g} N/m (warp, weft)")
-    return text + f"  slip {float(record['slip_ratio']):.3f} of a segment"
+    return text + _slip_text(record)
+
+
+def _slip_text(record: dict) -> str:
+    """A step's largest slip of a fixed crossing's nodes over their segment, or where the
+    crossings slide (docs/model.md 11.13) its largest slide along a yarn."""
+    if "slip" in record:
+        slide = np.nanmax(np.abs(np.asarray(record["slip"], float)), initial=0.0)
+        return f"  slide {1e3 * slide:.4g} mm (largest)"
+    return f"  slip {float(record['slip_ratio']):.3f} of a segment"
 
 
 def _specimen_quantities(attrs: dict, record: dict, unit: str) -> str:
@@ -80,7 +89,7 @@ def _specimen_quantities(attrs: dict, record: dict, unit: str) -> str:
     gamma = np.degrees(np.asarray(record["shear_angle"]))
     return (f"d {1e3 * load[0]:.4g} mm  clamp force {float(record['clamp_force']):.4g} N  "
             f"shear angle {np.median(gamma):.3g} deg (median), {gamma.max():.3g} (largest)"
-            f"  slip {float(record['slip_ratio']):.3f} of a segment")
+            + _slip_text(record))
 
 
 def _solver_time(steps) -> str:
@@ -224,10 +233,12 @@ def _specimen_summary(results: Results) -> list[str]:
     """`run_summary`'s line on a shear specimen's last step (docs/model.md section 11)."""
     steps = results.steps
     gamma = np.degrees(np.asarray(steps["shear_angle"][-1]))
-    return [f"last step: d = {1e3 * float(steps['load'][-1, 0]):.5g} mm, clamp force "
+    line = (f"last step: d = {1e3 * float(steps['load'][-1, 0]):.5g} mm, clamp force "
             f"{float(steps['clamp_force'][-1]):.6g} N, shear angle "
-            f"{np.median(gamma):.4g} deg (median over the crossings), largest slip "
-            f"{float(steps['slip_ratio'][-1]):.3g} of a segment"]
+            f"{np.median(gamma):.4g} deg (median over the crossings)")
+    if "slip" in steps:  # crossings that slide (docs/model.md 11.13)
+        return [line] + _slides(steps)
+    return [line + f", largest slip {float(steps['slip_ratio'][-1]):.3g} of a segment"]
 
 
 def _fabric_summary(results: Results) -> list[str]:

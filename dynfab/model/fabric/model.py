@@ -57,10 +57,8 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse
 
-from dynfab.errors import UserError
 from dynfab.model.builders import RELAXATION_STEPS
 from dynfab.model.builders.fabric import Family, families, fabric_structure
-from dynfab.model.builders.sliding import leaving, without_crossings
 from dynfab.model.domain import check_crossings_held, check_not_folded, fabric_slip_ratios
 from dynfab.model.fabric import contact
 from dynfab.model.fabric.assembly import planes as plane_positions
@@ -69,8 +67,8 @@ from dynfab.scene import Scene
 from dynfab.model.step import StepSolution, StepStart
 from dynfab.model.structure import Structure, chain_count
 from dynfab.model.terms import registry
-from dynfab.model.terms.kinematics import (physical_positions, terms_of, woven_anchors,
-                                            woven_state)
+from dynfab.model.fabric.crossings_present import CrossingsPresent
+from dynfab.model.terms.kinematics import physical_positions, woven_anchors, woven_state
 
 
 @dataclass
@@ -89,10 +87,13 @@ class FabricState:
     """Work of the end loads, trapezoid rule over the load steps [J]."""
     end_force: np.ndarray | None = None
     """End force along each yarn (Y,) [N]: the load (force control) or the reaction."""
+    load: np.ndarray | None = None
+    """The (warp, weft) load values the state is at (None as woven: no load)."""
 
     def copy(self) -> "FabricState":
         return FabricState(self.positions.copy(), self.anchors.copy(), self.dissipated,
-                           self.work, None if self.end_force is None else self.end_force.copy())
+                           self.work, None if self.end_force is None else self.end_force.copy(),
+                           None if self.load is None else self.load.copy())
 
 
 def as_woven_state(structure: Structure) -> FabricState:
@@ -103,7 +104,7 @@ def as_woven_state(structure: Structure) -> FabricState:
 
 
 @dataclass
-class FabricModel:
+class FabricModel(CrossingsPresent):
     """A fabric scene as the solvers see it: its structure (`dynfab.model.builders.fabric`), its
     yarn families and its load path (docs/model.md section 10)."""
 
@@ -118,17 +119,14 @@ class FabricModel:
     weft: Family
 
     def __post_init__(self):
-        self.woven_structure = self.structure
-        """The structure as the scene made it, every crossing in it."""
-        self.tie_crossing = np.arange(self.structure.tie_a.size)
-        """The crossing (c = k n_we + j) of each tie of `structure`."""
+        self._start_structures()  # the crossing of tie t is tie_crossing[t] = k n_we + j
 
     @property
     def history_keys(self) -> tuple:
         """The step datasets of the whole path `state_from_step` needs to resume: where the
         crossings slide, which were present and their material coordinates at each step
         (the steps a yarn end left one, replayed); none otherwise."""
-        return ("crossing_present", "material") if self.slides else ()
+        return self.sliding_history
 
     @classmethod
     def from_scene(cls, scene: Scene, structure: Structure | None = None) -> "FabricModel":
@@ -149,17 +147,6 @@ class FabricModel:
     @property
     def control(self) -> str:
         return self.scene.load.control
-
-    @property
-    def terms(self):
-        """The structure's term set (`dynfab.model.terms.kinematics.terms_of`): the planar
-        fabric's, or on the dofs of crossings that slide."""
-        return terms_of(self.structure)
-
-    @property
-    def slides(self) -> bool:
-        """The crossings slide along the yarns (docs/model.md 11.13)."""
-        return self.structure.physical_source.size > 0
 
     @property
     def pullout(self) -> int | None:
@@ -233,9 +220,6 @@ class FabricModel:
         self._set_structure(self.woven_structure, np.arange(self.woven_structure.tie_a.size))
         return as_woven_state(self.structure)
 
-    def _set_structure(self, structure: Structure, tie_crossing: np.ndarray) -> None:
-        self.structure, self.tie_crossing = structure, tie_crossing
-
     def state_from_step(self, last: dict, history: dict | None = None) -> FabricState:
         """The state a finished step left (a resumed run continues from it): its positions,
         where the crossings slide the structure after the departures of `history`
@@ -245,14 +229,12 @@ class FabricModel:
                                 np.asarray(last["weft_positions"]).reshape(-1, 2)])
         anchors = np.array(last["anchors"]).reshape(self.warps * self.wefts, 2)
         if self.slides:
-            self._replay_departures(history)
-            f = self.structure
-            material = np.asarray(last["material"], float).reshape(-1, 2)
-            nodes.reshape(-1)[f.tie_material] = material[self.tie_crossing]
+            self.replay_departures(history)
+            nodes = self.with_material(nodes, last["material"])
             anchors = anchors[self.tie_crossing]
         return FabricState(nodes, anchors,
                            float(last["dissipated"]), float(last["work"]),
-                           np.array(last["end_force"], float))
+                           np.array(last["end_force"], float), np.array(last["load"], float))
 
     @property
     def planes_move(self) -> bool:
@@ -405,6 +387,7 @@ class FabricModel:
         if f.has_friction:
             lost = terms.return_map(pos, anchors, f, limit, sliding, friction_force)
         new, u_new = self.end_of_step(state, pos, anchors[:, :2].copy(), end_force, lost)
+        new.load = start.load.copy()
         physical = physical_positions(f, pos)
         warps, wefts = self.split(physical)
         full = self.per_crossing
@@ -432,60 +415,21 @@ class FabricModel:
         return new, {name: np.asarray(value) for name, value in record.items()}
 
     def _slide(self, new: FabricState, record: dict) -> FabricState:
-        """Where the crossings slide: the record's material coordinates and slips at the step's
-        end (docs/model.md 11.13), then the crossings a yarn end has passed taken out of the
-        structure (`leaving`, `leave`) and the record's `crossing_present` after that; the
-        state in the new structure."""
-        f = self.structure
-        material = self.per_crossing(new.positions.reshape(-1)[f.tie_material], np.nan)
-        record["material"] = material
-        record["slip"] = material - woven_anchors(self.woven_structure).reshape(material.shape)
-        departures = leaving(f, new.positions)
-        if departures:
-            gone = sorted({d.tie for d in departures})
-            new = FabricState(self.leave(departures, new.positions),
-                              np.delete(new.anchors, gone, 0), new.dissipated, new.work,
-                              new.end_force)
-        record["crossing_present"] = self.per_crossing(np.ones(self.tie_crossing.size, bool),
-                                                       False)
+        """Where the crossings slide: the record's material coordinates, slides and crossings
+        present at the step's end (`record_slides`, laid out as the crossings (n_wa, n_we));
+        the state in the structure after the crossings a yarn end has passed."""
+        dofs, gone = self.record_slides(new.positions, record)
+        for name in ("material", "slip", "crossing_present"):
+            record[name] = record[name].reshape(self.warps, self.wefts, *record[name].shape[1:])
+        if gone:
+            new = FabricState(dofs, np.delete(new.anchors, gone, 0), new.dissipated, new.work,
+                              new.end_force, new.load)
         return new
 
-    def _replay_departures(self, history: dict) -> None:
-        """The structure after the finished steps of `history` (its `crossing_present` and
-        `material` columns): each crossing a yarn end left taken out at the step it left, at
-        that step's material coordinates (`leave`), as the uninterrupted run did."""
-        self._set_structure(self.woven_structure, np.arange(self.woven_structure.tie_a.size))
-        present = np.asarray(history["crossing_present"], bool)
-        material = np.asarray(history["material"], float)
-        for step in range(present.shape[0]):
-            gone = ~present[step].ravel()[self.tie_crossing]
-            if gone.any():
-                dofs = as_woven_state(self.structure).positions
-                dofs.reshape(-1)[self.structure.tie_material] = \
-                    material[step].reshape(-1, 2)[self.tie_crossing]
-                departures = leaving(self.structure, dofs)
-                if sorted({d.tie for d in departures}) != list(np.flatnonzero(gone)):
-                    raise UserError(f"step {step + 1} of the file: the crossings it left are not "
-                                    "those its material coordinates leave (a file of another "
-                                    "scene or version); run it again without --resume")
-                self.leave(departures, dofs)
-
-    def leave(self, departures: list, dofs) -> np.ndarray:
-        """Take the crossings yarn ends have passed out of the structure at `dofs`
-        (`dynfab.model.builders.sliding.without_crossings`); returns the dofs of the new
-        structure."""
-        structure, dofs = without_crossings(self.structure, departures, dofs)
-        ties = sorted({d.tie for d in departures})
-        self._set_structure(structure, np.delete(self.tie_crossing, ties))
-        return dofs
-
     def per_crossing(self, values, fill=0.0) -> np.ndarray:
-        """Per-tie `values` (T, ...) as the scene's crossings (n_wa, n_we, ...): a crossing a
-        yarn end has left holds `fill`."""
-        values = np.asarray(values)
-        out = np.full((self.woven_structure.tie_a.size, *values.shape[1:]), fill, values.dtype)
-        out[self.tie_crossing] = values
-        return out.reshape(self.warps, self.wefts, *values.shape[1:])
+        """Per-tie `values` (T, ...) as the scene's crossings (n_wa, n_we, ...) (`per_tie`)."""
+        out = self.per_tie(values, fill)
+        return out.reshape(self.warps, self.wefts, *out.shape[1:])
 
     def prescribe(self, pos, loads) -> None:
         """Displacement control, in place: u_N = load on each yarn, the increment spread

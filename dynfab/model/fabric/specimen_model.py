@@ -51,6 +51,7 @@ from dynfab.model.builders import woven_rest
 from dynfab.model.builders.specimen import layout_of, specimen_structure
 from dynfab.errors import SolverError
 from dynfab.model.fabric import contact, spatial
+from dynfab.model.fabric.crossings_present import CrossingsPresent
 from dynfab.model.loading import Drive, load_at_time
 from dynfab.scene import Scene
 from dynfab.model.shear_force import (bias_normalised_shear_force, frame_normalised_shear_force,
@@ -58,6 +59,7 @@ from dynfab.model.shear_force import (bias_normalised_shear_force, frame_normali
 from dynfab.model.step import StepSolution, StepStart
 from dynfab.model.structure import chain_count, chain_of_node
 from dynfab.model.terms import registry
+from dynfab.model.terms.kinematics import physical_positions, woven_anchors, woven_state
 
 TRANSIENT_KNOTS = 64
 """Knots per interval of the load path at which a transient samples the held nodes'
@@ -92,15 +94,23 @@ class SpecimenState:
     """(n, 3) [m/m]: the positions' change over the last step per unit of d (the secant of
     the path), None or 0 where that step did not move d (`start_of_step`)."""
 
+    @property
+    def load(self) -> np.ndarray:
+        """The load the state is at: (d,) [m]."""
+        return np.array([self.displacement])
 
-class SpecimenModel:
+
+class SpecimenModel(CrossingsPresent):
     """A specimen scene as the solvers see it (module docstring)."""
 
     relaxation_steps = RELAXATION_STEPS["specimen"]
     """Steps before the scene's load path: step 0, the preload relaxed at d = 0."""
-    history_keys = ("load", "clamp_force", "positions")
-    """The columns of every finished step a resumed run gives `state_from_step` (`path`,
-    and the last step's path tangent from the last two steps' positions)."""
+    @property
+    def history_keys(self) -> tuple:
+        """The columns of every finished step a resumed run gives `state_from_step` (`path`,
+        and the last step's path tangent from the last two steps' positions; where the
+        crossings slide, the departures to replay, `CrossingsPresent`)."""
+        return ("load", "clamp_force", "positions", *self.sliding_history)
 
     @property
     def singular_advice(self) -> str | None:
@@ -116,6 +126,7 @@ class SpecimenModel:
         self.scene = scene
         self.layout = layout_of(scene)
         self.structure = specimen_structure(scene, self.layout)
+        self._start_structures()
         self.control = "displacement"
         self.load_values = np.concatenate([[0.0], np.asarray(scene.load.values, float)])
         family = self.structure.chain_family[chain_of_node(self.structure)][
@@ -167,7 +178,7 @@ class SpecimenModel:
                 else {"specimen_side": s.side, "fabric_side": s.fabric_side or s.side})
         return {"model": "specimen", "specimen_test": s.test, "kinematics": "spatial",
                 "load_control": self.control, "yarn_labels": self.labels,
-                "terms": list(spatial.TERMS), "preload": self.scene.crossing.preload,
+                "terms": list(self.terms.TERMS), "preload": self.scene.crossing.preload,
                 "yarns_meet_at": self.yarns_meet_at, **dims}
 
     @property
@@ -188,9 +199,15 @@ class SpecimenModel:
                 "free_end_rank": woven_rest.crossings_from_free_end(self.structure)}
 
     def initial_state(self) -> SpecimenState:
+        """As woven, every crossing in the structure: each slip anchor at zero slip (where the
+        crossings slide, the woven material coordinates), each rotation anchor at the woven
+        angle."""
+        self._set_structure(self.woven_structure, np.arange(self.woven_structure.tie_a.size))
         anchors = np.zeros((self.structure.tie_a.size, 3))
+        if self.slides:
+            anchors[:, :2] = woven_anchors(self.structure)[:, :2]
         anchors[:, 2] = self.structure.tie_rotation_law[:, spatial.PHI_REST]
-        return SpecimenState(self.structure.rest_position.copy(), anchors, 0.0, 0.0, 0.0, 0.0,
+        return SpecimenState(woven_state(self.structure), anchors, 0.0, 0.0, 0.0, 0.0,
                              None, np.zeros((0, 2)))
 
     def state_from_step(self, last: dict, history: dict) -> SpecimenState:
@@ -198,23 +215,34 @@ class SpecimenModel:
         every finished step."""
         path = np.column_stack([np.asarray(history["load"], float).reshape(-1),
                                 np.asarray(history["clamp_force"], float).reshape(-1)])
-        return SpecimenState(np.array(last["positions"], float), np.array(last["anchors"], float),
-                             float(last["dissipated"]), float(last["work"]),
+        positions = np.array(last["positions"], float)
+        anchors = np.array(last["anchors"], float)
+        if self.slides:
+            self.replay_departures(history)
+            positions = self.with_material(positions, last["material"])
+            anchors = anchors[self.tie_crossing]
+        return SpecimenState(positions, anchors, float(last["dissipated"]), float(last["work"]),
                              float(last["clamp_force"]), float(np.ravel(last["load"])[0]),
                              np.array(last["reference_angle"], float), path,
                              self._last_tangent(history))
 
-    @staticmethod
-    def _last_tangent(history: dict) -> np.ndarray | None:
-        """(r_n - r_n-1) / (d_n - d_n-1) of the last two finished steps, as `finish_step`
-        computed it (the same bits: a resumed run starts its next step where the
-        uninterrupted one did); None after step 0 alone, 0 where d did not move."""
+    def _last_tangent(self, history: dict) -> np.ndarray | None:
+        """(r_n - r_n-1) / (d_n - d_n-1) of the last two finished steps' dofs, as
+        `finish_step` computed it (the same bits: a resumed run starts its next step where the
+        uninterrupted one did); None after step 0 alone or a step a yarn end left a crossing
+        on, 0 where d did not move."""
         positions, d = history["positions"], np.asarray(history["load"], float).reshape(-1)
         if d.size < 2:
             return None
+        last, before = (np.asarray(positions[k], float) for k in (-1, -2))
+        if self.slides:
+            present = np.asarray(history["crossing_present"], bool)
+            if np.any(present[-1] != present[-2]):
+                return None
+            last, before = (self.with_material(positions[k], history["material"][k])
+                            for k in (-1, -2))
         moved = d[-1] - d[-2]
-        last = np.asarray(positions[-1], float)
-        return (last - np.asarray(positions[-2], float)) / moved if moved else np.zeros_like(last)
+        return (last - before) / moved if moved else np.zeros_like(last)
 
     def point_data(self, record: dict) -> dict:
         """The view's nodal data: the shear angle at each crossing's two nodes, 0 elsewhere."""
@@ -225,7 +253,10 @@ class SpecimenModel:
         return {"xdmf/shear_angle": angle}
 
     def check_step(self, record: dict) -> None:
-        """SolverError (exit 3) where a crossing slid more than half a segment."""
+        """SolverError (exit 3) where a fixed crossing slid more than half a segment (a
+        crossing that slides has no such bound)."""
+        if self.slides:
+            return
         ratio = np.asarray(record["crossing_slip_ratio"])
         if ratio.size and ratio.max() > SLIP_LIMIT:
             c = int(np.argmax(ratio))
@@ -313,13 +344,13 @@ class SpecimenModel:
 
     @property
     def pattern(self):
-        """The order of the Hessian's entries and its unknowns (`spatial.pattern_of`)."""
-        return spatial.pattern_of(self.structure)
+        """The order of the Hessian's entries and its unknowns (the term set's `pattern_of`)."""
+        return self.terms.pattern_of(self.structure)
 
     def hessian(self, pos, anchors, limit, secant: float = 0.0):
-        """The Hessian on the unknowns, F_T frozen (`spatial.sparse_hessian`): what the
+        """The Hessian on the unknowns, F_T frozen (the term set's `sparse_hessian`): what the
         sparse certificate reads (`dynfab.solvers.certificate.certify_patch`), as a fabric's."""
-        return spatial.sparse_hessian(self.structure, pos, anchors, limit, secant)
+        return self.terms.sparse_hessian(self.structure, pos, anchors, limit, secant)
 
     # ------------------------------------------------------------------ a load step
 
@@ -338,13 +369,20 @@ class SpecimenModel:
         pos = state.positions.copy()
         rest = self.structure.rest_position
         tangent = state.path_tangent
+        material = self.structure.tie_material.ravel()  # empty where crossings are fixed
+        before = pos.reshape(-1)[material]
         if d != state.displacement and tangent is not None and np.any(tangent):
             pos += (d - state.displacement) * tangent
         elif d != state.displacement:
             pos += self._affine_increment(pos, state.displacement, d)
+            pos.reshape(-1)[material] = before  # the map moves positions, not material
         pos[self._held] = specimen_layout.held_positions(self.layout, rest, d)
-        return StepStart(np.array([d]), pos, state.anchors.copy(),
-                         np.zeros(chain_count(self.structure)))
+        held = self.structure.fixed[material]  # a held crossing's material stays
+        pos.reshape(-1)[material[held]] = before[held]
+        anchors = state.anchors.copy()
+        if self.slides:
+            anchors = self.terms.with_stretches(pos, self.structure, anchors)
+        return StepStart(np.array([d]), pos, anchors, np.zeros(chain_count(self.structure)))
 
     def _affine_increment(self, pos, d_old: float, d_new: float) -> np.ndarray:
         """The displacement of every node from d_old to d_new under the test's homogeneous map:
@@ -377,29 +415,37 @@ class SpecimenModel:
         R = np.zeros(f.tie_a.size)
         contact.forces(pos, f, R)
         grad = np.zeros_like(pos)
-        spatial.gradient(pos, f, np.zeros(chain_count(f)), anchors, limit, grad)
+        self.terms.gradient(pos, f, np.zeros(chain_count(f)), anchors, limit, grad)
         velocity = specimen_layout.held_velocity(self.layout, f.rest_position, d)
+        # a material coordinate's slot holds no position: its node moves as the one whose
+        # coordinates it shares, whose dofs carry both nodes' reactions
+        slots = np.zeros(pos.shape, bool)
+        slots.reshape(-1)[f.tie_material.ravel()] = True
+        velocity[slots[self._held]] = 0.0
         return R, float(np.sum(grad[self._held] * velocity))
 
     def finish_step(self, state: SpecimenState, start: StepStart, solution: StepSolution):
-        f, pos, limit = self.structure, solution.positions, solution.limit
+        f, dofs, limit, terms = self.structure, solution.positions, solution.limit, self.terms
         d = float(start.load[0])
         anchors = start.anchors.copy()
-        R, clamp_force = self._forces(pos, anchors, limit, d)
+        R, clamp_force = self._forces(dofs, anchors, limit, d)
         sliding = np.zeros(f.tie_a.size, np.bool_)
         friction_force = np.zeros((f.tie_a.size, 3))
         lost = 0.0
         if f.has_friction:
-            lost = spatial.return_map(pos, anchors, f, limit, sliding, friction_force)
+            lost = terms.return_map(dofs, anchors, f, limit, sliding, friction_force)
+        energies = terms.energy_vector(f, dofs, np.zeros(chain_count(f)), anchors, limit)
+        if self.slides:
+            anchors = terms.state_anchors(anchors)
+        pos = physical_positions(f, dofs)
         # gamma from the as-woven state; step 0's is the reference of the reported angles
         absolute = specimen_layout.shear_angles(self.layout, f.rest_position, pos)
         reference = absolute if state.reference_angle is None else state.reference_angle
         work = state.work + 0.5 * (state.clamp_force + clamp_force) * (d - state.displacement)
         path = np.vstack([state.path, [d, clamp_force]])
         moved = d - state.displacement
-        tangent = (pos - state.positions) / moved if moved else np.zeros_like(pos)
-        new = SpecimenState(pos, anchors, state.dissipated + lost, work, clamp_force, d,
-                            reference, path, tangent)
+        tangent = (dofs - state.positions) / moved if moved else np.zeros_like(dofs)
+        per_tie = self.per_tie
         record = {
             "load": np.array([d]), "end_displacement": np.array([d]),
             "end_force": np.array([clamp_force]), "clamp_force": clamp_force,
@@ -407,16 +453,22 @@ class SpecimenModel:
             **self.shear_forces(path),
             "positions": pos, "crossing_positions": pos[self.layout.crossing_nodes[:, 0]],
             "shear_angle": absolute - reference, "reference_angle": reference,
-            "contact_force": R, "friction_limit": np.asarray(limit, float),
-            "sliding": sliding, "friction_force": friction_force, "anchors": anchors,
-            "crossing_slip_ratio": self.slip_ratios(pos),
+            "contact_force": per_tie(R), "friction_limit": per_tie(np.asarray(limit, float)),
+            "sliding": per_tie(sliding, False), "friction_force": per_tie(friction_force),
+            "anchors": per_tie(anchors, np.nan),
+            "crossing_slip_ratio": per_tie(self.slip_ratios(pos)),
             **self.narrowing(pos), "max_slope": self.max_slope(pos),
-            "crimp": self.crimps(pos), "dissipated": new.dissipated, "work": new.work,
+            "crimp": self.crimps(pos), "dissipated": state.dissipated + lost, "work": work,
             **{name: np.asarray(value)[0] for name, value in solution.fields.items()},
         }
         record["slip_ratio"] = float(np.max(record["crossing_slip_ratio"], initial=0.0))
-        values = spatial.energy_vector(f, pos, np.zeros(chain_count(f)), anchors, limit)
-        record.update(registry.energy_records(self.scene, dict(zip(spatial.TERMS, values))))
+        record.update(registry.energy_records(self.scene, dict(zip(terms.TERMS, energies))))
+        if self.slides:
+            dofs, gone = self.record_slides(dofs, record)
+            if gone:  # the path's tangent is the old structure's: the next step starts afresh
+                anchors, tangent = np.delete(anchors, gone, 0), None
+        new = SpecimenState(dofs, anchors, state.dissipated + lost, work, clamp_force, d,
+                            reference, path, tangent)
         return new, {name: np.asarray(value) for name, value in record.items()}
 
     # ------------------------------------------------------------------ observables

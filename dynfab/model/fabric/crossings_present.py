@@ -1,0 +1,114 @@
+"""The crossings a model has now, as yarn ends leave them (docs/model.md 11.13): the
+bookkeeping a fabric's and a specimen's model share where their crossings slide.
+
+A model holds the structure the scene made (`woven_structure`, every crossing in it) and the
+structure now (`structure`), from which each crossing a free yarn end has passed was taken out
+at the step it left (`dynfab.model.builders.sliding.leaving`, `without_crossings`);
+`tie_crossing` names the scene's crossing of each tie now. A step's record holds every
+crossing of the scene (`per_tie`), with the material coordinates (`material`, (C, 2) [m]), the
+slide from the as-woven crossing along each yarn (`slip`, (C, 2) [m]) and which crossings are
+still there (`crossing_present`, (C,)); a resumed run replays the departures from those
+columns (`replay_departures`), as the uninterrupted run made them.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from dynfab.errors import UserError
+from dynfab.model.builders.sliding import leaving, without_crossings
+from dynfab.model.structure import Structure
+from dynfab.model.structure import sliding as slides
+from dynfab.model.terms.kinematics import terms_of, woven_anchors, woven_state
+
+SLIDING_HISTORY = ("crossing_present", "material")
+"""The step datasets of the whole path a model whose crossings slide needs to resume."""
+
+
+class CrossingsPresent:
+    """Mixin: `woven_structure`, `structure` and `tie_crossing` (module docstring); the model
+    calls `_start_structures` once it has made its structure."""
+
+    structure: Structure
+
+    def _start_structures(self) -> None:
+        self.woven_structure = self.structure
+        """The structure as the scene made it, every crossing in it."""
+        self._set_structure(self.woven_structure, np.arange(self.woven_structure.tie_a.size))
+
+    def _set_structure(self, structure: Structure, tie_crossing: np.ndarray) -> None:
+        self.structure, self.tie_crossing = structure, tie_crossing
+
+    @property
+    def slides(self) -> bool:
+        """The crossings slide along the yarns (docs/model.md 11.13)."""
+        return slides(self.woven_structure)
+
+    @property
+    def terms(self):
+        """The structure's term set (`dynfab.model.terms.kinematics.terms_of`)."""
+        return terms_of(self.structure)
+
+    @property
+    def sliding_history(self) -> tuple:
+        """`SLIDING_HISTORY` where the crossings slide, else nothing."""
+        return SLIDING_HISTORY if self.slides else ()
+
+    def per_tie(self, values, fill=0.0) -> np.ndarray:
+        """Per-tie `values` (T, ...) as the scene's crossings (C, ...): a crossing a yarn end
+        has left holds `fill`."""
+        values = np.asarray(values)
+        out = np.full((self.woven_structure.tie_a.size, *values.shape[1:]), fill, values.dtype)
+        out[self.tie_crossing] = values
+        return out
+
+    def with_material(self, positions, material) -> np.ndarray:
+        """The dofs of the structure now from the physical `positions` (n, dim) and the scene's
+        crossings' material coordinates `material` (C, 2) (a record's), in their slots."""
+        dofs = np.array(positions, float)
+        dofs.reshape(-1)[self.structure.tie_material] = \
+            np.asarray(material, float).reshape(-1, 2)[self.tie_crossing]
+        return dofs
+
+    def record_slides(self, dofs, record: dict) -> tuple[np.ndarray, list[int]]:
+        """Where the crossings slide, a step's end: its material coordinates and slides into
+        `record`, then the crossings a yarn end has passed taken out of the structure
+        (`leave`) and `crossing_present` after that. Returns (the dofs in the structure now,
+        the ties taken out, as indices of the structure before)."""
+        f = self.structure
+        material = self.per_tie(np.asarray(dofs).reshape(-1)[f.tie_material], np.nan)
+        record["material"] = material
+        record["slip"] = material - woven_anchors(self.woven_structure)[:, :2]
+        departures = leaving(f, dofs)
+        gone = sorted({d.tie for d in departures})
+        if departures:
+            dofs = self.leave(departures, dofs)
+        record["crossing_present"] = self.per_tie(np.ones(self.tie_crossing.size, bool), False)
+        return dofs, gone
+
+    def replay_departures(self, history: dict) -> None:
+        """The structure after the finished steps of `history` (its `crossing_present` and
+        `material` columns): each crossing a yarn end left taken out at the step it left, at
+        that step's material coordinates (`leave`), as the uninterrupted run did."""
+        self._set_structure(self.woven_structure, np.arange(self.woven_structure.tie_a.size))
+        present = np.asarray(history["crossing_present"], bool)
+        material = np.asarray(history["material"], float)
+        for step in range(present.shape[0]):
+            gone = ~present[step].ravel()[self.tie_crossing]
+            if gone.any():
+                dofs = self.with_material(woven_state(self.structure), material[step])
+                departures = leaving(self.structure, dofs)
+                if sorted({d.tie for d in departures}) != list(np.flatnonzero(gone)):
+                    raise UserError(f"step {step + 1} of the file: the crossings it left are not "
+                                    "those its material coordinates leave (a file of another "
+                                    "scene or version); run it again without --resume")
+                self.leave(departures, dofs)
+
+    def leave(self, departures: list, dofs) -> np.ndarray:
+        """Take the crossings yarn ends have passed out of the structure at `dofs`
+        (`dynfab.model.builders.sliding.without_crossings`); returns the dofs of the new
+        structure."""
+        structure, dofs = without_crossings(self.structure, departures, dofs)
+        ties = sorted({d.tie for d in departures})
+        self._set_structure(structure, np.delete(self.tie_crossing, ties))
+        return dofs
