@@ -14,10 +14,19 @@ chain, or the sparse factorisation) and leave a saddle along a direction of nega
 
 from __future__ import annotations
 
+import numpy as np
+
+from dynfab.errors import SolverError
 from dynfab.solvers.newton_backend import NewtonBackend
 from dynfab.solvers.newton_banded import BandedNewton
 from dynfab.solvers.newton_sparse import SparseNewton
 from dynfab.model.structure import grounded, sliding
+
+SLIDING_HALVINGS = 4
+"""How many times a load step of a structure whose crossings slide is cut in half where its
+Newton fails (`StaticSolver.step`): a yarn end may pass its last crossing within a step,
+whose equilibrium then needs the crossing gone (docs/model.md 11.13); down to 1/16 of the
+step."""
 
 
 def backend_for(model, **options) -> NewtonBackend:
@@ -70,9 +79,27 @@ class StaticSolver:
         return {"solver": self.name, "static_tolerance": self.tolerance,
                 "static_max_iterations": self.max_iterations, "static_accuracy": self.accuracy}
 
-    def step(self, state, load):
+    def step(self, state, load, halvings: int = SLIDING_HALVINGS):
         """The equilibrium under `load` from `state` (not modified): (new state, record), or a
-        `dynfab.errors.SolverError` (`dynfab.solvers.contract.Solver.step`)."""
+        `dynfab.errors.SolverError` (`dynfab.solvers.contract.Solver.step`). Where the
+        crossings slide and Newton fails, the step is made of two halves, each the same way
+        (at most `halvings` deep), the crossings a yarn end has passed leaving between them:
+        the record is the last half's, the state has every half's dissipation and work."""
+        try:
+            return self._step(state, load)
+        except SolverError as failed:
+            before = getattr(state, "load", None)
+            if not (halvings and sliding(self.model.structure) and before is not None):
+                raise
+            middle = 0.5 * (np.asarray(before, float) + np.asarray(load, float))
+            say = self._options["status"]
+            if say is not None:
+                say(f"Newton failed ({failed}); the step in two halves, from load {middle}")
+            half, _ = self.step(state, middle, halvings - 1)
+            return self.step(half, load, halvings - 1)
+
+    def _step(self, state, load):
+        """`step` in one piece."""
         start = self.model.start_of_step(state, load)
         if self.backend.structure is not self.model.structure:
             self.backend = backend_for(self.model, **self._options)
