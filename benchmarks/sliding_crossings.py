@@ -1,15 +1,18 @@
 """What crossings that slide cost (docs/model.md 11.13): one static Newton iteration on a
-clamped patch of the paper's yarns with fixed crossings and with sliding ones, in one run.
+clamped patch of the paper's yarns, and on shear specimens, with fixed crossings and with
+sliding ones, in one run.
 
-Run:  python benchmarks/sliding_crossings.py            (n x n patches, n = 8, 16, 32)
-      python benchmarks/sliding_crossings.py --sizes 8,16
+Run:  python benchmarks/sliding_crossings.py            (n x n patches, n = 8, 16, 32; the
+                                                          150 x 450 mm bias specimen)
+      python benchmarks/sliding_crossings.py --sizes 8,16 --specimens ""
 
 A Newton iteration of the static solver's sparse backend (`dynfab.solvers.newton_sparse`):
 the gradient, the Hessian on the unknowns, and the Newton direction (the factorisation in the
 pattern's nested-dissection order, PARDISO where MKL is installed, else SuperLU), at the
 state one load step has reached (each patch's warps pulled by 0.01 N, wefts 0.005 N, a
-woven-in contact of 0.01 N, the paper's friction), best of `REPEATS` rounds, the two kinds
-alternating within each round. Prints the times and their ratio and writes benchmarks/sliding_crossings.json.
+woven-in contact of 0.01 N, the paper's friction; a specimen's scene file at its step 1's
+start, after its step 0), best of `REPEATS` rounds, the two kinds alternating within each
+round. Prints the times and their ratio and writes benchmarks/sliding_crossings.json.
 """
 
 from __future__ import annotations
@@ -42,6 +45,20 @@ def solved_backend(n: int, motion: str):
     return solver.backend, start
 
 
+def solved_specimen_backend(path: str, motion: str):
+    """(a specimen scene file's sparse backend, its step 1's start after step 0) with the
+    crossing motion `motion`."""
+    from dynfab.model.fabric.specimen_model import SpecimenModel
+    from dynfab.scene import parse_scene_text
+    from dynfab.solvers.static import StaticSolver
+
+    text = Path(path).read_text().replace("[crossing]", f'[crossing]\nmotion = "{motion}"', 1)
+    solver = StaticSolver(SpecimenModel(parse_scene_text(text)))
+    state, _ = solver.step(solver.initial_state(), solver.model.step_load(0))
+    start = solver.model.start_of_step(state, solver.model.step_load(1))
+    return solver.backend, start
+
+
 def iteration(backend, start) -> float:
     """Seconds of one Newton iteration's pieces at the step's start."""
     pos, P, anchors = start.positions, start.chain_loads, start.anchors
@@ -53,8 +70,10 @@ def iteration(backend, start) -> float:
     return time.perf_counter() - began
 
 
-def measure(n: int) -> dict:
-    kinds = {motion: solved_backend(n, motion) for motion in ("fixed", "sliding")}
+def measure(n: int | str) -> dict:
+    """The two motions' best iteration times on an n x n patch or a specimen's scene file."""
+    made = solved_backend if isinstance(n, int) else solved_specimen_backend
+    kinds = {motion: made(n, motion) for motion in ("fixed", "sliding")}
     for backend, start in kinds.values():
         iteration(backend, start)  # compile and analyse once
     best = {motion: np.inf for motion in kinds}
@@ -62,16 +81,21 @@ def measure(n: int) -> dict:
         for motion, (backend, start) in kinds.items():
             best[motion] = min(best[motion], iteration(backend, start))
     unknowns = kinds["fixed"][0].pattern.free_count
-    return {"patch": f"{n} x {n}", "unknowns": int(unknowns), "fixed_s": best["fixed"],
+    name = f"{n} x {n}" if isinstance(n, int) else Path(n).stem
+    return {"patch": name, "unknowns": int(unknowns), "fixed_s": best["fixed"],
             "sliding_s": best["sliding"], "sliding_over_fixed": best["sliding"] / best["fixed"]}
 
 
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", default="8,16,32")
+    parser.add_argument("--specimens", default="runs/cao2008_bias_150x450.toml",
+                        help="specimen scene files, comma-separated")
     args = parser.parse_args(argv)
     rows = []
-    for n in (int(v) for v in args.sizes.split(",")):
+    cases = [int(v) for v in args.sizes.split(",") if v]
+    cases += [str(ROOT / v) for v in args.specimens.split(",") if v]
+    for n in cases:
         row = measure(n)
         rows.append(row)
         print(f"{row['patch']:>8} ({row['unknowns']:6d} unknowns): fixed {1e3 * row['fixed_s']:8.2f}"
