@@ -234,7 +234,7 @@ def _crossing_slip(pos, flat, tie_material, stencil, rotation_law, anchors, c, S
         for m in range(6):
             six[m] = pos[stencil[c, m]]
         element.crossing_coordinates(six, q)
-        S[2] = rotation_law[c, 0] * element.wrap(q[2] - anchors[c, 4])
+        S[2] = rotation_law[c, 0] * element.wrap(q[2] - anchors[c, ROTATION])
 
 
 @numba.njit(cache=True)
