@@ -138,24 +138,39 @@ def _print_yarn_summary(results: Results, file) -> None:
         print(f"yarn {k + 1}: {label}", file=file)
 
 
+def _slip_column(steps, count: int) -> tuple[list[str], str]:
+    """(each step's entry with its header first, what they are) of a table's slip column:
+    the largest slip ratio of a fixed crossing's node, or where the crossings slide
+    (docs/model.md 11.13) the largest slide of a crossing along a yarn [mm]."""
+    if "slip" in steps:
+        slide = np.abs(np.asarray(steps["slip"], float)).reshape(count, -1)
+        largest = 1e3 * np.nanmax(slide, axis=1, initial=0.0)
+        return ([f"{'slide [mm]':>10}"] + [f"{v:>10.4g}" for v in largest],
+                "slide [mm]: the largest slide of a crossing along a yarn (docs/model.md 11.13)")
+    ratio = np.asarray(steps.get("slip_ratio", np.full(count, np.nan)), float)
+    return ([f"{'slip/seg':>8}"] + [f"{v:>8.3f}" for v in ratio],
+            "slip/seg: the largest slip ratio of a crossing node")
+
+
 def _print_specimen_summary(results: Results, file) -> None:
     """A shear specimen's table (docs/model.md section 11): per step (step 1 is step 0, the
     preload relaxed) the clamp displacement d, the clamp force along it, the median and
     largest shear angle over the crossings, the largest contact force, slip ratio and slope,
     the residual, the time."""
     steps = results.steps
+    slip, slip_key = _slip_column(steps, results.step_count)
     print(f"{'step':>4} {'d [mm]':>9} {'F [N]':>10} {'gamma med':>9} {'gamma max':>9} "
-          f"{'max R [N]':>10} {'slip/seg':>8} {'slope':>6} {'residual':>10} {'time [s]':>9}",
+          f"{'max R [N]':>10} {slip[0]} {'slope':>6} {'residual':>10} {'time [s]':>9}",
           file=file)
     for i in range(results.step_count):
         gamma = np.degrees(np.asarray(steps["shear_angle"][i]))
         print(f"{i + 1:>4} {1e3 * steps['load'][i, 0]:>9.4g} {steps['clamp_force'][i]:>10.4g} "
               f"{np.median(gamma):>9.3f} {gamma.max():>9.3f} "
-              f"{steps['contact_force'][i].max():>10.4g} {steps['slip_ratio'][i]:>8.3f} "
+              f"{steps['contact_force'][i].max():>10.4g} {slip[i + 1]} "
               f"{steps['max_slope'][i]:>6.3f} {float(np.max(steps['residual'][i])):>10.3e} "
               f"{steps['wall_time'][i]:>9.4f}", file=file)
     print("gamma: shear angle [deg] from step 0 over the crossings; F: force on the moved clamp "
-          "(frame corner) along d", file=file)
+          f"(frame corner) along d; {slip_key}", file=file)
 
 
 def _print_fabric_summary(results: Results, file) -> None:
@@ -167,7 +182,7 @@ def _print_fabric_summary(results: Results, file) -> None:
     unit = "N" if attrs.get("load_control") == "force" else "m"
     pulled = attrs.get("pullout_warp")
     strain, stress = _family_arrays(results, "strain"), _family_arrays(results, "stress")
-    slip = np.asarray(steps.get("slip_ratio", np.full(results.step_count, np.nan)), float)
+    slip, slip_key = _slip_column(steps, results.step_count)
     if pulled is not None:
         k = int(pulled)
         middle = (f"{f'u w{k} [mm]':>10} {f'P w{k} [N]':>10} {'strain we':>10} "
@@ -179,7 +194,7 @@ def _print_fabric_summary(results: Results, file) -> None:
         key = ("strain, N [N/m]: each family's mean strain and load per unit width over its "
                "loaded yarns (wa: warps, we: wefts)")
     print(f"{'step':>4} {'warp load':>11} {'weft load':>11} {middle} {'max R [N]':>10} "
-          f"{'slip/seg':>8} {'residual':>10} {'time [s]':>9}", file=file)
+          f"{slip[0]} {'residual':>10} {'time [s]':>9}", file=file)
     for i in range(results.step_count):
         if pulled is not None:
             values = (f"{1e3 * steps['end_displacement'][i, k - 1]:>10.5f} "
@@ -189,10 +204,9 @@ def _print_fabric_summary(results: Results, file) -> None:
             values = (f"{strain[i, 0]:>10.4g} {strain[i, 1]:>10.4g} {stress[i, 0]:>10.4g} "
                       f"{stress[i, 1]:>10.4g}")
         print(f"{i + 1:>4} {steps['load'][i, 0]:>11.5g} {steps['load'][i, 1]:>11.5g} {values} "
-              f"{steps['contact_force'][i].max():>10.4g} {slip[i]:>8.3f} "
+              f"{steps['contact_force'][i].max():>10.4g} {slip[i + 1]} "
               f"{float(steps['residual'][i]):>10.2e} {steps['wall_time'][i]:>9.3f}", file=file)
-    print(f"loads in {unit}; {key}; slip/seg: the largest slip ratio of a crossing node "
-          f"(docs/model.md section 10)", file=file)
+    print(f"loads in {unit}; {key}; {slip_key} (docs/model.md section 10)", file=file)
 
 
 def _family_arrays(results: Results, name: str) -> np.ndarray:
