@@ -155,21 +155,25 @@ class Structure(NamedTuple):
     its as-woven value (a planar sliding crossing's node, on the plane it crosses). The
     positions the elements see are these (`dynfab.model.fabric.sliding.physical`); the dofs
     of the solvers are the physical coordinates but for each sliding tie's two slip dofs,
-    which hold its material coordinates instead."""
+    which hold its material slides instead."""
     tie_material: np.ndarray = np.zeros((0, 2), np.int64)
-    """(dof of u_a, dof of u_b) of each tie (T, 2), int64: the dofs that hold its two material
-    coordinates [m], the as-woven arc length from its chain's first node of the yarn point at
-    the crossing, on node a's chain and on node b's (its slip dofs as a fixed crossing)."""
+    """(dof of delta_a, dof of delta_b) of each tie (T, 2), int64: the dofs that hold its two
+    slides [m], delta = u - U, u the material coordinate (the as-woven arc length from its
+    chain's first node of the yarn point at the crossing) and U its value as woven, on node
+    a's chain and on node b's (its slip dofs as a fixed crossing)."""
     segment_material: np.ndarray = np.zeros((0, 2), np.int64)
     """(left, right) material coordinates' dofs of each segment's bay (n - Y, 2), int64: the
     bay, the piece of chain between two consecutive crossings or a crossing and the chain's
     end, whose material the crossings let through; -1 at a chain's end."""
     segment_material_end: np.ndarray = np.zeros((0, 2))
-    """The material coordinate [m] of each segment's bay end where `segment_material` is -1
-    (a chain's ends: 0 and its rest length, material points), else 0 (n - Y, 2)."""
+    """The slide [m] of each segment's bay end where `segment_material` is -1 (a chain's end,
+    a material point: 0, or where a departure retired a tail, its crossing's slide then),
+    else 0 (n - Y, 2)."""
     segment_fraction: np.ndarray = np.zeros(0)
-    """Each segment's share of its bay's material (n - Y,) [-]: its rest length is this times
-    the difference of the bay's two material coordinates."""
+    """Each segment's share f of its bay's material (n - Y,) [-]."""
+    segment_base: np.ndarray = np.zeros(0)
+    """Each segment's rest length where its bay's ends have not slid (n - Y,) [m]: its rest
+    length is this plus f times the difference of the slides of its bay's two ends."""
     stretch_modulus: np.ndarray = np.zeros(0)
     """EA of each segment (n - Y,) [N]: a sliding crossing changes its rest length."""
     bend_modulus: np.ndarray = np.zeros(0)

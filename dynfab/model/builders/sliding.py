@@ -1,15 +1,18 @@
 """Crossings that slide along the yarns (docs/model.md 11.13): a structure whose ties are fixed
 pairs of nodes made into one whose crossings let the yarns' material through.
 
-Each crossing's two nodes stay at the crossing and carry, besides their positions, the
-material coordinate u of their own chain there: the as-woven arc length, from the chain's
-first node, of the yarn point at the crossing now. Those two coordinates take the place of
-the crossing's two slip dofs (planar: node a's x and node b's y, the nodes then held on the
-planes they cross; spatial: node b's x and y, node b then sharing node a's), so the dofs,
-the held ones and the Hessian's sparsity are fixed for the whole path. The nodes between two
-crossings of a chain (a bay) interpolate their material coordinates: a segment's rest length
-is its share of the bay times the difference of the bay's two coordinates, a chain's ends
-being material points (0 and the chain's rest length).
+Each crossing's two nodes stay at the crossing and carry, besides their positions, the slide
+of their own chain's material there: delta = u - U, u the material coordinate (the as-woven
+arc length, from the chain's first node, of the yarn point at the crossing now) and U its
+value as woven. Those two slides take the place of the crossing's two slip dofs (planar:
+node a's x and node b's y, the nodes then held on the planes they cross; spatial: node b's x
+and y, node b then sharing node a's), so the dofs, the held ones and the Hessian's sparsity
+are fixed for the whole path. The nodes between two crossings of a chain (a bay) interpolate
+their material: a segment's rest length is L = base + f (delta_R - delta_L), f its share of
+the bay's material and base its rest length where the bay's ends have not slid, a chain's
+ends being material points (delta = 0). A slot holds the slide rather than u itself because
+u reaches a chain's length: differences of such coordinates would lose two or three digits
+of a segment's rest length, and with them the forces' rounding floor.
 """
 
 from __future__ import annotations
@@ -54,18 +57,17 @@ def material_slots(structure: Structure) -> tuple[np.ndarray, np.ndarray]:
     return slots.astype(np.int64), source
 
 
-def bays(structure: Structure, ties: np.ndarray, flat: np.ndarray, lengths: np.ndarray):
+def bays(structure: Structure, ties: np.ndarray, flat: np.ndarray, lengths: np.ndarray,
+         retired: np.ndarray | None = None):
     """(segment_material (n - Y, 2), segment_material_end (n - Y, 2), segment_fraction
-    (n - Y,)) of the bays between consecutive crossings of each chain, the crossings the ties
-    `ties` (`Structure`): each segment's fraction its rest length `lengths` over its bay's
-    material, `flat` holding the crossings' material coordinates in their slots, a chain's
-    ends 0 and its as-woven rest length."""
+    (n - Y,), segment_base (n - Y,)) of the bays between consecutive crossings of each chain,
+    the crossings the ties `ties` (`Structure`): each segment's fraction its rest length
+    `lengths` over its bay's, its base its rest length less f times the slides of its bay's
+    ends now (`flat` holding the crossings' slides in their slots, a chain's ends 0). The
+    segments `retired` (a retired tail's, `_retire_tail`) count in no bay."""
     start = structure.chain_start
-    woven = material_coordinates(structure)
     count = lengths.size
     material = np.full((count, 2), -1, np.int64)
-    end = np.zeros((count, 2))
-    fraction = np.zeros(count)
     slots = structure.tie_material[ties]
     nodes = np.concatenate([structure.tie_a[ties], structure.tie_b[ties]])
     dofs = np.concatenate([slots[:, 0], slots[:, 1]])
@@ -80,29 +82,34 @@ def bays(structure: Structure, ties: np.ndarray, flat: np.ndarray, lengths: np.n
             right = np.searchsorted(crossed, i + 1, side="left")
             if left >= 0:
                 material[k, 0] = crossed_dof[left]
-            else:
-                end[k, 0] = woven[a]
             if right < crossed.size:
                 material[k, 1] = crossed_dof[right]
-            else:
-                end[k, 1] = woven[b - 1]
-            ends = [flat[m] if m >= 0 else e for m, e in zip(material[k], end[k])]
-            fraction[k] = lengths[k] / (ends[1] - ends[0])
-    return material, end, fraction
+    end = np.zeros((count, 2))
+    fraction = np.empty(count)
+    for y in range(start.size - 1):
+        segments = np.arange(start[y] - y, start[y + 1] - y - 1)
+        key = material[segments] if retired is None else np.column_stack(
+            [material[segments], retired[segments]])
+        _, bay = np.unique(key, axis=0, return_inverse=True)
+        fraction[segments] = lengths[segments] / np.bincount(bay.ravel(),
+                                                             weights=lengths[segments])[bay.ravel()]
+    slide = np.where(material >= 0, flat[np.maximum(material, 0)], end)
+    return material, end, fraction, lengths - fraction * (slide[:, 1] - slide[:, 0])
 
 
 def sliding_structure(structure: Structure) -> Structure:
     """`structure` with crossings that slide (module docstring); ValueError for ties to ground."""
     slots, source = material_slots(structure)
     with_slots = structure._replace(tie_material=slots)
-    material, end, fraction = bays(with_slots, np.arange(slots.shape[0]),
-                                   woven_dofs(with_slots).reshape(-1), structure.rest_length)
+    material, end, fraction, base = bays(with_slots, np.arange(slots.shape[0]),
+                                         woven_dofs(with_slots).reshape(-1),
+                                         structure.rest_length)
     lbar = np.concatenate([geometry.voronoi_lengths(structure.rest_length[
         structure.chain_start[y] - y:structure.chain_start[y + 1] - y - 1])
         for y in range(chain_count(structure))])
     return structure._replace(
         physical_source=source, tie_material=slots, segment_material=material,
-        segment_material_end=end, segment_fraction=fraction,
+        segment_material_end=end, segment_fraction=fraction, segment_base=base,
         stretch_modulus=structure.stretch_stiffness * structure.rest_length,
         bend_modulus=structure.bend_stiffness * lbar,
         lateral_bend_modulus=np.asarray(structure.lateral_bend_stiffness) * lbar
@@ -118,13 +125,17 @@ def crossings_as_they_move(scene):
 
 def woven_dofs(structure: Structure) -> np.ndarray:
     """The dofs of a sliding structure as woven (n, dim): the rest positions, each tie's slots
-    holding its material coordinates."""
+    holding its slides, 0."""
     dofs = np.array(structure.rest_position, float)
-    woven = material_coordinates(structure)
-    flat = dofs.reshape(-1)
-    flat[structure.tie_material[:, 0]] = woven[structure.tie_a]
-    flat[structure.tie_material[:, 1]] = woven[structure.tie_b]
+    dofs.reshape(-1)[structure.tie_material.ravel()] = 0.0
     return dofs
+
+
+def woven_material(structure: Structure) -> np.ndarray:
+    """U, each tie's two material coordinates as woven (T, 2) [m] (`material_coordinates` at
+    its nodes): a record's material coordinates are U plus the slides."""
+    woven = material_coordinates(structure)
+    return np.stack([woven[structure.tie_a], woven[structure.tie_b]], axis=1)
 
 
 class Departure(NamedTuple):
@@ -142,7 +153,7 @@ def leaving(structure: Structure, dofs) -> list[Departure]:
     as-woven material where the chain was cut shorter (a specimen's edges). A held or loaded
     end reaching its last crossing so is `SolverError` (its load or hold would be left on a
     yarn that has left the fabric)."""
-    flat = np.asarray(dofs, float).reshape(-1)
+    L = rest_lengths(dofs, structure)
     start, l0 = structure.chain_start, structure.rest_length
     found = []
     for y in range(start.size - 1):
@@ -153,7 +164,7 @@ def leaving(structure: Structure, dofs) -> list[Departure]:
         k0, k1 = a - y + active[0], a - y + active[-1]  # a retired tail is not the chain's
         segment = l0[a - y:b - y - 1].sum() / (b - a - 1)
         for end, k in ((0, k0), (1, k1)):
-            dof = _reached(structure, flat, k, end, segment)
+            dof = _reached(structure, L, k, end, segment)
             if dof is None:
                 continue
             node = k + y if end == 0 else k + y + 1
@@ -168,10 +179,11 @@ def leaving(structure: Structure, dofs) -> list[Departure]:
             for dof, y, end in found]
 
 
-def _reached(structure: Structure, flat: np.ndarray, k: int, end: int,
+def _reached(structure: Structure, L: np.ndarray, k: int, end: int,
              segment: float) -> int | None:
     """The dof of the last crossing before a chain's `end` (0 first, 1 last; k the end's
-    segment) where the end bay's material is below `leaving`'s bound, else None."""
+    segment) where the end bay's material (its segments' rest lengths now, L) is below
+    `leaving`'s bound, else None."""
     bays, ends = structure.segment_material, structure.segment_material_end
     if bays[k, end] >= 0:  # the end segment's bay ends at a crossing: not a chain's end
         return None
@@ -181,8 +193,7 @@ def _reached(structure: Structure, flat: np.ndarray, k: int, end: int,
     in_bay = np.flatnonzero(np.all(bays == bays[k], axis=1)
                             & np.all(ends == ends[k], axis=1))
     bound = min(segment, 0.5 * structure.rest_length[in_bay].sum())
-    material = flat[crossing] - ends[k, 0] if end == 0 else ends[k, 1] - flat[crossing]
-    return int(crossing) if material < bound else None
+    return int(crossing) if L[in_bay].sum() < bound else None
 
 
 def _held(structure: Structure, y: int, node: int) -> str:
@@ -206,9 +217,14 @@ def without_crossings(structure: Structure, departures: list[Departure],
     keep = np.ones(structure.tie_a.size, bool)
     keep[removed] = False
     lengths = rest_lengths(dofs, structure)
-    material, end, fraction = bays(structure, np.flatnonzero(keep), flat, lengths)
-    same = np.all(material == structure.segment_material, axis=1)
-    fraction[same] = structure.segment_fraction[same]  # the bays kept keep their bits
+    retired = structure.stretch_modulus == 0.0  # a retired tail keeps its constants
+    material, end, fraction, base = bays(structure, np.flatnonzero(keep), flat, lengths,
+                                         retired)
+    same = np.all(material == structure.segment_material, axis=1) | retired  # and bays kept
+    for new, old in ((material, structure.segment_material),
+                     (end, structure.segment_material_end),
+                     (fraction, structure.segment_fraction), (base, structure.segment_base)):
+        new[same] = old[same]
     slots = structure.tie_material[removed].ravel()
     source = structure.physical_source.copy()
     held = source[slots] < 0
@@ -221,14 +237,14 @@ def without_crossings(structure: Structure, departures: list[Departure],
             and len(getattr(structure, name)) == keep.size}
     out_structure = structure._replace(
         **ties, physical_source=source, segment_material=material, segment_material_end=end,
-        segment_fraction=fraction, has_friction=bool(np.any(ties["tie_friction_law"][:, 3] > 0.0)))
+        segment_fraction=fraction, segment_base=base, has_friction=bool(np.any(ties["tie_friction_law"][:, 3] > 0.0)))
     for departure in departures:
         node = structure.tie_a[departure.tie] if _on_chain(structure, structure.tie_a[
             departure.tie], departure.chain) else structure.tie_b[departure.tie]
-        u = flat[structure.tie_material[departure.tie,
-                                        0 if node == structure.tie_a[departure.tie] else 1]]
+        slide = flat[structure.tie_material[departure.tie,
+                                            0 if node == structure.tie_a[departure.tie] else 1]]
         y = departure.chain
-        out_structure = _retire_tail(out_structure, y, int(node), departure.end, u, lengths,
+        out_structure = _retire_tail(out_structure, y, int(node), departure.end, slide, lengths,
                                      flat)
         if not any(_on_chain(out_structure, n, y) for n in (*out_structure.tie_a,
                                                             *out_structure.tie_b)):
@@ -261,12 +277,12 @@ def _on_chain(structure: Structure, node: int, y: int) -> bool:
     return bool(structure.chain_start[y] <= node < structure.chain_start[y + 1])
 
 
-def _retire_tail(structure: Structure, y: int, node: int, end: int, u: float,
+def _retire_tail(structure: Structure, y: int, node: int, end: int, slide: float,
                  lengths: np.ndarray, flat: np.ndarray) -> Structure:
     """Chain y's tail from its `end` (0 its first node, 1 its last) to `node` retired: its
-    segments without stiffness (their rest lengths kept, constant), its nodes without bending
-    and moving as `node` (tied dofs), `node` the chain's free end, with the material
-    coordinate `u` [m], the end of the bay that reaches it."""
+    segments without stiffness (their rest lengths `lengths` kept, constant), its nodes
+    without bending and moving as `node` (tied dofs), `node` the chain's free end, a material
+    point with the slide `slide` [m], the end of the bay that reaches it."""
     a, b = int(structure.chain_start[y]), int(structure.chain_start[y + 1])
     d = dim(structure)
     segments = np.arange(a - y, b - y - 1)
@@ -274,15 +290,14 @@ def _retire_tail(structure: Structure, y: int, node: int, end: int, u: float,
     material = structure.segment_material.copy()
     bay_end = structure.segment_material_end.copy()
     fraction = structure.segment_fraction.copy()
-    material[tail] = -1
-    bay_end[tail] = np.stack([np.zeros(tail.size), lengths[tail]], axis=1)
-    fraction[tail] = 1.0
+    base = structure.segment_base.copy()
+    material[tail], bay_end[tail], fraction[tail], base[tail] = -1, 0.0, 1.0, lengths[tail]
     rest = np.setdiff1d(segments, tail)
     bay = rest[structure.segment_material[rest, end] < 0]  # the bay that reaches `node`
-    bay_end[bay, end] = u
-    other = np.where(material[bay, 1 - end] >= 0, flat[np.maximum(material[bay, 1 - end], 0)],
-                     bay_end[bay, 1 - end])
-    fraction[bay] = lengths[bay] / np.abs(other - u)
+    bay_end[bay, end] = slide
+    fraction[bay] = lengths[bay] / lengths[bay].sum()
+    ends = np.where(material[bay] >= 0, flat[np.maximum(material[bay], 0)], bay_end[bay])
+    base[bay] = lengths[bay] - fraction[bay] * (ends[:, 1] - ends[:, 0])
     stretch = structure.stretch_modulus.copy()
     stretch[tail] = 0.0
     still = slice(a, node + 1) if end == 0 else slice(node, b)  # no bending from here on
@@ -295,5 +310,6 @@ def _retire_tail(structure: Structure, y: int, node: int, end: int, u: float,
     for k in range(d):
         tie[d * nodes + k] = d * node + k
     return structure._replace(segment_material=material, segment_material_end=bay_end,
-                              segment_fraction=fraction, stretch_modulus=stretch,
-                              bend_modulus=bend, lateral_bend_modulus=lateral, dof_tie=tie)
+                              segment_fraction=fraction, segment_base=base,
+                              stretch_modulus=stretch, bend_modulus=bend,
+                              lateral_bend_modulus=lateral, dof_tie=tie)

@@ -5,8 +5,9 @@ A model holds the structure the scene made (`woven_structure`, every crossing in
 structure now (`structure`), from which each crossing a free yarn end has passed was taken out
 at the step it left (`dynfab.model.builders.sliding.leaving`, `without_crossings`);
 `tie_crossing` names the scene's crossing of each tie now. A step's record holds every
-crossing of the scene (`per_tie`), with the material coordinates (`material`, (C, 2) [m]), the
-slide from the as-woven crossing along each yarn (`slip`, (C, 2) [m]) and which crossings are
+crossing of the scene (`per_tie`), with the slide of each yarn's material through it from the
+as-woven crossing (`slip`, (C, 2) [m]: what the crossing's slots hold), its material
+coordinates (`material`, (C, 2) [m]: the woven ones plus the slides) and which crossings are
 still there (`crossing_present`, (C,)); a resumed run replays the departures from those
 columns (`replay_departures`), as the uninterrupted run made them.
 """
@@ -16,12 +17,12 @@ from __future__ import annotations
 import numpy as np
 
 from dynfab.errors import UserError
-from dynfab.model.builders.sliding import leaving, without_crossings
+from dynfab.model.builders.sliding import leaving, without_crossings, woven_material
 from dynfab.model.structure import Structure
 from dynfab.model.structure import sliding as slides
-from dynfab.model.terms.kinematics import terms_of, woven_anchors, woven_state
+from dynfab.model.terms.kinematics import terms_of, woven_state
 
-SLIDING_HISTORY = ("crossing_present", "material")
+SLIDING_HISTORY = ("crossing_present", "slip")
 """The step datasets of the whole path a model whose crossings slide needs to resume."""
 
 
@@ -62,23 +63,23 @@ class CrossingsPresent:
         out[self.tie_crossing] = values
         return out
 
-    def with_material(self, positions, material) -> np.ndarray:
+    def with_slides(self, positions, slides) -> np.ndarray:
         """The dofs of the structure now from the physical `positions` (n, dim) and the scene's
-        crossings' material coordinates `material` (C, 2) (a record's), in their slots."""
+        crossings' slides `slides` (C, 2) (a record's `slip`), in their slots."""
         dofs = np.array(positions, float)
         dofs.reshape(-1)[self.structure.tie_material] = \
-            np.asarray(material, float).reshape(-1, 2)[self.tie_crossing]
+            np.asarray(slides, float).reshape(-1, 2)[self.tie_crossing]
         return dofs
 
     def record_slides(self, dofs, record: dict) -> tuple[np.ndarray, list[int]]:
-        """Where the crossings slide, a step's end: its material coordinates and slides into
+        """Where the crossings slide, a step's end: its slides and material coordinates into
         `record`, then the crossings a yarn end has passed taken out of the structure
         (`leave`) and `crossing_present` after that. Returns (the dofs in the structure now,
         the ties taken out, as indices of the structure before)."""
         f = self.structure
-        material = self.per_tie(np.asarray(dofs).reshape(-1)[f.tie_material], np.nan)
-        record["material"] = material
-        record["slip"] = material - woven_anchors(self.woven_structure)[:, :2]
+        slides = self.per_tie(np.asarray(dofs).reshape(-1)[f.tie_material], np.nan)
+        record["slip"] = slides
+        record["material"] = woven_material(self.woven_structure) + slides
         departures = leaving(f, dofs)
         gone = sorted({d.tie for d in departures})
         if departures:
@@ -88,19 +89,19 @@ class CrossingsPresent:
 
     def replay_departures(self, history: dict) -> None:
         """The structure after the finished steps of `history` (its `crossing_present` and
-        `material` columns): each crossing a yarn end left taken out at the step it left, at
-        that step's material coordinates (`leave`), as the uninterrupted run did."""
+        `slip` columns): each crossing a yarn end left taken out at the step it left, at that
+        step's slides (`leave`), as the uninterrupted run did."""
         self._set_structure(self.woven_structure, np.arange(self.woven_structure.tie_a.size))
         present = np.asarray(history["crossing_present"], bool)
-        material = np.asarray(history["material"], float)
+        slides = np.asarray(history["slip"], float)
         for step in range(present.shape[0]):
             gone = ~present[step].ravel()[self.tie_crossing]
             if gone.any():
-                dofs = self.with_material(woven_state(self.structure), material[step])
+                dofs = self.with_slides(woven_state(self.structure), slides[step])
                 departures = leaving(self.structure, dofs)
                 if sorted({d.tie for d in departures}) != list(np.flatnonzero(gone)):
                     raise UserError(f"step {step + 1} of the file: the crossings it left are not "
-                                    "those its material coordinates leave (a file of another "
+                                    "those its slides leave (a file of another "
                                     "scene or version); run it again without --resume")
                 self.leave(departures, dofs)
 

@@ -30,8 +30,8 @@ Record of one fabric step (n_wa warps of N+1 nodes, n_we wefts of M+1 nodes; Y =
   0 where the crossings slide, their nodes staying on the planes);
 - where the crossings slide (`crossing.motion = "sliding"`, docs/model.md 11.13): slip
   (n_wa, n_we, 2): each crossing's total slide along the warp and along the weft [m], its
-  material coordinates' change since the as-woven state; the anchors are then material
-  coordinates [m];
+  material coordinates' change since the as-woven state (what its slots hold); material
+  (n_wa, n_we, 2): those material coordinates [m]; the anchors are then slides [m];
 - contact_force, friction_limit, sliding (n_wa, n_we); friction_force, anchors
   (n_wa, n_we, 2) [N], [m] (in-plane: warp x, weft y; the anchors relative to the planes);
 - warp_planes (n_wa,): the plane y = Y_k of each warp, weft_planes (n_we,): x = X_j of each
@@ -77,10 +77,10 @@ class FabricState:
 
     positions: np.ndarray
     """(in-plane coordinate, z) of every node (nodes, 2) [m]: the structure's dofs (where the
-    crossings slide, their slots hold material coordinates, `physical_positions`)."""
+    crossings slide, their slots hold the material's slides, `physical_positions`)."""
     anchors: np.ndarray
     """Friction anchors xi per crossing (C, 2) [m], relative to the as-woven slip (where the
-    crossings slide, material coordinates)."""
+    crossings slide, slides)."""
     dissipated: float = 0.0
     """Cumulative friction dissipation [J]."""
     work: float = 0.0
@@ -124,7 +124,7 @@ class FabricModel(CrossingsPresent):
     @property
     def history_keys(self) -> tuple:
         """The step datasets of the whole path `state_from_step` needs to resume: where the
-        crossings slide, which were present and their material coordinates at each step
+        crossings slide, which were present and their slides at each step
         (the steps a yarn end left one, replayed); none otherwise."""
         return self.sliding_history
 
@@ -223,14 +223,13 @@ class FabricModel(CrossingsPresent):
     def state_from_step(self, last: dict, history: dict | None = None) -> FabricState:
         """The state a finished step left (a resumed run continues from it): its positions,
         where the crossings slide the structure after the departures of `history`
-        (`_replay_departures`) and the crossings' material coordinates (`material`) in their
-        slots."""
+        (`replay_departures`) and the crossings' slides (`slip`) in their slots."""
         nodes = np.concatenate([np.asarray(last["positions"]).reshape(-1, 2),
                                 np.asarray(last["weft_positions"]).reshape(-1, 2)])
         anchors = np.array(last["anchors"]).reshape(self.warps * self.wefts, 2)
         if self.slides:
             self.replay_departures(history)
-            nodes = self.with_material(nodes, last["material"])
+            nodes = self.with_slides(nodes, last["slip"])
             anchors = anchors[self.tie_crossing]
         return FabricState(nodes, anchors,
                            float(last["dissipated"]), float(last["work"]),

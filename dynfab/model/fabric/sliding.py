@@ -12,8 +12,9 @@ material in it now (`current`):
     E_s = 1/2 EA (l_s - L_s)^2 / L_s,      L_s = f_s (u_R - u_L),                  (11.13a)
     E_i = E_i(r; EI / lbar_i, EI_lateral / lbar_i),   lbar_i = (L_{i-1} + L_i) / 2,  (11.13b)
 
-u_L, u_R the material coordinates of the segment's bay ends (a crossing's dof, or a chain end's
-constant), f_s its share of the bay, E_i a node's bending (in space, out of and in the
+u_L, u_R the material coordinates of the segment's bay ends, f_s its share of the bay; the
+dofs hold their slides delta = u - U from the woven U (`dynfab.model.builders.sliding`), so
+L_s = base_s + f_s (delta_R - delta_L), each slide a crossing's dof or a chain end's constant, E_i a node's bending (in space, out of and in the
 plane), inversely proportional to lbar_i. Their gradient on the dofs is the physical gradient
 pulled back (`Structure.physical_source`) plus the material part dE/dL dL/du, with
 
@@ -91,7 +92,7 @@ def _physical(dofs, s, out):
 
 @numba.njit(cache=True)
 def _bay_end(flat, material, end, k, side):
-    """The material coordinate [m] of side 0 (left) or 1 (right) of segment k's bay
+    """The slide [m] of side 0 (left) or 1 (right) of segment k's bay
     (`Structure.segment_material`, `segment_material_end`; arrays, not the structure: a
     structure passed to a function called in a loop costs about 0.5 us a call)."""
     index = material[k, side]
@@ -100,12 +101,12 @@ def _bay_end(flat, material, end, k, side):
 
 @numba.njit(cache=True)
 def _rest_lengths(dofs, s, out):
-    """out = L_s (n - Y,) [m] (11.13a)."""
+    """out = L_s = base_s + f_s (delta_R - delta_L) (n - Y,) [m] (11.13a)."""
     flat = dofs.reshape(-1)
     material, end = s.segment_material, s.segment_material_end
     for k in range(out.size):
-        out[k] = s.segment_fraction[k] * (_bay_end(flat, material, end, k, 1)
-                                          - _bay_end(flat, material, end, k, 0))
+        out[k] = s.segment_base[k] + s.segment_fraction[k] * (
+            _bay_end(flat, material, end, k, 1) - _bay_end(flat, material, end, k, 0))
 
 
 def physical(dofs, s: Structure) -> np.ndarray:
@@ -359,7 +360,7 @@ def _add_material_gradient(pos, L, s, bend_energy, grad):
 
 
 def gradient(dofs, s: Structure, P, anchors, limit, grad) -> None:
-    """grad = dV/d(dofs) (n, dim) [N, and N for the material coordinates' J/m], F_T frozen."""
+    """grad = dV/d(dofs) (n, dim) [N, and N for the slides' J/m], F_T frozen."""
     now = current(dofs, s)
     if now is None:  # a bay has run out of material: no gradient (the energy is +inf)
         grad[:] = np.nan
@@ -692,20 +693,14 @@ def _chain_of(chain_start, node):
 
 
 @numba.njit(cache=True)
-def _stretches(pos, dofs, s, out):
+def _stretches(pos, L, s, out):
     """lambda of each tie's two yarns at its nodes (T, 2): the mean stretch l / L of the two
-    segments at the node (11.13c)."""
-    flat = dofs.reshape(-1)
-    material, end = s.segment_material, s.segment_material_end
+    segments at the node (11.13c), L their rest lengths now."""
     for c in range(s.tie_a.size):
         for side in range(2):
             n = s.tie_a[c] if side == 0 else s.tie_b[c]
             y = _chain_of(s.chain_start, n)
-            k1, k2 = n - 1 - y, n - y
-            u = flat[s.tie_material[c, side]]
-            L1 = s.segment_fraction[k1] * (u - _bay_end(flat, material, end, k1, 0))
-            L2 = s.segment_fraction[k2] * (_bay_end(flat, material, end, k2, 1) - u)
-            out[c, side] = 0.5 * (_length(pos, n - 1) / L1 + _length(pos, n) / L2)
+            out[c, side] = 0.5 * (_length(pos, n - 1) / L[n - 1 - y] + _length(pos, n) / L[n - y])
 
 
 def with_stretches(dofs, s: Structure, anchors) -> np.ndarray:
@@ -714,7 +709,7 @@ def with_stretches(dofs, s: Structure, anchors) -> np.ndarray:
     its slips with (11.13c), taken at the step's start (module docstring)."""
     pos = physical(dofs, s)
     out = np.zeros((s.tie_a.size, 2))
-    _stretches(pos, np.ascontiguousarray(dofs, float), s, out)
+    _stretches(pos, rest_lengths(dofs, s), s, out)
     anchors = np.asarray(anchors, float)
     return np.hstack([anchors[:, :2], out, anchors[:, 2:]])
 
@@ -806,7 +801,7 @@ def lateral_gaps(dofs, s: Structure, out) -> None:
 
 def rounding_scale(dofs, s: Structure, P, limit) -> float:
     """S [J] with the rounding of V about eps S (the base term set's at the physical
-    positions and the material lengths; each tie's F_T times its material coordinates)."""
+    positions and the material lengths; each tie's F_T times its slides)."""
     now = current(dofs, s)
     if now is None:
         return np.inf

@@ -219,7 +219,7 @@ class SpecimenModel(CrossingsPresent):
         anchors = np.array(last["anchors"], float)
         if self.slides:
             self.replay_departures(history)
-            positions = self.with_material(positions, last["material"])
+            positions = self.with_slides(positions, last["slip"])
             anchors = anchors[self.tie_crossing]
         return SpecimenState(positions, anchors, float(last["dissipated"]), float(last["work"]),
                              float(last["clamp_force"]), float(np.ravel(last["load"])[0]),
@@ -239,7 +239,7 @@ class SpecimenModel(CrossingsPresent):
             present = np.asarray(history["crossing_present"], bool)
             if np.any(present[-1] != present[-2]):
                 return None
-            last, before = (self.with_material(positions[k], history["material"][k])
+            last, before = (self.with_slides(positions[k], history["slip"][k])
                             for k in (-1, -2))
         moved = d[-1] - d[-2]
         return (last - before) / moved if moved else np.zeros_like(last)
