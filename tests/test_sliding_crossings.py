@@ -527,3 +527,26 @@ def test_a_failed_step_of_sliding_crossings_is_made_of_halves(monkeypatch):
     assert float(records[-1]["load"][0]) == 1e-3
     np.testing.assert_array_equal(state.positions, stepped.positions)
     assert state.dissipated == stepped.dissipated
+
+
+def test_a_departure_keeps_every_segments_rest_length(spatial_structure):
+    """docs/model.md 11.13: taking a crossing out merges the bays on its other chain and
+    retires the leaving chain's tail, every segment keeping the rest length it has (the
+    material does not jump); two departures on different chains one after the other, at
+    slides of up to 0.1 mm, each keep every segment's rest length to rounding (1e-12 of a
+    segment), the first's retired tail and new end included."""
+    from dynfab.model.builders.sliding import Departure, without_crossings
+
+    s = spatial_structure
+    rng = np.random.default_rng(3)
+    dofs = woven_dofs(s)
+    dofs.reshape(-1)[s.tie_material.ravel()] = 1e-4 * rng.uniform(-1, 1, s.tie_material.size)
+    before = sliding.rest_lengths(dofs, s)
+    chain = chain_of_node(s)  # the nodes keep their chains
+    left = []
+    for _ in range(2):  # a crossing's warp leaves it at its first end, then another warp's
+        tie = int(np.flatnonzero(~np.isin(chain[s.tie_a], left))[0])
+        left.append(int(chain[s.tie_a[tie]]))
+        s, dofs = without_crossings(s, [Departure(tie, left[-1], 0)], dofs)
+        np.testing.assert_allclose(sliding.rest_lengths(dofs, s), before, rtol=0,
+                                   atol=1e-12 * before.max())
