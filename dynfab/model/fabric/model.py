@@ -55,7 +55,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.sparse
 
 from dynfab.model.builders import RELAXATION_STEPS
 from dynfab.model.builders.fabric import Family, families, fabric_structure
@@ -67,7 +66,7 @@ from dynfab.scene import Scene
 from dynfab.model.step import StepSolution, StepStart
 from dynfab.model.structure import Structure, chain_count
 from dynfab.model.terms import registry
-from dynfab.model.fabric.crossings_present import CrossingsPresent
+from dynfab.model.fabric.structure_now import StructureNow
 from dynfab.model.terms.kinematics import physical_positions, woven_anchors, woven_state
 
 
@@ -104,7 +103,7 @@ def as_woven_state(structure: Structure) -> FabricState:
 
 
 @dataclass
-class FabricModel(CrossingsPresent):
+class FabricModel(StructureNow):
     """A fabric scene as the solvers see it: its structure (`dynfab.model.builders.fabric`), its
     yarn families and its load path (docs/model.md section 10)."""
 
@@ -270,19 +269,6 @@ class FabricModel(CrossingsPresent):
 
     # ------------------------------------------------------------------ the Hessian
 
-    @property
-    def pattern(self):
-        """The order of the Hessian's entries and its unknowns (the term set's `pattern_of`)."""
-        return self.terms.pattern_of(self.structure)
-
-    def hessian(self, pos, anchors, limit, secant: float = 0.0) -> scipy.sparse.csc_matrix:
-        """The Hessian on the unknowns, F_T frozen (the term set's `sparse_hessian`)."""
-        return self.terms.sparse_hessian(self.structure, pos, anchors, limit, secant)
-
-    def energies(self, pos, P, anchors, limit) -> np.ndarray:
-        """Each term's energy [J] (the term set's `energy_vector`)."""
-        return self.terms.energy_vector(self.structure, pos, P, anchors, limit)
-
     # ------------------------------------------------------------------ a load step
 
     @property
@@ -320,10 +306,6 @@ class FabricModel(CrossingsPresent):
     def group_name(self, k: int) -> str:
         """The patch (the one group) as messages name it: "fabric"."""
         return "fabric"
-
-    def friction_limits(self, pos) -> np.ndarray:
-        """F_T (T,) [N] at `pos` (`dynfab.model.fabric.contact.friction_limits`)."""
-        return contact.friction_limits(pos, self.structure)
 
     def frame(self, time: float, arrays: dict) -> dict:
         """A transient frame (`dynfab.solvers.contract.FRAME_KEYS` in the record's layout: the

@@ -51,7 +51,7 @@ from dynfab.model.builders import woven_rest
 from dynfab.model.builders.specimen import layout_of, specimen_structure
 from dynfab.errors import SolverError
 from dynfab.model.fabric import contact, spatial
-from dynfab.model.fabric.crossings_present import CrossingsPresent
+from dynfab.model.fabric.structure_now import StructureNow
 from dynfab.model.loading import Drive, load_at_time
 from dynfab.scene import Scene
 from dynfab.model.shear_force import (bias_normalised_shear_force, frame_normalised_shear_force,
@@ -100,7 +100,7 @@ class SpecimenState:
         return np.array([self.displacement])
 
 
-class SpecimenModel(CrossingsPresent):
+class SpecimenModel(StructureNow):
     """A specimen scene as the solvers see it (module docstring)."""
 
     relaxation_steps = RELAXATION_STEPS["specimen"]
@@ -109,7 +109,7 @@ class SpecimenModel(CrossingsPresent):
     def history_keys(self) -> tuple:
         """The columns of every finished step a resumed run gives `state_from_step` (`path`,
         and the last step's path tangent from the last two steps' positions; where the
-        crossings slide, the departures to replay, `CrossingsPresent`)."""
+        crossings slide, the departures to replay, `StructureNow`)."""
         return ("load", "clamp_force", "positions", *self.sliding_history)
 
     @property
@@ -328,8 +328,8 @@ class SpecimenModel(CrossingsPresent):
                  "shear_angle": angle, "crossing_slip_ratio": ratios,
                  "slip_ratio": float(np.max(ratios, initial=0.0)),
                  "dissipated": float(np.sum(arrays["dissipated"]))}
-        values = spatial.energy_vector(f, pos, np.zeros(chain_count(f)), anchors, limit)
-        frame.update(registry.energy_records(self.scene, dict(zip(spatial.TERMS, values))))
+        values = self.energies(pos, np.zeros(chain_count(f)), anchors, limit)
+        frame.update(registry.energy_records(self.scene, dict(zip(self.terms.TERMS, values))))
         frame["energy/kinetic"] = float(np.sum(arrays["kinetic_energy"]))
         return {name: np.asarray(value) for name, value in frame.items()}
 
@@ -340,23 +340,7 @@ class SpecimenModel(CrossingsPresent):
                    for name in ("positions", "velocities", "force", "anchors")},
                 "time": float(frame["time"])}
 
-    # ------------------------------------------------------------------ the Hessian
-
-    @property
-    def pattern(self):
-        """The order of the Hessian's entries and its unknowns (the term set's `pattern_of`)."""
-        return self.terms.pattern_of(self.structure)
-
-    def hessian(self, pos, anchors, limit, secant: float = 0.0):
-        """The Hessian on the unknowns, F_T frozen (the term set's `sparse_hessian`): what the
-        sparse certificate reads (`dynfab.solvers.certificate.certify_patch`), as a fabric's."""
-        return self.terms.sparse_hessian(self.structure, pos, anchors, limit, secant)
-
     # ------------------------------------------------------------------ a load step
-
-    def friction_limits(self, pos) -> np.ndarray:
-        """F_T (T,) [N] at `pos` (`dynfab.model.fabric.contact.friction_limits`)."""
-        return contact.friction_limits(pos, self.structure)
 
     def start_of_step(self, state: SpecimenState, load) -> StepStart:
         """The held nodes at d = `load`; the free ones extrapolated from the previous state
@@ -434,7 +418,7 @@ class SpecimenModel(CrossingsPresent):
         lost = 0.0
         if f.has_friction:
             lost = terms.return_map(dofs, anchors, f, limit, sliding, friction_force)
-        energies = terms.energy_vector(f, dofs, np.zeros(chain_count(f)), anchors, limit)
+        energies = self.energies(dofs, np.zeros(chain_count(f)), anchors, limit)
         if self.slides:
             anchors = terms.state_anchors(anchors)
         pos = physical_positions(f, dofs)

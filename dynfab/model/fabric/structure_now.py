@@ -1,5 +1,7 @@
-"""The crossings a model has now, as yarn ends leave them (docs/model.md 11.13): the
-bookkeeping a fabric's and a specimen's model share where their crossings slide.
+"""What a fabric's and a specimen's model share: the structure they have now, its term set
+(`dynfab.model.terms.kinematics.terms_of`: its energies, its Hessian and their pattern) and,
+where the crossings slide, the crossings still in it as yarn ends leave them (docs/model.md
+11.13).
 
 A model holds the structure the scene made (`woven_structure`, every crossing in it) and the
 structure now (`structure`), from which each crossing a free yarn end has passed was taken out
@@ -15,9 +17,11 @@ columns (`replay_departures`), as the uninterrupted run made them.
 from __future__ import annotations
 
 import numpy as np
+import scipy.sparse
 
 from dynfab.errors import UserError
 from dynfab.model.builders.sliding import leaving, without_crossings, woven_material
+from dynfab.model.fabric import contact
 from dynfab.model.structure import Structure
 from dynfab.model.structure import sliding as slides
 from dynfab.model.terms.kinematics import terms_of, woven_state
@@ -26,9 +30,10 @@ SLIDING_HISTORY = ("crossing_present", "slip")
 """The step datasets of the whole path a model whose crossings slide needs to resume."""
 
 
-class CrossingsPresent:
-    """Mixin: `woven_structure`, `structure` and `tie_crossing` (module docstring); the model
-    calls `_start_structures` once it has made its structure."""
+class StructureNow:
+    """Mixin: `woven_structure`, `structure` and `tie_crossing` (module docstring) and what
+    the structure's term set gives a model; the model calls `_start_structures` once it has
+    made its structure."""
 
     structure: Structure
 
@@ -49,6 +54,24 @@ class CrossingsPresent:
     def terms(self):
         """The structure's term set (`dynfab.model.terms.kinematics.terms_of`)."""
         return terms_of(self.structure)
+
+    @property
+    def pattern(self):
+        """The order of the Hessian's entries and its unknowns (the term set's `pattern_of`):
+        what the sparse certificate reads (`dynfab.solvers.certificate.certify_patch`)."""
+        return self.terms.pattern_of(self.structure)
+
+    def hessian(self, pos, anchors, limit, secant: float = 0.0) -> scipy.sparse.csc_matrix:
+        """The Hessian on the unknowns, F_T frozen (the term set's `sparse_hessian`)."""
+        return self.terms.sparse_hessian(self.structure, pos, anchors, limit, secant)
+
+    def energies(self, pos, P, anchors, limit) -> np.ndarray:
+        """Each term's energy [J] (the term set's `energy_vector`, its TERMS)."""
+        return self.terms.energy_vector(self.structure, pos, P, anchors, limit)
+
+    def friction_limits(self, pos) -> np.ndarray:
+        """F_T (T,) [N] at `pos` (`dynfab.model.fabric.contact.friction_limits`)."""
+        return contact.friction_limits(pos, self.structure)
 
     @property
     def sliding_history(self) -> tuple:
