@@ -413,20 +413,28 @@ def rounding_scale(pos, fabric, P, limit):
     return total
 
 
-_PATTERNS: dict[int, tuple] = {}
-"""The last few structures' `Pattern`s, by id (the structure kept alive beside it)."""
+_PATTERNS: dict[tuple, tuple] = {}
+"""The last few planar structures' `Pattern`s, by the structure's id (kept alive beside)."""
 PATTERNS_KEPT = 8
 
 
-def pattern_of(structure) -> Pattern:
-    """The `Pattern` of a structure, made once (the static solver, the certificate and the
-    model share it, and with it the nested-dissection order, `dynfab.model.fabric.ordering`)."""
-    entry = _PATTERNS.get(id(structure))
-    if entry is None or entry[0] is not structure:
-        if len(_PATTERNS) >= PATTERNS_KEPT:
-            _PATTERNS.pop(next(iter(_PATTERNS)))
-        entry = _PATTERNS[id(structure)] = (structure, Pattern(structure))
+def kept_pattern(cache: dict, arrays: tuple, make) -> Pattern:
+    """The pattern made of `arrays` (what a structure's pattern depends on), taken from
+    `cache` where it was made of the very same arrays, else `make()` kept there (the oldest
+    of PATTERNS_KEPT dropped): the static solver, the certificate and the model share it, and
+    with it the nested-dissection order (`dynfab.model.fabric.ordering`)."""
+    key = tuple(map(id, arrays))
+    entry = cache.get(key)
+    if entry is None or any(a is not b for a, b in zip(entry[0], arrays)):
+        if len(cache) >= PATTERNS_KEPT:
+            cache.pop(next(iter(cache)))
+        entry = cache[key] = (arrays, make())
     return entry[1]
+
+
+def pattern_of(structure) -> Pattern:
+    """The `Pattern` of a structure, made once (`kept_pattern`)."""
+    return kept_pattern(_PATTERNS, (structure,), lambda: Pattern(structure))
 
 
 def secant_weights(secant, count: int) -> np.ndarray | None:

@@ -54,7 +54,7 @@ import numpy as np
 import scipy.sparse
 
 from dynfab.model.fabric import assembly, spatial
-from dynfab.model.fabric.assembly import Pattern, secant_weights
+from dynfab.model.fabric.assembly import Pattern, kept_pattern, secant_weights
 from dynfab.model.structure import Structure, dim
 from dynfab.model.terms import bending
 from dynfab.model.terms import huber as huber_law
@@ -418,11 +418,17 @@ def _bend_materials(s, k, out):
     out[2] = s.segment_material[k, 1]
 
 
+NODE_MATERIALS = 8
+"""The most material dofs a node's elements read: both bay ends of its chain's segments
+i - 2 .. i + 1."""
+
+
 @numba.njit(cache=True)
-def _node_materials(s, width, table):
-    """Each node's material dofs (n, width), -1 padded: the bay ends of the segments whose
-    stretch or bending reads its position (its chain's segments i - 2 .. i + 1), each once:
-    the columns of its mixed Hessian entries, merged over its elements."""
+def _node_materials(s, table):
+    """Each node's material dofs into table (n, NODE_MATERIALS), -1 padded: the bay ends of
+    the segments whose stretch or bending reads its position (its chain's segments
+    i - 2 .. i + 1), each once: the columns of its mixed Hessian entries, merged over its
+    elements. Returns the most any node has."""
     table[:, :] = -1
     start = s.chain_start
     count = 0
@@ -432,14 +438,11 @@ def _node_materials(s, width, table):
             for k in range(max(i - 2, start[y]) - y, min(i + 2, start[y + 1] - 1) - y):
                 for side in range(2):
                     dof = s.segment_material[k, side]
-                    if dof < 0:
-                        continue
-                    seen = False
+                    seen = dof < 0
                     for q in range(m):
                         seen = seen or table[i, q] == dof
                     if not seen:
-                        if m < width:
-                            table[i, m] = dof
+                        table[i, m] = dof
                         m += 1
             count = max(count, m)
     return count
@@ -447,15 +450,15 @@ def _node_materials(s, width, table):
 
 def node_materials(s: Structure) -> np.ndarray:
     """`_node_materials` as wide as the structure needs."""
-    width = _node_materials(s, 0, np.zeros((s.rest_position.shape[0], 0), np.int64))
-    table = np.empty((s.rest_position.shape[0], width), np.int64)
-    _node_materials(s, width, table)
-    return table
+    table = np.empty((s.rest_position.shape[0], NODE_MATERIALS), np.int64)
+    count = _node_materials(s, table)
+    return np.ascontiguousarray(table[:, :count])
 
 
 @numba.njit(cache=True)
 def _material_entries(s, d, table, rows, cols):
-    """(rows, cols) of every entry `_material_values` fills, in its order, on the dofs (-1
+    """(rows, cols) of every entry `_elastic_material_values` and `_friction_values` fill, in
+    their order, on the dofs (-1
     where a coordinate is held on a plane or a bay ends at a chain end): each node's mixed
     entries (its d coordinates against its material dofs `table`, both orders), each
     segment's and each inner node's material block (its bay ends' 2 x 2, its 3 x 3), each
@@ -601,14 +604,6 @@ def _friction_values(pos, dofs, s, anchors, limit, secant, values, e):
     return e
 
 
-def _topology(s: Structure) -> tuple:
-    """The arrays a sliding structure's `SlidingPattern` is made of: a structure derived from
-    another by a law (the static solver's held lateral set) shares them, and with them the
-    pattern and its nested-dissection order."""
-    return (s.chain_start, s.tie_a, s.tie_b, s.tie_stencil, s.lateral_stencil, s.fixed,
-            s.dof_tie, s.physical_source, s.tie_material, s.segment_material)
-
-
 class SlidingPattern(Pattern):
     """The Hessian's entries on the dofs: the base term set's, each physical dof moved to the
     dof that holds it, then the material entries (`_material_entries`); those on a coordinate
@@ -637,20 +632,15 @@ class SlidingPattern(Pattern):
 
 
 _PATTERNS: dict[tuple, tuple] = {}
-"""The last few structures' `SlidingPattern`s, by the ids of `_topology` (kept beside)."""
+"""The last few structures' `SlidingPattern`s, by the ids of their arrays (kept beside)."""
 
 
 def pattern_of(s: Structure) -> SlidingPattern:
-    """The `SlidingPattern` of a structure, made once per topology (the static solver, the
-    certificate and the model share it, and with it the nested-dissection order)."""
-    arrays = _topology(s)
-    key = tuple(map(id, arrays))
-    entry = _PATTERNS.get(key)
-    if entry is None or any(a is not b for a, b in zip(entry[0], arrays)):
-        if len(_PATTERNS) >= assembly.PATTERNS_KEPT:
-            _PATTERNS.pop(next(iter(_PATTERNS)))
-        entry = _PATTERNS[key] = (arrays, SlidingPattern(s))
-    return entry[1]
+    """The `SlidingPattern` of a structure, made once per topology (`assembly.kept_pattern`):
+    the spatial one's arrays (`spatial._topology`, which a held lateral set shares) and the
+    slots and bays."""
+    arrays = (*spatial._topology(s), s.physical_source, s.tie_material, s.segment_material)
+    return kept_pattern(_PATTERNS, arrays, lambda: SlidingPattern(s))
 
 
 def hessian_values(dofs, s: Structure, anchors, limit, secant=None) -> np.ndarray:

@@ -26,7 +26,7 @@ import numpy as np
 import scipy.sparse
 
 from dynfab.model.fabric import contact
-from dynfab.model.fabric.assembly import Pattern, secant_weights
+from dynfab.model.fabric.assembly import Pattern, kept_pattern, secant_weights
 from dynfab.model.terms import huber as huber_law
 from dynfab.model.terms import nodes as node_terms
 from dynfab.model.terms import spatial as element
@@ -312,7 +312,6 @@ def pattern_entries(s) -> tuple[np.ndarray, np.ndarray]:
 
 _PATTERNS: dict[tuple, tuple] = {}
 """The last few spatial structures' `Pattern`s, by the ids of `_topology` (kept beside)."""
-PATTERNS_KEPT = 8
 
 
 def _topology(structure) -> tuple:
@@ -326,15 +325,10 @@ def _topology(structure) -> tuple:
 
 
 def pattern_of(structure) -> Pattern:
-    """The `Pattern` of a spatial structure, made once per topology and kept."""
-    arrays = _topology(structure)
-    key = tuple(map(id, arrays))
-    entry = _PATTERNS.get(key)
-    if entry is None or any(a is not b for a, b in zip(entry[0], arrays)):
-        if len(_PATTERNS) >= PATTERNS_KEPT:
-            _PATTERNS.pop(next(iter(_PATTERNS)))
-        entry = _PATTERNS[key] = (arrays, Pattern(structure, pattern_entries(structure)))
-    return entry[1]
+    """The `Pattern` of a spatial structure, made once per topology and kept
+    (`assembly.kept_pattern`)."""
+    return kept_pattern(_PATTERNS, _topology(structure),
+                        lambda: Pattern(structure, pattern_entries(structure)))
 
 
 def sparse_hessian(structure, pos, anchors, limit, secant=0.0):

@@ -59,7 +59,7 @@ from dynfab.model.shear_force import (bias_normalised_shear_force, frame_normali
 from dynfab.model.step import StepSolution, StepStart
 from dynfab.model.structure import chain_count, chain_of_node
 from dynfab.model.terms import registry
-from dynfab.model.terms.kinematics import physical_positions, woven_anchors, woven_state
+from dynfab.model.terms.kinematics import physical_positions, woven_state
 
 TRANSIENT_KNOTS = 64
 """Knots per interval of the load path at which a transient samples the held nodes'
@@ -200,12 +200,9 @@ class SpecimenModel(StructureNow):
 
     def initial_state(self) -> SpecimenState:
         """As woven, every crossing in the structure: each slip anchor at zero slip (where the
-        crossings slide, the woven material coordinates), each rotation anchor at the woven
-        angle."""
+        crossings slide, no slide), each rotation anchor at the woven angle."""
         self._set_structure(self.woven_structure, np.arange(self.woven_structure.tie_a.size))
         anchors = np.zeros((self.structure.tie_a.size, 3))
-        if self.slides:
-            anchors[:, :2] = woven_anchors(self.structure)[:, :2]
         anchors[:, 2] = self.structure.tie_rotation_law[:, spatial.PHI_REST]
         return SpecimenState(woven_state(self.structure), anchors, 0.0, 0.0, 0.0, 0.0,
                              None, np.zeros((0, 2)))

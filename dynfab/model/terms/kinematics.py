@@ -63,15 +63,18 @@ def woven_anchors(structure: Structure) -> np.ndarray:
     """Each tie's friction anchor at zero slip as woven: planar (T, 2) [m], from the planes (a
     ground tie's first component its node's x, its second 0; docs/model.md section 10);
     spatial (T, 3) [m, m, rad], each crossing's coordinates q as woven (section 11.4); where
-    the crossings slide the first two the material coordinates at the crossing (11.13)."""
+    the crossings slide the first two are the slides of the material through the crossing,
+    0 as woven (11.13)."""
     pos = np.asarray(structure.rest_position, float)
     if dim(structure) == 3:
         anchors = np.zeros((structure.tie_a.size, 3))
         for t, stencil in enumerate(np.asarray(structure.tie_stencil).reshape(-1, 6)):
             crossing_coordinates(pos[stencil], anchors[t])
-    if slides(structure):  # the material coordinates at the crossings
-        material = woven_dofs(structure).reshape(-1)[structure.tie_material]
-        return np.hstack([material, anchors[:, 2:]]) if dim(structure) == 3 else material
+    if slides(structure):  # no slide as woven
+        if dim(structure) == 3:
+            anchors[:, :2] = 0.0
+            return anchors
+        return np.zeros((structure.tie_a.size, 2))
     if dim(structure) == 3:
         return anchors
     plane = np.asarray(structure.tie_plane, float).reshape(-1, 2)
