@@ -33,7 +33,7 @@ from types import SimpleNamespace
 import numpy as np
 import warp as wp
 
-from dynfab.kernels import band_lu, structure_arrays, structure_state, tie_law
+from dynfab.kernels import band_lu, host_rows, structure_arrays, structure_state, tie_law
 from dynfab.kernels.precision import vector
 
 ROWS_FROM_HOST = True
@@ -781,30 +781,8 @@ def tangent_terms(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
         return total
 
     # The stiffest tangent's rows (docs/model.md (5.5)) come from the host, from the exact
-    # Hessian (`dynfab.model.terms.kinematics.stiffest_rows` into `state.rows` and
-    # `state.diagonal`): the blocks above are Gauss-Newton's, which may not bound it.
-
-    @wp.func(inline=True)
-    def stiffest_tie(t: int, data: Data, state: State):
-        """Nothing: the host gave the rows."""
-        pass
-
-    @wp.func(inline=True)
-    def stiffest_chain(c: int, data: Data, state: State):
-        """Nothing: the host gave the rows."""
-        pass
-
-    @wp.func(inline=True)
-    def gershgorin_row(i: int, data: Data, state: State) -> scalar:
-        """The largest over node i's dofs of sum_j |K_ij| [N/m], from the host."""
-        return state.rows[i]
-
-    @wp.func(inline=True)
-    def largest_diagonal(i: int, data: Data, state: State) -> scalar:
-        """max |K_ii| [N/m] over node i's dofs, from the host."""
-        return state.diagonal[i]
-
+    # Hessian (`host_rows`): the blocks above are Gauss-Newton's, which may
+    # not bound it.
     return SimpleNamespace(tie_blocks=tie_blocks, assemble_chain=assemble_chain,
-                           coupling_vector=coupling_vector, stiffest_tie=stiffest_tie,
-                           stiffest_chain=stiffest_chain, gershgorin_row=gershgorin_row,
-                           largest_diagonal=largest_diagonal)
+                           coupling_vector=coupling_vector,
+                           **vars(host_rows.functions(scalar, 3)))

@@ -459,16 +459,23 @@ def stiffest_rows(structure, pos, anchors) -> tuple[np.ndarray, np.ndarray]:
     limit = np.full(s.tie_a.size, np.inf if s.has_friction else 0.0)
     values = np.zeros(pattern.size)
     hessian_values(pos, s, np.asarray(anchors, float), limit, values)
+    return rows_at_contact_bound(pos, s, pattern.rows, pattern.cols, values)
+
+
+def rows_at_contact_bound(pos, s, rows, cols, values) -> tuple[np.ndarray, np.ndarray]:
+    """Per node, (the largest over its dofs of sum_j |K_ij|, its largest |K_ii|) [N/m] of the
+    Hessian K whose entries (rows, cols, values) are on every dof (n dim), each tie's contact
+    raised from its dR/dg at `pos` (the physical positions) to its bound k_s on (z_a, z_b)."""
+    n, d = pos.shape
     tangent = np.zeros(s.tie_a.size)
     contact.tangents(pos, s, tangent)
     raise_to = np.asarray(s.tie_contact_law, float)[:, 0] - tangent  # k_s - dR/dg
-    z_a, z_b = 3 * s.tie_a + 2, 3 * s.tie_b + 2
-    rows = np.concatenate([pattern.rows, z_a, z_a, z_b, z_b])
-    cols = np.concatenate([pattern.cols, z_a, z_b, z_a, z_b])
+    z_a, z_b = d * s.tie_a + d - 1, d * s.tie_b + d - 1
+    rows = np.concatenate([rows, z_a, z_a, z_b, z_b])
+    cols = np.concatenate([cols, z_a, z_b, z_a, z_b])
     values = np.concatenate([values, raise_to, -raise_to, -raise_to, raise_to])
-    n = pos.shape[0]
-    K = scipy.sparse.coo_matrix((values, (rows, cols)), shape=(3 * n, 3 * n)).tocsr()
+    K = scipy.sparse.coo_matrix((values, (rows, cols)), shape=(d * n, d * n)).tocsr()
     K.sum_duplicates()
-    row_sums = np.asarray(abs(K).sum(axis=1)).ravel().reshape(n, 3)
-    diagonal = np.abs(K.diagonal()).reshape(n, 3)
+    row_sums = np.asarray(abs(K).sum(axis=1)).ravel().reshape(n, d)
+    diagonal = np.abs(K.diagonal()).reshape(n, d)
     return row_sums.max(axis=1), diagonal.max(axis=1)
