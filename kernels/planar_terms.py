@@ -13,6 +13,13 @@ its own vertical plane, nodes (coordinate along the chain, z).
 - a tied family (periodic force control): each plane node of it carries the family's summed
   force, each member's own force in plane-node order.
 
+Where the crossings slide (the "sliding" kinematics, `sliding_terms`; docs/model.md 11.13) the
+same elements see each node where it is (`base.physical`: a crossing's node on the plane it
+crosses) with each segment's material now (rest length L = base + f (delta_R - delta_L), EA / L,
+EI / lbar); a crossing node's first dof is its slide delta, whose force is the material's,
+-sum_k dV/dL_k dL_k/d delta over its two bays (`material_force`), plus the friction's lambda H'(S)
+on S = lambda (delta - xi) (`material_slip`; the anchors move on S in the return map).
+
 `structure_terms` gives them to `structure_forces` in the form every kinematics offers
 (`plane_shift`, `tie_pass_at`, `node_force`, `scatter`, `add_node_energy`,
 `add_tie_energy`, `lateral_energy`, `return_anchor`); the stretch, the contact along z and
@@ -45,6 +52,8 @@ def structure_terms(scalar, friction: bool, boundary: bool, base) -> SimpleNames
     State = structure_state.struct(scalar, 2)
     laws = tie_law.functions(scalar)
     segment_pull = base.segment_pull
+    sliding = base.sliding
+    P = base.physical  # noqa: N806 (node i where the elements see it)
 
     @wp.func(inline=True)
     def turning_angle(a: vec, b: vec) -> scalar:
@@ -52,9 +61,26 @@ def structure_terms(scalar, friction: bool, boundary: bool, base) -> SimpleNames
         return wp.atan2(a[0] * b[1] - a[1] * b[0], wp.dot(a, b))
 
     @wp.func(inline=True)
-    def bend_moment(data: Data, m: int, a: vec, b: vec) -> scalar:
+    def mean_length(pos: wp.array(dtype=vec), data: Data, m: int) -> scalar:
+        """lbar_m = (L_{m-1} + L_m) / 2 [m] at inner node m, the material's now (11.13b)."""
+        return scalar(0.5) * (base.rest_length(pos, data, data.previous[m])
+                              + base.rest_length(pos, data, m))
+
+    @wp.func(inline=True)
+    def bend_stiffness(pos: wp.array(dtype=vec), data: Data, m: int) -> scalar:
+        """EI / lbar [N m] of the bending spring at inner node m: the structure's, or where the
+        crossings slide EI over the material's lbar now (11.13b)."""
+        if wp.static(not sliding):
+            return data.bend_stiffness[m]
+        k = scalar(0.0)
+        if data.bend_modulus[m] != scalar(0.0):
+            k = data.bend_modulus[m] / mean_length(pos, data, m)
+        return k
+
+    @wp.func(inline=True)
+    def bend_moment(pos: wp.array(dtype=vec), data: Data, m: int, a: vec, b: vec) -> scalar:
         """k (phi - phi0) [N m] of the bending spring at node m."""
-        return data.bend_stiffness[m] * (turning_angle(a, b) - data.rest_angle[m])
+        return bend_stiffness(pos, data, m) * (turning_angle(a, b) - data.rest_angle[m])
 
     @wp.func(inline=True)
     def wrap_forces(pos: wp.array(dtype=vec), data: Data, first: int) -> mat:
@@ -93,12 +119,81 @@ def structure_terms(scalar, friction: bool, boundary: bool, base) -> SimpleNames
         return vec(pos[data.tie_a[t]][0] - planes[0] - anchors[t][0], along_b)
 
     @wp.func(inline=True)
+    def material_slip(pos: wp.array(dtype=vec), data: Data, state: State, t: int) -> vec:
+        """S = (lambda_a (delta_a - xi_a), lambda_b (delta_b - xi_b)) [m] of crossing t whose
+        nodes' first dofs hold its slides (11.13c)."""
+        slides = vec(pos[data.tie_a[t]][0], pos[data.tie_b[t]][0])
+        return wp.cw_mul(state.stretch[t], slides - state.anchors[t])
+
+    @wp.func(inline=True)
     def tie_pass_at(t: int, pos: wp.array(dtype=vec), data: Data, state: State, shift: vec):
-        """R, dR/dg (and F_T, the friction force) of tie t into the state's tie arrays."""
+        """R, dR/dg (and F_T, the friction force) of tie t into the state's tie arrays; where
+        the crossings slide, the friction force on the two slides, lambda H'(S) (11.13c)."""
         bound = base.contact_pass(t, pos, data, state)
         if wp.static(friction):
-            state.friction[t] = laws.huber_force(slip(pos, data, state.anchors, t, shift),
-                                                 bound, data.friction_law[t, 3])
+            if wp.static(sliding):
+                state.friction[t] = wp.cw_mul(state.stretch[t], laws.huber_force(
+                    material_slip(pos, data, state, t), bound, data.friction_law[t, 3]))
+            else:
+                state.friction[t] = laws.huber_force(slip(pos, data, state.anchors, t, shift),
+                                                     bound, data.friction_law[t, 3])
+
+    @wp.func(inline=True)
+    def bend_energy(pos: wp.array(dtype=vec), data: Data, m: int) -> scalar:
+        """E_m [J] of the bending spring at node m (0 at a chain's ends)."""
+        before = data.previous[m]
+        after = data.next[m]
+        energy = scalar(0.0)
+        if before >= 0 and after >= 0:
+            here = P(pos, data, m)
+            turn = turning_angle(here - P(pos, data, before), P(pos, data, after) - here) \
+                - data.rest_angle[m]
+            energy = scalar(0.5) * bend_stiffness(pos, data, m) * turn * turn
+        return energy
+
+    @wp.func(inline=True)
+    def bend_on_length(pos: wp.array(dtype=vec), data: Data, m: int) -> scalar:
+        """1/2 dE_m/dlbar_m = -E_m / (2 lbar_m) [N]: what node m's bending adds to dE/dL of each
+        of its two segments (11.13b)."""
+        energy = bend_energy(pos, data, m)
+        value = scalar(0.0)
+        if energy != scalar(0.0):
+            value = -scalar(0.5) * energy / mean_length(pos, data, m)
+        return value
+
+    @wp.func(inline=True)
+    def on_length(pos: wp.array(dtype=vec), data: Data, k: int) -> scalar:
+        """dV/dL_k [N] of segment (k, next): its stretch's EA (L^2 - l^2) / (2 L^2) (11.13a) and
+        its two nodes' bendings' (`bend_on_length`)."""
+        after = data.next[k]
+        rest = base.rest_length(pos, data, k)
+        value = scalar(0.0)
+        if data.stretch_modulus[k] != scalar(0.0):
+            length = wp.length(P(pos, data, after) - P(pos, data, k))
+            value = scalar(0.5) * data.stretch_modulus[k] * (rest * rest - length * length) \
+                / (rest * rest)
+        return value + bend_on_length(pos, data, k) + bend_on_length(pos, data, after)
+
+    @wp.func(inline=True)
+    def material_force(pos: wp.array(dtype=vec), data: Data, i: int) -> scalar:
+        """-dV/d delta [N] of the slide at node i's first dof, its elastic part: over the
+        segments of its two bays, -dV/dL_k dL_k/d delta (dL/d delta = +f on the bay before
+        the crossing, whose right end it is, -f on the one after; 11.13a, b)."""
+        slot = i * 2
+        total = scalar(0.0)
+        k = data.previous[i]
+        while k >= 0:
+            if data.segment_material[k, 1] != slot:
+                break
+            total -= data.segment_fraction[k] * on_length(pos, data, k)
+            k = data.previous[k]
+        k = i
+        while data.next[k] >= 0:
+            if data.segment_material[k, 0] != slot:
+                break
+            total += data.segment_fraction[k] * on_length(pos, data, k)
+            k = data.next[k]
+        return total
 
     @wp.func(inline=True)
     def own_force(i: int, pos: wp.array(dtype=vec), data: Data, state: State) -> vec:
@@ -106,26 +201,30 @@ def structure_terms(scalar, friction: bool, boundary: bool, base) -> SimpleNames
         before = data.previous[i]
         after = data.next[i]
         force = base.own_and_stretch(i, pos, data, state)
+        here = P(pos, data, i)
         if before >= 0 and after >= 0:  # the spring at i: -m g_a + m g_b
-            a = pos[i] - pos[before]
-            b = pos[after] - pos[i]
-            moment = bend_moment(data, i, a, b)
+            a = here - P(pos, data, before)
+            b = P(pos, data, after) - here
+            moment = bend_moment(pos, data, i, a, b)
             force = force + moment * (vec(-a[1], a[0]) / wp.dot(a, a)
                                       + vec(-b[1], b[0]) / wp.dot(b, b))
         if before >= 0:
             earlier = data.previous[before]
             if earlier >= 0:  # the spring at i-1, node i its third: -m g_b
-                a = pos[before] - pos[earlier]
-                b = pos[i] - pos[before]
-                moment = bend_moment(data, before, a, b)
+                a = P(pos, data, before) - P(pos, data, earlier)
+                b = here - P(pos, data, before)
+                moment = bend_moment(pos, data, before, a, b)
                 force = force - moment * vec(-b[1], b[0]) / wp.dot(b, b)
         if after >= 0:
             later = data.next[after]
             if later >= 0:  # the spring at i+1, node i its first: +m g_a
-                a = pos[after] - pos[i]
-                b = pos[later] - pos[after]
-                moment = bend_moment(data, after, a, b)
+                a = P(pos, data, after) - here
+                b = P(pos, data, later) - P(pos, data, after)
+                moment = bend_moment(pos, data, after, a, b)
                 force = force + moment * vec(a[1], -a[0]) / wp.dot(a, a)
+        if wp.static(sliding):
+            if data.node_slide[i] != 0:  # its first dof a slide: the material's force
+                force[0] = material_force(pos, data, i)
         for k in range(data.node_tie_start[i], data.node_tie_start[i + 1]):
             t = data.node_ties[k]
             up = data.tie_side[t] * state.contact[t]
@@ -201,7 +300,7 @@ def structure_terms(scalar, friction: bool, boundary: bool, base) -> SimpleNames
                 if k >= 0:
                     a = pos[j] - pos[i]
                     b = pos[k] - pos[j]
-                    moment = bend_moment(data, j, a, b)
+                    moment = bend_moment(pos, data, j, a, b)
                     ga = moment * vec(a[1], -a[0]) / wp.dot(a, a)
                     gb = moment * vec(-b[1], b[0]) / wp.dot(b, b)
                     force[i] = force[i] + ga
@@ -256,8 +355,10 @@ def structure_terms(scalar, friction: bool, boundary: bool, base) -> SimpleNames
         before = data.previous[i]
         after = data.next[i]
         if before >= 0 and after >= 0:
-            turn = turning_angle(pos[i] - pos[before], pos[after] - pos[i]) - data.rest_angle[i]
-            total += scalar(0.5) * data.bend_stiffness[i] * turn * turn
+            here = P(pos, data, i)
+            turn = turning_angle(here - P(pos, data, before), P(pos, data, after) - here) \
+                - data.rest_angle[i]
+            total += scalar(0.5) * bend_stiffness(pos, data, i) * turn * turn
         if data.wrap_stiffness[i] > scalar(0.0):
             last = data.chain_last[i]
             turn = turning_angle(pos[last] - pos[last - 1], pos[i + 1] - pos[i]) \
@@ -271,9 +372,14 @@ def structure_terms(scalar, friction: bool, boundary: bool, base) -> SimpleNames
         """`energy` + tie t's Huber term with F_T at R [J] (variants with friction)."""
         total = energy
         if wp.static(friction):
-            total += laws.huber_energy(slip(pos, data, state.anchors, t, plane_shift(pos, data)),
-                                       laws.limit(R, data.friction_law, t),
-                                       data.friction_law[t, 3])
+            bound = laws.limit(R, data.friction_law, t)
+            if wp.static(sliding):
+                total += laws.huber_energy(material_slip(pos, data, state, t), bound,
+                                           data.friction_law[t, 3])
+            else:
+                total += laws.huber_energy(slip(pos, data, state.anchors, t,
+                                                plane_shift(pos, data)),
+                                           bound, data.friction_law[t, 3])
         return total
 
     @wp.func(inline=True)
@@ -286,9 +392,14 @@ def structure_terms(scalar, friction: bool, boundary: bool, base) -> SimpleNames
                       bound: scalar) -> scalar:
         """Tie t's anchor moved along s until k_t |s| = F_T where k_t |s| > F_T; the energy
         dissipated F_T |delta xi| [J]."""
-        s = slip(pos, data, state.anchors, t, plane_shift(pos, data))
-        move = laws.return_anchor(s, bound, data.friction_law[t, 3])
-        state.anchors[t] = state.anchors[t] + move
+        if wp.static(sliding):  # on S, the anchors' move in material (11.13c)
+            move = laws.return_anchor(material_slip(pos, data, state, t), bound,
+                                      data.friction_law[t, 3])
+            state.anchors[t] = state.anchors[t] + wp.cw_div(move, state.stretch[t])
+        else:
+            move = laws.return_anchor(slip(pos, data, state.anchors, t, plane_shift(pos, data)),
+                                      bound, data.friction_law[t, 3])
+            state.anchors[t] = state.anchors[t] + move
         return bound * wp.length(move)
 
     return SimpleNamespace(turning_angle=turning_angle, wrap_forces=wrap_forces,

@@ -173,6 +173,30 @@ class StructureArrays:
     node_term_first: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     """(K,) each registry node term's first column in `node_parameters`, -1 where the structure
     lacks it (`dynfab.model.terms.nodes.firsts`)."""
+    physical_source: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int64))
+    """sliding: (n, dim) the flat dof holding each coordinate the elements see, -1 for its
+    rest position (`Structure.physical_source`, docs/model.md 11.13)."""
+    node_slide: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    """sliding: (n,) 1 where the node's first dof holds a crossing's slide delta (its force
+    the material's and the friction's), else 0."""
+    segment_material: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int64))
+    """sliding: (n, 2) the flat dofs of the slides at segment (i, next)'s bay ends, -1 for a
+    constant (`segment_material_end`)."""
+    segment_material_end: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    """sliding: (n, 2) the constant slide [m] of a bay end no dof holds."""
+    segment_fraction: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    """sliding: (n,) segment (i, next)'s share f of its bay [-]."""
+    segment_base: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    """sliding: (n,) its rest length at no slide [m]: L = base + f (delta_R - delta_L)."""
+    stretch_modulus: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    """sliding: (n,) EA [N] of segment (i, next)."""
+    bend_modulus: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    """sliding: (n,) EI [N m^2] of node i's bending spring (0 at a chain's ends)."""
+
+    @property
+    def sliding(self) -> bool:
+        """Its crossings slide (docs/model.md 11.13)."""
+        return self.node_slide.size > 0
 
     @property
     def nodes(self) -> int:
@@ -243,6 +267,10 @@ def build(structure: Structure) -> StructureArrays:
     load_direction[structure.load_node, 0] = structure.load_factor
     load_family = np.full(n, -1)
     load_family[structure.load_node] = structure.chain_family
+    free = ~np.asarray(structure.fixed).reshape(n, dim)
+    if structure.physical_source.size:  # a retired tail: held, seen at its chain's end
+        free &= np.asarray(structure.dof_tie).reshape(n, dim) < 0
+        structure = structure._replace(dof_tie=np.full_like(structure.dof_tie, -1))
     boundary = _boundary(structure, node_chain, dim)
     grouping = _groups(structure, node_chain, boundary, dim)
     spatial = _spatial(structure, grouping["node_group"])
@@ -251,7 +279,7 @@ def build(structure: Structure) -> StructureArrays:
         next=following, rest_length=rest_length, stretch_stiffness=stretch,
         bend_stiffness=np.array(structure.bend_stiffness, float),
         rest_angle=np.array(structure.rest_angle, float),
-        free=(~structure.fixed).reshape(n, dim).astype(float), mass=np.array(structure.mass, float),
+        free=free.astype(float), mass=np.array(structure.mass, float),
         weight=weight, load_direction=load_direction, load_family=load_family,
         node_chain=node_chain, node_tie_start=node_tie_start, node_ties=node_ties,
         tie_a=tie_a, tie_b=tie_b, tie_side=np.array(structure.tie_side, float),
@@ -261,7 +289,35 @@ def build(structure: Structure) -> StructureArrays:
         tie_plane=np.pad(np.array(structure.tie_plane, float).reshape(T, 2),
                          ((0, 0), (0, dim - 2))),
         chain_start=start, families=int(np.max(structure.chain_family, initial=0)) + 1,
-        dim=dim, **boundary, **grouping, **spatial, **_node_terms(structure))
+        dim=dim, **boundary, **grouping, **spatial, **_node_terms(structure),
+        **_sliding(structure, has_segment, segment))
+
+
+def _sliding(s: Structure, has_segment: np.ndarray, segment: np.ndarray) -> dict:
+    """Where the crossings slide, the arrays of their material (docs/model.md 11.13) per node
+    and per segment (i, next) as the kernels index segments; none otherwise."""
+    if not s.physical_source.size:
+        return {}
+    n, dim = s.rest_position.shape
+    if np.asarray(s.node_term_active).any():
+        raise ValueError("the kernels take no node terms on crossings that slide")
+
+    def per_segment(values, shape=()):
+        out = np.full((n, *shape), -1 if values.dtype.kind == "i" else 0.0, values.dtype)
+        out[has_segment] = values[segment]
+        return out
+
+    node_slide = np.zeros(n, np.int64)
+    node_slide[np.asarray(s.tie_material).reshape(-1) // dim] = 1
+    return dict(physical_source=np.asarray(s.physical_source, np.int64).reshape(n, dim),
+                node_slide=node_slide,
+                segment_material=per_segment(np.asarray(s.segment_material, np.int64), (2,)),
+                segment_material_end=per_segment(np.asarray(s.segment_material_end, float),
+                                                 (2,)),
+                segment_fraction=per_segment(np.asarray(s.segment_fraction, float)),
+                segment_base=per_segment(np.asarray(s.segment_base, float)),
+                stretch_modulus=per_segment(np.asarray(s.stretch_modulus, float)),
+                bend_modulus=np.asarray(s.bend_modulus, float))
 
 
 def _node_terms(s: Structure) -> dict:
@@ -489,6 +545,14 @@ def _struct(scalar, dim: int):
         node_stencil: wp.array(dtype=wp.int32)
         node_lateral_start: wp.array(dtype=wp.int32)
         node_lateral: wp.array(dtype=wp.int32)
+        physical_source: wp.array2d(dtype=wp.int32)
+        node_slide: wp.array(dtype=wp.int32)
+        segment_material: wp.array2d(dtype=wp.int32)
+        segment_material_end: wp.array2d(dtype=scalar)
+        segment_fraction: wp.array(dtype=scalar)
+        segment_base: wp.array(dtype=scalar)
+        stretch_modulus: wp.array(dtype=scalar)
+        bend_modulus: wp.array(dtype=scalar)
 
     return wp.struct(StructureData)
 

@@ -29,7 +29,8 @@ from types import SimpleNamespace
 
 import warp as wp
 
-from dynfab.kernels import spatial_terms, status, structure_forces, structure_settings
+from dynfab.kernels import sliding_terms, spatial_terms, status, structure_forces
+from dynfab.kernels import structure_settings
 from dynfab.kernels import structure_tangent, structure_variants
 from dynfab.kernels.precision import KINEMATICS, epsilon
 
@@ -46,7 +47,8 @@ STALL_MIN_STEPS = 2_000
 during the last half of its steps stops (status.NO_PROGRESS); the fabric's choice."""
 
 
-TANGENTS = {"planar": structure_tangent.functions, "spatial": spatial_terms.tangent_terms}
+TANGENTS = {"planar": structure_tangent.functions, "spatial": spatial_terms.tangent_terms,
+            "sliding": sliding_terms.tangent_terms}
 """The tangent of each kinematics' elements: the semi-implicit method's (`tie_blocks`,
 `assemble_chain`, `coupling_vector`) and the stiffest one's rows, which the masses take
 (`stiffest_tie`, `stiffest_chain`, `gershgorin_row`, `largest_diagonal`)."""

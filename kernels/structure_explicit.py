@@ -294,8 +294,12 @@ def functions(scalar, friction: bool, boundary: bool,
 
     @wp.func(inline=True)
     def check_step(g: int, data: Data, state: State, settings: Settings):
-        """`structure_checks.check`, the energy test, kinetic damping's fallback."""
+        """`structure_checks.check`, the energy test, kinetic damping's fallback; where the
+        crossings slide, the progress test too (`structure_checks.check_progress`: a step
+        whose bays lose material stiffens past its masses, docs/model.md 11.13)."""
         code = checks.check_energy(g, data, state, checks.check(g, data, state, settings))
+        if wp.static(kinematics == "sliding"):  # a bay's material can stiffen it in a step
+            code = checks.check_progress(g, state, code)
         if settings.damping == KINETIC:
             if code == int(status.RUNNING):
                 escalate(g, data, state)

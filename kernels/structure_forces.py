@@ -35,17 +35,20 @@ from types import SimpleNamespace
 
 import warp as wp
 
-from dynfab.kernels import node_terms, planar_terms, spatial_terms, structure_arrays
+from dynfab.kernels import node_terms, planar_terms, sliding_terms, spatial_terms
+from dynfab.kernels import structure_arrays
 from dynfab.kernels import structure_state, tie_law
 from dynfab.kernels.precision import KINEMATICS, vector
 
-KINDS = {"planar": planar_terms, "spatial": spatial_terms}
+KINDS = {"planar": planar_terms, "spatial": spatial_terms, "sliding": sliding_terms}
 """The element module of each kinematics (module docstring)."""
 
 
 @functools.cache
-def base(scalar, friction: bool, dim: int) -> SimpleNamespace:
-    """The `wp.func`s every kinematics shares (module docstring)."""
+def base(scalar, friction: bool, dim: int, sliding: bool = False) -> SimpleNamespace:
+    """The `wp.func`s every kinematics shares (module docstring); with `sliding`, the elements
+    see each node where it is (`physical`) and each segment's material now (`rest_length`,
+    `stretch_stiffness`: docs/model.md 11.13a)."""
     vec = vector(scalar, dim)
     Data = structure_arrays.struct(scalar, dim)
     State = structure_state.struct(scalar, dim)
@@ -61,11 +64,56 @@ def base(scalar, friction: bool, dim: int) -> SimpleNamespace:
         return result
 
     @wp.func(inline=True)
+    def physical(pos: wp.array(dtype=vec), data: Data, i: int) -> vec:
+        """Node i where the elements see it [m]: its dofs, or where the crossings slide each
+        coordinate from the dof `data.physical_source` names (its rest position for -1: a
+        crossing's node on the plane it crosses; a retired tail's node at its chain's end)."""
+        if wp.static(not sliding):
+            return pos[i]
+        out = vec()
+        for c in range(wp.static(dim)):
+            source = data.physical_source[i, c]
+            if source < 0:
+                out[c] = data.rest_position[i][c]
+            else:
+                out[c] = pos[source // wp.static(dim)][source % wp.static(dim)]
+        return out
+
+    @wp.func(inline=True)
+    def bay_end(pos: wp.array(dtype=vec), data: Data, i: int, side: int) -> scalar:
+        """The slide delta [m] at side 0 (left) or 1 (right) of segment (i, next)'s bay."""
+        source = data.segment_material[i, side]
+        value = data.segment_material_end[i, side]
+        if source >= 0:
+            value = pos[source // wp.static(dim)][source % wp.static(dim)]
+        return value
+
+    @wp.func(inline=True)
+    def rest_length(pos: wp.array(dtype=vec), data: Data, i: int) -> scalar:
+        """l0 [m] of segment (i, next); sliding, L = base + f (delta_R - delta_L) (11.13a)."""
+        if wp.static(not sliding):
+            return data.rest_length[i]
+        return data.segment_base[i] + data.segment_fraction[i] * (
+            bay_end(pos, data, i, 1) - bay_end(pos, data, i, 0))
+
+    @wp.func(inline=True)
+    def stretch_stiffness(pos: wp.array(dtype=vec), data: Data, i: int, rest: scalar) -> scalar:
+        """k [N/m] of segment (i, next) of rest length `rest`: EA / L where the crossings slide
+        (0 for a retired segment, EA = 0, whatever its L)."""
+        if wp.static(not sliding):
+            return data.stretch_stiffness[i]
+        k = scalar(0.0)
+        if data.stretch_modulus[i] != scalar(0.0):
+            k = data.stretch_modulus[i] / rest
+        return k
+
+    @wp.func(inline=True)
     def segment_pull(pos: wp.array(dtype=vec), data: Data, i: int) -> vec:
         """k (l - l0) e / l [N] of segment (i, next): the force on node i."""
-        e = pos[data.next[i]] - pos[i]
+        e = physical(pos, data, data.next[i]) - physical(pos, data, i)
         length = wp.length(e)
-        return (data.stretch_stiffness[i] * (length - data.rest_length[i]) / length) * e
+        rest = rest_length(pos, data, i)
+        return (stretch_stiffness(pos, data, i, rest) * (length - rest) / length) * e
 
     @wp.func(inline=True)
     def closure(pos: wp.array(dtype=vec), data: Data, t: int) -> scalar:
@@ -111,7 +159,9 @@ def base(scalar, friction: bool, dim: int) -> SimpleNamespace:
 
     return SimpleNamespace(along_z=along_z, segment_pull=segment_pull, closure=closure,
                            external=external, own_and_stretch=own_and_stretch,
-                           contact_pass=contact_pass, node=node)
+                           contact_pass=contact_pass, node=node, sliding=sliding,
+                           physical=physical, rest_length=rest_length,
+                           stretch_stiffness=stretch_stiffness)
 
 
 @functools.cache
@@ -124,7 +174,7 @@ def functions(scalar, friction: bool, boundary: bool,
     Data = structure_arrays.struct(scalar, dim)
     State = structure_state.struct(scalar, dim)
     laws = tie_law.functions(scalar)
-    shared = base(scalar, friction, dim)
+    shared = base(scalar, friction, dim, kinematics == "sliding")
     kind = KINDS[kinematics].structure_terms(scalar, friction, boundary, shared)
 
     @wp.func(inline=True)
@@ -157,13 +207,16 @@ def functions(scalar, friction: bool, boundary: bool,
         """Energy [J] owned by node i: its segment (i, next), its bending spring (and wrap
         spring at a chain's first node), minus the work of its external force."""
         external = state.load[i] + data.weight[i]
-        energy = -wp.dot(external, pos[i] - data.rest_position[i])
+        here = shared.physical(pos, data, i)
+        energy = -wp.dot(external, here - data.rest_position[i])
         if wp.static(shared.node.count > 0):
             energy += shared.node.energy(i, pos, data)
         after = data.next[i]
         if after >= 0:
-            stretch = wp.length(pos[after] - pos[i]) - data.rest_length[i]
-            energy += scalar(0.5) * data.stretch_stiffness[i] * stretch * stretch
+            rest = shared.rest_length(pos, data, i)
+            stretch = wp.length(shared.physical(pos, data, after) - here) - rest
+            energy += scalar(0.5) * shared.stretch_stiffness(pos, data, i, rest) \
+                * stretch * stretch
         return kind.add_node_energy(i, pos, data, energy)
 
     @wp.func(inline=True)

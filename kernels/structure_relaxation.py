@@ -49,7 +49,8 @@ from dynfab.kernels import structure_semi_implicit as semi
 from dynfab.kernels import structure_settings, structure_state, structure_transient
 from dynfab.kernels import structure_variants
 from dynfab.kernels.precision import KINEMATICS_OF_DIM, SCALARS, numpy_dtype, vector
-from dynfab.model.structure import Structure
+from dynfab.model.fabric.sliding import with_stretches
+from dynfab.model.structure import Structure, dim, sliding
 from dynfab.model.terms import kinematics
 
 METHODS = ("explicit", "semi_implicit")
@@ -69,6 +70,18 @@ SAFETY = 0.9
 """dt / the Gershgorin stable time step by default [-] (docs/model.md section 5)."""
 RUNNING_FOREVER = 2 ** 31 - 1
 """max_steps of a transient: it ends by time, not by a step count."""
+
+
+def kernel_kinematics(structure: Structure) -> str:
+    """The kernels' kinematics of `structure` (`dynfab.kernels.precision.KINEMATICS`): planar or
+    spatial by its coordinates, "sliding" for a planar one whose crossings slide; a ValueError
+    for a spatial one whose crossings slide (not in the kernels yet, docs/model.md 11.13)."""
+    name = KINEMATICS_OF_DIM[dim(structure)]
+    if sliding(structure):
+        if name != "planar":
+            raise ValueError("the kernels slide the crossings of a planar structure only")
+        return "sliding"
+    return name
 
 
 @dataclass
@@ -149,7 +162,9 @@ class StructureRelaxation:
             raise ValueError(f"damping {damping!r} unknown; one of {structure_settings.DAMPINGS}")
         self.arrays = arrays = structure_arrays.build(structure)
         self.structure, self.dim = structure, arrays.dim
-        self.kinematics = KINEMATICS_OF_DIM[arrays.dim]
+        self.kinematics = kernel_kinematics(structure)
+        if arrays.sliding:  # the slides' forces are gathered (planar_terms.material_force)
+            order = "gather"
         elements = structure_forces.KINDS[self.kinematics]
         self.rows_from_host = elements.ROWS_FROM_HOST
         self.method, self.layout, self.order, self.device = method, layout, order, device
@@ -173,6 +188,9 @@ class StructureRelaxation:
         self.chunk_seconds = CHUNK_SECONDS
         """The wall time later launches are sized to [s] (`relax`); None: every launch
         `chunk` steps."""
+        self.rows_floor = None
+        """Where the host gives the masses' rows, the least rows and diagonals (n,) [N/m] a
+        relaxation takes (`stiffen`); None: the rows at its start alone."""
         self.friction = arrays.has_friction if friction is None else friction
         self.boundary = arrays.has_boundary if boundary is None else boundary
         if arrays.has_friction and not self.friction or arrays.has_boundary and not self.boundary:
@@ -302,9 +320,32 @@ class StructureRelaxation:
         factors = a.load_direction[last, 0]
         return np.asarray(values, float)[a.load_family[last]] * factors
 
+    def stiffen(self, anchors, *positions, factor: float = 1.0) -> None:
+        """The next relaxations' masses at least `factor` times those of the stiffest tangent
+        at each of `positions` and the last floor (`rows_floor`; host rows only: where the
+        crossings slide, a step that draws a bay's material through its crossing stiffens the
+        bay's segments, EA / L and EI / lbar, past the rows at its start)."""
+        rows = [kinematics.stiffest_rows(self.structure, p, anchors) for p in positions]
+        if self.rows_floor is not None:
+            rows.append(self.rows_floor)
+        self.rows_floor = tuple(factor * np.max(part, axis=0) for part in zip(*rows))
+
     def as_woven_anchors(self) -> np.ndarray:
         """Anchors at zero slip as woven (`dynfab.model.terms.kinematics.woven_anchors`)."""
         return kinematics.woven_anchors(self.structure)
+
+    def _set_anchors(self, state, positions, anchors) -> np.ndarray:
+        """The state's anchors (default `as_woven_anchors`); where the crossings slide, a
+        step's (xi_a, xi_b, lambda_a, lambda_b) (T, 4), or a state's (xi_a, xi_b) with the
+        stretches at `positions` (`dynfab.model.fabric.sliding.with_stretches`), split into
+        the anchors and `state.stretch` (docs/model.md 11.13c). Returns the anchors whole."""
+        anchors = self.as_woven_anchors() if anchors is None else np.asarray(anchors, float)
+        if self.arrays.sliding:
+            if anchors.shape[1] == 2:
+                anchors = with_stretches(positions, self.structure, anchors)
+            self._set(state.stretch, anchors[:, 2:4])
+        self._set(state.anchors, anchors[:, :self.dim])
+        return anchors
 
     def _settings(self, **values):
         fictitious = int(self.masses == "fictitious")
@@ -325,8 +366,10 @@ class StructureRelaxation:
         anchors = self.as_woven_anchors() if anchors is None else anchors
         self._set(s.position, positions)
         self._set(s.load, self.node_loads(loads))
-        self._set(s.anchors, anchors)
+        anchors = self._set_anchors(s, positions, anchors)
         host = kinematics.stiffest_rows(self.structure, positions, anchors)
+        if host is not None and self.rows_floor is not None:
+            host = tuple(np.maximum(mine, floor) for mine, floor in zip(host, self.rows_floor))
         if host is not None:  # the Gershgorin rows of the stiffest tangent, from the host
             s.rows.assign(self._scalars(host[0]))
             s.diagonal.assign(self._scalars(host[1]))
@@ -446,8 +489,15 @@ class StructureRelaxation:
     # ------------------------------------------------------------------ results
 
     def positions(self) -> np.ndarray:
-        """Node positions (n, 2) [m], float64."""
-        return self.state.position.numpy().astype(np.float64)
+        """Node positions (n, 2) [m], float64 (where the crossings slide, the dofs: a retired
+        tail's tied dofs, held in the kernels, moved as those they are tied to)."""
+        out = self.state.position.numpy().astype(np.float64)
+        if self.arrays.sliding:
+            flat, tie = out.reshape(-1), np.asarray(self.structure.dof_tie)
+            start = self.state.start_position.numpy().astype(np.float64).reshape(-1)
+            tied = np.flatnonzero(tie >= 0)
+            flat[tied] += flat[tie[tied]] - start[tie[tied]]
+        return out
 
     def group_values(self, name: str) -> np.ndarray:
         """A per-group (or other) field of the state, as float64 or int (copies): "dt",
@@ -469,7 +519,7 @@ class StructureRelaxation:
                                                      self.rows_from_host)
         s = self._scratch
         self._set(s.position, positions)
-        self._set(s.anchors, self.as_woven_anchors() if anchors is None else anchors)
+        self._set_anchors(s, positions, anchors)
         self._set(s.load, self.node_loads(loads))
         self._pass(structure_passes.TIES, self.arrays.ties, data)
         return s
@@ -528,10 +578,14 @@ class StructureRelaxation:
 
     def return_map(self, positions, anchors):
         """(anchors (T, 2) [m] after the radial return map at `positions`, the energy each tie
-        dissipated (T,) [J]) (docs/model.md sections 4, 10)."""
-        self._passes(positions, anchors)
+        dissipated (T,) [J]) (docs/model.md sections 4, 10; where the crossings slide the
+        step's anchors (T, 4), their stretches kept, 11.13c)."""
+        s = self._passes(positions, anchors)
         lost = self._pass(structure_passes.RETURN_MAP, self.arrays.ties).numpy()
-        return structure_state.read(self._scratch, "anchors"), lost[:self.arrays.ties].astype(float)
+        moved = structure_state.read(s, "anchors")
+        if self.arrays.sliding:
+            moved = np.hstack([moved, structure_state.read(s, "stretch")])
+        return moved, lost[:self.arrays.ties].astype(float)
 
     # ------------------------------------------------------------------ transient
 

@@ -4,7 +4,8 @@ chain, dof and group (docs/model.md section 5).
 Per group the integration state a time loop carries from one launch to the next (time step,
 damping state, counters, the convergence bookkeeping of `structure_checks`, the status of
 `dynfab.kernels.status`); per node positions, velocities, forces and masses; per tie the
-contact and friction state and the anchors; per block the partial sums of a group's sums
+contact and friction state and the anchors (and, where the crossings slide, the stretches
+lambda_a, lambda_b their friction measures slips with, docs/model.md 11.13c); per block the partial sums of a group's sums
 (`structure_arrays` docstring); per chain and dof the semi-implicit system and its
 conjugate-gradient vectors (allocated only for that method: empty otherwise).
 """
@@ -60,6 +61,7 @@ def _struct(scalar, dim: int):
         node_values: wp.array(dtype=vec4)
         # ---- per tie (T)
         anchors: wp.array(dtype=vec)
+        stretch: wp.array(dtype=vec)
         contact: wp.array(dtype=scalar)
         tangent: wp.array(dtype=scalar)
         limit: wp.array(dtype=scalar)
@@ -156,6 +158,7 @@ def allocate(arrays, scalar, device: str, semi_implicit: bool, rows_from_host: b
         setattr(state, name, zeros(n, scalar))
     state.node_values = zeros(n, vec4)
     state.anchors, state.friction, state.coupling = zeros(T, vec), zeros(T, vec), zeros(T, vec4)
+    state.stretch = zeros(T if arrays.sliding else 0, vec)
     for name in TIE_SCALARS:
         setattr(state, name, zeros(T, scalar))
     state.block_values, state.block_max = zeros(B, vec4), zeros(B, scalar)

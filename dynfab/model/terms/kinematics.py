@@ -88,7 +88,11 @@ def woven_anchors(structure: Structure) -> np.ndarray:
 def stiffest_rows(structure: Structure, pos, anchors) -> tuple[np.ndarray, np.ndarray] | None:
     """Per node, the stiffest tangent's Gershgorin row sum and largest diagonal [N/m] where the
     host computes them (spatial: `dynfab.model.fabric.spatial.stiffest_rows`, from the exact
-    Hessian); None where the kernels do (planar: from their band, `structure_tangent`)."""
+    Hessian; crossings that slide: `dynfab.model.fabric.sliding.stiffest_rows`, the step's
+    anchors with their stretches); None where the kernels do (planar: from their band,
+    `structure_tangent`)."""
+    if slides(structure):
+        return sliding.stiffest_rows(structure, pos, anchors)
     if dim(structure) != 3:
         return None
     return spatial.stiffest_rows(structure, np.asarray(pos, float).reshape(-1, 3),
