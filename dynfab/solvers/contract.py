@@ -29,10 +29,11 @@ from typing import Iterator, Mapping, Protocol, runtime_checkable
 
 import numpy as np
 
+from dynfab.errors import SolverError
 from dynfab.model.yarn import State
 from dynfab.scene import Scene
 from dynfab.model.step import StepSolution, StepStart
-from dynfab.model.structure import Structure
+from dynfab.model.structure import Structure, sliding
 
 Record = dict[str, np.ndarray]
 """One finished load step: dataset name -> array, written as `steps/<name>` (one row per
@@ -204,3 +205,29 @@ class Transient(Protocol):
         Raises `dynfab.errors.SolverError` when the integration diverges; the frames
         yielded before stay valid.
         """
+
+
+SLIDING_HALVINGS = 4
+"""How many times a load step of a structure whose crossings slide is cut in half where it
+fails (`step_in_halves`): a yarn end may pass its last crossing within a step, whose
+equilibrium then needs the crossing gone (docs/model.md 11.13); down to 1/16 of the step."""
+
+
+def step_in_halves(step_once, model, state, load, halvings: int = SLIDING_HALVINGS,
+                   say=None):
+    """`step_once(state, load)`, or where the model's crossings slide and it fails
+    (SolverError), the step made of two halves, each the same way (at most `halvings`
+    deep), the crossings a yarn end has passed leaving between them: the record is the last
+    half's, the state has every half's dissipation and work. `say(text)` is told of each
+    halving (or None)."""
+    try:
+        return step_once(state, load)
+    except SolverError as failed:
+        before = getattr(state, "load", None)
+        if not (halvings and sliding(model.structure) and before is not None):
+            raise
+        middle = 0.5 * (np.asarray(before, float) + np.asarray(load, float))
+        if say is not None:
+            say(f"the step failed ({failed}); the step in two halves, from load {middle}")
+        half, _ = step_in_halves(step_once, model, state, middle, halvings - 1, say)
+        return step_in_halves(step_once, model, half, load, halvings - 1, say)

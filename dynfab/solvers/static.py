@@ -14,20 +14,12 @@ chain, or the sparse factorisation) and leave a saddle along a direction of nega
 
 from __future__ import annotations
 
-import numpy as np
 
-from dynfab.errors import SolverError
+from dynfab.solvers.contract import SLIDING_HALVINGS, step_in_halves
 from dynfab.solvers.newton_backend import NewtonBackend
 from dynfab.solvers.newton_banded import BandedNewton
 from dynfab.solvers.newton_sparse import SparseNewton
 from dynfab.model.structure import grounded, sliding
-
-SLIDING_HALVINGS = 4
-"""How many times a load step of a structure whose crossings slide is cut in half where its
-Newton fails (`StaticSolver.step`): a yarn end may pass its last crossing within a step,
-whose equilibrium then needs the crossing gone (docs/model.md 11.13); down to 1/16 of the
-step."""
-
 
 def backend_for(model, **options) -> NewtonBackend:
     """The backend of `model`'s structure: banded where it is grounded, else sparse (and
@@ -81,22 +73,11 @@ class StaticSolver:
 
     def step(self, state, load, halvings: int = SLIDING_HALVINGS):
         """The equilibrium under `load` from `state` (not modified): (new state, record), or a
-        `dynfab.errors.SolverError` (`dynfab.solvers.contract.Solver.step`). Where the
-        crossings slide and Newton fails, the step is made of two halves, each the same way
-        (at most `halvings` deep), the crossings a yarn end has passed leaving between them:
-        the record is the last half's, the state has every half's dissipation and work."""
-        try:
-            return self._step(state, load)
-        except SolverError as failed:
-            before = getattr(state, "load", None)
-            if not (halvings and sliding(self.model.structure) and before is not None):
-                raise
-            middle = 0.5 * (np.asarray(before, float) + np.asarray(load, float))
-            say = self._options["status"]
-            if say is not None:
-                say(f"Newton failed ({failed}); the step in two halves, from load {middle}")
-            half, _ = self.step(state, middle, halvings - 1)
-            return self.step(half, load, halvings - 1)
+        `dynfab.errors.SolverError` (`dynfab.solvers.contract.Solver.step`); where the
+        crossings slide and Newton fails, the step in halves
+        (`dynfab.solvers.contract.step_in_halves`)."""
+        return step_in_halves(self._step, self.model, state, load, halvings,
+                              self._options["status"])
 
     def _step(self, state, load):
         """`step` in one piece."""
