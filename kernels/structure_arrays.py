@@ -423,6 +423,9 @@ def _groups(s: Structure, node_chain: np.ndarray, boundary: dict, dim: int = 2) 
     coupled = np.concatenate([node_chain[planes], node_chain[s.tie_a[moved]]])
     for y in coupled[1:]:
         join(coupled[0], y)
+    if s.physical_source.size:  # crossings that slide: one patch, a yarn that left it too
+        for y in range(1, Y):
+            join(0, y)
     component = np.array([find(y) for y in range(Y)])
     # contiguous ranges: a group ends at chain y when no component seen so far continues past y
     reach = {}

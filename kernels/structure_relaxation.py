@@ -326,6 +326,7 @@ class StructureRelaxation:
         crossings slide, a step that draws a bay's material through its crossing stiffens the
         bay's segments, EA / L and EI / lbar, past the rows at its start)."""
         rows = [kinematics.stiffest_rows(self.structure, p, anchors) for p in positions]
+        rows = [part for part in rows if part is not None]  # None: a bay out of material
         if self.rows_floor is not None:
             rows.append(self.rows_floor)
         self.rows_floor = tuple(factor * np.max(part, axis=0) for part in zip(*rows))

@@ -23,7 +23,9 @@ from dynfab.model.terms import contact as contact_law
 from dynfab.model.terms import friction as gralen
 from dynfab.model.terms.kinematics import woven_anchors
 from dynfab.run import run, run_to_file
-from dynfab.scene import parse_scene_text
+from dynfab.kernels.structure_relaxation import StructureRelaxation
+from dynfab.scene import Dynamic, parse_scene_text
+from dynfab.solvers.dynamic import DynamicSolver
 from dynfab.solvers.static import StaticSolver
 from independent import fabric_scene, pullout_text
 from test_fabric_scenes import assert_same_steps, run_interrupted
@@ -335,13 +337,124 @@ def test_what_sliding_crossings_do_not_run_yet_is_refused_in_one_line(change, wo
                      load=dict(control="force", values=[0.01]), **change)
 
 
-@pytest.mark.parametrize("made", [lambda: FabricModel.from_scene(patch()), lambda: specimen()],
-                         ids=["patch", "specimen"])
-def test_the_dynamic_solver_refuses_sliding_crossings_in_one_line(made):
-    from dynfab.solvers.dynamic import DynamicSolver
+def test_a_specimens_sliding_crossings_are_refused_by_the_dynamic_solver_in_one_line():
+    with pytest.raises(UserError, match=r'^crossing.motion = "sliding" on a \[specimen\] runs '
+                                        r'on the static solver'):
+        DynamicSolver(specimen())
 
-    with pytest.raises(UserError, match=r'^crossing.motion = "sliding" runs on the static'):
-        DynamicSolver(made())
+
+@pytest.mark.parametrize("option", [dict(method="semi_implicit"),
+                                    dict(mode="transient", duration=1.0, output_interval=0.5),
+                                    dict(masses="physical"), dict(precision="float32")],
+                         ids=lambda option: "-".join(map(str, option.values())))
+def test_what_the_kernels_do_not_run_with_sliding_crossings_is_refused_in_one_line(option):
+    """(A transient also names dynamic.mode = "transient", with its duration given.)"""
+    name, value = next(iter(option.items()))
+    with pytest.raises(UserError, match=rf'^crossings that slide do not run dynamic.{name} = '
+                                        rf'"{value}": .* \(docs/model.md 11.13\)$'):
+        DynamicSolver(FabricModel.from_scene(patch()), Dynamic(**option))
+
+
+# ----------------------------------------------------------------------- the kernels
+
+
+def test_the_kernels_forces_energy_and_return_map_are_the_sliding_term_sets(structure):
+    """The Warp kernels' forces on every free dof (the slides' included: their material force
+    -sum_k dV/dL_k dL_k/d delta and the friction lambda H'(S), docs/model.md 11.13a-c), their
+    energy and their return map on the perturbed patch
+    are the host term set's, evaluated with the same F_T (from each crossing's R; the return
+    map finds some sliding, some sticking): two evaluations of one formula in float64, apart by
+    the rounding of their sums (a few ulps of the largest term)."""
+    s = structure
+    dofs, anchors, _ = perturbed(s)
+    anchors[::2, :2] = dofs.reshape(-1)[s.tie_material[::2]] + 1e-8  # these stick
+    relaxation = StructureRelaxation(s, friction=True)
+    force = relaxation.forces(dofs, loads(s), anchors)
+    limit = relaxation.tie_forces(dofs, anchors)[2]  # F_T at the kernels' R
+    grad = gradient(s, dofs, anchors, limit) * ~s.fixed.reshape(dofs.shape)
+    rounding = 16 * np.finfo(float).eps * np.abs(grad).max()
+    np.testing.assert_allclose(force, -grad, rtol=0, atol=rounding)
+    assert np.abs(force.reshape(-1)[s.tie_material]).min() > 1e3 * rounding
+    nodes, ties = relaxation.energies(dofs, loads(s), anchors)
+    assert nodes.sum() + ties.sum() == pytest.approx(energy(s, dofs, anchors, limit),
+                                                     rel=16 * np.finfo(float).eps)
+    moved, lost = relaxation.return_map(dofs, anchors)
+    expected = np.array(anchors)
+    slides = np.zeros(s.tie_a.size, bool)
+    expected_lost = sliding.return_map(dofs, expected, s, limit, slides, np.zeros((slides.size, 2)))
+    assert slides.any() and not slides.all()
+    np.testing.assert_allclose(moved, expected, rtol=0, atol=16 * np.finfo(float).eps * 1e-3)
+    assert lost.sum() == pytest.approx(expected_lost, rel=1e-12)
+
+
+@pytest.fixture(scope="module")
+def patch_steps():
+    """patch()'s load step from the as-woven state, by the static solver, and by the dynamic
+    one in the grouped and the node-parallel layouts."""
+    model = FabricModel.from_scene(patch())
+    runs = {"static": StaticSolver(model).step(model.initial_state(), model.step_load(0))}
+    for layout in ("grouped", "node_parallel"):
+        runs[layout] = DynamicSolver(model, layout=layout).step(model.initial_state(),
+                                                                  model.step_load(0))
+    return runs
+
+
+def test_dynamic_relaxation_of_sliding_crossings_meets_the_static_reference(patch_steps):
+    """The dynamic solver's step (kinetic damping, the slides' fictitious masses from their
+    rows of the stiffest tangent, docs/model.md 11.13) and the static solver's agree within the
+    two steps' error bounds (`steps/error_estimate`, a bound on every dof, the slides among
+    them): the end displacements, the nodes and each crossing's slide along each yarn."""
+    (_, static), (_, dynamic) = patch_steps["static"], patch_steps["grouped"]
+    bound = float(static["error_estimate"]) + float(dynamic["error_estimate"])
+    assert bound < 0.01 * np.abs(static["end_displacement"]).max()  # a check that can fail
+    for name in ("end_displacement", "positions", "weft_positions", "slip"):
+        np.testing.assert_allclose(dynamic[name], static[name], rtol=0, atol=bound,
+                                   err_msg=name)
+
+
+def test_the_dynamic_solver_pulls_a_warp_through_its_crossings_as_the_static_one():
+    """A straight warp pulled through two crossings that hold their contact forces, to
+    extraction, by both solvers: each crossing leaves at the same step (the structure laid out
+    again, the retired tail held in the kernels and moved with its end), and the pull (the
+    end's reaction, the sum of the forces along the warp) agrees within the residuals' sum
+    over the warp's nodes, (nodes + 1) x the two tolerances; 2 F_T, F_T, then 0."""
+    runs, tolerances = {}, []
+    for name, kind in (("static", StaticSolver), ("dynamic", DynamicSolver)):
+        model, F_T = held_pullout(wefts=2, step=2.5e-4, steps=44)
+        solver = kind(model)
+        runs[name] = solver.run()[1] if kind is StaticSolver else relax_path(solver)
+        tolerances.append(solver.tolerance)
+    tolerance = (model.warp.segments + 2) * sum(tolerances)
+    for static, dynamic in zip(runs["static"], runs["dynamic"], strict=True):
+        np.testing.assert_array_equal(dynamic["crossing_present"], static["crossing_present"])
+        assert abs(float(dynamic["end_force"][0]) - float(static["end_force"][0])) <= tolerance
+    pull = np.array([float(r["end_force"][0]) for r in runs["dynamic"]])
+    after = [int(np.sum(r["crossing_present"])) for r in runs["dynamic"]]
+    during = np.array([2] + after[:-1])  # the crossings a step ran with
+    assert set(during) == {2, 1, 0} and np.all(pull[during == 0] == 0.0)
+    assert pull.max() == pytest.approx(2 * F_T, abs=tolerance)
+
+
+def relax_path(solver):
+    """Every load step's record of a dynamic solver's run from the as-woven state."""
+    model = solver.model
+    state, records = model.initial_state(), []
+    for index in range(len(model.load_values)):
+        state, record = solver.step(state, model.step_load(index))
+        records.append(record)
+    return records
+
+
+def test_the_node_parallel_layout_slides_the_grouped_layouts_bits(patch_steps):
+    """The node-parallel layout (a GPU's) takes the grouped layout's step bit for bit where
+    the crossings slide (both gather the slides' forces): `--device cuda` changes the layout,
+    not the answer."""
+    (grouped, grouped_record), (parallel, parallel_record) = (patch_steps["grouped"],
+                                                              patch_steps["node_parallel"])
+    np.testing.assert_array_equal(parallel.positions, grouped.positions)
+    np.testing.assert_array_equal(parallel.anchors, grouped.anchors)
+    for name in grouped_record:
+        np.testing.assert_array_equal(parallel_record[name], grouped_record[name], err_msg=name)
 
 
 # ----------------------------------------------------------------------- a shear specimen
@@ -504,7 +617,7 @@ def test_a_specimens_edge_yarns_slide_out_and_a_resumed_run_repeats_it(tmp_path)
 
 def test_a_failed_step_of_sliding_crossings_is_made_of_halves(monkeypatch):
     """Where Newton fails on a step of sliding crossings, the step is solved in halves
-    (`dynfab.solvers.static.SLIDING_HALVINGS`): with Newton made to fail on any increment
+    (`dynfab.solvers.contract.SLIDING_HALVINGS`): with Newton made to fail on any increment
     above 0.3 mm, a step from 0 to 1 mm is solved as 0.25, 0.5, 0.75 and 1 mm, and ends
     where the path of those four steps ends, to the bit."""
     from dynfab.errors import SolverError

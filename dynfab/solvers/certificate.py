@@ -74,7 +74,7 @@ from dynfab.model.fabric import ordering as fabric_ordering
 from dynfab.linalg.ldlt import (TINY_PIVOT, inverse_norm_1, ldlt_factor, ldlt_solve,
                                 negative_direction)
 from dynfab.scene import Static
-from dynfab.model.structure import Structure, dim, grounded, tie_layout
+from dynfab.model.structure import Structure, dim, grounded, sliding, tie_layout
 from dynfab.model.terms import friction
 
 EPS = np.finfo(np.float64).eps
@@ -650,7 +650,8 @@ def patch_location(model, unknown: int) -> str:
 class GroupLayout:
     """What the certificate of a model's steps reads of its structure, worked out once per model
     (`certify_groups`): its groups (`RunModel.groups`, each a contiguous range of chains), the
-    route its structure allows (`dynfab.model.structure.grounded`: banded per chain, one chain per
+    route its structure allows (`dynfab.model.structure.grounded`, crossings that slide apart:
+    banded per chain, one chain per
     group; else the sparse route of the whole structure, one group), each group's nodes and
     longest chain, and on the banded route each chain's ties, held dofs and Yarn view (the
     model's `yarns`)."""
@@ -659,7 +660,7 @@ class GroupLayout:
         s = self.structure = model.structure
         self.model = model
         self.groups = [np.asarray(chains) for chains in model.groups]
-        self.banded = grounded(s)
+        self.banded = grounded(s) and not sliding(s)  # sliding: the sparse term set
         if self.banded and any(chains.size != 1 for chains in self.groups):
             raise ValueError("the banded certificate takes one chain per group")
         if not self.banded and len(self.groups) != 1:

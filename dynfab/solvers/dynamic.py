@@ -37,11 +37,13 @@ import numpy as np
 from dynfab.solvers.certificate import MAX_ESCAPES, GroupLayout, certify_groups
 from dynfab.errors import SolverError, UserError
 from dynfab.kernels import runtime, status, structure_forces
-from dynfab.kernels.precision import DEFAULT_TOLERANCE, KINEMATICS_OF_DIM
+from dynfab.kernels.precision import DEFAULT_TOLERANCE
 from dynfab.kernels.structure_explicit import MAX_NEGATIVE_STEPS
 from dynfab.kernels.structure_relaxation import StructureRelaxation, available_cores
+from dynfab.kernels.structure_relaxation import kernel_kinematics
 from dynfab.kernels.structure_settings import RELATIVE_TOLERANCE
 from dynfab.scene import Dynamic, check_dynamic_options
+from dynfab.solvers.contract import step_in_halves
 from dynfab.model.step import StepSolution
 from dynfab.model.structure import dim, sliding
 
@@ -51,6 +53,9 @@ _SADDLE_HINT = {"semi_implicit": " (semi_implicit accepts only steps that lower 
                                   "which cannot lead away from a saddle: use dynamic.method = "
                                   "\"explicit\")"}
 """Why a relaxation restarted from a saddle's escape may not converge, per method."""
+MAX_STIFFENINGS = 3
+"""Times a relaxation of crossings that slide that failed runs again with masses at least the
+stiffest tangent's where it got to (`DynamicSolver._relax`, docs/model.md 11.13)."""
 MAX_TIGHTENINGS = 3
 """Times a load step relaxed to the default tolerance is relaxed further because its error
 bound exceeds the accuracy target (`DynamicSolver._certify`)."""
@@ -58,16 +63,19 @@ bound exceeds the accuracy target (`DynamicSolver._certify`)."""
 
 def _check_refusals(structure, options) -> None:
     """A UserError in one line where the structure's elements refuse an option (their
-    `REFUSALS`: the spatial ones float32, docs/model.md section 11.11)."""
-    kinematics = KINEMATICS_OF_DIM[dim(structure)]
-    if sliding(structure):
-        raise UserError('crossing.motion = "sliding" runs on the static solver (--solver '
-                        'static) so far: the kernels hold each crossing a fixed pair of nodes '
-                        '(docs/model.md 11.13)')
+    `REFUSALS`: the spatial ones float32, docs/model.md section 11.11; crossings that slide,
+    11.13)."""
+    if sliding(structure) and dim(structure) == 3:
+        raise UserError('crossing.motion = "sliding" on a [specimen] runs on the static solver '
+                        '(--solver static) so far: the kernels slide the crossings of a planar '
+                        'patch only (docs/model.md 11.13)')
+    kinematics = kernel_kinematics(structure)
+    what = ('crossings that slide do not run' if kinematics == "sliding"
+            else f"a structure of {kinematics} kinematics does not run")
+    where = "11.13" if kinematics == "sliding" else "section 11.11"
     for name, value, why in structure_forces.KINDS[kinematics].REFUSALS:
         if getattr(options, name) == value:
-            raise UserError(f"a structure of {kinematics} kinematics does not run dynamic.{name}"
-                            f" = \"{value}\": {why} (docs/model.md section 11.11)")
+            raise UserError(f'{what} dynamic.{name} = "{value}": {why} (docs/model.md {where})')
 
 
 class DynamicSolver:
@@ -96,13 +104,21 @@ class DynamicSolver:
         runtime.initialize(device)
         transient = self.options.mode == "transient"
         _check_refusals(model.structure, self.options)
-        method = "explicit" if transient else self.options.method
+        self._kernel_layout = dict(
+            method="explicit" if transient else self.options.method, layout=layout, order=order)
+        self._cores = None
+        self._lay_out()
+
+    def _lay_out(self) -> None:
+        """The relaxation of the model's structure as it is now (again after a yarn end has
+        left a crossing that slides, docs/model.md 11.13; the kernels built once)."""
+        model, method = self.model, self._kernel_layout["method"]
         self.relaxation = StructureRelaxation(
             model.structure, precision=self.options.precision, method=method,
             damping=self.damping if method == "explicit" else None,
             damping_coefficient=self.options.damping_coefficient, masses=self.masses,
-            dt=self.options.dt, safety=self.options.safety, layout=layout, order=order,
-            device=device, cores=None)
+            dt=self.options.dt, safety=self.options.safety, layout=self._kernel_layout["layout"],
+            order=self._kernel_layout["order"], device=self.device, cores=self._cores)
         self.groups = [np.asarray(chains) for chains in model.groups]
         arrays = self.relaxation.arrays
         kernel_groups = [list(range(arrays.group_chain[g], arrays.group_chain[g + 1]))
@@ -115,6 +131,7 @@ class DynamicSolver:
         """Launch the groups on up to `cores` CPU cores (None: every core this process may run
         on; 1: one launch of all the groups), in contiguous ranges of nearly equal size
         (`StructureRelaxation.use_cores`); results are bit-identical whatever the split."""
+        self._cores = cores
         self.relaxation.use_cores(cores)
 
     @property
@@ -157,11 +174,18 @@ class DynamicSolver:
 
     def step(self, state, load):
         """Relax every group under `load` from `state`; returns (new state, record) or raises
-        SolverError (the `dynfab.solvers.contract.Solver` contract)."""
+        SolverError (the `dynfab.solvers.contract.Solver` contract); where the crossings slide
+        and it fails, the step in halves (`dynfab.solvers.contract.step_in_halves`)."""
+        return step_in_halves(self._step, self.model, state, load, say=self.progress)
+
+    def _step(self, state, load):
+        """`step` in one piece."""
         if self.options.mode == "transient":
             raise UserError('dynamic.mode = "transient" runs by time, not by load step: '
                             "use DynamicSolver.transient(state), which yields frames")
         model = self.model
+        if self.relaxation.structure is not model.structure:
+            self._lay_out()
         start = model.start_of_step(state, load)
         self._tolerance_override = None
         self._counts = {"steps": 0, "force_evaluations": 0, "cg_iterations": 0}
@@ -182,7 +206,25 @@ class DynamicSolver:
     def _relax(self, positions, start, first: bool = False):
         """Relax every group from `positions` at rest with the step's anchors and loads to the
         tolerance (or the tightened one); the time steps, force evaluations and CG iterations
-        counted into the step's; the outcome, or SolverError naming the first failed group."""
+        counted into the step's; the outcome, or SolverError naming the first failed group.
+        Where the crossings slide and a relaxation fails (its residual stalled, diverged or
+        out of steps), it runs again from `positions` with masses twice those of the stiffest
+        tangent at its start, where it got to and the last try (`StructureRelaxation.stiffen`:
+        dt / sqrt(2) each time), at most MAX_STIFFENINGS times (docs/model.md 11.13)."""
+        self.relaxation.rows_floor = None
+        for stiffening in range(MAX_STIFFENINGS + 1):
+            outcome = self._relax_once(positions, start, first and not stiffening)
+            failed = [code not in status.SUCCESS for code in outcome.status]
+            reached = self.relaxation.positions()
+            if (not any(failed) or not sliding(self.model.structure)
+                    or stiffening == MAX_STIFFENINGS or not np.all(np.isfinite(reached))):
+                break
+            self.relaxation.stiffen(start.anchors, positions, reached, factor=2.0)
+        self._raise_on_failure(outcome.status)
+        return outcome
+
+    def _relax_once(self, positions, start, first: bool):
+        """`_relax` without its retries; the outcome, failed or not."""
         override = self._tolerance_override
         relative = RELATIVE_TOLERANCE if self.options.tolerance is None and not override else 0.0
         _, outcome = self.relaxation.relax(
@@ -196,7 +238,6 @@ class DynamicSolver:
         self._counts["cg_iterations"] = self._counts["cg_iterations"] + outcome.cg_iterations
         if first:
             self._warn_if_dt_above_bound()
-        self._raise_on_failure(outcome.status)
         return outcome
 
     def _certify(self, start, outcome):
@@ -346,9 +387,11 @@ class DynamicSolver:
         if code == status.NO_PROGRESS:
             best = self._value("best_residual", k)
             since = int(self._value("steps_since_best", k))
-            return (f"{where}: the semi_implicit relaxation stopped making progress: its residual "
+            again = (f" (relaxed {MAX_STIFFENINGS + 1} times, the masses doubled each time)"
+                     if sliding(self.model.structure) else "")
+            return (f"{where}: the {method} relaxation stopped making progress: its residual "
                     f"has not fallen below {best:.3g} N during the last {since} of {steps} time "
-                    f"steps (tolerance {tolerance:.3g} N){self._open_tie_hint(k)}")
+                    f"steps (tolerance {tolerance:.3g} N){again}{self._open_tie_hint(k)}")
         if code == status.NOT_POSITIVE_DEFINITE:
             return (f"{where}: the semi_implicit matrix had a pivot that is not positive at every "
                     f"time step tried after {steps} steps; residual {residual:.3g} N")

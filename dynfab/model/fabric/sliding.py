@@ -674,16 +674,18 @@ def full_hessian(s: Structure, dofs, anchors, limit) -> np.ndarray:
     return pattern.full_matrix(hessian_values(dofs, s, anchors, limit)[pattern.kept])
 
 
-def stiffest_rows(s: Structure, dofs, anchors) -> tuple[np.ndarray, np.ndarray]:
+def stiffest_rows(s: Structure, dofs, anchors) -> tuple[np.ndarray, np.ndarray] | None:
     """Per node, (the largest over its dofs of sum_j |K_ij|, its largest |K_ii|) [N/m] of the
     stiffest tangent a load step from `dofs` can meet, on every dof (held ones included):
     this term set's Hessian with every crossing sticking (F_T infinite where the structure has
     friction) and every contact at its bound k_s (`spatial.rows_at_contact_bound`); a node
-    without any (a retired tail's) takes the largest row. The dynamic solver's Gershgorin
-    masses of the positions and the slides alike (`dynfab.kernels.sliding_terms`;
-    docs/model.md 11.13)."""
+    without any (a retired tail's) takes the largest row; None where a bay has run out of
+    material. The dynamic solver's Gershgorin masses of the positions and the slides alike
+    (`dynfab.kernels.sliding_terms`; docs/model.md 11.13)."""
     pattern = pattern_of(s)
     dofs = np.ascontiguousarray(np.asarray(dofs, float).reshape(s.rest_position.shape))
+    if current(dofs, s) is None:
+        return None
     limit = np.full(s.tie_a.size, np.inf if s.has_friction else 0.0)
     values = hessian_values(dofs, s, np.asarray(anchors, float), limit)[pattern.kept]
     rows, diagonal = spatial.rows_at_contact_bound(physical(dofs, s), s, pattern.rows,
