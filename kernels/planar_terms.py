@@ -40,6 +40,12 @@ BOUNDARY = True
 """The boundary couplings (moving planes, wrap springs, tied families) are planar elements."""
 REFUSALS = ()
 """The dynamic options these elements refuse: none."""
+REFUSED_BY = ("a structure of planar kinematics does not run", "section 11.11")
+"""What refuses an option (its words, the verb included) and where docs/model.md says why
+(`dynfab.solvers.dynamic`)."""
+STIFFENS_IN_A_STEP = False
+"""Whether a load step can stiffen the elements past the masses at its start (no: stretch
+and bending at their rest lengths; `structure_explicit.check_step`)."""
 
 
 def structure_terms(scalar, friction: bool, boundary: bool, base) -> SimpleNamespace:

@@ -27,6 +27,14 @@ REFUSALS = (
     ("precision", "float32", "crossings that slide are checked in float64 only"),
 )
 """The dynamic options crossings that slide refuse (docs/model.md 11.13)."""
+REFUSED_BY = ("crossings that slide do not run", "11.13")
+"""What refuses an option (its words, the verb included) and where docs/model.md says why
+(`dynfab.solvers.dynamic`)."""
+STIFFENS_IN_A_STEP = True
+"""A load step can stiffen the elements past the masses at its start: a bay whose material is
+drawn through its crossing shortens its segments (EA / L, EI / lbar), so the explicit
+relaxation also stops where its residual stalls (`structure_explicit.check_step`) and runs
+again with heavier masses (`dynfab.solvers.dynamic`)."""
 structure_terms = planar_terms.structure_terms
 """The planar elements; `base.sliding` makes them slide."""
 

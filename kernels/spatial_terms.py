@@ -48,6 +48,12 @@ REFUSALS = (
 )
 """The dynamic options these elements refuse (docs/model.md section 11.11): (option, value,
 why)."""
+REFUSED_BY = ("a structure of spatial kinematics does not run", "section 11.11")
+"""What refuses an option (its words, the verb included) and where docs/model.md says why
+(`dynfab.solvers.dynamic`)."""
+STIFFENS_IN_A_STEP = False
+"""Whether a load step can stiffen the elements past the masses at its start (no:
+`structure_explicit.check_step`)."""
 PI = float(np.pi)
 TWO_PI = 2.0 * float(np.pi)
 

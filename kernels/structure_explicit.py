@@ -109,6 +109,7 @@ def functions(scalar, friction: bool, boundary: bool,
     Data, State, Settings = structure_variants.structs(scalar, dim)
     forces = structure_forces.functions(scalar, friction, boundary, kinematics)
     checks = structure_checks.functions(scalar, friction, boundary, kinematics=kinematics)
+    stiffens = structure_forces.KINDS[kinematics].STIFFENS_IN_A_STEP
 
     @wp.func(inline=True)
     def running(state: State, g: int) -> bool:
@@ -294,11 +295,11 @@ def functions(scalar, friction: bool, boundary: bool,
 
     @wp.func(inline=True)
     def check_step(g: int, data: Data, state: State, settings: Settings):
-        """`structure_checks.check`, the energy test, kinetic damping's fallback; where the
-        crossings slide, the progress test too (`structure_checks.check_progress`: a step
-        whose bays lose material stiffens past its masses, docs/model.md 11.13)."""
+        """`structure_checks.check`, the energy test, kinetic damping's fallback; where a step
+        can stiffen the elements past its masses (`STIFFENS_IN_A_STEP`: crossings that slide,
+        docs/model.md 11.13), the progress test too (`structure_checks.check_progress`)."""
         code = checks.check_energy(g, data, state, checks.check(g, data, state, settings))
-        if wp.static(kinematics == "sliding"):  # a bay's material can stiffen it in a step
+        if wp.static(stiffens):
             code = checks.check_progress(g, state, code)
         if settings.damping == KINETIC:
             if code == int(status.RUNNING):

@@ -49,7 +49,7 @@ from dynfab.kernels import structure_semi_implicit as semi
 from dynfab.kernels import structure_settings, structure_state, structure_transient
 from dynfab.kernels import structure_variants
 from dynfab.kernels.precision import KINEMATICS_OF_DIM, SCALARS, numpy_dtype, vector
-from dynfab.model.fabric.sliding import with_stretches
+from dynfab.model.fabric.sliding import has_stretches, with_stretches
 from dynfab.model.structure import Structure, dim, sliding
 from dynfab.model.terms import kinematics
 
@@ -79,7 +79,9 @@ def kernel_kinematics(structure: Structure) -> str:
     name = KINEMATICS_OF_DIM[dim(structure)]
     if sliding(structure):
         if name != "planar":
-            raise ValueError("the kernels slide the crossings of a planar structure only")
+            raise ValueError('crossing.motion = "sliding" on a [specimen] runs on the static '
+                             'solver (--solver static) so far: the kernels slide the crossings '
+                             'of a planar patch only (docs/model.md 11.13)')
         return "sliding"
     return name
 
@@ -342,7 +344,7 @@ class StructureRelaxation:
         the anchors and `state.stretch` (docs/model.md 11.13c). Returns the anchors whole."""
         anchors = self.as_woven_anchors() if anchors is None else np.asarray(anchors, float)
         if self.arrays.sliding:
-            if anchors.shape[1] == 2:
+            if not has_stretches(anchors):
                 anchors = with_stretches(positions, self.structure, anchors)
             self._set(state.stretch, anchors[:, 2:4])
         self._set(state.anchors, anchors[:, :self.dim])

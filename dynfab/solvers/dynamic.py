@@ -45,7 +45,7 @@ from dynfab.kernels.structure_settings import RELATIVE_TOLERANCE
 from dynfab.scene import Dynamic, check_dynamic_options
 from dynfab.solvers.contract import step_in_halves
 from dynfab.model.step import StepSolution
-from dynfab.model.structure import dim, sliding
+from dynfab.model.structure import sliding
 
 __all__ = ["DynamicSolver", "DynamicTransient", "MAX_TIGHTENINGS", "available_cores"]
 
@@ -65,17 +65,15 @@ def _check_refusals(structure, options) -> None:
     """A UserError in one line where the structure's elements refuse an option (their
     `REFUSALS`: the spatial ones float32, docs/model.md section 11.11; crossings that slide,
     11.13)."""
-    if sliding(structure) and dim(structure) == 3:
-        raise UserError('crossing.motion = "sliding" on a [specimen] runs on the static solver '
-                        '(--solver static) so far: the kernels slide the crossings of a planar '
-                        'patch only (docs/model.md 11.13)')
-    kinematics = kernel_kinematics(structure)
-    what = ('crossings that slide do not run' if kinematics == "sliding"
-            else f"a structure of {kinematics} kinematics does not run")
-    where = "11.13" if kinematics == "sliding" else "section 11.11"
-    for name, value, why in structure_forces.KINDS[kinematics].REFUSALS:
+    try:
+        elements = structure_forces.KINDS[kernel_kinematics(structure)]
+    except ValueError as why:  # what the kernels do not take yet
+        raise UserError(str(why)) from None
+    who, where = elements.REFUSED_BY
+    for name, value, why in elements.REFUSALS:
         if getattr(options, name) == value:
-            raise UserError(f'{what} dynamic.{name} = "{value}": {why} (docs/model.md {where})')
+            raise UserError(f'{who} dynamic.{name} = "{value}": {why} '
+                            f'(docs/model.md {where})')
 
 
 class DynamicSolver:

@@ -724,6 +724,11 @@ def with_stretches(dofs, s: Structure, anchors) -> np.ndarray:
     return np.hstack([anchors[:, :2], out, anchors[:, 2:]])
 
 
+def has_stretches(anchors) -> bool:
+    """The anchors are a step's, with the stretches (`with_stretches`), not a state's."""
+    return np.shape(anchors)[1] > max(STRETCHES)
+
+
 def state_anchors(anchors) -> np.ndarray:
     """A step's anchors without the stretches: (xi_a, xi_b[, phi_anchor]) per tie."""
     return np.delete(np.asarray(anchors, float), STRETCHES, axis=1)
