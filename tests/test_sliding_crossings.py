@@ -642,6 +642,36 @@ def test_a_failed_step_of_sliding_crossings_is_made_of_halves(monkeypatch):
     assert state.dissipated == stepped.dissipated
 
 
+def test_a_first_step_of_sliding_crossings_can_be_made_of_halves(monkeypatch):
+    """The as-woven state is at zero load, so a failing first step is halved too
+    (`dynfab.solvers.contract.step_in_halves`): with Newton made to fail on any increment of
+    the end force above 6 mN, patch()'s step from 0 to 10 mN is solved as 5 and 10 mN and
+    ends where that two-step path ends, to the bit."""
+    from dynfab.errors import SolverError
+    from dynfab.solvers.newton_sparse import SparseNewton
+
+    solve, reached = SparseNewton.solve, [0.0]
+
+    def short_steps_only(self, start):
+        force = float(np.max(start.load))
+        if force - reached[0] > 6e-3:
+            raise SolverError("a step too long")
+        solution = solve(self, start)
+        reached[0] = force
+        return solution
+
+    monkeypatch.setattr(SparseNewton, "solve", short_steps_only)
+    state, records = StaticSolver(FabricModel.from_scene(patch())).run()
+    reached[0] = 0.0
+    two = fabric_scene(WARP, WEFT, 3, 3, friction=FRICTION,
+                       crossing=dict(preload=0.01, motion="sliding"),
+                       load=dict(control="force", values=[0.005, 0.01]))
+    stepped, _ = StaticSolver(FabricModel.from_scene(two)).run()
+    assert len(records) == 1
+    np.testing.assert_array_equal(state.positions, stepped.positions)
+    assert state.dissipated == stepped.dissipated
+
+
 def test_a_departure_keeps_every_segments_rest_length(spatial_structure):
     """docs/model.md 11.13: taking a crossing out merges the bays on its other chain and
     retires the leaving chain's tail, every segment keeping the rest length it has (the

@@ -215,9 +215,12 @@ class FabricModel(StructureNow):
 
     def initial_state(self) -> FabricState:
         """As woven, anchors at zero slip, nothing dissipated (`as_woven_state`), every
-        crossing in the structure."""
+        crossing in the structure, at zero load (so that a first step of crossings that slide
+        can be solved in halves, `dynfab.solvers.contract.step_in_halves`)."""
         self._set_structure(self.woven_structure, np.arange(self.woven_structure.tie_a.size))
-        return as_woven_state(self.structure)
+        state = as_woven_state(self.structure)
+        state.load = np.zeros_like(np.asarray(self.step_load(0), float))
+        return state
 
     def state_from_step(self, last: dict, history: dict | None = None) -> FabricState:
         """The state a finished step left (a resumed run continues from it): its positions,
