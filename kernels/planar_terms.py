@@ -357,14 +357,7 @@ def structure_terms(scalar, friction: bool, boundary: bool, base) -> SimpleNames
     def add_node_energy(i: int, pos: wp.array(dtype=vec), data: Data, energy: scalar) -> scalar:
         """`energy` + the bending spring at node i and, at a chain's first node, its wrap
         spring [J]."""
-        total = energy
-        before = data.previous[i]
-        after = data.next[i]
-        if before >= 0 and after >= 0:
-            here = P(pos, data, i)
-            turn = turning_angle(here - P(pos, data, before), P(pos, data, after) - here) \
-                - data.rest_angle[i]
-            total += scalar(0.5) * bend_stiffness(pos, data, i) * turn * turn
+        total = energy + bend_energy(pos, data, i)
         if data.wrap_stiffness[i] > scalar(0.0):
             last = data.chain_last[i]
             turn = turning_angle(pos[last] - pos[last - 1], pos[i + 1] - pos[i]) \

@@ -54,8 +54,8 @@ _SADDLE_HINT = {"semi_implicit": " (semi_implicit accepts only steps that lower 
                                   "\"explicit\")"}
 """Why a relaxation restarted from a saddle's escape may not converge, per method."""
 MAX_STIFFENINGS = 3
-"""Times a relaxation of crossings that slide that failed runs again with masses at least the
-stiffest tangent's where it got to (`DynamicSolver._relax`, docs/model.md 11.13)."""
+"""Times a relaxation of crossings that slide that failed runs again with its masses doubled
+past the stiffest tangent's where it got to (`DynamicSolver._relax`, docs/model.md 11.13)."""
 MAX_TIGHTENINGS = 3
 """Times a load step relaxed to the default tolerance is relaxed further because its error
 bound exceeds the accuracy target (`DynamicSolver._certify`)."""
@@ -185,6 +185,7 @@ class DynamicSolver:
         if self.relaxation.structure is not model.structure:
             self._lay_out()
         start = model.start_of_step(state, load)
+        self.relaxation.rows_floor = None  # each step's masses from its own start
         self._tolerance_override = None
         self._counts = {"steps": 0, "force_evaluations": 0, "cg_iterations": 0}
         outcome = self._relax(start.positions, start, first=True)
@@ -208,8 +209,8 @@ class DynamicSolver:
         Where the crossings slide and a relaxation fails (its residual stalled, diverged or
         out of steps), it runs again from `positions` with masses twice those of the stiffest
         tangent at its start, where it got to and the last try (`StructureRelaxation.stiffen`:
-        dt / sqrt(2) each time), at most MAX_STIFFENINGS times (docs/model.md 11.13)."""
-        self.relaxation.rows_floor = None
+        dt / sqrt(2) each time), at most MAX_STIFFENINGS times (docs/model.md 11.13); the
+        masses stay so for the step's later relaxations (its escapes and tightenings)."""
         for stiffening in range(MAX_STIFFENINGS + 1):
             outcome = self._relax_once(positions, start, first and not stiffening)
             failed = [code not in status.SUCCESS for code in outcome.status]
