@@ -12,6 +12,10 @@ from typing import NamedTuple
 
 import numpy as np
 
+RELAXATION_STEPS = {"yarn": 0, "fabric": 0, "specimen": 1}
+"""Steps a run of each kind writes before its load path: a specimen's step 0, its preload
+relaxed at d = 0 (the models' `relaxation_steps`)."""
+
 
 class Drive(NamedTuple):
     """What a transient's kernel drives (`kernels/structure_transient.py`, docs/model.md

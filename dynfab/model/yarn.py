@@ -14,12 +14,11 @@ from typing import NamedTuple
 
 import numpy as np
 
-from dynfab.model.builders import RELAXATION_STEPS
 from dynfab.model.builders.yarn import yarn_structure
 from dynfab.model.domain import check_not_folded
 from dynfab.scene import Scene
 from dynfab.model.geometry import width_per_yarn
-from dynfab.model.loading import family_drive, prescribe_load
+from dynfab.model.loading import RELAXATION_STEPS, family_drive, prescribe_load
 from dynfab.model.observables import finish_step as observe_step
 from dynfab.model.state import State, initial_state
 from dynfab.model.step import StepSolution, StepStart

@@ -44,7 +44,8 @@ from pathlib import Path
 
 import numpy as np
 
-from dynfab.model.builders import RELAXATION_STEPS, scene_kind
+from dynfab.model.builders import scene_kind
+from dynfab.model.loading import RELAXATION_STEPS
 
 from dynfab import scene as scene_module
 from dynfab.errors import UserError

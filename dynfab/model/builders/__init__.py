@@ -61,9 +61,6 @@ def scene_kind(scene: Scene) -> str:
     return scene.geometry.model
 
 
-RELAXATION_STEPS = {"yarn": 0, "fabric": 0, "specimen": 1}
-"""Steps a run of each kind writes before its load path: a specimen's step 0, its preload
-relaxed at d = 0 (the models' `relaxation_steps`)."""
 
 
 def build_model(scene: Scene):

@@ -56,12 +56,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dynfab.model.builders import RELAXATION_STEPS
 from dynfab.model.builders.fabric import Family, families, fabric_structure
 from dynfab.model.domain import check_crossings_held, check_not_folded, fabric_slip_ratios
 from dynfab.model.fabric import contact
 from dynfab.model.fabric.assembly import planes as plane_positions
-from dynfab.model.loading import family_drive, load_at_time
+from dynfab.model.loading import RELAXATION_STEPS, family_drive, load_at_time
 from dynfab.scene import Scene
 from dynfab.model.step import StepSolution, StepStart
 from dynfab.model.structure import Structure, chain_count

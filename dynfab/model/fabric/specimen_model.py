@@ -46,7 +46,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dynfab.model import specimen_layout
-from dynfab.model.builders import RELAXATION_STEPS
+from dynfab.model.loading import RELAXATION_STEPS
 from dynfab.model.builders import woven_rest
 from dynfab.model.builders.specimen import layout_of, specimen_structure
 from dynfab.errors import SolverError
