@@ -211,12 +211,13 @@ class DynamicSolver:
         tangent at its start, where it got to and the last try (`StructureRelaxation.stiffen`:
         dt / sqrt(2) each time), at most MAX_STIFFENINGS times (docs/model.md 11.13); the
         masses stay so for the step's later relaxations (its escapes and tightenings)."""
-        for stiffening in range(MAX_STIFFENINGS + 1):
+        retries = MAX_STIFFENINGS if sliding(self.model.structure) else 0
+        for stiffening in range(retries + 1):
             outcome = self._relax_once(positions, start, first and not stiffening)
-            failed = [code not in status.SUCCESS for code in outcome.status]
-            reached = self.relaxation.positions()
-            if (not any(failed) or not sliding(self.model.structure)
-                    or stiffening == MAX_STIFFENINGS or not np.all(np.isfinite(reached))):
+            if stiffening == retries or all(code in status.SUCCESS for code in outcome.status):
+                break
+            reached = self.relaxation.positions()  # read back only where it runs again
+            if not np.all(np.isfinite(reached)):
                 break
             self.relaxation.stiffen(start.anchors, positions, reached, factor=2.0)
         self._raise_on_failure(outcome.status)

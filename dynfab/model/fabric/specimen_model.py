@@ -46,13 +46,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from dynfab.model import specimen_layout
-from dynfab.model.loading import RELAXATION_STEPS
 from dynfab.model.builders import woven_rest
 from dynfab.model.builders.specimen import layout_of, specimen_structure
 from dynfab.errors import SolverError
 from dynfab.model.fabric import contact, spatial
 from dynfab.model.fabric.structure_now import StructureNow
-from dynfab.model.loading import Drive, load_at_time
+from dynfab.model.loading import RELAXATION_STEPS, Drive, load_at_time
 from dynfab.scene import Scene
 from dynfab.model.shear_force import (bias_normalised_shear_force, frame_normalised_shear_force,
                                 frame_shear_force)
