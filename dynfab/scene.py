@@ -321,9 +321,8 @@ class Crossing:
         "yarn, and a step whose slip passes half a segment stops (docs/model.md 11.6); "
         "\"sliding\", its contact point stays where the yarns cross while their material "
         "slides through it, and a yarn end that passes its last crossing leaves it "
-        "(docs/model.md 11.13; so far a planar clamped patch with fixed planes, on the static "
-        "solver or the dynamic one's explicit relaxation, and the shear specimens, on the "
-        "static solver)", choices=("fixed", "sliding"), default="fixed", model="fabric")
+        "(docs/model.md 11.13; so far a planar clamped patch with fixed planes and the shear "
+        "specimens, on the static solver or the dynamic one's explicit relaxation)", choices=("fixed", "sliding"), default="fixed", model="fabric")
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -13,12 +13,13 @@ its own vertical plane, nodes (coordinate along the chain, z).
 - a tied family (periodic force control): each plane node of it carries the family's summed
   force, each member's own force in plane-node order.
 
-Where the crossings slide (the "sliding" kinematics, `sliding_terms`; docs/model.md 11.13) the
+Where the crossings slide (the "planar_sliding" kinematics, `sliding_terms`; docs/model.md 11.13) the
 same elements see each node where it is (`base.physical`: a crossing's node on the plane it
 crosses) with each segment's material now (rest length L = base + f (delta_R - delta_L), EA / L,
-EI / lbar); a crossing node's first dof is its slide delta, whose force is the material's,
--sum_k dV/dL_k dL_k/d delta over its two bays (`material_force`), plus the friction's lambda H'(S)
-on S = lambda (delta - xi) (`material_slip`; the anchors move on S in the return map).
+EI / lbar: `material_terms`); a crossing node's first dof is its slide delta, whose force is
+the material's, -sum_k dV/dL_k dL_k/d delta over its two bays
+(`material_terms.material_forces`), plus the friction's lambda H'(S) on S = lambda (delta -
+xi) (`material_slip`; the anchors move on S in the return map).
 
 `structure_terms` gives them to `structure_forces` in the form every kinematics offers
 (`plane_shift`, `tie_pass_at`, `node_force`, `scatter`, `add_node_energy`,
@@ -30,7 +31,7 @@ from types import SimpleNamespace
 
 import warp as wp
 
-from dynfab.kernels import structure_arrays, structure_state, tie_law
+from dynfab.kernels import material_terms, structure_arrays, structure_state, tie_law
 from dynfab.kernels.precision import vector
 
 ROWS_FROM_HOST = False
@@ -60,28 +61,12 @@ def structure_terms(scalar, friction: bool, boundary: bool, base) -> SimpleNames
     segment_pull = base.segment_pull
     sliding = base.sliding
     P = base.physical  # noqa: N806 (node i where the elements see it)
+    bend_stiffness = base.material.bend_stiffness
 
     @wp.func(inline=True)
     def turning_angle(a: vec, b: vec) -> scalar:
         """phi [rad] from segment a to segment b."""
         return wp.atan2(a[0] * b[1] - a[1] * b[0], wp.dot(a, b))
-
-    @wp.func(inline=True)
-    def mean_length(pos: wp.array(dtype=vec), data: Data, m: int) -> scalar:
-        """lbar_m = (L_{m-1} + L_m) / 2 [m] at inner node m, the material's now (11.13b)."""
-        return scalar(0.5) * (base.rest_length(pos, data, data.previous[m])
-                              + base.rest_length(pos, data, m))
-
-    @wp.func(inline=True)
-    def bend_stiffness(pos: wp.array(dtype=vec), data: Data, m: int) -> scalar:
-        """EI / lbar [N m] of the bending spring at inner node m: the structure's, or where the
-        crossings slide EI over the material's lbar now (11.13b)."""
-        if wp.static(not sliding):
-            return data.bend_stiffness[m]
-        k = scalar(0.0)
-        if data.bend_modulus[m] != scalar(0.0):
-            k = data.bend_modulus[m] / mean_length(pos, data, m)
-        return k
 
     @wp.func(inline=True)
     def bend_moment(pos: wp.array(dtype=vec), data: Data, m: int, a: vec, b: vec) -> scalar:
@@ -157,49 +142,7 @@ def structure_terms(scalar, friction: bool, boundary: bool, base) -> SimpleNames
             energy = scalar(0.5) * bend_stiffness(pos, data, m) * turn * turn
         return energy
 
-    @wp.func(inline=True)
-    def bend_on_length(pos: wp.array(dtype=vec), data: Data, m: int) -> scalar:
-        """1/2 dE_m/dlbar_m = -E_m / (2 lbar_m) [N]: what node m's bending adds to dE/dL of each
-        of its two segments (11.13b)."""
-        energy = bend_energy(pos, data, m)
-        value = scalar(0.0)
-        if energy != scalar(0.0):
-            value = -scalar(0.5) * energy / mean_length(pos, data, m)
-        return value
-
-    @wp.func(inline=True)
-    def on_length(pos: wp.array(dtype=vec), data: Data, k: int) -> scalar:
-        """dV/dL_k [N] of segment (k, next): its stretch's EA (L^2 - l^2) / (2 L^2) (11.13a) and
-        its two nodes' bendings' (`bend_on_length`)."""
-        after = data.next[k]
-        rest = base.rest_length(pos, data, k)
-        value = scalar(0.0)
-        if data.stretch_modulus[k] != scalar(0.0):
-            length = wp.length(P(pos, data, after) - P(pos, data, k))
-            value = scalar(0.5) * data.stretch_modulus[k] * (rest * rest - length * length) \
-                / (rest * rest)
-        return value + bend_on_length(pos, data, k) + bend_on_length(pos, data, after)
-
-    @wp.func(inline=True)
-    def material_force(pos: wp.array(dtype=vec), data: Data, i: int) -> scalar:
-        """-dV/d delta [N] of the slide at node i's first dof, its elastic part: over the
-        segments of its two bays, -dV/dL_k dL_k/d delta (dL/d delta = +f on the bay before
-        the crossing, whose right end it is, -f on the one after; 11.13a, b)."""
-        slot = i * 2
-        total = scalar(0.0)
-        k = data.previous[i]
-        while k >= 0:
-            if data.segment_material[k, 1] != slot:
-                break
-            total -= data.segment_fraction[k] * on_length(pos, data, k)
-            k = data.previous[k]
-        k = i
-        while data.next[k] >= 0:
-            if data.segment_material[k, 0] != slot:
-                break
-            total += data.segment_fraction[k] * on_length(pos, data, k)
-            k = data.next[k]
-        return total
+    material = material_terms.material_forces(scalar, 2, bend_energy)
 
     @wp.func(inline=True)
     def own_force(i: int, pos: wp.array(dtype=vec), data: Data, state: State) -> vec:
@@ -229,8 +172,9 @@ def structure_terms(scalar, friction: bool, boundary: bool, base) -> SimpleNames
                 moment = bend_moment(pos, data, after, a, b)
                 force = force + moment * vec(a[1], -a[0]) / wp.dot(a, a)
         if wp.static(sliding):
-            if data.node_slide[i] != 0:  # its first dof a slide: the material's force
-                force[0] = material_force(pos, data, i)
+            walk = data.node_slide[i, 0]
+            if walk >= 0:  # its first dof a slide: the material's force
+                force[0] = material.material_force(pos, data, walk, 2 * i)
         for k in range(data.node_tie_start[i], data.node_tie_start[i + 1]):
             t = data.node_ties[k]
             up = data.tie_side[t] * state.contact[t]

@@ -13,11 +13,10 @@ VECTORS = {(wp.float64, 2): wp.vec2d, (wp.float32, 2): wp.vec2f,
 """(Warp scalar type, coordinates per node) -> the node's vector type: (x, z) planar, (x, y, z)
 spatial."""
 
-KINEMATICS = {"planar": 2, "spatial": 3, "sliding": 2}
+KINEMATICS = {"planar": 2, "spatial": 3, "planar_sliding": 2, "spatial_sliding": 3}
 """A kernel variant's kinematics -> coordinates per node: "planar" (x along the chain, z; each
 chain in its own plane, docs/model.md sections 2-10), "spatial" (x, y, z, docs/model.md
-section 11) or "sliding" (planar, its crossings sliding along the yarns, docs/model.md
-11.13)."""
+section 11), or either with its crossings sliding along the yarns (docs/model.md 11.13)."""
 KINEMATICS_OF_DIM = {2: "planar", 3: "spatial"}
 """Coordinates per node -> the kinematics' name (of crossings that do not slide)."""
 

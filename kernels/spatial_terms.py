@@ -33,7 +33,8 @@ from types import SimpleNamespace
 import numpy as np
 import warp as wp
 
-from dynfab.kernels import band_lu, host_rows, structure_arrays, structure_state, tie_law
+from dynfab.kernels import band_lu, host_rows, material_terms, structure_arrays, structure_state
+from dynfab.kernels import tie_law
 from dynfab.kernels.precision import vector
 
 ROWS_FROM_HOST = True
@@ -59,9 +60,13 @@ TWO_PI = 2.0 * float(np.pi)
 
 
 @functools.cache
-def functions(scalar) -> SimpleNamespace:
-    """The spatial elements' `wp.func`s for one scalar type (module docstring)."""
+def functions(scalar, sliding: bool = False) -> SimpleNamespace:
+    """The spatial elements' `wp.func`s for one scalar type (module docstring); with `sliding`
+    each element sees its nodes where they are and its springs' material now
+    (`material_terms`, docs/model.md 11.13)."""
     vec = vector(scalar, 3)
+    M = material_terms.functions(scalar, 3, sliding)  # noqa: N806
+    P = M.physical  # noqa: N806 (node i where the elements see it)
     huber_law = tie_law.huber_term(vec)
     Data = structure_arrays.struct(scalar, 3)
     pair = wp.types.matrix(shape=(2, 3), dtype=scalar)
@@ -120,10 +125,10 @@ def functions(scalar) -> SimpleNamespace:
     def bend_gradients(pos: wp.array(dtype=vec), data: Data, i: int, j: int, k: int) -> pair:
         """Rows (G1, G2) [N] of the bending spring at j (neighbours i, k): its forces are
         (-G1, G1 + G2, -G2) on (i, j, k) (module docstring)."""
-        a = pos[j] - pos[i]
-        b = pos[k] - pos[j]
-        mb = data.bend_stiffness[j] * elevation_excess(data, j, a, b)
-        ml = data.lateral_bend_stiffness[j] * lateral_excess(data, j, a, b)
+        a = P(pos, data, j) - P(pos, data, i)
+        b = P(pos, data, k) - P(pos, data, j)
+        mb = M.bend_stiffness(pos, data, j) * elevation_excess(data, j, a, b)
+        ml = M.lateral_bend_stiffness(pos, data, j) * lateral_excess(data, j, a, b)
         return rows2(mb * elevation_gradient(a) + ml * direction_gradient(a),
                      mb * elevation_gradient(b) + ml * direction_gradient(b))
 
@@ -141,25 +146,25 @@ def functions(scalar) -> SimpleNamespace:
     @wp.func(inline=True)
     def bend_energy(pos: wp.array(dtype=vec), data: Data, i: int, j: int, k: int) -> scalar:
         """E [J] of the bending spring at j (docs/model.md (11.1))."""
-        a = pos[j] - pos[i]
-        b = pos[k] - pos[j]
+        a = P(pos, data, j) - P(pos, data, i)
+        b = P(pos, data, k) - P(pos, data, j)
         out_of_plane = elevation_excess(data, j, a, b)
         lateral = lateral_excess(data, j, a, b)
-        return (scalar(0.5) * data.bend_stiffness[j] * out_of_plane * out_of_plane
-                + scalar(0.5) * data.lateral_bend_stiffness[j] * lateral * lateral)
+        return (scalar(0.5) * M.bend_stiffness(pos, data, j) * out_of_plane * out_of_plane
+                + scalar(0.5) * M.lateral_bend_stiffness(pos, data, j) * lateral * lateral)
 
     @wp.func(inline=True)
     def crossing_coordinates(pos: wp.array(dtype=vec), data: Data, t: int) -> vec:
         """q = (s_x [m], s_y [m], phi [rad]) of crossing t (docs/model.md (11.2))."""
         st = data.tie_stencil
-        p0 = pos[st[t, 0]]
-        p2 = pos[st[t, 2]]
-        p3 = pos[st[t, 3]]
-        p5 = pos[st[t, 5]]
+        p0 = P(pos, data, st[t, 0])
+        p2 = P(pos, data, st[t, 2])
+        p3 = P(pos, data, st[t, 3])
+        p5 = P(pos, data, st[t, 5])
         alpha = wp.atan2(p2[1] - p0[1], p2[0] - p0[0])
         beta = wp.atan2(p5[1] - p3[1], p5[0] - p3[0])
-        dx = pos[st[t, 4]][0] - pos[st[t, 1]][0]
-        dy = pos[st[t, 4]][1] - pos[st[t, 1]][1]
+        dx = P(pos, data, st[t, 4])[0] - P(pos, data, st[t, 1])[0]
+        dy = P(pos, data, st[t, 4])[1] - P(pos, data, st[t, 1])[1]
         c = wp.cos(alpha)
         s = wp.sin(alpha)
         return vec(c * dx + s * dy, -s * dx + c * dy, wrap(beta - alpha))
@@ -182,18 +187,18 @@ def functions(scalar) -> SimpleNamespace:
         its forces are +g_ca, +g_d, +g_cb on stencil slots 0, 1, 3 and their opposites on
         slots 2, 4, 5 (`slot_force`)."""
         st = data.tie_stencil
-        p0 = pos[st[t, 0]]
-        p2 = pos[st[t, 2]]
-        p3 = pos[st[t, 3]]
-        p5 = pos[st[t, 5]]
+        p0 = P(pos, data, st[t, 0])
+        p2 = P(pos, data, st[t, 2])
+        p3 = P(pos, data, st[t, 3])
+        p5 = P(pos, data, st[t, 5])
         cax = p2[0] - p0[0]
         cay = p2[1] - p0[1]
         cbx = p5[0] - p3[0]
         cby = p5[1] - p3[1]
         alpha = wp.atan2(cay, cax)
         beta = wp.atan2(cby, cbx)
-        dx = pos[st[t, 4]][0] - pos[st[t, 1]][0]
-        dy = pos[st[t, 4]][1] - pos[st[t, 1]][1]
+        dx = P(pos, data, st[t, 4])[0] - P(pos, data, st[t, 1])[0]
+        dy = P(pos, data, st[t, 4])[1] - P(pos, data, st[t, 1])[1]
         c = wp.cos(alpha)
         s = wp.sin(alpha)
         sx = c * dx + s * dy
@@ -297,8 +302,8 @@ def functions(scalar) -> SimpleNamespace:
     def lateral_distance(pos: wp.array(dtype=vec), data: Data, e: int) -> scalar:
         """d = sign cross2(c, v) / |c| [m] of lateral contact e (module docstring)."""
         st = data.lateral_stencil
-        c = pos[st[e, 1]] - pos[st[e, 0]]
-        v = pos[st[e, 3]] - pos[st[e, 2]]
+        c = P(pos, data, st[e, 1]) - P(pos, data, st[e, 0])
+        v = P(pos, data, st[e, 3]) - P(pos, data, st[e, 2])
         return data.lateral_law[e, 0] * (c[0] * v[1] - c[1] * v[0]) / wp.sqrt(c[0] * c[0]
                                                                               + c[1] * c[1])
 
@@ -312,8 +317,8 @@ def functions(scalar) -> SimpleNamespace:
         """(dd/dc, dd/dv) [-] of lateral contact e (module docstring): dd/dX = -dd/dc,
         +dd/dc, -dd/dv, +dd/dv on stencil slots 0..3."""
         st = data.lateral_stencil
-        c = pos[st[e, 1]] - pos[st[e, 0]]
-        v = pos[st[e, 3]] - pos[st[e, 2]]
+        c = P(pos, data, st[e, 1]) - P(pos, data, st[e, 0])
+        v = P(pos, data, st[e, 3]) - P(pos, data, st[e, 2])
         sign = data.lateral_law[e, 0]
         n2 = c[0] * c[0] + c[1] * c[1]
         n = wp.sqrt(n2)
@@ -388,13 +393,22 @@ def structure_terms(scalar, friction: bool, boundary: bool, base) -> SimpleNames
     (`plane_shift`, `tie_pass_at`, `node_force`, `scatter`, `add_node_energy`,
     `add_tie_energy`, `lateral_energy`, `return_anchor`), on `base` (`structure_forces.base`). A
     spatial structure has no moving planes, wraps or tied dofs (`structure_arrays.build`), so
-    `boundary` compiles nothing here."""
+    `boundary` compiles nothing here.
+
+    Where the crossings slide (`base.sliding`, docs/model.md 11.13) node b of a crossing sees
+    node a's x and y, and its own x and y hold the two slides: node a's force gathers node
+    b's in-plane force (`node_force`), the slides' force is the material's
+    (`material_terms.material_forces`) plus lambda_k H'(S)_k, and the crossing's physical
+    force is its rotation's alone (`slip`: S = (lambda_a (delta_a - xi_a), lambda_b (delta_b -
+    xi_b), rho wrap(phi - phi_anchor)), 11.13c)."""
     vec = vector(scalar, 3)
     Data = structure_arrays.struct(scalar, 3)
     State = structure_state.struct(scalar, 3)
     laws = tie_law.functions(scalar)
-    terms = functions(scalar)
+    sliding = base.sliding
+    terms = functions(scalar, sliding)
     segment_pull = base.segment_pull
+    dof = base.material.dof
 
     @wp.func(inline=True)
     def plane_shift(pos: wp.array(dtype=vec), data: Data) -> vec:
@@ -402,20 +416,57 @@ def structure_terms(scalar, friction: bool, boundary: bool, base) -> SimpleNames
         return vec()
 
     @wp.func(inline=True)
-    def tie_pass_at(t: int, pos: wp.array(dtype=vec), data: Data, state: State, shift: vec):
-        """R, dR/dg (and F_T, the force on the three-component slip) of crossing t into the
-        state's tie arrays; `shift` unused (no moving planes)."""
-        bound = base.contact_pass(t, pos, data, state)
-        if wp.static(friction):
-            state.friction[t] = terms.huber_force(
-                terms.crossing_slip(pos, data, state.anchors[t], t), bound,
-                data.friction_law[t, 3])
+    def node_bend_energy(pos: wp.array(dtype=vec), data: Data, m: int) -> scalar:
+        """E_m [J] of the two-plane bending spring at node m, 0 at a chain's ends."""
+        before = data.previous[m]
+        after = data.next[m]
+        energy = scalar(0.0)
+        if before >= 0 and after >= 0:
+            energy = terms.bend_energy(pos, data, before, m, after)
+        return energy
+
+    material = material_terms.material_forces(scalar, 3, node_bend_energy)
 
     @wp.func(inline=True)
-    def node_force(i: int, pos: wp.array(dtype=vec), data: Data, state: State) -> vec:
-        """-dV/dr_i (+ friction) [N] of node i, gathered, unmasked: its segments, the bending
-        springs at i and its neighbours, the crossings and lateral contacts whose stencils hold
-        it (each element evaluated at every node of its stencil), its ties' contact along z."""
+    def slip(pos: wp.array(dtype=vec), data: Data, state: State, t: int) -> vec:
+        """S [m] of crossing t from its anchor (docs/model.md section 11.4); where the
+        crossings slide, (lambda_a (delta_a - xi_a), lambda_b (delta_b - xi_b), rho wrap(phi -
+        phi_anchor)) (11.13c)."""
+        anchor = state.anchors[t]
+        if wp.static(not sliding):
+            return terms.crossing_slip(pos, data, anchor, t)
+        stretch = state.stretch[t]
+        phi = terms.crossing_coordinates(pos, data, t)[2]
+        return vec(stretch[0] * (dof(pos, data.tie_slide[t, 0]) - anchor[0]),
+                   stretch[1] * (dof(pos, data.tie_slide[t, 1]) - anchor[1]),
+                   data.rotation_law[t, 0] * terms.wrap(phi - anchor[2]))
+
+    @wp.func(inline=True)
+    def stencil_huber(state: State, t: int) -> vec:
+        """dHuber/dS [N] of crossing t that its stencil's positions take: all of it, or where
+        the crossings slide the rotation's part alone (the slides take the rest)."""
+        huber = vec()
+        if wp.static(friction):
+            huber = -state.friction[t]
+            if wp.static(sliding):
+                huber = vec(scalar(0.0), scalar(0.0), huber[2])
+        return huber
+
+    @wp.func(inline=True)
+    def tie_pass_at(t: int, pos: wp.array(dtype=vec), data: Data, state: State, shift: vec):
+        """R, dR/dg (and F_T, the force -dHuber/dS on the three-component slip) of crossing t
+        into the state's tie arrays; `shift` unused (no moving planes)."""
+        bound = base.contact_pass(t, pos, data, state)
+        if wp.static(friction):
+            state.friction[t] = terms.huber_force(slip(pos, data, state, t), bound,
+                                                  data.friction_law[t, 3])
+
+    @wp.func(inline=True)
+    def physical_force(i: int, pos: wp.array(dtype=vec), data: Data, state: State) -> vec:
+        """-dV/dr_i (+ friction) [N] at node i's physical position, unmasked: its segments, the
+        bending springs at i and its neighbours, the crossings and lateral contacts whose
+        stencils hold it (each element evaluated at every node of its stencil), its ties'
+        contact along z."""
         before = data.previous[i]
         after = data.next[i]
         force = base.own_and_stretch(i, pos, data, state)
@@ -440,11 +491,8 @@ def structure_terms(scalar, friction: bool, boundary: bool, base) -> SimpleNames
         for k in range(data.node_stencil_start[i], data.node_stencil_start[i + 1]):
             code = data.node_stencil[k]
             t = code / 6
-            huber = vec()
-            if wp.static(friction):
-                huber = -state.friction[t]
             force = force + terms.crossing_slot_force(
-                terms.crossing_gradients(pos, data, t, huber), code - 6 * t)
+                terms.crossing_gradients(pos, data, t, stencil_huber(state, t)), code - 6 * t)
         for k in range(data.node_lateral_start[i], data.node_lateral_start[i + 1]):
             code = data.node_lateral[k]
             e = code / 4
@@ -457,10 +505,58 @@ def structure_terms(scalar, friction: bool, boundary: bool, base) -> SimpleNames
         return force
 
     @wp.func(inline=True)
+    def slide_friction(i: int, c: int, data: Data, state: State) -> scalar:
+        """lambda_k H'(S)_k [N]: the friction force on the slide in node i's dof c (11.13c)."""
+        total = scalar(0.0)
+        if wp.static(friction):
+            for k in range(data.node_tie_start[i], data.node_tie_start[i + 1]):
+                t = data.node_ties[k]
+                for side in range(2):
+                    if data.tie_slide[t, side] == 3 * i + c:
+                        total += state.stretch[t][side] * state.friction[t][side]
+        return total
+
+    @wp.func(inline=True)
+    def node_force(i: int, pos: wp.array(dtype=vec), data: Data, state: State) -> vec:
+        """-dV/d(dofs of node i) [N], gathered, unmasked: its physical force (`physical_force`);
+        where the crossings slide, each coordinate's physical force on the dof that holds it
+        (`physical_source`: node a's x and y hold its crossing's node b's too, node b's hold
+        its slides), and on a dof holding a slide the material's force and the friction's
+        (`structure_terms`). Loops that Warp does not unroll (`while`), so that each large
+        function is compiled in once."""
+        if wp.static(not sliding):
+            return physical_force(i, pos, data, state)
+        force = vec()
+        first = data.node_tie_start[i]
+        k = first - 1  # node i itself, then the other node of each of its ties
+        while k < data.node_tie_start[i + 1]:
+            j = i
+            if k >= first:
+                t = data.node_ties[k]
+                j = data.tie_a[t] + data.tie_b[t] - i
+            source = data.physical_source[j, 0]
+            if j == i or (source >= 0 and source // 3 == i):
+                seen = physical_force(j, pos, data, state)
+                for c in range(3):
+                    source = data.physical_source[j, c]
+                    if source >= 0 and source // 3 == i:
+                        force[source % 3] = force[source % 3] + seen[c]
+            k += 1
+        c = int(0)
+        while c < 3:
+            walk = data.node_slide[i, c]
+            if walk >= 0:
+                force[c] = material.material_force(pos, data, walk, 3 * i + c) \
+                    + slide_friction(i, c, data, state)
+            c += 1
+        return force
+
+    @wp.func(inline=True)
     def scatter(group: int, pos: wp.array(dtype=vec), data: Data, state: State):
         """state.force += -dV/dr of the group's elements, each once: each segment's stretch and
         each inner node's two-plane bending, each crossing's contact along z, Huber friction
-        (F_T at the current R) and rotation spring, each lateral contact."""
+        (F_T at the current R) and rotation spring, each lateral contact (fixed crossings:
+        where they slide, the gather order runs)."""
         force = state.force
         for i in range(data.group_node[group], data.group_node[group + 1]):
             j = data.next[i]
@@ -476,22 +572,14 @@ def structure_terms(scalar, friction: bool, boundary: bool, base) -> SimpleNames
             up = base.along_z(data.tie_side[t] * state.contact[t])
             force[data.tie_a[t]] = force[data.tie_a[t]] + up
             force[data.tie_b[t]] = force[data.tie_b[t]] - up
-            huber = vec()
-            if wp.static(friction):
-                huber = -state.friction[t]
-            terms.crossing_forces(pos, data, t, huber, force)
+            terms.crossing_forces(pos, data, t, stencil_huber(state, t), force)
         for e in range(data.group_lateral[group], data.group_lateral[group + 1]):
             terms.lateral_forces(pos, data, e, force)
 
     @wp.func(inline=True)
     def add_node_energy(i: int, pos: wp.array(dtype=vec), data: Data, energy: scalar) -> scalar:
         """`energy` + the two-plane bending spring at node i [J] (docs/model.md (11.1))."""
-        total = energy
-        before = data.previous[i]
-        after = data.next[i]
-        if before >= 0 and after >= 0:
-            total += terms.bend_energy(pos, data, before, i, after)
-        return total
+        return energy + node_bend_energy(pos, data, i)
 
     @wp.func(inline=True)
     def add_tie_energy(t: int, pos: wp.array(dtype=vec), data: Data, state: State, R: scalar,
@@ -502,7 +590,7 @@ def structure_terms(scalar, friction: bool, boundary: bool, base) -> SimpleNames
         w = terms.spring_excess(data, t, q)
         total = energy + scalar(0.5) * data.rotation_law[t, 1] * w * w
         if wp.static(friction):
-            total += terms.huber_energy(terms.crossing_slip(pos, data, state.anchors[t], t),
+            total += terms.huber_energy(slip(pos, data, state, t),
                                         laws.limit(R, data.friction_law, t),
                                         data.friction_law[t, 3])
         return total
@@ -515,12 +603,17 @@ def structure_terms(scalar, friction: bool, boundary: bool, base) -> SimpleNames
     @wp.func(inline=True)
     def return_anchor(t: int, pos: wp.array(dtype=vec), data: Data, state: State,
                       bound: scalar) -> scalar:
-        """Crossing t's anchor moved radially in S (docs/model.md section 11.4); the energy
-        dissipated F_T |delta xi| [J]."""
-        S = terms.crossing_slip(pos, data, state.anchors[t], t)
-        move = terms.return_anchor(S, bound, data.friction_law[t, 3], data.rotation_law[t, 0])
+        """Crossing t's anchor moved radially in S (docs/model.md section 11.4; where the
+        crossings slide, the material anchors by the move over their stretches, 11.13c); the
+        energy dissipated F_T |delta S| [J]."""
+        rho = data.rotation_law[t, 0]
+        move = terms.return_anchor(slip(pos, data, state, t), bound, data.friction_law[t, 3],
+                                   rho)
+        shift = vec(move[0], move[1], rho * move[2])
+        if wp.static(sliding):
+            stretch = state.stretch[t]
+            move = vec(move[0] / stretch[0], move[1] / stretch[1], move[2])
         state.anchors[t] = state.anchors[t] + move
-        shift = vec(move[0], move[1], data.rotation_law[t, 0] * move[2])
         return wp.max(bound, scalar(0.0)) * wp.length(shift)
 
     return SimpleNamespace(plane_shift=plane_shift, tie_pass_at=tie_pass_at,

@@ -176,9 +176,13 @@ class StructureArrays:
     physical_source: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int64))
     """sliding: (n, dim) the flat dof holding each coordinate the elements see, -1 for its
     rest position (`Structure.physical_source`, docs/model.md 11.13)."""
-    node_slide: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
-    """sliding: (n,) 1 where the node's first dof holds a crossing's slide delta (its force
-    the material's and the friction's), else 0."""
+    node_slide: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int64))
+    """sliding: (n, dim) where a dof holds a crossing's slide delta (its force the material's
+    and the friction's), the crossing's node on the slide's chain (its bays the material
+    force walks), else -1."""
+    tie_slide: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int64))
+    """sliding: (T, 2) the flat dofs of each tie's slides along node a's chain and node b's
+    (`Structure.tie_material`)."""
     segment_material: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int64))
     """sliding: (n, 2) the flat dofs of the slides at segment (i, next)'s bay ends, -1 for a
     constant (`segment_material_end`)."""
@@ -192,6 +196,8 @@ class StructureArrays:
     """sliding: (n,) EA [N] of segment (i, next)."""
     bend_modulus: np.ndarray = field(default_factory=lambda: np.zeros(0))
     """sliding: (n,) EI [N m^2] of node i's bending spring (0 at a chain's ends)."""
+    lateral_bend_modulus: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    """sliding, spatial: (n,) EI_lateral [N m^2] of node i's in-plane bending spring."""
 
     @property
     def sliding(self) -> bool:
@@ -307,17 +313,19 @@ def _sliding(s: Structure, has_segment: np.ndarray, segment: np.ndarray) -> dict
         out[has_segment] = values[segment]
         return out
 
-    node_slide = np.zeros(n, np.int64)
-    node_slide[np.asarray(s.tie_material).reshape(-1) // dim] = 1
+    slots = np.asarray(s.tie_material, np.int64).reshape(-1, 2)
+    node_slide = np.full(n * dim, -1, np.int64)
+    node_slide[slots[:, 0]], node_slide[slots[:, 1]] = s.tie_a, s.tie_b
     return dict(physical_source=np.asarray(s.physical_source, np.int64).reshape(n, dim),
-                node_slide=node_slide,
+                node_slide=node_slide.reshape(n, dim), tie_slide=slots,
                 segment_material=per_segment(np.asarray(s.segment_material, np.int64), (2,)),
                 segment_material_end=per_segment(np.asarray(s.segment_material_end, float),
                                                  (2,)),
                 segment_fraction=per_segment(np.asarray(s.segment_fraction, float)),
                 segment_base=per_segment(np.asarray(s.segment_base, float)),
                 stretch_modulus=per_segment(np.asarray(s.stretch_modulus, float)),
-                bend_modulus=np.asarray(s.bend_modulus, float))
+                bend_modulus=np.asarray(s.bend_modulus, float),
+                lateral_bend_modulus=np.asarray(s.lateral_bend_modulus, float))
 
 
 def _node_terms(s: Structure) -> dict:
@@ -549,13 +557,15 @@ def _struct(scalar, dim: int):
         node_lateral_start: wp.array(dtype=wp.int32)
         node_lateral: wp.array(dtype=wp.int32)
         physical_source: wp.array2d(dtype=wp.int32)
-        node_slide: wp.array(dtype=wp.int32)
+        node_slide: wp.array2d(dtype=wp.int32)
+        tie_slide: wp.array2d(dtype=wp.int32)
         segment_material: wp.array2d(dtype=wp.int32)
         segment_material_end: wp.array2d(dtype=scalar)
         segment_fraction: wp.array(dtype=scalar)
         segment_base: wp.array(dtype=scalar)
         stretch_modulus: wp.array(dtype=scalar)
         bend_modulus: wp.array(dtype=scalar)
+        lateral_bend_modulus: wp.array(dtype=scalar)
 
     return wp.struct(StructureData)
 

@@ -44,11 +44,13 @@ ENERGY_CHECK_INTERVAL = 16
 kinetic energy since the last test (docs/model.md, the dynamic solver's divergence test)."""
 STALL_MIN_STEPS = 2_000
 """semi-implicit: time steps after which a relaxation whose residual has not reached a new low
-during the last half of its steps stops (status.NO_PROGRESS); the fabric's choice."""
+during the last half of its steps stops (status.NO_PROGRESS); the fabric's choice (the
+explicit relaxation of crossings that slide: `sliding_terms.STALL_MIN_STEPS`)."""
 
 
 TANGENTS = {"planar": structure_tangent.functions, "spatial": spatial_terms.tangent_terms,
-            "sliding": sliding_terms.tangent_terms}
+            "planar_sliding": sliding_terms.planar_tangent_terms,
+            "spatial_sliding": sliding_terms.spatial_tangent_terms}
 """The tangent of each kinematics' elements: the semi-implicit method's (`tie_blocks`,
 `assemble_chain`, `coupling_vector`) and the stiffest one's rows, which the masses take
 (`stiffest_tie`, `stiffest_chain`, `gershgorin_row`, `largest_diagonal`)."""
@@ -368,12 +370,12 @@ def functions(scalar, friction: bool, boundary: bool, merit: bool = False,
         return code
 
     @wp.func(inline=True)
-    def check_progress(g: int, state: State, code: int) -> int:
+    def check_progress(g: int, state: State, code: int, min_steps: int) -> int:
         """`code`, or NO_PROGRESS where the best residual has not fallen during the last half
-        of at least STALL_MIN_STEPS steps (above the rounding floor)."""
+        of at least `min_steps` steps (above the rounding floor)."""
         result = code
         if code == int(status.RUNNING):
-            if (state.steps[g] >= STALL_MIN_STEPS and 2 * state.steps_since_best[g] > state.steps[g]
+            if (state.steps[g] >= min_steps and 2 * state.steps_since_best[g] > state.steps[g]
                     and state.best_residual[g] > state.rounding_floor[g]):
                 state.status[g] = int(status.NO_PROGRESS)
                 result = int(status.NO_PROGRESS)

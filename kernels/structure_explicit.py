@@ -109,7 +109,9 @@ def functions(scalar, friction: bool, boundary: bool,
     Data, State, Settings = structure_variants.structs(scalar, dim)
     forces = structure_forces.functions(scalar, friction, boundary, kinematics)
     checks = structure_checks.functions(scalar, friction, boundary, kinematics=kinematics)
-    stiffens = structure_forces.KINDS[kinematics].STIFFENS_IN_A_STEP
+    elements = structure_forces.KINDS[kinematics]
+    stiffens = elements.STIFFENS_IN_A_STEP
+    stall_min_steps = elements.STALL_MIN_STEPS[dim] if stiffens else 0
 
     @wp.func(inline=True)
     def running(state: State, g: int) -> bool:
@@ -297,10 +299,11 @@ def functions(scalar, friction: bool, boundary: bool,
     def check_step(g: int, data: Data, state: State, settings: Settings):
         """`structure_checks.check`, the energy test, kinetic damping's fallback; where a step
         can stiffen the elements past its masses (`STIFFENS_IN_A_STEP`: crossings that slide,
-        docs/model.md 11.13), the progress test too (`structure_checks.check_progress`)."""
+        docs/model.md 11.13), the progress test too (`structure_checks.check_progress`, after
+        the elements' `STALL_MIN_STEPS`)."""
         code = checks.check_energy(g, data, state, checks.check(g, data, state, settings))
         if wp.static(stiffens):
-            code = checks.check_progress(g, state, code)
+            code = checks.check_progress(g, state, code, stall_min_steps)
         if settings.damping == KINETIC:
             if code == int(status.RUNNING):
                 escalate(g, data, state)

@@ -35,25 +35,30 @@ from types import SimpleNamespace
 
 import warp as wp
 
-from dynfab.kernels import node_terms, planar_terms, sliding_terms, spatial_terms
+from dynfab.kernels import material_terms, node_terms, planar_terms, sliding_terms
+from dynfab.kernels import spatial_terms
 from dynfab.kernels import structure_arrays
 from dynfab.kernels import structure_state, tie_law
 from dynfab.kernels.precision import KINEMATICS, vector
 
-KINDS = {"planar": planar_terms, "spatial": spatial_terms, "sliding": sliding_terms}
+KINDS = {"planar": planar_terms, "spatial": spatial_terms, "planar_sliding": sliding_terms,
+         "spatial_sliding": sliding_terms}
 """The element module of each kinematics (module docstring)."""
 
 
 @functools.cache
 def base(scalar, friction: bool, dim: int, sliding: bool = False) -> SimpleNamespace:
     """The `wp.func`s every kinematics shares (module docstring); with `sliding`, the elements
-    see each node where it is (`physical`) and each segment's material now (`rest_length`,
-    `stretch_stiffness`: docs/model.md 11.13a)."""
+    see each node where it is and each segment's material now (`material`, the
+    `material_terms` of the variant: docs/model.md 11.13a)."""
     vec = vector(scalar, dim)
     Data = structure_arrays.struct(scalar, dim)
     State = structure_state.struct(scalar, dim)
     laws = tie_law.functions(scalar)
     node = node_terms.functions(scalar, dim)
+    material = material_terms.functions(scalar, dim, sliding)
+    physical, rest_length = material.physical, material.rest_length
+    stretch_stiffness = material.stretch_stiffness
     Z = dim - 1  # the coordinate along the fabric's normal
 
     @wp.func(inline=True)
@@ -62,50 +67,6 @@ def base(scalar, friction: bool, dim: int, sliding: bool = False) -> SimpleNames
         result = vec()
         result[wp.static(Z)] = value
         return result
-
-    @wp.func(inline=True)
-    def physical(pos: wp.array(dtype=vec), data: Data, i: int) -> vec:
-        """Node i where the elements see it [m]: its dofs, or where the crossings slide each
-        coordinate from the dof `data.physical_source` names (its rest position for -1: a
-        crossing's node on the plane it crosses; a retired tail's node at its chain's end)."""
-        if wp.static(not sliding):
-            return pos[i]
-        out = vec()
-        for c in range(wp.static(dim)):
-            source = data.physical_source[i, c]
-            if source < 0:
-                out[c] = data.rest_position[i][c]
-            else:
-                out[c] = pos[source // wp.static(dim)][source % wp.static(dim)]
-        return out
-
-    @wp.func(inline=True)
-    def bay_end(pos: wp.array(dtype=vec), data: Data, i: int, side: int) -> scalar:
-        """The slide delta [m] at side 0 (left) or 1 (right) of segment (i, next)'s bay."""
-        source = data.segment_material[i, side]
-        value = data.segment_material_end[i, side]
-        if source >= 0:
-            value = pos[source // wp.static(dim)][source % wp.static(dim)]
-        return value
-
-    @wp.func(inline=True)
-    def rest_length(pos: wp.array(dtype=vec), data: Data, i: int) -> scalar:
-        """l0 [m] of segment (i, next); sliding, L = base + f (delta_R - delta_L) (11.13a)."""
-        if wp.static(not sliding):
-            return data.rest_length[i]
-        return data.segment_base[i] + data.segment_fraction[i] * (
-            bay_end(pos, data, i, 1) - bay_end(pos, data, i, 0))
-
-    @wp.func(inline=True)
-    def stretch_stiffness(pos: wp.array(dtype=vec), data: Data, i: int, rest: scalar) -> scalar:
-        """k [N/m] of segment (i, next) of rest length `rest`: EA / L where the crossings slide
-        (0 for a retired segment, EA = 0, whatever its L)."""
-        if wp.static(not sliding):
-            return data.stretch_stiffness[i]
-        k = scalar(0.0)
-        if data.stretch_modulus[i] != scalar(0.0):
-            k = data.stretch_modulus[i] / rest
-        return k
 
     @wp.func(inline=True)
     def segment_pull(pos: wp.array(dtype=vec), data: Data, i: int) -> vec:
@@ -159,8 +120,8 @@ def base(scalar, friction: bool, dim: int, sliding: bool = False) -> SimpleNames
 
     return SimpleNamespace(along_z=along_z, segment_pull=segment_pull, closure=closure,
                            external=external, own_and_stretch=own_and_stretch,
-                           contact_pass=contact_pass, node=node, sliding=sliding,
-                           physical=physical, rest_length=rest_length,
+                           contact_pass=contact_pass, node=node, sliding=sliding, dim=dim,
+                           material=material, physical=physical, rest_length=rest_length,
                            stretch_stiffness=stretch_stiffness)
 
 
@@ -174,7 +135,7 @@ def functions(scalar, friction: bool, boundary: bool,
     Data = structure_arrays.struct(scalar, dim)
     State = structure_state.struct(scalar, dim)
     laws = tie_law.functions(scalar)
-    shared = base(scalar, friction, dim, kinematics == "sliding")
+    shared = base(scalar, friction, dim, kinematics.endswith("_sliding"))
     kind = KINDS[kinematics].structure_terms(scalar, friction, boundary, shared)
 
     @wp.func(inline=True)

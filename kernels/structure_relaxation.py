@@ -49,7 +49,8 @@ from dynfab.kernels import structure_semi_implicit as semi
 from dynfab.kernels import structure_settings, structure_state, structure_transient
 from dynfab.kernels import structure_variants
 from dynfab.kernels.precision import KINEMATICS_OF_DIM, SCALARS, numpy_dtype, vector
-from dynfab.model.fabric.sliding import has_stretches, with_stretches
+from dynfab.model.fabric.sliding import STRETCHES, has_stretches, state_anchors
+from dynfab.model.fabric.sliding import with_stretches
 from dynfab.model.structure import Structure, dim, sliding
 from dynfab.model.terms import kinematics
 
@@ -74,16 +75,9 @@ RUNNING_FOREVER = 2 ** 31 - 1
 
 def kernel_kinematics(structure: Structure) -> str:
     """The kernels' kinematics of `structure` (`dynfab.kernels.precision.KINEMATICS`): planar or
-    spatial by its coordinates, "sliding" for a planar one whose crossings slide; a ValueError
-    for a spatial one whose crossings slide (not in the kernels yet, docs/model.md 11.13)."""
+    spatial by its coordinates, "_sliding" after it where its crossings slide."""
     name = KINEMATICS_OF_DIM[dim(structure)]
-    if sliding(structure):
-        if name != "planar":
-            raise ValueError('crossing.motion = "sliding" on a [specimen] runs on the static '
-                             'solver (--solver static) so far: the kernels slide the crossings '
-                             'of a planar patch only (docs/model.md 11.13)')
-        return "sliding"
-    return name
+    return f"{name}_sliding" if sliding(structure) else name
 
 
 @dataclass
@@ -339,15 +333,21 @@ class StructureRelaxation:
 
     def _set_anchors(self, state, positions, anchors) -> np.ndarray:
         """The state's anchors (default `as_woven_anchors`); where the crossings slide, a
-        step's (xi_a, xi_b, lambda_a, lambda_b) (T, 4), or a state's (xi_a, xi_b) with the
-        stretches at `positions` (`dynfab.model.fabric.sliding.with_stretches`), split into
-        the anchors and `state.stretch` (docs/model.md 11.13c). Returns the anchors whole."""
+        step's (xi_a, xi_b, lambda_a, lambda_b[, phi_anchor]) (T, 4 or 5), or a state's (xi_a,
+        xi_b[, phi_anchor]) with the stretches at `positions`
+        (`dynfab.model.fabric.sliding.with_stretches`), split into the anchors (xi_a, xi_b[,
+        phi_anchor]) and `state.stretch` (lambda_a, lambda_b[, 1]) (docs/model.md 11.13c).
+        Returns the anchors whole."""
         anchors = self.as_woven_anchors() if anchors is None else np.asarray(anchors, float)
-        if self.arrays.sliding:
-            if not has_stretches(anchors):
-                anchors = with_stretches(positions, self.structure, anchors)
-            self._set(state.stretch, anchors[:, 2:4])
-        self._set(state.anchors, anchors[:, :self.dim])
+        if not self.arrays.sliding:
+            self._set(state.anchors, anchors[:, :self.dim])
+            return anchors
+        if not has_stretches(anchors):
+            anchors = with_stretches(positions, self.structure, anchors)
+        stretch = np.ones((anchors.shape[0], self.dim))
+        stretch[:, :2] = anchors[:, STRETCHES]
+        self._set(state.stretch, stretch)
+        self._set(state.anchors, state_anchors(anchors))
         return anchors
 
     def _settings(self, **values):
@@ -582,12 +582,13 @@ class StructureRelaxation:
     def return_map(self, positions, anchors):
         """(anchors (T, 2) [m] after the radial return map at `positions`, the energy each tie
         dissipated (T,) [J]) (docs/model.md sections 4, 10; where the crossings slide the
-        step's anchors (T, 4), their stretches kept, 11.13c)."""
+        step's anchors (T, 4 or 5), their stretches kept, 11.13c)."""
         s = self._passes(positions, anchors)
         lost = self._pass(structure_passes.RETURN_MAP, self.arrays.ties).numpy()
         moved = structure_state.read(s, "anchors")
-        if self.arrays.sliding:
-            moved = np.hstack([moved, structure_state.read(s, "stretch")])
+        if self.arrays.sliding:  # a step's anchors: the stretches after the material ones
+            stretch = structure_state.read(s, "stretch")[:, :2]
+            moved = np.hstack([moved[:, :2], stretch, moved[:, 2:]])
         return moved, lost[:self.arrays.ties].astype(float)
 
     # ------------------------------------------------------------------ transient

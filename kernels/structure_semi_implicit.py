@@ -524,7 +524,8 @@ def functions(scalar, friction: bool, boundary: bool,
     @wp.func(inline=True)
     def check_step(g: int, data: Data, state: State, settings: Settings):
         """`structure_checks.check` and the progress test; the next step's flags reset."""
-        checks.check_progress(g, state, checks.check(g, data, state, settings))
+        checks.check_progress(g, state, checks.check(g, data, state, settings),
+                              structure_checks.STALL_MIN_STEPS)
         reset_flags(g, state)
 
     @wp.func(inline=True)

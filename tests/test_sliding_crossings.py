@@ -337,12 +337,6 @@ def test_what_sliding_crossings_do_not_run_yet_is_refused_in_one_line(change, wo
                      load=dict(control="force", values=[0.01]), **change)
 
 
-def test_a_specimens_sliding_crossings_are_refused_by_the_dynamic_solver_in_one_line():
-    with pytest.raises(UserError, match=r'^crossing.motion = "sliding" on a \[specimen\] runs '
-                                        r'on the static solver'):
-        DynamicSolver(specimen())
-
-
 @pytest.mark.parametrize("option", [dict(method="semi_implicit"),
                                     dict(mode="transient", duration=1.0, output_interval=0.5),
                                     dict(masses="physical"), dict(precision="float32")],
@@ -358,30 +352,58 @@ def test_what_the_kernels_do_not_run_with_sliding_crossings_is_refused_in_one_li
 # ----------------------------------------------------------------------- the kernels
 
 
-def test_the_kernels_forces_energy_and_return_map_are_the_sliding_term_sets(structure):
+def kernel_case(kind: str):
+    """(structure, dofs, anchors, end loads [N], the host's gradient at F_T) of the perturbed
+    planar patch or bias specimen, every other crossing sticking (its anchors at its slides
+    and, in space, its angle) and the rest sliding."""
+    if kind == "planar":
+        s = FabricModel.from_scene(patch()).structure
+        dofs, anchors, _ = perturbed(s)
+        P = loads(s)
+    else:
+        s = specimen().structure
+        dofs, anchors, _ = spatial_perturbed(s)
+        P = np.zeros(s.chain_start.size - 1)
+        phi = np.empty(3)
+        for c in range(0, s.tie_a.size, 2):  # these stick in rotation too
+            six = sliding.physical(dofs, s)[s.tie_stencil[c]]
+            sliding.element.crossing_coordinates(six, phi)
+            anchors[c, sliding.ROTATION] = phi[2] + 1e-8
+    anchors[::2, :2] = dofs.reshape(-1)[s.tie_material[::2]] + 1e-8
+
+    def host_gradient(limit):
+        grad = np.zeros_like(dofs)
+        sliding.gradient(dofs, s, P, anchors, limit, grad)
+        return grad
+
+    return s, dofs, anchors, P, host_gradient
+
+
+@pytest.mark.parametrize("kind", ["planar", "spatial"])
+def test_the_kernels_forces_energy_and_return_map_are_the_sliding_term_sets(kind):
     """The Warp kernels' forces on every free dof (the slides' included: their material force
-    -sum_k dV/dL_k dL_k/d delta and the friction lambda H'(S), docs/model.md 11.13a-c), their
-    energy and their return map on the perturbed patch
-    are the host term set's, evaluated with the same F_T (from each crossing's R; the return
-    map finds some sliding, some sticking): two evaluations of one formula in float64, apart by
-    the rounding of their sums (a few ulps of the largest term)."""
-    s = structure
-    dofs, anchors, _ = perturbed(s)
-    anchors[::2, :2] = dofs.reshape(-1)[s.tie_material[::2]] + 1e-8  # these stick
+    -sum_k dV/dL_k dL_k/d delta and the friction lambda H'(S); in space node a's dofs taking
+    its crossing's node b's in-plane force, docs/model.md 11.13a-c), their energy and their
+    return map on the perturbed patch and bias specimen are the host term set's, evaluated
+    with the same F_T (from each crossing's R; the return map finds some sliding, some
+    sticking): two evaluations of one formula in float64, apart by the rounding of their sums
+    (a few ulps of the largest term)."""
+    s, dofs, anchors, P, host_gradient = kernel_case(kind)
     relaxation = StructureRelaxation(s, friction=True)
-    force = relaxation.forces(dofs, loads(s), anchors)
+    force = relaxation.forces(dofs, P, anchors)
     limit = relaxation.tie_forces(dofs, anchors)[2]  # F_T at the kernels' R
-    grad = gradient(s, dofs, anchors, limit) * ~s.fixed.reshape(dofs.shape)
+    grad = host_gradient(limit) * ~s.fixed.reshape(dofs.shape)
     rounding = 16 * np.finfo(float).eps * np.abs(grad).max()
     np.testing.assert_allclose(force, -grad, rtol=0, atol=rounding)
     assert np.abs(force.reshape(-1)[s.tie_material]).min() > 1e3 * rounding
-    nodes, ties = relaxation.energies(dofs, loads(s), anchors)
-    assert nodes.sum() + ties.sum() == pytest.approx(energy(s, dofs, anchors, limit),
-                                                     rel=16 * np.finfo(float).eps)
+    nodes, ties = relaxation.energies(dofs, P, anchors)
+    host = sliding.energy_vector(s, dofs, P, anchors, limit).sum()
+    assert nodes.sum() + ties.sum() == pytest.approx(host, rel=16 * np.finfo(float).eps)
     moved, lost = relaxation.return_map(dofs, anchors)
     expected = np.array(anchors)
     slides = np.zeros(s.tie_a.size, bool)
-    expected_lost = sliding.return_map(dofs, expected, s, limit, slides, np.zeros((slides.size, 2)))
+    expected_lost = sliding.return_map(dofs, expected, s, limit, slides,
+                                       np.zeros((slides.size, dofs.shape[1])))
     assert slides.any() and not slides.all()
     np.testing.assert_allclose(moved, expected, rtol=0, atol=16 * np.finfo(float).eps * 1e-3)
     assert lost.sum() == pytest.approx(expected_lost, rel=1e-12)
@@ -565,6 +587,46 @@ def test_a_rigid_in_plane_motion_of_a_specimen_moves_no_material_and_costs_no_en
     before = sliding.energy_vector(s, dofs, P, anchors, limit)
     after = sliding.energy_vector(s, moved, P, anchors, limit)
     np.testing.assert_allclose(after, before, rtol=1e-9, atol=1e-12 * np.abs(before).sum())
+
+
+@pytest.fixture(scope="module")
+def specimen_steps():
+    """A bias specimen's first step (its relaxation as woven, the clamps at rest), by the
+    static solver and by the dynamic one in the grouped and the node-parallel layouts."""
+    model = specimen(values=(5e-4,))
+    runs = {"static": StaticSolver(model).step(model.initial_state(), model.step_load(0))}
+    for layout in ("grouped", "node_parallel"):
+        runs[layout] = DynamicSolver(model, layout=layout).step(model.initial_state(),
+                                                                  model.step_load(0))
+    return runs
+
+
+def test_dynamic_relaxation_of_a_specimens_sliding_crossings_meets_the_static_reference(
+        specimen_steps):
+    """The dynamic solver's step on a bias specimen whose crossings slide (node b at node a's
+    x and y, its dofs the slides; docs/model.md 11.13) and the static solver's agree within
+    the two steps' error bounds (`steps/error_estimate`, a bound on every dof, the slides
+    among them): the nodes, the crossings' positions and each crossing's slide along each
+    yarn (the largest 13 um, the bound 3e-8 m)."""
+    (_, static), (_, dynamic) = specimen_steps["static"], specimen_steps["grouped"]
+    bound = float(static["error_estimate"]) + float(dynamic["error_estimate"])
+    for name in ("positions", "crossing_positions", "slip"):
+        np.testing.assert_allclose(dynamic[name], static[name], rtol=0, atol=bound,
+                                   err_msg=name)
+    assert np.abs(static["slip"]).max() > 10 * bound
+
+
+def test_the_node_parallel_layout_slides_a_specimens_crossings_as_the_grouped_layout(
+        specimen_steps):
+    """`test_the_node_parallel_layout_slides_the_grouped_layouts_bits` on the bias specimen:
+    node a's gather of its crossing's node b's in-plane force and the slides' forces are
+    the same sums in both layouts, bit for bit."""
+    (grouped, grouped_record), (parallel, parallel_record) = (specimen_steps["grouped"],
+                                                              specimen_steps["node_parallel"])
+    np.testing.assert_array_equal(parallel.positions, grouped.positions)
+    np.testing.assert_array_equal(parallel.anchors, grouped.anchors)
+    for name in grouped_record:
+        np.testing.assert_array_equal(parallel_record[name], grouped_record[name], err_msg=name)
 
 
 def test_a_held_bias_specimen_slides_within_the_fixed_crossings_mesh_error():

@@ -65,10 +65,7 @@ def _check_refusals(structure, options) -> None:
     """A UserError in one line where the structure's elements refuse an option (their
     `REFUSALS`: the spatial ones float32, docs/model.md section 11.11; crossings that slide,
     11.13)."""
-    try:
-        elements = structure_forces.KINDS[kernel_kinematics(structure)]
-    except ValueError as why:  # what the kernels do not take yet
-        raise UserError(str(why)) from None
+    elements = structure_forces.KINDS[kernel_kinematics(structure)]
     who, where = elements.REFUSED_BY
     for name, value, why in elements.REFUSALS:
         if getattr(options, name) == value:
