@@ -86,16 +86,21 @@ def functions(scalar, dim: int, sliding: bool) -> SimpleNamespace:
                               + rest_length(pos, data, m))
 
     @wp.func(inline=True)
+    def over_mean_length(pos: wp.array(dtype=vec), data: Data, m: int, modulus: scalar) -> scalar:
+        """modulus / lbar_m [N m] at inner node m, 0 where the modulus is (11.13b)."""
+        k = scalar(0.0)
+        if modulus != scalar(0.0):
+            k = modulus / mean_length(pos, data, m)
+        return k
+
+    @wp.func(inline=True)
     def bend_stiffness(pos: wp.array(dtype=vec), data: Data, m: int) -> scalar:
         """EI / lbar [N m] of the bending spring (out of the plane, in space) at inner node m:
         the structure's, or where the crossings slide EI over the material's lbar now
         (11.13b)."""
         if wp.static(not sliding):
             return data.bend_stiffness[m]
-        k = scalar(0.0)
-        if data.bend_modulus[m] != scalar(0.0):
-            k = data.bend_modulus[m] / mean_length(pos, data, m)
-        return k
+        return over_mean_length(pos, data, m, data.bend_modulus[m])
 
     @wp.func(inline=True)
     def lateral_bend_stiffness(pos: wp.array(dtype=vec), data: Data, m: int) -> scalar:
@@ -103,10 +108,7 @@ def functions(scalar, dim: int, sliding: bool) -> SimpleNamespace:
         only), as `bend_stiffness`."""
         if wp.static(not sliding):
             return data.lateral_bend_stiffness[m]
-        k = scalar(0.0)
-        if data.lateral_bend_modulus[m] != scalar(0.0):
-            k = data.lateral_bend_modulus[m] / mean_length(pos, data, m)
-        return k
+        return over_mean_length(pos, data, m, data.lateral_bend_modulus[m])
 
     return SimpleNamespace(physical=physical, dof=dof, rest_length=rest_length,
                            stretch_stiffness=stretch_stiffness, mean_length=mean_length,

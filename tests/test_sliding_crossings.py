@@ -467,12 +467,15 @@ def relax_path(solver):
     return records
 
 
-def test_the_node_parallel_layout_slides_the_grouped_layouts_bits(patch_steps):
+@pytest.mark.parametrize("runs", ["patch_steps", "specimen_steps"])
+def test_the_node_parallel_layout_slides_the_grouped_layouts_bits(runs, request):
     """The node-parallel layout (a GPU's) takes the grouped layout's step bit for bit where
-    the crossings slide (both gather the slides' forces): `--device cuda` changes the layout,
-    not the answer."""
-    (grouped, grouped_record), (parallel, parallel_record) = (patch_steps["grouped"],
-                                                              patch_steps["node_parallel"])
+    the crossings slide (both gather the slides' forces, and in space node a's gather of its
+    crossing's node b's in-plane force), on the planar patch and on a bias specimen:
+    `--device cuda` changes the layout, not the answer."""
+    steps = request.getfixturevalue(runs)
+    (grouped, grouped_record), (parallel, parallel_record) = (steps["grouped"],
+                                                              steps["node_parallel"])
     np.testing.assert_array_equal(parallel.positions, grouped.positions)
     np.testing.assert_array_equal(parallel.anchors, grouped.anchors)
     for name in grouped_record:
@@ -614,19 +617,6 @@ def test_dynamic_relaxation_of_a_specimens_sliding_crossings_meets_the_static_re
         np.testing.assert_allclose(dynamic[name], static[name], rtol=0, atol=bound,
                                    err_msg=name)
     assert np.abs(static["slip"]).max() > 10 * bound
-
-
-def test_the_node_parallel_layout_slides_a_specimens_crossings_as_the_grouped_layout(
-        specimen_steps):
-    """`test_the_node_parallel_layout_slides_the_grouped_layouts_bits` on the bias specimen:
-    node a's gather of its crossing's node b's in-plane force and the slides' forces are
-    the same sums in both layouts, bit for bit."""
-    (grouped, grouped_record), (parallel, parallel_record) = (specimen_steps["grouped"],
-                                                              specimen_steps["node_parallel"])
-    np.testing.assert_array_equal(parallel.positions, grouped.positions)
-    np.testing.assert_array_equal(parallel.anchors, grouped.anchors)
-    for name in grouped_record:
-        np.testing.assert_array_equal(parallel_record[name], grouped_record[name], err_msg=name)
 
 
 def test_a_held_bias_specimen_slides_within_the_fixed_crossings_mesh_error():
