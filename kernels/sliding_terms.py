@@ -43,10 +43,14 @@ relaxation, whose residual can rise for its first 8,000 steps (its soft shear mo
 ringing) before it falls to the tolerance, is given ten times as long (docs/model.md 11.13)."""
 
 
+ELEMENTS = {2: planar_terms, 3: spatial_terms}
+"""Coordinates per node -> the element module that slides (its `base.sliding`)."""
+
+
 def structure_terms(scalar, friction: bool, boundary: bool, base) -> SimpleNamespace:
-    """The planar or the spatial elements (by `base.dim`), which `base.sliding` makes slide."""
-    kind = planar_terms if base.dim == 2 else spatial_terms
-    return kind.structure_terms(scalar, friction, boundary, base)
+    """The planar or the spatial elements (`ELEMENTS` of `base.dim`), which `base.sliding`
+    makes slide."""
+    return ELEMENTS[base.dim].structure_terms(scalar, friction, boundary, base)
 
 
 def planar_tangent_terms(scalar, friction: bool, boundary: bool) -> SimpleNamespace:
