@@ -26,17 +26,60 @@ from dynfab.kernels.precision import vector
 @functools.cache
 def functions(scalar, dim: int, sliding: bool) -> SimpleNamespace:
     """The material's `wp.func`s (module docstring) for one scalar type, `dim` coordinates
-    per node, crossings that slide or not."""
+    per node, crossings that slide (`sliding_functions`) or not (`fixed_functions`): two
+    sets, not one with static branches, so that a fixed crossings' kernel holds no code of
+    the sliding ones (Warp compiles the code after an early static return)."""
+    return (sliding_functions if sliding else fixed_functions)(scalar, dim)
+
+
+@functools.cache
+def fixed_functions(scalar, dim: int) -> SimpleNamespace:
+    """`functions` where the crossings do not slide: the dofs and the structure's constants."""
     vec = vector(scalar, dim)
     Data = structure_arrays.struct(scalar, dim)
 
     @wp.func(inline=True)
     def physical(pos: wp.array(dtype=vec), data: Data, i: int) -> vec:
-        """Node i where the elements see it [m]: its dofs, or where the crossings slide each
-        coordinate from the dof `data.physical_source` names (its rest position for -1: a
-        crossing's node on the plane it crosses)."""
-        if wp.static(not sliding):
-            return pos[i]
+        """Node i [m]: its dofs."""
+        return pos[i]
+
+    @wp.func(inline=True)
+    def rest_length(pos: wp.array(dtype=vec), data: Data, i: int) -> scalar:
+        """l0 [m] of segment (i, next)."""
+        return data.rest_length[i]
+
+    @wp.func(inline=True)
+    def stretch_stiffness(pos: wp.array(dtype=vec), data: Data, i: int, rest: scalar) -> scalar:
+        """k [N/m] of segment (i, next)."""
+        return data.stretch_stiffness[i]
+
+    @wp.func(inline=True)
+    def bend_stiffness(pos: wp.array(dtype=vec), data: Data, m: int) -> scalar:
+        """k_b [N m] of the bending spring (out of the plane, in space) at node m."""
+        return data.bend_stiffness[m]
+
+    @wp.func(inline=True)
+    def lateral_bend_stiffness(pos: wp.array(dtype=vec), data: Data, m: int) -> scalar:
+        """k_l [N m] of the in-plane bending spring at node m (space only)."""
+        return data.lateral_bend_stiffness[m]
+
+    return SimpleNamespace(physical=physical, rest_length=rest_length,
+                           stretch_stiffness=stretch_stiffness, bend_stiffness=bend_stiffness,
+                           lateral_bend_stiffness=lateral_bend_stiffness, sliding=False, dim=dim)
+
+
+@functools.cache
+def sliding_functions(scalar, dim: int) -> SimpleNamespace:
+    """`functions` where the crossings slide: each node where it is, each segment's material
+    now (module docstring)."""
+    vec = vector(scalar, dim)
+    Data = structure_arrays.struct(scalar, dim)
+
+    @wp.func(inline=True)
+    def physical(pos: wp.array(dtype=vec), data: Data, i: int) -> vec:
+        """Node i where the elements see it [m]: each coordinate from the dof
+        `data.physical_source` names (its rest position for -1: a crossing's node on the
+        plane it crosses)."""
         out = vec()
         for c in range(wp.static(dim)):
             source = data.physical_source[i, c]
@@ -62,18 +105,14 @@ def functions(scalar, dim: int, sliding: bool) -> SimpleNamespace:
 
     @wp.func(inline=True)
     def rest_length(pos: wp.array(dtype=vec), data: Data, i: int) -> scalar:
-        """l0 [m] of segment (i, next); sliding, L = base + f (delta_R - delta_L) (11.13a)."""
-        if wp.static(not sliding):
-            return data.rest_length[i]
+        """L = base + f (delta_R - delta_L) [m] of segment (i, next) (11.13a)."""
         return data.segment_base[i] + data.segment_fraction[i] * (
             bay_end(pos, data, i, 1) - bay_end(pos, data, i, 0))
 
     @wp.func(inline=True)
     def stretch_stiffness(pos: wp.array(dtype=vec), data: Data, i: int, rest: scalar) -> scalar:
-        """k [N/m] of segment (i, next) of rest length `rest`: EA / L where the crossings slide
-        (0 for a retired segment, EA = 0, whatever its L)."""
-        if wp.static(not sliding):
-            return data.stretch_stiffness[i]
+        """EA / L [N/m] of segment (i, next) of rest length `rest` (0 for a retired segment,
+        EA = 0, whatever its L)."""
         k = scalar(0.0)
         if data.stretch_modulus[i] != scalar(0.0):
             k = data.stretch_modulus[i] / rest
@@ -95,26 +134,20 @@ def functions(scalar, dim: int, sliding: bool) -> SimpleNamespace:
 
     @wp.func(inline=True)
     def bend_stiffness(pos: wp.array(dtype=vec), data: Data, m: int) -> scalar:
-        """EI / lbar [N m] of the bending spring (out of the plane, in space) at inner node m:
-        the structure's, or where the crossings slide EI over the material's lbar now
-        (11.13b)."""
-        if wp.static(not sliding):
-            return data.bend_stiffness[m]
+        """EI / lbar [N m] of the bending spring (out of the plane, in space) at inner node m,
+        the material's lbar now (11.13b)."""
         return over_mean_length(pos, data, m, data.bend_modulus[m])
 
     @wp.func(inline=True)
     def lateral_bend_stiffness(pos: wp.array(dtype=vec), data: Data, m: int) -> scalar:
         """EI_lateral / lbar [N m] of the in-plane bending spring at inner node m (space
         only), as `bend_stiffness`."""
-        if wp.static(not sliding):
-            return data.lateral_bend_stiffness[m]
         return over_mean_length(pos, data, m, data.lateral_bend_modulus[m])
 
     return SimpleNamespace(physical=physical, dof=dof, rest_length=rest_length,
                            stretch_stiffness=stretch_stiffness, mean_length=mean_length,
                            bend_stiffness=bend_stiffness,
-                           lateral_bend_stiffness=lateral_bend_stiffness, sliding=sliding,
-                           dim=dim)
+                           lateral_bend_stiffness=lateral_bend_stiffness, sliding=True, dim=dim)
 
 
 def material_forces(scalar, dim: int, node_bend_energy) -> SimpleNamespace:
@@ -123,7 +156,7 @@ def material_forces(scalar, dim: int, node_bend_energy) -> SimpleNamespace:
     chain's ends)."""
     vec = vector(scalar, dim)
     Data = structure_arrays.struct(scalar, dim)
-    own = functions(scalar, dim, True)
+    own = sliding_functions(scalar, dim)
     P = own.physical  # noqa: N806 (node i where the elements see it)
 
     @wp.func(inline=True)

@@ -408,7 +408,7 @@ def structure_terms(scalar, friction: bool, boundary: bool, base) -> SimpleNames
     sliding = base.sliding
     terms = functions(scalar, sliding)
     segment_pull = base.segment_pull
-    dof = base.material.dof
+    dof = material_terms.sliding_functions(scalar, 3).dof
 
     @wp.func(inline=True)
     def plane_shift(pos: wp.array(dtype=vec), data: Data) -> vec:
@@ -428,18 +428,22 @@ def structure_terms(scalar, friction: bool, boundary: bool, base) -> SimpleNames
     material = material_terms.material_forces(scalar, 3, node_bend_energy)
 
     @wp.func(inline=True)
-    def slip(pos: wp.array(dtype=vec), data: Data, state: State, t: int) -> vec:
-        """S [m] of crossing t from its anchor (docs/model.md section 11.4); where the
-        crossings slide, (lambda_a (delta_a - xi_a), lambda_b (delta_b - xi_b), rho wrap(phi -
-        phi_anchor)) (11.13c)."""
+    def fixed_slip(pos: wp.array(dtype=vec), data: Data, state: State, t: int) -> vec:
+        """S [m] of crossing t from its anchor (docs/model.md section 11.4)."""
+        return terms.crossing_slip(pos, data, state.anchors[t], t)
+
+    @wp.func(inline=True)
+    def sliding_slip(pos: wp.array(dtype=vec), data: Data, state: State, t: int) -> vec:
+        """S = (lambda_a (delta_a - xi_a), lambda_b (delta_b - xi_b), rho wrap(phi -
+        phi_anchor)) [m] of crossing t (11.13c)."""
         anchor = state.anchors[t]
-        if wp.static(not sliding):
-            return terms.crossing_slip(pos, data, anchor, t)
         stretch = state.stretch[t]
         phi = terms.crossing_coordinates(pos, data, t)[2]
         return vec(stretch[0] * (dof(pos, data.tie_slide[t, 0]) - anchor[0]),
                    stretch[1] * (dof(pos, data.tie_slide[t, 1]) - anchor[1]),
                    data.rotation_law[t, 0] * terms.wrap(phi - anchor[2]))
+
+    slip = sliding_slip if sliding else fixed_slip
 
     @wp.func(inline=True)
     def stencil_huber(state: State, t: int) -> vec:
@@ -517,15 +521,13 @@ def structure_terms(scalar, friction: bool, boundary: bool, base) -> SimpleNames
         return total
 
     @wp.func(inline=True)
-    def node_force(i: int, pos: wp.array(dtype=vec), data: Data, state: State) -> vec:
-        """-dV/d(dofs of node i) [N], gathered, unmasked: its physical force (`physical_force`);
-        where the crossings slide, each coordinate's physical force on the dof that holds it
+    def sliding_node_force(i: int, pos: wp.array(dtype=vec), data: Data, state: State) -> vec:
+        """-dV/d(dofs of node i) [N], gathered, unmasked, where the crossings slide: each
+        coordinate's physical force (`physical_force`) on the dof that holds it
         (`physical_source`: node a's x and y hold its crossing's node b's too, node b's hold
         its slides), and on a dof holding a slide the material's force and the friction's
         (`structure_terms`). Loops that Warp does not unroll (`while`), so that each large
         function is compiled in once."""
-        if wp.static(not sliding):
-            return physical_force(i, pos, data, state)
         force = vec()
         first = data.node_tie_start[i]
         k = first - 1  # node i itself, then the other node of each of its ties
@@ -550,6 +552,8 @@ def structure_terms(scalar, friction: bool, boundary: bool, base) -> SimpleNames
                     + slide_friction(i, c, data, state)
             c += 1
         return force
+
+    node_force = sliding_node_force if sliding else physical_force  # -dV/d(dofs of node i)
 
     @wp.func(inline=True)
     def scatter(group: int, pos: wp.array(dtype=vec), data: Data, state: State):
