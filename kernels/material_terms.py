@@ -95,6 +95,12 @@ def sliding_functions(scalar, dim: int) -> SimpleNamespace:
         return pos[flat // wp.static(dim)][flat % wp.static(dim)]
 
     @wp.func(inline=True)
+    def slide(pos: wp.array(dtype=vec), data: Data, t: int, side: int) -> scalar:
+        """delta [m] of tie t along node a's chain (side 0) or node b's (side 1), from the dof
+        `data.tie_slide` names."""
+        return dof(pos, data.tie_slide[t, side])
+
+    @wp.func(inline=True)
     def bay_end(pos: wp.array(dtype=vec), data: Data, i: int, side: int) -> scalar:
         """The slide delta [m] at side 0 (left) or 1 (right) of segment (i, next)'s bay."""
         source = data.segment_material[i, side]
@@ -144,7 +150,7 @@ def sliding_functions(scalar, dim: int) -> SimpleNamespace:
         only), as `bend_stiffness`."""
         return over_mean_length(pos, data, m, data.lateral_bend_modulus[m])
 
-    return SimpleNamespace(physical=physical, dof=dof, rest_length=rest_length,
+    return SimpleNamespace(physical=physical, dof=dof, slide=slide, rest_length=rest_length,
                            stretch_stiffness=stretch_stiffness, mean_length=mean_length,
                            bend_stiffness=bend_stiffness,
                            lateral_bend_stiffness=lateral_bend_stiffness, sliding=True, dim=dim)

@@ -62,6 +62,7 @@ def structure_terms(scalar, friction: bool, boundary: bool, base) -> SimpleNames
     sliding = base.sliding
     P = base.physical  # noqa: N806 (node i where the elements see it)
     bend_stiffness = base.material.bend_stiffness
+    slide = material_terms.sliding_functions(scalar, 2).slide
 
     @wp.func(inline=True)
     def turning_angle(a: vec, b: vec) -> scalar:
@@ -111,9 +112,9 @@ def structure_terms(scalar, friction: bool, boundary: bool, base) -> SimpleNames
 
     @wp.func(inline=True)
     def material_slip(pos: wp.array(dtype=vec), data: Data, state: State, t: int) -> vec:
-        """S = (lambda_a (delta_a - xi_a), lambda_b (delta_b - xi_b)) [m] of crossing t whose
-        nodes' first dofs hold its slides (11.13c)."""
-        slides = vec(pos[data.tie_a[t]][0], pos[data.tie_b[t]][0])
+        """S = (lambda_a (delta_a - xi_a), lambda_b (delta_b - xi_b)) [m] of crossing t (its
+        nodes' first dofs hold its slides; 11.13c)."""
+        slides = vec(slide(pos, data, t, 0), slide(pos, data, t, 1))
         return wp.cw_mul(state.stretch[t], slides - state.anchors[t])
 
     @wp.func(inline=True)

@@ -408,7 +408,7 @@ def structure_terms(scalar, friction: bool, boundary: bool, base) -> SimpleNames
     sliding = base.sliding
     terms = functions(scalar, sliding)
     segment_pull = base.segment_pull
-    dof = material_terms.sliding_functions(scalar, 3).dof
+    slide = material_terms.sliding_functions(scalar, 3).slide
 
     @wp.func(inline=True)
     def plane_shift(pos: wp.array(dtype=vec), data: Data) -> vec:
@@ -439,8 +439,8 @@ def structure_terms(scalar, friction: bool, boundary: bool, base) -> SimpleNames
         anchor = state.anchors[t]
         stretch = state.stretch[t]
         phi = terms.crossing_coordinates(pos, data, t)[2]
-        return vec(stretch[0] * (dof(pos, data.tie_slide[t, 0]) - anchor[0]),
-                   stretch[1] * (dof(pos, data.tie_slide[t, 1]) - anchor[1]),
+        return vec(stretch[0] * (slide(pos, data, t, 0) - anchor[0]),
+                   stretch[1] * (slide(pos, data, t, 1) - anchor[1]),
                    data.rotation_law[t, 0] * terms.wrap(phi - anchor[2]))
 
     slip = sliding_slip if sliding else fixed_slip
