@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import time
 from pathlib import Path
 
@@ -52,7 +53,8 @@ def solved_specimen_backend(path: str, motion: str):
     from dynfab.scene import parse_scene_text
     from dynfab.solvers.static import StaticSolver
 
-    text = Path(path).read_text().replace("[crossing]", f'[crossing]\nmotion = "{motion}"', 1)
+    text = re.sub(r'(?m)^motion = "\w+"\n', "", Path(path).read_text())
+    text = text.replace("[crossing]", f'[crossing]\nmotion = "{motion}"', 1)
     solver = StaticSolver(SpecimenModel(parse_scene_text(text)))
     state, _ = solver.step(solver.initial_state(), solver.model.step_load(0))
     start = solver.model.start_of_step(state, solver.model.step_load(1))

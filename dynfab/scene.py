@@ -321,8 +321,9 @@ class Crossing:
         "yarn, and a step whose slip passes half a segment stops (docs/model.md 11.6); "
         "\"sliding\", its contact point stays where the yarns cross while their material "
         "slides through it, and a yarn end that passes its last crossing leaves it "
-        "(docs/model.md 11.13; so far a planar clamped patch with fixed planes and the shear "
-        "specimens, on the static solver or the dynamic one's explicit relaxation)", choices=("fixed", "sliding"), default="fixed", model="fabric")
+        "(docs/model.md 11.13; every fabric model on the static solver, and on the dynamic "
+        "one's explicit relaxation all but periodic cells and moving planes)",
+        choices=("fixed", "sliding"), default="fixed", model="fabric")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -1222,7 +1223,6 @@ def _check_planar(scene: Scene, kind: tuple) -> None:
                    f"weft.count = {step}; nearest valid: {max(step, round(weft.segments / step) * step)}")
     if scene.pullout is not None:
         _check_pullout(scene)
-    _check_sliding(scene)
     if g.boundary == "periodic":
         _check_periodic(scene)
     elif g.planes == CELL_PLANES:
@@ -1418,21 +1418,6 @@ def _is_real(value) -> bool:
     """A finite real number (not a bool), as a resolved default may be computed from."""
     return (isinstance(value, numbers.Real) and not isinstance(value, bool)
             and math.isfinite(value))
-
-
-_SLIDES_ON = ("so far crossings slide on a planar clamped patch with fixed planes and on a "
-              "shear specimen (docs/model.md 11.13)")
-
-
-def _check_sliding(scene: Scene) -> None:
-    """Crossings that slide: a clamped patch whose planes stay as woven (so far)."""
-    if scene.crossing is None or scene.crossing.motion != "sliding":
-        return
-    g = scene.geometry
-    if g.boundary != "clamped" or g.planes != "fixed":
-        key, value = (("geometry.boundary", g.boundary) if g.boundary != "clamped"
-                      else ("geometry.planes", g.planes))
-        raise _bad(key, value, f'with crossing.motion = "sliding": {_SLIDES_ON}')
 
 
 def _check_periodic(scene: Scene) -> None:

@@ -23,7 +23,7 @@ from typing import NamedTuple
 
 from dynfab.errors import SolverError
 from dynfab.model import geometry
-from dynfab.model.fabric.sliding import rest_lengths
+from dynfab.model.fabric.sliding import physical, rest_lengths
 from dynfab.model.structure import Structure, chain_count, dim
 
 GROUND_REFUSED = "crossings that slide join two chains; a tie to ground (the paper's weft) cannot"
@@ -227,10 +227,8 @@ def without_crossings(structure: Structure, departures: list[Departure],
         new[same] = old[same]
     slots = structure.tie_material[removed].ravel()
     source = structure.physical_source.copy()
-    held = source[slots] < 0
     out = np.array(dofs, float)
-    out.reshape(-1)[slots] = np.where(held, np.asarray(structure.rest_position).reshape(-1)[slots],
-                                      flat[np.maximum(source[slots], 0)])
+    out.reshape(-1)[slots] = physical(dofs, structure).reshape(-1)[slots]
     source[slots] = slots
     ties = {name: getattr(structure, name)[keep] for name in structure._fields
             if name.startswith("tie_") and np.ndim(getattr(structure, name))

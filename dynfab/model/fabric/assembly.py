@@ -178,17 +178,31 @@ def _wrap_dofs(fabric, y):
 
 
 @numba.njit(cache=True)
-def _add_wrap_gradient(pos, fabric, y, grad):
-    """grad += k (phi - phi0) dphi/dr of the wrap spring (chain rule through `_wrap_dofs`)."""
+def wrap_gradient(pos, fabric, y, out):
+    """The wrap spring's energy 1/2 k (phi - phi0)^2 [J] (returned) and its gradient
+    k (phi - phi0) dphi/dr on its 8 dofs (`_wrap_dofs`) into out (8,) [N] (the chain rule
+    through `_wrap_dofs`' map)."""
     p = _wrap_points(pos, fabric, y)
     g = np.empty(6)
     bending._angle_gradient(p, 1, g)
-    moment = fabric.wrap_stiffness[y] * (bending.turning_angle(p, 1) - fabric.wrap_rest_angle[y])
-    dofs, M = _wrap_dofs(fabric, y)
-    flat = grad.reshape(-1)
+    d = bending.turning_angle(p, 1) - fabric.wrap_rest_angle[y]
+    moment = fabric.wrap_stiffness[y] * d
+    _, M = _wrap_dofs(fabric, y)
     full = M.T @ g
     for m in range(8):
-        flat[dofs[m]] += moment * full[m]
+        out[m] = moment * full[m]
+    return 0.5 * fabric.wrap_stiffness[y] * d * d
+
+
+@numba.njit(cache=True)
+def _add_wrap_gradient(pos, fabric, y, grad):
+    """grad += the wrap spring's gradient (`wrap_gradient`)."""
+    local = np.empty(8)
+    wrap_gradient(pos, fabric, y, local)
+    dofs, _ = _wrap_dofs(fabric, y)
+    flat = grad.reshape(-1)
+    for m in range(8):
+        flat[dofs[m]] += local[m]
 
 
 @numba.njit(cache=True)

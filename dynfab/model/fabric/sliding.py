@@ -82,12 +82,66 @@ def _base(s: Structure):
 
 
 @numba.njit(cache=True)
+def _plane_nodes(s, side):
+    """The plane nodes whose mean displacement moves the planes of the ties' side `side`
+    (0: node a's, 1: node b's; `Structure.plane_nodes_a`, `plane_nodes_b`)."""
+    return s.plane_nodes_a if side == 0 else s.plane_nodes_b
+
+
+@numba.njit(cache=True)
+def _moving_planes(s, coordinate, weight):
+    """Fill (coordinate, weight) (T, 2): the physical coordinate of each tie's node a (column
+    0) and b (1) and its weight w [-] where the crossing holds that coordinate on a plane that
+    moves (`Structure.tie_plane_weight`), else (-1, 0); returns whether any does."""
+    d = s.rest_position.shape[1]
+    moving = False
+    for c in range(s.tie_a.size):
+        for side in range(2):
+            node = s.tie_a[c] if side == 0 else s.tie_b[c]
+            w = s.tie_plane_weight[c, side]
+            coordinate[c, side], weight[c, side] = -1, 0.0
+            if node >= 0 and s.physical_source[d * node] < 0 and w != 0.0 \
+                    and _plane_nodes(s, side).size > 0:
+                coordinate[c, side], weight[c, side] = d * node, w
+                moving = True
+    return moving
+
+
+def moving_planes(s: Structure) -> tuple[np.ndarray, np.ndarray] | None:
+    """`_moving_planes`' (coordinate, weight), or None where no crossing's node is on a plane
+    that moves."""
+    if not (s.plane_nodes_a.size or s.plane_nodes_b.size):
+        return None
+    coordinate = np.empty((s.tie_a.size, 2), np.int64)
+    weight = np.empty((s.tie_a.size, 2))
+    return (coordinate, weight) if _moving_planes(s, coordinate, weight) else None
+
+
+@numba.njit(cache=True)
 def _physical(dofs, s, out):
-    """out = the physical positions (n, dim) of the dofs (module docstring)."""
+    """out = the physical positions (n, dim) of the dofs (module docstring): each coordinate
+    from the dof that holds it, or its as-woven value where a crossing holds it on its plane
+    (`_move_with_planes` moves it where that plane moves)."""
     flat, rest, o = dofs.reshape(-1), s.rest_position.reshape(-1), out.reshape(-1)
     for d in range(o.size):
         source = s.physical_source[d]
         o[d] = flat[source] if source >= 0 else rest[d]
+
+
+@numba.njit(cache=True)
+def _move_with_planes(flat, rest, d, nodes_a, nodes_b, coordinate, weight, out):
+    """out[coordinate] += w U for each crossing's node on a moving plane (X + w U, U the mean
+    displacement of the plane nodes along their chains; docs/model.md section 10, 11.13)."""
+    shift = np.zeros(2)
+    for side in range(2):
+        nodes = nodes_a if side == 0 else nodes_b
+        for m in nodes:
+            shift[side] += (flat[d * m] - rest[d * m]) / nodes.size
+    o = out.reshape(-1)
+    for c in range(coordinate.shape[0]):
+        for side in range(2):
+            if coordinate[c, side] >= 0:
+                o[coordinate[c, side]] += weight[c, side] * shift[side]
 
 
 @numba.njit(cache=True)
@@ -112,7 +166,12 @@ def _rest_lengths(dofs, s, out):
 def physical(dofs, s: Structure) -> np.ndarray:
     """The physical positions (n, dim) [m] of the dofs."""
     out = np.empty(s.rest_position.shape)
-    _physical(np.ascontiguousarray(dofs, float), s, out)
+    dofs = np.ascontiguousarray(dofs, float)
+    _physical(dofs, s, out)
+    planes = moving_planes(s)
+    if planes is not None:
+        _move_with_planes(dofs.reshape(-1), s.rest_position.reshape(-1), dim(s),
+                          s.plane_nodes_a, s.plane_nodes_b, *planes, out)
     return out
 
 
@@ -147,6 +206,22 @@ def _material_now(dofs, s, L, stretch, bend, lateral):
     return True
 
 
+def _wrap_ends(s: Structure, y: int) -> tuple[int, int]:
+    """(first, last) segment of chain y: the two that meet at a periodic chain's wrap."""
+    return int(s.chain_start[y] - y), int(s.chain_start[y + 1] - y - 2)
+
+
+def _wrap_stiffness_now(s: Structure, L: np.ndarray) -> np.ndarray:
+    """EI / lbar_0 of each periodic chain's wrap spring (Y,) [N m], lbar_0 = (L_first +
+    L_last) / 2 of the material now (11.13b at the wrap, node 0, where segment N-1's image
+    meets segment 0); the as-woven EI / lbar_0 (`Structure.wrap_stiffness`) gives EI."""
+    k = np.array(s.wrap_stiffness, float)
+    for y in np.flatnonzero(k > 0.0):
+        first, last = _wrap_ends(s, y)
+        k[y] *= (s.rest_length[first] + s.rest_length[last]) / (L[first] + L[last])
+    return k
+
+
 def current(dofs, s: Structure) -> Structure | None:
     """The structure of the material as it lies now: each segment's rest length L_s and
     stiffness EA / L_s, each node's bending stiffnesses over lbar_i (11.13b; 0 at a chain's
@@ -158,7 +233,7 @@ def current(dofs, s: Structure) -> Structure | None:
     if not _material_now(np.ascontiguousarray(dofs, float), s, L, stretch, bend, lateral):
         return None
     fields = dict(rest_length=L, stretch_stiffness=stretch, bend_stiffness=bend,
-                  has_friction=False)
+                  wrap_stiffness=_wrap_stiffness_now(s, L), has_friction=False)
     if lateral.size:
         fields["lateral_bend_stiffness"] = lateral
     return s._replace(**fields)
@@ -331,6 +406,29 @@ def _pull_back(physical_grad, s, grad):
 
 
 @numba.njit(cache=True)
+def _pull_back_planes(physical_grad, d, nodes_a, nodes_b, coordinate, weight, grad):
+    """grad += on each plane node w / (their count) of the physical gradient on each crossing
+    node its plane moves (`_move_with_planes`)."""
+    g, o = physical_grad.reshape(-1), grad.reshape(-1)
+    for c in range(coordinate.shape[0]):
+        for side in range(2):
+            if coordinate[c, side] >= 0:
+                nodes = nodes_a if side == 0 else nodes_b
+                for m in nodes:
+                    o[d * m] += weight[c, side] / nodes.size * g[coordinate[c, side]]
+
+
+def pull_back(physical_grad, s: Structure, grad) -> None:
+    """grad += the physical gradient on the dofs that hold each coordinate and on the plane
+    nodes that move a crossing's plane (`physical`)."""
+    _pull_back(physical_grad, s, grad)
+    planes = moving_planes(s)
+    if planes is not None:
+        _pull_back_planes(physical_grad, dim(s), s.plane_nodes_a, s.plane_nodes_b, *planes,
+                          grad)
+
+
+@numba.njit(cache=True)
 def _add_to_bay(flat, material, fraction, k, value):
     """flat += value dL_k/du on segment k's bay ends (dL/du_R = f, dL/du_L = -f)."""
     f = fraction[k]
@@ -359,6 +457,29 @@ def _add_material_gradient(pos, L, s, bend_energy, grad):
             _add_to_bay(flat, material, fraction, i - y, -0.5 * bend_energy[i] / lbar)
 
 
+def _wrap_gradients(pos, now: Structure):
+    """[(chain, E_w [J], lbar_0 [m], its 8 physical coordinates, dE_w/dr on them (8,) [N])]
+    of every periodic chain's wrap spring (`assembly.wrap_gradient`), lbar_0 its material's
+    now (`_wrap_stiffness_now`)."""
+    out = []
+    for y in np.flatnonzero(now.wrap_stiffness > 0.0):
+        grad = np.empty(8)
+        energy = assembly.wrap_gradient(pos, now, y, grad)
+        first, last = _wrap_ends(now, y)
+        out.append((y, energy, 0.5 * (now.rest_length[first] + now.rest_length[last]),
+                    assembly.wrap_dofs_of(now, y), grad))
+    return out
+
+
+def _add_wrap_material_gradient(wraps, s: Structure, grad) -> None:
+    """grad += dE_w/dlbar_0 dlbar_0/du of each wrap spring, dE_w/dlbar_0 = -E_w / lbar_0 and
+    dlbar_0/dL = 1/2 on its two segments (11.13b at the wrap)."""
+    flat = grad.reshape(-1)
+    for y, energy, lbar, _, _ in wraps:
+        for k in _wrap_ends(s, y):
+            _add_to_bay(flat, s.segment_material, s.segment_fraction, k, -0.5 * energy / lbar)
+
+
 def gradient(dofs, s: Structure, P, anchors, limit, grad) -> None:
     """grad = dV/d(dofs) (n, dim) [N, and N for the slides' J/m], F_T frozen."""
     now = current(dofs, s)
@@ -373,8 +494,9 @@ def gradient(dofs, s: Structure, P, anchors, limit, grad) -> None:
     grad[:] = 0.0
     if s.has_friction:
         _add_friction_gradient(pos, dofs, s, anchors, limit, grad, physical_grad)
-    _pull_back(physical_grad, s, grad)
+    pull_back(physical_grad, s, grad)
     _add_material_gradient(pos, now.rest_length, s, _bends(pos, now, False)[0], grad)
+    _add_wrap_material_gradient(_wrap_gradients(pos, now), s, grad)
 
 
 # ----------------------------------------------------------------------- the Hessian
@@ -382,22 +504,33 @@ def gradient(dofs, s: Structure, P, anchors, limit, grad) -> None:
 
 @numba.njit(cache=True)
 def _friction_dofs(s, c, out):
-    """(in space the dofs holding the in-plane coordinates of tie c's stencil; its u_a, u_b)."""
+    """(in space the in-plane physical coordinates of tie c's stencil (`STENCIL_IN_PLANE`);
+    the dofs of its u_a, u_b plus `material_offset`)."""
     m = 0
     if s.tie_stencil.shape[0]:
         for a in range(6):
             for i in range(2):
-                out[m] = s.physical_source[3 * s.tie_stencil[c, a] + i]
+                out[m] = 3 * s.tie_stencil[c, a] + i
                 m += 1
-    out[m], out[m + 1] = s.tie_material[c, 0], s.tie_material[c, 1]
+    offset = material_offset(s)
+    out[m], out[m + 1] = s.tie_material[c, 0] + offset, s.tie_material[c, 1] + offset
 
 
 @numba.njit(cache=True)
-def _emit_square(local, size, rows, cols, e):
-    """(rows, cols) of a dense block on `local`'s first `size` dofs, row-major."""
+def material_offset(s):
+    """The Hessian's entries name a physical coordinate p by p and a material dof m by this
+    plus m (`SlidingPattern`): the physical coordinates' count."""
+    return s.rest_position.size
+
+
+@numba.njit(cache=True)
+def _emit_square(local, size, rows, cols, e, offset=0):
+    """(rows, cols) of a dense block on `local`'s first `size` entries plus `offset` (-1
+    staying -1), row-major."""
     for p in range(size):
         for q in range(size):
-            rows[e], cols[e] = local[p], local[q]
+            rows[e] = local[p] + offset if local[p] >= 0 else -1
+            cols[e] = local[q] + offset if local[q] >= 0 else -1
             e += 1
     return e
 
@@ -456,33 +589,62 @@ def node_materials(s: Structure) -> np.ndarray:
 
 
 @numba.njit(cache=True)
-def _material_entries(s, d, table, rows, cols):
-    """(rows, cols) of every entry `_elastic_material_values` and `_friction_values` fill, in
-    their order, on the dofs (-1
-    where a coordinate is held on a plane or a bay ends at a chain end): each node's mixed
+def _wrap_materials(s, y, out):
+    """The material dofs the wrap spring of chain y reads (4,): its first segment's bay ends,
+    then its last segment's, -1 at a chain's end."""
+    first, last = s.chain_start[y] - y, s.chain_start[y + 1] - y - 2
+    out[0], out[1] = s.segment_material[first, 0], s.segment_material[first, 1]
+    out[2], out[3] = s.segment_material[last, 0], s.segment_material[last, 1]
+
+
+@numba.njit(cache=True)
+def _material_entries(s, d, table, wrap_coordinates, rows, cols):
+    """(rows, cols) of every entry `_elastic_material_values`, `_wrap_values` and
+    `_friction_values` fill, in their order, a physical coordinate by its index and a material
+    dof offset by `material_offset` (-1 where a bay ends at a chain end): each node's mixed
     entries (its d coordinates against its material dofs `table`, both orders), each
     segment's and each inner node's material block (its bay ends' 2 x 2, its 3 x 3), each
-    tie's friction block."""
+    wrap spring's mixed entries (its 8 coordinates, rows of `wrap_coordinates`, against its
+    4 material dofs, both orders) and material block (4 x 4), each tie's friction block."""
     start = s.chain_start
+    offset = material_offset(s)
     local = np.empty(STENCIL_IN_PLANE + 2, np.int64)
     e = 0
     for i in range(table.shape[0]):
         for j in range(table.shape[1]):
             for c in range(d):
-                rows[e], cols[e] = s.physical_source[d * i + c], table[i, j]
-                rows[e + 1], cols[e + 1] = table[i, j], s.physical_source[d * i + c]
+                material = table[i, j] + offset if table[i, j] >= 0 else -1
+                rows[e], cols[e] = d * i + c, material
+                rows[e + 1], cols[e + 1] = material, d * i + c
                 e += 2
     for y in range(start.size - 1):
         for k in range(start[y] - y, start[y + 1] - y - 1):
             local[0], local[1] = s.segment_material[k, 0], s.segment_material[k, 1]
-            e = _emit_square(local, 2, rows, cols, e)
+            e = _emit_square(local, 2, rows, cols, e, offset)
         for k in range(start[y] + 1 - y, start[y + 1] - y - 1):
             _bend_materials(s, k, local)
-            e = _emit_square(local, 3, rows, cols, e)
+            e = _emit_square(local, 3, rows, cols, e, offset)
+    w = 0
+    for y in range(start.size - 1):
+        if s.wrap_stiffness[y] > 0.0:
+            _wrap_materials(s, y, local)
+            for p in range(8):
+                for q in range(4):
+                    material = local[q] + offset if local[q] >= 0 else -1
+                    rows[e], cols[e] = wrap_coordinates[w, p], material
+                    rows[e + 1], cols[e + 1] = material, wrap_coordinates[w, p]
+                    e += 2
+            e = _emit_square(local, 4, rows, cols, e, offset)
+            w += 1
     size = _friction_size(s)
     for c in range(s.tie_a.size):
         _friction_dofs(s, c, local)
         e = _emit_square(local, size, rows, cols, e)
+
+
+WRAP_ENTRIES = 8 * 4 * 2 + 4 * 4
+"""A wrap spring's material entries: its 8 coordinates against its 4 material dofs, both
+orders, and their 4 x 4 block."""
 
 
 def _material_entry_count(s: Structure, d: int, width: int) -> int:
@@ -490,7 +652,14 @@ def _material_entry_count(s: Structure, d: int, width: int) -> int:
     inner = segments - (s.chain_start.size - 1)
     friction = _friction_size(s)
     return (s.rest_position.shape[0] * width * d * 2 + segments * 4 + inner * 9
+            + int(np.count_nonzero(s.wrap_stiffness > 0.0)) * WRAP_ENTRIES
             + s.tie_a.size * friction * friction)
+
+
+def _wrap_coordinates(s: Structure) -> np.ndarray:
+    """The 8 physical coordinates of each periodic chain's wrap spring (W, 8), int64."""
+    rows = [assembly.wrap_dofs_of(s, y) for y in np.flatnonzero(s.wrap_stiffness > 0.0)]
+    return np.array(rows, np.int64).reshape(-1, 8)
 
 
 @numba.njit(cache=True)
@@ -604,10 +773,70 @@ def _friction_values(pos, dofs, s, anchors, limit, secant, values, e):
     return e
 
 
+def _wrap_values(wraps, s: Structure, values, e) -> int:
+    """Each wrap spring's mixed and material Hessian entries in `_material_entries`' order
+    from entry e (11.13b at the wrap: d2E_w/dr dlbar_0 = -(dE_w/dr) / lbar_0,
+    d2E_w/dlbar_0^2 = 2 E_w / lbar_0^2, dlbar_0/du = 1/2 dL/du on its two segments); returns
+    the next entry."""
+    for y, energy, lbar, _, grad in wraps:
+        first, last = _wrap_ends(s, y)
+        f0, f1 = 0.5 * s.segment_fraction[first], 0.5 * s.segment_fraction[last]
+        gm = np.array([-f0, f0, -f1, f1])
+        mixed = np.outer(-grad / lbar, gm).ravel()
+        values[e:e + 2 * mixed.size:2] = mixed
+        values[e + 1:e + 2 * mixed.size:2] = mixed
+        e += 2 * mixed.size
+        values[e:e + 16] = (2.0 * energy / (lbar * lbar) * np.outer(gm, gm)).ravel()
+        e += 16
+    return e
+
+
+def coordinate_map(s: Structure) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(indptr, dofs, weights): the dofs (and weights) an entry's index stands for, CSR over
+    the indices [0, 2 n dim) of `_material_entries`: a physical coordinate the dof that holds
+    it (1), none where it is held at its as-woven value, the plane nodes (w / their count)
+    where a crossing holds it on a plane that moves (`_physical`); a material dof itself."""
+    size = s.rest_position.size
+    held = np.flatnonzero(s.physical_source >= 0)
+    index, dofs, weights = [held], [s.physical_source[held]], [np.ones(held.size)]
+    planes = moving_planes(s)
+    for c, side in zip(*np.nonzero(planes[0] >= 0)) if planes is not None else ():
+        nodes = _plane_nodes(s, side)
+        index.append(np.full(nodes.size, planes[0][c, side]))
+        dofs.append(dim(s) * nodes)
+        weights.append(np.full(nodes.size, planes[1][c, side] / nodes.size))
+    index.append(size + np.arange(size))
+    dofs.append(np.arange(size))
+    weights.append(np.ones(size))
+    index = np.concatenate(index)
+    order = np.argsort(index, kind="stable")
+    indptr = np.concatenate([[0], np.cumsum(np.bincount(index, minlength=2 * size))])
+    return (indptr, np.concatenate(dofs).astype(np.int64)[order],
+            np.concatenate(weights)[order])
+
+
+def expand_entries(rows, cols, indptr, dofs, weights):
+    """(rows, cols, entry, weight): each entry (rows[e], cols[e]) on the indices of
+    `coordinate_map` as the entries on the dofs its row and column stand for, in entry order:
+    value[entry] times weight (the chain rule through a linear map); -1 stands for nothing."""
+    valid = (rows >= 0) & (cols >= 0)
+    r, c = np.where(valid, rows, 0), np.where(valid, cols, 0)
+    nr = np.where(valid, indptr[r + 1] - indptr[r], 0)
+    nc = np.where(valid, indptr[c + 1] - indptr[c], 0)
+    count = nr * nc
+    entry = np.repeat(np.arange(rows.size), count)
+    j = np.arange(entry.size) - np.repeat(np.cumsum(count) - count, count)
+    pr = indptr[r[entry]] + j // nc[entry]
+    pc = indptr[c[entry]] + j % nc[entry]
+    return dofs[pr], dofs[pc], entry, weights[pr] * weights[pc]
+
+
 class SlidingPattern(Pattern):
-    """The Hessian's entries on the dofs: the base term set's, each physical dof moved to the
-    dof that holds it, then the material entries (`_material_entries`); those on a coordinate
-    held on a plane or a chain end's constant left out (`kept`)."""
+    """The Hessian's entries on the dofs: the base term set's on the physical coordinates,
+    then the material entries (`_material_entries`), each moved to the dofs its coordinates
+    stand for (`coordinate_map`, `expand_entries`): a coordinate held at its as-woven value
+    or a chain end's constant drops out, one on a moving plane spreads over its plane
+    nodes."""
 
     def __init__(self, s: Structure):
         d = dim(s)
@@ -616,19 +845,26 @@ class SlidingPattern(Pattern):
         self.node_materials = node_materials(s)
         count = _material_entry_count(s, d, self.node_materials.shape[1])
         rows, cols = np.empty(count, np.int64), np.empty(count, np.int64)
-        _material_entries(s, d, self.node_materials, rows, cols)
-        rows = np.concatenate([s.physical_source[base_rows], rows])
-        cols = np.concatenate([s.physical_source[base_cols], cols])
+        _material_entries(s, d, self.node_materials, _wrap_coordinates(s), rows, cols)
         self.base_size = base_rows.size
-        self.kept = (rows >= 0) & (cols >= 0)
-        super().__init__(s, (rows[self.kept], cols[self.kept]))
-        self._keep_all = np.flatnonzero(self.kept)[self._keep]
+        self.size_before = base_rows.size + count
+        rows, cols, self.entry, self.weight = expand_entries(
+            np.concatenate([base_rows, rows]), np.concatenate([base_cols, cols]),
+            *coordinate_map(s))
+        super().__init__(s, (rows, cols))
+        self._entry_kept = self.entry[self._keep]
+        self._weight_kept = None if np.all(self.weight == 1.0) else self.weight[self._keep]
+
+    def on_dofs(self, values) -> np.ndarray:
+        """Every entry `hessian_values` fills as the entries on the dofs (`rows`, `cols`)."""
+        return values[self.entry] * self.weight
 
     def matrix(self, values) -> scipy.sparse.csc_matrix:
-        """The Hessian on the unknowns (CSC) from every entry `hessian_values` fills (before
-        `kept`)."""
-        data = np.bincount(self._slot, weights=values[self._keep_all], minlength=self._slots)
-        return self.csc(data)
+        """The Hessian on the unknowns (CSC) from every entry `hessian_values` fills."""
+        data = values[self._entry_kept]
+        if self._weight_kept is not None:  # a plane that moves
+            data *= self._weight_kept
+        return self.csc(np.bincount(self._slot, weights=data, minlength=self._slots))
 
 
 _PATTERNS: dict[tuple, tuple] = {}
@@ -639,23 +875,26 @@ def pattern_of(s: Structure) -> SlidingPattern:
     """The `SlidingPattern` of a structure, made once per topology (`assembly.kept_pattern`):
     the spatial one's arrays (`spatial._topology`, which a held lateral set shares) and the
     slots and bays."""
-    arrays = (*spatial._topology(s), s.physical_source, s.tie_material, s.segment_material)
+    arrays = (*spatial._topology(s), s.physical_source, s.tie_material, s.segment_material,
+              s.tie_plane_weight, s.wrap_stiffness)
     return kept_pattern(_PATTERNS, arrays, lambda: SlidingPattern(s))
 
 
 def hessian_values(dofs, s: Structure, anchors, limit, secant=None) -> np.ndarray:
-    """Every entry of `SlidingPattern` (before `kept`), F_T = `limit` frozen."""
+    """Every entry of `SlidingPattern` on the physical coordinates and material dofs (before
+    `expand_entries`), F_T = `limit` frozen."""
     pattern = pattern_of(s)
     now = current(dofs, s)
     dofs = np.ascontiguousarray(dofs, float)
     pos = physical(dofs, s)
-    values = np.zeros(pattern.kept.size)
+    values = np.zeros(pattern.size_before)
     _base(s).hessian_values(pos, now, _base_anchors(anchors, s), np.zeros(s.tie_a.size),
                             values[:pattern.base_size], None)
     energy, grad = _bends(pos, now)
     rest = values[pattern.base_size:]
     e = _elastic_material_values(pos, now.rest_length, s, energy, grad, pattern.node_materials,
                                  rest)
+    e = _wrap_values(_wrap_gradients(pos, now), s, rest, e)
     _friction_values(pos, dofs, s, anchors, limit, secant, rest, e)
     return values
 
@@ -671,7 +910,7 @@ def sparse_hessian(s: Structure, dofs, anchors, limit, secant=0.0):
 def full_hessian(s: Structure, dofs, anchors, limit) -> np.ndarray:
     """The Hessian on every dof, dense (for tests and small checks)."""
     pattern = pattern_of(s)
-    return pattern.full_matrix(hessian_values(dofs, s, anchors, limit)[pattern.kept])
+    return pattern.full_matrix(pattern.on_dofs(hessian_values(dofs, s, anchors, limit)))
 
 
 def stiffest_rows(s: Structure, dofs, anchors) -> tuple[np.ndarray, np.ndarray] | None:
@@ -687,7 +926,7 @@ def stiffest_rows(s: Structure, dofs, anchors) -> tuple[np.ndarray, np.ndarray] 
     if current(dofs, s) is None:
         return None
     limit = np.full(s.tie_a.size, np.inf if s.has_friction else 0.0)
-    values = hessian_values(dofs, s, np.asarray(anchors, float), limit)[pattern.kept]
+    values = pattern.on_dofs(hessian_values(dofs, s, np.asarray(anchors, float), limit))
     rows, diagonal = spatial.rows_at_contact_bound(physical(dofs, s), s, pattern.rows,
                                                    pattern.cols, values)
     rows[rows == 0.0] = rows.max()  # a retired tail's node: no stiffness, a mass all the same
@@ -801,7 +1040,7 @@ def coupling_rows(s: Structure, dofs, anchors, limit, c) -> tuple[np.ndarray, np
         local = np.empty(STENCIL_IN_PLANE + 2, np.int64)
         _friction_dofs(s, c, local)
         rho = s.tie_rotation_law[c, 0]
-        rows += list(local[:STENCIL_IN_PLANE])
+        rows += list(s.physical_source[local[:STENCIL_IN_PLANE]])
         values += list(rho * J2 * S[2] / norm)
     rows, values = np.array(rows, np.int64), np.array(values)
     keep = rows >= 0
