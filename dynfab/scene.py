@@ -321,8 +321,8 @@ class Crossing:
         "yarn, and a step whose slip passes half a segment stops (docs/model.md 11.6); "
         "\"sliding\", its contact point stays where the yarns cross while their material "
         "slides through it, and a yarn end that passes its last crossing leaves it "
-        "(docs/model.md 11.13; every fabric model on the static solver, and on the dynamic "
-        "one's explicit relaxation all but periodic cells and moving planes)",
+        "(docs/model.md 11.13; every fabric model, on the static solver or the dynamic "
+        "one's explicit relaxation)",
         choices=("fixed", "sliding"), default="fixed", model="fabric")
 
 

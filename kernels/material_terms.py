@@ -75,16 +75,29 @@ def sliding_functions(scalar, dim: int) -> SimpleNamespace:
     vec = vector(scalar, dim)
     Data = structure_arrays.struct(scalar, dim)
 
+    @wp.func
+    def plane_shift(pos: wp.array(dtype=vec), data: Data, family: int) -> scalar:
+        """The summed displacement along their chains of the plane nodes of `family` [m]
+        (`StructureArrays.plane_nodes`)."""
+        total = scalar(0.0)
+        for m in range(data.plane_offsets[family], data.plane_offsets[family + 1]):
+            node = data.plane_nodes[m]
+            total += pos[node][0] - data.rest_position[node][0]
+        return total
+
     @wp.func(inline=True)
     def physical(pos: wp.array(dtype=vec), data: Data, i: int) -> vec:
         """Node i where the elements see it [m]: each coordinate from the dof
         `data.physical_source` names (its rest position for -1: a crossing's node on the
-        plane it crosses)."""
+        plane it crosses, moved with that plane where it moves)."""
         out = vec()
         for c in range(wp.static(dim)):
             source = data.physical_source[i, c]
             if source < 0:
                 out[c] = data.rest_position[i][c]
+                family = data.physical_plane[i, c]
+                if family >= 0:  # on a moving plane: X + w U (docs/model.md 11.13)
+                    out[c] += data.physical_plane_weight[i, c] * plane_shift(pos, data, family)
             else:
                 out[c] = pos[source // wp.static(dim)][source % wp.static(dim)]
         return out
@@ -156,14 +169,16 @@ def sliding_functions(scalar, dim: int) -> SimpleNamespace:
                            lateral_bend_stiffness=lateral_bend_stiffness, sliding=True, dim=dim)
 
 
-def material_forces(scalar, dim: int, node_bend_energy) -> SimpleNamespace:
+def material_forces(scalar, dim: int, node_bend_energy, wrap_on_length=None) -> SimpleNamespace:
     """`on_length` and `material_force` (module docstring) of crossings that slide, on a
     kinematics' `node_bend_energy(pos, data, m)` (its bending energy E_m [J] at node m, 0 at a
-    chain's ends)."""
+    chain's ends) and `wrap_on_length(pos, data, k)` (what a periodic chain's wrap spring adds
+    to dV/dL_k [N]; none where None)."""
     vec = vector(scalar, dim)
     Data = structure_arrays.struct(scalar, dim)
     own = sliding_functions(scalar, dim)
     P = own.physical  # noqa: N806 (node i where the elements see it)
+    wraps = wrap_on_length is not None
 
     @wp.func(inline=True)
     def bend_on_length(pos: wp.array(dtype=vec), data: Data, m: int) -> scalar:
@@ -186,7 +201,10 @@ def material_forces(scalar, dim: int, node_bend_energy) -> SimpleNamespace:
             length = wp.length(P(pos, data, after) - P(pos, data, k))
             value = scalar(0.5) * data.stretch_modulus[k] * (rest * rest - length * length) \
                 / (rest * rest)
-        return value + bend_on_length(pos, data, k) + bend_on_length(pos, data, after)
+        value = value + bend_on_length(pos, data, k) + bend_on_length(pos, data, after)
+        if wp.static(wraps):
+            value += wrap_on_length(pos, data, k)
+        return value
 
     @wp.func(inline=True)
     def material_force(pos: wp.array(dtype=vec), data: Data, i: int, slot: int) -> scalar:

@@ -75,12 +75,25 @@ def structure_terms(scalar, friction: bool, boundary: bool, base) -> SimpleNames
         return bend_stiffness(pos, data, m) * (turning_angle(a, b) - data.rest_angle[m])
 
     @wp.func(inline=True)
+    def wrap_stiffness(pos: wp.array(dtype=vec), data: Data, first: int) -> scalar:
+        """EI / lbar_0 [N m] of the wrap spring at chain node `first`: where the crossings
+        slide, lbar_0 = (L_first + L_last) / 2 of the material now (docs/model.md 11.13)."""
+        k = data.wrap_stiffness[first]
+        if wp.static(sliding):
+            last = data.chain_last[first] - 1  # the chain's last segment
+            k = k * (data.rest_length[first] + data.rest_length[last]) / (
+                base.material.rest_length(pos, data, first)
+                + base.material.rest_length(pos, data, last))
+        return k
+
+    @wp.func(inline=True)
     def wrap_forces(pos: wp.array(dtype=vec), data: Data, first: int) -> mat:
         """Rows (m g_a, m g_b) [N] of the wrap spring at chain node `first`."""
         last = data.chain_last[first]
-        a = pos[last] - pos[last - 1]
-        b = pos[first + 1] - pos[first]
-        moment = data.wrap_stiffness[first] * (turning_angle(a, b) - data.wrap_rest_angle[first])
+        a = P(pos, data, last) - P(pos, data, last - 1)
+        b = P(pos, data, first + 1) - P(pos, data, first)
+        moment = wrap_stiffness(pos, data, first) * (turning_angle(a, b)
+                                                      - data.wrap_rest_angle[first])
         ga = moment * vec(a[1], -a[0]) / wp.dot(a, a)
         gb = moment * vec(-b[1], b[0]) / wp.dot(b, b)
         return mat(ga[0], ga[1], gb[0], gb[1])
@@ -118,19 +131,6 @@ def structure_terms(scalar, friction: bool, boundary: bool, base) -> SimpleNames
         return wp.cw_mul(state.stretch[t], slides - state.anchors[t])
 
     @wp.func(inline=True)
-    def tie_pass_at(t: int, pos: wp.array(dtype=vec), data: Data, state: State, shift: vec):
-        """R, dR/dg (and F_T, the friction force) of tie t into the state's tie arrays; where
-        the crossings slide, the friction force on the two slides, lambda H'(S) (11.13c)."""
-        bound = base.contact_pass(t, pos, data, state)
-        if wp.static(friction):
-            if wp.static(sliding):
-                state.friction[t] = wp.cw_mul(state.stretch[t], laws.huber_force(
-                    material_slip(pos, data, state, t), bound, data.friction_law[t, 3]))
-            else:
-                state.friction[t] = laws.huber_force(slip(pos, data, state.anchors, t, shift),
-                                                     bound, data.friction_law[t, 3])
-
-    @wp.func(inline=True)
     def bend_energy(pos: wp.array(dtype=vec), data: Data, m: int) -> scalar:
         """E_m [J] of the bending spring at node m (0 at a chain's ends)."""
         before = data.previous[m]
@@ -143,11 +143,40 @@ def structure_terms(scalar, friction: bool, boundary: bool, base) -> SimpleNames
             energy = scalar(0.5) * bend_stiffness(pos, data, m) * turn * turn
         return energy
 
-    material = material_terms.material_forces(scalar, 2, bend_energy)
+    @wp.func(inline=True)
+    def wrap_energy(pos: wp.array(dtype=vec), data: Data, first: int) -> scalar:
+        """E_w [J] of the wrap spring at chain node `first`."""
+        last = data.chain_last[first]
+        turn = turning_angle(P(pos, data, last) - P(pos, data, last - 1),
+                             P(pos, data, first + 1) - P(pos, data, first)) \
+            - data.wrap_rest_angle[first]
+        return scalar(0.5) * wrap_stiffness(pos, data, first) * turn * turn
 
     @wp.func(inline=True)
-    def own_force(i: int, pos: wp.array(dtype=vec), data: Data, state: State) -> vec:
-        """-dV/dr_i (+ friction) [N] of node i alone, unmasked, without the planes' reaction."""
+    def wrap_on_length(pos: wp.array(dtype=vec), data: Data, k: int) -> scalar:
+        """-E_w / (2 lbar_0) [N]: what a periodic chain's wrap spring adds to dV/dL_k of its
+        first and its last segment (11.13b at the wrap, lbar_0 = (L_first + L_last) / 2)."""
+        value = scalar(0.0)
+        first = data.node_wrap[k]
+        if first >= 0:
+            last = data.chain_last[first] - 1
+            if (k == first or k == last) and data.wrap_stiffness[first] > scalar(0.0):
+                lbar = scalar(0.5) * (base.material.rest_length(pos, data, first)
+                                      + base.material.rest_length(pos, data, last))
+                value = -scalar(0.5) * wrap_energy(pos, data, first) / lbar
+        return value
+
+    material = material_terms.material_forces(scalar, 2, bend_energy,
+                                              wrap_on_length if boundary else None)
+    own_force_function = wp.func if sliding and boundary else wp.func(inline=True)
+    """`own_force` a function of its own where it is largest, crossings that slide on moving
+    planes or a periodic cell (each of its calls inlined, the variant took 103 s to compile
+    here instead of 48 s); inlined elsewhere, as it was."""
+
+    @wp.func(inline=True)
+    def elastic_force(i: int, pos: wp.array(dtype=vec), data: Data, state: State) -> vec:
+        """-dV/dr_i [N] of node i's own terms, its segments' stretch and the bendings that
+        read it (no tie, no wrap spring)."""
         before = data.previous[i]
         after = data.next[i]
         force = base.own_and_stretch(i, pos, data, state)
@@ -172,6 +201,58 @@ def structure_terms(scalar, friction: bool, boundary: bool, base) -> SimpleNames
                 b = P(pos, data, later) - P(pos, data, after)
                 moment = bend_moment(pos, data, after, a, b)
                 force = force + moment * vec(a[1], -a[0]) / wp.dot(a, a)
+        return force
+
+    @wp.func(inline=True)
+    def wrap_force(i: int, pos: wp.array(dtype=vec), data: Data) -> vec:
+        """-dV/dr_i [N] of the wrap spring on node i (variants with the boundary)."""
+        force = vec()
+        if wp.static(boundary):
+            first = data.node_wrap[i]
+            if first >= 0:
+                last = data.chain_last[first]
+                g = wrap_forces(pos, data, first)
+                if i == last - 1:
+                    force = force + vec(g[0, 0], g[0, 1])
+                if i == last:
+                    force = force - vec(g[0, 0], g[0, 1])
+                if i == first + 1:
+                    force = force - vec(g[1, 0], g[1, 1])
+                if i == first:
+                    force = force + vec(g[1, 0], g[1, 1])
+        return force
+
+    @wp.func
+    def held_force(i: int, pos: wp.array(dtype=vec), data: Data, state: State) -> scalar:
+        """-dV/dx_i [N] along its chain of a crossing's node i where the crossing holds that
+        coordinate on a moving plane (its elastic and wrap forces), else 0."""
+        value = scalar(0.0)
+        if data.physical_plane[i, 0] >= 0:
+            value = (elastic_force(i, pos, data, state) + wrap_force(i, pos, data))[0]
+        return value
+
+    @wp.func(inline=True)
+    def tie_pass_at(t: int, pos: wp.array(dtype=vec), data: Data, state: State, shift: vec):
+        """R, dR/dg (and F_T, the friction force) of tie t into the state's tie arrays; where
+        the crossings slide, the friction force on the two slides, lambda H'(S) (11.13c), and
+        where they slide on moving planes the force on each of its nodes' coordinates held on
+        a plane (`held_force`), which the plane nodes take (`node_force`)."""
+        bound = base.contact_pass(t, pos, data, state)
+        if wp.static(friction):
+            if wp.static(sliding):
+                state.friction[t] = wp.cw_mul(state.stretch[t], laws.huber_force(
+                    material_slip(pos, data, state, t), bound, data.friction_law[t, 3]))
+            else:
+                state.friction[t] = laws.huber_force(slip(pos, data, state.anchors, t, shift),
+                                                     bound, data.friction_law[t, 3])
+        if wp.static(sliding and boundary):
+            state.held[t] = vec(held_force(data.tie_a[t], pos, data, state),
+                                held_force(data.tie_b[t], pos, data, state))
+
+    @own_force_function
+    def own_force(i: int, pos: wp.array(dtype=vec), data: Data, state: State) -> vec:
+        """-dV/dr_i (+ friction) [N] of node i alone, unmasked, without the planes' reaction."""
+        force = elastic_force(i, pos, data, state)
         if wp.static(sliding):
             walk = data.node_slide[i, 0]
             if walk >= 0:  # its first dof a slide: the material's force
@@ -190,26 +271,20 @@ def structure_terms(scalar, friction: bool, boundary: bool, base) -> SimpleNames
                     along = state.friction[t][1]
                 force = force + vec(along, -up)
         if wp.static(boundary):
-            first = data.node_wrap[i]
-            if first >= 0:
-                last = data.chain_last[first]
-                g = wrap_forces(pos, data, first)
-                if i == last - 1:
-                    force = force + vec(g[0, 0], g[0, 1])
-                if i == last:
-                    force = force - vec(g[0, 0], g[0, 1])
-                if i == first + 1:
-                    force = force - vec(g[1, 0], g[1, 1])
-                if i == first:
-                    force = force + vec(g[1, 0], g[1, 1])
+            force = force + wrap_force(i, pos, data)
         return force
 
     @wp.func(inline=True)
     def plane_reaction(data: Data, state: State, group: int, family: int) -> scalar:
-        """-sum_t w_t f_t [N] along the chain on each plane node of `family`, in tie order."""
+        """-sum_t w_t f_t [N] along the chain on each plane node of `family`, in tie order:
+        the friction's on the planes, or where the crossings slide, +sum_t w_t h_t of the forces
+        on their nodes held on the planes (`held_force`; 11.13)."""
         total = scalar(0.0)
         for t in range(data.group_tie[group], data.group_tie[group + 1]):
-            total += data.tie_weight[t][family] * state.friction[t][family]
+            if wp.static(sliding):
+                total -= data.tie_weight[t][family] * state.held[t][family]
+            else:
+                total += data.tie_weight[t][family] * state.friction[t][family]
         return -total
 
     @wp.func(inline=True)
@@ -219,14 +294,18 @@ def structure_terms(scalar, friction: bool, boundary: bool, base) -> SimpleNames
         force = vec()
         if wp.static(boundary):
             family = data.node_tie[i]
-            members = scalar(1.0)
-            if family >= 0:
-                for m in range(data.plane_offsets[family], data.plane_offsets[family + 1]):
-                    force = force + own_force(data.plane_nodes[m], pos, data, state)
-                members = scalar(data.plane_offsets[family + 1] - data.plane_offsets[family])
-            else:
-                force = own_force(i, pos, data, state)
-            if wp.static(friction):
+            begin = 0
+            count = 1
+            if family >= 0:  # a tied family: its members' forces in plane-node order
+                begin = data.plane_offsets[family]
+                count = data.plane_offsets[family + 1] - begin
+            for m in range(count):  # own_force inlined once (compile time)
+                node = i
+                if family >= 0:
+                    node = data.plane_nodes[begin + m]
+                force = force + own_force(node, pos, data, state)
+            members = scalar(count)
+            if wp.static(friction or sliding):
                 plane = data.node_plane[i]
                 if plane >= 0:
                     reaction = plane_reaction(data, state, data.node_group[i], plane)
@@ -304,10 +383,7 @@ def structure_terms(scalar, friction: bool, boundary: bool, base) -> SimpleNames
         spring [J]."""
         total = energy + bend_energy(pos, data, i)
         if data.wrap_stiffness[i] > scalar(0.0):
-            last = data.chain_last[i]
-            turn = turning_angle(pos[last] - pos[last - 1], pos[i + 1] - pos[i]) \
-                - data.wrap_rest_angle[i]
-            total += scalar(0.5) * data.wrap_stiffness[i] * turn * turn
+            total += wrap_energy(pos, data, i)
         return total
 
     @wp.func(inline=True)

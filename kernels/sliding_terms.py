@@ -16,10 +16,9 @@ from dynfab.kernels import host_rows, planar_terms, spatial_terms
 
 ROWS_FROM_HOST = True
 """The masses' rows come from the host (module docstring)."""
-BOUNDARY = False
-"""No moving planes, wraps or tied families: the dynamic solver refuses a periodic cell and
-moving planes with crossings that slide (`dynfab.solvers.dynamic`), which the static solver
-runs."""
+BOUNDARY = True
+"""The boundary couplings are the element module's: the planar one's moving planes, wrap
+springs and tied families (a spatial structure has none)."""
 REFUSALS = (
     ("method", "semi_implicit", "its tangent (the kernels' band and coupling products) has no "
      "row for a crossing's slide; the explicit method relaxes crossings that slide"),

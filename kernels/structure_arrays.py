@@ -37,6 +37,7 @@ import numpy as np
 import warp as wp
 
 from dynfab.kernels.precision import numpy_dtype, vector
+from dynfab.model.fabric.sliding import moving_planes
 from dynfab.model.structure import GROUND, Structure, chain_count, chain_of_node
 from dynfab.model.terms import nodes
 
@@ -198,6 +199,13 @@ class StructureArrays:
     """sliding: (n,) EI [N m^2] of node i's bending spring (0 at a chain's ends)."""
     lateral_bend_modulus: np.ndarray = field(default_factory=lambda: np.zeros(0))
     """sliding, spatial: (n,) EI_lateral [N m^2] of node i's in-plane bending spring."""
+    physical_plane: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int64))
+    """sliding: (n, dim) the plane family (0: the a slips', 1: the b slips') whose shift
+    moves a coordinate a crossing holds on a moving plane, else -1
+    (`dynfab.model.fabric.sliding.moving_planes`)."""
+    physical_plane_weight: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    """sliding: (n, dim) w / (the family's plane nodes) [-] of such a coordinate: it lies at
+    its rest position plus this times the family's summed shift."""
 
     @property
     def sliding(self) -> bool:
@@ -275,8 +283,9 @@ def build(structure: Structure) -> StructureArrays:
     load_family[structure.load_node] = structure.chain_family
     free = ~np.asarray(structure.fixed).reshape(n, dim)
     if structure.physical_source.size:  # a retired tail: held, seen at its chain's end
-        free &= np.asarray(structure.dof_tie).reshape(n, dim) < 0
-        structure = structure._replace(dof_tie=np.full_like(structure.dof_tie, -1))
+        tail = retired_tails(structure)
+        free &= ~tail.reshape(n, dim)
+        structure = structure._replace(dof_tie=np.where(tail, -1, structure.dof_tie))
     boundary = _boundary(structure, node_chain, dim)
     grouping = _groups(structure, node_chain, boundary, dim)
     spatial = _spatial(structure, grouping["node_group"])
@@ -297,6 +306,16 @@ def build(structure: Structure) -> StructureArrays:
         chain_start=start, families=int(np.max(structure.chain_family, initial=0)) + 1,
         dim=dim, **boundary, **grouping, **spatial, **_node_terms(structure),
         **_sliding(structure, has_segment, segment))
+
+
+def retired_tails(s: Structure) -> np.ndarray:
+    """The tied dofs (n dim,) bool of a sliding structure's retired tails (docs/model.md
+    11.13): every tied dof but a family's plane nodes' (a periodic cell's lengths)."""
+    tied = np.asarray(s.dof_tie) >= 0
+    dim = s.rest_position.shape[1]
+    for family in (s.plane_nodes_a, s.plane_nodes_b):
+        tied[dim * np.asarray(family, np.int64)] = False
+    return tied
 
 
 def _sliding(s: Structure, has_segment: np.ndarray, segment: np.ndarray) -> dict:
@@ -325,7 +344,21 @@ def _sliding(s: Structure, has_segment: np.ndarray, segment: np.ndarray) -> dict
                 segment_base=per_segment(np.asarray(s.segment_base, float)),
                 stretch_modulus=per_segment(np.asarray(s.stretch_modulus, float)),
                 bend_modulus=np.asarray(s.bend_modulus, float),
-                lateral_bend_modulus=np.asarray(s.lateral_bend_modulus, float))
+                lateral_bend_modulus=np.asarray(s.lateral_bend_modulus, float),
+                **_moving_planes(s))
+
+
+def _moving_planes(s: Structure) -> dict:
+    """`physical_plane` and `physical_plane_weight` of a structure whose crossings slide."""
+    n, dim = s.rest_position.shape
+    family, weight = np.full(n * dim, -1, np.int64), np.zeros(n * dim)
+    planes = moving_planes(s)
+    if planes is not None:
+        counts = (s.plane_nodes_a.size, s.plane_nodes_b.size)
+        for c, side in zip(*np.nonzero(planes[0] >= 0)):
+            family[planes[0][c, side]] = side
+            weight[planes[0][c, side]] = planes[1][c, side] / counts[side]
+    return dict(physical_plane=family.reshape(n, dim), physical_plane_weight=weight.reshape(n, dim))
 
 
 def _node_terms(s: Structure) -> dict:
@@ -566,6 +599,8 @@ def _struct(scalar, dim: int):
         stretch_modulus: wp.array(dtype=scalar)
         bend_modulus: wp.array(dtype=scalar)
         lateral_bend_modulus: wp.array(dtype=scalar)
+        physical_plane: wp.array2d(dtype=wp.int32)
+        physical_plane_weight: wp.array2d(dtype=scalar)
 
     return wp.struct(StructureData)
 

@@ -498,7 +498,7 @@ class StructureRelaxation:
         if self.arrays.sliding:
             flat, tie = out.reshape(-1), np.asarray(self.structure.dof_tie)
             start = self.state.start_position.numpy().astype(np.float64).reshape(-1)
-            tied = np.flatnonzero(tie >= 0)
+            tied = np.flatnonzero(structure_arrays.retired_tails(self.structure))
             flat[tied] += flat[tie[tied]] - start[tie[tied]]
         return out
 

@@ -62,6 +62,7 @@ def _struct(scalar, dim: int):
         # ---- per tie (T)
         anchors: wp.array(dtype=vec)
         stretch: wp.array(dtype=vec)
+        held: wp.array(dtype=vec)
         contact: wp.array(dtype=scalar)
         tangent: wp.array(dtype=scalar)
         limit: wp.array(dtype=scalar)
@@ -159,6 +160,7 @@ def allocate(arrays, scalar, device: str, semi_implicit: bool, rows_from_host: b
     state.node_values = zeros(n, vec4)
     state.anchors, state.friction, state.coupling = zeros(T, vec), zeros(T, vec), zeros(T, vec4)
     state.stretch = zeros(T if arrays.sliding else 0, vec)
+    state.held = zeros(T if arrays.sliding else 0, vec)
     for name in TIE_SCALARS:
         setattr(state, name, zeros(T, scalar))
     state.block_values, state.block_max = zeros(B, vec4), zeros(B, scalar)

@@ -388,16 +388,36 @@ def test_where_no_crossing_slides_the_sliding_crossings_are_the_fixed_ones(name,
     assert np.all(slip <= np.asarray(slides["error_estimate"]))
 
 
-@pytest.mark.parametrize("geometry", [dict(boundary="periodic"), dict(planes="affine")],
-                         ids=["periodic_cell", "moving_planes"])
-def test_the_dynamic_solver_refuses_sliding_crossings_on_moving_planes_in_one_line(geometry):
-    """Its kernels hold a sliding crossing's node on a plane that stays as woven (docs/model.md
-    11.13); the static solver runs these (above)."""
-    with pytest.raises(UserError, match=r'^crossings that slide do not run on a periodic cell '
-                                        r'or with moving planes .* \(docs/model.md 11.13\)$'):
-        DynamicSolver(FabricModel.from_scene(fabric_scene(
-            WARP, WEFT, 2, 2, crossing=dict(motion="sliding"),
-            load=dict(control="force", values=[0.01]), geometry=geometry)))
+PAPER_FRICTION = """
+[friction]
+alpha = 0.2
+beta = 1e3
+contact_length = 2e-3
+fiber_radius = 1e-3
+"""
+"""runs/fabric_strip.toml's friction, given to the periodic cell too: one kernel variant
+(crossings that slide, friction, moving planes) for both runs below."""
+
+
+@pytest.mark.parametrize("name, smaller, more", [
+    ("fabric_biaxial_2to1", None, PAPER_FRICTION), ("fabric_strip", STRIP_4X4, "")],
+    ids=["periodic_cell", "strip_moving_planes"])
+def test_dynamic_relaxation_of_sliding_crossings_on_moving_planes_meets_the_static_reference(
+        name, smaller, more):
+    """The periodic cell (with the paper's friction) and the 4 x 4 strip of
+    `test_where_no_crossing_slides_the_sliding_crossings_are_the_fixed_ones`, by the dynamic
+    solver's explicit relaxation (the kernels' crossing nodes on the moving planes, X + w U,
+    their forces taken by the plane nodes, a tied family's summed; the wrap springs' material
+    part, docs/model.md 11.13) and by the static one: every step's positions and slides within
+    the sum of the two runs' error bounds."""
+    text = sliding_text(name, smaller) + more
+    static, dynamic = (run(parse_scene_text(text), solver).steps
+                       for solver in ("static", "dynamic"))
+    bound = np.asarray(static["error_estimate"]) + np.asarray(dynamic["error_estimate"])
+    assert np.all(np.isfinite(bound)) and len(bound) == len(static["load"])
+    for key in ("positions", "weft_positions", "slip"):
+        gap = np.abs(np.asarray(static[key]) - np.asarray(dynamic[key]))
+        assert np.all(gap.reshape(len(bound), -1).max(axis=1) <= bound), key
 
 
 @pytest.mark.parametrize("option", [dict(method="semi_implicit"),
@@ -419,9 +439,12 @@ def kernel_case(kind: str):
     """(structure, dofs, anchors, end loads [N], the host's gradient at F_T) of the perturbed
     planar patch or bias specimen, every other crossing sticking (its anchors at its slides
     and, in space, its angle) and the rest sliding."""
-    if kind == "planar":
-        s = FabricModel.from_scene(patch()).structure
+    if kind in ("planar", "periodic_cell", "moving_planes"):
+        s = FabricModel.from_scene(patch()).structure if kind == "planar" else on_a_boundary(
+            **({"boundary": "periodic"} if kind == "periodic_cell" else {"planes": "affine"}))
         dofs, anchors, _ = perturbed(s)
+        if kind == "periodic_cell":  # its wrap springs bent (`term_case`)
+            dofs[s.chain_start[:-1] + 1, 1] += 2e-4
         P = loads(s)
     else:
         s = specimen().structure
@@ -437,17 +460,22 @@ def kernel_case(kind: str):
     def host_gradient(limit):
         grad = np.zeros_like(dofs)
         sliding.gradient(dofs, s, P, anchors, limit, grad)
+        flat, tied = grad.reshape(-1), np.flatnonzero(s.dof_tie >= 0)
+        np.add.at(flat, s.dof_tie[tied], flat[tied])  # a tied family: its summed force
+        flat[tied] = flat[s.dof_tie[tied]]
         return grad
 
     return s, dofs, anchors, P, host_gradient
 
 
-@pytest.mark.parametrize("kind", ["planar", "spatial"])
+@pytest.mark.parametrize("kind", ["planar", "periodic_cell", "moving_planes", "spatial"])
 def test_the_kernels_forces_energy_and_return_map_are_the_sliding_term_sets(kind):
     """The Warp kernels' forces on every free dof (the slides' included: their material force
     -sum_k dV/dL_k dL_k/d delta and the friction lambda H'(S); in space node a's dofs taking
-    its crossing's node b's in-plane force, docs/model.md 11.13a-c), their energy and their
-    return map on the perturbed patch and bias specimen are the host term set's, evaluated
+    its crossing's node b's in-plane force; on moving planes the plane nodes taking the force
+    on each crossing's node held on its plane, a tied family its summed force; docs/model.md
+    11.13a-c), their energy and their return map on the perturbed patch, periodic cell
+    (`term_case`), patch with moving planes and bias specimen are the host term set's, evaluated
     with the same F_T (from each crossing's R; the return map finds some sliding, some
     sticking): two evaluations of one formula in float64, apart by the rounding of their sums
     (a few ulps of the largest term)."""

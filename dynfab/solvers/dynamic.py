@@ -67,12 +67,6 @@ def _check_refusals(structure, options) -> None:
     11.13)."""
     elements = structure_forces.KINDS[kernel_kinematics(structure)]
     who, where = elements.REFUSED_BY
-    if not elements.BOUNDARY and (structure.plane_nodes_a.size or structure.plane_nodes_b.size
-                                  or np.any(structure.wrap_stiffness > 0.0)):
-        raise UserError(f'{who} on a periodic cell or with moving planes (geometry.boundary = '
-                        f'"periodic", geometry.planes = "affine") in the dynamic solver: its '
-                        f'kernels hold a crossing\'s node on a plane that stays as woven; the '
-                        f'static solver runs them (docs/model.md {where})')
     for name, value, why in elements.REFUSALS:
         if getattr(options, name) == value:
             raise UserError(f'{who} dynamic.{name} = "{value}": {why} '
