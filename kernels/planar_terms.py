@@ -19,7 +19,10 @@ crosses) with each segment's material now (rest length L = base + f (delta_R - d
 EI / lbar: `material_terms`); a crossing node's first dof is its slide delta, whose force is
 the material's, -sum_k dV/dL_k dL_k/d delta over its two bays
 (`material_terms.material_forces`), plus the friction's lambda H'(S) on S = lambda (delta -
-xi) (`material_slip`; the anchors move on S in the return map).
+xi) (`material_slip`; the anchors move on S in the return map). Where the planes move, a
+crossing's node sits on its moving plane and the force on that coordinate goes to the plane
+nodes (`held_force`, `plane_reaction`); a wrap spring bends over the material's lbar_0
+(`wrap_stiffness`) and adds its dE/dL to its two end segments (`wrap_on_length`).
 
 `structure_terms` gives them to `structure_forces` in the form every kinematics offers
 (`plane_shift`, `tie_pass_at`, `node_force`, `scatter`, `add_node_energy`,
@@ -170,8 +173,8 @@ def structure_terms(scalar, friction: bool, boundary: bool, base) -> SimpleNames
                                               wrap_on_length if boundary else None)
     own_force_function = wp.func if sliding and boundary else wp.func(inline=True)
     """`own_force` a function of its own where it is largest, crossings that slide on moving
-    planes or a periodic cell (each of its calls inlined, the variant took 103 s to compile
-    here instead of 48 s); inlined elsewhere, as it was."""
+    planes or a periodic cell (inlined at each call it doubled the variant's compile time:
+    docs/model.md 11.13, "Compile time"); inlined elsewhere, as it was."""
 
     @wp.func(inline=True)
     def elastic_force(i: int, pos: wp.array(dtype=vec), data: Data, state: State) -> vec:
