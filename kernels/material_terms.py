@@ -69,21 +69,34 @@ def fixed_functions(scalar, dim: int) -> SimpleNamespace:
 
 
 @functools.cache
+def plane_shift(scalar, dim: int):
+    """`family_shift(pos, data, family)`: the summed displacement along their chains of the
+    plane nodes of `family` [m] (`StructureArrays.plane_nodes`; docs/model.md section 10), in
+    plane-node order: what moves the planes of the fixed crossings' slips and the sliding
+    crossings' nodes held on them."""
+    vec = vector(scalar, dim)
+    Data = structure_arrays.struct(scalar, dim)
+
+    @wp.func
+    def family_shift(pos: wp.array(dtype=vec), data: Data, family: int) -> scalar:
+        """The summed displacement of the plane nodes of `family` [m]."""
+        total = scalar(0.0)
+        for m in range(data.plane_offsets[family], data.plane_offsets[family + 1]):
+            node = data.plane_nodes[m]
+            total += pos[node][0] - data.rest_position[node][0]
+        return total
+
+    return family_shift
+
+
+@functools.cache
 def sliding_functions(scalar, dim: int) -> SimpleNamespace:
     """`functions` where the crossings slide: each node where it is, each segment's material
     now (module docstring)."""
     vec = vector(scalar, dim)
     Data = structure_arrays.struct(scalar, dim)
 
-    @wp.func
-    def plane_shift(pos: wp.array(dtype=vec), data: Data, family: int) -> scalar:
-        """The summed displacement along their chains of the plane nodes of `family` [m]
-        (`StructureArrays.plane_nodes`)."""
-        total = scalar(0.0)
-        for m in range(data.plane_offsets[family], data.plane_offsets[family + 1]):
-            node = data.plane_nodes[m]
-            total += pos[node][0] - data.rest_position[node][0]
-        return total
+    family_shift = plane_shift(scalar, dim)
 
     @wp.func(inline=True)
     def physical(pos: wp.array(dtype=vec), data: Data, i: int) -> vec:
@@ -97,7 +110,7 @@ def sliding_functions(scalar, dim: int) -> SimpleNamespace:
                 out[c] = data.rest_position[i][c]
                 family = data.physical_plane[i, c]
                 if family >= 0:  # on a moving plane: X + w U (docs/model.md 11.13)
-                    out[c] += data.physical_plane_weight[i, c] * plane_shift(pos, data, family)
+                    out[c] += data.physical_plane_weight[i, c] * family_shift(pos, data, family)
             else:
                 out[c] = pos[source // wp.static(dim)][source % wp.static(dim)]
         return out

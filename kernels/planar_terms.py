@@ -66,6 +66,7 @@ def structure_terms(scalar, friction: bool, boundary: bool, base) -> SimpleNames
     P = base.physical  # noqa: N806 (node i where the elements see it)
     bend_stiffness = base.material.bend_stiffness
     slide = material_terms.sliding_functions(scalar, 2).slide
+    family_shift = material_terms.plane_shift(scalar, 2)
 
     @wp.func(inline=True)
     def turning_angle(a: vec, b: vec) -> scalar:
@@ -108,11 +109,7 @@ def structure_terms(scalar, friction: bool, boundary: bool, base) -> SimpleNames
         shift = vec()
         if wp.static(boundary):
             for family in range(2):
-                total = scalar(0.0)
-                for m in range(data.plane_offsets[family], data.plane_offsets[family + 1]):
-                    node = data.plane_nodes[m]
-                    total += pos[node][0] - data.rest_position[node][0]
-                shift[family] = total
+                shift[family] = family_shift(pos, data, family)
         return shift
 
     @wp.func(inline=True)

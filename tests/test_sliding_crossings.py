@@ -108,10 +108,17 @@ def term_case(request, structure):
     plane nodes' share of every force on it)."""
     if request.param == "clamped_patch":
         return (structure, *perturbed(structure))
-    s = on_a_boundary(**({"boundary": "periodic"} if request.param == "periodic_cell"
+    return perturbed_on_a_boundary(request.param)
+
+
+def perturbed_on_a_boundary(kind: str):
+    """`perturbed` on a periodic cell (kind "periodic_cell", its wrap springs bent by lifting
+    each chain's node 1 by 0.2 mm) or a patch with moving planes ("moving_planes"):
+    (structure, dofs, anchors, limits)."""
+    s = on_a_boundary(**({"boundary": "periodic"} if kind == "periodic_cell"
                          else {"planes": "affine"}))
     dofs, anchors, limit = perturbed(s)
-    if request.param == "periodic_cell":
+    if kind == "periodic_cell":
         dofs[s.chain_start[:-1] + 1, 1] += 2e-4
     return s, dofs, anchors, limit
 
@@ -444,12 +451,12 @@ def kernel_case(kind: str):
     """(structure, dofs, anchors, end loads [N], the host's gradient at F_T) of the perturbed
     planar patch or bias specimen, every other crossing sticking (its anchors at its slides
     and, in space, its angle) and the rest sliding."""
-    if kind in ("planar", "periodic_cell", "moving_planes"):
-        s = FabricModel.from_scene(patch()).structure if kind == "planar" else on_a_boundary(
-            **({"boundary": "periodic"} if kind == "periodic_cell" else {"planes": "affine"}))
+    if kind == "planar":
+        s = FabricModel.from_scene(patch()).structure
         dofs, anchors, _ = perturbed(s)
-        if kind == "periodic_cell":  # its wrap springs bent (`term_case`)
-            dofs[s.chain_start[:-1] + 1, 1] += 2e-4
+        P = loads(s)
+    elif kind in ("periodic_cell", "moving_planes"):
+        s, dofs, anchors, _ = perturbed_on_a_boundary(kind)
         P = loads(s)
     else:
         s = specimen().structure

@@ -458,16 +458,15 @@ def _add_material_gradient(pos, L, s, bend_energy, grad):
 
 
 def _wrap_gradients(pos, now: Structure):
-    """[(chain, E_w [J], lbar_0 [m], its 8 physical coordinates, dE_w/dr on them (8,) [N])]
-    of every periodic chain's wrap spring (`assembly.wrap_gradient`), lbar_0 its material's
-    now (`_wrap_stiffness_now`)."""
+    """[(chain, E_w [J], lbar_0 [m], dE_w/dr on its 8 coordinates (8,) [N])] of every
+    periodic chain's wrap spring (`assembly.wrap_gradient`; its coordinates
+    `_wrap_coordinates`), lbar_0 its material's now (`_wrap_stiffness_now`)."""
     out = []
     for y in np.flatnonzero(now.wrap_stiffness > 0.0):
         grad = np.empty(8)
         energy = assembly.wrap_gradient(pos, now, y, grad)
         first, last = _wrap_ends(now, y)
-        out.append((y, energy, 0.5 * (now.rest_length[first] + now.rest_length[last]),
-                    assembly.wrap_dofs_of(now, y), grad))
+        out.append((y, energy, 0.5 * (now.rest_length[first] + now.rest_length[last]), grad))
     return out
 
 
@@ -475,7 +474,7 @@ def _add_wrap_material_gradient(wraps, s: Structure, grad) -> None:
     """grad += dE_w/dlbar_0 dlbar_0/du of each wrap spring, dE_w/dlbar_0 = -E_w / lbar_0 and
     dlbar_0/dL = 1/2 on its two segments (11.13b at the wrap)."""
     flat = grad.reshape(-1)
-    for y, energy, lbar, _, _ in wraps:
+    for y, energy, lbar, _ in wraps:
         for k in _wrap_ends(s, y):
             _add_to_bay(flat, s.segment_material, s.segment_fraction, k, -0.5 * energy / lbar)
 
@@ -778,7 +777,7 @@ def _wrap_values(wraps, s: Structure, values, e) -> int:
     from entry e (11.13b at the wrap: d2E_w/dr dlbar_0 = -(dE_w/dr) / lbar_0,
     d2E_w/dlbar_0^2 = 2 E_w / lbar_0^2, dlbar_0/du = 1/2 dL/du on its two segments); returns
     the next entry."""
-    for y, energy, lbar, _, grad in wraps:
+    for y, energy, lbar, grad in wraps:
         first, last = _wrap_ends(s, y)
         f0, f1 = 0.5 * s.segment_fraction[first], 0.5 * s.segment_fraction[last]
         gm = np.array([-f0, f0, -f1, f1])
