@@ -293,12 +293,12 @@ def numba_step_cost(model, start, masses) -> float:
     """ns per node per time step of `numba_kinetic_steps`, fastest of REPEATS (warm: compiled
     by a first call)."""
     yarn, fixed = model.yarns[0], model.fixed_dofs()
-    arguments = (yarn, 0.3, start.anchors[0], fixed)
-    numba_kinetic_steps(start.positions[0].copy(), np.zeros_like(start.positions[0]), masses,
-                        *arguments, 10)
+    arguments = (yarn, 0.3, model.per_crossing(start.anchors)[0], fixed)
+    first = model.per_yarn(start.positions)[0]
+    numba_kinetic_steps(first.copy(), np.zeros_like(first), masses, *arguments, 10)
     costs = []
     for _ in range(REPEATS):
-        pos, vel = start.positions[0].copy(), np.zeros_like(start.positions[0])
+        pos, vel = first.copy(), np.zeros_like(first)
         began = time.perf_counter()
         numba_kinetic_steps(pos, vel, masses, *arguments, STEPS_TIMED)
         elapsed = time.perf_counter() - began

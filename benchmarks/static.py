@@ -70,7 +70,7 @@ class Energy:
     def __init__(self, model):
         self.yarn = model.yarns[0]
         self.free = ~model.fixed_dofs()
-        self.start = initial_state(model).positions[0].copy()
+        self.start = model.per_yarn(initial_state(model).positions)[0].copy()
         c = self.yarn.crossing_node.size
         self.none = np.zeros(c)
         self.terms = np.zeros(6)
@@ -173,7 +173,8 @@ def main() -> dict:
 
     # the step's certificate (dynfab/solvers/certificate.py): its share of the step's time
     yarn, fixed = model.yarns[0], model.fixed_dofs()
-    t_certificate = best_time(lambda: certify_yarn(reference, yarn, start.anchors[0], fixed,
+    anchors = model.per_crossing(start.anchors)[0]
+    t_certificate = best_time(lambda: certify_yarn(reference, yarn, anchors, fixed,
                                                    record["residual"][0]), 200, warm=True)[0]
     results["certificate"] = {"time_s": t_certificate, "step_time_s": t_newton,
                               "step_time_without_s": t_newton - t_certificate,

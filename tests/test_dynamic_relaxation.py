@@ -49,9 +49,10 @@ def inverse_stiffness_norm(model, positions, anchors, coupled) -> np.ndarray:
 def assert_same_equilibrium(model, static_state, static_record, dynamic_state, dynamic_record,
                             coupled=False):
     """Positions within ||K^-1||_inf (r_dynamic + r_static) of each other, yarn by yarn."""
-    bound = inverse_stiffness_norm(model, static_state.positions, static_record["anchors"], coupled) \
+    static, dynamic = model.per_yarn(static_state.positions), model.per_yarn(dynamic_state.positions)
+    bound = inverse_stiffness_norm(model, static, static_record["anchors"], coupled) \
         * (dynamic_record["residual"] + static_record["residual"])
-    error = np.abs(dynamic_state.positions - static_state.positions).max(axis=(1, 2))
+    error = np.abs(dynamic - static).max(axis=(1, 2))
     assert (error <= bound).all(), f"position error {error} m above the bound {bound} m"
 
 
@@ -167,7 +168,8 @@ def test_predicted_stable_dt_is_close_to_the_measured_one(relaxed_yarn):
     model, state = relaxed_yarn
     rng = np.random.default_rng(5)
     perturbed = state.copy()
-    perturbed.positions[:, 1:-1] += rng.normal(0.0, 1e-9, perturbed.positions[:, 1:-1].shape)
+    inner = model.per_yarn(perturbed.positions)[:, 1:-1]  # a view of the state's (n, 2)
+    inner += rng.normal(0.0, 1e-9, inner.shape)
     physical = Dynamic(damping="viscous", damping_coefficient=0.0, masses="physical")
     predicted = DynamicSolver(model, physical).predicted_stable_dt(perturbed, 0.001)[0]
     stable, unstable = 0.5 * predicted, 4.0 * predicted
@@ -210,8 +212,9 @@ def test_float32_reaches_its_tolerance_or_rounding_floor(fig3):
     with warnings.catch_warnings(record=True):
         for model, static_state, static_record, state, record in relax_path(
                 scene, Dynamic(precision="float32", accuracy=math.inf)):
-            positions = state.positions[0]
-            band = assembly.tangent(positions, model.yarns[0], state.anchors[0], False)
+            positions = model.per_yarn(state.positions)[0]
+            band = assembly.tangent(positions, model.yarns[0], model.per_crossing(state.anchors)[0],
+                                    False)
             floor = 16 * np.finfo(np.float32).eps * np.abs(band[:, BANDWIDTH]).max() \
                 * np.abs(positions).max()
             assert record["residual"][0] <= max(1e-4, floor)
@@ -231,8 +234,8 @@ def test_default_tolerance_follows_a_tiny_load(fig3, options):
     for model, static_state, static_record, state, record in relax_path(scene, options):
         assert record["tolerance"][0] < 1e-8
         assert_same_equilibrium(model, static_state, static_record, state, record)
-        bound = inverse_stiffness_norm(model, static_state.positions, static_record["anchors"],
-                                       False) * (record["residual"] + static_record["residual"])
+        bound = inverse_stiffness_norm(model, model.per_yarn(static_state.positions),
+                                       static_record["anchors"], False) * (record["residual"] + static_record["residual"])
         assert (bound <= 0.01 * np.abs(static_record["end_displacement"])).all()
     # A given 1e-8 N is used as given; the step's accuracy check (docs/model.md, stability and
     # accuracy) would rightly refuse what it leaves here, so it is switched off for this check.

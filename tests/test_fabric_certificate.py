@@ -25,6 +25,7 @@ from dynfab.solvers.by_name import make_solver
 from dynfab.solvers.static import StaticSolver
 from dynfab.results.file import units_of
 from dynfab.solvers.contract import STEP_KEYS
+from dynfab.model.loading import prescribe_ends
 from independent import fabric_scene
 from test_fabric_static import FRICTION, K_C, WARP, WEFT, patch_model
 
@@ -77,7 +78,7 @@ def test_a_saddle_brackets_the_dense_negative_lowest_eigenvalue():
     solver = StaticSolver(patch_model("displacement", (-3e-4,), None, hold="weft"))
     start = solver.initial_state()
     pos, anchors = start.positions.copy(), start.anchors.copy()
-    solver.model.prescribe(pos, solver.model.yarn_loads(-3e-4, 0.0))
+    prescribe_ends(solver.model.structure, pos, solver.model.yarn_loads(-3e-4, 0.0))
     info, limit = solver.backend.equilibrium(pos, np.zeros(solver.model.yarns), anchors)
     assert info.converged
     H = solver.backend.hessian(pos, anchors, limit).toarray()

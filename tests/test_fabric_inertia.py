@@ -20,6 +20,7 @@ import scipy.sparse.linalg
 
 from dynfab.model.fabric import inertia, ordering
 from dynfab.solvers.static import StaticSolver
+from dynfab.model.loading import prescribe_ends
 from test_fabric_static import FRICTION, patch_model
 
 EPS = np.finfo(float).eps
@@ -79,7 +80,7 @@ def test_sparse_count_of_a_saddle_under_compression():
     solver = StaticSolver(patch_model("displacement", (-3e-4,), None, hold="weft"))
     state = solver.initial_state()
     pos, anchors = state.positions.copy(), state.anchors.copy()
-    solver.model.prescribe(pos, solver.model.yarn_loads(-3e-4, 0.0))
+    prescribe_ends(solver.model.structure, pos, solver.model.yarn_loads(-3e-4, 0.0))
     info, limit = solver.backend.equilibrium(pos, np.zeros(solver.model.yarns), anchors)
     assert info.converged
     H = solver.backend.hessian(pos, anchors, limit).toarray()

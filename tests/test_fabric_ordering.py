@@ -25,6 +25,7 @@ from dynfab.model.fabric.model import FabricModel
 from dynfab.solvers.newton_sparse import _sparse_solve
 from dynfab.solvers.static import StaticSolver
 from dynfab.reports.fabric_data import paper_patch_scene
+from dynfab.model.loading import prescribe_ends
 from test_fabric_periodic import cell
 from test_fabric_static import FRICTION, patch_model
 
@@ -47,7 +48,7 @@ def compressed_saddle():
     solver = StaticSolver(patch_model("displacement", (-3e-4,), None))
     state = solver.initial_state()
     pos, anchors = state.positions.copy(), state.anchors.copy()
-    solver.model.prescribe(pos, solver.model.yarn_loads(-3e-4, 0.0))
+    prescribe_ends(solver.model.structure, pos, solver.model.yarn_loads(-3e-4, 0.0))
     info, limit = solver.backend.equilibrium(pos, np.zeros(solver.model.yarns), anchors)
     assert info.converged
     H = solver.backend.hessian(pos, anchors, limit)

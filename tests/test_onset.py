@@ -108,7 +108,7 @@ def test_coupled_jacobian_entry_at_the_onset_is_the_derivative_through_R():
     model = build_model(scene)
     yarn = model.yarns[0]
     c = yarn.crossing_node.size
-    pos = initial_state(model).positions[0].copy()
+    pos = model.per_yarn(initial_state(model).positions)[0].copy()
     j = 3
     node, side = yarn.crossing_node[j], yarn.crossing_side[j]
     g_target = contact.closure_from_force(0.5 * ONSET, yarn.contact_law)
@@ -280,8 +280,8 @@ def test_semismooth_newton_reaches_the_active_set_state(hold_crossing):
     # margin, and is 1e-5 of the first step's displacement (2e-5 m).
     model, reference = solve_first_step(1e-3)
     yarn, state = model.yarns[0], initial_state(model)
-    fixed, anchors = model.fixed_dofs(), state.anchors[0].copy()
-    pos = state.positions[0].copy()
+    fixed, anchors = model.fixed_dofs(), model.per_crossing(state.anchors)[0]
+    pos = model.per_yarn(state.positions)[0].copy()
     R = newton_banded._contact_forces(pos, yarn)
     if hold_crossing:
         g_reference = newton_banded._closures(reference, yarn)

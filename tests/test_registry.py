@@ -136,7 +136,9 @@ def test_reported_energies_are_the_registry_datasets(make_scene):
     nodes = model.yarns[0].crossing_node
     # two crossings 1e-7 m from their anchors, within F_T / k_t >= beta ell r_f / k_t = 9e-7 m
     # where closed: they stick; the others, 1e-4 m away, slide
-    state.anchors[:, :2] = positions[:, nodes[:2], 0] - 1e-7
+    anchors = model.per_crossing(state.anchors)
+    anchors[:, :2] = positions[:, nodes[:2], 0] - 1e-7
+    state.anchors[:, 0] = anchors.ravel()
     _, record = finish_step(model, state, positions, 0.05, np.zeros(2), np.zeros(2, np.int64))
     reported = {name for name in record if name.startswith("energy/")}
     assert reported == {t.dataset for t in registry.TERMS if t.yarn}

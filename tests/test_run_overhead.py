@@ -110,10 +110,10 @@ def test_yarn_labels_are_made_only_for_a_folded_yarn():
         return ["yarn 1", "yarn 2"]
 
     straight = np.stack([np.linspace(0.0, 1.0, 5), np.zeros(5)], axis=-1)
-    check_not_folded({"positions": np.stack([straight, straight])}, labels)
+    check_not_folded([np.stack([straight, straight])], labels)
     assert made == []
     folded = straight.copy()
     folded[3, 0] = 0.1
     with pytest.raises(SolverError, match="yarn 2 folded back at segment 3"):
-        check_not_folded({"positions": np.stack([straight, folded])}, labels)
+        check_not_folded([np.stack([straight, folded])], labels)
     assert made == [1]

@@ -73,7 +73,7 @@ def test_newton_agrees_with_scipy_trust_exact_within_the_residual_bound():
     model, records = run(scene)
     yarn = model.yarns[0]
     free = ~model.fixed_dofs()
-    start = initial_state(model).positions[0]
+    start = model.per_yarn(initial_state(model).positions)[0]
     c = yarn.crossing_node.size
     none = np.zeros(c)
 
@@ -310,7 +310,7 @@ def test_displacement_control_reports_the_end_reaction(friction):
     disp_model, (displaced,) = run(paper_yarn(load={"control": "displacement", "values": [u]},
                                               **base))
     yarn = model.yarns[0]
-    J = jacobian(yarn, forced["positions"][0], initial_state(model).anchors[0])
+    J = jacobian(yarn, forced["positions"][0], model.per_crossing(initial_state(model).anchors)[0])
     free = ~disp_model.fixed_dofs()
     N = J.shape[0] - 2
     v = np.linalg.solve(J[np.ix_(free, free)].T, J[N, free])

@@ -101,9 +101,9 @@ def solve_path(scene, solver_options: dict | None = None) -> PathSolution:
     values = {name: [] for name in OBSERVABLES}
     yarn = model.yarns[0]
     for load_value in solution.load:
-        before = state.anchors[0].copy()
+        before = model.per_crossing(state.anchors)[0]
         state, record = solver.step(state, float(load_value))
-        check_not_folded(record, ["the yarn"])  # a folded yarn is no fit: the trial is refused
+        check_not_folded([record["positions"]], ["the yarn"])  # a folded yarn is no fit: the trial is refused
         pos = record["positions"][0]
         solution.positions.append(pos)
         solution.anchors_before.append(before)

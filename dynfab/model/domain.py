@@ -38,18 +38,16 @@ def first_fold(chains: np.ndarray) -> tuple[int, int, float] | None:
     return int(yarn), int(segment), float(extent[yarn, segment])
 
 
-def check_not_folded(record: dict, labels: Sequence[str] | Callable[[], Sequence[str]]) -> None:
-    """Raise SolverError if a yarn of the step's record has folded back (`first_fold`).
+def check_not_folded(families: Sequence[np.ndarray],
+                     labels: Sequence[str] | Callable[[], Sequence[str]]) -> None:
+    """Raise SolverError if a yarn of a step has folded back (`first_fold`).
 
-    `record["positions"]` holds the yarns of the one-yarn model or a fabric's warps, and
-    a fabric's record also `weft_positions`; `labels` names them in that order (or makes
-    them: called only when a yarn has folded, so that a run does not build every yarn's
-    label at every step)."""
-    chains = [np.asarray(record["positions"], float)]
-    if "weft_positions" in record:
-        chains.append(np.asarray(record["weft_positions"], float))
+    `families` holds each family's yarns (yarns, nodes, 2) [m] (a one-yarn model's yarns, or
+    a fabric's warps and wefts); `labels` names the yarns in that order (or makes them:
+    called only when a yarn has folded, so that a run does not build every yarn's label at
+    every step)."""
     offset = 0
-    for family in chains:
+    for family in (np.asarray(chains, float) for chains in families):
         fold = first_fold(family)
         if fold is not None:
             yarn, segment, extent = fold

@@ -110,10 +110,3 @@ def crimp(positions: np.ndarray) -> np.ndarray:
     arc = np.hypot(segments[..., 0], segments[..., 1]).sum(axis=-1)
     projected = positions[..., -1, 0] - positions[..., 0, 0]
     return (arc - projected) / projected
-
-
-def width_per_yarn(scene) -> float | None:
-    """Fabric width per warp yarn L_we / N_wa [m] (force per unit width is P / this); None for a rod."""
-    if scene.weft is None:
-        return None
-    return scene.weft.length / scene.weft.count

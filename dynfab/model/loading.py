@@ -12,6 +12,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from dynfab.model.structure import Structure, sliding
+
 RELAXATION_STEPS = {"yarn": 0, "fabric": 0, "specimen": 1}
 """Steps a run of each kind writes before its load path: a specimen's step 0, its preload
 relaxed at d = 0 (the models' `relaxation_steps`)."""
@@ -36,21 +38,34 @@ def family_drive(model) -> Drive:
 
 
 def prescribe_load(model, state, load_value: float) -> np.ndarray:
-    """The starting positions (yarns, N+1, 2) [m] of a load step to `load_value` [N or m].
-
-    Under force control, the previous state's positions (P enters the energy, not the
-    positions). Under displacement control, x_N = x0_N + u, and the increment of x_N
-    spread linearly in x0 along the yarn (a better start than moving the end alone).
-    `state` is not modified.
-    """
+    """A one-yarn model's starting positions (yarns, N+1, 2) [m] of a load step to `load_value`
+    [N or m]: under force control the previous state's (P enters the energy, not the
+    positions), under displacement control every yarn's end moved to u (`prescribe_ends`).
+    `state` is not modified."""
     positions = state.positions.copy()
     if model.control == "displacement":
-        rest = model.stacked("rest_position")
-        length = rest[:, -1:, 0]
-        increment = load_value - (positions[:, -1, 0] - rest[:, -1, 0])
-        positions[:, :, 0] += increment[:, None] * rest[:, :, 0] / length
-        positions[:, -1, 0] = rest[:, -1, 0] + load_value
-    return positions
+        prescribe_ends(model.structure, positions, np.full(model.yarn_count, float(load_value)))
+    return model.per_yarn(positions)
+
+
+def prescribe_ends(structure: Structure, pos: np.ndarray, displacements: np.ndarray) -> None:
+    """Displacement control of the chains' ends, in place on the dofs `pos` (n, 2) [m]: each
+    chain's last node at x0_N + u (`displacements` (Y,) [m]), the increment of x_N spread
+    linearly in x0 along the chain (a better start than moving the end alone). Where the
+    crossings slide the spread runs from the chain's last crossing, whose slot holds a
+    material coordinate, and the nodes before it stay: the yarn's material moves through the
+    crossings (a yarn that has left them moves whole)."""
+    f = structure
+    crossed = np.zeros(pos.shape[0], bool)
+    crossed[np.concatenate([f.tie_a, f.tie_b])] = sliding(f)
+    for y in range(f.chain_start.size - 1):
+        a, b = f.chain_start[y], f.chain_start[y + 1]
+        rest = f.rest_position[a:b, 0]
+        increment = displacements[y] - (pos[b - 1, 0] - rest[-1])
+        first = a + (np.flatnonzero(crossed[a:b])[-1] if crossed[a:b].any() else 0)
+        base = rest[first - a:] - rest[first - a]
+        pos[first:b, 0] += increment * base / (rest[-1] - rest[first - a])
+        pos[b - 1, 0] = rest[-1] + displacements[y]
 
 
 def load_at_time(model, time: float):

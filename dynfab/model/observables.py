@@ -14,7 +14,7 @@ import numpy as np
 
 from dynfab.model import assembly
 from dynfab.model.domain import slip_ratios
-from dynfab.model.geometry import crimp, width_per_yarn
+from dynfab.model.geometry import crimp
 from dynfab.model.state import State
 from dynfab.model.terms import friction, registry
 
@@ -50,7 +50,7 @@ def finish_step(model, state, positions: np.ndarray, load_value: float,
     The end force is the applied P under force control, else the reaction dV/dx_N.
     """
     yarns, c = model.yarn_count, model.crossings
-    anchors, dissipated = state.anchors.copy(), state.dissipated.copy()
+    anchors, dissipated = model.per_crossing(state.anchors), state.dissipated.copy()
     record = {name: np.zeros((yarns, c)) for name in
               ("contact_force", "friction_force", "friction_limit")}
     record["sliding"] = np.zeros((yarns, c), dtype=np.bool_)
@@ -67,9 +67,8 @@ def finish_step(model, state, positions: np.ndarray, load_value: float,
             energies[registry.TERMS[i].dataset][k] = terms[i]
     loads = np.full(yarns, float(load_value))
     end_force = loads if model.control == "force" else reaction
-    width = width_per_yarn(model.scene)
-    if width is not None:
-        record["stress"] = end_force / width
+    if model.width_per_yarn is not None:
+        record["stress"] = end_force / model.width_per_yarn
     record.update({
         "load": loads,
         "end_force": end_force,
@@ -83,8 +82,10 @@ def finish_step(model, state, positions: np.ndarray, load_value: float,
         "iterations": np.asarray(iterations, np.int64),
     })
     record.update(energies)
-    new_state = State(positions=positions.copy(), anchors=anchors, dissipated=dissipated,
-                      load=loads.copy())
+    mapped = np.zeros_like(state.anchors)
+    mapped[:, 0] = anchors.ravel()
+    new_state = State(positions=positions.reshape(-1, 2).copy(), anchors=mapped,
+                      dissipated=dissipated, load=loads.copy(), end_force=end_force.copy())
     return new_state, record
 
 

@@ -1,39 +1,80 @@
-"""What changes during a one-yarn model's run: its `State` (docs/model.md sections 1-4), and the
-as-woven start of a run.
+"""What changes during a run, for every model: one `State` (docs/model.md, "The structure").
 
-A Model (`dynfab.model.yarn`) does not change during a run; a State does: the yarns' positions,
-their friction anchors, the energy friction has dissipated, the load last applied.
+A model (`dynfab.model.yarn.Model`, `dynfab.model.fabric.model.FabricModel`,
+`dynfab.model.fabric.specimen_model.SpecimenModel`) does not change during a run; a State does.
+Every model's state holds the same fields in the same layout, its structure's (the solvers never
+read them: they see a step's `dynfab.model.step.StepStart`); the views of a model's own layout
+(a one-yarn model's yarns, a fabric's warps and wefts) are the model's (`Model.per_yarn`,
+`FabricModel.split`).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
+from dynfab.model.structure import Structure, chain_count
+from dynfab.model.terms.kinematics import woven_anchors, woven_state
 
 
 @dataclass
 class State:
-    """What changes during a run, for every yarn."""
+    """What changes during a run: the structure's dofs, the friction anchors, the energy friction
+    has dissipated and the loads' work, the load the state is at and its end forces; a shear
+    specimen's path so far."""
 
     positions: np.ndarray
-    """Node positions (yarns, N+1, 2) [m]."""
+    """The structure's dofs (n, dim) [m], its nodes in chain order (a one-yarn model's yarns, a
+    fabric's warps then wefts, a specimen's chains); where the crossings slide, their slots hold
+    the material's slides (docs/model.md 11.13)."""
     anchors: np.ndarray
-    """Friction anchors xi (yarns, C) [m] (docs/model.md section 4)."""
+    """Friction anchors per tie (T, k) [m] (docs/model.md sections 4, 10, 11.4): the slip of the
+    tie's node along its yarn(s), relative to the as-woven slip where a fabric's planes are (a
+    one-yarn model's second column 0; a specimen's third the rotation anchor [rad]); where the
+    crossings slide, the slides."""
     dissipated: np.ndarray
-    """Cumulative friction dissipation (yarns,) [J]."""
+    """Cumulative friction dissipation of each group (`RunModel.groups`: a one-yarn model's
+    yarns, a fabric's or a specimen's one) (groups,) [J]."""
     load: np.ndarray
-    """The load last applied (yarns,) [N or m]; 0 at the as-woven start."""
+    """The load values the state is at [N or m]: a one-yarn model's per yarn (yarns,), a
+    fabric's (warp, weft) (2,), a specimen's d (1,); 0 as woven."""
+    end_force: np.ndarray
+    """The end force of each loaded end [N]: each yarn's along its axis (yarns,) (the load
+    under force control, else the reaction), a specimen's clamp force (1,)."""
+    work: float = 0.0
+    """Work of the end loads (a fabric's) or of the clamp (a specimen's) so far, trapezoid rule
+    over the load steps [J]; 0 where the model does not record it (the one-yarn model)."""
+    reference_angle: np.ndarray | None = None
+    """A specimen's crossings' shear angles from the as-woven state at step 0 (C,) [rad], the
+    reference of its reported angles; None before step 0 and in the other models."""
+    path: np.ndarray | None = None
+    """A specimen's finished steps' (d [m], clamp force [N]) (steps, 2): the bias extension's
+    normalisation reads its curve; None in the other models."""
+    path_tangent: np.ndarray | None = None
+    """A specimen's dofs' change over its last step per unit of d (n, dim) [m/m] (the path's
+    secant, `SpecimenModel.start_of_step`); None where there is none."""
 
     def copy(self) -> "State":
-        return State(self.positions.copy(), self.anchors.copy(), self.dissipated.copy(),
-                     self.load.copy())
+        """A deep copy (every array copied)."""
+        return State(**{f.name: _copied(getattr(self, f.name)) for f in fields(self)})
+
+
+def _copied(value):
+    return value.copy() if isinstance(value, np.ndarray) else value
+
+
+def as_woven_state(structure: Structure, groups: int = 1, load=None,
+                   end_forces: int | None = None) -> State:
+    """The as-woven start of a run of every model: the dofs as woven
+    (`dynfab.model.terms.kinematics.woven_state`), each anchor at zero slip (`woven_anchors`: a
+    tie to ground's at its node's as-woven x), nothing dissipated in any of the `groups`, at
+    `load` (None: before any), no end force on the `end_forces` ends (None: one per chain)."""
+    ends = chain_count(structure) if end_forces is None else end_forces
+    return State(woven_state(structure), woven_anchors(structure), np.zeros(groups),
+                 None if load is None else np.array(load, float), np.zeros(ends))
 
 
 def initial_state(model) -> State:
-    """The as-woven geometry, anchors at the as-woven crossing positions, nothing dissipated."""
-    positions = model.stacked("rest_position").copy()
-    nodes = model.yarns[0].crossing_node
-    return State(positions=positions, anchors=positions[:, nodes, 0].copy(),
-                 dissipated=np.zeros(model.yarn_count), load=np.zeros(model.yarn_count))
+    """A one-yarn model's as-woven start (`as_woven_state`): each yarn a group, at no load."""
+    return as_woven_state(model.structure, model.yarn_count, np.zeros(model.yarn_count))

@@ -14,11 +14,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-from dynfab.model.builders.yarn import yarn_structure
+from dynfab.model.builders.yarn import width_per_yarn, yarn_structure
 from dynfab.model.domain import check_not_folded
 from dynfab.scene import Scene
-from dynfab.model.geometry import width_per_yarn
-from dynfab.model.loading import RELAXATION_STEPS, family_drive, prescribe_load
+from dynfab.model.loading import RELAXATION_STEPS, family_drive, prescribe_ends
 from dynfab.model.observables import finish_step as observe_step
 from dynfab.model.state import State, initial_state
 from dynfab.model.step import StepSolution, StepStart
@@ -98,6 +97,9 @@ class Model:
     """"force" or "displacement"."""
     load_values: np.ndarray
     """The load path (steps,) [N or m]."""
+    width_per_yarn: float | None = None
+    """The fabric width per yarn [m] the stresses are per (`dynfab.model.builders.yarn`); None
+    for a rod."""
 
     @property
     def segments(self) -> int:
@@ -145,9 +147,8 @@ class Model:
         attrs = {"projected_length": scene.geometry.length,
                  "reference_state": scene.geometry.reference, "yarn_labels": self.labels,
                  "terms": list(self.terms)}
-        width = width_per_yarn(scene)
-        if width is not None:
-            attrs["width_per_yarn"] = width
+        if self.width_per_yarn is not None:
+            attrs["width_per_yarn"] = self.width_per_yarn
         return attrs
 
     def reference(self) -> dict:
@@ -161,8 +162,22 @@ class Model:
 
     def state_from_step(self, last: dict, history: dict | None = None) -> "State":
         """The state a finished step left (a resumed run continues from it)."""
-        return State(positions=np.array(last["positions"]), anchors=np.array(last["anchors"]),
-                     dissipated=np.array(last["dissipated"]), load=np.array(last["load"]))
+        anchors = np.zeros((self.structure.tie_a.size, 2))
+        anchors[:, 0] = np.asarray(last["anchors"], float).ravel()
+        return State(positions=np.array(last["positions"], float).reshape(-1, 2),
+                     anchors=anchors, dissipated=np.array(last["dissipated"], float),
+                     load=np.array(last["load"], float),
+                     end_force=np.array(last["end_force"], float))
+
+    def per_yarn(self, values) -> np.ndarray:
+        """The structure's per-node `values` (n, ...) as the yarns' (yarns, N+1, ...): a view."""
+        values = np.asarray(values)
+        return values.reshape(self.yarn_count, self.segments + 1, *values.shape[1:])
+
+    def per_crossing(self, anchors) -> np.ndarray:
+        """A state's anchors (T, 2) as the yarns' slip anchors (yarns, C) [m], a contiguous
+        copy of column 0 (tie t is crossing t mod C of yarn t // C, `crossing_name`)."""
+        return np.ascontiguousarray(np.asarray(anchors)[:, 0].reshape(self.yarn_count, -1))
 
     def point_data(self, entry: dict) -> dict:
         """A step's (or frame's) point data of the XDMF view (`dynfab.results.xdmf`) on every
@@ -226,15 +241,15 @@ class Model:
         return f"{j + 1} (node {node})" + (f" of yarn {k + 1}" if self.yarn_count > 1 else "")
 
     def start_of_step(self, state: "State", load) -> StepStart:
-        """Where the step to `load` [N or m] starts (`dynfab.model.loading.prescribe_load`), as the
+        """Where the step to `load` [N or m] starts (`dynfab.model.loading.prescribe_ends`), as the
         structure's flat arrays (`dynfab.model.step.StepStart`): the anchors are the slips' (column
         0; a tie to ground has no second), the end forces the load under force control."""
         value = float(load)
-        positions = prescribe_load(self, state, value).reshape(-1, 2)
-        anchors = np.zeros((state.anchors.size, 2))
-        anchors[:, 0] = state.anchors.ravel()
-        loads = np.full(self.yarn_count, value if self.control == "force" else 0.0)
-        return StepStart(np.asarray(value), positions, anchors, loads)
+        positions, loads = state.positions.copy(), np.full(self.yarn_count, value)
+        if self.control != "force":
+            prescribe_ends(self.structure, positions, loads)
+            loads = np.zeros(self.yarn_count)
+        return StepStart(np.asarray(value), positions, state.anchors.copy(), loads)
 
     def finish_step(self, state: "State", start: StepStart, solution: StepSolution):
         """(new state, record) of the step `start` began, from the solver's `solution`
@@ -251,7 +266,7 @@ class Model:
     def check_step(self, record: dict) -> None:
         """SolverError if the step left the model's domain: a yarn folded back
         (`dynfab.model.domain.check_not_folded`)."""
-        check_not_folded(record, lambda: self.labels)  # labels made only for the message
+        check_not_folded([record["positions"]], lambda: self.labels)  # labels made on a fold
 
     def fixed_dofs(self) -> np.ndarray:
         """Fixed dofs (2 (N+1),) bool: node 0 pinned, z_N fixed, x_N under displacement control."""
@@ -269,7 +284,8 @@ def yarn_model(scene: Scene) -> Model:
                   for k in range(structure.chain_start.size - 1))
     return Model(scene=scene, structure=structure, yarns=yarns,
                  terms=registry.active_terms(scene),
-                 control=scene.load.control, load_values=np.asarray(scene.load.values, float))
+                 control=scene.load.control, load_values=np.asarray(scene.load.values, float),
+                 width_per_yarn=width_per_yarn(scene))
 
 
 def chain_view(structure: Structure, y: int, active: np.ndarray) -> Yarn:

@@ -377,7 +377,8 @@ def stiffness_measures(case: Case) -> tuple[np.ndarray | None, float | None]:
     model = case.model
     if (~model.fixed_dofs()).sum() > MAX_DENSE_DOFS:
         return None, None
-    positions, anchors = case.reference.positions, case.start.anchors
+    positions = model.per_yarn(case.reference.positions)
+    anchors = model.per_crossing(case.start.anchors)
     coupled = "friction" in model.terms
     norms = np.array([np.abs(np.linalg.inv(dense_hessian(model, positions, anchors, k, coupled)))
                       .sum(axis=1).max() for k in range(model.yarn_count)])
@@ -396,8 +397,10 @@ def stiffness_measures(case: Case) -> tuple[np.ndarray | None, float | None]:
 
 
 def float_residuals(model: Model, positions, anchors, load: float) -> np.ndarray:
-    """The residual per yarn [N], in float64 at `positions`: the largest free component of
-    the force, friction with F_T from the contact forces and the step's start anchors."""
+    """The residual per yarn [N], in float64 at `positions` (the yarns' or the state's
+    layout): the largest free component of the force, friction with F_T from the contact forces
+    and the step's start anchors (a state's, (T, 2))."""
+    positions, anchors = model.per_yarn(positions), model.per_crossing(anchors)
     P = load if model.control == "force" else 0.0
     fixed, c = model.fixed_dofs(), model.crossings
     out = np.zeros(model.yarn_count)
@@ -484,8 +487,8 @@ def _base_point(solver: str, method: str, label: str, tolerance: float, **option
 def measure(case: Case, positions: np.ndarray, record: dict) -> dict:
     """Errors against the reference, the float64 residual and its position-error bound."""
     model, ref = case.model, case.reference
-    positions = np.asarray(positions, dtype=np.float64)
-    per_yarn = np.abs(positions - ref.positions).max(axis=(1, 2))
+    positions = np.asarray(positions, dtype=np.float64).reshape(-1, 2)  # the state's layout
+    per_yarn = np.abs(model.per_yarn(positions - ref.positions)).max(axis=(1, 2))
     residual = float_residuals(model, positions, case.start.anchors, case.load)
     quantity = case.end_quantity
     reference_end = np.asarray(case.reference_record[quantity], dtype=np.float64)
@@ -599,7 +602,7 @@ def lbfgs_solve(model: Model, state: State, load: float, tolerance: float):
     for k, yarn in enumerate(model.yarns):
         pos = positions[k]
         flat = pos.reshape(-1)
-        anchors = np.ascontiguousarray(state.anchors[k], dtype=np.float64)
+        anchors = model.per_crossing(state.anchors)[k]
         force, limit, tangent = np.zeros(c), np.zeros(c), np.zeros(c)
         terms, grad = assembly.energy_vector(), np.zeros_like(pos)
 

@@ -351,8 +351,8 @@ class _Runner:
         elapsed = time.perf_counter() - started
         law = model.yarns[0].contact_law
         R = step["contact_force"][0]
-        norm = inverse_stiffness_norm(model, state.positions[0], step["anchors"][0],
-                                      coupled="friction" in model.terms)
+        norm = inverse_stiffness_norm(model, model.per_yarn(state.positions)[0],
+                                      step["anchors"][0], coupled="friction" in model.terms)
         record["static"] = {
             "iterations": int(step["iterations"][0]), "residual_N": float(step["residual"][0]),
             "rounding_floor": bool(step["rounding_floor"][0]), "wall_time_s": elapsed,
@@ -493,7 +493,8 @@ def measure_stable_dt(model, relaxed, load: float, *, damping: str = "viscous",
     """
     rng = np.random.default_rng(seed)
     perturbed = relaxed.copy()
-    perturbed.positions[:, 1:-1] += rng.normal(0.0, PERTURBATION, perturbed.positions[:, 1:-1].shape)
+    inner = model.per_yarn(perturbed.positions)[:, 1:-1]  # a view of the state's (n, 2)
+    inner += rng.normal(0.0, PERTURBATION, inner.shape)
     options = Dynamic(damping=damping, damping_coefficient=0.0 if damping == "viscous" else None,
                       masses="physical")
     probe = DynamicSolver(model, options)
@@ -559,7 +560,8 @@ def linear_stable_dts(model, relaxed) -> dict:
     Gershgorin's 2 min_i sqrt(m_i / max row sum of the node) over every node as the solver
     takes it but on the actual tangent, and the exact linear limit 2 / omega_max,
     omega_max^2 the largest eigenvalue of M^-1/2 K M^-1/2 over the free dofs."""
-    band = tangent_band(model, relaxed.positions[0], relaxed.anchors[0], coupled=False)
+    band = tangent_band(model, model.per_yarn(relaxed.positions)[0],
+                        model.per_crossing(relaxed.anchors)[0], coupled=False)
     mass = np.repeat(model.yarns[0].mass, 2)
     rows = np.abs(band).sum(axis=1)
     node_rows = np.maximum(rows[0::2], rows[1::2])

@@ -30,7 +30,7 @@ from typing import Iterator, Mapping, Protocol, runtime_checkable
 import numpy as np
 
 from dynfab.errors import SolverError
-from dynfab.model.yarn import State
+from dynfab.model.state import State
 from dynfab.scene import Scene
 from dynfab.model.step import StepSolution, StepStart
 from dynfab.model.structure import Structure, sliding
@@ -223,7 +223,7 @@ def step_in_halves(step_once, model, state, load, halvings: int = SLIDING_HALVIN
     try:
         return step_once(state, load)
     except SolverError as failed:
-        before = getattr(state, "load", None)
+        before = state.load
         if not (halvings and sliding(model.structure) and before is not None):
             raise
         middle = 0.5 * (np.asarray(before, float) + np.asarray(load, float))

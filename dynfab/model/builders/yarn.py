@@ -21,6 +21,14 @@ from dynfab.model.terms import nodes as node_terms
 from dynfab.model.terms.friction import law_constants
 
 
+def width_per_yarn(scene: Scene) -> float | None:
+    """The fabric width per warp yarn L_we / N_wa [m] (force per unit width is P / this); None
+    for a rod, which has no weft."""
+    if scene.weft is None:
+        return None
+    return scene.weft.length / scene.weft.count
+
+
 def yarn_structure(scene: Scene) -> Structure:
     """The structure of a one-yarn scene: one chain per simulated yarn, ties to ground."""
     if scene.sweep:

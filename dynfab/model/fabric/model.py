@@ -1,8 +1,6 @@
 """The woven fabric's model side (docs/model.md section 10): what both fabric solvers share
 and neither owns.
 
-- `FabricState`: what changes during a run (positions, anchors, dissipation, work, end
-  forces); `as_woven_state`, the start of a run.
 - `FabricModel`: a fabric scene as the solvers see it, its structure
   (`dynfab.model.builders.fabric`), yarn families and load path, and the model's own functions of a
   state: the sparse Hessian with F_T frozen (`dynfab.model.fabric.assembly`, on the unknowns of its
@@ -58,47 +56,16 @@ import numpy as np
 
 from dynfab.model.builders.fabric import Family, families, fabric_structure
 from dynfab.model.domain import check_crossings_held, check_not_folded, fabric_slip_ratios
-from dynfab.model.fabric import contact
 from dynfab.model.fabric.assembly import planes as plane_positions
-from dynfab.model.loading import RELAXATION_STEPS, family_drive, load_at_time
+from dynfab.model.geometry import crimp
+from dynfab.model.loading import RELAXATION_STEPS, family_drive, load_at_time, prescribe_ends
 from dynfab.scene import Scene
+from dynfab.model.state import State, as_woven_state
 from dynfab.model.step import StepSolution, StepStart
 from dynfab.model.structure import Structure, chain_count
 from dynfab.model.terms import registry
 from dynfab.model.fabric.structure_now import StructureNow
-from dynfab.model.terms.kinematics import physical_positions, woven_anchors, woven_state
-
-
-@dataclass
-class FabricState:
-    """What changes during a run (docs/model.md section 10)."""
-
-    positions: np.ndarray
-    """(in-plane coordinate, z) of every node (nodes, 2) [m]: the structure's dofs (where the
-    crossings slide, their slots hold the material's slides, `physical_positions`)."""
-    anchors: np.ndarray
-    """Friction anchors xi per crossing (C, 2) [m], relative to the as-woven slip (where the
-    crossings slide, slides)."""
-    dissipated: float = 0.0
-    """Cumulative friction dissipation [J]."""
-    work: float = 0.0
-    """Work of the end loads, trapezoid rule over the load steps [J]."""
-    end_force: np.ndarray | None = None
-    """End force along each yarn (Y,) [N]: the load (force control) or the reaction."""
-    load: np.ndarray | None = None
-    """The (warp, weft) load values the state is at (None as woven: no load)."""
-
-    def copy(self) -> "FabricState":
-        return FabricState(self.positions.copy(), self.anchors.copy(), self.dissipated,
-                           self.work, None if self.end_force is None else self.end_force.copy(),
-                           None if self.load is None else self.load.copy())
-
-
-def as_woven_state(structure: Structure) -> FabricState:
-    """As woven (`dynfab.model.terms.kinematics.woven_state`), anchors at zero slip
-    (`woven_anchors`), nothing dissipated, no end force."""
-    return FabricState(woven_state(structure), woven_anchors(structure),
-                       end_force=np.zeros(chain_count(structure)))
+from dynfab.model.terms.kinematics import physical_positions
 
 
 @dataclass
@@ -192,7 +159,8 @@ class FabricModel(StructureNow):
         """SolverError if the step left the model's domain: a yarn folded back
         (`dynfab.model.domain.check_not_folded`), or a crossing node carried more than half a
         segment from its crossing (`dynfab.model.domain.check_crossings_held`); for every solver."""
-        check_not_folded(record, lambda: self.labels)  # labels made only for the message
+        check_not_folded([record["positions"], record["weft_positions"]],
+                         lambda: self.labels)  # labels made only for the message
         if self.slides:  # the crossings follow the yarns: no bound on their slips
             return
         g = self.scene.geometry
@@ -212,16 +180,14 @@ class FabricModel(StructureNow):
                 "terms": list(registry.active_terms(scene)), **({} if self.pullout is None
                                           else {"pullout_warp": int(self.pullout)})}
 
-    def initial_state(self) -> FabricState:
+    def initial_state(self) -> State:
         """As woven, anchors at zero slip, nothing dissipated (`as_woven_state`), every
         crossing in the structure, at zero load (so that a first step of crossings that slide
         can be solved in halves, `dynfab.solvers.contract.step_in_halves`)."""
         self._set_structure(self.woven_structure, np.arange(self.woven_structure.tie_a.size))
-        state = as_woven_state(self.structure)
-        state.load = np.zeros_like(np.asarray(self.step_load(0), float))
-        return state
+        return as_woven_state(self.structure, load=np.zeros_like(self.step_load(0)))
 
-    def state_from_step(self, last: dict, history: dict | None = None) -> FabricState:
+    def state_from_step(self, last: dict, history: dict | None = None) -> State:
         """The state a finished step left (a resumed run continues from it): its positions,
         where the crossings slide the structure after the departures of `history`
         (`replay_departures`) and the crossings' slides (`slip`) in their slots."""
@@ -232,9 +198,9 @@ class FabricModel(StructureNow):
             self.replay_departures(history)
             nodes = self.with_slides(nodes, last["slip"])
             anchors = anchors[self.tie_crossing]
-        return FabricState(nodes, anchors,
-                           float(last["dissipated"]), float(last["work"]),
-                           np.array(last["end_force"], float), np.array(last["load"], float))
+        return State(nodes, anchors, np.array([last["dissipated"]], float),
+                     np.array(last["load"], float), np.array(last["end_force"], float),
+                     float(last["work"]))
 
     @property
     def planes_move(self) -> bool:
@@ -283,20 +249,21 @@ class FabricModel(StructureNow):
         f = self.structure
         return np.where(f.chain_family == 0, warp_value, weft_value) * f.load_factor
 
-    def start_of_step(self, state: FabricState, load) -> StepStart:
+    def start_of_step(self, state: State, load) -> StepStart:
         """Where the step to `load` = (warp value, weft value) starts
         (`dynfab.model.step.StepStart`), copies of the state's arrays: under force control the end
         forces are each yarn's load; under displacement control they are 0 and the ends are moved to
-        their prescribed displacements (`prescribe`). Where the crossings slide the anchors
-        carry the yarns' stretches at each crossing beside them, what the step's friction
-        measures its slips with (`dynfab.model.fabric.sliding.with_stretches`)."""
+        their prescribed displacements (`dynfab.model.loading.prescribe_ends`). Where the
+        crossings slide the anchors carry the yarns' stretches at each crossing beside them,
+        what the step's friction measures its slips with
+        (`dynfab.model.fabric.sliding.with_stretches`)."""
         warp_value, weft_value = (float(v) for v in load)
         loads = self.yarn_loads(warp_value, weft_value)
         pos, anchors = state.positions.copy(), state.anchors.copy()
         if self.slides:
             anchors = self.terms.with_stretches(pos, self.structure, anchors)
         if self.control != "force":
-            self.prescribe(pos, loads)
+            prescribe_ends(self.structure, pos, loads)
             loads = np.zeros(self.yarns)
         return StepStart(np.array([warp_value, weft_value]), pos, anchors, loads)
 
@@ -322,8 +289,7 @@ class FabricModel(StructureNow):
         for name in ("positions", "velocities", "force"):
             warps, wefts = self.split(np.asarray(arrays[name], float))
             frame[name], frame[f"weft_{name}"] = warps, wefts
-        R = np.zeros(self.structure.tie_a.size)
-        contact.forces(pos, self.structure, R)
+        R = self.contact_forces(pos)
         shape = (self.warps, self.wefts)
         frame.update({"contact_force": R.reshape(shape), "anchors": anchors.reshape(*shape, 2),
                       **self.planes(pos)})
@@ -348,7 +314,7 @@ class FabricModel(StructureNow):
         anchors = np.asarray(frame["anchors"], float).reshape(-1, 2)
         return {**out, "anchors": anchors, "time": float(frame["time"])}
 
-    def finish_step(self, state: FabricState, start: StepStart, solution: StepSolution):
+    def finish_step(self, state: State, start: StepStart, solution: StepSolution):
         """(new state, record) of the step `start` began, from the solver's `solution`
         (`dynfab.solvers.contract.RunModel.finish_step`): the contact forces, the end forces (the
         load under force control, else the reaction dV/du_N of the elastic terms and the friction
@@ -356,19 +322,14 @@ class FabricModel(StructureNow):
         and the record of the module docstring."""
         f, pos, limit, terms = self.structure, solution.positions, solution.limit, self.terms
         anchors = start.anchors.copy()
-        R = np.zeros(f.tie_a.size)
-        contact.forces(pos, f, R)
+        R = self.contact_forces(pos)
         if self.control == "force":
             end_force = np.asarray(start.chain_loads, float).copy()
         else:
             grad = np.zeros_like(pos)
             terms.gradient(pos, f, np.zeros(self.yarns), anchors, limit, grad)
             end_force = grad[f.load_node, 0].copy()
-        sliding = np.zeros(f.tie_a.size, np.bool_)
-        friction_force = np.zeros((f.tie_a.size, 2))
-        lost = 0.0
-        if f.has_friction:
-            lost = terms.return_map(pos, anchors, f, limit, sliding, friction_force)
+        sliding, friction_force, lost = self.return_map(pos, anchors, limit)
         new, u_new = self.end_of_step(state, pos, anchors[:, :2].copy(), end_force, lost)
         new.load = start.load.copy()
         physical = physical_positions(f, pos)
@@ -382,7 +343,7 @@ class FabricModel(StructureNow):
             "contact_force": full(R), "friction_limit": full(limit),
             "sliding": full(sliding, False), "friction_force": full(friction_force),
             "anchors": full(anchors[:, :2], np.nan), **self.planes(pos),
-            "dissipated": new.dissipated, "work": new.work,
+            "dissipated": new.dissipated[0], "work": new.work,
             **{name: np.asarray(value)[0] for name, value in solution.fields.items()},
         }
         P = end_force if self.control == "force" else np.zeros(self.yarns)
@@ -397,7 +358,7 @@ class FabricModel(StructureNow):
                                           initial=0.0)
         return new, {name: np.asarray(value) for name, value in record.items()}
 
-    def _slide(self, new: FabricState, record: dict) -> FabricState:
+    def _slide(self, new: State, record: dict) -> State:
         """Where the crossings slide: the record's material coordinates, slides and crossings
         present at the step's end (`record_slides`, laid out as the crossings (n_wa, n_we));
         the state in the structure after the crossings a yarn end has passed."""
@@ -405,8 +366,8 @@ class FabricModel(StructureNow):
         for name in ("material", "slip", "crossing_present"):
             record[name] = record[name].reshape(self.warps, self.wefts, *record[name].shape[1:])
         if gone:
-            new = FabricState(dofs, np.delete(new.anchors, gone, 0), new.dissipated, new.work,
-                              new.end_force, new.load)
+            new = State(dofs, np.delete(new.anchors, gone, 0), new.dissipated, new.load,
+                        new.end_force, new.work)
         return new
 
     def per_crossing(self, values, fill=0.0) -> np.ndarray:
@@ -414,25 +375,7 @@ class FabricModel(StructureNow):
         out = self.per_tie(values, fill)
         return out.reshape(self.warps, self.wefts, *out.shape[1:])
 
-    def prescribe(self, pos, loads) -> None:
-        """Displacement control, in place: u_N = load on each yarn, the increment spread
-        linearly along the yarn (a better start than the end node alone)."""
-        f = self.structure
-        crossed = np.zeros(pos.shape[0], bool)
-        crossed[np.concatenate([f.tie_a, f.tie_b])] = self.slides
-        for y in range(self.yarns):
-            a, b = f.chain_start[y], f.chain_start[y + 1]
-            rest = f.rest_position[a:b, 0]
-            increment = loads[y] - (pos[b - 1, 0] - rest[-1])
-            # where the crossings slide, the spread runs from the chain's last crossing, whose
-            # slot holds a material coordinate, and the nodes before it stay: the yarn's
-            # material moves through the crossings (a yarn that has left them moves whole)
-            first = a + (np.flatnonzero(crossed[a:b])[-1] if crossed[a:b].any() else 0)
-            base = rest[first - a:] - rest[first - a]
-            pos[first:b, 0] += increment * base / (rest[-1] - rest[first - a])
-            pos[b - 1, 0] = rest[-1] + loads[y]
-
-    def end_of_step(self, state: FabricState, pos, anchors, end_force, lost: float):
+    def end_of_step(self, state: State, pos, anchors, end_force, lost: float):
         """(the state a step from `state` ends in, the end displacements u (Y,) [m]): its
         positions, return-mapped anchors and end forces [N]; the dissipation plus `lost` [J],
         and the end loads' work by the trapezoid rule over the step [J]."""
@@ -440,7 +383,7 @@ class FabricModel(StructureNow):
         u_old = state.positions[f.load_node, 0] - f.rest_position[f.load_node, 0]
         u_new = pos[f.load_node, 0] - f.rest_position[f.load_node, 0]
         work = state.work + float(0.5 * (state.end_force + end_force) @ (u_new - u_old))
-        return FabricState(pos, anchors, state.dissipated + lost, work, end_force), u_new
+        return State(pos, anchors, state.dissipated + lost, None, end_force, work), u_new
 
     def crossing_name(self, c: int) -> str:
         """Crossing c as the scene counts it: "(warp k, weft j)", 1-based."""
@@ -455,17 +398,9 @@ class FabricModel(StructureNow):
 
     def crimps(self, pos) -> np.ndarray:
         """Mean crimps (warp, weft) [-]: (arc length - projected length) / projected length of
-        each yarn (`dynfab.model.yarn.crimp`, the projected length its end-to-end extent along
-        itself), averaged over the family (docs/model.md section 10)."""
-        f = self.structure
-        crimp = np.empty(self.yarns)
-        for y in range(self.yarns):
-            chain = pos[f.chain_start[y]:f.chain_start[y + 1]]
-            arc = np.hypot(*np.diff(chain, axis=0).T).sum()
-            projected = chain[-1, 0] - chain[0, 0]
-            crimp[y] = (arc - projected) / projected
-        warp = f.chain_family == 0
-        return np.array([crimp[warp].mean(), crimp[~warp].mean()])
+        each yarn (`dynfab.model.geometry.crimp`, the projected length its end-to-end extent
+        along itself), averaged over the family (docs/model.md section 10)."""
+        return np.array([crimp(family).mean() for family in self.split(pos)])
 
     def families(self) -> tuple[np.ndarray, np.ndarray]:
         """(warp mask, weft mask) (Y,) of the yarns a family's strain and stress average

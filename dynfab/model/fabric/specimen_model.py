@@ -41,7 +41,6 @@ dissipated, energy/<term> and energy/kinetic.
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -49,12 +48,13 @@ from dynfab.model import specimen_layout
 from dynfab.model.builders import woven_rest
 from dynfab.model.builders.specimen import layout_of, specimen_structure
 from dynfab.errors import SolverError
-from dynfab.model.fabric import contact, spatial
+from dynfab.model.fabric import spatial
 from dynfab.model.fabric.structure_now import StructureNow
 from dynfab.model.loading import RELAXATION_STEPS, Drive, load_at_time
 from dynfab.scene import Scene
 from dynfab.model.shear_force import (bias_normalised_shear_force, frame_normalised_shear_force,
                                 frame_shear_force)
+from dynfab.model.state import State
 from dynfab.model.step import StepSolution, StepStart
 from dynfab.model.structure import chain_count, chain_of_node
 from dynfab.model.terms import registry
@@ -68,35 +68,6 @@ sheared to 40 degrees (d = 23.9 mm) over 20 intervals (docs/model.md section 11.
 SLIP_LIMIT = 0.5
 """The largest slip of a crossing over its segment length a step may end with
 (docs/model.md section 11, slip bounds): a crossing is a fixed pair of nodes."""
-
-
-@dataclass
-class SpecimenState:
-    """What changes during a specimen's run."""
-
-    positions: np.ndarray
-    """(n, 3) [m]."""
-    anchors: np.ndarray
-    """(C, 3): slip anchors [m, m] and rotation anchor [rad] of each crossing."""
-    dissipated: float
-    work: float
-    """Work of the clamp force so far [J] (trapezoid rule over the steps)."""
-    clamp_force: float
-    displacement: float
-    reference_angle: np.ndarray | None
-    """Each crossing's shear angle from the as-woven state at step 0 (C,) [rad], None
-    before it: the reference of the reported angles."""
-    path: np.ndarray
-    """(steps so far, 2): each finished step's d [m] and clamp force [N] (the bias
-    extension's normalisation reads its curve)."""
-    path_tangent: np.ndarray | None = None
-    """(n, 3) [m/m]: the positions' change over the last step per unit of d (the secant of
-    the path), None or 0 where that step did not move d (`start_of_step`)."""
-
-    @property
-    def load(self) -> np.ndarray:
-        """The load the state is at: (d,) [m]."""
-        return np.array([self.displacement])
 
 
 class SpecimenModel(StructureNow):
@@ -197,16 +168,16 @@ class SpecimenModel(StructureNow):
                 "interior": L.interior, "held": L.held,
                 "free_end_rank": woven_rest.crossings_from_free_end(self.structure)}
 
-    def initial_state(self) -> SpecimenState:
+    def initial_state(self) -> State:
         """As woven, every crossing in the structure: each slip anchor at zero slip (where the
         crossings slide, no slide), each rotation anchor at the woven angle."""
         self._set_structure(self.woven_structure, np.arange(self.woven_structure.tie_a.size))
         anchors = np.zeros((self.structure.tie_a.size, 3))
         anchors[:, 2] = self.structure.tie_rotation_law[:, spatial.PHI_REST]
-        return SpecimenState(woven_state(self.structure), anchors, 0.0, 0.0, 0.0, 0.0,
-                             None, np.zeros((0, 2)))
+        return State(woven_state(self.structure), anchors, dissipated=np.zeros(1),
+                     load=np.zeros(1), end_force=np.zeros(1), path=np.zeros((0, 2)))
 
-    def state_from_step(self, last: dict, history: dict) -> SpecimenState:
+    def state_from_step(self, last: dict, history: dict) -> State:
         """The state after the last finished step; `history` the columns `history_keys` of
         every finished step."""
         path = np.column_stack([np.asarray(history["load"], float).reshape(-1),
@@ -217,10 +188,10 @@ class SpecimenModel(StructureNow):
             self.replay_departures(history)
             positions = self.with_slides(positions, last["slip"])
             anchors = anchors[self.tie_crossing]
-        return SpecimenState(positions, anchors, float(last["dissipated"]), float(last["work"]),
-                             float(last["clamp_force"]), float(np.ravel(last["load"])[0]),
-                             np.array(last["reference_angle"], float), path,
-                             self._last_tangent(history))
+        return State(positions, anchors, np.array([last["dissipated"]], float),
+                     np.array([np.ravel(last["load"])[0]], float),
+                     np.array([last["clamp_force"]], float), float(last["work"]),
+                     np.array(last["reference_angle"], float), path, self._last_tangent(history))
 
     def _last_tangent(self, history: dict) -> np.ndarray | None:
         """(r_n - r_n-1) / (d_n - d_n-1) of the last two finished steps' dofs, as
@@ -338,23 +309,23 @@ class SpecimenModel(StructureNow):
 
     # ------------------------------------------------------------------ a load step
 
-    def start_of_step(self, state: SpecimenState, load) -> StepStart:
+    def start_of_step(self, state: State, load) -> StepStart:
         """The held nodes at d = `load`; the free ones extrapolated from the previous state
-        along the last step's path tangent (`SpecimenState.path_tangent`), or where there is
+        along the last step's path tangent (`State.path_tangent`), or where there is
         none (the step after step 0) moved by the test's affine map: a start near the
         solution. The secant halves the first Newton residual's and the line search's cuts
         on the bias specimens (docs/model.md section 11.10); the equilibrium reached is the
         step's whatever the start."""
-        d = float(np.ravel(load)[0])
+        d, d_before = float(np.ravel(load)[0]), float(state.load[0])
         pos = state.positions.copy()
         rest = self.structure.rest_position
         tangent = state.path_tangent
         material = self.structure.tie_material.ravel()  # empty where crossings are fixed
         before = pos.reshape(-1)[material]
-        if d != state.displacement and tangent is not None and np.any(tangent):
-            pos += (d - state.displacement) * tangent
-        elif d != state.displacement:
-            pos += self._affine_increment(pos, state.displacement, d)
+        if d != d_before and tangent is not None and np.any(tangent):
+            pos += (d - d_before) * tangent
+        elif d != d_before:
+            pos += self._affine_increment(pos, d_before, d)
             pos.reshape(-1)[material] = before  # the map moves positions, not material
         pos[self._held] = specimen_layout.held_positions(self.layout, rest, d)
         held = self.structure.fixed[material]  # a held crossing's material stays
@@ -392,8 +363,7 @@ class SpecimenModel(StructureNow):
         frozen: the held nodes' reaction dV/dr dotted with d(r)/dd, what a step and a frame
         record."""
         f = self.structure
-        R = np.zeros(f.tie_a.size)
-        contact.forces(pos, f, R)
+        R = self.contact_forces(pos)
         grad = np.zeros_like(pos)
         self.terms.gradient(pos, f, np.zeros(chain_count(f)), anchors, limit, grad)
         velocity = specimen_layout.held_velocity(self.layout, f.rest_position, d)
@@ -404,16 +374,12 @@ class SpecimenModel(StructureNow):
         velocity[slots[self._held]] = 0.0
         return R, float(np.sum(grad[self._held] * velocity))
 
-    def finish_step(self, state: SpecimenState, start: StepStart, solution: StepSolution):
+    def finish_step(self, state: State, start: StepStart, solution: StepSolution):
         f, dofs, limit, terms = self.structure, solution.positions, solution.limit, self.terms
         d = float(start.load[0])
         anchors = start.anchors.copy()
         R, clamp_force = self._forces(dofs, anchors, limit, d)
-        sliding = np.zeros(f.tie_a.size, np.bool_)
-        friction_force = np.zeros((f.tie_a.size, 3))
-        lost = 0.0
-        if f.has_friction:
-            lost = terms.return_map(dofs, anchors, f, limit, sliding, friction_force)
+        sliding, friction_force, lost = self.return_map(dofs, anchors, limit)
         energies = self.energies(dofs, np.zeros(chain_count(f)), anchors, limit)
         if self.slides:
             anchors = terms.state_anchors(anchors)
@@ -421,9 +387,10 @@ class SpecimenModel(StructureNow):
         # gamma from the as-woven state; step 0's is the reference of the reported angles
         absolute = specimen_layout.shear_angles(self.layout, f.rest_position, pos)
         reference = absolute if state.reference_angle is None else state.reference_angle
-        work = state.work + 0.5 * (state.clamp_force + clamp_force) * (d - state.displacement)
+        d_before, force_before = float(state.load[0]), float(state.end_force[0])
+        work = state.work + 0.5 * (force_before + clamp_force) * (d - d_before)
         path = np.vstack([state.path, [d, clamp_force]])
-        moved = d - state.displacement
+        moved = d - d_before
         tangent = (dofs - state.positions) / moved if moved else np.zeros_like(dofs)
         per_tie = self.per_tie
         record = {
@@ -438,7 +405,7 @@ class SpecimenModel(StructureNow):
             "anchors": per_tie(anchors, np.nan),
             "crossing_slip_ratio": per_tie(self.slip_ratios(pos)),
             **self.narrowing(pos), "max_slope": self.max_slope(pos),
-            "crimp": self.crimps(pos), "dissipated": state.dissipated + lost, "work": work,
+            "crimp": self.crimps(pos), "dissipated": state.dissipated[0] + lost, "work": work,
             **{name: np.asarray(value)[0] for name, value in solution.fields.items()},
         }
         record["slip_ratio"] = float(np.max(record["crossing_slip_ratio"], initial=0.0))
@@ -447,8 +414,8 @@ class SpecimenModel(StructureNow):
             dofs, gone = self.record_slides(dofs, record)
             if gone:  # the path's tangent is the old structure's: the next step starts afresh
                 anchors, tangent = np.delete(anchors, gone, 0), None
-        new = SpecimenState(dofs, anchors, state.dissipated + lost, work, clamp_force, d,
-                            reference, path, tangent)
+        new = State(dofs, anchors, state.dissipated + lost, np.array([d]),
+                    np.array([clamp_force]), work, reference, path, tangent)
         return new, {name: np.asarray(value) for name, value in record.items()}
 
     # ------------------------------------------------------------------ observables

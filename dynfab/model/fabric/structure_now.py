@@ -69,6 +69,24 @@ class StructureNow:
         """Each term's energy [J] (the term set's `energy_vector`, its TERMS)."""
         return self.terms.energy_vector(self.structure, pos, P, anchors, limit)
 
+    def contact_forces(self, pos) -> np.ndarray:
+        """R (T,) [N] of every tie at `pos` (`dynfab.model.fabric.contact.forces`)."""
+        out = np.zeros(self.structure.tie_a.size)
+        contact.forces(pos, self.structure, out)
+        return out
+
+    def return_map(self, pos, anchors, limit) -> tuple[np.ndarray, np.ndarray, float]:
+        """The friction anchors' return map at a step's end (the term set's `return_map`, the
+        anchors mapped in place, F_T = `limit`): (sliding (T,), friction force (T, dim) [N], the
+        energy it dissipated [J]); nothing moves without friction."""
+        f = self.structure
+        sliding = np.zeros(f.tie_a.size, np.bool_)
+        friction_force = np.zeros((f.tie_a.size, f.rest_position.shape[1]))
+        lost = 0.0
+        if f.has_friction:
+            lost = self.terms.return_map(pos, anchors, f, limit, sliding, friction_force)
+        return sliding, friction_force, lost
+
     def friction_limits(self, pos) -> np.ndarray:
         """F_T (T,) [N] at `pos` (`dynfab.model.fabric.contact.friction_limits`)."""
         return contact.friction_limits(pos, self.structure)
