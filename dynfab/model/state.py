@@ -64,17 +64,15 @@ def _copied(value):
     return value.copy() if isinstance(value, np.ndarray) else value
 
 
-def as_woven_state(structure: Structure, groups: int = 1, load=None,
-                   end_forces: int | None = None) -> State:
-    """The as-woven start of a run of every model: the dofs as woven
+def as_woven_state(structure: Structure, load, groups: int = 1) -> State:
+    """The as-woven start of a run of the yarn and the fabric: the dofs as woven
     (`dynfab.model.terms.kinematics.woven_state`), each anchor at zero slip (`woven_anchors`: a
     tie to ground's at its node's as-woven x), nothing dissipated in any of the `groups`, at
-    `load` (None: before any), no end force on the `end_forces` ends (None: one per chain)."""
-    ends = chain_count(structure) if end_forces is None else end_forces
+    `load` (zeros of the model's load layout), no end force on any chain."""
     return State(woven_state(structure), woven_anchors(structure), np.zeros(groups),
-                 None if load is None else np.array(load, float), np.zeros(ends))
+                 np.array(load, float), np.zeros(chain_count(structure)))
 
 
 def initial_state(model) -> State:
     """A one-yarn model's as-woven start (`as_woven_state`): each yarn a group, at no load."""
-    return as_woven_state(model.structure, model.yarn_count, np.zeros(model.yarn_count))
+    return as_woven_state(model.structure, np.zeros(model.yarn_count), model.yarn_count)

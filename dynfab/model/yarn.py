@@ -97,7 +97,7 @@ class Model:
     """"force" or "displacement"."""
     load_values: np.ndarray
     """The load path (steps,) [N or m]."""
-    width_per_yarn: float | None = None
+    width_per_yarn: float | None
     """The fabric width per yarn [m] the stresses are per (`dynfab.model.builders.yarn`); None
     for a rod."""
 

@@ -223,10 +223,9 @@ def step_in_halves(step_once, model, state, load, halvings: int = SLIDING_HALVIN
     try:
         return step_once(state, load)
     except SolverError as failed:
-        before = state.load
-        if not (halvings and sliding(model.structure) and before is not None):
+        if not (halvings and sliding(model.structure)):
             raise
-        middle = 0.5 * (np.asarray(before, float) + np.asarray(load, float))
+        middle = 0.5 * (np.asarray(state.load, float) + np.asarray(load, float))
         if say is not None:
             say(f"the step failed ({failed}); the step in two halves, from load {middle}")
         half, _ = step_in_halves(step_once, model, state, middle, halvings - 1, say)

@@ -330,8 +330,8 @@ class FabricModel(StructureNow):
             terms.gradient(pos, f, np.zeros(self.yarns), anchors, limit, grad)
             end_force = grad[f.load_node, 0].copy()
         sliding, friction_force, lost = self.return_map(pos, anchors, limit)
-        new, u_new = self.end_of_step(state, pos, anchors[:, :2].copy(), end_force, lost)
-        new.load = start.load.copy()
+        new, u_new = self.end_of_step(state, start.load.copy(), pos, anchors[:, :2].copy(),
+                                      end_force, lost)
         physical = physical_positions(f, pos)
         warps, wefts = self.split(physical)
         full = self.per_crossing
@@ -375,15 +375,15 @@ class FabricModel(StructureNow):
         out = self.per_tie(values, fill)
         return out.reshape(self.warps, self.wefts, *out.shape[1:])
 
-    def end_of_step(self, state: State, pos, anchors, end_force, lost: float):
-        """(the state a step from `state` ends in, the end displacements u (Y,) [m]): its
-        positions, return-mapped anchors and end forces [N]; the dissipation plus `lost` [J],
+    def end_of_step(self, state: State, load, pos, anchors, end_force, lost: float):
+        """(the state a step from `state` to `load` ends in, the end displacements u (Y,) [m]):
+        its positions, return-mapped anchors and end forces [N]; the dissipation plus `lost` [J],
         and the end loads' work by the trapezoid rule over the step [J]."""
         f = self.structure
         u_old = state.positions[f.load_node, 0] - f.rest_position[f.load_node, 0]
         u_new = pos[f.load_node, 0] - f.rest_position[f.load_node, 0]
         work = state.work + float(0.5 * (state.end_force + end_force) @ (u_new - u_old))
-        return State(pos, anchors, state.dissipated + lost, None, end_force, work), u_new
+        return State(pos, anchors, state.dissipated + lost, load, end_force, work), u_new
 
     def crossing_name(self, c: int) -> str:
         """Crossing c as the scene counts it: "(warp k, weft j)", 1-based."""
