@@ -38,3 +38,17 @@ def superlu_alone(monkeypatch):
     """The fabric's symmetric factorisations by SuperLU alone (PARDISO off)."""
     from dynfab.linalg import pardiso
     monkeypatch.setattr(pardiso, "available", lambda: False)
+
+
+LONGEST_FILES = ("test_node_terms.py", "test_sliding_crossings.py", "test_shear_transient.py",
+                 "test_onset.py", "test_study.py", "test_fabric_onset.py", "test_study_cluster.py",
+                 "test_registry.py", "test_cli.py", "test_fit.py", "test_shear_dynamic.py")
+"""The test files that take longest, longest first (`pytest --durations=0`, summed per file).
+Handed out first to the workers (pyproject.toml's addopts: one file per worker at a time,
+in collection order), a long file cannot start last and leave the other core idle."""
+
+
+def pytest_collection_modifyitems(items):
+    """The longest files first (LONGEST_FILES), the others after them in their own order."""
+    rank = {name: k for k, name in enumerate(LONGEST_FILES)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))
