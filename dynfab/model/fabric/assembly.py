@@ -296,7 +296,7 @@ def wrap_dofs_of(fabric, y) -> np.ndarray:
     return np.stack([2 * nodes, 2 * nodes + 1], axis=1).ravel()
 
 
-def planar_entries(fabric) -> tuple[np.ndarray, np.ndarray]:
+def pattern_entries(fabric) -> tuple[np.ndarray, np.ndarray]:
     """(rows, cols) of every entry `hessian_values` fills, in its order."""
     rows, cols = [], []
     start = fabric.chain_start
@@ -326,9 +326,9 @@ class Pattern:
     """Row and column of every Hessian entry `hessian_values` fills, and the free dofs."""
 
     def __init__(self, fabric, entries=None):
-        """The planar fabric's entries (`planar_entries`), or `entries` = (rows, cols) as
+        """The planar fabric's entries (`pattern_entries`), or `entries` = (rows, cols) as
         another term set fills them (the spatial fabric's, `dynfab.model.fabric.spatial`)."""
-        rows, cols = planar_entries(fabric) if entries is None else entries
+        rows, cols = pattern_entries(fabric) if entries is None else entries
         self.rows, self.cols = rows, cols
         self.size = rows.size
         self.free = ~fabric.fixed

@@ -73,9 +73,13 @@ STENCIL_IN_PLANE = 12
 acts on."""
 
 
+BASE = {2: assembly, 3: spatial}
+"""The fixed crossings' term set (the base) of each dimension of the structure's nodes."""
+
+
 def _base(s: Structure):
-    """The fixed crossings' term set of the structure's kinematics."""
-    return spatial if dim(s) == 3 else assembly
+    """The base term set of the structure's kinematics (`BASE`)."""
+    return BASE[dim(s)]
 
 
 # ----------------------------------------------------------------------- kinematics
@@ -290,8 +294,12 @@ def _bends(pos, now: Structure, gradients: bool = True) -> tuple[np.ndarray, np.
     d = pos.shape[1]
     energy = np.zeros(pos.shape[0])
     grad = np.zeros((pos.shape[0] if gradients else 0, 3 * d))
-    (_spatial_bends if d == 3 else _planar_bends)(pos, now, energy, grad)
+    BENDS[d](pos, now, energy, grad)
     return energy, grad
+
+
+BENDS = {2: _planar_bends, 3: _spatial_bends}
+"""Each node's bending and its gradient (`_bends`) for each dimension of the nodes."""
 
 
 # ----------------------------------------------------------------------- friction (11.13c)
@@ -386,7 +394,7 @@ def total_energy(dofs, s: Structure, P, anchors, limit, out) -> float:
 def _base_anchors(anchors, s: Structure) -> np.ndarray:
     """Anchors of the base term set's shape, for its terms that do not read them (its
     friction is off: F_T = 0)."""
-    return np.zeros((s.tie_a.size, 3 if dim(s) == 3 else 2))
+    return np.zeros((s.tie_a.size, dim(s)))  # (T, 2) planar, (T, 3) spatial
 
 
 def energy_vector(s: Structure, dofs, P, anchors, limit) -> np.ndarray:
@@ -839,8 +847,7 @@ class SlidingPattern(Pattern):
 
     def __init__(self, s: Structure):
         d = dim(s)
-        base_rows, base_cols = (spatial.pattern_entries(s) if d == 3
-                                else assembly.planar_entries(s))
+        base_rows, base_cols = BASE[d].pattern_entries(s)
         self.node_materials = node_materials(s)
         count = _material_entry_count(s, d, self.node_materials.shape[1])
         rows, cols = np.empty(count, np.int64), np.empty(count, np.int64)
