@@ -1,5 +1,5 @@
 """Shared test fixtures: generic scene building and the choice of sparse factorisation (no
-physics, no expected values)."""
+physics, no expected values); and the order the test files are handed to the workers in."""
 
 import pytest
 
@@ -41,9 +41,11 @@ def superlu_alone(monkeypatch):
 
 
 LONGEST_FILES = ("test_node_terms.py", "test_sliding_crossings.py", "test_shear_transient.py",
-                 "test_onset.py", "test_study.py", "test_fabric_onset.py", "test_study_cluster.py",
-                 "test_registry.py", "test_cli.py", "test_fit.py", "test_shear_dynamic.py")
-"""The test files that take longest, longest first (`pytest --durations=0`, summed per file).
+                 "test_cli.py", "test_onset.py", "test_study.py", "test_study_cluster.py",
+                 "test_fabric_onset.py", "test_registry.py", "test_shear_dynamic.py",
+                 "test_fit.py")
+"""The eleven test files that take longest, longest first (`pytest --durations=0` summed per
+file, 2026-12-07: 215 s down to 41 s; docs/results.md, "The test files' order").
 Handed out first to the workers (pyproject.toml's addopts: one file per worker at a time,
 in collection order), a long file cannot start last and leave the other core idle."""
 
