@@ -8,11 +8,15 @@ Run:  python benchmarks/one_newton.py [--rounds 3] [--out benchmarks/one_newton.
 
 Scenes (224 segments, 16 crossings, 40 load steps to 10 mm): runs/paper_fig3.toml's first
 entry (K = 0.02 m/N, frictionless) and runs/paper_fig5.toml's first (friction on), each its
-whole load path from the as-woven state by `StaticSolver.step`, the backend set by hand. Per scene: each backend's best wall time
-over the rounds, their ratio, the part of the sparse backend's time spent in its sparse
-factorisations and solves (cProfile's cumulative time of `_sparse_solve`, one extra run), and the
-largest position difference between the two paths' last steps against the sum of their error
-bounds (both solve the same equilibrium: tests/test_static_backends.py).
+whole load path from the as-woven state by `StaticSolver.step`, the backend set by hand.
+
+Per scene: each backend's best wall time over the rounds and their ratio; the parts of the
+sparse backend's time spent in its Newton's sparse solves (`_sparse_solve`) and in its
+certificate (`certify_patch`, `escape_patch`), cProfile's cumulative times in one extra run;
+the floor of a one Newton with the banded linear algebra: the sparse time without those two
+parts (as if a banded solve and the banded certificate cost nothing) over the banded time;
+and the largest position difference between the two paths' last steps against the sum of
+their error bounds (both solve the same equilibrium: tests/test_static_backends.py).
 """
 
 from __future__ import annotations
@@ -51,16 +55,21 @@ def path(model, backend):
     return time.perf_counter() - began, np.asarray(state.positions, float), bound
 
 
-def solve_share(model) -> float:
-    """The part of the sparse backend's path spent in its factorisations and solves."""
+SHARES = {"newton_solves": ("_sparse_solve",), "certificate": ("certify_patch", "escape_patch")}
+"""A part of the sparse backend's time -> the functions whose cumulative time it is (disjoint:
+the certificate factors on its own)."""
+
+
+def shares(model) -> dict:
+    """The parts (`SHARES`) of the sparse backend's path time [-]."""
     profile = cProfile.Profile()
     profile.enable()
     path(model, SparseNewton)
     profile.disable()
     stats = pstats.Stats(profile).stats
     total = max(v[3] for v in stats.values())
-    solves = sum(v[3] for k, v in stats.items() if k[2] == "_sparse_solve")
-    return solves / total
+    return {part: sum(v[3] for k, v in stats.items() if k[2] in names) / total
+            for part, names in SHARES.items()}
 
 
 def main() -> None:
@@ -82,17 +91,22 @@ def main() -> None:
                     banded, banded_bound = positions, bound
                 else:
                     sparse, sparse_bound = positions, bound
+        part = shares(model)
+        ratio = best[SparseNewton] / best[BandedNewton]
         figures[name] = {
             "steps": len(model.load_values), "banded_s": best[BandedNewton],
-            "sparse_s": best[SparseNewton], "ratio": best[SparseNewton] / best[BandedNewton],
-            "sparse_solve_share": solve_share(model),
+            "sparse_s": best[SparseNewton], "ratio": ratio,
+            **{f"sparse_{k}_share": v for k, v in part.items()},
+            "floor_ratio": ratio * (1.0 - sum(part.values())),
             "difference_m": float(np.abs(banded - sparse).max()),
             "bounds_m": banded_bound + sparse_bound}
         f = figures[name]
         print(f"{name}: {f['steps']} steps, banded {f['banded_s']:.3f} s, sparse "
-              f"{f['sparse_s']:.3f} s ({f['ratio']:.1f}x; its sparse solves "
-              f"{100 * f['sparse_solve_share']:.0f} %), last positions "
-              f"{f['difference_m']:.2e} m apart (bounds {f['bounds_m']:.2e} m)", flush=True)
+              f"{f['sparse_s']:.3f} s ({ratio:.1f}x; its Newton's solves "
+              f"{100 * part['newton_solves']:.0f} %, its certificate "
+              f"{100 * part['certificate']:.0f} %; without them {f['floor_ratio']:.1f}x), last "
+              f"positions {f['difference_m']:.2e} m apart (bounds {f['bounds_m']:.2e} m)",
+              flush=True)
     args.out.write_text(json.dumps({"rounds": args.rounds, "figures": figures}, indent=2) + "\n")
     print(f"wrote {args.out}")
 
