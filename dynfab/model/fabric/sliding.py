@@ -288,6 +288,10 @@ def _spatial_bends(pos, now, energy, grad):
                 energy[i] = element.bend_energy(X, kb, theta0, kl, psi0)
 
 
+BENDS = {2: _planar_bends, 3: _spatial_bends}
+"""Each node's bending and its gradient (`_bends`) for each dimension of the nodes."""
+
+
 def _bends(pos, now: Structure, gradients: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """(E_i (n,) [J], where `gradients` dE_i/dr on its three nodes (n, 3 dim) [N]) of every
     node's bending."""
@@ -296,10 +300,6 @@ def _bends(pos, now: Structure, gradients: bool = True) -> tuple[np.ndarray, np.
     grad = np.zeros((pos.shape[0] if gradients else 0, 3 * d))
     BENDS[d](pos, now, energy, grad)
     return energy, grad
-
-
-BENDS = {2: _planar_bends, 3: _spatial_bends}
-"""Each node's bending and its gradient (`_bends`) for each dimension of the nodes."""
 
 
 # ----------------------------------------------------------------------- friction (11.13c)
@@ -847,7 +847,7 @@ class SlidingPattern(Pattern):
 
     def __init__(self, s: Structure):
         d = dim(s)
-        base_rows, base_cols = BASE[d].pattern_entries(s)
+        base_rows, base_cols = _base(s).pattern_entries(s)
         self.node_materials = node_materials(s)
         count = _material_entry_count(s, d, self.node_materials.shape[1])
         rows, cols = np.empty(count, np.int64), np.empty(count, np.int64)
