@@ -3,9 +3,9 @@
 A model (`dynfab.model.yarn.Model`, `dynfab.model.fabric.model.FabricModel`,
 `dynfab.model.fabric.specimen_model.SpecimenModel`) does not change during a run; a State does.
 Every model's state holds the same fields in the same layout, its structure's (the solvers never
-read them: they see a step's `dynfab.model.step.StepStart`); the views of a model's own layout
-(a one-yarn model's yarns, a fabric's warps and wefts) are the model's (`Model.per_yarn`,
-`FabricModel.split`).
+read them: they see a step's `dynfab.model.step.StepStart`); a result file's layout of them (a
+one-yarn model's yarns, a fabric's warps and wefts) is a view, the model's `record_layout`
+(`dynfab.model.record_layout`).
 """
 
 from __future__ import annotations

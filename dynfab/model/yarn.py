@@ -19,6 +19,7 @@ from dynfab.model.domain import check_not_folded
 from dynfab.scene import Scene
 from dynfab.model.loading import RELAXATION_STEPS, family_drive, prescribe_ends
 from dynfab.model.observables import finish_step as observe_step
+from dynfab.model.record_layout import RecordLayout
 from dynfab.model.state import State, initial_state
 from dynfab.model.step import StepSolution, StepStart
 from dynfab.model.structure import Structure, chain_nodes, chain_segments, tie_layout, uniform
@@ -124,6 +125,14 @@ class Model:
         stays (the slip ratio's reference, `dynfab.model.observables`)."""
         return self.stacked("rest_position")[:, self.yarns[0].crossing_node, 0]
 
+    @cached_property
+    def record_layout(self) -> RecordLayout:
+        """The result file's view of the flat arrays (`dynfab.model.record_layout`): nodes
+        (yarns, N+1, 2), crossings (yarns, C), of each anchor its slip alone."""
+        return RecordLayout(blocks=(("", self.yarn_count, self.segments + 1),),
+                            crossings=(self.yarn_count, self.crossings), dim=2,
+                            anchor_columns=1)
+
     def stacked(self, field: str) -> np.ndarray:
         """A Yarn field stacked over yarns, shape (yarns, ...)."""
         return np.stack([np.asarray(getattr(y, field)) for y in self.yarns])
@@ -162,22 +171,20 @@ class Model:
 
     def state_from_step(self, last: dict, history: dict | None = None) -> "State":
         """The state a finished step left (a resumed run continues from it)."""
-        anchors = np.zeros((self.structure.tie_a.size, 2))
-        anchors[:, 0] = np.asarray(last["anchors"], float).ravel()
-        return State(positions=np.array(last["positions"], float).reshape(-1, 2),
-                     anchors=anchors, dissipated=np.array(last["dissipated"], float),
+        layout = self.record_layout
+        return State(positions=layout.flat_nodes("positions", last),
+                     anchors=layout.flat_anchors(last["anchors"], 2), dissipated=np.array(last["dissipated"], float),
                      load=np.array(last["load"], float),
                      end_force=np.array(last["end_force"], float))
 
     def per_yarn(self, values) -> np.ndarray:
         """The structure's per-node `values` (n, ...) as the yarns' (yarns, N+1, ...): a view."""
-        values = np.asarray(values)
-        return values.reshape(self.yarn_count, self.segments + 1, *values.shape[1:])
+        return self.record_layout.blocks_of(values)[0]
 
     def per_crossing(self, anchors) -> np.ndarray:
         """A state's anchors (T, 2) as the yarns' slip anchors (yarns, C) [m], a contiguous
         copy of column 0 (tie t is crossing t mod C of yarn t // C, `crossing_name`)."""
-        return np.ascontiguousarray(np.asarray(anchors)[:, 0].reshape(self.yarn_count, -1))
+        return self.record_layout.anchors(anchors)
 
     def point_data(self, entry: dict) -> dict:
         """A step's (or frame's) point data of the XDMF view (`dynfab.results.xdmf`) on every
@@ -209,12 +216,12 @@ class Model:
         from dynfab.model.loading import load_at_time
         from dynfab.model.observables import frame_observables
 
-        shape = (self.yarn_count, self.segments + 1, 2)
-        positions = np.asarray(arrays["positions"], float).reshape(shape)
-        anchors = np.asarray(arrays["anchors"], float)[:, 0].reshape(self.yarn_count, -1)
-        frame = {"time": float(time), "positions": positions,
-                 "velocities": np.asarray(arrays["velocities"], float).reshape(shape),
-                 "force": np.asarray(arrays["force"], float).reshape(shape), "anchors": anchors}
+        layout = self.record_layout
+        frame = {"time": float(time)}
+        for name in ("positions", "velocities", "force"):
+            frame.update(layout.nodes(name, np.asarray(arrays[name], float)))
+        frame["anchors"] = layout.anchors(arrays["anchors"])
+        positions, anchors = frame["positions"], frame["anchors"]
         frame.update(frame_observables(self, positions, anchors, load_at_time(self, time)))
         frame["energy/kinetic"] = np.asarray(arrays["kinetic_energy"], float)
         return frame
@@ -226,11 +233,7 @@ class Model:
     def frame_arrays(self, frame: dict) -> dict:
         """A frame's (`frame`) positions, velocities, force (n, 2) and anchors (T, 2) as the
         structure's flat arrays: what a resumed transient restores."""
-        anchors = np.zeros((self.structure.tie_a.size, 2))
-        anchors[:, 0] = np.asarray(frame["anchors"], float).ravel()
-        out = {name: np.asarray(frame[name], float).reshape(-1, 2)
-               for name in ("positions", "velocities", "force")}
-        return {**out, "anchors": anchors, "time": float(frame["time"])}
+        return self.record_layout.frame_arrays(frame, 2)
 
     def crossing_name(self, t: int) -> str:
         """Tie t of the structure as a message names it: "j (node n)", its crossing's number

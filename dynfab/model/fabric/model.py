@@ -51,6 +51,7 @@ Record of one fabric step (n_wa warps of N+1 nodes, n_we wefts of M+1 nodes; Y =
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -59,6 +60,7 @@ from dynfab.model.domain import check_crossings_held, check_not_folded, fabric_s
 from dynfab.model.fabric.assembly import planes as plane_positions
 from dynfab.model.geometry import crimp
 from dynfab.model.loading import RELAXATION_STEPS, family_drive, load_at_time, prescribe_ends
+from dynfab.model.record_layout import RecordLayout
 from dynfab.scene import Scene
 from dynfab.model.state import State, as_woven_state
 from dynfab.model.step import StepSolution, StepStart
@@ -125,17 +127,19 @@ class FabricModel(StructureNow):
         weft = load.weft_values if load.weft_values is not None else (0.0,) * len(load.values)
         return np.column_stack([load.values, weft]).astype(float)
 
-    def split(self, nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """All nodes (nodes, 2) -> (warps (n_wa, N+1, 2), wefts (n_we, M+1, 2))."""
-        cut = self.warps * (self.warp.segments + 1)
-        return (nodes[:cut].reshape(self.warps, self.warp.segments + 1, 2),
-                nodes[cut:].reshape(self.wefts, self.weft.segments + 1, 2))
+    @cached_property
+    def record_layout(self) -> RecordLayout:
+        """The result file's view of the flat arrays (`dynfab.model.record_layout`): the
+        warps' nodes (n_wa, N+1, 2), the wefts' as weft_<name> (n_we, M+1, 2), the crossings
+        (n_wa, n_we)."""
+        return RecordLayout(blocks=(("", self.warps, self.warp.segments + 1),
+                                    ("weft_", self.wefts, self.weft.segments + 1)),
+                            crossings=(self.warps, self.wefts), dim=2, anchor_columns=2)
 
     def reference(self) -> dict:
         """The result file's `reference/`: both families as woven, the crossing nodes."""
-        warps, wefts = self.split(self.structure.rest_position)
         nodes, weft_nodes = self.crossing_nodes()
-        return {"positions": warps, "weft_positions": wefts,
+        return {**self.record_layout.nodes("positions", self.structure.rest_position),
                 "crossing_nodes": nodes, "weft_crossing_nodes": weft_nodes}
 
     def crossing_nodes(self) -> tuple[np.ndarray, np.ndarray]:
@@ -191,13 +195,9 @@ class FabricModel(StructureNow):
         """The state a finished step left (a resumed run continues from it): its positions,
         where the crossings slide the structure after the departures of `history`
         (`replay_departures`) and the crossings' slides (`slip`) in their slots."""
-        nodes = np.concatenate([np.asarray(last["positions"]).reshape(-1, 2),
-                                np.asarray(last["weft_positions"]).reshape(-1, 2)])
-        anchors = np.array(last["anchors"]).reshape(self.warps * self.wefts, 2)
-        if self.slides:
-            self.replay_departures(history)
-            nodes = self.with_slides(nodes, last["slip"])
-            anchors = anchors[self.tie_crossing]
+        layout = self.record_layout
+        nodes, anchors = self.resumed(layout.flat_nodes("positions", last),
+                                      layout.flat_anchors(last["anchors"], 2), last, history)
         return State(nodes, anchors, np.array([last["dissipated"]], float),
                      np.array(last["load"], float), np.array(last["end_force"], float),
                      float(last["work"]))
@@ -285,19 +285,15 @@ class FabricModel(StructureNow):
         of the ramp at `time` (`dynfab.model.loading.load_at_time`)."""
         pos = np.asarray(arrays["positions"], float)
         anchors = np.asarray(arrays["anchors"], float)
+        layout = self.record_layout
         frame = {"time": float(time)}
         for name in ("positions", "velocities", "force"):
-            warps, wefts = self.split(np.asarray(arrays[name], float))
-            frame[name], frame[f"weft_{name}"] = warps, wefts
-        R = self.contact_forces(pos)
-        shape = (self.warps, self.wefts)
-        frame.update({"contact_force": R.reshape(shape), "anchors": anchors.reshape(*shape, 2),
-                      **self.planes(pos)})
+            frame.update(layout.nodes(name, np.asarray(arrays[name], float)))
+        frame.update({"contact_force": layout.per_crossing(self.contact_forces(pos)),
+                      "anchors": layout.per_crossing(anchors), **self.planes(pos)})
         P = (self.yarn_loads(*load_at_time(self, time)) if self.control == "force"
              else np.zeros(self.yarns))
-        values = dict(zip(self.terms.TERMS, self.energies(pos, P, anchors,
-                                                          self.friction_limits(pos))))
-        frame.update(registry.energy_records(self.scene, values))
+        frame.update(self.energy_records(pos, P, anchors, self.friction_limits(pos)))
         frame["energy/kinetic"] = float(np.sum(arrays["kinetic_energy"]))
         return {name: np.asarray(value) for name, value in frame.items()}
 
@@ -308,11 +304,7 @@ class FabricModel(StructureNow):
     def frame_arrays(self, frame: dict) -> dict:
         """The structure's flat arrays of a frame `frame` made (positions, velocities, force
         (n, 2), anchors (T, 2), time): what a resumed transient restores."""
-        out = {name: np.concatenate([np.asarray(frame[name], float).reshape(-1, 2),
-                                     np.asarray(frame[f"weft_{name}"], float).reshape(-1, 2)])
-               for name in ("positions", "velocities", "force")}
-        anchors = np.asarray(frame["anchors"], float).reshape(-1, 2)
-        return {**out, "anchors": anchors, "time": float(frame["time"])}
+        return self.record_layout.frame_arrays(frame, 2)
 
     def finish_step(self, state: State, start: StepStart, solution: StepSolution):
         """(new state, record) of the step `start` began, from the solver's `solution`
@@ -333,22 +325,18 @@ class FabricModel(StructureNow):
         new, u_new = self.end_of_step(state, start.load.copy(), pos, anchors[:, :2].copy(),
                                       end_force, lost)
         physical = physical_positions(f, pos)
-        warps, wefts = self.split(physical)
-        full = self.per_crossing
         record = {
             "load": start.load.copy(), "end_force": end_force, "end_displacement": u_new,
-            "positions": warps, "weft_positions": wefts,
+            **self.record_layout.nodes("positions", physical),
             "strain": self.strains(pos), "stress": self.stresses(end_force),
             "crimp": self.crimps(physical),
-            "contact_force": full(R), "friction_limit": full(limit),
-            "sliding": full(sliding, False), "friction_force": full(friction_force),
-            "anchors": full(anchors[:, :2], np.nan), **self.planes(pos),
+            **self.crossing_records(R, limit, sliding, friction_force, anchors[:, :2]),
+            **self.planes(pos),
             "dissipated": new.dissipated[0], "work": new.work,
             **{name: np.asarray(value)[0] for name, value in solution.fields.items()},
         }
         P = end_force if self.control == "force" else np.zeros(self.yarns)
-        values = dict(zip(terms.TERMS, self.energies(pos, P, anchors, limit)))
-        record.update(registry.energy_records(self.scene, values))
+        record.update(self.energy_records(pos, P, anchors, limit))
         if self.slides:  # every crossing's nodes stay on its planes
             record["slip_ratio"] = 0.0
             new = self._slide(new, record)
@@ -360,20 +348,13 @@ class FabricModel(StructureNow):
 
     def _slide(self, new: State, record: dict) -> State:
         """Where the crossings slide: the record's material coordinates, slides and crossings
-        present at the step's end (`record_slides`, laid out as the crossings (n_wa, n_we));
-        the state in the structure after the crossings a yarn end has passed."""
+        present at the step's end (`record_slides`); the state in the structure after the
+        crossings a yarn end has passed."""
         dofs, gone = self.record_slides(new.positions, record)
-        for name in ("material", "slip", "crossing_present"):
-            record[name] = record[name].reshape(self.warps, self.wefts, *record[name].shape[1:])
         if gone:
             new = State(dofs, np.delete(new.anchors, gone, 0), new.dissipated, new.load,
                         new.end_force, new.work)
         return new
-
-    def per_crossing(self, values, fill=0.0) -> np.ndarray:
-        """Per-tie `values` (T, ...) as the scene's crossings (n_wa, n_we, ...) (`per_tie`)."""
-        out = self.per_tie(values, fill)
-        return out.reshape(self.warps, self.wefts, *out.shape[1:])
 
     def end_of_step(self, state: State, load, pos, anchors, end_force, lost: float):
         """(the state a step from `state` to `load` ends in, the end displacements u (Y,) [m]):
@@ -400,7 +381,7 @@ class FabricModel(StructureNow):
         """Mean crimps (warp, weft) [-]: (arc length - projected length) / projected length of
         each yarn (`dynfab.model.geometry.crimp`, the projected length its end-to-end extent
         along itself), averaged over the family (docs/model.md section 10)."""
-        return np.array([crimp(family).mean() for family in self.split(pos)])
+        return np.array([crimp(family).mean() for family in self.record_layout.blocks_of(pos)])
 
     def families(self) -> tuple[np.ndarray, np.ndarray]:
         """(warp mask, weft mask) (Y,) of the yarns a family's strain and stress average

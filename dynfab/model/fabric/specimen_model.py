@@ -51,13 +51,13 @@ from dynfab.errors import SolverError
 from dynfab.model.fabric import spatial
 from dynfab.model.fabric.structure_now import StructureNow
 from dynfab.model.loading import RELAXATION_STEPS, Drive, load_at_time
+from dynfab.model.record_layout import RecordLayout
 from dynfab.scene import Scene
 from dynfab.model.shear_force import (bias_normalised_shear_force, frame_normalised_shear_force,
                                 frame_shear_force)
 from dynfab.model.state import State
 from dynfab.model.step import StepSolution, StepStart
 from dynfab.model.structure import chain_count, chain_of_node
-from dynfab.model.terms import registry
 from dynfab.model.terms.kinematics import physical_positions, woven_state
 
 TRANSIENT_KNOTS = 64
@@ -110,6 +110,13 @@ class SpecimenModel(StructureNow):
     @classmethod
     def from_scene(cls, scene: Scene) -> "SpecimenModel":
         return cls(scene)
+
+    @functools.cached_property
+    def record_layout(self) -> RecordLayout:
+        """The result file's view of the flat arrays (`dynfab.model.record_layout`): the
+        arrays themselves, nodes (n, 3) and crossings (C,)."""
+        return RecordLayout(blocks=(), crossings=(self.woven_structure.tie_a.size,), dim=3,
+                            anchor_columns=3)
 
     # ------------------------------------------------------------------ the run's view
 
@@ -182,12 +189,9 @@ class SpecimenModel(StructureNow):
         every finished step."""
         path = np.column_stack([np.asarray(history["load"], float).reshape(-1),
                                 np.asarray(history["clamp_force"], float).reshape(-1)])
-        positions = np.array(last["positions"], float)
-        anchors = np.array(last["anchors"], float)
-        if self.slides:
-            self.replay_departures(history)
-            positions = self.with_slides(positions, last["slip"])
-            anchors = anchors[self.tie_crossing]
+        layout = self.record_layout
+        positions, anchors = self.resumed(layout.flat_nodes("positions", last),
+                                          layout.flat_anchors(last["anchors"], 3), last, history)
         return State(positions, anchors, np.array([last["dissipated"]], float),
                      np.array([np.ravel(last["load"])[0]], float),
                      np.array([last["clamp_force"]], float), float(last["work"]),
@@ -295,17 +299,14 @@ class SpecimenModel(StructureNow):
                  "shear_angle": angle, "crossing_slip_ratio": ratios,
                  "slip_ratio": float(np.max(ratios, initial=0.0)),
                  "dissipated": float(np.sum(arrays["dissipated"]))}
-        values = self.energies(pos, np.zeros(chain_count(f)), anchors, limit)
-        frame.update(registry.energy_records(self.scene, dict(zip(self.terms.TERMS, values))))
+        frame.update(self.energy_records(pos, np.zeros(chain_count(f)), anchors, limit))
         frame["energy/kinetic"] = float(np.sum(arrays["kinetic_energy"]))
         return {name: np.asarray(value) for name, value in frame.items()}
 
     def frame_arrays(self, frame: dict) -> dict:
         """A frame's positions, velocities, force (n, 3) and anchors (C, 3) as the structure's
         flat arrays, and its time: what a resumed transient restores."""
-        return {**{name: np.asarray(frame[name], float)
-                   for name in ("positions", "velocities", "force", "anchors")},
-                "time": float(frame["time"])}
+        return self.record_layout.frame_arrays(frame, 3)
 
     # ------------------------------------------------------------------ a load step
 
@@ -380,7 +381,7 @@ class SpecimenModel(StructureNow):
         anchors = start.anchors.copy()
         R, clamp_force = self._forces(dofs, anchors, limit, d)
         sliding, friction_force, lost = self.return_map(dofs, anchors, limit)
-        energies = self.energies(dofs, np.zeros(chain_count(f)), anchors, limit)
+        energies = self.energy_records(dofs, np.zeros(chain_count(f)), anchors, limit)
         if self.slides:
             anchors = terms.state_anchors(anchors)
         pos = physical_positions(f, dofs)
@@ -392,7 +393,6 @@ class SpecimenModel(StructureNow):
         path = np.vstack([state.path, [d, clamp_force]])
         moved = d - d_before
         tangent = (dofs - state.positions) / moved if moved else np.zeros_like(dofs)
-        per_tie = self.per_tie
         record = {
             "load": np.array([d]), "end_displacement": np.array([d]),
             "end_force": np.array([clamp_force]), "clamp_force": clamp_force,
@@ -400,16 +400,14 @@ class SpecimenModel(StructureNow):
             **self.shear_forces(path),
             "positions": pos, "crossing_positions": pos[self.layout.crossing_nodes[:, 0]],
             "shear_angle": absolute - reference, "reference_angle": reference,
-            "contact_force": per_tie(R), "friction_limit": per_tie(np.asarray(limit, float)),
-            "sliding": per_tie(sliding, False), "friction_force": per_tie(friction_force),
-            "anchors": per_tie(anchors, np.nan),
-            "crossing_slip_ratio": per_tie(self.slip_ratios(pos)),
+            **self.crossing_records(R, limit, sliding, friction_force, anchors),
+            "crossing_slip_ratio": self.per_crossing(self.slip_ratios(pos)),
             **self.narrowing(pos), "max_slope": self.max_slope(pos),
             "crimp": self.crimps(pos), "dissipated": state.dissipated[0] + lost, "work": work,
             **{name: np.asarray(value)[0] for name, value in solution.fields.items()},
         }
         record["slip_ratio"] = float(np.max(record["crossing_slip_ratio"], initial=0.0))
-        record.update(registry.energy_records(self.scene, dict(zip(terms.TERMS, energies))))
+        record.update(energies)
         if self.slides:
             dofs, gone = self.record_slides(dofs, record)
             if gone:  # the path's tangent is the old structure's: the next step starts afresh

@@ -24,6 +24,7 @@ from dynfab.model.builders.sliding import leaving, without_crossings, woven_mate
 from dynfab.model.fabric import contact
 from dynfab.model.structure import Structure
 from dynfab.model.structure import sliding as slides
+from dynfab.model.terms import registry
 from dynfab.model.terms.kinematics import terms_of, woven_state
 
 SLIDING_HISTORY = ("crossing_present", "slip")
@@ -69,6 +70,12 @@ class StructureNow:
         """Each term's energy [J] (the term set's `energy_vector`, its TERMS)."""
         return self.terms.energy_vector(self.structure, pos, P, anchors, limit)
 
+    def energy_records(self, pos, P, anchors, limit) -> dict[str, float]:
+        """{`energy/<term>`: its energy [J]} of every term the scene reports
+        (`dynfab.model.terms.registry.energy_records` of `energies`)."""
+        values = dict(zip(self.terms.TERMS, self.energies(pos, P, anchors, limit)))
+        return registry.energy_records(self.scene, values)
+
     def contact_forces(self, pos) -> np.ndarray:
         """R (T,) [N] of every tie at `pos` (`dynfab.model.fabric.contact.forces`)."""
         out = np.zeros(self.structure.tie_a.size)
@@ -104,6 +111,20 @@ class StructureNow:
         out[self.tie_crossing] = values
         return out
 
+    def per_crossing(self, values, fill=0.0) -> np.ndarray:
+        """Per-tie `values` (T, ...) as the result file lays out the scene's crossings
+        (`per_tie`, then the model's `record_layout`)."""
+        return self.record_layout.per_crossing(self.per_tie(values, fill))
+
+    def crossing_records(self, R, limit, sliding, friction_force, anchors) -> dict:
+        """A record's crossing fields in the file's layout (`per_crossing`): contact_force R,
+        friction_limit F_T [N], sliding, friction_force [N] and anchors of each tie; a crossing
+        a yarn end has left holds 0, False and NaN anchors."""
+        view = self.per_crossing
+        return {"contact_force": view(R), "friction_limit": view(np.asarray(limit, float)),
+                "sliding": view(sliding, False), "friction_force": view(friction_force),
+                "anchors": view(anchors, np.nan)}
+
     def with_slides(self, positions, slides) -> np.ndarray:
         """The dofs of the structure now from the physical `positions` (n, dim) and the scene's
         crossings' slides `slides` (C, 2) (a record's `slip`), in their slots."""
@@ -114,19 +135,33 @@ class StructureNow:
 
     def record_slides(self, dofs, record: dict) -> tuple[np.ndarray, list[int]]:
         """Where the crossings slide, a step's end: its slides and material coordinates into
-        `record`, then the crossings a yarn end has passed taken out of the structure
+        `record` (in the file's layout of the crossings), then the crossings a yarn end has passed taken out of the structure
         (`leave`) and `crossing_present` after that. Returns (the dofs in the structure now,
         the ties taken out, as indices of the structure before)."""
         f = self.structure
         slides = self.per_tie(np.asarray(dofs).reshape(-1)[f.tie_material], np.nan)
-        record["slip"] = slides
-        record["material"] = woven_material(self.woven_structure) + slides
+        view = self.record_layout.per_crossing
+        record["slip"] = view(slides)
+        record["material"] = view(woven_material(self.woven_structure) + slides)
         departures = leaving(f, dofs)
         gone = sorted({d.tie for d in departures})
         if departures:
             dofs = self.leave(departures, dofs)
-        record["crossing_present"] = self.per_tie(np.ones(self.tie_crossing.size, bool), False)
+        record["crossing_present"] = self.per_crossing(np.ones(self.tie_crossing.size, bool),
+                                                       False)
         return dofs, gone
+
+    def resumed(self, dofs, anchors, last: dict, history: dict) -> tuple[np.ndarray, np.ndarray]:
+        """(dofs, anchors) of the state a finished step left, from its record `last`'s
+        physical positions `dofs` (n, dim) and anchors (C, k) of every crossing: where the
+        crossings slide, the structure after the departures of `history`
+        (`replay_departures`), the crossings' slides (`last`'s `slip`) in their slots and
+        the anchors of the ties still there; as given otherwise."""
+        if self.slides:
+            self.replay_departures(history)
+            dofs = self.with_slides(dofs, last["slip"])
+            anchors = anchors[self.tie_crossing]
+        return dofs, anchors
 
     def replay_departures(self, history: dict) -> None:
         """The structure after the finished steps of `history` (its `crossing_present` and
