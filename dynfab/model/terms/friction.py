@@ -65,13 +65,6 @@ def limit_slope(R, alpha, constant, onset):
 
 
 @numba.njit(cache=True)
-def limits(contact_force, alpha, constant, onset, out):
-    """F_T,j [N] of every crossing."""
-    for j in range(contact_force.size):
-        out[j] = limit(contact_force[j], alpha, constant, onset)
-
-
-@numba.njit(cache=True)
 def tie_limits(contact_force, law, onset, out):
     """F_T [N] of every tie from its own law row (alpha, beta ell r_f, R_0, k_t) of a
     structure's `tie_friction_law` (T, 4); `onset` >= 0 replaces every tie's R_0 (a stage of the
