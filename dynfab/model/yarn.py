@@ -173,7 +173,8 @@ class Model:
         """The state a finished step left (a resumed run continues from it)."""
         layout = self.record_layout
         return State(positions=layout.flat_nodes("positions", last),
-                     anchors=layout.flat_anchors(last["anchors"], 2), dissipated=np.array(last["dissipated"], float),
+                     anchors=layout.flat_anchors(last["anchors"], 2),
+                     dissipated=np.array(last["dissipated"], float),
                      load=np.array(last["load"], float),
                      end_force=np.array(last["end_force"], float))
 

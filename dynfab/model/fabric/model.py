@@ -216,7 +216,8 @@ class FabricModel(StructureNow):
         ref = self.reference()
         R = np.asarray(record["contact_force"])
         anchors = np.asarray(record["anchors"])
-        warp_planes, weft_planes = np.asarray(record["warp_planes"]), np.asarray(record["weft_planes"])
+        warp_planes = np.asarray(record["warp_planes"])
+        weft_planes = np.asarray(record["weft_planes"])
         out = {}
         for prefix, positions, nodes, force, anchor, crossed, own in (
                 ("", record["positions"], ref["crossing_nodes"], R, anchors[..., 0],

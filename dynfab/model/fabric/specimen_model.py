@@ -15,7 +15,8 @@ Record of one step (n nodes, C crossings, L lateral contacts):
 - load, end_displacement (1,): d [m]; end_force (1,) and clamp_force (): the force on the
   moved clamp (frame corner) along d [N], sum over the held nodes of the reaction dV/dr
   times d(r)/dd; clamp_force_from_step_0 (): the same less step 0's, the reaction of the
-  relaxed woven state (what a load cell zeroed at the start of the test reads) [N]; shear_force (): picture frame, F / (2 cos theta) [N] (Cao et al. eq. 3);
+  relaxed woven state (what a load cell zeroed at the start of the test reads) [N];
+  shear_force (): picture frame, F / (2 cos theta) [N] (Cao et al. eq. 3);
   normalised_shear_force (): F_s L / L_fabric^2 [N/m] (frame, eq. 10), for the bias
   extension Harrison's F_sh [N/m] (`dynfab.model.shear_force`, over the path so far; NaN once the
   path has turned back: it is defined on a curve in increasing d);

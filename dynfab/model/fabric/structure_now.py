@@ -32,9 +32,10 @@ SLIDING_HISTORY = ("crossing_present", "slip")
 
 
 class StructureNow:
-    """Mixin: `woven_structure`, `structure` and `tie_crossing` (module docstring) and what
-    the structure's term set gives a model; the model calls `_start_structures` once it has
-    made its structure."""
+    """Mixin: `woven_structure`, `structure` and `tie_crossing` (module docstring), what
+    the structure's term set gives a model, and its records' crossing fields in the file's
+    layout; the model gives `scene` and `record_layout` (`dynfab.model.record_layout`) and
+    calls `_start_structures` once it has made its structure."""
 
     structure: Structure
 
@@ -135,9 +136,10 @@ class StructureNow:
 
     def record_slides(self, dofs, record: dict) -> tuple[np.ndarray, list[int]]:
         """Where the crossings slide, a step's end: its slides and material coordinates into
-        `record` (in the file's layout of the crossings), then the crossings a yarn end has passed taken out of the structure
-        (`leave`) and `crossing_present` after that. Returns (the dofs in the structure now,
-        the ties taken out, as indices of the structure before)."""
+        `record` (in the file's layout of the crossings), then the crossings a yarn end has
+        passed taken out of the structure (`leave`) and `crossing_present` after that.
+        Returns (the dofs in the structure now, the ties taken out, as indices of the
+        structure before)."""
         f = self.structure
         slides = self.per_tie(np.asarray(dofs).reshape(-1)[f.tie_material], np.nan)
         view = self.record_layout.per_crossing
