@@ -73,8 +73,9 @@ wall_time [s] (a scalar per step) after the step returns."""
 FRAME_KEYS = ("time", "positions", "velocities", "force", "contact_force", "anchors",
               "energy/kinetic")
 """Names every `Transient` frame holds, besides `energy/<term>` per reported term: time [s]
-(scalar), positions [m], velocities [m/s] and force [N] (yarns, N+1, 2), contact_force [N]
-and anchors [m] (yarns, crossings), energy/kinetic [J] (yarns,)."""
+(scalar), positions [m], velocities [m/s] and force [N], contact_force [N] and anchors [m],
+energy/kinetic [J], each in the model's record layout (`dynfab.model.record_layout`: a one-yarn
+model's (yarns, N+1, 2), (yarns, crossings) and (yarns,))."""
 
 
 @runtime_checkable
