@@ -82,8 +82,7 @@ def finish_step(model, state, positions: np.ndarray, load_value: float,
         "iterations": np.asarray(iterations, np.int64),
     })
     record.update(energies)
-    mapped = np.zeros_like(state.anchors)
-    mapped[:, 0] = anchors.ravel()
+    mapped = model.record_layout.flat_anchors(anchors, state.anchors.shape[1])
     new_state = State(positions=positions.reshape(-1, 2).copy(), anchors=mapped,
                       dissipated=dissipated, load=loads.copy(), end_force=end_force.copy())
     return new_state, record

@@ -36,6 +36,11 @@ class RecordLayout:
     """Of each anchor's columns, how many the file holds; 1: the first alone, without its
     axis (a one-yarn model's slips along its yarn)."""
 
+    @property
+    def prefixes(self) -> list[str]:
+        """The dataset prefix of each node block ("" alone where the nodes are flat)."""
+        return [prefix for prefix, _, _ in self.blocks] or [""]
+
     def blocks_of(self, flat) -> list[np.ndarray]:
         """A nodal array (n, ...) as each family's block (chains, nodes, ...): views."""
         flat = np.asarray(flat)
@@ -50,14 +55,13 @@ class RecordLayout:
 
     def nodes(self, name: str, flat) -> dict:
         """A nodal array (n, ...) as the file's datasets {prefix + name: block}."""
-        prefixes = [prefix for prefix, _, _ in self.blocks] or [""]
-        return {prefix + name: block for prefix, block in zip(prefixes, self.blocks_of(flat))}
+        return {prefix + name: block
+                for prefix, block in zip(self.prefixes, self.blocks_of(flat))}
 
     def flat_nodes(self, name: str, record) -> np.ndarray:
         """The file's datasets of the nodal array `name` back as one (n, dim) array (a copy)."""
-        prefixes = [prefix for prefix, _, _ in self.blocks] or [""]
         return np.concatenate([np.asarray(record[prefix + name], float).reshape(-1, self.dim)
-                               for prefix in prefixes])
+                               for prefix in self.prefixes])
 
     def per_crossing(self, values) -> np.ndarray:
         """Per-crossing `values` (C, ...) in the file's layout (crossings..., ...): a view."""

@@ -259,7 +259,7 @@ class Model:
         """(new state, record) of the step `start` began, from the solver's `solution`
         (`dynfab.solvers.contract.RunModel.finish_step`): the return map and the observables of
         `dynfab.model.observables.finish_step`, and the solver's fields, one per yarn."""
-        positions = solution.positions.reshape(self.yarn_count, self.segments + 1, 2)
+        positions = self.per_yarn(solution.positions)
         fields = solution.fields
         new_state, record = observe_step(self, state, positions, float(start.load),
                                         fields["residual"], fields["iterations"])
