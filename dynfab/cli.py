@@ -447,10 +447,10 @@ def _redeliver_swallowed_interrupt(unraisable) -> None:
 def main(argv: list[str] | None = None) -> None:
     """Entry point of the `dynfab` console script."""
     context: dict = {}
-    signal.signal(signal.SIGINT, signal.default_int_handler)  # Ctrl-C: KeyboardInterrupt
-    signal.signal(signal.SIGTERM, _terminate)  # SIGTERM: Terminated, a KeyboardInterrupt
-    sys.unraisablehook = _redeliver_swallowed_interrupt
-    try:
+    try:  # the handlers are set inside it: a signal between the two is caught here too
+        signal.signal(signal.SIGINT, signal.default_int_handler)  # Ctrl-C: KeyboardInterrupt
+        signal.signal(signal.SIGTERM, _terminate)  # SIGTERM: Terminated, a KeyboardInterrupt
+        sys.unraisablehook = _redeliver_swallowed_interrupt
         _main(argv, context)
     except KeyboardInterrupt as stop:
         for signum in (signal.SIGINT, signal.SIGTERM):  # a second one must not cut the message

@@ -387,6 +387,38 @@ def test_a_signal_during_a_held_import_is_raised_once_the_import_is_done(monkeyp
     assert imported == ["numba"]
 
 
+def test_a_ctrl_c_while_main_sets_its_handlers_is_one_line_and_exit_130(monkeypatch, capsys):
+    """A SIGINT delivered just after `main` set the Ctrl-C handler and before the rest (seen
+    once in CI: a traceback and status -2 from the test above): one line and exit 130. The
+    signal is real, sent at the first handler's setting; `os._exit` is replaced to keep the
+    test's process."""
+    from dynfab import cli
+
+    set_handler = signal.signal
+
+    def signal_then_interrupt(signum, handler):
+        previous = set_handler(signum, handler)
+        if signum == signal.SIGINT and handler is signal.default_int_handler:
+            os.kill(os.getpid(), signal.SIGINT)  # delivered at the next bytecode
+        return previous
+
+    def exit_status(status):
+        raise SystemExit(status)
+
+    monkeypatch.setattr(cli.signal, "signal", signal_then_interrupt)
+    monkeypatch.setattr(cli.os, "_exit", exit_status)
+    monkeypatch.setattr(sys, "unraisablehook", sys.unraisablehook)
+    saved = {signum: signal.getsignal(signum) for signum in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        with pytest.raises(SystemExit) as stop:
+            cli.main(["run", str(FIG5), "--out", "never.h5"])
+    finally:
+        for signum, handler in saved.items():
+            set_handler(signum, handler)
+    assert stop.value.code == 130
+    assert one_line(capsys.readouterr().err) == "dynfab: interrupted; nothing was written"
+
+
 def interrupt_after(args, out, group, count, signum=signal.SIGINT):
     """Start `dynfab ARGS` (progress on), send it a real SIGINT (or `signum`) once `out` holds
     `count` finished rows of `group` ("steps" or "frames"); assert exit status 130 (143 for
