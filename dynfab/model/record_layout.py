@@ -20,6 +20,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+FRAME_NODAL = ("positions", "velocities", "force")
+"""The nodal arrays of a transient's frame (`dynfab.solvers.contract.FRAME_KEYS`)."""
+
 
 @dataclass(frozen=True)
 class RecordLayout:
@@ -82,10 +85,18 @@ class RecordLayout:
         out[:, :self.anchor_columns] = stored
         return out
 
+    def frame_nodes(self, arrays: dict) -> dict:
+        """A transient's flat nodal arrays (`FRAME_NODAL`, (n, dim)) as the frame's datasets
+        (`nodes`): the inverse of `frame_arrays`' nodes."""
+        out = {}
+        for name in FRAME_NODAL:
+            out.update(self.nodes(name, np.asarray(arrays[name], float)))
+        return out
+
     def frame_arrays(self, frame: dict, anchor_width: int) -> dict:
         """A transient frame's positions, velocities, force (n, dim) and anchors
         (C, `anchor_width`) as the flat arrays, and its time: what a resumed transient
         restores (`dynfab.solvers.contract.RunModel.frame_arrays`)."""
-        out = {name: self.flat_nodes(name, frame) for name in ("positions", "velocities", "force")}
+        out = {name: self.flat_nodes(name, frame) for name in FRAME_NODAL}
         return {**out, "anchors": self.flat_anchors(frame["anchors"], anchor_width),
                 "time": float(frame["time"])}

@@ -218,9 +218,7 @@ class Model:
         from dynfab.model.observables import frame_observables
 
         layout = self.record_layout
-        frame = {"time": float(time)}
-        for name in ("positions", "velocities", "force"):
-            frame.update(layout.nodes(name, np.asarray(arrays[name], float)))
+        frame = {"time": float(time), **layout.frame_nodes(arrays)}
         frame["anchors"] = layout.anchors(arrays["anchors"])
         positions, anchors = frame["positions"], frame["anchors"]
         frame.update(frame_observables(self, positions, anchors, load_at_time(self, time)))

@@ -287,9 +287,7 @@ class FabricModel(StructureNow):
         pos = np.asarray(arrays["positions"], float)
         anchors = np.asarray(arrays["anchors"], float)
         layout = self.record_layout
-        frame = {"time": float(time)}
-        for name in ("positions", "velocities", "force"):
-            frame.update(layout.nodes(name, np.asarray(arrays[name], float)))
+        frame = {"time": float(time), **layout.frame_nodes(arrays)}
         frame.update({"contact_force": layout.per_crossing(self.contact_forces(pos)),
                       "anchors": layout.per_crossing(anchors), **self.planes(pos)})
         P = (self.yarn_loads(*load_at_time(self, time)) if self.control == "force"

@@ -292,9 +292,7 @@ class SpecimenModel(StructureNow):
         angle = (specimen_layout.shear_angles(self.layout, f.rest_position, pos)
                  - self._woven_angle)
         ratios = self.slip_ratios(pos)
-        frame = {"time": float(time), "positions": pos,
-                 "velocities": np.asarray(arrays["velocities"], float),
-                 "force": np.asarray(arrays["force"], float), "anchors": anchors,
+        frame = {"time": float(time), **self.record_layout.frame_nodes(arrays), "anchors": anchors,
                  "contact_force": R, "load": np.array([d]), "end_displacement": np.array([d]),
                  "clamp_force": clamp_force,
                  "shear_angle": angle, "crossing_slip_ratio": ratios,
